@@ -1,0 +1,16 @@
+//! candeck: a gateway and web dashboard for CANopen machines.
+//!
+//! One process owns the CAN bus(es) and a model of every device on them, and
+//! exposes them over REST and WebSocket. Without hardware it runs an emulated
+//! bus whose virtual devices behave like the real ones.
+//!
+//! # Layout
+//!
+//! - [`can`]: frames, the [`can::Bus`] attachment and its backends (virtual
+//!   hub, socketcand client and server, SocketCAN, candump replay), and candump
+//!   logs.
+//! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`
+//!   only calls it.
+
+pub mod can;
+pub mod cli;
