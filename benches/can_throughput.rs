@@ -1,1 +1,210 @@
-fn main() {}
+//! Frames per second through the in-process hub and through the socketcand
+//! server on loopback (one sender; one and ten receivers), and the same
+//! traffic between two python-can clients through the same server, in one run.
+//!
+//! Run: `scripts/bench` (or `cargo bench --bench can_throughput`, with
+//! `CANDECK_PYTHON=.venv/bin/python` for the python-can comparison).
+//! Frames: standard id 0x181, 8 data bytes (a TPDO), a counter in the data.
+//!
+//! The sender keeps at most `WINDOW` frames ahead of the slowest receiver,
+//! so the figure is the rate every receiver sustains without loss, not how
+//! fast frames can be dropped.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use candeck::can::socketcand::{ClientConfig, ServerConfig, SocketcandServer, open_socketcand};
+use candeck::can::{Bus, CanId, Frame, RecvError, VirtualHub};
+
+const WINDOW: u64 = 4096;
+
+fn frame(i: u64) -> Frame {
+    Frame::new(CanId::Standard(0x181), &i.to_le_bytes()).expect("8 bytes fit")
+}
+
+fn rss_kib() -> (u64, u64) {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let field = |name: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
+
+struct Result {
+    label: String,
+    frames: u64,
+    receivers: usize,
+    seconds: f64,
+}
+
+impl Result {
+    fn print(&self) {
+        let rate = self.frames as f64 / self.seconds;
+        println!(
+            "| {} | {} | {} | {:.0} | {:.0} |",
+            self.label,
+            self.receivers,
+            self.frames,
+            rate,
+            rate * self.receivers as f64
+        );
+    }
+}
+
+/// Sends `total` frames on `sender` while `receivers` count them; returns
+/// the seconds until every receiver has every frame, checking order.
+async fn run(sender: Bus, receivers: Vec<Bus>, total: u64) -> f64 {
+    let progress: Vec<Arc<AtomicU64>> = receivers
+        .iter()
+        .map(|_| Arc::new(AtomicU64::new(0)))
+        .collect();
+    let mut tasks = Vec::new();
+    for (bus, done) in receivers.iter().zip(&progress) {
+        let mut rx = bus.subscribe();
+        let done = done.clone();
+        tasks.push(tokio::spawn(async move {
+            let mut expected = 0u64;
+            while expected < total {
+                match rx.recv().await {
+                    Ok(f) => {
+                        let got = u64::from_le_bytes(f.frame.data().try_into().expect("8 bytes"));
+                        assert_eq!(got, expected, "frames out of order or lost");
+                        expected += 1;
+                        if expected.is_multiple_of(256) || expected == total {
+                            done.store(expected, Ordering::Release);
+                        }
+                    }
+                    Err(RecvError::Lagged(n)) => panic!("receiver lost {n} frames"),
+                    Err(RecvError::Closed) => panic!("bus closed"),
+                }
+            }
+        }));
+    }
+    let start = Instant::now();
+    for i in 0..total {
+        loop {
+            let slowest = progress
+                .iter()
+                .map(|p| p.load(Ordering::Acquire))
+                .min()
+                .unwrap_or(total);
+            if i < slowest + WINDOW {
+                break;
+            }
+            tokio::task::yield_now().await;
+        }
+        sender.send(frame(i)).await.expect("send");
+    }
+    for task in tasks {
+        task.await.expect("receiver");
+    }
+    start.elapsed().as_secs_f64()
+}
+
+async fn hub_case(receivers: usize, total: u64) -> Result {
+    let hub = VirtualHub::new("bench");
+    let sender = hub.attach();
+    let rx: Vec<Bus> = (0..receivers).map(|_| hub.attach()).collect();
+    let seconds = run(sender, rx, total).await;
+    Result {
+        label: "in-process hub".into(),
+        frames: total,
+        receivers,
+        seconds,
+    }
+}
+
+async fn socketcand_case(receivers: usize, total: u64) -> Result {
+    let hub = VirtualHub::new("can0");
+    let server = SocketcandServer::bind(
+        "127.0.0.1:0".parse().expect("addr"),
+        [("can0".to_string(), hub)],
+        ServerConfig::default(),
+    )
+    .await
+    .expect("bind")
+    .spawn()
+    .expect("spawn");
+    let port = server.local_addr().port();
+    let join = || open_socketcand("can0", ClientConfig::new("127.0.0.1", port, "can0"));
+    let sender = join();
+    let rx: Vec<Bus> = (0..receivers).map(|_| join()).collect();
+    for bus in std::iter::once(&sender).chain(&rx) {
+        bus.wait_up(Duration::from_secs(5)).await.expect("up");
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let seconds = run(sender, rx, total).await;
+    Result {
+        label: "socketcand, loopback (candeck clients)".into(),
+        frames: total,
+        receivers,
+        seconds,
+    }
+}
+
+/// python-can sender → candeck socketcand server → python-can receiver.
+async fn python_case(python: &str, total: u64) -> Option<Result> {
+    let hub = VirtualHub::new("can0");
+    let server = SocketcandServer::bind(
+        "127.0.0.1:0".parse::<SocketAddr>().expect("addr"),
+        [("can0".to_string(), hub)],
+        ServerConfig::default(),
+    )
+    .await
+    .expect("bind")
+    .spawn()
+    .expect("spawn");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/python_can_pair.py");
+    let output = tokio::process::Command::new(python)
+        .arg(script)
+        .arg(server.local_addr().port().to_string())
+        .arg(total.to_string())
+        .output()
+        .await
+        .ok()?;
+    if !output.status.success() {
+        eprintln!(
+            "python-can pair failed: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        return None;
+    }
+    let text = String::from_utf8_lossy(&output.stdout);
+    let seconds: f64 = text.trim().parse().ok()?;
+    Some(Result {
+        label: "socketcand, loopback (python-can clients)".into(),
+        frames: total,
+        receivers: 1,
+        seconds,
+    })
+}
+
+fn main() {
+    let runtime = tokio::runtime::Runtime::new().expect("runtime");
+    runtime.block_on(async {
+        let (rss_start, _) = rss_kib();
+        println!("| path | receivers | frames | frames/s per receiver | frames/s delivered |");
+        println!("|---|---|---|---|---|");
+        hub_case(1, 2_000_000).await.print();
+        hub_case(10, 1_000_000).await.print();
+        socketcand_case(1, 1_000_000).await.print();
+        socketcand_case(10, 300_000).await.print();
+        match std::env::var("CANDECK_PYTHON") {
+            Ok(python) => match python_case(&python, 50_000).await {
+                Some(result) => result.print(),
+                None => println!("| python-can clients | - | - | failed | - |"),
+            },
+            Err(_) => println!("| python-can clients | - | - | skipped: set CANDECK_PYTHON | - |"),
+        }
+        let (rss_end, hwm) = rss_kib();
+        println!();
+        println!("process memory: {rss_start} KiB at start, {rss_end} KiB at end, peak {hwm} KiB");
+    });
+}

@@ -1,1 +1,5 @@
-fn main() {}
+//! The `candeck` binary: everything lives in the library (`candeck::cli`).
+
+fn main() -> std::process::ExitCode {
+    candeck::cli::main()
+}

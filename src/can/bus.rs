@@ -401,7 +401,27 @@ impl Bus {
     pub fn counters(&self) -> CounterSnapshot {
         self.inner.counters.snapshot()
     }
+
+    /// Lets go of this handle. When it is the last one, the frames still
+    /// queued for sending are written before the backend stops (dropping the
+    /// last handle instead stops it at once, and queued frames are lost).
+    /// Waits at most `DRAIN_LIMIT` for a backend that cannot write.
+    pub async fn close(self) {
+        let Ok(inner) = Arc::try_unwrap(self.inner) else {
+            return;
+        };
+        let BusInner { tx, _driver, .. } = inner;
+        if let (TxPath::Driver(queue), Some(mut driver)) = (tx, _driver) {
+            // Closing the queue tells the driver to finish: it writes what is
+            // queued, then ends.
+            drop(queue);
+            let _ = tokio::time::timeout(DRAIN_LIMIT, &mut driver.0).await;
+        }
+    }
 }
+
+/// How long [`Bus::close`] waits for queued frames to be written.
+pub const DRAIN_LIMIT: Duration = Duration::from_secs(2);
 
 /// Why no frame was received.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

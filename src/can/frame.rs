@@ -377,10 +377,7 @@ mod tests {
         assert!(frame.is_remote());
         assert_eq!(frame.dlc(), 1);
         assert!(frame.data().is_empty());
-        assert_eq!(
-            Frame::remote(std_id(1), 9),
-            Err(FrameError::RemoteDlc(9))
-        );
+        assert_eq!(Frame::remote(std_id(1), 9), Err(FrameError::RemoteDlc(9)));
     }
 
     #[test]
@@ -412,7 +409,10 @@ mod tests {
     #[test]
     fn display_uses_candump_spelling() {
         let cases = [
-            (Frame::new(std_id(0x123), &[0x11, 0x22]).unwrap(), "123#1122"),
+            (
+                Frame::new(std_id(0x123), &[0x11, 0x22]).unwrap(),
+                "123#1122",
+            ),
             (Frame::new(std_id(0x5), &[]).unwrap(), "005#"),
             (
                 Frame::new(CanId::Extended(0x1ABC), &[0xFF]).unwrap(),
@@ -446,7 +446,10 @@ mod tests {
 
     #[test]
     fn timestamps_print_six_fraction_digits() {
-        assert_eq!(Timestamp(1_436_509_052_249_713).to_string(), "1436509052.249713");
+        assert_eq!(
+            Timestamp(1_436_509_052_249_713).to_string(),
+            "1436509052.249713"
+        );
         assert_eq!(Timestamp(5).to_string(), "0.000005");
     }
 }

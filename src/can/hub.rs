@@ -186,7 +186,10 @@ mod tests {
         b.send(frame(2, &[2])).await.unwrap();
         let first = monitor.recv().await.unwrap();
         let second = monitor.recv().await.unwrap();
-        assert_eq!((first.frame, first.direction), (frame(1, &[1]), Direction::Tx));
+        assert_eq!(
+            (first.frame, first.direction),
+            (frame(1, &[1]), Direction::Tx)
+        );
         assert_eq!(
             (second.frame, second.direction),
             (frame(2, &[2]), Direction::Rx)

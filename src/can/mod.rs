@@ -17,9 +17,15 @@
 //!   and opening a bus from one.
 
 pub mod bus;
+pub mod candump;
 pub mod frame;
 pub mod hub;
+pub mod socketcan;
+pub mod socketcand;
 
-pub use bus::{Bus, BusError, BusKind, BusState, BusStatus, CounterSnapshot, FrameReceiver, RecvError};
+pub use bus::{
+    Bus, BusError, BusKind, BusState, BusStatus, CounterSnapshot, FrameReceiver, RecvError,
+};
 pub use frame::{CanId, Direction, FdFlags, Frame, FrameError, FrameKind, TimedFrame, Timestamp};
 pub use hub::VirtualHub;
+pub mod spec;

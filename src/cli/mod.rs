@@ -1,1 +1,151 @@
-//! The command line.
+//! The command line (`../shared/API.md`, "Command line").
+//!
+//! Every failure a user can cause ends in one line on stderr and a non-zero
+//! exit status: 2 for a command line that cannot be read, 1 for anything that
+//! went wrong while running (an unreachable bus, a port in use).
+//!
+//! # Layout
+//!
+//! - [`vbus`]: `candeck vbus`, an emulated bus served over socketcand.
+//! - [`dump`]: `candeck dump`, a bus printed as a candump `-L` log.
+
+pub mod dump;
+pub mod vbus;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// candeck: a gateway and dashboard for CANopen machines.
+#[derive(Debug, Parser)]
+#[command(name = "candeck", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// Log filter, as RUST_LOG takes it (error, warn, info, debug, trace, or per module).
+    #[arg(long, global = true, env = "CANDECK_LOG", default_value = "info")]
+    pub log: String,
+
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run an emulated CAN bus and share it over the socketcand protocol, so
+    /// that candeck, python-can, python-canopen and can-utils join it.
+    Vbus(vbus::VbusArgs),
+    /// Print everything on a bus as a candump -L log on stdout.
+    Dump(dump::DumpArgs),
+}
+
+/// A failure while running a command: printed as one line.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct CliError(pub String);
+
+impl CliError {
+    pub fn new(message: impl std::fmt::Display) -> Self {
+        Self(message.to_string())
+    }
+}
+
+/// Parses the command line, runs the command, and returns the exit status.
+pub fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(err) => return usage_error(err),
+    };
+    init_logging(&cli.log);
+    let Some(command) = cli.command else {
+        // `candeck` alone will serve the demo dashboard once the gateway
+        // exists; until then it says what this build can do.
+        use clap::CommandFactory;
+        let _ = Cli::command().print_help();
+        eprintln!(
+            "\ncandeck: error: name a command; the gateway ('serve') is not part of this build yet"
+        );
+        return ExitCode::from(2);
+    };
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(runtime) => runtime,
+        Err(err) => {
+            eprintln!("candeck: error: cannot start the async runtime: {err}");
+            return ExitCode::from(1);
+        }
+    };
+    let result = runtime.block_on(async {
+        match command {
+            Command::Vbus(args) => vbus::run(args).await,
+            Command::Dump(args) => dump::run(args).await,
+        }
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("candeck: error: {err}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+/// `--help` and `--version` print as clap writes them; a command line that
+/// cannot be read gives clap's first line (what is wrong) and exit status 2.
+fn usage_error(err: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    match err.kind() {
+        ErrorKind::DisplayHelp
+        | ErrorKind::DisplayVersion
+        | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => {
+            let _ = err.print();
+            ExitCode::SUCCESS
+        }
+        _ => {
+            // clap's message is its first paragraph (the argument missing may
+            // be on a line of its own); usage and tips follow a blank line.
+            let text = err.render().to_string();
+            let message: Vec<&str> = text
+                .lines()
+                .take_while(|line| !line.trim().is_empty())
+                .map(str::trim)
+                .collect();
+            let message = message.join(" ");
+            let message = message.strip_prefix("error: ").unwrap_or(&message);
+            eprintln!("candeck: error: {message} (see 'candeck --help')");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn init_logging(filter: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_new(filter).unwrap_or_else(|err| {
+        eprintln!("candeck: warning: log filter '{filter}' is not valid ({err}); using 'info'");
+        tracing_subscriber::EnvFilter::new("info")
+    });
+    // Logs go to stderr: stdout belongs to the command's output (dump logs).
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+}
+
+/// Resolves on Ctrl-C or SIGTERM (how `docker stop` and systemd end us).
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut signal) => {
+                signal.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = terminate => {}
+    }
+}

@@ -1,0 +1,425 @@
+//! Bus specs, as the command line and the configuration write them
+//! (`../shared/API.md`, "Command line"), and opening a bus from one.
+//!
+//! | spec | bus |
+//! |---|---|
+//! | `virtual:empty` | a new in-process bus with no devices |
+//! | `virtual:demo` | a new in-process bus with the demo devices |
+//! | `socketcan:can0` | a Linux SocketCAN interface |
+//! | `socketcand:HOST:PORT/CHANNEL` | a channel of a socketcand server (HOST may be `[v6]`) |
+//! | `replay:FILE[?speed=N\|max&loop&iface=can0]` | a candump `-L` log played back |
+
+use std::fmt;
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use super::bus::Bus;
+use super::hub::VirtualHub;
+use super::socketcand::{ClientConfig, open_socketcand};
+
+/// A parsed bus spec.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BusSpec {
+    /// An in-process emulated bus with a device preset (`demo`, `empty`).
+    Virtual {
+        preset: String,
+    },
+    Socketcan {
+        interface: String,
+    },
+    Socketcand {
+        host: String,
+        port: u16,
+        channel: String,
+    },
+    /// A candump log; `options` is the text after `?`, if any.
+    Replay {
+        path: PathBuf,
+        options: Option<String>,
+    },
+}
+
+/// A spec that cannot be read, or a bus that cannot be opened.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SpecError {
+    #[error(
+        "bus spec '{0}' is not one of virtual:demo, virtual:empty, socketcan:IFACE, socketcand:HOST:PORT/CHANNEL, replay:FILE"
+    )]
+    UnknownKind(String),
+    #[error("bus spec '{spec}': {problem}")]
+    Invalid { spec: String, problem: String },
+    #[error("cannot open bus '{spec}': {problem}")]
+    Open { spec: String, problem: String },
+}
+
+impl SpecError {
+    fn invalid(spec: &str, problem: impl Into<String>) -> Self {
+        Self::Invalid {
+            spec: spec.to_string(),
+            problem: problem.into(),
+        }
+    }
+}
+
+impl FromStr for BusSpec {
+    type Err = SpecError;
+
+    fn from_str(spec: &str) -> Result<Self, SpecError> {
+        let (kind, rest) = spec
+            .split_once(':')
+            .ok_or_else(|| SpecError::UnknownKind(spec.to_string()))?;
+        match kind {
+            "virtual" => match rest {
+                "demo" | "empty" => Ok(Self::Virtual {
+                    preset: rest.to_string(),
+                }),
+                _ => Err(SpecError::invalid(
+                    spec,
+                    "a virtual bus is 'virtual:demo' or 'virtual:empty'",
+                )),
+            },
+            "socketcan" => {
+                // Linux interface names: at most 15 bytes, no '/' or space.
+                if rest.is_empty() || rest.len() > 15 || rest.contains(['/', ' ', ':']) {
+                    return Err(SpecError::invalid(
+                        spec,
+                        "expected a network interface name such as can0",
+                    ));
+                }
+                Ok(Self::Socketcan {
+                    interface: rest.to_string(),
+                })
+            }
+            "socketcand" => parse_socketcand(spec, rest),
+            "replay" => {
+                let (path, options) = match rest.split_once('?') {
+                    Some((path, options)) => (path, Some(options.to_string())),
+                    None => (rest, None),
+                };
+                if path.is_empty() {
+                    return Err(SpecError::invalid(spec, "expected replay:FILE"));
+                }
+                Ok(Self::Replay {
+                    path: PathBuf::from(path),
+                    options,
+                })
+            }
+            _ => Err(SpecError::UnknownKind(spec.to_string())),
+        }
+    }
+}
+
+fn parse_socketcand(spec: &str, rest: &str) -> Result<BusSpec, SpecError> {
+    let usage =
+        "expected socketcand:HOST:PORT/CHANNEL, for example socketcand:127.0.0.1:29536/can0";
+    let (address, channel) = rest
+        .rsplit_once('/')
+        .ok_or_else(|| SpecError::invalid(spec, usage))?;
+    if channel.is_empty() || channel.len() > 16 || channel.contains([' ', '<', '>']) {
+        return Err(SpecError::invalid(
+            spec,
+            "the channel is a bus name of at most 16 characters, such as can0",
+        ));
+    }
+    let (host, port) = if let Some(v6) = address.strip_prefix('[') {
+        let (host, port) = v6
+            .split_once("]:")
+            .ok_or_else(|| SpecError::invalid(spec, usage))?;
+        (host, port)
+    } else {
+        address
+            .rsplit_once(':')
+            .ok_or_else(|| SpecError::invalid(spec, usage))?
+    };
+    if host.is_empty() {
+        return Err(SpecError::invalid(spec, usage));
+    }
+    let port: u16 = port
+        .parse()
+        .ok()
+        .filter(|&p| p != 0)
+        .ok_or_else(|| SpecError::invalid(spec, format!("port '{port}' is not 1 to 65535")))?;
+    Ok(BusSpec::Socketcand {
+        host: host.to_string(),
+        port,
+        channel: channel.to_string(),
+    })
+}
+
+impl fmt::Display for BusSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Virtual { preset } => write!(f, "virtual:{preset}"),
+            Self::Socketcan { interface } => write!(f, "socketcan:{interface}"),
+            Self::Socketcand {
+                host,
+                port,
+                channel,
+            } if host.contains(':') => write!(f, "socketcand:[{host}]:{port}/{channel}"),
+            Self::Socketcand {
+                host,
+                port,
+                channel,
+            } => write!(f, "socketcand:{host}:{port}/{channel}"),
+            Self::Replay { path, options } => {
+                write!(f, "replay:{}", path.display())?;
+                match options {
+                    Some(options) => write!(f, "?{options}"),
+                    None => Ok(()),
+                }
+            }
+        }
+    }
+}
+
+impl BusSpec {
+    /// The bus name used when none is given: `demo` for `virtual:demo`,
+    /// otherwise the channel, interface or log name.
+    pub fn default_name(&self) -> String {
+        match self {
+            Self::Virtual { preset } => preset.clone(),
+            Self::Socketcan { interface } => interface.clone(),
+            Self::Socketcand { channel, .. } => channel.clone(),
+            Self::Replay { path, .. } => path
+                .file_stem()
+                .map(|stem| stem.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "replay".to_string()),
+        }
+    }
+
+    /// Opens the bus. A socketcand bus is returned at once and connects in
+    /// the background (see [`Bus::wait_up`]); the others fail here if they
+    /// cannot be opened. A virtual bus comes with its hub, for the devices
+    /// that will live on it.
+    pub async fn open(&self, name: &str) -> Result<OpenedBus, SpecError> {
+        match self {
+            Self::Virtual { preset } => {
+                if preset != "empty" {
+                    return Err(SpecError::Open {
+                        spec: self.to_string(),
+                        problem: "the virtual demo devices are not part of this build yet; use virtual:empty".into(),
+                    });
+                }
+                let hub = VirtualHub::new(name);
+                Ok(OpenedBus {
+                    bus: hub.attach(),
+                    hub: Some(hub),
+                })
+            }
+            Self::Socketcand {
+                host,
+                port,
+                channel,
+            } => Ok(OpenedBus {
+                bus: open_socketcand(
+                    name,
+                    ClientConfig::new(host.clone(), *port, channel.clone()),
+                ),
+                hub: None,
+            }),
+            Self::Socketcan { interface } => open_socketcan_bus(self, name, interface).await,
+            Self::Replay { path, options } => {
+                open_replay_bus(self, name, path, options.as_deref()).await
+            }
+        }
+    }
+}
+
+/// A bus just opened, with its hub when it is virtual.
+#[derive(Debug)]
+pub struct OpenedBus {
+    pub bus: Bus,
+    pub hub: Option<VirtualHub>,
+}
+
+#[cfg(feature = "socketcan")]
+async fn open_socketcan_bus(
+    spec: &BusSpec,
+    name: &str,
+    interface: &str,
+) -> Result<OpenedBus, SpecError> {
+    let _ = name;
+    super::socketcan::open_socketcan(interface)
+        .await
+        .map(|bus| OpenedBus { bus, hub: None })
+        .map_err(|err| SpecError::Open {
+            spec: spec.to_string(),
+            problem: err.to_string(),
+        })
+}
+
+#[cfg(not(feature = "socketcan"))]
+async fn open_socketcan_bus(
+    spec: &BusSpec,
+    _name: &str,
+    _interface: &str,
+) -> Result<OpenedBus, SpecError> {
+    Err(SpecError::Open {
+        spec: spec.to_string(),
+        problem: "this candeck was built without SocketCAN support; rebuild with `cargo build --features socketcan`".into(),
+    })
+}
+
+async fn open_replay_bus(
+    spec: &BusSpec,
+    _name: &str,
+    path: &std::path::Path,
+    options: Option<&str>,
+) -> Result<OpenedBus, SpecError> {
+    let open_error = |problem: String| SpecError::Open {
+        spec: spec.to_string(),
+        problem,
+    };
+    let options = match options {
+        Some(query) => super::candump::ReplayOptions::parse_query(query).map_err(open_error)?,
+        None => super::candump::ReplayOptions::default(),
+    };
+    super::candump::open_replay(path, options)
+        .await
+        .map(|bus| OpenedBus { bus, hub: None })
+        .map_err(|err| open_error(err.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_documented_spec_parses_and_prints_back() {
+        let cases = [
+            (
+                "virtual:demo",
+                BusSpec::Virtual {
+                    preset: "demo".into(),
+                },
+            ),
+            (
+                "virtual:empty",
+                BusSpec::Virtual {
+                    preset: "empty".into(),
+                },
+            ),
+            (
+                "socketcan:can0",
+                BusSpec::Socketcan {
+                    interface: "can0".into(),
+                },
+            ),
+            (
+                "socketcand:127.0.0.1:29536/can0",
+                BusSpec::Socketcand {
+                    host: "127.0.0.1".into(),
+                    port: 29536,
+                    channel: "can0".into(),
+                },
+            ),
+            (
+                "socketcand:vbus:29536/can0",
+                BusSpec::Socketcand {
+                    host: "vbus".into(),
+                    port: 29536,
+                    channel: "can0".into(),
+                },
+            ),
+            (
+                "socketcand:[::1]:29536/vcan0",
+                BusSpec::Socketcand {
+                    host: "::1".into(),
+                    port: 29536,
+                    channel: "vcan0".into(),
+                },
+            ),
+            (
+                "replay:logs/line.log",
+                BusSpec::Replay {
+                    path: "logs/line.log".into(),
+                    options: None,
+                },
+            ),
+            (
+                "replay:line.log?speed=4&loop",
+                BusSpec::Replay {
+                    path: "line.log".into(),
+                    options: Some("speed=4&loop".into()),
+                },
+            ),
+        ];
+        for (text, spec) in cases {
+            assert_eq!(text.parse::<BusSpec>(), Ok(spec.clone()), "{text}");
+            assert_eq!(spec.to_string(), text);
+        }
+    }
+
+    #[test]
+    fn bad_specs_say_what_is_expected() {
+        let cases = [
+            ("can0", "bus spec 'can0' is not one of"),
+            ("serial:ttyUSB0", "bus spec 'serial:ttyUSB0' is not one of"),
+            (
+                "virtual:other",
+                "a virtual bus is 'virtual:demo' or 'virtual:empty'",
+            ),
+            ("socketcan:", "expected a network interface name"),
+            (
+                "socketcan:averyveryverylongname",
+                "expected a network interface name",
+            ),
+            (
+                "socketcand:localhost",
+                "expected socketcand:HOST:PORT/CHANNEL",
+            ),
+            (
+                "socketcand:localhost/can0",
+                "expected socketcand:HOST:PORT/CHANNEL",
+            ),
+            (
+                "socketcand::29536/can0",
+                "expected socketcand:HOST:PORT/CHANNEL",
+            ),
+            ("socketcand:localhost:0/can0", "port '0' is not 1 to 65535"),
+            (
+                "socketcand:localhost:99999/can0",
+                "port '99999' is not 1 to 65535",
+            ),
+            ("socketcand:localhost:1/", "the channel is a bus name"),
+            ("replay:", "expected replay:FILE"),
+        ];
+        for (text, expected) in cases {
+            let err = text.parse::<BusSpec>().expect_err(text).to_string();
+            assert!(err.contains(expected), "{text}: {err}");
+        }
+    }
+
+    #[test]
+    fn default_names_follow_the_api() {
+        let name = |s: &str| s.parse::<BusSpec>().unwrap().default_name();
+        assert_eq!(name("virtual:demo"), "demo");
+        assert_eq!(name("socketcan:can1"), "can1");
+        assert_eq!(name("socketcand:h:1/can0"), "can0");
+        assert_eq!(name("replay:/tmp/line-3.log?loop"), "line-3");
+    }
+
+    #[tokio::test]
+    async fn an_empty_virtual_bus_opens_with_its_hub() {
+        let opened = "virtual:empty"
+            .parse::<BusSpec>()
+            .unwrap()
+            .open("line")
+            .await
+            .unwrap();
+        assert_eq!(opened.bus.name(), "line");
+        assert!(opened.hub.is_some());
+    }
+
+    #[cfg(not(feature = "socketcan"))]
+    #[tokio::test]
+    async fn socketcan_without_the_feature_says_how_to_get_it() {
+        let err = "socketcan:can0"
+            .parse::<BusSpec>()
+            .unwrap()
+            .open("can0")
+            .await
+            .unwrap_err();
+        assert!(err.to_string().contains("--features socketcan"), "{err}");
+    }
+}

@@ -1,0 +1,74 @@
+//! `candeck vbus`: an emulated bus shared over socketcand.
+
+use std::net::SocketAddr;
+
+use clap::Args;
+
+use super::{CliError, shutdown_signal};
+use crate::can::VirtualHub;
+use crate::can::socketcand::DEFAULT_PORT;
+use crate::can::socketcand::{ServerConfig, SocketcandServer};
+
+fn default_vbus_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], DEFAULT_PORT))
+}
+
+#[derive(Debug, Args)]
+pub struct VbusArgs {
+    /// Address the socketcand server listens on (port 0 picks a free port).
+    #[arg(long, default_value_t = default_vbus_listen())]
+    pub listen: SocketAddr,
+    /// Virtual devices on the bus: `none` for an empty bus. The device presets
+    /// (`demo`, `umc1bds32@1,jmc@2,...`) come with the virtual devices.
+    #[arg(long, default_value = "none")]
+    pub devices: String,
+    /// The socketcand channel name clients open.
+    #[arg(long, default_value = "can0")]
+    pub channel: String,
+}
+
+pub async fn run(args: VbusArgs) -> Result<(), CliError> {
+    if args.devices != "none" {
+        return Err(CliError::new(format!(
+            "--devices {}: virtual devices are not part of this build yet; use --devices none",
+            args.devices
+        )));
+    }
+    if args.channel.is_empty()
+        || args.channel.len() > 16
+        || args.channel.contains(char::is_whitespace)
+    {
+        return Err(CliError::new(format!(
+            "--channel '{}': a channel name has 1 to 16 characters and no spaces",
+            args.channel
+        )));
+    }
+    let hub = VirtualHub::new(args.channel.clone());
+    let server = SocketcandServer::bind(
+        args.listen,
+        [(args.channel.clone(), hub.clone())],
+        ServerConfig::default(),
+    )
+    .await
+    .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    let handle = server
+        .spawn()
+        .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    // One line on stdout that people and scripts read (the port, when 0 was asked).
+    println!(
+        "candeck vbus: socketcand on {} channel {} devices {}",
+        handle.local_addr(),
+        args.channel,
+        args.devices
+    );
+    shutdown_signal().await;
+    tracing::info!(
+        "vbus: stopping after {} frames, {} clients served",
+        hub.frames_total(),
+        handle
+            .stats()
+            .accepted
+            .load(std::sync::atomic::Ordering::Relaxed)
+    );
+    Ok(())
+}

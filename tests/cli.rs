@@ -1,0 +1,196 @@
+//! The `candeck` binary as a user meets it: bad input gives one clear line on
+//! stderr and a non-zero exit, never a panic or a backtrace.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+fn candeck(args: &[&str]) -> (i32, String, String) {
+    let output = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(args)
+        .env_remove("CANDECK_LOG")
+        .output()
+        .expect("candeck runs");
+    (
+        output.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+fn assert_one_clear_line(stderr: &str, expected: &str) {
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "expected one line, got: {stderr}");
+    assert!(lines[0].starts_with("candeck: error: "), "{stderr}");
+    assert!(lines[0].contains(expected), "'{expected}' not in: {stderr}");
+    assert!(
+        !stderr.contains("panicked") && !stderr.contains("RUST_BACKTRACE"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn bad_arguments_give_one_line_and_status_2() {
+    let cases: &[(&[&str], &str)] = &[
+        (&["frobnicate"], "unrecognized subcommand 'frobnicate'"),
+        (&["dump"], "--bus <SPEC>"),
+        (&["dump", "--bus", "can0"], "bus spec 'can0' is not one of"),
+        (
+            &["dump", "--bus", "socketcand:host/can0"],
+            "expected socketcand:HOST:PORT/CHANNEL",
+        ),
+        (
+            &["dump", "--bus", "socketcand:h:70000/can0"],
+            "port '70000' is not 1 to 65535",
+        ),
+        (
+            &["dump", "--bus", "virtual:empty", "--count", "many"],
+            "invalid value 'many'",
+        ),
+        (
+            &["vbus", "--listen", "localhost"],
+            "invalid value 'localhost'",
+        ),
+    ];
+    for (args, expected) in cases {
+        let (code, _, stderr) = candeck(args);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert_one_clear_line(&stderr, expected);
+    }
+}
+
+#[test]
+fn failures_while_running_give_one_line_and_status_1() {
+    // Find a port nobody listens on.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let spec = format!("socketcand:127.0.0.1:{port}/can0");
+    let cases: Vec<(Vec<String>, String)> = vec![
+        (
+            vec![
+                "dump".into(),
+                "--bus".into(),
+                spec,
+                "--connect-timeout".into(),
+                "0.5".into(),
+            ],
+            "cannot connect to socketcand at 127.0.0.1:".into(),
+        ),
+        (
+            vec![
+                "dump".into(),
+                "--bus".into(),
+                "replay:/nonexistent/line.log".into(),
+            ],
+            "/nonexistent/line.log".into(),
+        ),
+        (
+            vec![
+                "dump".into(),
+                "--bus".into(),
+                "virtual:empty".into(),
+                "--seconds=-1".into(),
+            ],
+            "--seconds -1: expected a number of seconds".into(),
+        ),
+        (
+            vec!["vbus".into(), "--devices".into(), "demo".into()],
+            "--devices demo: virtual devices are not part of this build yet".into(),
+        ),
+    ];
+    for (args, expected) in cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, _, stderr) = candeck(&args);
+        assert_eq!(code, 1, "{args:?}: {stderr}");
+        assert_one_clear_line(&stderr, &expected);
+    }
+}
+
+#[test]
+fn a_port_in_use_is_reported_in_one_line() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let (code, _, stderr) = candeck(&["vbus", "--listen", &addr]);
+    assert_eq!(code, 1, "{stderr}");
+    assert_one_clear_line(&stderr, &format!("cannot listen on {addr}"));
+}
+
+#[test]
+fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
+    let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["vbus", "--listen", "127.0.0.1:0", "--log", "warn"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(vbus.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let addr = first
+        .split_whitespace()
+        .nth(4)
+        .unwrap_or_else(|| panic!("no address in {first:?}"))
+        .to_string();
+    assert!(
+        first.starts_with("candeck vbus: socketcand on 127.0.0.1:"),
+        "{first}"
+    );
+    assert!(
+        first.trim_end().ends_with("channel can0 devices none"),
+        "{first}"
+    );
+
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let dump = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args([
+            "dump",
+            "--bus",
+            &format!("socketcand:{addr}/can0"),
+            "--count",
+            "2",
+            "--log",
+            "warn",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    runtime.block_on(async {
+        use candeck::can::{CanId, Frame, socketcand};
+        let port: u16 = addr.rsplit(':').next().unwrap().parse().unwrap();
+        let bus = socketcand::open_socketcand(
+            "can0",
+            socketcand::ClientConfig::new("127.0.0.1", port, "can0"),
+        );
+        bus.wait_up(Duration::from_secs(5)).await.unwrap();
+        // Give the dump time to connect and pass the server's settle pause.
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        bus.send(Frame::new(CanId::Standard(0x123), &[0x11, 0x22]).unwrap())
+            .await
+            .unwrap();
+        bus.send(Frame::new(CanId::Extended(0x1ABCDEF), &[]).unwrap())
+            .await
+            .unwrap();
+        bus.close().await;
+    });
+    let output = dump.wait_with_output().unwrap();
+    let _ = vbus.kill();
+    let _ = vbus.wait();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stdout = String::from_utf8(output.stdout).unwrap();
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    assert!(
+        lines[0].starts_with('(') && lines[0].ends_with(") can0 123#1122"),
+        "{stdout}"
+    );
+    assert!(lines[1].ends_with(") can0 01ABCDEF#"), "{stdout}");
+}

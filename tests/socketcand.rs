@@ -1,0 +1,321 @@
+//! The socketcand server and client over real TCP on loopback (port 0).
+
+use std::net::SocketAddr;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use candeck::can::socketcand::{
+    ClientConfig, ServerConfig, ServerHandle, SocketcandServer, open_socketcand,
+};
+use candeck::can::{Bus, BusState, CanId, Direction, Frame, VirtualHub};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+const WAIT: Duration = Duration::from_secs(10);
+
+async fn serve(hub: &VirtualHub, config: ServerConfig) -> ServerHandle {
+    let addr: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    SocketcandServer::bind(addr, [("can0".to_string(), hub.clone())], config)
+        .await
+        .unwrap()
+        .spawn()
+        .unwrap()
+}
+
+fn client(addr: SocketAddr) -> Bus {
+    let mut config = ClientConfig::new("127.0.0.1", addr.port(), "can0");
+    config.min_backoff = Duration::from_millis(20);
+    config.max_backoff = Duration::from_millis(200);
+    open_socketcand("can0", config)
+}
+
+fn frames() -> Vec<Frame> {
+    let mut out = Vec::new();
+    for len in 0..=8usize {
+        let data: Vec<u8> = (0..len as u8).map(|b| b.wrapping_mul(37)).collect();
+        out.push(Frame::new(CanId::Standard(0x100 + len as u16), &data).unwrap());
+        out.push(Frame::new(CanId::Extended(0x1ABC_0000 + len as u32), &data).unwrap());
+    }
+    out.push(Frame::new(CanId::Standard(0x7FF), &[0xFF; 8]).unwrap());
+    out.push(Frame::new(CanId::Extended(0x1FFF_FFFF), &[]).unwrap());
+    out.push(Frame::remote(CanId::Standard(0x701), 1).unwrap());
+    out
+}
+
+async fn recv(rx: &mut candeck::can::FrameReceiver) -> Frame {
+    tokio::time::timeout(WAIT, rx.recv())
+        .await
+        .expect("a frame in time")
+        .expect("no error")
+        .frame
+}
+
+/// Reads from a raw socket until `needle` has been seen.
+async fn read_until(stream: &mut TcpStream, needle: &str) -> String {
+    let mut seen = Vec::new();
+    let mut buf = [0u8; 4096];
+    while !String::from_utf8_lossy(&seen).contains(needle) {
+        let n = tokio::time::timeout(WAIT, stream.read(&mut buf))
+            .await
+            .expect("data in time")
+            .expect("read");
+        assert!(
+            n > 0,
+            "closed before '{needle}': {}",
+            String::from_utf8_lossy(&seen)
+        );
+        seen.extend_from_slice(&buf[..n]);
+    }
+    String::from_utf8(seen).unwrap()
+}
+
+#[tokio::test]
+async fn two_clients_and_the_hub_exchange_every_frame_in_order() {
+    let hub = VirtualHub::new("can0");
+    let server = serve(&hub, ServerConfig::default()).await;
+    let a = client(server.local_addr());
+    let b = client(server.local_addr());
+    a.wait_up(WAIT).await.unwrap();
+    b.wait_up(WAIT).await.unwrap();
+    let local = hub.attach();
+    let mut rx_a = a.monitor();
+    let mut rx_b = b.subscribe();
+    let mut rx_local = local.subscribe();
+    // Let the server's settle pause after rawmode pass for both sessions.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    for frame in frames() {
+        a.send(frame).await.unwrap();
+    }
+    for frame in frames() {
+        assert_eq!(recv(&mut rx_b).await, frame);
+        assert_eq!(recv(&mut rx_local).await, frame);
+        // a's monitor sees its own frames as sent, not as received.
+        let own = tokio::time::timeout(WAIT, rx_a.recv())
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!((own.frame, own.direction), (frame, Direction::Tx));
+    }
+    // The other way: from the hub to both clients.
+    let reply = Frame::new(CanId::Standard(0x581), &[0x43, 0, 0x10, 0, 0x92, 0, 0, 0]).unwrap();
+    local.send(reply).await.unwrap();
+    assert_eq!(recv(&mut rx_b).await, reply);
+    let got = tokio::time::timeout(WAIT, rx_a.recv())
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!((got.frame, got.direction), (reply, Direction::Rx));
+    assert_eq!(a.counters().tx_frames, frames().len() as u64);
+    assert_eq!(b.counters().rx_frames, frames().len() as u64 + 1);
+    assert_eq!(
+        server.stats().frames_from_clients.load(Ordering::Relaxed),
+        frames().len() as u64
+    );
+}
+
+#[tokio::test]
+async fn fd_frames_cross_between_candeck_clients() {
+    let hub = VirtualHub::new("can0");
+    let server = serve(&hub, ServerConfig::default()).await;
+    let a = client(server.local_addr());
+    let local = hub.attach();
+    let mut rx = local.subscribe();
+    a.wait_up(WAIT).await.unwrap();
+    let frame = Frame::fd(
+        CanId::Extended(0x10),
+        &[0x5A; 64],
+        candeck::can::FdFlags::from_raw(1),
+    )
+    .unwrap();
+    a.send(frame).await.unwrap();
+    assert_eq!(recv(&mut rx).await, frame);
+}
+
+#[tokio::test]
+async fn garbage_gets_an_error_reply_and_disturbs_no_one() {
+    let hub = VirtualHub::new("can0");
+    let server = serve(&hub, ServerConfig::default()).await;
+    let a = client(server.local_addr());
+    let b = client(server.local_addr());
+    a.wait_up(WAIT).await.unwrap();
+    b.wait_up(WAIT).await.unwrap();
+    let mut rx_b = b.subscribe();
+
+    let mut junk = TcpStream::connect(server.local_addr()).await.unwrap();
+    read_until(&mut junk, "< hi >").await;
+    junk.write_all(b"GET / HTTP/1.1\r\n\r\n").await.unwrap();
+    let reply = read_until(&mut junk, ">").await;
+    assert!(reply.starts_with("< error "), "{reply}");
+    junk.write_all(b"< open can0 >< rawmode >< send 123 9 >< frobnicate ><send 12")
+        .await
+        .unwrap();
+    let replies = read_until(&mut junk, "unknown command").await;
+    assert!(
+        replies.contains("< ok >< ok >< error send: length '9' is not 0 to 8 >"),
+        "{replies}"
+    );
+    junk.write_all(&[0xFF; 3000]).await.unwrap();
+
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    for frame in frames() {
+        a.send(frame).await.unwrap();
+    }
+    for frame in frames() {
+        assert_eq!(recv(&mut rx_b).await, frame);
+    }
+    assert!(server.stats().rejected_commands.load(Ordering::Relaxed) >= 3);
+    // The junk client is still served: it gets the frames too.
+    read_until(&mut junk, "< frame 7FF ").await;
+}
+
+#[tokio::test]
+async fn a_client_that_stops_reading_is_dropped_and_the_others_get_everything() {
+    let hub = VirtualHub::with_queue("can0", 512);
+    let config = ServerConfig {
+        send_buffer: 4096,
+        ..ServerConfig::default()
+    };
+    let server = serve(&hub, config).await;
+    let b = client(server.local_addr());
+    b.wait_up(WAIT).await.unwrap();
+    let mut rx_b = b.subscribe();
+
+    // A client with a tiny receive window that never reads again.
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(2048).unwrap();
+    let mut stalled = socket.connect(server.local_addr()).await.unwrap();
+    read_until(&mut stalled, "< hi >").await;
+    stalled
+        .write_all(b"< open can0 >< rawmode >")
+        .await
+        .unwrap();
+    read_until(&mut stalled, "< ok >< ok >").await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    let sender = hub.attach();
+    let total = 20_000u32;
+    let reader = tokio::spawn(async move {
+        for i in 0..total {
+            let frame = recv(&mut rx_b).await;
+            assert_eq!(frame.data(), &i.to_le_bytes(), "frame {i}");
+        }
+    });
+    for i in 0..total {
+        sender
+            .send(Frame::new(CanId::Standard(0x181), &i.to_le_bytes()).unwrap())
+            .await
+            .unwrap();
+        if i % 256 == 0 {
+            // Pace like a real bus so that the live reader keeps up.
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    }
+    reader.await.unwrap();
+    let dropped = tokio::time::timeout(WAIT, async {
+        while server.stats().slow_clients_dropped.load(Ordering::Relaxed) == 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    assert!(dropped.is_ok(), "the stalled client was not dropped");
+    assert_eq!(server.stats().connected.load(Ordering::Relaxed), 1);
+}
+
+#[tokio::test]
+async fn an_unknown_channel_is_refused_with_the_reason() {
+    let hub = VirtualHub::new("can0");
+    let server = serve(&hub, ServerConfig::default()).await;
+    let mut config = ClientConfig::new("127.0.0.1", server.local_addr().port(), "can7");
+    config.connect_timeout = Duration::from_secs(2);
+    let bus = open_socketcand("can7", config);
+    let err = bus
+        .wait_up(Duration::from_millis(500))
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("refused channel 'can7'"), "{err}");
+    assert!(err.contains("this server offers can0"), "{err}");
+    assert!(
+        bus.send(Frame::new(CanId::Standard(1), &[]).unwrap())
+            .await
+            .is_err()
+    );
+}
+
+#[tokio::test]
+async fn the_client_reports_down_and_reconnects_when_the_server_comes_back() {
+    let hub = VirtualHub::new("can0");
+    let server = serve(&hub, ServerConfig::default()).await;
+    let addr = server.local_addr();
+    let bus = client(addr);
+    bus.wait_up(WAIT).await.unwrap();
+    drop(server);
+
+    let mut status = bus.watch_status();
+    tokio::time::timeout(WAIT, status.wait_for(|s| s.state == BusState::Down))
+        .await
+        .unwrap()
+        .unwrap();
+    let err = bus
+        .send(Frame::new(CanId::Standard(1), &[]).unwrap())
+        .await
+        .unwrap_err();
+    assert!(err.to_string().starts_with("bus can0 is down"), "{err}");
+
+    // Same port again: the client finds it on its own.
+    let _server = SocketcandServer::bind(
+        addr,
+        [("can0".to_string(), hub.clone())],
+        ServerConfig::default(),
+    )
+    .await
+    .unwrap()
+    .spawn()
+    .unwrap();
+    bus.wait_up(WAIT).await.unwrap();
+    assert_eq!(bus.counters().reconnects, 1);
+    let mut rx = hub.attach().subscribe();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let frame = Frame::new(CanId::Standard(0x77), &[7]).unwrap();
+    bus.send(frame).await.unwrap();
+    assert_eq!(recv(&mut rx).await, frame);
+}
+
+#[tokio::test]
+async fn a_silent_server_is_probed_with_echo_and_given_up() {
+    // A fake server that completes the handshake, answers the first echo,
+    // then goes silent without closing.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let fake = tokio::spawn(async move {
+        let (mut s, _) = listener.accept().await.unwrap();
+        s.write_all(b"< hi >").await.unwrap();
+        read_until(&mut s, "< open can0 >").await;
+        s.write_all(b"< ok >").await.unwrap();
+        read_until(&mut s, "< rawmode >").await;
+        s.write_all(b"< ok >").await.unwrap();
+        read_until(&mut s, "< echo >").await;
+        s.write_all(b"< echo >").await.unwrap();
+        read_until(&mut s, "< echo >").await;
+        // Silent now; keep the socket open.
+        tokio::time::sleep(Duration::from_secs(60)).await;
+        drop(s);
+    });
+    let mut config = ClientConfig::new("127.0.0.1", addr.port(), "can0");
+    config.probe_after = Duration::from_millis(100);
+    config.dead_after = Duration::from_millis(300);
+    let bus = open_socketcand("can0", config);
+    bus.wait_up(WAIT).await.unwrap();
+    let mut status = bus.watch_status();
+    let down = tokio::time::timeout(
+        WAIT,
+        status.wait_for(|s| {
+            s.state == BusState::Down
+                && s.reason.as_deref().is_some_and(|r| r.contains("no answer"))
+        }),
+    )
+    .await;
+    fake.abort();
+    assert!(down.is_ok(), "status: {:?}", bus.status());
+}
