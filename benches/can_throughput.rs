@@ -121,6 +121,62 @@ async fn hub_case(receivers: usize, total: u64) -> Result {
     }
 }
 
+/// One receiver at full speed while another client completes the handshake
+/// and never reads again: reports the stalled client's fate and how much
+/// the process grew, to show that it buffers nothing without bound.
+async fn stalled_case(total: u64) -> (Result, u64, u64) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let hub = VirtualHub::new("can0");
+    let server = SocketcandServer::bind(
+        "127.0.0.1:0".parse().expect("addr"),
+        [("can0".to_string(), hub)],
+        ServerConfig::default(),
+    )
+    .await
+    .expect("bind")
+    .spawn()
+    .expect("spawn");
+    let port = server.local_addr().port();
+    let mut stalled = tokio::net::TcpStream::connect(server.local_addr())
+        .await
+        .expect("connect");
+    stalled
+        .write_all(b"< open can0 >< rawmode >")
+        .await
+        .expect("handshake");
+    let mut greeting = [0u8; 64];
+    let _ = stalled.read(&mut greeting).await;
+    let join = || open_socketcand("can0", ClientConfig::new("127.0.0.1", port, "can0"));
+    let sender = join();
+    let receiver = join();
+    for bus in [&sender, &receiver] {
+        bus.wait_up(Duration::from_secs(5)).await.expect("up");
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (before, _) = rss_kib();
+    let seconds = run(sender, vec![receiver], total).await;
+    let (after, _) = rss_kib();
+    // Its writer notices when the blocked write times out (5 s) at the latest.
+    let wait_start = Instant::now();
+    while server.stats().slow_clients_dropped.load(Ordering::Relaxed) == 0
+        && wait_start.elapsed() < Duration::from_secs(10)
+    {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let dropped = server.stats().slow_clients_dropped.load(Ordering::Relaxed);
+    drop(stalled);
+    (
+        Result {
+            label: "socketcand, loopback, with a stalled client".into(),
+            frames: total,
+            receivers: 1,
+            seconds,
+        },
+        after.saturating_sub(before),
+        dropped,
+    )
+}
+
 async fn socketcand_case(receivers: usize, total: u64) -> Result {
     let hub = VirtualHub::new("can0");
     let server = SocketcandServer::bind(
@@ -196,6 +252,8 @@ fn main() {
         hub_case(10, 1_000_000).await.print();
         socketcand_case(1, 1_000_000).await.print();
         socketcand_case(10, 300_000).await.print();
+        let (stalled, growth, dropped) = stalled_case(1_000_000).await;
+        stalled.print();
         match std::env::var("CANDECK_PYTHON") {
             Ok(python) => match python_case(&python, 50_000).await {
                 Some(result) => result.print(),
@@ -206,5 +264,8 @@ fn main() {
         let (rss_end, hwm) = rss_kib();
         println!();
         println!("process memory: {rss_start} KiB at start, {rss_end} KiB at end, peak {hwm} KiB");
+        println!(
+            "stalled client: dropped {dropped} time(s); resident memory grew {growth} KiB during the run"
+        );
     });
 }

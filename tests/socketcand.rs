@@ -275,7 +275,8 @@ async fn the_client_reports_down_and_reconnects_when_the_server_comes_back() {
     .unwrap();
     bus.wait_up(WAIT).await.unwrap();
     assert_eq!(bus.counters().reconnects, 1);
-    let mut rx = hub.attach().subscribe();
+    let local = hub.attach();
+    let mut rx = local.subscribe();
     tokio::time::sleep(Duration::from_millis(100)).await;
     let frame = Frame::new(CanId::Standard(0x77), &[7]).unwrap();
     bus.send(frame).await.unwrap();

@@ -10,9 +10,14 @@
 //! receiver that falls behind loses the oldest frames and is told how many
 //! ([`RecvError::Lagged`]), exactly like a controller's receive overrun: a slow
 //! reader never slows the bus or the other readers, and memory stays bounded.
+//!
+//! Each attachment has a queue of its own for what others send (its receive
+//! buffer), and a second one, fed only while someone monitors it, that also
+//! holds what it sent. So an attachment that sends a lot never pushes out of
+//! its own receive window the frames others sent it.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use tokio::sync::{broadcast, mpsc, watch};
@@ -207,6 +212,45 @@ pub(crate) struct Envelope {
     pub timestamp: Timestamp,
 }
 
+/// A fan-out channel made on first use. tokio's broadcast channel allocates
+/// its whole ring at once (about 1 MiB for [`DEFAULT_RX_QUEUE`]), and most
+/// attachments are never monitored.
+#[derive(Clone)]
+pub(crate) struct LazyChannel {
+    cell: Arc<OnceLock<broadcast::Sender<Envelope>>>,
+    capacity: usize,
+}
+
+impl LazyChannel {
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            cell: Arc::new(OnceLock::new()),
+            capacity,
+        }
+    }
+
+    pub fn subscribe(&self) -> broadcast::Receiver<Envelope> {
+        self.cell
+            .get_or_init(|| broadcast::channel(self.capacity).0)
+            .subscribe()
+    }
+
+    /// Sends if anyone ever subscribed; a channel never made costs nothing.
+    pub fn send(&self, envelope: Envelope) {
+        if let Some(channel) = self.cell.get() {
+            let _ = channel.send(envelope);
+        }
+    }
+
+    pub fn receiver_count(&self) -> usize {
+        self.cell.get().map_or(0, |c| c.receiver_count())
+    }
+
+    pub fn len(&self) -> usize {
+        self.cell.get().map_or(0, |c| c.len())
+    }
+}
+
 /// How an attachment's frames leave it.
 pub(crate) enum TxPath {
     /// Straight into an in-process hub.
@@ -232,7 +276,8 @@ struct BusInner {
     kind: BusKind,
     me: Origin,
     tx: TxPath,
-    frames: broadcast::Sender<Envelope>,
+    rx_frames: broadcast::Sender<Envelope>,
+    monitor_frames: LazyChannel,
     status: watch::Receiver<BusStatus>,
     counters: Arc<BusCounters>,
     _driver: Option<DriverGuard>,
@@ -260,7 +305,10 @@ pub(crate) struct BusParts {
     pub kind: BusKind,
     pub me: Origin,
     pub tx: TxPath,
-    pub frames: broadcast::Sender<Envelope>,
+    /// What others send.
+    pub rx_frames: broadcast::Sender<Envelope>,
+    /// What others send and what this attachment sends, for monitors.
+    pub monitor_frames: LazyChannel,
     pub status: watch::Receiver<BusStatus>,
     pub counters: Arc<BusCounters>,
     pub driver: Option<DriverGuard>,
@@ -275,7 +323,8 @@ impl Bus {
                 kind: parts.kind,
                 me: parts.me,
                 tx: parts.tx,
-                frames: parts.frames,
+                rx_frames: parts.rx_frames,
+                monitor_frames: parts.monitor_frames,
                 status: parts.status,
                 counters: parts.counters,
                 _driver: parts.driver,
@@ -305,7 +354,7 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
-                link.publish(self.inner.me, frame);
+                link.publish(frame);
                 self.inner.counters.count_tx(&frame);
                 Ok(())
             }
@@ -322,7 +371,7 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
-                link.publish(self.inner.me, frame);
+                link.publish(frame);
                 self.inner.counters.count_tx(&frame);
                 Ok(())
             }
@@ -361,10 +410,14 @@ impl Bus {
     }
 
     fn receiver(&self, include_own: bool) -> FrameReceiver {
+        let rx = if include_own {
+            self.inner.monitor_frames.subscribe()
+        } else {
+            self.inner.rx_frames.subscribe()
+        };
         FrameReceiver {
-            rx: self.inner.frames.subscribe(),
+            rx,
             me: self.inner.me,
-            include_own,
             counters: self.inner.counters.clone(),
         }
     }
@@ -439,60 +492,43 @@ pub enum RecvError {
 pub struct FrameReceiver {
     rx: broadcast::Receiver<Envelope>,
     me: Origin,
-    include_own: bool,
     counters: Arc<BusCounters>,
 }
 
 impl FrameReceiver {
     /// The next frame.
     pub async fn recv(&mut self) -> Result<TimedFrame, RecvError> {
-        loop {
-            let result = self.rx.recv().await;
-            if let Some(frame) = self.accept(result)? {
-                return Ok(frame);
-            }
-        }
+        let result = self.rx.recv().await;
+        self.accept(result)
     }
 
     /// The next frame if one is queued, without waiting.
     pub fn try_recv(&mut self) -> Result<Option<TimedFrame>, RecvError> {
-        loop {
-            let result = match self.rx.try_recv() {
-                Err(broadcast::error::TryRecvError::Empty) => return Ok(None),
-                Err(broadcast::error::TryRecvError::Lagged(n)) => {
-                    Err(broadcast::error::RecvError::Lagged(n))
-                }
-                Err(broadcast::error::TryRecvError::Closed) => {
-                    Err(broadcast::error::RecvError::Closed)
-                }
-                Ok(envelope) => Ok(envelope),
-            };
-            if let Some(frame) = self.accept(result)? {
-                return Ok(Some(frame));
+        let result = match self.rx.try_recv() {
+            Err(broadcast::error::TryRecvError::Empty) => return Ok(None),
+            Err(broadcast::error::TryRecvError::Lagged(n)) => {
+                Err(broadcast::error::RecvError::Lagged(n))
             }
-        }
+            Err(broadcast::error::TryRecvError::Closed) => Err(broadcast::error::RecvError::Closed),
+            Ok(envelope) => Ok(envelope),
+        };
+        self.accept(result).map(Some)
     }
 
     fn accept(
         &self,
         result: Result<Envelope, broadcast::error::RecvError>,
-    ) -> Result<Option<TimedFrame>, RecvError> {
+    ) -> Result<TimedFrame, RecvError> {
         match result {
-            Ok(envelope) => {
-                let direction = if envelope.origin == self.me {
-                    if !self.include_own {
-                        return Ok(None);
-                    }
+            Ok(envelope) => Ok(TimedFrame {
+                frame: envelope.frame,
+                timestamp: envelope.timestamp,
+                direction: if envelope.origin == self.me {
                     Direction::Tx
                 } else {
                     Direction::Rx
-                };
-                Ok(Some(TimedFrame {
-                    frame: envelope.frame,
-                    timestamp: envelope.timestamp,
-                    direction,
-                }))
-            }
+                },
+            }),
             Err(broadcast::error::RecvError::Lagged(n)) => {
                 self.counters.rx_overruns.fetch_add(n, Ordering::Relaxed);
                 Err(RecvError::Lagged(n))
@@ -504,7 +540,8 @@ impl FrameReceiver {
 
 /// Channels a driver task uses to feed its [`Bus`].
 pub(crate) struct DriverSide {
-    pub frames: broadcast::Sender<Envelope>,
+    pub rx_frames: broadcast::Sender<Envelope>,
+    pub monitor_frames: LazyChannel,
     pub status: watch::Sender<BusStatus>,
     pub counters: Arc<BusCounters>,
     pub tx: mpsc::Receiver<Frame>,
@@ -517,21 +554,34 @@ impl DriverSide {
     /// Publishes a frame that came from the wire.
     pub fn received(&self, frame: Frame, timestamp: Timestamp) {
         self.counters.count_rx(&frame);
-        let _ = self.frames.send(Envelope {
+        let envelope = Envelope {
             origin: WIRE,
             frame,
             timestamp,
-        });
+        };
+        // A channel nobody listens to refuses the frame: nothing is stored.
+        let _ = self.rx_frames.send(envelope);
+        self.monitor_frames.send(envelope);
     }
 
     /// Publishes a frame this attachment has written, for monitors.
     pub fn sent(&self, frame: Frame) {
         self.counters.count_tx(&frame);
-        let _ = self.frames.send(Envelope {
+        self.monitor_frames.send(Envelope {
             origin: DRIVER_SELF,
             frame,
             timestamp: Timestamp::now(),
         });
+    }
+
+    /// Receivers of this bus, of both kinds.
+    pub fn receivers(&self) -> usize {
+        self.rx_frames.receiver_count() + self.monitor_frames.receiver_count()
+    }
+
+    /// Frames the slowest receiver has yet to read.
+    pub fn backlog(&self) -> usize {
+        self.rx_frames.len().max(self.monitor_frames.len())
     }
 
     pub fn set_status(&self, status: BusStatus) {
@@ -560,7 +610,8 @@ pub(crate) fn driver_channels(
     initial: BusStatus,
     tx_path_read_only: bool,
 ) -> (BusParts, DriverSide) {
-    let (frames, _) = broadcast::channel(DEFAULT_RX_QUEUE);
+    let (rx_frames, _) = broadcast::channel(DEFAULT_RX_QUEUE);
+    let monitor_frames = LazyChannel::new(DEFAULT_RX_QUEUE);
     let (status_tx, status_rx) = watch::channel(initial);
     let (tx_queue, tx_rx) = mpsc::channel(DEFAULT_TX_QUEUE);
     let counters = Arc::new(BusCounters::default());
@@ -574,13 +625,15 @@ pub(crate) fn driver_channels(
         } else {
             TxPath::Driver(tx_queue)
         },
-        frames: frames.clone(),
+        rx_frames: rx_frames.clone(),
+        monitor_frames: monitor_frames.clone(),
         status: status_rx,
         counters: counters.clone(),
         driver: None,
     };
     let driver = DriverSide {
-        frames,
+        rx_frames,
+        monitor_frames,
         status: status_tx,
         counters,
         tx: tx_rx,

@@ -676,7 +676,7 @@ fn scaled(micros: u64, speed: f64) -> Option<Duration> {
 async fn play(schedule: Schedule, speed: f64, looping: bool, driver: DriverSide) {
     // Opening and subscribing are two steps; without this wait the first
     // frames would be played to nobody.
-    while driver.frames.receiver_count() == 0 {
+    while driver.receivers() == 0 {
         tokio::time::sleep(SUBSCRIBER_POLL).await;
     }
     let max_speed = speed.is_infinite();
@@ -722,7 +722,7 @@ async fn play(schedule: Schedule, speed: f64, looping: bool, driver: DriverSide)
 /// Holds a max-speed replay back while its readers are half a queue behind,
 /// and lets other tasks run between frames.
 async fn make_room(driver: &DriverSide) {
-    while driver.frames.len() >= DEFAULT_RX_QUEUE / 2 {
+    while driver.backlog() >= DEFAULT_RX_QUEUE / 2 {
         tokio::time::sleep(SUBSCRIBER_POLL).await;
     }
     tokio::task::coop::consume_budget().await;

@@ -8,20 +8,30 @@
 //!
 //! Its state can be forced (down, bus-off, ...) to test what sits above it.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use tokio::sync::{broadcast, watch};
 
 use super::bus::{
-    Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, Envelope, Origin,
-    TxPath, WIRE,
+    Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, Envelope,
+    LazyChannel, Origin, TxPath, WIRE,
 };
 use super::frame::{Frame, Timestamp};
 
+/// The queues of one attachment (see [`crate::can::bus`]).
+struct Attachment {
+    origin: Origin,
+    rx_frames: broadcast::Sender<Envelope>,
+    monitor_frames: LazyChannel,
+}
+
 struct HubInner {
     name: String,
-    frames: broadcast::Sender<Envelope>,
+    queue: usize,
+    /// Publishing holds this lock while it fills every queue, so that all
+    /// attachments see one order.
+    attachments: Mutex<Vec<Attachment>>,
     status: watch::Sender<BusStatus>,
     next_origin: AtomicU32,
     frames_total: AtomicU64,
@@ -42,28 +52,51 @@ impl std::fmt::Debug for VirtualHub {
     }
 }
 
-/// An attachment's way into the hub.
+/// An attachment's way into the hub; dropping it detaches.
 pub(crate) struct HubLink {
     hub: Arc<HubInner>,
+    origin: Origin,
 }
 
 impl HubLink {
-    pub fn publish(&self, origin: Origin, frame: Frame) {
-        self.hub.publish(origin, frame);
+    pub fn publish(&self, frame: Frame) {
+        self.hub.publish(self.origin, frame);
+    }
+}
+
+impl Drop for HubLink {
+    fn drop(&mut self) {
+        self.hub
+            .attachments()
+            .retain(|attachment| attachment.origin != self.origin);
     }
 }
 
 impl HubInner {
+    fn attachments(&self) -> MutexGuard<'_, Vec<Attachment>> {
+        // A panic elsewhere while holding the lock leaves the list intact.
+        self.attachments
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
     fn publish(&self, origin: Origin, frame: Frame) {
         self.frames_total.fetch_add(1, Ordering::Relaxed);
         self.bits_total
             .fetch_add(u64::from(frame.wire_bits()), Ordering::Relaxed);
-        // No receiver at all is not an error: a frame on an empty bus is lost.
-        let _ = self.frames.send(Envelope {
+        let envelope = Envelope {
             origin,
             frame,
             timestamp: Timestamp::now(),
-        });
+        };
+        // A queue nobody reads refuses the frame and stores nothing, so an
+        // attachment without readers costs next to nothing.
+        for attachment in self.attachments().iter() {
+            if attachment.origin != origin {
+                let _ = attachment.rx_frames.send(envelope);
+            }
+            attachment.monitor_frames.send(envelope);
+        }
     }
 }
 
@@ -74,12 +107,12 @@ impl VirtualHub {
 
     /// A hub whose readers may fall `queue` frames behind before losing any.
     pub fn with_queue(name: impl Into<String>, queue: usize) -> Self {
-        let (frames, _) = broadcast::channel(queue.max(1));
         let (status, _) = watch::channel(BusStatus::up());
         Self {
             inner: Arc::new(HubInner {
                 name: name.into(),
-                frames,
+                queue: queue.max(1),
+                attachments: Mutex::new(Vec::new()),
                 status,
                 next_origin: AtomicU32::new(WIRE + 1),
                 frames_total: AtomicU64::new(0),
@@ -94,16 +127,25 @@ impl VirtualHub {
 
     /// A new attachment to this bus.
     pub fn attach(&self) -> Bus {
-        let me = self.inner.next_origin.fetch_add(1, Ordering::Relaxed);
+        let origin = self.inner.next_origin.fetch_add(1, Ordering::Relaxed);
+        let (rx_frames, _) = broadcast::channel(self.inner.queue);
+        let monitor_frames = LazyChannel::new(self.inner.queue);
+        self.inner.attachments().push(Attachment {
+            origin,
+            rx_frames: rx_frames.clone(),
+            monitor_frames: monitor_frames.clone(),
+        });
         Bus::from_parts(BusParts {
             name: self.inner.name.clone(),
             spec: format!("virtual:{}", self.inner.name),
             kind: BusKind::Virtual,
-            me,
+            me: origin,
             tx: TxPath::Hub(HubLink {
                 hub: self.inner.clone(),
+                origin,
             }),
-            frames: self.inner.frames.clone(),
+            rx_frames,
+            monitor_frames,
             status: self.inner.status.subscribe(),
             counters: Arc::new(BusCounters::default()),
             driver: None,
@@ -129,9 +171,18 @@ impl VirtualHub {
         self.inner.bits_total.load(Ordering::Relaxed)
     }
 
-    /// Attachments and receivers currently listening.
+    /// Readers currently listening, over all attachments.
     pub fn receivers(&self) -> usize {
-        self.inner.frames.receiver_count()
+        self.inner
+            .attachments()
+            .iter()
+            .map(|a| a.rx_frames.receiver_count() + a.monitor_frames.receiver_count())
+            .sum()
+    }
+
+    /// Attachments currently on the bus.
+    pub fn attachments(&self) -> usize {
+        self.inner.attachments().len()
     }
 }
 
@@ -235,12 +286,28 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn receivers_see_closed_when_the_hub_is_gone() {
+    async fn receivers_see_closed_when_their_attachment_is_gone() {
+        let hub = VirtualHub::new("gone");
         let mut rx = {
-            let hub = VirtualHub::new("gone");
             let bus = hub.attach();
             bus.subscribe()
         };
+        assert_eq!(hub.attachments(), 0);
         assert_eq!(rx.recv().await, Err(RecvError::Closed));
+    }
+
+    #[tokio::test]
+    async fn a_busy_sender_keeps_its_whole_receive_window_for_others() {
+        let hub = VirtualHub::with_queue("test", 16);
+        let chatty = hub.attach();
+        let other = hub.attach();
+        let mut chatty_rx = chatty.subscribe();
+        other.send(frame(0x581, &[1])).await.unwrap();
+        // Far more of its own frames than its queue holds.
+        for i in 0..100u32 {
+            chatty.send(frame(0x601, &[i as u8])).await.unwrap();
+        }
+        assert_eq!(chatty_rx.recv().await.unwrap().frame, frame(0x581, &[1]));
+        assert_eq!(chatty_rx.try_recv().unwrap(), None);
     }
 }
