@@ -9,8 +9,11 @@
 //! - [`can`]: frames, the [`can::Bus`] attachment and its backends (virtual
 //!   hub, socketcand client and server, SocketCAN, candump replay), and candump
 //!   logs.
+//! - [`canopen`]: the CANopen protocol (CiA 301, CiA 306) as sans-I/O state
+//!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
 //! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`
 //!   only calls it.
 
 pub mod can;
+pub mod canopen;
 pub mod cli;

@@ -1,0 +1,34 @@
+//! The CANopen protocol (CiA 301 application layer, CiA 306 device
+//! descriptions), without I/O.
+//!
+//! Every service is a state machine that takes frames and the current time in
+//! and gives frames and deadlines out; nothing here reads a clock or touches a
+//! bus. The same code serves the gateway (client, master) and the virtual
+//! devices (server, slave), and every timeout is testable with a paused clock.
+//!
+//! # Layout
+//!
+//! - [`cob`]: node ids, COB-IDs and the predefined connection set (CiA 301 §7.3.3).
+//! - [`nmt`]: network management commands and states, boot-up (§7.2.8.3.2).
+//! - [`heartbeat`]: heartbeat producer and consumer, node guarding (§7.2.8.3.2).
+//! - [`sync`]: SYNC producer and consumer with the optional counter (§7.2.5).
+//! - [`emcy`]: emergency messages and their texts (§7.2.7).
+//! - [`pdo`]: PDO mapping, bit-level packing, communication parameters and
+//!   trigger logic (§7.2.2).
+//! - [`sdo`]: SDO client and server, expedited, segmented and block transfers,
+//!   abort codes (§7.2.4).
+//! - [`od`]: object dictionary: data types, access, values and their byte and
+//!   JSON encodings (§7.4).
+//! - [`eds`]: EDS and DCF files (CiA 306).
+
+pub mod cob;
+pub mod emcy;
+pub mod eds;
+pub mod heartbeat;
+pub mod nmt;
+pub mod od;
+pub mod pdo;
+pub mod sdo;
+pub mod sync;
+
+pub use cob::NodeId;
