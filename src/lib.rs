@@ -11,9 +11,14 @@
 //!   logs.
 //! - [`canopen`]: the CANopen protocol (CiA 301, CiA 306) as sans-I/O state
 //!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
+//! - [`gateway`]: the CANopen master: SDO transfers, and later the node
+//!   registry, supervision and telemetry.
+//! - [`sim`]: virtual devices on an emulated bus.
 //! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`
 //!   only calls it.
 
 pub mod can;
 pub mod canopen;
 pub mod cli;
+pub mod gateway;
+pub mod sim;

@@ -170,8 +170,14 @@ mod tests {
         assert_eq!(NodeId::all().count(), 127);
         assert_eq!("0x7F".parse::<NodeId>(), Ok(node(127)));
         assert_eq!("5".parse::<NodeId>(), Ok(node(5)));
-        assert_eq!("0".parse::<NodeId>(), Err("node id 0 is not 1 to 127".into()));
-        assert_eq!("x".parse::<NodeId>(), Err("node id 'x' is not a number".into()));
+        assert_eq!(
+            "0".parse::<NodeId>(),
+            Err("node id 0 is not 1 to 127".into())
+        );
+        assert_eq!(
+            "x".parse::<NodeId>(),
+            Err("node id 'x' is not a number".into())
+        );
         assert_eq!(NodeId::try_from(300), Err(InvalidNodeId(300)));
     }
 
@@ -207,7 +213,10 @@ mod tests {
                 "{cob:#x}"
             );
         }
-        assert_eq!(Function::classify(CanId::Standard(0x7E5)), Some((Function::Lss, None)));
+        assert_eq!(
+            Function::classify(CanId::Standard(0x7E5)),
+            Some((Function::Lss, None))
+        );
         // Node id 0 is no node: 0x580 alone is not an SDO response.
         assert_eq!(Function::classify(CanId::Standard(0x580)), None);
         assert_eq!(Function::classify(CanId::Extended(0x185)), None);

@@ -22,8 +22,8 @@
 //! - [`eds`]: EDS and DCF files (CiA 306).
 
 pub mod cob;
-pub mod emcy;
 pub mod eds;
+pub mod emcy;
 pub mod heartbeat;
 pub mod nmt;
 pub mod od;

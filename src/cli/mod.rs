@@ -8,8 +8,12 @@
 //!
 //! - [`vbus`]: `candeck vbus`, an emulated bus served over socketcand.
 //! - [`dump`]: `candeck dump`, a bus printed as a candump `-L` log.
+//! - [`od`]: `candeck od read|write`, one object of one node over SDO.
+//! - [`nmt`]: `candeck nmt`, NMT node control.
 
 pub mod dump;
+pub mod nmt;
+pub mod od;
 pub mod vbus;
 
 use std::process::ExitCode;
@@ -20,9 +24,11 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "candeck", version, about, long_about = None, propagate_version = true)]
 pub struct Cli {
-    /// Log filter, as RUST_LOG takes it (error, warn, info, debug, trace, or per module).
-    #[arg(long, global = true, env = "CANDECK_LOG", default_value = "info")]
-    pub log: String,
+    /// Log filter, as RUST_LOG takes it (error, warn, info, debug, trace, or
+    /// per module). Default: info for servers (vbus, dump), warn for one-shot
+    /// commands (od, nmt).
+    #[arg(long, global = true, env = "CANDECK_LOG")]
+    pub log: Option<String>,
 
     #[command(subcommand)]
     pub command: Option<Command>,
@@ -35,6 +41,10 @@ pub enum Command {
     Vbus(vbus::VbusArgs),
     /// Print everything on a bus as a candump -L log on stdout.
     Dump(dump::DumpArgs),
+    /// Read or write an object of a node's dictionary over SDO.
+    Od(od::OdArgs),
+    /// Send an NMT command to a node or to all nodes.
+    Nmt(nmt::NmtArgs),
 }
 
 /// A failure while running a command: printed as one line.
@@ -54,7 +64,9 @@ pub fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(err) => return usage_error(err),
     };
-    init_logging(&cli.log);
+    let one_shot = matches!(cli.command, Some(Command::Od(_) | Command::Nmt(_)));
+    let default_log = if one_shot { "warn" } else { "info" };
+    init_logging(cli.log.as_deref().unwrap_or(default_log));
     let Some(command) = cli.command else {
         // `candeck` alone will serve the demo dashboard once the gateway
         // exists; until then it says what this build can do.
@@ -76,6 +88,8 @@ pub fn main() -> ExitCode {
         match command {
             Command::Vbus(args) => vbus::run(args).await,
             Command::Dump(args) => dump::run(args).await,
+            Command::Od(args) => od::run(args).await,
+            Command::Nmt(args) => nmt::run(args).await,
         }
     });
     match result {
@@ -121,8 +135,10 @@ fn init_logging(filter: &str) {
         tracing_subscriber::EnvFilter::new("info")
     });
     // Logs go to stderr: stdout belongs to the command's output (dump logs).
+    use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
         .with_target(false)
         .try_init();

@@ -1,0 +1,241 @@
+//! Electronic data sheets and device configuration files (CiA 306): the INI
+//! files that describe a device's object dictionary (EDS) and, with
+//! `ParameterValue`s and `[DeviceComissioning]`, one configured device (DCF).
+//!
+//! The reader is our own (see `ini`), because vendor files are not the INI
+//! that generic crates expect, and because a broken file must be reported as
+//! `file:line: what is wrong` rather than as a panic or a silently missing
+//! object. It takes what vendor files do: case-insensitive names, CR LF,
+//! `$NODEID+0x180` defaults, quoted string defaults, sub-sections with gaps,
+//! `CompactSubObj` arrays with their `[xxxxName]` / `[xxxxValue]` sections,
+//! versions like `1.0.2` and dates in either order (kept as text). What
+//! describes the wire (types, sub-indexes, values) is checked strictly; what
+//! is only information (`[DeviceInfo]` numbers, comments) is kept as written
+//! when it cannot be read, with a warning.
+//!
+//! # Layout
+//!
+//! - [`Eds`], [`read_eds_file`]: the whole file: [`FileInfo`], [`DeviceInfo`],
+//!   dummy usage, comments, the [`ObjectDictionary`] and, in a DCF, the
+//!   [`DeviceCommissioning`].
+//! - `ini`: the INI dialect of CiA 306.
+//! - `read`: INI sections to an [`Eds`].
+//! - `write`: an [`Eds`] back to text that reads back the same.
+
+mod ini;
+mod read;
+mod write;
+
+#[cfg(test)]
+mod tests;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::path::Path;
+
+use crate::canopen::NodeId;
+use crate::canopen::od::{DictionaryError, ObjectDictionary, Value};
+
+/// An EDS or DCF file, read or to be written.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Eds {
+    pub file_info: FileInfo,
+    pub device_info: DeviceInfo,
+    /// `[DummyUsage]`: the data type indexes (0x0001–0x0007) the device
+    /// accepts as dummy entries in RPDO mappings.
+    pub dummy_usage: BTreeSet<u16>,
+    /// `[Comments]`, one string per line.
+    pub comments: Vec<String>,
+    pub dictionary: ObjectDictionary,
+    /// `[DeviceComissioning]` (CiA 306 spells it with one m): present in a
+    /// DCF only.
+    pub commissioning: Option<DeviceCommissioning>,
+}
+
+/// `[FileInfo]`, every value as written: vendors write
+/// dates as MM-DD-YYYY or DD-MM-YYYY and versions as `1` or `1.0.2`, and
+/// nothing here depends on them.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct FileInfo {
+    pub file_name: Option<String>,
+    pub file_version: Option<String>,
+    pub file_revision: Option<String>,
+    pub eds_version: Option<String>,
+    pub description: Option<String>,
+    pub creation_time: Option<String>,
+    pub creation_date: Option<String>,
+    pub created_by: Option<String>,
+    pub modification_time: Option<String>,
+    pub modification_date: Option<String>,
+    pub modified_by: Option<String>,
+    /// Keys CiA 306 does not define, in file order, so that writing keeps them.
+    pub other: Vec<(String, String)>,
+}
+
+/// `[DeviceInfo]`. A value that is not a number where one
+/// is expected stays in `other` as written (with a warning), because the
+/// identity that counts is the device's own object 0x1018.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct DeviceInfo {
+    pub vendor_name: Option<String>,
+    pub vendor_number: Option<u32>,
+    pub product_name: Option<String>,
+    pub product_number: Option<u32>,
+    pub revision_number: Option<u32>,
+    pub order_code: Option<String>,
+    /// The supported bit rates in kbit/s, from the `BaudRate_<kbit>=1` keys.
+    pub baud_rates: BTreeSet<u32>,
+    pub simple_boot_up_master: Option<bool>,
+    pub simple_boot_up_slave: Option<bool>,
+    /// The smallest unit of PDO mapping, in bits (8: byte-aligned mapping only).
+    pub granularity: Option<u8>,
+    pub dynamic_channels_supported: Option<u8>,
+    pub group_messaging: Option<bool>,
+    pub nr_of_rx_pdo: Option<u16>,
+    pub nr_of_tx_pdo: Option<u16>,
+    pub lss_supported: Option<bool>,
+    pub compact_pdo: Option<u8>,
+    /// Keys CiA 306 does not define and values that could not be read, in
+    /// file order.
+    pub other: Vec<(String, String)>,
+}
+
+/// `[DeviceComissioning]` of a DCF: where the configured
+/// device sits on which network.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct DeviceCommissioning {
+    /// As written; 1–127 for a usable node (see [`DeviceCommissioning::node`]).
+    pub node_id: Option<u8>,
+    pub node_name: Option<String>,
+    /// In kbit/s.
+    pub baudrate: Option<u32>,
+    pub net_number: Option<u32>,
+    pub network_name: Option<String>,
+    pub canopen_manager: Option<bool>,
+    pub lss_serial_number: Option<u32>,
+    pub other: Vec<(String, String)>,
+}
+
+impl DeviceCommissioning {
+    /// The node id, if it is one (templates write 0 or 255 for "not set").
+    pub fn node(&self) -> Option<NodeId> {
+        self.node_id.and_then(|id| NodeId::new(id).ok())
+    }
+}
+
+/// A file that cannot be read: which file, which line (0 when the file
+/// itself could not be opened), and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EdsError {
+    pub file: String,
+    pub line: usize,
+    pub message: String,
+}
+
+impl fmt::Display for EdsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            0 => write!(f, "{}: {}", self.file, self.message),
+            line => write!(f, "{}:{line}: {}", self.file, self.message),
+        }
+    }
+}
+
+impl std::error::Error for EdsError {}
+
+/// Reads an EDS or DCF from disk; errors name the file by `path`.
+pub fn read_eds_file(path: impl AsRef<Path>) -> Result<Eds, EdsError> {
+    let path = path.as_ref();
+    let file = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|error| EdsError {
+        file: file.clone(),
+        line: 0,
+        message: error.to_string(),
+    })?;
+    Eds::parse_bytes(&bytes, &file)
+}
+
+/// Something odd that the reader got past: an object section that no list
+/// names, a `SubNumber` that does not count the sub-sections, a
+/// `[DeviceInfo]` number that is not one.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EdsWarning {
+    pub file: String,
+    pub line: usize,
+    pub message: String,
+}
+
+impl fmt::Display for EdsWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}: {}", self.file, self.line, self.message)
+    }
+}
+
+impl Eds {
+    /// An EDS for `dictionary`, with nothing else filled in.
+    pub fn new(dictionary: ObjectDictionary) -> Self {
+        Eds {
+            dictionary,
+            ..Eds::default()
+        }
+    }
+
+    /// Reads an EDS or DCF. `file` names it in errors.
+    pub fn parse(text: &str, file: &str) -> Result<Eds, EdsError> {
+        Eds::parse_with_warnings(text, file).map(|(eds, _)| eds)
+    }
+
+    /// [`Eds::parse`], also returning what was odd but readable.
+    pub fn parse_with_warnings(text: &str, file: &str) -> Result<(Eds, Vec<EdsWarning>), EdsError> {
+        read::read(text, file)
+    }
+
+    /// Reads a file's bytes: UTF-8, or else Latin-1 (each byte one
+    /// character), which is what vendors' Windows tools write.
+    pub fn parse_bytes(bytes: &[u8], file: &str) -> Result<Eds, EdsError> {
+        match std::str::from_utf8(bytes) {
+            Ok(text) => Eds::parse(text, file),
+            Err(_) => {
+                let text: String = bytes.iter().map(|&b| char::from(b)).collect();
+                Eds::parse(&text, file)
+            }
+        }
+    }
+
+    /// The file as text (CR LF line ends, as CiA 306 tools expect). With
+    /// `ParameterValue`s or a [`DeviceCommissioning`] it is a DCF.
+    /// [`Eds::parse`] reads it back to an equal [`Eds`]; `CompactSubObj`
+    /// arrays come out with explicit sub-sections.
+    pub fn write(&self) -> String {
+        write::write(self)
+    }
+
+    /// True when this is a DCF: a configured device rather than a type.
+    pub fn is_dcf(&self) -> bool {
+        self.commissioning.is_some()
+    }
+
+    /// The node id of a DCF.
+    pub fn node_id(&self) -> Option<NodeId> {
+        self.commissioning
+            .as_ref()
+            .and_then(DeviceCommissioning::node)
+    }
+
+    /// A DCF of this device: `commissioning`, and `values` (by index and
+    /// sub-index) as `ParameterValue`s, typically the current values read
+    /// from the device for a backup. Fails if a value is for an entry the
+    /// dictionary does not have, or of the wrong type.
+    pub fn to_dcf(
+        &self,
+        commissioning: DeviceCommissioning,
+        values: &BTreeMap<(u16, u8), Value>,
+    ) -> Result<Eds, DictionaryError> {
+        let mut dcf = self.clone();
+        for (&(index, sub), value) in values {
+            dcf.dictionary.set_parameter_value(index, sub, value)?;
+        }
+        dcf.commissioning = Some(commissioning);
+        Ok(dcf)
+    }
+}

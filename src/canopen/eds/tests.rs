@@ -1,0 +1,845 @@
+//! The vendor's real files, hand-made files for what they lack (compact
+//! storage, DCF), malformed files, and a parser that never panics.
+
+use std::collections::BTreeMap;
+
+use proptest::prelude::*;
+
+use super::*;
+use crate::canopen::od::{AccessType, DataType, ObjectType, Value, ValueError};
+
+const UIO1LED: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../shared/eds/uio1led_v1.0.0.eds"
+);
+const UMC1BD90: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../shared/eds/umc1bd90_v1.0.4.eds"
+);
+const UMC1BDS32: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../shared/eds/umc1bds32_v1.0.4.eds"
+);
+const VENDOR_FILES: [&str; 3] = [UIO1LED, UMC1BD90, UMC1BDS32];
+
+fn load(path: &str) -> Eds {
+    read_eds_file(path).unwrap_or_else(|error| panic!("{error}"))
+}
+
+fn node(id: u8) -> Option<NodeId> {
+    NodeId::new(id).ok()
+}
+
+/// The line of `text` that contains `needle`, counted from 1.
+fn line_of(text: &str, needle: &str) -> usize {
+    text.lines()
+        .position(|line| line.contains(needle))
+        .expect(needle)
+        + 1
+}
+
+#[test]
+fn every_vendor_file_loads_without_surprises() {
+    for path in VENDOR_FILES {
+        let text = std::fs::read_to_string(path).unwrap();
+        let (eds, warnings) = Eds::parse_with_warnings(&text, path).unwrap();
+        assert!(warnings.is_empty(), "{path}: {warnings:#?}");
+        assert!(!eds.is_dcf());
+        for index in [0x1000, 0x1001, 0x1018, 0x1800, 0x1A00] {
+            assert!(
+                eds.dictionary.get(index).is_some(),
+                "{path} lacks 0x{index:04X}"
+            );
+        }
+    }
+    assert_eq!(load(UIO1LED).dictionary.len(), 187);
+    assert_eq!(load(UMC1BD90).dictionary.len(), 188);
+    assert_eq!(load(UMC1BDS32).dictionary.len(), 320);
+}
+
+#[test]
+fn uio1led_spot_checks() {
+    let eds = load(UIO1LED);
+    let info = &eds.file_info;
+    assert_eq!(info.file_name.as_deref(), Some("uio1led.eds"));
+    // MM-DD-YYYY, kept as written.
+    assert_eq!(info.creation_date.as_deref(), Some("12-20-2021"));
+    assert_eq!(info.creation_time.as_deref(), Some("01:36PM"));
+    assert_eq!(info.eds_version.as_deref(), Some("4.0"));
+    let device = &eds.device_info;
+    assert_eq!(device.vendor_name.as_deref(), Some("UniSwarm SASU"));
+    assert_eq!(device.vendor_number, Some(0x4A2));
+    assert_eq!(device.product_number, Some(0x4101));
+    assert_eq!(device.revision_number, Some(1));
+    assert_eq!(device.order_code.as_deref(), Some("0"));
+    assert_eq!(
+        device.baud_rates.iter().copied().collect::<Vec<_>>(),
+        [10, 20, 50, 125, 250, 500, 1000]
+    );
+    assert_eq!(
+        (device.nr_of_rx_pdo, device.nr_of_tx_pdo),
+        (Some(4), Some(4))
+    );
+    assert_eq!(device.granularity, Some(8));
+    assert_eq!(device.simple_boot_up_slave, Some(true));
+    assert_eq!(device.lss_supported, Some(false));
+    assert!(device.other.is_empty(), "{:?}", device.other);
+    assert_eq!(
+        eds.dummy_usage.iter().copied().collect::<Vec<_>>(),
+        [2, 3, 4, 5, 6, 7]
+    );
+    assert_eq!(eds.comments, ["UIO1LED LEDs controller"]);
+
+    let device_type = eds.dictionary.get(0x1000).unwrap();
+    assert_eq!(device_type.object_type, ObjectType::Var);
+    assert_eq!(device_type.name, "Device Type");
+    let sub = device_type.sub(0).unwrap();
+    assert_eq!(
+        (sub.data_type, sub.access, sub.pdo_mappable),
+        (DataType::Unsigned32, AccessType::Ro, false)
+    );
+    assert_eq!(sub.default_value(None), Ok(Some(Value::Unsigned32(428))));
+
+    // The API's name for it, though this file spells it "Vendor Id".
+    let identity = eds.dictionary.resolve_index("Identity_Object").unwrap();
+    let vendor = identity.resolve_sub("Vendor_ID").unwrap();
+    assert_eq!((vendor.sub_index, vendor.name.as_str()), (1, "Vendor Id"));
+    assert_eq!(
+        vendor.default_value(None),
+        Ok(Some(Value::Unsigned32(0x4A2)))
+    );
+
+    // TPDO 1 starts invalid (bit 31) on this device.
+    let cob_id = eds.dictionary.sub(0x1800, 1).unwrap();
+    assert_eq!(cob_id.default.as_deref(), Some("$NODEID+0x80000180"));
+    assert_eq!(
+        cob_id.default_value(node(3)),
+        Ok(Some(Value::Unsigned32(0x8000_0183)))
+    );
+    // The RPDO communication objects have no sub 4 (CiA 301 reserves it).
+    let rpdo = eds.dictionary.get(0x1400).unwrap();
+    assert_eq!(
+        rpdo.subs.keys().copied().collect::<Vec<_>>(),
+        [0, 1, 2, 3, 5]
+    );
+
+    let voltage = eds.dictionary.get(0x2000).unwrap();
+    assert_eq!(
+        (voltage.name.as_str(), voltage.object_type),
+        ("Board_voltage", ObjectType::Array)
+    );
+    assert_eq!(voltage.sub(1).unwrap().name, "Board_voltage_input");
+    assert!(voltage.sub(1).unwrap().pdo_mappable);
+    // A UNICODE_STRING whose default is quoted ASCII.
+    let date = eds.dictionary.sub(0x2001, 0).unwrap();
+    assert_eq!(date.data_type, DataType::UnicodeString);
+    assert_eq!(
+        date.default_value(None),
+        Ok(Some(Value::UnicodeString("XXXX/XX/XX XX:XX:XX".into())))
+    );
+    let errors = eds.dictionary.get(0x1003).unwrap();
+    assert_eq!(errors.object_type, ObjectType::Array);
+    assert_eq!(errors.sub(0).unwrap().access, AccessType::Rw);
+    // A bare $NODEID default.
+    let node_id = eds
+        .dictionary
+        .get(0x2040)
+        .unwrap()
+        .resolve_sub("Node_ID")
+        .unwrap();
+    assert_eq!(
+        node_id.default_value(node(42)),
+        Ok(Some(Value::Unsigned8(42)))
+    );
+}
+
+#[test]
+fn umc1bds32_spot_checks() {
+    let eds = load(UMC1BDS32);
+    // A bit field: which PDO parameters the compact PDO form leaves out.
+    assert_eq!(eds.device_info.compact_pdo, Some(0x37));
+    let status = eds.dictionary.resolve_index("a1_Statusword").unwrap();
+    assert_eq!(status.index, 0x6041);
+    let sub = status.sub(0).unwrap();
+    assert_eq!(
+        (sub.data_type, sub.pdo_mappable),
+        (DataType::Unsigned16, true)
+    );
+    assert_eq!(
+        eds.dictionary.resolve_index("A2_STATUSWORD").unwrap().index,
+        0x6841
+    );
+    let vendor = eds
+        .dictionary
+        .get(0x1018)
+        .unwrap()
+        .resolve_sub("vendor_id")
+        .unwrap();
+    assert_eq!(vendor.name, "Vendor_ID");
+
+    let cob_id = eds.dictionary.sub(0x1800, 1).unwrap();
+    assert_eq!(cob_id.default.as_deref(), Some("$NODEID+0x00000180"));
+    assert_eq!(
+        cob_id.default_value(node(1)),
+        Ok(Some(Value::Unsigned32(0x181)))
+    );
+    assert!(matches!(
+        cob_id.default_value(None),
+        Err(ValueError::NodeIdRequired { .. })
+    ));
+    let mapping = eds.dictionary.sub(0x1A00, 1).unwrap();
+    assert_eq!(
+        mapping.default_value(None),
+        Ok(Some(Value::Unsigned32(0x6041_0010)))
+    );
+
+    let board = eds.dictionary.get(0x2800).unwrap();
+    assert_eq!(
+        (board.name.as_str(), board.object_type),
+        ("Board_status", ObjectType::Record)
+    );
+    // Limits in hex, negative hex, and a signed default at INTEGER32's minimum.
+    let low_limited = eds
+        .dictionary
+        .subs()
+        .find(|(_, sub)| sub.low.as_deref() == Some("-0x7FFFFFFF"))
+        .map(|(_, sub)| sub)
+        .unwrap();
+    assert_eq!(
+        low_limited.low_value(None),
+        Ok(Some(Value::Integer32(-0x7FFF_FFFF)))
+    );
+    assert!(
+        eds.dictionary
+            .subs()
+            .any(|(_, sub)| sub.default.as_deref() == Some("-2147483648")
+                && sub.default_value(None) == Ok(Some(Value::Integer32(i32::MIN))))
+    );
+    // Every default and limit of the file is a value of its type.
+    for (object, sub) in eds.dictionary.subs() {
+        for text in [&sub.default, &sub.low, &sub.high].into_iter().flatten() {
+            assert!(
+                Value::parse_text(sub.data_type, text, node(127)).is_ok(),
+                "0x{:04X}sub{}: {text}",
+                object.index,
+                sub.sub_index
+            );
+        }
+    }
+}
+
+#[test]
+fn umc1bd90_spot_checks() {
+    let eds = load(UMC1BD90);
+    assert_eq!(eds.device_info.vendor_number, Some(0x4A2));
+    let status = eds.dictionary.resolve_index("0x6041").unwrap();
+    assert_eq!(status.name, "a1_Statusword");
+    let torque_pid = eds.dictionary.get(0x4020).unwrap();
+    assert_eq!(torque_pid.name, "a1_Torque_PID_status");
+    assert_eq!(torque_pid.resolve_sub("Integrator").unwrap().sub_index, 3);
+    let set_point = eds
+        .dictionary
+        .subs()
+        .find(|(_, sub)| sub.name == "Set-point");
+    assert!(set_point.is_some());
+}
+
+#[test]
+fn vendor_files_round_trip() {
+    for path in VENDOR_FILES {
+        let eds = load(path);
+        let written = eds.write();
+        let (again, warnings) = Eds::parse_with_warnings(&written, "written.eds").unwrap();
+        assert!(warnings.is_empty(), "{path}: {warnings:#?}");
+        assert_eq!(again, eds, "{path}");
+        // And the text is stable from then on.
+        assert_eq!(again.write(), written);
+        assert!(written.contains("\r\n[1018sub1]\r\n"));
+    }
+}
+
+#[test]
+fn python_canopen_reads_what_we_write_the_same_way() {
+    // What python-canopen's configparser-based reader needs: keys it looks
+    // up by exact case, lists with decimal keys, hex DataType.
+    let written = load(UMC1BDS32).write();
+    for needle in [
+        "[MandatoryObjects]\r\nSupportedObjects=3\r\n1=0x1000\r\n2=0x1001\r\n3=0x1018\r\n",
+        "[1000]\r\nParameterName=Device_type\r\nObjectType=0x7\r\nDataType=0x0007\r\nAccessType=ro\r\n",
+        "DefaultValue=$NODEID+0x00000180\r\n",
+        "[6041]\r\nParameterName=a1_Statusword\r\n",
+        "[DeviceInfo]\r\nVendorName=UniSwarm SASU\r\nVendorNumber=0x4A2\r\n",
+    ] {
+        assert!(written.contains(needle), "{needle}");
+    }
+}
+
+const COMPACT: &str = "\
+[DeviceInfo]
+VendorNumber=0x123
+[MandatoryObjects]
+SupportedObjects=1
+1=0x1000
+[1000]
+ParameterName=Device Type
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x191
+[ManufacturerObjects]
+SupportedObjects=1
+1=0x2100
+[2100]
+ParameterName=Gain
+ObjectType=0x8
+DataType=0x0003
+AccessType=rw
+DefaultValue=-5
+LowLimit=-100
+HighLimit=100
+PDOMapping=1
+CompactSubObj=3
+[2100Name]
+NrOfEntries=1
+2=Gain of axis 2
+";
+
+#[test]
+fn compact_sub_objects_are_generated_from_the_parent() {
+    let eds = Eds::parse(COMPACT, "compact.eds").unwrap();
+    let gain = eds.dictionary.get(0x2100).unwrap();
+    assert_eq!(gain.object_type, ObjectType::Array);
+    assert_eq!(gain.subs.len(), 4);
+    let count = gain.sub(0).unwrap();
+    assert_eq!(
+        (count.name.as_str(), count.data_type, count.access),
+        ("NrOfObjects", DataType::Unsigned8, AccessType::Ro)
+    );
+    assert_eq!(count.default_value(None), Ok(Some(Value::Unsigned8(3))));
+    let names: Vec<_> = gain.subs.values().map(|sub| sub.name.as_str()).collect();
+    assert_eq!(names, ["NrOfObjects", "Gain1", "Gain of axis 2", "Gain3"]);
+    for sub in gain.subs.values().skip(1) {
+        assert_eq!(
+            (sub.data_type, sub.access, sub.pdo_mappable),
+            (DataType::Integer16, AccessType::Rw, true)
+        );
+        assert_eq!(sub.default_value(None), Ok(Some(Value::Integer16(-5))));
+        assert_eq!(sub.parameter_value, None);
+    }
+    assert!(
+        gain.sub(3)
+            .unwrap()
+            .check(&Value::Integer16(101), None)
+            .is_err()
+    );
+    // A VAR without ObjectType, per CiA 306.
+    assert_eq!(
+        eds.dictionary.get(0x1000).unwrap().object_type,
+        ObjectType::Var
+    );
+
+    // Written out with explicit sub-objects, read back the same.
+    let written = eds.write();
+    assert!(written.contains("[2100sub2]\r\nParameterName=Gain of axis 2\r\n"));
+    assert_eq!(Eds::parse(&written, "again.eds").unwrap(), eds);
+}
+
+#[test]
+fn compact_values_and_denotations_of_a_dcf() {
+    let dcf = format!(
+        "{COMPACT}[2100Value]\nNrOfEntries=2\n1=7\n3=0x10\n[2100Denotation]\nNrOfEntries=1\n1=Left\n\
+         [DeviceComissioning]\nNodeID=0x05\nNodeName=Left arm\nBaudrate=500\nNetNumber=1\nCANopenManager=0\n"
+    );
+    let eds = Eds::parse(&dcf, "compact.dcf").unwrap();
+    assert!(eds.is_dcf());
+    assert_eq!(eds.node_id(), node(5));
+    let commissioning = eds.commissioning.as_ref().unwrap();
+    assert_eq!(commissioning.node_name.as_deref(), Some("Left arm"));
+    assert_eq!(commissioning.baudrate, Some(500));
+    assert_eq!(commissioning.canopen_manager, Some(false));
+    let gain = eds.dictionary.get(0x2100).unwrap();
+    assert_eq!(
+        gain.sub(1).unwrap().parameter_value(None),
+        Ok(Some(Value::Integer16(7)))
+    );
+    assert_eq!(gain.sub(2).unwrap().parameter_value, None);
+    assert_eq!(
+        gain.sub(3).unwrap().parameter_value(None),
+        Ok(Some(Value::Integer16(16)))
+    );
+    assert_eq!(gain.sub(1).unwrap().denotation.as_deref(), Some("Left"));
+    assert_eq!(Eds::parse(&eds.write(), "again.dcf").unwrap(), eds);
+
+    let bad = dcf.replace("3=0x10", "3=0xZZ");
+    let error = Eds::parse(&bad, "compact.dcf").unwrap_err();
+    assert_eq!(error.line, line_of(&bad, "3=0xZZ"));
+}
+
+#[test]
+fn a_dcf_carries_current_values_and_reads_back() {
+    let eds = load(UMC1BDS32);
+    let values = BTreeMap::from([
+        ((0x1017, 0), Value::Unsigned16(250)),
+        ((0x1800, 1), Value::Unsigned32(0x182)),
+        (
+            (0x1008, 0),
+            Value::VisibleString("UMC1BDS32 \"axis\" ; x".into()),
+        ),
+        ((0x6060, 0), Value::Integer8(-3)),
+    ]);
+    let commissioning = DeviceCommissioning {
+        node_id: Some(2),
+        node_name: Some("umc-2".into()),
+        baudrate: Some(1000),
+        ..DeviceCommissioning::default()
+    };
+    let dcf = eds.to_dcf(commissioning, &values).unwrap();
+    let text = dcf.write();
+    assert!(
+        text.contains("[DeviceComissioning]\r\nNodeID=2\r\nNodeName=umc-2\r\nBaudrate=1000\r\n")
+    );
+    assert!(text.contains("ParameterValue=386\r\n"));
+    let again = Eds::parse(&text, "umc-2.dcf").unwrap();
+    assert_eq!(again, dcf);
+    assert_eq!(again.node_id(), node(2));
+    for ((index, sub), value) in &values {
+        let entry = again.dictionary.sub(*index, *sub).unwrap();
+        assert_eq!(
+            entry.parameter_value(again.node_id()),
+            Ok(Some(value.clone())),
+            "0x{index:04X}"
+        );
+    }
+
+    let unknown = BTreeMap::from([((0x7777, 0), Value::Unsigned8(1))]);
+    assert!(
+        eds.to_dcf(DeviceCommissioning::default(), &unknown)
+            .is_err()
+    );
+    let wrong_type = BTreeMap::from([((0x1017, 0), Value::Unsigned32(1))]);
+    assert!(
+        eds.to_dcf(DeviceCommissioning::default(), &wrong_type)
+            .is_err()
+    );
+}
+
+/// A small valid EDS to break in the tests below.
+const MINI: &str = "\
+[FileInfo]
+FileName=mini.eds
+FileVersion=1.0.2
+CreationDate=20-12-2021
+[DeviceInfo]
+VendorNumber=0x4A2
+RevisionNumber=1.0.2
+[MandatoryObjects]
+SupportedObjects=2
+1=0x1000
+2=0x1018
+[1000]
+ParameterName=Device Type
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x191
+[1018]
+ParameterName=Identity Object
+ObjectType=0x9
+SubNumber=2
+[1018sub0]
+ParameterName=Number of Entries
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=1
+[1018sub1]
+ParameterName=Vendor Id
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x4A2
+";
+
+#[test]
+fn odd_but_readable_files_give_warnings() {
+    let (eds, warnings) = Eds::parse_with_warnings(MINI, "mini.eds").unwrap();
+    // A version where a number belongs: kept as text.
+    assert_eq!(eds.device_info.revision_number, None);
+    assert_eq!(
+        eds.device_info.other,
+        [("RevisionNumber".to_string(), "1.0.2".to_string())]
+    );
+    assert_eq!(eds.file_info.file_version.as_deref(), Some("1.0.2"));
+    assert_eq!(eds.file_info.creation_date.as_deref(), Some("20-12-2021"));
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert_eq!(
+        warnings[0].to_string(),
+        "mini.eds:7: RevisionNumber=1.0.2 is not a number; kept as text"
+    );
+    assert_eq!(Eds::parse(&eds.write(), "again.eds").unwrap(), eds);
+
+    // An unlisted object, a miscounted SubNumber, limits against the default.
+    let odd = format!(
+        "{}[2000]\nParameterName=Extra\nDataType=0x0005\nAccessType=rw\nDefaultValue=9\nLowLimit=10\nHighLimit=20\n",
+        MINI.replace("SubNumber=2", "SubNumber=5")
+    );
+    let (eds, warnings) = Eds::parse_with_warnings(&odd, "odd.eds").unwrap();
+    assert!(eds.dictionary.get(0x2000).is_some());
+    let messages: Vec<_> = warnings.iter().map(|w| w.message.as_str()).collect();
+    assert!(
+        messages.contains(&"SubNumber=5 but there are 2 sub-object sections"),
+        "{messages:?}"
+    );
+    assert!(
+        messages.contains(&"object 0x2000 is in no object list; read anyway"),
+        "{messages:?}"
+    );
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.contains("DefaultValue 9 is below the low limit 10")),
+        "{messages:?}"
+    );
+}
+
+#[test]
+fn vendor_quirks_in_spelling_are_accepted() {
+    let quirky = MINI
+        .replace("[1018sub1]", "[1018SUB1]")
+        .replace(
+            "AccessType=ro\nDefaultValue=0x191",
+            "accesstype = RO ; read only\ndefaultvalue=0x191",
+        )
+        .replace("[FileInfo]", "; made by hand\n[fileinfo]")
+        .replace('\n', "\r\n");
+    let eds = Eds::parse(&quirky, "quirky.eds").unwrap();
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds.dictionary, reference.dictionary);
+    assert_eq!(eds.file_info.file_name.as_deref(), Some("mini.eds"));
+    // Latin-1 bytes (a Windows tool's "°") are read, not refused.
+    let mut latin1 = MINI.replace("Device Type", "Temperature XC").into_bytes();
+    let at = latin1.windows(2).position(|w| w == b"XC").unwrap();
+    latin1[at] = 0xB0;
+    let eds = Eds::parse_bytes(&latin1, "latin1.eds").unwrap();
+    assert_eq!(
+        eds.dictionary.get(0x1000).unwrap().name,
+        "Temperature \u{B0}C"
+    );
+}
+
+/// The error for `text`, which must name `file` and the line containing `at`.
+fn error_at(text: &str, at: &str) -> EdsError {
+    let error = Eds::parse(text, "broken.eds").unwrap_err();
+    assert_eq!(error.file, "broken.eds");
+    assert_eq!(error.line, line_of(text, at), "{error}");
+    assert!(
+        error
+            .to_string()
+            .starts_with(&format!("broken.eds:{}: ", error.line))
+    );
+    error
+}
+
+#[test]
+fn malformed_files_say_where() {
+    let unknown_type = MINI.replace("DataType=0x0005", "DataType=0x9999");
+    let error = error_at(&unknown_type, "DataType=0x9999");
+    assert_eq!(
+        error.to_string(),
+        format!("broken.eds:{}: DataType 0x9999 is unknown", error.line)
+    );
+
+    let bad_hex = MINI.replace("DefaultValue=0x4A2", "DefaultValue=0x4G2");
+    let error = error_at(&bad_hex, "0x4G2");
+    assert!(error.message.contains("bad hex digits"), "{error}");
+    error_at(
+        &MINI.replace(
+            "DataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+            "DataType=0xQ7\nAccessType=ro",
+        ),
+        "0xQ7",
+    );
+    error_at(&MINI.replace("2=0x1018", "2=0x10189"), "0x10189");
+    error_at(
+        &MINI.replace("DefaultValue=1\n", "DefaultValue=256\n"),
+        "DefaultValue=256",
+    );
+
+    let over_255 = MINI.replace("[1018sub1]", "[1018sub100]");
+    let error = error_at(&over_255, "[1018sub100]");
+    assert!(error.message.contains("over 255"), "{error}");
+    error_at(&MINI.replace("[1000]", "[10000]"), "[10000]");
+
+    let duplicate_key = MINI.replace(
+        "AccessType=ro\nDefaultValue=0x191",
+        "AccessType=ro\naccesstype=rw",
+    );
+    let error = error_at(&duplicate_key, "accesstype=rw");
+    assert!(error.message.contains("appears twice"), "{error}");
+    let duplicate_section = format!("{MINI}[1000]\nParameterName=Again\n");
+    let error = Eds::parse(&duplicate_section, "broken.eds").unwrap_err();
+    assert_eq!(
+        error.line,
+        line_of(&duplicate_section, "ParameterName=Again") - 1
+    );
+    assert!(error.message.contains("appears twice"), "{error}");
+    let same_index = format!("{MINI}[01000]\nParameterName=Again\n");
+    error_at(&same_index, "[01000]");
+
+    // A listed object whose section is missing, and a missing list.
+    let missing_object = MINI.replace("2=0x1018", "2=0x1019");
+    error_at(&missing_object, "2=0x1019");
+    let no_list = MINI.replace("[MandatoryObjects]", "[NotTheList]");
+    let error = Eds::parse(&no_list, "broken.eds").unwrap_err();
+    assert_eq!(error.line, no_list.lines().count());
+    assert!(error.message.contains("no [MandatoryObjects]"), "{error}");
+    error_at(
+        &MINI.replace("SupportedObjects=2", "SupportedObjects=4000000000"),
+        "SupportedObjects",
+    );
+    error_at(
+        &MINI.replace("SupportedObjects=2", "SupportedObjects=3"),
+        "SupportedObjects",
+    );
+    error_at(
+        &MINI.replace("SupportedObjects=2\n", ""),
+        "[MandatoryObjects]",
+    );
+    error_at(
+        &MINI
+            .replace("SubNumber=2\n", "")
+            .replace("[1018sub0]", "[X0]")
+            .replace("[1018sub1]", "[X1]"),
+        "[1018]",
+    );
+
+    // Missing or unreadable keys of an object.
+    error_at(&MINI.replace("ParameterName=Vendor Id\n", ""), "[1018sub1]");
+    error_at(&MINI.replace("DataType=0x0005\n", ""), "[1018sub0]");
+    error_at(
+        &MINI.replace("AccessType=ro\nDefaultValue=1", "DefaultValue=1"),
+        "[1018sub0]",
+    );
+    error_at(
+        &MINI.replace("AccessType=ro\nDefaultValue=1", "AccessType=readable"),
+        "readable",
+    );
+    error_at(
+        &MINI.replace("ObjectType=0x9", "ObjectType=0x3"),
+        "ObjectType=0x3",
+    );
+    error_at(
+        &MINI.replace("ObjectType=0x9", "ObjectType=nine"),
+        "ObjectType=nine",
+    );
+
+    // Structure.
+    error_at(&format!("NoSection=1\n{MINI}"), "NoSection");
+    error_at(&MINI.replace("[DeviceInfo]", "[DeviceInfo"), "[DeviceInfo");
+    error_at(
+        &MINI.replace("FileVersion=1.0.2", "just some words"),
+        "just some words",
+    );
+}
+
+#[test]
+fn empty_garbage_and_huge_inputs_give_errors_not_panics() {
+    for empty in ["", "\n\n", "; only a comment\n", "\u{FEFF}"] {
+        let error = Eds::parse(empty, "empty.eds").unwrap_err();
+        assert_eq!(error.line, 1.max(empty.lines().count()), "{empty:?}");
+        assert!(error.to_string().starts_with("empty.eds:"));
+    }
+    let garbage: Vec<u8> = (0..=255u8).cycle().take(4096).collect();
+    let error = Eds::parse_bytes(&garbage, "garbage.bin").unwrap_err();
+    assert_eq!((error.file.as_str(), error.line), ("garbage.bin", 1));
+    let error = Eds::parse_bytes(b"[FileInfo]\nFileName=x\xFF\x00\x01\n", "nul.eds").unwrap_err();
+    assert_eq!(error.line, 2);
+
+    // A 10 MB line, in a value and as a line of its own: refused quickly, and
+    // the message quotes only the start of it.
+    let huge = "9".repeat(10 << 20);
+    let in_value = MINI.replace("DefaultValue=0x191", &format!("DefaultValue={huge}"));
+    let error = error_at(&in_value, &huge[..100]);
+    assert!(
+        error.to_string().len() < 200,
+        "{} bytes",
+        error.to_string().len()
+    );
+    let as_line = MINI.replace("FileVersion=1.0.2", &huge);
+    let error = error_at(&as_line, &huge[..100]);
+    assert!(error.to_string().len() < 200);
+
+    let missing = read_eds_file("/nonexistent/dir/x.eds").unwrap_err();
+    assert_eq!(missing.line, 0);
+    assert!(
+        missing.to_string().starts_with("/nonexistent/dir/x.eds: "),
+        "{missing}"
+    );
+}
+
+#[test]
+fn a_written_eds_of_a_built_dictionary_reads_back() {
+    use crate::canopen::od::{Object, ObjectDictionary, SubObject};
+    let mut dictionary = ObjectDictionary::new();
+    let mut device_type = SubObject::new(0, "Device type", DataType::Unsigned32, AccessType::Ro);
+    device_type.default = Some("0x00020192".into());
+    dictionary.insert(Object::var(0x1000, device_type));
+    let mut record = Object::new(0x2001, "Every type", ObjectType::Record);
+    let mut count = SubObject::new(
+        0,
+        "Highest sub-index",
+        DataType::Unsigned8,
+        AccessType::Const,
+    );
+    count.default = Some(DataType::ALL.len().to_string());
+    record.insert_sub(count);
+    for (n, data_type) in DataType::ALL.into_iter().enumerate() {
+        let mut sub = SubObject::new(
+            n as u8 + 1,
+            data_type.to_string(),
+            data_type,
+            AccessType::Rw,
+        );
+        // An empty DefaultValue= means none, so the zero of a string type is
+        // no default.
+        sub.default = Value::zero(data_type)
+            .map(|zero| zero.to_text())
+            .filter(|text| !text.is_empty());
+        sub.obj_flags = Some(3);
+        record.insert_sub(sub);
+    }
+    dictionary.insert(record);
+    dictionary.insert(Object::new(0x2002, "Nothing", ObjectType::Null));
+    let mut eds = Eds::new(dictionary);
+    eds.dummy_usage.insert(5);
+    eds.device_info.baud_rates.insert(83);
+    eds.comments = vec!["first".into(), String::new(), "third".into()];
+    let (again, warnings) = Eds::parse_with_warnings(&eds.write(), "built.eds").unwrap();
+    assert_eq!(again, eds);
+    assert!(warnings.is_empty(), "{warnings:?}");
+}
+
+/// A mutation of a vendor file: bytes changed, lines dropped or repeated,
+/// values swapped for ones that trouble parsers.
+#[derive(Debug, Clone)]
+enum Edit {
+    Byte { at: usize, byte: u8 },
+    DeleteLine(usize),
+    RepeatLine(usize),
+    Value { line: usize, value: &'static str },
+}
+
+const NASTY_VALUES: [&str; 16] = [
+    "",
+    "0x",
+    "0xFFFFFFFFFFFFFFFFFFFF",
+    "-1",
+    "4294967296",
+    "$NODEID",
+    "$NODEID+$NODEID",
+    "\"",
+    "0x9999",
+    "255",
+    "1000000",
+    "rww",
+    ";",
+    "[",
+    "0x0020",
+    "1e400",
+];
+
+fn apply(text: &str, edits: &[Edit]) -> Vec<u8> {
+    let mut lines: Vec<String> = text.split('\n').map(str::to_string).collect();
+    let mut bytes_edits = Vec::new();
+    for edit in edits {
+        let n = lines.len();
+        match *edit {
+            Edit::DeleteLine(at) => {
+                lines.remove(at % n);
+            }
+            Edit::RepeatLine(at) => {
+                let line = lines[at % n].clone();
+                lines.insert(at % n, line);
+            }
+            Edit::Value { line, value } => {
+                let line = &mut lines[line % n];
+                if let Some((key, _)) = line.split_once('=') {
+                    *line = format!("{key}={value}\r");
+                }
+            }
+            Edit::Byte { at, byte } => bytes_edits.push((at, byte)),
+        }
+    }
+    let mut bytes = lines.join("\n").into_bytes();
+    for (at, byte) in bytes_edits {
+        let n = bytes.len().max(1);
+        if let Some(slot) = bytes.get_mut(at % n) {
+            *slot = byte;
+        }
+    }
+    bytes
+}
+
+fn edit() -> impl Strategy<Value = Edit> {
+    prop_oneof![
+        (any::<usize>(), any::<u8>()).prop_map(|(at, byte)| Edit::Byte { at, byte }),
+        any::<usize>().prop_map(Edit::DeleteLine),
+        any::<usize>().prop_map(Edit::RepeatLine),
+        (any::<usize>(), prop::sample::select(NASTY_VALUES.to_vec()))
+            .prop_map(|(line, value)| Edit::Value { line, value }),
+    ]
+}
+
+/// Whatever reads must write out and read back the same.
+fn check_round_trip(eds: &Eds) {
+    let written = eds.write();
+    let again = Eds::parse(&written, "again.eds").unwrap_or_else(|error| panic!("{error}\n"));
+    assert_eq!(&again, eds);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    #[test]
+    fn the_parser_never_panics_on_arbitrary_text(text in "(?s).{0,600}") {
+        if let Ok(eds) = Eds::parse(&text, "arbitrary.eds") {
+            check_round_trip(&eds);
+        }
+    }
+
+    #[test]
+    fn the_parser_never_panics_on_ini_shaped_text(
+        lines in prop::collection::vec(
+            prop_oneof![
+                prop::sample::select(vec![
+                    "[MandatoryObjects]", "SupportedObjects=1", "1=0x1000", "[1000]", "[1000sub0]",
+                    "[1000sub1]", "[1000Name]", "[1000Value]", "[DeviceInfo]", "[DeviceComissioning]",
+                    "[Comments]", "Lines=2", "Line1=x", "ParameterName=P", "ObjectType=0x8",
+                    "ObjectType=0x7", "ObjectType=0x2", "ObjectType=0x0", "DataType=0x0007",
+                    "DataType=0x0009", "DataType=0x000F", "AccessType=rw", "CompactSubObj=3",
+                    "SubNumber=2", "DefaultValue=$NODEID+0x180", "LowLimit=5", "HighLimit=1",
+                    "ParameterValue=0x10", "NrOfEntries=1", "2=Second", "NodeID=5", "BaudRate_10=2",
+                    "[DummyUsage]", "Dummy0001=1", "DummyX=1", "Granularity=abc",
+                ]).prop_map(str::to_string),
+                "[A-Za-z0-9_=\\[\\]$+ ;\"-]{0,20}",
+            ],
+            0..40,
+        )
+    ) {
+        let text = lines.join("\n");
+        if let Ok(eds) = Eds::parse(&text, "shaped.eds") {
+            check_round_trip(&eds);
+        }
+    }
+
+    #[test]
+    fn the_parser_never_panics_on_mutated_vendor_files(
+        file in 0..VENDOR_FILES.len(),
+        edits in prop::collection::vec(edit(), 1..6),
+    ) {
+        let text = std::fs::read_to_string(VENDOR_FILES[file]).unwrap();
+        let bytes = apply(&text, &edits);
+        if let Ok(eds) = Eds::parse_bytes(&bytes, "mutated.eds") {
+            check_round_trip(&eds);
+        }
+    }
+}

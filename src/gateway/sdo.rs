@@ -1,0 +1,152 @@
+//! SDO transfers to one node over a [`Bus`]: the sans-I/O client of
+//! [`crate::canopen::sdo`] driven by frames and tokio's clock.
+//!
+//! CiA 301 allows one SDO transaction at a time between a client and a
+//! server, so a [`SdoChannel`] runs them one after another; callers queue on
+//! a fair (first come, first served) lock.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::Mutex;
+
+use crate::can::{Bus, BusError, FrameReceiver, RecvError};
+use crate::canopen::NodeId;
+use crate::canopen::sdo::{AbortCode, ClientConfig, SdoClient, SdoError, Step, Transfer};
+
+/// Why an SDO transfer failed: what the device said, what the protocol
+/// timer said, or what the bus did.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SdoRequestError {
+    /// The node refused or broke the protocol, or did not answer in time.
+    #[error("node {node}: {error}")]
+    Sdo { node: NodeId, error: SdoError },
+    /// The frames could not be sent or the bus went away.
+    #[error("node {node}: {error}")]
+    Bus { node: NodeId, error: BusError },
+}
+
+impl SdoRequestError {
+    /// The abort code the device sent, if it was a device abort.
+    pub fn device_abort(&self) -> Option<AbortCode> {
+        match self {
+            Self::Sdo {
+                error: SdoError::ServerAborted(code),
+                ..
+            } => Some(*code),
+            _ => None,
+        }
+    }
+}
+
+struct Session {
+    client: SdoClient,
+    responses: FrameReceiver,
+}
+
+/// The SDO client side of one node on one bus.
+#[derive(Clone)]
+pub struct SdoChannel {
+    bus: Bus,
+    node: NodeId,
+    session: Arc<Mutex<Session>>,
+}
+
+impl SdoChannel {
+    pub fn new(bus: Bus, node: NodeId, config: ClientConfig) -> Self {
+        let responses = bus.subscribe();
+        Self {
+            session: Arc::new(Mutex::new(Session {
+                client: SdoClient::new(node, config),
+                responses,
+            })),
+            bus,
+            node,
+        }
+    }
+
+    pub fn node(&self) -> NodeId {
+        self.node
+    }
+
+    /// Reads an object's value bytes.
+    pub async fn upload(&self, index: u16, sub: u8) -> Result<Vec<u8>, SdoRequestError> {
+        match self.transfer(Request::Upload { index, sub }).await? {
+            Transfer::Uploaded(data) => Ok(data),
+            Transfer::Downloaded => Ok(Vec::new()),
+        }
+    }
+
+    /// Writes an object's value bytes.
+    pub async fn download(&self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoRequestError> {
+        self.transfer(Request::Download { index, sub, data })
+            .await
+            .map(|_| ())
+    }
+
+    async fn transfer(&self, request: Request<'_>) -> Result<Transfer, SdoRequestError> {
+        let mut session = self.session.lock().await;
+        let Session { client, responses } = &mut *session;
+        // Answers to an earlier transfer that gave up must not be taken for
+        // answers to this one.
+        while let Ok(Some(_)) | Err(RecvError::Lagged(_)) = responses.try_recv() {}
+        let now = tokio::time::Instant::now().into_std();
+        let first = match request {
+            Request::Upload { index, sub } => client.upload(index, sub, now),
+            Request::Download { index, sub, data } => client.download(index, sub, data, now),
+        }
+        .map_err(|error| self.sdo_error(error))?;
+        let mut step = Step {
+            send: first,
+            done: None,
+        };
+        loop {
+            for frame in step.send.drain(..) {
+                if let Err(error) = self.bus.send(frame).await {
+                    // Leave the client ready for the next transfer.
+                    let _ = client.abort(AbortCode::GeneralError);
+                    return Err(SdoRequestError::Bus {
+                        node: self.node,
+                        error,
+                    });
+                }
+            }
+            if let Some(done) = step.done.take() {
+                return done.map_err(|error| self.sdo_error(error));
+            }
+            let deadline = client
+                .deadline()
+                .map(tokio::time::Instant::from_std)
+                .unwrap_or_else(|| tokio::time::Instant::now() + Duration::from_secs(1));
+            step = tokio::select! {
+                received = responses.recv() => match received {
+                    Ok(frame) => client.handle_frame(&frame.frame, tokio::time::Instant::now().into_std()),
+                    // Lost frames show up as a protocol error or a timeout.
+                    Err(RecvError::Lagged(_)) => Step { send: Vec::new(), done: None },
+                    Err(RecvError::Closed) => {
+                        let _ = client.abort(AbortCode::GeneralError);
+                        return Err(SdoRequestError::Bus {
+                            node: self.node,
+                            error: BusError::Closed(self.bus.name().to_string()),
+                        });
+                    }
+                },
+                _ = tokio::time::sleep_until(deadline) => {
+                    client.handle_timeout(tokio::time::Instant::now().into_std())
+                }
+            };
+        }
+    }
+
+    fn sdo_error(&self, error: SdoError) -> SdoRequestError {
+        SdoRequestError::Sdo {
+            node: self.node,
+            error,
+        }
+    }
+}
+
+enum Request<'a> {
+    Upload { index: u16, sub: u8 },
+    Download { index: u16, sub: u8, data: &'a [u8] },
+}

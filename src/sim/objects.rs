@@ -1,0 +1,252 @@
+//! The values of a virtual device's object dictionary, as its SDO server
+//! sees them (CiA 301 §7.2.4.3: which abort answers which request).
+//!
+//! A store starts from the dictionary's default values for its node id
+//! (`$NODEID+0x180` resolved) and checks every access the way a device does:
+//! existence (0x06020000, 0x06090011), access type (0x06010001, 0x06010002),
+//! length (0x06070010/12/13) and range (0x06090030/31/32).
+
+use std::collections::BTreeMap;
+
+use crate::canopen::NodeId;
+use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, ValueError};
+use crate::canopen::sdo::{AbortCode, ObjectAccess};
+
+/// Why a dictionary cannot be made into a store.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("object 0x{index:04X} sub {sub} ({name}): default value: {error}")]
+pub struct StoreError {
+    pub index: u16,
+    pub sub: u8,
+    pub name: String,
+    pub error: ValueError,
+}
+
+/// A dictionary with a current value for every sub-object.
+#[derive(Debug, Clone)]
+pub struct ObjectStore {
+    node: NodeId,
+    dictionary: ObjectDictionary,
+    values: BTreeMap<(u16, u8), Value>,
+}
+
+impl ObjectStore {
+    /// Every sub-object at its default for `node`; a sub-object without a
+    /// default starts at zero (an empty string for strings and domains).
+    pub fn new(dictionary: ObjectDictionary, node: NodeId) -> Result<Self, StoreError> {
+        let mut values = BTreeMap::new();
+        for object in dictionary.objects.values() {
+            for sub in object.subs.values() {
+                let error = |error| StoreError {
+                    index: object.index,
+                    sub: sub.sub_index,
+                    name: sub.name.clone(),
+                    error,
+                };
+                let value = match sub.default_value(Some(node)).map_err(error)? {
+                    Some(value) => value,
+                    None => match zero(sub.data_type) {
+                        Some(value) => value,
+                        // A type with no encoding cannot be transferred; leave it out.
+                        None => continue,
+                    },
+                };
+                values.insert((object.index, sub.sub_index), value);
+            }
+        }
+        Ok(Self {
+            node,
+            dictionary,
+            values,
+        })
+    }
+
+    pub fn node(&self) -> NodeId {
+        self.node
+    }
+
+    pub fn dictionary(&self) -> &ObjectDictionary {
+        &self.dictionary
+    }
+
+    /// The current value of `index`:`sub`.
+    pub fn get(&self, index: u16, sub: u8) -> Option<&Value> {
+        self.values.get(&(index, sub))
+    }
+
+    /// Sets a value from the device's side (no access check: a device
+    /// updates its own read-only objects).
+    pub fn set(&mut self, index: u16, sub: u8, value: Value) -> Result<(), AbortCode> {
+        let entry = self.entry(index, sub)?;
+        if value.data_type() != entry.data_type {
+            return Err(AbortCode::LengthMismatch);
+        }
+        self.values.insert((index, sub), value);
+        Ok(())
+    }
+
+    fn entry(&self, index: u16, sub: u8) -> Result<&SubObject, AbortCode> {
+        let object = self
+            .dictionary
+            .get(index)
+            .ok_or(AbortCode::ObjectDoesNotExist)?;
+        object.sub(sub).ok_or(AbortCode::SubIndexDoesNotExist)
+    }
+
+    fn writable_entry(&self, index: u16, sub: u8) -> Result<&SubObject, AbortCode> {
+        let entry = self.entry(index, sub)?;
+        if !entry.access.is_writable() {
+            return Err(AbortCode::ReadOnlyObject);
+        }
+        Ok(entry)
+    }
+}
+
+fn zero(data_type: DataType) -> Option<Value> {
+    Value::zero(data_type)
+}
+
+fn abort(error: &ValueError) -> AbortCode {
+    AbortCode::from(error.sdo_abort_code())
+}
+
+impl ObjectAccess for ObjectStore {
+    fn read(&mut self, index: u16, sub: u8) -> Result<Vec<u8>, AbortCode> {
+        let entry = self.entry(index, sub)?;
+        if !entry.access.is_readable() {
+            return Err(AbortCode::WriteOnlyObject);
+        }
+        self.values
+            .get(&(index, sub))
+            .map(Value::to_bytes)
+            .ok_or(AbortCode::NoDataAvailable)
+    }
+
+    fn check_write(&mut self, index: u16, sub: u8, size: Option<usize>) -> Result<(), AbortCode> {
+        let entry = self.writable_entry(index, sub)?;
+        match (size, entry.data_type.byte_len()) {
+            (Some(size), Some(len)) if size > len => Err(AbortCode::LengthTooHigh),
+            (Some(size), Some(len)) if size < len => Err(AbortCode::LengthTooLow),
+            _ => Ok(()),
+        }
+    }
+
+    fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
+        let node = self.node;
+        let entry = self.writable_entry(index, sub)?;
+        let value = Value::from_bytes(entry.data_type, data).map_err(|e| abort(&e))?;
+        entry.check(&value, Some(node)).map_err(|e| abort(&e))?;
+        self.values.insert((index, sub), value);
+        Ok(())
+    }
+
+    fn fixed_size(&mut self, index: u16, sub: u8) -> Option<usize> {
+        self.entry(index, sub).ok()?.data_type.byte_len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::canopen::od::{AccessType, Object};
+
+    fn store() -> ObjectStore {
+        let mut dictionary = ObjectDictionary::new();
+        let mut cob = SubObject::new(0, "COB-ID EMCY", DataType::Unsigned32, AccessType::Rw);
+        cob.default = Some("$NODEID+0x80".into());
+        dictionary.insert(Object::var(0x1014, cob));
+        let mut limited = SubObject::new(0, "Limited", DataType::Integer16, AccessType::Rw);
+        limited.low = Some("-100".into());
+        limited.high = Some("100".into());
+        limited.default = Some("5".into());
+        dictionary.insert(Object::var(0x2000, limited));
+        dictionary.insert(Object::var(
+            0x2001,
+            SubObject::new(0, "Fixed", DataType::Unsigned32, AccessType::Ro),
+        ));
+        dictionary.insert(Object::var(
+            0x2002,
+            SubObject::new(0, "Command", DataType::Unsigned8, AccessType::Wo),
+        ));
+        dictionary.insert(Object::var(
+            0x2003,
+            SubObject::new(0, "Name", DataType::VisibleString, AccessType::Rw),
+        ));
+        ObjectStore::new(dictionary, NodeId::new(5).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn defaults_are_resolved_for_the_node() {
+        let mut store = store();
+        assert_eq!(store.read(0x1014, 0), Ok(vec![0x85, 0, 0, 0]));
+        assert_eq!(store.read(0x2000, 0), Ok(vec![5, 0]));
+        assert_eq!(store.read(0x2003, 0), Ok(vec![]));
+    }
+
+    #[test]
+    fn every_refusal_has_its_abort_code() {
+        let mut store = store();
+        assert_eq!(store.read(0x3000, 0), Err(AbortCode::ObjectDoesNotExist));
+        assert_eq!(store.read(0x2000, 1), Err(AbortCode::SubIndexDoesNotExist));
+        assert_eq!(store.read(0x2002, 0), Err(AbortCode::WriteOnlyObject));
+        assert_eq!(
+            store.write(0x2001, 0, &[1, 0, 0, 0]),
+            Err(AbortCode::ReadOnlyObject)
+        );
+        assert_eq!(
+            store.check_write(0x2001, 0, Some(4)),
+            Err(AbortCode::ReadOnlyObject)
+        );
+        assert_eq!(
+            store.check_write(0x2000, 0, Some(4)),
+            Err(AbortCode::LengthTooHigh)
+        );
+        assert_eq!(
+            store.check_write(0x2000, 0, Some(1)),
+            Err(AbortCode::LengthTooLow)
+        );
+        assert_eq!(
+            store.write(0x2000, 0, &[1, 0, 0]),
+            Err(AbortCode::LengthTooHigh)
+        );
+        assert_eq!(store.write(0x2000, 0, &[1]), Err(AbortCode::LengthTooLow));
+        assert_eq!(
+            store.write(0x2000, 0, &101i16.to_le_bytes()),
+            Err(AbortCode::ValueTooHigh)
+        );
+        assert_eq!(
+            store.write(0x2000, 0, &(-101i16).to_le_bytes()),
+            Err(AbortCode::ValueTooLow)
+        );
+        // Nothing refused was stored.
+        assert_eq!(store.read(0x2000, 0), Ok(vec![5, 0]));
+    }
+
+    #[test]
+    fn accepted_writes_are_read_back() {
+        let mut store = store();
+        store.write(0x2000, 0, &(-100i16).to_le_bytes()).unwrap();
+        assert_eq!(store.read(0x2000, 0), Ok((-100i16).to_le_bytes().to_vec()));
+        store.write(0x2002, 0, &[9]).unwrap();
+        store
+            .write(0x2003, 0, b"a name longer than four bytes")
+            .unwrap();
+        assert_eq!(
+            store.read(0x2003, 0),
+            Ok(b"a name longer than four bytes".to_vec())
+        );
+        assert_eq!(store.fixed_size(0x2000, 0), Some(2));
+        assert_eq!(store.fixed_size(0x2003, 0), None);
+    }
+
+    #[test]
+    fn the_device_updates_its_read_only_values() {
+        let mut store = store();
+        store.set(0x2001, 0, Value::Unsigned32(77)).unwrap();
+        assert_eq!(store.read(0x2001, 0), Ok(vec![77, 0, 0, 0]));
+        assert_eq!(
+            store.set(0x2001, 0, Value::Unsigned8(1)),
+            Err(AbortCode::LengthMismatch)
+        );
+    }
+}
