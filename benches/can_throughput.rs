@@ -243,7 +243,16 @@ async fn python_case(python: &str, total: u64) -> Option<Result> {
 }
 
 fn main() {
-    let runtime = tokio::runtime::Runtime::new().expect("runtime");
+    // The runtime of the candeck binary; BENCH_MULTI_THREAD=1 for tokio's
+    // multi-thread scheduler instead.
+    let runtime = if std::env::var_os("BENCH_MULTI_THREAD").is_some() {
+        tokio::runtime::Runtime::new()
+    } else {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+    }
+    .expect("runtime");
     runtime.block_on(async {
         let (rss_start, _) = rss_kib();
         println!("| path | receivers | frames | frames/s per receiver | frames/s delivered |");

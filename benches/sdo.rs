@@ -35,7 +35,7 @@ fn store() -> ObjectStore {
 }
 
 struct Figures {
-    label: &'static str,
+    label: String,
     expedited_per_s: f64,
     segmented_bytes_per_s: f64,
 }
@@ -93,13 +93,13 @@ fn state_machines(expedited: u32, segmented: u32) -> Figures {
     let segmented_bytes_per_s =
         f64::from(segmented) * SEGMENTED_BYTES as f64 / start.elapsed().as_secs_f64();
     Figures {
-        label: "state machines only, no bus",
+        label: "state machines only, no bus".into(),
         expedited_per_s,
         segmented_bytes_per_s,
     }
 }
 
-async fn over_channel(label: &'static str, bus: Bus, expedited: u32, segmented: u32) -> Figures {
+async fn over_channel(label: &str, bus: Bus, expedited: u32, segmented: u32) -> Figures {
     let channel = SdoChannel::new(
         bus,
         NodeId::new(5).expect("node"),
@@ -120,23 +120,54 @@ async fn over_channel(label: &'static str, bus: Bus, expedited: u32, segmented: 
     let segmented_bytes_per_s =
         f64::from(segmented) * SEGMENTED_BYTES as f64 / start.elapsed().as_secs_f64();
     Figures {
-        label,
+        label: label.to_string(),
         expedited_per_s,
         segmented_bytes_per_s,
     }
 }
 
-fn main() {
-    let runtime = tokio::runtime::Runtime::new().expect("runtime");
-    println!("| client and path | expedited uploads/s | segmented upload, bytes/s |");
-    println!("|---|---|---|");
-    state_machines(200_000, 2_000).print();
+/// The SDO node and the socketcand server on a thread and runtime of their
+/// own, as `candeck vbus` is a process of its own: every socketcand client
+/// (ours and python-canopen) talks to it across threads alike.
+fn spawn_server_thread() -> (u16, std::sync::mpsc::Sender<()>) {
+    let (port_tx, port_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = std::sync::mpsc::channel::<()>();
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("runtime");
+        runtime.block_on(async move {
+            let hub = VirtualHub::new("can0");
+            let store = Arc::new(Mutex::new(store()));
+            let _node = tokio::spawn(serve_sdo(hub.attach(), store, sdo::ServerConfig::default()));
+            let server = SocketcandServer::bind(
+                "127.0.0.1:0".parse().expect("addr"),
+                [("can0".to_string(), hub.clone())],
+                ServerConfig::default(),
+            )
+            .await
+            .expect("bind")
+            .spawn()
+            .expect("spawn");
+            port_tx.send(server.local_addr().port()).expect("port");
+            while stop_rx.try_recv().is_err() {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        });
+    });
+    (port_rx.recv().expect("server thread"), stop_tx)
+}
+
+/// The in-process row (client and node on one runtime) and the socketcand
+/// row (the server on its own thread) for one kind of client runtime.
+fn bus_rows(runtime: &tokio::runtime::Runtime, flavour: &str, port: u16) {
     runtime.block_on(async {
         let hub = VirtualHub::new("can0");
         let store = Arc::new(Mutex::new(store()));
         let _node = tokio::spawn(serve_sdo(hub.attach(), store, sdo::ServerConfig::default()));
         over_channel(
-            "candeck, in-process virtual bus",
+            &format!("candeck, in-process virtual bus, {flavour}"),
             hub.attach(),
             100_000,
             1_000,
@@ -144,61 +175,109 @@ fn main() {
         .await
         .print();
 
-        let server = SocketcandServer::bind(
-            "127.0.0.1:0".parse().expect("addr"),
-            [("can0".to_string(), hub.clone())],
-            ServerConfig::default(),
-        )
-        .await
-        .expect("bind")
-        .spawn()
-        .expect("spawn");
-        let port = server.local_addr().port();
         let remote = open_socketcand("can0", ClientConfig::new("127.0.0.1", port, "can0"));
         remote.wait_up(Duration::from_secs(5)).await.expect("up");
         tokio::time::sleep(Duration::from_millis(200)).await;
-        over_channel("candeck, socketcand on loopback", remote, 20_000, 300)
-            .await
-            .print();
+        over_channel(
+            &format!("candeck, socketcand on loopback, {flavour}"),
+            remote,
+            20_000,
+            300,
+        )
+        .await
+        .print();
+    });
+}
 
-        match std::env::var("CANDECK_PYTHON") {
-            Ok(python) => {
-                let eds = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/testnode.eds");
-                let script =
-                    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/python_sdo_reader.py");
-                let output = tokio::process::Command::new(python)
-                    .arg(script)
-                    .args(["127.0.0.1", &port.to_string(), "can0", "5"])
-                    .arg(eds)
-                    .args(["2000", "50"])
-                    .output()
-                    .await
-                    .expect("python runs");
-                let text = String::from_utf8_lossy(&output.stdout);
-                let numbers: Vec<f64> = text
-                    .split_whitespace()
-                    .filter_map(|n| n.parse().ok())
-                    .collect();
-                if let (true, [expedited, segmented]) =
-                    (output.status.success(), numbers.as_slice())
-                {
-                    Figures {
-                        label: "python-canopen RemoteNode, socketcand on loopback",
-                        expedited_per_s: *expedited,
-                        segmented_bytes_per_s: *segmented,
-                    }
-                    .print();
-                } else {
-                    println!(
-                        "| python-canopen | failed: {} | |",
-                        String::from_utf8_lossy(&output.stderr)
-                            .lines()
-                            .last()
-                            .unwrap_or("")
-                    );
-                }
+async fn python_row(port: u16) {
+    let Ok(python) = std::env::var("CANDECK_PYTHON") else {
+        println!("| python-canopen | skipped: set CANDECK_PYTHON | |");
+        return;
+    };
+    let eds = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/testnode.eds");
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/python_sdo_reader.py");
+    let output = tokio::process::Command::new(python)
+        .arg(script)
+        .args(["127.0.0.1", &port.to_string(), "can0", "5"])
+        .arg(eds)
+        .args(["2000", "50"])
+        .output()
+        .await
+        .expect("python runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let numbers: Vec<f64> = text
+        .split_whitespace()
+        .filter_map(|n| n.parse().ok())
+        .collect();
+    if let (true, [expedited, segmented]) = (output.status.success(), numbers.as_slice()) {
+        Figures {
+            label: "python-canopen RemoteNode, socketcand on loopback (same server)".into(),
+            expedited_per_s: *expedited,
+            segmented_bytes_per_s: *segmented,
+        }
+        .print();
+    } else {
+        println!(
+            "| python-canopen | failed: {} | |",
+            String::from_utf8_lossy(&output.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
+    }
+}
+
+/// The floor of any request/response over TCP on this machine: a 30-byte
+/// ping-pong between two threads, each blocking on its socket.
+fn tcp_round_trips(count: u32) -> f64 {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let echo = std::thread::spawn(move || {
+        let (mut stream, _) = listener.accept().expect("accept");
+        stream.set_nodelay(true).expect("nodelay");
+        let mut buf = [0u8; 64];
+        while let Ok(n) = stream.read(&mut buf) {
+            if n == 0 || stream.write_all(&buf[..n]).is_err() {
+                break;
             }
-            Err(_) => println!("| python-canopen | skipped: set CANDECK_PYTHON | |"),
         }
     });
+    let mut stream = std::net::TcpStream::connect(addr).expect("connect");
+    stream.set_nodelay(true).expect("nodelay");
+    let message = [b'x'; 30];
+    let mut buf = [0u8; 64];
+    let start = Instant::now();
+    for _ in 0..count {
+        stream.write_all(&message).expect("write");
+        let mut got = 0;
+        while got < message.len() {
+            got += stream.read(&mut buf).expect("read");
+        }
+    }
+    let rate = f64::from(count) / start.elapsed().as_secs_f64();
+    drop(stream);
+    let _ = echo.join();
+    rate
+}
+
+fn main() {
+    println!(
+        "TCP round trips between two threads on loopback (the floor of one SDO exchange): {:.0}/s",
+        tcp_round_trips(20_000)
+    );
+    println!();
+    println!("| client and path | expedited uploads/s | segmented upload, bytes/s |");
+    println!("|---|---|---|");
+    state_machines(200_000, 2_000).print();
+    let (port, stop) = spawn_server_thread();
+    let current = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    bus_rows(&current, "current-thread runtime (the binary's)", port);
+    current.block_on(python_row(port));
+    let multi = tokio::runtime::Runtime::new().expect("runtime");
+    bus_rows(&multi, "tokio multi-thread runtime", port);
+    let _ = stop.send(());
 }

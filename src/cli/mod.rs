@@ -77,7 +77,14 @@ pub fn main() -> ExitCode {
         );
         return ExitCode::from(2);
     };
-    let runtime = match tokio::runtime::Runtime::new() {
+    // One thread: request/response traffic (SDO) is 20 times faster than on
+    // tokio's multi-thread scheduler, whose cross-thread wake-ups dominate
+    // such short exchanges (see BENCHMARKS.md), and frames still flow at
+    // several hundred thousand per second.
+    let runtime = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
         Ok(runtime) => runtime,
         Err(err) => {
             eprintln!("candeck: error: cannot start the async runtime: {err}");

@@ -4,17 +4,34 @@
 
 use std::sync::{Arc, Mutex};
 
-use crate::can::{Bus, RecvError};
+use crate::can::{Bus, FrameReceiver, RecvError};
 use crate::canopen::sdo::{SdoServer, ServerConfig};
 
 use super::objects::ObjectStore;
 
 /// Serves SDO for `store` until the bus closes. The store stays shared so
 /// that the device (or a test) changes values while clients read them.
-pub async fn serve_sdo(bus: Bus, store: Arc<Mutex<ObjectStore>>, config: ServerConfig) {
+///
+/// The node listens from the moment this is called, not from the first
+/// poll of the returned future, so a request sent right after spawning it is
+/// not lost.
+pub fn serve_sdo(
+    bus: Bus,
+    store: Arc<Mutex<ObjectStore>>,
+    config: ServerConfig,
+) -> impl Future<Output = ()> + Send {
+    let frames = bus.subscribe();
+    serve(bus, frames, store, config)
+}
+
+async fn serve(
+    bus: Bus,
+    mut frames: FrameReceiver,
+    store: Arc<Mutex<ObjectStore>>,
+    config: ServerConfig,
+) {
     let node = lock(&store).node();
     let mut server = SdoServer::new(node, config);
-    let mut frames = bus.subscribe();
     loop {
         let deadline = server.deadline().map(tokio::time::Instant::from_std);
         let replies = tokio::select! {

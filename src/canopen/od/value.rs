@@ -522,8 +522,8 @@ impl Value {
 
     /// The text of a DCF `ParameterValue` that [`Value::parse_text`] reads
     /// back to the same value: integers in decimal, reals in the shortest
-    /// decimal that round-trips, strings in quotes, octet strings and domains
-    /// in hex.
+    /// decimal that round-trips, strings bare (in quotes when an INI reader
+    /// would change them), octet strings and domains in hex.
     pub fn to_text(&self) -> String {
         match self {
             Value::Real32(v) => v.to_string(),
@@ -1131,7 +1131,19 @@ mod tests {
         }
         assert_eq!(Value::Real32(0.1).to_text(), "0.1");
         assert_eq!(Value::OctetString(vec![0xAB, 1]).to_text(), "AB01");
-        assert_eq!(Value::VisibleString("a b".into()).to_text(), "\"a b\"");
+        for (text, written) in [
+            ("a b", "a b"),
+            ("https://uniswarm.eu/", "https://uniswarm.eu/"),
+            ("", "\"\""),
+            (" padded ", "\" padded \""),
+            ("a ; b", "\"a ; b\""),
+            ("\"quoted\"", "\"\"quoted\"\""),
+            ("say \"hi\" now", "say \"hi\" now"),
+        ] {
+            let value = Value::VisibleString(text.into());
+            assert_eq!(value.to_text(), written);
+            assert_eq!(parse(DataType::VisibleString, written), Ok(value));
+        }
     }
 
     #[test]

@@ -146,6 +146,27 @@ enum State {
 }
 
 impl State {
+    /// A block download whose segments are all in: waiting for the end.
+    fn into_end(self) -> Self {
+        match self {
+            Self::BlockDownload {
+                index,
+                sub,
+                size,
+                crc,
+                data,
+                ..
+            } => Self::EndBlockDownload {
+                index,
+                sub,
+                size,
+                crc,
+                data,
+            },
+            other => other,
+        }
+    }
+
     fn multiplexer(&self) -> Option<(u16, u8)> {
         match *self {
             Self::Idle => None,
@@ -158,6 +179,24 @@ impl State {
             | Self::EndBlockUpload { index, sub } => Some((index, sub)),
         }
     }
+}
+
+/// python-canopen downloads an empty value by block with no segment at all:
+/// the end request follows the initiate directly. CiA 301 has one empty
+/// segment sent instead, but when the client announced 0 bytes and nothing
+/// has arrived, a frame shaped like an end request cannot be a first segment
+/// (that would be numbered 1), so it is taken for the end.
+fn empty_block_download_end(state: &State, data: &[u8]) -> Option<Request> {
+    let State::BlockDownload {
+        size: Some(0),
+        data: received,
+        ..
+    } = state
+    else {
+        return None;
+    };
+    let end = Request::decode(data).ok()?;
+    (received.is_empty() && matches!(end, Request::EndBlockDownload { .. })).then_some(end)
 }
 
 /// Why the server ends a transfer: the abort it sends.
@@ -257,8 +296,12 @@ impl SdoServer {
                 code: AbortCode::InvalidCommandSpecifier,
             })
         } else if let State::BlockDownload { .. } = state {
-            let segment = BlockSegment::decode(data).expect("8 bytes are a segment");
-            self.on_segment(state, &segment)
+            if let Some(end) = empty_block_download_end(&state, data) {
+                self.on_request(state.into_end(), end, objects)
+            } else {
+                let segment = BlockSegment::decode(data).expect("8 bytes are a segment");
+                self.on_segment(state, &segment)
+            }
         } else {
             match Request::decode(data) {
                 Ok(request) => self.on_request(state, request, objects),
@@ -482,8 +525,10 @@ impl SdoServer {
                 },
             ) => {
                 let refuse = refuse(index, sub);
-                // At least one segment (7 bytes) arrived before the end.
-                data.truncate(data.len() - usize::from(unused));
+                // At least one segment (7 bytes) arrived before the end, but
+                // for python-canopen's empty download (see
+                // `empty_block_download_end`).
+                data.truncate(data.len().saturating_sub(usize::from(unused)));
                 self.check_length(&data, size, true).map_err(&refuse)?;
                 if crc && crc16(&data) != theirs {
                     return Err(refuse(AbortCode::CrcError));

@@ -844,3 +844,43 @@ fn block_upload_answers_a_client_without_crc_without_the_flag() {
         vec![[0xC1 | 4 << 2, lo, hi, 0, 0, 0, 0, 0]]
     );
 }
+
+#[test]
+fn an_empty_block_download_without_segments_as_python_canopen_sends_it() {
+    let mut f = Fixture::new();
+    f.set(0x2000, 0, b"old");
+    assert_eq!(
+        f.send([0xC6, 0x00, 0x20, 0x00, 0, 0, 0, 0]),
+        vec![[0xA4, 0x00, 0x20, 0x00, 127, 0, 0, 0]]
+    );
+    // python-canopen: the end (n = 7, CRC of nothing) right after the initiate.
+    assert_eq!(
+        f.send([0xDD, 0, 0, 0, 0, 0, 0, 0]),
+        vec![[0xA1, 0, 0, 0, 0, 0, 0, 0]]
+    );
+    assert_eq!(f.objects.value(0x2000, 0), &[] as &[u8]);
+    assert!(f.server.is_idle());
+    // CiA 301's way, one empty segment, works as well.
+    f.set(0x2000, 0, b"old");
+    f.send([0xC6, 0x00, 0x20, 0x00, 0, 0, 0, 0]);
+    assert_eq!(
+        f.send([0x81, 0, 0, 0, 0, 0, 0, 0]),
+        vec![[0xA2, 1, 127, 0, 0, 0, 0, 0]]
+    );
+    assert_eq!(
+        f.send([0xDD, 0, 0, 0, 0, 0, 0, 0]),
+        vec![[0xA1, 0, 0, 0, 0, 0, 0, 0]]
+    );
+    assert_eq!(f.objects.value(0x2000, 0), &[] as &[u8]);
+    // With a size announced, the same byte is a segment numbered 93, too
+    // high for blocks of 10.
+    let mut f = Fixture::with(ServerConfig {
+        block_size: 10,
+        ..config()
+    });
+    f.send([0xC6, 0x00, 0x20, 0x00, 5, 0, 0, 0]);
+    assert_eq!(
+        f.send([0xDD, 0, 0, 0, 0, 0, 0, 0]),
+        vec![abort_bytes(0x2000, 0, AbortCode::InvalidSequenceNumber)]
+    );
+}
