@@ -22,3 +22,6 @@ pub mod canopen;
 pub mod cli;
 pub mod gateway;
 pub mod sim;
+
+#[cfg(test)]
+mod test_support;

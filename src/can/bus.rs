@@ -398,7 +398,9 @@ impl Bus {
         })
     }
 
-    /// The frames other nodes send, from now on.
+    /// The frames other nodes send, from now on. The receiver belongs to
+    /// this attachment: once the last handle to the attachment is dropped it
+    /// reports [`RecvError::Closed`], so keep the [`Bus`] while reading.
     pub fn subscribe(&self) -> FrameReceiver {
         self.receiver(false)
     }

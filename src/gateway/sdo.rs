@@ -150,3 +150,113 @@ enum Request<'a> {
     Upload { index: u16, sub: u8 },
     Download { index: u16, sub: u8, data: &'a [u8] },
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Mutex as StdMutex;
+
+    use super::*;
+    use crate::can::{BusState, BusStatus, CanId, VirtualHub};
+    use crate::canopen::od::{AccessType, DataType, Object, ObjectDictionary, SubObject};
+    use crate::sim::objects::ObjectStore;
+    use crate::sim::sdo_node::serve_sdo;
+
+    fn node() -> NodeId {
+        NodeId::new(5).unwrap()
+    }
+
+    fn config() -> ClientConfig {
+        ClientConfig {
+            timeout: Duration::from_millis(500),
+            ..ClientConfig::default()
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_node_times_out_at_the_configured_time_and_is_told_so() {
+        let hub = VirtualHub::new("test");
+        let channel = SdoChannel::new(hub.attach(), node(), config());
+        let observer = hub.attach();
+        let mut watch = observer.monitor();
+        let start = tokio::time::Instant::now();
+        let error = channel.upload(0x1000, 0).await.unwrap_err();
+        assert_eq!(
+            error,
+            SdoRequestError::Sdo {
+                node: node(),
+                error: SdoError::Timeout
+            }
+        );
+        // The paused clock moved exactly by the timeout, no real waiting.
+        assert_eq!(start.elapsed(), Duration::from_millis(500));
+        // The request, then the client's abort 0x05040000 on 0x605.
+        let request = watch.recv().await.unwrap().frame;
+        assert_eq!(request.id(), CanId::Standard(0x605));
+        let abort = watch.recv().await.unwrap().frame;
+        assert_eq!(
+            abort.data(),
+            &[0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x04, 0x05]
+        );
+        assert_eq!(
+            error.to_string(),
+            "node 5: the device did not answer the SDO request in time, so the transfer was aborted"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_device_abort_a_timeout_and_a_bus_failure_are_different_errors() {
+        let hub = VirtualHub::new("test");
+        let mut dictionary = ObjectDictionary::new();
+        dictionary.insert(Object::var(
+            0x2000,
+            SubObject::new(0, "Fixed", DataType::Unsigned32, AccessType::Ro),
+        ));
+        let store = Arc::new(StdMutex::new(ObjectStore::new(dictionary, node()).unwrap()));
+        let server = tokio::spawn(serve_sdo(hub.attach(), store, Default::default()));
+        let channel = SdoChannel::new(hub.attach(), node(), config());
+
+        assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
+        let refused = channel
+            .download(0x2000, 0, &[1, 0, 0, 0])
+            .await
+            .unwrap_err();
+        assert_eq!(refused.device_abort(), Some(AbortCode::ReadOnlyObject));
+
+        hub.set_status(BusStatus::new(BusState::Down, "cable pulled"));
+        let down = channel.upload(0x2000, 0).await.unwrap_err();
+        assert!(matches!(down, SdoRequestError::Bus { .. }), "{down:?}");
+        assert_eq!(down.device_abort(), None);
+        hub.set_status(BusStatus::up());
+
+        // After every failure the channel is ready for the next transfer.
+        assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
+        server.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn callers_queue_for_the_node_one_transfer_at_a_time() {
+        let hub = VirtualHub::new("test");
+        let mut dictionary = ObjectDictionary::new();
+        dictionary.insert(Object::var(
+            0x2000,
+            SubObject::new(0, "Word", DataType::Unsigned32, AccessType::Rw),
+        ));
+        let store = Arc::new(StdMutex::new(ObjectStore::new(dictionary, node()).unwrap()));
+        let server = tokio::spawn(serve_sdo(hub.attach(), store, Default::default()));
+        let channel = SdoChannel::new(hub.attach(), node(), config());
+        let tasks: Vec<_> = (0..8u32)
+            .map(|i| {
+                let channel = channel.clone();
+                tokio::spawn(async move {
+                    channel.download(0x2000, 0, &i.to_le_bytes()).await.unwrap();
+                    channel.upload(0x2000, 0).await.unwrap()
+                })
+            })
+            .collect();
+        for task in tasks {
+            assert_eq!(task.await.unwrap().len(), 4);
+        }
+        // Nobody was refused as busy (the unwraps): each waited for its turn.
+        server.abort();
+    }
+}

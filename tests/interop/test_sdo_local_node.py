@@ -108,3 +108,17 @@ def test_a_node_that_does_not_answer_is_a_timeout(vbus, local_node):
     err = proc.stderr.strip()
     assert len(err.splitlines()) == 1, err
     assert "node 9" in err and "did not answer" in err, err
+
+
+def test_with_the_eds_objects_are_named_and_typed(vbus, local_node):
+    status, out, err = od(vbus, "read", "Word", "0", "--eds", EDS)
+    assert status == 0, err
+    assert out == "305419896"
+    status, out, err = od(vbus, "read", "Identity object", "Vendor_ID", "--eds", EDS, "--json")
+    assert status == 0, err
+    assert out == '{"data_type":"u32","index":"0x1018","raw":"C0DEC400","sub":1,"value":12902080}'
+    status, out, err = od(vbus, "write", "Short", "0", "-7", "--eds", EDS)
+    assert status == 0, err
+    assert local_node.sdo[0x2002].raw == -7
+    status, out, err = od(vbus, "read", "NoSuchThing", "0", "--eds", EDS)
+    assert status == 1 and "NoSuchThing" in err, err

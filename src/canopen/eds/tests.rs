@@ -797,7 +797,7 @@ fn check_round_trip(eds: &Eds) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: crate::test_support::fuzz_cases(128), ..ProptestConfig::default() })]
 
     #[test]
     fn the_parser_never_panics_on_arbitrary_text(text in "(?s).{0,600}") {

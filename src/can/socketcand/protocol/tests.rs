@@ -396,7 +396,7 @@ fn arb_frame() -> impl Strategy<Value = Frame> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(2000))]
+    #![proptest_config(ProptestConfig::with_cases(crate::test_support::fuzz_cases(2000)))]
 
     /// Whatever arrives, in whatever pieces, the framer and both parsers
     /// return and memory stays bounded.

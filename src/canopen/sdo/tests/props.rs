@@ -65,7 +65,7 @@ fn events() -> impl Strategy<Value = Vec<Event>> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    #![proptest_config(ProptestConfig::with_cases(crate::test_support::fuzz_cases(256)))]
 
     #[test]
     fn the_server_survives_any_frames_and_timeouts(events in events(), block_size in 1u8..=127, crc: bool) {
@@ -155,7 +155,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(ProptestConfig::with_cases(crate::test_support::fuzz_cases(48)))]
 
     #[test]
     fn any_value_travels_intact_by_every_method(
@@ -252,7 +252,7 @@ fn transfers() -> impl Strategy<Value = Vec<(Method, bool, usize)>> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(192))]
+    #![proptest_config(ProptestConfig::with_cases(crate::test_support::fuzz_cases(192)))]
 
     #[test]
     fn both_machines_survive_a_conversation_gone_wrong(
