@@ -13,6 +13,7 @@
 //!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
 //! - [`gateway`]: the CANopen master: SDO transfers, and later the node
 //!   registry, supervision and telemetry.
+//! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
 //! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`
 //!   only calls it.
@@ -21,6 +22,7 @@ pub mod can;
 pub mod canopen;
 pub mod cli;
 pub mod gateway;
+pub mod profiles;
 pub mod sim;
 
 #[cfg(test)]

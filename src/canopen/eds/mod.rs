@@ -18,10 +18,13 @@
 //! - [`Eds`], [`read_eds_file`]: the whole file: [`FileInfo`], [`DeviceInfo`],
 //!   dummy usage, comments, the [`ObjectDictionary`] and, in a DCF, the
 //!   [`DeviceCommissioning`].
+//! - [`compare()`]: our dictionary of a product against the vendor's.
 //! - `ini`: the INI dialect of CiA 306.
 //! - `read`: INI sections to an [`Eds`].
 //! - `write`: an [`Eds`] back to text that reads back the same.
 
+mod compare;
+pub use compare::{Difference, compare};
 mod ini;
 mod read;
 mod write;

@@ -1,0 +1,24 @@
+//! What a product means: the knowledge of each supported device that the
+//! gateway (to drive a real one) and the virtual devices (to be one) share.
+//!
+//! # Layout
+//!
+//! - [`builtin`]: the EDS files candeck carries for its products, written from
+//!   their manuals (`eds/` in the repository).
+//! - [`uioled`]: UniSwarm UIO1LED LED strip controllers: segments, effects and
+//!   the renderer of the strip's pixels.
+
+pub mod uioled;
+
+/// The EDS files candeck carries, written for candeck from each product's
+/// manual (`../shared/manuals/`), embedded in the binary.
+pub mod builtin {
+    /// UniSwarm UMC1BDS32, two-axis motion controller.
+    pub const UMC1BDS32: &str = include_str!("../../eds/umc1bds32.eds");
+    /// UniSwarm UMC1BD90, motion controller.
+    pub const UMC1BD90: &str = include_str!("../../eds/umc1bd90.eds");
+    /// UniSwarm UIO1LED, 10-segment LED strip controller.
+    pub const UIO1LED: &str = include_str!("../../eds/uio1led.eds");
+    /// JMC CANopen stepper drive.
+    pub const JMC_STEPPER: &str = include_str!("../../eds/jmc_stepper.eds");
+}

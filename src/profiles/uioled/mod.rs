@@ -1,0 +1,1 @@
+//! UniSwarm UIO1LED (being written).
