@@ -19,19 +19,19 @@ use candeck::canopen::eds::read_eds_file;
 use candeck::canopen::od::Value;
 use candeck::canopen::sdo::{self, ObjectAccess, SdoClient, SdoServer, Step, Transfer};
 use candeck::gateway::sdo::SdoChannel;
-use candeck::sim::objects::ObjectStore;
-use candeck::sim::sdo_node::serve_sdo;
+use candeck::sim::device::{DeviceCore, run_device};
 
 const SEGMENTED_BYTES: usize = 1000;
 
-fn store() -> ObjectStore {
+fn device() -> DeviceCore {
     let eds = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/testnode.eds");
     let dictionary = read_eds_file(&eds).expect("test EDS").dictionary;
-    let mut store = ObjectStore::new(dictionary, NodeId::new(5).expect("node")).expect("store");
-    store
+    let mut device = DeviceCore::new(dictionary, NodeId::new(5).expect("node")).expect("device");
+    device
+        .store_mut()
         .set(0x2007, 0, Value::OctetString(vec![0x5A; SEGMENTED_BYTES]))
         .expect("block data");
-    store
+    device
 }
 
 struct Figures {
@@ -52,7 +52,8 @@ impl Figures {
 /// Client and server machines passing frames to each other directly.
 fn state_machines(expedited: u32, segmented: u32) -> Figures {
     let node = NodeId::new(5).expect("node");
-    let mut store = store();
+    let mut device = device();
+    let store = device.store_mut();
     let mut client = SdoClient::new(node, sdo::ClientConfig::default());
     let mut server = SdoServer::new(node, sdo::ServerConfig::default());
     let mut upload = |index: u16, store: &mut dyn ObjectAccess| -> Vec<u8> {
@@ -83,12 +84,12 @@ fn state_machines(expedited: u32, segmented: u32) -> Figures {
     };
     let start = Instant::now();
     for _ in 0..expedited {
-        assert_eq!(upload(0x2003, &mut store).len(), 4);
+        assert_eq!(upload(0x2003, &mut *store).len(), 4);
     }
     let expedited_per_s = f64::from(expedited) / start.elapsed().as_secs_f64();
     let start = Instant::now();
     for _ in 0..segmented {
-        assert_eq!(upload(0x2007, &mut store).len(), SEGMENTED_BYTES);
+        assert_eq!(upload(0x2007, &mut *store).len(), SEGMENTED_BYTES);
     }
     let segmented_bytes_per_s =
         f64::from(segmented) * SEGMENTED_BYTES as f64 / start.elapsed().as_secs_f64();
@@ -139,8 +140,7 @@ fn spawn_server_thread() -> (u16, std::sync::mpsc::Sender<()>) {
             .expect("runtime");
         runtime.block_on(async move {
             let hub = VirtualHub::new("can0");
-            let store = Arc::new(Mutex::new(store()));
-            let _node = tokio::spawn(serve_sdo(hub.attach(), store, sdo::ServerConfig::default()));
+            let _node = tokio::spawn(run_device(hub.attach(), Arc::new(Mutex::new(device()))));
             let server = SocketcandServer::bind(
                 "127.0.0.1:0".parse().expect("addr"),
                 [("can0".to_string(), hub.clone())],
@@ -164,8 +164,7 @@ fn spawn_server_thread() -> (u16, std::sync::mpsc::Sender<()>) {
 fn bus_rows(runtime: &tokio::runtime::Runtime, flavour: &str, port: u16) {
     runtime.block_on(async {
         let hub = VirtualHub::new("can0");
-        let store = Arc::new(Mutex::new(store()));
-        let _node = tokio::spawn(serve_sdo(hub.attach(), store, sdo::ServerConfig::default()));
+        let _node = tokio::spawn(run_device(hub.attach(), Arc::new(Mutex::new(device()))));
         over_channel(
             &format!("candeck, in-process virtual bus, {flavour}"),
             hub.attach(),

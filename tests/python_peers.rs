@@ -10,9 +10,7 @@ use candeck::can::socketcand::{ServerConfig, SocketcandServer};
 use candeck::canopen::NodeId;
 use candeck::canopen::eds::read_eds_file;
 use candeck::canopen::od::Value;
-use candeck::canopen::sdo;
-use candeck::sim::objects::ObjectStore;
-use candeck::sim::sdo_node::serve_sdo;
+use candeck::sim::device::{DeviceCore, run_device};
 
 fn manifest_path(relative: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(relative)
@@ -45,12 +43,8 @@ async fn python_canopen_remote_node_reads_and_writes_a_candeck_sdo_server() {
     let eds = manifest_path("tests/data/testnode.eds");
     let dictionary = read_eds_file(&eds).unwrap().dictionary;
     let node = NodeId::new(5).unwrap();
-    let store = Arc::new(Mutex::new(ObjectStore::new(dictionary, node).unwrap()));
-    let sdo_node = tokio::spawn(serve_sdo(
-        hub.attach(),
-        store.clone(),
-        sdo::ServerConfig::default(),
-    ));
+    let device = Arc::new(Mutex::new(DeviceCore::new(dictionary, node).unwrap()));
+    let sdo_node = tokio::spawn(run_device(hub.attach(), device.clone()));
 
     let output = tokio::process::Command::new(python())
         .arg(manifest_path("tests/interop/remote_node_client.py"))
@@ -81,7 +75,8 @@ async fn python_canopen_remote_node_reads_and_writes_a_candeck_sdo_server() {
         );
     }
     // What python-canopen wrote is what the device holds.
-    let store = store.lock().unwrap();
+    let device = device.lock().unwrap();
+    let store = device.store();
     assert_eq!(store.get(0x2001, 0), Some(&Value::Unsigned8(200)));
     assert_eq!(
         store.get(0x2004, 0),

@@ -8,6 +8,7 @@ use super::{CliError, shutdown_signal};
 use crate::can::candump::record_bus;
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, BusKind, BusState};
+use crate::sim::products::{demo, spawn_devices};
 
 #[derive(Debug, Args)]
 pub struct DumpArgs {
@@ -38,6 +39,11 @@ pub async fn run(args: DumpArgs) -> Result<(), CliError> {
     let stop_after = args.seconds.map(|s| seconds(s, "--seconds")).transpose()?;
     let name = args.bus.default_name();
     let opened = args.bus.open(&name).await.map_err(CliError::new)?;
+    if let (BusSpec::Virtual { preset }, Some(hub)) = (&args.bus, &opened.hub)
+        && preset == "demo"
+    {
+        spawn_devices(hub, &demo()).map_err(CliError::new)?;
+    }
     let bus = opened.bus;
     bus.wait_up(connect_timeout).await.map_err(CliError::new)?;
     tracing::info!("dump: {} is up; writing candump -L to stdout", bus.spec());

@@ -8,6 +8,7 @@ use super::{CliError, shutdown_signal};
 use crate::can::VirtualHub;
 use crate::can::socketcand::DEFAULT_PORT;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
+use crate::sim::products::{DeviceList, spawn_devices};
 
 fn default_vbus_listen() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], DEFAULT_PORT))
@@ -18,22 +19,17 @@ pub struct VbusArgs {
     /// Address the socketcand server listens on (port 0 picks a free port).
     #[arg(long, default_value_t = default_vbus_listen())]
     pub listen: SocketAddr,
-    /// Virtual devices on the bus: `none` for an empty bus. The device presets
-    /// (`demo`, `umc1bds32@1,jmc@2,...`) come with the virtual devices.
-    #[arg(long, default_value = "none")]
-    pub devices: String,
+    /// Virtual devices on the bus: `demo` (UMC1BDS32 at 1, JMC at 2, UIO1LED
+    /// at 3), `none`, or a list like `umc1bds32@1,jmc@2,uio1led@3` (products:
+    /// umc1bds32, umc1bd90, jmc, uio1led).
+    #[arg(long, default_value = "demo")]
+    pub devices: DeviceList,
     /// The socketcand channel name clients open.
     #[arg(long, default_value = "can0")]
     pub channel: String,
 }
 
 pub async fn run(args: VbusArgs) -> Result<(), CliError> {
-    if args.devices != "none" {
-        return Err(CliError::new(format!(
-            "--devices {}: virtual devices are not part of this build yet; use --devices none",
-            args.devices
-        )));
-    }
     if args.channel.is_empty()
         || args.channel.len() > 16
         || args.channel.contains(char::is_whitespace)
@@ -44,6 +40,7 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         )));
     }
     let hub = VirtualHub::new(args.channel.clone());
+    spawn_devices(&hub, &args.devices.0).map_err(CliError::new)?;
     let server = SocketcandServer::bind(
         args.listen,
         [(args.channel.clone(), hub.clone())],

@@ -158,8 +158,7 @@ mod tests {
     use super::*;
     use crate::can::{BusState, BusStatus, CanId, VirtualHub};
     use crate::canopen::od::{AccessType, DataType, Object, ObjectDictionary, SubObject};
-    use crate::sim::objects::ObjectStore;
-    use crate::sim::sdo_node::serve_sdo;
+    use crate::sim::device::{DeviceCore, run_device};
 
     fn node() -> NodeId {
         NodeId::new(5).unwrap()
@@ -211,8 +210,8 @@ mod tests {
             0x2000,
             SubObject::new(0, "Fixed", DataType::Unsigned32, AccessType::Ro),
         ));
-        let store = Arc::new(StdMutex::new(ObjectStore::new(dictionary, node()).unwrap()));
-        let server = tokio::spawn(serve_sdo(hub.attach(), store, Default::default()));
+        let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
+        let server = tokio::spawn(run_device(hub.attach(), device));
         let channel = SdoChannel::new(hub.attach(), node(), config());
 
         assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
@@ -241,8 +240,8 @@ mod tests {
             0x2000,
             SubObject::new(0, "Word", DataType::Unsigned32, AccessType::Rw),
         ));
-        let store = Arc::new(StdMutex::new(ObjectStore::new(dictionary, node()).unwrap()));
-        let server = tokio::spawn(serve_sdo(hub.attach(), store, Default::default()));
+        let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
+        let server = tokio::spawn(run_device(hub.attach(), device));
         let channel = SdoChannel::new(hub.attach(), node(), config());
         let tasks: Vec<_> = (0..8u32)
             .map(|i| {

@@ -1,0 +1,228 @@
+//! The products candeck emulates and the `--devices` lists that put them on
+//! a bus (`../shared/API.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
+
+use std::fmt;
+use std::sync::{Arc, Mutex};
+
+use crate::can::VirtualHub;
+use crate::canopen::NodeId;
+use crate::canopen::eds::Eds;
+use crate::profiles::builtin;
+
+use super::device::{DeviceCore, run_device};
+
+/// A product candeck can emulate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Product {
+    /// UniSwarm UMC1BDS32, two-axis motion controller.
+    Umc1bds32,
+    /// UniSwarm UMC1BD90, motion controller.
+    Umc1bd90,
+    /// JMC CANopen stepper drive.
+    Jmc,
+    /// UniSwarm UIO1LED, LED strip controller.
+    Uio1led,
+}
+
+impl Product {
+    pub const ALL: [Product; 4] = [Self::Umc1bds32, Self::Umc1bd90, Self::Jmc, Self::Uio1led];
+
+    /// The name of `--devices` and of `POST /sim/nodes`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Umc1bds32 => "umc1bds32",
+            Self::Umc1bd90 => "umc1bd90",
+            Self::Jmc => "jmc",
+            Self::Uio1led => "uio1led",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|product| product.name().eq_ignore_ascii_case(name.trim()))
+    }
+
+    /// The built-in EDS, written from the product's manual.
+    pub fn eds_text(self) -> &'static str {
+        match self {
+            Self::Umc1bds32 => builtin::UMC1BDS32,
+            Self::Umc1bd90 => builtin::UMC1BD90,
+            Self::Jmc => builtin::JMC_STEPPER,
+            Self::Uio1led => builtin::UIO1LED,
+        }
+    }
+
+    /// A device of this product at `node`, not booted yet.
+    pub fn device(self, node: NodeId) -> Result<DeviceCore, String> {
+        let file = format!("{}.eds (built in)", self.name());
+        let eds = Eds::parse(self.eds_text(), &file).map_err(|err| err.to_string())?;
+        DeviceCore::new(eds.dictionary, node).map_err(|err| format!("{file}: {err}"))
+    }
+}
+
+impl fmt::Display for Product {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One device of a `--devices` list.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceSpec {
+    pub product: Product,
+    pub node: NodeId,
+}
+
+impl fmt::Display for DeviceSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}@{}", self.product, self.node)
+    }
+}
+
+/// The demo: node 1 a UMC1BDS32, node 2 a JMC stepper, node 3 a UIO1LED.
+pub fn demo() -> Vec<DeviceSpec> {
+    [
+        (Product::Umc1bds32, 1),
+        (Product::Jmc, 2),
+        (Product::Uio1led, 3),
+    ]
+    .into_iter()
+    .map(|(product, node)| DeviceSpec {
+        product,
+        node: NodeId::new(node).expect("1 to 3 are node ids"),
+    })
+    .collect()
+}
+
+/// A whole `--devices` list, as one value of the command line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DeviceList(pub Vec<DeviceSpec>);
+
+impl std::str::FromStr for DeviceList {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        parse_devices(text).map(DeviceList)
+    }
+}
+
+impl fmt::Display for DeviceList {
+    /// `none`, or the list as `--devices` takes it.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0.is_empty() {
+            return f.write_str("none");
+        }
+        let names: Vec<String> = self.0.iter().map(ToString::to_string).collect();
+        f.write_str(&names.join(","))
+    }
+}
+
+/// Reads `demo`, `none` or `product@id,product@id,...`.
+pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
+    match text.trim() {
+        "demo" => return Ok(demo()),
+        "none" | "" => return Ok(Vec::new()),
+        _ => {}
+    }
+    let names: Vec<&str> = Product::ALL.iter().map(|p| p.name()).collect();
+    let mut devices: Vec<DeviceSpec> = Vec::new();
+    for item in text.split(',') {
+        let (product, node) = item.trim().split_once('@').ok_or_else(|| {
+            format!(
+                "'{item}' is not PRODUCT@NODE (for example jmc@2); products: {}",
+                names.join(", ")
+            )
+        })?;
+        let product = Product::from_name(product).ok_or_else(|| {
+            format!(
+                "unknown product '{product}'; products: {}",
+                names.join(", ")
+            )
+        })?;
+        let node: NodeId = node
+            .trim()
+            .parse()
+            .map_err(|err| format!("'{item}': {err}"))?;
+        if let Some(taken) = devices.iter().find(|d| d.node == node) {
+            return Err(format!("node {node} is given twice ({taken} and {item})"));
+        }
+        devices.push(DeviceSpec { product, node });
+    }
+    Ok(devices)
+}
+
+/// Puts `devices` on `hub`, each on an attachment of its own, booted and
+/// running. Every device is built before any starts, so a bad one leaves the
+/// bus as it was.
+pub fn spawn_devices(
+    hub: &VirtualHub,
+    devices: &[DeviceSpec],
+) -> Result<Vec<Arc<Mutex<DeviceCore>>>, String> {
+    let cores = devices
+        .iter()
+        .map(|spec| {
+            spec.product
+                .device(spec.node)
+                .map(|core| Arc::new(Mutex::new(core)))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    for core in &cores {
+        tokio::spawn(run_device(hub.attach(), core.clone()));
+    }
+    Ok(cores)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(product: Product, node: u8) -> DeviceSpec {
+        DeviceSpec {
+            product,
+            node: NodeId::new(node).unwrap(),
+        }
+    }
+
+    #[test]
+    fn device_lists_as_the_api_writes_them() {
+        assert_eq!(
+            parse_devices("demo"),
+            Ok(vec![
+                spec(Product::Umc1bds32, 1),
+                spec(Product::Jmc, 2),
+                spec(Product::Uio1led, 3)
+            ])
+        );
+        assert_eq!(parse_devices("none"), Ok(vec![]));
+        assert_eq!(
+            parse_devices("umc1bd90@10, UIO1LED@0x7F"),
+            Ok(vec![
+                spec(Product::Umc1bd90, 10),
+                spec(Product::Uio1led, 127)
+            ])
+        );
+    }
+
+    #[test]
+    fn bad_device_lists_say_what_is_wrong() {
+        let cases = [
+            (
+                "jmc",
+                "'jmc' is not PRODUCT@NODE (for example jmc@2); products: umc1bds32, umc1bd90, jmc, uio1led",
+            ),
+            (
+                "servo@2",
+                "unknown product 'servo'; products: umc1bds32, umc1bd90, jmc, uio1led",
+            ),
+            ("jmc@0", "'jmc@0': node id 0 is not 1 to 127"),
+            (
+                "jmc@2,uio1led@2",
+                "node 2 is given twice (jmc@2 and uio1led@2)",
+            ),
+        ];
+        for (text, expected) in cases {
+            assert_eq!(parse_devices(text), Err(expected.to_string()), "{text}");
+        }
+    }
+}
