@@ -3,11 +3,22 @@
 //! the SDO server over the device's [`ObjectStore`], each running only in the
 //! NMT states that allow it (the UniSwarm manual's figure 3.9). Resets reload
 //! parameters: reset node the whole dictionary, reset communication the
-//! communication area 0x1000–0x1FFF.
+//! communication area 0x1000–0x1FFF, each from the saved values where there
+//! are any and from the factory defaults otherwise.
+//!
+//! Store and restore follow the UMC manual (§9.1.8, §9.1.9): writing the
+//! signature `save` (0x65766173) to 0x1010 sub 1–4 saves the writable
+//! parameters of all areas, the communication area (0x1000–0x1FFF), the
+//! standardized area (0x6000–0x9FFF) or the manufacturer area
+//! (0x2000–0x5FFF); writing `load` (0x64616F6C) to 0x1011 sub 1–4 brings back
+//! the factory values of those areas, to sub 5–8 the saved values. Both only
+//! in pre-operational (abort 0x08000021 otherwise); another value is refused
+//! with 0x08000020.
 //!
 //! Like the protocol layer it does no I/O: frames and the current time go in,
 //! frames and a deadline come out. [`run_device`] drives it on a bus.
 
+use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
@@ -17,17 +28,60 @@ use crate::canopen::cob::Function;
 use crate::canopen::heartbeat::HeartbeatProducer;
 use crate::canopen::nmt::{NmtEvent, NmtService, NmtSlave, NmtState};
 use crate::canopen::od::{ObjectDictionary, Value};
-use crate::canopen::sdo::{SdoServer, ServerConfig};
+use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
 use super::objects::{ObjectStore, StoreError};
 
 /// 0x1017: producer heartbeat time, in ms.
 const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
+/// 0x1010: store parameters.
+const STORE_PARAMETERS: u16 = 0x1010;
+/// 0x1011: restore default parameters.
+const RESTORE_PARAMETERS: u16 = 0x1011;
+/// "save" as a little-endian UNSIGNED32.
+const SAVE_SIGNATURE: [u8; 4] = *b"save";
+/// "load" as a little-endian UNSIGNED32.
+const LOAD_SIGNATURE: [u8; 4] = *b"load";
+
+/// The parameter areas of store and restore, by sub-index 1–4.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Area {
+    All,
+    Communication,
+    Standardized,
+    Manufacturer,
+}
+
+impl Area {
+    fn of_sub(sub: u8) -> Option<Area> {
+        match sub {
+            1 => Some(Area::All),
+            2 => Some(Area::Communication),
+            3 => Some(Area::Standardized),
+            4 => Some(Area::Manufacturer),
+            _ => None,
+        }
+    }
+
+    fn contains(self, index: u16) -> bool {
+        match self {
+            Area::All => true,
+            Area::Communication => (0x1000..=0x1FFF).contains(&index),
+            Area::Standardized => (0x6000..=0x9FFF).contains(&index),
+            Area::Manufacturer => (0x2000..=0x5FFF).contains(&index),
+        }
+    }
+}
+
+/// Saved parameter values, by index and sub-index.
+pub type SavedValues = BTreeMap<(u16, u8), Value>;
 
 /// One virtual CANopen node. See the module documentation.
 pub struct DeviceCore {
-    /// What a reset goes back to.
+    /// The factory values.
     defaults: ObjectStore,
+    /// What 0x1010 saved; a reset loads these over the factory values.
+    saved: SavedValues,
     store: ObjectStore,
     nmt: NmtSlave,
     heartbeat: HeartbeatProducer,
@@ -43,6 +97,7 @@ impl DeviceCore {
         Ok(Self {
             store: defaults.clone(),
             defaults,
+            saved: SavedValues::new(),
             nmt: NmtSlave::new(node),
             heartbeat: HeartbeatProducer::new(node),
             heartbeat_ms: 0,
@@ -67,6 +122,19 @@ impl DeviceCore {
         &mut self.store
     }
 
+    /// The values 0x1010 saved (to keep them across a restart).
+    pub fn saved(&self) -> &SavedValues {
+        &self.saved
+    }
+
+    /// Takes values saved before a restart; they are in force from the next
+    /// boot, as after a power cycle.
+    pub fn load_saved(&mut self, saved: SavedValues) {
+        self.saved = saved;
+        self.store = self.defaults.clone();
+        self.apply_saved(Area::All);
+    }
+
     /// Ends initialisation: the boot-up message, then pre-operational with the
     /// heartbeat of 0x1017 running.
     pub fn boot(&mut self, now: Instant) -> Vec<Frame> {
@@ -81,6 +149,7 @@ impl DeviceCore {
         match self.nmt.on_frame(frame) {
             Ok(Some(NmtEvent::ResetNode)) => {
                 self.store = self.defaults.clone();
+                self.apply_saved(Area::All);
                 return self.boot(now);
             }
             Ok(Some(NmtEvent::ResetCommunication)) => {
@@ -92,7 +161,13 @@ impl DeviceCore {
             Err(_) => return Vec::new(),
         }
         if frame.id() == self.sdo_request && self.nmt.allows(NmtService::Sdo) {
-            let replies = self.sdo.handle_frame(frame, now, &mut self.store);
+            let mut access = DeviceAccess {
+                state: self.nmt.state(),
+                store: &mut self.store,
+                defaults: &self.defaults,
+                saved: &mut self.saved,
+            };
+            let replies = self.sdo.handle_frame(frame, now, &mut access);
             self.follow_heartbeat_time(now);
             return replies;
         }
@@ -134,16 +209,119 @@ impl DeviceCore {
     }
 
     fn reload_communication_area(&mut self) {
-        for object in self.defaults.dictionary().objects.values() {
-            if !(0x1000..=0x1FFF).contains(&object.index) {
+        copy_area(&self.defaults, &mut self.store, Area::Communication);
+        self.apply_saved(Area::Communication);
+    }
+
+    fn apply_saved(&mut self, area: Area) {
+        for ((index, sub), value) in &self.saved {
+            if area.contains(*index) {
+                let _ = self.store.set(*index, *sub, value.clone());
+            }
+        }
+    }
+}
+
+/// Copies every value of `area` from `from` to `to`.
+fn copy_area(from: &ObjectStore, to: &mut ObjectStore, area: Area) {
+    for object in from.dictionary().objects.values() {
+        if !area.contains(object.index) {
+            continue;
+        }
+        for sub in object.subs.keys() {
+            if let Some(value) = from.get(object.index, *sub) {
+                let _ = to.set(object.index, *sub, value.clone());
+            }
+        }
+    }
+}
+
+/// The dictionary as the SDO server of a device sees it: the store, with
+/// 0x1010 and 0x1011 acting instead of storing what is written.
+struct DeviceAccess<'a> {
+    state: NmtState,
+    store: &'a mut ObjectStore,
+    defaults: &'a ObjectStore,
+    saved: &'a mut SavedValues,
+}
+
+impl DeviceAccess<'_> {
+    fn is_command(index: u16, sub: u8) -> bool {
+        matches!(index, STORE_PARAMETERS | RESTORE_PARAMETERS) && sub >= 1
+    }
+
+    fn save(&mut self, area: Area) {
+        self.saved.retain(|(index, _), _| !area.contains(*index));
+        for object in self.store.dictionary().objects.values() {
+            if !area.contains(object.index) {
                 continue;
             }
-            for sub in object.subs.keys() {
-                if let Some(value) = self.defaults.get(object.index, *sub) {
-                    let _ = self.store.set(object.index, *sub, value.clone());
+            for (sub, entry) in &object.subs {
+                // Parameters are what can be written; status values are not saved.
+                let is_command = Self::is_command(object.index, *sub);
+                if entry.access.is_writable() && !is_command {
+                    if let Some(value) = self.store.get(object.index, *sub) {
+                        self.saved.insert((object.index, *sub), value.clone());
+                    }
                 }
             }
         }
+    }
+
+    fn restore_factory(&mut self, area: Area) {
+        self.saved.retain(|(index, _), _| !area.contains(*index));
+        copy_area(self.defaults, self.store, area);
+    }
+
+    fn restore_saved(&mut self, area: Area) {
+        for ((index, sub), value) in self.saved.iter() {
+            if area.contains(*index) {
+                let _ = self.store.set(*index, *sub, value.clone());
+            }
+        }
+    }
+}
+
+impl ObjectAccess for DeviceAccess<'_> {
+    fn read(&mut self, index: u16, sub: u8) -> Result<Vec<u8>, AbortCode> {
+        self.store.read(index, sub)
+    }
+
+    fn check_write(&mut self, index: u16, sub: u8, size: Option<usize>) -> Result<(), AbortCode> {
+        self.store.check_write(index, sub, size)?;
+        if Self::is_command(index, sub) && self.state != NmtState::PreOperational {
+            return Err(AbortCode::CannotStoreLocalControl);
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
+        if !Self::is_command(index, sub) {
+            return self.store.write(index, sub, data);
+        }
+        self.check_write(index, sub, Some(data.len()))?;
+        match (index, data) {
+            (STORE_PARAMETERS, signature) if signature == SAVE_SIGNATURE => {
+                let area = Area::of_sub(sub).ok_or(AbortCode::SubIndexDoesNotExist)?;
+                self.save(area);
+                Ok(())
+            }
+            (RESTORE_PARAMETERS, signature) if signature == LOAD_SIGNATURE => {
+                match (Area::of_sub(sub), sub.checked_sub(4).and_then(Area::of_sub)) {
+                    (Some(area), _) => self.restore_factory(area),
+                    (None, Some(area)) => self.restore_saved(area),
+                    (None, None) => return Err(AbortCode::SubIndexDoesNotExist),
+                }
+                Ok(())
+            }
+            // 0 and 1 configure the automatic restore of 0x1011 (table 3.22).
+            (RESTORE_PARAMETERS, [0 | 1, 0, 0, 0]) => self.store.write(index, sub, data),
+            _ => Err(AbortCode::CannotStore),
+        }
+    }
+
+    fn fixed_size(&mut self, index: u16, sub: u8) -> Option<usize> {
+        self.store.fixed_size(index, sub)
     }
 }
 
@@ -203,7 +381,7 @@ mod tests {
     use crate::can::VirtualHub;
     use crate::canopen::eds::Eds;
     use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
-    use crate::canopen::sdo::{AbortCode, ClientConfig, SdoError};
+    use crate::canopen::sdo::{ClientConfig, SdoError};
     use crate::gateway::sdo::{SdoChannel, SdoRequestError};
 
     fn node() -> NodeId {
@@ -364,5 +542,84 @@ mod tests {
         assert_eq!(refused.device_abort(), Some(AbortCode::ReadOnlyObject));
         drop(rig.hub);
         rig.task.abort();
+    }
+
+    const SAVE: [u8; 4] = *b"save";
+    const LOAD: [u8; 4] = *b"load";
+
+    #[tokio::test(start_paused = true)]
+    async fn saved_parameters_survive_a_reset_node() {
+        let rig = rig();
+        rig.sdo.download(0x2001, 0, &[42]).await.unwrap();
+        rig.sdo.download(0x1010, 1, &SAVE).await.unwrap();
+        rig.sdo.download(0x2001, 0, &[43]).await.unwrap();
+        nmt(&rig.master, NmtCommand::ResetNode).await;
+        assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![42]);
+        // Reading 0x1010 still tells what the device can do, not the signature.
+        assert_eq!(rig.sdo.upload(0x1010, 1).await.unwrap(), 1u32.to_le_bytes());
+        // And the values are there for a restart.
+        assert_eq!(
+            lock(&rig.device).saved().get(&(0x2001, 0)),
+            Some(&Value::Unsigned8(42))
+        );
+        rig.task.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn store_and_restore_only_in_pre_operational_with_the_right_signature() {
+        let rig = rig();
+        let wrong = rig.sdo.download(0x1010, 1, b"evas").await.unwrap_err();
+        assert_eq!(wrong.device_abort(), Some(AbortCode::CannotStore));
+        let wrong = rig.sdo.download(0x1011, 1, b"save").await.unwrap_err();
+        assert_eq!(wrong.device_abort(), Some(AbortCode::CannotStore));
+        nmt(&rig.master, NmtCommand::Start).await;
+        let refused = rig.sdo.download(0x1010, 1, &SAVE).await.unwrap_err();
+        assert_eq!(
+            refused.device_abort(),
+            Some(AbortCode::CannotStoreLocalControl)
+        );
+        let refused = rig.sdo.download(0x1011, 1, &LOAD).await.unwrap_err();
+        assert_eq!(
+            refused.device_abort(),
+            Some(AbortCode::CannotStoreLocalControl)
+        );
+        rig.task.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn areas_are_saved_and_restored_apart() {
+        let rig = rig();
+        // A communication parameter and a manufacturer parameter.
+        rig.sdo
+            .download(0x1017, 0, &200u16.to_le_bytes())
+            .await
+            .unwrap();
+        rig.sdo.download(0x2001, 0, &[42]).await.unwrap();
+        // Save only the manufacturer area.
+        rig.sdo.download(0x1010, 4, &SAVE).await.unwrap();
+        nmt(&rig.master, NmtCommand::ResetNode).await;
+        assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![42]);
+        assert_eq!(rig.sdo.upload(0x1017, 0).await.unwrap(), vec![0, 0]);
+        // Factory values of the manufacturer area, now and after a reset.
+        rig.sdo.download(0x1011, 4, &LOAD).await.unwrap();
+        assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![7]);
+        nmt(&rig.master, NmtCommand::ResetNode).await;
+        assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![7]);
+        // Restore saved: back to what was saved, without a reset.
+        rig.sdo.download(0x2001, 0, &[9]).await.unwrap();
+        rig.sdo.download(0x1010, 1, &SAVE).await.unwrap();
+        rig.sdo.download(0x2001, 0, &[10]).await.unwrap();
+        rig.sdo.download(0x1011, 5, &LOAD).await.unwrap();
+        assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![9]);
+        rig.task.abort();
+    }
+
+    #[test]
+    fn values_saved_before_a_restart_are_in_force() {
+        let mut device = DeviceCore::new(testnode(), node()).unwrap();
+        let mut saved = SavedValues::new();
+        saved.insert((0x2001, 0), Value::Unsigned8(55));
+        device.load_saved(saved);
+        assert_eq!(device.store().get(0x2001, 0), Some(&Value::Unsigned8(55)));
     }
 }
