@@ -42,7 +42,7 @@ pub async fn run(args: DumpArgs) -> Result<(), CliError> {
     if let (BusSpec::Virtual { preset }, Some(hub)) = (&args.bus, &opened.hub)
         && preset == "demo"
     {
-        spawn_devices(hub, &demo()).map_err(CliError::new)?;
+        spawn_devices(hub, &demo(), None).map_err(CliError::new)?;
     }
     let bus = opened.bus;
     bus.wait_up(connect_timeout).await.map_err(CliError::new)?;

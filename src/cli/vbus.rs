@@ -27,6 +27,10 @@ pub struct VbusArgs {
     /// The socketcand channel name clients open.
     #[arg(long, default_value = "can0")]
     pub channel: String,
+    /// Where the devices keep what they save (0x1010) across restarts;
+    /// without it, saved values last until candeck stops.
+    #[arg(long, value_name = "DIR")]
+    pub data_dir: Option<std::path::PathBuf>,
 }
 
 pub async fn run(args: VbusArgs) -> Result<(), CliError> {
@@ -40,7 +44,7 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         )));
     }
     let hub = VirtualHub::new(args.channel.clone());
-    spawn_devices(&hub, &args.devices.0).map_err(CliError::new)?;
+    spawn_devices(&hub, &args.devices.0, args.data_dir.as_deref()).map_err(CliError::new)?;
     let server = SocketcandServer::bind(
         args.listen,
         [(args.channel.clone(), hub.clone())],

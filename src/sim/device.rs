@@ -19,6 +19,7 @@
 //! frames and a deadline come out. [`run_device`] drives it on a bus.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
@@ -31,6 +32,7 @@ use crate::canopen::od::{ObjectDictionary, Value};
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
 use super::objects::{ObjectStore, StoreError};
+use super::persist::write_saved;
 
 /// 0x1017: producer heartbeat time, in ms.
 const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
@@ -82,6 +84,8 @@ pub struct DeviceCore {
     defaults: ObjectStore,
     /// What 0x1010 saved; a reset loads these over the factory values.
     saved: SavedValues,
+    /// Changes whenever `saved` does, so that a runner knows to persist it.
+    saved_version: u64,
     store: ObjectStore,
     nmt: NmtSlave,
     heartbeat: HeartbeatProducer,
@@ -98,6 +102,7 @@ impl DeviceCore {
             store: defaults.clone(),
             defaults,
             saved: SavedValues::new(),
+            saved_version: 0,
             nmt: NmtSlave::new(node),
             heartbeat: HeartbeatProducer::new(node),
             heartbeat_ms: 0,
@@ -125,6 +130,11 @@ impl DeviceCore {
     /// The values 0x1010 saved (to keep them across a restart).
     pub fn saved(&self) -> &SavedValues {
         &self.saved
+    }
+
+    /// A number that changes whenever [`DeviceCore::saved`] does.
+    pub fn saved_version(&self) -> u64 {
+        self.saved_version
     }
 
     /// Takes values saved before a restart; they are in force from the next
@@ -166,6 +176,7 @@ impl DeviceCore {
                 store: &mut self.store,
                 defaults: &self.defaults,
                 saved: &mut self.saved,
+                saved_version: &mut self.saved_version,
             };
             let replies = self.sdo.handle_frame(frame, now, &mut access);
             self.follow_heartbeat_time(now);
@@ -243,6 +254,7 @@ struct DeviceAccess<'a> {
     store: &'a mut ObjectStore,
     defaults: &'a ObjectStore,
     saved: &'a mut SavedValues,
+    saved_version: &'a mut u64,
 }
 
 impl DeviceAccess<'_> {
@@ -251,6 +263,7 @@ impl DeviceAccess<'_> {
     }
 
     fn save(&mut self, area: Area) {
+        *self.saved_version += 1;
         self.saved.retain(|(index, _), _| !area.contains(*index));
         for object in self.store.dictionary().objects.values() {
             if !area.contains(object.index) {
@@ -259,16 +272,18 @@ impl DeviceAccess<'_> {
             for (sub, entry) in &object.subs {
                 // Parameters are what can be written; status values are not saved.
                 let is_command = Self::is_command(object.index, *sub);
-                if entry.access.is_writable() && !is_command {
-                    if let Some(value) = self.store.get(object.index, *sub) {
-                        self.saved.insert((object.index, *sub), value.clone());
-                    }
+                if entry.access.is_writable()
+                    && !is_command
+                    && let Some(value) = self.store.get(object.index, *sub)
+                {
+                    self.saved.insert((object.index, *sub), value.clone());
                 }
             }
         }
     }
 
     fn restore_factory(&mut self, area: Area) {
+        *self.saved_version += 1;
         self.saved.retain(|(index, _), _| !area.contains(*index));
         copy_area(self.defaults, self.store, area);
     }
@@ -330,10 +345,27 @@ impl ObjectAccess for DeviceAccess<'_> {
 /// changes it while it runs. It listens from the moment this is called.
 pub fn run_device(bus: Bus, device: Arc<Mutex<DeviceCore>>) -> impl Future<Output = ()> + Send {
     let frames = bus.subscribe();
-    drive(bus, frames, device)
+    drive(bus, frames, device, None)
 }
 
-async fn drive(bus: Bus, mut frames: FrameReceiver, device: Arc<Mutex<DeviceCore>>) {
+/// [`run_device`], writing the saved values to `path` each time they change
+/// (see [`super::persist`]).
+pub fn run_persistent_device(
+    bus: Bus,
+    device: Arc<Mutex<DeviceCore>>,
+    path: PathBuf,
+) -> impl Future<Output = ()> + Send {
+    let frames = bus.subscribe();
+    drive(bus, frames, device, Some(path))
+}
+
+async fn drive(
+    bus: Bus,
+    mut frames: FrameReceiver,
+    device: Arc<Mutex<DeviceCore>>,
+    persist: Option<PathBuf>,
+) {
+    let mut persisted_version = lock(&device).saved_version();
     let now = || tokio::time::Instant::now().into_std();
     let boot = lock(&device).boot(now());
     send_all(&bus, boot).await;
@@ -348,6 +380,20 @@ async fn drive(bus: Bus, mut frames: FrameReceiver, device: Arc<Mutex<DeviceCore
             },
             _ = sleep_until(deadline) => lock(&device).poll(now()),
         };
+        if let Some(path) = &persist {
+            let saved = {
+                let device = lock(&device);
+                (device.saved_version() != persisted_version)
+                    .then(|| (device.saved_version(), device.saved().clone()))
+            };
+            if let Some((version, saved)) = saved {
+                persisted_version = version;
+                // A device whose flash fails still runs; the log says so.
+                if let Err(err) = write_saved(path, &saved) {
+                    tracing::warn!("virtual device: {err}");
+                }
+            }
+        }
         send_all(&bus, out).await;
     }
 }
@@ -621,5 +667,29 @@ mod tests {
         saved.insert((0x2001, 0), Value::Unsigned8(55));
         device.load_saved(saved);
         assert_eq!(device.store().get(0x2001, 0), Some(&Value::Unsigned8(55)));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_persistent_device_writes_what_it_saves() {
+        let dir = std::env::temp_dir().join(format!("candeck-device-{}", std::process::id()));
+        let path = super::super::persist::saved_path(&dir, "test", node());
+        let _ = std::fs::remove_file(&path);
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let device = Arc::new(Mutex::new(DeviceCore::new(testnode(), node()).unwrap()));
+        let task = tokio::spawn(run_persistent_device(hub.attach(), device, path.clone()));
+        let sdo = SdoChannel::new(master.clone(), node(), ClientConfig::default());
+        sdo.download(0x2001, 0, &[77]).await.unwrap();
+        sdo.download(0x1010, 1, &SAVE).await.unwrap();
+        task.abort();
+        // A new device, as after a restart of candeck, starts with it.
+        let saved = super::super::persist::read_saved(&path).unwrap();
+        let mut restarted = DeviceCore::new(testnode(), node()).unwrap();
+        restarted.load_saved(saved);
+        assert_eq!(
+            restarted.store().get(0x2001, 0),
+            Some(&Value::Unsigned8(77))
+        );
+        let _ = std::fs::remove_dir_all(dir);
     }
 }

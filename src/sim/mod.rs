@@ -8,7 +8,9 @@
 //! - [`device`]: the device core every product shares: NMT slave and
 //!   boot-up, heartbeat from 0x1017, SDO server, resets.
 //! - [`products`]: the emulated products and the `--devices` lists.
+//! - [`persist`]: saved parameters on disk under `--data-dir`.
 
 pub mod device;
 pub mod objects;
+pub mod persist;
 pub mod products;

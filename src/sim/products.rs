@@ -2,6 +2,7 @@
 //! a bus (`../shared/API.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
 
 use std::fmt;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use crate::can::VirtualHub;
@@ -9,7 +10,8 @@ use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::profiles::builtin;
 
-use super::device::{DeviceCore, run_device};
+use super::device::{DeviceCore, run_device, run_persistent_device};
+use super::persist::{read_saved, saved_path};
 
 /// A product candeck can emulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -153,24 +155,34 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
 }
 
 /// Puts `devices` on `hub`, each on an attachment of its own, booted and
-/// running. Every device is built before any starts, so a bad one leaves the
-/// bus as it was.
+/// running. With `data_dir`, each device starts with the parameters it saved
+/// there before and keeps what it saves (see [`super::persist`]). Every
+/// device is built before any starts, so a bad one leaves the bus as it was.
 pub fn spawn_devices(
     hub: &VirtualHub,
     devices: &[DeviceSpec],
+    data_dir: Option<&Path>,
 ) -> Result<Vec<Arc<Mutex<DeviceCore>>>, String> {
-    let cores = devices
-        .iter()
-        .map(|spec| {
-            spec.product
-                .device(spec.node)
-                .map(|core| Arc::new(Mutex::new(core)))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    for core in &cores {
-        tokio::spawn(run_device(hub.attach(), core.clone()));
+    let mut cores = Vec::new();
+    for spec in devices {
+        let mut core = spec.product.device(spec.node)?;
+        let path = data_dir.map(|dir| saved_path(dir, spec.product.name(), spec.node));
+        if let Some(path) = &path {
+            core.load_saved(read_saved(path).map_err(|err| err.to_string())?);
+        }
+        cores.push((Arc::new(Mutex::new(core)), path));
     }
-    Ok(cores)
+    for (core, path) in &cores {
+        match path {
+            Some(path) => tokio::spawn(run_persistent_device(
+                hub.attach(),
+                core.clone(),
+                path.clone(),
+            )),
+            None => tokio::spawn(run_device(hub.attach(), core.clone())),
+        };
+    }
+    Ok(cores.into_iter().map(|(core, _)| core).collect())
 }
 
 #[cfg(test)]

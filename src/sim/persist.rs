@@ -1,0 +1,161 @@
+//! Saved parameters on disk (`--data-dir`): what a virtual device saved with
+//! 0x1010 survives a restart of candeck, as a real device's flash survives a
+//! power cycle.
+//!
+//! One JSON file per device, `DIR/devices/PRODUCT-NODE.json`: a list of
+//! `{"index": "0x2001", "sub": 0, "data_type": "u8", "value": 42}`, written to
+//! a temporary file and renamed, so a crash never leaves half a file.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value as Json, json};
+
+use crate::canopen::NodeId;
+use crate::canopen::od::{DataType, Value, format_index, parse_index};
+
+use super::device::SavedValues;
+
+/// A saved-values file that cannot be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum PersistError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {problem}")]
+    Invalid { path: PathBuf, problem: String },
+}
+
+/// Where the saved values of `product` at `node` live under `dir`.
+pub fn saved_path(dir: &Path, product: &str, node: NodeId) -> PathBuf {
+    dir.join("devices").join(format!("{product}-{node}.json"))
+}
+
+/// The values saved in `path`; none when the file does not exist yet.
+pub fn read_saved(path: &Path) -> Result<SavedValues, PersistError> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(err) if err.kind() == std::io::ErrorKind::NotFound => return Ok(SavedValues::new()),
+        Err(source) => {
+            return Err(PersistError::Read {
+                path: path.to_path_buf(),
+                source,
+            });
+        }
+    };
+    let invalid = |problem: String| PersistError::Invalid {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let entries: Vec<Json> =
+        serde_json::from_str(&text).map_err(|err| invalid(format!("not a JSON list: {err}")))?;
+    let mut saved = SavedValues::new();
+    for (n, entry) in entries.iter().enumerate() {
+        let field = |name: &str| {
+            entry
+                .get(name)
+                .ok_or_else(|| invalid(format!("entry {n} has no '{name}'")))
+        };
+        let index = field("index")?
+            .as_str()
+            .and_then(parse_index)
+            .ok_or_else(|| invalid(format!("entry {n}: index is not like \"0x2001\"")))?;
+        let sub = field("sub")?
+            .as_u64()
+            .and_then(|sub| u8::try_from(sub).ok())
+            .ok_or_else(|| invalid(format!("entry {n}: sub is not 0 to 255")))?;
+        let data_type: DataType = field("data_type")?
+            .as_str()
+            .and_then(|name| name.parse().ok())
+            .ok_or_else(|| invalid(format!("entry {n}: unknown data_type")))?;
+        let value = Value::from_json(data_type, field("value")?)
+            .map_err(|err| invalid(format!("entry {n}: {err}")))?;
+        saved.insert((index, sub), value);
+    }
+    Ok(saved)
+}
+
+/// Writes `saved` to `path`, creating its directory.
+pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError> {
+    let write_error = |source| PersistError::Write {
+        path: path.to_path_buf(),
+        source,
+    };
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(write_error)?;
+    }
+    let entries: Vec<Json> = saved
+        .iter()
+        .map(|((index, sub), value)| {
+            json!({
+                "index": format_index(*index),
+                "sub": sub,
+                "data_type": value.data_type().short_name(),
+                "value": value.to_json(),
+            })
+        })
+        .collect();
+    let text = serde_json::to_string_pretty(&entries).unwrap_or_else(|_| "[]".to_string());
+    let temporary = path.with_extension("json.tmp");
+    std::fs::write(&temporary, text).map_err(write_error)?;
+    std::fs::rename(&temporary, path).map_err(write_error)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("candeck-persist-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn saved_values_round_trip_through_the_file() {
+        let dir = scratch("round-trip");
+        let path = saved_path(&dir, "umc1bds32", NodeId::new(1).unwrap());
+        assert!(path.ends_with("devices/umc1bds32-1.json"));
+        assert_eq!(read_saved(&path).unwrap(), SavedValues::new());
+        let mut saved = SavedValues::new();
+        saved.insert((0x2001, 0), Value::Unsigned8(42));
+        saved.insert((0x2004, 0), Value::Integer64(-5_000_000_000));
+        saved.insert((0x2000, 0), Value::VisibleString("kept".into()));
+        saved.insert((0x2005, 0), Value::Real32(1.5));
+        write_saved(&path, &saved).unwrap();
+        assert_eq!(read_saved(&path).unwrap(), saved);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn a_damaged_file_is_an_error_naming_it() {
+        let dir = scratch("damaged");
+        let path = saved_path(&dir, "jmc", NodeId::new(2).unwrap());
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        for (text, problem) in [
+            ("not json", "not a JSON list"),
+            (r#"[{"sub": 0}]"#, "entry 0 has no 'index'"),
+            (
+                r#"[{"index": "0x2001", "sub": 300, "data_type": "u8", "value": 1}]"#,
+                "sub is not 0 to 255",
+            ),
+            (
+                r#"[{"index": "0x2001", "sub": 0, "data_type": "u8", "value": 300}]"#,
+                "entry 0:",
+            ),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let err = read_saved(&path).unwrap_err().to_string();
+            assert!(err.starts_with(&path.display().to_string()), "{err}");
+            assert!(err.contains(problem), "{err}");
+        }
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
