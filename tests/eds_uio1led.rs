@@ -94,13 +94,37 @@ fn ours_agrees_with_the_vendor_file() {
     }
 }
 
+/// Objects the device answers but the manual does not describe, written in
+/// our file from CiA 301 (0x1003 pre-defined error field, 0x1016 consumer
+/// heartbeat, 0x1200 the default SDO server's COB-IDs) and CiA 302 (0x1F51
+/// program control), and 0x2050, the device's bootloader record.
+const STANDARD: [u16; 5] = [0x1003, 0x1016, 0x1200, 0x1F51, 0x2050];
+
+/// Per-segment objects the manual does not describe, as offsets from the
+/// segment's base: the value's profile (+0x14) and the effect's width (+0x23).
+const SEGMENT_UNDESCRIBED: [(u16, &str); 2] = [(0x14, "Profile"), (0x23, "Width")];
+
+fn added_objects() -> Vec<u16> {
+    let mut objects = STANDARD.to_vec();
+    for segment in 0..10u16 {
+        objects.extend(
+            SEGMENT_UNDESCRIBED
+                .iter()
+                .map(|(offset, _)| 0x6000 + 0x100 * segment + offset),
+        );
+    }
+    objects
+}
+
 #[test]
 fn ours_has_every_object_the_manual_describes() {
     let ours = ours();
     let vendor = vendor();
     let objects = manual_objects();
     assert_eq!(objects.len(), 30 + 12 + 10 * 12);
-    for index in objects {
+    let added = added_objects();
+    assert_eq!(added.len(), 5 + 10 * 2);
+    for &index in objects.iter().chain(&added) {
         let theirs = vendor
             .dictionary
             .get(index)
@@ -113,8 +137,24 @@ fn ours_has_every_object_the_manual_describes() {
         let their_subs: Vec<u8> = theirs.subs.keys().copied().collect();
         assert_eq!(subs, their_subs, "sub-objects of 0x{index:04X}");
     }
-    // Nothing else: what the manual does not describe is not ours to claim.
-    assert_eq!(ours.dictionary.len(), 30 + 12 + 10 * 12);
+    // Nothing else: what neither the manual nor the standards describe is
+    // not ours to claim.
+    let mut expected: Vec<u16> = objects.into_iter().chain(added).collect();
+    expected.sort_unstable();
+    let indices: Vec<u16> = ours.dictionary.objects.keys().copied().collect();
+    assert_eq!(indices, expected);
+}
+
+#[test]
+fn undescribed_segment_objects_are_named_per_segment() {
+    let ours = ours();
+    for n in 1..=10u16 {
+        let base = 0x6000 + 0x100 * (n - 1);
+        for (offset, name) in SEGMENT_UNDESCRIBED {
+            let object = ours.dictionary.get(base + offset).unwrap();
+            assert_eq!(object.name, format!("s{n:02}_{name}"));
+        }
+    }
 }
 
 #[test]

@@ -28,6 +28,15 @@
 //! which the manual only names, the access of 0x60C4.3–5, the number of bridges
 //! of the UMC1BD90, which the manual says varies by model), the values are the
 //! vendor file's, so that the two agree.
+//!
+//! Objects the device answers but the manual does not describe (0x1003,
+//! 0x1016, 0x1200, 0x1F5x, the CiA 402 objects of modes the manual leaves
+//! out, 0x2050, 0x2800, 0x4081, 0x4083, and the sub-objects 0x4009.2
+//! Phase_advance of the UMC1BDS32 and 0x4020.5/0x4040.5/0x4060.5 Target)
+//! are written from CiA 301/302/402 and the objects' meaning;
+//! they are listed in `STANDARD_COMMUNICATION`, `STANDARD_CIA402` and
+//! `UNDESCRIBED_AXIS`, and each file holds those and the manual's objects,
+//! nothing else.
 
 use candeck::canopen::NodeId;
 use candeck::canopen::eds::{Eds, compare};
@@ -219,6 +228,141 @@ const BOARD_AND_COMMUNICATION: &[(u16, &str)] = &[
     (0x2805, "Back_EMF"),
     (0x2810, "Driver_temperature_config"),
 ];
+
+/// Communication and board objects the device answers but the manual does
+/// not describe, written in our files from CiA 301 (0x1003, 0x1016, 0x1200),
+/// CiA 302 (0x1F51, 0x1F55–0x1F57) and the device (0x2050 Bootloader,
+/// 0x2800 Board_status).
+const STANDARD_COMMUNICATION: &[(u16, &str)] = &[
+    (0x1003, "Predefined_error_field"),
+    (0x1016, "Consumer_heartbeat"),
+    (0x1200, "Server_SDO_parameter_0"),
+    (0x1F51, "Program_control"),
+    (0x1F55, "Expected_program_software_identification"),
+    (0x1F56, "Program_software_identification"),
+    (0x1F57, "Flash_status_identification"),
+    (0x2050, "Bootloader"),
+    (0x2800, "Board_status"),
+];
+
+/// CiA 402 objects of each axis (axis 2 at +0x800) the manual does not
+/// describe, written in our files from the standard.
+const STANDARD_CIA402: &[(u16, &str)] = &[
+    (0x6063, "pc_Position_actual_internal_value"),
+    (0x6065, "pc_Following_error_window"),
+    (0x6066, "pc_Following_error_time_out"),
+    (0x6067, "pc_Position_window"),
+    (0x6068, "pc_Position_window_time"),
+    (0x6069, "pv_Velocity_sensor_actual_value"),
+    (0x606A, "pv_Sensor_selection_code"),
+    (0x606B, "pv_Velocity_demand_value"),
+    (0x606C, "pv_Velocity_actual_value"),
+    (0x606D, "pv_Velocity_window"),
+    (0x606E, "pv_Velocity_window_time"),
+    (0x606F, "pv_Velocity_threshold"),
+    (0x6070, "pv_Velocity_threshold_time"),
+    (0x6073, "tq_Max_current"),
+    (0x6075, "tq_Motor_rated_current"),
+    (0x6076, "tq_Motor_rated_torque"),
+    (0x6079, "tq_Dc_link_circuit_voltage"),
+    (0x6082, "pc_End_velocity"),
+    (0x608F, "fg_Position_encoder_resolution"),
+    (0x6090, "fg_Velocity_encoder_resolution"),
+    (0x6091, "fg_Gear_ratio"),
+    (0x6092, "fg_Feed_constant"),
+    (0x6098, "hm_Homing_method"),
+    (0x6099, "hm_Homing_speeds"),
+    (0x609A, "hm_Homing_acceleration"),
+    (0x60A3, "pp_Profile_jerk_use"),
+    (0x60A4, "pp_Profile_jerk"),
+    (0x60B0, "csp_Position_offset"),
+    (0x60B1, "csp_Velocity_offset"),
+    (0x60B2, "cst_Torque_offset"),
+    (0x60B8, "tp_Touch_probe_function"),
+    (0x60B9, "tp_Touch_probe_status"),
+    (0x60BA, "tp_Touch_probe_pos_1_pos_value"),
+    (0x60BB, "tp_Touch_probe_pos_1_neg_value"),
+    (0x60BC, "tp_Touch_probe_pos_2_pos_value"),
+    (0x60BD, "tp_Touch_probe_pos_2_neg_value"),
+    (0x60EA, "cstca_Commutation_angle"),
+    (0x60F2, "pc_Positioning_option_code"),
+    (0x60F4, "pc_Following_error_actual_value"),
+    (0x60F8, "pv_Max_slippage"),
+    (0x60FA, "pc_Control_effort"),
+    (0x60FD, "Digital_inputs"),
+    (0x60FE, "Digital_outputs"),
+    (0x60FF, "pv_Velocity_target"),
+    (0x6403, "Motor_catalogue_number"),
+    (0x6404, "Motor_manufacturer"),
+    (0x6405, "http_motor_catalogue_address"),
+    (0x6407, "Motor_service_period"),
+    (0x6503, "Drive_catalogue_number"),
+    (0x6505, "http_drive_catalogue_address"),
+    (0x67FE, "Version_number"),
+    (0x67FF, "Single_device_type"),
+];
+
+/// Manufacturer objects of each axis (axis 2 at +0x200) the manual does not
+/// describe: motor temperature sensing and limit/home switches.
+const UNDESCRIBED_AXIS: &[(u16, &str)] = &[
+    (0x4081, "Motor_temperature_config"),
+    (0x4083, "Limit_switches_config"),
+];
+
+fn assert_has_the_added_objects(eds: &Eds, axes: u16) {
+    for &(index, name) in STANDARD_COMMUNICATION {
+        assert_has(eds, index, name);
+    }
+    for axis in 0..axes {
+        let prefix = format!("a{}_", axis + 1);
+        for &(index, name) in STANDARD_CIA402 {
+            assert_has(eds, index + axis * 0x800, &format!("{prefix}{name}"));
+        }
+        for &(index, name) in UNDESCRIBED_AXIS {
+            assert_has(eds, index + axis * 0x200, &format!("{prefix}{name}"));
+        }
+    }
+}
+
+/// Every object of ours is one the manual describes or one listed above,
+/// and every object of the vendor file is in ours.
+fn assert_exactly(eds: &Eds, vendor: &Eds, axes: u16) {
+    let mut expected: Vec<u16> = Vec::new();
+    let communication = BOARD_AND_COMMUNICATION.iter().chain(STANDARD_COMMUNICATION);
+    expected.extend(communication.map(|&(index, _)| index));
+    // The manual's PDO ranges name their first and last objects.
+    expected.extend([
+        0x1401, 0x1402, 0x1601, 0x1602, 0x1801, 0x1802, 0x1A01, 0x1A02,
+    ]);
+    for axis in 0..axes {
+        let cia402 = CIA402.iter().chain(STANDARD_CIA402);
+        expected.extend(cia402.map(|&(index, _)| index + axis * 0x800));
+        let manufacturer = AXIS.iter().chain(UNDESCRIBED_AXIS);
+        expected.extend(manufacturer.map(|&(index, _)| index + axis * 0x200));
+    }
+    if axes == 2 {
+        expected.extend([0x2A00, 0x2A01]);
+    }
+    expected.sort_unstable();
+    let indices: Vec<u16> = eds.dictionary.objects.keys().copied().collect();
+    assert_eq!(indices, expected);
+    let theirs: Vec<u16> = vendor.dictionary.objects.keys().copied().collect();
+    assert_eq!(indices, theirs, "the vendor file's objects");
+}
+
+#[test]
+fn umc1bds32_has_the_standard_objects_and_nothing_else() {
+    let eds = ours(builtin::UMC1BDS32, "eds/umc1bds32.eds");
+    assert_has_the_added_objects(&eds, 2);
+    assert_exactly(&eds, &vendor(VENDOR_UMC1BDS32, "umc1bds32_v1.0.4.eds"), 2);
+}
+
+#[test]
+fn umc1bd90_has_the_standard_objects_and_nothing_else() {
+    let eds = ours(builtin::UMC1BD90, "eds/umc1bd90.eds");
+    assert_has_the_added_objects(&eds, 1);
+    assert_exactly(&eds, &vendor(VENDOR_UMC1BD90, "umc1bd90_v1.0.4.eds"), 1);
+}
 
 fn assert_has(eds: &Eds, index: u16, name: &str) {
     let object = eds

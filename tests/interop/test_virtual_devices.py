@@ -34,11 +34,6 @@ def readable_objects(od):
                 yield var
 
 
-# Known gap, strict so that it fails the day it is closed: candeck's EDS
-# files hold every object the manuals describe, but the vendor files also list
-# objects no manual describes (0x1003, 0x1016, 0x1200, 0x6098, ...), which the
-# virtual devices therefore refuse with 0x06020000.
-@pytest.mark.xfail(strict=True, reason="issue 4: vendor objects the manuals do not describe are missing")
 @pytest.mark.parametrize(
     "node_id,eds",
     [(1, "umc1bds32_v1.0.4.eds"), (3, "uio1led_v1.0.0.eds")],
