@@ -5,9 +5,11 @@
 //!
 //! - [`builtin`]: the EDS files candeck carries for its products, written from
 //!   their manuals (`eds/` in the repository).
+//! - [`cia402`]: the CiA 402 power drive system (states, controlword, modes).
 //! - [`uioled`]: UniSwarm UIO1LED LED strip controllers: segments, effects and
 //!   the renderer of the strip's pixels.
 
+pub mod cia402;
 pub mod uioled;
 
 /// The EDS files candeck carries, written for candeck from each product's
