@@ -7,7 +7,7 @@
 //! - [`bus_state_after_error`]: what an error frame (`CAN_ERR_FLAG`,
 //!   `linux/can/error.h`) says about the controller's state.
 //!
-//! Behind the `socketcan` cargo feature: [`open_socketcan`], a [`Bus`](crate::can::Bus)
+//! Behind the `socketcan` cargo feature: `open_socketcan`, a [`Bus`](crate::can::Bus)
 //! on a CAN network interface (`can0`, `vcan0`, ...).
 
 use socketcan_rs::errors::{CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED, ControllerProblems};
