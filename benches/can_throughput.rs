@@ -15,7 +15,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use candeck::can::socketcand::{ClientConfig, ServerConfig, SocketcandServer, open_socketcand};
+use candeck::can::socketcand::{
+    ClientConfig, ServerConfig, ServerHandle, SocketcandServer, open_socketcand,
+};
 use candeck::can::{Bus, CanId, Frame, RecvError, VirtualHub};
 
 const WINDOW: u64 = 4096;
@@ -121,21 +123,25 @@ async fn hub_case(receivers: usize, total: u64) -> Result {
     }
 }
 
-/// One receiver at full speed while another client completes the handshake
-/// and never reads again: reports the stalled client's fate and how much
-/// the process grew, to show that it buffers nothing without bound.
-async fn stalled_case(total: u64) -> (Result, u64, u64) {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let hub = VirtualHub::new("can0");
-    let server = SocketcandServer::bind(
-        "127.0.0.1:0".parse().expect("addr"),
-        [("can0".to_string(), hub)],
+/// A socketcand server on loopback sharing a new, empty virtual bus `can0`.
+async fn serve_empty_bus() -> ServerHandle {
+    SocketcandServer::bind(
+        SocketAddr::from(([127, 0, 0, 1], 0)),
+        [("can0".to_string(), VirtualHub::new("can0"))],
         ServerConfig::default(),
     )
     .await
     .expect("bind")
     .spawn()
-    .expect("spawn");
+    .expect("spawn")
+}
+
+/// One receiver at full speed while another client completes the handshake
+/// and never reads again: reports the stalled client's fate and how much
+/// the process grew, to show that it buffers nothing without bound.
+async fn stalled_case(total: u64) -> (Result, u64, u64) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let server = serve_empty_bus().await;
     let port = server.local_addr().port();
     let mut stalled = tokio::net::TcpStream::connect(server.local_addr())
         .await
@@ -178,16 +184,7 @@ async fn stalled_case(total: u64) -> (Result, u64, u64) {
 }
 
 async fn socketcand_case(receivers: usize, total: u64) -> Result {
-    let hub = VirtualHub::new("can0");
-    let server = SocketcandServer::bind(
-        "127.0.0.1:0".parse().expect("addr"),
-        [("can0".to_string(), hub)],
-        ServerConfig::default(),
-    )
-    .await
-    .expect("bind")
-    .spawn()
-    .expect("spawn");
+    let server = serve_empty_bus().await;
     let port = server.local_addr().port();
     let join = || open_socketcand("can0", ClientConfig::new("127.0.0.1", port, "can0"));
     let sender = join();
@@ -207,16 +204,7 @@ async fn socketcand_case(receivers: usize, total: u64) -> Result {
 
 /// python-can sender → candeck socketcand server → python-can receiver.
 async fn python_case(python: &str, total: u64) -> Option<Result> {
-    let hub = VirtualHub::new("can0");
-    let server = SocketcandServer::bind(
-        "127.0.0.1:0".parse::<SocketAddr>().expect("addr"),
-        [("can0".to_string(), hub)],
-        ServerConfig::default(),
-    )
-    .await
-    .expect("bind")
-    .spawn()
-    .expect("spawn");
+    let server = serve_empty_bus().await;
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/python_can_pair.py");
     let output = tokio::process::Command::new(python)
         .arg(script)
