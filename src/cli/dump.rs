@@ -86,6 +86,8 @@ pub async fn run(args: DumpArgs) -> Result<(), CliError> {
 
 async fn log_status_changes(bus: Bus) {
     let mut status = bus.watch_status();
+    // The state the dump started in is already logged; only changes follow.
+    status.borrow_and_update();
     while status.changed().await.is_ok() {
         let now = status.borrow_and_update().clone();
         let reason = now.reason.map(|r| format!(": {r}")).unwrap_or_default();
