@@ -8,7 +8,8 @@ use super::{CliError, shutdown_signal};
 use crate::can::candump::record_bus;
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, BusKind, BusState};
-use crate::sim::products::{demo, spawn_devices};
+use crate::sim::products::demo;
+use crate::sim::rack::Rack;
 
 #[derive(Debug, Args)]
 pub struct DumpArgs {
@@ -39,10 +40,15 @@ pub async fn run(args: DumpArgs) -> Result<(), CliError> {
     let stop_after = args.seconds.map(|s| seconds(s, "--seconds")).transpose()?;
     let name = args.bus.default_name();
     let opened = args.bus.open(&name).await.map_err(CliError::new)?;
+    // The demo devices run as long as the dump does.
+    let mut _devices = None;
     if let (BusSpec::Virtual { preset }, Some(hub)) = (&args.bus, &opened.hub)
         && preset == "demo"
     {
-        spawn_devices(hub, &demo(), None).map_err(CliError::new)?;
+        let rack = Rack::new(hub.clone());
+        rack.add_all(&demo())
+            .map_err(|err| CliError::new(err.to_string()))?;
+        _devices = Some(rack);
     }
     let bus = opened.bus;
     bus.wait_up(connect_timeout).await.map_err(CliError::new)?;

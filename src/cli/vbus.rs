@@ -8,7 +8,8 @@ use super::{CliError, shutdown_signal};
 use crate::can::VirtualHub;
 use crate::can::socketcand::DEFAULT_PORT;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
-use crate::sim::products::{DeviceList, spawn_devices};
+use crate::sim::products::DeviceList;
+use crate::sim::rack::Rack;
 
 fn default_vbus_listen() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], DEFAULT_PORT))
@@ -44,7 +45,9 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         )));
     }
     let hub = VirtualHub::new(args.channel.clone());
-    spawn_devices(&hub, &args.devices.0, args.data_dir.as_deref()).map_err(CliError::new)?;
+    let rack = Rack::with_data_dir(hub.clone(), args.data_dir.clone());
+    rack.add_all(&args.devices.0)
+        .map_err(|err| CliError::new(err.to_string()))?;
     let server = SocketcandServer::bind(
         args.listen,
         [(args.channel.clone(), hub.clone())],
@@ -63,13 +66,21 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         args.devices
     );
     shutdown_signal().await;
+    let stats = rack.stats();
     tracing::info!(
-        "vbus: stopping after {} frames, {} clients served",
+        "vbus: stopping after {} frames, {} clients served; simulation: {} ticks, {} more than {} ms late, latest {} µs late, {} simulated ms skipped",
         hub.frames_total(),
         handle
             .stats()
             .accepted
-            .load(std::sync::atomic::Ordering::Relaxed)
+            .load(std::sync::atomic::Ordering::Relaxed),
+        stats.ticks.load(std::sync::atomic::Ordering::Relaxed),
+        stats.late_ticks.load(std::sync::atomic::Ordering::Relaxed),
+        crate::sim::rack::ON_TIME.as_millis(),
+        stats
+            .max_lateness_us
+            .load(std::sync::atomic::Ordering::Relaxed),
+        rack.skipped_ticks(),
     );
     Ok(())
 }

@@ -6,11 +6,17 @@
 //! - [`builtin`]: the EDS files candeck carries for its products, written from
 //!   their manuals (`eds/` in the repository).
 //! - [`cia402`]: the CiA 402 power drive system (states, controlword, modes).
+//! - [`jmc`]: JMC CANopen stepper drives: mode numbers, units, controlword
+//!   and statusword bits, homing methods.
+//! - [`umc`]: UniSwarm UMC motion controllers: axis index offsets, board and
+//!   axis objects, Q15.16 and the other units of the manual.
 //! - [`uioled`]: UniSwarm UIO1LED LED strip controllers: segments, effects and
 //!   the renderer of the strip's pixels.
 
 pub mod cia402;
+pub mod jmc;
 pub mod uioled;
+pub mod umc;
 
 /// The EDS files candeck carries, written for candeck from each product's
 /// manual (`../shared/manuals/`), embedded in the binary.

@@ -15,24 +15,36 @@
 //! in pre-operational (abort 0x08000021 otherwise); another value is refused
 //! with 0x08000020.
 //!
+//! The core also runs the product's [`Behaviour`] on the simulation clock
+//! (one tick per simulated millisecond, [`DeviceCore::tick_to`]), tells it of
+//! every value written from the bus, and sends the EMCYs it raises (CiA 301
+//! §7.2.7: COB-ID 0x1014, inhibit time 0x1015, error register 0x1001, the
+//! pre-defined error field 0x1003). Node guarding requests are answered
+//! (§7.2.8.3.2.1) while 0x1017 is 0, with life guarding from 0x100C and
+//! 0x100D.
+//!
 //! Like the protocol layer it does no I/O: frames and the current time go in,
-//! frames and a deadline come out. [`run_device`] drives it on a bus.
+//! frames and a deadline come out. [`run_device`] drives one on a bus, the
+//! [`Rack`](super::rack::Rack) many.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
 use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::cob::Function;
-use crate::canopen::heartbeat::HeartbeatProducer;
+use crate::canopen::emcy::{Emcy, EmcyProducer, ErrorBit, ErrorHistory, ErrorRegister};
+use crate::canopen::heartbeat::{HeartbeatProducer, LifeGuard, LifeGuardEvent};
 use crate::canopen::nmt::{NmtEvent, NmtService, NmtSlave, NmtState};
 use crate::canopen::od::{ObjectDictionary, Value};
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
+use super::behaviour::{
+    Behaviour, DeviceIo, ERROR_REGISTER, Fault, FaultError, NoBehaviour, RaisedEmcy, TICK_MS,
+};
 use super::objects::{ObjectStore, StoreError};
-use super::persist::write_saved;
+use super::pdo::{self, DevicePdos};
 
 /// 0x1017: producer heartbeat time, in ms.
 const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
@@ -40,6 +52,21 @@ const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
 const STORE_PARAMETERS: u16 = 0x1010;
 /// 0x1011: restore default parameters.
 const RESTORE_PARAMETERS: u16 = 0x1011;
+/// 0x1003: pre-defined error field.
+const PREDEFINED_ERROR_FIELD: u16 = 0x1003;
+/// 0x100C: guard time, in ms.
+const GUARD_TIME: u16 = 0x100C;
+/// 0x100D: life time factor.
+const LIFE_TIME_FACTOR: u16 = 0x100D;
+/// 0x1014: COB-ID EMCY.
+const COB_ID_EMCY: u16 = 0x1014;
+/// 0x1015: inhibit time EMCY, in 100 µs.
+const INHIBIT_TIME_EMCY: u16 = 0x1015;
+/// EMCY 0x8130: life guard error or heartbeat error (CiA 301 table 21).
+const LIFE_GUARD_ERROR: u16 = 0x8130;
+/// How much simulated time one [`DeviceCore::tick_to`] catches up at most;
+/// beyond it (a stalled host) the simulation skips rather than runs a burst.
+const MAX_CATCH_UP_TICKS: u64 = 100;
 /// "save" as a little-endian UNSIGNED32.
 const SAVE_SIGNATURE: [u8; 4] = *b"save";
 /// "load" as a little-endian UNSIGNED32.
@@ -80,6 +107,22 @@ pub type SavedValues = BTreeMap<(u16, u8), Value>;
 
 /// One virtual CANopen node. See the module documentation.
 pub struct DeviceCore {
+    behaviour: Box<dyn Behaviour>,
+    emcy: EmcyProducer,
+    /// 0x1014 bit 31: EMCYs are recorded but not sent.
+    emcy_enabled: bool,
+    guard: LifeGuard,
+    /// The injected heartbeat loss: no heartbeat, no guarding reply.
+    silent: bool,
+    /// Milliseconds of simulated time, and the instant they were reached.
+    sim_ms: u64,
+    last_tick: Option<Instant>,
+    /// Ticks skipped because the host fell too far behind.
+    skipped_ticks: u64,
+    /// Reused for the EMCYs one call of the behaviour raises.
+    raised: Vec<RaisedEmcy>,
+    /// Reused for the objects one frame wrote.
+    written: Vec<(u16, u8)>,
     /// The factory values.
     defaults: ObjectStore,
     /// What 0x1010 saved; a reset loads these over the factory values.
@@ -92,13 +135,44 @@ pub struct DeviceCore {
     heartbeat_ms: u16,
     sdo: SdoServer,
     sdo_request: CanId,
+    guard_request: CanId,
+    pdos: DevicePdos,
 }
 
 impl DeviceCore {
-    /// A node that has not booted yet (see [`DeviceCore::boot`]).
-    pub fn new(dictionary: ObjectDictionary, node: NodeId) -> Result<Self, StoreError> {
+    /// A node with no application (the CANopen core alone) that has not
+    /// booted yet (see [`DeviceCore::boot`]).
+    pub fn new(
+        dictionary: impl Into<Arc<ObjectDictionary>>,
+        node: NodeId,
+    ) -> Result<Self, StoreError> {
+        Self::with_behaviour(dictionary, node, Box::new(NoBehaviour))
+    }
+
+    /// A node running `behaviour`, not booted yet.
+    pub fn with_behaviour(
+        dictionary: impl Into<Arc<ObjectDictionary>>,
+        node: NodeId,
+        behaviour: Box<dyn Behaviour>,
+    ) -> Result<Self, StoreError> {
         let defaults = ObjectStore::new(dictionary, node)?;
+        let pdos = DevicePdos::new(&defaults, Instant::now());
+        let history_len = defaults
+            .dictionary()
+            .get(PREDEFINED_ERROR_FIELD)
+            .and_then(|object| object.subs.keys().max().copied())
+            .unwrap_or(1);
         Ok(Self {
+            behaviour,
+            emcy: EmcyProducer::new(node, history_len),
+            emcy_enabled: true,
+            guard: LifeGuard::new(node),
+            silent: false,
+            sim_ms: 0,
+            last_tick: None,
+            skipped_ticks: 0,
+            raised: Vec::new(),
+            written: Vec::new(),
             store: defaults.clone(),
             defaults,
             saved: SavedValues::new(),
@@ -108,6 +182,8 @@ impl DeviceCore {
             heartbeat_ms: 0,
             sdo: SdoServer::new(node, ServerConfig::default()),
             sdo_request: Function::SdoRx.can_id(node),
+            guard_request: Function::Heartbeat.can_id(node),
+            pdos,
         })
     }
 
@@ -127,6 +203,174 @@ impl DeviceCore {
         &mut self.store
     }
 
+    /// The product's application.
+    pub fn behaviour(&self) -> &dyn Behaviour {
+        self.behaviour.as_ref()
+    }
+
+    /// The product's application as what it is, for its extras (a drive's
+    /// limit switches, an LED strip's pixels); `None` for another product.
+    pub fn behaviour_mut<T: Behaviour>(&mut self) -> Option<&mut T> {
+        let behaviour: &mut dyn std::any::Any = self.behaviour.as_mut();
+        behaviour.downcast_mut::<T>()
+    }
+
+    /// Runs `f` on the product's application with the device's values, and
+    /// sends what it raised; for the simulation's own controls.
+    pub fn with_application<R>(
+        &mut self,
+        now: Instant,
+        f: impl FnOnce(&mut dyn Behaviour, &mut DeviceIo<'_>) -> R,
+    ) -> R {
+        let mut raised = std::mem::take(&mut self.raised);
+        let result = {
+            let mut io = DeviceIo::new(&mut self.store, self.nmt.state(), self.sim_ms, &mut raised);
+            f(self.behaviour.as_mut(), &mut io)
+        };
+        self.raised = raised;
+        self.take_raised(now);
+        result
+    }
+
+    /// Injects a fault: heartbeat loss into the core, the rest into the
+    /// product's application.
+    pub fn inject_fault(&mut self, fault: Fault, now: Instant) -> Result<(), FaultError> {
+        if fault == Fault::HeartbeatLoss {
+            self.silent = true;
+            return Ok(());
+        }
+        self.with_application(now, |behaviour, io| behaviour.inject_fault(io, fault))
+    }
+
+    /// Ends an injected fault condition.
+    pub fn clear_fault(&mut self, fault: Fault, now: Instant) -> Result<(), FaultError> {
+        if fault == Fault::HeartbeatLoss {
+            if self.silent {
+                self.silent = false;
+                // The heartbeat comes back from now on, not in a burst.
+                self.heartbeat.set_period_ms(self.heartbeat_ms, now);
+            }
+            return Ok(());
+        }
+        self.with_application(now, |behaviour, io| behaviour.clear_fault(io, fault))
+    }
+
+    /// Milliseconds of simulated time the application has run.
+    pub fn sim_ms(&self) -> u64 {
+        self.sim_ms
+    }
+
+    /// Simulated milliseconds skipped because the host could not keep up.
+    pub fn skipped_ticks(&self) -> u64 {
+        self.skipped_ticks
+    }
+
+    /// Runs the application up to `now`, one tick per whole millisecond
+    /// since the last (at most 100 at once; a longer stall is skipped and
+    /// counted in [`DeviceCore::skipped_ticks`]). The first
+    /// call only starts the clock.
+    pub fn tick_to(&mut self, now: Instant) {
+        let step = std::time::Duration::from_millis(TICK_MS);
+        let Some(mut last) = self.last_tick else {
+            self.last_tick = Some(now);
+            return;
+        };
+        if !self.behaviour.ticks() {
+            // Nothing to run: the clock follows without ticking.
+            let elapsed = now.saturating_duration_since(last).as_millis() as u64 / TICK_MS;
+            self.sim_ms += elapsed * TICK_MS;
+            self.last_tick = Some(last + step * elapsed as u32);
+            return;
+        }
+        let mut raised = std::mem::take(&mut self.raised);
+        let mut ticks = 0;
+        while last + step <= now {
+            if ticks == MAX_CATCH_UP_TICKS {
+                let behind = now.saturating_duration_since(last).as_millis() as u64 / TICK_MS;
+                self.skipped_ticks += behind;
+                self.sim_ms += behind * TICK_MS;
+                last += step * behind as u32;
+                break;
+            }
+            last += step;
+            self.sim_ms += TICK_MS;
+            ticks += 1;
+            let mut io = DeviceIo::new(&mut self.store, self.nmt.state(), self.sim_ms, &mut raised);
+            self.behaviour.tick(&mut io);
+        }
+        self.last_tick = Some(last);
+        self.raised = raised;
+        self.take_raised(now);
+    }
+
+    /// When the application next ticks; `None` for a device without one.
+    pub fn next_tick(&self) -> Option<Instant> {
+        if !self.behaviour.ticks() {
+            return None;
+        }
+        self.last_tick
+            .map(|last| last + std::time::Duration::from_millis(TICK_MS))
+    }
+
+    /// The EMCYs the application raised: recorded in 0x1003 and queued with
+    /// the error register as the application left it.
+    fn take_raised(&mut self, now: Instant) {
+        if self.raised.is_empty() {
+            return;
+        }
+        let register = ErrorRegister::from_raw(
+            self.store
+                .get(ERROR_REGISTER, 0)
+                .and_then(Value::as_i128)
+                .unwrap_or(0) as u8,
+        );
+        for raised in std::mem::take(&mut self.raised) {
+            let emcy = Emcy {
+                code: raised.code,
+                register,
+                manufacturer: raised.manufacturer,
+            };
+            self.emcy.raise(emcy, now);
+        }
+        self.sync_error_field();
+    }
+
+    /// The pre-defined error field (0x1003) in the store, from the history.
+    fn sync_error_field(&mut self) {
+        let history = self.emcy.history();
+        let count = history.count();
+        let _ = self
+            .store
+            .set_int_saturating(PREDEFINED_ERROR_FIELD, 0, count.into());
+        for sub in 1..=history.capacity() {
+            let entry = history.read(sub).unwrap_or(0);
+            let _ = self
+                .store
+                .set_int_saturating(PREDEFINED_ERROR_FIELD, sub, entry.into());
+        }
+    }
+
+    /// A life guarding event: EMCY 0x8130 with the communication bit, or
+    /// its reset.
+    fn life_guard_event(&mut self, event: LifeGuardEvent, now: Instant) {
+        self.with_application(now, |_, io| match event {
+            LifeGuardEvent::Lost => {
+                io.set_error_bit(ErrorBit::Communication, true);
+                io.emcy(LIFE_GUARD_ERROR, [0; 5]);
+            }
+            LifeGuardEvent::Recovered => {
+                io.set_error_bit(ErrorBit::Communication, false);
+                io.emcy(0x0000, [0; 5]);
+            }
+        });
+    }
+
+    /// Rebuilds the PDOs after the device itself changed their parameters in
+    /// [`DeviceCore::store_mut`] (an SDO write does so by itself).
+    pub fn pdo_parameters_changed(&mut self, now: Instant) {
+        self.pdos.rebuild(&self.store, now);
+    }
+
     /// The values 0x1010 saved (to keep them across a restart).
     pub fn saved(&self) -> &SavedValues {
         &self.saved
@@ -143,14 +387,36 @@ impl DeviceCore {
         self.saved = saved;
         self.store = self.defaults.clone();
         self.apply_saved(Area::All);
+        self.pdos = DevicePdos::new(&self.store, Instant::now());
     }
 
-    /// Ends initialisation: the boot-up message, then pre-operational with the
+    /// Power-on: the application starts from the store's values, then
+    /// initialisation ends with the boot-up message and pre-operational, the
     /// heartbeat of 0x1017 running.
     pub fn boot(&mut self, now: Instant) -> Vec<Frame> {
+        self.reset_application(now);
+        self.start_communication(now)
+    }
+
+    /// The application starts afresh: error register and error history
+    /// cleared, then the product's reset.
+    fn reset_application(&mut self, now: Instant) {
+        self.emcy = EmcyProducer::new(self.node(), self.emcy.history().capacity());
+        let _ = self.store.set_int_saturating(ERROR_REGISTER, 0, 0);
+        self.sync_error_field();
+        self.with_application(now, |behaviour, io| behaviour.reset(io));
+    }
+
+    /// The end of initialisation, after power-on and after either reset.
+    fn start_communication(&mut self, now: Instant) -> Vec<Frame> {
         let boot_up = self.nmt.boot_up();
+        self.pdos = DevicePdos::new(&self.store, now);
+        self.guard.reset();
         self.heartbeat_ms = 0;
-        self.follow_heartbeat_time(now);
+        self.follow_communication_parameters(now);
+        if self.silent {
+            return Vec::new();
+        }
         vec![boot_up]
     }
 
@@ -160,32 +426,79 @@ impl DeviceCore {
             Ok(Some(NmtEvent::ResetNode)) => {
                 self.store = self.defaults.clone();
                 self.apply_saved(Area::All);
-                return self.boot(now);
+                self.reset_application(now);
+                return self.start_communication(now);
             }
             Ok(Some(NmtEvent::ResetCommunication)) => {
                 self.reload_communication_area();
-                return self.boot(now);
+                return self.start_communication(now);
             }
-            Ok(Some(NmtEvent::StateChanged { .. }) | None) => {}
+            Ok(Some(NmtEvent::StateChanged { from, to })) => {
+                if to == NmtState::Operational {
+                    self.pdos.restart(now);
+                }
+                self.with_application(now, |behaviour, io| behaviour.nmt_changed(io, from, to));
+                return Vec::new();
+            }
+            Ok(None) => {}
             // A malformed NMT frame is ignored, as devices do.
             Err(_) => return Vec::new(),
         }
-        if frame.id() == self.sdo_request && self.nmt.allows(NmtService::Sdo) {
+        if frame.is_remote() && frame.id() == self.guard_request {
+            return self.guarding_request(frame, now);
+        }
+        let mut written = std::mem::take(&mut self.written);
+        let out = if frame.id() == self.sdo_request && self.nmt.allows(NmtService::Sdo) {
             let mut access = DeviceAccess {
                 state: self.nmt.state(),
                 store: &mut self.store,
                 defaults: &self.defaults,
                 saved: &mut self.saved,
                 saved_version: &mut self.saved_version,
+                behaviour: self.behaviour.as_ref(),
+                history: self.emcy.history_mut(),
+                written: &mut written,
+                pdo_changed: false,
             };
             let replies = self.sdo.handle_frame(frame, now, &mut access);
-            self.follow_heartbeat_time(now);
-            return replies;
+            if access.pdo_changed {
+                self.pdos.rebuild(&self.store, now);
+            }
+            self.follow_communication_parameters(now);
+            replies
+        } else if self.nmt.allows(NmtService::Pdo) {
+            self.pdos
+                .handle_frame(frame, &mut self.store, now, &mut written)
+        } else {
+            Vec::new()
+        };
+        if !written.is_empty() {
+            self.with_application(now, |behaviour, io| {
+                for &(index, sub) in &written {
+                    behaviour.written(io, index, sub);
+                }
+            });
+            written.clear();
         }
-        Vec::new()
+        self.written = written;
+        out
     }
 
-    /// Timers due at `now`: SDO timeouts and heartbeats.
+    /// A node guarding request: the reply, unless the heartbeat is in use
+    /// (it takes precedence, UMC manual §4.2) or the device is silenced.
+    fn guarding_request(&mut self, frame: &Frame, now: Instant) -> Vec<Frame> {
+        if self.silent || self.heartbeat_ms != 0 {
+            return Vec::new();
+        }
+        let output = self.guard.on_frame(frame, now, self.nmt.state());
+        if let Some(event) = output.event {
+            self.life_guard_event(event, now);
+        }
+        output.reply.into_iter().collect()
+    }
+
+    /// Timers due at `now`: SDO timeouts, heartbeats, life guarding, EMCYs
+    /// and PDOs. The application's ticks are [`DeviceCore::tick_to`]'s.
     pub fn poll(&mut self, now: Instant) -> Vec<Frame> {
         let mut out = Vec::new();
         if self.sdo.deadline().is_some_and(|d| d <= now) {
@@ -193,18 +506,89 @@ impl DeviceCore {
         }
         if self.nmt.allows(NmtService::Heartbeat)
             && let Some(frame) = self.heartbeat.poll(now, self.nmt.state())
+            && !self.silent
         {
             out.push(frame);
+        }
+        if let Some(event) = self.guard.poll(now) {
+            self.life_guard_event(event, now);
+        }
+        if self.nmt.allows(NmtService::Emcy) {
+            while let Some(frame) = self.emcy.poll(now) {
+                // With 0x1014 bit 31 set EMCYs are recorded, not sent.
+                if self.emcy_enabled {
+                    out.push(frame);
+                }
+            }
+        }
+        if self.nmt.allows(NmtService::Pdo) {
+            out.extend(self.pdos.poll(&self.store, now));
         }
         out
     }
 
-    /// When [`DeviceCore::poll`] has work next.
+    /// When [`DeviceCore::poll`] (or [`DeviceCore::tick_to`]) has work next.
     pub fn deadline(&self) -> Option<Instant> {
-        [self.sdo.deadline(), self.heartbeat.deadline()]
-            .into_iter()
-            .flatten()
-            .min()
+        let pdos = self
+            .nmt
+            .allows(NmtService::Pdo)
+            .then(|| self.pdos.deadline())
+            .flatten();
+        let emcy = self
+            .nmt
+            .allows(NmtService::Emcy)
+            .then(|| self.emcy.deadline())
+            .flatten();
+        [
+            self.sdo.deadline(),
+            self.heartbeat.deadline(),
+            self.guard.deadline(),
+            emcy,
+            pdos,
+            self.next_tick(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    /// Writes to 0x1017 (heartbeat), 0x100C/0x100D (guarding) and
+    /// 0x1014/0x1015 (EMCY) take effect at once.
+    fn follow_communication_parameters(&mut self, now: Instant) {
+        self.follow_heartbeat_time(now);
+        let int = |store: &ObjectStore, index, sub| {
+            store.get(index, sub).and_then(Value::as_i128).unwrap_or(0)
+        };
+        let guard_time = int(&self.store, GUARD_TIME, 0) as u16;
+        let life_factor = int(&self.store, LIFE_TIME_FACTOR, 0) as u8;
+        let life_time = u64::from(guard_time) * u64::from(life_factor);
+        if self
+            .guard
+            .life_time()
+            .map(|t| t.as_millis() as u64)
+            .unwrap_or(0)
+            != life_time
+        {
+            self.guard.configure(guard_time, life_factor, now);
+        }
+        let default_cob = u32::from(Function::Emcy.cob_id(self.node()));
+        let cob = match self.store.get(COB_ID_EMCY, 0) {
+            Some(value) => value.as_i128().unwrap_or(0) as u32,
+            None => default_cob,
+        };
+        self.emcy_enabled = cob & 0x8000_0000 == 0;
+        let id = if cob & (1 << 29) != 0 {
+            CanId::Extended(cob & 0x1FFF_FFFF)
+        } else {
+            CanId::Standard((cob & 0x7FF) as u16)
+        };
+        if id != self.emcy.cob_id() {
+            let mut emcy = EmcyProducer::with_cob_id(id, self.emcy.history().capacity());
+            *emcy.history_mut() = self.emcy.history().clone();
+            self.emcy = emcy;
+        }
+        self.emcy
+            .set_inhibit_time_100us(int(&self.store, INHIBIT_TIME_EMCY, 0) as u16);
     }
 
     /// A write to 0x1017 changes the heartbeat from the next period on.
@@ -222,6 +606,7 @@ impl DeviceCore {
     fn reload_communication_area(&mut self) {
         copy_area(&self.defaults, &mut self.store, Area::Communication);
         self.apply_saved(Area::Communication);
+        self.pdos = DevicePdos::new(&self.store, Instant::now());
     }
 
     fn apply_saved(&mut self, area: Area) {
@@ -248,13 +633,22 @@ fn copy_area(from: &ObjectStore, to: &mut ObjectStore, area: Area) {
 }
 
 /// The dictionary as the SDO server of a device sees it: the store, with
-/// 0x1010 and 0x1011 acting instead of storing what is written.
+/// 0x1010 and 0x1011 acting instead of storing what is written, and the
+/// re-mapping rules of CiA 301 on the PDO parameters (see [`pdo::check_write`]).
 struct DeviceAccess<'a> {
     state: NmtState,
     store: &'a mut ObjectStore,
     defaults: &'a ObjectStore,
     saved: &'a mut SavedValues,
     saved_version: &'a mut u64,
+    /// The product's rules on writes.
+    behaviour: &'a dyn Behaviour,
+    /// 0x1003, which a write of 0 to sub 0 clears.
+    history: &'a mut ErrorHistory,
+    /// The objects written, for the product's application.
+    written: &'a mut Vec<(u16, u8)>,
+    /// A PDO or SYNC parameter changed: the device rebuilds its PDOs.
+    pdo_changed: bool,
 }
 
 impl DeviceAccess<'_> {
@@ -303,7 +697,9 @@ impl ObjectAccess for DeviceAccess<'_> {
     }
 
     fn check_write(&mut self, index: u16, sub: u8, size: Option<usize>) -> Result<(), AbortCode> {
+        self.behaviour.check_write(self.store, index, sub, size)?;
         self.store.check_write(index, sub, size)?;
+        pdo::check_write(self.store, index, sub, None, self.behaviour.pdo_rules())?;
         if Self::is_command(index, sub) && self.state != NmtState::PreOperational {
             return Err(AbortCode::CannotStoreLocalControl);
         }
@@ -312,9 +708,44 @@ impl ObjectAccess for DeviceAccess<'_> {
 
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
         if !Self::is_command(index, sub) {
-            return self.store.write(index, sub, data);
+            self.behaviour
+                .check_write(self.store, index, sub, Some(data.len()))?;
+            if index == PREDEFINED_ERROR_FIELD {
+                self.store.check_write(index, sub, Some(data.len()))?;
+                let value = data
+                    .iter()
+                    .rev()
+                    .fold(0u32, |value, byte| value << 8 | u32::from(*byte));
+                self.history
+                    .write(sub, value)
+                    .map_err(|error| AbortCode::from_raw(error.abort_code()))?;
+                // The count goes to 0; the entries read 0 from now on.
+                for entry in 0..=self.history.capacity() {
+                    self.store.set_int_saturating(index, entry, 0);
+                }
+                return Ok(());
+            }
+            if pdo::is_pdo_parameter(index) {
+                self.store.check_write(index, sub, Some(data.len()))?;
+                pdo::check_write(
+                    self.store,
+                    index,
+                    sub,
+                    Some(data),
+                    self.behaviour.pdo_rules(),
+                )?;
+                self.store.write(index, sub, data)?;
+                self.pdo_changed = true;
+                return Ok(());
+            }
+            self.behaviour.check_value(self.store, index, sub, data)?;
+            self.store.write(index, sub, data)?;
+            self.written.push((index, sub));
+            return Ok(());
         }
         self.check_write(index, sub, Some(data.len()))?;
+        // A restore brings back PDO parameters too.
+        self.pdo_changed = true;
         match (index, data) {
             (STORE_PARAMETERS, signature) if signature == SAVE_SIGNATURE => {
                 let area = Area::of_sub(sub).ok_or(AbortCode::SubIndexDoesNotExist)?;
@@ -345,27 +776,10 @@ impl ObjectAccess for DeviceAccess<'_> {
 /// changes it while it runs. It listens from the moment this is called.
 pub fn run_device(bus: Bus, device: Arc<Mutex<DeviceCore>>) -> impl Future<Output = ()> + Send {
     let frames = bus.subscribe();
-    drive(bus, frames, device, None)
+    drive(bus, frames, device)
 }
 
-/// [`run_device`], writing the saved values to `path` each time they change
-/// (see [`super::persist`]).
-pub fn run_persistent_device(
-    bus: Bus,
-    device: Arc<Mutex<DeviceCore>>,
-    path: PathBuf,
-) -> impl Future<Output = ()> + Send {
-    let frames = bus.subscribe();
-    drive(bus, frames, device, Some(path))
-}
-
-async fn drive(
-    bus: Bus,
-    mut frames: FrameReceiver,
-    device: Arc<Mutex<DeviceCore>>,
-    persist: Option<PathBuf>,
-) {
-    let mut persisted_version = lock(&device).saved_version();
+async fn drive(bus: Bus, mut frames: FrameReceiver, device: Arc<Mutex<DeviceCore>>) {
     let now = || tokio::time::Instant::now().into_std();
     let boot = lock(&device).boot(now());
     send_all(&bus, boot).await;
@@ -378,22 +792,12 @@ async fn drive(
                 Err(RecvError::Lagged(_)) => continue,
                 Err(RecvError::Closed) => return,
             },
-            _ = sleep_until(deadline) => lock(&device).poll(now()),
-        };
-        if let Some(path) = &persist {
-            let saved = {
-                let device = lock(&device);
-                (device.saved_version() != persisted_version)
-                    .then(|| (device.saved_version(), device.saved().clone()))
-            };
-            if let Some((version, saved)) = saved {
-                persisted_version = version;
-                // A device whose flash fails still runs; the log says so.
-                if let Err(err) = write_saved(path, &saved) {
-                    tracing::warn!("virtual device: {err}");
-                }
+            _ = sleep_until(deadline) => {
+                let mut device = lock(&device);
+                device.tick_to(now());
+                device.poll(now())
             }
-        }
+        };
         send_all(&bus, out).await;
     }
 }
@@ -667,29 +1071,5 @@ mod tests {
         saved.insert((0x2001, 0), Value::Unsigned8(55));
         device.load_saved(saved);
         assert_eq!(device.store().get(0x2001, 0), Some(&Value::Unsigned8(55)));
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn a_persistent_device_writes_what_it_saves() {
-        let dir = std::env::temp_dir().join(format!("candeck-device-{}", std::process::id()));
-        let path = super::super::persist::saved_path(&dir, "test", node());
-        let _ = std::fs::remove_file(&path);
-        let hub = VirtualHub::new("test");
-        let master = hub.attach();
-        let device = Arc::new(Mutex::new(DeviceCore::new(testnode(), node()).unwrap()));
-        let task = tokio::spawn(run_persistent_device(hub.attach(), device, path.clone()));
-        let sdo = SdoChannel::new(master.clone(), node(), ClientConfig::default());
-        sdo.download(0x2001, 0, &[77]).await.unwrap();
-        sdo.download(0x1010, 1, &SAVE).await.unwrap();
-        task.abort();
-        // A new device, as after a restart of candeck, starts with it.
-        let saved = super::super::persist::read_saved(&path).unwrap();
-        let mut restarted = DeviceCore::new(testnode(), node()).unwrap();
-        restarted.load_saved(saved);
-        assert_eq!(
-            restarted.store().get(0x2001, 0),
-            Some(&Value::Unsigned8(77))
-        );
-        let _ = std::fs::remove_dir_all(dir);
     }
 }

@@ -3,14 +3,26 @@
 //!
 //! # Layout
 //!
+//! - [`behaviour`]: [`Behaviour`](behaviour::Behaviour), a product's
+//!   application on the simulation clock, and the faults it can be given.
 //! - [`objects`]: [`ObjectStore`](objects::ObjectStore), a dictionary's
 //!   current values with the checks and aborts of a device's SDO server.
 //! - [`device`]: the device core every product shares: NMT slave and
 //!   boot-up, heartbeat from 0x1017, SDO server, resets.
+//! - [`pdo`]: the device's PDOs from their parameters, SYNC, re-mapping.
 //! - [`products`]: the emulated products and the `--devices` lists.
+//! - [`umc`], [`jmc`], [`uioled`]: the behaviour of each product.
+//! - [`rack`]: [`Rack`](rack::Rack), the devices of one virtual bus on one
+//!   runner and one simulation clock, with unplug, plug and fault injection.
 //! - [`persist`]: saved parameters on disk under `--data-dir`.
 
+pub mod behaviour;
 pub mod device;
+pub mod jmc;
 pub mod objects;
+pub mod pdo;
 pub mod persist;
 pub mod products;
+pub mod rack;
+pub mod uioled;
+pub mod umc;

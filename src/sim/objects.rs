@@ -7,6 +7,7 @@
 //! length (0x06070010/12/13) and range (0x06090030/31/32).
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use crate::canopen::NodeId;
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, ValueError};
@@ -26,14 +27,20 @@ pub struct StoreError {
 #[derive(Debug, Clone)]
 pub struct ObjectStore {
     node: NodeId,
-    dictionary: ObjectDictionary,
+    /// Shared by the devices of one product, and by a device's factory
+    /// values and current values: only the values are each device's own.
+    dictionary: Arc<ObjectDictionary>,
     values: BTreeMap<(u16, u8), Value>,
 }
 
 impl ObjectStore {
     /// Every sub-object at its default for `node`; a sub-object without a
     /// default starts at zero (an empty string for strings and domains).
-    pub fn new(dictionary: ObjectDictionary, node: NodeId) -> Result<Self, StoreError> {
+    pub fn new(
+        dictionary: impl Into<Arc<ObjectDictionary>>,
+        node: NodeId,
+    ) -> Result<Self, StoreError> {
+        let dictionary = dictionary.into();
         let mut values = BTreeMap::new();
         for object in dictionary.objects.values() {
             for sub in object.subs.values() {
@@ -83,6 +90,55 @@ impl ObjectStore {
         }
         self.values.insert((index, sub), value);
         Ok(())
+    }
+
+    /// Sets an integer (or BOOLEAN) object from the device's side, clamped
+    /// to its type's range; REAL objects take the number as it is. Returns
+    /// false, changing nothing, for an object the dictionary lacks or of
+    /// another type.
+    pub fn set_int_saturating(&mut self, index: u16, sub: u8, value: i64) -> bool {
+        let Ok(entry) = self.entry(index, sub) else {
+            return false;
+        };
+        let data_type = entry.data_type;
+        let value = match data_type {
+            DataType::Real32 => Value::Real32(value as f32),
+            DataType::Real64 => Value::Real64(value as f64),
+            _ => {
+                let Some((min, max)) = data_type.integer_range() else {
+                    return false;
+                };
+                match Value::from_i128(data_type, i128::from(value).clamp(min, max)) {
+                    Ok(value) => value,
+                    Err(_) => return false,
+                }
+            }
+        };
+        self.values.insert((index, sub), value);
+        true
+    }
+
+    /// Sets a REAL32/REAL64 object, or an integer one rounded and clamped.
+    /// Returns false, changing nothing, for an object the dictionary lacks
+    /// or that is no number.
+    pub fn set_real(&mut self, index: u16, sub: u8, value: f64) -> bool {
+        let Ok(entry) = self.entry(index, sub) else {
+            return false;
+        };
+        match entry.data_type {
+            DataType::Real32 => {
+                self.values
+                    .insert((index, sub), Value::Real32(value as f32));
+                true
+            }
+            DataType::Real64 => {
+                self.values.insert((index, sub), Value::Real64(value));
+                true
+            }
+            // `as` saturates and maps NaN to 0, which is what a device's
+            // conversion of a measurement does.
+            _ => self.set_int_saturating(index, sub, value.round() as i64),
+        }
     }
 
     fn entry(&self, index: u16, sub: u8) -> Result<&SubObject, AbortCode> {

@@ -2,16 +2,18 @@
 //! a bus (`../shared/API.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
 
 use std::fmt;
-use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, OnceLock};
 
-use crate::can::VirtualHub;
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
+use crate::canopen::od::ObjectDictionary;
 use crate::profiles::builtin;
 
-use super::device::{DeviceCore, run_device, run_persistent_device};
-use super::persist::{read_saved, saved_path};
+use super::behaviour::Behaviour;
+use super::device::DeviceCore;
+use super::jmc::Jmc;
+use super::uioled::Uioled;
+use super::umc::Umc;
 
 /// A product candeck can emulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -55,11 +57,35 @@ impl Product {
         }
     }
 
+    /// The product's application.
+    pub fn behaviour(self) -> Box<dyn Behaviour> {
+        match self {
+            Self::Umc1bds32 => Box::new(Umc::new(2)),
+            Self::Umc1bd90 => Box::new(Umc::new(1)),
+            Self::Jmc => Box::new(Jmc::new()),
+            Self::Uio1led => Box::new(Uioled::new()),
+        }
+    }
+
+    /// The dictionary of the built-in EDS, read once and shared by every
+    /// device of the product.
+    pub fn dictionary(self) -> Result<Arc<ObjectDictionary>, String> {
+        static PARSED: [OnceLock<Result<Arc<ObjectDictionary>, String>>; Product::ALL.len()] =
+            [const { OnceLock::new() }; Product::ALL.len()];
+        PARSED[self as usize]
+            .get_or_init(|| {
+                let file = format!("{}.eds (built in)", self.name());
+                Eds::parse(self.eds_text(), &file)
+                    .map(|eds| Arc::new(eds.dictionary))
+                    .map_err(|err| err.to_string())
+            })
+            .clone()
+    }
+
     /// A device of this product at `node`, not booted yet.
     pub fn device(self, node: NodeId) -> Result<DeviceCore, String> {
-        let file = format!("{}.eds (built in)", self.name());
-        let eds = Eds::parse(self.eds_text(), &file).map_err(|err| err.to_string())?;
-        DeviceCore::new(eds.dictionary, node).map_err(|err| format!("{file}: {err}"))
+        DeviceCore::with_behaviour(self.dictionary()?, node, self.behaviour())
+            .map_err(|err| format!("{}.eds (built in): {err}", self.name()))
     }
 }
 
@@ -152,37 +178,6 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
         devices.push(DeviceSpec { product, node });
     }
     Ok(devices)
-}
-
-/// Puts `devices` on `hub`, each on an attachment of its own, booted and
-/// running. With `data_dir`, each device starts with the parameters it saved
-/// there before and keeps what it saves (see [`super::persist`]). Every
-/// device is built before any starts, so a bad one leaves the bus as it was.
-pub fn spawn_devices(
-    hub: &VirtualHub,
-    devices: &[DeviceSpec],
-    data_dir: Option<&Path>,
-) -> Result<Vec<Arc<Mutex<DeviceCore>>>, String> {
-    let mut cores = Vec::new();
-    for spec in devices {
-        let mut core = spec.product.device(spec.node)?;
-        let path = data_dir.map(|dir| saved_path(dir, spec.product.name(), spec.node));
-        if let Some(path) = &path {
-            core.load_saved(read_saved(path).map_err(|err| err.to_string())?);
-        }
-        cores.push((Arc::new(Mutex::new(core)), path));
-    }
-    for (core, path) in &cores {
-        match path {
-            Some(path) => tokio::spawn(run_persistent_device(
-                hub.attach(),
-                core.clone(),
-                path.clone(),
-            )),
-            None => tokio::spawn(run_device(hub.attach(), core.clone())),
-        };
-    }
-    Ok(cores.into_iter().map(|(core, _)| core).collect())
 }
 
 #[cfg(test)]

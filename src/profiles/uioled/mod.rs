@@ -3,9 +3,10 @@
 //! own effect, and the renderer that turns their parameters into the colour
 //! of every LED at a given time.
 //!
-//! The renderer is pure: time comes in as milliseconds since the parameters
-//! were written, so the virtual UIO1LED and the dashboard's preview of a
-//! real one draw the same pixels, and tests need no clock.
+//! The renderer is pure: time comes in as milliseconds since the segments
+//! held the parameters given (Value included: the virtual UIO1LED passes
+//! its live ones, the preview those last read from a real one), so both
+//! draw the same pixels, and tests need no clock.
 //!
 //! # Layout
 //!

@@ -196,7 +196,7 @@ impl Segment {
         }
     }
 
-    /// Value `t_ms` milliseconds after the parameters were written.
+    /// Value `t_ms` milliseconds after the segment held `value`.
     ///
     /// With `speed` 0, Value is as written. Otherwise Speed is added every
     /// millisecond and Value stays within MinValue..=MaxValue by wrapping
@@ -204,16 +204,25 @@ impl Segment {
     /// for a negative speed, from MaxValue). Wrapping rather than bouncing
     /// keeps FLOW moving one way, which is what FLOW_REVERSED is for. The
     /// manual does not say which; this is a closed form of the 1 ms steps,
-    /// so any `t_ms` costs the same.
+    /// so any `t_ms` costs the same, and steps compose: `value_at(a + b)` is
+    /// `value_at(b)` of the segment holding `value_at(a)`. The virtual
+    /// UIO1LED's speed controller is this function, so the Value it shows
+    /// over the bus is the Value drawn.
     pub fn value_at(&self, t_ms: u64) -> i16 {
-        if self.speed == 0 {
+        // At 0 no step has been taken: a Value written outside the bounds
+        // is shown as written until the first millisecond wraps it in.
+        if self.speed == 0 || t_ms == 0 {
             return self.value;
         }
         let (low, high) = self.bounds();
-        let span = i128::from(high) - i128::from(low) + 1;
-        let start = i128::from(self.value) - i128::from(low);
-        let moved = start + i128::from(self.speed) * i128::from(t_ms);
-        (i128::from(low) + moved.rem_euclid(span)) as i16
+        // 1..=65536.
+        let span = i64::from(high) - i64::from(low) + 1;
+        // Speed × t counts only modulo the span: reducing t first keeps the
+        // product within i64 for any t (|speed| ≤ 2^15, steps < 2^16), and
+        // avoids 128-bit division on a path run every millisecond.
+        let steps = (t_ms % span as u64) as i64;
+        let moved = i64::from(self.value) - i64::from(low) + i64::from(self.speed) * steps;
+        (i64::from(low) + moved.rem_euclid(span)) as i16
     }
 
     /// Where Value is within MinValue..=MaxValue, as 0..=`steps` − 1: the

@@ -323,6 +323,66 @@ fn fields_are_set_and_read_as_the_wire_carries_them() {
     assert_eq!(segment.dimmer, 17);
 }
 
+#[test]
+fn value_at_is_the_one_millisecond_steps() {
+    // Bounds that Speed does not divide, a negative speed, and a Value
+    // written outside the bounds (wrapped in by the first step).
+    let moving = [
+        Segment {
+            value: 3,
+            min_value: -7,
+            max_value: 12,
+            speed: 6,
+            ..Segment::default()
+        },
+        Segment {
+            value: 100,
+            min_value: -7,
+            max_value: 12,
+            speed: -5,
+            ..Segment::default()
+        },
+        Segment {
+            value: i16::MIN,
+            min_value: i16::MIN,
+            max_value: i16::MAX,
+            speed: i16::MAX,
+            ..Segment::default()
+        },
+    ];
+    for segment in moving {
+        let mut stepped = segment;
+        for t in 1..=1_000u64 {
+            let (low, high) = segment.bounds();
+            // What a firmware loop does each millisecond: add, then wrap.
+            let sum = i64::from(stepped.value) + i64::from(stepped.speed);
+            let span = i64::from(high) - i64::from(low) + 1;
+            let next = i64::from(low) + (sum - i64::from(low)).rem_euclid(span);
+            stepped.value = next as i16;
+            assert_eq!(segment.value_at(t), stepped.value, "{segment:?} at {t}");
+        }
+    }
+    // At 0 nothing has moved yet, even outside the bounds.
+    assert_eq!(moving[1].value_at(0), 100);
+    // 95 is 83 past 12: four spans of 20, then 3 past MaxValue: -7, -6, -5.
+    assert_eq!(moving[1].value_at(1), -5);
+}
+
+#[test]
+fn value_at_far_in_the_future_matches_exact_arithmetic() {
+    let segment = Segment {
+        value: 1_234,
+        min_value: -30_000,
+        max_value: 29_999,
+        speed: -32_768,
+        ..Segment::default()
+    };
+    for t in [u64::MAX, u64::MAX - 1, 1 << 63, 987_654_321_987] {
+        let exact = -30_000 + (31_234 + -32_768 * i128::from(t)).rem_euclid(60_000);
+        assert_eq!(i128::from(segment.value_at(t)), exact, "t {t}");
+    }
+}
+
 fn any_rgbw() -> impl Strategy<Value = Rgbw> {
     any::<[u8; 4]>().prop_map(|[r, g, b, w]| Rgbw::new(r, g, b, w))
 }
@@ -370,6 +430,16 @@ fn any_segment() -> impl Strategy<Value = Segment> {
 
 proptest! {
     #[test]
+    fn value_steps_compose(
+        segment in any_segment(),
+        first in 0..u64::MAX / 2,
+        then in 0..u64::MAX / 2,
+    ) {
+        let later = Segment { value: segment.value_at(first), ..segment };
+        prop_assert_eq!(later.value_at(then), segment.value_at(first + then));
+    }
+
+    #[test]
     fn rendering_never_panics_and_gives_every_led(
         segments in prop::collection::vec(any_segment(), 0..12),
         t_ms in any::<u64>(),
@@ -378,7 +448,7 @@ proptest! {
         prop_assert_eq!(pixels.len(), led_count(&segments));
         for (segment, range) in segments.iter().zip(layout(&segments)) {
             let (low, high) = segment.bounds();
-            if segment.speed != 0 {
+            if segment.speed != 0 && t_ms > 0 {
                 prop_assert!((low..=high).contains(&segment.value_at(t_ms)));
             }
             if segment.dimmer == 0 {

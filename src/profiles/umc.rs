@@ -1,0 +1,342 @@
+//! UniSwarm UMC motion controllers (UMC firmware manual): where each axis's
+//! objects are (§1.3.1 "Multi-axis", Table 1.5; chapter 2 §1.1, Table 2.1),
+//! the board and axis objects a master or a virtual device reads, and the
+//! units the manual uses (Q15.16, tenths of a degree, hundredths of a volt
+//! or an ampere, the interpolation period of 0x60C2).
+//!
+//! The manual documents axis 1; axis `n` (1–8) finds the CiA 402 objects
+//! at `index + 0x800 * (n - 1)` and the manufacturer axis objects at
+//! `index + 0x200 * (n - 1)`. The constants below are axis 1's.
+
+/// Index step of the standardized profile area (0x6000–0x9FFF) per axis
+/// (Table 2.1: axis 2 at 0x6800–0x6FFF).
+pub const PROFILE_AXIS_STEP: u16 = 0x800;
+/// Index step of the manufacturer axis area (0x4000–0x4FFF) per axis
+/// (Table 1.5: axis 2 at 0x4200–0x43FF).
+pub const MANUFACTURER_AXIS_STEP: u16 = 0x200;
+/// The most axes one device addresses (Tables 1.5 and 2.1).
+pub const MAX_AXES: u8 = 8;
+/// First index of the standardized profile area.
+const PROFILE_AREA: u16 = 0x6000;
+/// First index of the manufacturer axis area.
+const MANUFACTURER_AXIS_AREA: u16 = 0x4000;
+
+/// Axis `axis`'s copy of the axis-1 object `index`: shifted by
+/// [`PROFILE_AXIS_STEP`] in 0x6000–0x9FFF, by [`MANUFACTURER_AXIS_STEP`] in
+/// 0x4000–0x4FFF, unchanged elsewhere (board and communication objects
+/// are shared). `None` for an axis outside 1–8.
+pub fn axis_index(axis: u8, index: u16) -> Option<u16> {
+    if !(1..=MAX_AXES).contains(&axis) {
+        return None;
+    }
+    let n = u16::from(axis - 1);
+    Some(match index {
+        0x6000..=0x67FF => index + PROFILE_AXIS_STEP * n,
+        0x4000..=0x41FF => index + MANUFACTURER_AXIS_STEP * n,
+        _ => index,
+    })
+}
+
+/// The axis (1–8) an index belongs to and the axis-1 index it is the copy
+/// of; `None` for an index outside both axis areas.
+pub fn index_axis(index: u16) -> Option<(u8, u16)> {
+    match index {
+        PROFILE_AREA..=0x9FFF => {
+            let offset = index - PROFILE_AREA;
+            let axis = offset / PROFILE_AXIS_STEP;
+            Some((axis as u8 + 1, index - axis * PROFILE_AXIS_STEP))
+        }
+        MANUFACTURER_AXIS_AREA..=0x4FFF => {
+            let offset = index - MANUFACTURER_AXIS_AREA;
+            let axis = offset / MANUFACTURER_AXIS_STEP;
+            Some((axis as u8 + 1, index - axis * MANUFACTURER_AXIS_STEP))
+        }
+        _ => None,
+    }
+}
+
+/// Q15.16, the manual's fixed-point type: a signed 32-bit value in
+/// 1/65536ths.
+pub const Q15_16_ONE: f64 = 65536.0;
+
+/// A number as Q15.16, saturating at the type's range.
+pub fn to_q15_16(value: f64) -> i32 {
+    // `as` saturates (and maps NaN to 0), which a measurement wants.
+    (value * Q15_16_ONE).round() as i32
+}
+
+/// A Q15.16 value as a number.
+pub fn from_q15_16(raw: i32) -> f64 {
+    f64::from(raw) / Q15_16_ONE
+}
+
+/// The interpolation cycle time of 0x60C2 (eq. 2.5: `units * 10^index`
+/// seconds) in milliseconds; `None` for a zero period (no interpolation).
+pub fn ip_period_ms(time_units: u8, time_index: i8) -> Option<f64> {
+    let seconds = f64::from(time_units) * 10f64.powi(i32::from(time_index));
+    (seconds > 0.0 && seconds.is_finite()).then_some(seconds * 1000.0)
+}
+
+/// Board objects (chapter 1 §2): shared by all axes.
+pub mod board {
+    /// 0x2000.1 Board_voltage_input, UINT16 in 0.01 V (§2.1: used for
+    /// under/over-voltage detection).
+    pub const VOLTAGE: (u16, u8) = (0x2000, 1);
+    /// 0x2020.n CPU_temperature, INT16 in 0.1 °C, one per CPU (sub 1, 2).
+    pub const CPU_TEMPERATURE: u16 = 0x2020;
+    /// 0x2021.n CPU_life_cycle, UINT16 counting CPU cycles (sub 1, 2).
+    pub const CPU_LIFE_CYCLE: u16 = 0x2021;
+    /// 0x2041.1 Undervoltage, UINT16 in 0.01 V (default 1100).
+    pub const UNDERVOLTAGE: (u16, u8) = (0x2041, 1);
+    /// 0x2041.2 Overvoltage, UINT16 in 0.01 V (default 6000).
+    pub const OVERVOLTAGE: (u16, u8) = (0x2041, 2);
+    /// 0x2801.n Driver_temperature, INT16 in 0.1 °C, one per bridge
+    /// (A–D, sub 1–4; three on the UMC1BD90).
+    pub const DRIVER_TEMPERATURE: u16 = 0x2801;
+    /// 0x2802.n Currents_HL, INT16 in 0.01 A, per bridge.
+    pub const CURRENTS_HL: u16 = 0x2802;
+    /// 0x2804.n PWM, INT16, 0–32768 = 0–100 %, −1 for a floating bridge.
+    pub const PWM: u16 = 0x2804;
+    /// 0x2805.n Back_EMF, INT16 in 0.1 V, per bridge.
+    pub const BACK_EMF: u16 = 0x2805;
+    /// 0x2810.1 Protection_schmitt_triggers_low, INT16 in 0.1 °C: below
+    /// it an over-temperature ends (default 750).
+    pub const TEMPERATURE_LOW: (u16, u8) = (0x2810, 1);
+    /// 0x2810.2 Protection_schmitt_triggers_high, INT16 in 0.1 °C: above
+    /// it the driver is over-temperature (default 800).
+    pub const TEMPERATURE_HIGH: (u16, u8) = (0x2810, 2);
+}
+
+/// Axis-1 manufacturer objects (chapter 1 §3); axis `n` at
+/// `+ 0x200 * (n - 1)` ([`axis_index`]).
+pub mod axis {
+    /// 0x4000.1 a1_Motion_status Error, UINT16 bit field (Figure 1.2).
+    pub const MOTION_ERROR: (u16, u8) = (0x4000, 1);
+    /// 0x4006 a1_Motor_status: 1 Command (INT16 duty, ±32768 = ±100 %),
+    /// 2 Current (INT16, 0.01 A), 3 Torque (Q15.16 N·m), 4 Velocity
+    /// (Q15.16), 5 Position (Q15.16), 6 Error (UINT16, Figure 1.3),
+    /// 7 Temperature (INT16, 0.1 °C).
+    pub const MOTOR_STATUS: u16 = 0x4006;
+    /// 0x4007 a1_Motor_config: 2 Peak_current, 3 Burst_current,
+    /// 5 Sustained_current (UINT16, 0.01 A), 4 Burst_duration (ms),
+    /// 6 Current_constant (Q15.16 N·m/A), 7 Max_velocity (rpm).
+    pub const MOTOR_CONFIG: u16 = 0x4007;
+    /// 0x4008 a1_BLDC_status: 1 Hall_raw_value (INT8, 3 bits), 2
+    /// Hall_phase (INT8), 3 Electrical_angle (INT16, degrees).
+    pub const BLDC_STATUS: u16 = 0x4008;
+    /// 0x4009.1 a1_BLDC_config Pole_pair, UINT8.
+    pub const POLE_PAIRS: (u16, u8) = (0x4009, 1);
+    /// 0x4020 a1_Torque_PID_status: 1 Input, 2 Error, 3 Integrator,
+    /// 4 Output (Q15.16).
+    pub const TORQUE_PID_STATUS: u16 = 0x4020;
+    /// 0x4040 a1_Velocity_PID_status, as 0x4020.
+    pub const VELOCITY_PID_STATUS: u16 = 0x4040;
+    /// 0x4060 a1_Position_PID_status, as 0x4020.
+    pub const POSITION_PID_STATUS: u16 = 0x4060;
+    /// 0x4022 a1_Torque_sensor_status: 1 Raw_data, 2 Flags, 3 Value
+    /// (Q15.16).
+    pub const TORQUE_SENSOR_STATUS: u16 = 0x4022;
+    /// 0x4042 a1_Velocity_sensor_status, as 0x4022.
+    pub const VELOCITY_SENSOR_STATUS: u16 = 0x4042;
+    /// 0x4062 a1_Position_sensor_status, as 0x4022.
+    pub const POSITION_SENSOR_STATUS: u16 = 0x4062;
+    /// 0x41F0 a1_cp_target, INT32: the continuous position set point.
+    pub const CP_TARGET: u16 = 0x41F0;
+    /// 0x41FA a1_dty_target, INT16.
+    pub const DTY_TARGET: u16 = 0x41FA;
+    /// 0x41FB a1_dty_demand, INT16.
+    pub const DTY_DEMAND: u16 = 0x41FB;
+    /// 0x41FC a1_dty_max, UINT16.
+    pub const DTY_MAX: u16 = 0x41FC;
+    /// 0x41FD a1_dty_slope, UINT16 per second.
+    pub const DTY_SLOPE: u16 = 0x41FD;
+
+    /// Motor error bits of 0x4006.6 (Figure 1.3).
+    pub mod motor_error {
+        /// b0 OC: over-current.
+        pub const OVER_CURRENT: u16 = 1 << 0;
+        /// b1 OS: over-speed.
+        pub const OVER_SPEED: u16 = 1 << 1;
+        /// b2 DOT: driver over-temperature.
+        pub const DRIVER_OVER_TEMPERATURE: u16 = 1 << 2;
+    }
+
+    /// Motion error bits of 0x4000.1 (Figure 1.2).
+    pub mod motion_error {
+        /// b0 Brd: error from the board.
+        pub const BOARD: u16 = 1 << 0;
+        /// b1 Mot: error from the motor.
+        pub const MOTOR: u16 = 1 << 1;
+        /// b7 PosC: error from the position controller.
+        pub const POSITION_CONTROLLER: u16 = 1 << 7;
+    }
+}
+
+/// Axis-1 CiA 402 objects (chapter 2) as the UMC has them, with the units
+/// of [`units`]; axis `n` at `+ 0x800 * (n - 1)` ([`axis_index`]).
+pub mod drive {
+    /// 0x6007: INT16, Table 2.10.
+    pub const ABORT_CONNECTION_OPTION: u16 = 0x6007;
+    /// 0x6040: UINT16, Figure 2.4.
+    pub const CONTROLWORD: u16 = 0x6040;
+    /// 0x6041: UINT16, Tables 2.7 and 2.8.
+    pub const STATUSWORD: u16 = 0x6041;
+    /// 0x6042: INT16, velocity units.
+    pub const VL_TARGET: u16 = 0x6042;
+    /// 0x6043: INT16.
+    pub const VL_DEMAND: u16 = 0x6043;
+    /// 0x6044: INT16.
+    pub const VL_ACTUAL: u16 = 0x6044;
+    /// 0x6046: UINT32 sub 1 min, 2 max.
+    pub const VL_MIN_MAX: u16 = 0x6046;
+    /// 0x6048: sub 1 delta speed, sub 2 delta time (ms).
+    pub const VL_ACCELERATION: u16 = 0x6048;
+    /// 0x6049: as 0x6048.
+    pub const VL_DECELERATION: u16 = 0x6049;
+    /// 0x604A: as 0x6048.
+    pub const VL_QUICK_STOP: u16 = 0x604A;
+    /// 0x604B: INT16 sub 1 numerator, 2 denominator.
+    pub const VL_SET_POINT_FACTOR: u16 = 0x604B;
+    /// 0x604C: INT32 sub 1 numerator, 2 denominator: increments/ms per unit.
+    pub const VL_DIMENSION_FACTOR: u16 = 0x604C;
+    /// 0x605A: INT16, Table 2.11.
+    pub const QUICK_STOP_OPTION: u16 = 0x605A;
+    /// 0x605B: INT16, Table 2.12.
+    pub const SHUTDOWN_OPTION: u16 = 0x605B;
+    /// 0x605C: INT16, Table 2.13.
+    pub const DISABLE_OPERATION_OPTION: u16 = 0x605C;
+    /// 0x605D: INT16, Table 2.14.
+    pub const HALT_OPTION: u16 = 0x605D;
+    /// 0x605E: INT16, Table 2.15.
+    pub const FAULT_REACTION_OPTION: u16 = 0x605E;
+    /// 0x6060: INT8, Figure 2.5.
+    pub const MODES_OF_OPERATION: u16 = 0x6060;
+    /// 0x6061: INT8.
+    pub const MODES_OF_OPERATION_DISPLAY: u16 = 0x6061;
+    /// 0x6062: INT32, increments.
+    pub const POSITION_DEMAND: u16 = 0x6062;
+    /// 0x6063: INT32, increments.
+    pub const POSITION_ACTUAL_INTERNAL: u16 = 0x6063;
+    /// 0x6064: INT32, increments.
+    pub const POSITION_ACTUAL: u16 = 0x6064;
+    /// 0x6065: UINT32, increments; 0xFFFFFFFF switches detection off.
+    pub const FOLLOWING_ERROR_WINDOW: u16 = 0x6065;
+    /// 0x6066: UINT16, ms.
+    pub const FOLLOWING_ERROR_TIME_OUT: u16 = 0x6066;
+    /// 0x6067: UINT32, increments.
+    pub const POSITION_WINDOW: u16 = 0x6067;
+    /// 0x6068: UINT16, ms.
+    pub const POSITION_WINDOW_TIME: u16 = 0x6068;
+    /// 0x606B: INT32, increments/ms.
+    pub const VELOCITY_DEMAND: u16 = 0x606B;
+    /// 0x606C: INT32, increments/ms.
+    pub const VELOCITY_ACTUAL: u16 = 0x606C;
+    /// 0x6071: INT16, per mille of rated torque.
+    pub const TQ_TARGET: u16 = 0x6071;
+    /// 0x6072: UINT16, per mille of rated torque.
+    pub const TQ_MAX: u16 = 0x6072;
+    /// 0x6073: UINT16, per mille of rated current (0: the peak current).
+    pub const MAX_CURRENT: u16 = 0x6073;
+    /// 0x6074: INT16, per mille of rated torque.
+    pub const TQ_DEMAND: u16 = 0x6074;
+    /// 0x6075: UINT32, mA (0: the sustained current 0x4007.5).
+    pub const RATED_CURRENT: u16 = 0x6075;
+    /// 0x6077: INT16, per mille of rated torque.
+    pub const TQ_ACTUAL: u16 = 0x6077;
+    /// 0x6078: INT16, per mille of rated current.
+    pub const CURRENT_ACTUAL: u16 = 0x6078;
+    /// 0x6079: UINT32, mV.
+    pub const DC_LINK_VOLTAGE: u16 = 0x6079;
+    /// 0x607A: INT32, increments.
+    pub const TARGET_POSITION: u16 = 0x607A;
+    /// 0x607D: INT32 sub 1 min, 2 max; both 0 switch them off.
+    pub const SOFTWARE_POSITION_LIMIT: u16 = 0x607D;
+    /// 0x607F: UINT32, increments/ms.
+    pub const MAX_PROFILE_VELOCITY: u16 = 0x607F;
+    /// 0x6080: UINT32, increments/ms.
+    pub const MAX_MOTOR_SPEED: u16 = 0x6080;
+    /// 0x6081: UINT32, increments/ms.
+    pub const PROFILE_VELOCITY: u16 = 0x6081;
+    /// 0x6083: UINT32, increments/ms².
+    pub const PROFILE_ACCELERATION: u16 = 0x6083;
+    /// 0x6084: UINT32, increments/ms².
+    pub const PROFILE_DECELERATION: u16 = 0x6084;
+    /// 0x6085: UINT32, increments/ms².
+    pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
+    /// 0x6087: UINT32, per mille of rated torque per second.
+    pub const TQ_SLOPE: u16 = 0x6087;
+    /// 0x60C1: INT32 sub 1: a set-point into the FIFO.
+    pub const IP_DATA_RECORD: u16 = 0x60C1;
+    /// 0x60C2: sub 1 units (UINT8), sub 2 index (INT8): units × 10^index s.
+    pub const IP_TIME_PERIOD: u16 = 0x60C2;
+    /// 0x60C4: sub 1 maximum, 2 actual buffer size, 6 buffer clear (0 clears).
+    pub const IP_DATA_CONFIGURATION: u16 = 0x60C4;
+    /// 0x60C5: UINT32, increments/ms².
+    pub const MAX_ACCELERATION: u16 = 0x60C5;
+    /// 0x60C6: UINT32, increments/ms².
+    pub const MAX_DECELERATION: u16 = 0x60C6;
+    /// 0x60F4: INT32, increments.
+    pub const FOLLOWING_ERROR_ACTUAL: u16 = 0x60F4;
+    /// 0x60FA: INT32: the velocity loop's command, increments/ms.
+    pub const CONTROL_EFFORT: u16 = 0x60FA;
+    /// 0x6502: UINT32, Figure 2.6.
+    pub const SUPPORTED_DRIVE_MODES: u16 = 0x6502;
+}
+
+/// The units the virtual UMC gives its user-defined units (the manual
+/// leaves them to the configuration; 0x604C says velocities are "LSB per
+/// millisecond" inside): positions in increments of 1/65536 revolution
+/// (so 0x6064 and the Q15.16 revolutions of 0x4006.5 are the same number),
+/// velocities in increments per millisecond, accelerations in increments
+/// per millisecond squared.
+pub mod units {
+    /// Position increments per motor revolution.
+    pub const INCREMENTS_PER_REV: f64 = 65536.0;
+
+    /// A velocity in increments/ms as rpm.
+    pub fn rpm_from_increments_per_ms(velocity: f64) -> f64 {
+        velocity * 1000.0 * 60.0 / INCREMENTS_PER_REV
+    }
+
+    /// A velocity in increments/ms as rad/s.
+    pub fn rad_per_s_from_increments_per_ms(velocity: f64) -> f64 {
+        velocity * 1000.0 * std::f64::consts::TAU / INCREMENTS_PER_REV
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axes_are_at_the_manuals_offsets() {
+        assert_eq!(axis_index(1, 0x6040), Some(0x6040));
+        assert_eq!(axis_index(2, 0x6040), Some(0x6840));
+        assert_eq!(axis_index(8, 0x6041), Some(0x9841));
+        assert_eq!(axis_index(2, 0x4006), Some(0x4206));
+        assert_eq!(axis_index(2, 0x41FA), Some(0x43FA));
+        assert_eq!(axis_index(2, 0x2801), Some(0x2801));
+        assert_eq!(axis_index(0, 0x6040), None);
+        assert_eq!(axis_index(9, 0x6040), None);
+        assert_eq!(index_axis(0x6840), Some((2, 0x6040)));
+        assert_eq!(index_axis(0x6FFF), Some((2, 0x67FF)));
+        assert_eq!(index_axis(0x43FA), Some((2, 0x41FA)));
+        assert_eq!(index_axis(0x4006), Some((1, 0x4006)));
+        assert_eq!(index_axis(0x2810), None);
+    }
+
+    #[test]
+    fn q15_16_round_trips_and_saturates() {
+        assert_eq!(to_q15_16(1.0), 65536);
+        assert_eq!(to_q15_16(-0.5), -32768);
+        assert_eq!(from_q15_16(98304), 1.5);
+        assert_eq!(to_q15_16(40000.0), i32::MAX);
+    }
+
+    #[test]
+    fn the_interpolation_period_is_units_times_ten_to_the_index() {
+        assert_eq!(ip_period_ms(4, -3), Some(4.0));
+        assert_eq!(ip_period_ms(1, 0), Some(1000.0));
+        assert_eq!(ip_period_ms(0, -3), None);
+    }
+}

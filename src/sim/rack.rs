@@ -1,0 +1,826 @@
+//! The virtual devices of one emulated bus, run together: one attachment to
+//! the bus, one simulation clock, and the controls a test bench has (add a
+//! device, pull its cable, put it back, inject a fault).
+//!
+//! One runner serves every device of the bus, so that a bus of 127 devices
+//! costs one wake-up per frame and one per millisecond, not 127 of each.
+//! Frames from the bus go to every device plugged in; a frame a device
+//! sends goes to the bus and to the other devices, as on a wire. The clock
+//! ticks every [`TICK_MS`] of tokio's time (so a paused clock in a test
+//! drives the simulation deterministically); each tick runs every device's
+//! application up to now and its timers.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use tokio::sync::Notify;
+
+use crate::can::{Bus, Frame, FrameReceiver, RecvError, VirtualHub};
+use crate::canopen::NodeId;
+
+use super::behaviour::{Fault, FaultError, TICK_MS};
+use super::device::DeviceCore;
+use super::persist::{read_saved, saved_path, write_saved};
+use super::products::{DeviceSpec, Product};
+
+/// How many rounds of device-to-device frames one event may cause before
+/// the rest wait for the next tick (a loop of devices answering each other
+/// must not hold the runner).
+const MAX_LOCAL_ROUNDS: usize = 16;
+
+/// Why a control of the rack was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RackError {
+    #[error("node {0} is not on this bus")]
+    UnknownNode(NodeId),
+    #[error("node {0} is taken by a {1}")]
+    NodeTaken(NodeId, String),
+    #[error("{0}")]
+    Device(String),
+    #[error(transparent)]
+    Fault(#[from] FaultError),
+}
+
+/// One device in the rack.
+struct Slot {
+    product: Option<Product>,
+    core: DeviceCore,
+    /// Its cable: an unplugged device runs on but neither sends nor hears.
+    plugged: bool,
+    /// Where its saved parameters are kept, and the version last written.
+    persist: Option<(PathBuf, u64)>,
+}
+
+#[derive(Default)]
+struct Inner {
+    slots: BTreeMap<NodeId, Slot>,
+    /// Frames the controls produced (boot-up of an added device), for the
+    /// runner to send.
+    outbox: Vec<(NodeId, Frame)>,
+}
+
+/// How late a tick may run and still count as on time: tokio's timers
+/// have a resolution of 1 ms, so a tick usually runs 1 to 2 ms after it
+/// was due; the simulation itself does not lose that time: each tick runs
+/// the devices up to the instant it was due.
+pub const ON_TIME: Duration = Duration::from_millis(5);
+
+/// How well the runner keeps real time.
+#[derive(Debug, Default)]
+pub struct RackStats {
+    /// Clock ticks run.
+    pub ticks: AtomicU64,
+    /// Ticks that ran more than [`ON_TIME`] after they were due.
+    pub late_ticks: AtomicU64,
+    /// The latest any tick ran, in µs after it was due.
+    pub max_lateness_us: AtomicU64,
+    /// Frames sent by the devices.
+    pub frames_sent: AtomicU64,
+}
+
+impl Rack {
+    /// Simulated milliseconds the devices skipped because the host fell too
+    /// far behind (0 while the simulation keeps real time).
+    pub fn skipped_ticks(&self) -> u64 {
+        lock(&self.inner)
+            .slots
+            .values()
+            .map(|slot| slot.core.skipped_ticks())
+            .sum()
+    }
+}
+
+/// The devices of one virtual bus. Cloning gives another handle to the same
+/// rack; the runner stops when the last handle is dropped or the bus closes.
+#[derive(Clone)]
+pub struct Rack {
+    inner: Arc<Mutex<Inner>>,
+    wake: Arc<Notify>,
+    stats: Arc<RackStats>,
+    data_dir: Option<PathBuf>,
+    /// Keeps the runner alive while a handle exists.
+    _runner: Arc<RunnerGuard>,
+}
+
+struct RunnerGuard(tokio::task::AbortHandle);
+
+impl Drop for RunnerGuard {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+fn now() -> Instant {
+    tokio::time::Instant::now().into_std()
+}
+
+impl Rack {
+    /// An empty rack on `hub`, running from now (needs a tokio runtime).
+    pub fn new(hub: VirtualHub) -> Self {
+        Self::with_data_dir(hub, None)
+    }
+
+    /// With `data_dir`, each device added starts with the parameters it
+    /// saved there before and keeps what it saves (see [`super::persist`]).
+    pub fn with_data_dir(hub: VirtualHub, data_dir: Option<PathBuf>) -> Self {
+        let inner = Arc::new(Mutex::new(Inner::default()));
+        let wake = Arc::new(Notify::new());
+        let stats = Arc::new(RackStats::default());
+        let bus = hub.attach();
+        let frames = bus.subscribe();
+        let runner = tokio::spawn(run(
+            bus,
+            frames,
+            Arc::downgrade(&inner),
+            wake.clone(),
+            stats.clone(),
+        ));
+        Self {
+            inner,
+            wake,
+            stats,
+            data_dir,
+            _runner: Arc::new(RunnerGuard(runner.abort_handle())),
+        }
+    }
+
+    /// Adds every device of a `--devices` list; all are built before any
+    /// boots, so a bad one leaves the rack as it was.
+    pub fn add_all(&self, devices: &[DeviceSpec]) -> Result<(), RackError> {
+        let mut built = Vec::new();
+        for spec in devices {
+            if let Some(slot) = lock(&self.inner).slots.get(&spec.node) {
+                return Err(RackError::NodeTaken(spec.node, product_name(slot)));
+            }
+            built.push((spec.product, self.build(spec.product, spec.node)?));
+        }
+        for (product, (core, persist)) in built {
+            self.insert(Some(product), core, persist)?;
+        }
+        Ok(())
+    }
+
+    /// Adds a device of `product` at `node`; it boots at once.
+    pub fn add(&self, product: Product, node: NodeId) -> Result<(), RackError> {
+        let (core, persist) = self.build(product, node)?;
+        self.insert(Some(product), core, persist)
+    }
+
+    /// Adds a device built elsewhere (a test node with its own dictionary).
+    pub fn add_device(&self, core: DeviceCore) -> Result<(), RackError> {
+        self.insert(None, core, None)
+    }
+
+    fn build(
+        &self,
+        product: Product,
+        node: NodeId,
+    ) -> Result<(DeviceCore, Option<PathBuf>), RackError> {
+        let mut core = product.device(node).map_err(RackError::Device)?;
+        let path = self
+            .data_dir
+            .as_deref()
+            .map(|dir| saved_path(dir, product.name(), node));
+        if let Some(path) = &path {
+            core.load_saved(read_saved(path).map_err(|err| RackError::Device(err.to_string()))?);
+        }
+        Ok((core, path))
+    }
+
+    fn insert(
+        &self,
+        product: Option<Product>,
+        mut core: DeviceCore,
+        persist: Option<PathBuf>,
+    ) -> Result<(), RackError> {
+        let node = core.node();
+        let mut inner = lock(&self.inner);
+        if let Some(slot) = inner.slots.get(&node) {
+            return Err(RackError::NodeTaken(node, product_name(slot)));
+        }
+        let now = now();
+        let boot = core.boot(now);
+        core.tick_to(now);
+        let version = core.saved_version();
+        inner
+            .outbox
+            .extend(boot.into_iter().map(|frame| (node, frame)));
+        inner.slots.insert(
+            node,
+            Slot {
+                product,
+                core,
+                plugged: true,
+                persist: persist.map(|path| (path, version)),
+            },
+        );
+        drop(inner);
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// Takes a device off the bus for good.
+    pub fn remove(&self, node: NodeId) -> Result<(), RackError> {
+        lock(&self.inner)
+            .slots
+            .remove(&node)
+            .map(drop)
+            .ok_or(RackError::UnknownNode(node))
+    }
+
+    /// Pulls the device's cable: it goes on running, but neither sends nor
+    /// hears anything until [`Rack::plug`].
+    pub fn unplug(&self, node: NodeId) -> Result<(), RackError> {
+        self.set_plugged(node, false)
+    }
+
+    /// Puts the cable back: the device is heard again from its next frame
+    /// (no boot-up: it never stopped).
+    pub fn plug(&self, node: NodeId) -> Result<(), RackError> {
+        self.set_plugged(node, true)
+    }
+
+    fn set_plugged(&self, node: NodeId, plugged: bool) -> Result<(), RackError> {
+        let mut inner = lock(&self.inner);
+        let slot = inner
+            .slots
+            .get_mut(&node)
+            .ok_or(RackError::UnknownNode(node))?;
+        slot.plugged = plugged;
+        Ok(())
+    }
+
+    /// Whether the device's cable is in; `None` for no such device.
+    pub fn is_plugged(&self, node: NodeId) -> Option<bool> {
+        lock(&self.inner).slots.get(&node).map(|slot| slot.plugged)
+    }
+
+    /// Injects a fault into a device (see [`Fault`]).
+    pub fn inject_fault(&self, node: NodeId, fault: Fault) -> Result<(), RackError> {
+        self.with_device(node, |core| core.inject_fault(fault, now()))?
+            .map_err(RackError::from)?;
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// Ends an injected fault condition.
+    pub fn clear_fault(&self, node: NodeId, fault: Fault) -> Result<(), RackError> {
+        self.with_device(node, |core| core.clear_fault(fault, now()))?
+            .map_err(RackError::from)?;
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// Runs `f` on a device (to look at its values, or to change them as
+    /// the device itself would).
+    pub fn with_device<R>(
+        &self,
+        node: NodeId,
+        f: impl FnOnce(&mut DeviceCore) -> R,
+    ) -> Result<R, RackError> {
+        let mut inner = lock(&self.inner);
+        let slot = inner
+            .slots
+            .get_mut(&node)
+            .ok_or(RackError::UnknownNode(node))?;
+        Ok(f(&mut slot.core))
+    }
+
+    /// The devices: node, product (`None` for one added with
+    /// [`Rack::add_device`]) and whether plugged in.
+    pub fn devices(&self) -> Vec<(NodeId, Option<Product>, bool)> {
+        lock(&self.inner)
+            .slots
+            .iter()
+            .map(|(node, slot)| (*node, slot.product, slot.plugged))
+            .collect()
+    }
+
+    /// How well the runner keeps real time.
+    pub fn stats(&self) -> &RackStats {
+        &self.stats
+    }
+}
+
+fn product_name(slot: &Slot) -> String {
+    slot.product.map_or_else(
+        || "device".to_string(),
+        |product| product.name().to_string(),
+    )
+}
+
+fn lock(inner: &Mutex<Inner>) -> MutexGuard<'_, Inner> {
+    inner
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// What woke the runner.
+enum Wake {
+    Frame(Frame),
+    Tick(tokio::time::Instant),
+    Controls,
+}
+
+async fn run(
+    bus: Bus,
+    mut frames: FrameReceiver,
+    inner: std::sync::Weak<Mutex<Inner>>,
+    wake: Arc<Notify>,
+    stats: Arc<RackStats>,
+) {
+    let period = Duration::from_millis(TICK_MS);
+    let mut clock = tokio::time::interval(period);
+    // A late tick is not made up in a burst: the devices catch up the
+    // simulated time they missed in one go.
+    clock.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut out: Vec<(NodeId, Frame)> = Vec::new();
+    let mut saves: Vec<(PathBuf, super::device::SavedValues)> = Vec::new();
+    loop {
+        let woke = tokio::select! {
+            received = frames.recv() => match received {
+                Ok(frame) => Wake::Frame(frame.frame),
+                // Requests lost in an overrun end as timeouts, as on a real bus.
+                Err(RecvError::Lagged(_)) => continue,
+                Err(RecvError::Closed) => return,
+            },
+            due = clock.tick() => Wake::Tick(due),
+            _ = wake.notified() => Wake::Controls,
+        };
+        let Some(inner) = inner.upgrade() else {
+            return;
+        };
+        {
+            let mut inner = lock(&inner);
+            let now = now();
+            match woke {
+                Wake::Frame(frame) => deliver(&mut inner, None, &frame, now, &mut out),
+                Wake::Tick(due) => {
+                    let lateness = tokio::time::Instant::now().saturating_duration_since(due);
+                    stats.ticks.fetch_add(1, Ordering::Relaxed);
+                    if lateness > ON_TIME {
+                        stats.late_ticks.fetch_add(1, Ordering::Relaxed);
+                    }
+                    stats
+                        .max_lateness_us
+                        .fetch_max(lateness.as_micros() as u64, Ordering::Relaxed);
+                    // The devices live on the tick's schedule, as a real
+                    // device on its 1 ms cycle: timers and event-timer
+                    // PDOs keep their periods however late the host wakes.
+                    let due = due.into_std();
+                    for (node, slot) in inner.slots.iter_mut() {
+                        slot.core.tick_to(due);
+                        let frames = slot.core.poll(due);
+                        if slot.plugged {
+                            out.extend(frames.into_iter().map(|frame| (*node, frame)));
+                        }
+                    }
+                }
+                Wake::Controls => {}
+            }
+            let controls = std::mem::take(&mut inner.outbox);
+            out.extend(controls);
+            relay_between_devices(&mut inner, now, &mut out);
+            collect_saves(&mut inner, &mut saves);
+        }
+        for (path, saved) in saves.drain(..) {
+            // A device whose flash fails still runs; the log says so.
+            if let Err(err) = write_saved(&path, &saved) {
+                tracing::warn!("virtual device: {err}");
+            }
+        }
+        for (_, frame) in out.drain(..) {
+            match bus.try_send(frame) {
+                Ok(()) => {
+                    stats.frames_sent.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(err) => tracing::debug!("virtual device: frame not sent: {err}"),
+            }
+        }
+    }
+}
+
+/// A frame on the wire reaches every device plugged in but its sender.
+fn deliver(
+    inner: &mut Inner,
+    sender: Option<NodeId>,
+    frame: &Frame,
+    now: Instant,
+    out: &mut Vec<(NodeId, Frame)>,
+) {
+    for (node, slot) in inner.slots.iter_mut() {
+        if !slot.plugged || Some(*node) == sender {
+            continue;
+        }
+        let replies = slot.core.handle_frame(frame, now);
+        out.extend(replies.into_iter().map(|reply| (*node, reply)));
+    }
+}
+
+/// The devices hear each other's frames (a TPDO of one may be an RPDO of
+/// another), and whatever they answer in turn, a bounded number of rounds.
+fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId, Frame)>) {
+    if inner.slots.len() < 2 {
+        return;
+    }
+    let mut start = 0;
+    for _ in 0..MAX_LOCAL_ROUNDS {
+        let end = out.len();
+        if start == end {
+            return;
+        }
+        for i in start..end {
+            let (sender, frame) = out[i];
+            deliver(inner, Some(sender), &frame, now, out);
+        }
+        start = end;
+    }
+}
+
+/// The saved values of devices that saved since they were last written.
+fn collect_saves(inner: &mut Inner, saves: &mut Vec<(PathBuf, super::device::SavedValues)>) {
+    for slot in inner.slots.values_mut() {
+        if let Some((path, version)) = &mut slot.persist
+            && slot.core.saved_version() != *version
+        {
+            *version = slot.core.saved_version();
+            saves.push((path.clone(), slot.core.saved().clone()));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::CanId;
+    use crate::canopen::eds::Eds;
+    use crate::canopen::emcy::ErrorBit;
+    use crate::canopen::sdo::{AbortCode, ClientConfig};
+    use crate::gateway::sdo::SdoChannel;
+    use crate::profiles::builtin::UIO1LED;
+    use crate::sim::behaviour::{Behaviour, DeviceIo};
+
+    /// An application that counts its ticks and has an over-temperature
+    /// fault with EMCY 0x4210.
+    #[derive(Default)]
+    struct Probe {
+        ticks: u64,
+    }
+
+    impl Behaviour for Probe {
+        fn product(&self) -> &'static str {
+            "probe"
+        }
+
+        fn reset(&mut self, _io: &mut DeviceIo<'_>) {
+            self.ticks = 0;
+        }
+
+        fn written(&mut self, _io: &mut DeviceIo<'_>, _index: u16, _sub: u8) {}
+
+        fn tick(&mut self, _io: &mut DeviceIo<'_>) {
+            self.ticks += 1;
+        }
+
+        fn inject_fault(&mut self, io: &mut DeviceIo<'_>, fault: Fault) -> Result<(), FaultError> {
+            if fault != Fault::OverTemperature {
+                return Err(FaultError::NotApplicable {
+                    product: "probe",
+                    fault,
+                });
+            }
+            io.set_error_bit(ErrorBit::Temperature, true);
+            io.emcy(0x4210, [1, 2, 3, 4, 5]);
+            Ok(())
+        }
+
+        fn clear_fault(&mut self, io: &mut DeviceIo<'_>, _fault: Fault) -> Result<(), FaultError> {
+            io.set_error_bit(ErrorBit::Temperature, false);
+            io.emcy(0x0000, [0; 5]);
+            Ok(())
+        }
+    }
+
+    fn node(id: u8) -> NodeId {
+        NodeId::new(id).unwrap()
+    }
+
+    fn probe(id: u8) -> DeviceCore {
+        let dictionary = Eds::parse(UIO1LED, "uio1led.eds").unwrap().dictionary;
+        DeviceCore::with_behaviour(dictionary, node(id), Box::new(Probe::default())).unwrap()
+    }
+
+    fn sdo(master: &Bus, id: u8) -> SdoChannel {
+        let config = ClientConfig {
+            timeout: Duration::from_millis(100),
+            ..ClientConfig::default()
+        };
+        SdoChannel::new(master.clone(), node(id), config)
+    }
+
+    /// The frames on `id` in the next `ms` of (paused) time.
+    async fn frames_on(frames: &mut FrameReceiver, id: u16, ms: u64) -> Vec<Vec<u8>> {
+        frames_on_any(frames, &[id], ms).await
+    }
+
+    /// The frames on any of `ids` in the next `ms` of (paused) time.
+    async fn frames_on_any(frames: &mut FrameReceiver, ids: &[u16], ms: u64) -> Vec<Vec<u8>> {
+        let until = tokio::time::Instant::now() + Duration::from_millis(ms);
+        let mut seen = Vec::new();
+        loop {
+            match tokio::time::timeout_at(until, frames.recv()).await {
+                Ok(Ok(frame))
+                    if ids
+                        .iter()
+                        .any(|id| frame.frame.id() == CanId::Standard(*id)) =>
+                {
+                    seen.push(frame.frame.data().to_vec())
+                }
+                Ok(Ok(_)) => {}
+                Ok(Err(err)) => panic!("{err}"),
+                Err(_) => return seen,
+            }
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn devices_boot_and_answer_through_one_runner() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let mut frames = master.subscribe();
+        let rack = Rack::new(hub.clone());
+        rack.add(Product::Uio1led, node(3)).unwrap();
+        rack.add_device(probe(4)).unwrap();
+        let boot_ups = [
+            frames.recv().await.unwrap().frame,
+            frames.recv().await.unwrap().frame,
+        ];
+        let ids: Vec<_> = boot_ups
+            .iter()
+            .map(|f| (f.id(), f.data().to_vec()))
+            .collect();
+        assert_eq!(
+            ids,
+            vec![
+                (CanId::Standard(0x703), vec![0]),
+                (CanId::Standard(0x704), vec![0])
+            ]
+        );
+        assert_eq!(
+            sdo(&master, 4).upload(0x1000, 0).await.unwrap(),
+            sdo(&master, 3).upload(0x1000, 0).await.unwrap()
+        );
+        assert_eq!(
+            rack.add(Product::Jmc, node(3)),
+            Err(RackError::NodeTaken(node(3), "uio1led".into()))
+        );
+        assert_eq!(rack.remove(node(9)), Err(RackError::UnknownNode(node(9))));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_simulation_clock_ticks_every_millisecond() {
+        let hub = VirtualHub::new("test");
+        let rack = Rack::new(hub.clone());
+        rack.add_device(probe(4)).unwrap();
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        let (ticks, sim_ms) = rack
+            .with_device(node(4), |core| {
+                let sim_ms = core.sim_ms();
+                (core.behaviour_mut::<Probe>().unwrap().ticks, sim_ms)
+            })
+            .unwrap();
+        // The first tick comes one period after the device was added.
+        assert!((249..=250).contains(&ticks), "{ticks}");
+        assert_eq!(ticks, sim_ms);
+        assert_eq!(rack.stats().late_ticks.load(Ordering::Relaxed), 0);
+    }
+
+    #[test]
+    fn a_stalled_host_skips_simulated_time_rather_than_bursting() {
+        let mut core = probe(4);
+        let start = Instant::now();
+        core.boot(start);
+        core.tick_to(start);
+        core.tick_to(start + Duration::from_micros(2_500));
+        let ticks = |core: &mut DeviceCore| core.behaviour_mut::<Probe>().unwrap().ticks;
+        assert_eq!((ticks(&mut core), core.sim_ms()), (2, 2));
+        // 250 ms late: 100 ticks are run, the rest skipped and counted.
+        core.tick_to(start + Duration::from_millis(252));
+        assert_eq!(ticks(&mut core), 102);
+        assert_eq!((core.sim_ms(), core.skipped_ticks()), (252, 150));
+        // And the clock goes on from there, one tick per millisecond.
+        core.tick_to(start + Duration::from_millis(253));
+        assert_eq!((ticks(&mut core), core.sim_ms()), (103, 253));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_fault_sends_its_emcy_and_fills_0x1001_and_0x1003() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let mut frames = master.subscribe();
+        let rack = Rack::new(hub.clone());
+        rack.add_device(probe(4)).unwrap();
+        let sdo = sdo(&master, 4);
+        assert_eq!(
+            rack.inject_fault(node(4), Fault::UnderVoltage),
+            Err(RackError::Fault(FaultError::NotApplicable {
+                product: "probe",
+                fault: Fault::UnderVoltage
+            }))
+        );
+        rack.inject_fault(node(4), Fault::OverTemperature).unwrap();
+        assert_eq!(
+            frames_on(&mut frames, 0x084, 10).await,
+            vec![vec![0x10, 0x42, 0x09, 1, 2, 3, 4, 5]]
+        );
+        assert_eq!(sdo.upload(0x1001, 0).await.unwrap(), vec![0x09]);
+        assert_eq!(sdo.upload(0x1003, 0).await.unwrap(), vec![1]);
+        assert_eq!(sdo.upload(0x1003, 1).await.unwrap(), vec![0x10, 0x42, 0, 0]);
+        rack.clear_fault(node(4), Fault::OverTemperature).unwrap();
+        assert_eq!(
+            frames_on(&mut frames, 0x084, 10).await,
+            vec![vec![0, 0, 0, 0, 0, 0, 0, 0]]
+        );
+        // An error reset is no error: the history keeps one entry.
+        assert_eq!(sdo.upload(0x1003, 0).await.unwrap(), vec![1]);
+        let refused = sdo.download(0x1003, 0, &[1]).await.unwrap_err();
+        assert_eq!(refused.device_abort(), Some(AbortCode::InvalidValue));
+        sdo.download(0x1003, 0, &[0]).await.unwrap();
+        assert_eq!(sdo.upload(0x1003, 0).await.unwrap(), vec![0]);
+        assert_eq!(sdo.upload(0x1003, 1).await.unwrap(), vec![0, 0, 0, 0]);
+        // With 0x1014 bit 31 set, EMCYs are recorded but not sent.
+        sdo.download(0x1014, 0, &0x8000_0084u32.to_le_bytes())
+            .await
+            .unwrap();
+        rack.inject_fault(node(4), Fault::OverTemperature).unwrap();
+        assert!(frames_on(&mut frames, 0x084, 10).await.is_empty());
+        assert_eq!(sdo.upload(0x1003, 0).await.unwrap(), vec![1]);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_unplugged_device_falls_silent_and_comes_back_without_booting() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add_device(probe(4)).unwrap();
+        sdo(&master, 4)
+            .download(0x1017, 0, &100u16.to_le_bytes())
+            .await
+            .unwrap();
+        let mut frames = master.subscribe();
+        assert_eq!(frames_on(&mut frames, 0x704, 550).await.len(), 5);
+        rack.unplug(node(4)).unwrap();
+        assert_eq!(rack.is_plugged(node(4)), Some(false));
+        assert!(frames_on(&mut frames, 0x704, 500).await.is_empty());
+        assert!(sdo(&master, 4).upload(0x1017, 0).await.is_err());
+        rack.plug(node(4)).unwrap();
+        let back = frames_on(&mut frames, 0x704, 500).await;
+        // Heartbeats in pre-operational, no boot-up (0x00).
+        assert!(
+            back.len() >= 4 && back.iter().all(|data| data == &[0x7F]),
+            "{back:?}"
+        );
+        // It went on running while unplugged.
+        let ticks = rack
+            .with_device(node(4), |core| core.behaviour_mut::<Probe>().unwrap().ticks)
+            .unwrap();
+        assert!(ticks >= 1500, "{ticks}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn heartbeat_loss_stops_the_heartbeat_but_not_the_device() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add_device(probe(4)).unwrap();
+        let sdo = sdo(&master, 4);
+        sdo.download(0x1017, 0, &100u16.to_le_bytes())
+            .await
+            .unwrap();
+        let mut frames = master.subscribe();
+        rack.inject_fault(node(4), Fault::HeartbeatLoss).unwrap();
+        assert!(frames_on(&mut frames, 0x704, 350).await.is_empty());
+        assert_eq!(sdo.upload(0x1017, 0).await.unwrap(), vec![100, 0]);
+        rack.clear_fault(node(4), Fault::HeartbeatLoss).unwrap();
+        assert_eq!(frames_on(&mut frames, 0x704, 350).await.len(), 3);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn node_guarding_is_answered_and_a_lost_master_is_an_emcy() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add_device(probe(4)).unwrap();
+        let sdo = sdo(&master, 4);
+        sdo.download(0x100C, 0, &100u16.to_le_bytes())
+            .await
+            .unwrap();
+        sdo.download(0x100D, 0, &[3]).await.unwrap();
+        let mut frames = master.subscribe();
+        let request = Frame::remote(CanId::Standard(0x704), 1).unwrap();
+        master.send(request).await.unwrap();
+        assert_eq!(frames_on(&mut frames, 0x704, 5).await, vec![vec![0x7F]]);
+        master.send(request).await.unwrap();
+        assert_eq!(frames_on(&mut frames, 0x704, 5).await, vec![vec![0xFF]]);
+        // No request for the life time (300 ms): EMCY 0x8130, communication bit.
+        assert_eq!(
+            frames_on(&mut frames, 0x084, 400).await,
+            vec![vec![0x30, 0x81, 0x11, 0, 0, 0, 0, 0]]
+        );
+        master.send(request).await.unwrap();
+        assert_eq!(
+            frames_on_any(&mut frames, &[0x704, 0x084], 10).await,
+            vec![vec![0x7F], vec![0; 8]]
+        );
+        // With a heartbeat configured, guarding requests go unanswered.
+        sdo.download(0x1017, 0, &1000u16.to_le_bytes())
+            .await
+            .unwrap();
+        master.send(request).await.unwrap();
+        assert!(frames_on(&mut frames, 0x704, 5).await.is_empty());
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn devices_hear_each_other_as_on_a_wire() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add(Product::Uio1led, node(3)).unwrap();
+        rack.add(Product::Uio1led, node(4)).unwrap();
+        let (three, four) = (sdo(&master, 3), sdo(&master, 4));
+        // Node 3's TPDO1 carries s01_Value (0x6010, INTEGER16) on a change.
+        for (index, sub, data) in [
+            (0x1800, 1, 0x8000_0183u32.to_le_bytes().to_vec()),
+            (0x1A00, 0, vec![0]),
+            (0x1A00, 1, 0x6010_0010u32.to_le_bytes().to_vec()),
+            (0x1A00, 0, vec![1]),
+            (0x1800, 2, vec![255]),
+            (0x1800, 1, 0x183u32.to_le_bytes().to_vec()),
+        ] {
+            three.download(index, sub, &data).await.unwrap();
+        }
+        // Node 4's RPDO1 takes it into its own s01_Value.
+        for (index, sub, data) in [
+            (0x1400, 1, 0x8000_0204u32.to_le_bytes().to_vec()),
+            (0x1600, 0, vec![0]),
+            (0x1600, 1, 0x6010_0010u32.to_le_bytes().to_vec()),
+            (0x1600, 0, vec![1]),
+            (0x1400, 2, vec![255]),
+            (0x1400, 1, 0x183u32.to_le_bytes().to_vec()),
+        ] {
+            four.download(index, sub, &data).await.unwrap();
+        }
+        let start_all = crate::canopen::nmt::NmtMessage::new(
+            crate::canopen::nmt::NmtCommand::Start,
+            crate::canopen::nmt::NmtTarget::All,
+        );
+        master.send(start_all.encode()).await.unwrap();
+        three
+            .download(0x6010, 0, &1234i16.to_le_bytes())
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        assert_eq!(four.upload(0x6010, 0).await.unwrap(), 1234i16.to_le_bytes());
+        // Unplugged, node 4 no longer hears it.
+        rack.unplug(node(4)).unwrap();
+        three
+            .download(0x6010, 0, &77i16.to_le_bytes())
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        rack.plug(node(4)).unwrap();
+        assert_eq!(four.upload(0x6010, 0).await.unwrap(), 1234i16.to_le_bytes());
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn saved_parameters_are_kept_under_the_data_dir() {
+        let dir = std::env::temp_dir().join(format!("candeck-rack-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+        rack.add(Product::Uio1led, node(3)).unwrap();
+        let channel = sdo(&master, 3);
+        channel
+            .download(0x1017, 0, &250u16.to_le_bytes())
+            .await
+            .unwrap();
+        channel.download(0x1010, 1, b"save").await.unwrap();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        drop(rack);
+        // A new rack, as after a restart of candeck, starts with it.
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+        rack.add(Product::Uio1led, node(3)).unwrap();
+        assert_eq!(
+            sdo(&master, 3).upload(0x1017, 0).await.unwrap(),
+            250u16.to_le_bytes()
+        );
+        drop(rack);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
