@@ -4,7 +4,8 @@
 //!
 //! The benchmark runs the release binary as a user would, configures every
 //! device over its socketcand server as a master would (SDO writes to 0x1017
-//! and TPDO1's communication parameters, then NMT start), and listens for
+//! and TPDO1's communication parameters, every drive's axes enabled and
+//! moving at a constant velocity, then NMT start), and listens for
 //! `--seconds` (default 20). It reports the frames received per node and
 //! product, the vbus process's CPU time and resident memory (from /proc), and
 //! the simulation clock's own count of ticks that ran more than one tick
@@ -85,6 +86,20 @@ async fn configure(bus: &Bus, node: NodeId) -> Result<(), String> {
         .await
         .is_ok();
     write(0x1800, 1, cob.to_le_bytes().to_vec()).await?;
+    // Every drive moves, so that its model does its most work: the UMC's
+    // axes in VL (0x6042), the JMC in its velocity mode.
+    let axes: &[u16] = match product_of(node.get()) {
+        "umc1bds32" => &[0, 0x800],
+        "umc1bd90" => &[0],
+        _ => &[],
+    };
+    for &offset in axes {
+        write(0x6060 + offset, 0, vec![2]).await?;
+        write(0x6042 + offset, 0, 300i16.to_le_bytes().to_vec()).await?;
+        for controlword in [6u16, 7, 15] {
+            write(0x6040 + offset, 0, controlword.to_le_bytes().to_vec()).await?;
+        }
+    }
     if !has_timer {
         // The JMC has no event timer (its manual gives TPDOs sub 0-2 only):
         // a velocity move changes its position, and so its TPDO1, all the time.
@@ -231,4 +246,7 @@ fn main() {
         "- vbus resident memory: {rss_idle} KiB after start, {rss} KiB at the end, peak {hwm} KiB"
     );
     println!("- vbus log: {}", clock.trim());
+    for line in log.lines().filter(|line| line.contains("WARN") || line.contains("ERROR")) {
+        println!("- vbus log: {}", line.trim());
+    }
 }

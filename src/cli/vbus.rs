@@ -68,7 +68,7 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
     shutdown_signal().await;
     let stats = rack.stats();
     tracing::info!(
-        "vbus: stopping after {} frames, {} clients served; simulation: {} ticks, {} more than {} ms late, latest {} µs late, {} simulated ms skipped",
+        "vbus: stopping after {} frames, {} clients served; simulation: {} ticks, {} more than {} ms late, latest {} µs late, {} simulated ms skipped, longest wake-up {} µs",
         hub.frames_total(),
         handle
             .stats()
@@ -81,6 +81,7 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
             .max_lateness_us
             .load(std::sync::atomic::Ordering::Relaxed),
         rack.skipped_ticks(),
+        stats.max_busy_us.load(std::sync::atomic::Ordering::Relaxed),
     );
     Ok(())
 }

@@ -66,7 +66,7 @@ const INHIBIT_TIME_EMCY: u16 = 0x1015;
 const LIFE_GUARD_ERROR: u16 = 0x8130;
 /// How much simulated time one [`DeviceCore::tick_to`] catches up at most;
 /// beyond it (a stalled host) the simulation skips rather than runs a burst.
-const MAX_CATCH_UP_TICKS: u64 = 100;
+const MAX_CATCH_UP_TICKS: u64 = 1000;
 /// "save" as a little-endian UNSIGNED32.
 const SAVE_SIGNATURE: [u8; 4] = *b"save";
 /// "load" as a little-endian UNSIGNED32.
@@ -266,7 +266,7 @@ impl DeviceCore {
     }
 
     /// Runs the application up to `now`, one tick per whole millisecond
-    /// since the last (at most 100 at once; a longer stall is skipped and
+    /// since the last (at most 1000 at once; a longer stall is skipped and
     /// counted in [`DeviceCore::skipped_ticks`]). The first
     /// call only starts the clock.
     pub fn tick_to(&mut self, now: Instant) {

@@ -79,6 +79,9 @@ pub struct RackStats {
     pub max_lateness_us: AtomicU64,
     /// Frames sent by the devices.
     pub frames_sent: AtomicU64,
+    /// The longest the runner took over one wake-up (a frame, a tick), in
+    /// µs: what the devices cost at their busiest.
+    pub max_busy_us: AtomicU64,
 }
 
 impl Rack {
@@ -353,6 +356,7 @@ async fn run(
         let Some(inner) = inner.upgrade() else {
             return;
         };
+        let busy_from = std::time::Instant::now();
         {
             let mut inner = lock(&inner);
             let now = now();
@@ -386,6 +390,9 @@ async fn run(
             relay_between_devices(&mut inner, now, &mut out);
             collect_saves(&mut inner, &mut saves);
         }
+        stats
+            .max_busy_us
+            .fetch_max(busy_from.elapsed().as_micros() as u64, Ordering::Relaxed);
         for (path, saved) in saves.drain(..) {
             // A device whose flash fails still runs; the log says so.
             if let Err(err) = write_saved(&path, &saved) {
@@ -607,13 +614,13 @@ mod tests {
         core.tick_to(start + Duration::from_micros(2_500));
         let ticks = |core: &mut DeviceCore| core.behaviour_mut::<Probe>().unwrap().ticks;
         assert_eq!((ticks(&mut core), core.sim_ms()), (2, 2));
-        // 250 ms late: 100 ticks are run, the rest skipped and counted.
-        core.tick_to(start + Duration::from_millis(252));
-        assert_eq!(ticks(&mut core), 102);
-        assert_eq!((core.sim_ms(), core.skipped_ticks()), (252, 150));
+        // 2.5 s late: 1000 ticks are run, the rest skipped and counted.
+        core.tick_to(start + Duration::from_millis(2_502));
+        assert_eq!(ticks(&mut core), 1_002);
+        assert_eq!((core.sim_ms(), core.skipped_ticks()), (2_502, 1_500));
         // And the clock goes on from there, one tick per millisecond.
-        core.tick_to(start + Duration::from_millis(253));
-        assert_eq!((ticks(&mut core), core.sim_ms()), (103, 253));
+        core.tick_to(start + Duration::from_millis(2_503));
+        assert_eq!((ticks(&mut core), core.sim_ms()), (1_003, 2_503));
     }
 
     #[tokio::test(start_paused = true)]
