@@ -246,7 +246,10 @@ fn main() {
         "- vbus resident memory: {rss_idle} KiB after start, {rss} KiB at the end, peak {hwm} KiB"
     );
     println!("- vbus log: {}", clock.trim());
-    for line in log.lines().filter(|line| line.contains("WARN") || line.contains("ERROR")) {
+    for line in log
+        .lines()
+        .filter(|line| line.contains("WARN") || line.contains("ERROR"))
+    {
         println!("- vbus log: {}", line.trim());
     }
 }

@@ -5,6 +5,8 @@
 //!
 //! - [`behaviour`]: [`Behaviour`](behaviour::Behaviour), a product's
 //!   application on the simulation clock, and the faults it can be given.
+//! - [`board`]: a UniSwarm board's supply, CPUs and thermal model, shared
+//!   by the UMC and the UIO1LED.
 //! - [`objects`]: [`ObjectStore`](objects::ObjectStore), a dictionary's
 //!   current values with the checks and aborts of a device's SDO server.
 //! - [`device`]: the device core every product shares: NMT slave and
@@ -17,6 +19,7 @@
 //! - [`persist`]: saved parameters on disk under `--data-dir`.
 
 pub mod behaviour;
+pub mod board;
 pub mod device;
 pub mod jmc;
 pub mod objects;

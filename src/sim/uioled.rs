@@ -15,14 +15,37 @@
 //!
 //! The manual has the speed controller run whatever the effect (OFF and FIX
 //! ignore Value, but it moves all the same and is read back moving), and in
-//! any NMT state (NMT governs communication, not the application). A device
-//! whose Speeds are all 0 has nothing to do in time and asks for no ticks.
+//! any NMT state (NMT governs communication, not the application).
+//!
+//! The board (§4) reports live values too, updated every 10 ms: the supply
+//! (0x2000.1), which sags with the current the lit LEDs draw, the CPU's
+//! temperature (0x2020.1) and its life-cycle counter (0x2021.1).
 
-use crate::profiles::uioled::{Field, Rgbw, SEGMENTS, Segment, address, locate, render};
+use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, address, locate, render};
 use crate::sim::behaviour::{Behaviour, DeviceIo};
+use crate::sim::board::{AMBIENT, CPU_CYCLES_PER_MS, NOMINAL_SUPPLY, Thermal};
+
+/// 0x2000.1 Board_voltage_input, UINT16 in 0.01 V.
+const BOARD_VOLTAGE: (u16, u8) = (0x2000, 1);
+/// 0x2020.1 CPU1_temperature, in 0.1 °C.
+const CPU_TEMPERATURE: (u16, u8) = (0x2020, 1);
+/// 0x2021.1 CPU1_life_cycle, UINT16 counting CPU cycles.
+const CPU_LIFE_CYCLE: (u16, u8) = (0x2021, 1);
+/// The board objects are updated every this many ms.
+const BOARD_MS: u64 = 10;
+/// The supply's internal resistance and the wiring's, Ω.
+const SUPPLY_RESISTANCE: f64 = 0.05;
+/// What the board itself draws, A.
+const BOARD_CURRENT: f64 = 0.05;
+/// What one colour channel of one LED draws at full brightness, A (an
+/// addressable LED of the WS2812 or SK6812 kind).
+const CHANNEL_CURRENT: f64 = 0.02;
+/// CPU temperature: K/W to ambient, time constant in s, and the CPU's
+/// dissipation in W.
+const CPU_THERMAL: (f64, f64, f64) = (20.0, 30.0, 0.3);
 
 /// A UIO1LED: its segments as the store last set them, Values as of
-/// `synced_ms`.
+/// `synced_ms`, and its board.
 #[derive(Debug, Clone, Default)]
 pub struct Uioled {
     /// Segment n at `n − 1`.
@@ -30,6 +53,71 @@ pub struct Uioled {
     /// The simulation time the segments' Values (in them and in the store)
     /// are of.
     synced_ms: u64,
+    board: Board,
+}
+
+/// The supply and the CPU (manual §4).
+#[derive(Debug, Clone, Copy)]
+struct Board {
+    cpu: Thermal,
+    life_cycle: u16,
+    /// Milliseconds since the board objects were last updated.
+    since_update: u64,
+}
+
+impl Default for Board {
+    /// Powered up a while ago: the CPU at its working temperature.
+    fn default() -> Self {
+        let (resistance, time_constant, power) = CPU_THERMAL;
+        Board {
+            cpu: Thermal::new(AMBIENT + power * resistance, resistance, time_constant),
+            life_cycle: 0,
+            since_update: 0,
+        }
+    }
+}
+
+impl Board {
+    /// `ms` milliseconds of running with `segments` lit; the objects
+    /// written.
+    fn update(&mut self, io: &mut DeviceIo<'_>, segments: &[Segment], ms: u64) {
+        let seconds = ms as f64 / 1000.0;
+        self.cpu.step(CPU_THERMAL.2, AMBIENT, seconds);
+        self.life_cycle = self
+            .life_cycle
+            .wrapping_add((ms as u16).wrapping_mul(CPU_CYCLES_PER_MS));
+        let voltage = NOMINAL_SUPPLY - SUPPLY_RESISTANCE * (BOARD_CURRENT + led_current(segments));
+        io.set_real(BOARD_VOLTAGE.0, BOARD_VOLTAGE.1, voltage * 100.0);
+        io.set_real(
+            CPU_TEMPERATURE.0,
+            CPU_TEMPERATURE.1,
+            self.cpu.temperature * 10.0,
+        );
+        io.set_int(
+            CPU_LIFE_CYCLE.0,
+            CPU_LIFE_CYCLE.1,
+            i64::from(self.life_cycle),
+        );
+    }
+}
+
+/// What the strip draws, A: each lit segment's LEDs at colour 1 through
+/// its dimmer (the effects light at most that much, so a moving effect is
+/// counted at its brightest).
+fn led_current(segments: &[Segment]) -> f64 {
+    segments
+        .iter()
+        .filter(|segment| segment.effect != Effect::Off)
+        .map(|segment| {
+            let color = segment.color_1();
+            let channels = [color.r, color.g, color.b, color.w]
+                .iter()
+                .map(|c| f64::from(*c) / 255.0)
+                .sum::<f64>();
+            f64::from(segment.led_count) * channels * CHANNEL_CURRENT * f64::from(segment.dimmer)
+                / 255.0
+        })
+        .sum()
 }
 
 impl Uioled {
@@ -48,11 +136,6 @@ impl Uioled {
     /// before the last tick is drawn as of the last tick.
     pub fn pixels(&self, t_ms: u64) -> Vec<Rgbw> {
         render(&self.segments, t_ms.saturating_sub(self.synced_ms))
-    }
-
-    /// Whether the speed controller moves any Value.
-    fn moving(&self) -> bool {
-        self.segments.iter().any(|segment| segment.speed != 0)
     }
 
     /// Runs the speed controller up to the present: every moving Value is
@@ -99,6 +182,8 @@ impl Behaviour for Uioled {
             }
         }
         self.synced_ms = io.sim_ms();
+        self.board = Board::default();
+        self.board.update(io, &self.segments, 0);
     }
 
     fn written(&mut self, io: &mut DeviceIo<'_>, index: u16, sub: u8) {
@@ -121,10 +206,11 @@ impl Behaviour for Uioled {
 
     fn tick(&mut self, io: &mut DeviceIo<'_>) {
         self.advance(io);
-    }
-
-    fn ticks(&self) -> bool {
-        self.moving()
+        self.board.since_update += 1;
+        if self.board.since_update == BOARD_MS {
+            self.board.since_update = 0;
+            self.board.update(io, &self.segments, BOARD_MS);
+        }
     }
 }
 
@@ -467,17 +553,47 @@ mod tests {
     }
 
     #[test]
-    fn speed_0_leaves_value_still_and_the_device_untimed() {
+    fn the_board_reports_its_supply_cpu_and_life_cycle() {
         let mut bench = Bench::new();
-        assert!(!bench.uioled.ticks());
+        let int = |bench: &Bench, (index, sub): (u16, u8)| {
+            bench.store.get(index, sub).unwrap().as_i128().unwrap()
+        };
+        // Nothing lit: the supply less what the board draws (2.5 mV).
+        assert_eq!(int(&bench, BOARD_VOLTAGE), 2_400);
+        let cpu = int(&bench, CPU_TEMPERATURE);
+        assert!((300..=320).contains(&cpu), "{cpu}");
+        bench.tick(1_000);
+        // 20 cycles a millisecond, counted every 10 ms.
+        assert_eq!(int(&bench, CPU_LIFE_CYCLE), 20_000);
+        bench.tick(3_000);
+        assert_eq!(int(&bench, CPU_LIFE_CYCLE), (80_000 % 65_536) as i128);
+        // 100 LEDs lit white (RGB) at full dimmer draw 6 A: 0.3 V less.
+        // (Led_count 100 is the manual's default; the device starts at 0.)
+        bench.write(1, Field::LedCount, 100);
+        for channel in 1..=3 {
+            bench.write(1, color(1, channel), 255);
+        }
+        bench.write(1, Field::Effect, i64::from(Effect::Fix.raw()));
+        bench.tick(10);
+        assert_eq!(int(&bench, BOARD_VOLTAGE), 2_370);
+        // Dimmed to half, half the current; dimmed to 0, dark.
+        bench.write(1, Field::Dimmer, 128);
+        bench.tick(10);
+        assert_eq!(int(&bench, BOARD_VOLTAGE), 2_385);
+        bench.write(1, Field::Dimmer, 0);
+        bench.tick(10);
+        assert_eq!(int(&bench, BOARD_VOLTAGE), 2_400);
+    }
+
+    #[test]
+    fn speed_0_leaves_value_still() {
+        let mut bench = Bench::new();
         bench.write(3, Field::Value, 30_000);
         bench.tick(100);
         assert_eq!(bench.value(3), 30_000);
         bench.animate(3, 0, 0, 100, 1);
-        assert!(bench.uioled.ticks());
         bench.tick(30);
         bench.write(3, Field::Speed, 0);
-        assert!(!bench.uioled.ticks());
         // Held where it stopped, even when the range changes under it.
         bench.write(3, Field::MaxValue, 10);
         bench.tick(100);

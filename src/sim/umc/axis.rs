@@ -204,7 +204,7 @@ impl Axis {
             over_speed: false,
             over_temperature: false,
             warm: false,
-            motor_temperature: super::AMBIENT,
+            motor_temperature: crate::sim::board::AMBIENT,
             injected: Conditions::default(),
             present: Conditions::default(),
             latched: Conditions::default(),

@@ -44,12 +44,9 @@ use crate::sim::objects::ObjectStore;
 
 use self::axis::{Axis, AxisNews, SUPPORTED_MODES, Supply};
 use self::faults::{Condition, schmitt};
-use self::motor::{MotorModel, Thermal};
+use self::motor::MotorModel;
+use crate::sim::board::{AMBIENT, CPU_CYCLES_PER_MS, NOMINAL_SUPPLY, Thermal};
 
-/// The air around the board, °C.
-pub const AMBIENT: f64 = 25.0;
-/// The supply the board is powered from, V.
-pub const NOMINAL_SUPPLY: f64 = 24.0;
 /// The supply's internal resistance, Ω: the board voltage sags under load.
 const SUPPLY_RESISTANCE: f64 = 0.05;
 /// On-resistance of a bridge leg, Ω.
@@ -64,8 +61,6 @@ const WINDING_THERMAL: (f64, f64) = (3.0, 60.0);
 const CPU_THERMAL: (f64, f64) = (20.0, 30.0);
 /// CPU dissipation, W: idle, and what each driven axis adds.
 const CPU_POWER: (f64, f64) = (0.5, 0.1);
-/// CPU cycles per millisecond (a 50 µs control cycle): 0x2021 counts them.
-const CPU_CYCLES_PER_MS: u16 = 20;
 /// The board objects are updated every this many ms.
 const SLOW_MS: u64 = 10;
 /// And every status object rewritten every this many ms (a restore may

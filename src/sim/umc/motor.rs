@@ -198,34 +198,6 @@ impl Motor {
     }
 }
 
-/// A body warming with the power it dissipates and cooling to ambient.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Thermal {
-    /// °C.
-    pub temperature: f64,
-    /// Thermal resistance to ambient, K/W.
-    pub resistance: f64,
-    /// Time constant, s.
-    pub time_constant: f64,
-}
-
-impl Thermal {
-    pub fn new(ambient: f64, resistance: f64, time_constant: f64) -> Self {
-        Thermal {
-            temperature: ambient,
-            resistance,
-            time_constant,
-        }
-    }
-
-    /// `seconds` of dissipating `power` watts at `ambient` °C.
-    pub fn step(&mut self, power: f64, ambient: f64, seconds: f64) {
-        let settled = ambient + power * self.resistance;
-        let k = (seconds / self.time_constant).min(1.0);
-        self.temperature += (settled - self.temperature) * k;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -275,19 +247,5 @@ mod tests {
         }
         assert_eq!(motor.velocity, 0.0);
         assert_eq!(motor.current, 0.0);
-    }
-
-    #[test]
-    fn temperature_rises_with_power_and_decays_at_rest() {
-        let mut body = Thermal::new(25.0, 4.0, 20.0);
-        for _ in 0..100 {
-            body.step(10.0, 25.0, 0.1);
-        }
-        let warm = body.temperature;
-        assert!(warm > 35.0 && warm < 65.0, "{warm}");
-        for _ in 0..100 {
-            body.step(0.0, 25.0, 0.1);
-        }
-        assert!(body.temperature < warm && body.temperature > 25.0);
     }
 }
