@@ -35,7 +35,7 @@ pub enum HeartbeatError {
 }
 
 /// The node a heartbeat COB-ID belongs to.
-fn heartbeat_node(id: CanId) -> Option<NodeId> {
+pub fn heartbeat_node(id: CanId) -> Option<NodeId> {
     match Function::classify(id) {
         Some((Function::Heartbeat, node)) => node,
         _ => None,

@@ -241,6 +241,11 @@ pub trait Behaviour: Send + std::any::Any {
     /// as 0x6007 says).
     fn nmt_changed(&mut self, _io: &mut DeviceIo<'_>, _from: NmtState, _to: NmtState) {}
 
+    /// The device lost its master: a heartbeat it consumes (0x1016) timed
+    /// out, or node guarding stopped (life guarding). A CiA 402 drive acts
+    /// as its 0x6007 says.
+    fn connection_lost(&mut self, _io: &mut DeviceIo<'_>) {}
+
     /// Injects a fault condition; it lasts until [`Behaviour::clear_fault`].
     fn inject_fault(&mut self, _io: &mut DeviceIo<'_>, fault: Fault) -> Result<(), FaultError> {
         Err(FaultError::NotApplicable {

@@ -35,7 +35,10 @@ use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::cob::Function;
 use crate::canopen::emcy::{Emcy, EmcyProducer, ErrorBit, ErrorHistory, ErrorRegister};
-use crate::canopen::heartbeat::{HeartbeatProducer, LifeGuard, LifeGuardEvent};
+use crate::canopen::heartbeat::{
+    ConsumerTime, HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, LifeGuard, LifeGuardEvent,
+    heartbeat_node,
+};
 use crate::canopen::nmt::{NmtEvent, NmtService, NmtSlave, NmtState};
 use crate::canopen::od::{ObjectDictionary, Value};
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
@@ -54,6 +57,9 @@ const STORE_PARAMETERS: u16 = 0x1010;
 const RESTORE_PARAMETERS: u16 = 0x1011;
 /// 0x1003: pre-defined error field.
 const PREDEFINED_ERROR_FIELD: u16 = 0x1003;
+/// 0x1016: consumer heartbeat time, sub 1–n: node id in bits 16–23, time
+/// in ms in bits 0–15.
+const CONSUMER_HEARTBEAT_TIME: u16 = 0x1016;
 /// 0x100C: guard time, in ms.
 const GUARD_TIME: u16 = 0x100C;
 /// 0x100D: life time factor.
@@ -62,7 +68,8 @@ const LIFE_TIME_FACTOR: u16 = 0x100D;
 const COB_ID_EMCY: u16 = 0x1014;
 /// 0x1015: inhibit time EMCY, in 100 µs.
 const INHIBIT_TIME_EMCY: u16 = 0x1015;
-/// EMCY 0x8130: life guard error or heartbeat error (CiA 301 table 21).
+/// EMCY 0x8130: life guard error or heartbeat error (CiA 301 table 21);
+/// the same code for both, as the standard has it.
 const LIFE_GUARD_ERROR: u16 = 0x8130;
 /// How much simulated time one [`DeviceCore::tick_to`] catches up at most;
 /// beyond it (a stalled host) the simulation skips rather than runs a burst.
@@ -112,6 +119,10 @@ pub struct DeviceCore {
     /// 0x1014 bit 31: EMCYs are recorded but not sent.
     emcy_enabled: bool,
     guard: LifeGuard,
+    /// The heartbeats 0x1016 asks to watch, and the nodes and timeouts it
+    /// was built from.
+    consumer: HeartbeatConsumer,
+    consumed: Vec<(NodeId, std::time::Duration)>,
     /// The injected heartbeat loss: no heartbeat, no guarding reply.
     silent: bool,
     /// Milliseconds of simulated time, and the instant they were reached.
@@ -167,6 +178,8 @@ impl DeviceCore {
             emcy: EmcyProducer::new(node, history_len),
             emcy_enabled: true,
             guard: LifeGuard::new(node),
+            consumer: HeartbeatConsumer::new(),
+            consumed: Vec::new(),
             silent: false,
             sim_ms: 0,
             last_tick: None,
@@ -350,19 +363,46 @@ impl DeviceCore {
         }
     }
 
-    /// A life guarding event: EMCY 0x8130 with the communication bit, or
-    /// its reset.
+    /// A life guarding event: the master is lost (or back).
     fn life_guard_event(&mut self, event: LifeGuardEvent, now: Instant) {
-        self.with_application(now, |_, io| match event {
-            LifeGuardEvent::Lost => {
+        self.master_lost(event == LifeGuardEvent::Lost, now);
+    }
+
+    /// The master went silent (life guarding, or a consumed heartbeat):
+    /// EMCY 0x8130 with the communication bit, and the application told; or
+    /// it is back: the error reset once nothing is lost any more.
+    fn master_lost(&mut self, lost: bool, now: Instant) {
+        let still_lost = self.guard.is_lost()
+            || self
+                .consumed
+                .iter()
+                .any(|(node, _)| self.consumer.is_lost(*node));
+        self.with_application(now, |behaviour, io| {
+            if lost {
                 io.set_error_bit(ErrorBit::Communication, true);
                 io.emcy(LIFE_GUARD_ERROR, [0; 5]);
-            }
-            LifeGuardEvent::Recovered => {
+                behaviour.connection_lost(io);
+            } else if !still_lost {
                 io.set_error_bit(ErrorBit::Communication, false);
                 io.emcy(0x0000, [0; 5]);
             }
         });
+    }
+
+    /// A heartbeat (or boot-up) of a node 0x1016 watches.
+    fn consume_heartbeat(&mut self, frame: &Frame, now: Instant) {
+        let watched = heartbeat_node(frame.id())
+            .is_some_and(|node| self.consumed.iter().any(|(watched, _)| *watched == node));
+        if !watched || frame.is_remote() {
+            return;
+        }
+        // A malformed heartbeat is ignored, as devices do.
+        let events = self.consumer.on_frame(frame, now).unwrap_or_default();
+        for event in events {
+            if matches!(event, HeartbeatEvent::Recovered { .. }) {
+                self.master_lost(false, now);
+            }
+        }
     }
 
     /// Rebuilds the PDOs after the device itself changed their parameters in
@@ -447,6 +487,10 @@ impl DeviceCore {
         if frame.is_remote() && frame.id() == self.guard_request {
             return self.guarding_request(frame, now);
         }
+        if heartbeat_node(frame.id()).is_some() {
+            self.consume_heartbeat(frame, now);
+            return Vec::new();
+        }
         let mut written = std::mem::take(&mut self.written);
         let out = if frame.id() == self.sdo_request && self.nmt.allows(NmtService::Sdo) {
             let mut access = DeviceAccess {
@@ -513,6 +557,13 @@ impl DeviceCore {
         if let Some(event) = self.guard.poll(now) {
             self.life_guard_event(event, now);
         }
+        if self.consumer.deadline().is_some_and(|d| d <= now) {
+            for event in self.consumer.poll(now) {
+                if matches!(event, HeartbeatEvent::Lost { .. }) {
+                    self.master_lost(true, now);
+                }
+            }
+        }
         if self.nmt.allows(NmtService::Emcy) {
             while let Some(frame) = self.emcy.poll(now) {
                 // With 0x1014 bit 31 set EMCYs are recorded, not sent.
@@ -543,6 +594,7 @@ impl DeviceCore {
             self.sdo.deadline(),
             self.heartbeat.deadline(),
             self.guard.deadline(),
+            self.consumer.deadline(),
             emcy,
             pdos,
             self.next_tick(),
@@ -570,6 +622,22 @@ impl DeviceCore {
             != life_time
         {
             self.guard.configure(guard_time, life_factor, now);
+        }
+        let consumed: Vec<_> = (1..=u8::MAX)
+            .map_while(|sub| self.store.get(CONSUMER_HEARTBEAT_TIME, sub))
+            .filter_map(|value| {
+                let raw = value.as_i128()? as u32;
+                ConsumerTime::from_raw(raw).monitored()
+            })
+            .collect();
+        if consumed != self.consumed {
+            // A new configuration starts afresh: each timeout runs from the
+            // watched node's next heartbeat.
+            self.consumer = HeartbeatConsumer::new();
+            for (node, timeout) in &consumed {
+                self.consumer.monitor(*node, *timeout);
+            }
+            self.consumed = consumed;
         }
         let default_cob = u32::from(Function::Emcy.cob_id(self.node()));
         let cob = match self.store.get(COB_ID_EMCY, 0) {

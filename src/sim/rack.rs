@@ -803,6 +803,52 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
+    async fn a_drive_that_loses_its_masters_heartbeat_stops_as_0x6007_says() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add(Product::Umc1bds32, node(1)).unwrap();
+        let sdo = sdo(&master, 1);
+        // Watch node 127's heartbeat with a 300 ms timeout.
+        sdo.download(0x1016, 1, &0x007F_012Cu32.to_le_bytes())
+            .await
+            .unwrap();
+        let start = crate::canopen::nmt::NmtMessage::new(
+            crate::canopen::nmt::NmtCommand::Start,
+            crate::canopen::nmt::NmtTarget::Node(node(1)),
+        );
+        master.send(start.encode()).await.unwrap();
+        for controlword in [6u16, 7, 15] {
+            sdo.download(0x6040, 0, &controlword.to_le_bytes())
+                .await
+                .unwrap();
+        }
+        let statusword = |data: Vec<u8>| u16::from_le_bytes([data[0], data[1]]);
+        assert_eq!(
+            statusword(sdo.upload(0x6041, 0).await.unwrap()) & 0x6F,
+            0x27
+        );
+        let mut frames = master.subscribe();
+        let heartbeat = Frame::new(CanId::Standard(0x77F), &[0x05]).unwrap();
+        for _ in 0..5 {
+            master.send(heartbeat).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert!(frames_on(&mut frames, 0x081, 1).await.is_empty());
+        // The master goes silent: EMCY 0x8130, communication bit, and the
+        // axis faults (0x6007 = 1, fault signal).
+        let emcys = frames_on(&mut frames, 0x081, 400).await;
+        assert_eq!(emcys[0][..3], [0x30, 0x81, 0x11], "{emcys:02X?}");
+        let status = statusword(sdo.upload(0x6041, 0).await.unwrap());
+        assert_eq!(status & 0x4F, 0x08, "{status:04X}: fault");
+        // The master is back: the error reset (the fault itself stays
+        // until a fault reset, as on the drive).
+        master.send(heartbeat).await.unwrap();
+        let reset = frames_on(&mut frames, 0x081, 10).await;
+        assert_eq!(reset, vec![vec![0, 0, 0, 0, 0, 0, 0, 0]]);
+    }
+
+    #[tokio::test(start_paused = true)]
     async fn saved_parameters_are_kept_under_the_data_dir() {
         let dir = std::env::temp_dir().join(format!("candeck-rack-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);

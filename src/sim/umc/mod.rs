@@ -294,6 +294,12 @@ impl Behaviour for Umc {
         }
     }
 
+    fn connection_lost(&mut self, io: &mut DeviceIo<'_>) {
+        for axis in &mut self.axes {
+            axis.connection_lost(io);
+        }
+    }
+
     fn inject_fault(&mut self, io: &mut DeviceIo<'_>, fault: Fault) -> Result<(), FaultError> {
         self.set_axis_fault(io, None, fault, true)
     }
