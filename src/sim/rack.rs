@@ -849,6 +849,50 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
+    async fn each_injected_fault_of_a_umc_goes_out_as_its_emcy() {
+        let hub = VirtualHub::new("test");
+        let master = hub.attach();
+        let rack = Rack::new(hub.clone());
+        rack.add(Product::Umc1bds32, node(1)).unwrap();
+        let sdo = sdo(&master, 1);
+        let mut frames = master.subscribe();
+        for (fault, code, register) in [
+            (Fault::OverTemperature, 0x4310u16, 0x09u8),
+            (Fault::UnderVoltage, 0x3220, 0x05),
+            (Fault::FollowingError, 0x8611, 0x21),
+            (Fault::OverCurrent, 0x2310, 0x03),
+        ] {
+            rack.inject_fault(node(1), fault).unwrap();
+            let emcys = frames_on(&mut frames, 0x081, 50).await;
+            // One per axis, the axis in the first manufacturer byte.
+            let [low, high] = code.to_le_bytes();
+            assert_eq!(
+                emcys,
+                vec![
+                    vec![low, high, register, 1, 0, 0, 0, 0],
+                    vec![low, high, register, 2, 0, 0, 0, 0]
+                ],
+                "{fault}"
+            );
+            assert_eq!(sdo.upload(0x1001, 0).await.unwrap(), vec![register]);
+            rack.clear_fault(node(1), fault).unwrap();
+            // Fault reset (bit 7 rising) on both axes: error reset EMCYs.
+            for offset in [0u16, 0x800] {
+                for controlword in [0u16, 0x80] {
+                    sdo.download(0x6040 + offset, 0, &controlword.to_le_bytes())
+                        .await
+                        .unwrap();
+                }
+            }
+            let resets = frames_on(&mut frames, 0x081, 50).await;
+            assert_eq!(resets.last().map(|r| r[..3].to_vec()), Some(vec![0, 0, 0]));
+            assert_eq!(sdo.upload(0x1001, 0).await.unwrap(), vec![0]);
+        }
+        // 0x1003 holds the errors, newest first.
+        assert_eq!(sdo.upload(0x1003, 1).await.unwrap()[..2], [0x10, 0x23]);
+    }
+
+    #[tokio::test(start_paused = true)]
     async fn saved_parameters_are_kept_under_the_data_dir() {
         let dir = std::env::temp_dir().join(format!("candeck-rack-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
