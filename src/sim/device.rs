@@ -130,7 +130,8 @@ pub struct DeviceCore {
     last_tick: Option<Instant>,
     /// Ticks skipped because the host fell too far behind.
     skipped_ticks: u64,
-    /// Reused for the EMCYs one call of the behaviour raises.
+    /// The EMCYs the behaviour raised and the core has not queued yet (a
+    /// buffer reused from call to call).
     raised: Vec<RaisedEmcy>,
     /// Reused for the objects one frame wrote.
     written: Vec<(u16, u8)>,
@@ -235,12 +236,13 @@ impl DeviceCore {
         now: Instant,
         f: impl FnOnce(&mut dyn Behaviour, &mut DeviceIo<'_>) -> R,
     ) -> R {
-        let mut raised = std::mem::take(&mut self.raised);
-        let result = {
-            let mut io = DeviceIo::new(&mut self.store, self.nmt.state(), self.sim_ms, &mut raised);
-            f(self.behaviour.as_mut(), &mut io)
-        };
-        self.raised = raised;
+        let mut io = DeviceIo::new(
+            &mut self.store,
+            self.nmt.state(),
+            self.sim_ms,
+            &mut self.raised,
+        );
+        let result = f(self.behaviour.as_mut(), &mut io);
         self.take_raised(now);
         result
     }
@@ -295,7 +297,6 @@ impl DeviceCore {
             self.last_tick = Some(last + step * elapsed as u32);
             return;
         }
-        let mut raised = std::mem::take(&mut self.raised);
         let mut ticks = 0;
         while last + step <= now {
             if ticks == MAX_CATCH_UP_TICKS {
@@ -308,11 +309,15 @@ impl DeviceCore {
             last += step;
             self.sim_ms += TICK_MS;
             ticks += 1;
-            let mut io = DeviceIo::new(&mut self.store, self.nmt.state(), self.sim_ms, &mut raised);
+            let mut io = DeviceIo::new(
+                &mut self.store,
+                self.nmt.state(),
+                self.sim_ms,
+                &mut self.raised,
+            );
             self.behaviour.tick(&mut io);
         }
         self.last_tick = Some(last);
-        self.raised = raised;
         self.take_raised(now);
     }
 
@@ -337,7 +342,7 @@ impl DeviceCore {
                 .and_then(Value::as_i128)
                 .unwrap_or(0) as u8,
         );
-        for raised in std::mem::take(&mut self.raised) {
+        for raised in self.raised.drain(..) {
             let emcy = Emcy {
                 code: raised.code,
                 register,
