@@ -198,3 +198,40 @@ fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
     );
     assert!(lines[1].ends_with(") can0 01ABCDEF#"), "{stdout}");
 }
+
+#[test]
+fn virtual_demo_carries_the_demo_devices_for_every_command() {
+    // Vendor ids (0x1018 sub 1): UniSwarm 0x4A2 at 1 and 3, JMC 0x2D9 at 2.
+    for (node, vendor) in [("1", "1186"), ("2", "729"), ("3", "1186")] {
+        let (code, stdout, stderr) = candeck(&[
+            "od",
+            "read",
+            "--bus",
+            "virtual:demo",
+            "--node",
+            node,
+            "0x1018",
+            "1",
+            "--type",
+            "u32",
+        ]);
+        assert_eq!(code, 0, "node {node}: {stderr}");
+        assert_eq!(stdout.trim(), vendor, "node {node}");
+    }
+    let (code, _, stderr) = candeck(&[
+        "od",
+        "write",
+        "--bus",
+        "virtual:demo",
+        "--node",
+        "2",
+        "0x6081",
+        "0",
+        "50",
+        "--type",
+        "u32",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let (code, _, stderr) = candeck(&["nmt", "--bus", "virtual:demo", "--node", "all", "start"]);
+    assert_eq!(code, 0, "{stderr}");
+}

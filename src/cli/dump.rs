@@ -4,12 +4,10 @@ use std::time::Duration;
 
 use clap::Args;
 
-use super::{CliError, shutdown_signal};
+use super::{CliError, open_bus, shutdown_signal};
 use crate::can::candump::record_bus;
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, BusKind, BusState};
-use crate::sim::products::demo;
-use crate::sim::rack::Rack;
 
 #[derive(Debug, Args)]
 pub struct DumpArgs {
@@ -38,19 +36,10 @@ fn seconds(value: f64, option: &str) -> Result<Duration, CliError> {
 pub async fn run(args: DumpArgs) -> Result<(), CliError> {
     let connect_timeout = seconds(args.connect_timeout, "--connect-timeout")?;
     let stop_after = args.seconds.map(|s| seconds(s, "--seconds")).transpose()?;
+    // The demo devices of virtual:demo run as long as the dump does.
     let name = args.bus.default_name();
-    let opened = args.bus.open(&name).await.map_err(CliError::new)?;
-    // The demo devices run as long as the dump does.
-    let mut _devices = None;
-    if let (BusSpec::Virtual { preset }, Some(hub)) = (&args.bus, &opened.hub)
-        && preset == "demo"
-    {
-        let rack = Rack::new(hub.clone());
-        rack.add_all(&demo())
-            .map_err(|err| CliError::new(err.to_string()))?;
-        _devices = Some(rack);
-    }
-    let bus = opened.bus;
+    let opened = open_bus(&args.bus).await?;
+    let bus = opened.bus.clone();
     bus.wait_up(connect_timeout).await.map_err(CliError::new)?;
     tracing::info!("dump: {} is up; writing candump -L to stdout", bus.spec());
 

@@ -151,6 +151,34 @@ fn init_logging(filter: &str) {
         .try_init();
 }
 
+/// A bus a command works on, with the devices of `virtual:demo` running
+/// for as long as it is kept.
+pub struct CommandBus {
+    pub bus: crate::can::Bus,
+    /// The demo devices of `virtual:demo`; `None` on other buses.
+    pub devices: Option<crate::sim::rack::Rack>,
+}
+
+/// Opens `spec` for a command; `virtual:demo` comes with the demo devices
+/// booted on it, as the bus spec promises.
+pub async fn open_bus(spec: &crate::can::spec::BusSpec) -> Result<CommandBus, CliError> {
+    let name = spec.default_name();
+    let opened = spec.open(&name).await.map_err(CliError::new)?;
+    let devices = match (spec, &opened.hub) {
+        (crate::can::spec::BusSpec::Virtual { preset }, Some(hub)) if preset == "demo" => {
+            let rack = crate::sim::rack::Rack::new(hub.clone());
+            rack.add_all(&crate::sim::products::demo())
+                .map_err(CliError::new)?;
+            Some(rack)
+        }
+        _ => None,
+    };
+    Ok(CommandBus {
+        bus: opened.bus,
+        devices,
+    })
+}
+
 /// Resolves on Ctrl-C or SIGTERM (how `docker stop` and systemd end us).
 pub async fn shutdown_signal() {
     let ctrl_c = async {

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use clap::{Args, ValueEnum};
 
-use super::CliError;
+use super::{CliError, open_bus};
 use crate::can::spec::BusSpec;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
@@ -50,8 +50,8 @@ fn parse_target(text: &str) -> Result<NmtTarget, String> {
 }
 
 pub async fn run(args: NmtArgs) -> Result<(), CliError> {
-    let name = args.bus.default_name();
-    let bus = args.bus.open(&name).await.map_err(CliError::new)?.bus;
+    let opened = open_bus(&args.bus).await?;
+    let bus = opened.bus.clone();
     bus.wait_up(Duration::from_secs(5))
         .await
         .map_err(CliError::new)?;

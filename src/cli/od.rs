@@ -5,8 +5,7 @@ use std::time::Duration;
 
 use clap::{Args, Subcommand};
 
-use super::CliError;
-use crate::can::Bus;
+use super::{CliError, CommandBus, open_bus};
 use crate::can::spec::BusSpec;
 use crate::canopen::NodeId;
 use crate::canopen::eds::read_eds_file;
@@ -113,9 +112,11 @@ fn resolve(target: &Target, index: &str, sub: &str) -> Result<Resolved, CliError
     })
 }
 
-async fn connect(target: &Target) -> Result<(Bus, SdoChannel), CliError> {
-    let name = target.bus.default_name();
-    let bus = target.bus.open(&name).await.map_err(CliError::new)?.bus;
+/// The bus (with the demo devices of `virtual:demo`, kept running while
+/// it is held) and the node's SDO channel.
+async fn connect(target: &Target) -> Result<(CommandBus, SdoChannel), CliError> {
+    let opened = open_bus(&target.bus).await?;
+    let bus = opened.bus.clone();
     bus.wait_up(Duration::from_secs(5))
         .await
         .map_err(CliError::new)?;
@@ -123,8 +124,8 @@ async fn connect(target: &Target) -> Result<(Bus, SdoChannel), CliError> {
         timeout: Duration::from_millis(target.timeout.max(1)),
         ..ClientConfig::default()
     };
-    let channel = SdoChannel::new(bus.clone(), target.node, config);
-    Ok((bus, channel))
+    let channel = SdoChannel::new(bus, target.node, config);
+    Ok((opened, channel))
 }
 
 pub async fn run(args: OdArgs) -> Result<(), CliError> {
@@ -138,7 +139,7 @@ async fn read(args: ReadArgs) -> Result<(), CliError> {
     let object = resolve(&args.target, &args.index, &args.sub)?;
     let (bus, channel) = connect(&args.target).await?;
     let result = channel.upload(object.index, object.sub).await;
-    bus.close().await;
+    bus.bus.close().await;
     let raw = result.map_err(CliError::new)?;
     let value = match object.data_type {
         Some(data_type) => Some(Value::from_bytes(data_type, &raw).map_err(|err| {
@@ -183,7 +184,7 @@ async fn write(args: WriteArgs) -> Result<(), CliError> {
     let result = channel
         .download(object.index, object.sub, &value.to_bytes())
         .await;
-    bus.close().await;
+    bus.bus.close().await;
     result.map_err(CliError::new)?;
     if args.target.json {
         let json = serde_json::json!({
