@@ -87,6 +87,18 @@ impl SdoChannel {
     async fn transfer(&self, request: Request<'_>) -> Result<Transfer, SdoRequestError> {
         let mut session = self.session.lock().await;
         let Session { client, responses } = &mut *session;
+        // A caller that gave up half way (its future dropped: an HTTP client
+        // that went away, a timeout around the call) left its transfer
+        // running: abort it, so that the server knows, and start afresh
+        // rather than refuse every later transfer as busy.
+        for frame in client.abort(AbortCode::GeneralError) {
+            if let Err(error) = self.bus.send(frame).await {
+                tracing::debug!(
+                    "node {}: abort of a dropped transfer not sent: {error}",
+                    self.node
+                );
+            }
+        }
         // Answers to an earlier transfer that gave up must not be taken for
         // answers to this one.
         while let Ok(Some(_)) | Err(RecvError::Lagged(_)) = responses.try_recv() {}
@@ -229,6 +241,43 @@ mod tests {
 
         // After every failure the channel is ready for the next transfer.
         assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
+        server.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_transfer_dropped_half_way_is_aborted_and_the_next_one_runs() {
+        let hub = VirtualHub::new("test");
+        let observer = hub.attach();
+        let mut frames = observer.subscribe();
+        let channel = SdoChannel::new(hub.attach(), node(), config());
+        // No device answers; the caller gives up before the SDO timeout.
+        let given_up =
+            tokio::time::timeout(Duration::from_millis(10), channel.upload(0x2000, 0)).await;
+        assert!(given_up.is_err());
+        let mut dictionary = ObjectDictionary::new();
+        dictionary.insert(Object::var(
+            0x2000,
+            SubObject::new(0, "Word", DataType::Unsigned32, AccessType::Rw),
+        ));
+        let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
+        let server = tokio::spawn(run_device(hub.attach(), device));
+        assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
+        // On the bus: the abandoned request, its abort (0x08000000), the
+        // new request.
+        let mut requests = Vec::new();
+        while let Ok(Some(frame)) = frames.try_recv() {
+            if frame.frame.id() == CanId::Standard(0x605) {
+                requests.push(frame.frame.data().to_vec());
+            }
+        }
+        assert_eq!(
+            requests,
+            vec![
+                vec![0x40, 0x00, 0x20, 0x00, 0, 0, 0, 0],
+                vec![0x80, 0x00, 0x20, 0x00, 0, 0, 0, 0x08],
+                vec![0x40, 0x00, 0x20, 0x00, 0, 0, 0, 0],
+            ]
+        );
         server.abort();
     }
 
