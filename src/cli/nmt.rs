@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use clap::{Args, ValueEnum};
 
-use super::{CliError, open_bus};
+use super::{CliError, CommandBus, open_bus};
 use crate::can::spec::BusSpec;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
@@ -50,8 +50,12 @@ fn parse_target(text: &str) -> Result<NmtTarget, String> {
 }
 
 pub async fn run(args: NmtArgs) -> Result<(), CliError> {
-    let opened = open_bus(&args.bus).await?;
-    let bus = opened.bus.clone();
+    // This must be the bus's only handle: closing the last one writes what
+    // is queued (the demo devices of virtual:demo keep their own).
+    let CommandBus {
+        bus,
+        devices: _devices,
+    } = open_bus(&args.bus).await?;
     bus.wait_up(Duration::from_secs(5))
         .await
         .map_err(CliError::new)?;
