@@ -11,8 +11,9 @@
 //!   logs.
 //! - [`canopen`]: the CANopen protocol (CiA 301, CiA 306) as sans-I/O state
 //!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
-//! - [`gateway`]: the CANopen master: SDO transfers, and later the node
-//!   registry, supervision and telemetry.
+//! - [`gateway`]: the CANopen master: SDO transfers, the EDS catalog and
+//!   the node registry of a bus (identification, heartbeat supervision,
+//!   EMCY history); later the REST API's operations and telemetry.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
 //! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`

@@ -5,5 +5,11 @@
 //!
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue.
+//! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
+//!   catalog (built-in and `--eds-dir` files) its identity is matched to.
+//! - [`registry`]: the node registry of one bus: nodes found by boot-up,
+//!   heartbeat and scan, identified, supervised, with their EMCY history.
 
+pub mod profile;
+pub mod registry;
 pub mod sdo;

@@ -1,0 +1,541 @@
+//! Which product a node is, and which EDS describes it: the identity a node
+//! reports (device type 0x1000, identity object 0x1018, CiA 301 §7.5.2.1 and
+//! §7.5.2.28) matched against the EDS files the gateway knows (CiA 306
+//! `[DeviceInfo]`).
+//!
+//! The [`EdsCatalog`] holds the built-in EDS files of candeck's products and
+//! the users' EDS files of an `--eds-dir`, each parsed once and shared. A
+//! node's identity picks the best entry: the exact revision first, else the
+//! highest revision of the same vendor and product that is not above the
+//! device's (a newer firmware usually keeps the objects of an older one),
+//! else any revision of the product (the highest). At equal rank a user's
+//! file wins over a built-in one: whoever put it there knows their device.
+//!
+//! The [`Profile`] says what the gateway can do with the node beyond SDO:
+//! candeck's own products are known by vendor and product, whichever file
+//! describes them; any other device whose device type is CiA 402 is driven
+//! as a generic CiA 402 drive; everything else is generic.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::canopen::eds::{Eds, read_eds_file};
+use crate::profiles::builtin;
+
+use super::registry::RegistryError;
+
+/// What the gateway knows how to do with a node. The API names are
+/// `umc`, `jmc_stepper`, `uioled`, `cia402`, `generic`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Profile {
+    /// UniSwarm UMC motion controllers (axis offsets, Q15.16 units).
+    Umc,
+    /// JMC CANopen stepper drives (mode numbers, 16-bit accelerations).
+    JmcStepper,
+    /// UniSwarm UIO1LED LED strip controllers (segments, effects).
+    Uioled,
+    /// Any other CiA 402 drive (device type 402 in its low 16 bits).
+    Cia402,
+    /// SDO, PDO, NMT and EMCY only.
+    Generic,
+}
+
+/// The CiA 402 device profile number, in the low 16 bits of 0x1000.
+const CIA402_PROFILE: u32 = 402;
+
+impl Profile {
+    pub const ALL: [Profile; 5] = [
+        Self::Umc,
+        Self::JmcStepper,
+        Self::Uioled,
+        Self::Cia402,
+        Self::Generic,
+    ];
+
+    /// The name in the HTTP API.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Umc => "umc",
+            Self::JmcStepper => "jmc_stepper",
+            Self::Uioled => "uioled",
+            Self::Cia402 => "cia402",
+            Self::Generic => "generic",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|profile| profile.name() == name)
+    }
+
+    /// The profile of a device that is none of candeck's products, from its
+    /// device type (0x1000): bits 0–15 are the device profile number, so
+    /// both 402 and 0x00020192 (a CiA 402 servo drive) are CiA 402.
+    pub fn from_device_type(device_type: u32) -> Self {
+        if device_type & 0xFFFF == CIA402_PROFILE {
+            Self::Cia402
+        } else {
+            Self::Generic
+        }
+    }
+
+    /// Whether the node is a CiA 402 drive (axes endpoints).
+    pub fn is_drive(self) -> bool {
+        matches!(self, Self::Umc | Self::JmcStepper | Self::Cia402)
+    }
+}
+
+impl fmt::Display for Profile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The identity object 0x1018 of a node. Sub 1 (vendor) is mandatory in
+/// CiA 301; the others are optional and `None` when the node does not have
+/// them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct Identity {
+    pub vendor_id: u32,
+    pub product_code: Option<u32>,
+    pub revision: Option<u32>,
+    pub serial: Option<u32>,
+}
+
+/// Where an EDS of the catalog comes from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum EdsSource {
+    /// Carried in the binary (`eds/` in the repository).
+    BuiltIn,
+    /// A user's file from the EDS directory.
+    File(PathBuf),
+}
+
+/// One EDS of the catalog, with the identity it describes.
+#[derive(Debug)]
+pub struct EdsEntry {
+    /// The file name (`umc1bds32.eds`, or the user's file name): what the
+    /// API shows as the node's `eds`.
+    pub name: String,
+    pub source: EdsSource,
+    pub vendor_id: u32,
+    pub product_code: u32,
+    /// `None` when the file names no revision: it then matches any revision
+    /// of its product, ranked below every file that names one.
+    pub revision: Option<u32>,
+    pub profile: Profile,
+    /// The parsed file, shared by every node it describes.
+    pub eds: Arc<Eds>,
+}
+
+/// How well an entry fits an identity; higher is better.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Rank {
+    /// Same product, a revision above the device's or none given.
+    AnyRevision,
+    /// Same product, a revision not above the device's (or the device gave
+    /// none): the closer, the better.
+    NotAbove,
+    /// Same vendor, product and revision.
+    Exact,
+}
+
+impl EdsEntry {
+    fn rank(&self, identity: &Identity) -> Option<Rank> {
+        if self.vendor_id != identity.vendor_id || Some(self.product_code) != identity.product_code
+        {
+            return None;
+        }
+        Some(match (self.revision, identity.revision) {
+            (Some(ours), Some(theirs)) if ours == theirs => Rank::Exact,
+            (Some(ours), Some(theirs)) if ours < theirs => Rank::NotAbove,
+            (Some(_), None) => Rank::NotAbove,
+            _ => Rank::AnyRevision,
+        })
+    }
+
+    fn is_user_file(&self) -> bool {
+        matches!(self.source, EdsSource::File(_))
+    }
+}
+
+/// The EDS files the gateway matches nodes against. Cheap to share behind
+/// an `Arc`; every file is parsed once, when the catalog is made.
+#[derive(Debug)]
+pub struct EdsCatalog {
+    entries: Vec<Arc<EdsEntry>>,
+}
+
+/// The built-in files: name, text, and the profile of the product.
+const BUILT_IN: [(&str, &str, Profile); 4] = [
+    ("umc1bds32.eds", builtin::UMC1BDS32, Profile::Umc),
+    ("umc1bd90.eds", builtin::UMC1BD90, Profile::Umc),
+    ("jmc_stepper.eds", builtin::JMC_STEPPER, Profile::JmcStepper),
+    ("uio1led.eds", builtin::UIO1LED, Profile::Uioled),
+];
+
+/// File extensions read from an EDS directory (any case).
+const EDS_EXTENSIONS: [&str; 2] = ["eds", "dcf"];
+
+impl EdsCatalog {
+    /// The built-in EDS files of candeck's products.
+    pub fn builtin() -> Result<Self, RegistryError> {
+        let mut entries = Vec::with_capacity(BUILT_IN.len());
+        for (name, text, profile) in BUILT_IN {
+            let file = format!("{name} (built in)");
+            let eds = Eds::parse(text, &file)?;
+            entries.push(Arc::new(entry(
+                name.to_string(),
+                EdsSource::BuiltIn,
+                eds,
+                Some(profile),
+            )?));
+        }
+        Ok(Self { entries })
+    }
+
+    /// The built-in files and every `*.eds` and `*.dcf` file of `dir` (not
+    /// its subdirectories). A file that cannot be read, or that names no
+    /// vendor and product, is an error naming the file: a catalog that
+    /// silently lacks a user's file would match their device to the wrong
+    /// EDS.
+    pub fn with_dir(dir: impl AsRef<Path>) -> Result<Self, RegistryError> {
+        let mut catalog = Self::builtin()?;
+        let dir = dir.as_ref();
+        let io_error = |error: std::io::Error| RegistryError::EdsDir {
+            dir: dir.to_path_buf(),
+            message: error.to_string(),
+        };
+        let mut paths = Vec::new();
+        for item in std::fs::read_dir(dir).map_err(io_error)? {
+            let path = item.map_err(io_error)?.path();
+            let is_eds = path
+                .extension()
+                .and_then(|ext| ext.to_str())
+                .is_some_and(|ext| EDS_EXTENSIONS.iter().any(|e| ext.eq_ignore_ascii_case(e)));
+            if is_eds && path.is_file() {
+                paths.push(path);
+            }
+        }
+        // Directory order is the file system's; sorted, the result is the
+        // same everywhere.
+        paths.sort();
+        for path in paths {
+            catalog.add_file(&path)?;
+        }
+        Ok(catalog)
+    }
+
+    /// Adds a user's EDS file.
+    pub fn add_file(&mut self, path: &Path) -> Result<Arc<EdsEntry>, RegistryError> {
+        let eds = read_eds_file(path)?;
+        let name = path
+            .file_name()
+            .map(|name| name.to_string_lossy().into_owned())
+            .unwrap_or_else(|| path.display().to_string());
+        // A user's file of one of our products keeps the product's profile.
+        let known = |vendor: u32, product: u32| {
+            self.entries
+                .iter()
+                .find(|e| !e.is_user_file() && e.vendor_id == vendor && e.product_code == product)
+                .map(|e| e.profile)
+        };
+        let (vendor, product, _) = identity_of(&eds, &path.display().to_string())?;
+        let profile = known(vendor, product);
+        let added = Arc::new(entry(
+            name,
+            EdsSource::File(path.to_path_buf()),
+            eds,
+            profile,
+        )?);
+        self.entries.push(added.clone());
+        Ok(added)
+    }
+
+    /// Every entry: the built-in ones first, then the users' in file name
+    /// order.
+    pub fn entries(&self) -> &[Arc<EdsEntry>] {
+        &self.entries
+    }
+
+    /// The EDS that best describes a node with `identity` (see the module
+    /// documentation for the order); `None` when no file is of its vendor
+    /// and product.
+    pub fn lookup(&self, identity: &Identity) -> Option<Arc<EdsEntry>> {
+        self.entries
+            .iter()
+            .filter_map(|entry| Some((entry, entry.rank(identity)?)))
+            .max_by_key(|(entry, rank)| (*rank, entry.revision, entry.is_user_file()))
+            .map(|(entry, _)| entry.clone())
+    }
+
+    /// The profile of a node: its EDS's if one matches, else from its
+    /// device type, else generic.
+    pub fn profile(&self, identity: Option<&Identity>, device_type: Option<u32>) -> Profile {
+        identity
+            .and_then(|identity| self.lookup(identity))
+            .map(|entry| entry.profile)
+            .or_else(|| device_type.map(Profile::from_device_type))
+            .unwrap_or(Profile::Generic)
+    }
+}
+
+/// The vendor, product and revision an EDS describes: `[DeviceInfo]`, or
+/// the defaults of its 0x1018 when `[DeviceInfo]` lacks them.
+fn identity_of(eds: &Eds, file: &str) -> Result<(u32, u32, Option<u32>), RegistryError> {
+    let from_dictionary = |sub: u8| -> Option<u32> {
+        let value = eds
+            .dictionary
+            .sub(0x1018, sub)?
+            .default_value(None)
+            .ok()??;
+        u32::try_from(value.as_i128()?).ok()
+    };
+    let info = &eds.device_info;
+    let missing = |what: &str| RegistryError::EdsUnmatchable {
+        file: file.to_string(),
+        message: format!(
+            "names no {what} ([DeviceInfo] or 0x1018), so no device can be matched to it"
+        ),
+    };
+    let vendor = info
+        .vendor_number
+        .or_else(|| from_dictionary(1))
+        .ok_or_else(|| missing("vendor number"))?;
+    let product = info
+        .product_number
+        .or_else(|| from_dictionary(2))
+        .ok_or_else(|| missing("product number"))?;
+    let revision = info.revision_number.or_else(|| from_dictionary(3));
+    Ok((vendor, product, revision))
+}
+
+/// The device type (0x1000) an EDS gives as default.
+fn device_type_of(eds: &Eds) -> Option<u32> {
+    let value = eds.dictionary.sub(0x1000, 0)?.default_value(None).ok()??;
+    u32::try_from(value.as_i128()?).ok()
+}
+
+fn entry(
+    name: String,
+    source: EdsSource,
+    eds: Eds,
+    profile: Option<Profile>,
+) -> Result<EdsEntry, RegistryError> {
+    let file = match &source {
+        EdsSource::BuiltIn => format!("{name} (built in)"),
+        EdsSource::File(path) => path.display().to_string(),
+    };
+    let (vendor_id, product_code, revision) = identity_of(&eds, &file)?;
+    let profile = profile.unwrap_or_else(|| {
+        device_type_of(&eds)
+            .map(Profile::from_device_type)
+            .unwrap_or(Profile::Generic)
+    });
+    Ok(EdsEntry {
+        name,
+        source,
+        vendor_id,
+        product_code,
+        revision,
+        profile,
+        eds: Arc::new(eds),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn identity(vendor: u32, product: u32, revision: Option<u32>) -> Identity {
+        Identity {
+            vendor_id: vendor,
+            product_code: Some(product),
+            revision,
+            serial: None,
+        }
+    }
+
+    /// A minimal EDS with an identity and a device type.
+    fn eds_text(vendor: u32, product: u32, revision: u32, device_type: u32) -> String {
+        format!(
+            "[FileInfo]\nFileName=test.eds\n\n[DeviceInfo]\nVendorName=Test\nVendorNumber=0x{vendor:X}\n\
+             ProductName=Test device\nProductNumber=0x{product:X}\nRevisionNumber=0x{revision:X}\n\n\
+             [MandatoryObjects]\nSupportedObjects=2\n1=0x1000\n2=0x1001\n\n\
+             [1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\n\
+             DefaultValue=0x{device_type:X}\nPDOMapping=0\n\n\
+             [1001]\nParameterName=Error register\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\n\
+             DefaultValue=0\nPDOMapping=0\n"
+        )
+    }
+
+    fn temp_dir(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("candeck-profile-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn profile_names_are_the_api_names_both_ways() {
+        for profile in Profile::ALL {
+            assert_eq!(Profile::from_name(profile.name()), Some(profile));
+            assert_eq!(
+                serde_json::to_value(profile).unwrap(),
+                serde_json::json!(profile.name())
+            );
+        }
+        assert_eq!(Profile::from_name("servo"), None);
+        assert_eq!(Profile::JmcStepper.to_string(), "jmc_stepper");
+    }
+
+    #[test]
+    fn the_device_type_gives_cia402_by_its_low_16_bits() {
+        assert_eq!(Profile::from_device_type(402), Profile::Cia402);
+        assert_eq!(Profile::from_device_type(0x0002_0192), Profile::Cia402);
+        assert_eq!(Profile::from_device_type(0x0006_0912), Profile::Generic);
+        assert_eq!(Profile::from_device_type(428), Profile::Generic);
+        assert_eq!(Profile::from_device_type(0), Profile::Generic);
+    }
+
+    #[test]
+    fn the_built_in_files_match_what_our_products_report() {
+        let catalog = EdsCatalog::builtin().unwrap();
+        let cases = [
+            (
+                0x4A2,
+                0x1001,
+                Some(0x0100_0004),
+                "umc1bds32.eds",
+                Profile::Umc,
+            ),
+            (
+                0x4A2,
+                0x1002,
+                Some(0x0100_0004),
+                "umc1bd90.eds",
+                Profile::Umc,
+            ),
+            (0x4A2, 0x4101, Some(1), "uio1led.eds", Profile::Uioled),
+            // The JMC drive reports product 0 and revision 0 in 0x1018.
+            (0x2D9, 0, Some(0), "jmc_stepper.eds", Profile::JmcStepper),
+        ];
+        for (vendor, product, revision, name, profile) in cases {
+            let found = catalog
+                .lookup(&identity(vendor, product, revision))
+                .unwrap();
+            assert_eq!((found.name.as_str(), found.profile), (name, profile));
+            assert_eq!(found.source, EdsSource::BuiltIn);
+            assert!(!found.eds.dictionary.is_empty());
+        }
+        assert!(catalog.lookup(&identity(0x4A2, 0x9999, Some(1))).is_none());
+        assert!(catalog.lookup(&identity(0x123, 0x1001, Some(1))).is_none());
+        // A missing product code matches nothing.
+        let no_product = Identity {
+            product_code: None,
+            ..identity(0x4A2, 0, None)
+        };
+        assert!(catalog.lookup(&no_product).is_none());
+        assert_eq!(
+            catalog.profile(Some(&no_product), Some(402)),
+            Profile::Cia402
+        );
+        assert_eq!(catalog.profile(None, None), Profile::Generic);
+    }
+
+    #[test]
+    fn the_exact_revision_wins_then_the_closest_below_then_any() {
+        let dir = temp_dir("ranking");
+        for (file, revision) in [("r1.eds", 1), ("r3.eds", 3), ("r5.eds", 5)] {
+            std::fs::write(dir.join(file), eds_text(0x77, 0x10, revision, 402)).unwrap();
+        }
+        let catalog = EdsCatalog::with_dir(&dir).unwrap();
+        let name = |revision| {
+            catalog
+                .lookup(&identity(0x77, 0x10, revision))
+                .map(|entry| entry.name.clone())
+        };
+        assert_eq!(name(Some(3)).as_deref(), Some("r3.eds"));
+        assert_eq!(name(Some(4)).as_deref(), Some("r3.eds"));
+        assert_eq!(name(Some(9)).as_deref(), Some("r5.eds"));
+        // Below every file: the highest of the product.
+        assert_eq!(name(Some(0)).as_deref(), Some("r5.eds"));
+        // No revision reported: the highest.
+        assert_eq!(name(None).as_deref(), Some("r5.eds"));
+        let entry = catalog.lookup(&identity(0x77, 0x10, Some(1))).unwrap();
+        assert_eq!(entry.profile, Profile::Cia402);
+        assert_eq!(entry.source, EdsSource::File(dir.join("r1.eds")));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_users_file_wins_over_a_built_in_one_and_keeps_the_products_profile() {
+        let dir = temp_dir("user");
+        // Our UMC1BDS32, but described by the user's own file (device type
+        // 402 would say cia402; the product says umc).
+        std::fs::write(
+            dir.join("my_umc.EDS"),
+            eds_text(0x4A2, 0x1001, 0x0100_0004, 402),
+        )
+        .unwrap();
+        std::fs::write(dir.join("other.eds"), eds_text(0x99, 1, 1, 0x0191)).unwrap();
+        std::fs::write(dir.join("notes.txt"), "not an EDS").unwrap();
+        let catalog = EdsCatalog::with_dir(&dir).unwrap();
+        assert_eq!(catalog.entries().len(), BUILT_IN.len() + 2);
+        let umc = catalog
+            .lookup(&identity(0x4A2, 0x1001, Some(0x0100_0004)))
+            .unwrap();
+        assert_eq!(
+            (umc.name.as_str(), umc.profile),
+            ("my_umc.EDS", Profile::Umc)
+        );
+        // An exact built-in still beats a user's file of another revision.
+        let dir2 = temp_dir("user-older");
+        std::fs::write(
+            dir2.join("old.eds"),
+            eds_text(0x4A2, 0x1001, 0x0100_0001, 402),
+        )
+        .unwrap();
+        let catalog2 = EdsCatalog::with_dir(&dir2).unwrap();
+        let umc = catalog2
+            .lookup(&identity(0x4A2, 0x1001, Some(0x0100_0004)))
+            .unwrap();
+        assert_eq!(umc.name, "umc1bds32.eds");
+        let other = catalog.lookup(&identity(0x99, 1, Some(1))).unwrap();
+        assert_eq!(other.profile, Profile::Generic);
+        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::remove_dir_all(&dir2).unwrap();
+    }
+
+    #[test]
+    fn a_broken_or_unmatchable_file_is_an_error_naming_it() {
+        let dir = temp_dir("broken");
+        std::fs::write(dir.join("good.eds"), eds_text(0x77, 0x10, 1, 402)).unwrap();
+        std::fs::write(
+            dir.join("broken.eds"),
+            "[1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0xZZ\n",
+        )
+        .unwrap();
+        let error = EdsCatalog::with_dir(&dir).unwrap_err();
+        assert!(matches!(error, RegistryError::Eds(_)), "{error:?}");
+        assert!(error.to_string().contains("broken.eds"), "{error}");
+        std::fs::remove_file(dir.join("broken.eds")).unwrap();
+
+        let text = eds_text(0x77, 0x10, 1, 402).replace("VendorNumber=0x77\n", "");
+        std::fs::write(dir.join("anonymous.eds"), text).unwrap();
+        let error = EdsCatalog::with_dir(&dir).unwrap_err();
+        assert!(
+            matches!(error, RegistryError::EdsUnmatchable { .. }),
+            "{error:?}"
+        );
+        assert!(error.to_string().contains("anonymous.eds"), "{error}");
+        assert!(error.to_string().contains("vendor number"), "{error}");
+
+        let missing = dir.join("no-such-dir");
+        let error = EdsCatalog::with_dir(&missing).unwrap_err();
+        assert!(error.to_string().contains("no-such-dir"), "{error}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

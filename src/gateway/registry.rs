@@ -1,0 +1,1203 @@
+//! The node registry of one bus: which nodes are there, what they are, and
+//! whether they are alive. Fed by every frame of the bus: boot-up and
+//! heartbeat (CiA 301 §7.2.8.3.2), EMCY (§7.2.7), and the answers to its own
+//! SDO requests (§7.2.4) when it identifies a node or scans the bus.
+//!
+//! - A node heard for the first time (boot-up, heartbeat or EMCY), or found
+//!   by [`NodeRegistry::scan`], is added and identified in the background
+//!   through its [`SdoChannel`]: device type 0x1000, identity 0x1018 sub 1–4,
+//!   device name 0x1008 and producer heartbeat time 0x1017. An object the
+//!   node refuses (SDO abort) is only missing; a node that does not answer
+//!   stays listed as `generic` with no identity, and is identified again on
+//!   its next boot-up, when it leaves the stopped state (where CiA 301 allows
+//!   no SDO), or when a scan finds it. Reads are retried on a timeout (they
+//!   change nothing on the device).
+//! - A boot-up message resets what is known of the node (identity, profile,
+//!   heartbeat period) and identifies it again: a node that boots may be
+//!   another device. Its EMCY history is kept.
+//! - Heartbeat supervision: the producer period of a node is its 0x1017 as
+//!   read during identification, and is learnt from its heartbeats (the
+//!   shortest of the last few intervals, so that a changed 0x1017 is followed
+//!   and one lost heartbeat does not double it). The node goes offline when
+//!   no heartbeat comes within 1.5 periods
+//!   ([`HeartbeatConsumer::monitor_producer`]), and online again with its
+//!   next heartbeat. A node without heartbeat is online from any frame it
+//!   sends, and offline when it does not answer a scan.
+//! - Bus down: nodes are kept (they are most likely still there, and the
+//!   operator wants to see what was on the bus) but marked offline, since
+//!   nothing can reach them. When the bus is up again, nodes with a
+//!   heartbeat come back with it; the others are asked for their 0x1000 once.
+//! - EMCYs are decoded with their texts, kept per node (the last
+//!   [`RegistryConfig::emcy_history`]) and published as [`NodeEvent::Emcy`].
+//!
+//! One task per registry reads the bus; it never waits on a device. Every SDO
+//! transfer runs in a task of its own that is never cancelled halfway, so a
+//! node's [`SdoChannel`] is always left ready for the next transfer.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::fmt;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use tokio::sync::{Notify, broadcast, watch};
+use tokio::time::Instant;
+
+use crate::can::{Bus, BusError, FrameReceiver, RecvError, TimedFrame, Timestamp};
+use crate::canopen::NodeId;
+use crate::canopen::cob::Function;
+use crate::canopen::eds::EdsError;
+use crate::canopen::emcy::{Emcy, emcy_text};
+use crate::canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
+use crate::canopen::nmt::NmtState;
+use crate::canopen::sdo::{ClientConfig, SdoError};
+
+use super::profile::{EdsCatalog, EdsEntry, Identity, Profile};
+use super::sdo::{SdoChannel, SdoRequestError};
+
+#[cfg(test)]
+mod tests;
+
+/// Device type.
+const DEVICE_TYPE: u16 = 0x1000;
+/// Manufacturer device name.
+const DEVICE_NAME: u16 = 0x1008;
+/// Producer heartbeat time, in ms.
+const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
+/// Identity object: sub 1 vendor, 2 product code, 3 revision, 4 serial.
+const IDENTITY: u16 = 0x1018;
+
+/// Heartbeat intervals the period is learnt from.
+const HEARTBEAT_WINDOW: usize = 8;
+/// Intervals shorter than this are two frames of one burst, not a period.
+const MIN_HEARTBEAT_INTERVAL: Duration = Duration::from_millis(1);
+/// The longest device name kept (0x1008 is a VISIBLE_STRING of any length).
+const MAX_NAME_LEN: usize = 256;
+
+/// Why the registry could not do what was asked. Kept apart: what a file
+/// said (EDS), what the bus did, what a device said (in [`SdoRequestError`]:
+/// abort, timeout or bus).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RegistryError {
+    /// An EDS file could not be read; the error names the file and line.
+    #[error(transparent)]
+    Eds(#[from] EdsError),
+    /// An EDS file reads, but no device can be matched to it.
+    #[error("{file}: {message}")]
+    EdsUnmatchable { file: String, message: String },
+    /// The EDS directory could not be listed.
+    #[error("EDS directory {}: {message}", .dir.display())]
+    EdsDir { dir: PathBuf, message: String },
+    /// The node is not in the registry (never heard, never found by a scan).
+    #[error("node {node} is not known on bus {bus}")]
+    UnknownNode { bus: String, node: NodeId },
+    /// The bus cannot carry the request (down, closed).
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// An SDO transfer failed: device abort, timeout or bus.
+    #[error(transparent)]
+    Sdo(#[from] SdoRequestError),
+}
+
+/// How the registry talks to nodes.
+#[derive(Debug, Clone)]
+pub struct RegistryConfig {
+    /// The SDO client of each node's [`SdoChannel`].
+    pub sdo: ClientConfig,
+    /// How long a scan waits for a node id nobody has heard of: most ids
+    /// are empty, and each costs this much.
+    pub probe_timeout: Duration,
+    /// Node ids a scan probes at once: enough to be quick, few enough to
+    /// leave the bus to the machine.
+    pub scan_concurrency: usize,
+    /// Times a read of the identification is repeated after a timeout.
+    pub read_retries: u32,
+    /// EMCYs kept per node.
+    pub emcy_history: usize,
+    /// Events a subscriber may fall behind before it loses the oldest (and
+    /// is told how many).
+    pub event_capacity: usize,
+}
+
+impl Default for RegistryConfig {
+    fn default() -> Self {
+        Self {
+            sdo: ClientConfig::default(),
+            probe_timeout: Duration::from_millis(100),
+            scan_concurrency: 8,
+            read_retries: 1,
+            emcy_history: 32,
+            event_capacity: 256,
+        }
+    }
+}
+
+/// Where the identification of a node stands.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum Identification {
+    /// Being read (or waiting for its turn on the node's SDO channel).
+    Pending,
+    /// Read; objects the node refused are `None` in [`NodeInfo`].
+    Done,
+    /// The node did not answer; it is tried again on its next boot-up.
+    Failed { error: String },
+}
+
+/// Why a node went offline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OfflineReason {
+    /// No heartbeat within 1.5 producer periods.
+    HeartbeatLost,
+    /// The bus went down: nothing can reach the node.
+    BusDown,
+    /// A node without heartbeat did not answer a scan.
+    NoAnswer,
+}
+
+/// One emergency message, decoded, as the API shows it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EmcyRecord {
+    /// The emergency error code.
+    pub code: u16,
+    /// The most specific text known for the code.
+    pub text: String,
+    /// The error register (0x1001) sent with it.
+    pub register: u8,
+    /// The 5 manufacturer-specific bytes.
+    pub manufacturer: [u8; 5],
+    /// When the frame was received.
+    pub timestamp: Timestamp,
+}
+
+impl EmcyRecord {
+    pub fn new(emcy: &Emcy, timestamp: Timestamp) -> Self {
+        Self {
+            code: emcy.code,
+            text: emcy_text(emcy.code),
+            register: emcy.register.raw(),
+            manufacturer: emcy.manufacturer,
+            timestamp,
+        }
+    }
+
+    /// Whether this is an error reset (the device's errors are gone).
+    pub fn is_reset(&self) -> bool {
+        self.code & 0xFF00 == 0
+    }
+
+    /// The manufacturer bytes as hex, as the API writes them.
+    pub fn manufacturer_hex(&self) -> String {
+        self.manufacturer
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    }
+}
+
+impl serde::Serialize for EmcyRecord {
+    /// `{"code":"0x4310","text":..,"register":9,"manufacturer":"0102030405","timestamp_us":..}`
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut out = serializer.serialize_struct("EmcyRecord", 5)?;
+        out.serialize_field("code", &format!("0x{:04X}", self.code))?;
+        out.serialize_field("text", &self.text)?;
+        out.serialize_field("register", &self.register)?;
+        out.serialize_field("manufacturer", &self.manufacturer_hex())?;
+        out.serialize_field("timestamp_us", &self.timestamp.as_micros())?;
+        out.end()
+    }
+}
+
+/// What the registry knows of one node, at one moment.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct NodeInfo {
+    #[serde(serialize_with = "node_id")]
+    pub id: NodeId,
+    /// The last NMT state the node reported; `None` ("unknown") for a node
+    /// found by a scan that has sent no heartbeat.
+    #[serde(serialize_with = "nmt_name")]
+    pub nmt: Option<NmtState>,
+    pub online: bool,
+    /// Milliseconds since the last frame from the node.
+    pub last_seen_ms: u64,
+    pub identity: Option<Identity>,
+    pub device_type: Option<u32>,
+    /// The manufacturer device name, 0x1008.
+    pub name: Option<String>,
+    pub profile: Profile,
+    /// The name of the EDS file that describes the node.
+    pub eds: Option<String>,
+    /// The EDS itself, shared with the catalog.
+    #[serde(skip)]
+    pub eds_entry: Option<Arc<EdsEntry>>,
+    /// The producer heartbeat period the node is supervised with; `None`
+    /// while it sends no heartbeat.
+    pub heartbeat_ms: Option<u64>,
+    pub identification: Identification,
+}
+
+fn node_id<S: serde::Serializer>(id: &NodeId, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_u8(id.get())
+}
+
+fn nmt_name<S: serde::Serializer>(
+    nmt: &Option<NmtState>,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    serializer.serialize_str(nmt.map_or("unknown", NmtState::name))
+}
+
+/// What happened to a node, for whoever streams it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum NodeEvent {
+    /// A node was heard, or found by a scan, for the first time.
+    Appeared {
+        node: NodeId,
+    },
+    /// Its identification finished: the profile and EDS it was matched to.
+    Identified {
+        node: NodeId,
+        profile: Profile,
+        eds: Option<String>,
+    },
+    /// It did not answer its identification.
+    IdentificationFailed {
+        node: NodeId,
+        error: String,
+    },
+    /// It reported (or, after its boot-up and an SDO answer, is known to be
+    /// in) another NMT state.
+    NmtChanged {
+        node: NodeId,
+        from: Option<NmtState>,
+        to: NmtState,
+    },
+    Offline {
+        node: NodeId,
+        reason: OfflineReason,
+    },
+    Online {
+        node: NodeId,
+    },
+    Emcy {
+        node: NodeId,
+        emcy: EmcyRecord,
+    },
+}
+
+impl NodeEvent {
+    pub fn node(&self) -> NodeId {
+        match self {
+            Self::Appeared { node }
+            | Self::Identified { node, .. }
+            | Self::IdentificationFailed { node, .. }
+            | Self::NmtChanged { node, .. }
+            | Self::Offline { node, .. }
+            | Self::Online { node }
+            | Self::Emcy { node, .. } => *node,
+        }
+    }
+}
+
+impl fmt::Display for NodeEvent {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Appeared { node } => write!(f, "node {node} appeared"),
+            Self::Identified { node, profile, eds } => write!(
+                f,
+                "node {node} identified: {profile}, EDS {}",
+                eds.as_deref().unwrap_or("none")
+            ),
+            Self::IdentificationFailed { node, error } => {
+                write!(f, "node {node} not identified: {error}")
+            }
+            Self::NmtChanged { node, to, .. } => write!(f, "node {node} is {to}"),
+            Self::Offline { node, reason } => write!(f, "node {node} offline ({reason:?})"),
+            Self::Online { node } => write!(f, "node {node} online"),
+            Self::Emcy { node, emcy } => write!(
+                f,
+                "node {node} EMCY 0x{:04X} {}, register 0x{:02X}",
+                emcy.code, emcy.text, emcy.register
+            ),
+        }
+    }
+}
+
+/// The producer period of a node, learnt from its heartbeats.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub(crate) struct HeartbeatLearner {
+    last: Option<Instant>,
+    intervals: VecDeque<Duration>,
+    period: Option<Duration>,
+}
+
+impl HeartbeatLearner {
+    /// Takes a heartbeat at `now`; the new period if it changed.
+    pub(crate) fn on_heartbeat(&mut self, now: Instant) -> Option<Duration> {
+        let last = self.last.replace(now);
+        let interval = now.saturating_duration_since(last?);
+        if interval < MIN_HEARTBEAT_INTERVAL {
+            return None;
+        }
+        if self.intervals.len() == HEARTBEAT_WINDOW {
+            self.intervals.pop_front();
+        }
+        self.intervals.push_back(interval);
+        let shortest = self.intervals.iter().min().copied();
+        if shortest == self.period {
+            return None;
+        }
+        self.period = shortest;
+        shortest
+    }
+
+    /// The node's 0x1017 says `period`: it replaces what was learnt.
+    pub(crate) fn set_period(&mut self, period: Duration) {
+        self.intervals.clear();
+        self.period = Some(period);
+    }
+
+    /// The next interval does not count (the node was lost, the bus was
+    /// down): what was learnt of the period stays.
+    pub(crate) fn restart(&mut self) {
+        self.last = None;
+        self.intervals.clear();
+    }
+
+    /// Forgets everything (the node booted: its 0x1017 is reloaded).
+    pub(crate) fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    pub(crate) fn period(&self) -> Option<Duration> {
+        self.period
+    }
+}
+
+struct Node {
+    id: NodeId,
+    channel: SdoChannel,
+    nmt: Option<NmtState>,
+    online: bool,
+    last_seen: Instant,
+    identity: Option<Identity>,
+    device_type: Option<u32>,
+    name: Option<String>,
+    profile: Profile,
+    eds: Option<Arc<EdsEntry>>,
+    identification: Identification,
+    /// Bumped by every boot-up: an identification that started before it is
+    /// out of date.
+    generation: u64,
+    /// An identification task is running for the node.
+    identifying: bool,
+    heartbeat: HeartbeatLearner,
+    emcy: VecDeque<EmcyRecord>,
+}
+
+impl Node {
+    fn info(&self, now: Instant) -> NodeInfo {
+        NodeInfo {
+            id: self.id,
+            nmt: self.nmt,
+            online: self.online,
+            last_seen_ms: u64::try_from(now.saturating_duration_since(self.last_seen).as_millis())
+                .unwrap_or(u64::MAX),
+            identity: self.identity,
+            device_type: self.device_type,
+            name: self.name.clone(),
+            profile: self.profile,
+            eds: self.eds.as_ref().map(|entry| entry.name.clone()),
+            eds_entry: self.eds.clone(),
+            heartbeat_ms: self
+                .heartbeat
+                .period()
+                .map(|period| u64::try_from(period.as_millis()).unwrap_or(u64::MAX)),
+            identification: self.identification.clone(),
+        }
+    }
+
+    fn supervised(&self) -> bool {
+        self.heartbeat.period().is_some()
+    }
+
+    /// What an identification found goes; what the node is stays.
+    fn forget_identity(&mut self) {
+        self.identity = None;
+        self.device_type = None;
+        self.name = None;
+        self.profile = Profile::Generic;
+        self.eds = None;
+    }
+}
+
+struct State {
+    nodes: BTreeMap<NodeId, Node>,
+    consumer: HeartbeatConsumer,
+    bus_up: bool,
+}
+
+struct Shared {
+    bus: Bus,
+    catalog: Arc<EdsCatalog>,
+    config: RegistryConfig,
+    state: Mutex<State>,
+    events: broadcast::Sender<NodeEvent>,
+    /// Node ids a scan is probing with a channel of its own: their
+    /// identification waits, so two clients never talk to one node at once.
+    probing: watch::Sender<BTreeSet<NodeId>>,
+    /// Bumped whenever an identification ends.
+    identified: watch::Sender<u64>,
+    /// Wakes the bus task when a heartbeat deadline changed elsewhere.
+    rearm: Notify,
+}
+
+/// Stops the bus task when the last handle goes.
+struct TaskGuard(tokio::task::AbortHandle);
+
+impl Drop for TaskGuard {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// The node registry of one bus. Cheap to clone; clones share it. The task
+/// that reads the bus stops when the last handle is dropped.
+#[derive(Clone)]
+pub struct NodeRegistry {
+    shared: Arc<Shared>,
+    _task: Arc<TaskGuard>,
+}
+
+impl fmt::Debug for NodeRegistry {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("NodeRegistry")
+            .field("bus", &self.shared.bus.name())
+            .finish()
+    }
+}
+
+/// What an SDO request of a probe told.
+enum Probe {
+    /// Something answered on the node's SDO COB-ID (a value, an abort,
+    /// even a broken answer): the node is there.
+    Answered,
+    /// Nothing came back in time.
+    Silent,
+    /// The bus failed.
+    BusFailed(SdoRequestError),
+}
+
+impl Probe {
+    fn of<T>(result: &Result<T, SdoRequestError>) -> Self {
+        match result {
+            Ok(_) => Self::Answered,
+            Err(SdoRequestError::Sdo {
+                error: SdoError::Timeout,
+                ..
+            }) => Self::Silent,
+            Err(error @ SdoRequestError::Bus { .. }) => Self::BusFailed(error.clone()),
+            Err(SdoRequestError::Sdo { .. }) => Self::Answered,
+        }
+    }
+}
+
+/// What an identification read.
+struct Identified {
+    device_type: Option<u32>,
+    identity: Option<Identity>,
+    name: Option<String>,
+    heartbeat_ms: Option<u16>,
+}
+
+/// Why an identification stopped before its end.
+enum Abandon {
+    /// The node booted meanwhile: start again.
+    Stale,
+    /// The node did not answer.
+    Failed(SdoRequestError),
+}
+
+impl NodeRegistry {
+    /// Starts the registry of `bus`: from now on every frame of the bus
+    /// feeds it. Nodes that booted before are found by their heartbeat, an
+    /// EMCY, or a [`scan`](Self::scan). Needs a tokio runtime.
+    pub fn spawn(bus: Bus, catalog: Arc<EdsCatalog>, config: RegistryConfig) -> Self {
+        let frames = bus.subscribe();
+        let status = bus.watch_status();
+        let bus_up = bus.state().can_send();
+        let (events, _) = broadcast::channel(config.event_capacity.max(1));
+        let shared = Arc::new(Shared {
+            catalog,
+            state: Mutex::new(State {
+                nodes: BTreeMap::new(),
+                consumer: HeartbeatConsumer::new(),
+                bus_up,
+            }),
+            events,
+            probing: watch::Sender::new(BTreeSet::new()),
+            identified: watch::Sender::new(0),
+            rearm: Notify::new(),
+            config,
+            bus,
+        });
+        let task = tokio::spawn(run(shared.clone(), frames, status));
+        Self {
+            shared,
+            _task: Arc::new(TaskGuard(task.abort_handle())),
+        }
+    }
+
+    /// The bus's name.
+    pub fn bus_name(&self) -> &str {
+        self.shared.bus.name()
+    }
+
+    pub fn catalog(&self) -> &Arc<EdsCatalog> {
+        &self.shared.catalog
+    }
+
+    /// Every node known, by id.
+    pub fn nodes(&self) -> Vec<NodeInfo> {
+        let now = Instant::now();
+        self.shared
+            .lock()
+            .nodes
+            .values()
+            .map(|node| node.info(now))
+            .collect()
+    }
+
+    pub fn node(&self, id: NodeId) -> Option<NodeInfo> {
+        self.shared
+            .lock()
+            .nodes
+            .get(&id)
+            .map(|node| node.info(Instant::now()))
+    }
+
+    /// The node's recent EMCYs, oldest first; `None` for an unknown node.
+    pub fn emcy(&self, id: NodeId) -> Option<Vec<EmcyRecord>> {
+        self.shared
+            .lock()
+            .nodes
+            .get(&id)
+            .map(|node| node.emcy.iter().cloned().collect())
+    }
+
+    /// The node's SDO channel, shared by everyone who talks to the node, so
+    /// that its transfers queue fairly, one at a time.
+    pub fn sdo(&self, id: NodeId) -> Result<SdoChannel, RegistryError> {
+        self.shared
+            .lock()
+            .nodes
+            .get(&id)
+            .map(|node| node.channel.clone())
+            .ok_or_else(|| RegistryError::UnknownNode {
+                bus: self.bus_name().to_string(),
+                node: id,
+            })
+    }
+
+    /// What happens to the nodes from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<NodeEvent> {
+        self.shared.events.subscribe()
+    }
+
+    /// Probes node ids 1–127 with an SDO read of 0x1000,
+    /// [`RegistryConfig::scan_concurrency`] at a time: known nodes through
+    /// their own channel, unknown ids with
+    /// [`RegistryConfig::probe_timeout`]. A node that answers is added (if
+    /// new) and identified (if not yet); a known node without heartbeat
+    /// that stays silent goes offline. Returns the node list once the
+    /// identifications are done.
+    ///
+    /// Dropping the future leaves the probes under way to finish on their
+    /// own (a transfer cut halfway would leave a node's channel busy).
+    pub async fn scan(&self) -> Result<Vec<NodeInfo>, RegistryError> {
+        let status = self.shared.bus.status();
+        if !status.state.can_send() {
+            return Err(RegistryError::Bus(BusError::NotUp {
+                bus: self.bus_name().to_string(),
+                state: status.state,
+                reason: status.reason,
+            }));
+        }
+        match self.shared.probe_all(NodeId::all().collect()).await {
+            Some(SdoRequestError::Bus { error, .. }) => return Err(RegistryError::Bus(error)),
+            Some(error) => return Err(RegistryError::Sdo(error)),
+            None => {}
+        }
+        self.shared.settle().await;
+        Ok(self.nodes())
+    }
+
+    /// Waits until no identification is under way (at most as long as the
+    /// slowest one takes: each read ends with an answer or a timeout).
+    pub async fn settle(&self) {
+        self.shared.settle().await;
+    }
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // Nothing panics while holding the lock; if something did, the
+        // state is still a consistent set of nodes.
+        self.state
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    fn emit(&self, event: NodeEvent) {
+        // Nobody listening is fine.
+        let _ = self.events.send(event);
+    }
+
+    async fn settle(&self) {
+        let mut identified = self.identified.subscribe();
+        // The sender lives in `self`: waiting cannot fail.
+        let _ = identified
+            .wait_for(|_| !self.lock().nodes.values().any(|node| node.identifying))
+            .await;
+    }
+
+    /// The node, added if it is new (the flag), with its [`NodeEvent::Appeared`].
+    fn ensure_node<'a>(
+        &self,
+        state: &'a mut State,
+        id: NodeId,
+        now: Instant,
+    ) -> (&'a mut Node, bool) {
+        let mut new = false;
+        let node = state.nodes.entry(id).or_insert_with(|| {
+            new = true;
+            Node {
+                id,
+                channel: SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone()),
+                nmt: None,
+                online: true,
+                last_seen: now,
+                identity: None,
+                device_type: None,
+                name: None,
+                profile: Profile::Generic,
+                eds: None,
+                identification: Identification::Pending,
+                generation: 0,
+                identifying: false,
+                heartbeat: HeartbeatLearner::default(),
+                emcy: VecDeque::new(),
+            }
+        });
+        if new {
+            self.emit(NodeEvent::Appeared { node: id });
+        }
+        (node, new)
+    }
+
+    fn start_identification(self: &Arc<Self>, node: &mut Node) {
+        node.generation += 1;
+        node.identification = Identification::Pending;
+        if !node.identifying {
+            node.identifying = true;
+            tokio::spawn(identify(self.clone(), node.id));
+        }
+    }
+
+    /// A frame from `node` that says it is alive.
+    fn heard(&self, node: &mut Node, now: Instant, heartbeat: bool, bus_up: bool) {
+        node.last_seen = now;
+        // A supervised node is online by its heartbeat only: a node whose
+        // heartbeat stopped is not well, whatever else it sends.
+        if !node.online && bus_up && (heartbeat || !node.supervised()) {
+            node.online = true;
+            self.emit(NodeEvent::Online { node: node.id });
+        }
+    }
+
+    fn set_nmt(&self, node: &mut Node, to: NmtState) {
+        let from = node.nmt.replace(to);
+        if from != Some(to) {
+            self.emit(NodeEvent::NmtChanged {
+                node: node.id,
+                from,
+                to,
+            });
+        }
+    }
+
+    fn on_frame(self: &Arc<Self>, frame: &TimedFrame) {
+        let Some((function, Some(id))) = Function::classify(frame.frame.id()) else {
+            return;
+        };
+        let now = Instant::now();
+        let mut state = self.lock();
+        match function {
+            Function::Heartbeat if !frame.frame.is_remote() => {
+                self.on_heartbeat(&mut state, id, frame, now);
+            }
+            Function::Emcy => self.on_emcy(&mut state, id, frame, now),
+            Function::Tpdo(_) | Function::SdoTx => {
+                let bus_up = state.bus_up;
+                if let Some(node) = state.nodes.get_mut(&id) {
+                    self.heard(node, now, false, bus_up);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn on_heartbeat(
+        self: &Arc<Self>,
+        state: &mut State,
+        id: NodeId,
+        frame: &TimedFrame,
+        now: Instant,
+    ) {
+        let events = match state.consumer.on_frame(&frame.frame, now.into_std()) {
+            Ok(events) => events,
+            Err(error) => {
+                tracing::debug!(bus = self.bus.name(), %error, "malformed heartbeat");
+                return;
+            }
+        };
+        let bus_up = state.bus_up;
+        let (node, new) = self.ensure_node(state, id, now);
+        let mut boot_up = false;
+        for event in events {
+            match event {
+                HeartbeatEvent::BootUp { .. } => boot_up = true,
+                HeartbeatEvent::StateChanged { to, .. } => {
+                    let was_stopped = node.nmt == Some(NmtState::Stopped);
+                    self.set_nmt(node, to);
+                    // A node identified while stopped could not answer.
+                    if was_stopped
+                        && matches!(node.identification, Identification::Failed { .. })
+                        && matches!(to, NmtState::PreOperational | NmtState::Operational)
+                    {
+                        self.start_identification(node);
+                    }
+                }
+                HeartbeatEvent::Lost { .. } | HeartbeatEvent::Recovered { .. } => {}
+            }
+        }
+        let mut period = None;
+        if boot_up {
+            self.set_nmt(node, NmtState::BootUp);
+            node.forget_identity();
+            node.heartbeat.reset();
+        } else {
+            period = node.heartbeat.on_heartbeat(now);
+        }
+        if boot_up || new {
+            self.start_identification(node);
+        }
+        self.heard(node, now, true, bus_up);
+        if boot_up {
+            // Not timed until it sends heartbeats again, with a period to learn.
+            state.consumer.monitor(id, Duration::ZERO);
+        } else if let Some(period) = period {
+            state.consumer.monitor_producer(id, period);
+        }
+    }
+
+    fn on_emcy(self: &Arc<Self>, state: &mut State, id: NodeId, frame: &TimedFrame, now: Instant) {
+        let emcy = match Emcy::decode(&frame.frame) {
+            Ok((_, emcy)) => emcy,
+            Err(error) => {
+                tracing::debug!(bus = self.bus.name(), %error, "malformed EMCY");
+                return;
+            }
+        };
+        let record = EmcyRecord::new(&emcy, frame.timestamp);
+        let bus_up = state.bus_up;
+        let capacity = self.config.emcy_history;
+        let (node, new) = self.ensure_node(state, id, now);
+        if new {
+            self.start_identification(node);
+        }
+        self.heard(node, now, false, bus_up);
+        if capacity > 0 {
+            if node.emcy.len() >= capacity {
+                node.emcy.pop_front();
+            }
+            node.emcy.push_back(record.clone());
+        }
+        self.emit(NodeEvent::Emcy {
+            node: id,
+            emcy: record,
+        });
+    }
+
+    fn poll_heartbeats(&self) {
+        let mut state = self.lock();
+        let State {
+            nodes, consumer, ..
+        } = &mut *state;
+        for event in consumer.poll(Instant::now().into_std()) {
+            let HeartbeatEvent::Lost { node: id } = event else {
+                continue;
+            };
+            if let Some(node) = nodes.get_mut(&id) {
+                node.heartbeat.restart();
+                if node.online {
+                    node.online = false;
+                    self.emit(NodeEvent::Offline {
+                        node: id,
+                        reason: OfflineReason::HeartbeatLost,
+                    });
+                }
+            }
+        }
+    }
+
+    fn on_bus_status(self: &Arc<Self>, up: bool) {
+        let recheck: Vec<NodeId> = {
+            let mut state = self.lock();
+            if state.bus_up == up {
+                return;
+            }
+            state.bus_up = up;
+            if up {
+                state
+                    .nodes
+                    .values()
+                    .filter(|node| !node.supervised())
+                    .map(|node| node.id)
+                    .collect()
+            } else {
+                for node in state.nodes.values_mut() {
+                    node.heartbeat.restart();
+                    if node.online {
+                        node.online = false;
+                        self.emit(NodeEvent::Offline {
+                            node: node.id,
+                            reason: OfflineReason::BusDown,
+                        });
+                    }
+                }
+                Vec::new()
+            }
+        };
+        if !recheck.is_empty() {
+            let shared = self.clone();
+            tokio::spawn(async move {
+                shared.probe_all(recheck).await;
+            });
+        }
+    }
+
+    /// Probes `ids`, [`RegistryConfig::scan_concurrency`] at a time, in
+    /// tasks that finish even if the caller stops waiting. The first bus
+    /// failure stops the probing and is returned.
+    async fn probe_all(self: &Arc<Self>, ids: Vec<NodeId>) -> Option<SdoRequestError> {
+        let queue = Arc::new(Mutex::new(ids.into_iter()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let workers: Vec<_> = (0..self.config.scan_concurrency.max(1))
+            .map(|_| {
+                let (shared, queue, stop) = (self.clone(), queue.clone(), stop.clone());
+                tokio::spawn(async move {
+                    while !stop.load(Ordering::Relaxed) {
+                        let next = queue
+                            .lock()
+                            .unwrap_or_else(|poisoned| poisoned.into_inner())
+                            .next();
+                        let id = next?;
+                        if let Probe::BusFailed(error) = shared.probe(id).await {
+                            stop.store(true, Ordering::Relaxed);
+                            return Some(error);
+                        }
+                    }
+                    None
+                })
+            })
+            .collect();
+        let mut failure = None;
+        for worker in workers {
+            if let Ok(Some(error)) = worker.await {
+                failure.get_or_insert(error);
+            }
+        }
+        failure
+    }
+
+    async fn probe(self: &Arc<Self>, id: NodeId) -> Probe {
+        let known = {
+            let state = self.lock();
+            match state.nodes.get(&id) {
+                Some(node) => Some(node.channel.clone()),
+                None => {
+                    // Under the state lock: a node added from now on waits
+                    // for this probe before it is identified.
+                    self.probing.send_modify(|probing| {
+                        probing.insert(id);
+                    });
+                    None
+                }
+            }
+        };
+        let result = match &known {
+            Some(channel) => channel.upload(DEVICE_TYPE, 0).await,
+            None => {
+                let config = ClientConfig {
+                    timeout: self.config.probe_timeout,
+                    ..self.config.sdo.clone()
+                };
+                SdoChannel::new(self.bus.clone(), id, config)
+                    .upload(DEVICE_TYPE, 0)
+                    .await
+            }
+        };
+        let probe = Probe::of(&result);
+        let now = Instant::now();
+        let mut state = self.lock();
+        let bus_up = state.bus_up;
+        match probe {
+            Probe::Answered => {
+                let (node, new) = self.ensure_node(&mut state, id, now);
+                self.heard(node, now, false, bus_up);
+                if new || matches!(node.identification, Identification::Failed { .. }) {
+                    self.start_identification(node);
+                }
+            }
+            Probe::Silent => {
+                if let Some(node) = state.nodes.get_mut(&id) {
+                    // A stopped node does no SDO: its silence says nothing.
+                    if node.online && !node.supervised() && node.nmt != Some(NmtState::Stopped) {
+                        node.online = false;
+                        self.emit(NodeEvent::Offline {
+                            node: id,
+                            reason: OfflineReason::NoAnswer,
+                        });
+                    }
+                }
+            }
+            Probe::BusFailed(_) => {}
+        }
+        if known.is_none() {
+            self.probing.send_modify(|probing| {
+                probing.remove(&id);
+            });
+        }
+        probe
+    }
+
+    /// Whether the node's identification that started at `generation` is
+    /// still the one wanted.
+    fn is_current(&self, id: NodeId, generation: u64) -> bool {
+        self.lock()
+            .nodes
+            .get(&id)
+            .is_some_and(|node| node.generation == generation)
+    }
+
+    /// Reads an object for the identification: `Ok(None)` when the node
+    /// refused it, retried after a timeout.
+    async fn read(
+        &self,
+        channel: &SdoChannel,
+        generation: u64,
+        index: u16,
+        sub: u8,
+    ) -> Result<Option<Vec<u8>>, Abandon> {
+        let mut retries = self.config.read_retries;
+        loop {
+            if !self.is_current(channel.node(), generation) {
+                return Err(Abandon::Stale);
+            }
+            match channel.upload(index, sub).await {
+                Ok(data) => return Ok(Some(data)),
+                Err(error) if error.device_abort().is_some() => return Ok(None),
+                Err(SdoRequestError::Sdo {
+                    error: SdoError::Timeout,
+                    ..
+                }) if retries > 0 => retries -= 1,
+                Err(error) => return Err(Abandon::Failed(error)),
+            }
+        }
+    }
+
+    async fn read_identity(
+        &self,
+        channel: &SdoChannel,
+        generation: u64,
+    ) -> Result<Identified, Abandon> {
+        let device_type = self
+            .read(channel, generation, DEVICE_TYPE, 0)
+            .await?
+            .and_then(|data| unsigned(&data));
+        let mut identity_subs = [None; 4];
+        for (sub, value) in (1u8..).zip(identity_subs.iter_mut()) {
+            *value = self
+                .read(channel, generation, IDENTITY, sub)
+                .await?
+                .and_then(|data| unsigned(&data));
+        }
+        let [vendor, product_code, revision, serial] = identity_subs;
+        let name = self
+            .read(channel, generation, DEVICE_NAME, 0)
+            .await?
+            .map(|data| visible_string(&data));
+        let heartbeat_ms = self
+            .read(channel, generation, PRODUCER_HEARTBEAT_TIME, 0)
+            .await?
+            .and_then(|data| unsigned(&data))
+            .and_then(|ms| u16::try_from(ms).ok());
+        Ok(Identified {
+            device_type,
+            identity: vendor.map(|vendor_id| Identity {
+                vendor_id,
+                product_code,
+                revision,
+                serial,
+            }),
+            name,
+            heartbeat_ms,
+        })
+    }
+
+    fn apply_identity(
+        &self,
+        state: &mut State,
+        id: NodeId,
+        outcome: Result<Identified, SdoRequestError>,
+    ) {
+        let State {
+            nodes, consumer, ..
+        } = state;
+        let Some(node) = nodes.get_mut(&id) else {
+            return;
+        };
+        match outcome {
+            Ok(found) => {
+                node.device_type = found.device_type;
+                node.identity = found.identity;
+                node.name = found.name;
+                node.eds = node
+                    .identity
+                    .as_ref()
+                    .and_then(|identity| self.catalog.lookup(identity));
+                node.profile = self
+                    .catalog
+                    .profile(node.identity.as_ref(), node.device_type);
+                node.identification = Identification::Done;
+                // The boot-up message is sent on entering pre-operational,
+                // and the node answered SDO, which it does not when stopped.
+                if node.nmt == Some(NmtState::BootUp) {
+                    self.set_nmt(node, NmtState::PreOperational);
+                }
+                if let Some(ms) = found.heartbeat_ms.filter(|&ms| ms > 0) {
+                    let period = Duration::from_millis(u64::from(ms));
+                    node.heartbeat.set_period(period);
+                    consumer.monitor_producer(id, period);
+                    consumer.arm(id, Instant::now().into_std());
+                }
+                self.emit(NodeEvent::Identified {
+                    node: id,
+                    profile: node.profile,
+                    eds: node.eds.as_ref().map(|entry| entry.name.clone()),
+                });
+            }
+            Err(error) => {
+                node.forget_identity();
+                let error = error.to_string();
+                node.identification = Identification::Failed {
+                    error: error.clone(),
+                };
+                self.emit(NodeEvent::IdentificationFailed { node: id, error });
+            }
+        }
+    }
+}
+
+/// Identifies a node, again while it boots again meanwhile.
+async fn identify(shared: Arc<Shared>, id: NodeId) {
+    let mut probing = shared.probing.subscribe();
+    // The sender lives in `shared`: waiting cannot fail.
+    let _ = probing.wait_for(|probing| !probing.contains(&id)).await;
+    loop {
+        let Some((channel, generation)) = shared
+            .lock()
+            .nodes
+            .get(&id)
+            .map(|node| (node.channel.clone(), node.generation))
+        else {
+            return;
+        };
+        let outcome = match shared.read_identity(&channel, generation).await {
+            Ok(found) => Ok(found),
+            Err(Abandon::Failed(error)) => Err(error),
+            Err(Abandon::Stale) => continue,
+        };
+        {
+            let mut state = shared.lock();
+            let Some(node) = state.nodes.get_mut(&id) else {
+                return;
+            };
+            if node.generation != generation {
+                continue;
+            }
+            node.identifying = false;
+            shared.apply_identity(&mut state, id, outcome);
+        }
+        shared.rearm.notify_one();
+        shared.identified.send_modify(|count| *count += 1);
+        return;
+    }
+}
+
+/// An unsigned integer of 1 to 4 bytes, little-endian.
+fn unsigned(data: &[u8]) -> Option<u32> {
+    if data.is_empty() || data.len() > 4 {
+        return None;
+    }
+    let mut bytes = [0u8; 4];
+    bytes[..data.len()].copy_from_slice(data);
+    Some(u32::from_le_bytes(bytes))
+}
+
+/// A VISIBLE_STRING as text: up to the first NUL (devices pad with them),
+/// bytes outside ASCII replaced, bounded in length.
+fn visible_string(data: &[u8]) -> String {
+    let end = data.iter().position(|&b| b == 0).unwrap_or(data.len());
+    let text = String::from_utf8_lossy(&data[..end.min(MAX_NAME_LEN)]);
+    text.trim_end().to_string()
+}
+
+/// Reads the bus until it closes or the registry is dropped.
+async fn run(
+    shared: Arc<Shared>,
+    mut frames: FrameReceiver,
+    mut status: watch::Receiver<crate::can::BusStatus>,
+) {
+    let mut status_open = true;
+    loop {
+        let deadline = shared.lock().consumer.deadline().map(Instant::from_std);
+        tokio::select! {
+            received = frames.recv() => match received {
+                Ok(frame) => shared.on_frame(&frame),
+                Err(RecvError::Lagged(lost)) => {
+                    tracing::warn!(bus = shared.bus.name(), lost, "node registry fell behind the bus");
+                }
+                Err(RecvError::Closed) => {
+                    shared.on_bus_status(false);
+                    return;
+                }
+            },
+            changed = status.changed(), if status_open => match changed {
+                Ok(()) => {
+                    let up = status.borrow_and_update().state.can_send();
+                    shared.on_bus_status(up);
+                }
+                Err(_) => status_open = false,
+            },
+            () = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)), if deadline.is_some() => {
+                shared.poll_heartbeats();
+            }
+            () = shared.rearm.notified() => {}
+        }
+    }
+}
