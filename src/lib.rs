@@ -6,6 +6,8 @@
 //!
 //! # Layout
 //!
+//! - [`api`]: the REST interface (axum): buses, nodes, NMT, the object
+//!   dictionary over SDO, with one error type mapped to HTTP statuses.
 //! - [`can`]: frames, the [`can::Bus`] attachment and its backends (virtual
 //!   hub, socketcand client and server, SocketCAN, candump replay), and candump
 //!   logs.
@@ -16,9 +18,10 @@
 //!   EMCY history); later the REST API's operations and telemetry.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
-//! - [`cli`]: the command line (`candeck vbus`, `candeck dump`, ...); `main.rs`
+//! - [`cli`]: the command line (`candeck serve`, `candeck vbus`, `candeck dump`, ...); `main.rs`
 //!   only calls it.
 
+pub mod api;
 pub mod can;
 pub mod canopen;
 pub mod cli;

@@ -6,6 +6,8 @@
 //!
 //! # Layout
 //!
+//! - [`serve`]: `candeck serve` (and `candeck` alone), the gateway and its
+//!   REST interface.
 //! - [`vbus`]: `candeck vbus`, an emulated bus served over socketcand.
 //! - [`dump`]: `candeck dump`, a bus printed as a candump `-L` log.
 //! - [`od`]: `candeck od read|write`, one object of one node over SDO.
@@ -14,6 +16,7 @@
 pub mod dump;
 pub mod nmt;
 pub mod od;
+pub mod serve;
 pub mod vbus;
 
 use std::process::ExitCode;
@@ -22,13 +25,25 @@ use clap::{Parser, Subcommand};
 
 /// candeck: a gateway and dashboard for CANopen machines.
 #[derive(Debug, Parser)]
-#[command(name = "candeck", version, about, long_about = None, propagate_version = true)]
+#[command(
+    name = "candeck",
+    version,
+    about,
+    long_about = None,
+    propagate_version = true,
+    args_conflicts_with_subcommands = true
+)]
 pub struct Cli {
     /// Log filter, as RUST_LOG takes it (error, warn, info, debug, trace, or
-    /// per module). Default: info for servers (vbus, dump), warn for one-shot
+    /// per module). Default: info for servers (serve, vbus, dump), warn for one-shot
     /// commands (od, nmt).
     #[arg(long, global = true, env = "CANDECK_LOG")]
     pub log: Option<String>,
+
+    /// `candeck [serve] ...`: the serve options are taken without the
+    /// command's name, since serving is what `candeck` does by default.
+    #[command(flatten)]
+    pub serve: serve::ServeArgs,
 
     #[command(subcommand)]
     pub command: Option<Command>,
@@ -36,6 +51,9 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run the gateway: the REST API over HTTP for one or more buses (the
+    /// default command; without --bus, the demo devices on virtual:demo).
+    Serve(serve::ServeArgs),
     /// Run an emulated CAN bus and share it over the socketcand protocol, so
     /// that candeck, python-can, python-canopen and can-utils join it.
     Vbus(vbus::VbusArgs),
@@ -67,16 +85,13 @@ pub fn main() -> ExitCode {
     let one_shot = matches!(cli.command, Some(Command::Od(_) | Command::Nmt(_)));
     let default_log = if one_shot { "warn" } else { "info" };
     init_logging(cli.log.as_deref().unwrap_or(default_log));
-    let Some(command) = cli.command else {
-        // `candeck` alone will serve the demo dashboard once the gateway
-        // exists; until then it says what this build can do.
-        use clap::CommandFactory;
-        let _ = Cli::command().print_help();
-        eprintln!(
-            "\ncandeck: error: name a command; the gateway ('serve') is not part of this build yet"
-        );
+    let command = cli.command.unwrap_or(Command::Serve(cli.serve));
+    if let Command::Serve(args) = &command
+        && let Err(message) = args.validate()
+    {
+        eprintln!("candeck: error: {message} (see 'candeck --help')");
         return ExitCode::from(2);
-    };
+    }
     // One thread: request/response traffic (SDO) is 20 times faster than on
     // tokio's multi-thread scheduler, whose cross-thread wake-ups dominate
     // such short exchanges (see BENCHMARKS.md), and frames still flow at
@@ -93,6 +108,7 @@ pub fn main() -> ExitCode {
     };
     let result = runtime.block_on(async {
         match command {
+            Command::Serve(args) => serve::run(args).await,
             Command::Vbus(args) => vbus::run(args).await,
             Command::Dump(args) => dump::run(args).await,
             Command::Od(args) => od::run(args).await,

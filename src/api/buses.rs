@@ -1,0 +1,161 @@
+//! `GET /health` and `GET /buses`.
+//!
+//! The bus load is measured, not assumed: every second a task reads the
+//! attachment's bit counters (each frame counted by
+//! [`Frame::wire_bits`](crate::can::Frame::wire_bits), sent or received,
+//! stuff bits left out) and divides the bits of the last second by the bus's
+//! bit rate (`candeck serve --bitrate`, 500 kbit/s unless told). `load` is
+//! that fraction (0.0 to 1.0, a little low since stuff bits are not on the
+//! counters); `bits_per_second` is the measurement itself.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use axum::Router;
+use axum::extract::State;
+use axum::routing::get;
+use serde_json::{Value as Json, json};
+
+use super::{ApiJson, AppState};
+use crate::can::{Bus, VirtualHub};
+
+/// How often the bit counters are sampled, and so the window the load is
+/// averaged over.
+const LOAD_WINDOW: Duration = Duration::from_secs(1);
+
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/health", get(health))
+        .route("/buses", get(list_buses))
+}
+
+async fn health() -> ApiJson<Json> {
+    ApiJson(json!({ "status": "ok", "version": env!("CARGO_PKG_VERSION") }))
+}
+
+async fn list_buses(State(state): State<AppState>) -> ApiJson<Json> {
+    let buses = state
+        .buses
+        .values()
+        .map(|served| {
+            let traffic = Traffic::new(&served.bus, served.hub.as_ref()).sample();
+            let state = if served.bus.state().can_send() {
+                "up"
+            } else {
+                "down"
+            };
+            json!({
+                "name": served.name,
+                "spec": served.spec,
+                "kind": served.bus.kind().as_str(),
+                "state": state,
+                "rx_frames": traffic.rx_frames,
+                "tx_frames": traffic.tx_frames,
+                "load": served.load.load(),
+                "bits_per_second": served.load.bits_per_second(),
+                "bitrate": served.load.bitrate(),
+            })
+        })
+        .collect();
+    ApiJson(Json::Array(buses))
+}
+
+/// Where the frame and bit counts of a served bus come from: its
+/// attachment's counters, and for a virtual bus the hub's totals, since an
+/// attachment to a hub counts the frames it sends but not those it receives.
+#[derive(Clone)]
+pub struct Traffic {
+    bus: Bus,
+    hub: Option<VirtualHub>,
+}
+
+/// Counts of a bus at one moment, as the gateway's attachment sees them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TrafficSample {
+    /// Frames from other nodes.
+    pub rx_frames: u64,
+    /// Frames the gateway sent.
+    pub tx_frames: u64,
+    /// Every bit on the bus, both ways.
+    pub bits: u64,
+}
+
+impl Traffic {
+    pub fn new(bus: &Bus, hub: Option<&VirtualHub>) -> Self {
+        Self {
+            bus: bus.clone(),
+            hub: hub.cloned(),
+        }
+    }
+
+    pub fn sample(&self) -> TrafficSample {
+        let counters = self.bus.counters();
+        match &self.hub {
+            Some(hub) => TrafficSample {
+                rx_frames: hub.frames_total().saturating_sub(counters.tx_frames),
+                tx_frames: counters.tx_frames,
+                bits: hub.bits_total(),
+            },
+            None => TrafficSample {
+                rx_frames: counters.rx_frames,
+                tx_frames: counters.tx_frames,
+                bits: counters.rx_bits + counters.tx_bits,
+            },
+        }
+    }
+}
+
+/// The bits a bus carried in the last second, sampled by a task
+/// that ends when the meter is dropped.
+pub struct LoadMeter {
+    bits_last_window: Arc<AtomicU64>,
+    bitrate: u32,
+    sampler: tokio::task::AbortHandle,
+}
+
+impl LoadMeter {
+    /// Starts sampling `bus`, whose nominal bit rate is `bitrate` bit/s.
+    /// Needs a tokio runtime.
+    pub fn spawn(traffic: Traffic, bitrate: u32) -> Self {
+        let bits_last_window = Arc::new(AtomicU64::new(0));
+        let out = bits_last_window.clone();
+        let sampler = tokio::spawn(async move {
+            let mut previous = traffic.sample().bits;
+            let mut ticks = tokio::time::interval(LOAD_WINDOW);
+            ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            ticks.tick().await;
+            loop {
+                ticks.tick().await;
+                let now = traffic.sample().bits;
+                out.store(now.saturating_sub(previous), Ordering::Relaxed);
+                previous = now;
+            }
+        })
+        .abort_handle();
+        Self {
+            bits_last_window,
+            bitrate: bitrate.max(1),
+            sampler,
+        }
+    }
+
+    pub fn bits_per_second(&self) -> u64 {
+        self.bits_last_window.load(Ordering::Relaxed) * 1000 / LOAD_WINDOW.as_millis() as u64
+    }
+
+    pub fn bitrate(&self) -> u32 {
+        self.bitrate
+    }
+
+    /// The fraction of the bit rate used in the last window.
+    pub fn load(&self) -> f64 {
+        self.bits_per_second() as f64 / f64::from(self.bitrate)
+    }
+}
+
+impl Drop for LoadMeter {
+    fn drop(&mut self) {
+        self.sampler.abort();
+    }
+}

@@ -1,0 +1,261 @@
+//! The HTTP layer's one error type and its mapping to status codes
+//! (`../shared/API.md`, "Conventions"): every failure leaves as
+//! `{"error": {"code": "snake_case", "message": "human text", ...}}`.
+//!
+//! What the device said (SDO abort, 422), what the clock said (timeout, 504)
+//! and what the bus did (down, 503) stay apart, as they do in
+//! [`SdoRequestError`]. Internal detail is logged, never returned.
+
+use axum::extract::rejection::{JsonRejection, PathRejection};
+use axum::extract::{FromRequest, FromRequestParts, Request};
+use axum::http::StatusCode;
+use axum::http::request::Parts;
+use axum::response::{IntoResponse, Response};
+use serde_json::{Value as Json, json};
+
+use crate::can::BusError;
+use crate::canopen::nmt::NmtState;
+use crate::canopen::od::{DictionaryError, ValueError};
+use crate::canopen::sdo::{AbortCode, SdoError};
+use crate::gateway::registry::RegistryError;
+use crate::gateway::sdo::SdoRequestError;
+
+/// Why a request failed.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The body or a parameter cannot be read (malformed JSON, a missing
+    /// field, a node id that is no number).
+    #[error("{0}")]
+    InvalidRequest(String),
+    #[error("{0}")]
+    InvalidIndex(String),
+    #[error("{0}")]
+    InvalidValue(String),
+    #[error("{0}")]
+    ValueOutOfRange(String),
+    #[error("no bus is named '{0}'")]
+    UnknownBus(String),
+    #[error("node {node} is not known on bus {bus} (try POST /api/v1/buses/{bus}/scan)")]
+    UnknownNode { bus: String, node: String },
+    #[error("{0}")]
+    UnknownObject(String),
+    #[error("{0}")]
+    UnknownSubObject(String),
+    /// No route has this path.
+    #[error("no such endpoint: {0}")]
+    NoRoute(String),
+    #[error("method {method} is not allowed on {path}")]
+    MethodNotAllowed { method: String, path: String },
+    /// CiA 301 allows no SDO in this NMT state; refused before the bus.
+    #[error("node {node} is {state}: SDO is not allowed in this NMT state", state = .state.name())]
+    WrongNmtState { node: u8, state: NmtState },
+    #[error("node {node} refused: {}", .code.text())]
+    SdoAbort { node: u8, code: AbortCode },
+    /// The device answered, but not by the protocol; the gateway aborted.
+    #[error("node {node} broke the SDO protocol ({detail}); the gateway aborted with {code}")]
+    SdoProtocol {
+        node: u8,
+        code: AbortCode,
+        detail: String,
+    },
+    #[error("{0}")]
+    BusDown(String),
+    #[error("node {node} did not answer in time")]
+    SdoTimeout { node: u8 },
+    /// A fault of the gateway itself: logged in full, reported in short.
+    #[error("internal error")]
+    Internal(String),
+}
+
+impl AppError {
+    /// Status and code, in one place.
+    fn status_and_code(&self) -> (StatusCode, &'static str) {
+        match self {
+            Self::InvalidRequest(_) => (StatusCode::BAD_REQUEST, "invalid_request"),
+            Self::InvalidIndex(_) => (StatusCode::BAD_REQUEST, "invalid_index"),
+            Self::InvalidValue(_) => (StatusCode::BAD_REQUEST, "invalid_value"),
+            Self::ValueOutOfRange(_) => (StatusCode::BAD_REQUEST, "value_out_of_range"),
+            Self::UnknownBus(_) => (StatusCode::NOT_FOUND, "unknown_bus"),
+            Self::UnknownNode { .. } => (StatusCode::NOT_FOUND, "unknown_node"),
+            Self::UnknownObject(_) => (StatusCode::NOT_FOUND, "unknown_object"),
+            Self::UnknownSubObject(_) => (StatusCode::NOT_FOUND, "unknown_sub_object"),
+            Self::NoRoute(_) => (StatusCode::NOT_FOUND, "not_found"),
+            Self::MethodNotAllowed { .. } => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
+            Self::WrongNmtState { .. } => (StatusCode::CONFLICT, "wrong_nmt_state"),
+            Self::SdoAbort { .. } => (StatusCode::UNPROCESSABLE_ENTITY, "sdo_abort"),
+            Self::SdoProtocol { .. } => (StatusCode::BAD_GATEWAY, "sdo_protocol_error"),
+            Self::BusDown(_) => (StatusCode::SERVICE_UNAVAILABLE, "bus_down"),
+            Self::SdoTimeout { .. } => (StatusCode::GATEWAY_TIMEOUT, "sdo_timeout"),
+            Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
+        }
+    }
+
+    pub fn status(&self) -> StatusCode {
+        self.status_and_code().0
+    }
+
+    /// The `{"code", "message", ...}` object, also used for one failed
+    /// entry of a batch.
+    pub fn to_json(&self) -> Json {
+        let (_, code) = self.status_and_code();
+        let mut body = json!({ "code": code, "message": self.to_string() });
+        match self {
+            Self::SdoAbort { code, .. } | Self::SdoProtocol { code, .. } => {
+                body["abort_code"] = json!(format!("0x{:08X}", code.raw()));
+                body["abort_text"] = json!(code.text());
+            }
+            Self::WrongNmtState { state, .. } => body["nmt"] = json!(state.name()),
+            // Every error is rendered once, here: the one place to log
+            // what the client is not told.
+            Self::Internal(detail) => tracing::error!("api: {detail}"),
+            _ => {}
+        }
+        body
+    }
+
+    /// A failed SDO transfer of `node`.
+    pub fn from_sdo(error: SdoRequestError) -> Self {
+        match error {
+            SdoRequestError::Sdo { node, error } => {
+                let node = node.get();
+                match error {
+                    SdoError::ServerAborted(code) => Self::SdoAbort { node, code },
+                    SdoError::Timeout => Self::SdoTimeout { node },
+                    SdoError::Protocol { code, detail } => Self::SdoProtocol { node, code, detail },
+                    SdoError::TooLarge(len) => {
+                        Self::InvalidValue(format!("{len} bytes do not fit an SDO transfer"))
+                    }
+                    // The channel runs one transfer at a time; a busy client
+                    // is a fault of the gateway.
+                    SdoError::Busy => Self::Internal(format!("node {node}: SDO client busy")),
+                }
+            }
+            SdoRequestError::Bus { error, .. } => Self::from(error),
+        }
+    }
+}
+
+impl From<BusError> for AppError {
+    fn from(error: BusError) -> Self {
+        Self::BusDown(error.to_string())
+    }
+}
+
+impl From<RegistryError> for AppError {
+    fn from(error: RegistryError) -> Self {
+        match error {
+            RegistryError::UnknownNode { bus, node } => Self::UnknownNode {
+                bus,
+                node: node.to_string(),
+            },
+            RegistryError::Bus(error) => Self::from(error),
+            RegistryError::Sdo(error) => Self::from_sdo(error),
+            other => Self::Internal(other.to_string()),
+        }
+    }
+}
+
+impl From<DictionaryError> for AppError {
+    fn from(error: DictionaryError) -> Self {
+        match error {
+            DictionaryError::UnknownObject(_) | DictionaryError::UnknownName(_) => {
+                Self::UnknownObject(error.to_string())
+            }
+            DictionaryError::UnknownSubObject { .. } | DictionaryError::UnknownSubName { .. } => {
+                Self::UnknownSubObject(error.to_string())
+            }
+            DictionaryError::InvalidIndex(_) | DictionaryError::InvalidSubIndex(_) => {
+                Self::InvalidIndex(error.to_string())
+            }
+            DictionaryError::WrongType { .. } => Self::InvalidValue(error.to_string()),
+        }
+    }
+}
+
+impl From<ValueError> for AppError {
+    fn from(error: ValueError) -> Self {
+        if error.is_out_of_range() {
+            Self::ValueOutOfRange(error.to_string())
+        } else {
+            Self::InvalidValue(error.to_string())
+        }
+    }
+}
+
+impl From<JsonRejection> for AppError {
+    fn from(rejection: JsonRejection) -> Self {
+        Self::InvalidRequest(rejection.body_text())
+    }
+}
+
+impl From<PathRejection> for AppError {
+    fn from(rejection: PathRejection) -> Self {
+        Self::InvalidRequest(rejection.body_text())
+    }
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        let status = self.status();
+        (status, axum::Json(json!({ "error": self.to_json() }))).into_response()
+    }
+}
+
+/// `axum::Json` whose rejection (malformed JSON, wrong content type, a
+/// missing field) is an [`AppError`], so it has the API's error shape.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ApiJson<T>(pub T);
+
+impl<T, S> FromRequest<S> for ApiJson<T>
+where
+    axum::Json<T>: FromRequest<S, Rejection = JsonRejection>,
+    S: Send + Sync,
+{
+    type Rejection = AppError;
+
+    async fn from_request(request: Request, state: &S) -> Result<Self, Self::Rejection> {
+        let axum::Json(value) = axum::Json::<T>::from_request(request, state).await?;
+        Ok(Self(value))
+    }
+}
+
+impl<T: serde::Serialize> IntoResponse for ApiJson<T> {
+    fn into_response(self) -> Response {
+        axum::Json(self.0).into_response()
+    }
+}
+
+/// `axum::extract::Path` whose rejection (a segment that is not UTF-8 once
+/// percent-decoded) is an [`AppError`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ApiPath<T>(pub T);
+
+impl<T, S> FromRequestParts<S> for ApiPath<T>
+where
+    axum::extract::Path<T>: FromRequestParts<S, Rejection = PathRejection>,
+    S: Send + Sync,
+{
+    type Rejection = AppError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, Self::Rejection> {
+        let axum::extract::Path(value) =
+            axum::extract::Path::<T>::from_request_parts(parts, state).await?;
+        Ok(Self(value))
+    }
+}
+
+/// Answers for paths no router has.
+pub async fn no_route(axum::extract::OriginalUri(uri): axum::extract::OriginalUri) -> AppError {
+    AppError::NoRoute(uri.path().to_string())
+}
+
+/// Answers for a known path with a method it does not take.
+pub async fn method_not_allowed(
+    method: axum::http::Method,
+    axum::extract::OriginalUri(uri): axum::extract::OriginalUri,
+) -> AppError {
+    AppError::MethodNotAllowed {
+        method: method.to_string(),
+        path: uri.path().to_string(),
+    }
+}

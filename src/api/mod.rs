@@ -1,0 +1,126 @@
+//! The REST interface (`../shared/API.md`, "REST", base `/api/v1`).
+//!
+//! [`app`] merges one router per resource; every handler fails with
+//! [`AppError`], the one place where errors become HTTP statuses. Handlers
+//! that talk to a device run each SDO transfer in a task of its own and
+//! wait for it, so that a client that hangs up never cuts a transfer
+//! halfway (axum drops the handler's future when the connection closes).
+//!
+//! # Layout
+//!
+//! - [`error`]: [`AppError`], its status mapping, and [`ApiJson`] and
+//!   [`ApiPath`], extractors whose rejections have the API's error shape.
+//! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
+//! - [`nodes`]: the node list, one node, scan, NMT.
+//! - [`od`]: the object dictionary of a node and SDO reads and writes.
+
+pub mod buses;
+pub mod error;
+pub mod nodes;
+pub mod od;
+
+#[cfg(test)]
+mod tests;
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use axum::Router;
+
+use crate::can::spec::BusSpec;
+use crate::can::{Bus, VirtualHub};
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::{NodeRegistry, RegistryConfig};
+use crate::sim::rack::Rack;
+
+pub use buses::{LoadMeter, Traffic};
+pub use error::{ApiJson, ApiPath, AppError};
+
+/// One bus the gateway serves.
+pub struct ServedBus {
+    pub name: String,
+    /// The spec it was opened from, as the user wrote it (`virtual:demo`).
+    pub spec: String,
+    pub bus: Bus,
+    pub registry: NodeRegistry,
+    /// The hub of a virtual bus, which counts every frame on it (an
+    /// attachment to a hub counts only what it sends).
+    pub hub: Option<VirtualHub>,
+    /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
+    pub rack: Option<Rack>,
+    pub load: LoadMeter,
+}
+
+impl ServedBus {
+    /// Opens `spec` as the bus `name` and starts its registry; a
+    /// `virtual:demo` bus gets the demo devices, booted after the registry
+    /// listens so that it hears their boot-up messages.
+    pub async fn open(
+        name: &str,
+        spec: &BusSpec,
+        catalog: Arc<EdsCatalog>,
+        config: RegistryConfig,
+        bitrate: u32,
+    ) -> Result<Self, String> {
+        let opened = spec.open(name).await.map_err(|err| err.to_string())?;
+        let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        let rack = match (spec, &opened.hub) {
+            (BusSpec::Virtual { preset }, Some(hub)) if preset == "demo" => {
+                let rack = Rack::new(hub.clone());
+                rack.add_all(&crate::sim::products::demo())
+                    .map_err(|err| err.to_string())?;
+                Some(rack)
+            }
+            _ => None,
+        };
+        Ok(Self {
+            name: name.to_string(),
+            spec: spec.to_string(),
+            load: LoadMeter::spawn(Traffic::new(&opened.bus, opened.hub.as_ref()), bitrate),
+            hub: opened.hub,
+            bus: opened.bus,
+            registry,
+            rack,
+        })
+    }
+}
+
+/// What every handler shares: the buses by name.
+#[derive(Clone)]
+pub struct AppState {
+    pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
+}
+
+impl AppState {
+    pub fn new(buses: impl IntoIterator<Item = ServedBus>) -> Self {
+        let buses = buses
+            .into_iter()
+            .map(|bus| (bus.name.clone(), Arc::new(bus)))
+            .collect();
+        Self {
+            buses: Arc::new(buses),
+        }
+    }
+
+    /// The bus named in a path, or 404 `unknown_bus`.
+    pub fn bus(&self, name: &str) -> Result<Arc<ServedBus>, AppError> {
+        self.buses
+            .get(name)
+            .cloned()
+            .ok_or_else(|| AppError::UnknownBus(name.to_string()))
+    }
+}
+
+/// The whole REST interface, under `/api/v1`. Paths outside this slice of
+/// API.md answer 404 in the API's error shape.
+pub fn app(state: AppState) -> Router {
+    let api = Router::new()
+        .merge(buses::router())
+        .merge(nodes::router())
+        .merge(od::router())
+        .method_not_allowed_fallback(error::method_not_allowed);
+    Router::new()
+        .nest("/api/v1", api)
+        .fallback(error::no_route)
+        .with_state(state)
+}

@@ -1,0 +1,374 @@
+//! A node's object dictionary over SDO (CiA 301 §7.2.4): the dictionary of
+//! its EDS, reads, writes and batch reads.
+//!
+//! How a request names an entry (API.md, "Conventions"):
+//! - an index as `0x6041`, `6041h`, a decimal number or the EDS name; a sub
+//!   as a number or the EDS name;
+//! - a name the EDS does not have is 404 (`unknown_object`,
+//!   `unknown_sub_object`); so is a sub-index the EDS lacks in an object it
+//!   describes (the EDS lists an object's sub-objects);
+//! - a numeric index the EDS does not describe at all goes to the device as
+//!   is (vendor objects an EDS forgot exist): a read returns `raw` only, a
+//!   write needs `data_type`, and the device has the last word (an abort
+//!   0x06020000 is 422 `sdo_abort`).
+//!
+//! A node matched to no EDS has no dictionary to list (404
+//! `unknown_object`), and its objects are reached by number only.
+//!
+//! Values are checked against the EDS type and limits before the bus is
+//! touched (400). SDO in the stopped state is refused with 409
+//! `wrong_nmt_state` from the state the node last reported (CiA 301 §7.3.2.2:
+//! a stopped node does not answer SDO, so asking would only end in a
+//! timeout). Access rights are the device's to enforce: a write to a
+//! read-only object reaches it, and its abort 0x06010002 comes back as 422.
+
+use std::str::FromStr;
+
+use axum::Router;
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Query, State};
+use axum::routing::{get, post};
+use serde_json::{Value as Json, json};
+
+use super::nodes::known_node;
+use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::canopen::nmt::NmtService;
+use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
+use crate::gateway::registry::NodeInfo;
+
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/buses/{bus}/nodes/{id}/od", get(list_dictionary))
+        .route(
+            "/buses/{bus}/nodes/{id}/od/{index}/{sub}",
+            get(read_one).put(write_one),
+        )
+        .route("/buses/{bus}/nodes/{id}/od/read", post(read_batch))
+}
+
+/// One entry a request names.
+struct Entry {
+    index: u16,
+    sub: u8,
+    /// What the EDS says of it; `None` for an object the EDS does not know.
+    described: Option<(String, SubObject)>,
+    /// The type a write request gave for an object the EDS does not know.
+    requested_type: Option<DataType>,
+}
+
+impl Entry {
+    fn data_type(&self) -> Option<DataType> {
+        self.described
+            .as_ref()
+            .map(|(_, sub)| sub.data_type)
+            .or(self.requested_type)
+    }
+
+    /// The answer for a value read (or written) as `raw`.
+    fn to_json(&self, raw: &[u8]) -> Json {
+        let mut body = json!({
+            "index": format_index(self.index),
+            "sub": self.sub,
+            "name": self.described.as_ref().map(|(name, _)| name),
+            "data_type": self.data_type(),
+            "value": Json::Null,
+            "raw": hex(raw),
+        });
+        if let Some(data_type) = self.data_type() {
+            match Value::from_bytes(data_type, raw) {
+                Ok(value) => body["value"] = value.to_json(),
+                // The device sent bytes that are no value of the EDS type:
+                // the raw bytes say what it sent.
+                Err(err) => body["decode_error"] = json!(err.to_string()),
+            }
+        }
+        body
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|byte| format!("{byte:02x}")).collect()
+}
+
+fn dictionary(info: &NodeInfo) -> Option<&ObjectDictionary> {
+    info.eds_entry.as_ref().map(|entry| &entry.eds.dictionary)
+}
+
+/// The object name of an entry, `"Identity object/Vendor-ID"` style for
+/// sub-objects of records and arrays.
+fn entry_name(object_name: &str, sub: &SubObject, has_subs: bool) -> String {
+    if has_subs {
+        format!("{object_name}/{}", sub.name)
+    } else {
+        object_name.to_string()
+    }
+}
+
+/// Resolves a request's `index` and `sub` (strings from a path, or JSON
+/// from a batch) against the node's dictionary.
+fn resolve(dict: Option<&ObjectDictionary>, index: &Json, sub: &Json) -> Result<Entry, AppError> {
+    let numeric_index = match index {
+        Json::String(text) => parse_index(text),
+        Json::Number(n) => Some(
+            n.as_u64()
+                .and_then(|n| u16::try_from(n).ok())
+                .ok_or_else(|| AppError::InvalidIndex(format!("{n} is no object index")))?,
+        ),
+        other => {
+            return Err(AppError::InvalidIndex(format!(
+                "{other} is no object index: give 0x6041, 6041h, a decimal number or an EDS name"
+            )));
+        }
+    };
+    let object = match (dict, numeric_index) {
+        (Some(dict), Some(index)) => dict.get(index),
+        (Some(dict), None) => Some(dict.resolve_index_json(index)?),
+        (None, Some(_)) => None,
+        (None, None) => {
+            return Err(AppError::UnknownObject(format!(
+                "the node has no EDS, so no object has a name: give {index} as a number"
+            )));
+        }
+    };
+    match object {
+        Some(object) => {
+            let described = object.resolve_sub_json(sub)?;
+            Ok(Entry {
+                index: object.index,
+                sub: described.sub_index,
+                described: Some((
+                    entry_name(
+                        &object.name,
+                        described,
+                        object.object_type.has_sub_objects(),
+                    ),
+                    described.clone(),
+                )),
+                requested_type: None,
+            })
+        }
+        None => Ok(Entry {
+            index: numeric_index.unwrap_or_default(),
+            sub: numeric_sub(sub)?,
+            described: None,
+            requested_type: None,
+        }),
+    }
+}
+
+/// A sub-index given as a number, for an object without EDS description.
+fn numeric_sub(sub: &Json) -> Result<u8, AppError> {
+    let number = match sub {
+        Json::Number(n) => n.as_u64().and_then(|n| u8::try_from(n).ok()),
+        Json::String(text) => {
+            let text = text.trim();
+            match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+                Some(hex) => u8::from_str_radix(hex, 16).ok(),
+                None => text.parse().ok(),
+            }
+        }
+        _ => None,
+    };
+    number.ok_or_else(|| {
+        AppError::InvalidIndex(format!(
+            "{sub} is no sub-index: give 0 to 255 (the EDS does not describe the object, so names are unknown)"
+        ))
+    })
+}
+
+/// Refuses before the bus what cannot succeed on it.
+fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), AppError> {
+    if !served.bus.state().can_send() {
+        let status = served.bus.status();
+        return Err(AppError::BusDown(format!(
+            "bus {} is {}{}",
+            served.name,
+            status.state.as_str(),
+            status.reason.map(|r| format!(": {r}")).unwrap_or_default()
+        )));
+    }
+    match info.nmt {
+        Some(state) if !state.allows(NmtService::Sdo) => Err(AppError::WrongNmtState {
+            node: info.id.get(),
+            state,
+        }),
+        _ => Ok(()),
+    }
+}
+
+fn task_failed(err: tokio::task::JoinError) -> AppError {
+    AppError::Internal(format!("SDO task: {err}"))
+}
+
+/// Reads an entry. The transfer runs in a task of its own (see the module
+/// docs of [`crate::api`]).
+async fn read_entry(served: &ServedBus, info: &NodeInfo, entry: &Entry) -> Result<Json, AppError> {
+    check_sdo_allowed(served, info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let (index, sub) = (entry.index, entry.sub);
+    let raw = tokio::spawn(async move { channel.upload(index, sub).await })
+        .await
+        .map_err(task_failed)?
+        .map_err(AppError::from_sdo)?;
+    Ok(entry.to_json(&raw))
+}
+
+#[derive(Debug, serde::Deserialize)]
+struct DictionaryQuery {
+    /// Text that an object's index, name or one of its sub-objects' names
+    /// contains (any case).
+    q: Option<String>,
+}
+
+async fn list_dictionary(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+    query: Result<Query<DictionaryQuery>, QueryRejection>,
+) -> Result<ApiJson<Json>, AppError> {
+    let Query(query) = query.map_err(|err| AppError::InvalidRequest(err.body_text()))?;
+    let (_, info) = known_node(&state, &bus, &id)?;
+    let dict = dictionary(&info).ok_or_else(|| {
+        AppError::UnknownObject(format!(
+            "node {} has no EDS: its dictionary is not known",
+            info.id
+        ))
+    })?;
+    let wanted = query.q.as_deref().map(str::to_lowercase);
+    let matches = |text: &str| {
+        wanted
+            .as_deref()
+            .is_none_or(|wanted| text.to_lowercase().contains(wanted))
+    };
+    let objects = dict
+        .iter()
+        .filter(|object| {
+            matches(&format_index(object.index))
+                || matches(&object.name)
+                || object.subs.values().any(|sub| matches(&sub.name))
+        })
+        .map(|object| object.to_json(Some(info.id)))
+        .collect();
+    Ok(ApiJson(Json::Array(objects)))
+}
+
+async fn read_one(
+    State(state): State<AppState>,
+    ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
+) -> Result<ApiJson<Json>, AppError> {
+    let (served, info) = known_node(&state, &bus, &id)?;
+    let entry = resolve(dictionary(&info), &Json::String(index), &Json::String(sub))?;
+    Ok(ApiJson(read_entry(&served, &info, &entry).await?))
+}
+
+#[derive(Debug, serde::Deserialize)]
+struct WriteRequest {
+    value: Json,
+    data_type: Option<String>,
+}
+
+/// The value of a write, checked against the EDS (type and limits), or
+/// typed by the request for an object the EDS does not know.
+fn value_to_write(
+    entry: &Entry,
+    info: &NodeInfo,
+    request: &WriteRequest,
+) -> Result<Value, AppError> {
+    let given_type = request
+        .data_type
+        .as_deref()
+        .map(|text| DataType::from_str(text).map_err(|err| AppError::InvalidValue(err.to_string())))
+        .transpose()?;
+    match (&entry.described, given_type) {
+        (Some((name, sub)), given) => {
+            if let Some(given) = given.filter(|given| *given != sub.data_type) {
+                return Err(AppError::InvalidValue(format!(
+                    "{name} is a {} in the EDS, not a {given}",
+                    sub.data_type
+                )));
+            }
+            Ok(sub.value_from_json(&request.value, Some(info.id))?)
+        }
+        (None, Some(data_type)) => Ok(Value::from_json(data_type, &request.value)?),
+        (None, None) => Err(AppError::InvalidValue(format!(
+            "the EDS does not describe {} sub {}: give its \"data_type\" (u8, i16, u32, r32, vs, os, ...)",
+            format_index(entry.index),
+            entry.sub
+        ))),
+    }
+}
+
+async fn write_one(
+    State(state): State<AppState>,
+    ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
+    ApiJson(request): ApiJson<WriteRequest>,
+) -> Result<ApiJson<Json>, AppError> {
+    let (served, info) = known_node(&state, &bus, &id)?;
+    let mut entry = resolve(dictionary(&info), &Json::String(index), &Json::String(sub))?;
+    let value = value_to_write(&entry, &info, &request)?;
+    check_sdo_allowed(&served, &info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let bytes = value.to_bytes();
+    let (index, sub) = (entry.index, entry.sub);
+    let readable = entry
+        .described
+        .as_ref()
+        .is_none_or(|(_, sub)| sub.access.is_readable());
+    // Write and read back in one task: both finish even if the client goes.
+    let written = bytes.clone();
+    let read_back = tokio::spawn(async move {
+        channel.download(index, sub, &written).await?;
+        if readable {
+            channel.upload(index, sub).await.map(Some)
+        } else {
+            Ok(None)
+        }
+    })
+    .await
+    .map_err(task_failed)?
+    .map_err(AppError::from_sdo)?;
+    // The request typed the value of an object the EDS does not know:
+    // answer in its type. A write-only object cannot be read back: the
+    // answer is what was written.
+    entry.requested_type = Some(value.data_type());
+    Ok(ApiJson(
+        entry.to_json(read_back.as_deref().unwrap_or(&bytes)),
+    ))
+}
+
+#[derive(Debug, serde::Deserialize)]
+struct BatchRequest {
+    entries: Vec<Json>,
+}
+
+/// Reads the entries one after another (the node's SDO channel would queue
+/// them anyway); each failure stays with its entry.
+async fn read_batch(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+    ApiJson(request): ApiJson<BatchRequest>,
+) -> Result<ApiJson<Json>, AppError> {
+    let (served, info) = known_node(&state, &bus, &id)?;
+    let dict = dictionary(&info);
+    let mut results = Vec::with_capacity(request.entries.len());
+    for requested in &request.entries {
+        let pair = match requested {
+            Json::Array(pair) if pair.len() == 2 => Some((&pair[0], &pair[1])),
+            _ => None,
+        };
+        let result = match pair {
+            None => Err(AppError::InvalidRequest(format!(
+                "{requested} is not an [index, sub] pair"
+            ))),
+            Some((index, sub)) => match resolve(dict, index, sub) {
+                Ok(entry) => read_entry(&served, &info, &entry).await,
+                Err(err) => Err(err),
+            },
+        };
+        results.push(result.unwrap_or_else(|err| {
+            let (index, sub) =
+                pair.map_or((Json::Null, Json::Null), |(i, s)| (i.clone(), s.clone()));
+            json!({ "index": index, "sub": sub, "error": err.to_json() })
+        }));
+    }
+    Ok(ApiJson(Json::Array(results)))
+}
