@@ -214,16 +214,22 @@ mod tests {
         );
     }
 
-    #[tokio::test(start_paused = true)]
-    async fn a_device_abort_a_timeout_and_a_bus_failure_are_different_errors() {
-        let hub = VirtualHub::new("test");
+    /// A device at node 5 with one UNSIGNED32 at 0x2000 of `access`,
+    /// running on `hub`.
+    fn spawn_device(hub: &VirtualHub, access: AccessType) -> tokio::task::JoinHandle<()> {
         let mut dictionary = ObjectDictionary::new();
         dictionary.insert(Object::var(
             0x2000,
-            SubObject::new(0, "Fixed", DataType::Unsigned32, AccessType::Ro),
+            SubObject::new(0, "Word", DataType::Unsigned32, access),
         ));
         let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
-        let server = tokio::spawn(run_device(hub.attach(), device));
+        tokio::spawn(run_device(hub.attach(), device))
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_device_abort_a_timeout_and_a_bus_failure_are_different_errors() {
+        let hub = VirtualHub::new("test");
+        let server = spawn_device(&hub, AccessType::Ro);
         let channel = SdoChannel::new(hub.attach(), node(), config());
 
         assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
@@ -254,13 +260,7 @@ mod tests {
         let given_up =
             tokio::time::timeout(Duration::from_millis(10), channel.upload(0x2000, 0)).await;
         assert!(given_up.is_err());
-        let mut dictionary = ObjectDictionary::new();
-        dictionary.insert(Object::var(
-            0x2000,
-            SubObject::new(0, "Word", DataType::Unsigned32, AccessType::Rw),
-        ));
-        let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
-        let server = tokio::spawn(run_device(hub.attach(), device));
+        let server = spawn_device(&hub, AccessType::Rw);
         assert_eq!(channel.upload(0x2000, 0).await, Ok(vec![0, 0, 0, 0]));
         // On the bus: the abandoned request, its abort (0x08000000), the
         // new request.
@@ -284,13 +284,7 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn callers_queue_for_the_node_one_transfer_at_a_time() {
         let hub = VirtualHub::new("test");
-        let mut dictionary = ObjectDictionary::new();
-        dictionary.insert(Object::var(
-            0x2000,
-            SubObject::new(0, "Word", DataType::Unsigned32, AccessType::Rw),
-        ));
-        let device = Arc::new(StdMutex::new(DeviceCore::new(dictionary, node()).unwrap()));
-        let server = tokio::spawn(run_device(hub.attach(), device));
+        let server = spawn_device(&hub, AccessType::Rw);
         let channel = SdoChannel::new(hub.attach(), node(), config());
         let tasks: Vec<_> = (0..8u32)
             .map(|i| {
