@@ -18,7 +18,7 @@ use axum::routing::get;
 use serde_json::{Value as Json, json};
 
 use super::{ApiJson, AppState};
-use crate::can::{Bus, VirtualHub};
+use crate::can::Bus;
 
 /// How often the bit counters are sampled, and so the window the load is
 /// averaged over.
@@ -39,7 +39,7 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Json> {
         .buses
         .values()
         .map(|served| {
-            let traffic = Traffic::new(&served.bus, served.hub.as_ref()).sample();
+            let traffic = Traffic::new(&served.bus).sample();
             let state = if served.bus.state().can_send() {
                 "up"
             } else {
@@ -61,13 +61,11 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Json> {
     ApiJson(Json::Array(buses))
 }
 
-/// Where the frame and bit counts of a served bus come from: its
-/// attachment's counters, and for a virtual bus the hub's totals, since an
-/// attachment to a hub counts the frames it sends but not those it receives.
+/// The frame and bit counts of a served bus: its attachment's counters
+/// (what the gateway sent, and everything it heard from the others).
 #[derive(Clone)]
 pub struct Traffic {
     bus: Bus,
-    hub: Option<VirtualHub>,
 }
 
 /// Counts of a bus at one moment, as the gateway's attachment sees them.
@@ -82,26 +80,16 @@ pub struct TrafficSample {
 }
 
 impl Traffic {
-    pub fn new(bus: &Bus, hub: Option<&VirtualHub>) -> Self {
-        Self {
-            bus: bus.clone(),
-            hub: hub.cloned(),
-        }
+    pub fn new(bus: &Bus) -> Self {
+        Self { bus: bus.clone() }
     }
 
     pub fn sample(&self) -> TrafficSample {
         let counters = self.bus.counters();
-        match &self.hub {
-            Some(hub) => TrafficSample {
-                rx_frames: hub.frames_total().saturating_sub(counters.tx_frames),
-                tx_frames: counters.tx_frames,
-                bits: hub.bits_total(),
-            },
-            None => TrafficSample {
-                rx_frames: counters.rx_frames,
-                tx_frames: counters.tx_frames,
-                bits: counters.rx_bits + counters.tx_bits,
-            },
+        TrafficSample {
+            rx_frames: counters.rx_frames,
+            tx_frames: counters.tx_frames,
+            bits: counters.rx_bits + counters.tx_bits,
         }
     }
 }

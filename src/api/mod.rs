@@ -76,7 +76,7 @@ impl ServedBus {
         Ok(Self {
             name: name.to_string(),
             spec: spec.to_string(),
-            load: LoadMeter::spawn(Traffic::new(&opened.bus, opened.hub.as_ref()), bitrate),
+            load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
             hub: opened.hub,
             bus: opened.bus,
             registry,

@@ -24,6 +24,8 @@ struct Attachment {
     origin: Origin,
     rx_frames: broadcast::Sender<Envelope>,
     monitor_frames: LazyChannel,
+    /// The attachment's counters: the hub counts what it receives.
+    counters: Arc<BusCounters>,
 }
 
 struct HubInner {
@@ -93,6 +95,7 @@ impl HubInner {
         // attachment without readers costs next to nothing.
         for attachment in self.attachments().iter() {
             if attachment.origin != origin {
+                attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
             }
             attachment.monitor_frames.send(envelope);
@@ -130,10 +133,12 @@ impl VirtualHub {
         let origin = self.inner.next_origin.fetch_add(1, Ordering::Relaxed);
         let (rx_frames, _) = broadcast::channel(self.inner.queue);
         let monitor_frames = LazyChannel::new(self.inner.queue);
+        let counters = Arc::new(BusCounters::default());
         self.inner.attachments().push(Attachment {
             origin,
             rx_frames: rx_frames.clone(),
             monitor_frames: monitor_frames.clone(),
+            counters: counters.clone(),
         });
         Bus::from_parts(BusParts {
             name: self.inner.name.clone(),
@@ -147,7 +152,7 @@ impl VirtualHub {
             rx_frames,
             monitor_frames,
             status: self.inner.status.subscribe(),
-            counters: Arc::new(BusCounters::default()),
+            counters,
             driver: None,
         })
     }
@@ -225,6 +230,16 @@ mod tests {
         assert_eq!(rx_a.try_recv().unwrap(), None);
         assert_eq!(hub.frames_total(), 101);
         assert_eq!(a.counters().tx_frames, 100);
+        // Each attachment counts what it heard, the sender's own frames not.
+        assert_eq!(
+            [
+                a.counters().rx_frames,
+                b.counters().rx_frames,
+                c.counters().rx_frames
+            ],
+            [1, 100, 101]
+        );
+        assert_eq!(c.counters().rx_bits, hub.bits_total());
     }
 
     #[tokio::test]
