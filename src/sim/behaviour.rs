@@ -127,10 +127,7 @@ impl<'a> DeviceIo<'a> {
     /// An integer (or BOOLEAN) value; `None` for an object the dictionary
     /// lacks or that is no integer.
     pub fn int(&self, index: u16, sub: u8) -> Option<i64> {
-        self.store
-            .get(index, sub)
-            .and_then(Value::as_i128)
-            .map(|v| v as i64)
+        self.store.int(index, sub)
     }
 
     /// A number (integer or real) as a float.

@@ -336,12 +336,8 @@ impl DeviceCore {
         if self.raised.is_empty() {
             return;
         }
-        let register = ErrorRegister::from_raw(
-            self.store
-                .get(ERROR_REGISTER, 0)
-                .and_then(Value::as_i128)
-                .unwrap_or(0) as u8,
-        );
+        let register =
+            ErrorRegister::from_raw(self.store.int(ERROR_REGISTER, 0).unwrap_or(0) as u8);
         for raised in self.raised.drain(..) {
             let emcy = Emcy {
                 code: raised.code,
@@ -510,10 +506,14 @@ impl DeviceCore {
                 pdo_changed: false,
             };
             let replies = self.sdo.handle_frame(frame, now, &mut access);
-            if access.pdo_changed {
+            // A restore (0x1011) brings back communication parameters too.
+            let restored = access.pdo_changed;
+            if restored {
                 self.pdos.rebuild(&self.store, now);
             }
-            self.follow_communication_parameters(now);
+            if restored || written.iter().any(|(index, _)| is_communication(*index)) {
+                self.follow_communication_parameters(now);
+            }
             replies
         } else if self.nmt.allows(NmtService::Pdo) {
             self.pdos
@@ -613,11 +613,8 @@ impl DeviceCore {
     /// 0x1014/0x1015 (EMCY) take effect at once.
     fn follow_communication_parameters(&mut self, now: Instant) {
         self.follow_heartbeat_time(now);
-        let int = |store: &ObjectStore, index, sub| {
-            store.get(index, sub).and_then(Value::as_i128).unwrap_or(0)
-        };
-        let guard_time = int(&self.store, GUARD_TIME, 0) as u16;
-        let life_factor = int(&self.store, LIFE_TIME_FACTOR, 0) as u8;
+        let guard_time = self.store.int(GUARD_TIME, 0).unwrap_or(0) as u16;
+        let life_factor = self.store.int(LIFE_TIME_FACTOR, 0).unwrap_or(0) as u8;
         let life_time = u64::from(guard_time) * u64::from(life_factor);
         if self
             .guard
@@ -629,11 +626,8 @@ impl DeviceCore {
             self.guard.configure(guard_time, life_factor, now);
         }
         let consumed: Vec<_> = (1..=u8::MAX)
-            .map_while(|sub| self.store.get(CONSUMER_HEARTBEAT_TIME, sub))
-            .filter_map(|value| {
-                let raw = value.as_i128()? as u32;
-                ConsumerTime::from_raw(raw).monitored()
-            })
+            .map_while(|sub| self.store.int(CONSUMER_HEARTBEAT_TIME, sub))
+            .filter_map(|raw| ConsumerTime::from_raw(raw as u32).monitored())
             .collect();
         if consumed != self.consumed {
             // A new configuration starts afresh: each timeout runs from the
@@ -645,10 +639,10 @@ impl DeviceCore {
             self.consumed = consumed;
         }
         let default_cob = u32::from(Function::Emcy.cob_id(self.node()));
-        let cob = match self.store.get(COB_ID_EMCY, 0) {
-            Some(value) => value.as_i128().unwrap_or(0) as u32,
-            None => default_cob,
-        };
+        let cob = self
+            .store
+            .int(COB_ID_EMCY, 0)
+            .map_or(default_cob, |raw| raw as u32);
         self.emcy_enabled = cob & 0x8000_0000 == 0;
         let id = if cob & (1 << 29) != 0 {
             CanId::Extended(cob & 0x1FFF_FFFF)
@@ -661,7 +655,7 @@ impl DeviceCore {
             self.emcy = emcy;
         }
         self.emcy
-            .set_inhibit_time_100us(int(&self.store, INHIBIT_TIME_EMCY, 0) as u16);
+            .set_inhibit_time_100us(self.store.int(INHIBIT_TIME_EMCY, 0).unwrap_or(0) as u16);
     }
 
     /// A write to 0x1017 changes the heartbeat from the next period on.
@@ -689,6 +683,12 @@ impl DeviceCore {
             }
         }
     }
+}
+
+/// Whether `index` is in the communication area, whose parameters the core
+/// itself acts on.
+fn is_communication(index: u16) -> bool {
+    Area::Communication.contains(index)
 }
 
 /// Copies every value of `area` from `from` to `to`.

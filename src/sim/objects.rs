@@ -81,6 +81,14 @@ impl ObjectStore {
         self.values.get(&(index, sub))
     }
 
+    /// An integer (or BOOLEAN) value as one number; `None` for an object
+    /// the dictionary lacks or that is no integer.
+    pub fn int(&self, index: u16, sub: u8) -> Option<i64> {
+        self.get(index, sub)
+            .and_then(Value::as_i128)
+            .map(|value| value as i64)
+    }
+
     /// Sets a value from the device's side (no access check: a device
     /// updates its own read-only objects).
     pub fn set(&mut self, index: u16, sub: u8, value: Value) -> Result<(), AbortCode> {
