@@ -12,10 +12,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use axum::Router;
 use axum::extract::State;
-use axum::routing::get;
-use serde_json::{Value as Json, json};
+use serde::Serialize;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
 use super::{ApiJson, AppState};
 use crate::can::Bus;
@@ -24,17 +25,69 @@ use crate::can::Bus;
 /// averaged over.
 const LOAD_WINDOW: Duration = Duration::from_secs(1);
 
-pub fn router() -> Router<AppState> {
-    Router::new()
-        .route("/health", get(health))
-        .route("/buses", get(list_buses))
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(health))
+        .routes(routes!(list_buses))
 }
 
-async fn health() -> ApiJson<Json> {
-    ApiJson(json!({ "status": "ok", "version": env!("CARGO_PKG_VERSION") }))
+/// The gateway is up.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Health {
+    #[schema(example = "ok")]
+    pub status: &'static str,
+    /// The version of candeck.
+    #[schema(example = "0.1.0")]
+    pub version: &'static str,
 }
 
-async fn list_buses(State(state): State<AppState>) -> ApiJson<Json> {
+/// The gateway is up, and its version.
+#[utoipa::path(get, path = "/health", tag = "buses",
+    responses((status = 200, description = "The gateway answers", body = Health)))]
+async fn health() -> ApiJson<Health> {
+    ApiJson(Health {
+        status: "ok",
+        version: env!("CARGO_PKG_VERSION"),
+    })
+}
+
+/// One bus the gateway serves.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BusInfo {
+    /// The bus name used in paths.
+    #[schema(example = "demo")]
+    pub name: String,
+    /// The spec it was opened from.
+    #[schema(example = "virtual:demo")]
+    pub spec: String,
+    /// `virtual`, `socketcan` or `socketcand`.
+    #[schema(example = "virtual")]
+    pub kind: &'static str,
+    /// `up` or `down`.
+    #[schema(example = "up")]
+    pub state: &'static str,
+    /// Frames received from other nodes.
+    #[schema(example = 1520)]
+    pub rx_frames: u64,
+    /// Frames the gateway sent.
+    #[schema(example = 310)]
+    pub tx_frames: u64,
+    /// The share of the bit rate used over the last second (0.0 to 1.0; stuff
+    /// bits not counted).
+    #[schema(example = 0.012)]
+    pub load: f64,
+    /// The bits counted over the last second.
+    #[schema(example = 6000)]
+    pub bits_per_second: u64,
+    /// The bit rate the load is measured against (`--bitrate`).
+    #[schema(example = 500000)]
+    pub bitrate: u32,
+}
+
+/// The buses the gateway serves, with their traffic and measured load.
+#[utoipa::path(get, path = "/buses", tag = "buses",
+    responses((status = 200, description = "Every bus", body = [BusInfo])))]
+async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
     let buses = state
         .buses
         .values()
@@ -45,20 +98,20 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Json> {
             } else {
                 "down"
             };
-            json!({
-                "name": served.name,
-                "spec": served.spec,
-                "kind": served.bus.kind().as_str(),
-                "state": state,
-                "rx_frames": traffic.rx_frames,
-                "tx_frames": traffic.tx_frames,
-                "load": served.load.load(),
-                "bits_per_second": served.load.bits_per_second(),
-                "bitrate": served.load.bitrate(),
-            })
+            BusInfo {
+                name: served.name.clone(),
+                spec: served.spec.clone(),
+                kind: served.bus.kind().as_str(),
+                state,
+                rx_frames: traffic.rx_frames,
+                tx_frames: traffic.tx_frames,
+                load: served.load.load(),
+                bits_per_second: served.load.bits_per_second(),
+                bitrate: served.load.bitrate(),
+            }
         })
         .collect();
-    ApiJson(Json::Array(buses))
+    ApiJson(buses)
 }
 
 /// The frame and bit counts of a served bus: its attachment's counters

@@ -13,8 +13,11 @@
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
+//! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
+//!   `/api/docs`) and the schemas the routers share.
 
 pub mod buses;
+pub mod doc;
 pub mod error;
 pub mod nodes;
 pub mod od;
@@ -26,6 +29,9 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::Router;
+use utoipa::OpenApi;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_swagger_ui::{Config, SwaggerUi};
 
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
@@ -111,16 +117,31 @@ impl AppState {
     }
 }
 
-/// The whole REST interface, under `/api/v1`. Paths outside this slice of
-/// API.md answer 404 in the API's error shape.
-pub fn app(state: AppState) -> Router {
-    let api = Router::new()
+/// The API's router under `/api/v1` (without state) and its OpenAPI
+/// document, from every resource's router.
+pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
+    let (api, api_doc) = OpenApiRouter::new()
         .merge(buses::router())
         .merge(nodes::router())
         .merge(od::router())
-        .method_not_allowed_fallback(error::method_not_allowed);
-    Router::new()
+        .split_for_parts();
+    let api = api.method_not_allowed_fallback(error::method_not_allowed);
+    let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
+    let router = Router::new()
         .nest("/api/v1", api)
         .fallback(error::no_route)
-        .with_state(state)
+        .with_state(state);
+    (router, doc)
+}
+
+/// The whole REST interface under `/api/v1`, its OpenAPI document at
+/// `/api/openapi.json` and the docs UI at `/api/docs`, served from the
+/// binary (no request leaves the machine; the online validator is off).
+/// Paths no router has answer 404 in the API's error shape.
+pub fn app(state: AppState) -> Router {
+    let (router, doc) = routers(state);
+    let docs = SwaggerUi::new("/api/docs")
+        .url("/api/openapi.json", doc)
+        .config(Config::default().validator_url("none"));
+    router.merge(docs)
 }

@@ -24,26 +24,121 @@
 
 use std::str::FromStr;
 
-use axum::Router;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
-use axum::routing::{get, post};
+use serde::{Deserialize, Serialize};
 use serde_json::{Value as Json, json};
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
+use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::nmt::NmtService;
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
 use crate::gateway::registry::NodeInfo;
 
-pub fn router() -> Router<AppState> {
-    Router::new()
-        .route("/buses/{bus}/nodes/{id}/od", get(list_dictionary))
-        .route(
-            "/buses/{bus}/nodes/{id}/od/{index}/{sub}",
-            get(read_one).put(write_one),
-        )
-        .route("/buses/{bus}/nodes/{id}/od/read", post(read_batch))
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_dictionary))
+        .routes(routes!(read_one, write_one))
+        .routes(routes!(read_batch))
+}
+
+/// An object of a node's dictionary, from its EDS.
+#[derive(Debug, Serialize, ToSchema)]
+#[allow(dead_code)] // The schema of `Object::to_json`.
+pub struct DictionaryObject {
+    #[schema(example = "0x6041")]
+    pub index: String,
+    #[schema(example = "a1_Statusword")]
+    pub name: String,
+    /// `VAR`, `ARRAY`, `RECORD`, ...
+    #[schema(example = "VAR")]
+    pub object_type: String,
+    pub subs: Vec<DictionarySub>,
+}
+
+/// A sub-object of a node's dictionary.
+#[derive(Debug, Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct DictionarySub {
+    pub sub: u8,
+    #[schema(example = "a1_Statusword")]
+    pub name: String,
+    /// `bool`, `i8`..`i64`, `u8`..`u64`, `r32`, `r64`, `vs`, `os`, `us`,
+    /// `domain`, or `0xNNNN` for a type without a short name.
+    #[schema(example = "u16")]
+    pub data_type: String,
+    /// `ro`, `wo`, `rw`, `rwr`, `rww` or `const`.
+    #[schema(example = "ro")]
+    pub access: String,
+    pub pdo_mappable: bool,
+    /// The EDS default, typed; null when the EDS gives none.
+    #[schema(value_type = Option<AnyValue>)]
+    pub default: Json,
+    /// The EDS low limit.
+    #[schema(value_type = Option<AnyValue>)]
+    pub low: Json,
+    /// The EDS high limit.
+    #[schema(value_type = Option<AnyValue>)]
+    pub high: Json,
+}
+
+/// A value of an object: a number, a string (64-bit integers, strings,
+/// base64 octet strings), a boolean.
+#[derive(Debug, Serialize, ToSchema)]
+#[serde(untagged)]
+#[schema(example = 567)]
+#[allow(dead_code)]
+pub enum AnyValue {
+    Number(f64),
+    Text(String),
+    Flag(bool),
+}
+
+/// A value read from (or written to) a device.
+#[derive(Debug, Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct ObjectValue {
+    #[schema(example = "0x6041")]
+    pub index: String,
+    pub sub: u8,
+    /// The EDS name; null for an object the EDS does not describe.
+    #[schema(example = "a1_Statusword")]
+    pub name: Option<String>,
+    /// The type the value is decoded with; null when unknown.
+    #[schema(example = "u16")]
+    pub data_type: Option<String>,
+    /// The decoded value; null when the type is unknown.
+    #[schema(value_type = Option<AnyValue>, example = 567)]
+    pub value: Json,
+    /// The bytes on the wire, hex.
+    #[schema(example = "3702")]
+    pub raw: String,
+    /// When the bytes are no value of the EDS type: why.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decode_error: Option<String>,
+}
+
+/// An object named in a path.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Path)]
+#[allow(dead_code)]
+pub struct ObjectPath {
+    /// The bus name.
+    #[param(example = "demo")]
+    pub bus: String,
+    /// The node id, 1 to 127.
+    #[param(minimum = 1, maximum = 127, example = 1)]
+    pub id: u8,
+    /// `0x6041`, `6041h`, a decimal number, or the EDS name.
+    #[param(example = "0x6041")]
+    pub index: String,
+    /// A number, or the sub-object's EDS name.
+    #[param(example = "0")]
+    pub sub: String,
 }
 
 /// One entry a request names.
@@ -213,13 +308,21 @@ async fn read_entry(served: &ServedBus, info: &NodeInfo, entry: &Entry) -> Resul
     Ok(entry.to_json(&raw))
 }
 
-#[derive(Debug, serde::Deserialize)]
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct DictionaryQuery {
     /// Text that an object's index, name or one of its sub-objects' names
     /// contains (any case).
     q: Option<String>,
 }
 
+/// The node's dictionary, from its EDS.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/od", tag = "od", params(NodePath, DictionaryQuery),
+    responses(
+        (status = 200, description = "The objects whose index or names contain `q`", body = [DictionaryObject]),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`; `unknown_object` when the node has no EDS", body = ErrorBody),
+    ))]
 async fn list_dictionary(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
@@ -251,6 +354,18 @@ async fn list_dictionary(
     Ok(ApiJson(Json::Array(objects)))
 }
 
+/// Reads one value over SDO.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/od/{index}/{sub}", tag = "od", params(ObjectPath),
+    responses(
+        (status = 200, description = "The value read", body = ObjectValue),
+        (status = 400, description = "`invalid_index`, `invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_object`, `unknown_sub_object`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`: the device broke the SDO protocol", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
 async fn read_one(
     State(state): State<AppState>,
     ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
@@ -260,10 +375,17 @@ async fn read_one(
     Ok(ApiJson(read_entry(&served, &info, &entry).await?))
 }
 
-#[derive(Debug, serde::Deserialize)]
-struct WriteRequest {
-    value: Json,
-    data_type: Option<String>,
+/// A value to write.
+#[derive(Debug, Deserialize, ToSchema)]
+pub struct WriteRequest {
+    /// Typed by the EDS: a number, a string (64-bit integers may be
+    /// strings; `os` is base64), a boolean.
+    #[schema(value_type = AnyValue, example = 1000)]
+    pub value: Json,
+    /// Needed for an object the EDS does not describe: `u8`, `i16`, `u32`,
+    /// `r32`, `vs`, `os`, ...
+    #[schema(example = "u32")]
+    pub data_type: Option<String>,
 }
 
 /// The value of a write, checked against the EDS (type and limits), or
@@ -297,6 +419,19 @@ fn value_to_write(
     }
 }
 
+/// Writes one value over SDO and returns it read back.
+#[utoipa::path(put, path = "/buses/{bus}/nodes/{id}/od/{index}/{sub}", tag = "od", params(ObjectPath),
+    request_body = WriteRequest,
+    responses(
+        (status = 200, description = "The value read back (what was written, for a write-only object)", body = ObjectValue),
+        (status = 400, description = "`invalid_value`, `value_out_of_range` (checked against the EDS before the bus), `invalid_index`, `invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_object`, `unknown_sub_object`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`: the device broke the SDO protocol", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
 async fn write_one(
     State(state): State<AppState>,
     ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
@@ -335,13 +470,45 @@ async fn write_one(
     ))
 }
 
-#[derive(Debug, serde::Deserialize)]
-struct BatchRequest {
-    entries: Vec<Json>,
+/// Entries to read, each `[index, sub]` (numbers or EDS names).
+#[derive(Debug, Deserialize, ToSchema)]
+#[schema(example = json!({"entries": [["0x6041", 0], ["a1_Motor_status", "Current"]]}))]
+pub struct BatchRequest {
+    #[schema(value_type = Vec<Vec<AnyValue>>)]
+    pub entries: Vec<Json>,
 }
 
-/// Reads the entries one after another (the node's SDO channel would queue
-/// them anyway); each failure stays with its entry.
+/// One entry of a batch read: the value, or the error of that entry.
+#[derive(Debug, Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct BatchValue {
+    /// The index as read (`"0x6041"`), or as given when it failed.
+    #[schema(value_type = Option<AnyValue>)]
+    pub index: Json,
+    /// The sub-index, or as given when it failed.
+    #[schema(value_type = Option<AnyValue>)]
+    pub sub: Json,
+    pub name: Option<String>,
+    pub data_type: Option<String>,
+    #[schema(value_type = Option<AnyValue>)]
+    pub value: Option<Json>,
+    pub raw: Option<String>,
+    pub decode_error: Option<String>,
+    /// Why this entry failed.
+    pub error: Option<ErrorDetail>,
+}
+
+/// Reads several values, each with its own result.
+///
+/// The entries are read one after another (the node's SDO channel would
+/// queue them anyway); each failure stays with its entry.
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/od/read", tag = "od", params(NodePath),
+    request_body = BatchRequest,
+    responses(
+        (status = 200, description = "One result per entry, in order; a failed entry carries `error`", body = [BatchValue]),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`", body = ErrorBody),
+    ))]
 async fn read_batch(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,

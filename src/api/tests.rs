@@ -521,3 +521,51 @@ async fn sixty_four_bit_values_are_strings_both_ways() {
         assert_eq!(body["value"], expected);
     }
 }
+
+#[tokio::test(start_paused = true)]
+async fn openapi_document_is_served_as_generated() {
+    let (app, _) = demo().await;
+    let (status, body) = get(&app, "/api/openapi.json").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(body, serde_json::to_value(super::doc::openapi()).unwrap());
+    assert!(body["paths"]["/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}"]["put"].is_object());
+}
+
+/// The docs UI and every file it loads come from the binary: no address
+/// outside the gateway appears in what it serves.
+#[tokio::test(start_paused = true)]
+async fn docs_ui_is_served_from_the_binary() {
+    let (app, _) = demo().await;
+    let fetch = |uri: &'static str| {
+        let app = app.clone();
+        async move {
+            let request = Request::builder().uri(uri).body(Body::empty()).unwrap();
+            let response = app.oneshot(request).await.unwrap();
+            let status = response.status();
+            let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
+                .await
+                .unwrap();
+            (status, String::from_utf8_lossy(&bytes).into_owned())
+        }
+    };
+    let (status, index) = fetch("/api/docs/").await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(index.contains("swagger-ui"), "{index}");
+    let (status, initializer) = fetch("/api/docs/swagger-initializer.js").await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(initializer.contains("/api/openapi.json"), "{initializer}");
+    let compact: String = initializer.split_whitespace().collect();
+    assert!(
+        compact.contains("\"validatorUrl\":\"none\""),
+        "{initializer}"
+    );
+    for (name, text) in [("index", &index), ("initializer", &initializer)] {
+        assert!(
+            !text.contains("http://") && !text.contains("https://"),
+            "{name}: {text}"
+        );
+    }
+    let (status, bundle) = fetch("/api/docs/swagger-ui-bundle.js").await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(bundle.len() > 100_000);
+}

@@ -1,0 +1,150 @@
+//! The OpenAPI document of the REST interface (utoipa), and the schemas the
+//! routers share: the error body and the path parameters.
+//!
+//! Each router registers its handlers' `#[utoipa::path]`s itself
+//! (`utoipa_axum::routes!`); [`ApiDoc`] adds what belongs to no router: the
+//! title, the server base and the tags. `openapi/openapi.json` in the
+//! repository is this document; a test fails when the two differ
+//! (regenerate with `CANDECK_UPDATE_OPENAPI=1 cargo test --lib openapi`).
+//!
+//! Some handlers build their JSON with `serde_json::json!` (the values of an
+//! object dictionary are typed at run time); their schemas here say what
+//! that JSON is, and schemathesis (`tests/interop/test_openapi.py`) checks
+//! every response against them.
+
+use serde::Serialize;
+use utoipa::{IntoParams, OpenApi, ToSchema};
+
+/// The document's fixed parts.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "candeck",
+        description = "REST interface of the candeck CANopen gateway: buses, nodes, NMT, the object \
+dictionary over SDO, PDOs, CiA 402 drives, LED controllers and the emulated bus.\n\n\
+Errors have one shape, `{\"error\": {\"code\", \"message\", ...}}`: 400 for a request or value \
+that is invalid (found before the bus is touched), 404 for an unknown bus, node, object, axis or \
+segment, 409 when the device's or gateway's state forbids the request, 422 when the device \
+refused (SDO abort, with `abort_code` and `abort_text`), 502 when it broke the protocol, 503 when \
+the bus is down and 504 when the device did not answer in time.",
+        license(name = "MIT OR Apache-2.0")
+    ),
+    tags(
+        (name = "buses", description = "The gateway and its CAN buses"),
+        (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
+        (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
+    )
+)]
+pub struct ApiDoc;
+
+/// Every error: `{"error": {...}}`.
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(example = json!({"error": {"code": "unknown_node", "message": "node 9 is not known on bus demo (try POST /api/v1/buses/demo/scan)"}}))]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+/// What went wrong.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ErrorDetail {
+    /// A stable snake_case code (`invalid_value`, `unknown_node`,
+    /// `sdo_abort`, `bus_down`, `sdo_timeout`, ...).
+    #[schema(example = "sdo_abort")]
+    pub code: String,
+    /// Text for a human.
+    #[schema(example = "node 1 refused: Attempt to write a read only object")]
+    pub message: String,
+    /// With `sdo_abort` and `sdo_protocol_error`: the CiA 301 abort code.
+    #[schema(example = "0x06010002")]
+    pub abort_code: Option<String>,
+    /// With `sdo_abort` and `sdo_protocol_error`: its CiA 301 text.
+    #[schema(example = "Attempt to write a read only object")]
+    pub abort_text: Option<String>,
+    /// With `wrong_nmt_state`: the node's NMT state.
+    #[schema(example = "stopped")]
+    pub nmt: Option<String>,
+}
+
+/// A bus named in a path.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct BusPath {
+    /// The bus name (`demo` for the emulated demo bus).
+    #[param(example = "demo")]
+    pub bus: String,
+}
+
+/// A node of a bus named in a path.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct NodePath {
+    /// The bus name.
+    #[param(example = "demo")]
+    pub bus: String,
+    /// The node id, 1 to 127.
+    #[param(minimum = 1, maximum = 127, example = 1)]
+    pub id: u8,
+}
+
+/// The document as served, with every router's paths.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    super::routers(super::AppState::new([])).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CHECKED_IN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/openapi/openapi.json");
+
+    /// `openapi/openapi.json` is what the binary serves; with
+    /// `CANDECK_UPDATE_OPENAPI=1` the test writes it instead.
+    #[test]
+    fn openapi_json_in_the_repository_is_what_is_served() {
+        let served = openapi().to_pretty_json().unwrap() + "\n";
+        if std::env::var_os("CANDECK_UPDATE_OPENAPI").is_some() {
+            std::fs::write(CHECKED_IN, &served).unwrap();
+            return;
+        }
+        let checked_in = std::fs::read_to_string(CHECKED_IN).unwrap_or_default();
+        assert!(
+            checked_in == served,
+            "openapi/openapi.json differs from the document the binary serves: \
+             regenerate it with `CANDECK_UPDATE_OPENAPI=1 cargo test --lib openapi`"
+        );
+    }
+
+    /// Every operation says what it answers, errors included.
+    #[test]
+    fn every_operation_has_a_summary_and_error_responses() {
+        let doc = openapi();
+        let mut operations = 0;
+        for (path, item) in &doc.paths.paths {
+            for (method, operation) in [
+                ("get", &item.get),
+                ("put", &item.put),
+                ("post", &item.post),
+                ("delete", &item.delete),
+            ] {
+                let Some(operation) = operation else { continue };
+                operations += 1;
+                assert!(
+                    operation.summary.as_deref().is_some_and(|s| !s.is_empty()),
+                    "{method} {path}: no summary"
+                );
+                let statuses: Vec<&String> = operation.responses.responses.keys().collect();
+                assert!(
+                    statuses.iter().any(|status| status.starts_with('2')),
+                    "{method} {path}: no success response"
+                );
+                if path.contains("{bus}") {
+                    assert!(
+                        statuses.iter().any(|status| *status == "404"),
+                        "{method} {path}: an unknown bus is 404, undocumented"
+                    );
+                }
+            }
+        }
+        assert!(operations >= 10, "{operations} operations");
+    }
+}
