@@ -82,6 +82,13 @@ pub struct BusInfo {
     /// The bit rate the load is measured against (`--bitrate`).
     #[schema(example = 500000)]
     pub bitrate: u32,
+    /// Why the bus is down (or what its backend last reported); null when
+    /// there is nothing to say.
+    #[schema(example = json!(null))]
+    pub reason: Option<String>,
+    /// How often the backend has reconnected (socketcand, socketcan).
+    #[schema(example = 0)]
+    pub reconnects: u64,
 }
 
 /// The buses the gateway serves, with their traffic and measured load.
@@ -93,7 +100,8 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
         .values()
         .map(|served| {
             let traffic = Traffic::new(&served.bus).sample();
-            let state = if served.bus.state().can_send() {
+            let status = served.bus.status();
+            let state = if status.state.can_send() {
                 "up"
             } else {
                 "down"
@@ -108,6 +116,8 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
                 load: served.load.load(),
                 bits_per_second: served.load.bits_per_second(),
                 bitrate: served.load.bitrate(),
+                reason: status.reason,
+                reconnects: served.bus.counters().reconnects,
             }
         })
         .collect();

@@ -120,6 +120,8 @@ async fn buses_list_counts_frames_and_measures_the_load() {
     assert_eq!(bus["spec"], "virtual:demo");
     assert_eq!(bus["kind"], "virtual");
     assert_eq!(bus["state"], "up");
+    assert_eq!(bus["reason"], Json::Null);
+    assert_eq!(bus["reconnects"], 0);
     // The scan sent at least one probe per node id, and the nodes answered.
     assert!(bus["tx_frames"].as_u64().unwrap() >= 127, "{bus}");
     assert!(bus["rx_frames"].as_u64().unwrap() >= 3, "{bus}");
