@@ -9,7 +9,11 @@
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
 //!   heartbeat and scan, identified, supervised, with their EMCY history.
+//! - [`uioled`]: a UIO1LED's segments over SDO.
+//! - [`dcf`]: configuration backup and restore as a CiA 306 DCF.
 
+pub mod dcf;
 pub mod profile;
 pub mod registry;
 pub mod sdo;
+pub mod uioled;
