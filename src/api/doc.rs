@@ -33,6 +33,8 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "buses", description = "The gateway and its CAN buses"),
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
+        (name = "leds", description = "LED controllers (UIO1LED): segments, scenes, preview"),
+        (name = "config", description = "A node's configuration: store, restore (CiA 301 0x1010, 0x1011), DCF backup and restore (CiA 306)"),
     )
 )]
 pub struct ApiDoc;
@@ -63,6 +65,9 @@ pub struct ErrorDetail {
     /// With `wrong_nmt_state`: the node's NMT state.
     #[schema(example = "stopped")]
     pub nmt: Option<String>,
+    /// With `invalid_dcf`: the line of the DCF that is wrong.
+    #[schema(example = 12)]
+    pub line: Option<usize>,
 }
 
 /// A bus named in a path.

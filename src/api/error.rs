@@ -62,6 +62,17 @@ pub enum AppError {
     BusDown(String),
     #[error("node {node} did not answer in time")]
     SdoTimeout { node: u8 },
+    /// The node has no segments (its profile is not uioled).
+    #[error("{0}")]
+    NotAnLedController(String),
+    #[error("{0}")]
+    UnknownSegment(String),
+    /// A DCF that cannot be read; nothing was written.
+    #[error("{message}")]
+    InvalidDcf {
+        message: String,
+        line: Option<usize>,
+    },
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -86,6 +97,9 @@ impl AppError {
             Self::SdoProtocol { .. } => (StatusCode::BAD_GATEWAY, "sdo_protocol_error"),
             Self::BusDown(_) => (StatusCode::SERVICE_UNAVAILABLE, "bus_down"),
             Self::SdoTimeout { .. } => (StatusCode::GATEWAY_TIMEOUT, "sdo_timeout"),
+            Self::NotAnLedController(_) => (StatusCode::NOT_FOUND, "not_an_led_controller"),
+            Self::UnknownSegment(_) => (StatusCode::NOT_FOUND, "unknown_segment"),
+            Self::InvalidDcf { .. } => (StatusCode::BAD_REQUEST, "invalid_dcf"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -105,6 +119,9 @@ impl AppError {
                 body["abort_text"] = json!(code.text());
             }
             Self::WrongNmtState { state, .. } => body["nmt"] = json!(state.name()),
+            Self::InvalidDcf {
+                line: Some(line), ..
+            } => body["line"] = json!(line),
             // Every error is rendered once, here: the one place to log
             // what the client is not told.
             Self::Internal(detail) => tracing::error!("api: {detail}"),

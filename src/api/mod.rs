@@ -13,17 +13,23 @@
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
+//! - [`segments`]: LED controllers: segments, scenes, the strip's preview.
+//! - [`config`]: store, restore, DCF backup and restore of a node.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod buses;
+pub mod config;
 pub mod doc;
 pub mod error;
 pub mod nodes;
 pub mod od;
+pub mod segments;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_leds;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -124,6 +130,8 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(buses::router())
         .merge(nodes::router())
         .merge(od::router())
+        .merge(segments::router())
+        .merge(config::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);

@@ -1,0 +1,575 @@
+//! LED controllers (profile `uioled`, UIOLed firmware manual chapter 1): a
+//! UIO1LED's segments read and written over SDO, and the pixels the strip
+//! shows, drawn by the one renderer of [`crate::profiles::uioled`] from the
+//! parameters read from the device.
+//!
+//! Every value of a request is checked (names, types, ranges) before the
+//! first write; the writes of one segment go out in an order that shows
+//! the new look at once: layout and colours first, the Value range before
+//! Value and Speed, the effect last.
+
+use axum::extract::State;
+use serde::{Deserialize, Serialize};
+use serde_json::Value as Json;
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::doc::{ErrorBody, NodePath};
+use super::nodes::known_node;
+use super::od::check_sdo_allowed;
+use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::gateway::profile::Profile;
+use crate::gateway::registry::NodeInfo;
+use crate::gateway::uioled::{self, fits, is_segment};
+use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, layout};
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_segments, put_scene))
+        .routes(routes!(put_segment))
+        .routes(routes!(preview))
+}
+
+/// One colour: red, green, blue and white, 0 to 255 each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[schema(example = json!({"r": 255, "g": 80, "b": 0, "w": 0}))]
+pub struct Color {
+    pub r: u8,
+    pub g: u8,
+    pub b: u8,
+    pub w: u8,
+}
+
+impl From<Rgbw> for Color {
+    fn from(rgbw: Rgbw) -> Self {
+        Color {
+            r: rgbw.r,
+            g: rgbw.g,
+            b: rgbw.b,
+            w: rgbw.w,
+        }
+    }
+}
+
+/// A segment's parameters as read from the device.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+#[schema(example = json!({"segment": 1, "led_count": 30, "effect": "flow", "colors": [
+    {"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 0, "g": 0, "b": 40, "w": 0}, {"r": 0, "g": 0, "b": 0, "w": 0}],
+    "dimmer": 255, "value": 120, "min_value": 0, "max_value": 999, "speed": 1, "smooth": 4}))]
+pub struct SegmentState {
+    /// 1 to 10.
+    pub segment: u8,
+    /// LEDs in this segment; it starts right after the previous segment's.
+    pub led_count: u16,
+    /// `off`, `fix`, `flash`, `breathing`, `flow`, `flow_reversed`, or
+    /// `0xNNNN` for a value the manual does not define (drawn dark).
+    pub effect: String,
+    /// `Color_01` to `Color_03`.
+    pub colors: Vec<Color>,
+    /// 0 (0 %) to 255 (100 %).
+    pub dimmer: u8,
+    /// Drives the effect: the place of FLOW, the level of BREATHING.
+    pub value: i16,
+    pub min_value: i16,
+    pub max_value: i16,
+    /// Added to `value` every millisecond, wrapping within the range.
+    pub speed: i16,
+    /// LEDs a moving edge fades over.
+    pub smooth: u16,
+}
+
+/// The API name of an effect.
+pub fn effect_name(effect: Effect) -> String {
+    match effect {
+        Effect::Unknown(raw) => format!("0x{raw:04X}"),
+        known => known.name().to_lowercase(),
+    }
+}
+
+impl SegmentState {
+    pub fn new(segment: u8, state: &Segment) -> Self {
+        SegmentState {
+            segment,
+            led_count: state.led_count,
+            effect: effect_name(state.effect),
+            colors: state.colors.iter().copied().map(Color::from).collect(),
+            dimmer: state.dimmer,
+            value: state.value,
+            min_value: state.min_value,
+            max_value: state.max_value,
+            speed: state.speed,
+            smooth: state.smooth,
+        }
+    }
+}
+
+/// Colour channels to write; those not given stay as they are.
+#[derive(Debug, Deserialize, ToSchema)]
+#[allow(dead_code)] // The schema of a colour in a request.
+pub struct ColorUpdate {
+    #[schema(minimum = 0, maximum = 255)]
+    pub r: Option<u8>,
+    #[schema(minimum = 0, maximum = 255)]
+    pub g: Option<u8>,
+    #[schema(minimum = 0, maximum = 255)]
+    pub b: Option<u8>,
+    #[schema(minimum = 0, maximum = 255)]
+    pub w: Option<u8>,
+}
+
+/// A colour in a request: channels (only those given are written), or
+/// `"#rrggbb"` / `"#rrggbbww"` (every channel; white 0 when not given).
+#[derive(Debug, ToSchema)]
+#[allow(dead_code)]
+pub enum ColorInput {
+    Channels(ColorUpdate),
+    #[schema(example = "#ff5000")]
+    Hex(String),
+}
+
+/// The fields of a segment to write; only those given are written.
+#[derive(Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"effect": "flow", "colors": ["#ff0000", {"b": 40}], "speed": 1, "max_value": 999}))]
+pub struct SegmentUpdate {
+    /// In a scene: which segment (1 to 10). In `PUT .../segments/{n}`:
+    /// absent, or `n`.
+    #[schema(minimum = 1, maximum = 10)]
+    pub segment: Option<u32>,
+    #[schema(minimum = 0, maximum = 65535)]
+    pub led_count: Option<i64>,
+    /// An effect name (`off`, `fix`, `flash`, `breathing`, `flow`,
+    /// `flow_reversed`, any case) or its wire value (0 to 65535).
+    #[schema(value_type = Option<String>, example = "breathing")]
+    pub effect: Option<Json>,
+    /// Up to three colours (`Color_01`..`Color_03`); `null` leaves one as
+    /// it is.
+    #[schema(value_type = Option<Vec<Option<ColorInput>>>)]
+    pub colors: Option<Vec<Json>>,
+    #[schema(minimum = 0, maximum = 255)]
+    pub dimmer: Option<i64>,
+    #[schema(minimum = -32768, maximum = 32767)]
+    pub value: Option<i64>,
+    #[schema(minimum = -32768, maximum = 32767)]
+    pub min_value: Option<i64>,
+    #[schema(minimum = -32768, maximum = 32767)]
+    pub max_value: Option<i64>,
+    #[schema(minimum = -32768, maximum = 32767)]
+    pub speed: Option<i64>,
+    #[schema(minimum = 0, maximum = 65535)]
+    pub smooth: Option<i64>,
+}
+
+/// A whole scene: the segments listed are written as [`SegmentUpdate`]s.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"segments": [
+    {"segment": 1, "led_count": 30, "effect": "flow", "colors": ["#ff0000", "#000028"], "min_value": 0, "max_value": 999, "speed": 1, "smooth": 4},
+    {"segment": 2, "led_count": 10, "effect": "fix", "colors": ["#00ff00"]}], "others": "off"}))]
+pub struct SceneRequest {
+    pub segments: Vec<SegmentUpdate>,
+    /// What becomes of the segments not listed: `keep` (the default) or
+    /// `off` (their effect set to off).
+    #[schema(example = "off")]
+    pub others: Option<String>,
+}
+
+/// What the strip shows now.
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(example = json!({"led_count": 3, "segments": [{"segment": 1, "start": 0, "led_count": 3, "effect": "fix"}],
+    "pixels": [{"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}]}))]
+pub struct Preview {
+    /// LEDs on the strip: the sum of every segment's.
+    pub led_count: usize,
+    /// Where each segment's LEDs are in `pixels`.
+    pub segments: Vec<PreviewSegment>,
+    /// Every LED, the first of segment 1 first, dimmer applied.
+    pub pixels: Vec<Color>,
+}
+
+/// One segment's place on the strip.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PreviewSegment {
+    pub segment: u8,
+    /// Its first LED in `pixels`.
+    pub start: usize,
+    pub led_count: u16,
+    pub effect: String,
+}
+
+/// A segment named in a path.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Path)]
+#[allow(dead_code)]
+pub struct SegmentPath {
+    /// The bus name.
+    #[param(example = "demo")]
+    pub bus: String,
+    /// The node id, 1 to 127.
+    #[param(minimum = 1, maximum = 127, example = 3)]
+    pub id: u8,
+    /// The segment, 1 to 10.
+    #[param(minimum = 1, maximum = 10, example = 1)]
+    pub n: u8,
+}
+
+/// The bus and node of a path, which must be an LED controller.
+fn led_node(
+    state: &AppState,
+    bus: &str,
+    id: &str,
+) -> Result<(std::sync::Arc<ServedBus>, NodeInfo), AppError> {
+    let (served, info) = known_node(state, bus, id)?;
+    if info.profile != Profile::Uioled {
+        return Err(AppError::NotAnLedController(format!(
+            "node {} is a {} node, not an LED controller (profile uioled): it has no segments",
+            info.id,
+            info.profile.name()
+        )));
+    }
+    Ok((served, info))
+}
+
+fn task_failed(err: tokio::task::JoinError) -> AppError {
+    AppError::Internal(format!("SDO task: {err}"))
+}
+
+/// The segment number of a path or a scene entry: 1 to 10, else 404
+/// `unknown_segment`.
+fn segment_number(text: &str) -> Result<u8, AppError> {
+    let unknown = || {
+        AppError::UnknownSegment(format!(
+            "segment '{text}' does not exist: a UIO1LED has segments 1 to {SEGMENTS}"
+        ))
+    };
+    let number: i64 = text.trim().parse().map_err(|_| {
+        AppError::InvalidRequest(format!("segment '{text}' is no number (1 to {SEGMENTS})"))
+    })?;
+    u8::try_from(number)
+        .ok()
+        .filter(|n| is_segment(*n))
+        .ok_or_else(unknown)
+}
+
+fn parse_effect(effect: &Json) -> Result<i64, AppError> {
+    let names = "off, fix, flash, breathing, flow, flow_reversed";
+    match effect {
+        Json::String(name) => {
+            let folded = name.trim().to_ascii_uppercase().replace([' ', '-'], "_");
+            [
+                Effect::Off,
+                Effect::Fix,
+                Effect::Flash,
+                Effect::Breathing,
+                Effect::Flow,
+                Effect::FlowReversed,
+            ]
+            .into_iter()
+            .find(|effect| effect.name() == folded)
+            .map(|effect| i64::from(effect.raw()))
+            .ok_or_else(|| AppError::InvalidValue(format!("effect '{name}' is not one of {names}")))
+        }
+        Json::Number(number) => number
+            .as_i64()
+            .filter(|raw| fits(Field::Effect, *raw))
+            .ok_or_else(|| {
+                AppError::ValueOutOfRange(format!("effect {number} is no wire value (0 to 65535)"))
+            }),
+        other => Err(AppError::InvalidValue(format!(
+            "effect {other} is neither a name ({names}) nor a number"
+        ))),
+    }
+}
+
+/// The channels (sub-index 1–4 and value) a colour of a request writes.
+fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, AppError> {
+    let invalid = |why: String| AppError::InvalidValue(format!("colors[{position}]: {why}"));
+    match color {
+        Json::Null => Ok(Vec::new()),
+        Json::String(text) => {
+            let digits = text.trim().trim_start_matches('#');
+            if !(digits.len() == 6 || digits.len() == 8)
+                || !digits.bytes().all(|b| b.is_ascii_hexdigit())
+            {
+                return Err(invalid(format!(
+                    "'{text}' is not #rrggbb or #rrggbbww (hex digits)"
+                )));
+            }
+            let channel = |n: usize| {
+                digits
+                    .get(2 * n..2 * n + 2)
+                    .and_then(|pair| u8::from_str_radix(pair, 16).ok())
+                    .map_or(0, i64::from)
+            };
+            Ok((0..4u8).map(|n| (n + 1, channel(usize::from(n)))).collect())
+        }
+        Json::Object(channels) => {
+            let mut written = Vec::new();
+            for (key, value) in channels {
+                let sub = match key.as_str() {
+                    "r" => 1,
+                    "g" => 2,
+                    "b" => 3,
+                    "w" => 4,
+                    other => {
+                        return Err(invalid(format!("'{other}' is no channel (r, g, b, w)")));
+                    }
+                };
+                let level = value
+                    .as_i64()
+                    .filter(|level| (0..=255).contains(level))
+                    .ok_or_else(|| {
+                        AppError::ValueOutOfRange(format!(
+                            "colors[{position}].{key}: {value} is not 0 to 255"
+                        ))
+                    })?;
+                written.push((sub, level));
+            }
+            Ok(written)
+        }
+        other => Err(invalid(format!(
+            "{other} is neither {{\"r\",\"g\",\"b\",\"w\"}} nor \"#rrggbb\""
+        ))),
+    }
+}
+
+/// The writes of an update, in the order they go out, all checked.
+fn plan(update: &SegmentUpdate) -> Result<Vec<(Field, i64)>, AppError> {
+    let mut writes = Vec::new();
+    let mut scalar = |field: Field, name: &str, value: Option<i64>| -> Result<(), AppError> {
+        if let Some(value) = value {
+            if !fits(field, value) {
+                return Err(AppError::ValueOutOfRange(format!(
+                    "{name} {value} does not fit its object ({})",
+                    uioled::data_type(field)
+                )));
+            }
+            writes.push((field, value));
+        }
+        Ok(())
+    };
+    scalar(Field::LedCount, "led_count", update.led_count)?;
+    let mut colors = Vec::new();
+    if let Some(given) = &update.colors {
+        if given.len() > 3 {
+            return Err(AppError::InvalidValue(format!(
+                "{} colours given: a segment has 3",
+                given.len()
+            )));
+        }
+        for (position, color) in given.iter().enumerate() {
+            for (channel, value) in parse_color(position, color)? {
+                colors.push((
+                    Field::Color {
+                        color: position as u8 + 1,
+                        channel,
+                    },
+                    value,
+                ));
+            }
+        }
+    }
+    scalar(Field::Dimmer, "dimmer", update.dimmer)?;
+    scalar(Field::Smooth, "smooth", update.smooth)?;
+    scalar(Field::MinValue, "min_value", update.min_value)?;
+    scalar(Field::MaxValue, "max_value", update.max_value)?;
+    scalar(Field::Value, "value", update.value)?;
+    scalar(Field::Speed, "speed", update.speed)?;
+    let effect = update.effect.as_ref().map(parse_effect).transpose()?;
+    // Colours after the layout, the effect last.
+    let split = usize::from(update.led_count.is_some());
+    writes.splice(split..split, colors);
+    if let Some(effect) = effect {
+        writes.push((Field::Effect, effect));
+    }
+    Ok(writes)
+}
+
+/// Reads every segment of an LED controller: the summary of `GET
+/// /nodes/{id}` for a `uioled` node.
+pub async fn summary(served: &ServedBus, info: &NodeInfo) -> Result<Vec<SegmentState>, AppError> {
+    check_sdo_allowed(served, info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let segments = tokio::spawn(async move { uioled::read_segments(&channel).await })
+        .await
+        .map_err(task_failed)?
+        .map_err(AppError::from_sdo)?;
+    Ok(states(&segments))
+}
+
+fn states(segments: &[Segment]) -> Vec<SegmentState> {
+    (1..=SEGMENTS)
+        .zip(segments)
+        .map(|(n, segment)| SegmentState::new(n, segment))
+        .collect()
+}
+
+/// Every segment of an LED controller, read over SDO.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/segments", tag = "leds", params(NodePath),
+    responses(
+        (status = 200, description = "Segments 1 to 10", body = [SegmentState]),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_an_led_controller`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn list_segments(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
+    let (served, info) = led_node(&state, &bus, &id)?;
+    Ok(ApiJson(summary(&served, &info).await?))
+}
+
+/// Writes the fields given of one segment and returns it read back.
+#[utoipa::path(put, path = "/buses/{bus}/nodes/{id}/segments/{n}", tag = "leds", params(SegmentPath),
+    request_body = SegmentUpdate,
+    responses(
+        (status = 200, description = "The segment read back", body = SegmentState),
+        (status = 400, description = "`invalid_value`, `value_out_of_range`, `invalid_request` (checked before the first write)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_an_led_controller`, `unknown_segment`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn put_segment(
+    State(state): State<AppState>,
+    ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
+    ApiJson(update): ApiJson<SegmentUpdate>,
+) -> Result<ApiJson<SegmentState>, AppError> {
+    let (served, info) = led_node(&state, &bus, &id)?;
+    let segment = segment_number(&n)?;
+    if let Some(given) = update.segment
+        && given != u32::from(segment)
+    {
+        return Err(AppError::InvalidValue(format!(
+            "the body names segment {given}, the path segment {segment}"
+        )));
+    }
+    let writes = plan(&update)?;
+    check_sdo_allowed(&served, &info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let read_back = tokio::spawn(async move {
+        uioled::write_fields(&channel, segment, &writes).await?;
+        uioled::read_segment(&channel, segment).await
+    })
+    .await
+    .map_err(task_failed)?
+    .map_err(AppError::from_sdo)?;
+    Ok(ApiJson(SegmentState::new(segment, &read_back)))
+}
+
+/// Applies a scene: the segments listed, each as a partial update, and
+/// optionally every other segment off; returns every segment read back.
+#[utoipa::path(put, path = "/buses/{bus}/nodes/{id}/segments", tag = "leds", params(NodePath),
+    request_body = SceneRequest,
+    responses(
+        (status = 200, description = "Segments 1 to 10 read back", body = [SegmentState]),
+        (status = 400, description = "`invalid_value`, `value_out_of_range`, `invalid_request` (checked before the first write)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_an_led_controller`, `unknown_segment`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn put_scene(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+    ApiJson(scene): ApiJson<SceneRequest>,
+) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
+    let (served, info) = led_node(&state, &bus, &id)?;
+    let others_off = match scene.others.as_deref() {
+        None | Some("keep") => false,
+        Some("off") => true,
+        Some(other) => {
+            return Err(AppError::InvalidValue(format!(
+                "others '{other}' is not keep or off"
+            )));
+        }
+    };
+    let mut writes: Vec<(u8, Vec<(Field, i64)>)> = Vec::new();
+    for (position, update) in scene.segments.iter().enumerate() {
+        let segment = match update.segment {
+            Some(n) => segment_number(&n.to_string())?,
+            None => {
+                return Err(AppError::InvalidValue(format!(
+                    "segments[{position}] names no segment"
+                )));
+            }
+        };
+        if writes.iter().any(|(n, _)| *n == segment) {
+            return Err(AppError::InvalidValue(format!(
+                "segment {segment} is listed twice"
+            )));
+        }
+        writes.push((segment, plan(update)?));
+    }
+    if others_off {
+        for segment in 1..=SEGMENTS {
+            if !writes.iter().any(|(n, _)| *n == segment) {
+                writes.push((segment, vec![(Field::Effect, i64::from(Effect::Off.raw()))]));
+            }
+        }
+    }
+    check_sdo_allowed(&served, &info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let segments = tokio::spawn(async move {
+        for (segment, fields) in &writes {
+            uioled::write_fields(&channel, *segment, fields).await?;
+        }
+        uioled::read_segments(&channel).await
+    })
+    .await
+    .map_err(task_failed)?
+    .map_err(AppError::from_sdo)?;
+    Ok(ApiJson(states(&segments)))
+}
+
+/// The pixels the strip shows now, drawn from the parameters read from the
+/// device by the renderer the virtual UIO1LED uses.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/segments/preview", tag = "leds", params(NodePath),
+    responses(
+        (status = 200, description = "Every LED of the strip", body = Preview),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_an_led_controller`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn preview(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+) -> Result<ApiJson<Preview>, AppError> {
+    let (served, info) = led_node(&state, &bus, &id)?;
+    check_sdo_allowed(&served, &info)?;
+    let channel = served.registry.sdo(info.id)?;
+    let segments = tokio::spawn(async move { uioled::read_segments(&channel).await })
+        .await
+        .map_err(task_failed)?
+        .map_err(AppError::from_sdo)?;
+    let pixels = uioled::preview(&segments);
+    let places = (1..=SEGMENTS)
+        .zip(&segments)
+        .zip(layout(&segments))
+        .map(|((segment, state), range)| PreviewSegment {
+            segment,
+            start: range.start,
+            led_count: state.led_count,
+            effect: effect_name(state.effect),
+        })
+        .collect();
+    Ok(ApiJson(Preview {
+        led_count: pixels.len(),
+        segments: places,
+        pixels: pixels.into_iter().map(Color::from).collect(),
+    }))
+}
