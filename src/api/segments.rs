@@ -105,7 +105,7 @@ impl SegmentState {
 }
 
 /// Colour channels to write; those not given stay as they are.
-#[derive(Debug, Deserialize, ToSchema)]
+#[derive(Debug, Serialize, ToSchema)]
 #[allow(dead_code)] // The schema of a colour in a request.
 pub struct ColorUpdate {
     #[schema(minimum = 0, maximum = 255)]
@@ -120,12 +120,27 @@ pub struct ColorUpdate {
 
 /// A colour in a request: channels (only those given are written), or
 /// `"#rrggbb"` / `"#rrggbbww"` (every channel; white 0 when not given).
-#[derive(Debug, ToSchema)]
+#[derive(Debug, Serialize, ToSchema)]
+#[serde(untagged)]
 #[allow(dead_code)]
 pub enum ColorInput {
     Channels(ColorUpdate),
     #[schema(example = "#ff5000")]
     Hex(String),
+}
+
+/// An effect in a request: its name, or its wire value.
+#[derive(Debug, Serialize, ToSchema)]
+#[serde(untagged)]
+#[allow(dead_code)]
+pub enum EffectInput {
+    /// `off`, `fix`, `flash`, `breathing`, `flow`, `flow_reversed` (any
+    /// case).
+    #[schema(example = "flow")]
+    Name(String),
+    /// The value of `sNN_Effect` (manual Table 1.2), e.g. 0x0300 = 768.
+    #[schema(example = 768)]
+    Raw(u16),
 }
 
 /// The fields of a segment to write; only those given are written.
@@ -141,7 +156,7 @@ pub struct SegmentUpdate {
     pub led_count: Option<i64>,
     /// An effect name (`off`, `fix`, `flash`, `breathing`, `flow`,
     /// `flow_reversed`, any case) or its wire value (0 to 65535).
-    #[schema(value_type = Option<String>, example = "breathing")]
+    #[schema(value_type = Option<EffectInput>, example = "breathing")]
     pub effect: Option<Json>,
     /// Up to three colours (`Color_01`..`Color_03`); `null` leaves one as
     /// it is.
