@@ -285,12 +285,15 @@ fn parse_effect(effect: &Json) -> Result<i64, AppError> {
             .map(|effect| i64::from(effect.raw()))
             .ok_or_else(|| AppError::InvalidValue(format!("effect '{name}' is not one of {names}")))
         }
-        Json::Number(number) => number
-            .as_i64()
-            .filter(|raw| fits(Field::Effect, *raw))
-            .ok_or_else(|| {
-                AppError::ValueOutOfRange(format!("effect {number} is no wire value (0 to 65535)"))
-            }),
+        Json::Number(number) => match number.as_i64() {
+            Some(raw) if fits(Field::Effect, raw) => Ok(raw),
+            _ if number.is_i64() || number.is_u64() => Err(AppError::ValueOutOfRange(format!(
+                "effect {number} is no wire value (0 to 65535)"
+            ))),
+            _ => Err(AppError::InvalidValue(format!(
+                "effect {number} is no whole number"
+            ))),
+        },
         other => Err(AppError::InvalidValue(format!(
             "effect {other} is neither a name ({names}) nor a number"
         ))),
