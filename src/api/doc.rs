@@ -33,6 +33,7 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "buses", description = "The gateway and its CAN buses"),
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
+        (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
     )
 )]
 pub struct ApiDoc;
@@ -63,6 +64,10 @@ pub struct ErrorDetail {
     /// With `wrong_nmt_state`: the node's NMT state.
     #[schema(example = "stopped")]
     pub nmt: Option<String>,
+    /// When a sequence of transfers (a PDO re-mapping) stopped half way: the
+    /// step that failed; the steps before it took effect.
+    #[schema(example = "write_mapping_entry_2")]
+    pub step: Option<String>,
 }
 
 /// A bus named in a path.

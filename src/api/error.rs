@@ -62,6 +62,19 @@ pub enum AppError {
     BusDown(String),
     #[error("node {node} did not answer in time")]
     SdoTimeout { node: u8 },
+    /// A PDO number (or kind) the node does not have.
+    #[error("{0}")]
+    UnknownPdo(String),
+    /// A PDO mapping or communication parameter the node's EDS rules out.
+    #[error("{0}")]
+    InvalidMapping(String),
+    /// The PDO is not valid (COB-ID bit 31 set): the node ignores its frames.
+    #[error("{0}")]
+    PdoDisabled(String),
+    /// A sequence of transfers stopped at `step`: the error of that step,
+    /// with the step named (the steps before it took effect).
+    #[error("step {step} failed: {source}")]
+    FailedAt { step: String, source: Box<AppError> },
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -86,6 +99,10 @@ impl AppError {
             Self::SdoProtocol { .. } => (StatusCode::BAD_GATEWAY, "sdo_protocol_error"),
             Self::BusDown(_) => (StatusCode::SERVICE_UNAVAILABLE, "bus_down"),
             Self::SdoTimeout { .. } => (StatusCode::GATEWAY_TIMEOUT, "sdo_timeout"),
+            Self::UnknownPdo(_) => (StatusCode::NOT_FOUND, "unknown_pdo"),
+            Self::InvalidMapping(_) => (StatusCode::BAD_REQUEST, "invalid_mapping"),
+            Self::PdoDisabled(_) => (StatusCode::CONFLICT, "pdo_disabled"),
+            Self::FailedAt { source, .. } => source.status_and_code(),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -98,6 +115,12 @@ impl AppError {
     /// entry of a batch.
     pub fn to_json(&self) -> Json {
         let (_, code) = self.status_and_code();
+        if let Self::FailedAt { step, source } = self {
+            let mut body = source.to_json();
+            body["message"] = json!(self.to_string());
+            body["step"] = json!(step);
+            return body;
+        }
         let mut body = json!({ "code": code, "message": self.to_string() });
         match self {
             Self::SdoAbort { code, .. } | Self::SdoProtocol { code, .. } => {

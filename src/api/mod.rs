@@ -13,6 +13,8 @@
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
+//! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
+//!   producer.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -21,9 +23,12 @@ pub mod doc;
 pub mod error;
 pub mod nodes;
 pub mod od;
+pub mod pdos;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_pdos;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -37,6 +42,7 @@ use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
+use crate::gateway::sync::SyncService;
 use crate::sim::rack::Rack;
 
 pub use buses::{LoadMeter, Traffic};
@@ -55,6 +61,8 @@ pub struct ServedBus {
     /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
     pub rack: Option<Rack>,
     pub load: LoadMeter,
+    /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
+    pub sync: SyncService,
 }
 
 impl ServedBus {
@@ -83,6 +91,7 @@ impl ServedBus {
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
+            sync: SyncService::spawn(opened.bus.clone()),
             hub: opened.hub,
             bus: opened.bus,
             registry,
@@ -124,6 +133,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(buses::router())
         .merge(nodes::router())
         .merge(od::router())
+        .merge(pdos::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
