@@ -32,8 +32,8 @@ use crate::canopen::nmt::NmtService;
 use crate::canopen::od::format_index;
 use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
 use crate::gateway::pdo::{
-    self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError,
-    RpdoEncoder, RpdoValueError,
+    self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
+    RpdoValueError,
 };
 use crate::gateway::sync::MAX_PERIOD_MS;
 
@@ -93,7 +93,10 @@ pub struct PdoList {
     pub tpdo: Vec<Pdo>,
 }
 
-fn mapping_json(entries: &[MappingEntry], info_dict: Option<&crate::canopen::od::ObjectDictionary>) -> Vec<PdoMappingEntry> {
+fn mapping_json(
+    entries: &[MappingEntry],
+    info_dict: Option<&crate::canopen::od::ObjectDictionary>,
+) -> Vec<PdoMappingEntry> {
     entries
         .iter()
         .map(|entry| PdoMappingEntry {
@@ -412,6 +415,8 @@ fn rpdo_value_error(err: RpdoValueError) -> AppError {
 /// The RPDO's current mapping and COB-ID are read from the node; every
 /// mapped object must be given a value, typed and checked by the EDS. A
 /// synchronous RPDO (transmission type 0–240) takes effect at the next SYNC.
+/// A node whose heartbeat says it is not operational would ignore the frame:
+/// 409.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", tag = "pdo", params(RpdoPath),
     request_body = RpdoSend,
     responses(
@@ -444,7 +449,12 @@ async fn send_rpdo(
         )));
     }
     check_sdo_allowed(&served, &info)?;
-    if let Some(state) = info.nmt.filter(|state| !state.allows(NmtService::Pdo)) {
+    // The state is current only for a node that sends heartbeats; without
+    // them, the last one heard may predate an NMT start.
+    if let Some(state) = info
+        .nmt
+        .filter(|state| info.heartbeat_ms.is_some() && !state.allows(NmtService::Pdo))
+    {
         return Err(AppError::WrongNmtState {
             node: info.id.get(),
             state,
@@ -453,7 +463,13 @@ async fn send_rpdo(
     let channel = served.registry.sdo(info.id)?;
     let task_eds = eds.clone();
     let config = tokio::spawn(async move {
-        pdo::read_config(&channel, Some(&task_eds.eds.dictionary), PdoKind::Rpdo, number).await
+        pdo::read_config(
+            &channel,
+            Some(&task_eds.eds.dictionary),
+            PdoKind::Rpdo,
+            number,
+        )
+        .await
     })
     .await
     .map_err(task_failed)?

@@ -81,9 +81,7 @@ impl PdoConfig {
     /// The decoder of this PDO's frames (a TPDO's, or an RPDO's as another
     /// master sends it), or why its mapping is no valid mapping.
     pub fn decoder(&self, dict: Option<&ObjectDictionary>) -> Result<TpdoDecoder, MappingError> {
-        let cob_id = self
-            .cob_id()
-            .map_or(CanId::Standard(0), |cob_id| cob_id.id);
+        let cob_id = self.cob_id().map_or(CanId::Standard(0), |cob_id| cob_id.id);
         Ok(TpdoDecoder::new(
             cob_id,
             PdoMapping::new(self.mapping.clone())?,
@@ -332,7 +330,7 @@ fn resolve_entry(
                 type_bits: type_bits.to_string(),
             });
         }
-        if sub_json != Json::from(0) {
+        if sub_json != 0 && sub_json != "0" {
             return Err(unknown(format!("a dummy entry ({index}) has sub 0")));
         }
         return Ok(MappingEntry::new(index, 0, bits as u8));
@@ -372,9 +370,7 @@ fn not_mappable(sub: &SubObject, kind: PdoKind) -> Option<&'static str> {
     }
     match kind {
         PdoKind::Tpdo if !sub.access.is_readable() => Some("cannot be read, so no TPDO sends it"),
-        PdoKind::Rpdo if !sub.access.is_writable() => {
-            Some("cannot be written, so no RPDO sets it")
-        }
+        PdoKind::Rpdo if !sub.access.is_writable() => Some("cannot be written, so no RPDO sets it"),
         _ => None,
     }
 }
@@ -524,12 +520,7 @@ pub fn plan(
         cob_id: request.cob_id,
         enabled: request.enabled.unwrap_or(true),
         comm_writes,
-        cob_id_type: param_type(
-            dict_opt,
-            comm_index,
-            comm_sub::COB_ID,
-            DataType::Unsigned32,
-        ),
+        cob_id_type: param_type(dict_opt, comm_index, comm_sub::COB_ID, DataType::Unsigned32),
         count_type: param_type(dict_opt, mapping_index, 0, DataType::Unsigned8),
         entry_type: param_type(dict_opt, mapping_index, 1, DataType::Unsigned32),
     })
@@ -627,9 +618,14 @@ pub async fn configure(
             .unwrap_or_else(|_| value.to_le_bytes().to_vec());
         channel.download(index, sub, &bytes).await
     };
-    write(comm, comm_sub::COB_ID, plan.cob_id_type, current | INVALID_BIT)
-        .await
-        .map_err(at(RemapStep::Invalidate))?;
+    write(
+        comm,
+        comm_sub::COB_ID,
+        plan.cob_id_type,
+        current | INVALID_BIT,
+    )
+    .await
+    .map_err(at(RemapStep::Invalidate))?;
     if let Some(mapping) = &plan.mapping {
         write(map, 0, plan.count_type, 0)
             .await
@@ -795,9 +791,11 @@ pub struct RpdoEncoder {
 /// [`names_match`]), `0x6040` for sub 0, or `0x6040:1` / `0x6040sub1`.
 fn key_names(key: &str, field: &Field) -> bool {
     if field.name.as_deref().is_some_and(|name| {
-        names_match(key, name) || name.split('/').next().is_some_and(|object| {
-            field.entry.sub == 0 && names_match(key, object)
-        })
+        names_match(key, name)
+            || name
+                .split('/')
+                .next()
+                .is_some_and(|object| field.entry.sub == 0 && names_match(key, object))
     }) {
         return true;
     }
@@ -868,22 +866,20 @@ impl RpdoEncoder {
                 .find(|(key, _)| key_names(key, field))
                 .map(|(_, json)| json)
                 .ok_or_else(|| RpdoValueError::Missing(name.clone()))?;
-            let value = described
-                .value_from_json(json, self.node)
-                .map_err(|err| {
-                    let detail = err.to_string();
-                    if err.is_out_of_range() {
-                        RpdoValueError::OutOfRange {
-                            name: name.clone(),
-                            detail,
-                        }
-                    } else {
-                        RpdoValueError::Invalid {
-                            name: name.clone(),
-                            detail,
-                        }
+            let value = described.value_from_json(json, self.node).map_err(|err| {
+                let detail = err.to_string();
+                if err.is_out_of_range() {
+                    RpdoValueError::OutOfRange {
+                        name: name.clone(),
+                        detail,
                     }
-                })?;
+                } else {
+                    RpdoValueError::Invalid {
+                        name: name.clone(),
+                        detail,
+                    }
+                }
+            })?;
             let mut bytes = [0u8; 8];
             let wire = value.to_bytes();
             let n = wire.len().min(8);
@@ -897,13 +893,13 @@ impl RpdoEncoder {
                 raw: raw & low_bits(u32::from(field.entry.bits)),
             });
         }
-        let frame = self
-            .mapping
-            .encode(self.cob_id, &raws)
-            .map_err(|err| RpdoValueError::Invalid {
-                name: "values".to_string(),
-                detail: err.to_string(),
-            })?;
+        let frame =
+            self.mapping
+                .encode(self.cob_id, &raws)
+                .map_err(|err| RpdoValueError::Invalid {
+                    name: "values".to_string(),
+                    detail: err.to_string(),
+                })?;
         Ok((frame, decoded))
     }
 }

@@ -125,9 +125,13 @@ mod tests {
     async fn sends_sync_at_its_period_until_turned_off() {
         let hub = VirtualHub::new("t");
         let service = SyncService::spawn(hub.attach());
-        let mut listener = hub.attach().subscribe();
+        let listening = hub.attach();
+        let mut listener = listening.subscribe();
         assert_eq!(service.period(), Duration::ZERO);
-        assert_eq!(syncs_within(&mut listener, Duration::from_millis(50)).await, 0);
+        assert_eq!(
+            syncs_within(&mut listener, Duration::from_millis(50)).await,
+            0
+        );
         service.set_period(Duration::from_millis(10));
         let count = syncs_within(&mut listener, Duration::from_millis(105)).await;
         assert_eq!(count, 10);
@@ -136,7 +140,10 @@ mod tests {
         let count = syncs_within(&mut listener, Duration::from_millis(205)).await;
         assert_eq!(count, 4);
         service.set_period(Duration::ZERO);
-        assert_eq!(syncs_within(&mut listener, Duration::from_millis(100)).await, 0);
+        assert_eq!(
+            syncs_within(&mut listener, Duration::from_millis(100)).await,
+            0
+        );
         assert_eq!(service.sent(), 14);
     }
 }
