@@ -206,12 +206,8 @@ async fn list_pdos(
     let eds = info.eds_entry.clone();
     let configs = tokio::spawn(async move {
         let dict = eds.as_ref().map(|entry| &entry.eds.dictionary);
-        let mut configs = Vec::new();
-        for kind in [PdoKind::Rpdo, PdoKind::Tpdo] {
-            for number in pdo::pdo_numbers(dict, kind) {
-                configs.push(pdo::read_config(&channel, dict, kind, number).await?);
-            }
-        }
+        let mut configs = pdo::read_all(&channel, dict, PdoKind::Rpdo).await?;
+        configs.extend(pdo::read_all(&channel, dict, PdoKind::Tpdo).await?);
         Ok(configs)
     })
     .await

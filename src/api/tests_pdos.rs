@@ -18,7 +18,6 @@ use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::canopen::od::{AccessType, Value};
 use crate::canopen::pdo::{MappingEntry, PdoMapping};
-use crate::gateway::pdo::TpdoDecoder;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 use crate::sim::device::DeviceCore;
@@ -230,20 +229,26 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
         .filter(|frame| frame.id() == CanId::Standard(0x080))
         .count();
     assert!((9..=11).contains(&syncs), "{syncs} SYNC in 100 ms");
-    let decoder = TpdoDecoder::new(
-        CanId::Standard(0x181),
-        PdoMapping::new(vec![
+    // The decoders telemetry builds from the node's configuration.
+    let node = NodeId::new(1).unwrap();
+    let eds = served.registry.node(node).unwrap().eds_entry.unwrap();
+    let channel = served.registry.sdo(node).unwrap();
+    let decoders = tokio::spawn(async move {
+        crate::gateway::pdo::tpdo_decoders(&channel, Some(&eds.eds.dictionary)).await
+    })
+    .await
+    .unwrap()
+    .unwrap();
+    assert_eq!(decoders.len(), 4);
+    let decoder = &decoders[0];
+    assert_eq!(decoder.cob_id(), CanId::Standard(0x181));
+    assert_eq!(
+        decoder.mapping(),
+        &PdoMapping::new(vec![
             MappingEntry::new(0x6041, 0, 16),
             MappingEntry::new(0x6064, 0, 32),
         ])
-        .unwrap(),
-        served
-            .registry
-            .node(NodeId::new(1).unwrap())
-            .unwrap()
-            .eds_entry
-            .as_ref()
-            .map(|entry| &entry.eds.dictionary),
+        .unwrap()
     );
     let tpdos: Vec<_> = frames
         .iter()

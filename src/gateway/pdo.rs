@@ -212,6 +212,44 @@ pub async fn read_config(
     })
 }
 
+/// Reads every PDO of `kind` the node has (see [`pdo_numbers`]). Without
+/// EDS, a PDO whose parameters the device does not have is left out.
+pub async fn read_all(
+    channel: &SdoChannel,
+    dict: Option<&ObjectDictionary>,
+    kind: PdoKind,
+) -> Result<Vec<PdoConfig>, SdoRequestError> {
+    let mut configs = Vec::new();
+    for number in pdo_numbers(dict, kind) {
+        match read_config(channel, dict, kind, number).await {
+            Ok(config) => configs.push(config),
+            Err(err)
+                if dict.is_none()
+                    && matches!(
+                        err.device_abort(),
+                        Some(AbortCode::ObjectDoesNotExist | AbortCode::SubIndexDoesNotExist)
+                    ) => {}
+            Err(err) => return Err(err),
+        }
+    }
+    Ok(configs)
+}
+
+/// A decoder for each valid TPDO of the node, from its configuration read
+/// over SDO and its EDS: what telemetry needs to turn the node's frames into
+/// named values. TPDOs whose mapping is no valid mapping are left out.
+pub async fn tpdo_decoders(
+    channel: &SdoChannel,
+    dict: Option<&ObjectDictionary>,
+) -> Result<Vec<TpdoDecoder>, SdoRequestError> {
+    Ok(read_all(channel, dict, PdoKind::Tpdo)
+        .await?
+        .iter()
+        .filter(|config| config.enabled() && !config.mapping.is_empty())
+        .filter_map(|config| config.decoder(dict).ok())
+        .collect())
+}
+
 /// Why a PDO request cannot be carried out; found before the bus is touched.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PdoPlanError {
