@@ -301,6 +301,14 @@ async fn the_jmc_and_an_event_driven_tpdo_re_map_too() {
     assert_eq!(mapping_of(&pdo), [("0x6041".into(), 0, 16)]);
     assert_eq!(pdo["transmission_type"], 255);
     assert_eq!(pdo["enabled"], true);
+    // A PDO as GET returns it can be PUT back unchanged.
+    let (_, pdos) = get(&app, "/api/v1/buses/demo/nodes/1/pdos").await;
+    for (kind, pdo) in [("rpdo", &pdos["rpdo"][2]), ("tpdo", &pdos["tpdo"][3])] {
+        let uri = format!("/api/v1/buses/demo/nodes/1/pdos/{kind}/{}", pdo["number"]);
+        let (status, back) = put(&app, &uri, pdo.clone()).await;
+        assert_eq!(status, StatusCode::OK, "{back}");
+        assert_eq!(back, *pdo);
+    }
     // A disabled PDO, with its mapping kept.
     let (status, pdo) = put(
         &app,
