@@ -29,7 +29,7 @@ use super::nodes::known_node;
 use super::od::{AnyValue, check_sdo_allowed, dictionary, hex, task_failed};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::nmt::NmtService;
-use crate::canopen::od::format_index;
+use crate::canopen::od::{ObjectDictionary, format_index};
 use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
 use crate::gateway::pdo::{
     self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
@@ -93,22 +93,19 @@ pub struct PdoList {
     pub tpdo: Vec<Pdo>,
 }
 
-fn mapping_json(
-    entries: &[MappingEntry],
-    info_dict: Option<&crate::canopen::od::ObjectDictionary>,
-) -> Vec<PdoMappingEntry> {
+fn mapping_json(entries: &[MappingEntry], dict: Option<&ObjectDictionary>) -> Vec<PdoMappingEntry> {
     entries
         .iter()
         .map(|entry| PdoMappingEntry {
             index: format_index(entry.index),
             sub: entry.sub,
             bits: entry.bits,
-            name: info_dict.and_then(|dict| pdo::entry_name(dict, entry.index, entry.sub)),
+            name: dict.and_then(|dict| pdo::entry_name(dict, entry.index, entry.sub)),
         })
         .collect()
 }
 
-fn pdo_json(config: &PdoConfig, dict: Option<&crate::canopen::od::ObjectDictionary>) -> Pdo {
+fn pdo_json(config: &PdoConfig, dict: Option<&ObjectDictionary>) -> Pdo {
     Pdo {
         number: config.number,
         cob_id: config.can_id(),

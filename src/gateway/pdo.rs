@@ -21,11 +21,13 @@ use serde_json::Value as Json;
 use crate::can::{CanId, Frame};
 use crate::canopen::NodeId;
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, names_match, parse_index};
+use crate::canopen::pdo::comm::is_restricted;
 use crate::canopen::pdo::{
     MappingEntry, MappingError, PdoCobId, PdoDataError, PdoKind, PdoMapping, TransmissionType,
     sign_extend,
 };
-use crate::canopen::sdo::AbortCode;
+use crate::canopen::sdo::{AbortCode, SdoError};
+use crate::canopen::sync::COUNTER_MAX;
 use crate::gateway::sdo::{SdoChannel, SdoRequestError};
 
 /// The PDOs a node without EDS is assumed to have (CiA 301 predefined
@@ -174,7 +176,7 @@ pub async fn read_config(
     let (Some(comm), Some(map)) = (kind.comm_index(number), kind.mapping_index(number)) else {
         return Err(SdoRequestError::Sdo {
             node: channel.node(),
-            error: crate::canopen::sdo::SdoError::ServerAborted(AbortCode::ObjectDoesNotExist),
+            error: SdoError::ServerAborted(AbortCode::ObjectDoesNotExist),
         });
     };
     let cob_id_raw = le_u32(&channel.upload(comm, comm_sub::COB_ID).await?);
@@ -538,7 +540,7 @@ pub fn plan(
         if kind == PdoKind::Rpdo {
             return Err(PdoPlanError::NoSuchParameter("SYNC start value"));
         }
-        if start > crate::canopen::sync::COUNTER_MAX {
+        if start > COUNTER_MAX {
             return Err(PdoPlanError::Value(format!(
                 "SYNC start value {start} is above 240"
             )));
@@ -581,7 +583,7 @@ fn check_cob_id(raw: u32) -> Result<(), PdoPlanError> {
         Ok(PdoCobId {
             id: CanId::Standard(id),
             ..
-        }) if crate::canopen::pdo::comm::is_restricted(id) => Err(refuse(
+        }) if is_restricted(id) => Err(refuse(
             "the identifier is reserved for other services (CiA 301 table 73)",
         )),
         Ok(_) => Ok(()),
