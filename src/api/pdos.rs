@@ -118,6 +118,16 @@ fn pdo_json(config: &PdoConfig, dict: Option<&ObjectDictionary>) -> Pdo {
     }
 }
 
+/// Which way a PDO goes, seen from the node: `tpdo` (it sends) or `rpdo`
+/// (it receives).
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+#[allow(dead_code)] // The schema of the path segment.
+pub enum PdoKindParam {
+    Tpdo,
+    Rpdo,
+}
+
 /// A PDO named in a path.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Path)]
@@ -129,9 +139,8 @@ pub struct PdoPath {
     /// The node id, 1 to 127.
     #[param(minimum = 1, maximum = 127, example = 1)]
     pub id: u8,
-    /// `tpdo` or `rpdo`.
-    #[param(example = "tpdo")]
-    pub kind: String,
+    #[param(inline)]
+    pub kind: PdoKindParam,
     /// The PDO number, from 1.
     #[param(minimum = 1, maximum = 512, example = 1)]
     pub n: u16,
