@@ -344,7 +344,7 @@ async fn put_pdo(
         sync_start: update.sync_start,
         mapping,
     };
-    let plan = pdo::plan(&eds.eds.dictionary, kind, number, &request).map_err(plan_error)?;
+    let plan = pdo::plan(&eds.eds, kind, number, &request).map_err(plan_error)?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
     let task_eds = eds.clone();

@@ -20,6 +20,7 @@ use serde_json::Value as Json;
 
 use crate::can::{CanId, Frame};
 use crate::canopen::NodeId;
+use crate::canopen::eds::Eds;
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, names_match, parse_index};
 use crate::canopen::pdo::comm::is_restricted;
 use crate::canopen::pdo::{
@@ -278,6 +279,14 @@ pub enum PdoPlanError {
         bits: u32,
         type_bits: String,
     },
+    #[error(
+        "mapping entry {position}: {bits} bits, the device maps in units of {granularity} (EDS Granularity)"
+    )]
+    Granularity {
+        position: usize,
+        bits: u8,
+        granularity: u8,
+    },
     #[error("{0}")]
     Mapping(#[from] MappingError),
     #[error("{count} mapping entries, this PDO takes at most {max}")]
@@ -345,11 +354,31 @@ pub fn entry_name(dict: &ObjectDictionary, index: u16, sub: u8) -> Option<String
 /// Resolves and checks one requested entry (its position counts from 1)
 /// for a PDO of `kind`.
 fn resolve_entry(
-    dict: &ObjectDictionary,
+    eds: &Eds,
     kind: PdoKind,
     position: usize,
     request: &EntryRequest,
 ) -> Result<MappingEntry, PdoPlanError> {
+    let entry = resolve_object(eds, kind, position, request)?;
+    // CiA 306 Granularity: the unit the device maps in (8: whole bytes).
+    let granularity = eds.device_info.granularity.unwrap_or(0);
+    if granularity > 1 && entry.bits % granularity != 0 {
+        return Err(PdoPlanError::Granularity {
+            position,
+            bits: entry.bits,
+            granularity,
+        });
+    }
+    Ok(entry)
+}
+
+fn resolve_object(
+    eds: &Eds,
+    kind: PdoKind,
+    position: usize,
+    request: &EntryRequest,
+) -> Result<MappingEntry, PdoPlanError> {
+    let dict = &eds.dictionary;
     let unknown = |detail: String| PdoPlanError::UnknownEntry { position, detail };
     let sub_json = request.sub.clone().unwrap_or(Json::from(0));
     // A dummy entry (a data type, 0x0001–0x0007) is a gap of that type's
@@ -372,6 +401,15 @@ fn resolve_entry(
         }
         if sub_json != 0 && sub_json != "0" {
             return Err(unknown(format!("a dummy entry ({index}) has sub 0")));
+        }
+        // CiA 306 [DummyUsage]: the types the device takes as dummies.
+        if !eds.dummy_usage.is_empty() && !eds.dummy_usage.contains(&index) {
+            return Err(PdoPlanError::NotMappable {
+                position,
+                name: format!("dummy of type 0x{index:04X}"),
+                entry: MappingEntry::new(index, 0, bits as u8),
+                why: "is a dummy type the device does not take (EDS [DummyUsage])",
+            });
         }
         return Ok(MappingEntry::new(index, 0, bits as u8));
     }
@@ -452,11 +490,12 @@ pub struct RemapPlan {
 
 /// Checks `request` for PDO `number` of `kind` against the node's EDS.
 pub fn plan(
-    dict: &ObjectDictionary,
+    eds: &Eds,
     kind: PdoKind,
     number: u16,
     request: &PdoRequest,
 ) -> Result<RemapPlan, PdoPlanError> {
+    let dict = &eds.dictionary;
     let dict_opt = Some(dict);
     let (Some(comm_index), Some(mapping_index)) =
         (kind.comm_index(number), kind.mapping_index(number))
@@ -487,7 +526,7 @@ pub fn plan(
             let entries = entries
                 .iter()
                 .enumerate()
-                .map(|(i, entry)| resolve_entry(dict, kind, i + 1, entry))
+                .map(|(i, entry)| resolve_entry(eds, kind, i + 1, entry))
                 .collect::<Result<Vec<_>, _>>()?;
             Some(PdoMapping::new(entries)?)
         }

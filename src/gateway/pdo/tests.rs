@@ -3,14 +3,22 @@ use serde_json::json;
 use super::*;
 use crate::canopen::eds::Eds;
 
-fn umc() -> ObjectDictionary {
+fn umc_eds() -> Eds {
     let text = include_str!("../../../eds/umc1bds32.eds");
-    Eds::parse(text, "umc1bds32.eds").unwrap().dictionary
+    Eds::parse(text, "umc1bds32.eds").unwrap()
+}
+
+fn jmc_eds() -> Eds {
+    let text = include_str!("../../../eds/jmc_stepper.eds");
+    Eds::parse(text, "jmc_stepper.eds").unwrap()
+}
+
+fn umc() -> ObjectDictionary {
+    umc_eds().dictionary
 }
 
 fn jmc() -> ObjectDictionary {
-    let text = include_str!("../../../eds/jmc_stepper.eds");
-    Eds::parse(text, "jmc_stepper.eds").unwrap().dictionary
+    jmc_eds().dictionary
 }
 
 fn entry(index: Json) -> EntryRequest {
@@ -47,7 +55,7 @@ fn the_eds_says_which_pdos_a_node_has() {
 
 #[test]
 fn a_plan_resolves_names_and_checks_every_entry() {
-    let dict = umc();
+    let eds = umc_eds();
     let request = PdoRequest {
         transmission_type: Some(1),
         ..mapping_request(vec![
@@ -59,7 +67,7 @@ fn a_plan_resolves_names_and_checks_every_entry() {
             },
         ])
     };
-    let plan = plan(&dict, PdoKind::Tpdo, 1, &request).unwrap();
+    let plan = plan(&eds, PdoKind::Tpdo, 1, &request).unwrap();
     assert_eq!(
         plan.mapping.as_ref().unwrap().raw(),
         [0x6041_0010, 0x6064_0020]
@@ -68,7 +76,7 @@ fn a_plan_resolves_names_and_checks_every_entry() {
     assert!(plan.enabled);
 
     let refused =
-        |kind, number, request: PdoRequest| super::plan(&dict, kind, number, &request).unwrap_err();
+        |kind, number, request: PdoRequest| super::plan(&eds, kind, number, &request).unwrap_err();
     // Not mappable (a communication parameter), the wrong direction (a
     // read-only statusword in an RPDO), unknown, too long.
     assert!(matches!(
@@ -143,8 +151,35 @@ fn a_plan_resolves_names_and_checks_every_entry() {
             "0x{raw:X}"
         );
     }
+    // Whole bytes only (Granularity=8); 16 bits of the 32-bit position are.
+    let narrow = EntryRequest {
+        bits: Some(12),
+        ..entry(json!("0x6064"))
+    };
+    assert!(matches!(
+        refused(PdoKind::Tpdo, 1, mapping_request(vec![narrow])),
+        PdoPlanError::Granularity { bits: 12, .. }
+    ));
+    let window = EntryRequest {
+        bits: Some(16),
+        ..entry(json!("0x6064"))
+    };
+    assert!(super::plan(&eds, PdoKind::Tpdo, 1, &mapping_request(vec![window])).is_ok());
+    // Dummies: any type on the UMC (no [DummyUsage]), not BOOLEAN on the JMC.
+    let dummy = |index: u16| EntryRequest {
+        index: json!(index),
+        sub: None,
+        bits: None,
+    };
+    let jmc_eds = jmc_eds();
+    let with_dummy = |index| mapping_request(vec![dummy(index), entry(json!("0x6040"))]);
+    assert!(super::plan(&jmc_eds, PdoKind::Rpdo, 1, &with_dummy(5)).is_ok());
+    assert!(matches!(
+        super::plan(&jmc_eds, PdoKind::Rpdo, 1, &with_dummy(1)),
+        Err(PdoPlanError::NotMappable { position: 1, .. })
+    ));
     // The JMC has no inhibit time.
-    let jmc = jmc();
+    let jmc = jmc_eds;
     let request = PdoRequest {
         inhibit_time_100us: Some(10),
         ..PdoRequest::default()
