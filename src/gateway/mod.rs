@@ -12,9 +12,12 @@
 //! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
 //!   procedure, TPDO decoding and RPDO encoding.
 //! - [`sync`]: the gateway's SYNC producer on a bus.
+//! - [`values`]: the nodes' TPDO values, decoded by the mappings read from
+//!   them.
 
 pub mod pdo;
 pub mod profile;
 pub mod registry;
 pub mod sdo;
 pub mod sync;
+pub mod values;
