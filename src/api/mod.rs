@@ -15,6 +15,9 @@
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
 //! - [`segments`]: LED controllers: segments, scenes, the strip's preview.
 //! - [`config`]: store, restore, DCF backup and restore of a node.
+//! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
+//!   producer.
+//! - [`values`]: the TPDO values the gateway decodes, by node.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -24,12 +27,16 @@ pub mod doc;
 pub mod error;
 pub mod nodes;
 pub mod od;
+pub mod pdos;
 pub mod segments;
+pub mod values;
 
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
 mod tests_leds;
+#[cfg(test)]
+mod tests_pdos;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -43,6 +50,8 @@ use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
+use crate::gateway::sync::SyncService;
+use crate::gateway::values::TpdoValues;
 use crate::sim::rack::Rack;
 
 pub use buses::{LoadMeter, Traffic};
@@ -61,6 +70,10 @@ pub struct ServedBus {
     /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
     pub rack: Option<Rack>,
     pub load: LoadMeter,
+    /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
+    pub sync: SyncService,
+    /// The nodes' TPDO values, decoded by the mappings read from them.
+    pub values: TpdoValues,
 }
 
 impl ServedBus {
@@ -89,6 +102,8 @@ impl ServedBus {
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
+            sync: SyncService::spawn(opened.bus.clone()),
+            values: TpdoValues::spawn(opened.bus.clone(), registry.clone()),
             hub: opened.hub,
             bus: opened.bus,
             registry,
@@ -132,6 +147,8 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(od::router())
         .merge(segments::router())
         .merge(config::router())
+        .merge(values::router())
+        .merge(pdos::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);

@@ -11,9 +11,17 @@
 //!   heartbeat and scan, identified, supervised, with their EMCY history.
 //! - [`uioled`]: a UIO1LED's segments over SDO.
 //! - [`dcf`]: configuration backup and restore as a CiA 306 DCF.
+//! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
+//!   procedure, TPDO decoding and RPDO encoding.
+//! - [`sync`]: the gateway's SYNC producer on a bus.
+//! - [`values`]: the nodes' TPDO values, decoded by the mappings read from
+//!   them.
 
 pub mod dcf;
+pub mod pdo;
 pub mod profile;
 pub mod registry;
 pub mod sdo;
+pub mod sync;
 pub mod uioled;
+pub mod values;
