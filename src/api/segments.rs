@@ -474,6 +474,9 @@ async fn put_segment(
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
     let read_back = tokio::spawn(async move {
+        // The writes and the read-back, not interleaved with another
+        // request's.
+        let _procedure = channel.procedure().await;
         uioled::write_fields(&channel, segment, &writes).await?;
         uioled::read_segment(&channel, segment).await
     })
@@ -539,6 +542,7 @@ async fn put_scene(
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
     let segments = tokio::spawn(async move {
+        let _procedure = channel.procedure().await;
         for (segment, fields) in &writes {
             uioled::write_fields(&channel, *segment, fields).await?;
         }

@@ -130,6 +130,8 @@ pub async fn backup(
     node: NodeId,
     node_name: Option<String>,
 ) -> Result<(Eds, Vec<Unread>), SdoRequestError> {
+    // No re-mapping (or restore) of the node half done while it is read.
+    let _procedure = channel.procedure().await;
     let mut values = BTreeMap::new();
     let mut unread = Vec::new();
     for (index, sub) in parameters(&eds.dictionary) {
@@ -340,6 +342,8 @@ pub async fn restore(
     channel: &SdoChannel,
     writes: &[Write],
 ) -> BTreeMap<(u16, u8), Option<WriteResult>> {
+    // One procedure on the node at a time: no PDO re-mapping between ours.
+    let _procedure = channel.procedure().await;
     let mut results: BTreeMap<(u16, u8), Option<WriteResult>> = BTreeMap::new();
     let mut stopped = false;
     for write in writes {
