@@ -367,9 +367,23 @@ async fn put_dcf(
         dcf::plan(&parsed, &eds.dictionary, info.id).map_err(|error| invalid(error.0))?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
-    let results = tokio::spawn(async move { dcf::restore(&channel, &writes).await })
-        .await
-        .map_err(task_failed)?;
+    let values = served.values.clone();
+    let node = info.id;
+    let results = tokio::spawn(async move {
+        let results = dcf::restore(&channel, &writes).await;
+        // The gateway decodes the node's TPDOs by the mappings restored; if
+        // reading them fails, the old ones stay until the next
+        // identification, and the restore's report stands.
+        let tpdo_written = writes
+            .iter()
+            .any(|write| (0x1800..=0x1BFF).contains(&write.index));
+        if tpdo_written && let Err(err) = values.refresh(node).await {
+            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
+        }
+        results
+    })
+    .await
+    .map_err(task_failed)?;
     let mut report = RestoreReport {
         written: 0,
         failed: 0,

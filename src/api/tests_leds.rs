@@ -507,6 +507,22 @@ async fn a_dcf_backup_of_a_umc_restored_onto_a_second_umc_gives_identical_parame
     assert!(read(&app, 4, "0x1000", 0).await.is_number());
     assert_ne!(read(&app, 4, "0x6083", 0).await, 12345);
 
+    // What the gateway decodes of node 4's TPDO2: the factory mapping.
+    let tpdo2 = |state: &AppState| {
+        let tpdos = state.buses["demo"].values.tpdos(NodeId::new(4).unwrap());
+        tpdos.and_then(|tpdos| {
+            let (_, decoder) = tpdos.decoders.into_iter().find(|(n, _)| *n == 2)?;
+            Some(
+                decoder
+                    .mapping()
+                    .entries()
+                    .iter()
+                    .map(|entry| (entry.index, entry.sub))
+                    .collect::<Vec<_>>(),
+            )
+        })
+    };
+    assert_ne!(tpdo2(&state), Some(vec![(0x6041, 0), (0x6064, 0)]));
     let (status, report) = restore_dcf(&app, 4, &dcf).await;
     assert_eq!(status, StatusCode::OK, "{report}");
     let failures: Vec<&Json> = report["entries"]
@@ -529,6 +545,8 @@ async fn a_dcf_backup_of_a_umc_restored_onto_a_second_umc_gives_identical_parame
     assert_eq!(read(&app, 4, "0x1A01", 2).await, json!(0x6064_0020u32));
     assert_eq!(read(&app, 4, "0x2041", 1).await, 1200);
     assert_eq!(read(&app, 4, "0x2040", 1).await, 4);
+    // And the gateway decodes node 4's TPDO2 by the mapping restored.
+    assert_eq!(tpdo2(&state), Some(vec![(0x6041, 0), (0x6064, 0)]));
 }
 
 #[tokio::test(start_paused = true)]
