@@ -121,6 +121,7 @@ async fn command(
     (index, sub): (u16, u8),
     signature: [u8; 4],
     what: &str,
+    refresh_tpdos: bool,
 ) -> Result<Option<String>, AppError> {
     let (served, info) = known_node(state, bus, id)?;
     let name = match info.eds_entry.as_ref().map(|entry| &entry.eds.dictionary) {
@@ -138,10 +139,20 @@ async fn command(
     };
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
-    tokio::spawn(async move { channel.download(index, sub, &signature).await })
-        .await
-        .map_err(task_failed)?
-        .map_err(AppError::from_sdo)?;
+    let values = served.values.clone();
+    let node = info.id;
+    tokio::spawn(async move {
+        channel.download(index, sub, &signature).await?;
+        // Devices that restore at once (UniSwarm's) may have other TPDO
+        // mappings now: decode by what they have.
+        if refresh_tpdos && let Err(err) = values.refresh(node).await {
+            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
+        }
+        Ok(())
+    })
+    .await
+    .map_err(task_failed)?
+    .map_err(AppError::from_sdo)?;
     Ok(name)
 }
 
@@ -175,7 +186,7 @@ async fn store(
 ) -> Result<ApiJson<CommandDone>, AppError> {
     let target = (STORE_PARAMETERS, request.what.sub());
     let what = format!("store {}", area_name(request.what));
-    let name = command(&state, &bus, &id, target, SAVE, &what).await?;
+    let name = command(&state, &bus, &id, target, SAVE, &what, false).await?;
     Ok(ApiJson(CommandDone {
         what: request.what,
         source: None,
@@ -219,7 +230,9 @@ async fn restore(
         },
         area_name(request.what)
     );
-    let name = command(&state, &bus, &id, (RESTORE_PARAMETERS, sub), LOAD, &what).await?;
+    let communication = matches!(request.what, Area::All | Area::Communication);
+    let target = (RESTORE_PARAMETERS, sub);
+    let name = command(&state, &bus, &id, target, LOAD, &what, communication).await?;
     Ok(ApiJson(CommandDone {
         what: request.what,
         source: Some(source),
