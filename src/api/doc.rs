@@ -33,6 +33,7 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "buses", description = "The gateway and its CAN buses"),
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
+        (name = "drives", description = "CiA 402 drives: axes, state machine, moves (profiles umc, jmc_stepper, cia402)"),
     )
 )]
 pub struct ApiDoc;
@@ -63,6 +64,11 @@ pub struct ErrorDetail {
     /// With `wrong_nmt_state`: the node's NMT state.
     #[schema(example = "stopped")]
     pub nmt: Option<String>,
+    /// With `drive_fault`, `drive_not_enabled` and `state_change_timeout`:
+    /// the CiA 402 state the axis is in (`unknown` for a statusword that
+    /// names none).
+    #[schema(example = "fault")]
+    pub state: Option<String>,
 }
 
 /// A bus named in a path.

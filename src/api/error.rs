@@ -62,6 +62,23 @@ pub enum AppError {
     BusDown(String),
     #[error("node {node} did not answer in time")]
     SdoTimeout { node: u8 },
+    /// The node has no axes (its profile is not umc, jmc_stepper or
+    /// cia402).
+    #[error("{0}")]
+    NotADrive(String),
+    #[error("{0}")]
+    UnknownAxis(String),
+    /// The drive is in fault (or went there during a state walk).
+    #[error("{message}")]
+    DriveFault { message: String, state: String },
+    /// A move asks for operation enabled.
+    #[error("{message}")]
+    DriveNotEnabled { message: String, state: String },
+    #[error("{0}")]
+    ModeNotSupported(String),
+    /// The drive did not reach a state (mode, acknowledge) in time.
+    #[error("{message}")]
+    StateChangeTimeout { message: String, state: String },
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -86,6 +103,14 @@ impl AppError {
             Self::SdoProtocol { .. } => (StatusCode::BAD_GATEWAY, "sdo_protocol_error"),
             Self::BusDown(_) => (StatusCode::SERVICE_UNAVAILABLE, "bus_down"),
             Self::SdoTimeout { .. } => (StatusCode::GATEWAY_TIMEOUT, "sdo_timeout"),
+            Self::NotADrive(_) => (StatusCode::NOT_FOUND, "not_a_drive"),
+            Self::UnknownAxis(_) => (StatusCode::NOT_FOUND, "unknown_axis"),
+            Self::DriveFault { .. } => (StatusCode::CONFLICT, "drive_fault"),
+            Self::DriveNotEnabled { .. } => (StatusCode::CONFLICT, "drive_not_enabled"),
+            Self::ModeNotSupported(_) => (StatusCode::UNPROCESSABLE_ENTITY, "mode_not_supported"),
+            Self::StateChangeTimeout { .. } => {
+                (StatusCode::GATEWAY_TIMEOUT, "state_change_timeout")
+            }
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -105,6 +130,9 @@ impl AppError {
                 body["abort_text"] = json!(code.text());
             }
             Self::WrongNmtState { state, .. } => body["nmt"] = json!(state.name()),
+            Self::DriveFault { state, .. }
+            | Self::DriveNotEnabled { state, .. }
+            | Self::StateChangeTimeout { state, .. } => body["state"] = json!(state),
             // Every error is rendered once, here: the one place to log
             // what the client is not told.
             Self::Internal(detail) => tracing::error!("api: {detail}"),

@@ -13,17 +13,22 @@
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
+//! - [`drives`]: CiA 402 drives: axes, state walk, fault reset, halt,
+//!   moves, stop-all.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod buses;
 pub mod doc;
+pub mod drives;
 pub mod error;
 pub mod nodes;
 pub mod od;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_drives;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -124,6 +129,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(buses::router())
         .merge(nodes::router())
         .merge(od::router())
+        .merge(drives::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
