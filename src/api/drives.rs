@@ -158,9 +158,7 @@ where
     F: FnOnce(Drive) -> Fut + Send + 'static,
     Fut: Future<Output = Result<AxisStatus, DriveError>> + Send + 'static,
 {
-    let status = tokio::spawn(sequence(drive))
-        .await
-        .map_err(task_failed)??;
+    let status = tokio::spawn(sequence(drive)).await.map_err(task_failed)??;
     Ok(ApiJson(status))
 }
 
@@ -247,7 +245,11 @@ async fn set_state(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     let target = request.target.state();
-    spawned(drive, move |drive| async move { drive.set_state(target).await }).await
+    spawned(
+        drive,
+        move |drive| async move { drive.set_state(target).await },
+    )
+    .await
 }
 
 /// Resets a fault (controlword bit 7, 0→1).
@@ -295,7 +297,11 @@ async fn halt(
     ApiJson(request): ApiJson<HaltRequest>,
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
-    spawned(drive, move |drive| async move { drive.halt(request.halt).await }).await
+    spawned(
+        drive,
+        move |drive| async move { drive.halt(request.halt).await },
+    )
+    .await
 }
 
 /// Starts a motion in one of the drive's modes.
@@ -327,7 +333,11 @@ async fn run_move(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     drive.validate(&request)?;
-    spawned(drive, move |drive| async move { drive.run_move(&request).await }).await
+    spawned(
+        drive,
+        move |drive| async move { drive.run_move(&request).await },
+    )
+    .await
 }
 
 /// Quick stop of every enabled axis on every bus.

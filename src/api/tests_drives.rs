@@ -216,7 +216,13 @@ async fn umc_duty_cycle_turns_the_motor() {
     tokio::time::sleep(Duration::from_millis(200)).await;
     assert!(int(&axis(&app, UMC, 1).await, "position") > before);
     // Backwards with a negative duty.
-    run(&app, UMC, 1, json!({"mode": "duty_cycle", "duty": -8192, "slope": 60000})).await;
+    run(
+        &app,
+        UMC,
+        1,
+        json!({"mode": "duty_cycle", "duty": -8192, "slope": 60000}),
+    )
+    .await;
     let status = wait_for(&app, UMC, 1, 3000, |s| int(s, "velocity") < 0).await;
     assert!(int(&status, "velocity") < 0, "{status}");
 }
@@ -332,7 +338,10 @@ async fn umc_interpolated_position_follows_more_points_than_the_buffer_holds() {
     .await;
     assert_eq!(body["mode"], "interpolated_position", "{body}");
     let end = start + 80 * 300;
-    let status = wait_for(&app, UMC, 1, 5000, |s| (int(s, "position") - end).abs() < 500).await;
+    let status = wait_for(&app, UMC, 1, 5000, |s| {
+        (int(s, "position") - end).abs() < 500
+    })
+    .await;
     assert!((int(&status, "position") - end).abs() < 500, "{status}");
 }
 
@@ -405,7 +414,11 @@ async fn jmc_profile_position_velocity_and_homing() {
 #[tokio::test(start_paused = true)]
 async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
     let (app, _) = demo().await;
-    for uri in [axis_uri(UMC, 3, ""), axis_uri(UMC, 0, ""), axis_uri(JMC, 2, "")] {
+    for uri in [
+        axis_uri(UMC, 3, ""),
+        axis_uri(UMC, 0, ""),
+        axis_uri(JMC, 2, ""),
+    ] {
         let response = call(&app, Method::GET, &uri, None).await;
         assert_error(&response, StatusCode::NOT_FOUND, "unknown_axis");
     }
@@ -424,7 +437,11 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
         json!({"mode": "torque", "torque": 100}),
     )
     .await;
-    assert_error(&response, StatusCode::UNPROCESSABLE_ENTITY, "mode_not_supported");
+    assert_error(
+        &response,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "mode_not_supported",
+    );
     enable(&app, UMC, 1).await;
     let response = post(
         &app,
@@ -432,7 +449,11 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
         json!({"mode": "homing", "method": 1}),
     )
     .await;
-    assert_error(&response, StatusCode::UNPROCESSABLE_ENTITY, "mode_not_supported");
+    assert_error(
+        &response,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "mode_not_supported",
+    );
 
     for body in [
         json!({"mode": "warp", "target": 1}),
@@ -472,7 +493,12 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
     )
     .await;
     assert_error(&response, StatusCode::BAD_REQUEST, "invalid_value");
-    let response = post(&app, &axis_uri(UMC, 1, "/state"), json!({"target": "fault"})).await;
+    let response = post(
+        &app,
+        &axis_uri(UMC, 1, "/state"),
+        json!({"target": "fault"}),
+    )
+    .await;
     assert_error(&response, StatusCode::BAD_REQUEST, "invalid_request");
     let response = post(&app, &axis_uri(UMC, 1, "/halt"), json!({})).await;
     assert_error(&response, StatusCode::BAD_REQUEST, "invalid_request");

@@ -757,9 +757,7 @@ impl Drive {
                 .sub(self.index(obj::CONTROLWORD), 0)
                 .is_some_and(|sub| sub.access.is_readable())
         });
-        if readable
-            && let Some(value) = self.read_optional(obj::CONTROLWORD, 0, false).await?
-        {
+        if readable && let Some(value) = self.read_optional(obj::CONTROLWORD, 0, false).await? {
             return Ok(value as u16);
         }
         Ok(match statusword.state() {
@@ -775,7 +773,11 @@ impl Drive {
     pub async fn halt(&self, halt: bool) -> Result<AxisStatus, DriveError> {
         let statusword = self.statusword().await?;
         let word = self.current_controlword(statusword).await? & !0x0080;
-        let word = if halt { word | CW_HALT } else { word & !CW_HALT };
+        let word = if halt {
+            word | CW_HALT
+        } else {
+            word & !CW_HALT
+        };
         self.controlword(word).await?;
         self.status().await
     }
@@ -855,15 +857,33 @@ impl Drive {
                 deceleration,
                 ..
             } => {
-                put(obj::TARGET_POSITION, 0, T::Integer32, (*target).into(), "target")?;
+                put(
+                    obj::TARGET_POSITION,
+                    0,
+                    T::Integer32,
+                    (*target).into(),
+                    "target",
+                )?;
                 if let Some(v) = velocity {
                     put(obj::PROFILE_VELOCITY, 0, T::Unsigned32, *v, "velocity")?;
                 }
                 if let Some(a) = acceleration {
-                    put(obj::PROFILE_ACCELERATION, 0, T::Unsigned32, *a, "acceleration")?;
+                    put(
+                        obj::PROFILE_ACCELERATION,
+                        0,
+                        T::Unsigned32,
+                        *a,
+                        "acceleration",
+                    )?;
                 }
                 if let Some(d) = deceleration {
-                    put(obj::PROFILE_DECELERATION, 0, T::Unsigned32, *d, "deceleration")?;
+                    put(
+                        obj::PROFILE_DECELERATION,
+                        0,
+                        T::Unsigned32,
+                        *d,
+                        "deceleration",
+                    )?;
                 }
             }
             MoveRequest::Velocity {
@@ -891,10 +911,22 @@ impl Drive {
                     };
                     put(target, 0, T::Integer32, velocity, "velocity")?;
                     if let Some(a) = acceleration {
-                        put(obj::PROFILE_ACCELERATION, 0, T::Unsigned32, *a, "acceleration")?;
+                        put(
+                            obj::PROFILE_ACCELERATION,
+                            0,
+                            T::Unsigned32,
+                            *a,
+                            "acceleration",
+                        )?;
                     }
                     if let Some(d) = deceleration {
-                        put(obj::PROFILE_DECELERATION, 0, T::Unsigned32, *d, "deceleration")?;
+                        put(
+                            obj::PROFILE_DECELERATION,
+                            0,
+                            T::Unsigned32,
+                            *d,
+                            "deceleration",
+                        )?;
                     }
                 }
             }
@@ -908,11 +940,23 @@ impl Drive {
                 if let Some(s) = slope {
                     put(umc::axis::DTY_SLOPE, 0, T::Unsigned16, *s, "slope")?;
                 }
-                put(umc::axis::DTY_TARGET, 0, T::Integer16, (*duty).into(), "duty")?;
+                put(
+                    umc::axis::DTY_TARGET,
+                    0,
+                    T::Integer16,
+                    (*duty).into(),
+                    "duty",
+                )?;
             }
             MoveRequest::ContinuousPosition { target, .. } => {
                 // Validated only: 0x41F0 is written after the controlword.
-                self.encode(umc::axis::CP_TARGET, 0, T::Integer32, (*target).into(), "target")?;
+                self.encode(
+                    umc::axis::CP_TARGET,
+                    0,
+                    T::Integer32,
+                    (*target).into(),
+                    "target",
+                )?;
             }
             MoveRequest::InterpolatedPosition { period_ms, points } => {
                 if *period_ms == 0 {
@@ -923,9 +967,21 @@ impl Drive {
                         "points: 1 to {MAX_IP_POINTS} positions"
                     )));
                 }
-                put(obj::IP_TIME_PERIOD, 1, T::Unsigned8, (*period_ms).into(), "period")?;
+                put(
+                    obj::IP_TIME_PERIOD,
+                    1,
+                    T::Unsigned8,
+                    (*period_ms).into(),
+                    "period",
+                )?;
                 put(obj::IP_TIME_PERIOD, 2, T::Integer8, -3, "period index")?;
-                put(obj::IP_DATA_CONFIGURATION, 6, T::Unsigned8, 0, "buffer clear")?;
+                put(
+                    obj::IP_DATA_CONFIGURATION,
+                    6,
+                    T::Unsigned8,
+                    0,
+                    "buffer clear",
+                )?;
             }
             MoveRequest::Homing {
                 method,
@@ -940,13 +996,25 @@ impl Drive {
                         "homing method {method}: the JMC has methods 0 to 12"
                     )));
                 }
-                put(obj::HOMING_METHOD, 0, T::Integer8, (*method).into(), "method")?;
+                put(
+                    obj::HOMING_METHOD,
+                    0,
+                    T::Integer8,
+                    (*method).into(),
+                    "method",
+                )?;
                 if let Some([fast, slow]) = speeds {
                     put(obj::HOMING_SPEEDS, 1, T::Unsigned32, *fast, "search speed")?;
                     put(obj::HOMING_SPEEDS, 2, T::Unsigned32, *slow, "slow speed")?;
                 }
                 if let Some(a) = acceleration {
-                    put(obj::HOMING_ACCELERATION, 0, T::Unsigned32, *a, "acceleration")?;
+                    put(
+                        obj::HOMING_ACCELERATION,
+                        0,
+                        T::Unsigned32,
+                        *a,
+                        "acceleration",
+                    )?;
                 }
                 if let Some(o) = offset {
                     put(obj::HOME_OFFSET, 0, T::Integer32, (*o).into(), "offset")?;
