@@ -591,3 +591,90 @@ async fn stop_all_quick_stops_every_moving_axis() {
     let (_, body) = call(&app, Method::POST, "/api/v1/stop-all", None).await;
     assert_eq!(body["stopped"], json!([]), "{body}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
+    let (app, state) = demo().await;
+    enable(&app, UMC, 1).await;
+    // 300 points, 10 ms apart: the gateway feeds the buffer for about 3 s.
+    let points: Vec<i64> = (1..=300).map(|i| i * 100).collect();
+    let request = {
+        let app = app.clone();
+        tokio::spawn(async move {
+            post(
+                &app,
+                &axis_uri(UMC, 1, "/move"),
+                json!({"mode": "interpolated_position", "period_ms": 10, "points": points}),
+            )
+            .await
+        })
+    };
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let rack = state.buses["demo"].rack.as_ref().unwrap();
+    rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
+        .unwrap();
+    let response = request.await.unwrap();
+    assert!(
+        response.0 == StatusCode::CONFLICT || response.0 == StatusCode::UNPROCESSABLE_ENTITY,
+        "{}",
+        response.1
+    );
+    // The gateway's last controlword is halt (bit 8), written after the
+    // failure and before the answer.
+    let (status, body) = call(
+        &app,
+        Method::GET,
+        "/api/v1/buses/demo/nodes/1/od/0x6040/0",
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    assert_ne!(body["value"].as_u64().unwrap() & 0x0100, 0, "{body}");
+    let status = wait_for(&app, UMC, 1, 3000, |s| int(s, "velocity") == 0).await;
+    assert_eq!(int(&status, "velocity"), 0, "{status}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn jmc_halt_keeps_the_rest_of_its_write_only_controlword() {
+    let (app, _) = demo().await;
+    enable(&app, JMC, 1).await;
+    run(
+        &app,
+        JMC,
+        1,
+        json!({"mode": "velocity", "velocity": 30, "acceleration": 1000}),
+    )
+    .await;
+    wait_for(&app, JMC, 1, 3000, |s| int(s, "velocity") == 30).await;
+    let (code, body) = post(&app, &axis_uri(JMC, 1, "/halt"), json!({"halt": true})).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let status = wait_for(&app, JMC, 1, 3000, |s| int(s, "velocity") == 0).await;
+    assert_eq!(int(&status, "velocity"), 0, "{status}");
+    assert_eq!(status["state"], "operation_enabled", "{status}");
+    // JMC statusword bit 8: halted.
+    assert_ne!(
+        status["statusword"].as_u64().unwrap() & 0x0100,
+        0,
+        "{status}"
+    );
+    post(&app, &axis_uri(JMC, 1, "/halt"), json!({"halt": false})).await;
+    let status = wait_for(&app, JMC, 1, 3000, |s| int(s, "velocity") == 30).await;
+    assert_eq!(int(&status, "velocity"), 30, "{status}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_node_summary_lists_a_drives_axes() {
+    let (_, state) = demo().await;
+    let served = &state.buses["demo"];
+    for (node, axes) in [(UMC, 2), (JMC, 1), (LED, 0)] {
+        let info = served.registry.node(NodeId::new(node).unwrap()).unwrap();
+        let summary = crate::gateway::drive::axes_summary(&served.registry, &info)
+            .await
+            .unwrap();
+        assert_eq!(summary.len(), axes, "node {node}: {summary:?}");
+        for (i, axis) in summary.iter().enumerate() {
+            assert_eq!(usize::from(axis.axis), i + 1);
+            assert_eq!(axis.state, "switch_on_disabled");
+        }
+    }
+}
