@@ -678,3 +678,138 @@ async fn the_node_summary_lists_a_drives_axes() {
         }
     }
 }
+
+/// A CiA 402 device of no known product whose PDS never moves: its
+/// statusword stays switch on disabled whatever is written to 0x6040; 0x6502
+/// lists profile position and profile velocity.
+fn stuck_cia402_drive(node: u8) -> crate::sim::device::DeviceCore {
+    use crate::canopen::od::{
+        AccessType, DataType, Object, ObjectDictionary, ObjectType, SubObject,
+    };
+    let var = |index: u16, name: &str, data_type: DataType, access: AccessType, default: &str| {
+        let mut sub = SubObject::new(0, name, data_type, access);
+        sub.default = Some(default.to_string());
+        Object::var(index, sub)
+    };
+    let mut dictionary = ObjectDictionary::new();
+    dictionary.insert(var(
+        0x1000,
+        "Device type",
+        DataType::Unsigned32,
+        AccessType::Ro,
+        "0x00020192",
+    ));
+    let mut identity = Object::new(0x1018, "Identity", ObjectType::Record);
+    let mut count = SubObject::new(0, "Count", DataType::Unsigned8, AccessType::Const);
+    count.default = Some("1".into());
+    identity.insert_sub(count);
+    let mut vendor = SubObject::new(1, "Vendor", DataType::Unsigned32, AccessType::Ro);
+    vendor.default = Some("0x12345678".into());
+    identity.insert_sub(vendor);
+    dictionary.insert(identity);
+    dictionary.insert(var(
+        0x6040,
+        "Controlword",
+        DataType::Unsigned16,
+        AccessType::Rw,
+        "0",
+    ));
+    dictionary.insert(var(
+        0x6041,
+        "Statusword",
+        DataType::Unsigned16,
+        AccessType::Ro,
+        "0x0040",
+    ));
+    dictionary.insert(var(
+        0x6060,
+        "Modes",
+        DataType::Integer8,
+        AccessType::Rw,
+        "0",
+    ));
+    dictionary.insert(var(
+        0x6061,
+        "Modes display",
+        DataType::Integer8,
+        AccessType::Ro,
+        "0",
+    ));
+    dictionary.insert(var(
+        0x6064,
+        "Position",
+        DataType::Integer32,
+        AccessType::Ro,
+        "1234",
+    ));
+    dictionary.insert(var(
+        0x6502,
+        "Supported modes",
+        DataType::Unsigned32,
+        AccessType::Ro,
+        "0x05",
+    ));
+    crate::sim::device::DeviceCore::new(dictionary, NodeId::new(node).unwrap()).unwrap()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() {
+    let (app, state) = demo().await;
+    let served = &state.buses["demo"];
+    served
+        .rack
+        .as_ref()
+        .unwrap()
+        .add_device(stuck_cia402_drive(9))
+        .unwrap();
+    served.registry.scan().await.unwrap();
+    let info = served.registry.node(NodeId::new(9).unwrap()).unwrap();
+    assert_eq!(info.profile.name(), "cia402", "{info:?}");
+
+    let (status, body) = call(&app, Method::GET, "/api/v1/buses/demo/nodes/9/axes", None).await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    assert_eq!(body.as_array().unwrap().len(), 1, "{body}");
+    assert_eq!(
+        body[0]["supported_modes"],
+        json!(["profile_position", "velocity"])
+    );
+    assert_eq!(body[0]["position"], 1234);
+    assert_eq!(body[0]["velocity"], Json::Null, "no 0x606C: {body}");
+    assert_eq!(body[0]["torque"], Json::Null, "no 0x6077: {body}");
+
+    let response = post(
+        &app,
+        "/api/v1/buses/demo/nodes/9/axes/1/state",
+        json!({"target": "operation_enabled"}),
+    )
+    .await;
+    assert_error(
+        &response,
+        StatusCode::GATEWAY_TIMEOUT,
+        "state_change_timeout",
+    );
+    assert_eq!(
+        response.1["error"]["state"], "switch_on_disabled",
+        "{}",
+        response.1
+    );
+
+    for mode in [
+        json!({"mode": "torque", "torque": 1}),
+        json!({"mode": "duty_cycle", "duty": 1}),
+    ] {
+        let response = post(&app, "/api/v1/buses/demo/nodes/9/axes/1/move", mode).await;
+        assert_error(
+            &response,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "mode_not_supported",
+        );
+    }
+    let response = post(
+        &app,
+        "/api/v1/buses/demo/nodes/9/axes/1/move",
+        json!({"mode": "velocity", "velocity": 5}),
+    )
+    .await;
+    assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
+}
