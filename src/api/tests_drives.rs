@@ -495,6 +495,13 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
     assert_error(&response, StatusCode::BAD_REQUEST, "invalid_value");
     let response = post(
         &app,
+        &axis_uri(UMC, 1, "/move"),
+        json!({"mode": "interpolated_position", "period_ms": 255, "points": vec![0; 3000]}),
+    )
+    .await;
+    assert_error(&response, StatusCode::BAD_REQUEST, "invalid_value");
+    let response = post(
+        &app,
         &axis_uri(UMC, 1, "/state"),
         json!({"target": "fault"}),
     )

@@ -237,6 +237,9 @@ fn yes() -> bool {
 
 /// The most points one interpolated move takes.
 pub const MAX_IP_POINTS: usize = 100_000;
+/// The longest interpolated move one request feeds (the request lasts as
+/// long as the feeding): 10 minutes.
+pub const MAX_IP_DURATION_MS: u64 = 600_000;
 
 impl MoveRequest {
     pub fn mode(&self) -> MoveMode {
@@ -826,18 +829,16 @@ impl Drive {
             .ok_or_else(|| refuse(self.move_modes(&supported)))
     }
 
-    /// Checks a move before the bus: values against their objects.
+    /// Checks a move before the bus: values against their objects. (A
+    /// generic drive's velocity mode is known only once 0x6502 is read:
+    /// [`Drive::run_move`] checks VL's 16-bit target again before writing.)
     pub fn validate(&self, request: &MoveRequest) -> Result<(), DriveError> {
-        // The velocity mode is not known yet: check the request against
-        // both candidate objects by planning with each.
-        self.writes(request, Mode::ProfilePosition).map(|_| ())?;
-        if let MoveRequest::Velocity { .. } = request {
-            self.writes(request, Mode::Velocity)?;
-            if self.kind != DriveKind::Umc {
-                self.writes(request, Mode::ProfileVelocity)?;
-            }
-        }
-        Ok(())
+        let mode = match (request, self.kind) {
+            (MoveRequest::Velocity { .. }, DriveKind::Umc) => Mode::Velocity,
+            (MoveRequest::Velocity { .. }, _) => Mode::ProfileVelocity,
+            _ => Mode::ProfilePosition,
+        };
+        self.writes(request, mode).map(|_| ())
     }
 
     /// The parameter writes of a move (before its controlwords), for the
@@ -965,6 +966,13 @@ impl Drive {
                 if points.is_empty() || points.len() > MAX_IP_POINTS {
                     return Err(DriveError::Invalid(format!(
                         "points: 1 to {MAX_IP_POINTS} positions"
+                    )));
+                }
+                let total_ms = points.len() as u64 * u64::from(*period_ms);
+                if total_ms > MAX_IP_DURATION_MS {
+                    return Err(DriveError::Invalid(format!(
+                        "{} points every {period_ms} ms take {total_ms} ms; at most {MAX_IP_DURATION_MS} ms in one request",
+                        points.len()
                     )));
                 }
                 put(
