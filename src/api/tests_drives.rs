@@ -820,3 +820,29 @@ async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() 
     .await;
     assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_client_that_hangs_up_does_not_cut_the_move() {
+    let (app, _) = demo().await;
+    enable(&app, UMC, 1).await;
+    let start = int(&axis(&app, UMC, 1).await, "position");
+    let points: Vec<i64> = (1..=80).map(|i| start + i * 300).collect();
+    // The client gives up after 100 ms, long before the 800 ms of points
+    // are all in the buffer: axum drops the handler's future.
+    let gave_up = tokio::time::timeout(
+        Duration::from_millis(100),
+        post(
+            &app,
+            &axis_uri(UMC, 1, "/move"),
+            json!({"mode": "interpolated_position", "period_ms": 10, "points": points}),
+        ),
+    )
+    .await;
+    assert!(gave_up.is_err(), "the move answered within 100 ms");
+    let end = start + 80 * 300;
+    let status = wait_for(&app, UMC, 1, 5000, |s| {
+        (int(s, "position") - end).abs() < 500
+    })
+    .await;
+    assert!((int(&status, "position") - end).abs() < 500, "{status}");
+}
