@@ -796,9 +796,21 @@ impl Drive {
         Ok(Some(State::OperationEnabled))
     }
 
-    /// What a failed move leaves: halt, else quick stop. Best effort: the
-    /// move's own error is what the caller reports.
+    /// What a failed move leaves: an axis still in operation enabled is
+    /// halted, and quick-stopped if the halt cannot be written; an axis in
+    /// any other state is not driving (a quick stop or fault got there
+    /// first) and is left alone, as a halt's enable-operation bits could
+    /// take it out of quick stop active again (transition 16). Best effort:
+    /// the move's own error is what the caller reports.
     async fn stop_after_failure(&self) {
+        let state = match self.statusword().await {
+            Ok(statusword) => statusword.state(),
+            // Unknown: assume the worst.
+            Err(_) => Some(State::OperationEnabled),
+        };
+        if state != Some(State::OperationEnabled) {
+            return;
+        }
         let halt = Command::EnableOperation.bits() | CW_HALT;
         if let Err(error) = self.controlword(halt).await {
             tracing::warn!("axis {}: halt after a failed move: {error}", self.axis);
