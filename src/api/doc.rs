@@ -34,6 +34,7 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
         (name = "drives", description = "CiA 402 drives: axes, state machine, moves (profiles umc, jmc_stepper, cia402)"),
+        (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
     )
 )]
 pub struct ApiDoc;
@@ -69,6 +70,10 @@ pub struct ErrorDetail {
     /// names none).
     #[schema(example = "fault")]
     pub state: Option<String>,
+    /// When a sequence of transfers (a PDO re-mapping) stopped half way: the
+    /// step that failed; the steps before it took effect.
+    #[schema(example = "write_mapping_entry_2")]
+    pub step: Option<String>,
 }
 
 /// A bus named in a path.

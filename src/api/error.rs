@@ -79,6 +79,19 @@ pub enum AppError {
     /// The drive did not reach a state (mode, acknowledge) in time.
     #[error("{message}")]
     StateChangeTimeout { message: String, state: String },
+    /// A PDO number (or kind) the node does not have.
+    #[error("{0}")]
+    UnknownPdo(String),
+    /// A PDO mapping or communication parameter the node's EDS rules out.
+    #[error("{0}")]
+    InvalidMapping(String),
+    /// The PDO is not valid (COB-ID bit 31 set): the node ignores its frames.
+    #[error("{0}")]
+    PdoDisabled(String),
+    /// A sequence of transfers stopped at `step`: the error of that step,
+    /// with the step named (the steps before it took effect).
+    #[error("step {step} failed: {source}")]
+    FailedAt { step: String, source: Box<AppError> },
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -111,6 +124,10 @@ impl AppError {
             Self::StateChangeTimeout { .. } => {
                 (StatusCode::GATEWAY_TIMEOUT, "state_change_timeout")
             }
+            Self::UnknownPdo(_) => (StatusCode::NOT_FOUND, "unknown_pdo"),
+            Self::InvalidMapping(_) => (StatusCode::BAD_REQUEST, "invalid_mapping"),
+            Self::PdoDisabled(_) => (StatusCode::CONFLICT, "pdo_disabled"),
+            Self::FailedAt { source, .. } => source.status_and_code(),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -123,6 +140,12 @@ impl AppError {
     /// entry of a batch.
     pub fn to_json(&self) -> Json {
         let (_, code) = self.status_and_code();
+        if let Self::FailedAt { step, source } = self {
+            let mut body = source.to_json();
+            body["message"] = json!(self.to_string());
+            body["step"] = json!(step);
+            return body;
+        }
         let mut body = json!({ "code": code, "message": self.to_string() });
         match self {
             Self::SdoAbort { code, .. } | Self::SdoProtocol { code, .. } => {

@@ -15,6 +15,8 @@
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
 //! - [`drives`]: CiA 402 drives: axes, state walk, fault reset, halt,
 //!   moves, stop-all.
+//! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
+//!   producer.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -24,11 +26,14 @@ pub mod drives;
 pub mod error;
 pub mod nodes;
 pub mod od;
+pub mod pdos;
 
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
 mod tests_drives;
+#[cfg(test)]
+mod tests_pdos;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -42,6 +47,7 @@ use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
+use crate::gateway::sync::SyncService;
 use crate::sim::rack::Rack;
 
 pub use buses::{LoadMeter, Traffic};
@@ -60,6 +66,8 @@ pub struct ServedBus {
     /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
     pub rack: Option<Rack>,
     pub load: LoadMeter,
+    /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
+    pub sync: SyncService,
 }
 
 impl ServedBus {
@@ -88,6 +96,7 @@ impl ServedBus {
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
+            sync: SyncService::spawn(opened.bus.clone()),
             hub: opened.hub,
             bus: opened.bus,
             registry,
@@ -130,6 +139,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(nodes::router())
         .merge(od::router())
         .merge(drives::router())
+        .merge(pdos::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);

@@ -181,11 +181,11 @@ impl Entry {
     }
 }
 
-fn hex(bytes: &[u8]) -> String {
+pub(super) fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02x}")).collect()
 }
 
-fn dictionary(info: &NodeInfo) -> Option<&ObjectDictionary> {
+pub(super) fn dictionary(info: &NodeInfo) -> Option<&ObjectDictionary> {
     info.eds_entry.as_ref().map(|entry| &entry.eds.dictionary)
 }
 
@@ -291,7 +291,7 @@ pub(super) fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(
     }
 }
 
-fn task_failed(err: tokio::task::JoinError) -> AppError {
+pub(super) fn task_failed(err: tokio::task::JoinError) -> AppError {
     AppError::Internal(format!("SDO task: {err}"))
 }
 

@@ -11,8 +11,13 @@
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
 //!   heartbeat and scan, identified, supervised, with their EMCY history.
+//! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
+//!   procedure, TPDO decoding and RPDO encoding.
+//! - [`sync`]: the gateway's SYNC producer on a bus.
 
 pub mod drive;
+pub mod pdo;
 pub mod profile;
 pub mod registry;
 pub mod sdo;
+pub mod sync;
