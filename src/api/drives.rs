@@ -9,7 +9,8 @@
 //!   from 1; a UMC1BDS32 has 2).
 //! - 409 `drive_fault`: the axis is in fault, went there during a walk, or
 //!   its fault is still present after a fault reset; 409 `drive_not_enabled`:
-//!   a move needs operation enabled. Both carry `state`.
+//!   a move, or the target quick_stop_active, needs operation enabled. Both
+//!   carry `state`.
 //! - 422 `mode_not_supported`: the drive lacks the mode (0x6502, or the
 //!   product's fixed list).
 //! - 504 `state_change_timeout`: the statusword (or 0x6061, or the
@@ -226,13 +227,15 @@ async fn one_axis(
 ///
 /// One transition at a time, the statusword checked after each. A drive in
 /// fault is not reset by this (`fault-reset` does that): 409 `drive_fault`.
+/// Quick stop active is reached from operation enabled only (409
+/// `drive_not_enabled` otherwise: the motor is not powered to be stopped).
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives", params(AxisPath),
     request_body = StateRequest,
     responses(
         (status = 200, description = "The axis in the state asked for", body = AxisStatus),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`), `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),

@@ -200,6 +200,15 @@ async fn the_state_walk_climbs_and_descends_the_ladder() {
             assert_eq!(body["state"], expected, "{target}: {body}");
         }
     }
+    // Quick stop only from operation enabled: not by powering the motor.
+    let response = post(
+        &app,
+        &axis_uri(UMC, 1, "/state"),
+        json!({"target": "quick_stop_active"}),
+    )
+    .await;
+    assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
+    assert_eq!(response.1["error"]["state"], "switch_on_disabled");
     // Axis 2 was never touched: its own objects (0x6841) say so.
     assert_eq!(axis(&app, UMC, 2).await["state"], "switch_on_disabled");
 }

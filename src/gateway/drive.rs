@@ -352,8 +352,8 @@ pub enum DriveError {
         mode: MoveMode,
         supported: Vec<MoveMode>,
     },
-    /// A move asks for operation enabled.
-    #[error("axis {axis} is in {state}, a move needs operation_enabled (POST .../state first)", state = state_name(.state))]
+    /// A move (or a quick stop) asks for operation enabled.
+    #[error("axis {axis} is in {state}; a move or a quick stop needs operation_enabled", state = state_name(.state))]
     NotEnabled { axis: u8, state: Option<State> },
     /// A value does not fit its object, or a request the drive cannot take
     /// (found before the bus is touched).
@@ -700,6 +700,16 @@ impl Drive {
         };
         if matches!(current, State::Fault | State::FaultReactionActive) {
             return Err(self.fault(statusword, ": reset the fault first (POST .../fault-reset)"));
+        }
+        // Transition 11 starts only from operation enabled: climbing there
+        // first would power a motor only to stop it.
+        if target == State::QuickStopActive
+            && !matches!(current, State::OperationEnabled | State::QuickStopActive)
+        {
+            return Err(DriveError::NotEnabled {
+                axis: self.axis,
+                state: Some(current),
+            });
         }
         let commands = plan(current, target).map_err(|error| match error {
             PlanError::TargetNotCommandable(_) | PlanError::Transient(_) => {
