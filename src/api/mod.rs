@@ -17,6 +17,7 @@
 //!   moves, stop-all.
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
 //!   producer.
+//! - [`values`]: the TPDO values the gateway decodes, by node.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -27,6 +28,7 @@ pub mod error;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
+pub mod values;
 
 #[cfg(test)]
 mod tests;
@@ -48,6 +50,7 @@ use crate::can::{Bus, VirtualHub};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
+use crate::gateway::values::TpdoValues;
 use crate::sim::rack::Rack;
 
 pub use buses::{LoadMeter, Traffic};
@@ -68,6 +71,8 @@ pub struct ServedBus {
     pub load: LoadMeter,
     /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
     pub sync: SyncService,
+    /// The nodes' TPDO values, decoded by the mappings read from them.
+    pub values: TpdoValues,
 }
 
 impl ServedBus {
@@ -97,6 +102,7 @@ impl ServedBus {
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
             sync: SyncService::spawn(opened.bus.clone()),
+            values: TpdoValues::spawn(opened.bus.clone(), registry.clone()),
             hub: opened.hub,
             bus: opened.bus,
             registry,
@@ -139,6 +145,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(nodes::router())
         .merge(od::router())
         .merge(drives::router())
+        .merge(values::router())
         .merge(pdos::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);

@@ -348,8 +348,19 @@ async fn put_pdo(
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
     let task_eds = eds.clone();
+    let values = served.values.clone();
+    let node = info.id;
     let config = tokio::spawn(async move {
-        pdo::configure(&channel, Some(&task_eds.eds.dictionary), &plan).await
+        let config = pdo::configure(&channel, Some(&task_eds.eds.dictionary), &plan).await?;
+        // The gateway decodes the node's TPDOs by the new mapping from now
+        // on; if reading it fails, the values keep the old one until the
+        // node's next identification, and the PDO answer stands.
+        if kind == PdoKind::Tpdo
+            && let Err(err) = values.refresh(node).await
+        {
+            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
+        }
+        Ok(config)
     })
     .await
     .map_err(task_failed)?

@@ -274,6 +274,31 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
     let (_, sync) = get(&app, "/api/v1/buses/demo/sync").await;
     assert!(sync["sent"].as_u64().unwrap() >= syncs as u64, "{sync}");
 
+    // The gateway decodes them by the new mapping too, which it read again
+    // after the PUT: GET .../values.
+    let (status, values) = get(&app, "/api/v1/buses/demo/nodes/1/values").await;
+    assert_eq!(status, StatusCode::OK, "{values}");
+    assert_eq!(values["tpdos"][0]["number"], 1);
+    assert_eq!(values["tpdos"][0]["cob_id"], 0x181);
+    assert_eq!(
+        values["tpdos"][0]["mapping"],
+        json!(["0x6041:0", "0x6064:0"])
+    );
+    let value = |index: &str| {
+        values["values"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|value| value["index"] == index && value["sub"] == 0)
+            .cloned()
+            .unwrap_or_else(|| panic!("{index} in {values}"))
+    };
+    assert_eq!(value("0x6041")["value"], statusword);
+    assert_eq!(value("0x6041")["name"], "a1_Statusword");
+    assert_eq!(value("0x6064")["value"], position);
+    assert_eq!(value("0x6064")["bits"], 32);
+    assert!(value("0x6064")["count"].as_u64().unwrap() >= 8, "{values}");
+
     // SYNC off: no more SYNC, no more TPDO1.
     let (status, _) = put(&app, "/api/v1/buses/demo/sync", json!({"period_ms": 0})).await;
     assert_eq!(status, StatusCode::OK);

@@ -14,6 +14,8 @@
 //! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
 //!   procedure, TPDO decoding and RPDO encoding.
 //! - [`sync`]: the gateway's SYNC producer on a bus.
+//! - [`values`]: the nodes' TPDO values, decoded by the mappings read from
+//!   them.
 
 pub mod drive;
 pub mod pdo;
@@ -21,3 +23,4 @@ pub mod profile;
 pub mod registry;
 pub mod sdo;
 pub mod sync;
+pub mod values;
