@@ -351,6 +351,8 @@ async fn put_pdo(
     let values = served.values.clone();
     let node = info.id;
     let config = tokio::spawn(async move {
+        // Another re-mapping of this node must not interleave its steps.
+        let _procedure = channel.procedure().await;
         let config = pdo::configure(&channel, Some(&task_eds.eds.dictionary), &plan).await?;
         // The gateway decodes the node's TPDOs by the new mapping from now
         // on; if reading it fails, the values keep the old one until the

@@ -3,12 +3,15 @@
 //!
 //! CiA 301 allows one SDO transaction at a time between a client and a
 //! server, so a [`SdoChannel`] runs them one after another; callers queue on
-//! a fair (first come, first served) lock.
+//! a fair (first come, first served) lock. Procedures of several transfers
+//! that must not interleave with another such procedure on the same node (a
+//! PDO re-mapping, a DCF restore, a drive's state walk) hold
+//! [`SdoChannel::procedure`] as well.
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::Mutex;
+use tokio::sync::{Mutex, OwnedMutexGuard};
 
 use crate::can::{Bus, BusError, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
@@ -50,6 +53,7 @@ pub struct SdoChannel {
     bus: Bus,
     node: NodeId,
     session: Arc<Mutex<Session>>,
+    procedure: Arc<Mutex<()>>,
 }
 
 impl SdoChannel {
@@ -60,6 +64,7 @@ impl SdoChannel {
                 client: SdoClient::new(node, config),
                 responses,
             })),
+            procedure: Arc::new(Mutex::new(())),
             bus,
             node,
         }
@@ -67,6 +72,15 @@ impl SdoChannel {
 
     pub fn node(&self) -> NodeId {
         self.node
+    }
+
+    /// Waits until no other procedure runs on this node, and holds off the
+    /// next one until the guard is dropped (first come, first served).
+    /// Single transfers of other callers still go between the steps: the
+    /// node serves them one at a time anyway, and they do not change what
+    /// a procedure configures.
+    pub async fn procedure(&self) -> OwnedMutexGuard<()> {
+        self.procedure.clone().lock_owned().await
     }
 
     /// Reads an object's value bytes.
@@ -299,6 +313,32 @@ mod tests {
             assert_eq!(task.await.unwrap().len(), 4);
         }
         // Nobody was refused as busy (the unwraps): each waited for its turn.
+        server.abort();
+    }
+
+    /// Two procedures on one node do not interleave: each one's write and
+    /// read-back see its own value, though both run at once.
+    #[tokio::test(start_paused = true)]
+    async fn procedures_on_a_node_run_one_after_another() {
+        let hub = VirtualHub::new("test");
+        let server = spawn_device(&hub, AccessType::Rw);
+        let channel = SdoChannel::new(hub.attach(), node(), config());
+        let tasks: Vec<_> = (0..4u32)
+            .map(|i| {
+                let channel = channel.clone();
+                tokio::spawn(async move {
+                    let _procedure = channel.procedure().await;
+                    channel.download(0x2000, 0, &i.to_le_bytes()).await.unwrap();
+                    // Another procedure would write between these steps.
+                    tokio::time::sleep(Duration::from_millis(5)).await;
+                    (i, channel.upload(0x2000, 0).await.unwrap())
+                })
+            })
+            .collect();
+        for task in tasks {
+            let (i, read) = task.await.unwrap();
+            assert_eq!(read, i.to_le_bytes());
+        }
         server.abort();
     }
 }
