@@ -13,7 +13,10 @@
 //! UNSIGNED16 accelerations and the UMC's UNSIGNED32 ones need no special
 //! case; without an EDS the CiA 402 types are used.
 //!
-//! Every wait polls the statusword on tokio's clock with a bound, so a
+//! Each sequence (state walk, fault reset, halt, the set-up of a move)
+//! holds the node's [`SdoChannel::procedure`], so two cannot interleave
+//! their controlwords; the quick stops of [`Drive::quick_stop_if_enabled`]
+//! do not wait for it. Every wait polls the statusword on tokio's clock with a bound, so a
 //! paused clock runs the walks in tests. Callers run each sequence in a
 //! task of its own (a sequence cut half way could leave a drive moving).
 
@@ -21,6 +24,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
+use tokio::sync::OwnedMutexGuard;
 use utoipa::ToSchema;
 
 use super::profile::{EdsEntry, Profile};
@@ -682,6 +686,7 @@ impl Drive {
     /// in the statusword. A drive in fault is not reset here (that is
     /// [`Drive::fault_reset`]'s, asked for on purpose).
     pub async fn set_state(&self, target: State) -> Result<AxisStatus, DriveError> {
+        let _procedure = self.channel.procedure().await;
         let mut statusword = self.statusword().await?;
         // A drive initialising leaves that state by itself.
         if statusword.state() == Some(State::NotReadyToSwitchOn) {
@@ -739,6 +744,7 @@ impl Drive {
     /// switch on disabled must show. A drive whose fault is still present
     /// stays in fault: 409.
     pub async fn fault_reset(&self) -> Result<AxisStatus, DriveError> {
+        let _procedure = self.channel.procedure().await;
         let statusword = self.statusword().await?;
         if statusword.state() == Some(State::Fault) {
             self.controlword(Command::DisableVoltage.bits()).await?;
@@ -784,6 +790,7 @@ impl Drive {
     /// Sets or clears the halt bit (controlword bit 8), the rest of the
     /// controlword kept.
     pub async fn halt(&self, halt: bool) -> Result<AxisStatus, DriveError> {
+        let _procedure = self.channel.procedure().await;
         let statusword = self.statusword().await?;
         let word = self.current_controlword(statusword).await? & !0x0080;
         let word = if halt {
@@ -1062,6 +1069,7 @@ impl Drive {
     pub async fn run_move(&self, request: &MoveRequest) -> Result<AxisStatus, DriveError> {
         let mode = self.mode_for(request.mode()).await?;
         let writes = self.writes(request, mode)?;
+        let procedure = self.channel.procedure().await;
         let statusword = self.statusword().await?;
         match statusword.state() {
             Some(State::OperationEnabled) => {}
@@ -1075,7 +1083,7 @@ impl Drive {
                 });
             }
         }
-        match self.run_steps(request, mode, &writes).await {
+        match self.run_steps(request, mode, &writes, procedure).await {
             Ok(()) => self.status().await,
             Err(error) => {
                 self.stop_after_failure().await;
@@ -1089,6 +1097,7 @@ impl Drive {
         request: &MoveRequest,
         mode: Mode,
         writes: &[Write],
+        procedure: OwnedMutexGuard<()>,
     ) -> Result<(), DriveError> {
         let enable = Command::EnableOperation.bits();
         self.set_mode(mode).await?;
@@ -1140,7 +1149,7 @@ impl Drive {
                 self.write(&write).await?;
             }
             MoveRequest::InterpolatedPosition { period_ms, points } => {
-                self.interpolate(*period_ms, points).await?;
+                self.interpolate(*period_ms, points, procedure).await?;
             }
             MoveRequest::Homing { .. } => {
                 self.controlword(enable).await?;
@@ -1185,7 +1194,13 @@ impl Drive {
     /// Interpolated position: fills the buffer, enables interpolation
     /// (bit 4), and tops the buffer up as the drive drains it, one period
     /// at a time, until every point is in.
-    async fn interpolate(&self, period_ms: u8, points: &[i32]) -> Result<(), DriveError> {
+    async fn interpolate(
+        &self,
+        period_ms: u8,
+        points: &[i32],
+        procedure: OwnedMutexGuard<()>,
+    ) -> Result<(), DriveError> {
+        let mut procedure = Some(procedure);
         let enable = Command::EnableOperation.bits();
         self.controlword(enable).await?;
         let capacity = self
@@ -1220,6 +1235,10 @@ impl Drive {
             if !enabled {
                 self.controlword(enable | CW_BIT4).await?;
                 enabled = true;
+                // The set-up is done; feeding the buffer is single
+                // transfers, which must not hold off the node's other axes
+                // for the whole move.
+                procedure.take();
             }
             if queued < points.len() {
                 let statusword = self.statusword().await?;
