@@ -35,6 +35,7 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
         (name = "leds", description = "LED controllers (UIO1LED): segments, scenes, preview"),
         (name = "config", description = "A node's configuration: store, restore (CiA 301 0x1010, 0x1011), DCF backup and restore (CiA 306)"),
+        (name = "drives", description = "CiA 402 drives: axes, state machine, moves (profiles umc, jmc_stepper, cia402)"),
         (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
     )
 )]
@@ -69,6 +70,11 @@ pub struct ErrorDetail {
     /// With `invalid_dcf`: the line of the DCF that is wrong.
     #[schema(example = 12)]
     pub line: Option<usize>,
+    /// With `drive_fault`, `drive_not_enabled` and `state_change_timeout`:
+    /// the CiA 402 state the axis is in (`unknown` for a statusword that
+    /// names none).
+    #[schema(example = "fault")]
+    pub state: Option<String>,
     /// When a sequence of transfers (a PDO re-mapping) stopped half way: the
     /// step that failed; the steps before it took effect.
     #[schema(example = "write_mapping_entry_2")]

@@ -73,6 +73,23 @@ pub enum AppError {
         message: String,
         line: Option<usize>,
     },
+    /// The node has no axes (its profile is not umc, jmc_stepper or
+    /// cia402).
+    #[error("{0}")]
+    NotADrive(String),
+    #[error("{0}")]
+    UnknownAxis(String),
+    /// The drive is in fault (or went there during a state walk).
+    #[error("{message}")]
+    DriveFault { message: String, state: String },
+    /// A move asks for operation enabled.
+    #[error("{message}")]
+    DriveNotEnabled { message: String, state: String },
+    #[error("{0}")]
+    ModeNotSupported(String),
+    /// The drive did not reach a state (mode, acknowledge) in time.
+    #[error("{message}")]
+    StateChangeTimeout { message: String, state: String },
     /// A PDO number (or kind) the node does not have.
     #[error("{0}")]
     UnknownPdo(String),
@@ -113,6 +130,14 @@ impl AppError {
             Self::NotAnLedController(_) => (StatusCode::NOT_FOUND, "not_an_led_controller"),
             Self::UnknownSegment(_) => (StatusCode::NOT_FOUND, "unknown_segment"),
             Self::InvalidDcf { .. } => (StatusCode::BAD_REQUEST, "invalid_dcf"),
+            Self::NotADrive(_) => (StatusCode::NOT_FOUND, "not_a_drive"),
+            Self::UnknownAxis(_) => (StatusCode::NOT_FOUND, "unknown_axis"),
+            Self::DriveFault { .. } => (StatusCode::CONFLICT, "drive_fault"),
+            Self::DriveNotEnabled { .. } => (StatusCode::CONFLICT, "drive_not_enabled"),
+            Self::ModeNotSupported(_) => (StatusCode::UNPROCESSABLE_ENTITY, "mode_not_supported"),
+            Self::StateChangeTimeout { .. } => {
+                (StatusCode::GATEWAY_TIMEOUT, "state_change_timeout")
+            }
             Self::UnknownPdo(_) => (StatusCode::NOT_FOUND, "unknown_pdo"),
             Self::InvalidMapping(_) => (StatusCode::BAD_REQUEST, "invalid_mapping"),
             Self::PdoDisabled(_) => (StatusCode::CONFLICT, "pdo_disabled"),
@@ -145,6 +170,9 @@ impl AppError {
             Self::InvalidDcf {
                 line: Some(line), ..
             } => body["line"] = json!(line),
+            Self::DriveFault { state, .. }
+            | Self::DriveNotEnabled { state, .. }
+            | Self::StateChangeTimeout { state, .. } => body["state"] = json!(state),
             // Every error is rendered once, here: the one place to log
             // what the client is not told.
             Self::Internal(detail) => tracing::error!("api: {detail}"),

@@ -15,6 +15,8 @@
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
 //! - [`segments`]: LED controllers: segments, scenes, the strip's preview.
 //! - [`config`]: store, restore, DCF backup and restore of a node.
+//! - [`drives`]: CiA 402 drives: axes, state walk, fault reset, halt,
+//!   moves, stop-all.
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
 //!   producer.
 //! - [`values`]: the TPDO values the gateway decodes, by node.
@@ -24,6 +26,7 @@
 pub mod buses;
 pub mod config;
 pub mod doc;
+pub mod drives;
 pub mod error;
 pub mod nodes;
 pub mod od;
@@ -33,6 +36,8 @@ pub mod values;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_drives;
 #[cfg(test)]
 mod tests_leds;
 #[cfg(test)]
@@ -147,6 +152,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(od::router())
         .merge(segments::router())
         .merge(config::router())
+        .merge(drives::router())
         .merge(values::router())
         .merge(pdos::router())
         .split_for_parts();

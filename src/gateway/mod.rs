@@ -5,6 +5,8 @@
 //!
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue.
+//! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
+//!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
@@ -18,6 +20,7 @@
 //!   them.
 
 pub mod dcf;
+pub mod drive;
 pub mod pdo;
 pub mod profile;
 pub mod registry;

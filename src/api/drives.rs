@@ -1,0 +1,443 @@
+//! CiA 402 drives (`../shared/API.md`, "Drives"): the axes of nodes whose
+//! profile is `umc`, `jmc_stepper` or `cia402`, their state machine, fault
+//! reset, halt and moves, and `POST /stop-all`. The CiA 402 master itself is
+//! [`crate::gateway::drive`].
+//!
+//! Errors beside the SDO ones (see [`super::od`]):
+//! - 404 `not_a_drive`: the node's profile has no axes (`uioled`,
+//!   `generic`); 404 `unknown_axis`: no such axis on the node (axes count
+//!   from 1; a UMC1BDS32 has 2).
+//! - 409 `drive_fault`: the axis is in fault, went there during a walk, or
+//!   its fault is still present after a fault reset; 409 `drive_not_enabled`:
+//!   a move, or the target quick_stop_active, needs operation enabled. Both
+//!   carry `state`.
+//! - 422 `mode_not_supported`: the drive lacks the mode (0x6502, or the
+//!   product's fixed list).
+//! - 504 `state_change_timeout`: the statusword (or 0x6061, or the
+//!   set-point acknowledge) did not show the step in time; `state` is where
+//!   the drive stopped.
+//!
+//! Every sequence runs in a task of its own and the handler awaits it: a
+//! client that hangs up never cuts a walk or a move half way. A move that
+//! fails after its first write halts the axis (quick stop if halting fails)
+//! before the error is answered.
+
+use axum::extract::State;
+use serde::{Deserialize, Serialize};
+use serde_json::{Value as Json, json};
+use tokio::task::JoinSet;
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::doc::{ErrorBody, ErrorDetail, NodePath};
+use super::nodes::known_node;
+use super::od::check_sdo_allowed;
+use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::drive::{
+    AxisStatus, Drive, DriveError, DriveKind, MoveRequest, TargetState, axis_count,
+};
+use crate::gateway::registry::NodeInfo;
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_axes))
+        .routes(routes!(one_axis))
+        .routes(routes!(set_state))
+        .routes(routes!(fault_reset))
+        .routes(routes!(halt))
+        .routes(routes!(run_move))
+        .routes(routes!(stop_all))
+}
+
+impl From<DriveError> for AppError {
+    fn from(error: DriveError) -> Self {
+        let state = error.state().map_or("unknown", |s| s.name()).to_string();
+        match error {
+            DriveError::NotADrive { .. } => Self::NotADrive(error.to_string()),
+            DriveError::UnknownAxis { .. } => Self::UnknownAxis(error.to_string()),
+            DriveError::Sdo(error) => Self::from_sdo(error),
+            DriveError::Registry(error) => Self::from(error),
+            DriveError::Fault { .. } => Self::DriveFault {
+                message: error.to_string(),
+                state,
+            },
+            DriveError::Timeout { .. } => Self::StateChangeTimeout {
+                message: error.to_string(),
+                state,
+            },
+            DriveError::ModeNotSupported { .. } => Self::ModeNotSupported(error.to_string()),
+            DriveError::NotEnabled { .. } => Self::DriveNotEnabled {
+                message: error.to_string(),
+                state,
+            },
+            DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
+            DriveError::Invalid(message) => Self::InvalidValue(message),
+        }
+    }
+}
+
+/// An axis of a node named in a path.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Path)]
+#[allow(dead_code)]
+pub struct AxisPath {
+    /// The bus name.
+    #[param(example = "demo")]
+    pub bus: String,
+    /// The node id, 1 to 127.
+    #[param(minimum = 1, maximum = 127, example = 1)]
+    pub id: u8,
+    /// The axis, from 1.
+    #[param(minimum = 1, example = 1)]
+    pub axis: u8,
+}
+
+/// `POST .../state`.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StateRequest {
+    pub target: TargetState,
+}
+
+/// `POST .../halt`.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct HaltRequest {
+    /// Controlword bit 8: true stops the motion and holds, false carries on.
+    pub halt: bool,
+}
+
+/// An axis `POST /stop-all` quick-stopped.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StoppedAxis {
+    #[schema(example = "demo")]
+    pub bus: String,
+    #[schema(example = 1)]
+    pub node: u8,
+    #[schema(example = 1)]
+    pub axis: u8,
+}
+
+/// A node or axis `POST /stop-all` could not stop (or not ask).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StopFailure {
+    #[schema(example = "demo")]
+    pub bus: String,
+    #[schema(example = 2)]
+    pub node: u8,
+    /// Null when the node as a whole failed (offline, wrong NMT state).
+    #[schema(example = 1)]
+    pub axis: Option<u8>,
+    #[schema(value_type = ErrorDetail)]
+    pub error: Json,
+}
+
+/// What `POST /stop-all` did.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StopAllReport {
+    /// The axes that were in operation enabled and were sent quick stop.
+    pub stopped: Vec<StoppedAxis>,
+    pub failed: Vec<StopFailure>,
+}
+
+/// The node's axis from the path, after the checks that need no bus.
+fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, AppError> {
+    let (served, info) = known_node(state, bus, id)?;
+    let drive = Drive::new(&served.registry, &info, axis)?;
+    check_sdo_allowed(&served, &info)?;
+    Ok(drive)
+}
+
+fn task_failed(err: tokio::task::JoinError) -> AppError {
+    AppError::Internal(format!("drive task: {err}"))
+}
+
+/// Runs `sequence` on the drive in a task of its own.
+async fn spawned<F, Fut>(drive: Drive, sequence: F) -> Result<ApiJson<AxisStatus>, AppError>
+where
+    F: FnOnce(Drive) -> Fut + Send + 'static,
+    Fut: Future<Output = Result<AxisStatus, DriveError>> + Send + 'static,
+{
+    let status = tokio::spawn(sequence(drive)).await.map_err(task_failed)??;
+    Ok(ApiJson(status))
+}
+
+/// The axes of a drive node, read now.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/axes", tag = "drives", params(NodePath),
+    responses(
+        (status = 200, description = "Every axis of the node", body = [AxisStatus]),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn list_axes(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+) -> Result<ApiJson<Vec<AxisStatus>>, AppError> {
+    let (served, info) = known_node(&state, &bus, &id)?;
+    let kind = DriveKind::from_profile(info.profile).ok_or_else(|| {
+        AppError::from(DriveError::NotADrive {
+            node: info.id.get(),
+            profile: info.profile,
+        })
+    })?;
+    check_sdo_allowed(&served, &info)?;
+    let count = axis_count(kind, info.eds_entry.as_deref());
+    let drives = (1..=count)
+        .map(|axis| Drive::new(&served.registry, &info, &axis.to_string()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let axes = tokio::spawn(async move {
+        let mut axes = Vec::new();
+        for drive in drives {
+            axes.push(drive.status().await?);
+        }
+        Ok::<_, DriveError>(axes)
+    })
+    .await
+    .map_err(task_failed)??;
+    Ok(ApiJson(axes))
+}
+
+/// One axis, read now.
+#[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/axes/{axis}", tag = "drives", params(AxisPath),
+    responses(
+        (status = 200, description = "The axis", body = AxisStatus),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn one_axis(
+    State(state): State<AppState>,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+) -> Result<ApiJson<AxisStatus>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    spawned(drive, |drive| async move { drive.status().await }).await
+}
+
+/// Walks the CiA 402 state machine to a state.
+///
+/// One transition at a time, the statusword checked after each. A drive in
+/// fault is not reset by this (`fault-reset` does that): 409 `drive_fault`.
+/// Quick stop active is reached from operation enabled only (409
+/// `drive_not_enabled` otherwise: the motor is not powered to be stopped).
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives", params(AxisPath),
+    request_body = StateRequest,
+    responses(
+        (status = 200, description = "The axis in the state asked for", body = AxisStatus),
+        (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`state_change_timeout` (with the `state` it stopped in), `sdo_timeout`", body = ErrorBody),
+    ))]
+async fn set_state(
+    State(state): State<AppState>,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+    ApiJson(request): ApiJson<StateRequest>,
+) -> Result<ApiJson<AxisStatus>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    let target = request.target.state();
+    spawned(
+        drive,
+        move |drive| async move { drive.set_state(target).await },
+    )
+    .await
+}
+
+/// Resets a fault (controlword bit 7, 0→1).
+///
+/// An axis not in fault is left as it is. A fault still present keeps the
+/// drive in fault: 409 `drive_fault`.
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", tag = "drives", params(AxisPath),
+    responses(
+        (status = 200, description = "The axis, out of fault (switch_on_disabled)", body = AxisStatus),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn fault_reset(
+    State(state): State<AppState>,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+) -> Result<ApiJson<AxisStatus>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    spawned(drive, |drive| async move { drive.fault_reset().await }).await
+}
+
+/// Sets or clears halt (controlword bit 8).
+///
+/// The rest of the controlword is kept (read back on a UMC; implied by the
+/// state on a JMC, whose controlword is write only).
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/halt", tag = "drives", params(AxisPath),
+    request_body = HaltRequest,
+    responses(
+        (status = 200, description = "The axis after the controlword", body = AxisStatus),
+        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+    ))]
+async fn halt(
+    State(state): State<AppState>,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+    ApiJson(request): ApiJson<HaltRequest>,
+) -> Result<ApiJson<AxisStatus>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    spawned(
+        drive,
+        move |drive| async move { drive.halt(request.halt).await },
+    )
+    .await
+}
+
+/// Starts a motion in one of the drive's modes.
+///
+/// The axis must be in operation enabled. The gateway switches the mode
+/// (0x6060, waiting for 0x6061), writes the mode's objects for the product
+/// (UMC axis offsets; JMC velocity in 0.1 rps on 0x6081, 16-bit
+/// accelerations) and gives the controlwords: profile position waits for the
+/// set-point acknowledge, interpolated position for the last point to be in
+/// the buffer; the others answer once started. Values are device units. A
+/// move clears halt. If it fails half way, the axis is halted (or
+/// quick-stopped) before the error is answered.
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/move", tag = "drives", params(AxisPath),
+    request_body = MoveRequest,
+    responses(
+        (status = 200, description = "The motion is under way; the axis as it is now", body = AxisStatus),
+        (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`", body = ErrorBody),
+        (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`state_change_timeout` (mode change, set-point acknowledge), `sdo_timeout`", body = ErrorBody),
+    ))]
+async fn run_move(
+    State(state): State<AppState>,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+    ApiJson(request): ApiJson<MoveRequest>,
+) -> Result<ApiJson<AxisStatus>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    drive.validate(&request)?;
+    spawned(
+        drive,
+        move |drive| async move { drive.run_move(&request).await },
+    )
+    .await
+}
+
+/// Quick stop of every enabled axis on every bus.
+///
+/// Every drive node that is online is asked, all at once; an axis in
+/// operation enabled gets the quick stop command. The answer lists what was
+/// stopped and every node or axis that could not be asked or stopped.
+#[utoipa::path(post, path = "/stop-all", tag = "drives",
+    responses(
+        (status = 200, description = "What was stopped, and what failed", body = StopAllReport),
+    ))]
+async fn stop_all(State(state): State<AppState>) -> Result<ApiJson<StopAllReport>, AppError> {
+    // In a task of its own: dropping a JoinSet aborts its tasks, so the
+    // set must not live in the handler's future, which a client hanging up
+    // drops.
+    let report = tokio::spawn(stop_everything(state))
+        .await
+        .map_err(task_failed)??;
+    Ok(ApiJson(report))
+}
+
+async fn stop_everything(state: AppState) -> Result<StopAllReport, AppError> {
+    let mut tasks = JoinSet::new();
+    let mut report = StopAllReport {
+        stopped: Vec::new(),
+        failed: Vec::new(),
+    };
+    for (name, served) in state.buses.iter() {
+        for info in served.registry.nodes() {
+            let Some(kind) = DriveKind::from_profile(info.profile) else {
+                continue;
+            };
+            let node = info.id.get();
+            let fail = |error: AppError| StopFailure {
+                bus: name.clone(),
+                node,
+                axis: None,
+                error: error.to_json(),
+            };
+            if !info.online {
+                report.failed.push(StopFailure {
+                    bus: name.clone(),
+                    node,
+                    axis: None,
+                    error: json!({"code": "node_offline", "message": format!("node {node} is offline")}),
+                });
+                continue;
+            }
+            if let Err(error) = check_sdo_allowed(served, &info) {
+                report.failed.push(fail(error));
+                continue;
+            }
+            let drives = match axes_of(served, &info, kind) {
+                Ok(drives) => drives,
+                Err(error) => {
+                    report.failed.push(fail(error));
+                    continue;
+                }
+            };
+            let name = name.clone();
+            tasks.spawn(async move {
+                let mut results = Vec::new();
+                for drive in drives {
+                    results.push((drive.axis(), drive.quick_stop_if_enabled().await));
+                }
+                (name, node, results)
+            });
+        }
+    }
+    while let Some(joined) = tasks.join_next().await {
+        let (bus, node, results) = joined.map_err(task_failed)?;
+        for (axis, result) in results {
+            match result {
+                Ok(Some(_)) => report.stopped.push(StoppedAxis {
+                    bus: bus.clone(),
+                    node,
+                    axis,
+                }),
+                Ok(None) => {}
+                Err(error) => report.failed.push(StopFailure {
+                    bus: bus.clone(),
+                    node,
+                    axis: Some(axis),
+                    error: AppError::from(error).to_json(),
+                }),
+            }
+        }
+    }
+    Ok(report)
+}
+
+fn axes_of(
+    served: &super::ServedBus,
+    info: &NodeInfo,
+    kind: DriveKind,
+) -> Result<Vec<Drive>, AppError> {
+    (1..=axis_count(kind, info.eds_entry.as_deref()))
+        .map(|axis| Ok(Drive::new(&served.registry, info, &axis.to_string())?))
+        .collect()
+}
