@@ -10,10 +10,11 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::doc::{BusPath, ErrorBody, NodePath};
+use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -132,6 +133,16 @@ pub struct NodeDetail {
     pub node: Node,
     /// The last 32 emergencies, oldest first.
     pub emcy: Vec<Emergency>,
+    /// A drive's axes, read now (profiles umc, jmc_stepper, cia402).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axes: Option<Vec<crate::gateway::drive::AxisStatus>>,
+    /// An LED controller's segments, read now (profile uioled).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub segments: Option<Vec<super::segments::SegmentState>>,
+    /// Why the profile's summary (`axes` or `segments`) could not be read:
+    /// the node is stopped, or did not answer. The rest of the answer stands.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub summary_error: Option<ErrorDetail>,
 }
 
 /// The bus and the registry's view of the node a path names: 400 for an id
@@ -176,7 +187,11 @@ async fn list_nodes(
     Ok(ApiJson(to_json(&served.registry.nodes())?))
 }
 
-/// One node, with its recent emergencies.
+/// One node, with its recent emergencies and its profile's summary.
+///
+/// A drive's answer has its `axes` and an LED controller's its `segments`,
+/// read over SDO now; when they cannot be read (a stopped node, a timeout)
+/// `summary_error` says why and the rest of the answer stands.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}", tag = "nodes", params(NodePath),
     responses(
         (status = 200, description = "The node", body = NodeDetail),
@@ -191,6 +206,24 @@ async fn one_node(
     let mut body = to_json(&info)?;
     let emcy = served.registry.emcy(info.id).unwrap_or_default();
     body["emcy"] = to_json(&emcy)?;
+    let summary = match info.profile {
+        Profile::Umc | Profile::JmcStepper | Profile::Cia402 => Some(
+            axes_summary(&served, &info)
+                .await
+                .and_then(|axes| Ok(("axes", to_json(&axes)?))),
+        ),
+        Profile::Uioled => Some(
+            super::segments::summary(&served, &info)
+                .await
+                .and_then(|segments| Ok(("segments", to_json(&segments)?))),
+        ),
+        Profile::Generic => None,
+    };
+    match summary {
+        Some(Ok((key, value))) => body[key] = value,
+        Some(Err(err)) => body["summary_error"] = err.to_json(),
+        None => {}
+    }
     Ok(ApiJson(body))
 }
 
@@ -308,4 +341,18 @@ async fn nmt_all(
         node: "all".to_string(),
         sent: true,
     }))
+}
+
+/// A drive's axes, read in a task of its own.
+async fn axes_summary(
+    served: &ServedBus,
+    info: &NodeInfo,
+) -> Result<Vec<crate::gateway::drive::AxisStatus>, AppError> {
+    super::od::check_sdo_allowed(served, info)?;
+    let registry = served.registry.clone();
+    let info = info.clone();
+    tokio::spawn(async move { crate::gateway::drive::axes_summary(&registry, &info).await })
+        .await
+        .map_err(|err| AppError::Internal(format!("axes task: {err}")))?
+        .map_err(AppError::from)
 }

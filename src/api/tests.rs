@@ -571,3 +571,48 @@ async fn docs_ui_is_served_from_the_binary() {
     assert_eq!(status, StatusCode::OK);
     assert!(bundle.len() > 100_000);
 }
+
+/// A node's answer carries its profile's summary: axes for drives,
+/// segments for LED controllers; a stopped node says why it has none.
+#[tokio::test(start_paused = true)]
+async fn one_node_has_its_profile_summary() {
+    let (app, _) = demo().await;
+    let (status, umc) = get(&app, "/api/v1/buses/demo/nodes/1").await;
+    assert_eq!(status, StatusCode::OK, "{umc}");
+    let axes = umc["axes"].as_array().unwrap();
+    assert_eq!(axes.len(), 2, "{umc}");
+    assert_eq!(axes[1]["axis"], 2);
+    assert_eq!(axes[0]["state"], "switch_on_disabled");
+    assert!(umc.get("segments").is_none(), "{umc}");
+    let (_, jmc) = get(&app, "/api/v1/buses/demo/nodes/2").await;
+    assert_eq!(jmc["axes"].as_array().unwrap().len(), 1, "{jmc}");
+    let (_, leds) = get(&app, "/api/v1/buses/demo/nodes/3").await;
+    let segments = leds["segments"].as_array().unwrap();
+    assert_eq!(segments.len(), 10, "{leds}");
+    assert_eq!(segments[9]["segment"], 10);
+    assert!(leds.get("axes").is_none(), "{leds}");
+
+    // With a heartbeat, the gateway knows when the node is stopped.
+    let (status, _) = call(
+        &app,
+        Method::PUT,
+        "/api/v1/buses/demo/nodes/3/od/0x1017/0",
+        Some(r#"{"value":100}"#),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    let (status, _) = call(
+        &app,
+        Method::POST,
+        "/api/v1/buses/demo/nodes/3/nmt",
+        Some(r#"{"command":"stop"}"#),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (status, stopped) = get(&app, "/api/v1/buses/demo/nodes/3").await;
+    assert_eq!(status, StatusCode::OK, "{stopped}");
+    assert_eq!(stopped["nmt"], "stopped", "{stopped}");
+    assert!(stopped.get("segments").is_none(), "{stopped}");
+    assert_eq!(stopped["summary_error"]["code"], "wrong_nmt_state");
+}
