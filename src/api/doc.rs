@@ -33,6 +33,8 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "buses", description = "The gateway and its CAN buses"),
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
+        (name = "frames", description = "Raw CAN frames of a bus (ISO 11898-1)"),
+        (name = "sim", description = "The virtual devices of an emulated bus: add, remove, inject faults"),
     )
 )]
 pub struct ApiDoc;

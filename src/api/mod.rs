@@ -13,14 +13,18 @@
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
+//! - [`frames`]: a bus's recent frames, and one frame sent.
+//! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod buses;
 pub mod doc;
 pub mod error;
+pub mod frames;
 pub mod nodes;
 pub mod od;
+pub mod sim;
 
 #[cfg(test)]
 mod tests;
@@ -35,6 +39,7 @@ use utoipa_swagger_ui::{Config, SwaggerUi};
 
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
+use crate::gateway::frames::FrameLog;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::sim::rack::Rack;
@@ -52,9 +57,12 @@ pub struct ServedBus {
     /// The hub of a virtual bus, which counts every frame on it (an
     /// attachment to a hub counts only what it sends).
     pub hub: Option<VirtualHub>,
-    /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
+    /// The virtual devices of a virtual bus (`virtual:demo` starts with
+    /// the demo devices, `virtual:empty` with none); `None` elsewhere.
     pub rack: Option<Rack>,
     pub load: LoadMeter,
+    /// The bus's recent frames.
+    pub frames: FrameLog,
 }
 
 impl ServedBus {
@@ -68,18 +76,38 @@ impl ServedBus {
         config: RegistryConfig,
         bitrate: u32,
     ) -> Result<Self, String> {
+        Self::open_with_data_dir(name, spec, catalog, config, bitrate, None).await
+    }
+
+    /// [`ServedBus::open`], and the virtual devices of a virtual bus keep
+    /// what they save (0x1010) under `data_dir` (see
+    /// [`Rack::with_data_dir`]).
+    pub async fn open_with_data_dir(
+        name: &str,
+        spec: &BusSpec,
+        catalog: Arc<EdsCatalog>,
+        config: RegistryConfig,
+        bitrate: u32,
+        data_dir: Option<std::path::PathBuf>,
+    ) -> Result<Self, String> {
         let opened = spec.open(name).await.map_err(|err| err.to_string())?;
         let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        // Recording starts before the devices boot: their boot-ups are the
+        // first frames of the log.
+        let frames = FrameLog::spawn(&opened.bus);
         let rack = match (spec, &opened.hub) {
-            (BusSpec::Virtual { preset }, Some(hub)) if preset == "demo" => {
-                let rack = Rack::new(hub.clone());
-                rack.add_all(&crate::sim::products::demo())
-                    .map_err(|err| err.to_string())?;
+            (BusSpec::Virtual { preset }, Some(hub)) => {
+                let rack = Rack::with_data_dir(hub.clone(), data_dir);
+                if preset == "demo" {
+                    rack.add_all(&crate::sim::products::demo())
+                        .map_err(|err| err.to_string())?;
+                }
                 Some(rack)
             }
             _ => None,
         };
         Ok(Self {
+            frames,
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
@@ -124,6 +152,8 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(buses::router())
         .merge(nodes::router())
         .merge(od::router())
+        .merge(frames::router())
+        .merge(sim::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
