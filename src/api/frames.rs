@@ -214,7 +214,7 @@ fn parse_hex(text: &str) -> Result<Vec<u8>, AppError> {
         .filter(|byte| !byte.is_ascii_whitespace())
         .collect();
     let invalid = || AppError::InvalidValue(format!("data '{text}' is no hex byte string"));
-    if digits.len() % 2 != 0 {
+    if !digits.len().is_multiple_of(2) {
         return Err(invalid());
     }
     let bytes = digits
