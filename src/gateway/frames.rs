@@ -6,6 +6,11 @@
 //! one short lock and one copy of a [`TimedFrame`] per frame; formatting
 //! happens when someone asks. A reader that falls behind the bus loses the
 //! oldest frames (counted in [`FrameLog::lost`]), never slows the bus.
+//!
+//! Measured (`cost_per_frame`, release, one sender, this 2-core machine
+//! under load): 106 ns per frame with nothing watching, 168 ns with a bare
+//! monitor drained, 184 ns with the log: the ring itself adds about 16 ns
+//! per frame to the monitor any watcher costs.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -119,5 +124,46 @@ mod tests {
             vec![CAPACITY as u32 + 3, CAPACITY as u32 + 4, 0x7FF]
         );
         assert_eq!(log.lost(), 0);
+    }
+
+    /// What the log costs the bus: frames/s from one sender to the
+    /// gateway's attachment with nothing watching, with a bare monitor
+    /// drained, and with the log. Run with
+    /// `cargo test --release --lib gateway::frames -- --ignored --nocapture`.
+    #[tokio::test]
+    #[ignore = "a measurement"]
+    async fn cost_per_frame() {
+        const FRAMES: u32 = 500_000;
+        async fn run(watch: u8) -> f64 {
+            let hub = VirtualHub::new("bench");
+            let gateway = hub.attach();
+            let other = hub.attach();
+            let _log = (watch == 2).then(|| FrameLog::spawn(&gateway));
+            let mut monitor = (watch == 1).then(|| gateway.monitor());
+            let drain = monitor.take().map(|mut monitor| {
+                tokio::spawn(async move { while monitor.recv().await.is_ok() {} })
+            });
+            let frame = Frame::new(CanId::standard(0x181).unwrap(), &[1, 2, 3, 4]).unwrap();
+            let start = std::time::Instant::now();
+            for n in 0..FRAMES {
+                other.try_send(frame).unwrap();
+                if n % 32 == 0 {
+                    tokio::task::yield_now().await;
+                }
+            }
+            tokio::task::yield_now().await;
+            let rate = f64::from(FRAMES) / start.elapsed().as_secs_f64();
+            if let Some(drain) = drain {
+                drain.abort();
+            }
+            rate
+        }
+        for (watch, what) in [(0, "nothing"), (1, "a bare monitor"), (2, "the frame log")] {
+            let rate = run(watch).await;
+            println!(
+                "frames/s with {what}: {rate:.0} ({:.0} ns/frame)",
+                1e9 / rate
+            );
+        }
     }
 }
