@@ -37,6 +37,8 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "config", description = "A node's configuration: store, restore (CiA 301 0x1010, 0x1011), DCF backup and restore (CiA 306)"),
         (name = "drives", description = "CiA 402 drives: axes, state machine, moves (profiles umc, jmc_stepper, cia402)"),
         (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
+        (name = "frames", description = "Raw CAN frames of a bus (ISO 11898-1)"),
+        (name = "sim", description = "The virtual devices of an emulated bus: add, remove, inject faults"),
     )
 )]
 pub struct ApiDoc;

@@ -103,6 +103,18 @@ pub enum AppError {
     /// with the step named (the steps before it took effect).
     #[error("step {step} failed: {source}")]
     FailedAt { step: String, source: Box<AppError> },
+    /// A `/sim` request on a bus that has no virtual devices.
+    #[error("bus {0} is no virtual bus: it has no virtual devices to control")]
+    NotVirtual(String),
+    /// No virtual device at this node id of a virtual bus.
+    #[error("no virtual device is at node {node} of bus {bus}")]
+    UnknownDevice { bus: String, node: u8 },
+    /// A virtual device is added at a node id another one has.
+    #[error("{0}")]
+    NodeTaken(String),
+    /// The virtual device's product cannot have this fault.
+    #[error("{0}")]
+    FaultNotApplicable(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -142,6 +154,12 @@ impl AppError {
             Self::InvalidMapping(_) => (StatusCode::BAD_REQUEST, "invalid_mapping"),
             Self::PdoDisabled(_) => (StatusCode::CONFLICT, "pdo_disabled"),
             Self::FailedAt { source, .. } => source.status_and_code(),
+            Self::NotVirtual(_) => (StatusCode::CONFLICT, "not_virtual"),
+            Self::UnknownDevice { .. } => (StatusCode::NOT_FOUND, "unknown_node"),
+            Self::NodeTaken(_) => (StatusCode::CONFLICT, "node_taken"),
+            Self::FaultNotApplicable(_) => {
+                (StatusCode::UNPROCESSABLE_ENTITY, "fault_not_applicable")
+            }
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }

@@ -20,6 +20,8 @@
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
 //!   producer.
 //! - [`values`]: the TPDO values the gateway decodes, by node.
+//! - [`frames`]: a bus's recent frames, and one frame sent.
+//! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -28,10 +30,12 @@ pub mod config;
 pub mod doc;
 pub mod drives;
 pub mod error;
+pub mod frames;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
 pub mod segments;
+pub mod sim;
 pub mod values;
 
 #[cfg(test)]
@@ -53,6 +57,7 @@ use utoipa_swagger_ui::{Config, SwaggerUi};
 
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
+use crate::gateway::frames::FrameLog;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
@@ -72,13 +77,16 @@ pub struct ServedBus {
     /// The hub of a virtual bus, which counts every frame on it (an
     /// attachment to a hub counts only what it sends).
     pub hub: Option<VirtualHub>,
-    /// The virtual devices of a `virtual:demo` bus; `None` elsewhere.
+    /// The virtual devices of a virtual bus (`virtual:demo` starts with
+    /// the demo devices, `virtual:empty` with none); `None` elsewhere.
     pub rack: Option<Rack>,
     pub load: LoadMeter,
     /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
     pub sync: SyncService,
     /// The nodes' TPDO values, decoded by the mappings read from them.
     pub values: TpdoValues,
+    /// The bus's recent frames.
+    pub frames: FrameLog,
 }
 
 impl ServedBus {
@@ -92,18 +100,38 @@ impl ServedBus {
         config: RegistryConfig,
         bitrate: u32,
     ) -> Result<Self, String> {
+        Self::open_with_data_dir(name, spec, catalog, config, bitrate, None).await
+    }
+
+    /// [`ServedBus::open`], and the virtual devices of a virtual bus keep
+    /// what they save (0x1010) under `data_dir` (see
+    /// [`Rack::with_data_dir`]).
+    pub async fn open_with_data_dir(
+        name: &str,
+        spec: &BusSpec,
+        catalog: Arc<EdsCatalog>,
+        config: RegistryConfig,
+        bitrate: u32,
+        data_dir: Option<std::path::PathBuf>,
+    ) -> Result<Self, String> {
         let opened = spec.open(name).await.map_err(|err| err.to_string())?;
         let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        // Recording starts before the devices boot: their boot-ups are the
+        // first frames of the log.
+        let frames = FrameLog::spawn(&opened.bus);
         let rack = match (spec, &opened.hub) {
-            (BusSpec::Virtual { preset }, Some(hub)) if preset == "demo" => {
-                let rack = Rack::new(hub.clone());
-                rack.add_all(&crate::sim::products::demo())
-                    .map_err(|err| err.to_string())?;
+            (BusSpec::Virtual { preset }, Some(hub)) => {
+                let rack = Rack::with_data_dir(hub.clone(), data_dir);
+                if preset == "demo" {
+                    rack.add_all(&crate::sim::products::demo())
+                        .map_err(|err| err.to_string())?;
+                }
                 Some(rack)
             }
             _ => None,
         };
         Ok(Self {
+            frames,
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
@@ -155,6 +183,8 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(drives::router())
         .merge(values::router())
         .merge(pdos::router())
+        .merge(frames::router())
+        .merge(sim::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);

@@ -2,13 +2,15 @@
 //! (`../shared/API.md`, "Command line" and "REST").
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use clap::Args;
 
 use super::{CliError, shutdown_signal};
 use crate::api::{AppState, ServedBus};
+use crate::can::VirtualHub;
+use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::can::spec::BusSpec;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
@@ -52,11 +54,50 @@ impl std::str::FromStr for NamedBus {
     }
 }
 
+impl<'de> serde::Deserialize<'de> for NamedBus {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(deserializer)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// A bus to share over socketcand: `ADDR` (every virtual bus) or
+/// `NAME=ADDR` (that one).
+#[derive(Debug, Clone)]
+pub struct Share {
+    pub bus: Option<String>,
+    pub addr: SocketAddr,
+}
+
+impl std::str::FromStr for Share {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (bus, addr) = match text.split_once('=') {
+            Some((name, addr)) => (Some(name.to_string()), addr),
+            None => (None, text),
+        };
+        let addr = addr
+            .trim()
+            .parse()
+            .map_err(|_| format!("'{addr}' is no address like 127.0.0.1:29536"))?;
+        Ok(Self { bus, addr })
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Share {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(deserializer)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// Address the HTTP server listens on (port 0 picks a free port).
-    #[arg(long, default_value_t = default_serve_listen())]
-    pub listen: SocketAddr,
+    /// Default: 127.0.0.1:8080.
+    #[arg(long)]
+    pub listen: Option<SocketAddr>,
     /// A bus to serve, as NAME=SPEC or SPEC (virtual:demo, virtual:empty,
     /// socketcan:can0, socketcand:HOST:PORT/CHANNEL); repeat for more.
     /// Default: demo=virtual:demo, the demo devices on an emulated bus.
@@ -66,42 +107,226 @@ pub struct ServeArgs {
     #[arg(long, value_name = "DIR")]
     pub eds_dir: Option<PathBuf>,
     /// The buses' bit rate in bit/s, which the load in GET /buses is a
-    /// fraction of.
-    #[arg(long, default_value_t = DEFAULT_BITRATE, value_parser = clap::value_parser!(u32).range(1..))]
-    pub bitrate: u32,
+    /// fraction of. Default: 500000.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub bitrate: Option<u32>,
+    /// A TOML (or, named *.json, JSON) file of settings: listen, buses
+    /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list).
+    /// Options given on the command line override it; relative paths in it
+    /// are relative to the file.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Where candeck keeps its data (created if missing): the virtual
+    /// devices of bus NAME keep what they save (0x1010) under DIR/sim/NAME,
+    /// across restarts. Without it, saved values last until candeck stops.
+    #[arg(long, value_name = "DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Share virtual buses over the socketcand protocol, so that other
+    /// programs (candeck --bus socketcand:..., python-can, can-utils) join
+    /// them: ADDR shares every virtual bus, NAME=ADDR bus NAME; the channel
+    /// of a bus is its name. Repeat for more.
+    #[arg(long, value_name = "[NAME=]ADDR")]
+    pub share: Vec<Share>,
+}
+
+/// The settings of a config file (`--config`).
+#[derive(Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ConfigFile {
+    listen: Option<SocketAddr>,
+    #[serde(default)]
+    buses: Vec<NamedBus>,
+    eds_dir: Option<PathBuf>,
+    data_dir: Option<PathBuf>,
+    bitrate: Option<u32>,
+    #[serde(default)]
+    share: Vec<Share>,
+}
+
+impl ConfigFile {
+    /// Reads `path`: JSON when named `*.json`, TOML otherwise. The error
+    /// names the file and the line.
+    fn read(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|err| format!("config {}: {err}", path.display()))?;
+        let is_json = path
+            .extension()
+            .is_some_and(|ext| ext.eq_ignore_ascii_case("json"));
+        let mut config: Self = if is_json {
+            serde_json::from_str(&text)
+                .map_err(|err| format!("config {}: {err}", path.display()))?
+        } else {
+            toml::from_str(&text).map_err(|err| {
+                // toml's message is several lines (the line quoted, a
+                // caret); one line for the terminal: where, then what.
+                let message = err.message();
+                match err.span().map(|span| line_column(&text, span.start)) {
+                    Some((line, column)) => format!(
+                        "config {}: line {line}, column {column}: {message}",
+                        path.display()
+                    ),
+                    None => format!("config {}: {message}", path.display()),
+                }
+            })?
+        };
+        if config.bitrate == Some(0) {
+            return Err(format!(
+                "config {}: bitrate 0: a bit rate is at least 1",
+                path.display()
+            ));
+        }
+        // Relative paths are the file's: the same wherever candeck starts.
+        let base = path.parent().unwrap_or(Path::new(""));
+        for dir in [&mut config.eds_dir, &mut config.data_dir]
+            .into_iter()
+            .flatten()
+        {
+            if dir.is_relative() {
+                *dir = base.join(&*dir);
+            }
+        }
+        Ok(config)
+    }
+}
+
+/// The 1-based line and column of byte `offset` of `text`.
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before.len() - before.rfind('\n').map_or(0, |at| at + 1) + 1;
+    (line, column)
+}
+
+/// What `candeck serve` runs with: the command line over the config file
+/// over the defaults.
+#[derive(Debug)]
+struct Settings {
+    listen: SocketAddr,
+    buses: Vec<NamedBus>,
+    eds_dir: Option<PathBuf>,
+    data_dir: Option<PathBuf>,
+    bitrate: u32,
+    share: Vec<Share>,
 }
 
 impl ServeArgs {
-    /// The buses to serve: those given, or the demo bus.
-    fn buses(&self) -> Vec<NamedBus> {
-        if self.buses.is_empty() {
-            vec![NamedBus {
+    /// The settings: each option from the command line, else from the
+    /// config file, else its default (the demo bus when no bus is given).
+    fn settings(&self) -> Result<Settings, String> {
+        let file = match &self.config {
+            Some(path) => ConfigFile::read(path)?,
+            None => ConfigFile::default(),
+        };
+        let pick = |flag: &Vec<NamedBus>, file: Vec<NamedBus>| {
+            if flag.is_empty() { file } else { flag.clone() }
+        };
+        let mut buses = pick(&self.buses, file.buses);
+        if buses.is_empty() {
+            buses.push(NamedBus {
                 name: "demo".to_string(),
                 spec: BusSpec::Virtual {
                     preset: "demo".to_string(),
                 },
-            }]
-        } else {
-            self.buses.clone()
+            });
         }
+        let settings = Settings {
+            listen: self
+                .listen
+                .or(file.listen)
+                .unwrap_or_else(default_serve_listen),
+            buses,
+            eds_dir: self.eds_dir.clone().or(file.eds_dir),
+            data_dir: self.data_dir.clone().or(file.data_dir),
+            bitrate: self.bitrate.or(file.bitrate).unwrap_or(DEFAULT_BITRATE),
+            share: if self.share.is_empty() {
+                file.share
+            } else {
+                self.share.clone()
+            },
+        };
+        settings.validate()?;
+        Ok(settings)
     }
 
     /// What clap cannot check one argument at a time: two buses of one name.
     pub fn validate(&self) -> Result<(), String> {
-        let mut seen = std::collections::BTreeSet::new();
-        for bus in &self.buses {
-            if !seen.insert(bus.name.as_str()) {
-                return Err(format!(
-                    "invalid value for '--bus': two buses are named '{}'; name them NAME=SPEC",
-                    bus.name
-                ));
+        unique_names(&self.buses, "--bus")
+    }
+}
+
+fn unique_names(buses: &[NamedBus], source: &str) -> Result<(), String> {
+    let mut seen = std::collections::BTreeSet::new();
+    for bus in buses {
+        if !seen.insert(bus.name.as_str()) {
+            return Err(format!(
+                "invalid value for '{source}': two buses are named '{}'; name them NAME=SPEC",
+                bus.name
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Settings {
+    fn validate(&self) -> Result<(), String> {
+        unique_names(&self.buses, "buses")?;
+        for share in &self.share {
+            match &share.bus {
+                Some(name) => {
+                    let bus = self
+                        .buses
+                        .iter()
+                        .find(|bus| &bus.name == name)
+                        .ok_or_else(|| format!("--share {name}=...: no bus is named '{name}'"))?;
+                    if !matches!(bus.spec, BusSpec::Virtual { .. }) {
+                        return Err(format!(
+                            "--share {name}=...: bus {name} is {}, not a virtual bus; only a virtual bus can be shared",
+                            bus.spec
+                        ));
+                    }
+                }
+                None => {
+                    if !self
+                        .buses
+                        .iter()
+                        .any(|bus| matches!(bus.spec, BusSpec::Virtual { .. }))
+                    {
+                        return Err(format!("--share {}: no virtual bus to share", share.addr));
+                    }
+                }
             }
         }
         Ok(())
     }
+
+    /// The socketcand servers to start: each address with the virtual
+    /// buses it shares, as (channel, hub).
+    fn shared(
+        &self,
+        served: &[ServedBus],
+    ) -> std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> {
+        let mut servers: std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> =
+            std::collections::BTreeMap::new();
+        for share in &self.share {
+            let channels = servers.entry(share.addr).or_default();
+            for bus in served {
+                let Some(hub) = &bus.hub else { continue };
+                let wanted = share.bus.as_ref().is_none_or(|name| name == &bus.name);
+                if wanted && !channels.iter().any(|(name, _)| name == &bus.name) {
+                    channels.push((bus.name.clone(), hub.clone()));
+                }
+            }
+        }
+        servers
+    }
 }
 
 pub async fn run(args: ServeArgs) -> Result<(), CliError> {
+    let args = args.settings().map_err(CliError::new)?;
+    if let Some(dir) = &args.data_dir {
+        std::fs::create_dir_all(dir)
+            .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
+    }
     let catalog = match &args.eds_dir {
         Some(dir) => EdsCatalog::with_dir(dir),
         None => EdsCatalog::builtin(),
@@ -109,17 +334,31 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     .map_err(CliError::new)?;
     let catalog = Arc::new(catalog);
     let mut served = Vec::new();
-    for bus in args.buses() {
-        let opened = ServedBus::open(
+    for bus in &args.buses {
+        let data_dir = args
+            .data_dir
+            .as_ref()
+            .map(|dir| dir.join("sim").join(&bus.name));
+        let opened = ServedBus::open_with_data_dir(
             &bus.name,
             &bus.spec,
             catalog.clone(),
             RegistryConfig::default(),
             args.bitrate,
+            data_dir,
         )
         .await
         .map_err(|err| CliError::new(format!("bus {}: {err}", bus.name)))?;
         served.push(opened);
+    }
+    let mut shares = Vec::new();
+    for (addr, channels) in args.shared(&served) {
+        let names: Vec<String> = channels.iter().map(|(name, _)| name.clone()).collect();
+        let server = SocketcandServer::bind(addr, channels, ServerConfig::default())
+            .await
+            .and_then(SocketcandServer::spawn)
+            .map_err(|err| CliError::new(format!("--share: cannot listen on {addr}: {err}")))?;
+        shares.push((server, names));
     }
     let listener = tokio::net::TcpListener::bind(args.listen)
         .await
@@ -137,6 +376,14 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         "candeck: serving http://{local}/ ({label} {})",
         described.join(", ")
     );
+    for (server, names) in &shares {
+        let label = if names.len() == 1 { "bus" } else { "buses" };
+        println!(
+            "candeck: sharing {label} {} over socketcand on {} (channel = bus name)",
+            names.join(", "),
+            server.local_addr()
+        );
+    }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
     for bus in &served {
@@ -154,6 +401,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         .with_graceful_shutdown(shutdown_signal())
         .await
         .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    drop(shares);
     tracing::info!("serve: stopped");
     Ok(())
 }

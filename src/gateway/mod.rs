@@ -7,6 +7,7 @@
 //!   a time, with a fair queue.
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
+//! - [`frames`]: the recent frames of a bus, in a bounded ring.
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
@@ -21,6 +22,7 @@
 
 pub mod dcf;
 pub mod drive;
+pub mod frames;
 pub mod pdo;
 pub mod profile;
 pub mod registry;

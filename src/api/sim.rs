@@ -1,0 +1,261 @@
+//! The test bench of a virtual bus (`/buses/{bus}/sim/...`): add a virtual
+//! device, take one off the bus, inject and clear faults. What the devices
+//! do then reaches the gateway as on a real bus: an added device boots
+//! (its boot-up puts it in the node list), a removed one falls silent (its
+//! heartbeat is missed), a fault sends its EMCY.
+//!
+//! Only a virtual bus (`virtual:demo`, `virtual:empty`) has devices to
+//! control; on any other bus these paths answer 409 `not_virtual` (the bus
+//! exists; what it is forbids the request).
+//!
+//! A fault the product does not have (an LED controller has no following
+//! error) is 422 `fault_not_applicable`: the request is well formed, the
+//! device refuses it, as a device refuses an SDO write with an abort.
+
+use axum::extract::State;
+use axum::http::StatusCode;
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::doc::{BusPath, ErrorBody, NodePath};
+use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::canopen::NodeId;
+use crate::sim::behaviour::Fault;
+use crate::sim::products::Product;
+use crate::sim::rack::{Rack, RackError};
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_devices, add_device))
+        .routes(routes!(remove_device))
+        .routes(routes!(inject_fault, clear_fault))
+}
+
+/// A virtual device on a bus.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SimDevice {
+    #[schema(example = 4, minimum = 1, maximum = 127)]
+    pub id: u8,
+    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`; null for a device
+    /// built from a dictionary of its own (tests).
+    #[schema(example = "uio1led")]
+    pub product: Option<String>,
+    /// Whether its cable is in.
+    pub plugged: bool,
+}
+
+/// A virtual device to add.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"product": "uio1led", "id": 4}))]
+pub struct AddDevice {
+    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`.
+    #[schema(example = "uio1led")]
+    pub product: String,
+    /// The node id, 1 to 127.
+    #[schema(example = 4)]
+    pub id: i64,
+}
+
+/// A fault to inject or clear.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"kind": "over_temperature"}))]
+pub struct FaultRequest {
+    /// `over_temperature`, `under_voltage`, `following_error`,
+    /// `over_current` or `heartbeat_loss`.
+    #[schema(example = "over_temperature")]
+    pub kind: String,
+}
+
+impl FaultRequest {
+    fn fault(&self) -> Result<Fault, AppError> {
+        Fault::from_name(self.kind.trim()).ok_or_else(|| {
+            let known: Vec<&str> = Fault::ALL.iter().map(|fault| fault.name()).collect();
+            AppError::InvalidValue(format!(
+                "fault '{}' is none of {}",
+                self.kind,
+                known.join(", ")
+            ))
+        })
+    }
+}
+
+/// The rack of a virtual bus: 404 for no such bus, 409 for a bus with no
+/// virtual devices.
+fn rack(state: &AppState, bus: &str) -> Result<Rack, AppError> {
+    state
+        .bus(bus)?
+        .rack
+        .clone()
+        .ok_or_else(|| AppError::NotVirtual(bus.to_string()))
+}
+
+fn node_id(id: &str) -> Result<NodeId, AppError> {
+    id.parse()
+        .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))
+}
+
+fn rack_error(bus: &str, error: RackError) -> AppError {
+    match error {
+        RackError::UnknownNode(node) => AppError::UnknownDevice {
+            bus: bus.to_string(),
+            node: node.get(),
+        },
+        RackError::NodeTaken(..) => AppError::NodeTaken(error.to_string()),
+        RackError::Fault(fault) => AppError::FaultNotApplicable(fault.to_string()),
+        RackError::Device(detail) => AppError::Internal(format!("virtual device: {detail}")),
+    }
+}
+
+fn device(rack: &Rack, node: NodeId) -> Option<SimDevice> {
+    rack.devices()
+        .into_iter()
+        .find(|(id, _, _)| *id == node)
+        .map(to_doc)
+}
+
+fn to_doc((id, product, plugged): (NodeId, Option<Product>, bool)) -> SimDevice {
+    SimDevice {
+        id: id.get(),
+        product: product.map(|product| product.name().to_string()),
+        plugged,
+    }
+}
+
+/// The virtual devices of the bus.
+#[utoipa::path(get, path = "/buses/{bus}/sim/nodes", tag = "sim", params(BusPath),
+    responses(
+        (status = 200, description = "The devices, by node id", body = [SimDevice]),
+        (status = 404, description = "`unknown_bus`", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus has no virtual devices", body = ErrorBody),
+    ))]
+async fn list_devices(
+    State(state): State<AppState>,
+    ApiPath(bus): ApiPath<String>,
+) -> Result<ApiJson<Vec<SimDevice>>, AppError> {
+    let rack = rack(&state, &bus)?;
+    Ok(ApiJson(rack.devices().into_iter().map(to_doc).collect()))
+}
+
+/// Adds a virtual device; it boots at once.
+///
+/// With `--data-dir`, it starts with the parameters a device of this
+/// product and node id saved there before.
+#[utoipa::path(post, path = "/buses/{bus}/sim/nodes", tag = "sim", params(BusPath),
+    request_body = AddDevice,
+    responses(
+        (status = 201, description = "The device, booted", body = SimDevice),
+        (status = 400, description = "`invalid_request` (malformed body), `invalid_value` (unknown product), `value_out_of_range` (id not 1 to 127)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus has no virtual devices; `node_taken`: a device has this id", body = ErrorBody),
+    ))]
+async fn add_device(
+    State(state): State<AppState>,
+    ApiPath(bus): ApiPath<String>,
+    ApiJson(request): ApiJson<AddDevice>,
+) -> Result<(StatusCode, ApiJson<SimDevice>), AppError> {
+    let rack = rack(&state, &bus)?;
+    let product = Product::from_name(&request.product).ok_or_else(|| {
+        let known: Vec<&str> = Product::ALL.iter().map(|product| product.name()).collect();
+        AppError::InvalidValue(format!(
+            "product '{}' is none of {}",
+            request.product,
+            known.join(", ")
+        ))
+    })?;
+    let node = u8::try_from(request.id)
+        .ok()
+        .and_then(|id| NodeId::new(id).ok())
+        .ok_or_else(|| {
+            AppError::ValueOutOfRange(format!("node id {} is not 1 to 127", request.id))
+        })?;
+    rack.add(product, node)
+        .map_err(|err| rack_error(&bus, err))?;
+    let added = device(&rack, node).unwrap_or_else(|| SimDevice {
+        id: node.get(),
+        product: Some(product.name().to_string()),
+        plugged: true,
+    });
+    Ok((StatusCode::CREATED, ApiJson(added)))
+}
+
+/// Takes a virtual device off the bus for good (its id is free again).
+///
+/// The gateway sees it as on a real bus: it falls silent, and the node goes
+/// offline when its heartbeat is missed.
+#[utoipa::path(delete, path = "/buses/{bus}/sim/nodes/{id}", tag = "sim", params(NodePath),
+    responses(
+        (status = 204, description = "Removed"),
+        (status = 400, description = "`invalid_request`: the id is no node id", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`; `unknown_node`: no virtual device has this id", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus has no virtual devices", body = ErrorBody),
+    ))]
+async fn remove_device(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+) -> Result<StatusCode, AppError> {
+    let rack = rack(&state, &bus)?;
+    let node = node_id(&id)?;
+    rack.remove(node).map_err(|err| rack_error(&bus, err))?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Injects a fault into a virtual device.
+///
+/// The device reacts as the product does (EMCY, error register 0x1001,
+/// error history 0x1003; a drive's axes fault). `heartbeat_loss` stops its
+/// heartbeat while it runs on.
+#[utoipa::path(post, path = "/buses/{bus}/sim/nodes/{id}/faults", tag = "sim", params(NodePath),
+    request_body = FaultRequest,
+    responses(
+        (status = 204, description = "Injected"),
+        (status = 400, description = "`invalid_request` (malformed body, bad id), `invalid_value` (unknown fault)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`; `unknown_node`: no virtual device has this id", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus has no virtual devices", body = ErrorBody),
+        (status = 422, description = "`fault_not_applicable`: the product has no such fault", body = ErrorBody),
+    ))]
+async fn inject_fault(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+    ApiJson(request): ApiJson<FaultRequest>,
+) -> Result<StatusCode, AppError> {
+    let rack = rack(&state, &bus)?;
+    let node = node_id(&id)?;
+    let fault = request.fault()?;
+    rack.inject_fault(node, fault)
+        .map_err(|err| rack_error(&bus, err))?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Ends an injected fault condition.
+///
+/// A drive stays in its fault state until a fault reset, as a real one
+/// does; the error reset EMCY follows that.
+#[utoipa::path(delete, path = "/buses/{bus}/sim/nodes/{id}/faults", tag = "sim", params(NodePath),
+    request_body = FaultRequest,
+    responses(
+        (status = 204, description = "Cleared"),
+        (status = 400, description = "`invalid_request` (malformed body, bad id), `invalid_value` (unknown fault)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`; `unknown_node`: no virtual device has this id", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus has no virtual devices", body = ErrorBody),
+        (status = 422, description = "`fault_not_applicable`: the product has no such fault", body = ErrorBody),
+    ))]
+async fn clear_fault(
+    State(state): State<AppState>,
+    ApiPath((bus, id)): ApiPath<(String, String)>,
+    ApiJson(request): ApiJson<FaultRequest>,
+) -> Result<StatusCode, AppError> {
+    let rack = rack(&state, &bus)?;
+    let node = node_id(&id)?;
+    let fault = request.fault()?;
+    rack.clear_fault(node, fault)
+        .map_err(|err| rack_error(&bus, err))?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+#[cfg(test)]
+#[path = "sim_tests.rs"]
+mod tests;

@@ -1,0 +1,289 @@
+//! The `/sim` endpoints through the router, on a paused clock: devices
+//! added to an empty virtual bus and found by the gateway, removed, faults
+//! injected and seen as EMCYs; every error case.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Router;
+use axum::body::Body;
+use axum::http::{Method, Request, StatusCode};
+use serde_json::{Value as Json, json};
+use tower::ServiceExt;
+
+use crate::api::{AppState, ServedBus, app};
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::RegistryConfig;
+
+async fn open(name: &str, spec: &str) -> ServedBus {
+    ServedBus::open(
+        name,
+        &spec.parse().unwrap(),
+        Arc::new(EdsCatalog::builtin().unwrap()),
+        RegistryConfig::default(),
+        500_000,
+    )
+    .await
+    .unwrap()
+}
+
+async fn call(app: &Router, method: Method, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
+    let mut request = Request::builder().method(method).uri(uri);
+    if body.is_some() {
+        request = request.header("content-type", "application/json");
+    }
+    let request = request
+        .body(body.map_or_else(Body::empty, |body| Body::from(body.to_string())))
+        .unwrap();
+    let response = app.clone().oneshot(request).await.unwrap();
+    let status = response.status();
+    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    if bytes.is_empty() {
+        return (status, Json::Null);
+    }
+    let json = serde_json::from_slice(&bytes)
+        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {bytes:?}"));
+    (status, json)
+}
+
+async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
+    call(app, Method::GET, uri, None).await
+}
+
+async fn post(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {
+    call(app, Method::POST, uri, Some(body)).await
+}
+
+/// Asserts the API's error shape and code.
+fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
+    assert_eq!(response.0, status, "{}", response.1);
+    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
+    assert!(
+        response.1["error"]["message"]
+            .as_str()
+            .is_some_and(|m| !m.is_empty()),
+        "{}",
+        response.1
+    );
+}
+
+async fn delete(app: &Router, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
+    call(app, Method::DELETE, uri, body).await
+}
+
+/// `demo` (virtual:demo), `bench` (virtual:empty) and `remote`, a bus
+/// without virtual devices.
+async fn buses() -> (Router, AppState) {
+    let mut remote = open("remote", "virtual:empty").await;
+    remote.rack = None;
+    let state = AppState::new([
+        open("demo", "virtual:demo").await,
+        open("bench", "virtual:empty").await,
+        remote,
+    ]);
+    (app(state.clone()), state)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_device_added_to_an_empty_bus_boots_and_is_found() {
+    let (app, _) = buses().await;
+    assert_eq!(
+        get(&app, "/api/v1/buses/bench/sim/nodes").await.1,
+        json!([])
+    );
+    let (status, added) = post(
+        &app,
+        "/api/v1/buses/bench/sim/nodes",
+        r#"{"product": "uio1led", "id": 4}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{added}");
+    assert_eq!(
+        added,
+        json!({"id": 4, "product": "uio1led", "plugged": true})
+    );
+    // Its boot-up puts it in the gateway's node list, identified.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (status, node) = get(&app, "/api/v1/buses/bench/nodes/4").await;
+    assert_eq!(status, StatusCode::OK, "{node}");
+    assert_eq!(node["profile"], "uioled", "{node}");
+    // And it answers SDO.
+    let (status, value) = get(&app, "/api/v1/buses/bench/nodes/4/od/0x1018/1").await;
+    assert_eq!(
+        (status, value["value"].clone()),
+        (StatusCode::OK, json!(0x4A2)),
+        "{value}"
+    );
+    let (_, list) = get(&app, "/api/v1/buses/bench/sim/nodes").await;
+    assert_eq!(
+        list,
+        json!([{"id": 4, "product": "uio1led", "plugged": true}])
+    );
+
+    let taken = post(
+        &app,
+        "/api/v1/buses/bench/sim/nodes",
+        r#"{"product": "jmc", "id": 4}"#,
+    )
+    .await;
+    assert_error(&taken, StatusCode::CONFLICT, "node_taken");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_removed_device_falls_silent_and_its_id_is_free_again() {
+    let (app, state) = buses().await;
+    state.buses["demo"].registry.scan().await.unwrap();
+    let (status, body) = delete(&app, "/api/v1/buses/demo/sim/nodes/3", None).await;
+    assert_eq!((status, body), (StatusCode::NO_CONTENT, Json::Null));
+    let (_, list) = get(&app, "/api/v1/buses/demo/sim/nodes").await;
+    let ids: Vec<u64> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|device| device["id"].as_u64().unwrap())
+        .collect();
+    assert_eq!(ids, vec![1, 2]);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let gone = get(&app, "/api/v1/buses/demo/nodes/3/od/0x1000/0").await;
+    assert_error(&gone, StatusCode::GATEWAY_TIMEOUT, "sdo_timeout");
+    let again = delete(&app, "/api/v1/buses/demo/sim/nodes/3", None).await;
+    assert_error(&again, StatusCode::NOT_FOUND, "unknown_node");
+    let (status, _) = post(
+        &app,
+        "/api/v1/buses/demo/sim/nodes",
+        r#"{"product": "uio1led", "id": 3}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let (status, _) = get(&app, "/api/v1/buses/demo/nodes/3/od/0x1000/0").await;
+    assert_eq!(status, StatusCode::OK);
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_injected_fault_is_an_emcy_and_clears() {
+    let (app, state) = buses().await;
+    state.buses["demo"].registry.scan().await.unwrap();
+    let uri = "/api/v1/buses/demo/sim/nodes/1/faults";
+    let (status, _) = post(&app, uri, r#"{"kind": "over_temperature"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let (_, node) = get(&app, "/api/v1/buses/demo/nodes/1").await;
+    let codes: Vec<&str> = node["emcy"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|emcy| emcy["code"].as_str().unwrap())
+        .collect();
+    assert!(codes.contains(&"0x4310"), "{codes:?}");
+    let (_, register) = get(&app, "/api/v1/buses/demo/nodes/1/od/0x1001/0").await;
+    assert_eq!(register["value"], 9, "{register}");
+    let (status, _) = delete(&app, uri, Some(r#"{"kind": "over_temperature"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+
+    // The LED controller has no following error.
+    let refused = post(
+        &app,
+        "/api/v1/buses/demo/sim/nodes/3/faults",
+        r#"{"kind": "following_error"}"#,
+    )
+    .await;
+    assert_error(
+        &refused,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "fault_not_applicable",
+    );
+    let refused = delete(
+        &app,
+        "/api/v1/buses/demo/sim/nodes/3/faults",
+        Some(r#"{"kind": "following_error"}"#),
+    )
+    .await;
+    assert_error(
+        &refused,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "fault_not_applicable",
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn sim_errors() {
+    let (app, _) = buses().await;
+    let nodes = "/api/v1/buses/bench/sim/nodes";
+    for (body, code) in [
+        (r#"{"product": "umc2", "id": 4}"#, "invalid_value"),
+        (r#"{"product": "jmc", "id": 0}"#, "value_out_of_range"),
+        (r#"{"product": "jmc", "id": 128}"#, "value_out_of_range"),
+        (r#"{"product": "jmc", "id": -5}"#, "value_out_of_range"),
+        (r#"{"product": "jmc"}"#, "invalid_request"),
+        (r#"{"product": "jmc", "id": "four"}"#, "invalid_request"),
+        ("{", "invalid_request"),
+    ] {
+        assert_error(
+            &post(&app, nodes, body).await,
+            StatusCode::BAD_REQUEST,
+            code,
+        );
+    }
+    assert_eq!(get(&app, nodes).await.1, json!([]), "nothing was added");
+    let faults = "/api/v1/buses/demo/sim/nodes/1/faults";
+    assert_error(
+        &post(&app, faults, r#"{"kind": "meltdown"}"#).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_value",
+    );
+    assert_error(
+        &delete(&app, faults, Some(r#"{"kind": "meltdown"}"#)).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_value",
+    );
+    assert_error(
+        &delete(&app, faults, None).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_request",
+    );
+    for uri in [
+        "/api/v1/buses/demo/sim/nodes/0/faults",
+        "/api/v1/buses/demo/sim/nodes/x/faults",
+    ] {
+        let response = post(&app, uri, r#"{"kind": "over_current"}"#).await;
+        assert_error(&response, StatusCode::BAD_REQUEST, "invalid_request");
+    }
+    assert_error(
+        &delete(&app, "/api/v1/buses/demo/sim/nodes/200", None).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_request",
+    );
+    // No device at 9.
+    let fault = r#"{"kind": "over_current"}"#;
+    assert_error(
+        &post(&app, "/api/v1/buses/demo/sim/nodes/9/faults", fault).await,
+        StatusCode::NOT_FOUND,
+        "unknown_node",
+    );
+    assert_error(
+        &delete(&app, "/api/v1/buses/demo/sim/nodes/9/faults", Some(fault)).await,
+        StatusCode::NOT_FOUND,
+        "unknown_node",
+    );
+    // Unknown bus; a bus without virtual devices.
+    for (bus, status, code) in [
+        ("nope", StatusCode::NOT_FOUND, "unknown_bus"),
+        ("remote", StatusCode::CONFLICT, "not_virtual"),
+    ] {
+        let base = format!("/api/v1/buses/{bus}/sim/nodes");
+        assert_error(&get(&app, &base).await, status, code);
+        let add = post(&app, &base, r#"{"product": "jmc", "id": 4}"#).await;
+        assert_error(&add, status, code);
+        assert_error(
+            &delete(&app, &format!("{base}/4"), None).await,
+            status,
+            code,
+        );
+        let faults = format!("{base}/4/faults");
+        assert_error(&post(&app, &faults, fault).await, status, code);
+        assert_error(&delete(&app, &faults, Some(fault)).await, status, code);
+    }
+}
