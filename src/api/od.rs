@@ -35,7 +35,7 @@ use utoipa_axum::routes;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
-use crate::canopen::nmt::NmtService;
+use crate::canopen::nmt::{NmtService, NmtState};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
 use crate::gateway::registry::NodeInfo;
 
@@ -283,10 +283,16 @@ pub(super) fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(
         )));
     }
     match info.nmt {
-        Some(state) if !state.allows(NmtService::Sdo) => Err(AppError::WrongNmtState {
-            node: info.id.get(),
-            state,
-        }),
+        // A node whose last word was its boot-up message is pre-operational
+        // by then (CiA 301 §7.3.2.2.1: it enters pre-operational on its own
+        // once initialised); a state byte the gateway does not know may
+        // allow SDO: only a node known to be stopped is refused.
+        Some(state @ NmtState::Stopped) if !state.allows(NmtService::Sdo) => {
+            Err(AppError::WrongNmtState {
+                node: info.id.get(),
+                state,
+            })
+        }
         _ => Ok(()),
     }
 }

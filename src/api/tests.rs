@@ -616,3 +616,21 @@ async fn one_node_has_its_profile_summary() {
     assert!(stopped.get("segments").is_none(), "{stopped}");
     assert_eq!(stopped["summary_error"]["code"], "wrong_nmt_state");
 }
+
+/// A node known only from its boot-up message is pre-operational (CiA 301
+/// §7.3.2.2.1): SDO goes to it, it is not refused as "boot_up".
+#[tokio::test(start_paused = true)]
+async fn a_node_heard_only_booting_takes_sdo() {
+    let (app, state) = demo().await;
+    let rack = state.buses["demo"].rack.clone().unwrap();
+    rack.add(
+        crate::sim::products::Product::Uio1led,
+        NodeId::new(9).unwrap(),
+    )
+    .unwrap();
+    // Long enough for the boot-up to be heard, too short for any scan.
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    let (status, body) = get(&app, "/api/v1/buses/demo/nodes/9/od/0x1000/0").await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    assert_eq!(body["value"], 428);
+}

@@ -15,6 +15,9 @@ use crate::can::spec::BusSpec;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 
+/// How long the first scan of a bus waits for the bus to come up.
+const FIRST_SCAN_WAIT: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// The bit rate of a bus when none is given: the most common CANopen rate,
 /// used only to express the measured bits per second as a load.
 pub const DEFAULT_BITRATE: u32 = 500_000;
@@ -388,8 +391,15 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // heartbeat, are found by a scan; the API answers meanwhile.
     for bus in &served {
         let registry = bus.registry.clone();
+        let attachment = bus.bus.clone();
         let name = bus.name.clone();
         tokio::spawn(async move {
+            // A socketcand bus is still connecting: scanning a bus that is
+            // down finds nothing, so wait for it (the API answers meanwhile).
+            if let Err(err) = attachment.wait_up(FIRST_SCAN_WAIT).await {
+                tracing::warn!("bus {name}: not up for the first scan ({err}); POST /scan later");
+                return;
+            }
             match registry.scan().await {
                 Ok(nodes) => tracing::info!("bus {name}: {} nodes found", nodes.len()),
                 Err(err) => tracing::warn!("bus {name}: first scan failed: {err}"),
