@@ -27,7 +27,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 }
 
 /// A node as the registry knows it (the JSON of
-/// [`NodeInfo`](crate::gateway::registry::NodeInfo)).
+/// [`NodeInfo`]).
 #[derive(Debug, Serialize, ToSchema)]
 #[allow(dead_code)] // The schema of what NodeInfo serializes to.
 pub struct Node {

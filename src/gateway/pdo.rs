@@ -914,7 +914,7 @@ impl RpdoEncoder {
             .join(", ")
     }
 
-    /// The frame carrying `values` (keyed as [`key_names`] says), each
+    /// The frame carrying `values` (keyed as `key_names` says), each
     /// checked against its EDS type and limits; dummy entries are 0.
     pub fn encode(
         &self,
