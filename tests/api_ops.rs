@@ -142,7 +142,19 @@ async fn share_lets_another_program_join_the_virtual_bus() {
     )
     .unwrap();
     peer.send(request).await.unwrap();
-    let answer = frame_of(&mut frames, 0x581).await;
+    // The gateway reads node 1 too (identification, TPDO mappings) with the
+    // same default SDO channel: its answers are on 0x581 as well, so wait
+    // for the one to this request, by its multiplexer.
+    let answer = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            let answer = frame_of(&mut frames, 0x581).await;
+            if answer.data()[1..4] == [0x00, 0x10, 0x00] {
+                return answer;
+            }
+        }
+    })
+    .await
+    .expect("the answer to 0x1000");
     assert_eq!(answer.data()[..4], [0x43, 0x00, 0x10, 0x00]);
     // A frame posted through REST reaches the peer...
     let (status, body) = http(
