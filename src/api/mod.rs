@@ -39,6 +39,8 @@ pub mod sim;
 pub mod values;
 
 #[cfg(test)]
+mod test_support;
+#[cfg(test)]
 mod tests;
 #[cfg(test)]
 mod tests_drives;

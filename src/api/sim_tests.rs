@@ -2,76 +2,14 @@
 //! added to an empty virtual bus and found by the gateway, removed, faults
 //! injected and seen as EMCYs; every error case.
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
-use axum::body::Body;
-use axum::http::{Method, Request, StatusCode};
+use axum::http::StatusCode;
 use serde_json::{Value as Json, json};
-use tower::ServiceExt;
 
-use crate::api::{AppState, ServedBus, app};
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
-
-async fn open(name: &str, spec: &str) -> ServedBus {
-    ServedBus::open(
-        name,
-        &spec.parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap()
-}
-
-async fn call(app: &Router, method: Method, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
-    let mut request = Request::builder().method(method).uri(uri);
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |body| Body::from(body.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    if bytes.is_empty() {
-        return (status, Json::Null);
-    }
-    let json = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {bytes:?}"));
-    (status, json)
-}
-
-async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
-    call(app, Method::GET, uri, None).await
-}
-
-async fn post(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {
-    call(app, Method::POST, uri, Some(body)).await
-}
-
-/// Asserts the API's error shape and code.
-fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
-    assert_eq!(response.0, status, "{}", response.1);
-    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
-    assert!(
-        response.1["error"]["message"]
-            .as_str()
-            .is_some_and(|m| !m.is_empty()),
-        "{}",
-        response.1
-    );
-}
-
-async fn delete(app: &Router, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
-    call(app, Method::DELETE, uri, body).await
-}
+use crate::api::test_support::{assert_error, delete_text as delete, get, open, post_text as post};
+use crate::api::{AppState, app};
 
 /// `demo` (virtual:demo), `bench` (virtual:empty) and `remote`, a bus
 /// without virtual devices.

@@ -3,83 +3,28 @@
 //! router without a socket, on a paused clock: every motion asked for is
 //! checked in the positions and velocities the drives report.
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
-use axum::body::Body;
-use axum::http::{Method, Request, StatusCode};
+use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
-use tower::ServiceExt;
 
-use super::{AppState, ServedBus, app};
+use super::test_support::{assert_error, call, demo, post};
 use crate::canopen::NodeId;
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
 use crate::sim::behaviour::Fault;
 
 const UMC: u8 = 1;
 const JMC: u8 = 2;
 const LED: u8 = 3;
 
-async fn demo() -> (Router, AppState) {
-    let served = ServedBus::open(
-        "demo",
-        &"virtual:demo".parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap();
-    let nodes = served.registry.scan().await.unwrap();
-    assert_eq!(nodes.len(), 3, "{nodes:?}");
-    let state = AppState::new([served]);
-    (app(state.clone()), state)
-}
-
-async fn call(app: &Router, method: Method, uri: &str, body: Option<Json>) -> (StatusCode, Json) {
-    let mut request = Request::builder().method(method).uri(uri);
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |body| Body::from(body.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    let json = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {bytes:?}"));
-    (status, json)
-}
-
 fn axis_uri(node: u8, axis: u8, what: &str) -> String {
     format!("/api/v1/buses/demo/nodes/{node}/axes/{axis}{what}")
-}
-
-async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
-    call(app, Method::POST, uri, Some(body)).await
 }
 
 async fn axis(app: &Router, node: u8, axis: u8) -> Json {
     let (status, body) = call(app, Method::GET, &axis_uri(node, axis, ""), None).await;
     assert_eq!(status, StatusCode::OK, "{body}");
     body
-}
-
-fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
-    assert_eq!(response.0, status, "{}", response.1);
-    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
-    assert!(
-        response.1["error"]["message"]
-            .as_str()
-            .is_some_and(|m| !m.is_empty()),
-        "{}",
-        response.1
-    );
 }
 
 async fn enable(app: &Router, node: u8, number: u8) -> Json {

@@ -3,105 +3,18 @@
 //! on a paused clock.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
-use axum::body::Body;
-use axum::http::{Method, Request, StatusCode};
+use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
-use tower::ServiceExt;
 
-use super::{AppState, ServedBus, app};
+use super::AppState;
+use super::test_support::{assert_error, demo, get, post, put, raw_call};
 use crate::can::CanId;
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
 use crate::sim::products::Product;
-
-async fn demo() -> (Router, AppState) {
-    let served = ServedBus::open(
-        "demo",
-        &"virtual:demo".parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap();
-    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
-    let state = AppState::new([served]);
-    (app(state.clone()), state)
-}
-
-async fn raw_call(
-    app: &Router,
-    method: Method,
-    uri: &str,
-    content_type: &str,
-    body: Option<String>,
-) -> (StatusCode, String, Option<String>) {
-    let mut request = Request::builder().method(method).uri(uri);
-    if body.is_some() {
-        request = request.header("content-type", content_type);
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, Body::from))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let content_type = response
-        .headers()
-        .get("content-type")
-        .map(|value| value.to_str().unwrap().to_string());
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    (
-        status,
-        String::from_utf8(bytes.to_vec()).unwrap(),
-        content_type,
-    )
-}
-
-async fn call(app: &Router, method: Method, uri: &str, body: Option<Json>) -> (StatusCode, Json) {
-    let (status, text, _) = raw_call(
-        app,
-        method,
-        uri,
-        "application/json",
-        body.map(|b| b.to_string()),
-    )
-    .await;
-    let json = serde_json::from_str(&text)
-        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {text}"));
-    (status, json)
-}
-
-async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
-    call(app, Method::GET, uri, None).await
-}
-
-async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
-    call(app, Method::PUT, uri, Some(body)).await
-}
-
-async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
-    call(app, Method::POST, uri, Some(body)).await
-}
-
-fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
-    assert_eq!(response.0, status, "{}", response.1);
-    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
-    assert!(
-        response.1["error"]["message"]
-            .as_str()
-            .is_some_and(|m| !m.is_empty()),
-        "{}",
-        response.1
-    );
-}
 
 fn ok(response: (StatusCode, Json)) -> Json {
     assert_eq!(response.0, StatusCode::OK, "{}", response.1);

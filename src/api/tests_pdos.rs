@@ -6,12 +6,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
-use axum::body::Body;
-use axum::http::{Method, Request, StatusCode};
+use axum::http::StatusCode;
 use serde_json::{Value as Json, json};
 use tokio::time::Instant;
-use tower::ServiceExt;
 
+use super::test_support::{assert_error, get, post, put};
 use super::{AppState, ServedBus, app};
 use crate::can::{CanId, FrameReceiver};
 use crate::canopen::NodeId;
@@ -55,48 +54,6 @@ async fn demo_with(stubborn: bool) -> (Router, AppState) {
 
 async fn demo() -> (Router, AppState) {
     demo_with(false).await
-}
-
-async fn call(app: &Router, method: Method, uri: &str, body: Option<Json>) -> (StatusCode, Json) {
-    let mut request = Request::builder().method(method).uri(uri);
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |body| Body::from(body.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    let json = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {bytes:?}"));
-    (status, json)
-}
-
-async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
-    call(app, Method::GET, uri, None).await
-}
-
-async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
-    call(app, Method::PUT, uri, Some(body)).await
-}
-
-async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
-    call(app, Method::POST, uri, Some(body)).await
-}
-
-fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
-    assert_eq!(response.0, status, "{}", response.1);
-    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
-    assert!(
-        response.1["error"]["message"]
-            .as_str()
-            .is_some_and(|m| !m.is_empty()),
-        "{}",
-        response.1
-    );
 }
 
 fn tx_frames(state: &AppState) -> u64 {

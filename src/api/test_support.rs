@@ -1,0 +1,140 @@
+//! What the router-level tests of every resource share: the demo bus, and
+//! requests through the router without a socket.
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::body::Body;
+use axum::http::{Method, Request, StatusCode};
+use serde_json::Value as Json;
+use tower::ServiceExt;
+
+use super::{AppState, ServedBus, app};
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::RegistryConfig;
+
+/// `spec` opened as bus `name` with the built-in EDS catalog.
+pub async fn open(name: &str, spec: &str) -> ServedBus {
+    ServedBus::open(
+        name,
+        &spec.parse().unwrap(),
+        Arc::new(EdsCatalog::builtin().unwrap()),
+        RegistryConfig::default(),
+        500_000,
+    )
+    .await
+    .unwrap()
+}
+
+/// The demo bus with its three devices found by a scan, and its router.
+pub async fn demo() -> (Router, AppState) {
+    let served = open("demo", "virtual:demo").await;
+    let nodes = served.registry.scan().await.unwrap();
+    assert_eq!(nodes.len(), 3, "{nodes:?}");
+    let state = AppState::new([served]);
+    (app(state.clone()), state)
+}
+
+/// One request; the status, the body as text and its content type.
+pub async fn raw_call(
+    app: &Router,
+    method: Method,
+    uri: &str,
+    content_type: &str,
+    body: Option<String>,
+) -> (StatusCode, String, Option<String>) {
+    let mut request = Request::builder().method(method).uri(uri);
+    if body.is_some() {
+        request = request.header("content-type", content_type);
+    }
+    let request = request
+        .body(body.map_or_else(Body::empty, Body::from))
+        .unwrap();
+    let response = app.clone().oneshot(request).await.unwrap();
+    let status = response.status();
+    let content_type = response
+        .headers()
+        .get("content-type")
+        .map(|value| value.to_str().unwrap().to_string());
+    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    (
+        status,
+        String::from_utf8(bytes.to_vec()).unwrap(),
+        content_type,
+    )
+}
+
+/// One request with a JSON body given as text; the answer's JSON (`null`
+/// for an empty body, as a 204 has).
+pub async fn call_text(
+    app: &Router,
+    method: Method,
+    uri: &str,
+    body: Option<&str>,
+) -> (StatusCode, Json) {
+    let (status, text, _) = raw_call(
+        app,
+        method,
+        uri,
+        "application/json",
+        body.map(str::to_string),
+    )
+    .await;
+    if text.is_empty() {
+        return (status, Json::Null);
+    }
+    let json = serde_json::from_str(&text)
+        .unwrap_or_else(|err| panic!("{uri}: body is no JSON ({err}): {text}"));
+    (status, json)
+}
+
+/// [`call_text`] with a JSON value.
+pub async fn call(
+    app: &Router,
+    method: Method,
+    uri: &str,
+    body: Option<Json>,
+) -> (StatusCode, Json) {
+    call_text(
+        app,
+        method,
+        uri,
+        body.map(|body| body.to_string()).as_deref(),
+    )
+    .await
+}
+
+pub async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
+    call(app, Method::GET, uri, None).await
+}
+
+pub async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
+    call(app, Method::PUT, uri, Some(body)).await
+}
+
+pub async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
+    call(app, Method::POST, uri, Some(body)).await
+}
+
+pub async fn post_text(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {
+    call_text(app, Method::POST, uri, Some(body)).await
+}
+
+pub async fn delete_text(app: &Router, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
+    call_text(app, Method::DELETE, uri, body).await
+}
+
+/// Asserts the API's error shape and code.
+pub fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
+    assert_eq!(response.0, status, "{}", response.1);
+    assert_eq!(response.1["error"]["code"], code, "{}", response.1);
+    assert!(
+        response.1["error"]["message"]
+            .as_str()
+            .is_some_and(|m| !m.is_empty()),
+        "{}",
+        response.1
+    );
+}
