@@ -63,6 +63,7 @@ use crate::gateway::frames::FrameLog;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
+use crate::gateway::telemetry::StreamCounters;
 use crate::gateway::values::TpdoValues;
 use crate::sim::rack::Rack;
 
@@ -151,6 +152,8 @@ impl ServedBus {
 #[derive(Clone)]
 pub struct AppState {
     pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
+    /// The WebSocket stream's numbers, for `/metrics`.
+    pub stream_counters: Arc<StreamCounters>,
 }
 
 impl AppState {
@@ -161,6 +164,7 @@ impl AppState {
             .collect();
         Self {
             buses: Arc::new(buses),
+            stream_counters: Arc::new(StreamCounters::default()),
         }
     }
 

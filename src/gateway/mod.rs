@@ -19,6 +19,8 @@
 //! - [`sync`]: the gateway's SYNC producer on a bus.
 //! - [`values`]: the nodes' TPDO values, decoded by the mappings read from
 //!   them.
+//! - [`telemetry`]: value topics (newest sample wins) for the stream, and
+//!   the stream's counters.
 
 pub mod dcf;
 pub mod drive;
@@ -28,5 +30,6 @@ pub mod profile;
 pub mod registry;
 pub mod sdo;
 pub mod sync;
+pub mod telemetry;
 pub mod uioled;
 pub mod values;
