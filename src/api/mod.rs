@@ -22,6 +22,8 @@
 //! - [`values`]: the TPDO values the gateway decodes, by node.
 //! - [`frames`]: a bus's recent frames, and one frame sent.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`metrics`]: `/metrics` (at the root, not under `/api/v1`) in the
+//!   Prometheus text format.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -31,6 +33,7 @@ pub mod doc;
 pub mod drives;
 pub mod error;
 pub mod frames;
+pub mod metrics;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
@@ -177,8 +180,8 @@ impl AppState {
     }
 }
 
-/// The API's router under `/api/v1` (without state) and its OpenAPI
-/// document, from every resource's router.
+/// The API's router under `/api/v1` and `/metrics` at the root (without
+/// state), and its OpenAPI document, from every resource's router.
 pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let (api, api_doc) = OpenApiRouter::new()
         .merge(buses::router())
@@ -193,9 +196,12 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(sim::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
-    let doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
+    let (metrics, metrics_doc) = metrics::router().split_for_parts();
+    let mut doc = doc::ApiDoc::openapi().nest("/api/v1", api_doc);
+    doc.merge(metrics_doc);
     let router = Router::new()
         .nest("/api/v1", api)
+        .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
         .with_state(state);
     (router, doc)

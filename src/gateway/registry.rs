@@ -54,7 +54,7 @@ use crate::canopen::nmt::NmtState;
 use crate::canopen::sdo::{ClientConfig, SdoError};
 
 use super::profile::{EdsCatalog, EdsEntry, Identity, Profile};
-use super::sdo::{SdoChannel, SdoRequestError};
+use super::sdo::{SdoChannel, SdoRequestError, SdoStatsSnapshot};
 
 #[cfg(test)]
 mod tests;
@@ -248,6 +248,16 @@ fn nmt_name<S: serde::Serializer>(
     serializer: S,
 ) -> Result<S::Ok, S::Error> {
     serializer.serialize_str(nmt.map_or("unknown", NmtState::name))
+}
+
+/// The numbers of one node, for `/metrics`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NodeMetrics {
+    pub id: NodeId,
+    pub online: bool,
+    /// Its SDO transfers since it was first heard (its channel lives as
+    /// long as the node is in the registry, across boot-ups).
+    pub sdo: SdoStatsSnapshot,
 }
 
 /// What happened to a node, for whoever streams it.
@@ -577,6 +587,22 @@ impl NodeRegistry {
             .nodes
             .get(&id)
             .map(|node| node.info(Instant::now()))
+    }
+
+    /// Every node known, by id: whether it is online and the counts of its
+    /// SDO channel. One short lock, nothing cloned but numbers (for
+    /// `/metrics`).
+    pub fn metrics(&self) -> Vec<NodeMetrics> {
+        self.shared
+            .lock()
+            .nodes
+            .values()
+            .map(|node| NodeMetrics {
+                id: node.id,
+                online: node.online,
+                sdo: node.channel.stats(),
+            })
+            .collect()
     }
 
     /// The node's recent EMCYs, oldest first; `None` for an unknown node.

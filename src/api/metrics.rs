@@ -1,0 +1,583 @@
+//! `GET /metrics`: the gateway's numbers in the Prometheus text exposition
+//! format, version 0.0.4 (`../shared/API.md`, "Documents and operations";
+//! the format: prometheus.io, "Exposition formats").
+//!
+//! Nothing here counts: every number is read when the page is asked for,
+//! from the counters the layers below keep anyway (the bus attachment's,
+//! the load meter's, each node's [`SdoChannel`](crate::gateway::sdo::SdoChannel)
+//! statistics, the frame log's and the TPDO decoder's losses, the stream's
+//! [`StreamCounters`](crate::gateway::telemetry::StreamCounters)) and, on
+//! Linux, from `/proc/self`. A scrape takes each registry's lock once,
+//! briefly, and never waits on a device.
+//!
+//! Names follow the Prometheus conventions: `candeck_` before the
+//! gateway's own, `_total` on counters, base units (seconds, bytes), labels
+//! `bus` and `node`. The process's numbers use the standard `process_`
+//! names that every client library exports, so that stock dashboards find
+//! them; the one without a standard name (peak memory) is candeck's.
+
+use std::fmt::{self, Write as _};
+use std::sync::atomic::Ordering;
+
+use axum::extract::State;
+use axum::http::header::CONTENT_TYPE;
+use axum::response::IntoResponse;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::{AppState, Traffic};
+use crate::can::CounterSnapshot;
+use crate::gateway::registry::NodeMetrics;
+use crate::gateway::sdo::{LATENCY_BUCKETS, SdoStatsSnapshot};
+
+/// The content type of the text format, version 0.0.4.
+pub const CONTENT_TYPE_TEXT: &str = "text/plain; version=0.0.4; charset=utf-8";
+
+/// Clock ticks per second of the times in `/proc/self/stat`. It is the
+/// kernel's USER_HZ, 100 on every architecture Linux runs on today
+/// (prometheus/procfs hard-codes it for the same reason: asking sysconf
+/// needs libc).
+const USER_HZ: f64 = 100.0;
+
+/// `/metrics`, at the root (where Prometheus looks), not under `/api/v1`.
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(metrics))
+}
+
+/// The gateway's metrics for Prometheus.
+///
+/// Text exposition format 0.0.4: per bus its frames, bits, load, state and
+/// losses; per node its SDO transactions, aborts, timeouts and latency
+/// histogram; the WebSocket stream's clients and counts; the process's
+/// memory, file descriptors, CPU time and start time.
+#[utoipa::path(get, path = "/metrics", tag = "metrics",
+    responses((status = 200, description = "The metrics, in the Prometheus text format (version 0.0.4)",
+        content_type = "text/plain", body = String)))]
+async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    ([(CONTENT_TYPE, CONTENT_TYPE_TEXT)], render(&state))
+}
+
+/// One bus's numbers, read at once.
+struct BusSnapshot {
+    name: String,
+    kind: &'static str,
+    spec: String,
+    up: bool,
+    counters: CounterSnapshot,
+    rx_frames: u64,
+    tx_frames: u64,
+    bits: u64,
+    load: f64,
+    bitrate: u32,
+    frame_log_lost: u64,
+    tpdo_malformed: u64,
+    nodes: Vec<NodeMetrics>,
+}
+
+impl BusSnapshot {
+    fn labels(&self) -> [(&'static str, &str); 1] {
+        [("bus", &self.name)]
+    }
+}
+
+/// The page: every family, in a fixed order.
+pub fn render(state: &AppState) -> String {
+    let buses: Vec<BusSnapshot> = state
+        .buses
+        .values()
+        .map(|served| {
+            // The same figures GET /buses shows.
+            let traffic = Traffic::new(&served.bus).sample();
+            BusSnapshot {
+                name: served.name.clone(),
+                kind: served.bus.kind().as_str(),
+                spec: served.spec.clone(),
+                up: served.bus.status().state.can_send(),
+                counters: served.bus.counters(),
+                rx_frames: traffic.rx_frames,
+                tx_frames: traffic.tx_frames,
+                bits: traffic.bits,
+                load: served.load.load(),
+                bitrate: served.load.bitrate(),
+                frame_log_lost: served.frames.lost(),
+                tpdo_malformed: served.values.malformed(),
+                nodes: served.registry.metrics(),
+            }
+        })
+        .collect();
+    let mut out = Exposition::default();
+
+    out.family(
+        "candeck_build_info",
+        Kind::Gauge,
+        "The candeck version, as a label; always 1.",
+    );
+    out.sample(
+        "candeck_build_info",
+        &[("version", env!("CARGO_PKG_VERSION"))],
+        1,
+    );
+
+    render_buses(&mut out, &buses);
+    render_nodes(&mut out, &buses);
+    render_stream(&mut out, state);
+    render_process(&mut out, &ProcessStats::read());
+    out.text
+}
+
+fn render_buses(out: &mut Exposition, buses: &[BusSnapshot]) {
+    out.family(
+        "candeck_bus_info",
+        Kind::Gauge,
+        "A bus the gateway serves, with its kind and spec as labels; always 1.",
+    );
+    for bus in buses {
+        out.sample(
+            "candeck_bus_info",
+            &[("bus", &bus.name), ("kind", bus.kind), ("spec", &bus.spec)],
+            1,
+        );
+    }
+    let per_bus =
+        |out: &mut Exposition, name, kind, help, value: &dyn Fn(&BusSnapshot) -> Value| {
+            out.family(name, kind, help);
+            for bus in buses {
+                out.sample(name, &bus.labels(), value(bus));
+            }
+        };
+    per_bus(
+        out,
+        "candeck_bus_up",
+        Kind::Gauge,
+        "1 when frames flow on the bus (up or error passive), 0 when it is down or bus-off.",
+        &|bus| Value::from(u64::from(bus.up)),
+    );
+    out.family(
+        "candeck_bus_frames_total",
+        Kind::Counter,
+        "Frames on the bus seen by the gateway: direction=\"rx\" from other nodes, \"tx\" sent by the gateway.",
+    );
+    for bus in buses {
+        for (direction, frames) in [("rx", bus.rx_frames), ("tx", bus.tx_frames)] {
+            out.sample(
+                "candeck_bus_frames_total",
+                &[("bus", &bus.name), ("direction", direction)],
+                frames,
+            );
+        }
+    }
+    per_bus(
+        out,
+        "candeck_bus_bits_total",
+        Kind::Counter,
+        "Bits of every frame on the bus, both ways, stuff bits not counted.",
+        &|bus| Value::from(bus.bits),
+    );
+    per_bus(
+        out,
+        "candeck_bus_load_ratio",
+        Kind::Gauge,
+        "Share of the bit rate used over the last second (0 to 1), as GET /api/v1/buses shows it.",
+        &|bus| Value::Float(bus.load),
+    );
+    per_bus(
+        out,
+        "candeck_bus_bitrate_bits_per_second",
+        Kind::Gauge,
+        "The nominal bit rate the load is measured against (--bitrate).",
+        &|bus| Value::from(u64::from(bus.bitrate)),
+    );
+    per_bus(
+        out,
+        "candeck_bus_reconnects_total",
+        Kind::Counter,
+        "Times the bus's backend re-established a lost connection.",
+        &|bus| Value::from(bus.counters.reconnects),
+    );
+    per_bus(
+        out,
+        "candeck_bus_error_frames_total",
+        Kind::Counter,
+        "Error frames reported by the CAN controller.",
+        &|bus| Value::from(bus.counters.error_frames),
+    );
+    per_bus(
+        out,
+        "candeck_bus_send_errors_total",
+        Kind::Counter,
+        "Frames the gateway could not send (bus down, write failed).",
+        &|bus| Value::from(bus.counters.tx_errors),
+    );
+    per_bus(
+        out,
+        "candeck_bus_receive_overruns_total",
+        Kind::Counter,
+        "Frames lost by the gateway's receivers that fell behind the bus.",
+        &|bus| Value::from(bus.counters.rx_overruns),
+    );
+    per_bus(
+        out,
+        "candeck_frame_log_lost_frames_total",
+        Kind::Counter,
+        "Frames the recent-frames log (GET .../frames) missed because it fell behind the bus.",
+        &|bus| Value::from(bus.frame_log_lost),
+    );
+    per_bus(
+        out,
+        "candeck_tpdo_malformed_frames_total",
+        Kind::Counter,
+        "TPDO frames that did not fit the mapping read from their node.",
+        &|bus| Value::from(bus.tpdo_malformed),
+    );
+    per_bus(
+        out,
+        "candeck_nodes_known",
+        Kind::Gauge,
+        "Nodes in the bus's registry (heard, or found by a scan).",
+        &|bus| Value::from(bus.nodes.len() as u64),
+    );
+    per_bus(
+        out,
+        "candeck_nodes_online",
+        Kind::Gauge,
+        "Nodes of the registry that are online.",
+        &|bus| Value::from(bus.nodes.iter().filter(|node| node.online).count() as u64),
+    );
+}
+
+fn render_nodes(out: &mut Exposition, buses: &[BusSnapshot]) {
+    let per_node = |out: &mut Exposition, name, kind, help, value: &dyn Fn(&NodeMetrics) -> u64| {
+        out.family(name, kind, help);
+        for bus in buses {
+            for node in &bus.nodes {
+                let id = node.id.get().to_string();
+                out.sample(name, &[("bus", &bus.name), ("node", &id)], value(node));
+            }
+        }
+    };
+    per_node(
+        out,
+        "candeck_node_online",
+        Kind::Gauge,
+        "1 while the node is online (heartbeat on time, or answering), 0 when it is not.",
+        &|node| u64::from(node.online),
+    );
+    let sdo = |stats: fn(&SdoStatsSnapshot) -> u64| move |node: &NodeMetrics| stats(&node.sdo);
+    per_node(
+        out,
+        "candeck_sdo_transactions_total",
+        Kind::Counter,
+        "SDO transfers to the node that ended, whatever the outcome.",
+        &sdo(|sdo| sdo.transactions),
+    );
+    per_node(
+        out,
+        "candeck_sdo_aborts_total",
+        Kind::Counter,
+        "SDO transfers the device refused (abort from the device).",
+        &sdo(|sdo| sdo.aborts),
+    );
+    per_node(
+        out,
+        "candeck_sdo_timeouts_total",
+        Kind::Counter,
+        "SDO transfers the device did not answer in time.",
+        &sdo(|sdo| sdo.timeouts),
+    );
+    per_node(
+        out,
+        "candeck_sdo_protocol_errors_total",
+        Kind::Counter,
+        "SDO transfers the device answered against the protocol (the gateway aborted them).",
+        &sdo(|sdo| sdo.protocol_errors),
+    );
+    per_node(
+        out,
+        "candeck_sdo_bus_errors_total",
+        Kind::Counter,
+        "SDO transfers the bus could not carry (down, closed).",
+        &sdo(|sdo| sdo.bus_errors),
+    );
+    per_node(
+        out,
+        "candeck_sdo_abandoned_total",
+        Kind::Counter,
+        "SDO transfers their caller gave up halfway (aborted on the bus before the next one).",
+        &sdo(|sdo| sdo.abandoned),
+    );
+
+    let name = "candeck_sdo_duration_seconds";
+    out.family(
+        name,
+        Kind::Histogram,
+        "Time of an SDO transfer from the node's turn in its queue to its end (answer, abort or timeout).",
+    );
+    let bounds: Vec<String> = LATENCY_BUCKETS
+        .iter()
+        .map(|bound| Value::Float(bound.as_secs_f64()).to_string())
+        .chain(["+Inf".to_string()])
+        .collect();
+    for bus in buses {
+        for node in &bus.nodes {
+            let id = node.id.get().to_string();
+            let latency = &node.sdo.latency;
+            for (bound, count) in bounds.iter().zip(latency.cumulative) {
+                out.sample(
+                    "candeck_sdo_duration_seconds_bucket",
+                    &[("bus", &bus.name), ("node", &id), ("le", bound)],
+                    count,
+                );
+            }
+            let labels = [("bus", bus.name.as_str()), ("node", &id)];
+            out.sample(
+                "candeck_sdo_duration_seconds_sum",
+                &labels,
+                Value::Float(latency.sum.as_secs_f64()),
+            );
+            out.sample(
+                "candeck_sdo_duration_seconds_count",
+                &labels,
+                latency.count(),
+            );
+        }
+    }
+}
+
+fn render_stream(out: &mut Exposition, state: &AppState) {
+    let counters = &state.stream_counters;
+    for (name, kind, help, counter) in [
+        (
+            "candeck_stream_clients",
+            Kind::Gauge,
+            "WebSocket clients of /api/v1/stream connected now.",
+            &counters.clients,
+        ),
+        (
+            "candeck_stream_messages_total",
+            Kind::Counter,
+            "Messages sent to WebSocket clients.",
+            &counters.messages,
+        ),
+        (
+            "candeck_stream_coalesced_total",
+            Kind::Counter,
+            "Values a WebSocket client never saw because a newer one replaced them first.",
+            &counters.coalesced,
+        ),
+        (
+            "candeck_stream_lagged_total",
+            Kind::Counter,
+            "Events and frames a WebSocket client lost because it fell behind (each reported to it as lagged).",
+            &counters.lagged,
+        ),
+    ] {
+        out.family(name, kind, help);
+        out.sample(name, &[], counter.load(Ordering::Relaxed));
+    }
+}
+
+fn render_process(out: &mut Exposition, process: &ProcessStats) {
+    let families: [(&str, Kind, &str, Option<Value>); 5] = [
+        (
+            "process_resident_memory_bytes",
+            Kind::Gauge,
+            "Resident memory size in bytes (VmRSS).",
+            process.resident_bytes.map(Value::from),
+        ),
+        (
+            "candeck_process_resident_memory_peak_bytes",
+            Kind::Gauge,
+            "Peak resident memory size in bytes since the process started (VmHWM).",
+            process.peak_resident_bytes.map(Value::from),
+        ),
+        (
+            "process_open_fds",
+            Kind::Gauge,
+            "Open file descriptors.",
+            process.open_fds.map(Value::from),
+        ),
+        (
+            "process_cpu_seconds_total",
+            Kind::Counter,
+            "User and system CPU time spent, in seconds.",
+            process.cpu_seconds.map(Value::Float),
+        ),
+        (
+            "process_start_time_seconds",
+            Kind::Gauge,
+            "Start time of the process since the Unix epoch, in seconds.",
+            process.start_time_seconds.map(Value::Float),
+        ),
+    ];
+    // A system without /proc has none of them: the families are left out,
+    // not shown empty or as zero.
+    for (name, kind, help, value) in families {
+        if let Some(value) = value {
+            out.family(name, kind, help);
+            out.sample(name, &[], value);
+        }
+    }
+}
+
+/// What `/proc` tells of this process; `None` for what it does not (no
+/// `/proc`, another layout).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct ProcessStats {
+    resident_bytes: Option<u64>,
+    peak_resident_bytes: Option<u64>,
+    open_fds: Option<u64>,
+    cpu_seconds: Option<f64>,
+    start_time_seconds: Option<f64>,
+}
+
+impl ProcessStats {
+    /// Reads `/proc/self`. These files are made by the kernel on the
+    /// spot, in memory: reading them in the handler does not block on a
+    /// disk.
+    fn read() -> Self {
+        let status = std::fs::read_to_string("/proc/self/status").ok();
+        let stat = std::fs::read_to_string("/proc/self/stat").ok();
+        let boot = std::fs::read_to_string("/proc/stat").ok();
+        let times = stat.as_deref().and_then(parse_stat);
+        let boot_time = boot.as_deref().and_then(parse_boot_time);
+        Self {
+            resident_bytes: status.as_deref().and_then(|s| status_kb(s, "VmRSS")),
+            peak_resident_bytes: status.as_deref().and_then(|s| status_kb(s, "VmHWM")),
+            open_fds: std::fs::read_dir("/proc/self/fd")
+                .ok()
+                .map(|entries| entries.count() as u64),
+            cpu_seconds: times.map(|times| times.cpu_seconds),
+            start_time_seconds: times
+                .zip(boot_time)
+                .map(|(times, boot)| boot as f64 + times.start_after_boot_seconds),
+        }
+    }
+}
+
+/// A `Name:   1234 kB` line of `/proc/self/status`, in bytes.
+fn status_kb(status: &str, key: &str) -> Option<u64> {
+    status.lines().find_map(|line| {
+        let rest = line.strip_prefix(key)?.strip_prefix(':')?;
+        let mut words = rest.split_whitespace();
+        let kb: u64 = words.next()?.parse().ok()?;
+        (words.next() == Some("kB")).then_some(kb.checked_mul(1024)?)
+    })
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StatTimes {
+    cpu_seconds: f64,
+    start_after_boot_seconds: f64,
+}
+
+/// utime, stime and starttime of `/proc/self/stat` (fields 14, 15 and 22,
+/// proc(5)). The command name (field 2) is in parentheses and may hold
+/// spaces and parentheses itself: the fields are counted after the last
+/// `)`.
+fn parse_stat(stat: &str) -> Option<StatTimes> {
+    let (_, after_name) = stat.rsplit_once(')')?;
+    let fields: Vec<&str> = after_name.split_whitespace().collect();
+    // `fields[0]` is field 3 (state).
+    let field = |n: usize| -> Option<u64> { fields.get(n - 3)?.parse().ok() };
+    let (utime, stime, start) = (field(14)?, field(15)?, field(22)?);
+    Some(StatTimes {
+        cpu_seconds: (utime + stime) as f64 / USER_HZ,
+        start_after_boot_seconds: start as f64 / USER_HZ,
+    })
+}
+
+/// The `btime` line of `/proc/stat`: the boot time, Unix seconds.
+fn parse_boot_time(stat: &str) -> Option<u64> {
+    stat.lines()
+        .find_map(|line| line.strip_prefix("btime ")?.trim().parse().ok())
+}
+
+/// A metric family's type.
+#[derive(Debug, Clone, Copy)]
+enum Kind {
+    Counter,
+    Gauge,
+    Histogram,
+}
+
+impl Kind {
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Counter => "counter",
+            Self::Gauge => "gauge",
+            Self::Histogram => "histogram",
+        }
+    }
+}
+
+/// A sample's value: counts exactly as integers (an `f64` would round them
+/// past 2^53), the rest as floats.
+#[derive(Debug, Clone, Copy)]
+enum Value {
+    Int(u64),
+    Float(f64),
+}
+
+impl From<u64> for Value {
+    fn from(value: u64) -> Self {
+        Self::Int(value)
+    }
+}
+
+impl fmt::Display for Value {
+    /// Go's float syntax as Prometheus reads it: `+Inf`, `-Inf`, `NaN`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::Int(value) => write!(f, "{value}"),
+            Self::Float(value) if value.is_nan() => f.write_str("NaN"),
+            Self::Float(value) if value == f64::INFINITY => f.write_str("+Inf"),
+            Self::Float(value) if value == f64::NEG_INFINITY => f.write_str("-Inf"),
+            Self::Float(value) => write!(f, "{value}"),
+        }
+    }
+}
+
+/// The page being written.
+#[derive(Default)]
+struct Exposition {
+    text: String,
+}
+
+impl Exposition {
+    /// `# HELP` and `# TYPE` of a family; its samples follow, together.
+    fn family(&mut self, name: &str, kind: Kind, help: &str) {
+        let help = help.replace('\\', "\\\\").replace('\n', "\\n");
+        // Writing to a String cannot fail.
+        let _ = writeln!(self.text, "# HELP {name} {help}");
+        let _ = writeln!(self.text, "# TYPE {name} {}", kind.as_str());
+    }
+
+    fn sample(&mut self, name: &str, labels: &[(&str, &str)], value: impl Into<Value>) {
+        self.text.push_str(name);
+        if !labels.is_empty() {
+            self.text.push('{');
+            for (i, (label, value)) in labels.iter().enumerate() {
+                if i > 0 {
+                    self.text.push(',');
+                }
+                self.text.push_str(label);
+                self.text.push_str("=\"");
+                for c in value.chars() {
+                    match c {
+                        '\\' => self.text.push_str("\\\\"),
+                        '"' => self.text.push_str("\\\""),
+                        '\n' => self.text.push_str("\\n"),
+                        c => self.text.push(c),
+                    }
+                }
+                self.text.push('"');
+            }
+            self.text.push('}');
+        }
+        let _ = writeln!(self.text, " {}", value.into());
+    }
+}
+
+#[cfg(test)]
+#[path = "metrics_tests.rs"]
+mod tests;
