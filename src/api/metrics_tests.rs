@@ -221,7 +221,7 @@ fn parse(text: &str) -> Result<Page, String> {
             }
         }
         let kind = types[&family].as_str();
-        if kind == "counter" && !(value >= 0.0) {
+        if kind == "counter" && (value.is_nan() || value < 0.0) {
             return Err(at("negative or NaN counter".into()));
         }
         if samples.insert(series(name, &labels), value).is_some() {
@@ -238,10 +238,10 @@ fn parse(text: &str) -> Result<Page, String> {
             match (part, le) {
                 ("_bucket", Some(le)) => {
                     let le = parse_float(&le).map_err(at)?;
-                    if let Some(&(last_le, last_count)) = entry.buckets.last() {
-                        if !(le > last_le) || value < last_count {
-                            return Err(at("buckets not rising or not cumulative".into()));
-                        }
+                    if let Some(&(last_le, last_count)) = entry.buckets.last()
+                        && (le.is_nan() || le <= last_le || value < last_count)
+                    {
+                        return Err(at("buckets not rising or not cumulative".into()));
                     }
                     entry.buckets.push((le, value));
                 }
