@@ -72,6 +72,16 @@ async fn serve_answers_http_and_stops_on_sigterm() {
     assert_eq!(status, 400, "{body}");
     assert!(body.starts_with(r#"{"error":{"#), "{body}");
 
+    // Prometheus finds the metrics at the root; the write above was refused.
+    let (status, body) = http(&address, "GET", "/metrics", None).await;
+    assert_eq!(status, 200, "{body}");
+    let abort_line = body
+        .lines()
+        .find(|line| line.starts_with(r#"candeck_sdo_aborts_total{bus="demo",node="1"} "#))
+        .unwrap_or_else(|| panic!("{body}"));
+    assert!(!abort_line.ends_with(" 0"), "{abort_line}");
+    assert!(body.contains("\nprocess_resident_memory_bytes "), "{body}");
+
     // Graceful shutdown: SIGTERM ends the process with status 0.
     let pid = server.child.id().to_string();
     let killed = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
