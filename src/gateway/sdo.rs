@@ -294,7 +294,7 @@ impl SdoChannel {
             stats: &self.stats,
             finished: false,
         };
-        let result = self.exchange(&mut session, request).await;
+        let result = self.exchange(&mut session, request, started).await;
         pending.finish(Outcome::of(&result), started.elapsed());
         result
     }
@@ -304,8 +304,10 @@ impl SdoChannel {
         &self,
         session: &mut Session,
         request: Request<'_>,
+        started: tokio::time::Instant,
     ) -> Result<Transfer, SdoRequestError> {
         let Session { client, responses } = session;
+        let mut now = started;
         // A caller that gave up half way (its future dropped: an HTTP client
         // that went away, a timeout around the call) left its transfer
         // running: abort it, so that the server knows, and start afresh
@@ -317,11 +319,14 @@ impl SdoChannel {
                     self.node
                 );
             }
+            // Sending may have waited: the timeout starts from here. (Read
+            // the clock only then; it costs as much as the counting.)
+            now = tokio::time::Instant::now();
         }
         // Answers to an earlier transfer that gave up must not be taken for
         // answers to this one.
         while let Ok(Some(_)) | Err(RecvError::Lagged(_)) = responses.try_recv() {}
-        let now = tokio::time::Instant::now().into_std();
+        let now = now.into_std();
         let first = match request {
             Request::Upload { index, sub } => client.upload(index, sub, now),
             Request::Download { index, sub, data } => client.download(index, sub, data, now),
