@@ -4,7 +4,8 @@
 //! # Layout
 //!
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
-//!   a time, with a fair queue.
+//!   a time, with a fair queue; each node's transfers counted by outcome,
+//!   with a latency histogram (for `/metrics`).
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
