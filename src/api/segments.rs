@@ -19,6 +19,7 @@ use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
 use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::gateway::led_preview::PreviewError;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
 use crate::gateway::uioled::{self, fits, is_segment};
@@ -193,6 +194,17 @@ fn led_node(
         )));
     }
     Ok((served, info))
+}
+
+impl From<PreviewError> for AppError {
+    /// A subscription to a preview fails as `GET .../segments/preview`
+    /// would: `unknown_node`, `not_an_led_controller`.
+    fn from(error: PreviewError) -> Self {
+        match error {
+            PreviewError::Registry(error) => Self::from(error),
+            PreviewError::NotAnLedController { .. } => Self::NotAnLedController(error.to_string()),
+        }
+    }
 }
 
 fn task_failed(err: tokio::task::JoinError) -> AppError {

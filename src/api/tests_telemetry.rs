@@ -308,10 +308,41 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
         previews.subscribe(node(9), 1.0),
         Err(PreviewError::Registry(RegistryError::UnknownNode { .. }))
     ));
-    assert!(matches!(
-        previews.subscribe(node(1), 1.0),
-        Err(PreviewError::NotAnLedController { .. })
-    ));
+    let error = previews.subscribe(node(1), 1.0).err().unwrap();
+    assert!(matches!(error, PreviewError::NotAnLedController { .. }));
+    // The stream reports them as the REST API would.
+    let error = super::AppError::from(error);
+    assert!(matches!(error, super::AppError::NotAnLedController(_)));
+    // Nothing runs for a refused subscription.
+    assert!(!served.axes.is_running(node(1), 3));
+    assert!(!served.previews.is_running(node(1)));
+}
+
+/// A UMC's axis 2 is polled at its own objects (0x6841, not 0x6041).
+#[tokio::test(start_paused = true)]
+async fn the_second_axis_of_a_umc_is_read_at_its_offset() {
+    let (_, state) = demo().await;
+    let served = demo_bus(&state);
+    let mut monitor = served.bus.monitor();
+    let mut reader = served.axes.subscribe(node(1), 2, 10.0).unwrap();
+    let sample = reader.changed().await.unwrap();
+    assert_eq!(sample.data["axis"], 2);
+    assert_eq!(
+        sample.data["state"], "switch_on_disabled",
+        "{}",
+        sample.data
+    );
+    let mut indexes = Vec::new();
+    while let Ok(Some(frame)) = monitor.try_recv() {
+        let data = frame.frame.data();
+        let index = u16::from_le_bytes([data[1], data[2]]);
+        // Only the drive profile's objects: the gateway may be reading
+        // the node's PDO parameters meanwhile.
+        if frame.frame.id() == CanId::Standard(0x601) && data[0] == 0x40 && index >= 0x6000 {
+            indexes.push(index);
+        }
+    }
+    assert_eq!(indexes, [0x6841, 0x6861, 0x6864, 0x686C, 0x6877]);
 }
 
 /// Waits until the gateway has read node 1's TPDO mappings.
