@@ -523,3 +523,39 @@ async fn an_animated_led_preview_moves_at_the_rate_asked_with_few_sdo_reads() {
     tokio::time::sleep(Duration::from_secs(3)).await;
     assert_eq!(sdo_requests(&mut monitor, 3), 0);
 }
+
+/// Dropping the bus ends every producer, though readers are left: nothing
+/// the tasks hold keeps the bus's parts alive.
+#[tokio::test(start_paused = true)]
+async fn the_producers_stop_with_their_bus() {
+    let served = super::test_support::open("demo", "virtual:demo").await;
+    served.registry.scan().await.unwrap();
+    let mut axis = served.axes.subscribe(node(1), 1, 20.0).unwrap();
+    let mut preview = served.previews.subscribe(node(3), 20.0).unwrap();
+    let values = served.values.subscribe(node(1), 20.0);
+    assert!(axis.changed().await.is_some());
+    assert!(preview.changed().await.is_some());
+    let topics = [
+        served.axes.topic(node(1), 1).unwrap(),
+        served.previews.topic(node(3)).unwrap(),
+    ];
+    let hub = served.hub.clone().unwrap();
+    drop(served);
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let seqs: Vec<u64> = topics.iter().map(|t| t.latest().unwrap().seq).collect();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let later: Vec<u64> = topics.iter().map(|t| t.latest().unwrap().seq).collect();
+    assert_eq!(seqs, later, "a producer outlived its bus");
+    // Nothing of the gateway is attached to the hub any more.
+    let observer = hub.attach();
+    let mut frames = observer.subscribe();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let mut from_gateway = 0;
+    while let Ok(Some(frame)) = frames.try_recv() {
+        if (0x601..=0x67F).contains(&frame.frame.id().raw()) {
+            from_gateway += 1;
+        }
+    }
+    assert_eq!(from_gateway, 0);
+    drop((axis, preview, values));
+}

@@ -12,7 +12,7 @@ use crate::api::{AppState, ServedBus};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::can::spec::BusSpec;
-use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, TelemetryConfig};
+use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, TelemetryConfig};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 
@@ -139,7 +139,8 @@ pub struct ServeArgs {
     pub axis_poll_hz: Option<f64>,
 }
 
-/// A polling rate: a positive number of hertz, at most 1000.
+/// A polling rate: a positive number of hertz, at most what a producer
+/// publishes ([`MAX_PUBLISH_HZ`]).
 fn parse_poll_hz(text: &str) -> Result<f64, String> {
     let hz: f64 = text
         .trim()
@@ -149,11 +150,11 @@ fn parse_poll_hz(text: &str) -> Result<f64, String> {
 }
 
 fn check_poll_hz(hz: f64) -> Result<f64, String> {
-    if hz.is_finite() && hz > 0.0 && hz <= 1000.0 {
+    if hz.is_finite() && hz > 0.0 && hz <= MAX_PUBLISH_HZ {
         Ok(hz)
     } else {
         Err(format!(
-            "{hz} Hz: a polling rate is more than 0 and at most 1000"
+            "{hz} Hz: a polling rate is more than 0 and at most {MAX_PUBLISH_HZ}"
         ))
     }
 }
@@ -493,7 +494,7 @@ mod tests {
             .unwrap();
         assert_eq!(settings.axis_poll_hz, 12.5);
 
-        for bad in ["0", "-3", "nan", "fast", "5000"] {
+        for bad in ["0", "-3", "nan", "fast", "150"] {
             let err = serve_args(&[&format!("--axis-poll-hz={bad}")]).unwrap_err();
             assert!(err.contains("--axis-poll-hz"), "{bad}: {err}");
         }
