@@ -15,7 +15,8 @@
 //!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
 //! - [`gateway`]: the CANopen master: SDO transfers, the EDS catalog and
 //!   the node registry of a bus (identification, heartbeat supervision,
-//!   EMCY history); later the REST API's operations and telemetry.
+//!   EMCY history), the operations the REST API runs (PDOs, drives, LED
+//!   segments, DCF), and the producers of the stream's value topics.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
 //! - [`cli`]: the command line (`candeck serve`, `candeck vbus`, `candeck dump`, ...); `main.rs`

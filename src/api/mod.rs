@@ -51,6 +51,8 @@ mod tests_drives;
 mod tests_leds;
 #[cfg(test)]
 mod tests_pdos;
+#[cfg(test)]
+mod tests_telemetry;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -62,7 +64,9 @@ use utoipa_swagger_ui::{Config, SwaggerUi};
 
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
+use crate::gateway::axis_telemetry::AxisTelemetry;
 use crate::gateway::frames::FrameLog;
+use crate::gateway::led_preview::LedPreviews;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
@@ -89,8 +93,14 @@ pub struct ServedBus {
     pub load: LoadMeter,
     /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
     pub sync: SyncService,
-    /// The nodes' TPDO values, decoded by the mappings read from them.
+    /// The nodes' TPDO values, decoded by the mappings read from them; the
+    /// `values` topics of the stream ([`TpdoValues::subscribe`]).
     pub values: TpdoValues,
+    /// The `axes/{axis}` topics of the stream
+    /// ([`AxisTelemetry::subscribe`]).
+    pub axes: AxisTelemetry,
+    /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
+    pub previews: LedPreviews,
     /// The bus's recent frames.
     pub frames: FrameLog,
 }
@@ -121,7 +131,9 @@ impl ServedBus {
         data_dir: Option<std::path::PathBuf>,
     ) -> Result<Self, String> {
         let opened = spec.open(name).await.map_err(|err| err.to_string())?;
+        let telemetry = config.telemetry.clone();
         let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        let values = TpdoValues::spawn(opened.bus.clone(), registry.clone());
         // Recording starts before the devices boot: their boot-ups are the
         // first frames of the log.
         let frames = FrameLog::spawn(&opened.bus);
@@ -142,7 +154,9 @@ impl ServedBus {
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
             sync: SyncService::spawn(opened.bus.clone()),
-            values: TpdoValues::spawn(opened.bus.clone(), registry.clone()),
+            axes: AxisTelemetry::new(registry.clone(), values.clone(), telemetry.clone()),
+            previews: LedPreviews::new(registry.clone(), &telemetry),
+            values,
             hub: opened.hub,
             bus: opened.bus,
             registry,

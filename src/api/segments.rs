@@ -19,37 +19,18 @@ use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
 use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::gateway::led_preview::PreviewError;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
 use crate::gateway::uioled::{self, fits, is_segment};
-use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, layout};
+pub use crate::gateway::uioled::{Color, Preview, PreviewSegment, effect_name};
+use crate::profiles::uioled::{Effect, Field, SEGMENTS, Segment};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_segments, put_scene))
         .routes(routes!(put_segment))
         .routes(routes!(preview))
-}
-
-/// One colour: red, green, blue and white, 0 to 255 each.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
-#[schema(example = json!({"r": 255, "g": 80, "b": 0, "w": 0}))]
-pub struct Color {
-    pub r: u8,
-    pub g: u8,
-    pub b: u8,
-    pub w: u8,
-}
-
-impl From<Rgbw> for Color {
-    fn from(rgbw: Rgbw) -> Self {
-        Color {
-            r: rgbw.r,
-            g: rgbw.g,
-            b: rgbw.b,
-            w: rgbw.w,
-        }
-    }
 }
 
 /// A segment's parameters as read from the device.
@@ -77,14 +58,6 @@ pub struct SegmentState {
     pub speed: i16,
     /// LEDs a moving edge fades over.
     pub smooth: u16,
-}
-
-/// The API name of an effect.
-pub fn effect_name(effect: Effect) -> String {
-    match effect {
-        Effect::Unknown(raw) => format!("0x{raw:04X}"),
-        known => known.name().to_lowercase(),
-    }
 }
 
 impl SegmentState {
@@ -190,29 +163,6 @@ pub struct SceneRequest {
     pub others: Option<String>,
 }
 
-/// What the strip shows now.
-#[derive(Debug, Serialize, ToSchema)]
-#[schema(example = json!({"led_count": 3, "segments": [{"segment": 1, "start": 0, "led_count": 3, "effect": "fix"}],
-    "pixels": [{"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}]}))]
-pub struct Preview {
-    /// LEDs on the strip: the sum of every segment's.
-    pub led_count: usize,
-    /// Where each segment's LEDs are in `pixels`.
-    pub segments: Vec<PreviewSegment>,
-    /// Every LED, the first of segment 1 first, dimmer applied.
-    pub pixels: Vec<Color>,
-}
-
-/// One segment's place on the strip.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct PreviewSegment {
-    pub segment: u8,
-    /// Its first LED in `pixels`.
-    pub start: usize,
-    pub led_count: u16,
-    pub effect: String,
-}
-
 /// A segment named in a path.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Path)]
@@ -244,6 +194,17 @@ fn led_node(
         )));
     }
     Ok((served, info))
+}
+
+impl From<PreviewError> for AppError {
+    /// A subscription to a preview fails as `GET .../segments/preview`
+    /// would: `unknown_node`, `not_an_led_controller`.
+    fn from(error: PreviewError) -> Self {
+        match error {
+            PreviewError::Registry(error) => Self::from(error),
+            PreviewError::NotAnLedController { .. } => Self::NotAnLedController(error.to_string()),
+        }
+    }
 }
 
 fn task_failed(err: tokio::task::JoinError) -> AppError {
@@ -473,11 +434,15 @@ async fn put_segment(
     let writes = plan(&update)?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
+    let (previews, node) = (served.previews.clone(), info.id);
     let read_back = tokio::spawn(async move {
         // The writes and the read-back, not interleaved with another
         // request's.
         let _procedure = channel.procedure().await;
-        uioled::write_fields(&channel, segment, &writes).await?;
+        let written = uioled::write_fields(&channel, segment, &writes).await;
+        // Even a write that stopped half way may have changed the strip.
+        previews.segments_written(node);
+        written?;
         uioled::read_segment(&channel, segment).await
     })
     .await
@@ -541,11 +506,19 @@ async fn put_scene(
     }
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
+    let (previews, node) = (served.previews.clone(), info.id);
     let segments = tokio::spawn(async move {
         let _procedure = channel.procedure().await;
+        let mut written = Ok(());
         for (segment, fields) in &writes {
-            uioled::write_fields(&channel, *segment, fields).await?;
+            written = uioled::write_fields(&channel, *segment, fields).await;
+            if written.is_err() {
+                break;
+            }
         }
+        // Even a scene that stopped half way may have changed the strip.
+        previews.segments_written(node);
+        written?;
         uioled::read_segments(&channel).await
     })
     .await
@@ -574,24 +547,18 @@ async fn preview(
     let (served, info) = led_node(&state, &bus, &id)?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
-    let segments = tokio::spawn(async move { uioled::read_segments(&channel).await })
+    let segments = tokio::spawn(async move { uioled::read_preview(&channel).await })
         .await
         .map_err(task_failed)?
         .map_err(AppError::from_sdo)?;
-    let pixels = uioled::preview(&segments);
-    let places = (1..=SEGMENTS)
-        .zip(&segments)
-        .zip(layout(&segments))
-        .map(|((segment, state), range)| PreviewSegment {
-            segment,
-            start: range.start,
-            led_count: state.led_count,
-            effect: effect_name(state.effect),
+    // The Values read are taken for those of now (time 0 of the renderer).
+    let now = tokio::time::Instant::now();
+    let segments: Vec<_> = segments
+        .into_iter()
+        .map(|read| uioled::ReadSegment {
+            read_at: now,
+            ..read
         })
         .collect();
-    Ok(ApiJson(Preview {
-        led_count: pixels.len(),
-        segments: places,
-        pixels: pixels.into_iter().map(Color::from).collect(),
-    }))
+    Ok(ApiJson(uioled::preview(&segments, now)))
 }

@@ -73,17 +73,12 @@ pub struct DecodedValueJson {
 }
 
 fn value_json(value: &TpdoValue, now: Instant) -> DecodedValueJson {
-    let bytes = value.raw.to_le_bytes();
-    let len = usize::from(value.bits).div_ceil(8).min(bytes.len());
     DecodedValueJson {
         index: format_index(value.index),
         sub: value.sub,
         name: value.name.clone(),
-        value: value
-            .value
-            .as_ref()
-            .map_or(serde_json::Value::Null, |value| value.to_json()),
-        raw: super::od::hex(&bytes[..len]),
+        value: value.value_json(),
+        raw: value.raw_hex(),
         bits: value.bits,
         pdo: value.pdo,
         age_ms: u64::try_from(now.saturating_duration_since(value.at).as_millis())

@@ -12,6 +12,7 @@ use crate::api::{AppState, ServedBus};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::can::spec::BusSpec;
+use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, TelemetryConfig};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 
@@ -114,7 +115,8 @@ pub struct ServeArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
-    /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list).
+    /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
+    /// axis_poll_hz.
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file.
     #[arg(long, value_name = "FILE")]
@@ -130,6 +132,31 @@ pub struct ServeArgs {
     /// of a bus is its name. Repeat for more.
     #[arg(long, value_name = "[NAME=]ADDR")]
     pub share: Vec<Share>,
+    /// The fastest an axis status is polled over SDO for the WebSocket
+    /// stream, when the drive sends no TPDO with its statusword and
+    /// position; readers that ask less get less. Default: 20.
+    #[arg(long, value_name = "HZ", value_parser = parse_poll_hz)]
+    pub axis_poll_hz: Option<f64>,
+}
+
+/// A polling rate: a positive number of hertz, at most what a producer
+/// publishes ([`MAX_PUBLISH_HZ`]).
+fn parse_poll_hz(text: &str) -> Result<f64, String> {
+    let hz: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{text}' is no number of hertz"))?;
+    check_poll_hz(hz)
+}
+
+fn check_poll_hz(hz: f64) -> Result<f64, String> {
+    if hz.is_finite() && hz > 0.0 && hz <= MAX_PUBLISH_HZ {
+        Ok(hz)
+    } else {
+        Err(format!(
+            "{hz} Hz: a polling rate is more than 0 and at most {MAX_PUBLISH_HZ}"
+        ))
+    }
 }
 
 /// The settings of a config file (`--config`).
@@ -144,6 +171,7 @@ struct ConfigFile {
     bitrate: Option<u32>,
     #[serde(default)]
     share: Vec<Share>,
+    axis_poll_hz: Option<f64>,
 }
 
 impl ConfigFile {
@@ -172,6 +200,10 @@ impl ConfigFile {
                 }
             })?
         };
+        if let Some(hz) = config.axis_poll_hz {
+            check_poll_hz(hz)
+                .map_err(|err| format!("config {}: axis_poll_hz {err}", path.display()))?;
+        }
         if config.bitrate == Some(0) {
             return Err(format!(
                 "config {}: bitrate 0: a bit rate is at least 1",
@@ -210,6 +242,7 @@ struct Settings {
     data_dir: Option<PathBuf>,
     bitrate: u32,
     share: Vec<Share>,
+    axis_poll_hz: f64,
 }
 
 impl ServeArgs {
@@ -246,6 +279,10 @@ impl ServeArgs {
             } else {
                 self.share.clone()
             },
+            axis_poll_hz: self
+                .axis_poll_hz
+                .or(file.axis_poll_hz)
+                .unwrap_or(DEFAULT_AXIS_POLL_HZ),
         };
         settings.validate()?;
         Ok(settings)
@@ -342,11 +379,18 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             .data_dir
             .as_ref()
             .map(|dir| dir.join("sim").join(&bus.name));
+        let config = RegistryConfig {
+            telemetry: TelemetryConfig {
+                axis_poll_hz: args.axis_poll_hz,
+                ..TelemetryConfig::default()
+            },
+            ..RegistryConfig::default()
+        };
         let opened = ServedBus::open_with_data_dir(
             &bus.name,
             &bus.spec,
             catalog.clone(),
-            RegistryConfig::default(),
+            config,
             args.bitrate,
             data_dir,
         )
@@ -414,4 +458,53 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     drop(shares);
     tracing::info!("serve: stopped");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::cli::{Cli, Command};
+
+    fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
+        let cli = Cli::try_parse_from(["candeck", "serve"].iter().chain(args))
+            .map_err(|err| err.to_string())?;
+        match cli.command {
+            Some(Command::Serve(args)) => Ok(args),
+            other => Err(format!("not serve: {other:?}")),
+        }
+    }
+
+    #[test]
+    fn the_axis_poll_rate_comes_from_the_command_line_over_the_file_over_the_default() {
+        let dir = std::env::temp_dir().join(format!("candeck-serve-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("poll.toml");
+        std::fs::write(&file, "axis_poll_hz = 50\n").unwrap();
+        let file = file.to_str().unwrap();
+
+        let settings = serve_args(&[]).unwrap().settings().unwrap();
+        assert_eq!(settings.axis_poll_hz, DEFAULT_AXIS_POLL_HZ);
+        let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+        assert_eq!(settings.axis_poll_hz, 50.0);
+        let settings = serve_args(&["--config", file, "--axis-poll-hz", "12.5"])
+            .unwrap()
+            .settings()
+            .unwrap();
+        assert_eq!(settings.axis_poll_hz, 12.5);
+
+        for bad in ["0", "-3", "nan", "fast", "150"] {
+            let err = serve_args(&[&format!("--axis-poll-hz={bad}")]).unwrap_err();
+            assert!(err.contains("--axis-poll-hz"), "{bad}: {err}");
+        }
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "axis_poll_hz = 0\n").unwrap();
+        let err = serve_args(&["--config", bad.to_str().unwrap()])
+            .unwrap()
+            .settings()
+            .unwrap_err();
+        assert!(err.contains("axis_poll_hz"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -57,7 +57,7 @@ const CW_HALT: u16 = 1 << 8;
 const SW_BIT12: u16 = 1 << 12;
 
 /// The CiA 402 objects, axis 1's indexes.
-mod obj {
+pub mod obj {
     pub const CONTROLWORD: u16 = 0x6040;
     pub const STATUSWORD: u16 = 0x6041;
     pub const VL_TARGET: u16 = 0x6042;
@@ -324,6 +324,22 @@ pub struct AxisStatus {
     pub fault: bool,
 }
 
+/// What the telemetry of an axis reads at each poll: the status but the
+/// supported modes (which do not change while the drive runs), each value
+/// `None` where the drive has no such object.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AxisReading {
+    pub statusword: u16,
+    /// 0x6061.
+    pub mode_raw: Option<i8>,
+    /// 0x6064.
+    pub position: Option<i32>,
+    /// 0x606C.
+    pub velocity: Option<i32>,
+    /// 0x6077.
+    pub torque: Option<i16>,
+}
+
 /// Why a drive request failed.
 #[derive(Debug, thiserror::Error)]
 pub enum DriveError {
@@ -479,6 +495,12 @@ impl Drive {
 
     pub fn kind(&self) -> DriveKind {
         self.kind
+    }
+
+    /// The axis's copy of the axis-1 CiA 402 object `index` (a UMC's axis
+    /// 2 has its statusword at 0x6841).
+    pub fn object(&self, index: u16) -> u16 {
+        self.index(index)
     }
 
     /// The axis's copy of the axis-1 object `index`.
@@ -640,6 +662,27 @@ impl Drive {
             torque: torque.map(|v| v as i16),
             target_reached: statusword.target_reached(),
             fault: statusword.fault(),
+        })
+    }
+
+    /// The axis's statusword, mode, position, velocity and torque, read now:
+    /// one SDO transfer after another, each queued on the node's channel
+    /// with everyone else's.
+    pub async fn reading(&self) -> Result<AxisReading, DriveError> {
+        let statusword = self.statusword().await?.raw();
+        let mode_raw = self
+            .read_optional(obj::MODES_DISPLAY, 0, true)
+            .await?
+            .map(|mode| mode as i8);
+        let position = self.read_optional(obj::POSITION_ACTUAL, 0, true).await?;
+        let velocity = self.read_optional(obj::VELOCITY_ACTUAL, 0, true).await?;
+        let torque = self.read_optional(obj::TQ_ACTUAL, 0, true).await?;
+        Ok(AxisReading {
+            statusword,
+            mode_raw,
+            position: position.map(|v| v as i32),
+            velocity: velocity.map(|v| v as i32),
+            torque: torque.map(|v| v as i16),
         })
     }
 

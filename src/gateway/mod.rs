@@ -22,11 +22,20 @@
 //!   them.
 //! - [`telemetry`]: value topics (newest sample wins) for the stream, and
 //!   the stream's counters.
+//! - [`producers`]: what the producers of value topics share: a task per
+//!   topic while someone reads, publishes paced to the readers' rate, the
+//!   [`TelemetryConfig`](producers::TelemetryConfig).
+//! - [`axis_telemetry`]: each drive axis's status for the stream, from
+//!   TPDOs or SDO polling.
+//! - [`led_preview`]: each LED controller's preview for the stream.
 
+pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
 pub mod frames;
+pub mod led_preview;
 pub mod pdo;
+pub mod producers;
 pub mod profile;
 pub mod registry;
 pub mod sdo;

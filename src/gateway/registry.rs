@@ -118,6 +118,10 @@ pub struct RegistryConfig {
     /// Events a subscriber may fall behind before it loses the oldest (and
     /// is told how many).
     pub event_capacity: usize,
+    /// The producers of the telemetry topics that follow the registry's
+    /// nodes (axis polling rate, LED parameter reads); the registry itself
+    /// does not use it.
+    pub telemetry: super::producers::TelemetryConfig,
 }
 
 impl Default for RegistryConfig {
@@ -129,6 +133,7 @@ impl Default for RegistryConfig {
             read_retries: 1,
             emcy_history: 32,
             event_capacity: 256,
+            telemetry: super::producers::TelemetryConfig::default(),
         }
     }
 }

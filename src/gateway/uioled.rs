@@ -4,11 +4,17 @@
 //!
 //! What the strip shows is drawn by the one renderer of
 //! [`crate::profiles::uioled`] from the parameters read here, as the
-//! virtual UIO1LED draws it from its own.
+//! virtual UIO1LED draws it from its own: [`Preview`] is what
+//! `GET .../segments/preview` answers and the `segments` topic publishes
+//! ([`super::led_preview`]).
+
+use serde::{Deserialize, Serialize};
+use tokio::time::Instant;
+use utoipa::ToSchema;
 
 use crate::canopen::od::{DataType, Value};
 use crate::gateway::sdo::{SdoChannel, SdoRequestError};
-use crate::profiles::uioled::{Field, Rgbw, SEGMENTS, Segment, address};
+use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, address};
 
 /// The type of each field's object (manual §1.3, our EDS): what its value is
 /// encoded as on the wire.
@@ -41,19 +47,7 @@ pub fn is_segment(segment: u8) -> bool {
 pub async fn read_segment(channel: &SdoChannel, segment: u8) -> Result<Segment, SdoRequestError> {
     let mut state = Segment::default();
     for field in shown_fields() {
-        let Some((index, sub)) = address(segment, field) else {
-            continue;
-        };
-        let raw = channel.upload(index, sub).await?;
-        // A value the type cannot hold (a short answer) keeps the default:
-        // the raw bytes of a broken answer are no state of the strip.
-        if let Some(value) = Value::from_bytes(data_type(field), &raw)
-            .ok()
-            .and_then(|value| value.as_i128())
-            .and_then(|value| i64::try_from(value).ok())
-        {
-            state.set(field, value);
-        }
+        read_field(channel, segment, field, &mut state).await?;
     }
     Ok(state)
 }
@@ -86,11 +80,139 @@ pub async fn write_fields(
     Ok(())
 }
 
-/// The strip as it shows now: every LED, segment 1's first, drawn from
-/// `segments` as just read (time 0 of the renderer: the Values read are
-/// the Values of now).
-pub fn preview(segments: &[Segment]) -> Vec<Rgbw> {
-    crate::profiles::uioled::render(segments, 0)
+/// One colour: red, green, blue and white, 0 to 255 each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[schema(example = json!({"r": 255, "g": 80, "b": 0, "w": 0}))]
+pub struct Color {
+    pub r: u8,
+    pub g: u8,
+    pub b: u8,
+    pub w: u8,
+}
+
+impl From<Rgbw> for Color {
+    fn from(rgbw: Rgbw) -> Self {
+        Color {
+            r: rgbw.r,
+            g: rgbw.g,
+            b: rgbw.b,
+            w: rgbw.w,
+        }
+    }
+}
+
+/// The API name of an effect.
+pub fn effect_name(effect: Effect) -> String {
+    match effect {
+        Effect::Unknown(raw) => format!("0x{raw:04X}"),
+        known => known.name().to_lowercase(),
+    }
+}
+
+/// What the strip shows now.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[schema(example = json!({"led_count": 3, "segments": [{"segment": 1, "start": 0, "led_count": 3, "effect": "fix"}],
+    "pixels": [{"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}]}))]
+pub struct Preview {
+    /// LEDs on the strip: the sum of every segment's.
+    pub led_count: usize,
+    /// Where each segment's LEDs are in `pixels`.
+    pub segments: Vec<PreviewSegment>,
+    /// Every LED, the first of segment 1 first, dimmer applied.
+    pub pixels: Vec<Color>,
+}
+
+/// One segment's place on the strip.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+pub struct PreviewSegment {
+    pub segment: u8,
+    /// Its first LED in `pixels`.
+    pub start: usize,
+    pub led_count: u16,
+    pub effect: String,
+}
+
+/// A segment's parameters as read for the preview, with when its Value
+/// was read: Speed moves Value on from there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReadSegment {
+    pub segment: Segment,
+    pub read_at: Instant,
+}
+
+/// Reads what the preview needs of every segment, segment 1 first: the
+/// whole segment when it has LEDs, else only its LED count and effect (the
+/// rest draws nothing), which spares most transfers on a strip that uses a
+/// few segments.
+pub async fn read_preview(channel: &SdoChannel) -> Result<Vec<ReadSegment>, SdoRequestError> {
+    let mut segments = Vec::with_capacity(usize::from(SEGMENTS));
+    for segment in 1..=SEGMENTS {
+        let mut state = Segment::default();
+        read_field(channel, segment, Field::LedCount, &mut state).await?;
+        let mut read_at = Instant::now();
+        if state.led_count == 0 {
+            read_field(channel, segment, Field::Effect, &mut state).await?;
+        } else {
+            for field in shown_fields().filter(|field| *field != Field::LedCount) {
+                read_field(channel, segment, field, &mut state).await?;
+                if field == Field::Value {
+                    read_at = Instant::now();
+                }
+            }
+        }
+        segments.push(ReadSegment {
+            segment: state,
+            read_at,
+        });
+    }
+    Ok(segments)
+}
+
+/// Reads one field of a segment into `state`. A value the type cannot hold
+/// (a short answer) keeps the default: the raw bytes of a broken answer are
+/// no state of the strip.
+async fn read_field(
+    channel: &SdoChannel,
+    segment: u8,
+    field: Field,
+    state: &mut Segment,
+) -> Result<(), SdoRequestError> {
+    let Some((index, sub)) = address(segment, field) else {
+        return Ok(());
+    };
+    let raw = channel.upload(index, sub).await?;
+    if let Some(value) = Value::from_bytes(data_type(field), &raw)
+        .ok()
+        .and_then(|value| value.as_i128())
+        .and_then(|value| i64::try_from(value).ok())
+    {
+        state.set(field, value);
+    }
+    Ok(())
+}
+
+/// The strip at `now`: every LED, segment 1's first, each segment drawn by
+/// the renderer of [`crate::profiles::uioled`] as far past its read as
+/// `now` is (a segment read just now shows the Values read).
+pub fn preview(segments: &[ReadSegment], now: Instant) -> Preview {
+    let mut pixels = Vec::new();
+    let mut places = Vec::with_capacity(segments.len());
+    for (number, read) in (1..=SEGMENTS).zip(segments) {
+        let t_ms = u64::try_from(now.saturating_duration_since(read.read_at).as_millis())
+            .unwrap_or(u64::MAX);
+        places.push(PreviewSegment {
+            segment: number,
+            start: pixels.len(),
+            led_count: read.segment.led_count,
+            effect: effect_name(read.segment.effect),
+        });
+        pixels.extend(read.segment.render_at(t_ms).into_iter().map(Color::from));
+    }
+    Preview {
+        led_count: pixels.len(),
+        segments: places,
+        pixels,
+    }
 }
 
 #[cfg(test)]

@@ -11,22 +11,32 @@
 //! its mapping may be another one after a reset.
 //!
 //! This is the gateway's own view of the process data; the REST API shows
-//! it, and the telemetry stream will publish it.
+//! it, and [`TpdoValues::subscribe`] publishes it for the telemetry stream
+//! (`../shared/API.md`, "WebSocket", `buses/{bus}/nodes/{id}/values`): one
+//! topic per node, made on its first reader, whose producer publishes the
+//! node's values by name at most at the rate its readers want however many
+//! frames come (8,000 TPDOs a second are not 8,000 JSON objects), the
+//! newest values always last (a publish follows the last frame of a burst),
+//! and nothing while nobody reads.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
+use serde_json::Value as Json;
 use tokio::sync::broadcast::error::RecvError as EventRecvError;
+use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 use super::pdo::{TpdoDecoder, pdo_numbers, read_config};
+use super::producers::{IDLE_CHECK, Lease, TopicSet, period};
 use super::registry::{NodeEvent, NodeRegistry};
+use super::telemetry::{TopicReceiver, ValueTopic};
 use crate::can::{Bus, CanId, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::nmt::NmtState;
-use crate::canopen::od::Value;
+use crate::canopen::od::{Value, format_index};
 use crate::canopen::pdo::PdoKind;
 
 /// How long to wait before trying a node's TPDOs again after a read failed
@@ -54,6 +64,61 @@ pub struct TpdoValue {
     pub count: u64,
 }
 
+impl TpdoValue {
+    /// The value as JSON, typed by the EDS (64-bit integers as strings);
+    /// null for an object the EDS does not describe.
+    pub fn value_json(&self) -> Json {
+        self.value.as_ref().map_or(Json::Null, Value::to_json)
+    }
+
+    /// The field's bytes as sent, little-endian.
+    pub fn raw_bytes(&self) -> Vec<u8> {
+        let bytes = self.raw.to_le_bytes();
+        let len = usize::from(self.bits).div_ceil(8).min(bytes.len());
+        bytes[..len].to_vec()
+    }
+
+    /// [`TpdoValue::raw_bytes`] as hex, as the API writes raw values.
+    pub fn raw_hex(&self) -> String {
+        self.raw_bytes()
+            .iter()
+            .map(|byte| format!("{byte:02x}"))
+            .collect()
+    }
+
+    /// The key of the value in the `values` topic: its EDS name, else
+    /// `"0x6041:0"`.
+    pub fn key(&self) -> String {
+        self.name
+            .clone()
+            .unwrap_or_else(|| format!("{}:{}", format_index(self.index), self.sub))
+    }
+
+    /// The value in the `values` topic: typed as [`TpdoValue::value_json`],
+    /// or `{"raw": "hex"}` for an object the EDS does not describe.
+    pub fn topic_json(&self) -> Json {
+        match &self.value {
+            Some(value) => value.to_json(),
+            None => serde_json::json!({ "raw": self.raw_hex() }),
+        }
+    }
+
+    /// The value as a whole number: typed, else its raw bits sign-extended
+    /// when `signed`.
+    pub fn as_i64(&self, signed: bool) -> i64 {
+        if let Some(value) = self.value.as_ref().and_then(Value::as_i128) {
+            return value as i64;
+        }
+        let bits = u32::from(self.bits.clamp(1, 64));
+        if signed && bits < 64 {
+            let shift = 64 - bits;
+            ((self.raw << shift) as i64) >> shift
+        } else {
+            self.raw as i64
+        }
+    }
+}
+
 /// One node's TPDOs as the gateway decodes them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodeTpdos {
@@ -72,6 +137,9 @@ struct State {
     values: HashMap<NodeId, BTreeMap<(u16, u8), TpdoValue>>,
     /// Frames on a known TPDO COB-ID whose data did not fit the mapping.
     malformed: u64,
+    /// Counts each node's decoded TPDO frames, for whoever follows them
+    /// (made on the first request: a node nobody follows costs a lookup).
+    frames: HashMap<NodeId, watch::Sender<u64>>,
 }
 
 impl State {
@@ -101,6 +169,9 @@ impl State {
 #[derive(Clone)]
 pub struct TpdoValues {
     shared: Arc<Shared>,
+    /// The `values` topics by node; dropped (and their producers ended)
+    /// with the last handle.
+    topics: Arc<TopicSet<NodeId>>,
     _tasks: Arc<TaskGuard>,
 }
 
@@ -132,8 +203,41 @@ impl TpdoValues {
         let events = tokio::spawn(follow_nodes(shared.clone()));
         Self {
             shared,
+            topics: Arc::new(TopicSet::new()),
             _tasks: Arc::new(TaskGuard(vec![frames, events])),
         }
+    }
+
+    /// A reader of the `values` topic of `node` wanting `rate_hz`: a JSON
+    /// object of the newest value of every object the node's TPDOs carry,
+    /// by EDS name (`"0x6041:0"` without one), typed as
+    /// [`TpdoValue::topic_json`]. A node not known yet, or without TPDOs,
+    /// has a topic that stays quiet until its values come.
+    pub fn subscribe(&self, node: NodeId, rate_hz: f64) -> TopicReceiver {
+        let shared = self.shared.clone();
+        self.topics.subscribe(node, rate_hz, move |topic, lease| {
+            publish_values(shared, node, topic, lease)
+        })
+    }
+
+    /// The `values` topic of `node`, if anyone ever subscribed to it.
+    pub fn topic(&self, node: NodeId) -> Option<ValueTopic> {
+        self.topics.topic(&node)
+    }
+
+    /// Changes whenever a TPDO frame of `node` has been decoded (the value
+    /// counts them); the newest values are then in [`TpdoValues::values`].
+    pub fn watch_frames(&self, node: NodeId) -> watch::Receiver<u64> {
+        self.shared.watch_frames(node)
+    }
+
+    /// The newest value of one mapped object of `node`.
+    pub fn value(&self, node: NodeId, index: u16, sub: u8) -> Option<TpdoValue> {
+        self.lock()
+            .values
+            .get(&node)
+            .and_then(|values| values.get(&(index, sub)))
+            .cloned()
     }
 
     fn lock(&self) -> MutexGuard<'_, State> {
@@ -174,6 +278,29 @@ impl Shared {
         self.state
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn watch_frames(&self, node: NodeId) -> watch::Receiver<u64> {
+        self.lock()
+            .frames
+            .entry(node)
+            .or_insert_with(|| watch::Sender::new(0))
+            .subscribe()
+    }
+
+    /// The `values` topic's data for `node`; `None` before any value came.
+    fn values_json(&self, node: NodeId) -> Option<Json> {
+        let state = self.lock();
+        let values = state
+            .values
+            .get(&node)
+            .filter(|values| !values.is_empty())?;
+        Some(Json::Object(
+            values
+                .values()
+                .map(|value| (value.key(), value.topic_json()))
+                .collect(),
+        ))
     }
 
     async fn refresh(&self, node: NodeId) -> Result<(), super::sdo::SdoRequestError> {
@@ -271,6 +398,57 @@ async fn decode_frames(bus: Bus, shared: Arc<Shared>) {
                     count,
                 },
             );
+        }
+        if let Some(frames) = state.frames.get(&node) {
+            frames.send_modify(|count| *count = count.wrapping_add(1));
+        }
+    }
+}
+
+/// The producer of `node`'s `values` topic: a publish when a frame came,
+/// at most one per period of the fastest reader's rate; frames that come
+/// meanwhile are in the next one, which follows when the period is over.
+async fn publish_values(
+    shared: Arc<Shared>,
+    node: NodeId,
+    topic: ValueTopic,
+    lease: Lease<NodeId>,
+) {
+    let mut frames = shared.watch_frames(node);
+    // A first reader gets the values known at once.
+    let mut pending = true;
+    let mut readers = 0;
+    let mut last: Option<Instant> = None;
+    loop {
+        if !lease.keep_going() {
+            return;
+        }
+        // A reader that joins gets the values known now, not only the next
+        // ones (which may be long in coming).
+        let now_readers = topic.receivers();
+        pending |= now_readers > readers;
+        readers = now_readers;
+        if pending {
+            if let Some(last) = last {
+                let wanted = topic.wanted_rate_hz().unwrap_or(1.0);
+                tokio::time::sleep_until(last + period(wanted)).await;
+            }
+            // Seen before reading: a frame decoded from here on is in this
+            // publish or calls for the next one.
+            frames.borrow_and_update();
+            if let Some(data) = shared.values_json(node) {
+                topic.publish(data);
+                last = Some(Instant::now());
+            }
+            pending = false;
+        }
+        tokio::select! {
+            changed = frames.changed() => match changed {
+                Ok(()) => pending = true,
+                Err(_) => return,
+            },
+            () = topic.readers_changed() => {}
+            () = tokio::time::sleep(IDLE_CHECK) => {}
         }
     }
 }
