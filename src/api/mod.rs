@@ -21,6 +21,8 @@
 //!   producer.
 //! - [`values`]: the TPDO values the gateway decodes, by node.
 //! - [`frames`]: a bus's recent frames, and one frame sent.
+//! - [`recording`]: recording a bus to a candump `-L` log, and its
+//!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
@@ -34,6 +36,7 @@ pub mod frames;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
+pub mod recording;
 pub mod segments;
 pub mod sim;
 pub mod values;
@@ -48,6 +51,8 @@ mod tests_drives;
 mod tests_leds;
 #[cfg(test)]
 mod tests_pdos;
+#[cfg(test)]
+mod tests_recording;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -61,6 +66,7 @@ use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::gateway::frames::FrameLog;
 use crate::gateway::profile::EdsCatalog;
+use crate::gateway::recording::Recorder;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
 use crate::gateway::telemetry::StreamCounters;
@@ -90,6 +96,8 @@ pub struct ServedBus {
     pub values: TpdoValues,
     /// The bus's recent frames.
     pub frames: FrameLog,
+    /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
+    pub recorder: Recorder,
 }
 
 impl ServedBus {
@@ -134,6 +142,8 @@ impl ServedBus {
             _ => None,
         };
         Ok(Self {
+            // In a private temporary directory until told otherwise.
+            recorder: Recorder::new(&opened.bus, None),
             frames,
             name: name.to_string(),
             spec: spec.to_string(),
@@ -145,6 +155,16 @@ impl ServedBus {
             registry,
             rack,
         })
+    }
+}
+
+impl ServedBus {
+    /// Keeps this bus's recordings in `dir` (`--data-dir DIR` gives
+    /// `DIR/recordings`) instead of a temporary directory. Call before any
+    /// recording starts.
+    pub fn with_recordings_dir(mut self, dir: std::path::PathBuf) -> Self {
+        self.recorder = Recorder::new(&self.bus, Some(dir));
+        self
     }
 }
 
@@ -190,6 +210,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(values::router())
         .merge(pdos::router())
         .merge(frames::router())
+        .merge(recording::router())
         .merge(sim::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
