@@ -145,7 +145,7 @@ impl RecordingInfo {
 /// files are kept in `DIR/recordings/`; otherwise they live in a temporary
 /// directory, and a new recording replaces the last one.
 #[utoipa::path(post, path = "/buses/{bus}/recording", tag = "frames", params(BusPath),
-    request_body(content = Option<StartRecording>, description = "Limits (optional; `{}` or no body for the defaults)"),
+    request_body(content = Option<StartRecording>, description = "Limits (optional: no body, `null` or `{}` for the defaults)"),
     responses(
         (status = 201, description = "Recording", body = RecordingInfo),
         (status = 400, description = "`invalid_request` (malformed body, unknown field), `value_out_of_range` (a limit of 0 or above its maximum)", body = ErrorBody),
@@ -158,12 +158,15 @@ async fn start_recording(
     ApiPath(bus): ApiPath<String>,
     body: Bytes,
 ) -> Result<(StatusCode, ApiJson<RecordingInfo>), AppError> {
+    // No body, or `null`, asks for the defaults.
     let request: StartRecording = if body.iter().all(u8::is_ascii_whitespace) {
         StartRecording::default()
     } else {
-        serde_json::from_slice(&body).map_err(|err| {
-            AppError::InvalidRequest(format!("the body is no recording request: {err}"))
-        })?
+        serde_json::from_slice::<Option<StartRecording>>(&body)
+            .map_err(|err| {
+                AppError::InvalidRequest(format!("the body is no recording request: {err}"))
+            })?
+            .unwrap_or_default()
     };
     let served = state.bus(&bus)?;
     let limits = Limits::new(request.max_frames, request.max_seconds)?;

@@ -125,6 +125,9 @@ async fn record_download_and_stop() {
         (json!(1_000_000), json!(3600))
     );
     assert_eq!(again["frames"], 0);
+    delete_text(&app, URI, None).await;
+    let (status, again) = post_text(&app, URI, "null").await;
+    assert_eq!(status, StatusCode::CREATED, "{again}");
 }
 
 #[tokio::test(start_paused = true)]
