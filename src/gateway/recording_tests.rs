@@ -427,3 +427,37 @@ fn stamps_are_utc_calendar_times() {
         "21000101T000000Z"
     );
 }
+
+/// What a recording costs and keeps up with: one sender as fast as it can
+/// (yielding every 32 frames), the recorder writing 8-byte frames to a
+/// file in the temporary directory. Run with
+/// `cargo test --release --lib gateway::recording -- --ignored --nocapture`.
+#[tokio::test]
+#[ignore = "a measurement"]
+async fn frames_per_second() {
+    const FRAMES: u32 = 500_000;
+    let hub = VirtualHub::new("bench");
+    let gateway = hub.attach();
+    let other = hub.attach();
+    let recorder = Recorder::new(&gateway, None);
+    recorder.start(Limits::default()).await.unwrap();
+    let frame = data(0x181, &[1, 2, 3, 4, 5, 6, 7, 8]);
+    let start = std::time::Instant::now();
+    for n in 0..FRAMES {
+        other.try_send(frame).unwrap();
+        if n % 32 == 0 {
+            tokio::task::yield_now().await;
+        }
+    }
+    let status = recorder.stop().await.unwrap();
+    let elapsed = start.elapsed().as_secs_f64();
+    println!(
+        "{} frames written, {} lost, {} bytes in {elapsed:.2} s: {:.0} frames/s ({:.0} ns/frame)",
+        status.frames,
+        status.lost,
+        status.bytes,
+        f64::from(FRAMES) / elapsed,
+        elapsed * 1e9 / f64::from(FRAMES)
+    );
+    assert_eq!(status.frames + status.lost, u64::from(FRAMES));
+}
