@@ -70,7 +70,7 @@ pub enum RecordingError {
         max: u64,
     },
     /// A recording of the bus is running already.
-    #[error("bus {bus} is being recorded already (since {file}); DELETE the recording first")]
+    #[error("bus {bus} is being recorded already (to {file}); stop that recording first (DELETE)")]
     Running { bus: String, file: String },
     /// The bus's last recording has stopped already.
     #[error("the recording of bus {bus} has stopped already ({reason})")]
@@ -348,15 +348,13 @@ impl Recorder {
         let frames = self.bus.monitor();
         let progress = Arc::new(Progress::default());
         let (commands, inbox) = mpsc::channel(4);
-        tokio::spawn(record(
-            frames,
-            file,
-            self.iface.clone(),
+        let job = Job {
+            bus: self.bus.name().to_string(),
+            iface: self.iface.clone(),
             limits,
-            progress.clone(),
-            inbox,
-            self.bus.name().to_string(),
-        ));
+            since: Instant::now(),
+        };
+        tokio::spawn(record(frames, file, job, progress.clone(), inbox));
         let session = Session {
             file_name: path
                 .file_name()
@@ -453,18 +451,32 @@ impl Recorder {
     }
 }
 
+/// What a recording task is to do.
+struct Job {
+    bus: String,
+    /// The interface its lines name.
+    iface: String,
+    limits: Limits,
+    /// When it started: the time limit counts from here.
+    since: Instant,
+}
+
 /// The recording task: `frames` to `file` until a limit, a stop, a closed
 /// bus or a write error. Writes what is queued before it stops for a
 /// command or the time limit, so a stop loses nothing already received.
 async fn record<W: AsyncWrite + Unpin>(
     mut frames: FrameReceiver,
     file: W,
-    iface: String,
-    limits: Limits,
+    job: Job,
     progress: Arc<Progress>,
     mut commands: mpsc::Receiver<Command>,
-    bus: String,
 ) {
+    let Job {
+        bus,
+        iface,
+        limits,
+        since,
+    } = job;
     let mut writer = Writer {
         log: LogWriter::new(BufWriter::with_capacity(BUFFER, file), &iface),
         progress: &progress,
@@ -472,10 +484,9 @@ async fn record<W: AsyncWrite + Unpin>(
         dirty: false,
         bus: &bus,
     };
-    let deadline =
-        tokio::time::sleep_until(Instant::now() + Duration::from_secs(limits.max_seconds));
+    let deadline = tokio::time::sleep_until(since + Duration::from_secs(limits.max_seconds));
     tokio::pin!(deadline);
-    let mut flush = tokio::time::interval_at(Instant::now() + FLUSH_EVERY, FLUSH_EVERY);
+    let mut flush = tokio::time::interval_at(since + FLUSH_EVERY, FLUSH_EVERY);
     flush.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut answer: Option<oneshot::Sender<()>> = None;
     let outcome: Result<StopReason, io::Error> = loop {

@@ -297,6 +297,15 @@ async fn a_data_dir_that_cannot_be_made_is_an_io_error() {
     let _ = std::fs::remove_file(&scratch.0);
 }
 
+fn job(bus: &str) -> Job {
+    Job {
+        bus: bus.into(),
+        iface: bus.into(),
+        limits: Limits::default(),
+        since: tokio::time::Instant::now(),
+    }
+}
+
 /// Takes `room` bytes, then fails as a full disk does.
 struct FullDisk {
     room: usize,
@@ -335,11 +344,9 @@ async fn a_write_error_stops_the_recording_with_its_reason() {
     let task = tokio::spawn(record(
         gateway.monitor(),
         FullDisk { room: 10 },
-        "full".into(),
-        Limits::default(),
+        job("full"),
         progress.clone(),
         inbox,
-        "full".into(),
     ));
     other.send(data(0x181, &[1, 2, 3])).await.unwrap();
     // The first flush reaches the disk.
@@ -366,16 +373,7 @@ async fn a_closed_bus_ends_the_recording() {
     let frames = gateway.monitor();
     other.send(data(0x181, &[1])).await.unwrap();
     drop(gateway);
-    record(
-        frames,
-        &mut out,
-        "gone".into(),
-        Limits::default(),
-        progress.clone(),
-        inbox,
-        "gone".into(),
-    )
-    .await;
+    record(frames, &mut out, job("gone"), progress.clone(), inbox).await;
     assert_eq!(lock(&progress.end).reason, Some(StopReason::BusClosed));
     assert_eq!(progress.frames.load(Ordering::Relaxed), 1);
     let text = String::from_utf8(out).unwrap();
