@@ -17,6 +17,7 @@ use crate::can::BusError;
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{DictionaryError, ValueError};
 use crate::canopen::sdo::{AbortCode, SdoError};
+use crate::gateway::recording::RecordingError;
 use crate::gateway::registry::RegistryError;
 use crate::gateway::sdo::SdoRequestError;
 
@@ -115,6 +116,20 @@ pub enum AppError {
     /// The virtual device's product cannot have this fault.
     #[error("{0}")]
     FaultNotApplicable(String),
+    /// A recording of the bus runs already.
+    #[error("{0}")]
+    RecordingRunning(String),
+    /// The bus's recording has stopped already.
+    #[error("{0}")]
+    RecordingNotRunning(String),
+    /// The bus has no recording (none since the gateway started, or its
+    /// file is gone).
+    #[error("{0}")]
+    NoRecording(String),
+    /// The recording's file could not be made or read (disk full, no
+    /// permission): the gateway's machine, not the request.
+    #[error("{0}")]
+    RecordingFailed(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -160,6 +175,10 @@ impl AppError {
             Self::FaultNotApplicable(_) => {
                 (StatusCode::UNPROCESSABLE_ENTITY, "fault_not_applicable")
             }
+            Self::RecordingRunning(_) => (StatusCode::CONFLICT, "recording_running"),
+            Self::RecordingNotRunning(_) => (StatusCode::CONFLICT, "recording_not_running"),
+            Self::NoRecording(_) => (StatusCode::NOT_FOUND, "no_recording"),
+            Self::RecordingFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "recording_failed"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -237,6 +256,22 @@ impl From<RegistryError> for AppError {
             RegistryError::Bus(error) => Self::from(error),
             RegistryError::Sdo(error) => Self::from_sdo(error),
             other => Self::Internal(other.to_string()),
+        }
+    }
+}
+
+impl From<RecordingError> for AppError {
+    fn from(error: RecordingError) -> Self {
+        let message = error.to_string();
+        match error {
+            RecordingError::LimitOutOfRange { .. } => Self::ValueOutOfRange(message),
+            RecordingError::Running { .. } => Self::RecordingRunning(message),
+            RecordingError::NotRunning { .. } => Self::RecordingNotRunning(message),
+            RecordingError::NoRecording(_) => Self::NoRecording(message),
+            RecordingError::Io { .. } => {
+                tracing::error!("api: {message}");
+                Self::RecordingFailed(message)
+            }
         }
     }
 }

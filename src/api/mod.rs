@@ -21,6 +21,8 @@
 //!   producer.
 //! - [`values`]: the TPDO values the gateway decodes, by node.
 //! - [`frames`]: a bus's recent frames, and one frame sent.
+//! - [`recording`]: recording a bus to a candump `-L` log, and its
+//!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
 //! - [`metrics`]: `/metrics` (at the root, not under `/api/v1`) in the
 //!   Prometheus text format.
@@ -37,6 +39,7 @@ pub mod metrics;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
+pub mod recording;
 pub mod segments;
 pub mod sim;
 pub mod values;
@@ -53,6 +56,8 @@ mod tests_leds;
 mod tests_pdos;
 #[cfg(test)]
 mod tests_telemetry;
+#[cfg(test)]
+mod tests_recording;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -68,6 +73,7 @@ use crate::gateway::axis_telemetry::AxisTelemetry;
 use crate::gateway::frames::FrameLog;
 use crate::gateway::led_preview::LedPreviews;
 use crate::gateway::profile::EdsCatalog;
+use crate::gateway::recording::Recorder;
 use crate::gateway::registry::{NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
 use crate::gateway::telemetry::StreamCounters;
@@ -103,6 +109,8 @@ pub struct ServedBus {
     pub previews: LedPreviews,
     /// The bus's recent frames.
     pub frames: FrameLog,
+    /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
+    pub recorder: Recorder,
 }
 
 impl ServedBus {
@@ -149,6 +157,8 @@ impl ServedBus {
             _ => None,
         };
         Ok(Self {
+            // In a private temporary directory until told otherwise.
+            recorder: Recorder::new(&opened.bus, None),
             frames,
             name: name.to_string(),
             spec: spec.to_string(),
@@ -162,6 +172,16 @@ impl ServedBus {
             registry,
             rack,
         })
+    }
+}
+
+impl ServedBus {
+    /// Keeps this bus's recordings in `dir` (`--data-dir DIR` gives
+    /// `DIR/recordings`) instead of a temporary directory. Call before any
+    /// recording starts.
+    pub fn with_recordings_dir(mut self, dir: std::path::PathBuf) -> Self {
+        self.recorder = Recorder::new(&self.bus, Some(dir));
+        self
     }
 }
 
@@ -207,6 +227,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(values::router())
         .merge(pdos::router())
         .merge(frames::router())
+        .merge(recording::router())
         .merge(sim::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);

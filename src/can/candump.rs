@@ -300,14 +300,16 @@ impl<W: AsyncWrite + Unpin> LogWriter<W> {
         }
     }
 
-    pub async fn write(&mut self, frame: &TimedFrame) -> io::Result<()> {
+    /// Writes one line; returns its length in bytes (newline included).
+    pub async fn write(&mut self, frame: &TimedFrame) -> io::Result<usize> {
         use fmt::Write as _;
         self.record.t_us = frame.timestamp.as_micros();
         self.record.frame = to_socketcan(&frame.frame);
         self.line.clear();
         // Writing to a String cannot fail.
         let _ = writeln!(self.line, "{}", self.record);
-        self.out.write_all(self.line.as_bytes()).await
+        self.out.write_all(self.line.as_bytes()).await?;
+        Ok(self.line.len())
     }
 
     pub async fn flush(&mut self) -> io::Result<()> {

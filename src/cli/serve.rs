@@ -123,7 +123,9 @@ pub struct ServeArgs {
     pub config: Option<PathBuf>,
     /// Where candeck keeps its data (created if missing): the virtual
     /// devices of bus NAME keep what they save (0x1010) under DIR/sim/NAME,
-    /// across restarts. Without it, saved values last until candeck stops.
+    /// across restarts, and bus recordings (POST /buses/{bus}/recording)
+    /// are kept in DIR/recordings. Without it, saved values last until
+    /// candeck stops and recordings go to a temporary directory removed then.
     #[arg(long, value_name = "DIR")]
     pub data_dir: Option<PathBuf>,
     /// Share virtual buses over the socketcand protocol, so that other
@@ -386,7 +388,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             },
             ..RegistryConfig::default()
         };
-        let opened = ServedBus::open_with_data_dir(
+        let mut opened = ServedBus::open_with_data_dir(
             &bus.name,
             &bus.spec,
             catalog.clone(),
@@ -396,6 +398,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         )
         .await
         .map_err(|err| CliError::new(format!("bus {}: {err}", bus.name)))?;
+        if let Some(dir) = &args.data_dir {
+            opened = opened.with_recordings_dir(dir.join("recordings"));
+        }
         served.push(opened);
     }
     let mut shares = Vec::new();
@@ -451,10 +456,18 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         });
     }
     let state = AppState::new(served);
-    axum::serve(listener, crate::api::app(state))
+    axum::serve(listener, crate::api::app(state.clone()))
         .with_graceful_shutdown(shutdown_signal())
         .await
         .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    // A running recording ends with all it received written to its file;
+    // temporary recordings are removed when the buses are dropped.
+    for bus in state.buses.values() {
+        if bus.recorder.status().state == crate::gateway::recording::RecordingState::Recording {
+            let _ = bus.recorder.stop().await;
+        }
+    }
+    drop(state);
     drop(shares);
     tracing::info!("serve: stopped");
     Ok(())

@@ -11,6 +11,8 @@
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
+//! - [`recording`]: a bus recorded to a candump `-L` log file, started and
+//!   stopped at will.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
 //!   heartbeat and scan, identified, supervised, with their EMCY history.
 //! - [`uioled`]: a UIO1LED's segments over SDO.
@@ -37,6 +39,7 @@ pub mod led_preview;
 pub mod pdo;
 pub mod producers;
 pub mod profile;
+pub mod recording;
 pub mod registry;
 pub mod sdo;
 pub mod sync;

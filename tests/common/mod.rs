@@ -25,9 +25,15 @@ impl Drop for Server {
 /// Starts `candeck ARGS --listen 127.0.0.1:0` and reads the address from its
 /// first stdout line.
 pub fn start(args: &[&str]) -> (Server, String) {
+    start_with_env(args, &[])
+}
+
+/// [`start`] with environment variables set for the process.
+pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Server, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
         .args(args)
         .args(["--listen", "127.0.0.1:0"])
+        .envs(env.iter().copied())
         .env_remove("CANDECK_LOG")
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -43,6 +49,21 @@ pub fn start(args: &[&str]) -> (Server, String) {
         .map(|(address, _)| address.to_string())
         .unwrap_or_else(|| panic!("first line: {line}"));
     (Server { child, address }, line)
+}
+
+/// Sends SIGTERM and waits (at most 5 s) for the process to end; its exit
+/// code.
+pub async fn terminate(server: &mut Server) -> Option<i32> {
+    let pid = server.child.id().to_string();
+    let killed = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+    assert!(killed.success());
+    for _ in 0..100 {
+        if let Some(exit) = server.child.try_wait().unwrap() {
+            return exit.code();
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("candeck did not stop within 5 s of SIGTERM");
 }
 
 /// One request, `Connection: close`; returns the status code and body.
