@@ -130,6 +130,9 @@ pub enum AppError {
     /// permission): the gateway's machine, not the request.
     #[error("{0}")]
     RecordingFailed(String),
+    /// A plain HTTP request to an endpoint that speaks WebSocket only.
+    #[error("this endpoint speaks WebSocket only: {0}")]
+    UpgradeRequired(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -179,6 +182,7 @@ impl AppError {
             Self::RecordingNotRunning(_) => (StatusCode::CONFLICT, "recording_not_running"),
             Self::NoRecording(_) => (StatusCode::NOT_FOUND, "no_recording"),
             Self::RecordingFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "recording_failed"),
+            Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }

@@ -26,6 +26,8 @@
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
 //! - [`metrics`]: `/metrics` (at the root, not under `/api/v1`) in the
 //!   Prometheus text format.
+//! - [`stream`]: `/stream`, the live telemetry over WebSocket, and each
+//!   client's session (subscriptions, rates, coalescing, lagged events).
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
@@ -42,8 +44,11 @@ pub mod pdos;
 pub mod recording;
 pub mod segments;
 pub mod sim;
+pub mod stream;
 pub mod values;
 
+#[cfg(test)]
+mod stream_tests;
 #[cfg(test)]
 mod test_support;
 #[cfg(test)]
@@ -55,9 +60,9 @@ mod tests_leds;
 #[cfg(test)]
 mod tests_pdos;
 #[cfg(test)]
-mod tests_telemetry;
-#[cfg(test)]
 mod tests_recording;
+#[cfg(test)]
+mod tests_telemetry;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -229,6 +234,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(frames::router())
         .merge(recording::router())
         .merge(sim::router())
+        .merge(stream::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let (metrics, metrics_doc) = metrics::router().split_for_parts();

@@ -1,0 +1,740 @@
+//! `GET /api/v1/stream`: live telemetry over WebSocket (`../shared/API.md`,
+//! "WebSocket").
+//!
+//! Client → server, one JSON text message each:
+//! `{"op":"subscribe","topics":[...],"max_rate_hz"?:n}` and
+//! `{"op":"unsubscribe","topics":[...]}`. Server → client:
+//! `{"topic","ts","data"}` for an update, `{"topic","lagged":N}` when the
+//! client fell behind and lost N events (or frames) of a topic, and, for the
+//! requests themselves, `{"op":"subscribed","topics":[...],"max_rate_hz"}`,
+//! `{"op":"unsubscribed","topics":[...]}` and
+//! `{"op":"error","topic"?,"error":{"code","message"}}` with the codes of the
+//! REST API (`unknown_bus`, `unknown_node`, `not_a_drive`, ...) and
+//! `invalid_request`. A subscribe with some bad topics subscribes the good
+//! ones and names each bad one.
+//!
+//! Topics: `nodes` (appeared, identified, NMT state changed, offline,
+//! online), `emcy`, `buses/{bus}/frames[?ids=0x181,0x701]` (frames in
+//! batches: `data` is a list), `buses/{bus}/nodes/{id}/values`,
+//! `buses/{bus}/nodes/{id}/axes/{axis}` and `buses/{bus}/nodes/{id}/segments`.
+//!
+//! How a slow client is kept from hurting anyone: nothing the gateway does
+//! waits for a client. Each session has a mailbox that producers'
+//! forwarding tasks fill and the session drains into the socket:
+//! - values are state: one pending sample per topic, a newer one replaces
+//!   it (counted as coalesced), and each topic is forwarded at most
+//!   `max_rate_hz` times per second;
+//! - events and frames queue up to a bound ([`EVENT_QUEUE`],
+//!   [`FRAME_QUEUE`]); past it the oldest go, and the client is told how
+//!   many with `lagged` before the next message of that topic.
+//!
+//! So a client's memory is bounded by its topics, and a client that stops
+//! reading only stalls its own session, which is closed when one message
+//! cannot be written in [`SEND_TIMEOUT`]. The session is generic over its
+//! message stream and sink ([`run_session`]), so it is tested with channels.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::fmt::Write as _;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use axum::extract::State;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::response::Response;
+use futures_util::{Sink, SinkExt, Stream, StreamExt};
+use serde::Deserialize;
+use serde_json::{Value as Json, json};
+use tokio::sync::Notify;
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::doc::ErrorBody;
+use super::frames::BusFrame;
+use super::nodes::known_node;
+use super::{AppError, AppState};
+use crate::can::{CanId, RecvError, TimedFrame};
+use crate::gateway::registry::NodeEvent;
+use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
+
+/// Updates per second of a value topic when the client asks no rate.
+pub const DEFAULT_RATE_HZ: f64 = 10.0;
+/// The fastest rate a client may ask for.
+pub const MAX_RATE_HZ: f64 = 1000.0;
+/// Topics one client may hold.
+pub const MAX_TOPICS: usize = 256;
+/// Events (`nodes`, `emcy`) queued for one client before the oldest go.
+pub const EVENT_QUEUE: usize = 1024;
+/// Frames queued per frames topic of one client before the oldest go.
+pub const FRAME_QUEUE: usize = 4096;
+/// A client that takes longer than this to accept one message is closed.
+pub const SEND_TIMEOUT: Duration = Duration::from_secs(10);
+/// The largest message a client may send.
+pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(stream))
+}
+
+/// The live telemetry stream (WebSocket).
+///
+/// Upgrade to a WebSocket, then send
+/// `{"op":"subscribe","topics":["nodes","emcy","buses/demo/nodes/1/axes/1"],"max_rate_hz":20}`.
+/// Updates come as `{"topic","ts","data"}` (`ts` in ms since the Unix
+/// epoch); values are coalesced to the newest at `max_rate_hz` (default
+/// 10, at most 1000); a client that falls behind on events or frames gets
+/// `{"topic","lagged":N}`. See the README, "WebSocket", for every topic
+/// and message.
+#[utoipa::path(get, path = "/stream", tag = "stream",
+    responses(
+        (status = 101, description = "Switching to the WebSocket protocol"),
+        (status = 426, description = "`upgrade_required`: a plain HTTP request; this endpoint speaks WebSocket only", body = ErrorBody),
+    ))]
+async fn stream(
+    State(state): State<AppState>,
+    upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
+) -> Result<Response, AppError> {
+    let upgrade = upgrade.map_err(|rejection| AppError::UpgradeRequired(rejection.body_text()))?;
+    Ok(upgrade
+        .max_message_size(MAX_CLIENT_MESSAGE)
+        .on_upgrade(move |socket| serve_socket(state, socket)))
+}
+
+/// What a client sent, as the session sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Inbound {
+    Text(String),
+    /// A binary message (the protocol has none): answered with an error.
+    Binary,
+}
+
+async fn serve_socket(state: AppState, socket: WebSocket) {
+    let (sink, stream) = socket.split();
+    let sink = sink.with(|text: String| async move { Ok::<_, axum::Error>(Message::text(text)) });
+    // Pings are answered by the WebSocket layer itself; a close or an error
+    // ends the stream, and with it the session.
+    let inbound = stream
+        .take_while(|message| {
+            std::future::ready(matches!(message, Ok(m) if !matches!(m, Message::Close(_))))
+        })
+        .filter_map(|message| async move {
+            match message {
+                Ok(Message::Text(text)) => Some(Inbound::Text(text.as_str().to_string())),
+                Ok(Message::Binary(_)) => Some(Inbound::Binary),
+                _ => None,
+            }
+        });
+    run_session(state, Box::pin(inbound), Box::pin(sink)).await;
+}
+
+/// One client's session: reads its requests from `inbound` and writes the
+/// stream to `outbound` until either ends (or a write times out).
+pub async fn run_session<I, O>(state: AppState, mut inbound: I, mut outbound: O)
+where
+    I: Stream<Item = Inbound> + Unpin,
+    O: Sink<String> + Unpin,
+{
+    let counters = state.stream_counters.clone();
+    let _client = ClientGuard::new(counters.clone());
+    let mut session = Session {
+        state,
+        mailbox: Arc::new(Mailbox::default()),
+        topics: BTreeMap::new(),
+        default_rate_hz: DEFAULT_RATE_HZ,
+        delivered: BTreeMap::new(),
+        counters,
+    };
+    loop {
+        let replies = tokio::select! {
+            biased;
+            request = inbound.next() => match request {
+                Some(request) => session.handle(request),
+                None => break,
+            },
+            () = session.mailbox.ready() => session.drain(),
+        };
+        for reply in replies {
+            match tokio::time::timeout(SEND_TIMEOUT, outbound.send(reply)).await {
+                Ok(Ok(())) => StreamCounters::add(&session.counters.messages, 1),
+                Ok(Err(_)) => return,
+                Err(_) => {
+                    tracing::info!(
+                        "stream client closed: it accepted no message in {SEND_TIMEOUT:?}"
+                    );
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// Counts the client while its session runs.
+struct ClientGuard(Arc<StreamCounters>);
+
+impl ClientGuard {
+    fn new(counters: Arc<StreamCounters>) -> Self {
+        counters.clients.fetch_add(1, Ordering::Relaxed);
+        Self(counters)
+    }
+}
+
+impl Drop for ClientGuard {
+    fn drop(&mut self) {
+        self.0.clients.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// A request of the client.
+#[derive(Debug, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case", deny_unknown_fields)]
+enum Request {
+    Subscribe {
+        topics: Vec<String>,
+        max_rate_hz: Option<f64>,
+    },
+    Unsubscribe {
+        topics: Vec<String>,
+    },
+}
+
+/// A topic, parsed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Topic {
+    Nodes,
+    Emcy,
+    Frames {
+        bus: String,
+        /// Only these identifiers (raw, without the extended flag); all
+        /// without.
+        ids: Option<BTreeSet<u32>>,
+    },
+    Values {
+        bus: String,
+        node: String,
+    },
+    Axis {
+        bus: String,
+        node: String,
+        axis: String,
+    },
+    Segments {
+        bus: String,
+        node: String,
+    },
+}
+
+impl Topic {
+    fn parse(text: &str) -> Result<Self, AppError> {
+        let (path, query) = match text.split_once('?') {
+            Some((path, query)) => (path, Some(query)),
+            None => (text, None),
+        };
+        let parts: Vec<&str> = path.split('/').collect();
+        let topic = match parts.as_slice() {
+            ["nodes"] => Self::Nodes,
+            ["emcy"] => Self::Emcy,
+            ["buses", bus, "frames"] => Self::Frames {
+                bus: bus.to_string(),
+                ids: query.map(parse_ids).transpose()?,
+            },
+            ["buses", bus, "nodes", node, "values"] => Self::Values {
+                bus: bus.to_string(),
+                node: node.to_string(),
+            },
+            ["buses", bus, "nodes", node, "axes", axis] => Self::Axis {
+                bus: bus.to_string(),
+                node: node.to_string(),
+                axis: axis.to_string(),
+            },
+            ["buses", bus, "nodes", node, "segments"] => Self::Segments {
+                bus: bus.to_string(),
+                node: node.to_string(),
+            },
+            _ => {
+                return Err(AppError::InvalidRequest(format!(
+                    "'{text}' is no topic: nodes, emcy, buses/{{bus}}/frames, \
+                     buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}} or .../segments"
+                )));
+            }
+        };
+        if query.is_some() && !matches!(topic, Self::Frames { .. }) {
+            return Err(AppError::InvalidRequest(format!(
+                "topic '{text}' takes no query (only frames take ?ids=...)"
+            )));
+        }
+        Ok(topic)
+    }
+}
+
+/// `ids=0x181,0x701` (hex with `0x`, or decimal).
+fn parse_ids(query: &str) -> Result<BTreeSet<u32>, AppError> {
+    let list = query.strip_prefix("ids=").ok_or_else(|| {
+        AppError::InvalidRequest(format!(
+            "frames topic query '{query}': only ids=ID,ID,... is known"
+        ))
+    })?;
+    list.split(',')
+        .map(|id| {
+            let id = id.trim();
+            let parsed = match id.strip_prefix("0x").or_else(|| id.strip_prefix("0X")) {
+                Some(hex) => u32::from_str_radix(hex, 16),
+                None => id.parse(),
+            };
+            match parsed {
+                Ok(raw) if raw <= 0x1FFF_FFFF => Ok(raw),
+                _ => Err(AppError::InvalidRequest(format!(
+                    "frames topic: '{id}' is no CAN identifier (0x000 to 0x1FFFFFFF)"
+                ))),
+            }
+        })
+        .collect()
+}
+
+/// What a session holds for one topic.
+struct Subscription {
+    /// The tasks that feed the mailbox; aborted when the topic is dropped.
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        for task in &self.tasks {
+            task.abort();
+        }
+    }
+}
+
+struct Session {
+    state: AppState,
+    mailbox: Arc<Mailbox>,
+    /// By the topic string as the client wrote it (the messages carry it
+    /// back the same way).
+    topics: BTreeMap<String, Subscription>,
+    default_rate_hz: f64,
+    /// The last sample sent per value topic, to count what was coalesced.
+    delivered: BTreeMap<String, u64>,
+    counters: Arc<StreamCounters>,
+}
+
+impl Session {
+    fn handle(&mut self, inbound: Inbound) -> Vec<String> {
+        let text = match inbound {
+            Inbound::Text(text) => text,
+            Inbound::Binary => {
+                return vec![error_message(
+                    None,
+                    &AppError::InvalidRequest(
+                        "binary messages are not part of the protocol: send JSON text".into(),
+                    ),
+                )];
+            }
+        };
+        let request: Request = match serde_json::from_str(&text) {
+            Ok(request) => request,
+            Err(err) => {
+                return vec![error_message(
+                    None,
+                    &AppError::InvalidRequest(format!(
+                        "not a request ({err}): send {{\"op\":\"subscribe\",\"topics\":[...]}} \
+                         or {{\"op\":\"unsubscribe\",\"topics\":[...]}}"
+                    )),
+                )];
+            }
+        };
+        match request {
+            Request::Subscribe {
+                topics,
+                max_rate_hz,
+            } => self.subscribe(topics, max_rate_hz),
+            Request::Unsubscribe { topics } => self.unsubscribe(topics),
+        }
+    }
+
+    fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {
+        let rate_hz = match max_rate_hz {
+            None => self.default_rate_hz,
+            Some(rate) if rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ => rate,
+            Some(rate) => {
+                return vec![error_message(
+                    None,
+                    &AppError::ValueOutOfRange(format!(
+                        "max_rate_hz {rate} is out of range: above 0, at most {MAX_RATE_HZ}"
+                    )),
+                )];
+            }
+        };
+        self.default_rate_hz = rate_hz;
+        let mut replies = Vec::new();
+        let mut subscribed = Vec::new();
+        for text in topics {
+            if !self.topics.contains_key(&text) && self.topics.len() >= MAX_TOPICS {
+                replies.push(error_message(
+                    Some(&text),
+                    &AppError::InvalidRequest(format!(
+                        "a client may hold at most {MAX_TOPICS} topics"
+                    )),
+                ));
+                continue;
+            }
+            match self.open(&text, rate_hz) {
+                Ok(subscription) => {
+                    // Subscribing again replaces the old one (a new rate).
+                    self.forget(&text);
+                    self.topics.insert(text.clone(), subscription);
+                    subscribed.push(text);
+                }
+                Err(err) => replies.push(error_message(Some(&text), &err)),
+            }
+        }
+        if !subscribed.is_empty() {
+            replies.insert(
+                0,
+                json!({"op": "subscribed", "topics": subscribed, "max_rate_hz": rate_hz})
+                    .to_string(),
+            );
+        }
+        replies
+    }
+
+    fn unsubscribe(&mut self, topics: Vec<String>) -> Vec<String> {
+        let mut done = Vec::new();
+        let mut replies = Vec::new();
+        for text in topics {
+            if self.topics.contains_key(&text) {
+                self.forget(&text);
+                done.push(text);
+            } else {
+                replies.push(error_message(
+                    Some(&text),
+                    &AppError::InvalidRequest(format!("not subscribed to '{text}'")),
+                ));
+            }
+        }
+        replies.insert(0, json!({"op": "unsubscribed", "topics": done}).to_string());
+        replies
+    }
+
+    /// Drops a topic: its tasks stop and what it had pending goes.
+    fn forget(&mut self, text: &str) {
+        self.topics.remove(text);
+        self.delivered.remove(text);
+        self.mailbox.forget(text);
+    }
+
+    /// Starts the tasks that feed `text` into the mailbox.
+    fn open(&self, text: &str, rate_hz: f64) -> Result<Subscription, AppError> {
+        let topic = Topic::parse(text)?;
+        let key: Arc<str> = Arc::from(text);
+        let mailbox = self.mailbox.clone();
+        let tasks = match topic {
+            Topic::Nodes | Topic::Emcy => self
+                .state
+                .buses
+                .values()
+                .map(|served| {
+                    let events = served.registry.subscribe();
+                    let bus: Arc<str> = Arc::from(served.name.as_str());
+                    tokio::spawn(forward_events(
+                        events,
+                        bus,
+                        topic == Topic::Emcy,
+                        key.clone(),
+                        mailbox.clone(),
+                    ))
+                })
+                .collect(),
+            Topic::Frames { bus, ids } => {
+                let served = self.state.bus(&bus)?;
+                let frames = served.bus.monitor();
+                let bus = served.bus.clone();
+                vec![tokio::spawn(async move {
+                    // The attachment must outlive its receiver.
+                    let _bus = bus;
+                    forward_frames(frames, ids, rate_hz, key, mailbox).await;
+                })]
+            }
+            Topic::Values { bus, node } => {
+                let (served, info) = known_node(&self.state, &bus, &node)?;
+                let receiver = served.values.subscribe(info.id, rate_hz);
+                vec![tokio::spawn(forward_values(receiver, key, mailbox))]
+            }
+            Topic::Axis { bus, node, axis } => {
+                let (served, info) = known_node(&self.state, &bus, &node)?;
+                let axis: u8 = axis.parse().map_err(|_| {
+                    AppError::UnknownAxis(format!("'{axis}' is no axis number (1, 2, ...)"))
+                })?;
+                let receiver = served.axes.subscribe(info.id, axis, rate_hz)?;
+                vec![tokio::spawn(forward_values(receiver, key, mailbox))]
+            }
+            Topic::Segments { bus, node } => {
+                let (served, info) = known_node(&self.state, &bus, &node)?;
+                let receiver = served.previews.subscribe(info.id, rate_hz)?;
+                vec![tokio::spawn(forward_values(receiver, key, mailbox))]
+            }
+        };
+        Ok(Subscription { tasks })
+    }
+
+    /// Everything pending, as messages: per topic, a `lagged` notice
+    /// first, then its events in order; then values; then frame batches.
+    fn drain(&mut self) -> Vec<String> {
+        let pending = self.mailbox.take();
+        let mut out = Vec::new();
+        for (topic, lost) in &pending.lagged {
+            if self.topics.contains_key(&**topic) {
+                StreamCounters::add(&self.counters.lagged, *lost);
+                out.push(json!({"topic": &**topic, "lagged": lost}).to_string());
+            }
+        }
+        for (topic, message) in pending.events {
+            if self.topics.contains_key(&*topic) {
+                out.push(message);
+            }
+        }
+        for (topic, sample) in pending.values {
+            if !self.topics.contains_key(&*topic) {
+                continue;
+            }
+            let last = self.delivered.insert(topic.to_string(), sample.seq);
+            if let Some(last) = last {
+                let skipped = sample.seq.saturating_sub(last + 1);
+                StreamCounters::add(&self.counters.coalesced, skipped);
+            }
+            out.push(update_message(&topic, sample.ts_ms, &sample.data_text()));
+        }
+        for (topic, frames) in pending.frames {
+            if !self.topics.contains_key(&*topic) || frames.is_empty() {
+                continue;
+            }
+            let batch: Vec<BusFrame> = frames.iter().map(BusFrame::from).collect();
+            let data = serde_json::to_string(&batch).unwrap_or_else(|_| "[]".into());
+            out.push(update_message(&topic, unix_ms(), &data));
+        }
+        out
+    }
+}
+
+/// `{"topic":..,"ts":..,"data":..}` around data already in JSON.
+fn update_message(topic: &str, ts_ms: u64, data: &str) -> String {
+    let mut message = String::with_capacity(data.len() + topic.len() + 40);
+    message.push_str("{\"topic\":");
+    message.push_str(&Json::from(topic).to_string());
+    let _ = write!(message, ",\"ts\":{ts_ms},\"data\":");
+    message.push_str(data);
+    message.push('}');
+    message
+}
+
+fn error_message(topic: Option<&str>, error: &AppError) -> String {
+    let mut message = json!({
+        "op": "error",
+        "error": error.to_json(),
+    });
+    if let Some(topic) = topic {
+        message["topic"] = Json::from(topic);
+    }
+    message.to_string()
+}
+
+/// What a session has to send, filled by its forwarding tasks.
+#[derive(Default)]
+struct Mailbox {
+    pending: Mutex<Pending>,
+    /// A permit is stored when nobody waits, so no wake-up is lost.
+    ready: Notify,
+}
+
+#[derive(Default)]
+struct Pending {
+    /// Events in arrival order, whole messages, with their topic.
+    events: VecDeque<(Arc<str>, String)>,
+    /// Per topic, events or frames lost since the client was last told.
+    lagged: BTreeMap<Arc<str>, u64>,
+    values: BTreeMap<Arc<str>, Arc<Sample>>,
+    frames: BTreeMap<Arc<str>, VecDeque<TimedFrame>>,
+}
+
+impl Mailbox {
+    fn lock(&self) -> MutexGuard<'_, Pending> {
+        // Queues of whole messages: never left half-written.
+        self.pending
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    async fn ready(&self) {
+        self.ready.notified().await;
+    }
+
+    fn take(&self) -> Pending {
+        std::mem::take(&mut *self.lock())
+    }
+
+    fn forget(&self, topic: &str) {
+        let mut pending = self.lock();
+        pending.events.retain(|(t, _)| &**t != topic);
+        pending.lagged.remove(topic);
+        pending.values.remove(topic);
+        pending.frames.remove(topic);
+    }
+
+    fn push_event(&self, topic: &Arc<str>, message: String) {
+        {
+            let mut pending = self.lock();
+            if pending.events.len() >= EVENT_QUEUE
+                && let Some((oldest, _)) = pending.events.pop_front()
+            {
+                *pending.lagged.entry(oldest).or_default() += 1;
+            }
+            pending.events.push_back((topic.clone(), message));
+        }
+        self.ready.notify_one();
+    }
+
+    fn lost(&self, topic: &Arc<str>, n: u64) {
+        *self.lock().lagged.entry(topic.clone()).or_default() += n;
+        self.ready.notify_one();
+    }
+
+    fn put_value(&self, topic: &Arc<str>, sample: Arc<Sample>) {
+        self.lock().values.insert(topic.clone(), sample);
+        self.ready.notify_one();
+    }
+
+    /// Queues a frame; when the queue is full the oldest goes, counted.
+    fn push_frame(&self, topic: &Arc<str>, frame: TimedFrame) {
+        let mut pending = self.lock();
+        let queue = pending.frames.entry(topic.clone()).or_default();
+        let overflow = queue.len() >= FRAME_QUEUE;
+        if overflow {
+            queue.pop_front();
+        }
+        queue.push_back(frame);
+        if overflow {
+            *pending.lagged.entry(topic.clone()).or_default() += 1;
+        }
+    }
+
+    fn wake(&self) {
+        self.ready.notify_one();
+    }
+}
+
+/// Forwards a value topic at most at its receiver's rate: after each
+/// sample it waits one period, and then takes the newest.
+async fn forward_values(mut receiver: TopicReceiver, topic: Arc<str>, mailbox: Arc<Mailbox>) {
+    let period = Duration::from_secs_f64(1.0 / receiver.rate_hz());
+    if let Some(sample) = receiver.take() {
+        mailbox.put_value(&topic, sample);
+        tokio::time::sleep(period).await;
+    }
+    while let Some(sample) = receiver.changed().await {
+        mailbox.put_value(&topic, sample);
+        tokio::time::sleep(period).await;
+    }
+}
+
+/// Forwards one bus's registry events of one kind (`nodes`, or `emcy`).
+async fn forward_events(
+    mut events: tokio::sync::broadcast::Receiver<NodeEvent>,
+    bus: Arc<str>,
+    emcy: bool,
+    topic: Arc<str>,
+    mailbox: Arc<Mailbox>,
+) {
+    use tokio::sync::broadcast::error::RecvError as EventError;
+    loop {
+        match events.recv().await {
+            Ok(event) => {
+                if matches!(event, NodeEvent::Emcy { .. }) != emcy {
+                    continue;
+                }
+                let data = event_json(&bus, &event);
+                mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
+            }
+            // The registry's channel lost events before this task read them:
+            // they are this topic's as far as anyone can tell.
+            Err(EventError::Lagged(n)) => mailbox.lost(&topic, n),
+            Err(EventError::Closed) => return,
+        }
+    }
+}
+
+/// One registry event as the `nodes` or `emcy` topic sends it.
+fn event_json(bus: &str, event: &NodeEvent) -> Json {
+    let node = event.node().get();
+    match event {
+        NodeEvent::Appeared { .. } => json!({"bus": bus, "node": node, "event": "appeared"}),
+        NodeEvent::Identified { profile, eds, .. } => json!({
+            "bus": bus, "node": node, "event": "identified", "profile": profile, "eds": eds,
+        }),
+        NodeEvent::IdentificationFailed { error, .. } => json!({
+            "bus": bus, "node": node, "event": "identification_failed", "error": error,
+        }),
+        NodeEvent::NmtChanged { from, to, .. } => json!({
+            "bus": bus, "node": node, "event": "nmt_changed",
+            "from": from.map_or("unknown", |state| state.name()), "nmt": to.name(),
+        }),
+        NodeEvent::Offline { reason, .. } => json!({
+            "bus": bus, "node": node, "event": "offline", "reason": reason,
+        }),
+        NodeEvent::Online { .. } => json!({"bus": bus, "node": node, "event": "online"}),
+        NodeEvent::Emcy { emcy, .. } => json!({
+            "bus": bus,
+            "node": node,
+            "code": format!("0x{:04X}", emcy.code),
+            "text": emcy.text,
+            "register": emcy.register,
+            "manufacturer": emcy.manufacturer_hex(),
+            "timestamp_us": emcy.timestamp.as_micros(),
+        }),
+    }
+}
+
+/// Forwards a bus's frames (those of `ids`, or all), waking the session
+/// at most `rate_hz` times per second: frames come in batches.
+async fn forward_frames(
+    mut frames: crate::can::FrameReceiver,
+    ids: Option<BTreeSet<u32>>,
+    rate_hz: f64,
+    topic: Arc<str>,
+    mailbox: Arc<Mailbox>,
+) {
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let mut next_wake = Instant::now();
+    let mut queued = false;
+    loop {
+        tokio::select! {
+            received = frames.recv() => match received {
+                Ok(frame) => {
+                    let raw = match frame.frame.id() {
+                        CanId::Standard(raw) => u32::from(raw),
+                        CanId::Extended(raw) => raw,
+                    };
+                    if ids.as_ref().is_some_and(|ids| !ids.contains(&raw)) {
+                        continue;
+                    }
+                    mailbox.push_frame(&topic, frame);
+                    queued = true;
+                }
+                Err(RecvError::Lagged(n)) => {
+                    mailbox.lost(&topic, n);
+                    queued = true;
+                }
+                Err(RecvError::Closed) => {
+                    mailbox.wake();
+                    return;
+                }
+            },
+            () = tokio::time::sleep_until(next_wake), if queued => {}
+        }
+        let now = Instant::now();
+        if queued && now >= next_wake {
+            mailbox.wake();
+            queued = false;
+            next_wake = now + period;
+        }
+    }
+}

@@ -1,0 +1,503 @@
+//! The stream's sessions driven through channels (no socket), on the demo
+//! bus with a paused clock: the protocol's replies and errors, node
+//! supervision and EMCY events, frames, and what a client that stops
+//! reading does (and does not do) to the others.
+
+use std::time::Duration;
+
+use axum::http::StatusCode;
+use futures_util::StreamExt;
+use serde_json::{Value as Json, json};
+use tokio::sync::mpsc;
+use tokio::time::Instant;
+
+use super::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
+use crate::api::AppState;
+use crate::api::test_support::{delete_text, demo, post_text};
+use crate::can::{CanId, Frame};
+
+/// A client of a session: what it sends, what it gets.
+struct Client {
+    requests: mpsc::Sender<Inbound>,
+    messages: mpsc::Receiver<String>,
+}
+
+impl Client {
+    /// A session whose outgoing channel holds `capacity` messages: a client
+    /// that does not read blocks its session once that many wait.
+    fn start(state: &AppState, capacity: usize) -> Self {
+        let (requests, inbound) = mpsc::channel::<Inbound>(16);
+        let (outbound, messages) = mpsc::channel::<String>(capacity);
+        let inbound = futures_util::stream::unfold(inbound, |mut rx| async move {
+            rx.recv().await.map(|request| (request, rx))
+        });
+        let sink = futures_util::sink::unfold(outbound, |tx, message: String| async move {
+            tx.send(message).await.map(|()| tx)
+        });
+        tokio::spawn(run_session(
+            state.clone(),
+            Box::pin(inbound),
+            Box::pin(sink),
+        ));
+        Self { requests, messages }
+    }
+
+    async fn send(&self, text: &str) {
+        self.requests
+            .send(Inbound::Text(text.to_string()))
+            .await
+            .unwrap();
+    }
+
+    async fn next(&mut self) -> Json {
+        let text = tokio::time::timeout(Duration::from_secs(30), self.messages.recv())
+            .await
+            .expect("a message within 30 s")
+            .expect("the session is running");
+        serde_json::from_str(&text).unwrap()
+    }
+
+    /// Messages until one satisfies `wanted`, which it returns.
+    async fn until(&mut self, wanted: impl Fn(&Json) -> bool) -> Json {
+        loop {
+            let message = self.next().await;
+            if wanted(&message) {
+                return message;
+            }
+        }
+    }
+
+    async fn subscribe(&mut self, topics: &[&str], rate: Option<f64>) -> Json {
+        let mut request = json!({"op": "subscribe", "topics": topics});
+        if let Some(rate) = rate {
+            request["max_rate_hz"] = json!(rate);
+        }
+        self.send(&request.to_string()).await;
+        self.next().await
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn requests_are_acknowledged_and_bad_ones_get_the_apis_error_codes() {
+    let (_, state) = demo().await;
+    let mut client = Client::start(&state, 64);
+
+    let ack = client.subscribe(&["nodes", "emcy"], Some(20.0)).await;
+    assert_eq!(
+        ack,
+        json!({"op": "subscribed", "topics": ["nodes", "emcy"], "max_rate_hz": 20.0})
+    );
+
+    // Good topics are subscribed, each bad one named with its error.
+    client
+        .send(
+            &json!({"op": "subscribe", "topics": [
+                "buses/demo/frames?ids=0x701",
+                "buses/nowhere/frames",
+                "buses/demo/nodes/99/values",
+                "buses/demo/nodes/x/values",
+                "buses/demo/frames?ids=0x2000000000",
+                "buses/demo/frames?speed=1",
+                "nodes?x=1",
+                "weather",
+            ]})
+            .to_string(),
+        )
+        .await;
+    assert_eq!(
+        client.next().await,
+        json!({"op": "subscribed", "topics": ["buses/demo/frames?ids=0x701"], "max_rate_hz": 20.0})
+    );
+    let expected = [
+        ("buses/nowhere/frames", "unknown_bus"),
+        ("buses/demo/nodes/99/values", "unknown_node"),
+        ("buses/demo/nodes/x/values", "invalid_request"),
+        ("buses/demo/frames?ids=0x2000000000", "invalid_request"),
+        ("buses/demo/frames?speed=1", "invalid_request"),
+        ("nodes?x=1", "invalid_request"),
+        ("weather", "invalid_request"),
+    ];
+    for (topic, code) in expected {
+        let error = client.next().await;
+        assert_eq!(error["op"], "error", "{error}");
+        assert_eq!(error["topic"], topic, "{error}");
+        assert_eq!(error["error"]["code"], code, "{error}");
+        assert!(error["error"]["message"].as_str().unwrap().len() > 10);
+    }
+
+    for (request, code) in [
+        ("not json", "invalid_request"),
+        (r#"{"op": "publish", "topics": []}"#, "invalid_request"),
+        (r#"{"op": "subscribe"}"#, "invalid_request"),
+        (
+            r#"{"op": "subscribe", "topics": "nodes"}"#,
+            "invalid_request",
+        ),
+        (
+            r#"{"op": "subscribe", "topics": ["nodes"], "extra": 1}"#,
+            "invalid_request",
+        ),
+        (
+            r#"{"op": "subscribe", "topics": ["nodes"], "max_rate_hz": 0}"#,
+            "value_out_of_range",
+        ),
+        (
+            r#"{"op": "subscribe", "topics": ["nodes"], "max_rate_hz": 5000}"#,
+            "value_out_of_range",
+        ),
+    ] {
+        client.send(request).await;
+        let error = client.next().await;
+        assert_eq!(
+            (error["op"].as_str(), error["error"]["code"].as_str()),
+            (Some("error"), Some(code)),
+            "{request}: {error}"
+        );
+    }
+    client.requests.send(Inbound::Binary).await.unwrap();
+    let error = client.next().await;
+    assert_eq!(error["error"]["code"], "invalid_request", "{error}");
+
+    client
+        .send(r#"{"op": "unsubscribe", "topics": ["emcy", "buses/demo/frames"]}"#)
+        .await;
+    assert_eq!(
+        client.next().await,
+        json!({"op": "unsubscribed", "topics": ["emcy"]})
+    );
+    let error = client.next().await;
+    assert_eq!(
+        (&error["topic"], &error["error"]["code"]),
+        (&json!("buses/demo/frames"), &json!("invalid_request")),
+        "{error}"
+    );
+
+    // At most MAX_TOPICS topics: distinct frame filters count one each.
+    let many: Vec<String> = (1..=MAX_TOPICS)
+        .map(|id| format!("buses/demo/frames?ids={id}"))
+        .collect();
+    client
+        .send(&json!({"op": "subscribe", "topics": many}).to_string())
+        .await;
+    let ack = client.next().await;
+    // Two are held already (nodes, the 0x701 frames).
+    assert_eq!(
+        ack["topics"].as_array().unwrap().len(),
+        MAX_TOPICS - 2,
+        "{ack}"
+    );
+    for _ in 0..2 {
+        let error = client.next().await;
+        assert_eq!(error["error"]["code"], "invalid_request", "{error}");
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_unplugged_node_goes_offline_within_two_heartbeat_periods_and_comes_back() {
+    let (app, state) = demo().await;
+    // The JMC is the demo device that sends heartbeats (its EDS's 0x1017).
+    let jmc = state.buses["demo"]
+        .registry
+        .node(2.try_into().unwrap())
+        .unwrap();
+    let period = Duration::from_millis(jmc.heartbeat_ms.expect("the JMC sends heartbeats"));
+    let mut client = Client::start(&state, 64);
+    client.subscribe(&["nodes"], None).await;
+
+    let (status, _) = delete_text(&app, "/api/v1/buses/demo/sim/nodes/2", None).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let unplugged = Instant::now();
+    let offline = client.until(|m| m["data"]["event"] == "offline").await;
+    let after = unplugged.elapsed();
+    assert!(
+        after <= 2 * period,
+        "offline after {after:?}, period {period:?}"
+    );
+    assert_eq!(offline["topic"], "nodes");
+    assert_eq!(
+        offline["data"],
+        json!({"bus": "demo", "node": 2, "event": "offline", "reason": "heartbeat_lost"})
+    );
+    assert!(
+        offline["ts"].as_u64().unwrap() > 1_700_000_000_000,
+        "{offline}"
+    );
+
+    let (status, _) = post_text(
+        &app,
+        "/api/v1/buses/demo/sim/nodes",
+        r#"{"product": "jmc", "id": 2}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED);
+    let online = client.until(|m| m["data"]["event"] == "online").await;
+    assert_eq!(
+        online["data"],
+        json!({"bus": "demo", "node": 2, "event": "online"})
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_injected_fault_arrives_as_an_emcy_with_its_code_and_text() {
+    let (app, state) = demo().await;
+    let mut client = Client::start(&state, 64);
+    client.subscribe(&["emcy"], None).await;
+    let (status, _) = post_text(
+        &app,
+        "/api/v1/buses/demo/sim/nodes/1/faults",
+        r#"{"kind": "over_temperature"}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let emcy = client.next().await;
+    assert_eq!(emcy["topic"], "emcy");
+    let data = &emcy["data"];
+    assert_eq!(
+        (&data["bus"], &data["node"], &data["code"]),
+        (&json!("demo"), &json!(1), &json!("0x4310")),
+        "{emcy}"
+    );
+    assert_eq!(data["text"], "Excess temperature drive", "{emcy}");
+    assert_eq!(data["register"], 9, "{emcy}");
+    assert_eq!(data["manufacturer"].as_str().unwrap().len(), 10, "{emcy}");
+}
+
+/// Sends `count` frames with id 0x555 in bursts, letting the gateway's
+/// tasks run between them.
+async fn traffic(state: &AppState, count: usize) {
+    let bus = &state.buses["demo"].bus;
+    for n in 0..count {
+        let frame = Frame::new(CanId::standard(0x555).unwrap(), &(n as u32).to_le_bytes()).unwrap();
+        bus.send(frame).await.unwrap();
+        if n % 100 == 99 {
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(20)).await;
+}
+
+/// The frames of 0x555 in the messages a client has waiting (and how many
+/// it was told it lost).
+fn frames_and_lagged(messages: &mut mpsc::Receiver<String>) -> (Vec<u32>, u64) {
+    let mut seen = Vec::new();
+    let mut lagged = 0;
+    while let Ok(text) = messages.try_recv() {
+        let message: Json = serde_json::from_str(&text).unwrap();
+        if let Some(n) = message["lagged"].as_u64() {
+            lagged += n;
+        }
+        for frame in message["data"].as_array().into_iter().flatten() {
+            let data = frame["data"].as_str().unwrap();
+            let bytes: Vec<u8> = (0..4)
+                .map(|i| u8::from_str_radix(&data[2 * i..2 * i + 2], 16).unwrap())
+                .collect();
+            seen.push(u32::from_le_bytes(bytes.try_into().unwrap()));
+        }
+    }
+    (seen, lagged)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_client_that_stops_reading_loses_frames_counted_and_delays_no_one() {
+    let (_, state) = demo().await;
+    let topic = "buses/demo/frames?ids=0x555";
+    // The reader's channel is large enough to take everything it is sent.
+    let mut reader = Client::start(&state, 100_000);
+    reader.subscribe(&[topic], Some(100.0)).await;
+    // The stuck client's holds two messages, then its session blocks.
+    let mut stuck = Client::start(&state, 2);
+    stuck.subscribe(&[topic], Some(100.0)).await;
+
+    let sent = FRAME_QUEUE * 3;
+    traffic(&state, sent).await;
+
+    // The reader got every frame, in order, with no loss.
+    let (seen, lagged) = frames_and_lagged(&mut reader.messages);
+    assert_eq!(lagged, 0);
+    assert_eq!(seen, (0..sent as u32).collect::<Vec<_>>());
+
+    // The stuck one kept at most FRAME_QUEUE of them waiting; when it reads
+    // again it is told how many it lost, and lost no more than that.
+    let Client {
+        requests: _requests,
+        messages: mut stuck_messages,
+    } = stuck;
+    let mut seen = Vec::new();
+    let mut lagged = 0;
+    for _ in 0..50 {
+        let (more, lost) = frames_and_lagged(&mut stuck_messages);
+        seen.extend(more);
+        lagged += lost;
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(lagged >= FRAME_QUEUE as u64, "lagged {lagged}");
+    assert_eq!(
+        seen.len() as u64 + lagged,
+        sent as u64,
+        "seen {}",
+        seen.len()
+    );
+    assert!(seen.windows(2).all(|pair| pair[0] < pair[1]));
+    assert!(
+        state
+            .stream_counters
+            .lagged
+            .load(std::sync::atomic::Ordering::Relaxed)
+            >= lagged
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn events_beyond_the_queue_are_reported_as_lagged_not_dropped() {
+    let (app, state) = demo().await;
+    let mut stuck = Client::start(&state, 1);
+    stuck.subscribe(&["nodes"], None).await;
+    // Each add and remove of a device is an appeared or NMT and offline
+    // event; more of them than the queue holds.
+    let mut toggles = 0;
+    while toggles < EVENT_QUEUE {
+        post_text(
+            &app,
+            "/api/v1/buses/demo/sim/nodes",
+            r#"{"product": "uio1led", "id": 50}"#,
+        )
+        .await;
+        tokio::time::sleep(Duration::from_millis(2)).await;
+        delete_text(&app, "/api/v1/buses/demo/sim/nodes/50", None).await;
+        tokio::time::sleep(Duration::from_millis(2)).await;
+        toggles += 1;
+    }
+    let Client {
+        messages: mut stuck_messages,
+        requests: _requests,
+    } = stuck;
+    let mut lagged = 0;
+    let mut events = 0;
+    for _ in 0..20 {
+        while let Ok(text) = stuck_messages.try_recv() {
+            let message: Json = serde_json::from_str(&text).unwrap();
+            if let Some(n) = message["lagged"].as_u64() {
+                assert_eq!(message["topic"], "nodes");
+                lagged += n;
+            } else if message["topic"] == "nodes" {
+                events += 1;
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(lagged > 0, "events {events}");
+    assert!(events <= EVENT_QUEUE + 2, "events {events}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_session_ends_with_its_client_and_is_counted_meanwhile() {
+    let (_, state) = demo().await;
+    let counters = state.stream_counters.clone();
+    let clients = || counters.clients.load(std::sync::atomic::Ordering::Relaxed);
+    let mut client = Client::start(&state, 8);
+    client
+        .subscribe(&["nodes", "buses/demo/frames"], None)
+        .await;
+    assert_eq!(clients(), 1);
+    drop(client.requests);
+    // The session sees its inbound end and stops; its topics' tasks with it.
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    assert_eq!(clients(), 0);
+    let rest: Vec<String> = futures_util::stream::poll_fn(|cx| client.messages.poll_recv(cx))
+        .collect()
+        .await;
+    assert!(rest.len() < 10, "{}", rest.len());
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_axis_topic_comes_at_the_rate_asked_for_beside_a_client_that_never_reads() {
+    let (app, state) = demo().await;
+    let axis = "/api/v1/buses/demo/nodes/1/axes/1";
+    let (status, body) = post_text(
+        &app,
+        &format!("{axis}/state"),
+        r#"{"target":"operation_enabled"}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    let (status, body) = post_text(
+        &app,
+        &format!("{axis}/move"),
+        r#"{"mode":"velocity","velocity":200}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+
+    let topic = "buses/demo/nodes/1/axes/1";
+    let mut stuck = Client::start(&state, 1);
+    stuck
+        .subscribe(
+            &[
+                topic,
+                "buses/demo/nodes/3/segments",
+                "buses/demo/frames",
+                "nodes",
+            ],
+            Some(1000.0),
+        )
+        .await;
+    let mut reader = Client::start(&state, 10_000);
+    reader.subscribe(&[topic], Some(20.0)).await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
+
+    let mut positions = Vec::new();
+    while let Ok(text) = reader.messages.try_recv() {
+        let message: Json = serde_json::from_str(&text).unwrap();
+        assert_eq!(message["topic"], topic, "{message}");
+        assert_eq!(message["data"]["state"], "operation_enabled", "{message}");
+        positions.push(message["data"]["position"].as_i64().unwrap());
+    }
+    // 20 Hz for 3 s: 60, ±20 % (and the sample the topic had at once).
+    assert!((48..=73).contains(&positions.len()), "{}", positions.len());
+    assert!(positions.windows(2).all(|p| p[0] < p[1]), "{positions:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn value_topics_of_the_wrong_kind_of_node_are_refused_with_the_apis_codes() {
+    let (_, state) = demo().await;
+    let mut client = Client::start(&state, 64);
+    client
+        .send(
+            &json!({"op": "subscribe", "topics": [
+                "buses/demo/nodes/1/values",
+                "buses/demo/nodes/3/segments",
+                "buses/demo/nodes/3/axes/1",
+                "buses/demo/nodes/1/axes/9",
+                "buses/demo/nodes/1/axes/x",
+                "buses/demo/nodes/1/segments",
+            ]})
+            .to_string(),
+        )
+        .await;
+    assert_eq!(
+        client.next().await,
+        json!({"op": "subscribed", "topics": ["buses/demo/nodes/1/values", "buses/demo/nodes/3/segments"], "max_rate_hz": 10.0})
+    );
+    for (topic, code) in [
+        ("buses/demo/nodes/3/axes/1", "not_a_drive"),
+        ("buses/demo/nodes/1/axes/9", "unknown_axis"),
+        ("buses/demo/nodes/1/axes/x", "unknown_axis"),
+        ("buses/demo/nodes/1/segments", "not_an_led_controller"),
+    ] {
+        let error = client.next().await;
+        assert_eq!(
+            (&error["topic"], &error["error"]["code"]),
+            (&json!(topic), &json!(code)),
+            "{error}"
+        );
+    }
+    // The LED preview comes at the default 10 Hz: one strip of pixels per
+    // update.
+    let preview = client
+        .until(|m| m["topic"] == "buses/demo/nodes/3/segments")
+        .await;
+    assert!(
+        preview["data"].is_object() || preview["data"].is_array(),
+        "{preview}"
+    );
+}
