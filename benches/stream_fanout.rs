@@ -15,7 +15,9 @@
 //!   time (µs, in the 32 bits of 0x6064) and a sequence number, and an EMCY
 //!   of a node ten times a second;
 //! - 100 WebSocket clients each subscribe to one node's `values` (client i
-//!   to node i mod 8 + 1) at `max_rate_hz` 50, and to `emcy`.
+//!   to node i mod 8 + 1) at `max_rate_hz` 50, and to `emcy`;
+//! - one more client takes node 1's TPDO1 frames raw (`frames?ids=0x181`),
+//!   for comparison: the bus path without the values producer.
 //!
 //! Measured over the window (`--seconds`, default 10, after `--warmup`,
 //! default 2): frames sent; per client, values messages per second and
@@ -220,6 +222,52 @@ async fn client(
     figures
 }
 
+/// One client of the raw frames of node 1's TPDO1 at the highest rate:
+/// the latency of the bus path without the values producer. Returns the
+/// latency of each frame, µs.
+async fn frames_probe(
+    address: String,
+    epoch: Instant,
+    measuring: Arc<AtomicBool>,
+    done: Arc<AtomicBool>,
+) -> Vec<u64> {
+    let (mut socket, _) = tokio_tungstenite::connect_async(format!("ws://{address}/api/v1/stream"))
+        .await
+        .expect("connect");
+    let request = json!({
+        "op": "subscribe",
+        "topics": ["buses/bench/frames?ids=0x181"],
+        "max_rate_hz": 1000,
+    });
+    socket
+        .send(Message::text(request.to_string()))
+        .await
+        .unwrap();
+    let mut latencies = Vec::new();
+    while !done.load(Ordering::Relaxed) {
+        let Ok(Some(Ok(Message::Text(text)))) =
+            tokio::time::timeout(Duration::from_millis(200), socket.next()).await
+        else {
+            continue;
+        };
+        let now = epoch.elapsed().as_micros() as u32;
+        if !measuring.load(Ordering::Relaxed) {
+            continue;
+        }
+        let message: Json = serde_json::from_str(&text).unwrap();
+        for frame in message["data"].as_array().into_iter().flatten() {
+            let hex = frame["data"].as_str().unwrap_or("");
+            let bytes: Vec<u8> = (0..4)
+                .filter_map(|i| u8::from_str_radix(hex.get(2 * i..2 * i + 2)?, 16).ok())
+                .collect();
+            if let Ok(bytes) = <[u8; 4]>::try_from(bytes) {
+                latencies.push(u64::from(now.wrapping_sub(u32::from_le_bytes(bytes))));
+            }
+        }
+    }
+    latencies
+}
+
 /// Sends the TPDO frames and EMCYs at their rates until `done`; counts
 /// what it sent while `measuring`.
 async fn generate(
@@ -343,6 +391,12 @@ fn main() {
                 ))
             })
             .collect();
+        let probe = tokio::spawn(frames_probe(
+            address.clone(),
+            epoch,
+            measuring.clone(),
+            done.clone(),
+        ));
         // The generator runs on a thread and runtime of its own, so that the
         // clients' work does not pace it.
         let generator = std::thread::spawn({
@@ -375,6 +429,8 @@ fn main() {
             figures.push(client.await.unwrap());
         }
         generator.join().unwrap();
+        let mut probe = probe.await.unwrap();
+        probe.sort_unstable();
 
         let frames = frames_sent.load(Ordering::Relaxed);
         let (first, last) = (emcy_window.0.load(Ordering::Relaxed), emcy_window.1.load(Ordering::Relaxed));
@@ -411,6 +467,13 @@ fn main() {
             percentile(&latencies, 99.0) as f64 / 1000.0,
             latencies.last().copied().unwrap_or(0) as f64 / 1000.0,
             latencies.len()
+        );
+        println!(
+            "| for comparison: frames topic, 1 client, node 1's TPDO1 (no values producer) | p50 {:.1} ms · p99 {:.1} ms · max {:.1} ms ({} frames) |",
+            percentile(&probe, 50.0) as f64 / 1000.0,
+            percentile(&probe, 99.0) as f64 / 1000.0,
+            probe.last().copied().unwrap_or(0) as f64 / 1000.0,
+            probe.len()
         );
         println!(
             "| EMCY events | {emcys} sent in the window; missing at any client: {missing_total} (at most {missing_max} at one); lagged notices {lagged}; error replies {errors} |"

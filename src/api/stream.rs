@@ -622,17 +622,28 @@ impl Mailbox {
     }
 }
 
-/// Forwards a value topic at most at its receiver's rate: after each
-/// sample it waits one period, and then takes the newest.
+/// Forwards a value topic at most at its receiver's rate, on a steady
+/// cadence: each due time is one period after the last (not after the last
+/// delivery), and at a due time the newest sample goes, or the next one as
+/// soon as it is published. Sleeping a period after each delivery instead
+/// would beat against a producer publishing at the same rate and deliver
+/// each sample up to a whole period late.
 async fn forward_values(mut receiver: TopicReceiver, topic: Arc<str>, mailbox: Arc<Mailbox>) {
     let period = Duration::from_secs_f64(1.0 / receiver.rate_hz());
+    let mut due = Instant::now();
     if let Some(sample) = receiver.take() {
         mailbox.put_value(&topic, sample);
-        tokio::time::sleep(period).await;
+        due += period;
     }
-    while let Some(sample) = receiver.changed().await {
+    loop {
+        tokio::time::sleep_until(due).await;
+        let Some(sample) = receiver.changed().await else {
+            return;
+        };
         mailbox.put_value(&topic, sample);
-        tokio::time::sleep(period).await;
+        // After a long wait for a sample the cadence starts again from now,
+        // rather than catching up with a burst.
+        due = (due + period).max(Instant::now());
     }
 }
 

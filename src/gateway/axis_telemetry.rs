@@ -207,7 +207,7 @@ impl AxisTask {
     async fn run(self, topic: ValueTopic, lease: Lease<(NodeId, u8)>) {
         let mut frames = self.values.watch_frames(self.node);
         let mut last: Option<AxisSample> = None;
-        let mut last_publish: Option<Instant> = None;
+        let mut tpdo_due: Option<Instant> = None;
         let mut last_poll: Option<Instant> = None;
         while lease.keep_going() {
             let wanted = topic.wanted_rate_hz().unwrap_or(1.0);
@@ -224,15 +224,19 @@ impl AxisTask {
             };
 
             if self.tpdo_sample(&drive, Instant::now()).is_some() {
-                if let Some(published) = last_publish {
-                    tokio::time::sleep_until(published + period(wanted)).await;
+                if let Some(due) = tpdo_due {
+                    tokio::time::sleep_until(due).await;
                 }
                 // Seen before reading: a frame from here on calls for the
                 // next publish.
                 frames.borrow_and_update();
                 if let Some(sample) = self.tpdo_sample(&drive, Instant::now()) {
                     topic.publish(sample.to_json());
-                    last_publish = Some(Instant::now());
+                    // On a steady cadence, as the values topic (see
+                    // `publish_values`).
+                    let every = period(wanted);
+                    let now = Instant::now();
+                    tpdo_due = Some(tpdo_due.map_or(now, |due| due.max(now - every)) + every);
                     last = Some(sample);
                 }
                 tokio::select! {
@@ -263,7 +267,6 @@ impl AxisTask {
                 },
             };
             topic.publish(sample.to_json());
-            last_publish = Some(Instant::now());
             if sample.error.is_none() {
                 last = Some(sample);
             }

@@ -418,7 +418,10 @@ async fn publish_values(
     // A first reader gets the values known at once.
     let mut pending = true;
     let mut readers = 0;
-    let mut last: Option<Instant> = None;
+    // When the next publish may go: one period after the last one's due
+    // time, on a steady cadence (one period after the publish itself would
+    // drift by the scheduling delay and the timer's rounding every time).
+    let mut due: Option<Instant> = None;
     loop {
         if !lease.keep_going() {
             return;
@@ -429,16 +432,19 @@ async fn publish_values(
         pending |= now_readers > readers;
         readers = now_readers;
         if pending {
-            if let Some(last) = last {
-                let wanted = topic.wanted_rate_hz().unwrap_or(1.0);
-                tokio::time::sleep_until(last + period(wanted)).await;
+            if let Some(due) = due {
+                tokio::time::sleep_until(due).await;
             }
             // Seen before reading: a frame decoded from here on is in this
             // publish or calls for the next one.
             frames.borrow_and_update();
             if let Some(data) = shared.values_json(node) {
                 topic.publish(data);
-                last = Some(Instant::now());
+                let every = period(topic.wanted_rate_hz().unwrap_or(1.0));
+                let now = Instant::now();
+                // Behind by more than a period (a stall, or frames after a
+                // pause): start the cadence again from now.
+                due = Some(due.map_or(now, |due| due.max(now - every)) + every);
             }
             pending = false;
         }
