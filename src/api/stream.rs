@@ -126,7 +126,13 @@ async fn serve_socket(state: AppState, socket: WebSocket) {
                 _ => None,
             }
         });
-    run_session(state, Box::pin(inbound), Box::pin(sink)).await;
+    let mut sink = Box::pin(sink);
+    run_session(state, Box::pin(inbound), &mut sink).await;
+    // The close handshake: the WebSocket layer queued its answer to the
+    // client's Close frame (or ours, when the session ended first); closing
+    // the sink sends it, so the client sees a clean 1000 rather than a
+    // dropped connection.
+    let _ = tokio::time::timeout(SEND_TIMEOUT, sink.close()).await;
 }
 
 /// One client's session: reads its requests from `inbound` and writes the
