@@ -39,6 +39,7 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
         (name = "frames", description = "Raw CAN frames of a bus (ISO 11898-1)"),
         (name = "sim", description = "The virtual devices of an emulated bus: add, remove, inject faults"),
+        (name = "events", description = "The persisted history: audit log of state-changing requests, EMCYs (CiA 301 §7.2.7), NMT and supervision events"),
         (name = "metrics", description = "The gateway's metrics for Prometheus (text format 0.0.4), at the root path"),
     )
 )]

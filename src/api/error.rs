@@ -133,6 +133,13 @@ pub enum AppError {
     /// A plain HTTP request to an endpoint that speaks WebSocket only.
     #[error("this endpoint speaks WebSocket only: {0}")]
     UpgradeRequired(String),
+    /// A request body larger than the gateway reads.
+    #[error("{0}")]
+    PayloadTooLarge(String),
+    /// The history database failed (disk full, file damaged): the
+    /// gateway's machine, not the request.
+    #[error("{0}")]
+    HistoryFailed(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -183,6 +190,8 @@ impl AppError {
             Self::NoRecording(_) => (StatusCode::NOT_FOUND, "no_recording"),
             Self::RecordingFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "recording_failed"),
             Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
+            Self::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -319,10 +328,26 @@ impl From<PathRejection> for AppError {
     }
 }
 
+/// What an error response was, for the audit log (a response extension,
+/// so the audit layer need not parse the body).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ErrorSummary {
+    pub code: String,
+    /// `0x06090030` for an SDO abort (also inside a failed step).
+    pub abort_code: Option<String>,
+}
+
 impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let status = self.status();
-        (status, axum::Json(json!({ "error": self.to_json() }))).into_response()
+        let body = self.to_json();
+        let summary = ErrorSummary {
+            code: body["code"].as_str().unwrap_or_default().to_string(),
+            abort_code: body["abort_code"].as_str().map(str::to_string),
+        };
+        let mut response = (status, axum::Json(json!({ "error": body }))).into_response();
+        response.extensions_mut().insert(summary);
+        response
     }
 }
 

@@ -24,6 +24,9 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`audit`]: the layer that writes every state-changing request to the
+//!   audit log before its response leaves.
+//! - [`events`]: `/events`, the persisted history (audit, EMCY, NMT).
 //! - [`metrics`]: `/metrics` (at the root, not under `/api/v1`) in the
 //!   Prometheus text format.
 //! - [`stream`]: `/stream`, the live telemetry over WebSocket, and each
@@ -31,11 +34,13 @@
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
+pub mod audit;
 pub mod buses;
 pub mod config;
 pub mod doc;
 pub mod drives;
 pub mod error;
+pub mod events;
 pub mod frames;
 pub mod metrics;
 pub mod nodes;
@@ -53,6 +58,8 @@ mod stream_tests;
 mod test_support;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_audit;
 #[cfg(test)]
 mod tests_drives;
 #[cfg(test)]
@@ -76,10 +83,11 @@ use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::gateway::axis_telemetry::AxisTelemetry;
 use crate::gateway::frames::FrameLog;
+use crate::gateway::history::History;
 use crate::gateway::led_preview::LedPreviews;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::recording::Recorder;
-use crate::gateway::registry::{NodeRegistry, RegistryConfig};
+use crate::gateway::registry::{NodeEvent, NodeRegistry, RegistryConfig};
 use crate::gateway::sync::SyncService;
 use crate::gateway::telemetry::StreamCounters;
 use crate::gateway::values::TpdoValues;
@@ -116,6 +124,10 @@ pub struct ServedBus {
     pub frames: FrameLog,
     /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
     pub recorder: Recorder,
+    /// The registry's events from the moment it started (the devices'
+    /// boot-ups included), until [`AppState::with_history`] takes it to
+    /// write them to the history.
+    history_events: std::sync::Mutex<Option<tokio::sync::broadcast::Receiver<NodeEvent>>>,
 }
 
 impl ServedBus {
@@ -146,6 +158,7 @@ impl ServedBus {
         let opened = spec.open(name).await.map_err(|err| err.to_string())?;
         let telemetry = config.telemetry.clone();
         let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        let history_events = std::sync::Mutex::new(Some(registry.subscribe()));
         let values = TpdoValues::spawn(opened.bus.clone(), registry.clone());
         // Recording starts before the devices boot: their boot-ups are the
         // first frames of the log.
@@ -176,6 +189,7 @@ impl ServedBus {
             bus: opened.bus,
             registry,
             rack,
+            history_events,
         })
     }
 }
@@ -196,17 +210,39 @@ pub struct AppState {
     pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
     /// The WebSocket stream's numbers, for `/metrics`.
     pub stream_counters: Arc<StreamCounters>,
+    /// The audit log and the EMCY/NMT history (`/events`).
+    pub history: History,
 }
 
 impl AppState {
+    /// The buses, with a history in memory (lost on exit).
     pub fn new(buses: impl IntoIterator<Item = ServedBus>) -> Self {
-        let buses = buses
+        // An in-memory SQLite database fails to open only when memory is
+        // exhausted, when nothing else would work either.
+        let history = History::in_memory().expect("an in-memory SQLite database opens");
+        Self::with_history(buses, history)
+    }
+
+    /// The buses, their registry events written to `history` by a task per
+    /// bus (call within a tokio runtime when there are buses).
+    pub fn with_history(buses: impl IntoIterator<Item = ServedBus>, history: History) -> Self {
+        let buses: BTreeMap<String, Arc<ServedBus>> = buses
             .into_iter()
             .map(|bus| (bus.name.clone(), Arc::new(bus)))
             .collect();
+        for bus in buses.values() {
+            let taken = bus
+                .history_events
+                .lock()
+                .unwrap_or_else(|poison| poison.into_inner())
+                .take();
+            let events = taken.unwrap_or_else(|| bus.registry.subscribe());
+            history.spawn_recorder(&bus.name, events);
+        }
         Self {
             buses: Arc::new(buses),
             stream_counters: Arc::new(StreamCounters::default()),
+            history,
         }
     }
 
@@ -235,6 +271,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(recording::router())
         .merge(sim::router())
         .merge(stream::router())
+        .merge(events::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let (metrics, metrics_doc) = metrics::router().split_for_parts();
@@ -244,6 +281,12 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .nest("/api/v1", api)
         .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
+        // Outside every route and fallback: refused and unknown requests
+        // are audited too.
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            audit::record,
+        ))
         .with_state(state);
     (router, doc)
 }

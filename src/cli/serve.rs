@@ -12,6 +12,7 @@ use crate::api::{AppState, ServedBus};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::can::spec::BusSpec;
+use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, History, Retention};
 use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, TelemetryConfig};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
@@ -116,7 +117,7 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz.
+    /// axis_poll_hz, retention_days, retention_rows.
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file.
     #[arg(long, value_name = "FILE")]
@@ -126,6 +127,8 @@ pub struct ServeArgs {
     /// across restarts, and bus recordings (POST /buses/{bus}/recording)
     /// are kept in DIR/recordings. Without it, saved values last until
     /// candeck stops and recordings go to a temporary directory removed then.
+    /// The history (audit log, EMCY and NMT events) is DIR/history.sqlite3;
+    /// without it, the history is kept in memory and lost on exit.
     #[arg(long, value_name = "DIR")]
     pub data_dir: Option<PathBuf>,
     /// Share virtual buses over the socketcand protocol, so that other
@@ -139,6 +142,15 @@ pub struct ServeArgs {
     /// position; readers that ask less get less. Default: 20.
     #[arg(long, value_name = "HZ", value_parser = parse_poll_hz)]
     pub axis_poll_hz: Option<f64>,
+    /// How many days the history (audit log, EMCY, NMT events; GET
+    /// /api/v1/events) keeps its entries; 0 keeps them whatever their age.
+    /// Default: 90.
+    #[arg(long, value_name = "DAYS")]
+    pub retention_days: Option<u32>,
+    /// How many entries of each kind (audit, emcy, nmt) the history keeps
+    /// at most, the newest; 0: no limit. Default: 1000000.
+    #[arg(long, value_name = "ROWS")]
+    pub retention_rows: Option<u64>,
 }
 
 /// A polling rate: a positive number of hertz, at most what a producer
@@ -174,6 +186,8 @@ struct ConfigFile {
     #[serde(default)]
     share: Vec<Share>,
     axis_poll_hz: Option<f64>,
+    retention_days: Option<u32>,
+    retention_rows: Option<u64>,
 }
 
 impl ConfigFile {
@@ -245,6 +259,7 @@ struct Settings {
     bitrate: u32,
     share: Vec<Share>,
     axis_poll_hz: f64,
+    retention: Retention,
 }
 
 impl ServeArgs {
@@ -285,6 +300,21 @@ impl ServeArgs {
                 .axis_poll_hz
                 .or(file.axis_poll_hz)
                 .unwrap_or(DEFAULT_AXIS_POLL_HZ),
+            // 0 lifts a limit.
+            retention: Retention {
+                days: Some(
+                    self.retention_days
+                        .or(file.retention_days)
+                        .unwrap_or(DEFAULT_RETENTION_DAYS),
+                )
+                .filter(|days| *days > 0),
+                rows: Some(
+                    self.retention_rows
+                        .or(file.retention_rows)
+                        .unwrap_or(DEFAULT_RETENTION_ROWS),
+                )
+                .filter(|rows| *rows > 0),
+            },
         };
         settings.validate()?;
         Ok(settings)
@@ -369,6 +399,13 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         std::fs::create_dir_all(dir)
             .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
     }
+    // Opened before the buses, so that their first events are kept.
+    let history = match &args.data_dir {
+        Some(dir) => History::open(dir),
+        None => History::in_memory(),
+    }
+    .map_err(|err| CliError::new(err.to_string()))?;
+    let pruner = history.spawn_pruner(args.retention);
     let catalog = match &args.eds_dir {
         Some(dir) => EdsCatalog::with_dir(dir),
         None => EdsCatalog::builtin(),
@@ -455,8 +492,10 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             }
         });
     }
-    let state = AppState::new(served);
-    axum::serve(listener, crate::api::app(state.clone()))
+    let state = AppState::with_history(served, history);
+    // The peer's address goes into the audit log.
+    let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
+    axum::serve(listener, app)
         .with_graceful_shutdown(shutdown_signal())
         .await
         .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
@@ -467,6 +506,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             let _ = bus.recorder.stop().await;
         }
     }
+    pruner.abort();
     drop(state);
     drop(shares);
     tracing::info!("serve: stopped");

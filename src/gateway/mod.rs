@@ -9,6 +9,7 @@
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
+//! - [`history`]: the persisted audit log and EMCY/NMT history (SQLite).
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
 //! - [`recording`]: a bus recorded to a candump `-L` log file, started and
@@ -35,6 +36,7 @@ pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
 pub mod frames;
+pub mod history;
 pub mod led_preview;
 pub mod pdo;
 pub mod producers;

@@ -1,0 +1,296 @@
+//! The audit layer: every request under `/api/v1` that changes, or tries to
+//! change, a device or the gateway is written to the history
+//! ([`History::audit`]) before its response leaves.
+//!
+//! State-changing means a `POST`, `PUT`, `PATCH` or `DELETE` under
+//! `/api/v1`, whatever its outcome: refused ones (400, 404, 405, 409, 413,
+//! 422 with the abort code, 503, 504) are written as well as the ones that
+//! succeed, and so are requests to paths no router has (someone tried). The
+//! one exception is `POST .../od/read`, a batch of reads sent as a POST
+//! because it has a body: it changes nothing. `POST .../scan` is recorded:
+//! it adds nodes to the gateway and marks silent ones offline. `GET`,
+//! `HEAD` and `OPTIONS` never are (the stream is a `GET`).
+//!
+//! If the entry cannot be written (disk full), the request has happened
+//! already: its response is sent unchanged, and the failure is logged as
+//! an error.
+
+use std::net::SocketAddr;
+
+use axum::body::Body;
+use axum::extract::{ConnectInfo, Request, State};
+use axum::http::{Method, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use serde_json::Value as Json;
+
+use super::error::ErrorSummary;
+use super::{AppError, AppState};
+use crate::can::Timestamp;
+use crate::gateway::history::AuditEntry;
+
+/// The largest body the gateway reads (axum's default for its extractors);
+/// a larger one is refused with 413, and audited.
+pub const MAX_BODY: usize = 2 * 1024 * 1024;
+/// The request body as the audit log keeps it, at most (bytes of JSON).
+pub const MAX_SUMMARY: usize = 1024;
+/// Keys whose values are never written to the log.
+const SECRET_KEYS: &[&str] = &["token", "password", "secret", "authorization", "api_key"];
+
+/// Whether a request is one the audit log records.
+pub fn is_state_changing(method: &Method, path: &str) -> bool {
+    let changing = matches!(
+        *method,
+        Method::POST | Method::PUT | Method::PATCH | Method::DELETE
+    );
+    let api = path == "/api/v1" || path.starts_with("/api/v1/");
+    changing && api && !path.ends_with("/od/read")
+}
+
+/// The middleware (`axum::middleware::from_fn_with_state`).
+pub async fn record(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    let method = request.method().clone();
+    let path = request.uri().path().to_string();
+    if !is_state_changing(&method, &path) {
+        return next.run(request).await;
+    }
+    let time = Timestamp::now();
+    let peer = request
+        .extensions()
+        .get::<ConnectInfo<SocketAddr>>()
+        .map(|ConnectInfo(addr)| addr.to_string());
+    let (parts, body) = request.into_parts();
+    let content_type = parts
+        .headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|value| value.to_str().ok())
+        .unwrap_or("")
+        .to_string();
+    // The body is read here, once, so that the log can summarise it; the
+    // handler gets the same bytes.
+    let (response, summary) = match axum::body::to_bytes(body, MAX_BODY).await {
+        Ok(bytes) => {
+            let summary = summarise(&bytes, &content_type);
+            let request = Request::from_parts(parts, Body::from(bytes));
+            (next.run(request).await, summary)
+        }
+        Err(_) => (
+            AppError::PayloadTooLarge(format!(
+                "the request body is larger than {MAX_BODY} bytes, or could not be read"
+            ))
+            .into_response(),
+            Some(format!("more than {MAX_BODY} bytes")),
+        ),
+    };
+    let target = Target::of(&method, &path);
+    let error = response.extensions().get::<ErrorSummary>();
+    let entry = AuditEntry {
+        time,
+        who: "anonymous".to_string(),
+        peer,
+        role: "none".to_string(),
+        method: method.to_string(),
+        path,
+        operation: target.operation,
+        bus: target.bus,
+        node: target.node,
+        axis: target.axis,
+        item: target.item,
+        request: summary,
+        status: response.status().as_u16(),
+        error_code: error.map(|error| error.code.clone()),
+        abort_code: error.and_then(|error| error.abort_code.clone()),
+    };
+    if let Err(err) = state.history.audit(entry).await {
+        tracing::error!("audit: {method} {}: not recorded: {err}", response.status());
+    }
+    response
+}
+
+/// The body as the log keeps it: JSON compacted with secrets masked and
+/// cut at [`MAX_SUMMARY`] bytes; anything else by its size and type.
+pub fn summarise(bytes: &[u8], content_type: &str) -> Option<String> {
+    if bytes.is_empty() {
+        return None;
+    }
+    let Ok(mut json) = serde_json::from_slice::<Json>(bytes) else {
+        let kind = if content_type.is_empty() {
+            "no content type"
+        } else {
+            content_type
+        };
+        return Some(format!("{} bytes, not JSON ({kind})", bytes.len()));
+    };
+    mask(&mut json);
+    let mut text = json.to_string();
+    if text.len() > MAX_SUMMARY {
+        let mut cut = MAX_SUMMARY;
+        while !text.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        text.truncate(cut);
+        text.push('…');
+    }
+    Some(text)
+}
+
+fn mask(json: &mut Json) {
+    match json {
+        Json::Object(map) => {
+            for (key, value) in map.iter_mut() {
+                let key = key.to_ascii_lowercase();
+                if SECRET_KEYS.iter().any(|secret| key.contains(secret)) {
+                    *value = Json::from("***");
+                } else {
+                    mask(value);
+                }
+            }
+        }
+        Json::Array(items) => items.iter_mut().for_each(mask),
+        _ => {}
+    }
+}
+
+/// What a request acts on, from its path.
+#[derive(Debug, Default, PartialEq, Eq)]
+pub struct Target {
+    pub operation: String,
+    pub bus: Option<String>,
+    pub node: Option<u8>,
+    pub axis: Option<u8>,
+    pub item: Option<String>,
+}
+
+impl Target {
+    pub fn of(method: &Method, path: &str) -> Self {
+        let tail = path.strip_prefix("/api/v1").unwrap_or(path);
+        let segments: Vec<&str> = tail.split('/').filter(|s| !s.is_empty()).collect();
+        let mut target = Self::default();
+        let word = |text: &str| Some(text.to_string());
+        let (operation, item): (&str, Option<String>) = match (method, segments.as_slice()) {
+            (&Method::POST, ["stop-all"]) => ("stop all axes", None),
+            (_, ["buses", bus, rest @ ..]) => {
+                target.bus = word(bus);
+                match (method, rest) {
+                    (&Method::POST, ["scan"]) => ("scan", None),
+                    (&Method::POST, ["nmt"]) => ("nmt command to all nodes", None),
+                    (&Method::PUT, ["sync"]) => ("set sync period", None),
+                    (&Method::POST, ["frames"]) => ("send frame", None),
+                    (&Method::POST, ["recording"]) => ("start recording", None),
+                    (&Method::DELETE, ["recording"]) => ("stop recording", None),
+                    (&Method::POST, ["sim", "nodes"]) => ("add virtual device", None),
+                    (&Method::DELETE, ["sim", "nodes", node]) => {
+                        target.node = node.parse().ok();
+                        ("remove virtual device", None)
+                    }
+                    (_, ["sim", "nodes", node, "faults"]) => {
+                        target.node = node.parse().ok();
+                        match *method {
+                            Method::POST => ("inject fault", None),
+                            Method::DELETE => ("clear fault", None),
+                            _ => ("unknown request", None),
+                        }
+                    }
+                    (_, ["nodes", node, rest @ ..]) => {
+                        target.node = node.parse().ok();
+                        node_operation(method, rest, &mut target)
+                    }
+                    _ => ("unknown request", None),
+                }
+            }
+            _ => ("unknown request", None),
+        };
+        target.operation = operation.to_string();
+        target.item = item;
+        target
+    }
+}
+
+fn node_operation(
+    method: &Method,
+    rest: &[&str],
+    target: &mut Target,
+) -> (&'static str, Option<String>) {
+    match (method, rest) {
+        (&Method::POST, ["nmt"]) => ("nmt command", None),
+        (&Method::PUT, ["od", index, sub]) => ("write object", Some(format!("{index}:{sub}"))),
+        (&Method::POST, ["store"]) => ("store parameters", None),
+        (&Method::POST, ["restore"]) => ("restore parameters", None),
+        (&Method::PUT, ["config.dcf"]) => ("restore configuration (DCF)", None),
+        (&Method::PUT, ["pdos", kind, n]) => ("configure pdo", Some(format!("{kind} {n}"))),
+        (&Method::POST, ["pdos", kind, n, "send"]) => ("send rpdo", Some(format!("{kind} {n}"))),
+        (&Method::PUT, ["segments"]) => ("set scene", None),
+        (&Method::PUT, ["segments", n]) => ("set segment", Some(format!("segment {n}"))),
+        (&Method::POST, ["axes", axis, action]) => {
+            target.axis = axis.parse().ok();
+            let operation = match *action {
+                "state" => "drive state change",
+                "fault-reset" => "fault reset",
+                "halt" => "halt",
+                "move" => "move",
+                _ => "unknown request",
+            };
+            (operation, None)
+        }
+        _ => ("unknown request", None),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_are_not_state_changing_and_changes_are() {
+        let path = "/api/v1/buses/demo/nodes/1/od/read";
+        assert!(!is_state_changing(&Method::POST, path));
+        assert!(!is_state_changing(&Method::GET, "/api/v1/buses"));
+        assert!(!is_state_changing(&Method::POST, "/metrics"));
+        assert!(is_state_changing(&Method::POST, "/api/v1/buses/demo/scan"));
+        assert!(is_state_changing(&Method::DELETE, "/api/v1/nowhere"));
+    }
+
+    #[test]
+    fn targets_come_from_the_path() {
+        let target = Target::of(&Method::PUT, "/api/v1/buses/demo/nodes/1/od/0x6040/0");
+        assert_eq!(
+            target,
+            Target {
+                operation: "write object".into(),
+                bus: Some("demo".into()),
+                node: Some(1),
+                axis: None,
+                item: Some("0x6040:0".into()),
+            }
+        );
+        let target = Target::of(&Method::POST, "/api/v1/buses/demo/nodes/2/axes/1/move");
+        assert_eq!((target.operation.as_str(), target.axis), ("move", Some(1)));
+        let target = Target::of(&Method::POST, "/api/v1/stop-all");
+        assert_eq!(
+            (target.operation.as_str(), target.bus),
+            ("stop all axes", None)
+        );
+    }
+
+    #[test]
+    fn summaries_are_bounded_and_mask_secrets() {
+        let body = br#"{"value":1,"auth":{"Token":"abc"},"password":"x"}"#;
+        assert_eq!(
+            summarise(body, "application/json").unwrap(),
+            r#"{"auth":{"Token":"***"},"password":"***","value":1}"#
+        );
+        let long = format!("{{\"points\":[{}1]}}", "1234,".repeat(1000));
+        let summary = summarise(long.as_bytes(), "application/json").unwrap();
+        assert!(
+            summary.len() <= MAX_SUMMARY + '…'.len_utf8(),
+            "{}",
+            summary.len()
+        );
+        assert!(summary.ends_with('…'));
+        assert_eq!(
+            summarise(b"[DeviceInfo]\n", "text/plain").unwrap(),
+            "13 bytes, not JSON (text/plain)"
+        );
+        assert_eq!(summarise(b"", ""), None);
+    }
+}
