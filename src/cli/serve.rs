@@ -530,6 +530,46 @@ mod tests {
     }
 
     #[test]
+    fn retention_comes_from_the_command_line_over_the_file_over_the_default() {
+        let dir = std::env::temp_dir().join(format!("candeck-retention-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("retention.toml");
+        std::fs::write(&file, "retention_days = 7\nretention_rows = 500\n").unwrap();
+        let file = file.to_str().unwrap();
+
+        let settings = serve_args(&[]).unwrap().settings().unwrap();
+        assert_eq!(settings.retention, Retention::default());
+        let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+        assert_eq!(
+            settings.retention,
+            Retention {
+                days: Some(7),
+                rows: Some(500)
+            }
+        );
+        // 0 lifts a limit.
+        let settings = serve_args(&["--config", file, "--retention-days", "0"])
+            .unwrap()
+            .settings()
+            .unwrap();
+        assert_eq!(
+            settings.retention,
+            Retention {
+                days: None,
+                rows: Some(500)
+            }
+        );
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "retention_rows = -1\n").unwrap();
+        let err = serve_args(&["--config", bad.to_str().unwrap()])
+            .unwrap()
+            .settings()
+            .unwrap_err();
+        assert!(err.contains("line 1"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn the_axis_poll_rate_comes_from_the_command_line_over_the_file_over_the_default() {
         let dir = std::env::temp_dir().join(format!("candeck-serve-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
