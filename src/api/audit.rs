@@ -1,6 +1,7 @@
 //! The audit layer: every request under `/api/v1` that changes, or tries to
 //! change, a device or the gateway is written to the history
-//! ([`History::audit`]) before its response leaves.
+//! ([`History::audit`](crate::gateway::history::History::audit)) before
+//! its response leaves.
 //!
 //! State-changing means a `POST`, `PUT`, `PATCH` or `DELETE` under
 //! `/api/v1`, whatever its outcome: refused ones (400, 404, 405, 409, 413,

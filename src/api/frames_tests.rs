@@ -125,6 +125,10 @@ async fn a_posted_frame_reaches_the_devices() {
 #[tokio::test(start_paused = true)]
 async fn frames_errors() {
     let (app, state) = demo().await;
+    // The devices' identification done first: its SDO requests are the
+    // gateway's own frames, which the requests below give time to run
+    // (each audited one waits for its history write).
+    state.buses["demo"].registry.scan().await.unwrap();
     let uri = "/api/v1/buses/demo/frames";
     let tx_before = state.buses["demo"].bus.counters().tx_frames;
     for (body, code) in [

@@ -16,7 +16,7 @@
 //! writers, as SQLite would anyway. Events are written in batches (whatever
 //! arrived while the last batch was written, one transaction).
 //!
-//! The schema carries its version in `schema_version`; [`MIGRATIONS`] is the
+//! The schema carries its version in `schema_version`; `MIGRATIONS` is the
 //! list of steps from an empty file, each applied once, in order.
 
 use std::path::Path;

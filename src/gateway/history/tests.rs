@@ -40,24 +40,25 @@ async fn a_file_is_wal_at_the_current_schema_and_keeps_entries_when_reopened() {
     drop(history);
     let history = History::open(&dir).unwrap();
     history.audit(entry(2_000, "/b")).await.unwrap();
-    let conn = history.conn.lock().unwrap();
-    let mode: String = conn
-        .query_row("PRAGMA journal_mode", [], |row| row.get(0))
-        .unwrap();
-    assert_eq!(mode, "wal");
-    let sync: i64 = conn
-        .query_row("PRAGMA synchronous", [], |row| row.get(0))
-        .unwrap();
-    assert_eq!(sync, 2, "FULL");
-    let version: i64 = conn
-        .query_row("SELECT version FROM schema_version", [], |row| row.get(0))
-        .unwrap();
-    assert_eq!(version, MIGRATIONS.len() as i64);
-    let rows: i64 = conn
-        .query_row("SELECT count(*) FROM schema_version", [], |row| row.get(0))
-        .unwrap();
-    assert_eq!(rows, 1);
-    drop(conn);
+    {
+        let conn = history.conn.lock().unwrap();
+        let mode: String = conn
+            .query_row("PRAGMA journal_mode", [], |row| row.get(0))
+            .unwrap();
+        assert_eq!(mode, "wal");
+        let sync: i64 = conn
+            .query_row("PRAGMA synchronous", [], |row| row.get(0))
+            .unwrap();
+        assert_eq!(sync, 2, "FULL");
+        let version: i64 = conn
+            .query_row("SELECT version FROM schema_version", [], |row| row.get(0))
+            .unwrap();
+        assert_eq!(version, MIGRATIONS.len() as i64);
+        let rows: i64 = conn
+            .query_row("SELECT count(*) FROM schema_version", [], |row| row.get(0))
+            .unwrap();
+        assert_eq!(rows, 1);
+    }
     let all = paths(
         &history,
         Query {
