@@ -45,7 +45,8 @@ pub fn is_state_changing(method: &Method, path: &str) -> bool {
         Method::POST | Method::PUT | Method::PATCH | Method::DELETE
     );
     let api = path == "/api/v1" || path.starts_with("/api/v1/");
-    changing && api && !path.ends_with("/od/read")
+    let batch_read = *method == Method::POST && path.ends_with("/od/read");
+    changing && api && !batch_read
 }
 
 /// The middleware (`axum::middleware::from_fn_with_state`).
@@ -249,6 +250,8 @@ mod tests {
         assert!(!is_state_changing(&Method::POST, "/metrics"));
         assert!(is_state_changing(&Method::POST, "/api/v1/buses/demo/scan"));
         assert!(is_state_changing(&Method::DELETE, "/api/v1/nowhere"));
+        // Only the batch read is a read.
+        assert!(is_state_changing(&Method::PUT, path));
     }
 
     #[test]

@@ -186,3 +186,44 @@ async fn retention_prunes_by_age_and_by_count() {
         0
     );
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_pruner_prunes_at_start_and_then_periodically() {
+    let history = History::in_memory().unwrap();
+    let day = 86_400_000_000u64;
+    let now = Timestamp::now().as_micros();
+    history.audit(entry(now - 3 * day, "/old")).await.unwrap();
+    history.audit(entry(now, "/new")).await.unwrap();
+    let pruner = history.spawn_pruner(Retention {
+        days: Some(2),
+        rows: None,
+    });
+    let all = Query {
+        kind: None,
+        since_us: None,
+        limit: 10,
+    };
+    let mut left = Vec::new();
+    for _ in 0..100 {
+        left = paths(&history, all).await;
+        if left.len() == 1 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert_eq!(left, ["/new"]);
+    // An entry that ages past the limit goes at the next period.
+    history.audit(entry(now - 3 * day, "/late")).await.unwrap();
+    assert_eq!(paths(&history, all).await, ["/late", "/new"]);
+    tokio::time::sleep(PRUNE_PERIOD + Duration::from_secs(1)).await;
+    let mut left = Vec::new();
+    for _ in 0..100 {
+        left = paths(&history, all).await;
+        if left.len() == 1 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert_eq!(left, ["/new"]);
+    pruner.abort();
+}
