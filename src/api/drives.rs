@@ -248,6 +248,11 @@ async fn set_state(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     let target = request.target.state();
+    if request.target == TargetState::OperationEnabled {
+        // Before the walk, not after it: a walk that fails half way may
+        // have powered the axis already.
+        state.enabled_axes.insert(&bus, &drive);
+    }
     spawned(
         drive,
         move |drive| async move { drive.set_state(target).await },
@@ -336,6 +341,7 @@ async fn run_move(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     drive.validate(&request)?;
+    state.enabled_axes.insert(&bus, &drive);
     spawned(
         drive,
         move |drive| async move { drive.run_move(&request).await },
@@ -440,4 +446,88 @@ fn axes_of(
     (1..=axis_count(kind, info.eds_entry.as_deref()))
         .map(|axis| Ok(Drive::new(&served.registry, info, &axis.to_string())?))
         .collect()
+}
+
+/// The axes the gateway itself enabled or set moving through the API, by
+/// bus, node and axis: the ones it stops before it exits. Axes another
+/// master enabled are not the gateway's to touch.
+#[derive(Debug, Default)]
+pub struct EnabledAxes(std::sync::Mutex<std::collections::BTreeSet<(String, u8, u8)>>);
+
+impl EnabledAxes {
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::BTreeSet<(String, u8, u8)>> {
+        // A set of plain keys is never left half-written.
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn insert(&self, bus: &str, drive: &Drive) {
+        self.lock()
+            .insert((bus.to_string(), drive.node(), drive.axis()));
+    }
+
+    /// Every axis recorded, in order.
+    pub fn list(&self) -> Vec<(String, u8, u8)> {
+        self.lock().iter().cloned().collect()
+    }
+}
+
+/// How long the gateway's shutdown waits for its axes to be stopped.
+pub const SHUTDOWN_STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Quick stop of every axis the gateway enabled that is still in operation
+/// enabled, all nodes at once (for SIGTERM and Ctrl-C: a drive must not be
+/// left moving because the gateway went away). Bounded by
+/// [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is in the report.
+pub async fn stop_enabled_axes(state: &AppState) -> StopAllReport {
+    let mut report = StopAllReport {
+        stopped: Vec::new(),
+        failed: Vec::new(),
+    };
+    let mut tasks = JoinSet::new();
+    for (bus, node, axis) in state.enabled_axes.list() {
+        let prepared = (|| {
+            let served = state.bus(&bus)?;
+            let (_, info) = super::nodes::known_node(state, &bus, &node.to_string())?;
+            Ok::<_, AppError>(Drive::new(&served.registry, &info, &axis.to_string())?)
+        })();
+        match prepared {
+            Ok(drive) => {
+                tasks.spawn(async move { (bus, node, axis, drive.quick_stop_if_enabled().await) });
+            }
+            Err(error) => report.failed.push(StopFailure {
+                bus,
+                node,
+                axis: Some(axis),
+                error: error.to_json(),
+            }),
+        }
+    }
+    let collect = async {
+        while let Some(joined) = tasks.join_next().await {
+            let Ok((bus, node, axis, result)) = joined else {
+                continue;
+            };
+            match result {
+                Ok(Some(_)) => report.stopped.push(StoppedAxis { bus, node, axis }),
+                Ok(None) => {}
+                Err(error) => report.failed.push(StopFailure {
+                    bus,
+                    node,
+                    axis: Some(axis),
+                    error: AppError::from(error).to_json(),
+                }),
+            }
+        }
+    };
+    if tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
+        .await
+        .is_err()
+    {
+        tracing::error!(
+            "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
+        );
+    }
+    report
 }

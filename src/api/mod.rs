@@ -196,6 +196,8 @@ pub struct AppState {
     pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
     /// The WebSocket stream's numbers, for `/metrics`.
     pub stream_counters: Arc<StreamCounters>,
+    /// The axes the gateway enabled, which it stops before it exits.
+    pub enabled_axes: Arc<drives::EnabledAxes>,
 }
 
 impl AppState {
@@ -207,6 +209,7 @@ impl AppState {
         Self {
             buses: Arc::new(buses),
             stream_counters: Arc::new(StreamCounters::default()),
+            enabled_axes: Arc::new(drives::EnabledAxes::default()),
         }
     }
 
