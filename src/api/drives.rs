@@ -146,6 +146,16 @@ fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, App
     let (served, info) = known_node(state, bus, id)?;
     let drive = Drive::new(&served.registry, &info, axis)?;
     check_sdo_allowed(&served, &info)?;
+    // A drive supervised by heartbeat that went silent: every transfer would
+    // wait out its timeout, and a motion command could not be followed up.
+    if !info.online && info.heartbeat_ms.is_some() {
+        return Err(AppError::NodeOffline(format!(
+            "node {} is offline (no heartbeat within 1.5 periods of {} ms): \
+             drive operations wait until it is heard again",
+            info.id,
+            info.heartbeat_ms.unwrap_or_default()
+        )));
+    }
     Ok(drive)
 }
 
@@ -209,7 +219,7 @@ async fn list_axes(
         (status = 200, description = "The axis", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -235,7 +245,7 @@ async fn one_axis(
         (status = 200, description = "The axis in the state asked for", body = AxisStatus),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -269,7 +279,7 @@ async fn set_state(
         (status = 200, description = "The axis, out of fault (switch_on_disabled)", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -293,7 +303,7 @@ async fn fault_reset(
         (status = 200, description = "The axis after the controlword", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -328,7 +338,7 @@ async fn halt(
         (status = 200, description = "The motion is under way; the axis as it is now", body = AxisStatus),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
