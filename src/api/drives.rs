@@ -146,6 +146,16 @@ fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, App
     let (served, info) = known_node(state, bus, id)?;
     let drive = Drive::new(&served.registry, &info, axis)?;
     check_sdo_allowed(&served, &info)?;
+    // A drive supervised by heartbeat that went silent: every transfer would
+    // wait out its timeout, and a motion command could not be followed up.
+    if !info.online && info.heartbeat_ms.is_some() {
+        return Err(AppError::NodeOffline(format!(
+            "node {} is offline (no heartbeat within 1.5 periods of {} ms): \
+             drive operations wait until it is heard again",
+            info.id,
+            info.heartbeat_ms.unwrap_or_default()
+        )));
+    }
     Ok(drive)
 }
 
@@ -209,7 +219,7 @@ async fn list_axes(
         (status = 200, description = "The axis", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -235,7 +245,7 @@ async fn one_axis(
         (status = 200, description = "The axis in the state asked for", body = AxisStatus),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -248,6 +258,11 @@ async fn set_state(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     let target = request.target.state();
+    if request.target == TargetState::OperationEnabled {
+        // Before the walk, not after it: a walk that fails half way may
+        // have powered the axis already.
+        state.enabled_axes.insert(&bus, &drive);
+    }
     spawned(
         drive,
         move |drive| async move { drive.set_state(target).await },
@@ -264,7 +279,7 @@ async fn set_state(
         (status = 200, description = "The axis, out of fault (switch_on_disabled)", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -288,7 +303,7 @@ async fn fault_reset(
         (status = 200, description = "The axis after the controlword", body = AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -323,7 +338,7 @@ async fn halt(
         (status = 200, description = "The motion is under way; the axis as it is now", body = AxisStatus),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost", body = ErrorBody),
         (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -336,6 +351,7 @@ async fn run_move(
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     drive.validate(&request)?;
+    state.enabled_axes.insert(&bus, &drive);
     spawned(
         drive,
         move |drive| async move { drive.run_move(&request).await },
@@ -440,4 +456,88 @@ fn axes_of(
     (1..=axis_count(kind, info.eds_entry.as_deref()))
         .map(|axis| Ok(Drive::new(&served.registry, info, &axis.to_string())?))
         .collect()
+}
+
+/// The axes the gateway itself enabled or set moving through the API, by
+/// bus, node and axis: the ones it stops before it exits. Axes another
+/// master enabled are not the gateway's to touch.
+#[derive(Debug, Default)]
+pub struct EnabledAxes(std::sync::Mutex<std::collections::BTreeSet<(String, u8, u8)>>);
+
+impl EnabledAxes {
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::BTreeSet<(String, u8, u8)>> {
+        // A set of plain keys is never left half-written.
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn insert(&self, bus: &str, drive: &Drive) {
+        self.lock()
+            .insert((bus.to_string(), drive.node(), drive.axis()));
+    }
+
+    /// Every axis recorded, in order.
+    pub fn list(&self) -> Vec<(String, u8, u8)> {
+        self.lock().iter().cloned().collect()
+    }
+}
+
+/// How long the gateway's shutdown waits for its axes to be stopped.
+pub const SHUTDOWN_STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Quick stop of every axis the gateway enabled that is still in operation
+/// enabled, all nodes at once (for SIGTERM and Ctrl-C: a drive must not be
+/// left moving because the gateway went away). Bounded by
+/// [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is in the report.
+pub async fn stop_enabled_axes(state: &AppState) -> StopAllReport {
+    let mut report = StopAllReport {
+        stopped: Vec::new(),
+        failed: Vec::new(),
+    };
+    let mut tasks = JoinSet::new();
+    for (bus, node, axis) in state.enabled_axes.list() {
+        let prepared = (|| {
+            let served = state.bus(&bus)?;
+            let (_, info) = super::nodes::known_node(state, &bus, &node.to_string())?;
+            Ok::<_, AppError>(Drive::new(&served.registry, &info, &axis.to_string())?)
+        })();
+        match prepared {
+            Ok(drive) => {
+                tasks.spawn(async move { (bus, node, axis, drive.quick_stop_if_enabled().await) });
+            }
+            Err(error) => report.failed.push(StopFailure {
+                bus,
+                node,
+                axis: Some(axis),
+                error: error.to_json(),
+            }),
+        }
+    }
+    let collect = async {
+        while let Some(joined) = tasks.join_next().await {
+            let Ok((bus, node, axis, result)) = joined else {
+                continue;
+            };
+            match result {
+                Ok(Some(_)) => report.stopped.push(StoppedAxis { bus, node, axis }),
+                Ok(None) => {}
+                Err(error) => report.failed.push(StopFailure {
+                    bus,
+                    node,
+                    axis: Some(axis),
+                    error: AppError::from(error).to_json(),
+                }),
+            }
+        }
+    };
+    if tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
+        .await
+        .is_err()
+    {
+        tracing::error!(
+            "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
+        );
+    }
+    report
 }

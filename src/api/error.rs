@@ -130,6 +130,10 @@ pub enum AppError {
     /// permission): the gateway's machine, not the request.
     #[error("{0}")]
     RecordingFailed(String),
+    /// A drive node whose heartbeat is lost: refused at once rather than
+    /// after an SDO timeout per transfer.
+    #[error("{0}")]
+    NodeOffline(String),
     /// A plain HTTP request to an endpoint that speaks WebSocket only.
     #[error("this endpoint speaks WebSocket only: {0}")]
     UpgradeRequired(String),
@@ -189,6 +193,7 @@ impl AppError {
             Self::RecordingNotRunning(_) => (StatusCode::CONFLICT, "recording_not_running"),
             Self::NoRecording(_) => (StatusCode::NOT_FOUND, "no_recording"),
             Self::RecordingFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "recording_failed"),
+            Self::NodeOffline(_) => (StatusCode::CONFLICT, "node_offline"),
             Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
             Self::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
             Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),

@@ -210,6 +210,8 @@ pub struct AppState {
     pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
     /// The WebSocket stream's numbers, for `/metrics`.
     pub stream_counters: Arc<StreamCounters>,
+    /// The axes the gateway enabled, which it stops before it exits.
+    pub enabled_axes: Arc<drives::EnabledAxes>,
     /// The audit log and the EMCY/NMT history (`/events`).
     pub history: History,
 }
@@ -242,6 +244,7 @@ impl AppState {
         Self {
             buses: Arc::new(buses),
             stream_counters: Arc::new(StreamCounters::default()),
+            enabled_axes: Arc::new(drives::EnabledAxes::default()),
             history,
         }
     }

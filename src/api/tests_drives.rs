@@ -837,3 +837,32 @@ async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
     let controlword = read("0x6040").await;
     assert_eq!(controlword["raw"], "0f01", "{controlword}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() {
+    let (app, state) = demo().await;
+    let jmc = NodeId::new(2).unwrap();
+    let served = &state.buses["demo"];
+    let period = served.registry.node(jmc).unwrap().heartbeat_ms.unwrap();
+    served.rack.as_ref().unwrap().unplug(jmc).unwrap();
+    tokio::time::sleep(Duration::from_millis(2 * period)).await;
+    assert!(!served.registry.node(jmc).unwrap().online);
+
+    let started = tokio::time::Instant::now();
+    let refused = post(
+        &app,
+        &axis_uri(2, 1, "/state"),
+        json!({"target": "operation_enabled"}),
+    )
+    .await;
+    assert_error(&refused, StatusCode::CONFLICT, "node_offline");
+    // Refused before any SDO timeout could run out.
+    assert_eq!(started.elapsed(), Duration::ZERO);
+    let refused = post(&app, &axis_uri(2, 1, "/halt"), json!({"halt": true})).await;
+    assert_error(&refused, StatusCode::CONFLICT, "node_offline");
+
+    served.rack.as_ref().unwrap().plug(jmc).unwrap();
+    tokio::time::sleep(Duration::from_millis(2 * period)).await;
+    assert!(served.registry.node(jmc).unwrap().online);
+    enable(&app, 2, 1).await;
+}

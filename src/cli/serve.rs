@@ -499,6 +499,26 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         .with_graceful_shutdown(shutdown_signal())
         .await
         .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    // No drive is left moving because the gateway went away: every axis it
+    // enabled is stopped before it exits.
+    let report = crate::api::drives::stop_enabled_axes(&state).await;
+    for stopped in &report.stopped {
+        tracing::info!(
+            "shutdown: quick stop of bus {} node {} axis {}",
+            stopped.bus,
+            stopped.node,
+            stopped.axis
+        );
+    }
+    for failed in &report.failed {
+        tracing::error!(
+            "shutdown: could not stop bus {} node {} axis {:?}: {}",
+            failed.bus,
+            failed.node,
+            failed.axis,
+            failed.error
+        );
+    }
     // A running recording ends with all it received written to its file;
     // temporary recordings are removed when the buses are dropped.
     for bus in state.buses.values() {

@@ -489,6 +489,11 @@ impl Drive {
         })
     }
 
+    /// The node's id.
+    pub fn node(&self) -> u8 {
+        self.channel.node().get()
+    }
+
     pub fn axis(&self) -> u8 {
         self.axis
     }
