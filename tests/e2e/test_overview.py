@@ -239,3 +239,26 @@ def test_page_weight_and_first_paint(server, browser):
         json.dump({"bytes": total, "files": loaded["files"], "first_contentful_paint_ms": loaded["fcp"]}, f, indent=1)
     print(f"overview: {total} bytes of HTML, CSS and JS; first contentful paint {loaded['fcp']:.0f} ms")
     browser.check()
+
+
+def test_an_unplugged_node_goes_offline_live_and_stop_all_names_it(server, browser):
+    open_overview(browser, server)
+    browser.js("window.notReloaded = true")
+    server.request("DELETE", "/api/v1/buses/demo/sim/nodes/2")
+    # The JMC's heartbeat (1000 ms) stops: the gateway's supervision, not
+    # the page, decides that it is offline.
+    browser.wait(lambda _: node_rows(browser)["2"]["Online"] == "offline", timeout=20,
+                 message=f"node 2 did not go offline: {node_rows(browser)}")
+    events = browser.js("return document.getElementById('events').innerText")
+    assert re.search(r"demo node 2 went offline \(\w+\)", events), events
+    assert node_rows(browser)["1"]["Online"] == "online"
+
+    browser.driver.find_element("id", "stop-all").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('stop-result').dataset.state") == "failed",
+                 message="STOP ALL did not report the offline node")
+    result = browser.js("return document.getElementById('stop-result').innerText")
+    failure = next(f for f in server.post("/api/v1/stop-all")["failed"] if f["node"] == 2)
+    assert re.match(r"No axis stopped \(\d\d:\d\d:\d\d\)\.\s+Could not stop 1:", result), result
+    assert f"demo node 2: {failure['error']['message']}" in result, result
+    assert browser.js("return window.notReloaded === true"), "the page was reloaded"
+    browser.check()

@@ -65,7 +65,8 @@ function renderBuses() {
   busBody.replaceChildren(...[...buses.values()].map(({ info, fps }) => h('tr', { dataset: { bus: info.name } },
     h('td', { 'data-label': 'Bus' }, h('strong', {}, info.name), h('div', { class: 'sub' }, info.spec)),
     h('td', { 'data-label': 'Kind' }, info.kind),
-    h('td', { 'data-label': 'State' }, h('span', { class: `badge ${info.state === 'up' ? 'ok' : 'bad'}`, title: info.reason || null }, info.state)),
+    h('td', { 'data-label': 'State' }, h('span', { class: `badge ${info.state === 'up' ? 'ok' : 'bad'}` }, info.state),
+      info.reason ? h('div', { class: 'sub' }, info.reason) : null),
     h('td', { 'data-label': 'Load', class: 'num' }, `${(info.load * 100).toFixed(1)} %`),
     h('td', { 'data-label': 'Frames/s', class: 'num' }, fps === null ? '…' : fps.toFixed(0)),
     h('td', { 'data-label': 'Rx', class: 'num' }, info.rx_frames.toLocaleString()),
@@ -241,6 +242,8 @@ stopButton.addEventListener('click', async () => {
   if (stopped.length) {
     parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Stopped ${stopped.length} axis${stopped.length > 1 ? 'es' : ''} (${at}): `),
       stopped.map(axisName).join(', ')));
+  } else if (failed.length) {
+    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `No axis stopped (${at}).`)));
   } else {
     parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Nothing to stop (${at}): `), 'no axis was in operation enabled.'));
   }
