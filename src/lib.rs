@@ -19,6 +19,8 @@
 //!   segments, DCF), and the producers of the stream's value topics.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
+//! - [`web`]: the browser dashboard served at `/` (askama templates and
+//!   the static files of `web/`, compiled into the binary).
 //! - [`cli`]: the command line (`candeck serve`, `candeck vbus`, `candeck dump`, ...); `main.rs`
 //!   only calls it.
 
@@ -29,6 +31,7 @@ pub mod cli;
 pub mod gateway;
 pub mod profiles;
 pub mod sim;
+pub mod web;
 
 #[cfg(test)]
 mod test_support;

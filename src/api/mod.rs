@@ -297,11 +297,12 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
 /// The whole REST interface under `/api/v1`, its OpenAPI document at
 /// `/api/openapi.json` and the docs UI at `/api/docs`, served from the
 /// binary (no request leaves the machine; the online validator is off).
-/// Paths no router has answer 404 in the API's error shape.
+/// The dashboard ([`crate::web`]) is at `/`, outside the API and its
+/// document. Paths no router has answer 404 in the API's error shape.
 pub fn app(state: AppState) -> Router {
     let (router, doc) = routers(state);
     let docs = SwaggerUi::new("/api/docs")
         .url("/api/openapi.json", doc)
         .config(Config::default().validator_url("none"));
-    router.merge(docs)
+    router.merge(docs).merge(crate::web::router())
 }

@@ -178,7 +178,7 @@ async fn paths_outside_the_api_and_wrong_methods_have_the_error_shape() {
     let (app, _) = demo().await;
     let response = get(&app, "/api/v1/buses/demo/pdos").await;
     assert_error(&response, StatusCode::NOT_FOUND, "not_found");
-    let response = get(&app, "/").await;
+    let response = get(&app, "/nodes").await;
     assert_error(&response, StatusCode::NOT_FOUND, "not_found");
     let response = call(&app, Method::DELETE, "/api/v1/health", None).await;
     assert_error(

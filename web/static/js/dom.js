@@ -1,0 +1,38 @@
+// Small DOM helpers, so the pages build elements without a framework.
+
+/**
+ * Creates an element. `props`: `class`, `text`, `dataset` (an object),
+ * `on` (event name -> listener) and any other attribute; a null or false
+ * attribute is left out. Children are nodes or strings (added as text,
+ * never parsed as HTML: device strings cannot inject markup).
+ */
+export function h(tag, props = {}, ...children) {
+  const el = document.createElement(tag);
+  for (const [key, value] of Object.entries(props)) {
+    if (value === null || value === undefined || value === false) continue;
+    if (key === 'class') el.className = value;
+    else if (key === 'text') el.textContent = value;
+    else if (key === 'dataset') Object.assign(el.dataset, value);
+    else if (key === 'on') for (const [event, fn] of Object.entries(value)) el.addEventListener(event, fn);
+    else el.setAttribute(key, value === true ? '' : value);
+  }
+  for (const child of children.flat()) {
+    if (child === null || child === undefined || child === false) continue;
+    el.append(child instanceof Node ? child : String(child));
+  }
+  return el;
+}
+
+export const $ = (selector, root = document) => root.querySelector(selector);
+
+/** A local wall-clock time, HH:MM:SS. */
+export function clock(ms = Date.now()) {
+  return new Date(ms).toLocaleTimeString([], { hour12: false });
+}
+
+/** Shows `text` in `el` (and reveals it), or hides it when text is empty. */
+export function showMessage(el, text, kind = 'error') {
+  el.textContent = text || '';
+  el.dataset.kind = kind;
+  el.hidden = !text;
+}

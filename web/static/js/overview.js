@@ -1,0 +1,289 @@
+// The overview page: buses, nodes, STOP ALL and the recent events. Tables
+// show what the gateway read from the devices; a stream event only says
+// that something changed, and the node is then read again over REST.
+
+import { api, runAction } from './api.js';
+import { $, clock, h, showMessage } from './dom.js';
+import { stream } from './layout.js';
+
+const BUS_POLL_MS = 1000;
+const MAX_EVENTS = 50;
+
+const busBody = $('#buses tbody');
+const nodeBody = $('#nodes tbody');
+const eventList = $('#events');
+const pageMessage = $('#page-message');
+const stopButton = $('#stop-all');
+const stopResult = $('#stop-result');
+
+const buses = new Map(); // name -> {info, fps, sample: {frames, at}}
+const nodes = new Map(); // "bus/id" -> {bus, node, detail, error, loading, again}
+let busTimer = null;
+const problems = new Map(); // what failed -> message, shown at the top
+
+function problem(key, text) {
+  if (text) problems.set(key, text);
+  else problems.delete(key);
+  showMessage(pageMessage, [...problems.values()].join(' · '));
+}
+
+// ---- buses ---------------------------------------------------------------
+
+async function loadBuses() {
+  let list;
+  try {
+    list = await api('/buses');
+  } catch (error) {
+    problem('buses', `Buses: ${error.message}`);
+    return null;
+  }
+  problem('buses', null);
+  const now = performance.now();
+  const seen = new Set();
+  for (const info of list) {
+    seen.add(info.name);
+    const frames = info.rx_frames + info.tx_frames;
+    const old = buses.get(info.name);
+    // Counters that went down belong to a gateway that restarted: the rate
+    // waits for a second sample of the new one.
+    let fps = null;
+    if (old && now > old.sample.at && frames >= old.sample.frames) {
+      fps = ((frames - old.sample.frames) * 1000) / (now - old.sample.at);
+    }
+    buses.set(info.name, { info, fps, sample: { frames, at: now } });
+  }
+  for (const name of buses.keys()) if (!seen.has(name)) buses.delete(name);
+  renderBuses();
+  return list;
+}
+
+function renderBuses() {
+  if (buses.size === 0) {
+    busBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 7 }, 'The gateway serves no bus.')));
+    return;
+  }
+  busBody.replaceChildren(...[...buses.values()].map(({ info, fps }) => h('tr', { dataset: { bus: info.name } },
+    h('td', { 'data-label': 'Bus' }, h('strong', {}, info.name), h('div', { class: 'sub' }, info.spec)),
+    h('td', { 'data-label': 'Kind' }, info.kind),
+    h('td', { 'data-label': 'State' }, h('span', { class: `badge ${info.state === 'up' ? 'ok' : 'bad'}` }, info.state),
+      info.reason ? h('div', { class: 'sub' }, info.reason) : null),
+    h('td', { 'data-label': 'Load', class: 'num' }, `${(info.load * 100).toFixed(1)} %`),
+    h('td', { 'data-label': 'Frames/s', class: 'num' }, fps === null ? '…' : fps.toFixed(0)),
+    h('td', { 'data-label': 'Rx', class: 'num' }, info.rx_frames.toLocaleString()),
+    h('td', { 'data-label': 'Tx', class: 'num' }, info.tx_frames.toLocaleString()),
+  )));
+}
+
+// Polled while the stream is up only: when it is down the gateway is
+// gone, and asking it every second would only pile up failed requests.
+function pollBuses() {
+  clearTimeout(busTimer);
+  busTimer = setTimeout(async () => {
+    await loadBuses();
+    if (stream.state === 'connected') pollBuses();
+  }, BUS_POLL_MS);
+}
+
+// ---- nodes ---------------------------------------------------------------
+
+const key = (bus, id) => `${bus}/${id}`;
+
+async function loadNodes(list) {
+  const found = new Set();
+  const failed = new Set(); // buses whose rows stay as they were
+  await Promise.all(list.map(async ({ name }) => {
+    let listed;
+    try {
+      listed = await api(`/buses/${encodeURIComponent(name)}/nodes`);
+    } catch (error) {
+      problem(`nodes ${name}`, `Nodes of ${name}: ${error.message}`);
+      failed.add(name);
+      return;
+    }
+    problem(`nodes ${name}`, null);
+    for (const node of listed) {
+      found.add(key(name, node.id));
+      const entry = nodes.get(key(name, node.id)) || { bus: name, node, detail: null };
+      entry.node = node;
+      nodes.set(key(name, node.id), entry);
+    }
+  }));
+  for (const [k, entry] of nodes) if (!found.has(k) && !failed.has(entry.bus)) nodes.delete(k);
+  renderNodes();
+  for (const entry of nodes.values()) refreshNode(entry.bus, entry.node.id);
+}
+
+/** Reads one node again (its registry entry and EMCY history); a read
+ * asked for while one runs is done once after it, not dropped. */
+async function refreshNode(bus, id) {
+  const k = key(bus, id);
+  let entry = nodes.get(k);
+  if (!entry) {
+    entry = { bus, node: { id }, detail: null };
+    nodes.set(k, entry);
+  }
+  if (entry.loading) {
+    entry.again = true;
+    return;
+  }
+  entry.loading = true;
+  try {
+    const detail = await api(`/buses/${encodeURIComponent(bus)}/nodes/${id}`);
+    entry.node = detail;
+    entry.detail = detail;
+    entry.error = null;
+  } catch (error) {
+    if (error.code === 'unknown_node') nodes.delete(k);
+    else entry.error = error.message;
+  } finally {
+    entry.loading = false;
+  }
+  renderNodes();
+  if (entry.again && nodes.has(k)) {
+    entry.again = false;
+    refreshNode(bus, id);
+  }
+}
+
+const NMT = {
+  boot_up: 'boot-up', pre_operational: 'pre-operational', operational: 'operational',
+  stopped: 'stopped', unknown: 'unknown',
+};
+
+function lastEmcy(detail) {
+  const list = detail && detail.emcy;
+  if (!list) return h('span', { class: 'sub' }, '…');
+  if (list.length === 0) return h('span', { class: 'sub' }, 'none');
+  const last = list[list.length - 1];
+  return h('span', { class: 'emcy' }, h('code', {}, last.code), ' ', last.text);
+}
+
+function renderNodes() {
+  const entries = [...nodes.values()].sort((a, b) => a.bus.localeCompare(b.bus) || a.node.id - b.node.id);
+  if (entries.length === 0) {
+    nodeBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 7 }, 'No node found yet.')));
+    return;
+  }
+  nodeBody.replaceChildren(...entries.map(({ bus, node, detail, error }) => {
+    const href = `/nodes/${encodeURIComponent(bus)}/${node.id}`;
+    const online = node.online;
+    return h('tr', { dataset: { bus, node: node.id }, class: online === false ? 'offline' : null },
+      h('td', { 'data-label': 'Bus' }, bus),
+      h('td', { 'data-label': 'Node', class: 'num' }, h('a', { href }, String(node.id))),
+      h('td', { 'data-label': 'Product' }, node.name || h('span', { class: 'sub' }, node.identity ? 'no name' : '…'),
+        error ? h('div', { class: 'row-error' }, error) : null),
+      h('td', { 'data-label': 'Profile', class: 'profile' }, node.profile || '…'),
+      h('td', { 'data-label': 'NMT', class: 'nmt' }, NMT[node.nmt] || node.nmt || '…'),
+      h('td', { 'data-label': 'Online' }, online === undefined ? '…'
+        : h('span', { class: `badge ${online ? 'ok' : 'bad'}` }, online ? 'online' : 'offline')),
+      h('td', { 'data-label': 'Last EMCY', class: 'last-emcy' }, lastEmcy(detail)),
+    );
+  }));
+}
+
+// ---- events --------------------------------------------------------------
+
+function addEvent(ts, text, kind) {
+  const placeholder = eventList.querySelector('.placeholder');
+  if (placeholder) placeholder.remove();
+  eventList.prepend(h('li', { class: kind }, h('time', {}, clock(ts)), ' ', text));
+  while (eventList.children.length > MAX_EVENTS) eventList.lastElementChild.remove();
+}
+
+function nodeEventText(e) {
+  const who = `${e.bus} node ${e.node}`;
+  switch (e.event) {
+    case 'appeared': return `${who} appeared`;
+    case 'identified': return `${who} identified as ${e.profile}${e.eds ? ` (${e.eds})` : ''}`;
+    case 'identification_failed': return `${who} could not be identified: ${e.error}`;
+    case 'nmt_changed': return `${who}: NMT ${NMT[e.from] || e.from} → ${NMT[e.nmt] || e.nmt}`;
+    case 'offline': return `${who} went offline (${e.reason})`;
+    case 'online': return `${who} is back online`;
+    default: return `${who}: ${e.event}`;
+  }
+}
+
+// Events lost on the way (the page fell behind): say so, and read
+// everything again rather than show a state some event would have changed.
+function lagged(message) {
+  addEvent(Date.now(), `${message.lagged} ${message.topic} events were lost; reading every node again`, 'warn');
+  loadAll();
+}
+
+stream.subscribe(['nodes'], (data, message) => {
+  if (message.lagged) return lagged(message);
+  addEvent(message.ts, nodeEventText(data), data.event === 'offline' ? 'warn' : 'info');
+  refreshNode(data.bus, data.node);
+});
+
+stream.subscribe(['emcy'], (data, message) => {
+  if (message.lagged) return lagged(message);
+  addEvent(message.ts, `${data.bus} node ${data.node}: EMCY ${data.code} ${data.text}`, 'emcy');
+  refreshNode(data.bus, data.node);
+});
+
+// ---- STOP ALL ------------------------------------------------------------
+
+const axisName = (a) => `${a.bus} node ${a.node}${a.axis === null || a.axis === undefined ? '' : ` axis ${a.axis}`}`;
+
+stopButton.addEventListener('click', async () => {
+  stopResult.dataset.state = 'busy';
+  stopResult.replaceChildren('Stopping every enabled axis…');
+  const result = await runAction(stopButton, 'STOPPING…', () => api('/stop-all', { method: 'POST' }));
+  const at = clock();
+  if (!result.ok) {
+    stopResult.dataset.state = 'failed';
+    stopResult.replaceChildren(h('strong', {}, `STOP ALL failed (${at}): `), result.error.message);
+    return;
+  }
+  const { stopped, failed } = result.value;
+  stopResult.dataset.state = failed.length ? 'failed' : 'done';
+  const parts = [];
+  if (stopped.length) {
+    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Stopped ${stopped.length} axis${stopped.length > 1 ? 'es' : ''} (${at}): `),
+      stopped.map(axisName).join(', ')));
+  } else if (failed.length) {
+    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `No axis stopped (${at}).`)));
+  } else {
+    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Nothing to stop (${at}): `), 'no axis was in operation enabled.'));
+  }
+  if (failed.length) {
+    parts.push(h('p', { class: 'failed' }, h('strong', {}, `Could not stop ${failed.length}:`)),
+      h('ul', { class: 'failed' }, failed.map((f) => h('li', {}, `${axisName(f)}: ${f.error?.message || 'failed'}`))));
+  }
+  stopResult.replaceChildren(...parts);
+  for (const entry of nodes.values()) refreshNode(entry.bus, entry.node.id);
+});
+
+// ---- start and reconnect -------------------------------------------------
+
+async function loadAll() {
+  const list = await loadBuses();
+  if (list) await loadNodes(list);
+}
+
+let live = false; // the stream is up: one "lost" event per outage
+
+stream.onState(({ state, reconnected, error }) => {
+  if (error) {
+    problem('stream', `Live updates: ${error}`);
+    return;
+  }
+  if (state === 'connected') {
+    live = true;
+    problem('stream', null);
+    // Whatever happened while the page was away is read again.
+    if (reconnected) {
+      addEvent(Date.now(), 'Connection to the gateway is back', 'info');
+      loadAll();
+    }
+    pollBuses();
+  } else if (state === 'disconnected') {
+    clearTimeout(busTimer);
+    if (live) addEvent(Date.now(), 'Connection to the gateway lost; reconnecting', 'warn');
+    live = false;
+  }
+});
+
+stream.connect();
+loadAll();
