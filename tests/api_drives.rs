@@ -3,28 +3,7 @@
 
 mod common;
 
-use common::{http, start};
-use std::time::Duration;
-
-use serde_json::Value as Json;
-
-async fn json(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Json) {
-    let (status, body) = http(address, method, path, body).await;
-    let json = serde_json::from_str(&body).unwrap_or_else(|err| panic!("{path}: {err}: {body}"));
-    (status, json)
-}
-
-/// Polls `GET path` every 50 ms, for at most 10 s, until `done`.
-async fn poll(address: &str, path: &str, done: impl Fn(u16, &Json) -> bool) -> (u16, Json) {
-    for _ in 0..200 {
-        let (status, body) = json(address, "GET", path, None).await;
-        if done(status, &body) {
-            return (status, body);
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    json(address, "GET", path, None).await
-}
+use common::{json, poll, start};
 
 #[tokio::test]
 async fn a_umc_axis_runs_and_stop_all_stops_it() {

@@ -8,10 +8,9 @@ mod common;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
-use std::time::Duration;
 
-use common::{http, start, terminate};
-use serde_json::Value as Json;
+use common::json;
+use common::{poll, start, terminate};
 
 struct Vbus(Child);
 
@@ -43,23 +42,6 @@ fn vbus() -> (Vbus, String) {
     );
     let spec = format!("demo=socketcand:{}/{}", words[4], words[6]);
     (Vbus(child), spec)
-}
-
-async fn json(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Json) {
-    let (status, body) = http(address, method, path, body).await;
-    (status, serde_json::from_str(&body).unwrap_or(Json::Null))
-}
-
-/// Polls `GET path` every 50 ms for at most 10 s until `done`.
-async fn poll(address: &str, path: &str, done: impl Fn(u16, &Json) -> bool) -> (u16, Json) {
-    for _ in 0..200 {
-        let (status, body) = json(address, "GET", path, None).await;
-        if done(status, &body) {
-            return (status, body);
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    json(address, "GET", path, None).await
 }
 
 #[tokio::test]

@@ -7,7 +7,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{http, start};
+use common::{http, json, start};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value as Json, json};
 use tokio::net::TcpStream;
@@ -54,21 +54,16 @@ async fn subscribe(socket: &mut Socket, topics: &[&str], rate: f64) {
     );
 }
 
-async fn rest(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Json) {
-    let (status, body) = http(address, method, path, body).await;
-    (status, serde_json::from_str(&body).unwrap_or(Json::Null))
-}
-
 /// The demo's UMC axis 1 enabled and turning in velocity mode.
 async fn start_moving(address: &str) {
     let axes = "/api/v1/buses/demo/nodes/1/axes";
     for _ in 0..200 {
-        if rest(address, "GET", axes, None).await.0 == 200 {
+        if json(address, "GET", axes, None).await.0 == 200 {
             break;
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let (status, body) = rest(
+    let (status, body) = json(
         address,
         "POST",
         &format!("{axes}/1/state"),
@@ -76,7 +71,7 @@ async fn start_moving(address: &str) {
     )
     .await;
     assert_eq!(status, 200, "{body}");
-    let (status, body) = rest(
+    let (status, body) = json(
         address,
         "POST",
         &format!("{axes}/1/move"),
@@ -122,7 +117,7 @@ async fn an_axis_topic_during_a_velocity_move_comes_at_the_rate_asked_for() {
     let changes = positions.windows(2).filter(|p| p[0] != p[1]).count();
     assert!(changes * 10 >= positions.len() * 9, "{positions:?}");
 
-    rest(&address, "POST", "/api/v1/stop-all", None).await;
+    json(&address, "POST", "/api/v1/stop-all", None).await;
 }
 
 /// Resident memory of a process, in KiB.
@@ -172,7 +167,7 @@ async fn a_client_that_never_reads_slows_no_one_and_costs_bounded_memory() {
         async move {
             for n in 0..400 {
                 let body = format!(r#"{{"id": "0x555", "data": "{n:08X}"}}"#);
-                rest(&address, "POST", "/api/v1/buses/demo/frames", Some(&body)).await;
+                json(&address, "POST", "/api/v1/buses/demo/frames", Some(&body)).await;
             }
         }
     });
@@ -192,7 +187,7 @@ async fn a_client_that_never_reads_slows_no_one_and_costs_bounded_memory() {
         "resident memory grew from {before} KiB to {after} KiB"
     );
     drop(stuck);
-    rest(&address, "POST", "/api/v1/stop-all", None).await;
+    json(&address, "POST", "/api/v1/stop-all", None).await;
 }
 
 #[tokio::test]

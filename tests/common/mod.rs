@@ -91,3 +91,32 @@ pub async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -
     let (_, body) = response.split_once("\r\n\r\n").unwrap();
     (status, body.to_string())
 }
+
+/// One request whose answer is JSON (every API answer is): status and body.
+pub async fn json(
+    address: &str,
+    method: &str,
+    path: &str,
+    body: Option<&str>,
+) -> (u16, serde_json::Value) {
+    let (status, body) = http(address, method, path, body).await;
+    let json = serde_json::from_str(&body).unwrap_or_else(|err| panic!("{path}: {err}: {body}"));
+    (status, json)
+}
+
+/// Polls `GET path` every 50 ms, for at most 10 s, until `done`; the last
+/// answer either way.
+pub async fn poll(
+    address: &str,
+    path: &str,
+    done: impl Fn(u16, &serde_json::Value) -> bool,
+) -> (u16, serde_json::Value) {
+    for _ in 0..200 {
+        let (status, body) = json(address, "GET", path, None).await;
+        if done(status, &body) {
+            return (status, body);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    json(address, "GET", path, None).await
+}
