@@ -21,6 +21,9 @@
 //! (defaults 1 and 3). Run: `cargo bench --bench rest_api` (or
 //! `scripts/bench`).
 
+mod common;
+
+use common::Options;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -47,37 +50,6 @@ const MIX: [(u8, u16, u8); 6] = [
     (3, 0x1018, 1), // UIO1LED vendor id
 ];
 const SINGLE: [(u8, u16, u8); 1] = [(1, 0x6041, 0)];
-
-#[derive(Clone, Copy)]
-struct Options {
-    warmup: Duration,
-    measure: Duration,
-}
-
-impl Options {
-    fn from_args() -> Self {
-        let mut options = Self {
-            warmup: Duration::from_secs(1),
-            measure: Duration::from_secs(3),
-        };
-        let args: Vec<String> = std::env::args().collect();
-        let mut i = 1;
-        while i < args.len() {
-            let value = args.get(i + 1).and_then(|v| v.parse::<f64>().ok());
-            match (args[i].as_str(), value) {
-                ("--seconds", Some(v)) => options.measure = Duration::from_secs_f64(v),
-                ("--warmup", Some(v)) => options.warmup = Duration::from_secs_f64(v),
-                // `cargo bench` passes `--bench`; anything else is ignored too.
-                _ => {
-                    i += 1;
-                    continue;
-                }
-            }
-            i += 2;
-        }
-        options
-    }
-}
 
 /// What one level measured.
 struct Figures {
@@ -393,7 +365,7 @@ fn bare_sdo(
 }
 
 fn main() {
-    let options = Options::from_args();
+    let options = Options::from_args(Duration::from_secs(1), Duration::from_secs(3));
     // `--only TEXT`: the rows whose "what clients" contains TEXT (to
     // profile one of them).
     let only = std::env::args().skip_while(|arg| arg != "--only").nth(1);

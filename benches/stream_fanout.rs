@@ -28,6 +28,9 @@
 //!
 //! Run: `cargo bench --bench stream_fanout` (or `scripts/bench`).
 
+mod common;
+
+use common::Options;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
@@ -47,35 +50,6 @@ const CLIENTS: usize = 100;
 const FRAMES_PER_SECOND: u64 = 8_000;
 const EMCY_PER_SECOND: u64 = 10;
 const RATE_HZ: f64 = 50.0;
-
-struct Options {
-    warmup: Duration,
-    measure: Duration,
-}
-
-impl Options {
-    fn from_args() -> Self {
-        let mut options = Self {
-            warmup: Duration::from_secs(2),
-            measure: Duration::from_secs(10),
-        };
-        let args: Vec<String> = std::env::args().collect();
-        let mut i = 1;
-        while i < args.len() {
-            let value = args.get(i + 1).and_then(|v| v.parse::<f64>().ok());
-            match (args[i].as_str(), value) {
-                ("--seconds", Some(v)) => options.measure = Duration::from_secs_f64(v),
-                ("--warmup", Some(v)) => options.warmup = Duration::from_secs_f64(v),
-                _ => {
-                    i += 1;
-                    continue;
-                }
-            }
-            i += 2;
-        }
-        options
-    }
-}
 
 /// A child process, killed when dropped.
 struct Process(Child);
@@ -328,7 +302,7 @@ fn percentile(sorted: &[u64], p: f64) -> u64 {
 }
 
 fn main() {
-    let options = Options::from_args();
+    let options = Options::from_args(Duration::from_secs(2), Duration::from_secs(10));
     let devices: Vec<String> = (1..=NODES).map(|n| format!("umc1bds32@{n}")).collect();
     let devices = devices.join(",");
     let (_vbus, line) = spawn(&["vbus", "--listen", "127.0.0.1:0", "--devices", &devices]);
