@@ -29,8 +29,12 @@
 //! Run: `cargo bench --bench stream_fanout` (or `scripts/bench`).
 
 mod common;
+// The HTTP helpers of the tests against the binary.
+#[path = "../tests/common/mod.rs"]
+mod http;
 
 use common::Options;
+use http::json;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
@@ -41,8 +45,6 @@ use candeck::can::spec::BusSpec;
 use candeck::can::{CanId, Frame};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value as Json, json};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
 const NODES: u8 = 8;
@@ -75,22 +77,6 @@ fn spawn(args: &[&str]) -> (Process, String) {
         .read_line(&mut line)
         .unwrap();
     (Process(child), line)
-}
-
-/// One HTTP/1.1 request with `Connection: close`: status and JSON body.
-async fn rest(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Json) {
-    let mut stream = TcpStream::connect(address).await.unwrap();
-    let body = body.unwrap_or("");
-    let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(request.as_bytes()).await.unwrap();
-    let mut response = String::new();
-    stream.read_to_string(&mut response).await.unwrap();
-    let status = response[9..12].parse().unwrap();
-    let (_, body) = response.split_once("\r\n\r\n").unwrap();
-    (status, serde_json::from_str(body).unwrap_or(Json::Null))
 }
 
 /// CPU time (user + system) of a process, from `/proc/<pid>/stat`.
@@ -328,7 +314,7 @@ fn main() {
     runtime.block_on(async move {
         // The eight nodes, identified.
         for _ in 0..300 {
-            let (_, nodes) = rest(&address, "POST", "/api/v1/buses/bench/scan", None).await;
+            let (_, nodes) = json(&address, "POST", "/api/v1/buses/bench/scan", None).await;
             let identified = nodes
                 .as_array()
                 .map_or(0, |nodes| nodes.iter().filter(|n| n["profile"] == "umc").count());
@@ -338,7 +324,7 @@ fn main() {
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         for node in 1..=NODES {
-            let (status, body) = rest(
+            let (status, body) = json(
                 &address,
                 "PUT",
                 &format!("/api/v1/buses/bench/nodes/{node}/pdos/tpdo/1"),

@@ -2,61 +2,20 @@
 //! `candeck serve` on the demo bus, in plain HTTP/1.1 over TCP: each
 //! endpoint's normal case and its error cases, as integrators meet them.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use serde_json::{Value as Json, json};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpStream;
 
-struct Server {
-    child: Child,
-    address: String,
+mod common;
+
+use common::{Response, start};
+
+/// The API's error shape with `status` and `code`.
+trait ApiError {
+    fn assert_error(&self, status: u16, code: &str);
 }
 
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// `candeck serve --listen 127.0.0.1:0`, its address read from the first
-/// stdout line.
-fn start() -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["serve", "--listen", "127.0.0.1:0"])
-        .env_remove("CANDECK_LOG")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("candeck starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let address = line
-        .strip_prefix("candeck: serving http://")
-        .and_then(|rest| rest.split_once('/'))
-        .map(|(address, _)| address.to_string())
-        .unwrap_or_else(|| panic!("first line: {line}"));
-    Server { child, address }
-}
-
-struct Response {
-    status: u16,
-    content_type: String,
-    body: String,
-}
-
-impl Response {
-    fn json(&self) -> Json {
-        serde_json::from_str(&self.body)
-            .unwrap_or_else(|err| panic!("no JSON ({err}): {}", self.body))
-    }
-
-    /// The API's error shape with `status` and `code`.
+impl ApiError for Response {
     fn assert_error(&self, status: u16, code: &str) {
         assert_eq!(self.status, status, "{}", self.body);
         let body = self.json();
@@ -69,7 +28,8 @@ impl Response {
     }
 }
 
-/// One request, `Connection: close`.
+/// One request, `Connection: close`, answered within 20 s (a DCF restore
+/// writes every parameter).
 async fn http(
     address: &str,
     method: &str,
@@ -77,40 +37,15 @@ async fn http(
     content_type: &str,
     body: Option<&str>,
 ) -> Response {
-    let mut stream = TcpStream::connect(address).await.unwrap();
-    let body = body.unwrap_or("");
-    let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(request.as_bytes()).await.unwrap();
-    let mut response = String::new();
-    tokio::time::timeout(
+    common::request(
+        address,
+        method,
+        path,
+        content_type,
+        body,
         Duration::from_secs(20),
-        stream.read_to_string(&mut response),
     )
     .await
-    .expect("answer in time")
-    .unwrap();
-    let status = response
-        .strip_prefix("HTTP/1.1 ")
-        .and_then(|rest| rest.get(..3))
-        .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("response: {response}"));
-    let (head, body) = response.split_once("\r\n\r\n").unwrap();
-    let content_type = head
-        .lines()
-        .find_map(|line| {
-            let (name, value) = line.split_once(':')?;
-            name.eq_ignore_ascii_case("content-type")
-                .then(|| value.trim().to_string())
-        })
-        .unwrap_or_default();
-    Response {
-        status,
-        content_type,
-        body: body.to_string(),
-    }
 }
 
 async fn json_call(address: &str, method: &str, path: &str, body: Option<Json>) -> Response {
@@ -141,7 +76,7 @@ const NODES: &str = "/api/v1/buses/demo/nodes";
 
 #[tokio::test]
 async fn segments_over_http() {
-    let server = start();
+    let (server, _) = start(&["serve"]);
     let address = server.address.as_str();
     demo_ready(address).await;
     let segments = format!("{NODES}/3/segments");
@@ -235,7 +170,7 @@ async fn segments_over_http() {
 
 #[tokio::test]
 async fn store_restore_and_dcf_over_http() {
-    let server = start();
+    let (server, _) = start(&["serve"]);
     let address = server.address.as_str();
     demo_ready(address).await;
 

@@ -10,8 +10,6 @@ use std::time::Duration;
 use candeck::can::spec::BusSpec;
 use candeck::can::{Bus, CanId, Frame};
 use serde_json::{Value as Json, json};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpStream;
 
 struct Server {
     child: Child,
@@ -50,34 +48,16 @@ fn start(args: &[&str]) -> Server {
     }
 }
 
+mod common;
+
 /// One request, `Connection: close`; returns the status code and the body
 /// as JSON (null when empty).
 async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Json) {
-    let mut stream = TcpStream::connect(address).await.unwrap();
-    let body = body.unwrap_or("");
-    let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(request.as_bytes()).await.unwrap();
-    let mut response = String::new();
-    tokio::time::timeout(
-        Duration::from_secs(10),
-        stream.read_to_string(&mut response),
-    )
-    .await
-    .expect("answer in time")
-    .unwrap();
-    let status = response
-        .strip_prefix("HTTP/1.1 ")
-        .and_then(|rest| rest.get(..3))
-        .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("response: {response}"));
-    let (_, body) = response.split_once("\r\n\r\n").unwrap();
+    let (status, body) = common::http(address, method, path, body).await;
     let json = if body.is_empty() {
         Json::Null
     } else {
-        serde_json::from_str(body).unwrap_or_else(|err| panic!("{err}: {body}"))
+        serde_json::from_str(&body).unwrap_or_else(|err| panic!("{err}: {body}"))
     };
     (status, json)
 }

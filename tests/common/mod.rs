@@ -66,30 +66,77 @@ pub async fn terminate(server: &mut Server) -> Option<i32> {
     panic!("candeck did not stop within 5 s of SIGTERM");
 }
 
-/// One request, `Connection: close`; returns the status code and body.
-pub async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
+/// What came back from one request.
+pub struct Response {
+    pub status: u16,
+    /// The `Content-Type` header, empty when there is none.
+    pub content_type: String,
+    pub body: String,
+}
+
+impl Response {
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.body)
+            .unwrap_or_else(|err| panic!("no JSON ({err}): {}", self.body))
+    }
+}
+
+/// One request with a body of `content_type`, `Connection: close`, answered
+/// within `timeout`.
+pub async fn request(
+    address: &str,
+    method: &str,
+    path: &str,
+    content_type: &str,
+    body: Option<&str>,
+    timeout: Duration,
+) -> Response {
     let mut stream = TcpStream::connect(address).await.unwrap();
     let body = body.unwrap_or("");
     let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\r\n{body}",
         body.len()
     );
     stream.write_all(request.as_bytes()).await.unwrap();
     let mut response = String::new();
-    tokio::time::timeout(
-        Duration::from_secs(10),
-        stream.read_to_string(&mut response),
-    )
-    .await
-    .expect("answer in time")
-    .unwrap();
+    tokio::time::timeout(timeout, stream.read_to_string(&mut response))
+        .await
+        .expect("answer in time")
+        .unwrap();
     let status = response
         .strip_prefix("HTTP/1.1 ")
         .and_then(|rest| rest.get(..3))
         .and_then(|code| code.parse().ok())
         .unwrap_or_else(|| panic!("response: {response}"));
-    let (_, body) = response.split_once("\r\n\r\n").unwrap();
-    (status, body.to_string())
+    let (head, body) = response.split_once("\r\n\r\n").unwrap();
+    let content_type = head
+        .lines()
+        .find_map(|line| {
+            let (name, value) = line.split_once(':')?;
+            name.eq_ignore_ascii_case("content-type")
+                .then(|| value.trim().to_string())
+        })
+        .unwrap_or_default();
+    Response {
+        status,
+        content_type,
+        body: body.to_string(),
+    }
+}
+
+/// One request with a JSON body, `Connection: close`, answered within
+/// 10 s; returns the status code and body.
+pub async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
+    let response = request(
+        address,
+        method,
+        path,
+        "application/json",
+        body,
+        Duration::from_secs(10),
+    )
+    .await;
+    (response.status, response.body)
 }
 
 /// One request whose answer is JSON (every API answer is): status and body.
