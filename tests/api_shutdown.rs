@@ -47,7 +47,9 @@ fn vbus() -> (Vbus, String) {
 #[tokio::test]
 async fn sigterm_during_a_move_leaves_the_axis_stopped() {
     let (_vbus, spec) = vbus();
-    let (mut gateway, _) = start(&["--bus", &spec]);
+    // A lease longer than the test, so that only the shutdown can have
+    // stopped the axis, not its lease lapsing.
+    let (mut gateway, _) = start(&["--bus", &spec, "--lease-ms", "60000"]);
     let address = gateway.address.clone();
     let axis = "/api/v1/buses/demo/nodes/1/axes/1";
     let (status, body) = poll(&address, axis, |status, _| status == 200).await;

@@ -99,7 +99,9 @@ async fn axis_updates(socket: &mut Socket, topic: &str, window: Duration) -> Vec
 
 #[tokio::test]
 async fn an_axis_topic_during_a_velocity_move_comes_at_the_rate_asked_for() {
-    let (server, _) = start(&[]);
+    // A lease longer than the test: the motion must not be halted by its
+    // lapse while the rate is measured.
+    let (server, _) = start(&["--lease-ms", "60000"]);
     let address = server.address.clone();
     start_moving(&address).await;
 
@@ -132,7 +134,7 @@ fn rss_kib(pid: u32) -> u64 {
 
 #[tokio::test]
 async fn a_client_that_never_reads_slows_no_one_and_costs_bounded_memory() {
-    let (server, _) = start(&[]);
+    let (server, _) = start(&["--lease-ms", "60000"]);
     let address = server.address.clone();
     start_moving(&address).await;
     let topic = "buses/demo/nodes/1/axes/1";

@@ -17,12 +17,22 @@
 //!   set-point acknowledge) did not show the step in time; `state` is where
 //!   the drive stopped.
 //!
+//! Motion leases ([`super::leases`]): a velocity, torque or duty-cycle move,
+//! and releasing halt in one of those modes, answers with a `lease` that the
+//! client renews; an interpolated move holds one while its request feeds
+//! points. While a lease is held, a move, `halt: false` or the target
+//! `operation_enabled` from anyone who does not present it in the
+//! `Candeck-Lease` header is refused with 409 `lease_conflict`; halting,
+//! quick stop, a walk out of operation enabled and STOP ALL are never
+//! refused, and end the lease.
+//!
 //! Every sequence runs in a task of its own and the handler awaits it: a
 //! client that hangs up never cuts a walk or a move half way. A move that
 //! fails after its first write halts the axis (quick stop if halting fails)
 //! before the error is answered.
 
 use axum::extract::State;
+use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value as Json, json};
 use tokio::task::JoinSet;
@@ -31,12 +41,14 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
+use super::leases::{InFlight, LeaseInfo, presented};
 use super::nodes::known_node;
 use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::drive::{
-    AxisStatus, Drive, DriveError, DriveKind, MoveRequest, TargetState, axis_count,
+    AxisStatus, Drive, DriveError, DriveKind, MoveMode, MoveRequest, TargetState, axis_count,
 };
+use crate::gateway::motion_lease::AxisKey;
 use crate::gateway::registry::NodeInfo;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -141,6 +153,48 @@ pub struct StopAllReport {
     pub failed: Vec<StopFailure>,
 }
 
+/// An axis after a command that may start motion: its status, and the
+/// motion lease its client must renew when the motion has no end of its
+/// own (velocity, torque, duty cycle), else null.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MotionResponse {
+    #[serde(flatten)]
+    pub status: AxisStatus,
+    pub lease: Option<LeaseInfo>,
+}
+
+/// Whether a motion in this mode runs until told otherwise, and so needs a
+/// lease.
+fn endless(mode: MoveMode) -> bool {
+    matches!(
+        mode,
+        MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
+    )
+}
+
+/// The same for the mode an axis displays (its `mode` name).
+fn endless_displayed(mode: Option<&str>) -> Option<&'static str> {
+    match mode? {
+        "velocity" | "profile_velocity" => Some("velocity"),
+        "torque" | "profile_torque" => Some("torque"),
+        "duty_cycle" => Some("duty_cycle"),
+        _ => None,
+    }
+}
+
+fn key(bus: &str, drive: &Drive) -> AxisKey {
+    AxisKey {
+        bus: bus.to_string(),
+        node: drive.node(),
+        axis: drive.axis(),
+    }
+}
+
+/// Who a request acts for, as the lease records it.
+fn holder() -> String {
+    "anonymous".to_string()
+}
+
 /// The node's axis from the path, after the checks that need no bus.
 fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, AppError> {
     let (served, info) = known_node(state, bus, id)?;
@@ -239,13 +293,14 @@ async fn one_axis(
 /// fault is not reset by this (`fault-reset` does that): 409 `drive_fault`.
 /// Quick stop active is reached from operation enabled only (409
 /// `drive_not_enabled` otherwise: the motor is not powered to be stopped).
-#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives", params(AxisPath),
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives",
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
     request_body = StateRequest,
     responses(
         (status = 200, description = "The axis in the state asked for", body = AxisStatus),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`; `node_offline`: its heartbeat is lost; `lease_conflict`: operation_enabled asked of an axis another client's lease holds", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -253,21 +308,29 @@ async fn one_axis(
     ))]
 async fn set_state(
     State(state): State<AppState>,
+    headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     let target = request.target.state();
+    let axis_key = key(&bus, &drive);
     if request.target == TargetState::OperationEnabled {
+        state.leases.check(&axis_key, presented(&headers))?;
         // Before the walk, not after it: a walk that fails half way may
         // have powered the axis already.
         state.enabled_axes.insert(&bus, &drive);
     }
-    spawned(
+    let status = spawned(
         drive,
         move |drive| async move { drive.set_state(target).await },
     )
-    .await
+    .await?;
+    if request.target != TargetState::OperationEnabled {
+        // Out of operation enabled nothing moves: the motion is over.
+        state.leases.release(&axis_key);
+    }
+    Ok(status)
 }
 
 /// Resets a fault (controlword bit 7, 0→1).
@@ -297,13 +360,14 @@ async fn fault_reset(
 ///
 /// The rest of the controlword is kept (read back on a UMC; implied by the
 /// state on a JMC, whose controlword is write only).
-#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/halt", tag = "drives", params(AxisPath),
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/halt", tag = "drives",
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
     request_body = HaltRequest,
     responses(
-        (status = 200, description = "The axis after the controlword", body = AxisStatus),
+        (status = 200, description = "The axis after the controlword; releasing halt in velocity, torque or duty-cycle mode answers with a motion lease", body = MotionResponse),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost; `lease_conflict`: halt released on an axis another client's lease holds", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -311,15 +375,39 @@ async fn fault_reset(
     ))]
 async fn halt(
     State(state): State<AppState>,
+    headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
-) -> Result<ApiJson<AxisStatus>, AppError> {
+) -> Result<ApiJson<MotionResponse>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
-    spawned(
-        drive,
-        move |drive| async move { drive.halt(request.halt).await },
-    )
-    .await
+    let axis_key = key(&bus, &drive);
+    if request.halt {
+        let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(true).await }).await?;
+        state.leases.release(&axis_key);
+        return Ok(ApiJson(MotionResponse {
+            status,
+            lease: None,
+        }));
+    }
+    // Releasing halt resumes the set-point the axis has: in a mode without
+    // an end, that is a motion like any other, and it is leased.
+    let lease_header = presented(&headers).map(str::to_string);
+    state.leases.check(&axis_key, lease_header.as_deref())?;
+    let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
+    let lease = match endless_displayed(status.mode.as_deref()) {
+        Some(mode) if status.state == "operation_enabled" => {
+            let lease =
+                state
+                    .leases
+                    .grant(&state, axis_key, lease_header.as_deref(), &holder(), mode)?;
+            Some(LeaseInfo::of(&lease, tokio::time::Instant::now()))
+        }
+        _ => {
+            state.leases.release(&axis_key);
+            None
+        }
+    };
+    Ok(ApiJson(MotionResponse { status, lease }))
 }
 
 /// Starts a motion in one of the drive's modes.
@@ -332,13 +420,14 @@ async fn halt(
 /// the buffer; the others answer once started. Values are device units. A
 /// move clears halt. If it fails half way, the axis is halted (or
 /// quick-stopped) before the error is answered.
-#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/move", tag = "drives", params(AxisPath),
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/move", tag = "drives",
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
     request_body = MoveRequest,
     responses(
-        (status = 200, description = "The motion is under way; the axis as it is now", body = AxisStatus),
+        (status = 200, description = "The motion is under way; the axis as it is now, and for velocity, torque and duty cycle the lease to renew", body = MotionResponse),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost; `lease_conflict`: another client's lease holds the axis", body = ErrorBody),
         (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -346,17 +435,68 @@ async fn halt(
     ))]
 async fn run_move(
     State(state): State<AppState>,
+    headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<MoveRequest>,
-) -> Result<ApiJson<AxisStatus>, AppError> {
+) -> Result<ApiJson<MotionResponse>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     drive.validate(&request)?;
+    let axis_key = key(&bus, &drive);
+    let lease_header = presented(&headers);
+    let mode = request.mode();
+    if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
+        // A move with an end of its own: the holder may give it (and its
+        // lease ends), nobody else.
+        state.leases.check(&axis_key, lease_header)?;
+        state.enabled_axes.insert(&bus, &drive);
+        let ApiJson(status) = spawned(
+            drive,
+            move |drive| async move { drive.run_move(&request).await },
+        )
+        .await?;
+        state.leases.release(&axis_key);
+        return Ok(ApiJson(MotionResponse {
+            status,
+            lease: None,
+        }));
+    }
+    let lease = state.leases.grant(
+        &state,
+        axis_key.clone(),
+        lease_header,
+        &holder(),
+        mode.name(),
+    )?;
     state.enabled_axes.insert(&bus, &drive);
-    spawned(
-        drive,
-        move |drive| async move { drive.run_move(&request).await },
-    )
-    .await
+    // While this request runs it keeps the lease alive; if its client hangs
+    // up, the lease lapses at once.
+    let result = InFlight::new(&state, &lease)
+        .run(spawned(drive, move |drive| async move {
+            drive.run_move(&request).await
+        }))
+        .await;
+    let status = match result {
+        Ok(ApiJson(status)) => status,
+        Err(error) => {
+            // A failed move halted the axis: nothing is left to lease.
+            state.leases.release(&axis_key);
+            return Err(error);
+        }
+    };
+    if !endless(mode) {
+        // The interpolated points are all in the buffer: the drive stops
+        // at the last one by itself.
+        state.leases.release(&axis_key);
+        return Ok(ApiJson(MotionResponse {
+            status,
+            lease: None,
+        }));
+    }
+    let lease = state.leases.renew(&lease.id, None)?;
+    Ok(ApiJson(MotionResponse {
+        status,
+        lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),
+    }))
 }
 
 /// Quick stop of every enabled axis on every bus.
@@ -372,9 +512,12 @@ async fn stop_all(State(state): State<AppState>) -> Result<ApiJson<StopAllReport
     // In a task of its own: dropping a JoinSet aborts its tasks, so the
     // set must not live in the handler's future, which a client hanging up
     // drops.
+    let leases = state.leases.clone();
     let report = tokio::spawn(stop_everything(state))
         .await
         .map_err(task_failed)??;
+    // Every enabled axis got quick stop: no motion is left to lease.
+    leases.release_all();
     Ok(ApiJson(report))
 }
 
@@ -531,10 +674,11 @@ pub async fn stop_enabled_axes(state: &AppState) -> StopAllReport {
             }
         }
     };
-    if tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
+    let timed_out = tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
         .await
-        .is_err()
-    {
+        .is_err();
+    state.leases.release_all();
+    if timed_out {
         tracing::error!(
             "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
         );

@@ -134,6 +134,12 @@ pub enum AppError {
     /// after an SDO timeout per transfer.
     #[error("{0}")]
     NodeOffline(String),
+    /// The axis is held by another client's motion lease.
+    #[error("{0}")]
+    LeaseConflict(String),
+    /// A lease that is not held (lapsed, ended, or never granted).
+    #[error("{0}")]
+    UnknownLease(String),
     /// A plain HTTP request to an endpoint that speaks WebSocket only.
     #[error("this endpoint speaks WebSocket only: {0}")]
     UpgradeRequired(String),
@@ -194,6 +200,8 @@ impl AppError {
             Self::NoRecording(_) => (StatusCode::NOT_FOUND, "no_recording"),
             Self::RecordingFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "recording_failed"),
             Self::NodeOffline(_) => (StatusCode::CONFLICT, "node_offline"),
+            Self::LeaseConflict(_) => (StatusCode::CONFLICT, "lease_conflict"),
+            Self::UnknownLease(_) => (StatusCode::NOT_FOUND, "unknown_lease"),
             Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
             Self::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
             Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),

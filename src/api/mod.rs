@@ -42,6 +42,7 @@ pub mod drives;
 pub mod error;
 pub mod events;
 pub mod frames;
+pub mod leases;
 pub mod metrics;
 pub mod nodes;
 pub mod od;
@@ -62,6 +63,8 @@ mod tests;
 mod tests_audit;
 #[cfg(test)]
 mod tests_drives;
+#[cfg(test)]
+mod tests_leases;
 #[cfg(test)]
 mod tests_leds;
 #[cfg(test)]
@@ -214,6 +217,8 @@ pub struct AppState {
     pub enabled_axes: Arc<drives::EnabledAxes>,
     /// The audit log and the EMCY/NMT history (`/events`).
     pub history: History,
+    /// The motion leases of velocity, torque and duty-cycle moves.
+    pub leases: Arc<leases::MotionLeases>,
 }
 
 impl AppState {
@@ -246,7 +251,14 @@ impl AppState {
             stream_counters: Arc::new(StreamCounters::default()),
             enabled_axes: Arc::new(drives::EnabledAxes::default()),
             history,
+            leases: Arc::new(leases::MotionLeases::default()),
         }
+    }
+
+    /// The same, granting motion leases of `period` (`--lease-ms`).
+    pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
+        self.leases = Arc::new(leases::MotionLeases::new(period));
+        self
     }
 
     /// The bus named in a path, or 404 `unknown_bus`.
@@ -268,6 +280,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(segments::router())
         .merge(config::router())
         .merge(drives::router())
+        .merge(leases::router())
         .merge(values::router())
         .merge(pdos::router())
         .merge(frames::router())

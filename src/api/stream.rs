@@ -3,7 +3,11 @@
 //!
 //! Client → server, one JSON text message each:
 //! `{"op":"subscribe","topics":[...],"max_rate_hz"?:n}` and
-//! `{"op":"unsubscribe","topics":[...]}`. Server → client:
+//! `{"op":"unsubscribe","topics":[...]}`, and `{"op":"renew","leases":[id]}`
+//! for motion leases ([`super::leases`]: answered with
+//! `{"op":"renewed","leases":[{"id","expires_in_ms"}]}`, an unknown one with
+//! an error naming it in `lease`; a lease renewed here lapses as soon as
+//! the session ends). Server → client:
 //! `{"topic","ts","data"}` for an update, `{"topic","lagged":N}` when the
 //! client fell behind and lost N events (or frames) of a topic, and, for the
 //! requests themselves, `{"op":"subscribed","topics":[...],"max_rate_hz"}`,
@@ -144,7 +148,10 @@ where
 {
     let counters = state.stream_counters.clone();
     let _client = ClientGuard::new(counters.clone());
+    let _leases = LeaseGuard::new(state.leases.clone());
+    let lease_session = _leases.session;
     let mut session = Session {
+        lease_session,
         state,
         mailbox: Arc::new(Mailbox::default()),
         topics: BTreeMap::new(),
@@ -192,10 +199,33 @@ impl Drop for ClientGuard {
     }
 }
 
+/// The session's number for the leases it renews, which lapse when it ends
+/// (the client is gone, or its network).
+struct LeaseGuard {
+    leases: Arc<super::leases::MotionLeases>,
+    session: u64,
+}
+
+impl LeaseGuard {
+    fn new(leases: Arc<super::leases::MotionLeases>) -> Self {
+        let session = leases.new_session();
+        Self { leases, session }
+    }
+}
+
+impl Drop for LeaseGuard {
+    fn drop(&mut self) {
+        self.leases.session_ended(self.session);
+    }
+}
+
 /// A request of the client.
 #[derive(Debug, Deserialize)]
 #[serde(tag = "op", rename_all = "snake_case", deny_unknown_fields)]
 enum Request {
+    Renew {
+        leases: Vec<String>,
+    },
     Subscribe {
         topics: Vec<String>,
         max_rate_hz: Option<f64>,
@@ -314,6 +344,7 @@ impl Drop for Subscription {
 
 struct Session {
     state: AppState,
+    lease_session: u64,
     mailbox: Arc<Mailbox>,
     /// By the topic string as the client wrote it (the messages carry it
     /// back the same way).
@@ -344,7 +375,8 @@ impl Session {
                     None,
                     &AppError::InvalidRequest(format!(
                         "not a request ({err}): send {{\"op\":\"subscribe\",\"topics\":[...]}} \
-                         or {{\"op\":\"unsubscribe\",\"topics\":[...]}}"
+                         or {{\"op\":\"unsubscribe\",\"topics\":[...]}} \
+                         or {{\"op\":\"renew\",\"leases\":[...]}}"
                     )),
                 )];
             }
@@ -355,7 +387,28 @@ impl Session {
                 max_rate_hz,
             } => self.subscribe(topics, max_rate_hz),
             Request::Unsubscribe { topics } => self.unsubscribe(topics),
+            Request::Renew { leases } => self.renew(leases),
         }
+    }
+
+    fn renew(&mut self, ids: Vec<String>) -> Vec<String> {
+        let mut renewed = Vec::new();
+        let mut replies = Vec::new();
+        for id in ids {
+            match self.state.leases.renew(&id, Some(self.lease_session)) {
+                Ok(lease) => {
+                    let left = lease.remaining(tokio::time::Instant::now()).as_millis();
+                    renewed.push(json!({"id": id, "expires_in_ms": left as u64}));
+                }
+                Err(err) => {
+                    let mut message = json!({"op": "error", "error": err.to_json()});
+                    message["lease"] = Json::from(id);
+                    replies.push(message.to_string());
+                }
+            }
+        }
+        replies.insert(0, json!({"op": "renewed", "leases": renewed}).to_string());
+        replies
     }
 
     fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {

@@ -27,11 +27,14 @@ pub async fn open(name: &str, spec: &str) -> ServedBus {
 }
 
 /// The demo bus with its three devices found by a scan, and its router.
+/// Motion leases last the longest period the gateway grants, so that
+/// tests of other things may watch a velocity move for a while unrenewed
+/// (`tests_leases` sets its own).
 pub async fn demo() -> (Router, AppState) {
     let served = open("demo", "virtual:demo").await;
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
-    let state = AppState::new([served]);
+    let state = AppState::new([served]).with_lease_period(crate::gateway::motion_lease::MAX_PERIOD);
     (app(state.clone()), state)
 }
 
@@ -116,6 +119,28 @@ pub async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
 
 pub async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
     call(app, Method::POST, uri, Some(body)).await
+}
+
+/// POST a JSON body presenting a motion lease (`Candeck-Lease`).
+pub async fn post_with_lease(
+    app: &Router,
+    uri: &str,
+    lease: &str,
+    body: Json,
+) -> (StatusCode, Json) {
+    let request = Request::builder()
+        .method(Method::POST)
+        .uri(uri)
+        .header("content-type", "application/json")
+        .header("candeck-lease", lease)
+        .body(Body::from(body.to_string()))
+        .unwrap();
+    let response = app.clone().oneshot(request).await.unwrap();
+    let status = response.status();
+    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    (status, serde_json::from_slice(&bytes).unwrap())
 }
 
 pub async fn post_text(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {

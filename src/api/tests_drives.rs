@@ -9,7 +9,7 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use super::test_support::{assert_error, call, demo, post};
+use super::test_support::{assert_error, call, demo, post, post_with_lease};
 use crate::canopen::NodeId;
 use crate::sim::behaviour::Fault;
 
@@ -41,6 +41,15 @@ async fn enable(app: &Router, node: u8, number: u8) -> Json {
 
 async fn run(app: &Router, node: u8, number: u8, body: Json) -> Json {
     let response = post(app, &axis_uri(node, number, "/move"), body).await;
+    assert_eq!(response.0, StatusCode::OK, "{}", response.1);
+    response.1
+}
+
+/// A further move by the client that holds the axis's motion lease (the
+/// one `earlier` answered with).
+async fn run_holding(app: &Router, node: u8, number: u8, earlier: &Json, body: Json) -> Json {
+    let lease = earlier["lease"]["id"].as_str().expect("a leased move");
+    let response = post_with_lease(app, &axis_uri(node, number, "/move"), lease, body).await;
     assert_eq!(response.0, StatusCode::OK, "{}", response.1);
     response.1
 }
@@ -170,10 +179,11 @@ async fn umc_duty_cycle_turns_the_motor() {
     tokio::time::sleep(Duration::from_millis(200)).await;
     assert!(int(&axis(&app, UMC, 1).await, "position") > before);
     // Backwards with a negative duty.
-    run(
+    run_holding(
         &app,
         UMC,
         1,
+        &body,
         json!({"mode": "duty_cycle", "duty": -8192, "slope": 60000}),
     )
     .await;
@@ -348,11 +358,12 @@ async fn jmc_profile_position_velocity_and_homing() {
     assert!(int(&axis(&app, JMC, 1).await, "position") < position);
 
     // Homing on the origin switch (method 3), the mode changed from a
-    // running velocity mode.
-    let body = run(
+    // running velocity mode (by the client that started it).
+    let body = run_holding(
         &app,
         JMC,
         1,
+        &body,
         json!({"mode": "homing", "method": 3, "speeds": [50, 10], "acceleration": 1000}),
     )
     .await;
@@ -772,13 +783,15 @@ async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() 
 }
 
 #[tokio::test(start_paused = true)]
-async fn a_client_that_hangs_up_does_not_cut_the_move() {
+async fn a_client_that_hangs_up_mid_interpolated_move_gets_its_axis_halted() {
     let (app, _) = demo().await;
     enable(&app, UMC, 1).await;
     let start = int(&axis(&app, UMC, 1).await, "position");
-    let points: Vec<i64> = (1..=80).map(|i| start + i * 300).collect();
-    // The client gives up after 100 ms, long before the 800 ms of points
-    // are all in the buffer: axum drops the handler's future.
+    let points: Vec<i64> = (1..=400).map(|i| start + i * 300).collect();
+    // The client gives up after 100 ms, long before the 4 s of points are
+    // all in the buffer: axum drops the handler's future. The request held
+    // the move's lease, which lapses with it: the axis is halted rather
+    // than left to run on points nobody watches.
     let gave_up = tokio::time::timeout(
         Duration::from_millis(100),
         post(
@@ -789,12 +802,17 @@ async fn a_client_that_hangs_up_does_not_cut_the_move() {
     )
     .await;
     assert!(gave_up.is_err(), "the move answered within 100 ms");
-    let end = start + 80 * 300;
-    let status = wait_for(&app, UMC, 1, 5000, |s| {
-        (int(s, "position") - end).abs() < 500
-    })
-    .await;
-    assert!((int(&status, "position") - end).abs() < 500, "{status}");
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let halted = int(&axis(&app, UMC, 1).await, "position");
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let status = axis(&app, UMC, 1).await;
+    assert_eq!(int(&status, "position"), halted, "still moving: {status}");
+    assert_eq!(int(&status, "velocity"), 0, "{status}");
+    // Far short of the last point (400 × 300 after the start).
+    assert!(halted - start < 200 * 300, "{start} → {halted}");
+    // Stopped, not failed: halted, or quick-stopped by the feeding that
+    // ended on a buffer no longer drained.
+    assert_eq!(status["fault"], false, "{status}");
 }
 
 #[tokio::test(start_paused = true)]

@@ -117,7 +117,7 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz, retention_days, retention_rows.
+    /// axis_poll_hz, retention_days, retention_rows, lease_ms.
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file.
     #[arg(long, value_name = "FILE")]
@@ -151,6 +151,33 @@ pub struct ServeArgs {
     /// at most, the newest; 0: no limit. Default: 1000000.
     #[arg(long, value_name = "ROWS")]
     pub retention_rows: Option<u64>,
+    /// The period of a motion lease, in milliseconds: a velocity, torque
+    /// or duty-cycle move must be renewed by its client within it, or the
+    /// gateway halts the axis (and quick-stops it one period later if it
+    /// still moves). 200 to 60000. Default: 3000.
+    #[arg(long, value_name = "MS", value_parser = parse_lease_ms)]
+    pub lease_ms: Option<u64>,
+}
+
+/// A lease period in milliseconds, within the gateway's bounds.
+fn parse_lease_ms(text: &str) -> Result<u64, String> {
+    let ms: u64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{text}' is no number of milliseconds"))?;
+    check_lease_ms(ms)
+}
+
+fn check_lease_ms(ms: u64) -> Result<u64, String> {
+    let (min, max) = (
+        crate::gateway::motion_lease::MIN_PERIOD.as_millis(),
+        crate::gateway::motion_lease::MAX_PERIOD.as_millis(),
+    );
+    if (min..=max).contains(&u128::from(ms)) {
+        Ok(ms)
+    } else {
+        Err(format!("{ms} ms: a lease period is {min} to {max} ms"))
+    }
 }
 
 /// A polling rate: a positive number of hertz, at most what a producer
@@ -188,6 +215,7 @@ struct ConfigFile {
     axis_poll_hz: Option<f64>,
     retention_days: Option<u32>,
     retention_rows: Option<u64>,
+    lease_ms: Option<u64>,
 }
 
 impl ConfigFile {
@@ -219,6 +247,10 @@ impl ConfigFile {
         if let Some(hz) = config.axis_poll_hz {
             check_poll_hz(hz)
                 .map_err(|err| format!("config {}: axis_poll_hz {err}", path.display()))?;
+        }
+        if let Some(ms) = config.lease_ms {
+            check_lease_ms(ms)
+                .map_err(|err| format!("config {}: lease_ms {err}", path.display()))?;
         }
         if config.bitrate == Some(0) {
             return Err(format!(
@@ -260,6 +292,7 @@ struct Settings {
     share: Vec<Share>,
     axis_poll_hz: f64,
     retention: Retention,
+    lease_period: std::time::Duration,
 }
 
 impl ServeArgs {
@@ -300,6 +333,11 @@ impl ServeArgs {
                 .axis_poll_hz
                 .or(file.axis_poll_hz)
                 .unwrap_or(DEFAULT_AXIS_POLL_HZ),
+            lease_period: std::time::Duration::from_millis(
+                self.lease_ms
+                    .or(file.lease_ms)
+                    .unwrap_or(crate::gateway::motion_lease::DEFAULT_PERIOD.as_millis() as u64),
+            ),
             // 0 lifts a limit.
             retention: Retention {
                 days: Some(
@@ -492,7 +530,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             }
         });
     }
-    let state = AppState::with_history(served, history);
+    let state = AppState::with_history(served, history).with_lease_period(args.lease_period);
     // The peer's address goes into the audit log.
     let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
     axum::serve(listener, app)

@@ -38,6 +38,7 @@ pub mod drive;
 pub mod frames;
 pub mod history;
 pub mod led_preview;
+pub mod motion_lease;
 pub mod pdo;
 pub mod producers;
 pub mod profile;
