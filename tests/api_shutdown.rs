@@ -6,47 +6,13 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
-
 use common::json;
-use common::{poll, start, terminate};
-
-struct Vbus(Child);
-
-impl Drop for Vbus {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// `candeck vbus --devices demo` on a free port, and its bus spec.
-fn vbus() -> (Vbus, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["vbus", "--listen", "127.0.0.1:0", "--devices", "demo"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("vbus starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    // "candeck vbus: socketcand on ADDR channel CHANNEL devices ..."
-    let words: Vec<&str> = line.split_whitespace().collect();
-    assert_eq!(
-        words.get(..3),
-        Some(&["candeck", "vbus:", "socketcand"][..]),
-        "{line}"
-    );
-    let spec = format!("demo=socketcand:{}/{}", words[4], words[6]);
-    (Vbus(child), spec)
-}
+use common::{poll, start, terminate, vbus};
 
 #[tokio::test]
 async fn sigterm_during_a_move_leaves_the_axis_stopped() {
-    let (_vbus, spec) = vbus();
+    let (_vbus, channel) = vbus("127.0.0.1:0");
+    let spec = format!("demo=socketcand:{channel}");
     // A lease longer than the test, so that only the shutdown can have
     // stopped the axis, not its lease lapsing.
     let (mut gateway, _) = start(&["--bus", &spec, "--lease-ms", "60000"]);

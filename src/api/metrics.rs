@@ -196,6 +196,13 @@ fn render_buses(out: &mut Exposition, buses: &[BusSnapshot]) {
     );
     per_bus(
         out,
+        "candeck_bus_malformed_total",
+        Kind::Counter,
+        "Malformed input from the bus's transport (a socketcand line that is no frame): counted and skipped.",
+        &|bus| Value::from(bus.counters.malformed),
+    );
+    per_bus(
+        out,
         "candeck_bus_error_frames_total",
         Kind::Counter,
         "Error frames reported by the CAN controller.",

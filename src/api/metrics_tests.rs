@@ -344,6 +344,7 @@ async fn the_page_is_valid_exposition_text_with_every_family() {
         ("candeck_bus_load_ratio", "gauge"),
         ("candeck_bus_bitrate_bits_per_second", "gauge"),
         ("candeck_bus_reconnects_total", "counter"),
+        ("candeck_bus_malformed_total", "counter"),
         ("candeck_bus_error_frames_total", "counter"),
         ("candeck_bus_send_errors_total", "counter"),
         ("candeck_bus_receive_overruns_total", "counter"),

@@ -66,6 +66,40 @@ pub async fn terminate(server: &mut Server) -> Option<i32> {
     panic!("candeck did not stop within 5 s of SIGTERM");
 }
 
+/// A `candeck vbus` child process, killed when dropped.
+pub struct Vbus(pub Child);
+
+impl Drop for Vbus {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `candeck vbus --devices demo` listening on `listen` (port 0: a free
+/// one); the process, and the socketcand address and channel it serves
+/// (`127.0.0.1:PORT/can0`).
+pub fn vbus(listen: &str) -> (Vbus, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["vbus", "--listen", listen, "--devices", "demo"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("vbus starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    // "candeck vbus: socketcand on ADDR channel CHANNEL devices ..."
+    let words: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(
+        words.get(..3),
+        Some(&["candeck", "vbus:", "socketcand"][..]),
+        "{line}"
+    );
+    (Vbus(child), format!("{}/{}", words[4], words[6]))
+}
+
 /// What came back from one request.
 pub struct Response {
     pub status: u16,
