@@ -202,13 +202,14 @@ def test_a_fault_shows_on_the_overview_and_is_reset_from_the_drive_page(server, 
         open_drive(browser, server)
         browser.wait(lambda _: drive_state(browser) == "fault", message="the drive page did not show the fault")
         assert browser.js("return document.getElementById('fault-panel').dataset.fault") == "yes"
-        assert text(browser, "fault-title") == "FAULT · Fault"
+        assert text(browser, "fault-title") == "FAULT"
         assert text(browser, "state-badge") == "Fault"
         emcy = text(browser, "fault-emcy")
         assert f"{last['code']} {last['text']}" in emcy, emcy
         assert browser.js("return document.querySelector('#diagram svg .state.current').dataset.state") == "fault"
         assert browser.js("return [...document.querySelectorAll('#transitions button')].map((b) => b.dataset.target)") \
             == ["fault-reset"]
+        browser.driver.save_screenshot(os.path.join(SHOTS, "test_drive_fault_on_the_drive_page.png"))
         browser.check()
         assert not browser.problems, browser.problems
 
@@ -262,6 +263,18 @@ def test_velocity_from_the_slider_panel_and_stop(server, browser):
         browser.wait(lambda _: text(browser, "value-velocity") == "500", message="the velocity did not show 500")
         assert text(browser, "value-mode") == "Velocity (VL)"
         browser.wait(lambda _: chart(browser, "velocity")[1] == 500, message="the velocity chart did not follow")
+        # Halt holds the axis, release lets it run on (the page shows the
+        # velocity the drive reports).
+        click(browser, "#halt-on")
+        browser.wait(lambda _: browser.js("return document.getElementById('state-result').dataset.state") == "done",
+                     message=f"halt gave no result: {text(browser, 'state-result')}")
+        assert text(browser, "state-result").startswith("Halt: done")
+        browser.wait(lambda _: text(browser, "value-velocity") == "0", message="the halted axis did not stop")
+        assert server.get(UMC_AXIS)["velocity"] == 0
+        click(browser, "#halt-off")
+        browser.wait(lambda _: text(browser, "state-result").startswith("Release halt: done"),
+                     message=f"release gave no result: {text(browser, 'state-result')}")
+        browser.wait(lambda _: text(browser, "value-velocity") == "500", message="the released axis did not run on")
         moving_from = server.get(UMC_AXIS)["position"]
         form.find_element("css selector", "button.stop").click()
         browser.wait(lambda _: text(browser, "value-velocity") == "0", message="the stop did not show")

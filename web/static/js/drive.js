@@ -175,10 +175,11 @@ function lastEmcy() {
 function renderFault() {
   const faulted = status && (isFault(status.state) || status.fault === true);
   faultPanel.dataset.fault = faulted ? 'yes' : 'no';
-  faultTitle.textContent = faulted ? `FAULT · ${stateLabel(status.state)}` : 'No fault';
+  faultTitle.textContent = !faulted ? 'No fault'
+    : status.state === 'fault' ? 'FAULT' : `FAULT · ${stateLabel(status.state).toLowerCase()}`;
   const emcy = lastEmcy();
   faultEmcy.replaceChildren(emcy
-    ? h('span', {}, 'Last EMCY of the node: ', h('code', {}, emcy.code), ' ', emcy.text,
+    ? h('span', {}, 'Last EMCY of the node: ', h('code', { class: emcy.code === '0x0000' ? 'cleared' : null }, emcy.code), ' ', emcy.text,
       h('span', { class: 'sub' }, ` · error register 0x${emcy.register.toString(16).padStart(2, '0').toUpperCase()}`,
         ` · ${clock(emcy.timestamp_us / 1000)}`))
     : h('span', { class: 'sub' }, detail ? 'No EMCY from the node.' : '…'));
