@@ -349,6 +349,7 @@ function renderModes() {
 // ---- stream -------------------------------------------------------------------
 
 stream.subscribe(['emcy'], (data, message) => {
+  if (fatal) return;
   if (message.lagged || (data.bus === bus && detail && data.node === detail.id)) reloadNode();
 });
 
