@@ -16,12 +16,14 @@
 //!
 //! # Layout
 //!
-//! - [`router`]: `/` (the overview) and `/static/{version}/{*path}`;
-//!   neither is under `/api/v1` nor in the OpenAPI document.
+//! - [`router`]: `/` (the overview), `/nodes/{bus}/{node}/axes/{axis}`
+//!   (the drive page of an axis) and `/static/{version}/{*path}`; none is
+//!   under `/api/v1` nor in the OpenAPI document.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
 //! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
 //!   which extends `base.html`: navigation and the connection indicator).
+//! - `DrivePage`: one axis of a drive (`web/templates/drive.html`).
 
 use std::sync::LazyLock;
 
@@ -62,9 +64,14 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/drive.css", CSS),
     asset!("js/api.js", JS),
+    asset!("js/chart.js", JS),
+    asset!("js/cia402.js", JS),
     asset!("js/dom.js", JS),
+    asset!("js/drive.js", JS),
     asset!("js/layout.js", JS),
+    asset!("js/motion.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/stream.js", JS),
     asset!("icon.svg", SVG),
@@ -107,6 +114,7 @@ fn etag(asset: &Asset) -> String {
 pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
+        .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -137,6 +145,19 @@ struct OverviewPage {
     layout: Layout,
 }
 
+/// The drive page of one axis: its state machine, motion, statusword and
+/// charts (`web/templates/drive.html`). The path's parts are rendered as
+/// given (escaped) into data attributes; the page asks the API for them,
+/// so an unknown bus, node or axis is the API's 404, said on the page.
+#[derive(Template)]
+#[template(path = "drive.html")]
+struct DrivePage {
+    layout: Layout,
+    bus: String,
+    node: String,
+    axis: String,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -159,6 +180,15 @@ fn page(template: &impl Template) -> Response {
 async fn overview() -> Response {
     page(&OverviewPage {
         layout: Layout::new("overview"),
+    })
+}
+
+async fn drive(Path((bus, node, axis)): Path<(String, String, String)>) -> Response {
+    page(&DrivePage {
+        layout: Layout::new("drive"),
+        bus,
+        node,
+        axis,
     })
 }
 

@@ -210,3 +210,74 @@ async fn the_api_app_serves_the_dashboard_outside_the_api_and_its_document() {
         );
     }
 }
+
+#[tokio::test]
+async fn the_drive_page_names_its_axis_and_loads_only_embedded_files() {
+    let app = router();
+    let (status, headers, body) = fetch(&app, "/nodes/demo/1/axes/2", &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
+    assert_eq!(header(&headers, "cache-control"), "no-cache");
+    let html = String::from_utf8(body).unwrap();
+    assert!(
+        html.contains(r#"data-bus="demo" data-node="1" data-axis="2""#),
+        "{html}"
+    );
+    assert!(html.contains(r#"href="/nodes/demo/1""#), "{html}");
+    assert!(html.contains("<title>Axis 2 · node 1 · demo · candeck</title>"));
+    for id in [
+        "diagram",
+        "transitions",
+        "fault-reset",
+        "chart-position",
+        "status-bits",
+    ] {
+        assert!(html.contains(&format!("id=\"{id}\"")), "no #{id}");
+    }
+    let urls = static_urls(&html);
+    let prefix = format!("/static/{}/", static_version());
+    for wanted in ["css/app.css", "css/drive.css", "js/drive.js", "icon.svg"] {
+        assert!(
+            urls.contains(&format!("{prefix}{wanted}")),
+            "{wanted} not in {urls:?}"
+        );
+    }
+    for url in urls {
+        let (status, _, body) = fetch(&app, &url, &[]).await;
+        assert_eq!(status, StatusCode::OK, "{url}");
+        assert!(!body.is_empty(), "{url}");
+    }
+}
+
+/// The path is the page's input: whatever it holds is text in the page,
+/// never markup, and a path segment again in the node link.
+#[tokio::test]
+async fn the_drive_page_escapes_what_the_path_holds() {
+    let uri = "/nodes/%3Cb%3Ex%22y%2Fz/%3Cscript%3E/axes/1%22%20onload%3D%22x";
+    let (status, _, body) = fetch(&router(), uri, &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    let html = String::from_utf8(body).unwrap();
+    assert!(
+        !html.contains("<b>") && !html.contains("<script>"),
+        "{html}"
+    );
+    assert!(!html.contains(r#"" onload=""#), "{html}");
+    assert!(html.contains("data-bus=\"&#60;b&#62;x&#34;y/z\""), "{html}");
+    assert!(
+        html.contains(r#"href="/nodes/%3Cb%3Ex%22y%2Fz/%3Cscript%3E""#),
+        "{html}"
+    );
+}
+
+#[tokio::test]
+async fn a_drive_path_with_parts_missing_or_added_is_no_page() {
+    let app = router();
+    for uri in [
+        "/nodes/demo/1/axes",
+        "/nodes/demo/1/axes/1/move",
+        "/nodes/demo/axes/1",
+    ] {
+        let (status, _, _) = fetch(&app, uri, &[]).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+    }
+}

@@ -1,0 +1,378 @@
+// The drive page of one axis (/nodes/{bus}/{node}/axes/{axis}): the CiA 402
+// state diagram with the transitions that can be commanded from the state
+// the drive reports, fault and its last EMCY with fault reset, halt, the
+// motion forms of the modes the axis supports, the statusword decoded and
+// live charts of position, velocity and torque.
+//
+// Everything shown is what the device said: the axis topic of the stream
+// (20 samples a second) and the answers of the actions, which the gateway
+// reads back from the drive. What a form sent is never shown as the
+// drive's value. After the stream comes back (the gateway restarted) the
+// axis and the node are read again over REST.
+
+import { api, runAction } from './api.js';
+import { TimeChart } from './chart.js';
+import { commandable, isFault, stateDiagram, stateLabel, statuswordBits } from './cia402.js';
+import { $, clock, h, showMessage } from './dom.js';
+import { stream } from './layout.js';
+import { MODE_LABELS, motionForm, unitsOf } from './motion.js';
+
+const RATE_HZ = 20;
+// The device's 0x6061 names by the move mode whose form they belong to.
+const MOVE_MODE_OF = {
+  profile_position: 'profile_position', velocity: 'velocity', profile_velocity: 'velocity',
+  torque: 'torque', profile_torque: 'torque', duty_cycle: 'duty_cycle',
+  continuous_position: 'continuous_position', interpolated_position: 'interpolated_position', homing: 'homing',
+};
+
+/** The mode the drive displays (0x6061), in words. */
+function modeName({ mode, mode_raw: raw }) {
+  if (mode) return mode === 'velocity' ? 'Velocity (VL)' : (MODE_LABELS[mode] || mode.replaceAll('_', ' ').replace(/^./, (c) => c.toUpperCase()));
+  return raw === null || raw === undefined ? '—' : `Mode ${raw}`;
+}
+
+const root = $('#drive');
+const bus = root.dataset.bus;
+const nodeText = root.dataset.node;
+const axisText = root.dataset.axis;
+const nodePath = `/buses/${encodeURIComponent(bus)}/nodes/${encodeURIComponent(nodeText)}`;
+const axisPath = `${nodePath}/axes/${encodeURIComponent(axisText)}`;
+
+const pageMessage = $('#page-message');
+const body = $('#drive-body');
+const stateBadge = $('#state-badge');
+const transitionList = $('#transitions');
+const stateResult = $('#state-result');
+const faultPanel = $('#fault-panel');
+const faultTitle = $('#fault-title');
+const faultEmcy = $('#fault-emcy');
+const faultReset = $('#fault-reset');
+const haltOn = $('#halt-on');
+const haltOff = $('#halt-off');
+const modeTabs = $('#mode-tabs');
+const motionHost = $('#motion-form');
+const moveResult = $('#move-result');
+const moveGate = $('#move-gate');
+const bitsList = $('#status-bits');
+const liveNote = $('#live-note');
+
+const updateDiagram = stateDiagram($('#diagram'));
+const charts = {
+  position: new TimeChart($('#chart-position'), { color: '#1d3557' }),
+  velocity: new TimeChart($('#chart-velocity'), { color: '#2a7f62' }),
+  torque: new TimeChart($('#chart-torque'), { color: '#b5541c' }),
+};
+
+let detail = null; // GET node: name, profile, emcy
+let status = null; // the newest axis status read from the device
+let supported = null; // the move modes of the axis (GET axis)
+let selectedMode = null;
+let acting = false; // a state, fault or halt action is running
+let moveButtons = [];
+let unsubscribe = null;
+let fatal = false;
+const problems = new Map();
+
+function problem(key, text) {
+  if (text) problems.set(key, text);
+  else problems.delete(key);
+  if (!fatal) showMessage(pageMessage, [...problems.values()].join(' · '));
+}
+
+const show = (value) => (value === null || value === undefined ? '—' : Number(value).toLocaleString('en-US'));
+
+/** An action's outcome in `el`: busy, done or failed, with the time. */
+function result(el, state, ...content) {
+  el.dataset.state = state;
+  el.replaceChildren(...content);
+}
+
+// ---- loading -----------------------------------------------------------------
+
+/** The page cannot show this axis at all (unknown bus, node or axis). */
+function giveUp(error) {
+  fatal = true;
+  body.hidden = true;
+  faultPanel.hidden = true;
+  stateBadge.hidden = true;
+  showMessage(pageMessage, `This axis cannot be shown: ${error.message}`);
+  pageMessage.dataset.code = error.code;
+}
+
+const NOT_THERE = new Set(['unknown_bus', 'unknown_node', 'unknown_axis', 'not_a_drive', 'invalid_request']);
+
+let loading = null;
+
+/** Reads the node and the axis over REST (at start and after a reconnect). */
+function load() {
+  if (!loading) loading = loadOnce().finally(() => { loading = null; });
+  return loading;
+}
+
+async function loadOnce() {
+  let node;
+  let axis;
+  try {
+    [node, axis] = await Promise.all([api(nodePath), api(axisPath)]);
+  } catch (error) {
+    if (NOT_THERE.has(error.code)) giveUp(error);
+    else problem('load', `Reading the axis: ${error.message}`);
+    return;
+  }
+  problem('load', null);
+  detail = node;
+  supported = axis.supported_modes;
+  renderNode();
+  renderModes();
+  applyStatus(axis);
+  if (!unsubscribe) {
+    // The topic by the canonical numbers the gateway answered with.
+    unsubscribe = stream.subscribe([`buses/${bus}/nodes/${node.id}/axes/${axis.axis}`], onSample);
+    askRate();
+  }
+}
+
+async function reloadNode() {
+  try {
+    detail = await api(nodePath);
+    problem('node', null);
+  } catch (error) {
+    problem('node', `Reading the node: ${error.message}`);
+    return;
+  }
+  renderNode();
+  renderFault();
+}
+
+// The stream asks the rate of the page's first subscribe; this page wants
+// its charts at RATE_HZ: the same topic subscribed again with the rate
+// replaces the first (README, "WebSocket stream").
+function askRate() {
+  if (!unsubscribe || stream.state !== 'connected') return;
+  stream.send({ op: 'subscribe', topics: [`buses/${bus}/nodes/${detail.id}/axes/${status.axis}`], max_rate_hz: RATE_HZ });
+}
+
+// ---- the node ---------------------------------------------------------------
+
+function renderNode() {
+  const name = detail.name || `Node ${detail.id}`;
+  $('#node-name').textContent = name;
+  $('#node-link').textContent = `Node ${detail.id}`;
+  $('#node-product').textContent = `${detail.profile}${detail.online === false ? ' · offline' : ''}`;
+  document.title = `Axis ${axisText} · ${name} · candeck`;
+  const axes = detail.axes ? detail.axes.map((a) => a.axis) : [Number(axisText)];
+  $('#axis-tabs').replaceChildren(...axes.map((n) => h('a', {
+    href: `/nodes/${encodeURIComponent(bus)}/${detail.id}/axes/${n}`,
+    'aria-current': String(n) === String(Number(axisText)) ? 'page' : null,
+  }, `Axis ${n}`)));
+}
+
+function lastEmcy() {
+  const list = detail && detail.emcy;
+  return list && list.length ? list[list.length - 1] : null;
+}
+
+function renderFault() {
+  const faulted = status && (isFault(status.state) || status.fault === true);
+  faultPanel.dataset.fault = faulted ? 'yes' : 'no';
+  faultTitle.textContent = !faulted ? 'No fault'
+    : status.state === 'fault' ? 'FAULT' : `FAULT · ${stateLabel(status.state).toLowerCase()}`;
+  const emcy = lastEmcy();
+  faultEmcy.replaceChildren(emcy
+    ? h('span', {}, 'Last EMCY of the node: ', h('code', { class: emcy.code === '0x0000' ? 'cleared' : null }, emcy.code), ' ', emcy.text,
+      h('span', { class: 'sub' }, ` · error register 0x${emcy.register.toString(16).padStart(2, '0').toUpperCase()}`,
+        ` · ${clock(emcy.timestamp_us / 1000)}`))
+    : h('span', { class: 'sub' }, detail ? 'No EMCY from the node.' : '…'));
+  faultReset.classList.toggle('urgent', Boolean(faulted));
+}
+
+// ---- the axis status --------------------------------------------------------
+
+function onSample(data, message) {
+  if (message.lagged) return;
+  for (const [key, chart] of Object.entries(charts)) chart.push(data.error ? null : data[key]);
+  if (data.state === null && !data.error) return; // nothing read yet
+  applyStatus(data);
+}
+
+/** Shows a status the gateway read from the drive (REST or stream). */
+function applyStatus(next) {
+  status = { ...status, ...next };
+  const { state } = status;
+  stateBadge.textContent = stateLabel(state);
+  stateBadge.dataset.state = state || '';
+  root.dataset.state = state || '';
+  const available = commandable(state);
+  updateDiagram(state, available);
+  if (!acting) renderTransitions(available);
+  renderFault();
+
+  $('#value-position').textContent = show(status.position);
+  $('#value-velocity').textContent = show(status.velocity);
+  $('#value-torque').textContent = show(status.torque);
+  $('#value-mode').textContent = modeName(status);
+  const reached = $('#target-reached');
+  reached.dataset.on = status.target_reached === true ? 'yes' : 'no';
+  reached.textContent = status.target_reached === true ? 'Target reached'
+    : status.target_reached === false ? 'Target not reached' : 'Target —';
+  $('#value-source').textContent = status.source === 'tpdo' ? 'from TPDOs' : status.source === 'sdo' ? 'polled over SDO' : 'read over REST';
+  if (next.error) {
+    liveNote.hidden = false;
+    liveNote.textContent = `Not updated: ${next.error}. The values are the last ones read.`;
+  } else if (next.source) {
+    liveNote.hidden = true;
+  }
+
+  const word = status.statusword;
+  $('#statusword-hex').textContent = word === null || word === undefined ? '—'
+    : `0x${word.toString(16).padStart(4, '0').toUpperCase()}`;
+  bitsList.replaceChildren(...statuswordBits(word, status.mode).map((bit) => h('li', {
+    class: 'bit', dataset: { bit: bit.bit, on: bit.on === null ? 'unknown' : bit.on ? 'yes' : 'no' }, title: bit.title,
+  }, h('span', { class: 'bit-n' }, String(bit.bit)), bit.name)));
+
+  const enabled = state === 'operation_enabled';
+  for (const button of moveButtons) if (button.dataset.state !== 'busy' && !button.hasAttribute('aria-busy')) button.disabled = !enabled;
+  moveGate.hidden = enabled;
+  moveGate.textContent = `Moves need operation enabled; the drive is in ${stateLabel(state).toLowerCase()}.`;
+  for (const button of [haltOn, haltOff]) if (!button.hasAttribute('aria-busy')) button.disabled = acting || !enabled;
+}
+
+// ---- state transitions, fault reset, halt ------------------------------------
+
+let transitionsFor; // the state the buttons are for: redrawn only when it changes
+
+function renderTransitions(available, force = false) {
+  const state = status ? status.state : null;
+  // A button replaced under a finger would lose its click.
+  if (state === transitionsFor && !force) return;
+  transitionsFor = state;
+  if (!state) {
+    transitionList.replaceChildren(h('p', { class: 'sub' }, 'Waiting for the drive’s state…'));
+    return;
+  }
+  const buttons = available.map((t) => h('button', {
+    type: 'button', class: `transition${t.target === 'operation_enabled' ? ' primary' : ''}${t.n === 11 ? ' warn' : ''}`,
+    dataset: { target: t.target, transition: t.n },
+    on: { click: (event) => transition(t, event.currentTarget) },
+  }, h('span', { class: 'cmd' }, t.command), h('span', { class: 'to' }, `${t.n} → ${stateLabel(t.to)}`)));
+  transitionList.replaceChildren(...(buttons.length ? buttons
+    : [h('p', { class: 'sub' }, `No transition to command from ${stateLabel(status.state).toLowerCase()}: the drive leaves it by itself.`)]));
+}
+
+/** Runs one state-panel action: the others wait, the button shows it. */
+async function stateAction(button, busyLabel, what, request) {
+  acting = true;
+  for (const other of document.querySelectorAll('#state-panel button, #fault-reset')) if (other !== button) other.disabled = true;
+  result(stateResult, 'busy', `${what}…`);
+  const outcome = await runAction(button, busyLabel, request);
+  acting = false;
+  if (outcome.ok) {
+    applyStatus(outcome.value);
+    result(stateResult, 'done', h('strong', {}, `${what}: done (${clock()}). `),
+      `The drive is in ${stateLabel(outcome.value.state).toLowerCase()}.`);
+  } else {
+    result(stateResult, 'failed', h('strong', {}, `${what} failed (${clock()}): `), outcome.error.message);
+    if (status) applyStatus({});
+  }
+  faultReset.disabled = false;
+  if (status) renderTransitions(commandable(status.state), true);
+  return outcome;
+}
+
+function transition(t, button) {
+  if (t.target === 'fault-reset') return resetFault(button);
+  return stateAction(button, 'Switching…', `${t.command} (${t.n})`,
+    () => api(`${axisPath}/state`, { method: 'POST', body: { target: t.target } }));
+}
+
+async function resetFault(button) {
+  const outcome = await stateAction(button, 'Resetting…', 'Fault reset',
+    () => api(`${axisPath}/fault-reset`, { method: 'POST' }));
+  reloadNode();
+  return outcome;
+}
+
+faultReset.addEventListener('click', () => resetFault(faultReset));
+haltOn.addEventListener('click', () => stateAction(haltOn, 'Halting…', 'Halt',
+  () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: true } })));
+haltOff.addEventListener('click', () => stateAction(haltOff, 'Releasing…', 'Release halt',
+  () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: false } })));
+
+// ---- motion -------------------------------------------------------------------
+
+/**
+ * The one place a move is requested (issue 8's motion lease goes here):
+ * `request` is a `POST .../move` body; the answer is the axis as the
+ * gateway read it once the motion started.
+ */
+async function move(request, button) {
+  const what = request.mode === 'velocity' && request.velocity === 0 ? 'Stop (velocity 0)' : MODE_LABELS[request.mode];
+  result(moveResult, 'busy', `${what}: starting…`);
+  const outcome = await runAction(button, 'Starting…', () => api(`${axisPath}/move`, { method: 'POST', body: request }));
+  if (outcome.ok) {
+    applyStatus(outcome.value);
+    const axis = outcome.value;
+    result(moveResult, 'done', h('strong', {}, `${what}: started (${clock()}). `),
+      `The drive reports ${modeName(axis).toLowerCase()}, position ${show(axis.position)}.`);
+  } else {
+    result(moveResult, 'failed', h('strong', {}, `${what} failed (${clock()}): `), outcome.error.message);
+    applyStatus({});
+  }
+}
+
+function renderModes() {
+  const units = unitsOf(detail.profile);
+  if (!supported.length) {
+    modeTabs.replaceChildren();
+    motionHost.replaceChildren(h('p', { class: 'sub' }, 'This axis supports no motion mode the gateway can command.'));
+    return;
+  }
+  if (!supported.includes(selectedMode)) {
+    const current = status && MOVE_MODE_OF[status.mode];
+    selectedMode = supported.includes(current) ? current : supported[0];
+  }
+  modeTabs.replaceChildren(...supported.map((mode) => h('button', {
+    type: 'button', role: 'tab', class: 'tab', dataset: { mode },
+    'aria-selected': mode === selectedMode ? 'true' : 'false',
+    on: { click: () => { selectedMode = mode; renderModes(); } },
+  }, MODE_LABELS[mode] || mode)));
+  const built = motionForm(selectedMode, units, {
+    onSubmit: move,
+    onStop: move,
+    onInvalid: (text) => result(moveResult, 'failed', h('strong', {}, 'Not sent: '), text),
+  });
+  moveButtons = built.buttons;
+  motionHost.replaceChildren(built.form);
+  if (status) applyStatus({});
+}
+
+// ---- stream -------------------------------------------------------------------
+
+stream.subscribe(['emcy'], (data, message) => {
+  if (fatal) return;
+  if (message.lagged || (data.bus === bus && detail && data.node === detail.id)) reloadNode();
+});
+
+stream.subscribe(['nodes'], (data, message) => {
+  if (fatal) return;
+  if (message.lagged || (data.bus === bus && String(data.node) === String(detail ? detail.id : nodeText))) {
+    if (!detail || !supported) load();
+    else reloadNode();
+  }
+});
+
+stream.onState(({ state, reconnected, error }) => {
+  if (error) {
+    problem('stream', `Live updates: ${error}`);
+    return;
+  }
+  root.dataset.live = state === 'connected' ? 'yes' : 'no';
+  if (state === 'connected') {
+    problem('stream', null);
+    askRate();
+    if (reconnected && !fatal) load();
+  }
+});
+
+stream.connect();
+load();
