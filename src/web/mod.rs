@@ -16,12 +16,14 @@
 //!
 //! # Layout
 //!
-//! - [`router`]: `/` (the overview) and `/static/{version}/{*path}`;
+//! - [`router`]: `/` (the overview), `/nodes/{bus}/{node}/pdos` (a node's
+//!   PDO editor) and `/static/{version}/{*path}`;
 //!   neither is under `/api/v1` nor in the OpenAPI document.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
 //! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
-//!   which extends `base.html`: navigation and the connection indicator).
+//!   which extends `base.html`: navigation and the connection indicator);
+//!   `PdosPage`: the PDO editor's (`web/templates/pdos.html`).
 
 use std::sync::LazyLock;
 
@@ -62,10 +64,12 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/pdos.css", CSS),
     asset!("js/api.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/overview.js", JS),
+    asset!("js/pdos.js", JS),
     asset!("js/stream.js", JS),
     asset!("icon.svg", SVG),
 ];
@@ -107,6 +111,7 @@ fn etag(asset: &Asset) -> String {
 pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
+        .route("/nodes/{bus}/{node}/pdos", get(pdos))
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -137,6 +142,17 @@ struct OverviewPage {
     layout: Layout,
 }
 
+/// The PDO editor of one node. The bus and node come from the path as
+/// given: the page asks the API for them, which answers 404 for one that
+/// does not exist, and askama escapes them in the data attributes.
+#[derive(Template)]
+#[template(path = "pdos.html")]
+struct PdosPage {
+    layout: Layout,
+    bus: String,
+    node: String,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -159,6 +175,14 @@ fn page(template: &impl Template) -> Response {
 async fn overview() -> Response {
     page(&OverviewPage {
         layout: Layout::new("overview"),
+    })
+}
+
+async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
+    page(&PdosPage {
+        layout: Layout::new("pdos"),
+        bus,
+        node,
     })
 }
 
