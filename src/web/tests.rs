@@ -253,7 +253,17 @@ async fn the_pdo_editor_escapes_what_the_path_says() {
     let html = String::from_utf8(body).unwrap();
     assert!(!html.contains("<script>x"), "{html}");
     assert!(!html.contains("1\" onload"), "{html}");
-    assert!(html.contains("data-bus=\"&#60;script&#62;x&#34;&#60;/script&#62;\"") || html.contains("data-bus=\"&lt;script&gt;x&quot;&lt;/script&gt;\""), "{html}");
+    assert!(
+        html.contains(
+            r#"data-bus="&#60;script&#62;x&#34;&#60;/script&#62;" data-node="1&#34; onload=&#34;x""#
+        ),
+        "{html}"
+    );
+    // The link back to the node page: one path segment each.
+    assert!(
+        html.contains(r#"href="/nodes/%3Cscript%3Ex%22%3C%2Fscript%3E/1%22%20onload%3D%22x""#),
+        "{html}"
+    );
 }
 
 /// Issue 7's budget for the PDO editor, before API data.

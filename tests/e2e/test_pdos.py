@@ -228,7 +228,8 @@ def test_the_jmc_page_loads(server, browser):
             assert shown_mapping(browser, kind, pdo["number"]) == rest_mapping(pdo)
             state = text(browser, f"#{kind}-{pdo['number']} .pdo-state")
             assert state == f"{'enabled' if pdo['enabled'] else 'disabled'} · COB-ID 0x{pdo['cob_id']:03X}", state
-    assert text(browser, "#node-name").startswith("·")
+    name = server.get("/api/v1/buses/demo/nodes/2")["name"]
+    assert text(browser, "#node-name") == f"{name} · node 2 on demo"
     browser.check()
 
 
@@ -292,4 +293,29 @@ def test_live_tpdo_values_show_next_to_their_objects(server, browser):
     position = browser.js("return document.querySelector('#tpdo-3 output.live[data-key=\"a1_pc_Position_actual_value\"]').textContent")
     assert re.fullmatch(r"-?\d+", position), position
     server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 0})
+    browser.check()
+
+
+def test_page_weight(server, browser):
+    open_pdos(browser, server)
+    files = browser.js(
+        """
+        const nav = performance.getEntriesByType('navigation')[0];
+        const files = [{url: nav.name, bytes: nav.decodedBodySize}];
+        for (const r of performance.getEntriesByType('resource')) {
+          const url = new URL(r.name);
+          if (url.origin === location.origin && !url.pathname.startsWith('/api/')) {
+            files.push({url: url.pathname, bytes: r.decodedBodySize});
+          }
+        }
+        return files;
+        """
+    )
+    names = [f["url"].rsplit("/", 1)[-1] for f in files]
+    for wanted in ["app.css", "pdos.css", "pdos.js", "layout.js", "stream.js", "api.js", "dom.js"]:
+        assert wanted in names, f"{wanted} not among what the page loaded: {names}"
+    assert all(f["bytes"] > 0 for f in files), files
+    total = sum(f["bytes"] for f in files if not f["url"].endswith(".svg"))
+    assert total < 300 * 1024, f"the PDO editor weighs {total} bytes: {files}"
+    print(f"PDO editor: {total} bytes of HTML, CSS and JS before API data")
     browser.check()

@@ -467,7 +467,7 @@ async function loadPdos() {
 async function loadNode() {
   try {
     const info = await api(base);
-    $('#node-name').textContent = `· ${info.name || `node ${info.id}`}`;
+    $('#node-name').textContent = `${info.name || 'Unnamed device'} · node ${info.id} on ${bus}`;
     problem('node', null);
   } catch (error) {
     problem('node', `Node ${node} on ${bus}: ${error.message}`);
