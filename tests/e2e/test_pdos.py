@@ -173,6 +173,20 @@ def test_more_than_64_bits_is_refused_in_the_page_without_a_request(server, brow
     assert sent == [], sent
     assert device_pdo(server, "tpdo", 2)["mapping"] == before["mapping"]
 
+    # Drag and drop: the last entry dropped on the first goes first (the
+    # events a mouse drag fires, dispatched as Chromium would).
+    order = shown_mapping(browser, "tpdo", 2)
+    browser.js(
+        """
+        const rows = document.querySelectorAll('#tpdo-2 .entry');
+        const from = rows[rows.length - 1], to = rows[0];
+        const dataTransfer = new DataTransfer();
+        const fire = (el, type) => el.dispatchEvent(new DragEvent(type, {bubbles: true, cancelable: true, dataTransfer}));
+        fire(from, 'dragstart'); fire(to, 'dragover'); fire(to, 'drop'); fire(from, 'dragend');
+        """
+    )
+    assert shown_mapping(browser, "tpdo", 2) == [order[-1]] + order[:-1]
+
     # Revert: back to the device's mapping, no longer marked unsaved.
     card(browser, "tpdo", 2).find_element(By.CSS_SELECTOR, "button.revert").click()
     assert shown_mapping(browser, "tpdo", 2) == rest_mapping(before)

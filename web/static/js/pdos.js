@@ -215,6 +215,7 @@ function fillInputs(card) {
     // A parameter the node's EDS does not describe cannot be set.
     inputs[key].disabled = card.device[key] === null;
     inputs[key].placeholder = card.device[key] === null ? 'not in EDS' : '';
+    inputs[key].closest('.field')?.classList.toggle('absent', card.device[key] === null);
     inputs[key].value = value === null || Number.isNaN(value) ? '' : String(value);
   }
 }
