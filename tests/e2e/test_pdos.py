@@ -4,9 +4,11 @@ edit over 64 bits refused in the page, an edit the API refuses shown with
 its message, the JMC's page, a phone-width layout and reconnecting after
 the gateway restarts."""
 
+import os
 import re
 import time
 
+from conftest import SHOTS
 from selenium.webdriver.common.by import By
 
 UMC = "/api/v1/buses/demo/nodes/1"
@@ -166,6 +168,9 @@ def test_more_than_64_bits_is_refused_in_the_page_without_a_request(server, brow
 
     card(browser, "tpdo", 2).find_element(By.CSS_SELECTOR, "button.apply").click()
     assert text(browser, "#tpdo-2 .pdo-result") == "Not sent: correct what is shown above first."
+    os.makedirs(SHOTS, exist_ok=True)
+    browser.js("document.getElementById('tpdo-2').scrollIntoView()")
+    browser.driver.save_screenshot(os.path.join(SHOTS, "pdos-over-64-bits.png"))
     time.sleep(0.3)  # time for a request, had one been made
     sent = browser.js(
         "return performance.getEntriesByType('resource').map((r) => r.name).filter((n) => n.includes('/pdos/'))"

@@ -279,6 +279,8 @@ function renderBar(card) {
   }
   if (over) blocks.push(h('div', { class: 'limit', style: `left: ${(FRAME_BITS / scale) * 100}%` }));
   card.bar.replaceChildren(...blocks);
+  // Past 64 bits the bar's middle is no longer bit 32.
+  card.scale.children[1].textContent = over ? '' : '32';
   card.scale.lastChild.textContent = over ? `${total} of 64 bits` : `${total}/64 bits`;
 }
 
