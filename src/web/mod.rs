@@ -17,13 +17,15 @@
 //! # Layout
 //!
 //! - [`router`]: `/` (the overview), `/nodes/{bus}/{node}/axes/{axis}`
-//!   (the drive page of an axis) and `/static/{version}/{*path}`; none is
-//!   under `/api/v1` nor in the OpenAPI document.
+//!   (the drive page of an axis), `/nodes/{bus}/{node}/pdos` (a node's PDO
+//!   editor) and `/static/{version}/{*path}`; none is under `/api/v1` nor
+//!   in the OpenAPI document.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
 //! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
 //!   which extends `base.html`: navigation and the connection indicator).
 //! - `DrivePage`: one axis of a drive (`web/templates/drive.html`).
+//! - `PdosPage`: the PDO editor (`web/templates/pdos.html`).
 
 use std::sync::LazyLock;
 
@@ -65,6 +67,7 @@ const SVG: &str = "image/svg+xml";
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
     asset!("css/drive.css", CSS),
+    asset!("css/pdos.css", CSS),
     asset!("js/api.js", JS),
     asset!("js/chart.js", JS),
     asset!("js/cia402.js", JS),
@@ -73,6 +76,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/layout.js", JS),
     asset!("js/motion.js", JS),
     asset!("js/overview.js", JS),
+    asset!("js/pdos.js", JS),
     asset!("js/stream.js", JS),
     asset!("icon.svg", SVG),
 ];
@@ -115,6 +119,7 @@ pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
         .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
+        .route("/nodes/{bus}/{node}/pdos", get(pdos))
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -158,6 +163,17 @@ struct DrivePage {
     axis: String,
 }
 
+/// The PDO editor of one node. The bus and node come from the path as
+/// given: the page asks the API for them, which answers 404 for one that
+/// does not exist, and askama escapes them in the data attributes.
+#[derive(Template)]
+#[template(path = "pdos.html")]
+struct PdosPage {
+    layout: Layout,
+    bus: String,
+    node: String,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -189,6 +205,14 @@ async fn drive(Path((bus, node, axis)): Path<(String, String, String)>) -> Respo
         bus,
         node,
         axis,
+    })
+}
+
+async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
+    page(&PdosPage {
+        layout: Layout::new("pdos"),
+        bus,
+        node,
     })
 }
 

@@ -281,3 +281,66 @@ async fn a_drive_path_with_parts_missing_or_added_is_no_page() {
         assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
     }
 }
+
+#[tokio::test]
+async fn the_pdo_editor_names_its_node_and_loads_only_embedded_files() {
+    let app = router();
+    let (status, headers, body) = fetch(&app, "/nodes/demo/1/pdos", &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
+    assert_eq!(header(&headers, "cache-control"), "no-cache");
+    let html = String::from_utf8(body).unwrap();
+    assert!(
+        html.contains(r#"id="pdo-page" data-bus="demo" data-node="1""#),
+        "{html}"
+    );
+    assert!(html.contains(r#"href="/nodes/demo/1""#), "{html}");
+    assert!(html.contains("<title>PDOs of node 1 on demo · candeck</title>"));
+    let urls = static_urls(&html);
+    let prefix = format!("/static/{}/", static_version());
+    for wanted in ["css/app.css", "css/pdos.css", "js/pdos.js"] {
+        assert!(
+            urls.contains(&format!("{prefix}{wanted}")),
+            "{wanted} not in {urls:?}"
+        );
+    }
+    for url in urls {
+        let (status, _, body) = fetch(&app, &url, &[]).await;
+        assert_eq!(status, StatusCode::OK, "{url}");
+        assert!(!body.is_empty(), "{url}");
+    }
+}
+
+/// The bus and node come from the path as typed: text, never markup.
+#[tokio::test]
+async fn the_pdo_editor_escapes_what_the_path_says() {
+    let (status, _, body) = fetch(
+        &router(),
+        "/nodes/%3Cscript%3Ex%22%3C%2Fscript%3E/1%22%20onload%3D%22x/pdos",
+        &[],
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    let html = String::from_utf8(body).unwrap();
+    assert!(!html.contains("<script>x"), "{html}");
+    assert!(!html.contains("1\" onload"), "{html}");
+    assert!(
+        html.contains(
+            r#"data-bus="&#60;script&#62;x&#34;&#60;/script&#62;" data-node="1&#34; onload=&#34;x""#
+        ),
+        "{html}"
+    );
+    // The link back to the node page: one path segment each.
+    assert!(
+        html.contains(r#"href="/nodes/%3Cscript%3Ex%22%3C%2Fscript%3E/1%22%20onload%3D%22x""#),
+        "{html}"
+    );
+}
+
+/// Issue 7's budget for the PDO editor, before API data.
+#[tokio::test]
+async fn the_pdo_editor_weighs_under_300_kb() {
+    let (_, _, html) = fetch(&router(), "/nodes/demo/1/pdos", &[]).await;
+    let total: usize = html.len() + ASSETS.iter().map(|a| a.bytes.len()).sum::<usize>();
+    assert!(total < 300 * 1024, "{total} bytes");
+}

@@ -402,3 +402,44 @@ def test_phone_width_and_page_weight(server, browser):
         json.dump({"bytes": total, "files": loaded}, f, indent=1)
     print(f"drive page: {total} bytes of HTML, CSS and JS")
     browser.check()
+
+
+def test_a_velocity_move_holds_a_lease_and_stops_when_the_page_goes_away(server, browser):
+    server.post(f"{UMC_AXIS}/state", {"target": "operation_enabled"})
+    try:
+        open_drive(browser, server)
+        browser.wait(lambda _: drive_state(browser) == "operation_enabled", message="not enabled")
+        click(browser, '#mode-tabs button[data-mode="velocity"]')
+        form = browser.driver.find_element("css selector", 'form[data-mode="velocity"]')
+        field = form.find_element("name", "velocity")
+        field.clear()
+        field.send_keys("300")
+        form.find_element("css selector", "button.start").click()
+        browser.wait(lambda _: browser.js("return document.getElementById('lease-status').dataset.held") == "yes",
+                     message=f"no lease shown: {text(browser, 'lease-status')}")
+        assert "Motion lease held (velocity)" in text(browser, "lease-status")
+        # The page renews it: past two periods (3 s each) it still runs.
+        time.sleep(7)
+        assert server.get(UMC_AXIS)["velocity"] == 300
+        assert browser.js("return document.getElementById('lease-status').dataset.held") == "yes"
+        # The operator closes the page: its stream closes, the lease lapses
+        # at once and the gateway halts the axis.
+        browser.driver.get("about:blank")
+        deadline = time.monotonic() + 3
+        while time.monotonic() < deadline and server.get(UMC_AXIS)["velocity"] != 0:
+            time.sleep(0.1)
+        axis = server.get(UMC_AXIS)
+        assert axis["velocity"] == 0, axis
+        assert axis["state"] == "operation_enabled", axis
+        # The gateway's stop is audited once the axis is seen at rest.
+        deadline = time.monotonic() + 5
+        while True:
+            audit = server.get("/api/v1/events?kind=audit&limit=50")
+            lapses = [e for e in audit if e.get("who") == "gateway"]
+            if lapses or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        assert lapses and lapses[0]["operation"] == "motion lease lapsed: axis halted", audit
+    finally:
+        disable(server)
+    browser.check()

@@ -25,10 +25,10 @@ export function describeError(status, body, fallback) {
 
 /**
  * Calls `/api/v1${path}` and returns the decoded JSON body (null when
- * empty). Throws ApiError: status 0 when the gateway cannot be reached.
+ * empty); `headers` are added to the request's. Throws ApiError: status 0 when the gateway cannot be reached.
  */
-export async function api(path, { method = 'GET', body, signal } = {}) {
-  const init = { method, signal, headers: { accept: 'application/json' } };
+export async function api(path, { method = 'GET', body, signal, headers = {} } = {}) {
+  const init = { method, signal, headers: { accept: 'application/json', ...headers } };
   if (body !== undefined) {
     init.headers['content-type'] = 'application/json';
     init.body = JSON.stringify(body);

@@ -199,6 +199,8 @@ function onSample(data, message) {
 function applyStatus(next) {
   status = { ...status, ...next };
   const { state } = status;
+  // Out of operation enabled nothing moves, and the gateway ended the lease.
+  if (lease && state && state !== 'operation_enabled') dropLease(null);
   stateBadge.textContent = stateLabel(state);
   stateBadge.dataset.state = state || '';
   root.dataset.state = state || '';
@@ -282,7 +284,7 @@ async function stateAction(button, busyLabel, what, request) {
 function transition(t, button) {
   if (t.target === 'fault-reset') return resetFault(button);
   return stateAction(button, 'Switching…', `${t.command} (${t.n})`,
-    () => api(`${axisPath}/state`, { method: 'POST', body: { target: t.target } }));
+    () => api(`${axisPath}/state`, { method: 'POST', body: { target: t.target }, headers: leaseHeaders() }));
 }
 
 async function resetFault(button) {
@@ -293,10 +295,79 @@ async function resetFault(button) {
 }
 
 faultReset.addEventListener('click', () => resetFault(faultReset));
-haltOn.addEventListener('click', () => stateAction(haltOn, 'Halting…', 'Halt',
-  () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: true } })));
-haltOff.addEventListener('click', () => stateAction(haltOff, 'Releasing…', 'Release halt',
-  () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: false } })));
+haltOn.addEventListener('click', async () => {
+  const outcome = await stateAction(haltOn, 'Halting…', 'Halt',
+    () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: true } }));
+  if (outcome.ok) dropLease(null);
+});
+haltOff.addEventListener('click', async () => {
+  const outcome = await stateAction(haltOff, 'Releasing…', 'Release halt',
+    () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: false }, headers: leaseHeaders() }));
+  if (outcome.ok && outcome.value.lease) holdLease(outcome.value.lease);
+});
+
+// ---- motion lease ---------------------------------------------------------------
+//
+// A velocity, torque or duty-cycle move (and releasing halt in one of those
+// modes) answers with a lease (README, "Motion leases"): the page renews it
+// on the stream every third of its period, so it lapses, and the gateway
+// halts the axis, as soon as this page goes away or loses the gateway.
+// Further commands present it, so that the page may change its own motion.
+
+const leaseStatus = $('#lease-status');
+let lease = null; // {id, period_ms, mode}
+let leaseTimer = null;
+
+function holdLease(granted) {
+  if (!granted) return;
+  const renewing = lease && lease.id === granted.id;
+  lease = granted;
+  leaseStatus.dataset.held = 'yes';
+  leaseStatus.textContent = `Motion lease held (${granted.mode}): renewed every ${Math.round(granted.period_ms / 3)} ms; `
+    + `the gateway halts the axis ${granted.period_ms / 1000} s after this page goes away.`;
+  if (renewing && leaseTimer) return;
+  clearInterval(leaseTimer);
+  leaseTimer = setInterval(renewLease, Math.max(100, granted.period_ms / 3));
+  renewLease();
+}
+
+function dropLease(why) {
+  if (!lease) return;
+  lease = null;
+  clearInterval(leaseTimer);
+  leaseTimer = null;
+  leaseStatus.dataset.held = why ? 'lapsed' : 'no';
+  leaseStatus.textContent = why || 'No motion lease: the motion was stopped.';
+}
+
+async function renewLease() {
+  if (!lease) return;
+  if (stream.state === 'connected') {
+    stream.send({ op: 'renew', leases: [lease.id] });
+    return;
+  }
+  // No stream (yet): REST keeps the lease, though nothing then ends it
+  // when the page goes away but its lapse.
+  const id = lease.id;
+  try {
+    await api(`${axisPath}/lease`, { method: 'POST', body: { lease: id } });
+  } catch (error) {
+    if (lease && lease.id === id && error.code === 'unknown_lease') {
+      dropLease(`The motion lease lapsed (${clock()}): the gateway halted the axis.`);
+    }
+  }
+}
+
+stream.onLease((message) => {
+  if (message.op === 'error' && lease && message.lease === lease.id) {
+    dropLease(`The motion lease lapsed (${clock()}): the gateway halted the axis. ${message.error?.message || ''}`);
+  }
+});
+
+/** The headers that present the page's lease, if it holds one. */
+function leaseHeaders() {
+  return lease ? { 'candeck-lease': lease.id } : {};
+}
 
 // ---- motion -------------------------------------------------------------------
 
@@ -308,8 +379,10 @@ haltOff.addEventListener('click', () => stateAction(haltOff, 'Releasing…', 'Re
 async function move(request, button) {
   const what = request.mode === 'velocity' && request.velocity === 0 ? 'Stop (velocity 0)' : MODE_LABELS[request.mode];
   result(moveResult, 'busy', `${what}: starting…`);
-  const outcome = await runAction(button, 'Starting…', () => api(`${axisPath}/move`, { method: 'POST', body: request }));
+  const outcome = await runAction(button, 'Starting…', () => api(`${axisPath}/move`, { method: 'POST', body: request, headers: leaseHeaders() }));
   if (outcome.ok) {
+    if (outcome.value.lease) holdLease(outcome.value.lease);
+    else dropLease(null);
     applyStatus(outcome.value);
     const axis = outcome.value;
     result(moveResult, 'done', h('strong', {}, `${what}: started (${clock()}). `),

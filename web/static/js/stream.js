@@ -12,6 +12,7 @@ export class Stream {
     this.url = url;
     this.handlers = new Map(); // topic -> Set of fn(data, message)
     this.listeners = new Set(); // fn({state, retryInMs, reconnected, error})
+    this.leaseListeners = new Set(); // fn(message): renewed leases, lease errors
     this.state = 'connecting';
     this.failures = 0;
     this.everConnected = false;
@@ -74,6 +75,13 @@ export class Stream {
     };
   }
 
+  /** Calls `fn` with the answers to lease renewals (README, "Motion
+   * leases"): `{op: 'renewed', leases}` and `{op: 'error', lease, error}`. */
+  onLease(fn) {
+    this.leaseListeners.add(fn);
+    return () => this.leaseListeners.delete(fn);
+  }
+
   /** Calls `fn` with each change of the connection (and once now). */
   onState(fn) {
     this.listeners.add(fn);
@@ -96,6 +104,10 @@ export class Stream {
       message = JSON.parse(text);
     } catch {
       this.notify({ state: this.state, error: 'the gateway sent a stream message that is not JSON' });
+      return;
+    }
+    if (message.op === 'renewed' || (message.op === 'error' && message.lease)) {
+      for (const fn of this.leaseListeners) fn(message);
       return;
     }
     if (message.op === 'error') {
