@@ -16,12 +16,17 @@
 //!
 //! # Layout
 //!
-//! - [`router`]: `/` (the overview) and `/static/{version}/{*path}`;
-//!   neither is under `/api/v1` nor in the OpenAPI document.
+//! - [`router`]: the pages, `/` (the overview), `/nodes/{bus}/{node}` (one
+//!   node: identity, NMT, dictionary, store/restore, DCF backup) and
+//!   `/events` (the persisted history), and `/static/{version}/{*path}`;
+//!   none is under `/api/v1` nor in the OpenAPI document.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
-//! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
-//!   which extends `base.html`: navigation and the connection indicator).
+//! - `OverviewPage`, `NodePage`, `EventsPage`: the pages' templates
+//!   (`web/templates/*.html`, each extending `base.html`: navigation and the
+//!   connection indicator). A node page is rendered for any bus and node in
+//!   its path: the page asks the API, and shows its 404 in words when the
+//!   bus or node is unknown.
 
 use std::sync::LazyLock;
 
@@ -62,9 +67,13 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/events.css", CSS),
+    asset!("css/node.css", CSS),
     asset!("js/api.js", JS),
     asset!("js/dom.js", JS),
+    asset!("js/events.js", JS),
     asset!("js/layout.js", JS),
+    asset!("js/node.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/stream.js", JS),
     asset!("icon.svg", SVG),
@@ -107,6 +116,8 @@ fn etag(asset: &Asset) -> String {
 pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
+        .route("/nodes/{bus}/{node}", get(node))
+        .route("/events", get(events))
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -137,6 +148,23 @@ struct OverviewPage {
     layout: Layout,
 }
 
+/// One node's page. `bus` and `node` are the path's, unchecked: askama
+/// escapes them into data attributes, and the page asks the API about them.
+#[derive(Template)]
+#[template(path = "node.html")]
+struct NodePage {
+    layout: Layout,
+    bus: String,
+    node: String,
+}
+
+/// The persisted history: EMCYs, NMT events and the audit log.
+#[derive(Template)]
+#[template(path = "events.html")]
+struct EventsPage {
+    layout: Layout,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -159,6 +187,20 @@ fn page(template: &impl Template) -> Response {
 async fn overview() -> Response {
     page(&OverviewPage {
         layout: Layout::new("overview"),
+    })
+}
+
+async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
+    page(&NodePage {
+        layout: Layout::new("node"),
+        bus,
+        node,
+    })
+}
+
+async fn events() -> Response {
+    page(&EventsPage {
+        layout: Layout::new("events"),
     })
 }
 
