@@ -7,6 +7,7 @@ a phone's width and the page's weight."""
 import os
 import re
 import tempfile
+import time
 
 from selenium.webdriver.common.by import By
 
@@ -194,20 +195,34 @@ def result(browser, el):
     return browser.js(f"const r = document.getElementById('{el}'); return [r.dataset.state, r.innerText]")
 
 
-def test_nmt_and_store_show_the_state_read_back_and_the_device_refusal(server, browser):
-    open_node(browser, server)
+def test_nmt_shows_the_state_read_back_and_store_the_device_refusal(server, browser):
+    # The JMC sends a heartbeat: the state shown is the one it reports.
+    open_node(browser, server, 2)
     nmt_button(browser, "start").click()
-    browser.wait(lambda _: fact(browser, "nmt") == "operational", message="node 1 did not show operational")
-    browser.wait(lambda _: "NMT state read now: operational" in result(browser, "nmt-result")[1],
+    browser.wait(lambda _: fact(browser, "nmt") == "operational", message="node 2 did not show operational")
+    browser.wait(lambda _: "NMT state the gateway knows: operational" in result(browser, "nmt-result")[1],
                  message=f"NMT result: {result(browser, 'nmt-result')}")
-    assert server.get(NODE)["nmt"] == "operational"
-
+    assert server.get("/api/v1/buses/demo/nodes/2")["nmt"] == "operational"
     # A destructive command asks first; cancelled, nothing is sent.
     nmt_button(browser, "stop").click()
     confirm(browser, ok=False)
-    assert server.get(NODE)["nmt"] == "operational"
+    assert not browser.js("return document.getElementById('confirm').open")
+    time.sleep(1.5)  # more than a heartbeat of the JMC
+    assert server.get("/api/v1/buses/demo/nodes/2")["nmt"] == "operational"
+    nmt_button(browser, "stop").click()
+    confirm(browser)
+    browser.wait(lambda _: fact(browser, "nmt") == "stopped", message="node 2 did not show stopped")
+    nmt_button(browser, "pre_operational").click()
+    browser.wait(lambda _: fact(browser, "nmt") == "pre-operational", message="node 2 did not show pre-operational")
 
-    # UniSwarm devices store in pre-operational only: an abort, in words.
+    # The UMC sends no heartbeat: the page says what the gateway knows and
+    # why. In operational it refuses to store (UniSwarm: pre-operational
+    # only): an abort, in words.
+    open_node(browser, server, 1)
+    nmt_button(browser, "start").click()
+    browser.wait(lambda _: "Start sent" in result(browser, "nmt-result")[1] and result(browser, "nmt-result")[0] == "done",
+                 message=f"NMT result: {result(browser, 'nmt-result')}")
+    assert "learns its NMT state only from its next boot-up" in result(browser, "nmt-result")[1]
     browser.driver.find_element(By.ID, "store").click()
     confirm(browser)
     browser.wait(lambda _: result(browser, "config-result")[0] == "failed", message="the store did not fail")
@@ -216,7 +231,7 @@ def test_nmt_and_store_show_the_state_read_back_and_the_device_refusal(server, b
     expected_only(browser, r"/api/v1/buses/demo/nodes/1/store\b.*422|status of 422")
 
     nmt_button(browser, "pre_operational").click()
-    browser.wait(lambda _: fact(browser, "nmt") == "pre-operational", message="node 1 did not show pre-operational")
+    browser.wait(lambda _: "Pre-operational sent" in result(browser, "nmt-result")[1], message="pre-operational not sent")
     browser.driver.find_element(By.ID, "store").click()
     confirm(browser)
     browser.wait(lambda _: result(browser, "config-result")[0] == "done", message="the store did not succeed")
@@ -261,7 +276,7 @@ def test_an_unknown_node_says_so(server, browser):
     browser.wait(lambda _: browser.js("return !document.getElementById('page-message').hidden"), message="no message")
     message = browser.js("return document.getElementById('page-message').innerText")
     assert message == "node 99 is not known on bus demo (try POST /api/v1/buses/demo/scan) (unknown_node)", message
-    assert browser.js("return document.getElementById('node-body').hidden")
+    assert browser.js("return getComputedStyle(document.getElementById('node-body')).display") == "none"
     assert browser.js("return document.getElementById('node-title').innerText") == "Unknown node"
     expected_only(browser, r"/api/v1/buses/demo/nodes/99\b.*404|status of 404")
 

@@ -88,7 +88,8 @@ function what(e) {
   }
   if (e.kind === 'nmt') return nmtText(e);
   return [h('strong', { class: 'operation' }, e.operation || e.method),
-    e.item ? [' ', h('code', { class: 'item' }, e.item)] : null,
+    e.item ? ' ' : null,
+    e.item ? h('code', { class: 'item' }, e.item) : null,
     h('div', { class: 'sub' }, h('code', {}, `${e.method} ${e.path}`)),
     e.request ? h('div', { class: 'request' }, h('code', {}, e.request)) : null];
 }
@@ -102,7 +103,8 @@ function outcome(e) {
   if (e.kind !== 'audit') return '';
   const ok = e.status >= 200 && e.status < 300;
   return [h('span', { class: `badge ${ok ? 'ok' : 'bad'}` }, String(e.status)),
-    e.error_code ? [' ', h('code', { class: 'error-code' }, e.error_code)] : null,
+    e.error_code ? ' ' : null,
+    e.error_code ? h('code', { class: 'error-code' }, e.error_code) : null,
     e.abort_code ? h('div', { class: 'abort' }, 'SDO abort ', h('code', {}, e.abort_code)) : null];
 }
 

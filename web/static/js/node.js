@@ -70,7 +70,7 @@ function errorView(error) {
 
 function result(el, state, ...children) {
   el.dataset.state = state;
-  el.replaceChildren(...children);
+  el.replaceChildren(...children.flat().filter((c) => c !== null && c !== undefined && c !== false && c !== ''));
 }
 
 // ---- identity --------------------------------------------------------------
@@ -105,7 +105,7 @@ function renderIdentity() {
     ...fact('NMT state', h('span', { class: `nmt nmt-${d.nmt}` }, NMT[d.nmt] || d.nmt), 'nmt'),
     ...fact('Online', h('span', { class: `badge ${d.online ? 'ok' : 'bad'}` }, d.online ? 'online' : 'offline'), 'online'),
     ...fact('Last seen', h('span', { id: 'last-seen' }, lastSeen()), 'last-seen'),
-    ...fact('Heartbeat', d.heartbeat_ms ? `${d.heartbeat_ms} ms` : 'none (guarded or silent)', 'heartbeat'),
+    ...fact('Heartbeat', d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none (0x1017 is 0)'), 'heartbeat'),
     ...fact('Last EMCY', emcy.length
       ? h('span', { class: 'emcy' }, h('code', {}, emcy[emcy.length - 1].code), ' ', emcy[emcy.length - 1].text)
       : h('span', { class: 'sub' }, 'none'), 'emcy'),
@@ -177,8 +177,13 @@ setInterval(() => {
 
 function showNmtState() {
   const { command, at } = pendingNmt;
+  // NMT commands are unconfirmed: the state is what the gateway heard
+  // from the node afterwards. A node with no heartbeat tells it only at
+  // its next boot-up, and the page says so rather than guess.
+  const silent = !detail.heartbeat_ms && command !== 'reset_node' && command !== 'reset_communication';
   result(nmtResult, 'done', h('strong', {}, `${COMMANDS[command]} sent (${at}). `),
-    `NMT state read now: ${NMT[detail.nmt] || detail.nmt}${detail.online ? '' : ', offline'}.`);
+    `NMT state the gateway knows: ${NMT[detail.nmt] || detail.nmt}${detail.online ? '' : ', offline'}.`,
+    silent ? h('div', { class: 'sub' }, 'This node sends no heartbeat (0x1017 is 0): the gateway learns its NMT state only from its next boot-up.') : null);
 }
 
 for (const button of document.querySelectorAll('#nmt-buttons button')) {
@@ -513,7 +518,7 @@ function parseInput(input, type) {
 function subRow(object, sub) {
   const key = `${object.index}:${sub.sub}`;
   const valueCell = h('td', { 'data-label': 'Value', class: 'od-value' });
-  const actions = h('td', { 'data-label': '', class: 'od-actions-cell' });
+  const actions = h('div', { class: 'od-acts' });
   const input = writable(sub.access) ? inputFor(sub) : null;
   let readButton = null;
   let message = null; // a note about the last action, shown under the value
@@ -584,7 +589,7 @@ function subRow(object, sub) {
     h('td', { 'data-label': 'Access' }, sub.access),
     h('td', { 'data-label': 'Range', class: 'sub' }, range(sub)),
     valueCell,
-    actions);
+    h('td', { 'data-label': '', class: 'od-actions-cell' }, actions));
 }
 
 function refreshRow(key) {
