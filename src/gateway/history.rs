@@ -314,7 +314,13 @@ impl History {
             };
             let mut all = Vec::new();
             for kind in kinds {
-                all.extend(select(conn, kind, query.since_us, query.until_us, query.limit)?);
+                all.extend(select(
+                    conn,
+                    kind,
+                    query.since_us,
+                    query.until_us,
+                    query.limit,
+                )?);
             }
             all.sort_by_key(|event| (event.time_us, event.kind.table(), event.id));
             if query.since_us.is_some() {

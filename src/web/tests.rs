@@ -224,7 +224,10 @@ async fn the_node_page_carries_its_bus_and_node_escaped_and_loads_only_embedded_
         "{html}"
     );
     assert!(html.contains("id=\"od-search\""), "{html}");
-    assert!(html.contains("<title>Node 1 · demo · candeck</title>"), "{html}");
+    assert!(
+        html.contains("<title>Node 1 · demo · candeck</title>"),
+        "{html}"
+    );
     let urls = static_urls(&html);
     let prefix = format!("/static/{}/", static_version());
     for wanted in ["css/app.css", "css/node.css", "js/node.js"] {
@@ -249,9 +252,15 @@ async fn the_node_page_carries_its_bus_and_node_escaped_and_loads_only_embedded_
         .nth(1)
         .and_then(|rest| rest.split('"').next())
         .unwrap();
-    assert!(bus.contains('x') && !bus.contains('<') && !bus.contains('>'), "{bus}");
+    assert!(
+        bus.contains('x') && !bus.contains('<') && !bus.contains('>'),
+        "{bus}"
+    );
     let node = html.split("data-node=\"").nth(1).unwrap();
-    assert!(node.starts_with("&#") || node.starts_with("&apos;"), "{node}");
+    assert!(
+        node.starts_with("&#") || node.starts_with("&apos;"),
+        "{node}"
+    );
 }
 
 #[tokio::test]
