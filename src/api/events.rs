@@ -7,7 +7,9 @@
 //! they are the first `limit` entries at or after that time, so a client
 //! pages by asking again from the last `time_us` it got (and drops the
 //! entries it has, by `kind` and `id`); without `since`, the newest
-//! `limit`.
+//! `limit`. `until` (same forms) bounds them from above: without `since`
+//! it gives the newest `limit` entries at or before it, which is how the
+//! dashboard's events page loads older entries.
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -42,6 +44,12 @@ struct EventsQuery {
     /// the newest entries.
     #[param(example = "2026-11-23T18:00:00Z")]
     since: Option<String>,
+    /// Entries at or before this time, in the same forms as `since`.
+    /// Without `since`, the newest entries up to it: a client pages back
+    /// by asking up to the oldest `time` it has (dropping the entries it
+    /// has, by `kind` and `id`).
+    #[param(example = "2026-11-23T19:00:00.123456Z")]
+    until: Option<String>,
     /// How many entries: 1 to 1000, default 100.
     #[param(minimum = 1, maximum = 1000, example = 100)]
     limit: Option<usize>,
@@ -205,6 +213,11 @@ async fn events(
         }
     };
     let since_us = query.since.as_deref().map(parse_since).transpose()?;
+    let until_us = query
+        .until
+        .as_deref()
+        .map(|text| parse_time("until", text))
+        .transpose()?;
     let limit = query.limit.unwrap_or(DEFAULT_LIMIT);
     if !(1..=MAX_LIMIT).contains(&limit) {
         return Err(AppError::InvalidRequest(format!(
@@ -216,6 +229,7 @@ async fn events(
         .query(history::Query {
             kind,
             since_us,
+            until_us,
             limit,
         })
         .await
@@ -228,10 +242,16 @@ async fn events(
 
 /// `since` as µs since the Unix epoch: Unix milliseconds, or RFC 3339.
 pub fn parse_since(text: &str) -> Result<i64, AppError> {
+    parse_time("since", text)
+}
+
+/// The time parameter `name` as µs since the Unix epoch: Unix
+/// milliseconds, or RFC 3339.
+fn parse_time(name: &str, text: &str) -> Result<i64, AppError> {
     let text = text.trim();
     let invalid = || {
         AppError::InvalidRequest(format!(
-            "since '{text}': an RFC 3339 time (2026-11-23T18:00:00Z) or Unix milliseconds"
+            "{name} '{text}': an RFC 3339 time (2026-11-23T18:00:00Z) or Unix milliseconds"
         ))
     };
     if !text.is_empty() && text.bytes().all(|b| b.is_ascii_digit()) {

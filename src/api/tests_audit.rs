@@ -491,6 +491,27 @@ async fn emcy_and_nmt_events_land_in_the_history() {
     )
     .await;
     assert_eq!(by_ms.as_array().unwrap().len(), 1);
+
+    // Paging back: the newest entries up to a time, that time included.
+    let last = all.last().unwrap();
+    let until = last["time"].as_str().unwrap();
+    let (status, older) = get(&app, &format!("/api/v1/events?until={until}&limit=2")).await;
+    assert_eq!(status, StatusCode::OK, "{older}");
+    let older = older.as_array().unwrap();
+    assert_eq!(older.len(), 2);
+    assert!(older.contains(last), "{older:?}");
+    assert!(
+        older
+            .iter()
+            .all(|event| event["time_us"].as_i64() <= last["time_us"].as_i64())
+    );
+    let before_first = first["time_us"].as_i64().unwrap() / 1000 - 1;
+    let (_, none) = get(
+        &app,
+        &format!("/api/v1/events?kind=emcy&until={before_first}"),
+    )
+    .await;
+    assert_eq!(none, json!([]));
 }
 
 #[tokio::test(start_paused = true)]
@@ -500,6 +521,7 @@ async fn bad_queries_are_400() {
         "kind=everything",
         "since=yesterday",
         "since=2026-11-23",
+        "until=tomorrow",
         "limit=0",
         "limit=1001",
         "limit=many",

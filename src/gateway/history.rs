@@ -186,6 +186,10 @@ pub struct Query {
     pub kind: Option<EventKind>,
     /// At or after this time (µs since the Unix epoch); `None`: the newest.
     pub since_us: Option<i64>,
+    /// At or before this time (µs since the Unix epoch): with `since_us`
+    /// it bounds the range; alone, the newest entries up to it, which is
+    /// how a client pages back through older entries.
+    pub until_us: Option<i64>,
     pub limit: usize,
 }
 
@@ -299,9 +303,9 @@ impl History {
         .await
     }
 
-    /// Entries of `query.kind` (or all kinds) at or after `since_us`,
-    /// oldest first: the first `limit` of them; without `since_us`, the
-    /// newest `limit`.
+    /// Entries of `query.kind` (or all kinds) at or after `since_us` and
+    /// at or before `until_us`, oldest first: the first `limit` of them;
+    /// without `since_us`, the newest `limit`.
     pub async fn query(&self, query: Query) -> Result<Vec<StoredEvent>, HistoryError> {
         self.with_conn(move |conn| {
             let kinds: Vec<EventKind> = match query.kind {
@@ -310,7 +314,13 @@ impl History {
             };
             let mut all = Vec::new();
             for kind in kinds {
-                all.extend(select(conn, kind, query.since_us, query.limit)?);
+                all.extend(select(
+                    conn,
+                    kind,
+                    query.since_us,
+                    query.until_us,
+                    query.limit,
+                )?);
             }
             all.sort_by_key(|event| (event.time_us, event.kind.table(), event.id));
             if query.since_us.is_some() {
@@ -537,6 +547,7 @@ fn select(
     conn: &Connection,
     kind: EventKind,
     since_us: Option<i64>,
+    until_us: Option<i64>,
     limit: usize,
 ) -> Result<Vec<StoredEvent>, HistoryError> {
     let table = kind.table();
@@ -545,10 +556,14 @@ fn select(
     // caller's sort).
     let sql = match since_us {
         Some(_) => {
-            format!("SELECT * FROM {table} WHERE time_us >= ?1 ORDER BY time_us, id LIMIT ?2")
+            format!(
+                "SELECT * FROM {table} WHERE time_us >= ?1 AND (?3 IS NULL OR time_us <= ?3) \
+                 ORDER BY time_us, id LIMIT ?2"
+            )
         }
         None => format!(
-            "SELECT * FROM {table} WHERE ?1 IS NULL ORDER BY time_us DESC, id DESC LIMIT ?2"
+            "SELECT * FROM {table} WHERE ?1 IS NULL AND (?3 IS NULL OR time_us <= ?3) \
+             ORDER BY time_us DESC, id DESC LIMIT ?2"
         ),
     };
     let mut statement = conn.prepare_cached(&sql)?;
@@ -556,7 +571,7 @@ fn select(
         .column_names()
         .map(|name| name.to_string())
         .collect();
-    let rows = statement.query_map(params![since_us, limit], |row| {
+    let rows = statement.query_map(params![since_us, limit, until_us], |row| {
         let mut fields = serde_json::Map::new();
         let mut id = 0;
         let mut time_us = 0;

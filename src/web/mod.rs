@@ -16,16 +16,22 @@
 //!
 //! # Layout
 //!
-//! - [`router`]: `/` (the overview), `/nodes/{bus}/{node}/axes/{axis}`
-//!   (the drive page of an axis), `/nodes/{bus}/{node}/pdos` (a node's PDO
-//!   editor) and `/static/{version}/{*path}`; none is under `/api/v1` nor
-//!   in the OpenAPI document.
+//! - [`router`]: the pages, `/` (the overview), `/nodes/{bus}/{node}` (one
+//!   node: identity, NMT, dictionary, store/restore, DCF backup),
+//!   `/nodes/{bus}/{node}/axes/{axis}` (the drive page of an axis),
+//!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor) and `/events` (the
+//!   persisted history), and `/static/{version}/{*path}`; none is under
+//!   `/api/v1` nor in the OpenAPI document. A page is rendered for any bus
+//!   and node in its path: it asks the API, and shows its 404 in words
+//!   when the bus or node is unknown.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
 //! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
 //!   which extends `base.html`: navigation and the connection indicator).
 //! - `DrivePage`: one axis of a drive (`web/templates/drive.html`).
 //! - `PdosPage`: the PDO editor (`web/templates/pdos.html`).
+//! - `NodePage`, `EventsPage`: a node and the history
+//!   (`web/templates/node.html`, `events.html`).
 
 use std::sync::LazyLock;
 
@@ -67,14 +73,18 @@ const SVG: &str = "image/svg+xml";
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
     asset!("css/drive.css", CSS),
+    asset!("css/events.css", CSS),
+    asset!("css/node.css", CSS),
     asset!("css/pdos.css", CSS),
     asset!("js/api.js", JS),
     asset!("js/chart.js", JS),
     asset!("js/cia402.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/drive.js", JS),
+    asset!("js/events.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/motion.js", JS),
+    asset!("js/node.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/pdos.js", JS),
     asset!("js/stream.js", JS),
@@ -118,6 +128,8 @@ fn etag(asset: &Asset) -> String {
 pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
+        .route("/nodes/{bus}/{node}", get(node))
+        .route("/events", get(events))
         .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
         .route("/nodes/{bus}/{node}/pdos", get(pdos))
         .route("/static/{version}/{*path}", get(static_file))
@@ -174,6 +186,23 @@ struct PdosPage {
     node: String,
 }
 
+/// One node's page. `bus` and `node` are the path's, unchecked: askama
+/// escapes them into data attributes, and the page asks the API about them.
+#[derive(Template)]
+#[template(path = "node.html")]
+struct NodePage {
+    layout: Layout,
+    bus: String,
+    node: String,
+}
+
+/// The persisted history: EMCYs, NMT events and the audit log.
+#[derive(Template)]
+#[template(path = "events.html")]
+struct EventsPage {
+    layout: Layout,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -213,6 +242,20 @@ async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
         layout: Layout::new("pdos"),
         bus,
         node,
+    })
+}
+
+async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
+    page(&NodePage {
+        layout: Layout::new("node"),
+        bus,
+        node,
+    })
+}
+
+async fn events() -> Response {
+    page(&EventsPage {
+        layout: Layout::new("events"),
     })
 }
 

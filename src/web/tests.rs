@@ -344,3 +344,90 @@ async fn the_pdo_editor_weighs_under_300_kb() {
     let total: usize = html.len() + ASSETS.iter().map(|a| a.bytes.len()).sum::<usize>();
     assert!(total < 300 * 1024, "{total} bytes");
 }
+
+#[tokio::test]
+async fn the_node_page_carries_its_bus_and_node_escaped_and_loads_only_embedded_files() {
+    let app = router();
+    let (status, headers, body) = fetch(&app, "/nodes/demo/1", &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
+    assert_eq!(header(&headers, "cache-control"), "no-cache");
+    let html = String::from_utf8(body).unwrap();
+    assert!(
+        html.contains(r#"id="node-page" data-bus="demo" data-node="1""#),
+        "{html}"
+    );
+    assert!(html.contains("id=\"od-search\""), "{html}");
+    assert!(
+        html.contains("<title>Node 1 · demo · candeck</title>"),
+        "{html}"
+    );
+    let urls = static_urls(&html);
+    let prefix = format!("/static/{}/", static_version());
+    for wanted in ["css/app.css", "css/node.css", "js/node.js"] {
+        assert!(
+            urls.contains(&format!("{prefix}{wanted}")),
+            "{wanted} not in {urls:?}"
+        );
+    }
+    for url in urls {
+        let (status, _, _) = fetch(&app, &url, &[]).await;
+        assert_eq!(status, StatusCode::OK, "{url}");
+    }
+
+    // Whatever the path holds is text in an attribute, never markup: the
+    // page itself asks the API whether the bus and node exist.
+    let (status, _, body) = fetch(&app, "/nodes/%3Cb%3Ex%22/%27%3E", &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    let html = String::from_utf8(body).unwrap();
+    assert!(!html.contains("<b>x"), "{html}");
+    let bus = html
+        .split("data-bus=\"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .unwrap();
+    assert!(
+        bus.contains('x') && !bus.contains('<') && !bus.contains('>'),
+        "{bus}"
+    );
+    let node = html.split("data-node=\"").nth(1).unwrap();
+    assert!(
+        node.starts_with("&#") || node.starts_with("&apos;"),
+        "{node}"
+    );
+}
+
+#[tokio::test]
+async fn the_events_page_is_in_the_navigation_and_marked_current() {
+    let app = router();
+    let (status, headers, body) = fetch(&app, "/events", &[]).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
+    let html = String::from_utf8(body).unwrap();
+    assert!(
+        html.contains(r#"<a href="/events" aria-current="page">Events</a>"#),
+        "{html}"
+    );
+    assert!(html.contains("id=\"history\""), "{html}");
+    let prefix = format!("/static/{}/", static_version());
+    let urls = static_urls(&html);
+    for wanted in ["css/events.css", "js/events.js"] {
+        assert!(
+            urls.contains(&format!("{prefix}{wanted}")),
+            "{wanted} not in {urls:?}"
+        );
+    }
+    // The overview links the events page without marking it.
+    let (_, _, body) = fetch(&app, "/", &[]).await;
+    let html = String::from_utf8(body).unwrap();
+    assert!(html.contains(r#"<a href="/events">Events</a>"#), "{html}");
+}
+
+#[tokio::test]
+async fn a_node_path_with_a_part_missing_is_no_page() {
+    let app = router();
+    for uri in ["/nodes/demo", "/nodes/demo/1/od/extra/more"] {
+        let (status, _, _) = fetch(&app, uri, &[]).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+    }
+}

@@ -64,6 +64,7 @@ async fn a_file_is_wal_at_the_current_schema_and_keeps_entries_when_reopened() {
         Query {
             kind: None,
             since_us: None,
+            until_us: None,
             limit: 10,
         },
     )
@@ -97,6 +98,7 @@ async fn queries_are_oldest_first_from_since_or_the_newest_without() {
         Query {
             kind: Some(EventKind::Audit),
             since_us: None,
+            until_us: None,
             limit: 2,
         },
     )
@@ -107,6 +109,7 @@ async fn queries_are_oldest_first_from_since_or_the_newest_without() {
         Query {
             kind: None,
             since_us: Some(20),
+            until_us: None,
             limit: 2,
         },
     )
@@ -117,11 +120,35 @@ async fn queries_are_oldest_first_from_since_or_the_newest_without() {
         Query {
             kind: Some(EventKind::Emcy),
             since_us: None,
+            until_us: None,
             limit: 10,
         },
     )
     .await;
     assert!(none.is_empty());
+    // Paging back: the newest up to a time, and a range.
+    let older = paths(
+        &history,
+        Query {
+            kind: None,
+            since_us: None,
+            until_us: Some(30),
+            limit: 2,
+        },
+    )
+    .await;
+    assert_eq!(older, ["/b", "/c"]);
+    let range = paths(
+        &history,
+        Query {
+            kind: Some(EventKind::Audit),
+            since_us: Some(15),
+            until_us: Some(35),
+            limit: 10,
+        },
+    )
+    .await;
+    assert_eq!(range, ["/b", "/c"]);
 }
 
 #[tokio::test]
@@ -162,6 +189,7 @@ async fn retention_prunes_by_age_and_by_count() {
     let all = Query {
         kind: None,
         since_us: None,
+        until_us: None,
         limit: 10,
     };
     assert_eq!(paths(&history, all).await, ["/b", "/c", "/d"]);
@@ -201,6 +229,7 @@ async fn the_pruner_prunes_at_start_and_then_periodically() {
     let all = Query {
         kind: None,
         since_us: None,
+        until_us: None,
         limit: 10,
     };
     let mut left = Vec::new();

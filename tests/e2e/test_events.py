@@ -1,0 +1,130 @@
+"""The events page in headless Chromium against `candeck serve` on the demo
+bus: the audit entry of a write made from the node page, an EMCY arriving
+live, the kind filter, "Load older" paging and a phone's width."""
+
+import re
+
+from selenium.webdriver.common.by import By
+
+from test_node import open_node, search, value_text, write
+
+
+def rows(browser):
+    """The table's rows, top to bottom: {kind, id, Time, Kind, Where, What, Who, Result}."""
+    return browser.js(
+        """return [...document.querySelectorAll('#history tbody tr[data-kind]')].map((tr) => {
+             const cells = {kind: tr.dataset.kind, id: Number(tr.dataset.id)};
+             for (const td of tr.querySelectorAll('td')) cells[td.dataset.label] = td.innerText.trim();
+             return cells;
+           });"""
+    )
+
+
+def open_events(browser, server, kind=None):
+    browser.driver.get(server.url + "/events" + (f"?kind={kind}" if kind else ""))
+    browser.wait(lambda _: rows(browser) or "No event" in browser.js("return document.querySelector('#history tbody').innerText"),
+                 message="the history did not load")
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
+
+
+def pick(browser, kind):
+    browser.driver.find_element(By.CSS_SELECTOR, f'.kinds button[data-kind="{kind}"]').click()
+    browser.wait(lambda _: all(r["kind"] == kind for r in rows(browser)) and rows(browser),
+                 message=f"the {kind} filter did not apply")
+
+
+def test_a_write_from_the_node_page_is_in_the_audit_log(server, browser):
+    before = server.get("/api/v1/buses/demo/nodes/1/od/0x2041/1")["value"]
+    open_node(browser, server)
+    search(browser, "Board_voltage")
+    write(browser, "0x2041:1", before - 5)
+    browser.wait(lambda _: value_text(browser, "0x2041:1") == str(before - 5), message="the write did not read back")
+
+    browser.driver.find_element(By.CSS_SELECTOR, 'nav a[href="/events"]').click()
+    browser.wait(lambda _: rows(browser), message="the history did not load")
+    assert browser.js("return document.querySelector('nav a[aria-current=\"page\"]').innerText") == "Events"
+    pick(browser, "audit")
+    entry = next(e for e in reversed(server.get("/api/v1/events?kind=audit")) if e.get("item") == "0x2041:1")
+    top = rows(browser)[0]
+    assert (top["kind"], top["id"]) == ("audit", entry["id"]), top
+    assert top["Where"] == "demo · node 1"
+    assert top["What"].startswith("write object 0x2041:1\nPUT /api/v1/buses/demo/nodes/1/od/0x2041/1"), top
+    assert f'{{"value":{before - 5}}}' in top["What"], top
+    assert top["Who"] == f"anonymous\nrole none · {entry['peer']}", top
+    assert top["Result"] == "200", top
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3}", top["Time"]), top
+
+    # A refused write shows its status, error code and abort code.
+    answer = None
+    try:
+        server.request("PUT", "/api/v1/buses/demo/nodes/1/od/0x1003/0", {"value": 5})
+    except AssertionError as err:
+        answer = str(err)
+    assert answer and "0x06090030" in answer, answer
+    browser.wait(lambda _: "0x1003:0" in rows(browser)[0]["What"], timeout=15,
+                 message="the refused write did not appear")
+    assert rows(browser)[0]["Result"] == "422 sdo_abort\nSDO abort 0x06090030", rows(browser)[0]
+    server.request("PUT", "/api/v1/buses/demo/nodes/1/od/0x2041/1", {"value": before})
+    browser.check()
+
+
+def test_an_emcy_appears_live_and_the_filter_keeps_to_its_kind(server, browser):
+    open_events(browser, server)
+    browser.js("window.notReloaded = true")
+    server.post("/api/v1/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
+    try:
+        browser.wait(lambda _: any(r["kind"] == "emcy" for r in rows(browser)), message="no EMCY appeared")
+        emcy = [e for e in server.get("/api/v1/events?kind=emcy") if e["node"] == 1]
+        shown = next(r for r in rows(browser) if r["kind"] == "emcy")
+        first = next(e for e in emcy if e["id"] == shown["id"])
+        assert shown["What"].startswith(f"{first['code']} {first['text']}"), shown
+        assert shown["Where"] == "demo · node 1"
+        assert browser.js("return window.notReloaded === true"), "the page was reloaded"
+    finally:
+        server.request("DELETE", "/api/v1/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
+
+    # Newest first, every entry once.
+    listed = rows(browser)
+    keys = [(r["kind"], r["id"]) for r in listed]
+    assert len(keys) == len(set(keys)), keys
+    times = [r["Time"] for r in listed]
+    assert times == sorted(times, reverse=True), times
+
+    pick(browser, "emcy")
+    assert {r["kind"] for r in rows(browser)} == {"emcy"}
+    assert "?kind=emcy" in browser.driver.current_url
+    pick(browser, "nmt")
+    assert any(r["What"] == "appeared on the bus" for r in rows(browser)), rows(browser)
+    browser.check()
+
+
+def test_load_older_pages_back_through_the_history(server, browser):
+    # 130 audited requests: more than a page of 100.
+    for period in range(130):
+        server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 0})
+    history = server.get("/api/v1/events?kind=audit&limit=1000")
+    assert len(history) >= 130
+    open_events(browser, server, "audit")
+    assert len(rows(browser)) == 100
+    assert rows(browser)[0]["id"] == history[-1]["id"]
+    button = browser.driver.find_element(By.ID, "load-older")
+    assert button.is_displayed()
+    button.click()
+    browser.wait(lambda _: len(rows(browser)) == len(history), message=f"{len(rows(browser))} rows after load older")
+    ids = [r["id"] for r in rows(browser)]
+    assert ids == sorted((e["id"] for e in history), reverse=True), ids
+    assert not browser.js("return !document.getElementById('load-older').hidden"), "load older is still offered"
+    browser.check()
+
+
+def test_phone_width(server, browser):
+    browser.driver.execute_cdp_cmd(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
+    )
+    server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 0})
+    open_events(browser, server)
+    layout = browser.js("return {scroll: document.documentElement.scrollWidth, width: window.innerWidth}")
+    assert layout["scroll"] <= layout["width"], f"the page scrolls sideways: {layout}"
+    browser.check()

@@ -1,0 +1,625 @@
+// One node's page: identity, NMT commands, store/restore, the DCF backup
+// and the object-dictionary browser. What it shows of the device is what
+// the gateway read from it: the identity is read again over REST whenever
+// the stream says the node changed, and a value in the dictionary is the
+// one an SDO read (or the read-back after a write) returned, never what
+// the page sent.
+
+import { api, ApiError, describeError, runAction } from './api.js';
+import { $, clock, h, showMessage } from './dom.js';
+import { stream } from './layout.js';
+
+const root = $('#node-page');
+const bus = root.dataset.bus;
+const nodeId = root.dataset.node;
+const base = `/buses/${encodeURIComponent(bus)}/nodes/${encodeURIComponent(nodeId)}`;
+
+const pageMessage = $('#page-message');
+const body = $('#node-body');
+const title = $('#node-title');
+const links = $('#node-links');
+const identity = $('#identity');
+const nmtResult = $('#nmt-result');
+const configResult = $('#config-result');
+const odRoot = $('#od');
+const odCount = $('#od-count');
+const search = $('#od-search');
+const hexToggle = $('#od-hex');
+
+const DRIVES = new Set(['umc', 'jmc_stepper', 'cia402']);
+const NMT = {
+  boot_up: 'boot-up', pre_operational: 'pre-operational', operational: 'operational',
+  stopped: 'stopped', unknown: 'unknown',
+};
+const COMMANDS = {
+  start: 'Start', stop: 'Stop', pre_operational: 'Pre-operational',
+  reset_node: 'Reset node', reset_communication: 'Reset communication',
+};
+
+let detail = null; // GET .../nodes/{id}, as last read
+let detailReadAt = 0; // Date.now() of that read
+let pendingNmt = null; // {command, at}: the page waits for the state it asked for
+
+const hex = (n, digits) => `0x${Number(n).toString(16).toUpperCase().padStart(digits, '0')}`;
+
+// ---- confirmation ----------------------------------------------------------
+
+/** Asks in a modal dialog; resolves true when confirmed. */
+function confirmAction(text, okLabel) {
+  const dialog = $('#confirm');
+  $('#confirm-text').textContent = text;
+  $('#confirm-ok').textContent = okLabel;
+  dialog.returnValue = '';
+  return new Promise((resolve) => {
+    dialog.addEventListener('close', () => resolve(dialog.returnValue === 'ok'), { once: true });
+    dialog.showModal();
+  });
+}
+
+/** An API error as elements: an SDO abort as its code and CiA 301 text. */
+function errorView(error) {
+  const detailBody = error instanceof ApiError ? error.body?.error : error;
+  if (detailBody && detailBody.abort_code) {
+    return h('span', { class: 'abort' }, 'The device refused: ',
+      h('code', { class: 'abort-code' }, detailBody.abort_code), ' ',
+      h('span', { class: 'abort-text' }, detailBody.abort_text || detailBody.message || ''));
+  }
+  if (error instanceof Error) return h('span', {}, error.message);
+  return h('span', {}, describeError(0, { error: detailBody }, 'failed'));
+}
+
+function result(el, state, ...children) {
+  el.dataset.state = state;
+  el.replaceChildren(...children.flat().filter((c) => c !== null && c !== undefined && c !== false && c !== ''));
+}
+
+// ---- identity --------------------------------------------------------------
+
+function fact(label, value, key) {
+  return [h('dt', {}, label), h('dd', { dataset: { fact: key } }, value)];
+}
+
+function lastSeen() {
+  if (!detail) return '…';
+  const seconds = Math.max(0, (Date.now() - detailReadAt + detail.last_seen_ms) / 1000);
+  return seconds < 1 ? 'just now' : `${seconds.toFixed(0)} s ago`;
+}
+
+function renderIdentity() {
+  const d = detail;
+  const id = d.identity;
+  const type = d.device_type;
+  title.textContent = d.name ? `${d.name}` : `Node ${d.id}`;
+  document.title = `${d.name || `Node ${d.id}`} · node ${d.id} · ${bus} · candeck`;
+  const emcy = d.emcy || [];
+  identity.replaceChildren(
+    ...fact('Name', d.name || h('span', { class: 'sub' }, 'no name'), 'name'),
+    ...fact('Vendor', id ? hex(id.vendor_id, 8) : '…', 'vendor'),
+    ...fact('Product', id ? hex(id.product_code, 8) : '…', 'product'),
+    ...fact('Revision', id ? hex(id.revision, 8) : '…', 'revision'),
+    ...fact('Serial', id ? hex(id.serial, 8) : '…', 'serial'),
+    ...fact('Device type', type === null || type === undefined ? '…'
+      : `${hex(type, 8)} (profile ${type & 0xffff}${type >>> 16 ? `, additional ${hex(type >>> 16, 4)}` : ''})`, 'device-type'),
+    ...fact('Profile', d.profile || '…', 'profile'),
+    ...fact('EDS', d.eds || h('span', { class: 'sub' }, 'none matched'), 'eds'),
+    ...fact('NMT state', h('span', { class: `nmt nmt-${d.nmt}` }, NMT[d.nmt] || d.nmt), 'nmt'),
+    ...fact('Online', h('span', { class: `badge ${d.online ? 'ok' : 'bad'}` }, d.online ? 'online' : 'offline'), 'online'),
+    ...fact('Last seen', h('span', { id: 'last-seen' }, lastSeen()), 'last-seen'),
+    ...fact('Heartbeat', d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none (0x1017 is 0)'), 'heartbeat'),
+    ...fact('Last EMCY', emcy.length
+      ? h('span', { class: 'emcy' }, h('code', {}, emcy[emcy.length - 1].code), ' ', emcy[emcy.length - 1].text)
+      : h('span', { class: 'sub' }, 'none'), 'emcy'),
+  );
+  renderLinks();
+  if (pendingNmt) showNmtState();
+}
+
+function renderLinks() {
+  const d = detail;
+  const items = [];
+  const path = `/nodes/${encodeURIComponent(bus)}/${encodeURIComponent(nodeId)}`;
+  if (DRIVES.has(d.profile)) {
+    for (const axis of d.axes || []) {
+      items.push(h('a', { href: `${path}/axes/${axis.axis}`, class: 'pill' }, `Drive axis ${axis.axis}`));
+    }
+  }
+  if (d.profile === 'uioled') items.push(h('a', { href: `${path}/leds`, class: 'pill' }, 'LEDs'));
+  items.push(h('a', { href: `${path}/pdos`, class: 'pill' }, 'PDOs'));
+  links.replaceChildren(...items);
+}
+
+let reading = false;
+let readAgain = false;
+
+/** Reads the node again; one read at a time, a read asked meanwhile runs after. */
+async function loadDetail() {
+  if (reading) {
+    readAgain = true;
+    return;
+  }
+  reading = true;
+  try {
+    const fresh = await api(base);
+    const first = !detail;
+    detail = fresh;
+    detailReadAt = Date.now();
+    showMessage(pageMessage, '');
+    body.hidden = false;
+    renderIdentity();
+    if (first) loadDictionary();
+  } catch (error) {
+    if (error.status === 404 || error.status === 400) {
+      // Unknown bus or node, or a path that names none: the page has
+      // nothing to show but why.
+      detail = null;
+      body.hidden = true;
+      title.textContent = error.code === 'unknown_bus' ? 'Unknown bus' : 'Unknown node';
+      links.replaceChildren(h('a', { href: '/', class: 'pill' }, 'Back to the overview'));
+      showMessage(pageMessage, error.message);
+    } else {
+      showMessage(pageMessage, `Node: ${error.message}`);
+    }
+  } finally {
+    reading = false;
+  }
+  if (readAgain) {
+    readAgain = false;
+    loadDetail();
+  }
+}
+
+setInterval(() => {
+  const el = document.getElementById('last-seen');
+  if (el) el.textContent = lastSeen();
+}, 1000);
+
+// ---- NMT -------------------------------------------------------------------
+
+function showNmtState() {
+  const { command, at } = pendingNmt;
+  // NMT commands are unconfirmed: the state is what the gateway heard
+  // from the node afterwards. A node with no heartbeat tells it only at
+  // its next boot-up, and the page says so rather than guess.
+  const silent = !detail.heartbeat_ms && command !== 'reset_node' && command !== 'reset_communication';
+  result(nmtResult, 'done', h('strong', {}, `${COMMANDS[command]} sent (${at}). `),
+    `NMT state the gateway knows: ${NMT[detail.nmt] || detail.nmt}${detail.online ? '' : ', offline'}.`,
+    silent ? h('div', { class: 'sub' }, 'This node sends no heartbeat (0x1017 is 0): the gateway learns its NMT state only from its next boot-up.') : null);
+}
+
+for (const button of document.querySelectorAll('#nmt-buttons button')) {
+  button.addEventListener('click', async () => {
+    const { command } = button.dataset;
+    if (button.dataset.confirm && !(await confirmAction(button.dataset.confirm, COMMANDS[command]))) return;
+    result(nmtResult, 'busy', `Sending ${COMMANDS[command]}…`);
+    const sent = await runAction(button, 'Sending…', () => api(`${base}/nmt`, { method: 'POST', body: { command } }));
+    if (!sent.ok) {
+      pendingNmt = null;
+      result(nmtResult, 'failed', h('strong', {}, `${COMMANDS[command]} failed: `), errorView(sent.error));
+      return;
+    }
+    pendingNmt = { command, at: clock() };
+    result(nmtResult, 'busy', h('strong', {}, `${COMMANDS[command]} sent (${pendingNmt.at}). `), 'Waiting for the node…');
+    // NMT is unconfirmed: the state shown is the one the gateway hears
+    // next (heartbeat, boot-up), read when the stream says it changed,
+    // and once more in case it did not change.
+    setTimeout(loadDetail, 1500);
+  });
+}
+
+// ---- store, restore, DCF ---------------------------------------------------
+
+const whatSelect = $('#config-what');
+const sourceSelect = $('#restore-source');
+
+$('#store').addEventListener('click', async (event) => {
+  const button = event.currentTarget;
+  const what = whatSelect.value;
+  if (!(await confirmAction(`Store ${what} parameters of node ${nodeId} in the device's memory? They replace what it saved before.`, 'Store'))) return;
+  result(configResult, 'busy', `Storing ${what} parameters…`);
+  const done = await runAction(button, 'Storing…', () => api(`${base}/store`, { method: 'POST', body: { what } }));
+  if (!done.ok) {
+    result(configResult, 'failed', h('strong', {}, `Store failed (${clock()}): `), errorView(done.error));
+    return;
+  }
+  const v = done.value;
+  result(configResult, 'done', h('strong', {}, `Stored ${v.what} parameters (${clock()}). `),
+    `The device accepted "${v.signature}" in ${v.index}:${v.sub}${v.name ? ` (${v.name})` : ''}.`);
+});
+
+$('#restore').addEventListener('click', async (event) => {
+  const button = event.currentTarget;
+  const what = whatSelect.value;
+  const source = sourceSelect.value;
+  const from = source === 'saved' ? 'the values last stored' : 'the factory defaults';
+  if (!(await confirmAction(`Restore ${what} parameters of node ${nodeId} from ${from}? The device takes them at its next reset.`, 'Restore'))) return;
+  result(configResult, 'busy', `Restoring ${what} parameters from ${from}…`);
+  const done = await runAction(button, 'Restoring…', () => api(`${base}/restore`, { method: 'POST', body: { what, source } }));
+  if (!done.ok) {
+    result(configResult, 'failed', h('strong', {}, `Restore failed (${clock()}): `), errorView(done.error));
+    return;
+  }
+  const v = done.value;
+  result(configResult, 'done', h('strong', {}, `Restore of ${v.what} parameters from ${from} accepted (${clock()}). `),
+    `The device took "${v.signature}" in ${v.index}:${v.sub}${v.name ? ` (${v.name})` : ''}; the values apply after a reset node.`);
+});
+
+/** fetch for the DCF endpoints (text, not JSON), errors as ApiError. */
+async function dcfRequest(method, text) {
+  const init = { method, headers: { accept: 'text/plain, application/json' } };
+  if (text !== undefined) {
+    init.headers['content-type'] = 'text/plain; charset=utf-8';
+    init.body = text;
+  }
+  let response;
+  try {
+    response = await fetch(`/api/v1${base}/config.dcf`, init);
+  } catch (err) {
+    throw new ApiError(`cannot reach the gateway (${method} config.dcf): ${err.message}`);
+  }
+  const answer = await response.text();
+  if (!response.ok) {
+    let data = null;
+    try { data = JSON.parse(answer); } catch { /* not JSON: the status says it */ }
+    throw new ApiError(describeError(response.status, data, `${method} config.dcf: HTTP ${response.status}`), {
+      status: response.status, code: data?.error?.code || `http_${response.status}`, body: data,
+    });
+  }
+  return { answer, response };
+}
+
+$('#dcf-download').addEventListener('click', async (event) => {
+  result(configResult, 'busy', 'Reading every parameter for the backup…');
+  const done = await runAction(event.currentTarget, 'Reading…', () => dcfRequest('GET'));
+  if (!done.ok) {
+    result(configResult, 'failed', h('strong', {}, `Backup failed (${clock()}): `), errorView(done.error));
+    return;
+  }
+  const { answer, response } = done.value;
+  const named = /filename="([^"]+)"/.exec(response.headers.get('content-disposition') || '');
+  const file = named ? named[1] : `node${nodeId}.dcf`;
+  const url = URL.createObjectURL(new Blob([answer], { type: 'text/plain' }));
+  const link = h('a', { href: url, download: file, id: 'dcf-link' }, `Save ${file} again`);
+  link.click();
+  const entries = (answer.match(/^ParameterValue=/gm) || []).length;
+  result(configResult, 'done', h('strong', {}, `Backup read (${clock()}): `),
+    `${entries} parameter values, ${answer.length.toLocaleString()} bytes, downloaded as ${file}. `, link);
+});
+
+const dcfFile = $('#dcf-file');
+const dcfRestore = $('#dcf-restore');
+dcfFile.addEventListener('change', () => { dcfRestore.disabled = !dcfFile.files.length; });
+
+dcfRestore.addEventListener('click', async () => {
+  const file = dcfFile.files[0];
+  if (!file) return;
+  if (!(await confirmAction(`Write every value of ${file.name} to node ${nodeId}?`, 'Restore DCF'))) return;
+  result(configResult, 'busy', `Writing ${file.name} to the device…`);
+  const done = await runAction(dcfRestore, 'Writing…', async () => JSON.parse((await dcfRequest('PUT', await file.text())).answer));
+  if (!done.ok) {
+    const line = done.error.body?.error?.line;
+    result(configResult, 'failed', h('strong', {}, `DCF restore failed (${clock()}): `), errorView(done.error),
+      line ? ` (line ${line})` : '', h('div', { class: 'sub' }, 'Nothing was written when the file was refused before the bus.'));
+    return;
+  }
+  const report = done.value;
+  const failed = report.entries.filter((e) => !e.ok);
+  const row = (e) => h('tr', { class: e.ok ? null : 'failed', dataset: { index: e.index, sub: e.sub } },
+    h('td', { 'data-label': 'Object' }, h('code', {}, `${e.index}:${e.sub}`)),
+    h('td', { 'data-label': 'Name' }, e.name),
+    h('td', { 'data-label': 'Result' }, e.ok ? 'written' : errorView(e.error || { message: 'failed' })));
+  const table = (list) => h('table', { class: 'grid dcf-report' },
+    h('thead', {}, h('tr', {}, h('th', {}, 'Object'), h('th', {}, 'Name'), h('th', {}, 'Result'))),
+    h('tbody', {}, list.map(row)));
+  result(configResult, failed.length ? 'failed' : 'done',
+    h('strong', {}, `DCF restore (${clock()}): ${report.written} written, ${report.failed} failed.`),
+    failed.length ? table(failed) : null,
+    h('details', {}, h('summary', {}, `Every entry (${report.entries.length})`), table(report.entries)));
+  loadDetail();
+});
+
+// ---- object dictionary -----------------------------------------------------
+
+const values = new Map(); // "0x1017:0" -> {value, raw, data_type, error, at}
+let dictionary = []; // the objects of the last search
+let searchController = null;
+
+const INT = /^([iu])(\d+)$/;
+const isInt = (type) => INT.test(type);
+const bitsOf = (type) => Number(INT.exec(type)?.[2] || 0);
+const readable = (access) => access !== 'wo';
+const writable = (access) => ['rw', 'wo', 'rwr', 'rww'].includes(access);
+
+/** An integer (number or decimal string) as two's-complement hex of its width. */
+function toHex(value, type) {
+  let big;
+  try { big = BigInt(value); } catch { return String(value); }
+  const bits = BigInt(bitsOf(type));
+  if (big < 0n) big += 1n << bits;
+  return `0x${big.toString(16).toUpperCase().padStart(Number(bits) / 4, '0')}`;
+}
+
+function showValue(value, type) {
+  if (value === null || value === undefined) return '—';
+  if (isInt(type) && hexToggle.checked) return toHex(value, type);
+  if (typeof value === 'string') return value;
+  return String(value);
+}
+
+function area(index) {
+  const axes = detail && DRIVES.has(detail.profile) ? (detail.axes || []).length : 0;
+  if (index < 0x1000) return { key: 0, title: 'Data types', range: [0x0001, 0x0fff] };
+  if (index < 0x2000) return { key: 1, title: 'Communication', range: [0x1000, 0x1fff] };
+  if (index < 0x6000) {
+    // The UMC's per-axis manufacturer areas: axis n at 0x4000 + 0x200 (n-1).
+    if (detail?.profile === 'umc' && index >= 0x4000) {
+      const axis = Math.floor((index - 0x4000) / 0x200) + 1;
+      if (axis <= axes) {
+        const from = 0x4000 + 0x200 * (axis - 1);
+        return { key: 20 + axis, title: `Manufacturer · axis ${axis}`, range: [from, from + 0x1ff] };
+      }
+    }
+    if (detail?.profile === 'umc') return { key: 2, title: 'Manufacturer · board', range: [0x2000, 0x3fff] };
+    return { key: 2, title: 'Manufacturer', range: [0x2000, 0x5fff] };
+  }
+  if (index < 0xa000) {
+    // CiA 402 multi-axis devices: axis n's profile objects at 0x6000 + 0x800 (n-1).
+    if (axes > 1 && index < 0x6000 + 0x800 * axes) {
+      const axis = Math.floor((index - 0x6000) / 0x800) + 1;
+      const from = 0x6000 + 0x800 * (axis - 1);
+      return { key: 40 + axis, title: `Device profile · axis ${axis}`, range: [from, from + 0x7ff] };
+    }
+    return { key: 40, title: 'Device profile', range: [0x6000, 0x9fff] };
+  }
+  return { key: 90, title: 'Other', range: [0xa000, 0xffff] };
+}
+
+async function loadDictionary() {
+  const q = search.value.trim();
+  searchController?.abort();
+  const controller = new AbortController();
+  searchController = controller;
+  odCount.textContent = q ? `Searching “${q}”…` : 'Loading…';
+  try {
+    dictionary = await api(`${base}/od${q ? `?q=${encodeURIComponent(q)}` : ''}`, { signal: controller.signal });
+  } catch (error) {
+    if (error.name === 'AbortError') return;
+    odCount.textContent = '';
+    odRoot.replaceChildren(h('p', { class: 'row-error' }, `Object dictionary: ${error.message}`));
+    return;
+  }
+  if (controller !== searchController) return;
+  renderDictionary(q);
+}
+
+function renderDictionary(q) {
+  const subs = dictionary.reduce((n, o) => n + o.subs.length, 0);
+  odCount.textContent = `${dictionary.length} objects, ${subs} entries${q ? ` matching “${q}”` : ''}`;
+  if (dictionary.length === 0) {
+    odRoot.replaceChildren(h('p', { class: 'placeholder' }, q ? `Nothing matches “${q}”.` : 'The node has no EDS: its dictionary is unknown.'));
+    return;
+  }
+  const groups = new Map();
+  for (const object of dictionary) {
+    const a = area(parseInt(object.index, 16));
+    if (!groups.has(a.key)) groups.set(a.key, { ...a, objects: [] });
+    groups.get(a.key).objects.push(object);
+  }
+  const open = dictionary.length <= 3; // a narrow search opens what it found
+  odRoot.replaceChildren(...[...groups.values()].sort((x, y) => x.key - y.key).map((g) => h('section', { class: 'od-area', dataset: { area: g.title } },
+    h('h3', {}, g.title, ' ', h('span', { class: 'sub' }, `${hex(g.range[0], 4)}–${hex(g.range[1], 4)} · ${g.objects.length} objects`)),
+    g.objects.map((object) => objectView(object, open)))));
+}
+
+function objectView(object, open) {
+  const details = h('details', { class: 'od-object', dataset: { index: object.index } },
+    h('summary', {},
+      h('code', { class: 'od-index' }, object.index),
+      h('span', { class: 'od-name' }, object.name),
+      h('span', { class: 'sub' }, `${object.object_type}${object.subs.length > 1 ? ` · ${object.subs.length} subs` : ''}`)));
+  let built = false;
+  const build = () => {
+    if (built || !details.open) return;
+    built = true;
+    details.append(objectBody(object));
+  };
+  details.addEventListener('toggle', build);
+  if (open) {
+    details.open = true;
+    build();
+  }
+  return details;
+}
+
+function objectBody(object) {
+  const rows = object.subs.map((sub) => subRow(object, sub));
+  const readList = object.subs.filter((s) => readable(s.access));
+  const status = h('span', { class: 'od-status', role: 'status' });
+  const readAll = h('button', { type: 'button', class: 'read-all' }, 'Read this object');
+  readAll.addEventListener('click', async () => {
+    status.dataset.state = 'busy';
+    status.textContent = `Reading ${readList.length} entries…`;
+    const done = await runAction(readAll, 'Reading…', () => api(`${base}/od/read`, {
+      method: 'POST', body: { entries: readList.map((s) => [object.index, s.sub]) },
+    }));
+    if (!done.ok) {
+      status.dataset.state = 'failed';
+      status.replaceChildren(errorView(done.error));
+      return;
+    }
+    const at = clock();
+    let failed = 0;
+    done.value.forEach((answer, i) => {
+      const key = `${object.index}:${readList[i].sub}`;
+      if (answer.error) {
+        failed += 1;
+        values.set(key, { error: answer.error, at });
+      } else {
+        values.set(key, { value: answer.value, raw: answer.raw, data_type: answer.data_type, at });
+      }
+      refreshRow(key);
+    });
+    status.dataset.state = failed ? 'failed' : 'done';
+    status.textContent = `Read ${readList.length - failed} of ${readList.length} (${at})`;
+  });
+  return h('div', { class: 'od-body' },
+    readList.length > 1 ? h('div', { class: 'od-actions' }, readAll, status) : null,
+    h('table', { class: 'grid od-subs' },
+      h('thead', {}, h('tr', {}, ['Sub', 'Name', 'Type', 'Access', 'Range', 'Value', ''].map((t) => h('th', {}, t)))),
+      h('tbody', {}, rows)));
+}
+
+const rowsByKey = new Map(); // key -> {render}
+
+function range(sub) {
+  const parts = [];
+  if (sub.low !== null && sub.low !== undefined) parts.push(`${sub.low} … ${sub.high ?? ''}`);
+  else if (sub.high !== null && sub.high !== undefined) parts.push(`… ${sub.high}`);
+  if (sub.default !== null && sub.default !== undefined) parts.push(`default ${sub.default}`);
+  return parts.join(' · ') || '—';
+}
+
+function inputFor(sub) {
+  const type = sub.data_type;
+  const label = `New value of ${sub.name}`;
+  if (type === 'bool') {
+    return h('select', { 'aria-label': label }, h('option', { value: 'true' }, 'true'), h('option', { value: 'false' }, 'false'));
+  }
+  if (isInt(type) && bitsOf(type) > 32) {
+    // 64-bit (and 40/48/56-bit) integers travel as decimal strings: a JS
+    // number would round them.
+    return h('input', { type: 'text', inputmode: 'numeric', pattern: type.startsWith('i') ? '-?[0-9]+' : '[0-9]+', 'aria-label': label, placeholder: 'integer' });
+  }
+  if (isInt(type)) {
+    const bits = bitsOf(type);
+    const min = sub.low ?? (type.startsWith('i') ? -(2 ** (bits - 1)) : 0);
+    const max = sub.high ?? (type.startsWith('i') ? 2 ** (bits - 1) - 1 : 2 ** bits - 1);
+    return h('input', { type: 'number', step: 1, min, max, 'aria-label': label, inputmode: 'numeric' });
+  }
+  if (type === 'r32' || type === 'r64') {
+    return h('input', { type: 'number', step: 'any', min: sub.low, max: sub.high, 'aria-label': label });
+  }
+  if (type === 'vs' || type === 'us') return h('input', { type: 'text', 'aria-label': label, placeholder: 'text' });
+  if (type === 'os') return h('input', { type: 'text', 'aria-label': label, placeholder: 'base64' });
+  return null; // domains and types the page cannot edit
+}
+
+/** The input's content as the JSON value to send, or throws a message. */
+function parseInput(input, type) {
+  const text = input.value.trim();
+  if (type === 'bool') return text === 'true';
+  if (type === 'vs' || type === 'us' || type === 'os') return input.value;
+  if (text === '') throw new Error('enter a value first');
+  if (isInt(type) && bitsOf(type) > 32) return text;
+  const number = Number(text);
+  if (!Number.isFinite(number)) throw new Error(`${text} is not a number`);
+  return number;
+}
+
+function subRow(object, sub) {
+  const key = `${object.index}:${sub.sub}`;
+  const valueCell = h('td', { 'data-label': 'Value', class: 'od-value' });
+  const actions = h('div', { class: 'od-acts' });
+  const input = writable(sub.access) ? inputFor(sub) : null;
+  let readButton = null;
+  let message = null; // a note about the last action, shown under the value
+
+  const render = () => {
+    const state = values.get(key);
+    const parts = [];
+    if (!state) parts.push(h('span', { class: 'sub' }, readable(sub.access) ? 'not read' : 'write only'));
+    else if (state.error) parts.push(h('div', { class: 'od-error' }, errorView(state.error)));
+    else {
+      parts.push(h('output', { class: 'value' }, showValue(state.value, state.data_type || sub.data_type)));
+      parts.push(h('div', { class: 'raw sub' }, `raw ${state.raw || '—'} · read ${state.at}`));
+    }
+    if (message) parts.push(message);
+    valueCell.replaceChildren(...parts);
+  };
+  rowsByKey.set(key, { render });
+
+  if (readable(sub.access)) {
+    readButton = h('button', { type: 'button', class: 'read' }, 'Read');
+    readButton.addEventListener('click', async () => {
+      message = null;
+      const done = await runAction(readButton, 'Reading…', () => api(`${base}/od/${object.index}/${sub.sub}`));
+      const at = clock();
+      if (done.ok) {
+        values.set(key, { value: done.value.value, raw: done.value.raw, data_type: done.value.data_type, at });
+        if (input && input.value === '' && input.tagName === 'INPUT') input.value = done.value.value;
+        if (input && input.tagName === 'SELECT') input.value = String(done.value.value);
+      } else values.set(key, { error: done.error.body?.error || { message: done.error.message }, at });
+      render();
+    });
+  }
+  const cells = [readButton];
+  if (input) {
+    const write = h('button', { type: 'submit', class: 'write' }, 'Write');
+    const form = h('form', { class: 'od-write', novalidate: true }, input, write);
+    form.addEventListener('submit', async (event) => {
+      event.preventDefault();
+      let value;
+      try {
+        value = parseInput(input, sub.data_type);
+      } catch (error) {
+        message = h('div', { class: 'od-error' }, error.message);
+        render();
+        return;
+      }
+      message = h('div', { class: 'sub' }, 'Writing…');
+      render();
+      const done = await runAction(write, 'Writing…', () => api(`${base}/od/${object.index}/${sub.sub}`, { method: 'PUT', body: { value } }));
+      const at = clock();
+      if (done.ok) {
+        // What the device holds now: the gateway's read-back, not the input.
+        values.set(key, { value: done.value.value, raw: done.value.raw, data_type: done.value.data_type, at });
+        message = h('div', { class: 'od-done' }, `Written (${at}); the value above is read back from the device.`);
+      } else {
+        message = h('div', { class: 'od-error' }, `Write failed (${at}): `, errorView(done.error));
+      }
+      render();
+    });
+    cells.push(form);
+  }
+  actions.append(...cells.filter(Boolean));
+  render();
+  return h('tr', { dataset: { key, sub: sub.sub } },
+    h('td', { 'data-label': 'Sub', class: 'num' }, String(sub.sub)),
+    h('td', { 'data-label': 'Name' }, sub.name, sub.pdo_mappable ? h('span', { class: 'tag', title: 'PDO mappable' }, 'PDO') : null),
+    h('td', { 'data-label': 'Type' }, h('code', {}, sub.data_type)),
+    h('td', { 'data-label': 'Access' }, sub.access),
+    h('td', { 'data-label': 'Range', class: 'sub' }, range(sub)),
+    valueCell,
+    h('td', { 'data-label': '', class: 'od-actions-cell' }, actions));
+}
+
+function refreshRow(key) {
+  rowsByKey.get(key)?.render();
+}
+
+let searchTimer = null;
+search.addEventListener('input', () => {
+  clearTimeout(searchTimer);
+  searchTimer = setTimeout(loadDictionary, 300);
+});
+hexToggle.addEventListener('change', () => {
+  for (const row of rowsByKey.values()) row.render();
+});
+
+// ---- live ------------------------------------------------------------------
+
+const mine = (data) => data && data.bus === bus && String(data.node) === nodeId;
+
+stream.subscribe(['nodes'], (data, message) => {
+  if (message.lagged || mine(data)) loadDetail();
+});
+stream.subscribe(['emcy'], (data, message) => {
+  if (message.lagged || mine(data)) loadDetail();
+});
+
+stream.onState(({ state, reconnected }) => {
+  // Whatever happened while the page was away is read again.
+  if (state === 'connected' && reconnected) loadDetail();
+});
+
+stream.connect();
+loadDetail();
