@@ -16,12 +16,17 @@
 //!
 //! # Layout
 //!
-//! - [`router`]: `/` (the overview) and `/static/{version}/{*path}`;
-//!   neither is under `/api/v1` nor in the OpenAPI document.
+//! - [`router`]: `/` (the overview), `/nodes/{bus}/{node}/leds` (an LED
+//!   controller's segments and live strip), `/buses/{bus}/trace` (a bus's
+//!   live frames, decoded, and its recording) and
+//!   `/static/{version}/{*path}`; none is under `/api/v1` nor in the
+//!   OpenAPI document.
 //! - [`ASSETS`]: the static files, embedded with `include_bytes!`, and
 //!   [`asset`] to look one up; [`static_version`] is the prefix's version.
 //! - `OverviewPage`: the overview's template (`web/templates/overview.html`,
-//!   which extends `base.html`: navigation and the connection indicator).
+//!   which extends `base.html`: navigation and the connection indicator);
+//!   `LedsPage` and `TracePage` the LED and trace pages', which carry the
+//!   bus and node of their path in data attributes for their modules.
 
 use std::sync::LazyLock;
 
@@ -62,11 +67,16 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/leds.css", CSS),
+    asset!("css/trace.css", CSS),
     asset!("js/api.js", JS),
+    asset!("js/canopen.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/layout.js", JS),
+    asset!("js/leds.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/stream.js", JS),
+    asset!("js/trace.js", JS),
     asset!("icon.svg", SVG),
 ];
 
@@ -107,6 +117,8 @@ fn etag(asset: &Asset) -> String {
 pub fn router() -> Router {
     Router::new()
         .route("/", get(overview))
+        .route("/nodes/{bus}/{node}/leds", get(leds))
+        .route("/buses/{bus}/trace", get(trace))
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -137,6 +149,25 @@ struct OverviewPage {
     layout: Layout,
 }
 
+/// An LED controller's page: its segments' editors and the live strip.
+#[derive(Template)]
+#[template(path = "leds.html")]
+struct LedsPage {
+    layout: Layout,
+    bus: String,
+    node: u8,
+    /// The node's page, `/nodes/{bus}/{node}`.
+    node_href: String,
+}
+
+/// A bus's trace: its live frames decoded, filters, and its recording.
+#[derive(Template)]
+#[template(path = "trace.html")]
+struct TracePage {
+    layout: Layout,
+    bus: String,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -159,6 +190,47 @@ fn page(template: &impl Template) -> Response {
 async fn overview() -> Response {
     page(&OverviewPage {
         layout: Layout::new("overview"),
+    })
+}
+
+/// `text` as one segment of a URL path: every byte but the unreserved
+/// ones (RFC 3986 section 2.3) percent-encoded, so that a bus named
+/// `a/b` or `a?b` links back to itself.
+fn path_segment(text: &str) -> String {
+    use std::fmt::Write;
+    text.bytes().fold(String::new(), |mut out, byte| {
+        if byte.is_ascii_alphanumeric() || b"-._~".contains(&byte) {
+            out.push(char::from(byte));
+        } else {
+            let _ = write!(out, "%{byte:02X}");
+        }
+        out
+    })
+}
+
+/// The node id of a page's path: 1 to 127 (CiA 301), else the page does
+/// not exist. Whether the bus and node are known is the API's to say: the
+/// page asks it and shows its answer.
+fn node_id(text: &str) -> Option<u8> {
+    text.parse::<u8>().ok().filter(|id| (1..=127).contains(id))
+}
+
+async fn leds(Path((bus, node)): Path<(String, String)>) -> Response {
+    match node_id(&node) {
+        Some(node) => page(&LedsPage {
+            layout: Layout::new("leds"),
+            node_href: format!("/nodes/{}/{node}", path_segment(&bus)),
+            bus,
+            node,
+        }),
+        None => AppError::NoRoute(format!("/nodes/{bus}/{node}/leds")).into_response(),
+    }
+}
+
+async fn trace(Path(bus): Path<String>) -> Response {
+    page(&TracePage {
+        layout: Layout::new("trace"),
+        bus,
     })
 }
 
