@@ -100,6 +100,7 @@ function drawPreview(preview) {
 
 let previewCount = 0;
 let previewRateFrom = performance.now();
+let previewRate = null;
 
 stream.subscribe([topic], (data, message) => {
   if (!data) return;
@@ -110,13 +111,14 @@ stream.subscribe([topic], (data, message) => {
     stripStatus.dataset.state = 'warn';
   } else {
     const now = performance.now();
-    if (now - previewRateFrom >= 1000 || stripStatus.dataset.state !== 'live') {
-      const rate = (previewCount * 1000) / Math.max(1, now - previewRateFrom);
-      stripStatus.textContent = `Live · ${data.led_count} LEDs · ${rate.toFixed(0)} frames/s`;
-      stripStatus.dataset.state = 'live';
+    if (now - previewRateFrom >= 1000) {
+      previewRate = (previewCount * 1000) / (now - previewRateFrom);
       previewCount = 0;
       previewRateFrom = now;
     }
+    const rate = previewRate === null ? '' : ` · ${previewRate.toFixed(0)} frames/s`;
+    stripStatus.textContent = `Live · ${data.led_count} LEDs${rate}`;
+    stripStatus.dataset.state = 'live';
   }
   requestAnimationFrame(() => drawPreview(lastPreview));
   noticeChanges(data);

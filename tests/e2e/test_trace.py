@@ -1,0 +1,322 @@
+"""The bus trace page in headless Chromium against `candeck serve` on the
+demo bus: live frames decoded (heartbeats, SDO, NMT), filters, pause, the
+recording and its candump log; the frame decoder itself against known
+frames; the overview's link; both new pages' weight."""
+
+import re
+import time
+import urllib.request
+
+PAGE = "/buses/demo/trace"
+CANDUMP_LINE = re.compile(r"^\(\d+\.\d{6}\) demo [0-9A-F]{3}#([0-9A-F]{2})*$")
+
+
+def open_trace(browser, server):
+    browser.driver.get(server.url + PAGE)
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
+    browser.wait(lambda _: browser.js("return document.getElementById('recording-state').dataset.state") == "none",
+                 message="the recording state was not read")
+
+
+def rows(browser, where=""):
+    """The table's frame rows: [{service, node, id, cells...}]."""
+    return browser.js(
+        """
+        const out = [];
+        for (const tr of document.querySelectorAll('#trace tbody tr[data-service]' + arguments[0])) {
+          const c = tr.cells;
+          out.push({service: tr.dataset.service, node: tr.dataset.node ?? null, id: Number(tr.dataset.id),
+                    dir: c[1].textContent, cob: c[2].textContent, label: c[4].textContent,
+                    detail: c[5].textContent, dlc: c[6].textContent, data: c[7].textContent});
+        }
+        return out;
+        """,
+        where,
+    )
+
+
+def heartbeat_every_500ms(server, node):
+    server.request("PUT", f"/api/v1/buses/demo/nodes/{node}/od/0x1017/0", {"value": 500})
+
+
+def test_frames_appear_decoded(server, browser):
+    open_trace(browser, server)
+    # Nodes 1 and 3 send no heartbeat by default: an SDO download through
+    # REST turns it on, and the trace shows the SDO too.
+    heartbeat_every_500ms(server, 1)
+    heartbeat_every_500ms(server, 3)
+
+    def heartbeats(_):
+        found = {r["node"] for r in rows(browser, '[data-service="heartbeat"]')}
+        return found >= {"1", "2", "3"}
+
+    browser.wait(heartbeats, message=f"no heartbeat of nodes 1-3: {rows(browser)[-20:]}")
+    beat = rows(browser, '[data-service="heartbeat"][data-node="3"]')[-1]
+    nmt = server.get("/api/v1/buses/demo/nodes/3")["nmt"].replace("_", "-")
+    assert (beat["cob"], beat["label"], beat["dir"], beat["dlc"]) == ("703", "Heartbeat", "rx", "1"), beat
+    assert beat["detail"] == nmt, (beat, nmt)
+
+    sdo = rows(browser, '[data-service="sdo"][data-node="3"]')
+    at = next((i for i, r in enumerate(sdo) if r["detail"] == "download 0x1017/0 = F4 01"), None)
+    assert at is not None and at + 1 < len(sdo), sdo
+    assert {"cob": "603", "label": "SDO request", "dir": "tx", "dlc": "8"}.items() <= sdo[at].items(), sdo
+    assert {"cob": "583", "label": "SDO response", "detail": "download 0x1017/0 done", "dir": "rx"}.items() \
+        <= sdo[at + 1].items(), sdo
+
+    # An upload: the answer's bytes are what REST returned as raw.
+    read = server.get("/api/v1/buses/demo/nodes/1/od/0x1018/1")
+    raw = " ".join(re.findall("..", read["raw"].upper()))
+
+    def upload(_):
+        found = [r for r in rows(browser, '[data-service="sdo"][data-node="1"]') if "0x1018/1" in r["detail"]]
+        return found if len(found) >= 2 else None
+
+    request, response = browser.wait(upload, message="the upload of 0x1018/1 did not show")[-2:]
+    assert request["detail"] == "upload 0x1018/1", request
+    assert response["detail"] == f"upload 0x1018/1 = {raw}", (response, read)
+
+    # An NMT command through REST.
+    server.post("/api/v1/buses/demo/nodes/3/nmt", {"command": "start"})
+    nmt_row = browser.wait(lambda _: rows(browser, '[data-service="nmt"]'), message="the NMT command did not show")[-1]
+    assert (nmt_row["cob"], nmt_row["label"], nmt_row["detail"], nmt_row["data"], nmt_row["dir"]) == \
+        ("000", "NMT", "start node 3", "01 03", "tx"), nmt_row
+    browser.wait(lambda _: any(r["detail"] == "operational" for r in rows(browser, '[data-service="heartbeat"][data-node="3"]')),
+                 message="node 3's heartbeat did not say operational")
+    counts = browser.js("return document.getElementById('counts').dataset")
+    assert int(counts["received"]) >= len(rows(browser)) and counts["lost"] == "0", counts
+    browser.check()
+
+
+def test_filters_narrow_the_rows_and_pause_stops_them(server, browser):
+    open_trace(browser, server)
+    heartbeat_every_500ms(server, 1)
+    heartbeat_every_500ms(server, 3)
+    browser.wait(lambda _: {r["node"] for r in rows(browser, '[data-service="heartbeat"]')} >= {"1", "2", "3"},
+                 message="no heartbeats")
+    assert rows(browser, '[data-service="sdo"]'), "the SDO downloads are not in the table"
+
+    # By node.
+    browser.driver.find_element("id", "filter-nodes").send_keys("2")
+    browser.wait(lambda _: rows(browser) and all(r["node"] == "2" for r in rows(browser)),
+                 message=f"the node filter did not narrow the rows: {rows(browser)[-5:]}")
+    browser.driver.find_element("id", "filter-nodes").clear()
+    # By COB-ID range: heartbeats of nodes 1 and 2 only.
+    browser.driver.find_element("id", "filter-ids").send_keys("701-702")
+    browser.wait(lambda _: rows(browser) and {r["cob"] for r in rows(browser)} == {"701", "702"},
+                 message=f"the id filter did not narrow the rows: {rows(browser)[-5:]}")
+    # An id the filter cannot read is said, and the table stays as it was.
+    browser.driver.find_element("id", "filter-ids").send_keys(",xyz")
+    browser.wait(lambda _: "'xyz' is no hex CAN identifier" in browser.js("return document.getElementById('filter-error').textContent"),
+                 message="no filter error shown")
+    assert {r["cob"] for r in rows(browser)} == {"701", "702"}
+    browser.driver.find_element("id", "filter-ids").clear()
+    # By service: heartbeats off leaves the SDO frames.
+    browser.driver.find_element("css selector", "input[name=service][value=heartbeat]").click()
+    browser.wait(lambda _: rows(browser) and all(r["service"] != "heartbeat" for r in rows(browser)),
+                 message=f"the service filter did not narrow the rows: {rows(browser)[-5:]}")
+    assert any(r["service"] == "sdo" for r in rows(browser))
+    browser.driver.find_element("css selector", "input[name=service][value=heartbeat]").click()
+    browser.wait(lambda _: rows(browser, '[data-service="heartbeat"]'), message="heartbeats did not come back")
+
+    # Pause: the rows stay as they are while frames are counted.
+    browser.driver.find_element("id", "pause").click()
+    assert browser.driver.find_element("id", "pause").get_attribute("aria-pressed") == "true"
+    time.sleep(0.3)  # what was on its way to the screen
+    before = len(rows(browser))
+    browser.wait(lambda _: int(browser.js("return document.getElementById('counts').dataset.paused")) >= 3,
+                 message="no frame counted while paused")
+    assert len(rows(browser)) == before
+    assert "while paused" in browser.driver.find_element("id", "counts").text
+    browser.driver.find_element("id", "pause").click()
+    browser.wait(lambda _: len(rows(browser)) > before, message="the rows did not resume")
+
+    # Clear empties the table.
+    browser.driver.find_element("id", "clear").click()
+    assert browser.js("return document.querySelectorAll('#trace tbody tr').length") <= 3
+    browser.check()
+
+
+def test_recording_start_stop_and_download(server, browser):
+    open_trace(browser, server)
+    heartbeat_every_500ms(server, 3)
+    button = browser.driver.find_element("id", "record")
+    state = browser.driver.find_element("id", "recording-state")
+    assert state.text == "Not recorded since the gateway started."
+    assert not browser.driver.find_element("id", "download").is_displayed()
+    button.click()
+    browser.wait(lambda _: state.get_attribute("data-state") == "recording", message="the recording did not start")
+    assert button.text == "Stop recording"
+    assert server.get("/api/v1/buses/demo/recording")["state"] == "recording"
+    browser.wait(lambda _: re.match(r"Recording · ([1-9]\d*) frames", state.text), timeout=10,
+                 message=f"the recording counted no frame: {state.text}")
+    server.get("/api/v1/buses/demo/nodes/3/od/0x1018/1")  # an SDO transfer in the log
+
+    button.click()
+    browser.wait(lambda _: state.get_attribute("data-state") == "stopped", message="the recording did not stop")
+    status = server.get("/api/v1/buses/demo/recording")
+    assert status["state"] == "stopped" and status["stop_reason"] == "asked", status
+    assert state.text.startswith(f"Stopped · {status['frames']:,} frames · "), (state.text, status)
+    assert button.text == "Record"
+
+    link = browser.driver.find_element("id", "download")
+    assert link.is_displayed()
+    href = link.get_attribute("href")
+    assert href == server.url + status["download"], href
+    with urllib.request.urlopen(href, timeout=10) as response:
+        log = response.read().decode()
+    lines = log.splitlines()
+    assert len(lines) == status["frames"] and lines, (len(lines), status)
+    bad = [line for line in lines if not CANDUMP_LINE.match(line)]
+    assert not bad, bad[:5]
+    assert any(" demo 603#4018100100000000" in line for line in lines), "the SDO upload is not in the log"
+    assert any(" demo 703#" in line for line in lines), "no heartbeat of node 3 in the log"
+    browser.check()
+
+
+# Frames as the API gives them, and what the decoder must make of them.
+DECODER_CASES = [
+    ({"id": "0x000", "data": "0103"}, ("nmt", "NMT", None, "start node 3", False)),
+    ({"id": "0x000", "data": "8100"}, ("nmt", "NMT", None, "reset node all nodes", False)),
+    ({"id": "0x000", "data": "8205"}, ("nmt", "NMT", None, "reset communication node 5", False)),
+    ({"id": "0x000", "data": "01"}, ("nmt", "NMT", None, "malformed: 1 data bytes, an NMT command has 2", True)),
+    ({"id": "0x080", "data": ""}, ("sync", "SYNC", None, "", False)),
+    ({"id": "0x080", "data": "05"}, ("sync", "SYNC", None, "counter 5", False)),
+    ({"id": "0x080", "data": "0102"}, ("sync", "SYNC", None, "malformed: 2 data bytes, a SYNC has 0 or 1", True)),
+    ({"id": "0x701", "data": "05"}, ("heartbeat", "Heartbeat", 1, "operational", False)),
+    ({"id": "0x77F", "data": "7F"}, ("heartbeat", "Heartbeat", 127, "pre-operational", False)),
+    ({"id": "0x702", "data": "04"}, ("heartbeat", "Heartbeat", 2, "stopped", False)),
+    ({"id": "0x703", "data": "00"}, ("heartbeat", "Boot-up", 3, "boot-up", False)),
+    ({"id": "0x703", "data": "85"}, ("heartbeat", "Guarding", 3, "operational, toggle 1", False)),
+    ({"id": "0x703", "data": "", "rtr": True, "dlc": 1}, ("heartbeat", "Guarding", 3, "node guarding request", False)),
+    ({"id": "0x703", "data": "0500"}, ("heartbeat", "Heartbeat", 3, "malformed: 2 data bytes, a heartbeat has 1", True)),
+    ({"id": "0x703", "data": "33"}, ("heartbeat", "Heartbeat", 3, "state 0x33", True)),
+    ({"id": "0x081", "data": "1043080000000000"}, ("emcy", "EMCY", 1, "0x4310, register 0x08", False)),
+    ({"id": "0x081", "data": "0000000000000000"}, ("emcy", "EMCY", 1, "error reset, register 0x00", False)),
+    ({"id": "0x082", "data": "10430800"}, ("emcy", "EMCY", 2, "malformed: 4 data bytes, an EMCY has 8", True)),
+    ({"id": "0x181", "data": "3702"}, ("pdo", "TPDO1", 1, "2 bytes", False)),
+    ({"id": "0x4A3", "data": "0102030405060708"}, ("pdo", "TPDO4", 35, "8 bytes", False)),
+    ({"id": "0x203", "data": ""}, ("pdo", "RPDO1", 3, "no data", False)),
+    ({"id": "0x603", "data": "4017100000000000"}, ("sdo", "SDO request", 3, "upload 0x1017/0", False)),
+    ({"id": "0x583", "data": "4B171000E8030000"}, ("sdo", "SDO response", 3, "upload 0x1017/0 = E8 03", False)),
+    ({"id": "0x583", "data": "4F30690100000000"}, ("sdo", "SDO response", 3, "upload 0x6930/1 = 00", False)),
+    ({"id": "0x603", "data": "2B171000C8000000"}, ("sdo", "SDO request", 3, "download 0x1017/0 = C8 00", False)),
+    ({"id": "0x583", "data": "6017100000000000"}, ("sdo", "SDO response", 3, "download 0x1017/0 done", False)),
+    ({"id": "0x583", "data": "4108100014000000"}, ("sdo", "SDO response", 3, "upload 0x1008/0, segmented, 20 bytes", False)),
+    ({"id": "0x603", "data": "6000000000000000"}, ("sdo", "SDO request", 3, "upload segment t=0", False)),
+    ({"id": "0x583", "data": "1961626300000000"}, ("sdo", "SDO response", 3, "upload segment t=1, 3 bytes, last", False)),
+    ({"id": "0x583", "data": "8000200000000206"},
+     ("sdo", "SDO response", 3, "abort 0x2000/0: 0x06020000 object does not exist", False)),
+    ({"id": "0x603", "data": "8017100000000405"},
+     ("sdo", "SDO request", 3, "abort 0x1017/0: 0x05040000 SDO protocol timed out", False)),
+    ({"id": "0x603", "data": "401710"}, ("sdo", "SDO request", 3, "malformed: 3 data bytes, an SDO frame has 8", True)),
+    ({"id": "0x583", "data": ""}, ("sdo", "SDO response", 3, "malformed: 0 data bytes, an SDO frame has 8", True)),
+    ({"id": "0x603", "data": "E000000000000000"}, ("sdo", "SDO request", 3, "unknown command specifier 7", True)),
+    ({"id": "0x7E5", "data": "0401000000000000"}, ("lss", "LSS request", None, "switch state global configuration", False)),
+    ({"id": "0x7E4", "data": "5E05000000000000"}, ("lss", "LSS response", None, "inquire node-ID = 5", False)),
+    ({"id": "0x100", "data": "E8030000010000"[:12]}, ("time", "TIME", None, "1984-01-02 00:00:01.000 UTC", False)),
+    ({"id": "0x18FF0001", "extended": True, "data": "00"}, ("other", "Extended", None, "29-bit identifier: not CANopen", False)),
+    ({"id": "0x180", "data": "00"}, ("other", "Other", None, "", False)),
+]
+
+# A block download of 10 bytes to node 3, frame by frame (CiA 301
+# 7.2.4.3.9-16): its segments carry sequence numbers, not commands.
+BLOCK_DOWNLOAD = [
+    ("0x603", "C60020000A000000", "block download 0x2000/0, 10 bytes", None),
+    ("0x583", "A40020007F000000", "block download 0x2000/0 ready, 127 segments per block", None),
+    ("0x603", "0101020304050607", "block segment 1: 01 02 03 04 05 06 07", None),
+    ("0x603", "8208090A00000000", "block segment 2, last: 08 09 0A 00 00 00 00", None),
+    ("0x583", "A2027F0000000000", "block download ack 2, next 127 segments", None),
+    ("0x603", "D5ABCD0000000000", "block download end, 2 bytes in the last segment", None),
+    ("0x583", "A100000000000000", "block download end done", None),
+    # After the transfer, a frame starting 0x01 is a command again.
+    ("0x603", "0101020304050607", "download segment t=0, 7 bytes, last", None),
+]
+
+
+def load_decoder(browser):
+    """Imports web/static/js/canopen.js into the page as window.canopen."""
+    browser.driver.set_script_timeout(10)
+    return browser.driver.execute_async_script(
+        """
+        const done = arguments[arguments.length - 1];
+        const src = document.querySelector('script[type=module]').src.replace(/trace\\.js$/, 'canopen.js');
+        import(src).then((m) => { window.canopen = m; done(true); }, (e) => done(String(e)));
+        """
+    )
+
+
+def test_the_decoder_reads_known_frames_byte_exactly(server, browser):
+    open_trace(browser, server)
+    assert load_decoder(browser) is True
+    for frame, (service, label, node, detail, malformed) in DECODER_CASES:
+        full = {"extended": False, "rtr": False, "error": False, "dlc": len(frame["data"]) // 2, **frame}
+        got = browser.js("return window.canopen.decodeFrame(arguments[0])", full)
+        assert got == {"service": service, "label": label, "node": node, "detail": detail, "malformed": malformed}, (frame, got)
+
+    block = browser.js(
+        """const tracker = window.canopen.sdoBlockTracker();
+           return arguments[0].map(([id, data]) => window.canopen.decodeFrame(
+             {id, data, dlc: data.length / 2, extended: false, rtr: false, error: false}, tracker).detail);""",
+        [[i, d] for i, d, _, _ in BLOCK_DOWNLOAD],
+    )
+    assert block == [e for _, _, e, _ in BLOCK_DOWNLOAD]
+
+    ranges = browser.js("return window.canopen.parseIdList('181, 0x700-0x77F 601h')")
+    assert ranges == [[0x181, 0x181], [0x700, 0x77F], [0x601, 0x601]]
+    errors = browser.js(
+        """return ['1-', 'zz', '77F-700', '20000000'].map((t) => {
+             try { window.canopen.parseIdList(t); return null; } catch (e) { return e.message; } });"""
+    )
+    assert all(errors), errors
+    assert browser.js("return window.canopen.parseNodeList('1, 3-5')") == [[1, 1], [3, 5]]
+    assert browser.js("try { window.canopen.parseNodeList('128'); return null; } catch (e) { return e.message; }") \
+        == "'128' is no node id (1 to 127)"
+    browser.check()
+
+
+def test_the_overview_links_each_bus_to_its_trace(server, browser):
+    browser.driver.get(server.url + "/")
+    link = browser.wait(lambda d: d.find_elements("css selector", '#buses tr[data-bus="demo"] a'),
+                        message="no bus row")[0]
+    assert link.get_attribute("href") == server.url + PAGE
+    link.click()
+    browser.wait(lambda _: browser.js("return document.title") == "Trace · demo · candeck", message="no trace page")
+    browser.check()
+
+
+def test_trace_phone_width(server, browser):
+    browser.driver.execute_cdp_cmd(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
+    )
+    open_trace(browser, server)
+    browser.wait(lambda _: rows(browser), message="no frame")
+    layout = browser.js("return {scroll: document.documentElement.scrollWidth, width: window.innerWidth};")
+    assert layout["scroll"] <= layout["width"], f"the page scrolls sideways: {layout}"
+    browser.check()
+
+
+def test_the_trace_and_led_pages_weigh_under_300_kb(server, browser):
+    for path, module in ((PAGE, "trace.js"), ("/nodes/demo/3/leds", "leds.js")):
+        browser.driver.get(server.url + path)
+        browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                     message="the stream did not connect")
+        files = browser.js(
+            """
+            const nav = performance.getEntriesByType('navigation')[0];
+            const files = [{url: nav.name, bytes: nav.decodedBodySize}];
+            for (const r of performance.getEntriesByType('resource')) {
+              const url = new URL(r.name);
+              if (url.origin === location.origin && !url.pathname.startsWith('/api/') && !url.pathname.endsWith('.svg')) {
+                files.push({url: url.pathname, bytes: r.decodedBodySize});
+              }
+            }
+            return files;
+            """
+        )
+        assert any(f["url"].endswith(module) for f in files), files
+        total = sum(f["bytes"] for f in files)
+        assert 0 < total < 300 * 1024, f"{path} weighs {total} bytes: {files}"
+        print(f"{path}: {total} bytes of HTML, CSS and JS")
+    browser.check()
