@@ -12,9 +12,7 @@
 import { api, runAction } from './api.js';
 import { $, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
-import {
-  SERVICES, SERVICE_NAMES, decodeFrame, idOf, inRanges, parseIdList, parseNodeList, sdoBlockTracker,
-} from './canopen.js';
+import { SERVICES, SERVICE_NAMES, decodeFrame, idOf, inRanges, parseIdList, parseNodeList, sdoBlockTracker } from './canopen.js';
 
 /** Rows the table shows at most (the newest). */
 const MAX_ROWS = 2000;
