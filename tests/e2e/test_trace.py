@@ -3,9 +3,13 @@ demo bus: live frames decoded (heartbeats, SDO, NMT), filters, pause, the
 recording and its candump log; the frame decoder itself against known
 frames; the overview's link; both new pages' weight."""
 
+import json
+import os
 import re
 import time
 import urllib.request
+
+from conftest import SHOTS
 
 PAGE = "/buses/demo/trace"
 CANDUMP_LINE = re.compile(r"^\(\d+\.\d{6}\) demo [0-9A-F]{3}#([0-9A-F]{2})*$")
@@ -110,7 +114,11 @@ def test_filters_narrow_the_rows_and_pause_stops_them(server, browser):
     browser.wait(lambda _: "'xyz' is no hex CAN identifier" in browser.js("return document.getElementById('filter-error').textContent"),
                  message="no filter error shown")
     assert {r["cob"] for r in rows(browser)} == {"701", "702"}
+    # A few exact ids are filtered by the gateway too (`?ids=`).
+    assert browser.js("return document.getElementById('counts').dataset.topic") == "buses/demo/frames?ids=0x701,0x702"
     browser.driver.find_element("id", "filter-ids").clear()
+    browser.wait(lambda _: browser.js("return document.getElementById('counts').dataset.topic") == "buses/demo/frames",
+                 message="the page did not subscribe to every frame again")
     # By service: heartbeats off leaves the SDO frames.
     browser.driver.find_element("css selector", "input[name=service][value=heartbeat]").click()
     browser.wait(lambda _: rows(browser) and all(r["service"] != "heartbeat" for r in rows(browser)),
@@ -319,4 +327,65 @@ def test_the_trace_and_led_pages_weigh_under_300_kb(server, browser):
         total = sum(f["bytes"] for f in files)
         assert 0 < total < 300 * 1024, f"{path} weighs {total} bytes: {files}"
         print(f"{path}: {total} bytes of HTML, CSS and JS")
+    browser.check()
+
+
+def test_a_busy_bus_keeps_the_table_bounded_and_the_page_responsive(server, browser):
+    """The gateway's SYNC producer at 1 ms: about 1000 frames a second more
+    (and the TPDOs the nodes send on SYNC once operational). The page keeps
+    at most 2000 rows, counts every frame, and keeps drawing; the longest
+    gap between animation frames is recorded, not asserted (it depends on
+    this machine)."""
+    open_trace(browser, server)
+    server.post("/api/v1/buses/demo/nmt", {"command": "start"})
+    browser.js(
+        """
+        window.gaps = {max: 0, frames: 0};
+        let last = performance.now();
+        const tick = (now) => {
+          window.gaps.max = Math.max(window.gaps.max, now - last);
+          window.gaps.frames += 1;
+          last = now;
+          requestAnimationFrame(tick);
+        };
+        requestAnimationFrame(tick);
+        """
+    )
+    page_count = "const d = document.getElementById('counts').dataset; return Number(d.received) + Number(d.lost)"
+    time.sleep(0.3)  # the frames of the NMT start on their way to the page
+    before = server.get("/api/v1/buses")[0]
+    base = browser.js(page_count)
+    server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 1})
+    start = time.monotonic()
+    browser.wait(lambda _: int(browser.js("return document.getElementById('counts').dataset.received")) >= 4000,
+                 timeout=30, message="the page did not receive 4000 frames")
+    server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 0})
+    seconds = time.monotonic() - start
+
+    # The page catches up with every frame the gateway had seen when the
+    # SYNCs stopped.
+    stopped = time.monotonic()
+    at_stop = server.get("/api/v1/buses")[0]
+    seen = at_stop["rx_frames"] + at_stop["tx_frames"] - before["rx_frames"] - before["tx_frames"]
+    browser.wait(lambda _: browser.js(page_count) - base >= seen,
+        timeout=60, message=f"the page did not catch up with the {seen} frames of the bus")
+    caught_up = time.monotonic() - stopped
+    time.sleep(0.3)
+    after = server.get("/api/v1/buses")[0]
+    counts = browser.js("return document.getElementById('counts').dataset")
+    shown = browser.js("return document.querySelectorAll('#trace tbody tr').length")
+    assert 0 < shown <= 2000, shown
+    services = browser.js("return [...document.querySelectorAll('#trace tbody tr[data-service]')].map((tr) => tr.dataset.service)")
+    assert services.count("sync") > 100 and services.count("pdo") > 100, {s: services.count(s) for s in set(services)}
+    on_bus = after["rx_frames"] + after["tx_frames"] - before["rx_frames"] - before["tx_frames"]
+    received, lost = int(counts["received"]), int(counts["lost"])
+    # Every frame once (but a heartbeat or two on their way either side).
+    assert abs(received + lost - base - on_bus) <= 10, (received, lost, base, on_bus)
+    gaps = browser.js("return window.gaps")
+    metrics = {"frames_on_bus": on_bus, "received": received, "lost": lost, "seconds": round(seconds, 2),
+               "rows": shown, "caught_up_after_s": round(caught_up, 2), "animation_frames": gaps["frames"], "longest_frame_gap_ms": round(gaps["max"], 1)}
+    os.makedirs(SHOTS, exist_ok=True)
+    with open(os.path.join(SHOTS, "trace-metrics.json"), "w", encoding="utf-8") as f:
+        json.dump(metrics, f, indent=1)
+    print(f"trace under load: {metrics}")
     browser.check()

@@ -23,7 +23,6 @@ const RECORDING_POLL_MS = 1000;
 const pageEl = $('#trace-page');
 const bus = pageEl.dataset.bus;
 const busPath = `/buses/${encodeURIComponent(bus)}`;
-const topic = `buses/${bus}/frames`;
 
 const pageMessage = $('#page-message');
 const tbody = $('#trace tbody');
@@ -162,6 +161,7 @@ function showCounts() {
   const parts = [`${counts.shown.toLocaleString()} shown`, `${counts.received.toLocaleString()} received`];
   if (paused || counts.paused) parts.push(`${counts.paused.toLocaleString()} while paused`);
   if (counts.lost) parts.push(`${counts.lost.toLocaleString()} lost by the stream`);
+  if (topic && topic.includes('?ids=')) parts.push('COB-IDs filtered by the gateway');
   countsEl.textContent = parts.join(' · ');
   countsEl.dataset.received = counts.received;
   countsEl.dataset.paused = counts.paused;
@@ -170,7 +170,7 @@ function showCounts() {
 
 // ---- the stream ----------------------------------------------------------
 
-stream.subscribe([topic], (data, message) => {
+function receive(data, message) {
   if (message.lagged) {
     // The page fell behind the bus: the server dropped these (never silently).
     counts.lost += message.lagged;
@@ -186,7 +186,34 @@ stream.subscribe([topic], (data, message) => {
     else keep(entry);
   }
   if (paused) showCounts();
-});
+}
+
+// A COB-ID filter of a few exact ids is also applied by the gateway
+// (`?ids=`), so that a busy bus does not send this page what it would
+// only throw away; ranges wider than that are filtered here alone.
+const SERVER_IDS_MAX = 64;
+let topic = null;
+let unsubscribe = null;
+
+function wantedTopic() {
+  const base = `buses/${bus}/frames`;
+  const total = filter.ids.reduce((sum, [low, high]) => sum + high - low + 1, 0);
+  if (!filter.ids.length || total > SERVER_IDS_MAX) return base;
+  const ids = [];
+  for (const [low, high] of filter.ids) for (let id = low; id <= high; id += 1) ids.push(`0x${id.toString(16).toUpperCase()}`);
+  return `${base}?ids=${ids.join(',')}`;
+}
+
+/** Subscribes to the frames topic the filter wants, if not already. */
+function followFilter() {
+  const wanted = wantedTopic();
+  if (wanted === topic) return;
+  // The old one goes first: frames in between are missed, never doubled.
+  if (unsubscribe) unsubscribe();
+  topic = wanted;
+  unsubscribe = stream.subscribe([topic], receive);
+  countsEl.dataset.topic = topic;
+}
 
 let wasLive = false;
 stream.onState(({ state, error }) => {
@@ -247,6 +274,7 @@ function readFilter() {
     filter = { ids, nodes, services };
     filterError.textContent = '';
     form.dataset.state = 'ok';
+    followFilter();
   } catch (error) {
     filterError.textContent = error.message;
     form.dataset.state = 'invalid';
@@ -256,10 +284,12 @@ function readFilter() {
 }
 
 let filterTimer = null;
-$('#filters').addEventListener('input', () => {
-  clearTimeout(filterTimer);
-  filterTimer = setTimeout(readFilter, 150);
-});
+for (const event of ['input', 'change']) {
+  $('#filters').addEventListener(event, () => {
+    clearTimeout(filterTimer);
+    filterTimer = setTimeout(readFilter, 150);
+  });
+}
 $('#filters').addEventListener('submit', (event) => {
   event.preventDefault();
   clearTimeout(filterTimer);
@@ -335,6 +365,7 @@ recordButton.addEventListener('click', async () => {
 // A test (or a curious person) may read what the page decoded.
 window.candeckTrace = { counts, kept: () => kept.filter((e) => !e.gap).length };
 
+followFilter();
 showCounts();
 stream.connect();
 loadRecording();
