@@ -37,6 +37,7 @@ const downloadLink = $('#download');
 
 const kept = []; // decoded frames, oldest first, at most MAX_KEPT
 let pending = []; // kept frames not yet on the page
+let shown = []; // the table's rows: kept frames that pass the filter, at most MAX_ROWS
 let scheduled = false;
 let paused = false;
 const counts = { received: 0, paused: 0, lost: 0, shown: 0 };
@@ -82,8 +83,9 @@ function passes(entry) {
 function keep(entry) {
   kept.push(entry);
   pending.push(entry);
-  if (kept.length > MAX_KEPT) kept.splice(0, kept.length - MAX_KEPT);
-  if (pending.length > MAX_ROWS * 2) pending = pending.slice(-MAX_ROWS);
+  // Trimmed by the thousand: one copy per thousand frames, not per frame.
+  if (kept.length > MAX_KEPT + 1000) kept.splice(0, kept.length - MAX_KEPT);
+  if (pending.length > MAX_KEPT + 1000) pending.splice(0, pending.length - MAX_KEPT);
   schedule();
 }
 
@@ -114,6 +116,7 @@ function rowOf(entry) {
   c[4].textContent = entry.label;
   c[4].className = `svc ${entry.service}`;
   c[5].textContent = entry.detail;
+  c[5].title = entry.detail;
   c[6].textContent = entry.dlc;
   c[7].textContent = entry.data;
   return tr;
@@ -125,38 +128,67 @@ function schedule() {
   requestAnimationFrame(render);
 }
 
+// The table holds only the rows in view (and a few either side) between
+// two spacers as tall as the rows left out: 2000 rows cost a slice of an
+// array, not 2000 rows the browser lays out again each time one comes.
+let rowPx = 22; // measured from a row once drawn
+const OVERSCAN = 12;
+const topSpacer = h('tr', { class: 'spacer', 'aria-hidden': 'true' }, h('td', { colspan: 8 }));
+const bottomSpacer = h('tr', { class: 'spacer', 'aria-hidden': 'true' }, h('td', { colspan: 8 }));
+
 /** Whether the table is scrolled to its end (then it follows new rows). */
 function atEnd() {
-  return scroller.scrollHeight - scroller.scrollTop - scroller.clientHeight < 40;
+  return scroller.scrollHeight - scroller.scrollTop - scroller.clientHeight < rowPx * 2;
 }
 
 function render() {
   scheduled = false;
   const follow = atEnd();
-  const fresh = pending.filter(passes).slice(-MAX_ROWS);
+  const fresh = pending.filter(passes);
   pending = [];
-  if (fresh.length) {
-    const fragment = document.createDocumentFragment();
-    for (const entry of fresh) fragment.append(rowOf(entry));
-    tbody.append(fragment);
-    let extra = tbody.rows.length - MAX_ROWS;
-    while (extra-- > 0) tbody.firstElementChild.remove();
-    if (follow) scroller.scrollTop = scroller.scrollHeight;
+  for (const entry of fresh) shown.push(entry);
+  const extra = shown.length - MAX_ROWS;
+  if (extra > 0) {
+    shown.splice(0, extra);
+    // Reading older rows: they stay where they are on the screen.
+    if (!follow) scroller.scrollTop = Math.max(0, scroller.scrollTop - extra * rowPx);
   }
+  drawWindow(follow);
   showCounts();
+}
+
+function drawWindow(follow) {
+  const view = scroller.clientHeight;
+  const top = follow ? Math.max(0, shown.length * rowPx - view) : scroller.scrollTop;
+  const first = Math.max(0, Math.floor(top / rowPx) - OVERSCAN);
+  const last = Math.min(shown.length, Math.ceil((top + view) / rowPx) + OVERSCAN);
+  topSpacer.cells[0].style.height = `${first * rowPx}px`;
+  bottomSpacer.cells[0].style.height = `${(shown.length - last) * rowPx}px`;
+  const rows = shown.slice(first, last).map(rowOf);
+  tbody.replaceChildren(topSpacer, ...rows, bottomSpacer);
+  if (rows.length) {
+    const measured = rows[0].getBoundingClientRect().height;
+    if (measured > 0 && Math.abs(measured - rowPx) > 0.5) {
+      rowPx = measured;
+      drawWindow(follow);
+      return;
+    }
+  }
+  if (follow) scroller.scrollTop = scroller.scrollHeight;
 }
 
 /** Shows the kept frames again under the current filter. */
 function redraw() {
   pending = [];
-  const rows = kept.filter(passes).slice(-MAX_ROWS).map(rowOf);
-  tbody.replaceChildren(...rows);
-  scroller.scrollTop = scroller.scrollHeight;
+  shown = kept.filter(passes).slice(-MAX_ROWS);
+  drawWindow(true);
   showCounts();
 }
 
+scroller.addEventListener('scroll', schedule, { passive: true });
+
 function showCounts() {
-  counts.shown = tbody.rows.length;
+  counts.shown = shown.length;
   empty.hidden = counts.shown > 0;
   const parts = [`${counts.shown.toLocaleString()} shown`, `${counts.received.toLocaleString()} received`];
   if (paused || counts.paused) parts.push(`${counts.paused.toLocaleString()} while paused`);
@@ -251,10 +283,11 @@ pauseButton.addEventListener('click', () => {
 $('#clear').addEventListener('click', () => {
   kept.length = 0;
   pending = [];
+  shown = [];
   counts.received = 0;
   counts.paused = 0;
   counts.lost = 0;
-  tbody.replaceChildren();
+  drawWindow(true);
   showCounts();
 });
 
@@ -363,7 +396,7 @@ recordButton.addEventListener('click', async () => {
 });
 
 // A test (or a curious person) may read what the page decoded.
-window.candeckTrace = { counts, kept: () => kept.filter((e) => !e.gap).length };
+window.candeckTrace = { counts, rows: () => shown };
 
 followFilter();
 showCounts();
