@@ -3,9 +3,18 @@ the demo bus (node 3, the virtual UIO1LED): the segment editor writes what
 was changed, shows what the device read back, and the live strip follows
 the device."""
 
+import re
 import time
 
 from selenium.webdriver.support.ui import Select
+
+# The errors Chromium logs while the gateway is down, and only those (as
+# test_overview.py accepts them).
+OUTAGE_ERRORS = re.compile(
+    r"WebSocket connection to 'ws://127\.0\.0\.1:\d+/api/v1/stream' failed"
+    r"|/api/v1/\S* failed: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE|CONNECTION_CLOSED)"
+    r"|127\.0\.0\.1:\d+/api/v1/\S* - Failed to load resource: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE)"
+)
 
 PAGE = "/nodes/demo/3/leds"
 SEGMENTS = "/api/v1/buses/demo/nodes/3/segments"
@@ -193,4 +202,33 @@ def test_leds_phone_width(server, browser):
     assert layout["width"] == 390, layout
     assert layout["scroll"] <= layout["width"], f"the page scrolls sideways: {layout}"
     assert layout["right"] <= layout["width"] and layout["height"] >= 40, layout
+    browser.check()
+
+
+def test_the_led_page_reconnects_and_reads_the_new_gateway(server, browser):
+    server.request("PUT", SEGMENTS + "/1", {"led_count": 6, "effect": "fix", "colors": ["#ff8000"]})
+    open_leds(browser, server)
+    card = editor(browser, 1)
+    assert card.get_attribute("data-led-count") == "6"
+    browser.wait(lambda _: canvas_pixel(browser, 1) == {"leds": 6, "rgb": [0xFF, 0x80, 0x00]},
+                 message=f"the preview did not show segment 1: {canvas_pixel(browser, 1)}")
+    browser.check()
+    browser.js("window.notReloaded = true")
+
+    # A new gateway's virtual UIO1LED starts from its defaults: no LEDs.
+    server.kill()
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "disconnected",
+                 message="the page did not show the outage")
+    server.start()
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 timeout=20, message="the page did not reconnect")
+    browser.wait(lambda _: card.get_attribute("data-led-count") == "0", timeout=10,
+                 message="the editor still shows the old gateway's segment")
+    browser.wait(lambda _: canvas_pixel(browser, 1)["leds"] == 0, timeout=10,
+                 message=f"the preview still shows the old strip: {canvas_pixel(browser, 1)}")
+    assert card.get_attribute("data-effect") == server.get(SEGMENTS)[0]["effect"]
+    assert browser.js("return window.notReloaded === true"), "the page was reloaded"
+    outage = browser.drain()
+    unexpected = [p for p in outage if not OUTAGE_ERRORS.search(p)]
+    assert not unexpected, unexpected
     browser.check()

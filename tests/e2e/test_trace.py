@@ -411,3 +411,45 @@ def test_a_busy_bus_keeps_the_table_bounded_and_the_page_responsive(server, brow
         json.dump(metrics, f, indent=1)
     print(f"trace under load: {metrics}")
     browser.check()
+
+
+# The errors Chromium logs while the gateway is down, and only those (as
+# test_overview.py accepts them).
+OUTAGE_ERRORS = re.compile(
+    r"WebSocket connection to 'ws://127\.0\.0\.1:\d+/api/v1/stream' failed"
+    r"|/api/v1/\S* failed: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE|CONNECTION_CLOSED)"
+    r"|127\.0\.0\.1:\d+/api/v1/\S* - Failed to load resource: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE)"
+)
+
+
+def test_the_trace_reconnects_after_the_gateway_restarts(server, browser):
+    open_trace(browser, server)
+    browser.wait(lambda _: rows(browser, {"node": "2"}), message="no frame of node 2")
+    browser.check()
+    assert not browser.problems, browser.problems
+    browser.js("window.notReloaded = true")
+
+    server.kill()
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "disconnected",
+                 message="the page did not show the outage")
+    browser.wait(lambda _: browser.js(
+        "return window.candeckTrace.rows().some((e) => e.gap && e.detail.startsWith('Connection to the gateway lost'))"),
+        message="the table does not mark the outage")
+    server.start()
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 timeout=20, message="the page did not reconnect")
+    outage = browser.drain()
+    unexpected = [p for p in outage if not OUTAGE_ERRORS.search(p)]
+    assert not unexpected, unexpected
+
+    # Frames of the new gateway come in after the mark, without a reload.
+    def after_the_gap(_):
+        entries = browser.js("return window.candeckTrace.rows().map((e) => e.gap ? 'gap' : e.idText)")
+        gap = len(entries) - 1 - entries[::-1].index("gap")
+        return "702" in entries[gap + 1:]
+
+    browser.wait(after_the_gap, timeout=20, message="no frame after the reconnection")
+    assert browser.js("return window.notReloaded === true"), "the page was reloaded"
+    # The recording state is read from the new gateway.
+    assert browser.driver.find_element("id", "recording-state").get_attribute("data-state") == "none"
+    browser.check()
