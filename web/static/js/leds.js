@@ -81,7 +81,8 @@ function drawPixels(canvas, pixels) {
   canvas.dataset.leds = pixels.length;
   if (!pixels.length) return;
   const cell = width / pixels.length;
-  const gap = cell >= 6 ? Math.max(1, Math.floor(cell / 8)) : 0;
+  // LEDs wide enough are drawn apart, as on a strip; the gap stays thin.
+  const gap = cell >= 6 ? Math.min(3, Math.max(1, Math.floor(cell / 10))) : 0;
   for (let i = 0; i < pixels.length; i += 1) {
     const x0 = Math.round(i * cell);
     const x1 = Math.round((i + 1) * cell);
