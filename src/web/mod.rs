@@ -19,8 +19,11 @@
 //! - [`router`]: the pages, `/` (the overview), `/nodes/{bus}/{node}` (one
 //!   node: identity, NMT, dictionary, store/restore, DCF backup),
 //!   `/nodes/{bus}/{node}/axes/{axis}` (the drive page of an axis),
-//!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor) and `/events` (the
-//!   persisted history), and `/static/{version}/{*path}`; none is under
+//!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor),
+//!   `/nodes/{bus}/{node}/leds` (an LED controller's segments and live
+//!   strip), `/buses/{bus}/trace` (a bus's live frames, decoded, and its
+//!   recording) and `/events` (the persisted history), and
+//!   `/static/{version}/{*path}`; none is under
 //!   `/api/v1` nor in the OpenAPI document. A page is rendered for any bus
 //!   and node in its path: it asks the API, and shows its 404 in words
 //!   when the bus or node is unknown.
@@ -32,6 +35,8 @@
 //! - `PdosPage`: the PDO editor (`web/templates/pdos.html`).
 //! - `NodePage`, `EventsPage`: a node and the history
 //!   (`web/templates/node.html`, `events.html`).
+//! - `LedsPage`, `TracePage`: the LED and trace pages, which carry the bus
+//!   and node of their path in data attributes for their modules.
 
 use std::sync::LazyLock;
 
@@ -74,20 +79,25 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
     asset!("css/drive.css", CSS),
     asset!("css/events.css", CSS),
+    asset!("css/leds.css", CSS),
     asset!("css/node.css", CSS),
     asset!("css/pdos.css", CSS),
+    asset!("css/trace.css", CSS),
     asset!("js/api.js", JS),
+    asset!("js/canopen.js", JS),
     asset!("js/chart.js", JS),
     asset!("js/cia402.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/drive.js", JS),
     asset!("js/events.js", JS),
     asset!("js/layout.js", JS),
+    asset!("js/leds.js", JS),
     asset!("js/motion.js", JS),
     asset!("js/node.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/pdos.js", JS),
     asset!("js/stream.js", JS),
+    asset!("js/trace.js", JS),
     asset!("icon.svg", SVG),
 ];
 
@@ -130,6 +140,8 @@ pub fn router() -> Router {
         .route("/", get(overview))
         .route("/nodes/{bus}/{node}", get(node))
         .route("/events", get(events))
+        .route("/nodes/{bus}/{node}/leds", get(leds))
+        .route("/buses/{bus}/trace", get(trace))
         .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
         .route("/nodes/{bus}/{node}/pdos", get(pdos))
         .route("/static/{version}/{*path}", get(static_file))
@@ -203,6 +215,25 @@ struct EventsPage {
     layout: Layout,
 }
 
+/// An LED controller's page: its segments' editors and the live strip.
+#[derive(Template)]
+#[template(path = "leds.html")]
+struct LedsPage {
+    layout: Layout,
+    bus: String,
+    node: u8,
+    /// The node's page, `/nodes/{bus}/{node}`.
+    node_href: String,
+}
+
+/// A bus's trace: its live frames decoded, filters, and its recording.
+#[derive(Template)]
+#[template(path = "trace.html")]
+struct TracePage {
+    layout: Layout,
+    bus: String,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -256,6 +287,47 @@ async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
 async fn events() -> Response {
     page(&EventsPage {
         layout: Layout::new("events"),
+    })
+}
+
+/// `text` as one segment of a URL path: every byte but the unreserved
+/// ones (RFC 3986 section 2.3) percent-encoded, so that a bus named
+/// `a/b` or `a?b` links back to itself.
+fn path_segment(text: &str) -> String {
+    use std::fmt::Write;
+    text.bytes().fold(String::new(), |mut out, byte| {
+        if byte.is_ascii_alphanumeric() || b"-._~".contains(&byte) {
+            out.push(char::from(byte));
+        } else {
+            let _ = write!(out, "%{byte:02X}");
+        }
+        out
+    })
+}
+
+/// The node id of a page's path: 1 to 127 (CiA 301), else the page does
+/// not exist. Whether the bus and node are known is the API's to say: the
+/// page asks it and shows its answer.
+fn node_id(text: &str) -> Option<u8> {
+    text.parse::<u8>().ok().filter(|id| (1..=127).contains(id))
+}
+
+async fn leds(Path((bus, node)): Path<(String, String)>) -> Response {
+    match node_id(&node) {
+        Some(node) => page(&LedsPage {
+            layout: Layout::new("leds"),
+            node_href: format!("/nodes/{}/{node}", path_segment(&bus)),
+            bus,
+            node,
+        }),
+        None => AppError::NoRoute(format!("/nodes/{bus}/{node}/leds")).into_response(),
+    }
+}
+
+async fn trace(Path(bus): Path<String>) -> Response {
+    page(&TracePage {
+        layout: Layout::new("trace"),
+        bus,
     })
 }
 

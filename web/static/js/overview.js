@@ -63,7 +63,8 @@ function renderBuses() {
     return;
   }
   busBody.replaceChildren(...[...buses.values()].map(({ info, fps }) => h('tr', { dataset: { bus: info.name } },
-    h('td', { 'data-label': 'Bus' }, h('strong', {}, info.name), h('div', { class: 'sub' }, info.spec)),
+    h('td', { 'data-label': 'Bus' }, h('strong', {}, h('a', { href: `/buses/${encodeURIComponent(info.name)}/trace`, title: `Trace of bus ${info.name}` }, info.name)),
+      h('div', { class: 'sub' }, info.spec)),
     h('td', { 'data-label': 'Kind' }, info.kind),
     h('td', { 'data-label': 'State' }, h('span', { class: `badge ${info.state === 'up' ? 'ok' : 'bad'}` }, info.state),
       info.reason ? h('div', { class: 'sub' }, info.reason) : null),
