@@ -214,6 +214,9 @@ pub struct AppState {
     pub enabled_axes: Arc<drives::EnabledAxes>,
     /// The audit log and the EMCY/NMT history (`/events`).
     pub history: History,
+    /// The bus names in the order they were given (`--bus`, the config
+    /// file): CiA 309 net 1 is the first.
+    pub bus_order: Arc<Vec<String>>,
 }
 
 impl AppState {
@@ -228,6 +231,8 @@ impl AppState {
     /// The buses, their registry events written to `history` by a task per
     /// bus (call within a tokio runtime when there are buses).
     pub fn with_history(buses: impl IntoIterator<Item = ServedBus>, history: History) -> Self {
+        let buses: Vec<ServedBus> = buses.into_iter().collect();
+        let bus_order: Vec<String> = buses.iter().map(|bus| bus.name.clone()).collect();
         let buses: BTreeMap<String, Arc<ServedBus>> = buses
             .into_iter()
             .map(|bus| (bus.name.clone(), Arc::new(bus)))
@@ -246,7 +251,17 @@ impl AppState {
             stream_counters: Arc::new(StreamCounters::default()),
             enabled_axes: Arc::new(drives::EnabledAxes::default()),
             history,
+            bus_order: Arc::new(bus_order),
         }
+    }
+
+    /// The buses in the order they were given: CiA 309 net `n` is the
+    /// `n`-th (1-based).
+    pub fn buses_in_order(&self) -> Vec<Arc<ServedBus>> {
+        self.bus_order
+            .iter()
+            .filter_map(|name| self.buses.get(name).cloned())
+            .collect()
     }
 
     /// The bus named in a path, or 404 `unknown_bus`.
