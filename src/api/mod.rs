@@ -31,11 +31,15 @@
 //!   Prometheus text format.
 //! - [`stream`]: `/stream`, the live telemetry over WebSocket, and each
 //!   client's session (subscriptions, rates, coalescing, lagged events).
+//! - [`cia309_5`]: CiA 309-5, CANopen over HTTP (`/cia309-5/1.0/...`, at
+//!   the root, outside `/api/v1`), through the CiA 309 gateway of
+//!   [`crate::ascii`].
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod audit;
 pub mod buses;
+pub mod cia309_5;
 pub mod config;
 pub mod doc;
 pub mod drives;
@@ -298,6 +302,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let router = Router::new()
         .nest("/api/v1", api)
         .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
+        .merge(cia309_5::router().method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
         // Outside every route and fallback: refused and unknown requests
         // are audited too.

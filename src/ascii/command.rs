@@ -489,7 +489,10 @@ mod tests {
             ok("[1] set sdo_timeout 50").command,
             Command::SetSdoTimeout(50)
         );
-        assert_eq!(ok("[1] set sdo_block 1").command, Command::SetSdoBlock(true));
+        assert_eq!(
+            ok("[1] set sdo_block 1").command,
+            Command::SetSdoBlock(true)
+        );
         assert_eq!(ok("[1] help").command, Command::Help(HelpTopic::Commands));
         assert_eq!(
             ok("[1] help datatype").command,

@@ -183,9 +183,7 @@ impl Datatype {
                 if text.contains(char::is_whitespace) {
                     return Err(ValueError::Trailing);
                 }
-                BASE64
-                    .decode(text)
-                    .map_err(|_| ValueError::BadBase64)?
+                BASE64.decode(text).map_err(|_| ValueError::BadBase64)?
             }
             Self::Hex => hex_bytes(text)?,
         };
@@ -254,10 +252,7 @@ pub fn hex_text(bytes: &[u8]) -> String {
 
 /// The digits and radix of a C integer literal with base 0.
 fn radix(text: &str) -> (&str, u32) {
-    if let Some(hex) = text
-        .strip_prefix("0x")
-        .or_else(|| text.strip_prefix("0X"))
-    {
+    if let Some(hex) = text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
         (hex, 16)
     } else if text.len() > 1 && text.starts_with('0') {
         (&text[1..], 8)
@@ -294,8 +289,7 @@ fn signed(text: &str, min: i64, max: i64) -> Result<i64, ValueError> {
         return Err(ValueError::NotANumber(text.to_string()));
     }
     let magnitude = i128::from(
-        u64::from_str_radix(digits, radix)
-            .map_err(|_| ValueError::OutOfRange(text.to_string()))?,
+        u64::from_str_radix(digits, radix).map_err(|_| ValueError::OutOfRange(text.to_string()))?,
     );
     let value = if negative { -magnitude } else { magnitude };
     if value < i128::from(min) || value > i128::from(max) {
@@ -360,7 +354,12 @@ fn hex_bytes(text: &str) -> Result<Vec<u8>, ValueError> {
 /// -4 or at least 6.
 pub fn format_g(value: f64) -> String {
     if value.is_nan() {
-        return if value.is_sign_negative() { "-nan" } else { "nan" }.to_string();
+        return if value.is_sign_negative() {
+            "-nan"
+        } else {
+            "nan"
+        }
+        .to_string();
     }
     if value.is_infinite() {
         return if value < 0.0 { "-inf" } else { "inf" }.to_string();
@@ -420,10 +419,7 @@ mod tests {
         );
         assert_eq!(Datatype::I8.encode("-128"), Ok(vec![0x80]));
         assert_eq!(Datatype::I16.encode("-0x10"), Ok(vec![0xF0, 0xFF]));
-        assert_eq!(
-            Datatype::I32.encode("-2"),
-            Ok(vec![0xFE, 0xFF, 0xFF, 0xFF])
-        );
+        assert_eq!(Datatype::I32.encode("-2"), Ok(vec![0xFE, 0xFF, 0xFF, 0xFF]));
         assert_eq!(
             Datatype::I64.encode("-9223372036854775808"),
             Ok(vec![0, 0, 0, 0, 0, 0, 0, 0x80])
@@ -434,25 +430,55 @@ mod tests {
 
     #[test]
     fn malformed_and_out_of_range_numbers_are_refused() {
-        assert!(matches!(Datatype::U8.encode("256"), Err(ValueError::OutOfRange(_))));
-        assert!(matches!(Datatype::U8.encode("-1"), Err(ValueError::NotANumber(_))));
-        assert!(matches!(Datatype::I8.encode("128"), Err(ValueError::OutOfRange(_))));
-        assert!(matches!(Datatype::U16.encode("12a"), Err(ValueError::NotANumber(_))));
-        assert!(matches!(Datatype::U16.encode("0x"), Err(ValueError::NotANumber(_))));
-        assert!(matches!(Datatype::U16.encode("08"), Err(ValueError::NotANumber(_))));
+        assert!(matches!(
+            Datatype::U8.encode("256"),
+            Err(ValueError::OutOfRange(_))
+        ));
+        assert!(matches!(
+            Datatype::U8.encode("-1"),
+            Err(ValueError::NotANumber(_))
+        ));
+        assert!(matches!(
+            Datatype::I8.encode("128"),
+            Err(ValueError::OutOfRange(_))
+        ));
+        assert!(matches!(
+            Datatype::U16.encode("12a"),
+            Err(ValueError::NotANumber(_))
+        ));
+        assert!(matches!(
+            Datatype::U16.encode("0x"),
+            Err(ValueError::NotANumber(_))
+        ));
+        assert!(matches!(
+            Datatype::U16.encode("08"),
+            Err(ValueError::NotANumber(_))
+        ));
         assert!(matches!(
             Datatype::U64.encode("18446744073709551616"),
             Err(ValueError::OutOfRange(_))
         ));
         assert_eq!(Datatype::U32.encode(""), Err(ValueError::Missing));
-        assert!(matches!(Datatype::R32.encode("1e39"), Err(ValueError::OutOfRange(_))));
-        assert!(matches!(Datatype::R32.encode("abc"), Err(ValueError::NotANumber(_))));
+        assert!(matches!(
+            Datatype::R32.encode("1e39"),
+            Err(ValueError::OutOfRange(_))
+        ));
+        assert!(matches!(
+            Datatype::R32.encode("abc"),
+            Err(ValueError::NotANumber(_))
+        ));
     }
 
     #[test]
     fn reals_are_ieee_little_endian() {
-        assert_eq!(Datatype::R32.encode("1.5"), Ok(1.5f32.to_le_bytes().to_vec()));
-        assert_eq!(Datatype::R64.encode("-2.25e3"), Ok((-2250.0f64).to_le_bytes().to_vec()));
+        assert_eq!(
+            Datatype::R32.encode("1.5"),
+            Ok(1.5f32.to_le_bytes().to_vec())
+        );
+        assert_eq!(
+            Datatype::R64.encode("-2.25e3"),
+            Ok((-2250.0f64).to_le_bytes().to_vec())
+        );
     }
 
     #[test]
@@ -485,7 +511,10 @@ mod tests {
     fn base64_and_hex() {
         assert_eq!(Datatype::OctetString.encode("AQID"), Ok(vec![1, 2, 3]));
         assert_eq!(Datatype::Domain.encode("AQI="), Ok(vec![1, 2]));
-        assert_eq!(Datatype::UnicodeString.encode("QQBCAA=="), Ok(vec![b'A', 0, b'B', 0]));
+        assert_eq!(
+            Datatype::UnicodeString.encode("QQBCAA=="),
+            Ok(vec![b'A', 0, b'B', 0])
+        );
         assert_eq!(Datatype::Domain.encode("A*=="), Err(ValueError::BadBase64));
         assert_eq!(Datatype::Hex.encode("01 ab FF"), Ok(vec![1, 0xAB, 0xFF]));
         assert_eq!(Datatype::Hex.encode("01abFF"), Ok(vec![1, 0xAB, 0xFF]));
@@ -503,11 +532,20 @@ mod tests {
         assert_eq!(Datatype::I8.format(&[0xFF]), "-1");
         assert_eq!(Datatype::I16.format(&[0x00, 0x80]), "-32768");
         assert_eq!(Datatype::I32.format(&[0xFE, 0xFF, 0xFF, 0xFF]), "-2");
-        assert_eq!(Datatype::I64.format(&[0, 0, 0, 0, 0, 0, 0, 0x80]), "-9223372036854775808");
+        assert_eq!(
+            Datatype::I64.format(&[0, 0, 0, 0, 0, 0, 0, 0x80]),
+            "-9223372036854775808"
+        );
         assert_eq!(Datatype::X8.format(&[0x0A]), "0x0A");
         assert_eq!(Datatype::X16.format(&[0x0A, 0x00]), "0x000A");
-        assert_eq!(Datatype::X32.format(&[0x78, 0x56, 0x34, 0x12]), "0x12345678");
-        assert_eq!(Datatype::X64.format(&[1, 0, 0, 0, 0, 0, 0, 0]), "0x0000000000000001");
+        assert_eq!(
+            Datatype::X32.format(&[0x78, 0x56, 0x34, 0x12]),
+            "0x12345678"
+        );
+        assert_eq!(
+            Datatype::X64.format(&[1, 0, 0, 0, 0, 0, 0, 0]),
+            "0x0000000000000001"
+        );
         assert_eq!(Datatype::R32.format(&1.5f32.to_le_bytes()), "1.5");
         assert_eq!(Datatype::R64.format(&1e6f64.to_le_bytes()), "1e+06");
         assert_eq!(Datatype::VisibleString.format(b"UMC"), "\"UMC\"");

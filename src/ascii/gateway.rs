@@ -223,9 +223,11 @@ impl Gateway {
     ) -> Result<(), AppError> {
         let (_, channel) = self.channel(net, node)?;
         let config = options.apply(channel.config());
-        tokio::spawn(
-            async move { channel.download_with(index, sub, &data, config.as_ref()).await },
-        )
+        tokio::spawn(async move {
+            channel
+                .download_with(index, sub, &data, config.as_ref())
+                .await
+        })
         .await
         .map_err(|err| AppError::Internal(format!("SDO task: {err}")))?
         .map_err(AppError::from_sdo)
@@ -342,7 +344,11 @@ impl Gateway {
             abort_code,
         };
         if let Err(err) = self.history.audit(entry).await {
-            tracing::error!("audit: {} {}: not recorded: {err}", origin.method, origin.path);
+            tracing::error!(
+                "audit: {} {}: not recorded: {err}",
+                origin.method,
+                origin.path
+            );
         }
     }
 }

@@ -205,11 +205,19 @@ impl Event {
             ),
             Self::HeartbeatStarted { net, node } => {
                 let code = ErrorCode::HeartbeatStarted;
-                format!("{net} {node} ERROR:{} #{}\r\n", code.number(), code.description())
+                format!(
+                    "{net} {node} ERROR:{} #{}\r\n",
+                    code.number(),
+                    code.description()
+                )
             }
             Self::HeartbeatLost { net, node } => {
                 let code = ErrorCode::HeartbeatLost;
-                format!("{net} {node} ERROR:{} #{}\r\n", code.number(), code.description())
+                format!(
+                    "{net} {node} ERROR:{} #{}\r\n",
+                    code.number(),
+                    code.description()
+                )
             }
         }
     }
@@ -273,7 +281,10 @@ mod tests {
     fn replies_are_byte_exact() {
         assert_eq!(Reply::Empty.to_wire(), "\r\n");
         assert_eq!(Reply::Ok(1).to_wire(), "[1] OK\r\n");
-        assert_eq!(Reply::Value(2, "\"UMC\"".into()).to_wire(), "[2] \"UMC\"\r\n");
+        assert_eq!(
+            Reply::Value(2, "\"UMC\"".into()).to_wire(),
+            "[2] \"UMC\"\r\n"
+        );
         assert_eq!(
             Reply::Error(3, ErrorCode::RequestNotSupported).to_wire(),
             "[3] ERROR:100 #Request not supported.\r\n"
@@ -328,7 +339,10 @@ mod tests {
 
     #[test]
     fn events_are_lines_without_sequence() {
-        assert_eq!(Event::BootUp { net: 1, node: 3 }.to_wire(), "1 3 BOOT_UP\r\n");
+        assert_eq!(
+            Event::BootUp { net: 1, node: 3 }.to_wire(),
+            "1 3 BOOT_UP\r\n"
+        );
         assert_eq!(
             Event::Emcy {
                 net: 1,

@@ -197,8 +197,7 @@ where
     }
     let writer = tokio::spawn(async move {
         while let Some(line) = queue.recv().await {
-            if output.write_all(line.as_bytes()).await.is_err() || output.flush().await.is_err()
-            {
+            if output.write_all(line.as_bytes()).await.is_err() || output.flush().await.is_err() {
                 return;
             }
         }

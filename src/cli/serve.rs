@@ -117,7 +117,7 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz, retention_days, retention_rows.
+    /// axis_poll_hz, retention_days, retention_rows, ascii_listen.
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file.
     #[arg(long, value_name = "FILE")]
@@ -151,6 +151,11 @@ pub struct ServeArgs {
     /// at most, the newest; 0: no limit. Default: 1000000.
     #[arg(long, value_name = "ROWS")]
     pub retention_rows: Option<u64>,
+    /// Also serve the CiA 309-3 ASCII gateway protocol (CANopenNode's
+    /// canopend/cocomm) over TCP on ADDR (port 0 picks a free port); net 1
+    /// is the first bus given.
+    #[arg(long, value_name = "ADDR")]
+    pub ascii_listen: Option<SocketAddr>,
 }
 
 /// A polling rate: a positive number of hertz, at most what a producer
@@ -188,6 +193,7 @@ struct ConfigFile {
     axis_poll_hz: Option<f64>,
     retention_days: Option<u32>,
     retention_rows: Option<u64>,
+    ascii_listen: Option<SocketAddr>,
 }
 
 impl ConfigFile {
@@ -260,6 +266,7 @@ struct Settings {
     share: Vec<Share>,
     axis_poll_hz: f64,
     retention: Retention,
+    ascii_listen: Option<SocketAddr>,
 }
 
 impl ServeArgs {
@@ -283,6 +290,7 @@ impl ServeArgs {
             });
         }
         let settings = Settings {
+            ascii_listen: self.ascii_listen.or(file.ascii_listen),
             listen: self
                 .listen
                 .or(file.listen)
@@ -455,6 +463,18 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let local = listener
         .local_addr()
         .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    let ascii_listener = match args.ascii_listen {
+        Some(addr) => {
+            let listener = tokio::net::TcpListener::bind(addr).await.map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            let local = listener.local_addr().map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            Some((listener, local))
+        }
+        None => None,
+    };
     let described: Vec<String> = served
         .iter()
         .map(|bus| format!("{}: {}", bus.name, bus.spec))
@@ -472,6 +492,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             names.join(", "),
             server.local_addr()
         );
+    }
+    if let Some((_, addr)) = &ascii_listener {
+        println!("candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)");
     }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
@@ -493,6 +516,12 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         });
     }
     let state = AppState::with_history(served, history);
+    let ascii = ascii_listener.map(|(listener, _)| {
+        tokio::spawn(crate::ascii::listen(
+            listener,
+            crate::ascii::Gateway::new(&state),
+        ))
+    });
     // The peer's address goes into the audit log.
     let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
     axum::serve(listener, app)
@@ -527,6 +556,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         }
     }
     pruner.abort();
+    if let Some(ascii) = ascii {
+        ascii.abort();
+    }
     drop(state);
     drop(shares);
     tracing::info!("serve: stopped");

@@ -300,7 +300,10 @@ impl SdoChannel {
         sub: u8,
         config: Option<&ClientConfig>,
     ) -> Result<Vec<u8>, SdoRequestError> {
-        match self.transfer(Request::Upload { index, sub }, config).await? {
+        match self
+            .transfer(Request::Upload { index, sub }, config)
+            .await?
+        {
             Transfer::Uploaded(data) => Ok(data),
             Transfer::Downloaded => Ok(Vec::new()),
         }
