@@ -374,7 +374,7 @@ pub fn format_g(value: f64) -> String {
         .split_once('e')
         .unwrap_or((scientific.as_str(), "0"));
     let exponent: i32 = exponent.parse().unwrap_or(0);
-    if exponent < -4 || exponent >= PRECISION {
+    if !(-4..PRECISION).contains(&exponent) {
         let mantissa = strip_zeros(mantissa);
         let sign = if exponent < 0 { '-' } else { '+' };
         format!("{mantissa}e{sign}{:02}", exponent.abs())
@@ -575,7 +575,7 @@ mod tests {
             (1234567.0, "1.23457e+06"),
             (0.0001, "0.0001"),
             (0.00001, "1e-05"),
-            (3.14159265, "3.14159"),
+            (1.23456789, "1.23457"),
             (100.0, "100"),
             (999999.5, "1e+06"),
             (1e100, "1e+100"),
