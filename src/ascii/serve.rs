@@ -288,3 +288,87 @@ pub async fn listen(listener: TcpListener, gateway: Gateway) {
         });
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::canopen::NodeId;
+    use crate::gateway::registry::EmcyRecord;
+
+    async fn lines(input: &[u8]) -> Vec<Result<String, ()>> {
+        let mut reader = BufReader::with_capacity(8, input);
+        let mut out = Vec::new();
+        while let Some(line) = read_line(&mut reader).await {
+            out.push(line.map_err(|TooLong| ()));
+        }
+        out
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn lines_are_split_across_reads_and_a_last_line_needs_no_end() {
+        assert_eq!(
+            lines(b"[1] 1 r 0x1000 0\r\n\n[2] start").await,
+            vec![
+                Ok("[1] 1 r 0x1000 0\r\n".to_string()),
+                Ok("\n".to_string()),
+                Ok("[2] start".to_string())
+            ]
+        );
+        assert_eq!(lines(b"").await, Vec::<Result<String, ()>>::new());
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_line_too_long_is_refused_and_the_next_one_read() {
+        let mut input = vec![b'x'; MAX_LINE + 10];
+        input.extend_from_slice(b"\n[3] help\n");
+        assert_eq!(
+            lines(&input).await,
+            vec![Err(()), Ok("[3] help\n".to_string())]
+        );
+    }
+
+    #[test]
+    fn registry_events_become_309_3_event_lines() {
+        let node = NodeId::new(4).unwrap();
+        let boot = NodeEvent::NmtChanged {
+            node,
+            from: Some(NmtState::Operational),
+            to: NmtState::BootUp,
+        };
+        assert_eq!(event_of(2, &boot), Some(Event::BootUp { net: 2, node: 4 }));
+        let other = NodeEvent::NmtChanged {
+            node,
+            from: Some(NmtState::BootUp),
+            to: NmtState::PreOperational,
+        };
+        assert_eq!(event_of(2, &other), None);
+        let lost = NodeEvent::Offline {
+            node,
+            reason: OfflineReason::HeartbeatLost,
+        };
+        assert_eq!(
+            event_of(1, &lost),
+            Some(Event::HeartbeatLost { net: 1, node: 4 })
+        );
+        let down = NodeEvent::Offline {
+            node,
+            reason: OfflineReason::BusDown,
+        };
+        assert_eq!(event_of(1, &down), None);
+        assert_eq!(
+            event_of(1, &NodeEvent::Online { node }),
+            Some(Event::HeartbeatStarted { net: 1, node: 4 })
+        );
+        let emcy = EmcyRecord {
+            code: 0x4210,
+            text: String::new(),
+            register: 0x09,
+            manufacturer: [1, 2, 3, 4, 5],
+            timestamp: crate::can::Timestamp(0),
+        };
+        assert_eq!(
+            event_of(1, &NodeEvent::Emcy { node, emcy }).map(|e| e.to_wire()),
+            Some("1 4 EMCY 0x4210 0x09 01 02 03 04 05\r\n".to_string())
+        );
+    }
+}
