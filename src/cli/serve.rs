@@ -582,6 +582,32 @@ mod tests {
     }
 
     #[test]
+    fn the_ascii_listener_comes_from_the_command_line_over_the_file() {
+        let dir = std::env::temp_dir().join(format!("candeck-ascii-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("ascii.toml");
+        std::fs::write(&file, "ascii_listen = \"127.0.0.1:6000\"\n").unwrap();
+        let file = file.to_str().unwrap();
+
+        assert_eq!(
+            serve_args(&[]).unwrap().settings().unwrap().ascii_listen,
+            None
+        );
+        let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+        assert_eq!(
+            settings.ascii_listen,
+            Some("127.0.0.1:6000".parse().unwrap())
+        );
+        let settings = serve_args(&["--config", file, "--ascii-listen", "0.0.0.0:6001"])
+            .unwrap()
+            .settings()
+            .unwrap();
+        assert_eq!(settings.ascii_listen, Some("0.0.0.0:6001".parse().unwrap()));
+        assert!(serve_args(&["--ascii-listen", "nowhere"]).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn retention_comes_from_the_command_line_over_the_file_over_the_default() {
         let dir = std::env::temp_dir().join(format!("candeck-retention-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
