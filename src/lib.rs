@@ -8,6 +8,8 @@
 //!
 //! - [`api`]: the REST interface (axum): buses, nodes, NMT, the object
 //!   dictionary over SDO, with one error type mapped to HTTP statuses.
+//! - [`ascii`]: CiA 309-3, the ASCII gateway protocol (TCP and
+//!   stdin/stdout), through the same gateway as REST.
 //! - [`can`]: frames, the [`can::Bus`] attachment and its backends (virtual
 //!   hub, socketcand client and server, SocketCAN, candump replay), and candump
 //!   logs.
@@ -25,6 +27,7 @@
 //!   only calls it.
 
 pub mod api;
+pub mod ascii;
 pub mod can;
 pub mod canopen;
 pub mod cli;

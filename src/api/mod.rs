@@ -31,11 +31,15 @@
 //!   Prometheus text format.
 //! - [`stream`]: `/stream`, the live telemetry over WebSocket, and each
 //!   client's session (subscriptions, rates, coalescing, lagged events).
+//! - [`cia309_5`]: CiA 309-5, CANopen over HTTP (`/cia309-5/1.0/...`, at
+//!   the root, outside `/api/v1`), through the CiA 309 gateway of
+//!   [`crate::ascii`].
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod audit;
 pub mod buses;
+pub mod cia309_5;
 pub mod config;
 pub mod doc;
 pub mod drives;
@@ -219,6 +223,9 @@ pub struct AppState {
     pub history: History,
     /// The motion leases of velocity, torque and duty-cycle moves.
     pub leases: Arc<leases::MotionLeases>,
+    /// The bus names in the order they were given (`--bus`, the config
+    /// file): CiA 309 net 1 is the first.
+    pub bus_order: Arc<Vec<String>>,
 }
 
 impl AppState {
@@ -233,6 +240,8 @@ impl AppState {
     /// The buses, their registry events written to `history` by a task per
     /// bus (call within a tokio runtime when there are buses).
     pub fn with_history(buses: impl IntoIterator<Item = ServedBus>, history: History) -> Self {
+        let buses: Vec<ServedBus> = buses.into_iter().collect();
+        let bus_order: Vec<String> = buses.iter().map(|bus| bus.name.clone()).collect();
         let buses: BTreeMap<String, Arc<ServedBus>> = buses
             .into_iter()
             .map(|bus| (bus.name.clone(), Arc::new(bus)))
@@ -252,6 +261,7 @@ impl AppState {
             enabled_axes: Arc::new(drives::EnabledAxes::default()),
             history,
             leases: Arc::new(leases::MotionLeases::default()),
+            bus_order: Arc::new(bus_order),
         }
     }
 
@@ -259,6 +269,15 @@ impl AppState {
     pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
         self.leases = Arc::new(leases::MotionLeases::new(period));
         self
+    }
+
+    /// The buses in the order they were given: CiA 309 net `n` is the
+    /// `n`-th (1-based).
+    pub fn buses_in_order(&self) -> Vec<Arc<ServedBus>> {
+        self.bus_order
+            .iter()
+            .filter_map(|name| self.buses.get(name).cloned())
+            .collect()
     }
 
     /// The bus named in a path, or 404 `unknown_bus`.
@@ -296,6 +315,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let router = Router::new()
         .nest("/api/v1", api)
         .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
+        .merge(cia309_5::router().method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
         // Outside every route and fallback: refused and unknown requests
         // are audited too.

@@ -283,7 +283,7 @@ fn nmt_command(request: &NmtRequest) -> Result<NmtCommand, AppError> {
 
 /// NMT is unconfirmed (CiA 301 §7.2.8.2.1): the answer says the command
 /// was sent; the node's new state shows in the node list once it reports it.
-async fn send_nmt(
+pub(crate) async fn send_nmt(
     served: &ServedBus,
     command: NmtCommand,
     target: NmtTarget,

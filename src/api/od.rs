@@ -272,7 +272,7 @@ fn numeric_sub(sub: &Json) -> Result<u8, AppError> {
 }
 
 /// Refuses before the bus what cannot succeed on it.
-pub(super) fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), AppError> {
+pub(crate) fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), AppError> {
     if !served.bus.state().can_send() {
         let status = served.bus.status();
         return Err(AppError::BusDown(format!(

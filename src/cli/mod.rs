@@ -12,7 +12,10 @@
 //! - [`dump`]: `candeck dump`, a bus printed as a candump `-L` log.
 //! - [`od`]: `candeck od read|write`, one object of one node over SDO.
 //! - [`nmt`]: `candeck nmt`, NMT node control.
+//! - [`ascii`]: `candeck ascii`, the CiA 309-3 ASCII gateway on
+//!   stdin/stdout.
 
+pub mod ascii;
 pub mod dump;
 pub mod nmt;
 pub mod od;
@@ -63,6 +66,9 @@ pub enum Command {
     Od(od::OdArgs),
     /// Send an NMT command to a node or to all nodes.
     Nmt(nmt::NmtArgs),
+    /// Serve the CiA 309-3 ASCII gateway protocol (CANopenNode's
+    /// canopend/cocomm) on stdin/stdout until the input ends.
+    Ascii(ascii::AsciiArgs),
 }
 
 /// A failure while running a command: printed as one line.
@@ -82,7 +88,12 @@ pub fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(err) => return usage_error(err),
     };
-    let one_shot = matches!(cli.command, Some(Command::Od(_) | Command::Nmt(_)));
+    // stdin/stdout belong to the protocol in `ascii`: only warnings go to
+    // stderr.
+    let one_shot = matches!(
+        cli.command,
+        Some(Command::Od(_) | Command::Nmt(_) | Command::Ascii(_))
+    );
     let default_log = if one_shot { "warn" } else { "info" };
     init_logging(cli.log.as_deref().unwrap_or(default_log));
     let command = cli.command.unwrap_or(Command::Serve(cli.serve));
@@ -113,6 +124,7 @@ pub fn main() -> ExitCode {
             Command::Dump(args) => dump::run(args).await,
             Command::Od(args) => od::run(args).await,
             Command::Nmt(args) => nmt::run(args).await,
+            Command::Ascii(args) => ascii::run(args).await,
         }
     });
     match result {

@@ -117,7 +117,7 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz, retention_days, retention_rows, lease_ms.
+    /// axis_poll_hz, retention_days, retention_rows, lease_ms, ascii_listen.
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file.
     #[arg(long, value_name = "FILE")]
@@ -157,6 +157,11 @@ pub struct ServeArgs {
     /// still moves). 200 to 60000. Default: 3000.
     #[arg(long, value_name = "MS", value_parser = parse_lease_ms)]
     pub lease_ms: Option<u64>,
+    /// Also serve the CiA 309-3 ASCII gateway protocol (CANopenNode's
+    /// canopend/cocomm) over TCP on ADDR (port 0 picks a free port); net 1
+    /// is the first bus given.
+    #[arg(long, value_name = "ADDR")]
+    pub ascii_listen: Option<SocketAddr>,
 }
 
 /// A lease period in milliseconds, within the gateway's bounds.
@@ -216,6 +221,7 @@ struct ConfigFile {
     retention_days: Option<u32>,
     retention_rows: Option<u64>,
     lease_ms: Option<u64>,
+    ascii_listen: Option<SocketAddr>,
 }
 
 impl ConfigFile {
@@ -293,6 +299,7 @@ struct Settings {
     axis_poll_hz: f64,
     retention: Retention,
     lease_period: std::time::Duration,
+    ascii_listen: Option<SocketAddr>,
 }
 
 impl ServeArgs {
@@ -316,6 +323,7 @@ impl ServeArgs {
             });
         }
         let settings = Settings {
+            ascii_listen: self.ascii_listen.or(file.ascii_listen),
             listen: self
                 .listen
                 .or(file.listen)
@@ -493,6 +501,18 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let local = listener
         .local_addr()
         .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    let ascii_listener = match args.ascii_listen {
+        Some(addr) => {
+            let listener = tokio::net::TcpListener::bind(addr).await.map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            let local = listener.local_addr().map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            Some((listener, local))
+        }
+        None => None,
+    };
     let described: Vec<String> = served
         .iter()
         .map(|bus| format!("{}: {}", bus.name, bus.spec))
@@ -510,6 +530,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             names.join(", "),
             server.local_addr()
         );
+    }
+    if let Some((_, addr)) = &ascii_listener {
+        println!("candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)");
     }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
@@ -531,6 +554,12 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         });
     }
     let state = AppState::with_history(served, history).with_lease_period(args.lease_period);
+    let ascii = ascii_listener.map(|(listener, _)| {
+        tokio::spawn(crate::ascii::listen(
+            listener,
+            crate::ascii::Gateway::new(&state),
+        ))
+    });
     // The peer's address goes into the audit log.
     let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
     axum::serve(listener, app)
@@ -565,6 +594,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         }
     }
     pruner.abort();
+    if let Some(ascii) = ascii {
+        ascii.abort();
+    }
     drop(state);
     drop(shares);
     tracing::info!("serve: stopped");
@@ -585,6 +617,32 @@ mod tests {
             Some(Command::Serve(args)) => Ok(args),
             other => Err(format!("not serve: {other:?}")),
         }
+    }
+
+    #[test]
+    fn the_ascii_listener_comes_from_the_command_line_over_the_file() {
+        let dir = std::env::temp_dir().join(format!("candeck-ascii-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("ascii.toml");
+        std::fs::write(&file, "ascii_listen = \"127.0.0.1:6000\"\n").unwrap();
+        let file = file.to_str().unwrap();
+
+        assert_eq!(
+            serve_args(&[]).unwrap().settings().unwrap().ascii_listen,
+            None
+        );
+        let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+        assert_eq!(
+            settings.ascii_listen,
+            Some("127.0.0.1:6000".parse().unwrap())
+        );
+        let settings = serve_args(&["--config", file, "--ascii-listen", "0.0.0.0:6001"])
+            .unwrap()
+            .settings()
+            .unwrap();
+        assert_eq!(settings.ascii_listen, Some("0.0.0.0:6001".parse().unwrap()));
+        assert!(serve_args(&["--ascii-listen", "nowhere"]).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -234,6 +234,9 @@ impl Drop for Pending<'_> {
 pub struct SdoChannel {
     bus: Bus,
     node: NodeId,
+    /// What transfers use unless their caller gives its own
+    /// ([`SdoChannel::upload_with`]).
+    config: ClientConfig,
     session: Arc<Mutex<Session>>,
     procedure: Arc<Mutex<()>>,
     stats: Arc<SdoStats>,
@@ -244,14 +247,20 @@ impl SdoChannel {
         let responses = bus.subscribe();
         Self {
             session: Arc::new(Mutex::new(Session {
-                client: SdoClient::new(node, config),
+                client: SdoClient::new(node, config.clone()),
                 responses,
             })),
             procedure: Arc::new(Mutex::new(())),
             stats: Arc::new(SdoStats::default()),
             bus,
             node,
+            config,
         }
+    }
+
+    /// The configuration transfers use unless their caller gives its own.
+    pub fn config(&self) -> &ClientConfig {
+        &self.config
     }
 
     pub fn node(&self) -> NodeId {
@@ -274,21 +283,58 @@ impl SdoChannel {
 
     /// Reads an object's value bytes.
     pub async fn upload(&self, index: u16, sub: u8) -> Result<Vec<u8>, SdoRequestError> {
-        match self.transfer(Request::Upload { index, sub }).await? {
+        self.upload_with(index, sub, None).await
+    }
+
+    /// Writes an object's value bytes.
+    pub async fn download(&self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoRequestError> {
+        self.download_with(index, sub, data, None).await
+    }
+
+    /// [`SdoChannel::upload`] with the caller's own timeout and block mode
+    /// (a CiA 309-3 connection's `set sdo_timeout`, `set sdo_block`) for
+    /// this one transfer; `None`: the channel's. It queues like any other.
+    pub async fn upload_with(
+        &self,
+        index: u16,
+        sub: u8,
+        config: Option<&ClientConfig>,
+    ) -> Result<Vec<u8>, SdoRequestError> {
+        match self
+            .transfer(Request::Upload { index, sub }, config)
+            .await?
+        {
             Transfer::Uploaded(data) => Ok(data),
             Transfer::Downloaded => Ok(Vec::new()),
         }
     }
 
-    /// Writes an object's value bytes.
-    pub async fn download(&self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoRequestError> {
-        self.transfer(Request::Download { index, sub, data })
+    /// [`SdoChannel::download`] with the caller's own configuration for
+    /// this one transfer (see [`SdoChannel::upload_with`]).
+    pub async fn download_with(
+        &self,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        config: Option<&ClientConfig>,
+    ) -> Result<(), SdoRequestError> {
+        self.transfer(Request::Download { index, sub, data }, config)
             .await
             .map(|_| ())
     }
 
-    async fn transfer(&self, request: Request<'_>) -> Result<Transfer, SdoRequestError> {
+    async fn transfer(
+        &self,
+        request: Request<'_>,
+        config: Option<&ClientConfig>,
+    ) -> Result<Transfer, SdoRequestError> {
         let mut session = self.session.lock().await;
+        // Each transfer runs with its caller's configuration, or the
+        // channel's: one caller's timeout never leaks into the next one's.
+        let config = config.unwrap_or(&self.config);
+        if session.client.config() != config {
+            session.client.set_config(config.clone());
+        }
         let started = tokio::time::Instant::now();
         let pending = Pending {
             stats: &self.stats,

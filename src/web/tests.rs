@@ -543,10 +543,10 @@ async fn page_weight(app: &Router, page: &str) -> usize {
         if path.ends_with(".js") {
             let text = std::str::from_utf8(asset.bytes).unwrap();
             for part in text.split("'./").skip(1) {
-                if let Some((name, _)) = part.split_once('\'') {
-                    if name.ends_with(".js") {
-                        pending.push(format!("js/{name}"));
-                    }
+                if let Some((name, _)) = part.split_once('\'')
+                    && name.ends_with(".js")
+                {
+                    pending.push(format!("js/{name}"));
                 }
             }
         }

@@ -198,6 +198,14 @@ impl SdoClient {
         &self.config
     }
 
+    /// Changes the configuration for the transfers that start from now on
+    /// (a gateway client that sets its own timeout or block mode per
+    /// request); a running transfer keeps the deadlines it has.
+    pub fn set_config(&mut self, mut config: ClientConfig) {
+        config.block_size = config.block_size.clamp(1, MAX_BLOCK_SIZE);
+        self.config = config;
+    }
+
     /// No transfer is running.
     pub fn is_idle(&self) -> bool {
         self.active.is_none()

@@ -1,0 +1,310 @@
+//! CiA 309-5 (CANopen access over HTTP): the routes and JSON shape of the
+//! open implementations (gocanopen's `pkg/gateway/http`), through the same
+//! gateway as REST and CiA 309-3 ([`crate::ascii::gateway`]):
+//!
+//! ```text
+//! GET  /cia309-5/1.0/{sequence}/{net}/{node}/r[ead]/{index}/{sub}
+//! PUT  /cia309-5/1.0/{sequence}/{net}/{node}/w[rite]/{index}/{sub}   {"value": "1000", "datatype": "u16"}
+//! POST /cia309-5/1.0/{sequence}/{net}/{node}/start | stop | preop[erational]
+//! POST /cia309-5/1.0/{sequence}/{net}/{node}/reset/node | reset/comm[unication]
+//! ```
+//!
+//! Every answer is HTTP 200 with `{"sequence": "<n>", "response": "OK"}`,
+//! a read adding `"data": "0x<value, most significant byte first>"` and
+//! `"length": <bytes>`, and a failure answering `"response":
+//! "ERROR:<number>"` or `"ERROR:0x<abort code>"` (CiA 309-5 puts the
+//! outcome in the body, as 309-3 does in its reply line). `net` is a number
+//! (1 = the first bus) or `default`/`none` (net 1); `node` is 1–127, or
+//! `all` (0) for NMT. These routes are outside `/api/v1` and its OpenAPI
+//! document: their contract is CiA 309-5's.
+
+use std::net::SocketAddr;
+
+use axum::Router;
+use axum::extract::{ConnectInfo, Path, State};
+use axum::http::{Extensions, Uri};
+use axum::routing::{get, post};
+use serde_json::{Value as Json, json};
+
+use super::AppState;
+use crate::ascii::command::Nmt;
+use crate::ascii::datatype::{Datatype, unsigned};
+use crate::ascii::gateway::{Failure, Gateway, Identity, Origin, TransferOptions};
+use crate::ascii::reply::ErrorCode;
+
+/// The routes, at the root (not under `/api/v1`).
+pub fn router() -> Router<AppState> {
+    let base = "/cia309-5/1.0/{sequence}/{net}/{node}";
+    let mut router = Router::new();
+    for read in ["r", "read"] {
+        router = router.route(
+            &format!("{base}/{read}/{{index}}/{{sub}}"),
+            get(read_object),
+        );
+    }
+    for write in ["w", "write"] {
+        router = router.route(
+            &format!("{base}/{write}/{{index}}/{{sub}}"),
+            axum::routing::put(write_object),
+        );
+    }
+    for command in ["start", "stop", "preop", "preoperational"] {
+        router = router.route(&format!("{base}/{command}"), post(nmt).put(nmt));
+    }
+    router.route(
+        &format!("{base}/reset/{{what}}"),
+        post(nmt_reset).put(nmt_reset),
+    )
+}
+
+/// The body of an answer.
+fn answer(sequence: &str, response: String) -> axum::Json<Json> {
+    axum::Json(json!({ "sequence": sequence, "response": response }))
+}
+
+fn error(sequence: &str, failure: Failure) -> axum::Json<Json> {
+    let response = match failure {
+        Failure::Abort(code) => format!("ERROR:0x{:08X}", code.raw()),
+        Failure::Error(code) => format!("ERROR:{}", code.number()),
+    };
+    answer(sequence, response)
+}
+
+/// The request's sequence, net and node, or the error to answer with.
+struct Target {
+    sequence: String,
+    net: u16,
+    node: u8,
+}
+
+fn target(
+    gateway: &Gateway,
+    sequence: &str,
+    net: &str,
+    node: &str,
+    min_node: u8,
+) -> Result<Target, (String, Failure)> {
+    // A sequence that is no number is answered as 0, as gocanopen does.
+    let Ok(number) = unsigned(sequence, u32::MAX.into()) else {
+        return Err(("0".into(), Failure::Error(ErrorCode::Syntax)));
+    };
+    let sequence = number.to_string();
+    let fail = |code| Err((sequence.clone(), Failure::Error(code)));
+    let net = match net.to_ascii_lowercase().as_str() {
+        "default" | "none" => 1,
+        "all" => return fail(ErrorCode::UnsupportedNet),
+        text => match unsigned(text, 0xFFFF) {
+            Ok(net) => net as u16,
+            Err(_) => return fail(ErrorCode::Syntax),
+        },
+    };
+    if net == 0 || net > gateway.networks() {
+        return fail(ErrorCode::UnsupportedNet);
+    }
+    let node = match node.to_ascii_lowercase().as_str() {
+        // Over HTTP there is no connection to keep a default node in.
+        "default" | "none" => return fail(ErrorCode::NoDefaultNode),
+        "all" if min_node == 0 => 0,
+        "all" => return fail(ErrorCode::UnsupportedNode),
+        text => match unsigned(text, 0xFFFF_FFFF) {
+            Ok(node) if node >= u64::from(min_node) && node <= 127 => node as u8,
+            Ok(_) => return fail(ErrorCode::UnsupportedNode),
+            Err(_) => return fail(ErrorCode::Syntax),
+        },
+    };
+    Ok(Target {
+        sequence,
+        net,
+        node,
+    })
+}
+
+fn identity(extensions: &Extensions) -> Identity {
+    let peer = extensions
+        .get::<ConnectInfo<SocketAddr>>()
+        .map(|ConnectInfo(addr)| addr.to_string());
+    Identity::anonymous("http", peer)
+}
+
+fn object(index: &str, sub: &str) -> Option<(u16, u8)> {
+    let index = unsigned(index, 0xFFFF).ok()? as u16;
+    let sub = unsigned(sub, 0xFF).ok()? as u8;
+    Some((index, sub))
+}
+
+async fn read_object(
+    State(state): State<AppState>,
+    Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
+) -> axum::Json<Json> {
+    let gateway = Gateway::new(&state);
+    let target = match target(&gateway, &sequence, &net, &node, 1) {
+        Ok(target) => target,
+        Err((sequence, failure)) => return error(&sequence, failure),
+    };
+    let Some((index, sub)) = object(&index, &sub) else {
+        return error(&target.sequence, Failure::Error(ErrorCode::Syntax));
+    };
+    let options = TransferOptions::default();
+    match gateway
+        .read(target.net, target.node, index, sub, options)
+        .await
+    {
+        Ok(bytes) => {
+            let data: String = bytes.iter().rev().map(|b| format!("{b:02x}")).collect();
+            axum::Json(json!({
+                "sequence": target.sequence,
+                "response": "OK",
+                "data": format!("0x{data}"),
+                "length": bytes.len(),
+            }))
+        }
+        Err(failure) => error(&target.sequence, failure),
+    }
+}
+
+async fn write_object(
+    State(state): State<AppState>,
+    Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
+    uri: Uri,
+    extensions: Extensions,
+    body: axum::body::Bytes,
+) -> axum::Json<Json> {
+    let gateway = Gateway::new(&state);
+    let target = match target(&gateway, &sequence, &net, &node, 1) {
+        Ok(target) => target,
+        Err((sequence, failure)) => return error(&sequence, failure),
+    };
+    let syntax = Failure::Error(ErrorCode::Syntax);
+    let Some((index, sub)) = object(&index, &sub) else {
+        return error(&target.sequence, syntax);
+    };
+    let Ok(Json::Object(request)) = serde_json::from_slice::<Json>(&body) else {
+        return error(&target.sequence, syntax);
+    };
+    // The value is a string in CiA 309-5; a JSON number is taken as well.
+    let value = match request.get("value") {
+        Some(Json::String(text)) => text.clone(),
+        Some(Json::Number(number)) => number.to_string(),
+        _ => return error(&target.sequence, syntax),
+    };
+    let Some(datatype) = request
+        .get("datatype")
+        .and_then(Json::as_str)
+        .and_then(Datatype::from_mnemonic)
+    else {
+        return error(
+            &target.sequence,
+            Failure::Error(ErrorCode::RequestNotSupported),
+        );
+    };
+    let data = match datatype.encode(&value) {
+        Ok(data) if !data.is_empty() => data,
+        _ => return error(&target.sequence, syntax),
+    };
+    let identity = identity(&extensions);
+    let origin = Origin {
+        identity: &identity,
+        method: "PUT",
+        path: uri.path(),
+    };
+    let summary = format!("{} {value}", datatype.mnemonic());
+    match gateway
+        .write(
+            origin,
+            target.net,
+            target.node,
+            index,
+            sub,
+            data,
+            summary,
+            TransferOptions::default(),
+        )
+        .await
+    {
+        Ok(()) => answer(&target.sequence, "OK".into()),
+        Err(failure) => error(&target.sequence, failure),
+    }
+}
+
+async fn nmt(
+    State(state): State<AppState>,
+    Path((sequence, net, node)): Path<(String, String, String)>,
+    method: axum::http::Method,
+    uri: Uri,
+    extensions: Extensions,
+) -> axum::Json<Json> {
+    let command = match uri.path().rsplit('/').next().unwrap_or_default() {
+        "start" => Nmt::Start,
+        "stop" => Nmt::Stop,
+        _ => Nmt::PreOperational,
+    };
+    run_nmt(
+        &state,
+        &sequence,
+        &net,
+        &node,
+        command,
+        &method,
+        &uri,
+        &extensions,
+    )
+    .await
+}
+
+async fn nmt_reset(
+    State(state): State<AppState>,
+    Path((sequence, net, node, what)): Path<(String, String, String, String)>,
+    method: axum::http::Method,
+    uri: Uri,
+    extensions: Extensions,
+) -> axum::Json<Json> {
+    let command = match what.to_ascii_lowercase().as_str() {
+        "node" => Nmt::ResetNode,
+        "comm" | "communication" => Nmt::ResetCommunication,
+        _ => {
+            let sequence = unsigned(&sequence, u32::MAX.into())
+                .unwrap_or(0)
+                .to_string();
+            return error(&sequence, Failure::Error(ErrorCode::RequestNotSupported));
+        }
+    };
+    run_nmt(
+        &state,
+        &sequence,
+        &net,
+        &node,
+        command,
+        &method,
+        &uri,
+        &extensions,
+    )
+    .await
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn run_nmt(
+    state: &AppState,
+    sequence: &str,
+    net: &str,
+    node: &str,
+    command: Nmt,
+    method: &axum::http::Method,
+    uri: &Uri,
+    extensions: &Extensions,
+) -> axum::Json<Json> {
+    let gateway = Gateway::new(state);
+    let target = match target(&gateway, sequence, net, node, 0) {
+        Ok(target) => target,
+        Err((sequence, failure)) => return error(&sequence, failure),
+    };
+    let identity = identity(extensions);
+    let origin = Origin {
+        identity: &identity,
+        method: method.as_str(),
+        path: uri.path(),
+    };
+    match gateway.nmt(origin, target.net, target.node, command).await {
+        Ok(()) => answer(&target.sequence, "OK".into()),
+        Err(failure) => error(&target.sequence, failure),
+    }
+}

@@ -1,0 +1,374 @@
+//! The I/O of CiA 309-3 (§4, the ASCII transport): a connection (a TCP
+//! client of `--ascii-listen`, or stdin/stdout of `candeck ascii`) reads
+//! command lines, answers each one in turn through [`Session`], and gets
+//! the gateway's events as unsolicited lines between the replies.
+//!
+//! Commands of one connection run one after another, as in CANopenNode's
+//! gateway (a reply is written before the next line is read); connections
+//! run side by side, their SDO transfers queued per node with REST's.
+
+use std::time::Duration;
+
+use tokio::io::{AsyncBufRead, AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::net::TcpListener;
+use tokio::sync::{broadcast, mpsc};
+
+use super::command::{self, Command, Context, HelpTopic, Line};
+use super::gateway::{Failure, Gateway, Identity, Origin, TransferOptions};
+use super::reply::{self, ErrorCode, Event, Reply};
+use crate::canopen::nmt::NmtState;
+use crate::gateway::registry::{NodeEvent, OfflineReason};
+
+/// The longest command line read; a longer one is a syntax error.
+pub const MAX_LINE: usize = 64 * 1024;
+
+/// Lines waiting to be written to a slow client; events past that are
+/// dropped (replies wait).
+const QUEUE: usize = 256;
+
+/// One connection's state: its defaults (`set network`, `set node`), SDO
+/// settings (`set sdo_timeout`, `set sdo_block`), the last sequence number
+/// (what a line without a readable one is answered with, as CANopenNode
+/// does), and who it is.
+pub struct Session {
+    gateway: Gateway,
+    identity: Identity,
+    default_net: u16,
+    default_node: Option<u8>,
+    options: TransferOptions,
+    last_sequence: u32,
+}
+
+impl Session {
+    pub fn new(gateway: Gateway, identity: Identity) -> Self {
+        Self {
+            gateway,
+            identity,
+            default_net: 1,
+            default_node: None,
+            options: TransferOptions::default(),
+            last_sequence: 0,
+        }
+    }
+
+    /// The reply to one line.
+    pub async fn handle(&mut self, line: &str) -> Reply {
+        let context = Context {
+            default_net: self.default_net,
+            default_node: self.default_node,
+            networks: self.gateway.networks(),
+        };
+        let request = match command::parse(line, &context) {
+            Ok(Line::Empty) => return Reply::Empty,
+            Ok(Line::Request(request)) => request,
+            Err(error) => {
+                let sequence = error.sequence.unwrap_or(self.last_sequence);
+                self.last_sequence = sequence;
+                return Reply::Error(sequence, error.code);
+            }
+        };
+        let sequence = request.sequence;
+        self.last_sequence = sequence;
+        let net = request.net;
+        let node = request.node.unwrap_or(0);
+        let path = line.trim_end_matches(['\r', '\n']);
+        let origin = Origin {
+            identity: &self.identity,
+            method: "ASCII",
+            path,
+        };
+        let result = match request.command {
+            Command::Read {
+                index,
+                sub,
+                datatype,
+            } => {
+                return match self.gateway.read(net, node, index, sub, self.options).await {
+                    Ok(bytes) => {
+                        let text = match datatype {
+                            Some(datatype) => datatype.format(&bytes),
+                            None => super::datatype::hex_text(&bytes),
+                        };
+                        Reply::Value(sequence, text)
+                    }
+                    Err(failure) => failure_reply(sequence, failure),
+                };
+            }
+            Command::Write {
+                index,
+                sub,
+                datatype,
+                data,
+                text,
+            } => {
+                let summary = format!("{} {text}", datatype.mnemonic());
+                self.gateway
+                    .write(origin, net, node, index, sub, data, summary, self.options)
+                    .await
+            }
+            Command::Nmt(nmt) => self.gateway.nmt(origin, net, node, nmt).await,
+            Command::SetNetwork(net) => {
+                self.default_net = net;
+                Ok(())
+            }
+            Command::SetNode(node) => {
+                self.default_node = Some(node);
+                Ok(())
+            }
+            Command::SetSdoTimeout(ms) => {
+                self.options.timeout = Some(Duration::from_millis(ms.into()));
+                Ok(())
+            }
+            Command::SetSdoBlock(block) => {
+                self.options.block = block;
+                Ok(())
+            }
+            Command::Help(HelpTopic::Commands) => return Reply::Help(reply::HELP),
+            Command::Help(HelpTopic::Datatypes) => return Reply::Help(reply::HELP_DATATYPES),
+        };
+        match result {
+            Ok(()) => Reply::Ok(sequence),
+            Err(failure) => failure_reply(sequence, failure),
+        }
+    }
+}
+
+fn failure_reply(sequence: u32, failure: Failure) -> Reply {
+    match failure {
+        Failure::Abort(code) => Reply::Abort(sequence, code),
+        Failure::Error(code) => Reply::Error(sequence, code),
+    }
+}
+
+/// The event line of a registry event on net `net`, if it has one.
+pub fn event_of(net: u16, event: &NodeEvent) -> Option<Event> {
+    let node = event.node().get();
+    match event {
+        NodeEvent::NmtChanged {
+            to: NmtState::BootUp,
+            ..
+        } => Some(Event::BootUp { net, node }),
+        NodeEvent::Emcy { emcy, .. } => Some(Event::Emcy {
+            net,
+            node,
+            code: emcy.code,
+            register: emcy.register,
+            manufacturer: emcy.manufacturer,
+        }),
+        NodeEvent::Online { .. } => Some(Event::HeartbeatStarted { net, node }),
+        NodeEvent::Offline {
+            reason: OfflineReason::HeartbeatLost,
+            ..
+        } => Some(Event::HeartbeatLost { net, node }),
+        _ => None,
+    }
+}
+
+/// Serves one connection until its input ends: a line in, a reply out,
+/// events in between.
+pub async fn serve_connection<R, W>(gateway: Gateway, identity: Identity, input: R, mut output: W)
+where
+    R: AsyncRead + Unpin,
+    W: AsyncWrite + Unpin + Send + 'static,
+{
+    let (lines, mut queue) = mpsc::channel::<String>(QUEUE);
+    // The events of every bus from now on.
+    let mut forwarders = Vec::new();
+    for (at, bus) in gateway.buses().iter().enumerate() {
+        let net = (at + 1) as u16;
+        let mut events = bus.registry.subscribe();
+        let lines = lines.clone();
+        forwarders.push(tokio::spawn(async move {
+            loop {
+                match events.recv().await {
+                    Ok(event) => {
+                        if let Some(event) = event_of(net, &event)
+                            && let Err(mpsc::error::TrySendError::Closed(_)) =
+                                lines.try_send(event.to_wire())
+                        {
+                            return;
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => return,
+                }
+            }
+        }));
+    }
+    let writer = tokio::spawn(async move {
+        while let Some(line) = queue.recv().await {
+            if output.write_all(line.as_bytes()).await.is_err() || output.flush().await.is_err() {
+                return;
+            }
+        }
+    });
+    let mut session = Session::new(gateway, identity);
+    let mut input = BufReader::new(input);
+    while let Some(line) = read_line(&mut input).await {
+        let reply = match line {
+            Ok(line) => session.handle(&line).await,
+            Err(TooLong) => Reply::Error(session.last_sequence, ErrorCode::Syntax),
+        };
+        if lines.send(reply.to_wire()).await.is_err() {
+            break;
+        }
+    }
+    for forwarder in forwarders {
+        forwarder.abort();
+    }
+    drop(lines);
+    // What was answered is written before the connection closes.
+    let _ = writer.await;
+}
+
+/// A line longer than [`MAX_LINE`].
+struct TooLong;
+
+/// The next line (without checking its content); `None` at the end of the
+/// input. Bytes that are not UTF-8 are replaced (they can only be in a
+/// value, which is then refused).
+async fn read_line<R: AsyncBufRead + Unpin>(input: &mut R) -> Option<Result<String, TooLong>> {
+    let mut buf = Vec::new();
+    let mut too_long = false;
+    loop {
+        let available = match input.fill_buf().await {
+            Ok(available) => available,
+            Err(_) => return None,
+        };
+        if available.is_empty() {
+            // The end of the input: a last line without its end counts.
+            if buf.is_empty() && !too_long {
+                return None;
+            }
+            break;
+        }
+        let (taken, ended) = match available.iter().position(|&b| b == b'\n') {
+            Some(at) => (at + 1, true),
+            None => (available.len(), false),
+        };
+        if !too_long {
+            buf.extend_from_slice(&available[..taken]);
+            if buf.len() > MAX_LINE {
+                too_long = true;
+                buf = Vec::new();
+            }
+        }
+        input.consume(taken);
+        if ended {
+            break;
+        }
+    }
+    if too_long {
+        return Some(Err(TooLong));
+    }
+    Some(Ok(String::from_utf8_lossy(&buf).into_owned()))
+}
+
+/// Accepts CiA 309-3 clients on `listener` until the task is dropped, each
+/// served by [`serve_connection`] as `ascii:<peer address>`.
+pub async fn listen(listener: TcpListener, gateway: Gateway) {
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(err) => {
+                // Out of file descriptors and the like: wait, then go on.
+                tracing::warn!("ascii: accept failed: {err}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        let identity = Identity::anonymous("ascii", Some(peer.to_string()));
+        let gateway = gateway.clone();
+        tokio::spawn(async move {
+            tracing::debug!("ascii: {peer} connected");
+            let (input, output) = stream.into_split();
+            serve_connection(gateway, identity, input, output).await;
+            tracing::debug!("ascii: {peer} disconnected");
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::canopen::NodeId;
+    use crate::gateway::registry::EmcyRecord;
+
+    async fn lines(input: &[u8]) -> Vec<Result<String, ()>> {
+        let mut reader = BufReader::with_capacity(8, input);
+        let mut out = Vec::new();
+        while let Some(line) = read_line(&mut reader).await {
+            out.push(line.map_err(|TooLong| ()));
+        }
+        out
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn lines_are_split_across_reads_and_a_last_line_needs_no_end() {
+        assert_eq!(
+            lines(b"[1] 1 r 0x1000 0\r\n\n[2] start").await,
+            vec![
+                Ok("[1] 1 r 0x1000 0\r\n".to_string()),
+                Ok("\n".to_string()),
+                Ok("[2] start".to_string())
+            ]
+        );
+        assert_eq!(lines(b"").await, Vec::<Result<String, ()>>::new());
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_line_too_long_is_refused_and_the_next_one_read() {
+        let mut input = vec![b'x'; MAX_LINE + 10];
+        input.extend_from_slice(b"\n[3] help\n");
+        assert_eq!(
+            lines(&input).await,
+            vec![Err(()), Ok("[3] help\n".to_string())]
+        );
+    }
+
+    #[test]
+    fn registry_events_become_309_3_event_lines() {
+        let node = NodeId::new(4).unwrap();
+        let boot = NodeEvent::NmtChanged {
+            node,
+            from: Some(NmtState::Operational),
+            to: NmtState::BootUp,
+        };
+        assert_eq!(event_of(2, &boot), Some(Event::BootUp { net: 2, node: 4 }));
+        let other = NodeEvent::NmtChanged {
+            node,
+            from: Some(NmtState::BootUp),
+            to: NmtState::PreOperational,
+        };
+        assert_eq!(event_of(2, &other), None);
+        let lost = NodeEvent::Offline {
+            node,
+            reason: OfflineReason::HeartbeatLost,
+        };
+        assert_eq!(
+            event_of(1, &lost),
+            Some(Event::HeartbeatLost { net: 1, node: 4 })
+        );
+        let down = NodeEvent::Offline {
+            node,
+            reason: OfflineReason::BusDown,
+        };
+        assert_eq!(event_of(1, &down), None);
+        assert_eq!(
+            event_of(1, &NodeEvent::Online { node }),
+            Some(Event::HeartbeatStarted { net: 1, node: 4 })
+        );
+        let emcy = EmcyRecord {
+            code: 0x4210,
+            text: String::new(),
+            register: 0x09,
+            manufacturer: [1, 2, 3, 4, 5],
+            timestamp: crate::can::Timestamp(0),
+        };
+        assert_eq!(
+            event_of(1, &NodeEvent::Emcy { node, emcy }).map(|e| e.to_wire()),
+            Some("1 4 EMCY 0x4210 0x09 01 02 03 04 05\r\n".to_string())
+        );
+    }
+}

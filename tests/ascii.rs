@@ -1,0 +1,412 @@
+//! CiA 309-3 over TCP (`candeck serve --ascii-listen`) and on stdin/stdout
+//! (`candeck ascii`), and CiA 309-5 over HTTP, against the demo devices
+//! (UMC node 1, JMC node 2, UIO1LED node 3): every command and data type,
+//! the errors in CANopenNode's reply forms, and the event lines.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader as TokioBufReader};
+use tokio::net::TcpStream;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+
+use common::{Server, json};
+
+/// `candeck serve --ascii-listen 127.0.0.1:0`: the server, its HTTP and
+/// its ASCII addresses (from its first two stdout lines).
+fn start() -> (Server, String, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args([
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--ascii-listen",
+            "127.0.0.1:0",
+        ])
+        .env_remove("CANDECK_LOG")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("candeck starts");
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    let mut second = String::new();
+    stdout.read_line(&mut second).unwrap();
+    let http = first
+        .strip_prefix("candeck: serving http://")
+        .and_then(|rest| rest.split_once('/'))
+        .map(|(address, _)| address.to_string())
+        .unwrap_or_else(|| panic!("first line: {first}"));
+    let ascii = second
+        .strip_prefix("candeck: CiA 309-3 ASCII gateway on ")
+        .and_then(|rest| rest.split_once(' '))
+        .map(|(address, _)| address.to_string())
+        .unwrap_or_else(|| panic!("second line: {second}"));
+    let address = http.clone();
+    (Server { child, address }, http, ascii)
+}
+
+/// A CiA 309-3 client: replies (lines starting with `[`) apart from the
+/// unsolicited event lines.
+struct Client {
+    reader: TokioBufReader<OwnedReadHalf>,
+    writer: OwnedWriteHalf,
+    events: Vec<String>,
+}
+
+impl Client {
+    async fn connect(address: &str) -> Self {
+        let stream = TcpStream::connect(address).await.unwrap();
+        let (reader, writer) = stream.into_split();
+        Self {
+            reader: TokioBufReader::new(reader),
+            writer,
+            events: Vec::new(),
+        }
+    }
+
+    async fn line(&mut self) -> String {
+        let mut line = String::new();
+        tokio::time::timeout(Duration::from_secs(10), self.reader.read_line(&mut line))
+            .await
+            .expect("a line within 10 s")
+            .unwrap();
+        line
+    }
+
+    /// Sends `command` with `\r\n`; the reply line, `\r\n` included.
+    async fn send(&mut self, command: &str) -> String {
+        self.writer
+            .write_all(format!("{command}\r\n").as_bytes())
+            .await
+            .unwrap();
+        loop {
+            let line = self.line().await;
+            if line.starts_with('[') || line == "\r\n" || line == "\n" {
+                return line;
+            }
+            self.events.push(line);
+        }
+    }
+
+    /// Waits (at most 10 s) for an event line that starts with `prefix`.
+    async fn event(&mut self, prefix: &str) -> String {
+        if let Some(at) = self.events.iter().position(|e| e.starts_with(prefix)) {
+            return self.events.remove(at);
+        }
+        loop {
+            let line = self.line().await;
+            if line.starts_with(prefix) {
+                return line;
+            }
+            self.events.push(line);
+        }
+    }
+}
+
+#[tokio::test]
+async fn every_command_and_datatype_against_the_demo() {
+    let (_server, http, ascii) = start();
+    let mut c = Client::connect(&ascii).await;
+
+    // Strings, identity, and reads without a type (hex).
+    assert_eq!(
+        c.send("[1] 1 r 0x1008 0 vs").await,
+        "[1] \"UMC1BDS32 motion controller\"\r\n"
+    );
+    assert_eq!(
+        c.send("[2] 2 read 0x1008 0 VS").await,
+        "[2] \"AMA CANopen Motor Driver\"\r\n"
+    );
+    assert_eq!(c.send("[3] 1 r 0x1018 1 x32").await, "[3] 0x000004A2\r\n");
+    assert_eq!(c.send("[4] 1 r 0x1018 1 u32").await, "[4] 1186\r\n");
+    assert_eq!(c.send("[5] 1 r 0x1018 1").await, "[5] A2 04 00 00\r\n");
+    assert_eq!(c.send("[6] 1 r 0x1018 1 hex").await, "[6] A2 04 00 00\r\n");
+    // 0x1009 is a UNICODE_STRING in the UMC's EDS: base64 of its bytes.
+    let us = c.send("[7] 1 r 0x1009 0 us").await;
+    assert!(us.starts_with("[7] ") && us.ends_with("\r\n"), "{us}");
+    // A length that is not the type's is written as hex.
+    assert_eq!(c.send("[8] 1 r 0x1018 1 u64").await, "[8] A2 04 00 00\r\n");
+    assert_eq!(c.send("[9] 1 r 0x1018 1 r64").await, "[9] A2 04 00 00\r\n");
+    assert_eq!(
+        c.send("[10] 1 r 0x1018 1 i64").await,
+        "[10] A2 04 00 00\r\n"
+    );
+
+    // u16 (heartbeat period of the UIO1LED), write and read back.
+    assert_eq!(c.send("[11] 3 w 0x1017 0 u16 1500").await, "[11] OK\r\n");
+    assert_eq!(c.send("[12] 3 r 0x1017 0 u16").await, "[12] 1500\r\n");
+    assert_eq!(c.send("[13] 3 r 0x1017 0 x16").await, "[13] 0x05DC\r\n");
+    // u8, x8, b (UMC life time factor).
+    assert_eq!(c.send("[14] 1 w 0x100D 0 u8 3").await, "[14] OK\r\n");
+    assert_eq!(c.send("[15] 1 r 0x100D 0 u8").await, "[15] 3\r\n");
+    assert_eq!(c.send("[16] 1 w 0x100D 0 x8 0x0A").await, "[16] OK\r\n");
+    assert_eq!(c.send("[17] 1 r 0x100D 0 x8").await, "[17] 0x0A\r\n");
+    assert_eq!(c.send("[18] 1 w 0x100D 0 b 1").await, "[18] OK\r\n");
+    assert_eq!(c.send("[19] 1 r 0x100D 0 b").await, "[19] 1\r\n");
+    // i8 (UMC phase advance), i16 (JMC quick stop option code), i32 (JMC
+    // target position).
+    assert_eq!(c.send("[20] 1 w 0x4009 2 i8 -5").await, "[20] OK\r\n");
+    assert_eq!(c.send("[21] 1 r 0x4009 2 i8").await, "[21] -5\r\n");
+    assert_eq!(c.send("[22] 2 w 0x605A 0 i16 2").await, "[22] OK\r\n");
+    assert_eq!(c.send("[23] 2 r 0x605A 0 i16").await, "[23] 2\r\n");
+    assert_eq!(c.send("[24] 2 w 0x607A 0 i32 -123456").await, "[24] OK\r\n");
+    assert_eq!(c.send("[25] 2 r 0x607A 0 i32").await, "[25] -123456\r\n");
+    assert_eq!(c.send("[26] 2 r 0x607A 0 x32").await, "[26] 0xFFFE1DC0\r\n");
+    // The demo has no REAL32, octet string or domain object: their bytes
+    // go to a 4-byte object and come back in their form.
+    assert_eq!(c.send("[27] 2 w 0x607A 0 r32 1.5").await, "[27] OK\r\n");
+    assert_eq!(c.send("[28] 2 r 0x607A 0 r32").await, "[28] 1.5\r\n");
+    assert_eq!(c.send("[29] 2 w 0x607A 0 os AQIDBA==").await, "[29] OK\r\n");
+    assert_eq!(c.send("[30] 2 r 0x607A 0 os").await, "[30] AQIDBA==\r\n");
+    assert_eq!(c.send("[31] 2 r 0x607A 0 i32").await, "[31] 67305985\r\n");
+    assert_eq!(c.send("[32] 2 w 0x607A 0 d BQYHCA==").await, "[32] OK\r\n");
+    assert_eq!(c.send("[33] 2 r 0x607A 0 d").await, "[33] BQYHCA==\r\n");
+    assert_eq!(
+        c.send("[34] 2 w 0x607A 0 hex 0a 0b 0c 0d").await,
+        "[34] OK\r\n"
+    );
+    assert_eq!(c.send("[35] 2 r 0x607A 0").await, "[35] 0A 0B 0C 0D\r\n");
+    assert_eq!(c.send("[36] 2 w 0x607A 0 us AQAAAA==").await, "[36] OK\r\n");
+    assert_eq!(c.send("[37] 2 r 0x607A 0 u32").await, "[37] 1\r\n");
+
+    // 8-byte values on a 4-byte object: the device refuses the length.
+    for (seq, command) in [
+        (38, "w 0x607A 0 i64 -1"),
+        (39, "w 0x607A 0 u64 1"),
+        (40, "w 0x607A 0 x64 1"),
+        (41, "w 0x607A 0 r64 2.5"),
+    ] {
+        let reply = c.send(&format!("[{seq}] 2 {command}")).await;
+        assert!(
+            reply.starts_with(&format!("[{seq}] ERROR:0x0607001")),
+            "{command}: {reply}"
+        );
+    }
+
+    // Aborts, with CANopenNode's text.
+    assert_eq!(
+        c.send("[42] 1 r 0x9999 0").await,
+        "[42] ERROR:0x06020000 #Object does not exist.\r\n"
+    );
+    assert_eq!(
+        c.send("[43] 1 w 0x1008 0 vs \"new name\"").await,
+        "[43] ERROR:0x06010002 #Attempt to write a read only object.\r\n"
+    );
+
+    // Internal errors.
+    assert_eq!(
+        c.send("[44] 1 frobnicate").await,
+        "[44] ERROR:100 #Request not supported.\r\n"
+    );
+    assert_eq!(
+        c.send("[45] 1 r 0x1000 0 u24").await,
+        "[45] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        c.send("[46] 1 w 0x1017 0 u16 70000").await,
+        "[46] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        c.send("[47] r 0x1000 0").await,
+        "[47] ERROR:105 #No default node set.\r\n"
+    );
+    assert_eq!(
+        c.send("[48] 200 r 0x1000 0").await,
+        "[48] ERROR:107 #Unsupported node.\r\n"
+    );
+    assert_eq!(
+        c.send("[49] 2 1 r 0x1000 0").await,
+        "[49] ERROR:106 #Unsupported net.\r\n"
+    );
+    // No sequence: the previous one answers, as in CANopenNode.
+    assert_eq!(
+        c.send("1 r 0x1000 0").await,
+        "[49] ERROR:101 #Syntax error.\r\n"
+    );
+    // A node the gateway never heard.
+    assert_eq!(
+        c.send("[50] 99 r 0x1000 0").await,
+        "[50] ERROR:107 #Unsupported node.\r\n"
+    );
+    // Comments and blank lines.
+    assert_eq!(c.send("# just a comment").await, "\r\n");
+    assert_eq!(
+        c.send("[51] 1 r 0x1000 0 u32 # device type").await,
+        "[51] 402\r\n"
+    );
+
+    // Defaults.
+    assert_eq!(c.send("[52] set network 1").await, "[52] OK\r\n");
+    assert_eq!(c.send("[53] set node 1").await, "[53] OK\r\n");
+    assert_eq!(c.send("[54] r 0x1000 0 u32").await, "[54] 402\r\n");
+    assert_eq!(c.send("[55] 1 1 r 0x1000 0 u32").await, "[55] 402\r\n");
+    assert_eq!(c.send("[56] set sdo_block 1").await, "[56] OK\r\n");
+    assert_eq!(
+        c.send("[57] 1 r 0x1008 0 vs").await,
+        "[57] \"UMC1BDS32 motion controller\"\r\n"
+    );
+    assert_eq!(c.send("[58] set sdo_block 0").await, "[58] OK\r\n");
+    assert_eq!(c.send("[59] set sdo_timeout 200").await, "[59] OK\r\n");
+
+    // help: CANopenNode's framing, without sequence.
+    c.writer.write_all(b"[60] help datatype\r\n").await.unwrap();
+    let mut help = String::new();
+    loop {
+        let line = c.line().await;
+        help.push_str(&line);
+        if line.ends_with("\r\n") {
+            break;
+        }
+    }
+    assert!(help.starts_with("\nDatatypes:\n"), "{help}");
+    assert!(help.contains("x8, x16, x32, x64"));
+
+    // NMT: stop, then SDO is refused from the state the node reported.
+    assert_eq!(c.send("[61] 3 stop").await, "[61] OK\r\n");
+    let (_, refused) = common::poll(&http, "/api/v1/buses/demo/nodes/3", |_, node| {
+        node["nmt"] == "stopped"
+    })
+    .await;
+    assert_eq!(refused["nmt"], "stopped");
+    assert_eq!(
+        c.send("[62] 3 r 0x1000 0").await,
+        "[62] ERROR:204 #Wrong NMT state.\r\n"
+    );
+    assert_eq!(c.send("[63] 3 start").await, "[63] OK\r\n");
+    assert_eq!(c.send("[64] 3 preop").await, "[64] OK\r\n");
+    assert_eq!(c.send("[65] 3 preoperational").await, "[65] OK\r\n");
+    assert_eq!(c.send("[66] 0 start").await, "[66] OK\r\n");
+    // A reset: the node boots again, and says so.
+    assert_eq!(c.send("[67] 2 reset node").await, "[67] OK\r\n");
+    assert_eq!(c.event("1 2 BOOT_UP").await, "1 2 BOOT_UP\r\n");
+    assert_eq!(c.send("[68] 3 reset comm").await, "[68] OK\r\n");
+    assert_eq!(c.event("1 3 BOOT_UP").await, "1 3 BOOT_UP\r\n");
+
+    // An EMCY: a fault injected into the UMC.
+    let (status, body) = common::http(
+        &http,
+        "POST",
+        "/api/v1/buses/demo/sim/nodes/1/faults",
+        Some(r#"{"kind":"over_temperature"}"#),
+    )
+    .await;
+    assert!((200..300).contains(&status), "{status} {body}");
+    let emcy = c.event("1 1 EMCY ").await;
+    assert!(emcy.starts_with("1 1 EMCY 0x4"), "{emcy}");
+    assert!(emcy.ends_with("\r\n"));
+
+    // Time-out: the LED controller unplugged, a short timeout.
+    let (status, body) =
+        common::http(&http, "DELETE", "/api/v1/buses/demo/sim/nodes/3", None).await;
+    assert!((200..300).contains(&status), "{status} {body}");
+    assert_eq!(c.send("[69] set sdo_timeout 50").await, "[69] OK\r\n");
+    assert_eq!(
+        c.send("[70] 3 r 0x1000 0 u32").await,
+        "[70] ERROR:0x05040000 #SDO protocol timed out.\r\n"
+    );
+
+    // Writes and NMT commands are in the audit log, as REST's are.
+    let (_, events) = json(&http, "GET", "/api/v1/events?kind=audit&limit=500", None).await;
+    let text = events.to_string();
+    assert!(text.contains("ascii:127.0.0.1:"), "{text}");
+    assert!(text.contains("[11] 3 w 0x1017 0 u16 1500"), "{text}");
+    assert!(text.contains("[67] 2 reset node"), "{text}");
+    assert!(text.contains("0x06010002"), "{text}");
+}
+
+#[tokio::test]
+async fn cia309_5_read_and_write_round_trip() {
+    let (_server, http, _) = start();
+    let (status, answer) = json(
+        &http,
+        "PUT",
+        "/cia309-5/1.0/7/1/3/w/0x1017/0",
+        Some(r#"{"value":"1200","datatype":"u16"}"#),
+    )
+    .await;
+    assert_eq!(status, 200);
+    assert_eq!(
+        answer,
+        serde_json::json!({"sequence": "7", "response": "OK"})
+    );
+    let (status, answer) = json(&http, "GET", "/cia309-5/1.0/8/1/3/r/0x1017/0", None).await;
+    assert_eq!(status, 200);
+    assert_eq!(
+        answer,
+        serde_json::json!({"sequence": "8", "response": "OK", "data": "0x04b0", "length": 2})
+    );
+    let (_, answer) = json(
+        &http,
+        "GET",
+        "/cia309-5/1.0/9/default/1/read/0x9999/0",
+        None,
+    )
+    .await;
+    assert_eq!(
+        answer,
+        serde_json::json!({"sequence": "9", "response": "ERROR:0x06020000"})
+    );
+    let (_, answer) = json(
+        &http,
+        "PUT",
+        "/cia309-5/1.0/10/1/3/w/0x1017/0",
+        Some(r#"{"value":"1","datatype":"u24"}"#),
+    )
+    .await;
+    assert_eq!(answer["response"], "ERROR:100");
+    let (_, answer) = json(&http, "POST", "/cia309-5/1.0/11/1/3/start", None).await;
+    assert_eq!(
+        answer,
+        serde_json::json!({"sequence": "11", "response": "OK"})
+    );
+    let (_, answer) = json(&http, "POST", "/cia309-5/1.0/12/1/2/reset/comm", None).await;
+    assert_eq!(answer["response"], "OK");
+    let (_, answer) = json(&http, "GET", "/cia309-5/1.0/13/5/1/r/0x1000/0", None).await;
+    assert_eq!(answer["response"], "ERROR:106");
+    let (_, events) = json(&http, "GET", "/api/v1/events?kind=audit", None).await;
+    let text = events.to_string();
+    assert!(text.contains("/cia309-5/1.0/7/1/3/w/0x1017/0"), "{text}");
+}
+
+#[tokio::test]
+async fn stdin_stdout_mode() {
+    let mut child = tokio::process::Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["ascii", "--bus", "virtual:demo"])
+        .env_remove("CANDECK_LOG")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("candeck ascii starts");
+    let mut stdin = child.stdin.take().unwrap();
+    stdin
+        .write_all(b"[1] 1 r 0x1018 1 x32\r\n[2] 3 w 0x1017 0 u16 900\n[3] 3 r 0x1017 0 u16\r\n[4] bogus\r\n")
+        .await
+        .unwrap();
+    drop(stdin);
+    let output = tokio::time::timeout(Duration::from_secs(30), child.wait_with_output())
+        .await
+        .expect("ends with its input")
+        .unwrap();
+    assert!(output.status.success());
+    let text = String::from_utf8(output.stdout).unwrap();
+    let replies: Vec<&str> = text
+        .split_inclusive("\r\n")
+        .filter(|line| line.starts_with('['))
+        .collect();
+    assert_eq!(
+        replies,
+        [
+            "[1] 0x000004A2\r\n",
+            "[2] OK\r\n",
+            "[3] 900\r\n",
+            "[4] ERROR:100 #Request not supported.\r\n"
+        ]
+    );
+}
