@@ -24,6 +24,9 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`auth`]: tokens and roles, the table of the least role of every
+//!   route, and the layer that applies it (origin check, CORS, body
+//!   limits, rate limit); `/auth/whoami`.
 //! - [`audit`]: the layer that writes every state-changing request to the
 //!   audit log before its response leaves.
 //! - [`events`]: `/events`, the persisted history (audit, EMCY, NMT).
@@ -35,6 +38,7 @@
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod audit;
+pub mod auth;
 pub mod buses;
 pub mod config;
 pub mod doc;
@@ -60,6 +64,8 @@ mod test_support;
 mod tests;
 #[cfg(test)]
 mod tests_audit;
+#[cfg(test)]
+mod tests_auth;
 #[cfg(test)]
 mod tests_drives;
 #[cfg(test)]
@@ -214,6 +220,8 @@ pub struct AppState {
     pub enabled_axes: Arc<drives::EnabledAxes>,
     /// The audit log and the EMCY/NMT history (`/events`).
     pub history: History,
+    /// Tokens, roles and limits ([`auth::guard`]); open by default.
+    pub guard: Arc<auth::Guard>,
 }
 
 impl AppState {
@@ -246,7 +254,14 @@ impl AppState {
             stream_counters: Arc::new(StreamCounters::default()),
             enabled_axes: Arc::new(drives::EnabledAxes::default()),
             history,
+            guard: Arc::new(auth::Guard::default()),
         }
+    }
+
+    /// The same state with these access settings (tokens, CORS, limits).
+    pub fn with_auth(mut self, config: auth::AuthConfig) -> Self {
+        self.guard = Arc::new(auth::Guard::new(config));
+        self
     }
 
     /// The bus named in a path, or 404 `unknown_bus`.
@@ -259,7 +274,9 @@ impl AppState {
 }
 
 /// The API's router under `/api/v1` and `/metrics` at the root (without
-/// state), and its OpenAPI document, from every resource's router.
+/// state and without the audit and access layers, which [`app`] puts
+/// around everything), and its OpenAPI document, from every resource's
+/// router.
 pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let (api, api_doc) = OpenApiRouter::new()
         .merge(buses::router())
@@ -275,6 +292,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(sim::router())
         .merge(stream::router())
         .merge(events::router())
+        .merge(auth::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let (metrics, metrics_doc) = metrics::router().split_for_parts();
@@ -284,12 +302,6 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .nest("/api/v1", api)
         .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
-        // Outside every route and fallback: refused and unknown requests
-        // are audited too.
-        .layer(axum::middleware::from_fn_with_state(
-            state.clone(),
-            audit::record,
-        ))
         .with_state(state);
     (router, doc)
 }
@@ -300,9 +312,24 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
 /// The dashboard ([`crate::web`]) is at `/`, outside the API and its
 /// document. Paths no router has answer 404 in the API's error shape.
 pub fn app(state: AppState) -> Router {
-    let (router, doc) = routers(state);
+    let (router, doc) = routers(state.clone());
     let docs = SwaggerUi::new("/api/docs")
         .url("/api/openapi.json", doc)
         .config(Config::default().validator_url("none"));
-    router.merge(docs).merge(crate::web::router())
+    let largest_body = state.guard.config.largest_body();
+    router
+        .merge(docs)
+        .merge(crate::web::router())
+        // The extractors' own limit, above the guard's per-route limits
+        // (a body without Content-Length is cut there).
+        .layer(axum::extract::DefaultBodyLimit::max(largest_body))
+        // Who may do what, inside the audit: refused requests are audited
+        // with who tried.
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::guard,
+        ))
+        // Outside every route and fallback: refused and unknown requests
+        // are audited too.
+        .layer(axum::middleware::from_fn_with_state(state, audit::record))
 }

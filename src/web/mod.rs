@@ -62,7 +62,9 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/auth.css", CSS),
     asset!("js/api.js", JS),
+    asset!("js/auth.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/overview.js", JS),
