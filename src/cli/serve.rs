@@ -690,6 +690,7 @@ mod tests {
     use clap::Parser;
 
     use super::*;
+    use crate::api::auth::Role;
     use crate::cli::{Cli, Command};
 
     fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
@@ -770,6 +771,84 @@ mod tests {
             .settings()
             .unwrap_err();
         assert!(err.contains("axis_poll_hz"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn without_tokens_only_loopback_is_served_unless_insecure() {
+        let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+        assert!(settings.exposure().unwrap().unwrap().contains("no tokens"));
+        let err = serve_args(&["--listen", "0.0.0.0:8080"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("refusing to listen on 0.0.0.0:8080 without tokens"), "{err}");
+        let settings = serve_args(&["--listen", "0.0.0.0:8080", "--insecure"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert!(settings.exposure().unwrap().unwrap().contains("--insecure"));
+        let settings = serve_args(&["--listen", "[::]:8080"])
+            .unwrap()
+            .settings_with(Some("plc:operator:3f9c2a7be81d4c06a5e9"))
+            .unwrap();
+        assert_eq!(settings.exposure(), Ok(None));
+        assert_eq!(settings.auth.tokens[0].name, "plc");
+    }
+
+    #[test]
+    fn tokens_and_limits_come_from_the_file_and_the_environment() {
+        let dir = std::env::temp_dir().join(format!("candeck-auth-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("auth.toml");
+        std::fs::write(
+            &file,
+            "cors_origins = [\"https://scada.example\"]\nwrite_rate = 5\nbody_limit = 2048\n\
+             [[tokens]]\nname = \"line-plc\"\nrole = \"operator\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+        )
+        .unwrap();
+        let path = file.to_str().unwrap();
+        let settings = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(Some("hmi:viewer:0123456789abcdefghij"))
+            .unwrap();
+        let names: Vec<(&str, Role)> = settings
+            .auth
+            .tokens
+            .iter()
+            .map(|t| (t.name.as_str(), t.role))
+            .collect();
+        assert_eq!(names, [("line-plc", Role::Operator), ("hmi", Role::Viewer)]);
+        assert_eq!(settings.auth.cors_origins, ["https://scada.example"]);
+        assert_eq!(settings.auth.rate_limit.unwrap().per_second, 5.0);
+        assert_eq!(settings.auth.body_limit, 2048);
+        // The command line wins; 0 turns the rate limit off.
+        let settings = serve_args(&["--config", path, "--write-rate", "0"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert_eq!(settings.auth.rate_limit, None);
+        // The same token twice, a weak one, an unknown role: refused.
+        let err = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(Some("other:admin:3f9c2a7be81d4c06a5e9"))
+            .unwrap_err();
+        assert!(err.contains("the same token"), "{err}");
+        let err = serve_args(&[])
+            .unwrap()
+            .settings_with(Some("plc:operator:secret"))
+            .unwrap_err();
+        assert!(err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"), "{err}");
+        std::fs::write(
+            &file,
+            "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+        )
+        .unwrap();
+        let err = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("unknown role 'root'"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
