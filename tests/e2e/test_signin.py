@@ -149,8 +149,12 @@ def test_signing_in_lists_the_nodes_and_names_the_token_until_sign_out(server, b
     assert sorted(int(i) for i in rows) == [1, 2, 3]
     browser.wait(lambda _: connection(browser) == "connected", message="the stream did not connect with the token")
     assert not signin_visible(browser)
-    user = browser.js("return document.getElementById('user').innerText")
-    assert "line-plc" in user and "operator" in user and "Sign out" in user, user
+    user = browser.js(
+        "const u = document.getElementById('user');"
+        "return [u.querySelector('.user-name').textContent, u.querySelector('.role').textContent,"
+        " u.querySelector('.signout').textContent]"
+    )
+    assert user == ["line-plc", "operator", "Sign out"], user
     # The token lives for this tab only (no "remember").
     assert browser.js("return sessionStorage.getItem('candeck.token')") == OPERATOR
     assert browser.js("return localStorage.getItem('candeck.token')") is None
