@@ -209,7 +209,10 @@ fn method_fits(entry: &str, method: &Method) -> bool {
 }
 
 /// The entry of [`ROUTES`] for a request, if any.
-pub fn route_entry(method: &Method, path: &str) -> Option<&'static (&'static str, &'static str, Access)> {
+pub fn route_entry(
+    method: &Method,
+    path: &str,
+) -> Option<&'static (&'static str, &'static str, Access)> {
     ROUTES
         .iter()
         .find(|(m, pattern, _)| method_fits(m, method) && matches(pattern, path))
@@ -298,9 +301,7 @@ impl Token {
         let mut parts = entry.trim().splitn(3, ':');
         match (parts.next(), parts.next(), parts.next()) {
             (Some(name), Some(role), Some(secret)) => {
-                let role = role
-                    .parse()
-                    .map_err(|err| format!("token {name}: {err}"))?;
+                let role = role.parse().map_err(|err| format!("token {name}: {err}"))?;
                 Self::new(name, role, secret)
             }
             _ => Err("a token is NAME:ROLE:TOKEN".to_string()),
@@ -391,11 +392,9 @@ impl AuthConfig {
             }
         }
         for origin in &cors_origins {
-            let valid = origin
-                .split_once("://")
-                .is_some_and(|(scheme, host)| {
-                    matches!(scheme, "http" | "https") && !host.is_empty() && !host.contains('/')
-                });
+            let valid = origin.split_once("://").is_some_and(|(scheme, host)| {
+                matches!(scheme, "http" | "https") && !host.is_empty() && !host.contains('/')
+            });
             if !valid {
                 return Err(format!(
                     "cors_origins: '{origin}' is no origin like https://scada.example:8443 (no path, no trailing slash)"
@@ -827,8 +826,14 @@ mod tests {
         assert_eq!(required(&Method::HEAD, "/"), PUBLIC);
         assert_eq!(required(&Method::POST, "/"), ADMIN);
         assert_eq!(required(&Method::GET, "/metrics"), VIEWER);
-        assert_eq!(required(&Method::GET, "/cia309-5/1.0/1/1/1/r/0x1008/0"), VIEWER);
-        assert_eq!(required(&Method::PUT, "/cia309-5/1.0/1/1/1/w/0x1008/0"), ADMIN);
+        assert_eq!(
+            required(&Method::GET, "/cia309-5/1.0/1/1/1/r/0x1008/0"),
+            VIEWER
+        );
+        assert_eq!(
+            required(&Method::PUT, "/cia309-5/1.0/1/1/1/w/0x1008/0"),
+            ADMIN
+        );
     }
 
     #[test]
@@ -870,8 +875,8 @@ mod tests {
         let c = Token::new("c", Role::Admin, good).unwrap();
         let err = AuthConfig::new(vec![a, c], vec![], None, 1, 1).unwrap_err();
         assert!(err.contains("the same token"), "{err}");
-        let err = AuthConfig::new(vec![], vec!["https://x.example/".into()], None, 1, 1)
-            .unwrap_err();
+        let err =
+            AuthConfig::new(vec![], vec!["https://x.example/".into()], None, 1, 1).unwrap_err();
         assert!(err.contains("no origin"), "{err}");
     }
 }

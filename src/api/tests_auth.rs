@@ -122,7 +122,12 @@ fn every_route_of_the_router_has_an_entry_in_the_role_table() {
     }
     assert!(checked > 40, "{checked} routes only");
     // The routes outside the OpenAPI document.
-    for path in ["/", "/api/openapi.json", "/api/docs", "/api/docs/index.html"] {
+    for path in [
+        "/",
+        "/api/openapi.json",
+        "/api/docs",
+        "/api/docs/index.html",
+    ] {
         assert!(route_entry(&Method::GET, path).is_some(), "{path}");
     }
 }
@@ -140,7 +145,9 @@ async fn the_auth_matrix_follows_the_role_table() {
         (Some(ADMIN), Some(Role::Admin)),
     ];
     for (method, pattern, access) in ROUTES.iter().chain(FALLBACK) {
-        let method: Method = if *method == "*" { "POST" } else { method }.parse().unwrap();
+        let method: Method = if *method == "*" { "POST" } else { method }
+            .parse()
+            .unwrap();
         let path = concrete(pattern);
         let body = (method != Method::GET && method != Method::DELETE).then_some("{}");
         for (token, role) in tokens {
@@ -170,7 +177,11 @@ async fn the_auth_matrix_follows_the_role_table() {
                     );
                 }
                 (Access::Needs(needed), Some(role)) if role < *needed => {
-                    assert_eq!(status, StatusCode::FORBIDDEN, "{method} {path}, {who}: {json}");
+                    assert_eq!(
+                        status,
+                        StatusCode::FORBIDDEN,
+                        "{method} {path}, {who}: {json}"
+                    );
                     assert_eq!(json["error"]["code"], "forbidden");
                 }
                 (Access::Needs(_), Some(_)) => assert!(
@@ -237,8 +248,22 @@ async fn refused_requests_are_audited_with_who_tried() {
         Some("{}"),
     )
     .await;
-    send(&app, Method::POST, scan, &[("authorization", &viewer)], Some("{}")).await;
-    send(&app, Method::POST, scan, &[("authorization", &operator)], Some("{}")).await;
+    send(
+        &app,
+        Method::POST,
+        scan,
+        &[("authorization", &viewer)],
+        Some("{}"),
+    )
+    .await;
+    send(
+        &app,
+        Method::POST,
+        scan,
+        &[("authorization", &operator)],
+        Some("{}"),
+    )
+    .await;
     let admin = bearer(ADMIN);
     let (status, _, events) = send(
         &app,
@@ -286,7 +311,10 @@ async fn cors_preflights_are_answered_for_listed_origins_only() {
         [
             ("origin", origin),
             ("access-control-request-method", "PUT"),
-            ("access-control-request-headers", "authorization, content-type"),
+            (
+                "access-control-request-headers",
+                "authorization, content-type",
+            ),
         ]
     };
     let path = "/api/v1/buses/demo/nodes/1/od/0x6040/0";
@@ -326,7 +354,10 @@ async fn cors_preflights_are_answered_for_listed_origins_only() {
         &app,
         Method::GET,
         "/api/v1/buses",
-        &[("authorization", &viewer), ("origin", "https://scada.example")],
+        &[
+            ("authorization", &viewer),
+            ("origin", "https://scada.example"),
+        ],
         None,
     )
     .await;
@@ -367,7 +398,10 @@ async fn an_open_gateway_refuses_writes_from_other_web_pages_and_audits_them() {
         &app,
         Method::POST,
         nmt,
-        &[("host", "127.0.0.1:8080"), ("origin", "https://evil.example")],
+        &[
+            ("host", "127.0.0.1:8080"),
+            ("origin", "https://evil.example"),
+        ],
         body,
     )
     .await;
@@ -390,7 +424,10 @@ async fn an_open_gateway_refuses_writes_from_other_web_pages_and_audits_them() {
     assert_eq!(status, StatusCode::FORBIDDEN);
     // The gateway's own pages, and programs that send no Origin, pass.
     for headers in [
-        &[("host", "127.0.0.1:8080"), ("origin", "http://127.0.0.1:8080")][..],
+        &[
+            ("host", "127.0.0.1:8080"),
+            ("origin", "http://127.0.0.1:8080"),
+        ][..],
         &[("host", "127.0.0.1:8080")][..],
     ] {
         let (status, _, json) = send(&app, Method::POST, nmt, headers, body).await;

@@ -8,9 +8,7 @@ use std::sync::Arc;
 use clap::Args;
 
 use super::{CliError, shutdown_signal};
-use crate::api::auth::{
-    AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit, Token,
-};
+use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit, Token};
 use crate::api::{AppState, ServedBus};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
@@ -162,7 +160,7 @@ pub struct ServeArgs {
     /// CANDECK_TOKENS) candeck refuses such an address unless told this.
     #[arg(long)]
     pub insecure: bool,
-    /// An origin (https://scada.example:8443) whose web pages may call the
+    /// An origin (scheme://host:port, exactly) whose web pages may call the
     /// API (CORS); repeat for more. Default: none, only the gateway's own
     /// pages.
     #[arg(long = "cors-origin", value_name = "ORIGIN")]
@@ -782,7 +780,10 @@ mod tests {
             .unwrap()
             .settings_with(None)
             .unwrap_err();
-        assert!(err.contains("refusing to listen on 0.0.0.0:8080 without tokens"), "{err}");
+        assert!(
+            err.contains("refusing to listen on 0.0.0.0:8080 without tokens"),
+            "{err}"
+        );
         let settings = serve_args(&["--listen", "0.0.0.0:8080", "--insecure"])
             .unwrap()
             .settings_with(None)
@@ -838,7 +839,10 @@ mod tests {
             .unwrap()
             .settings_with(Some("plc:operator:secret"))
             .unwrap_err();
-        assert!(err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"), "{err}");
+        assert!(
+            err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"),
+            "{err}"
+        );
         std::fs::write(
             &file,
             "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
