@@ -617,9 +617,13 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         );
     }
     match exposure {
-        Some(warning) => tracing::warn!("{warning}"),
+        // The address as it listens (the port, when 0 was asked).
+        Some(warning) => tracing::warn!(
+            "{}",
+            warning.replace(&args.listen.to_string(), &local.to_string())
+        ),
         None => tracing::info!(
-            "{} tokens: every request but the health check and the dashboard's pages needs one",
+            "tokens: {}; every request but the health check and the dashboard's pages needs one",
             args.auth.tokens.len()
         ),
     }
