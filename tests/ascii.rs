@@ -18,7 +18,16 @@ use common::{Server, json};
 /// `candeck serve --ascii-listen 127.0.0.1:0`: the server, its HTTP and
 /// its ASCII addresses (from its first two stdout lines).
 fn start() -> (Server, String, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+    start_with_tokens(None)
+}
+
+/// [`start`], with `CANDECK_TOKENS` set when given.
+fn start_with_tokens(tokens: Option<&str>) -> (Server, String, String) {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_candeck"));
+    if let Some(tokens) = tokens {
+        command.env("CANDECK_TOKENS", tokens);
+    }
+    let mut child = command
         .args([
             "serve",
             "--listen",
@@ -409,4 +418,75 @@ async fn stdin_stdout_mode() {
             "[4] ERROR:100 #Request not supported.\r\n"
         ]
     );
+}
+
+const VIEWER_TOKEN: &str = "viewer-token-0123456789abcdef";
+const OPERATOR_TOKEN: &str = "operator-token-0123456789abcdef";
+
+#[tokio::test]
+async fn with_tokens_a_connection_needs_auth_and_the_role_of_the_rest_api() {
+    let tokens = format!("scada:viewer:{VIEWER_TOKEN},plc:operator:{OPERATOR_TOKEN}");
+    let (_server, http, ascii) = start_with_tokens(Some(&tokens));
+    let mut client = Client::connect(&ascii).await;
+    // Nothing before a token, but help and the settings of the connection.
+    assert_eq!(
+        client.send("[1] 1 r 0x1018 1 u32").await,
+        "[1] ERROR:102 #Request not processed due to internal state.\r\n"
+    );
+    assert_eq!(client.send("[2] set sdo_timeout 500").await, "[2] OK\r\n");
+    assert_eq!(
+        client.send("[3] auth wrong-token-0123456789").await,
+        "[3] ERROR:102 #Request not processed due to internal state.\r\n"
+    );
+    // A viewer reads, and may not write or command NMT.
+    assert_eq!(
+        client.send(&format!("[4] auth {VIEWER_TOKEN}")).await,
+        "[4] OK\r\n"
+    );
+    assert_eq!(
+        client.send("[5] 1 r 0x1018 1 u32").await,
+        format!("[5] {}\r\n", client_vendor(&http).await)
+    );
+    assert_eq!(
+        client.send("[6] 3 w 0x1017 0 u16 0").await,
+        "[6] ERROR:102 #Request not processed due to internal state.\r\n"
+    );
+    assert_eq!(
+        client.send("[7] 2 preop").await,
+        "[7] ERROR:102 #Request not processed due to internal state.\r\n"
+    );
+    // An operator writes; the audit log names its token.
+    assert_eq!(
+        client.send(&format!("[8] auth {OPERATOR_TOKEN}")).await,
+        "[8] OK\r\n"
+    );
+    assert_eq!(client.send("[9] 3 w 0x1017 0 u16 0").await, "[9] OK\r\n");
+    let (status, audit) = common::json_with_token(
+        &http,
+        "GET",
+        "/api/v1/events?kind=audit&limit=10",
+        OPERATOR_TOKEN,
+    )
+    .await;
+    assert_eq!(status, 200, "{audit}");
+    let write = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["method"] == "ASCII")
+        .unwrap_or_else(|| panic!("no ASCII entry in {audit}"));
+    assert_eq!(write["who"], "plc", "{write}");
+    assert_eq!(write["role"], "operator", "{write}");
+}
+
+/// The UMC's vendor id (0x1018:1) as the u32 reply writes it.
+async fn client_vendor(http: &str) -> String {
+    let (_, body) = common::json_with_token(
+        http,
+        "GET",
+        "/api/v1/buses/demo/nodes/1/od/0x1018/1",
+        VIEWER_TOKEN,
+    )
+    .await;
+    body["value"].as_u64().unwrap().to_string()
 }

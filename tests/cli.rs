@@ -235,3 +235,14 @@ fn virtual_demo_carries_the_demo_devices_for_every_command() {
     let (code, _, stderr) = candeck(&["nmt", "--bus", "virtual:demo", "--node", "all", "start"]);
     assert_eq!(code, 0, "{stderr}");
 }
+
+#[test]
+fn serving_beyond_loopback_without_tokens_is_refused() {
+    let (code, stdout, stderr) = candeck(&["serve", "--listen", "0.0.0.0:0"]);
+    assert_eq!(code, 1, "{stdout}{stderr}");
+    assert_one_clear_line(&stderr, "refusing to listen on 0.0.0.0:0 without tokens");
+    assert!(stderr.contains("--insecure"), "{stderr}");
+    let (code, _, stderr) = candeck(&["serve", "--config", "/nonexistent/candeck.toml"]);
+    assert_eq!(code, 1);
+    assert_one_clear_line(&stderr, "/nonexistent/candeck.toml");
+}

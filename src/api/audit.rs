@@ -12,6 +12,11 @@
 //! it adds nodes to the gateway and marks silent ones offline. `GET`,
 //! `HEAD` and `OPTIONS` never are (the stream is a `GET`).
 //!
+//! Who made the request is what the access layer ([`super::auth`]) found:
+//! the token's name and role, `anonymous`/`none` without one (or when the
+//! gateway asks for none), `invalid-token`/`none` for a token it does not
+//! know; requests it refused (401, 403, 429) are written too.
+//!
 //! If the entry cannot be written (disk full), the request has happened
 //! already: its response is sent unchanged, and the failure is logged as
 //! an error.
@@ -25,14 +30,12 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use serde_json::Value as Json;
 
+use super::AppState;
+use super::auth::Identity;
 use super::error::ErrorSummary;
-use super::{AppError, AppState};
 use crate::can::Timestamp;
 use crate::gateway::history::AuditEntry;
 
-/// The largest body the gateway reads (axum's default for its extractors);
-/// a larger one is refused with 413, and audited.
-pub const MAX_BODY: usize = 2 * 1024 * 1024;
 /// The request body as the audit log keeps it, at most (bytes of JSON).
 pub const MAX_SUMMARY: usize = 1024;
 /// Keys whose values are never written to the log.
@@ -70,27 +73,32 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         .to_string();
     // The body is read here, once, so that the log can summarise it; the
     // handler gets the same bytes.
-    let (response, summary) = match axum::body::to_bytes(body, MAX_BODY).await {
+    // The route's limit (`body_limit`, `dcf_body_limit`): a larger body is
+    // refused with 413, and audited.
+    let limit = state.guard.config.body_limit(&method, &path);
+    let (response, summary) = match axum::body::to_bytes(body, limit).await {
         Ok(bytes) => {
             let summary = summarise(&bytes, &content_type);
             let request = Request::from_parts(parts, Body::from(bytes));
             (next.run(request).await, summary)
         }
         Err(_) => (
-            AppError::PayloadTooLarge(format!(
-                "the request body is larger than {MAX_BODY} bytes, or could not be read"
-            ))
-            .into_response(),
-            Some(format!("more than {MAX_BODY} bytes")),
+            super::auth::too_large(limit).into_response(),
+            Some(format!("more than {limit} bytes")),
         ),
     };
     let target = Target::of(&method, &path);
     let error = response.extensions().get::<ErrorSummary>();
+    // The guard names who it let in or turned away; a body refused for its
+    // size never reached it.
+    let identity = response.extensions().get::<Identity>();
     let entry = AuditEntry {
         time,
-        who: "anonymous".to_string(),
+        who: identity.map_or_else(|| "anonymous".to_string(), |id| id.name.clone()),
         peer,
-        role: "none".to_string(),
+        role: identity
+            .and_then(|id| id.role)
+            .map_or_else(|| "none".to_string(), |role| role.name().to_string()),
         method: method.to_string(),
         path,
         operation: target.operation,

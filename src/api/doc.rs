@@ -26,7 +26,11 @@ Errors have one shape, `{\"error\": {\"code\", \"message\", ...}}`: 400 for a re
 that is invalid (found before the bus is touched), 404 for an unknown bus, node, object, axis or \
 segment, 409 when the device's or gateway's state forbids the request, 422 when the device \
 refused (SDO abort, with `abort_code` and `abort_text`), 502 when it broke the protocol, 503 when \
-the bus is down and 504 when the device did not answer in time.",
+the bus is down and 504 when the device did not answer in time.\n\n\
+When the gateway is configured with tokens, every request but `/health` needs \
+`Authorization: Bearer TOKEN` of a role that may make it (README, \"Authentication and roles\"): \
+401 `unauthenticated` without a valid token, 403 `forbidden` for a role below the route's, \
+429 `rate_limited` (with `Retry-After`) for writes faster than the token's rate.",
         license(name = "MIT OR Apache-2.0")
     ),
     tags(
@@ -41,9 +45,27 @@ the bus is down and 504 when the device did not answer in time.",
         (name = "sim", description = "The virtual devices of an emulated bus: add, remove, inject faults"),
         (name = "events", description = "The persisted history: audit log of state-changing requests, EMCYs (CiA 301 §7.2.7), NMT and supervision events"),
         (name = "metrics", description = "The gateway's metrics for Prometheus (text format 0.0.4), at the root path"),
-    )
+        (name = "auth", description = "Who the request's bearer token is (RFC 6750)"),
+    ),
+    modifiers(&BearerAuth),
+    security(("bearer" = []))
 )]
 pub struct ApiDoc;
+
+/// The bearer token scheme (RFC 6750), so that the docs UI's "Authorize"
+/// sends it.
+struct BearerAuth;
+
+impl utoipa::Modify for BearerAuth {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+        let components = openapi.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
+        );
+    }
+}
 
 /// Every error: `{"error": {...}}`.
 #[derive(Debug, Serialize, ToSchema)]

@@ -31,6 +31,7 @@
 //! fails after its first write halts the axis (quick stop if halting fails)
 //! before the error is answered.
 
+use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
@@ -40,6 +41,7 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::leases::{InFlight, LeaseInfo, presented};
 use super::nodes::known_node;
@@ -190,9 +192,10 @@ fn key(bus: &str, drive: &Drive) -> AxisKey {
     }
 }
 
-/// Who a request acts for, as the lease records it.
-fn holder() -> String {
-    "anonymous".to_string()
+/// Who a request acts for, as the lease records it: its token's name
+/// (`anonymous` on an open gateway).
+fn holder(identity: Option<&Extension<Identity>>) -> String {
+    identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
 }
 
 /// The node's axis from the path, after the checks that need no bus.
@@ -375,6 +378,7 @@ async fn fault_reset(
     ))]
 async fn halt(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
@@ -396,10 +400,13 @@ async fn halt(
     let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
     let lease = match endless_displayed(status.mode.as_deref()) {
         Some(mode) if status.state == "operation_enabled" => {
-            let lease =
-                state
-                    .leases
-                    .grant(&state, axis_key, lease_header.as_deref(), &holder(), mode)?;
+            let lease = state.leases.grant(
+                &state,
+                axis_key,
+                lease_header.as_deref(),
+                &holder(identity.as_ref()),
+                mode,
+            )?;
             Some(LeaseInfo::of(&lease, tokio::time::Instant::now()))
         }
         _ => {
@@ -435,6 +442,7 @@ async fn halt(
     ))]
 async fn run_move(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<MoveRequest>,
@@ -464,7 +472,7 @@ async fn run_move(
         &state,
         axis_key.clone(),
         lease_header,
-        &holder(),
+        &holder(identity.as_ref()),
         mode.name(),
     )?;
     state.enabled_axes.insert(&bus, &drive);

@@ -146,6 +146,18 @@ pub enum AppError {
     /// A request body larger than the gateway reads.
     #[error("{0}")]
     PayloadTooLarge(String),
+    /// No token, or one the gateway does not know (the gateway asks for
+    /// tokens); answered with `WWW-Authenticate: Bearer`.
+    #[error("{0}")]
+    Unauthenticated(String),
+    /// The token's role is below the route's, or a cross-origin request
+    /// the gateway does not allow.
+    #[error("{0}")]
+    Forbidden(String),
+    /// The token sent more writes than its rate allows; answered with
+    /// `Retry-After`.
+    #[error("{message}")]
+    RateLimited { message: String, retry_after_s: u64 },
     /// The history database failed (disk full, file damaged): the
     /// gateway's machine, not the request.
     #[error("{0}")]
@@ -204,6 +216,9 @@ impl AppError {
             Self::UnknownLease(_) => (StatusCode::NOT_FOUND, "unknown_lease"),
             Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
             Self::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            Self::Unauthenticated(_) => (StatusCode::UNAUTHORIZED, "unauthenticated"),
+            Self::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
+            Self::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
             Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
@@ -236,6 +251,7 @@ impl AppError {
             Self::DriveFault { state, .. }
             | Self::DriveNotEnabled { state, .. }
             | Self::StateChangeTimeout { state, .. } => body["state"] = json!(state),
+            Self::RateLimited { retry_after_s, .. } => body["retry_after_s"] = json!(retry_after_s),
             // Every error is rendered once, here: the one place to log
             // what the client is not told.
             Self::Internal(detail) => tracing::error!("api: {detail}"),
@@ -331,6 +347,9 @@ impl From<ValueError> for AppError {
 
 impl From<JsonRejection> for AppError {
     fn from(rejection: JsonRejection) -> Self {
+        if rejection.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            return Self::PayloadTooLarge(rejection.body_text());
+        }
         Self::InvalidRequest(rejection.body_text())
     }
 }
@@ -354,12 +373,26 @@ impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let status = self.status();
         let body = self.to_json();
+        let extra_header = match &self {
+            Self::Unauthenticated(_) => Some((
+                axum::http::header::WWW_AUTHENTICATE,
+                axum::http::HeaderValue::from_static("Bearer realm=\"candeck\""),
+            )),
+            Self::RateLimited { retry_after_s, .. } => Some((
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from(*retry_after_s),
+            )),
+            _ => None,
+        };
         let summary = ErrorSummary {
             code: body["code"].as_str().unwrap_or_default().to_string(),
             abort_code: body["abort_code"].as_str().map(str::to_string),
         };
         let mut response = (status, axum::Json(json!({ "error": body }))).into_response();
         response.extensions_mut().insert(summary);
+        if let Some((name, value)) = extra_header {
+            response.headers_mut().insert(name, value);
+        }
         response
     }
 }

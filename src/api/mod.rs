@@ -24,6 +24,9 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`auth`]: tokens and roles, the table of the least role of every
+//!   route, and the layer that applies it (origin check, CORS, body
+//!   limits, rate limit); `/auth/whoami`.
 //! - [`audit`]: the layer that writes every state-changing request to the
 //!   audit log before its response leaves.
 //! - [`events`]: `/events`, the persisted history (audit, EMCY, NMT).
@@ -38,6 +41,7 @@
 //!   `/api/docs`) and the schemas the routers share.
 
 pub mod audit;
+pub mod auth;
 pub mod buses;
 pub mod cia309_5;
 pub mod config;
@@ -65,6 +69,8 @@ mod test_support;
 mod tests;
 #[cfg(test)]
 mod tests_audit;
+#[cfg(test)]
+mod tests_auth;
 #[cfg(test)]
 mod tests_drives;
 #[cfg(test)]
@@ -226,6 +232,8 @@ pub struct AppState {
     /// The bus names in the order they were given (`--bus`, the config
     /// file): CiA 309 net 1 is the first.
     pub bus_order: Arc<Vec<String>>,
+    /// Tokens, roles and limits ([`auth::guard`]); open by default.
+    pub guard: Arc<auth::Guard>,
 }
 
 impl AppState {
@@ -262,6 +270,7 @@ impl AppState {
             history,
             leases: Arc::new(leases::MotionLeases::default()),
             bus_order: Arc::new(bus_order),
+            guard: Arc::new(auth::Guard::default()),
         }
     }
 
@@ -280,6 +289,12 @@ impl AppState {
             .collect()
     }
 
+    /// The same state with these access settings (tokens, CORS, limits).
+    pub fn with_auth(mut self, config: auth::AuthConfig) -> Self {
+        self.guard = Arc::new(auth::Guard::new(config));
+        self
+    }
+
     /// The bus named in a path, or 404 `unknown_bus`.
     pub fn bus(&self, name: &str) -> Result<Arc<ServedBus>, AppError> {
         self.buses
@@ -290,7 +305,9 @@ impl AppState {
 }
 
 /// The API's router under `/api/v1` and `/metrics` at the root (without
-/// state), and its OpenAPI document, from every resource's router.
+/// state and without the audit and access layers, which [`app`] puts
+/// around everything), and its OpenAPI document, from every resource's
+/// router.
 pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let (api, api_doc) = OpenApiRouter::new()
         .merge(buses::router())
@@ -307,6 +324,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(sim::router())
         .merge(stream::router())
         .merge(events::router())
+        .merge(auth::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);
     let (metrics, metrics_doc) = metrics::router().split_for_parts();
@@ -317,12 +335,6 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(metrics.method_not_allowed_fallback(error::method_not_allowed))
         .merge(cia309_5::router().method_not_allowed_fallback(error::method_not_allowed))
         .fallback(error::no_route)
-        // Outside every route and fallback: refused and unknown requests
-        // are audited too.
-        .layer(axum::middleware::from_fn_with_state(
-            state.clone(),
-            audit::record,
-        ))
         .with_state(state);
     (router, doc)
 }
@@ -333,9 +345,24 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
 /// The dashboard ([`crate::web`]) is at `/`, outside the API and its
 /// document. Paths no router has answer 404 in the API's error shape.
 pub fn app(state: AppState) -> Router {
-    let (router, doc) = routers(state);
+    let (router, doc) = routers(state.clone());
     let docs = SwaggerUi::new("/api/docs")
         .url("/api/openapi.json", doc)
         .config(Config::default().validator_url("none"));
-    router.merge(docs).merge(crate::web::router())
+    let largest_body = state.guard.config.largest_body();
+    router
+        .merge(docs)
+        .merge(crate::web::router())
+        // The extractors' own limit, above the guard's per-route limits
+        // (a body without Content-Length is cut there).
+        .layer(axum::extract::DefaultBodyLimit::max(largest_body))
+        // Who may do what, inside the audit: refused requests are audited
+        // with who tried.
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::guard,
+        ))
+        // Outside every route and fallback: refused and unknown requests
+        // are audited too.
+        .layer(axum::middleware::from_fn_with_state(state, audit::record))
 }

@@ -101,7 +101,10 @@ async fn stream(
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, AppError> {
     let upgrade = upgrade.map_err(|rejection| AppError::UpgradeRequired(rejection.body_text()))?;
+    // A browser sends its token as a second subprotocol (`bearer.TOKEN`,
+    // checked by the access layer); the answer names ours only.
     Ok(upgrade
+        .protocols([super::auth::STREAM_PROTOCOL])
         .max_message_size(MAX_CLIENT_MESSAGE)
         .on_upgrade(move |socket| serve_socket(state, socket)))
 }

@@ -394,7 +394,10 @@ async fn every_state_changing_request_is_audited_with_its_target_and_result() {
 #[tokio::test(start_paused = true)]
 async fn a_body_too_large_is_refused_and_audited() {
     let (app, _) = demo().await;
-    let body = format!("{{\"value\":\"{}\"}}", "x".repeat(super::audit::MAX_BODY));
+    let body = format!(
+        "{{\"value\":\"{}\"}}",
+        "x".repeat(super::auth::DEFAULT_BODY_LIMIT)
+    );
     let (status, text, _) = raw_call(
         &app,
         Method::PUT,

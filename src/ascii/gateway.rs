@@ -12,6 +12,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::api::auth::{Guard, Role};
 use crate::api::{AppError, AppState, ServedBus};
 use crate::can::Timestamp;
 use crate::canopen::NodeId;
@@ -32,6 +33,9 @@ pub struct Identity {
     pub role: String,
     /// The client's address, when there is one.
     pub peer: Option<String>,
+    /// The role a token gave the connection (`auth TOKEN`), checked when
+    /// the gateway has tokens.
+    pub access: Option<Role>,
 }
 
 impl Identity {
@@ -45,6 +49,7 @@ impl Identity {
             who,
             role: "none".to_string(),
             peer,
+            access: None,
         }
     }
 }
@@ -126,6 +131,8 @@ pub struct Origin<'a> {
 pub struct Gateway {
     buses: Arc<Vec<Arc<ServedBus>>>,
     history: History,
+    /// The tokens and roles of the REST API: the same apply here.
+    guard: Arc<Guard>,
 }
 
 impl Gateway {
@@ -133,7 +140,13 @@ impl Gateway {
         Self {
             buses: Arc::new(state.buses_in_order()),
             history: state.history.clone(),
+            guard: state.guard.clone(),
         }
+    }
+
+    /// The gateway's tokens and roles.
+    pub fn guard(&self) -> &Guard {
+        &self.guard
     }
 
     /// How many nets there are (1 to this).

@@ -16,6 +16,7 @@ use tokio::sync::{broadcast, mpsc};
 use super::command::{self, Command, Context, HelpTopic, Line};
 use super::gateway::{Failure, Gateway, Identity, Origin, TransferOptions};
 use super::reply::{self, ErrorCode, Event, Reply};
+use crate::api::auth::Role;
 use crate::canopen::nmt::NmtState;
 use crate::gateway::registry::{NodeEvent, OfflineReason};
 
@@ -39,7 +40,60 @@ pub struct Session {
     last_sequence: u32,
 }
 
+/// `[seq] auth TOKEN`: not part of CiA 309-3, candeck's way to give a
+/// connection a token when the gateway has tokens (README, "CiA 309
+/// gateways"); the sequence number and the token.
+fn auth_line(line: &str) -> Option<(u32, &str)> {
+    let mut words = line.split_whitespace();
+    let first = words.next()?;
+    let sequence = first
+        .strip_prefix('[')
+        .and_then(|rest| rest.strip_suffix(']'))
+        .and_then(|number| number.parse().ok());
+    let command = match sequence {
+        Some(_) => words.next()?,
+        None => first,
+    };
+    if !command.eq_ignore_ascii_case("auth") {
+        return None;
+    }
+    let token = words.next().unwrap_or("");
+    Some((sequence.unwrap_or(0), token))
+}
+
 impl Session {
+    /// `auth TOKEN`: the connection takes the token's name and role.
+    fn authenticate(&mut self, sequence: u32, token: &str) -> Reply {
+        self.last_sequence = sequence;
+        match self.gateway.guard().authenticate(token) {
+            Some((name, role)) => {
+                self.identity.who = name;
+                self.identity.role = role.name().to_string();
+                self.identity.access = Some(role);
+                Reply::Ok(sequence)
+            }
+            None => {
+                tracing::warn!(
+                    "ascii: {} sent an unknown token",
+                    self.identity.peer.as_deref().unwrap_or("a client")
+                );
+                Reply::Error(sequence, ErrorCode::InternalState)
+            }
+        }
+    }
+
+    /// Whether the connection's role may run `command`, by the REST API's
+    /// roles: SDO reads for viewers, SDO writes and NMT for operators. An
+    /// open gateway (no tokens) allows all.
+    fn allowed(&self, command: &Command) -> bool {
+        let needed = match command {
+            Command::Read { .. } => Role::Viewer,
+            Command::Write { .. } | Command::Nmt(_) => Role::Operator,
+            _ => return true,
+        };
+        !self.gateway.guard().required() || self.identity.access.is_some_and(|role| role >= needed)
+    }
+
     pub fn new(gateway: Gateway, identity: Identity) -> Self {
         Self {
             gateway,
@@ -53,6 +107,9 @@ impl Session {
 
     /// The reply to one line.
     pub async fn handle(&mut self, line: &str) -> Reply {
+        if let Some((sequence, token)) = auth_line(line) {
+            return self.authenticate(sequence, token);
+        }
         let context = Context {
             default_net: self.default_net,
             default_node: self.default_node,
@@ -69,6 +126,9 @@ impl Session {
         };
         let sequence = request.sequence;
         self.last_sequence = sequence;
+        if !self.allowed(&request.command) {
+            return Reply::Error(sequence, ErrorCode::InternalState);
+        }
         let net = request.net;
         let node = request.node.unwrap_or(0);
         let path = line.trim_end_matches(['\r', '\n']);

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use clap::Args;
 
 use super::{CliError, shutdown_signal};
+use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit, Token};
 use crate::api::{AppState, ServedBus};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
@@ -117,9 +118,12 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz, retention_days, retention_rows, lease_ms, ascii_listen.
+    /// axis_poll_hz, retention_days, retention_rows, lease_ms, ascii_listen,
+    /// tokens (a list of {name, role, token}), cors_origins, write_rate,
+    /// write_burst, body_limit, dcf_body_limit.
     /// Options given on the command line override it; relative paths in it
-    /// are relative to the file.
+    /// are relative to the file. Tokens also come from the environment:
+    /// CANDECK_TOKENS="NAME:ROLE:TOKEN,..." (roles: viewer, operator, admin).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Where candeck keeps its data (created if missing): the virtual
@@ -162,6 +166,31 @@ pub struct ServeArgs {
     /// is the first bus given.
     #[arg(long, value_name = "ADDR")]
     pub ascii_listen: Option<SocketAddr>,
+    /// Serve without tokens on an address other than loopback: anyone who
+    /// reaches it may move the motors. Without tokens (config `tokens`,
+    /// CANDECK_TOKENS) candeck refuses such an address unless told this.
+    #[arg(long)]
+    pub insecure: bool,
+    /// An origin (scheme://host:port, exactly) whose web pages may call the
+    /// API (CORS); repeat for more. Default: none, only the gateway's own
+    /// pages.
+    #[arg(long = "cors-origin", value_name = "ORIGIN")]
+    pub cors_origins: Vec<String>,
+    /// Writes per second one token may send (a token bucket; stop-all is
+    /// never limited); 0 turns the limit off. Default: 10.
+    #[arg(long, value_name = "PER_SECOND")]
+    pub write_rate: Option<f64>,
+    /// How many writes a token may send at once before its rate applies.
+    /// Default: 40.
+    #[arg(long, value_name = "N")]
+    pub write_burst: Option<u32>,
+    /// The largest request body in bytes (413 above). Default: 1048576.
+    #[arg(long, value_name = "BYTES")]
+    pub body_limit: Option<usize>,
+    /// The largest DCF upload (PUT .../config.dcf) in bytes. Default:
+    /// 4194304.
+    #[arg(long, value_name = "BYTES")]
+    pub dcf_body_limit: Option<usize>,
 }
 
 /// A lease period in milliseconds, within the gateway's bounds.
@@ -183,6 +212,18 @@ fn check_lease_ms(ms: u64) -> Result<u64, String> {
     } else {
         Err(format!("{ms} ms: a lease period is {min} to {max} ms"))
     }
+}
+
+/// The environment variable of tokens: `NAME:ROLE:TOKEN,...`.
+pub const TOKENS_ENV: &str = "CANDECK_TOKENS";
+
+/// One token of the config file.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TokenEntry {
+    name: String,
+    role: String,
+    token: String,
 }
 
 /// A polling rate: a positive number of hertz, at most what a producer
@@ -222,6 +263,14 @@ struct ConfigFile {
     retention_rows: Option<u64>,
     lease_ms: Option<u64>,
     ascii_listen: Option<SocketAddr>,
+    #[serde(default)]
+    tokens: Vec<TokenEntry>,
+    #[serde(default)]
+    cors_origins: Vec<String>,
+    write_rate: Option<f64>,
+    write_burst: Option<u32>,
+    body_limit: Option<usize>,
+    dcf_body_limit: Option<usize>,
 }
 
 impl ConfigFile {
@@ -300,12 +349,20 @@ struct Settings {
     retention: Retention,
     lease_period: std::time::Duration,
     ascii_listen: Option<SocketAddr>,
+    auth: AuthConfig,
+    insecure: bool,
 }
 
 impl ServeArgs {
     /// The settings: each option from the command line, else from the
-    /// config file, else its default (the demo bus when no bus is given).
+    /// config file, else its default (the demo bus when no bus is given);
+    /// tokens from the file and [`TOKENS_ENV`].
     fn settings(&self) -> Result<Settings, String> {
+        self.settings_with(std::env::var(TOKENS_ENV).ok().as_deref())
+    }
+
+    /// [`ServeArgs::settings`] with `tokens_env` as the environment's tokens.
+    fn settings_with(&self, tokens_env: Option<&str>) -> Result<Settings, String> {
         let file = match &self.config {
             Some(path) => ConfigFile::read(path)?,
             None => ConfigFile::default(),
@@ -361,9 +418,68 @@ impl ServeArgs {
                 )
                 .filter(|rows| *rows > 0),
             },
+            auth: self.auth_config(
+                file.tokens,
+                file.cors_origins,
+                (file.write_rate, file.write_burst),
+                (file.body_limit, file.dcf_body_limit),
+                tokens_env,
+            )?,
+            insecure: self.insecure,
         };
         settings.validate()?;
         Ok(settings)
+    }
+
+    /// Tokens from the file and the environment, the rest from the command
+    /// line over the file over the defaults.
+    fn auth_config(
+        &self,
+        file_tokens: Vec<TokenEntry>,
+        file_origins: Vec<String>,
+        (rate, burst): (Option<f64>, Option<u32>),
+        (body, dcf_body): (Option<usize>, Option<usize>),
+        tokens_env: Option<&str>,
+    ) -> Result<AuthConfig, String> {
+        let mut tokens = Vec::new();
+        for entry in file_tokens {
+            let role = entry
+                .role
+                .parse()
+                .map_err(|err| format!("config tokens: token {}: {err}", entry.name))?;
+            tokens.push(
+                Token::new(&entry.name, role, &entry.token)
+                    .map_err(|err| format!("config tokens: {err}"))?,
+            );
+        }
+        for entry in tokens_env
+            .unwrap_or("")
+            .split(',')
+            .filter(|entry| !entry.trim().is_empty())
+        {
+            tokens.push(Token::parse_entry(entry).map_err(|err| format!("{TOKENS_ENV}: {err}"))?);
+        }
+        let origins = if self.cors_origins.is_empty() {
+            file_origins
+        } else {
+            self.cors_origins.clone()
+        };
+        let defaults = RateLimit::default();
+        let per_second = self.write_rate.or(rate).unwrap_or(defaults.per_second);
+        // 0 turns the limit off.
+        let rate_limit = (per_second != 0.0).then(|| RateLimit {
+            per_second,
+            burst: self.write_burst.or(burst).unwrap_or(defaults.burst),
+        });
+        AuthConfig::new(
+            tokens,
+            origins,
+            rate_limit,
+            self.body_limit.or(body).unwrap_or(DEFAULT_BODY_LIMIT),
+            self.dcf_body_limit
+                .or(dcf_body)
+                .unwrap_or(DEFAULT_DCF_BODY_LIMIT),
+        )
     }
 
     /// What clap cannot check one argument at a time: two buses of one name.
@@ -388,6 +504,7 @@ fn unique_names(buses: &[NamedBus], source: &str) -> Result<(), String> {
 impl Settings {
     fn validate(&self) -> Result<(), String> {
         unique_names(&self.buses, "buses")?;
+        self.exposure()?;
         for share in &self.share {
             match &share.bus {
                 Some(name) => {
@@ -417,6 +534,29 @@ impl Settings {
         Ok(())
     }
 
+    /// Whether the gateway may listen where it is told, and the warning to
+    /// give: without tokens anyone who reaches the port may move motors, so
+    /// an address other than loopback needs tokens or `--insecure`.
+    fn exposure(&self) -> Result<Option<String>, String> {
+        if self.auth.required() {
+            return Ok(None);
+        }
+        let listen = self.listen;
+        if listen.ip().is_loopback() {
+            return Ok(Some(format!(
+                "no tokens: the API on {listen} is open to every program and user of this machine (README, \"Authentication and roles\")"
+            )));
+        }
+        if self.insecure {
+            return Ok(Some(format!(
+                "--insecure: no tokens, the API on {listen} is open to anyone who reaches it, and may move motors"
+            )));
+        }
+        Err(format!(
+            "refusing to listen on {listen} without tokens: anyone who reaches it could move motors; configure tokens (config file [[tokens]] or {TOKENS_ENV}), listen on 127.0.0.1, or pass --insecure"
+        ))
+    }
+
     /// The socketcand servers to start: each address with the virtual
     /// buses it shares, as (channel, hub).
     fn shared(
@@ -441,6 +581,9 @@ impl Settings {
 
 pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let args = args.settings().map_err(CliError::new)?;
+    // Refused by settings() already when it is an error; warned about once
+    // the gateway listens (a start that fails says one line only).
+    let exposure = args.exposure().map_err(CliError::new)?;
     if let Some(dir) = &args.data_dir {
         std::fs::create_dir_all(dir)
             .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
@@ -534,6 +677,17 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     if let Some((_, addr)) = &ascii_listener {
         println!("candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)");
     }
+    match exposure {
+        // The address as it listens (the port, when 0 was asked).
+        Some(warning) => tracing::warn!(
+            "{}",
+            warning.replace(&args.listen.to_string(), &local.to_string())
+        ),
+        None => tracing::info!(
+            "tokens: {}; every request but the health check and the dashboard's pages needs one",
+            args.auth.tokens.len()
+        ),
+    }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
     for bus in &served {
@@ -553,7 +707,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             }
         });
     }
-    let state = AppState::with_history(served, history).with_lease_period(args.lease_period);
+    let state = AppState::with_history(served, history)
+        .with_lease_period(args.lease_period)
+        .with_auth(args.auth.clone());
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
@@ -608,6 +764,7 @@ mod tests {
     use clap::Parser;
 
     use super::*;
+    use crate::api::auth::Role;
     use crate::cli::{Cli, Command};
 
     fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
@@ -714,6 +871,90 @@ mod tests {
             .settings()
             .unwrap_err();
         assert!(err.contains("axis_poll_hz"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn without_tokens_only_loopback_is_served_unless_insecure() {
+        let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+        assert!(settings.exposure().unwrap().unwrap().contains("no tokens"));
+        let err = serve_args(&["--listen", "0.0.0.0:8080"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(
+            err.contains("refusing to listen on 0.0.0.0:8080 without tokens"),
+            "{err}"
+        );
+        let settings = serve_args(&["--listen", "0.0.0.0:8080", "--insecure"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert!(settings.exposure().unwrap().unwrap().contains("--insecure"));
+        let settings = serve_args(&["--listen", "[::]:8080"])
+            .unwrap()
+            .settings_with(Some("plc:operator:3f9c2a7be81d4c06a5e9"))
+            .unwrap();
+        assert_eq!(settings.exposure(), Ok(None));
+        assert_eq!(settings.auth.tokens[0].name, "plc");
+    }
+
+    #[test]
+    fn tokens_and_limits_come_from_the_file_and_the_environment() {
+        let dir = std::env::temp_dir().join(format!("candeck-auth-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("auth.toml");
+        std::fs::write(
+            &file,
+            "cors_origins = [\"https://scada.example\"]\nwrite_rate = 5\nbody_limit = 2048\n\
+             [[tokens]]\nname = \"line-plc\"\nrole = \"operator\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+        )
+        .unwrap();
+        let path = file.to_str().unwrap();
+        let settings = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(Some("hmi:viewer:0123456789abcdefghij"))
+            .unwrap();
+        let names: Vec<(&str, Role)> = settings
+            .auth
+            .tokens
+            .iter()
+            .map(|t| (t.name.as_str(), t.role))
+            .collect();
+        assert_eq!(names, [("line-plc", Role::Operator), ("hmi", Role::Viewer)]);
+        assert_eq!(settings.auth.cors_origins, ["https://scada.example"]);
+        assert_eq!(settings.auth.rate_limit.unwrap().per_second, 5.0);
+        assert_eq!(settings.auth.body_limit, 2048);
+        // The command line wins; 0 turns the rate limit off.
+        let settings = serve_args(&["--config", path, "--write-rate", "0"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert_eq!(settings.auth.rate_limit, None);
+        // The same token twice, a weak one, an unknown role: refused.
+        let err = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(Some("other:admin:3f9c2a7be81d4c06a5e9"))
+            .unwrap_err();
+        assert!(err.contains("the same token"), "{err}");
+        let err = serve_args(&[])
+            .unwrap()
+            .settings_with(Some("plc:operator:secret"))
+            .unwrap_err();
+        assert!(
+            err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"),
+            "{err}"
+        );
+        std::fs::write(
+            &file,
+            "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+        )
+        .unwrap();
+        let err = serve_args(&["--config", path])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("unknown role 'root'"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

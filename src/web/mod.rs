@@ -77,6 +77,7 @@ const SVG: &str = "image/svg+xml";
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
+    asset!("css/auth.css", CSS),
     asset!("css/drive.css", CSS),
     asset!("css/events.css", CSS),
     asset!("css/leds.css", CSS),
@@ -84,6 +85,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/pdos.css", CSS),
     asset!("css/trace.css", CSS),
     asset!("js/api.js", JS),
+    asset!("js/auth.js", JS),
     asset!("js/canopen.js", JS),
     asset!("js/chart.js", JS),
     asset!("js/cia402.js", JS),

@@ -125,10 +125,23 @@ pub async fn request(
     body: Option<&str>,
     timeout: Duration,
 ) -> Response {
+    request_with_headers(address, method, path, content_type, body, timeout, "").await
+}
+
+/// [`request`] with more header lines (each ending in `\r\n`).
+pub async fn request_with_headers(
+    address: &str,
+    method: &str,
+    path: &str,
+    content_type: &str,
+    body: Option<&str>,
+    timeout: Duration,
+    headers: &str,
+) -> Response {
     let mut stream = TcpStream::connect(address).await.unwrap();
     let body = body.unwrap_or("");
     let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\r\n{body}",
+        "{method} {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n{headers}Content-Type: {content_type}\r\nContent-Length: {}\r\n\r\n{body}",
         body.len()
     );
     stream.write_all(request.as_bytes()).await.unwrap();
@@ -183,6 +196,26 @@ pub async fn json(
     let (status, body) = http(address, method, path, body).await;
     let json = serde_json::from_str(&body).unwrap_or_else(|err| panic!("{path}: {err}: {body}"));
     (status, json)
+}
+
+/// [`json`] with a bearer token.
+pub async fn json_with_token(
+    address: &str,
+    method: &str,
+    path: &str,
+    token: &str,
+) -> (u16, serde_json::Value) {
+    let response = request_with_headers(
+        address,
+        method,
+        path,
+        "application/json",
+        None,
+        Duration::from_secs(30),
+        &format!("Authorization: Bearer {token}\r\n"),
+    )
+    .await;
+    (response.status, response.json())
 }
 
 /// Polls `GET path` every 50 ms, for at most 10 s, until `done`; the last

@@ -1,7 +1,11 @@
 // The REST API from the browser: one fetch wrapper that turns the API's
 // {"error":{"code","message",...}} bodies (and network failures) into
 // ApiError messages a person can read, and runAction, which shows on the
-// button that started an action that it is in progress.
+// button that started an action that it is in progress. Requests carry the
+// signed-in token and wait for a sign-in when the gateway asks for one
+// (auth.js).
+
+import { authorization, signInAgain, whenSignedIn } from './auth.js';
 
 export class ApiError extends Error {
   constructor(message, { status = 0, code = 'network', body = null } = {}) {
@@ -28,7 +32,8 @@ export function describeError(status, body, fallback) {
  * empty); `headers` are added to the request's. Throws ApiError: status 0 when the gateway cannot be reached.
  */
 export async function api(path, { method = 'GET', body, signal, headers = {} } = {}) {
-  const init = { method, signal, headers: { accept: 'application/json', ...headers } };
+  await whenSignedIn();
+  const init = { method, signal, headers: { accept: 'application/json', ...authorization(), ...headers } };
   if (body !== undefined) {
     init.headers['content-type'] = 'application/json';
     init.body = JSON.stringify(body);
@@ -51,6 +56,7 @@ export async function api(path, { method = 'GET', body, signal, headers = {} } =
       });
     }
   }
+  if (response.status === 401) signInAgain();
   if (!response.ok) {
     const code = data?.error?.code || `http_${response.status}`;
     throw new ApiError(describeError(response.status, data, `${method} ${path}: HTTP ${response.status} ${response.statusText}`), {

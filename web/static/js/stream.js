@@ -2,6 +2,10 @@
 // subscribed by handlers, and a connection that comes back by itself. After
 // the socket closes (the gateway restarted, the network dropped) it is
 // reopened with a growing delay, and every topic in use is subscribed again.
+// It connects once the page is signed in (auth.js), with the token as a
+// subprotocol.
+
+import { protocols, whenSignedIn } from './auth.js';
 
 const FIRST_DELAY_MS = 500;
 const MAX_DELAY_MS = 8000;
@@ -23,7 +27,11 @@ export class Stream {
   connect() {
     clearTimeout(this.timer);
     this.setState({ state: 'connecting' });
-    const socket = new WebSocket(this.url);
+    whenSignedIn().then(() => this.open());
+  }
+
+  open() {
+    const socket = new WebSocket(this.url, protocols());
     this.socket = socket;
     socket.onopen = () => {
       if (socket !== this.socket) return;

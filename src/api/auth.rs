@@ -1,0 +1,898 @@
+//! Who may do what (issue 8, point 1): bearer tokens with a name and a role,
+//! the one table of the least role of every route ([`ROUTES`]), and the one
+//! middleware ([`guard`]) that applies it, together with what keeps other
+//! web pages and greedy clients out: the origin check and CORS preflights,
+//! request body limits, and a per-token rate limit on writes.
+//!
+//! Bearer tokens as RFC 6750 sends them (`Authorization: Bearer TOKEN`);
+//! a browser cannot set that header on a WebSocket, so the stream also
+//! takes the token as a subprotocol (RFC 6455, 4.1: `Sec-WebSocket-Protocol:
+//! candeck.v1, bearer.TOKEN`; the answer names `candeck.v1` only). Never in
+//! the URL: a query ends in proxy and access logs.
+//!
+//! Without tokens the gateway is open (`candeck serve` allows that on a
+//! loopback address only, or with `--insecure`); the origin check applies
+//! either way, so that a web page a floor PC visits cannot send writes to
+//! an open gateway on `127.0.0.1`.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use axum::extract::{Request, State};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use tokio::time::Instant;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::doc::ErrorBody;
+use super::{AppError, AppState};
+
+/// What a token may do; each role may do what the ones before it may.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// Reads and the stream.
+    Viewer,
+    /// Motion, LEDs, NMT, object writes.
+    Operator,
+    /// PDO configuration, store/restore, DCF restore, raw frames,
+    /// recording, `/sim`, SYNC.
+    Admin,
+}
+
+impl Role {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Viewer => "viewer",
+            Self::Operator => "operator",
+            Self::Admin => "admin",
+        }
+    }
+}
+
+impl std::str::FromStr for Role {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text.trim() {
+            "viewer" => Ok(Self::Viewer),
+            "operator" => Ok(Self::Operator),
+            "admin" => Ok(Self::Admin),
+            other => Err(format!(
+                "unknown role '{other}' (a role is viewer, operator or admin)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What a route asks of a request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Anyone: it carries no data from the devices.
+    Public,
+    /// A token of this role or above.
+    Needs(Role),
+}
+
+const PUBLIC: Access = Access::Public;
+const VIEWER: Access = Access::Needs(Role::Viewer);
+const OPERATOR: Access = Access::Needs(Role::Operator);
+const ADMIN: Access = Access::Needs(Role::Admin);
+
+/// The least role of every route: method (`*` any), path pattern
+/// (`{name}` one segment, `{*name}` the rest), access. The first entry
+/// that matches decides; a test fails when a route of the router has no
+/// entry here, so a new route is one line here.
+#[rustfmt::skip]
+pub static ROUTES: &[(&str, &str, Access)] = &[
+    // Container health checks ask without a token.
+    ("GET",    "/api/v1/health", PUBLIC),
+    ("GET",    "/api/v1/auth/whoami", VIEWER),
+    ("GET",    "/api/v1/buses", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}", VIEWER),
+    // A scan reads identities only, but adds nodes and marks silent ones
+    // offline: it changes the gateway.
+    ("POST",   "/api/v1/buses/{bus}/scan", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nmt", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/nmt", OPERATOR),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", OPERATOR),
+    // A batch of reads, a POST only because it has a body.
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/od/read", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments", OPERATOR),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments/{n}", OPERATOR),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments/preview", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/store", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/restore", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/state", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/halt", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/move", OPERATOR),
+    // Renewing the motion lease of a move the operator started.
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/lease", OPERATOR),
+    // A safety function: whoever watches a machine may stop it, as anyone
+    // may press an emergency stop; it can only stop motion, and the log
+    // names the token. Never rate limited.
+    ("POST",   "/api/v1/stop-all", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/values", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", ADMIN),
+    // Process data straight to a device's mapped objects: as raw as a frame.
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/sync", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/sync", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/frames", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/frames", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/recording", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/recording", ADMIN),
+    ("DELETE", "/api/v1/buses/{bus}/recording", ADMIN),
+    ("GET",    "/api/v1/buses/{bus}/recording.log", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/sim/nodes", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/sim/nodes", ADMIN),
+    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
+    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
+    ("GET",    "/api/v1/stream", VIEWER),
+    ("GET",    "/api/v1/events", VIEWER),
+    ("GET",    "/metrics", VIEWER),
+    // The interface's description: no data, and the docs UI is where one
+    // enters a token to try the API ("Authorize").
+    ("GET",    "/api/openapi.json", PUBLIC),
+    ("GET",    "/api/docs", PUBLIC),
+    ("GET",    "/api/docs/{*file}", PUBLIC),
+    // CiA 309-5 (the gateway protocol): its SDO reads for viewers, its SDO
+    // writes and NMT commands for operators, as the same requests through
+    // /api/v1 (od PUT, nmt POST).
+    ("GET",    "/cia309-5/{*rest}", VIEWER),
+    ("*",      "/cia309-5/{*rest}", OPERATOR),
+    // The dashboard's pages and static files: layout only, the data comes
+    // from the API (each page asks for a token when the API wants one).
+    ("GET",    "/", PUBLIC),
+    ("GET",    "/static/{version}/{*path}", PUBLIC),
+];
+
+/// What applies to requests no entry of [`ROUTES`] matches: unknown API
+/// paths (404 after authentication; writes to them as if they were
+/// admin's, the safe side), and every other `GET` outside the API — the
+/// dashboard's pages, which hold no data.
+#[rustfmt::skip]
+pub static FALLBACK: &[(&str, &str, Access)] = &[
+    ("GET", "/api/{*rest}", VIEWER),
+    ("*",   "/api/{*rest}", ADMIN),
+    ("GET", "/metrics/{*rest}", VIEWER),
+    ("GET", "/{*page}", PUBLIC),
+    ("*",   "/{*rest}", ADMIN),
+];
+
+/// Whether `path` fits `pattern` (see [`ROUTES`]).
+pub fn matches(pattern: &str, path: &str) -> bool {
+    let mut path_segments = path.split('/');
+    for expected in pattern.split('/') {
+        if expected.starts_with("{*") {
+            // A wildcard takes at least one segment, as axum's does.
+            return path_segments.next().is_some_and(|s| !s.is_empty());
+        }
+        let Some(segment) = path_segments.next() else {
+            return false;
+        };
+        let is_param = expected.starts_with('{') && expected.ends_with('}');
+        if !(is_param && !segment.is_empty() || segment == expected) {
+            return false;
+        }
+    }
+    path_segments.next().is_none()
+}
+
+fn method_fits(entry: &str, method: &Method) -> bool {
+    // HEAD is answered by GET routes.
+    let method = if *method == Method::HEAD {
+        "GET"
+    } else {
+        method.as_str()
+    };
+    entry == "*" || entry == method
+}
+
+/// The entry of [`ROUTES`] for a request, if any.
+pub fn route_entry(
+    method: &Method,
+    path: &str,
+) -> Option<&'static (&'static str, &'static str, Access)> {
+    ROUTES
+        .iter()
+        .find(|(m, pattern, _)| method_fits(m, method) && matches(pattern, path))
+}
+
+/// What a request needs: its entry of [`ROUTES`], else of [`FALLBACK`].
+pub fn required(method: &Method, path: &str) -> Access {
+    route_entry(method, path)
+        .or_else(|| {
+            FALLBACK
+                .iter()
+                .find(|(m, pattern, _)| method_fits(m, method) && matches(pattern, path))
+        })
+        .map_or(ADMIN, |(_, _, access)| *access)
+}
+
+/// One configured token.
+#[derive(Clone)]
+pub struct Token {
+    pub name: String,
+    pub role: Role,
+    secret: Vec<u8>,
+}
+
+impl std::fmt::Debug for Token {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Never the secret, not even in a debug print.
+        f.debug_struct("Token")
+            .field("name", &self.name)
+            .field("role", &self.role)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The shortest token accepted: 20 characters of a 64-letter alphabet are
+/// 120 bits (`openssl rand -hex 32` gives 64).
+pub const MIN_TOKEN_LEN: usize = 20;
+
+impl Token {
+    /// A token, checked: a name of letters, digits, `-_.@`; a secret of at
+    /// least [`MIN_TOKEN_LEN`] characters of `A-Za-z0-9-._~` (so that it
+    /// fits a header and a WebSocket subprotocol unquoted), not one that
+    /// repeats a few characters.
+    pub fn new(name: &str, role: Role, secret: &str) -> Result<Self, String> {
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_.@".contains(c))
+        {
+            return Err(format!(
+                "token name '{name}' is not a name: letters, digits, '-', '_', '.' and '@' only"
+            ));
+        }
+        if let Some(bad) = secret
+            .chars()
+            .find(|c| !(c.is_ascii_alphanumeric() || "-._~".contains(*c)))
+        {
+            return Err(format!(
+                "token {name}: the character {bad:?} is not allowed (A-Z a-z 0-9 - . _ ~ only; openssl rand -hex 32 makes one)"
+            ));
+        }
+        if secret.len() < MIN_TOKEN_LEN {
+            return Err(format!(
+                "token {name}: {} characters is too weak, at least {MIN_TOKEN_LEN} (openssl rand -hex 32 makes one)",
+                secret.len()
+            ));
+        }
+        let distinct = secret
+            .bytes()
+            .collect::<std::collections::BTreeSet<u8>>()
+            .len();
+        if distinct < 8 {
+            return Err(format!(
+                "token {name}: too weak, it repeats {distinct} characters (openssl rand -hex 32 makes one)"
+            ));
+        }
+        Ok(Self {
+            name: name.to_string(),
+            role,
+            secret: secret.as_bytes().to_vec(),
+        })
+    }
+
+    /// `NAME:ROLE:TOKEN`, as `CANDECK_TOKENS` lists them.
+    pub fn parse_entry(entry: &str) -> Result<Self, String> {
+        let mut parts = entry.trim().splitn(3, ':');
+        match (parts.next(), parts.next(), parts.next()) {
+            (Some(name), Some(role), Some(secret)) => {
+                let role = role.parse().map_err(|err| format!("token {name}: {err}"))?;
+                Self::new(name, role, secret)
+            }
+            _ => Err("a token is NAME:ROLE:TOKEN".to_string()),
+        }
+    }
+}
+
+/// Whether `given` equals `secret`, in a time that depends on the length of
+/// `secret` only (never on where they first differ, nor on `given`).
+pub fn constant_time_eq(given: &[u8], secret: &[u8]) -> bool {
+    let mut diff = u8::from(given.len() != secret.len());
+    for (i, byte) in secret.iter().enumerate() {
+        diff |= given.get(i).copied().unwrap_or(!*byte) ^ byte;
+    }
+    std::hint::black_box(diff) == 0
+}
+
+/// The per-token rate limit on writes: a bucket of `burst` writes that
+/// refills at `per_second`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RateLimit {
+    pub per_second: f64,
+    pub burst: u32,
+}
+
+impl Default for RateLimit {
+    /// 10 writes a second, bursts of 40: more than a person clicks, less
+    /// than a runaway script.
+    fn default() -> Self {
+        Self {
+            per_second: 10.0,
+            burst: 40,
+        }
+    }
+}
+
+/// The largest request body by default (JSON bodies are small).
+pub const DEFAULT_BODY_LIMIT: usize = 1024 * 1024;
+/// The largest DCF upload by default (`PUT .../config.dcf`).
+pub const DEFAULT_DCF_BODY_LIMIT: usize = 4 * 1024 * 1024;
+
+/// The gateway's access settings.
+#[derive(Debug, Clone)]
+pub struct AuthConfig {
+    /// No token: the gateway is open.
+    pub tokens: Vec<Token>,
+    /// Origins (`https://scada.example`) allowed to call from other pages.
+    pub cors_origins: Vec<String>,
+    /// `None`: writes are not rate limited.
+    pub rate_limit: Option<RateLimit>,
+    pub body_limit: usize,
+    pub dcf_body_limit: usize,
+}
+
+impl Default for AuthConfig {
+    fn default() -> Self {
+        Self {
+            tokens: Vec::new(),
+            cors_origins: Vec::new(),
+            rate_limit: Some(RateLimit::default()),
+            body_limit: DEFAULT_BODY_LIMIT,
+            dcf_body_limit: DEFAULT_DCF_BODY_LIMIT,
+        }
+    }
+}
+
+impl AuthConfig {
+    /// The settings, checked: no two tokens of one name or one secret, no
+    /// origin that is not `scheme://host[:port]`.
+    pub fn new(
+        tokens: Vec<Token>,
+        cors_origins: Vec<String>,
+        rate_limit: Option<RateLimit>,
+        body_limit: usize,
+        dcf_body_limit: usize,
+    ) -> Result<Self, String> {
+        for (i, token) in tokens.iter().enumerate() {
+            for other in &tokens[..i] {
+                if other.name == token.name {
+                    return Err(format!("two tokens are named '{}'", token.name));
+                }
+                if constant_time_eq(&token.secret, &other.secret) {
+                    return Err(format!(
+                        "tokens {} and {} are the same token",
+                        other.name, token.name
+                    ));
+                }
+            }
+        }
+        for origin in &cors_origins {
+            let valid = origin.split_once("://").is_some_and(|(scheme, host)| {
+                matches!(scheme, "http" | "https") && !host.is_empty() && !host.contains('/')
+            });
+            if !valid {
+                return Err(format!(
+                    "cors_origins: '{origin}' is no origin like https://scada.example:8443 (no path, no trailing slash)"
+                ));
+            }
+        }
+        if let Some(rate) = rate_limit
+            && !(rate.per_second.is_finite() && rate.per_second > 0.0 && rate.burst >= 1)
+        {
+            return Err(format!(
+                "write rate limit: {} per second, burst {}: both must be above 0 (0 per second turns it off)",
+                rate.per_second, rate.burst
+            ));
+        }
+        if body_limit == 0 || dcf_body_limit == 0 {
+            return Err("a body limit is at least 1 byte".to_string());
+        }
+        Ok(Self {
+            tokens,
+            cors_origins,
+            rate_limit,
+            body_limit,
+            dcf_body_limit,
+        })
+    }
+
+    /// Whether requests need a token.
+    pub fn required(&self) -> bool {
+        !self.tokens.is_empty()
+    }
+
+    /// The token whose secret is `given`, comparing with every token (so
+    /// that the time says nothing of which one matched).
+    pub fn token(&self, given: &str) -> Option<&Token> {
+        let mut found = None;
+        for token in &self.tokens {
+            if constant_time_eq(given.as_bytes(), &token.secret) {
+                found = Some(token);
+            }
+        }
+        found
+    }
+
+    /// The largest body a request to `path` may carry.
+    pub fn body_limit(&self, method: &Method, path: &str) -> usize {
+        if *method == Method::PUT && path.ends_with("/config.dcf") {
+            self.dcf_body_limit
+        } else {
+            self.body_limit
+        }
+    }
+
+    /// The largest body of any request.
+    pub fn largest_body(&self) -> usize {
+        self.body_limit.max(self.dcf_body_limit)
+    }
+}
+
+/// Who made a request: in the request's extensions (handlers) and the
+/// response's (the audit log).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Identity {
+    /// The token's name; `anonymous` without one, `invalid-token` for a
+    /// token nobody configured.
+    pub name: String,
+    /// `None` without a valid token.
+    pub role: Option<Role>,
+}
+
+impl Identity {
+    fn anonymous() -> Self {
+        Self {
+            name: "anonymous".to_string(),
+            role: None,
+        }
+    }
+}
+
+/// The middleware's state: the settings and each token's write bucket.
+pub struct Guard {
+    pub config: AuthConfig,
+    buckets: Mutex<HashMap<String, Bucket>>,
+}
+
+impl Default for Guard {
+    fn default() -> Self {
+        Self::new(AuthConfig::default())
+    }
+}
+
+impl std::fmt::Debug for Guard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Guard")
+            .field("config", &self.config)
+            .finish_non_exhaustive()
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Bucket {
+    tokens: f64,
+    at: Instant,
+}
+
+impl Guard {
+    pub fn new(config: AuthConfig) -> Self {
+        Self {
+            config,
+            buckets: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// Whether requests need a token (some are configured).
+    pub fn required(&self) -> bool {
+        self.config.required()
+    }
+
+    /// The name and role of the token `given`, compared in constant time
+    /// (the CiA 309-3 gateway's `auth` line uses it).
+    pub fn authenticate(&self, given: &str) -> Option<(String, Role)> {
+        self.config
+            .token(given)
+            .map(|token| (token.name.clone(), token.role))
+    }
+
+    /// Takes one write from `name`'s bucket, or says how long until one
+    /// is there.
+    fn take_write(&self, name: &str) -> Result<(), Duration> {
+        let Some(limit) = self.config.rate_limit else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let burst = f64::from(limit.burst);
+        let mut buckets = self
+            .buckets
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner());
+        let bucket = buckets.entry(name.to_string()).or_insert(Bucket {
+            tokens: burst,
+            at: now,
+        });
+        let refilled = now.duration_since(bucket.at).as_secs_f64() * limit.per_second;
+        bucket.tokens = (bucket.tokens + refilled).min(burst);
+        bucket.at = now;
+        if bucket.tokens >= 1.0 {
+            bucket.tokens -= 1.0;
+            Ok(())
+        } else {
+            Err(Duration::from_secs_f64(
+                (1.0 - bucket.tokens) / limit.per_second,
+            ))
+        }
+    }
+}
+
+/// The subprotocol the stream speaks; a browser sends its token as a
+/// second one, `bearer.TOKEN`.
+pub const STREAM_PROTOCOL: &str = "candeck.v1";
+const BEARER_PROTOCOL: &str = "bearer.";
+
+/// The token a request carries: `Authorization: Bearer`, else a
+/// `bearer.` WebSocket subprotocol.
+fn credentials(headers: &HeaderMap) -> Option<String> {
+    if let Some(value) = headers.get(header::AUTHORIZATION) {
+        let value = value.to_str().ok()?;
+        let (scheme, token) = value.trim().split_once(' ')?;
+        return scheme
+            .eq_ignore_ascii_case("bearer")
+            .then(|| token.trim().to_string());
+    }
+    headers
+        .get_all(header::SEC_WEBSOCKET_PROTOCOL)
+        .iter()
+        .filter_map(|value| value.to_str().ok())
+        .flat_map(|value| value.split(','))
+        .find_map(|protocol| protocol.trim().strip_prefix(BEARER_PROTOCOL))
+        .map(str::to_string)
+}
+
+/// Whether `origin` is the page's own: the origin of the address the
+/// request was sent to.
+fn same_origin(origin: &str, headers: &HeaderMap) -> bool {
+    let Some(host) = headers.get(header::HOST).and_then(|h| h.to_str().ok()) else {
+        return false;
+    };
+    origin
+        .split_once("://")
+        .is_some_and(|(scheme, rest)| matches!(scheme, "http" | "https") && rest == host)
+}
+
+fn is_write(method: &Method) -> bool {
+    matches!(
+        *method,
+        Method::POST | Method::PUT | Method::PATCH | Method::DELETE
+    )
+}
+
+/// The middleware (`axum::middleware::from_fn_with_state`): the origin
+/// check and CORS preflights, then the token and its role against
+/// [`ROUTES`], then the body limit and the write rate. Who it found (or
+/// did not) goes into the response's extensions for the audit log.
+pub async fn guard(State(state): State<AppState>, mut request: Request, next: Next) -> Response {
+    let guard = state.guard.clone();
+    let config = &guard.config;
+    let method = request.method().clone();
+    let path = request.uri().path().to_string();
+    let headers = request.headers();
+
+    // Other web pages: a browser sends Origin with every cross-origin
+    // request, and with every same-origin one that is not a GET.
+    let origin = headers
+        .get(header::ORIGIN)
+        .and_then(|value| value.to_str().ok())
+        .map(str::to_string);
+    let listed = origin
+        .as_ref()
+        .filter(|origin| config.cors_origins.iter().any(|allowed| allowed == *origin));
+    if method == Method::OPTIONS && headers.contains_key(header::ACCESS_CONTROL_REQUEST_METHOD) {
+        return match (&origin, listed) {
+            (_, Some(origin)) => preflight(origin),
+            (origin, None) => with_identity(
+                AppError::Forbidden(format!(
+                    "cross-origin requests from {} are not allowed (cors_origins lists the origins that are)",
+                    origin.as_deref().unwrap_or("an unnamed origin")
+                ))
+                .into_response(),
+                Identity::anonymous(),
+            ),
+        };
+    }
+    if let Some(origin) = &origin
+        && listed.is_none()
+        && !same_origin(origin, headers)
+    {
+        // A page elsewhere may send writes to an open gateway, and open
+        // a WebSocket to one (browsers do not apply CORS to WebSockets).
+        let upgrade = headers.contains_key(header::UPGRADE);
+        if is_write(&method) || upgrade {
+            return with_identity(
+                AppError::Forbidden(format!(
+                    "{method} {path} from the web page of {origin}: cross-origin writes and streams are not allowed (cors_origins lists the origins that are)"
+                ))
+                .into_response(),
+                Identity::anonymous(),
+            );
+        }
+    }
+
+    let identity = if config.required() {
+        let given = credentials(headers);
+        let found = given.as_deref().and_then(|given| config.token(given));
+        let identity = match (found, &given) {
+            (Some(token), _) => Identity {
+                name: token.name.clone(),
+                role: Some(token.role),
+            },
+            (None, Some(_)) => Identity {
+                name: "invalid-token".to_string(),
+                role: None,
+            },
+            (None, None) => Identity::anonymous(),
+        };
+        if let Access::Needs(needed) = required(&method, &path) {
+            match identity.role {
+                None => {
+                    let message = if given.is_some() {
+                        "the token is not valid: sign in again"
+                    } else {
+                        "this gateway asks for a token: send Authorization: Bearer TOKEN"
+                    };
+                    return with_identity(
+                        AppError::Unauthenticated(message.to_string()).into_response(),
+                        identity,
+                    );
+                }
+                Some(role) if role < needed => {
+                    return with_identity(
+                        AppError::Forbidden(format!(
+                            "token {} has the role {role}; {method} {path} needs {needed}",
+                            identity.name
+                        ))
+                        .into_response(),
+                        identity,
+                    );
+                }
+                Some(_) => {}
+            }
+        }
+        identity
+    } else {
+        Identity::anonymous()
+    };
+
+    let limit = config.body_limit(&method, &path);
+    let length = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|value| value.to_str().ok())
+        .and_then(|value| value.parse::<u64>().ok());
+    if length.is_some_and(|length| length > limit as u64) {
+        return with_identity(too_large(limit).into_response(), identity);
+    }
+    // Writes of a token (a safety stop never waits).
+    if config.required()
+        && super::audit::is_state_changing(&method, &path)
+        && path != "/api/v1/stop-all"
+        && let Err(wait) = guard.take_write(&identity.name)
+    {
+        let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
+        return with_identity(
+            AppError::RateLimited {
+                message: format!(
+                    "token {} sends writes faster than allowed; try again in {seconds} s",
+                    identity.name
+                ),
+                retry_after_s: seconds,
+            }
+            .into_response(),
+            identity,
+        );
+    }
+
+    // A body without Content-Length is read here, up to the route's limit
+    // (the handlers read it whole anyway).
+    if is_write(&method) && length.is_none() {
+        let (parts, body) = request.into_parts();
+        match axum::body::to_bytes(body, limit).await {
+            Ok(bytes) => request = Request::from_parts(parts, axum::body::Body::from(bytes)),
+            Err(_) => return with_identity(too_large(limit).into_response(), identity),
+        }
+    }
+    request.extensions_mut().insert(identity.clone());
+    let mut response = next.run(request).await;
+    if let Some(origin) = listed
+        && let Ok(value) = HeaderValue::from_str(origin)
+    {
+        let headers = response.headers_mut();
+        headers.insert(header::ACCESS_CONTROL_ALLOW_ORIGIN, value);
+        headers.append(header::VARY, HeaderValue::from_static("Origin"));
+    }
+    with_identity(response, identity)
+}
+
+/// The 413 for a body over `limit` bytes.
+pub fn too_large(limit: usize) -> AppError {
+    AppError::PayloadTooLarge(format!(
+        "the request body is larger than {limit} bytes (body_limit, dcf_body_limit)"
+    ))
+}
+
+fn with_identity(mut response: Response, identity: Identity) -> Response {
+    response.extensions_mut().insert(identity);
+    response
+}
+
+/// The answer to an allowed CORS preflight.
+fn preflight(origin: &str) -> Response {
+    let mut response = StatusCode::NO_CONTENT.into_response();
+    let headers = response.headers_mut();
+    if let Ok(value) = HeaderValue::from_str(origin) {
+        headers.insert(header::ACCESS_CONTROL_ALLOW_ORIGIN, value);
+    }
+    headers.insert(
+        header::ACCESS_CONTROL_ALLOW_METHODS,
+        HeaderValue::from_static("GET, POST, PUT, DELETE"),
+    );
+    headers.insert(
+        header::ACCESS_CONTROL_ALLOW_HEADERS,
+        HeaderValue::from_static("authorization, content-type"),
+    );
+    headers.insert(
+        header::ACCESS_CONTROL_MAX_AGE,
+        HeaderValue::from_static("600"),
+    );
+    headers.insert(header::VARY, HeaderValue::from_static("Origin"));
+    response
+}
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(whoami))
+}
+
+/// Who the request's token is.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WhoAmI {
+    /// The token's name; `anonymous` when the gateway asks for none.
+    pub name: String,
+    /// What the token may do; `admin` when the gateway asks for no token
+    /// (anyone may do anything).
+    pub role: Role,
+    /// Whether the gateway asks for tokens.
+    pub auth_required: bool,
+}
+
+/// The signed-in token: its name and role (the dashboard's top bar).
+#[utoipa::path(get, path = "/auth/whoami", tag = "auth",
+    responses(
+        (status = 200, description = "The token's name and role", body = WhoAmI),
+        (status = 401, description = "`unauthenticated`: no token, or one the gateway does not know", body = ErrorBody),
+    ))]
+async fn whoami(
+    State(state): State<AppState>,
+    identity: Option<axum::Extension<Identity>>,
+) -> axum::Json<WhoAmI> {
+    let required = state.guard.config.required();
+    let (name, role) = match identity.map(|axum::Extension(identity)| identity) {
+        Some(Identity {
+            name,
+            role: Some(role),
+        }) if required => (name, role),
+        _ => ("anonymous".to_string(), Role::Admin),
+    };
+    axum::Json(WhoAmI {
+        name,
+        role,
+        auth_required: required,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patterns_match_segments_and_the_rest() {
+        let od = "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}";
+        assert!(matches(od, "/api/v1/buses/demo/nodes/1/od/0x1008/0"));
+        assert!(!matches(od, "/api/v1/buses/demo/nodes/1/od/0x1008"));
+        assert!(!matches(od, "/api/v1/buses/demo/nodes/1/od/0x1008/0/x"));
+        assert!(!matches(od, "/api/v1/buses//nodes/1/od/0x1008/0"));
+        assert!(matches("/static/{v}/{*path}", "/static/abc/js/api.js"));
+        assert!(!matches("/static/{v}/{*path}", "/static/abc"));
+        assert!(matches("/", "/"));
+        assert!(!matches("/", "/nodes"));
+        assert!(matches("/{*page}", "/nodes/demo/1"));
+    }
+
+    #[test]
+    fn unlisted_paths_fall_back_to_the_safe_side() {
+        assert_eq!(required(&Method::GET, "/api/v1/nowhere"), VIEWER);
+        assert_eq!(required(&Method::POST, "/api/v1/nowhere"), ADMIN);
+        assert_eq!(required(&Method::GET, "/nodes/demo/1"), PUBLIC);
+        assert_eq!(required(&Method::HEAD, "/"), PUBLIC);
+        assert_eq!(required(&Method::POST, "/"), ADMIN);
+        assert_eq!(required(&Method::GET, "/metrics"), VIEWER);
+        assert_eq!(
+            required(&Method::GET, "/cia309-5/1.0/1/1/1/r/0x1008/0"),
+            VIEWER
+        );
+        assert_eq!(
+            required(&Method::PUT, "/cia309-5/1.0/1/1/1/w/0x1008/0"),
+            OPERATOR
+        );
+    }
+
+    #[test]
+    fn comparison_is_by_every_byte_and_the_length() {
+        assert!(constant_time_eq(b"abcdef", b"abcdef"));
+        assert!(!constant_time_eq(b"abcdeg", b"abcdef"));
+        assert!(!constant_time_eq(b"abcde", b"abcdef"));
+        assert!(!constant_time_eq(b"abcdefg", b"abcdef"));
+        assert!(!constant_time_eq(b"", b"abcdef"));
+        // A byte that is the complement of the secret's pads a short guess:
+        // no zero byte can make a prefix match.
+        assert!(!constant_time_eq(b"abc\0\0\0", b"abc"));
+    }
+
+    #[test]
+    fn weak_duplicate_and_unknown_tokens_are_refused() {
+        let good = "3f9c2a7be81d4c06a5e9";
+        assert!(Token::new("plc", Role::Operator, good).is_ok());
+        let err = Token::new("plc", Role::Operator, "short").unwrap_err();
+        assert!(err.contains("too weak"), "{err}");
+        let err = Token::new("plc", Role::Operator, &"ab".repeat(20)).unwrap_err();
+        assert!(err.contains("too weak"), "{err}");
+        let err = Token::new("plc", Role::Operator, "3f9c2a7be81d4c06a5e9/+").unwrap_err();
+        assert!(err.contains("not allowed"), "{err}");
+        let err = Token::new("p l c", Role::Operator, good).unwrap_err();
+        assert!(err.contains("not a name"), "{err}");
+        let err = Token::parse_entry(&format!("plc:superuser:{good}")).unwrap_err();
+        assert!(err.contains("unknown role 'superuser'"), "{err}");
+        let err = Token::parse_entry("plc").unwrap_err();
+        assert!(err.contains("NAME:ROLE:TOKEN"), "{err}");
+        let token = Token::parse_entry(&format!("plc:admin:{good}")).unwrap();
+        assert_eq!((token.name.as_str(), token.role), ("plc", Role::Admin));
+        assert!(!format!("{token:?}").contains(good));
+
+        let a = Token::new("a", Role::Viewer, good).unwrap();
+        let b = Token::new("a", Role::Admin, "0123456789abcdefghij").unwrap();
+        let err = AuthConfig::new(vec![a.clone(), b], vec![], None, 1, 1).unwrap_err();
+        assert!(err.contains("two tokens are named 'a'"), "{err}");
+        let c = Token::new("c", Role::Admin, good).unwrap();
+        let err = AuthConfig::new(vec![a, c], vec![], None, 1, 1).unwrap_err();
+        assert!(err.contains("the same token"), "{err}");
+        let err =
+            AuthConfig::new(vec![], vec!["https://x.example/".into()], None, 1, 1).unwrap_err();
+        assert!(err.contains("no origin"), "{err}");
+    }
+}
