@@ -70,6 +70,11 @@ const IDENTITY: u16 = 0x1018;
 
 /// Heartbeat intervals the period is learnt from.
 const HEARTBEAT_WINDOW: usize = 8;
+/// This many intervals in a row all longer than the supervision timeout
+/// (1.5 periods) say that the producer slowed down (its 0x1017 was
+/// written): the period follows at once, rather than after the window,
+/// while the node flapped offline and online at every heartbeat.
+const SLOWER_AFTER: usize = 3;
 /// Intervals shorter than this are two frames of one burst, not a period.
 const MIN_HEARTBEAT_INTERVAL: Duration = Duration::from_millis(1);
 /// The longest device name kept (0x1008 is a VISIBLE_STRING of any length).
@@ -361,6 +366,18 @@ impl HeartbeatLearner {
             self.intervals.pop_front();
         }
         self.intervals.push_back(interval);
+        if let Some(period) = self.period
+            && self.intervals.len() >= SLOWER_AFTER
+            && self
+                .intervals
+                .iter()
+                .rev()
+                .take(SLOWER_AFTER)
+                .all(|&recent| recent > period * 3 / 2)
+        {
+            let keep = self.intervals.len() - SLOWER_AFTER;
+            self.intervals.drain(..keep);
+        }
         let shortest = self.intervals.iter().min().copied();
         if shortest == self.period {
             return None;
@@ -375,8 +392,9 @@ impl HeartbeatLearner {
         self.period = Some(period);
     }
 
-    /// The next interval does not count (the node was lost, the bus was
-    /// down): what was learnt of the period stays.
+    /// The next interval does not count (the bus was down): what was
+    /// learnt of the period stays. A heartbeat that is merely late is no
+    /// reason: its interval is the producer's, maybe a new one.
     pub(crate) fn restart(&mut self) {
         self.last = None;
         self.intervals.clear();
@@ -873,7 +891,6 @@ impl Shared {
                 continue;
             };
             if let Some(node) = nodes.get_mut(&id) {
-                node.heartbeat.restart();
                 if node.online {
                     node.online = false;
                     self.emit(NodeEvent::Offline {

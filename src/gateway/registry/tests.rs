@@ -32,6 +32,32 @@ fn drain(events: &mut broadcast::Receiver<NodeEvent>) -> Vec<NodeEvent> {
 }
 
 #[test]
+fn a_producer_slowed_past_the_timeout_is_followed_after_three_heartbeats() {
+    let t0 = Instant::now();
+    let mut learner = HeartbeatLearner::default();
+    let mut t = t0;
+    learner.on_heartbeat(t);
+    for _ in 0..HEARTBEAT_WINDOW {
+        t += ms(250);
+        learner.on_heartbeat(t);
+    }
+    assert_eq!(learner.period(), Some(ms(250)));
+    // 0x1017 written to 1000 ms: each heartbeat now comes after the
+    // consumer's timeout (375 ms). Two are not yet a new period (a node may
+    // miss a frame or two)...
+    t += ms(1000);
+    assert_eq!(learner.on_heartbeat(t), None);
+    t += ms(1000);
+    assert_eq!(learner.on_heartbeat(t), None);
+    // ...three in a row are.
+    t += ms(1000);
+    assert_eq!(learner.on_heartbeat(t), Some(ms(1000)));
+    t += ms(1000);
+    assert_eq!(learner.on_heartbeat(t), None);
+    assert_eq!(learner.period(), Some(ms(1000)));
+}
+
+#[test]
 fn the_period_is_the_shortest_recent_interval() {
     let t0 = Instant::now();
     let mut learner = HeartbeatLearner::default();
