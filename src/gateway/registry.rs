@@ -890,14 +890,14 @@ impl Shared {
             let HeartbeatEvent::Lost { node: id } = event else {
                 continue;
             };
-            if let Some(node) = nodes.get_mut(&id) {
-                if node.online {
-                    node.online = false;
-                    self.emit(NodeEvent::Offline {
-                        node: id,
-                        reason: OfflineReason::HeartbeatLost,
-                    });
-                }
+            if let Some(node) = nodes.get_mut(&id)
+                && node.online
+            {
+                node.online = false;
+                self.emit(NodeEvent::Offline {
+                    node: id,
+                    reason: OfflineReason::HeartbeatLost,
+                });
             }
         }
     }
