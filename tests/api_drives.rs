@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{json, poll, start};
+use common::{enable_and_move, json, poll, start};
 
 #[tokio::test]
 async fn a_umc_axis_runs_and_stop_all_stops_it() {
@@ -18,23 +18,7 @@ async fn a_umc_axis_runs_and_stop_all_stops_it() {
     assert_eq!(status, 200, "{body}");
     assert_eq!(body.as_array().unwrap().len(), 2, "{body}");
 
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/state"),
-        Some(r#"{"target":"operation_enabled"}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
-    assert_eq!(body["state"], "operation_enabled");
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/move"),
-        Some(r#"{"mode":"velocity","velocity":100}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
+    enable_and_move(&address, axis, r#"{"mode":"velocity","velocity":100}"#).await;
     let (_, body) = poll(&address, axis, |_, s| {
         s["velocity"].as_i64().is_some_and(|v| v > 0)
     })

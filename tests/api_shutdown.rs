@@ -6,8 +6,7 @@
 
 mod common;
 
-use common::json;
-use common::{poll, start, terminate, vbus};
+use common::{enable_and_move, poll, start, terminate, vbus};
 
 #[tokio::test]
 async fn sigterm_during_a_move_leaves_the_axis_stopped() {
@@ -20,22 +19,7 @@ async fn sigterm_during_a_move_leaves_the_axis_stopped() {
     let axis = "/api/v1/buses/demo/nodes/1/axes/1";
     let (status, body) = poll(&address, axis, |status, _| status == 200).await;
     assert_eq!(status, 200, "{body}");
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/state"),
-        Some(r#"{"target":"operation_enabled"}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/move"),
-        Some(r#"{"mode":"velocity","velocity":200}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
+    enable_and_move(&address, axis, r#"{"mode":"velocity","velocity":200}"#).await;
     let (_, moving) = poll(&address, axis, |_, s| {
         s["velocity"].as_i64().is_some_and(|v| v > 0)
     })

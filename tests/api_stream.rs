@@ -7,7 +7,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{http, json, start};
+use common::{enable_and_move, http, json, start};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value as Json, json};
 use tokio::net::TcpStream;
@@ -63,22 +63,12 @@ async fn start_moving(address: &str) {
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let (status, body) = json(
+    enable_and_move(
         address,
-        "POST",
-        &format!("{axes}/1/state"),
-        Some(r#"{"target":"operation_enabled"}"#),
+        &format!("{axes}/1"),
+        r#"{"mode":"velocity","velocity":200}"#,
     )
     .await;
-    assert_eq!(status, 200, "{body}");
-    let (status, body) = json(
-        address,
-        "POST",
-        &format!("{axes}/1/move"),
-        Some(r#"{"mode":"velocity","velocity":200}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
 }
 
 /// The axis updates `socket` gets over `window`, after the first: their

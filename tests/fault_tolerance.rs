@@ -8,7 +8,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{json, poll, start, vbus};
+use common::{enable_and_move, json, poll, start, vbus};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpListener;
 
@@ -105,22 +105,7 @@ async fn a_node_unplugged_mid_transfer_and_mid_move_fails_cleanly_and_leaves_no_
     let address = gateway.address.clone();
     let axis = "/api/v1/buses/demo/nodes/1/axes/1";
     poll(&address, axis, |status, _| status == 200).await;
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/state"),
-        Some(r#"{"target":"operation_enabled"}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
-    let (status, body) = json(
-        &address,
-        "POST",
-        &format!("{axis}/move"),
-        Some(r#"{"mode":"velocity","velocity":100}"#),
-    )
-    .await;
-    assert_eq!(status, 200, "{body}");
+    enable_and_move(&address, axis, r#"{"mode":"velocity","velocity":100}"#).await;
 
     // A DCF backup is a long run of SDO uploads: unplug the UMC under it.
     let backup = tokio::spawn({

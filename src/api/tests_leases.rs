@@ -27,26 +27,32 @@ async fn velocity(app: &Router, axis: u8) -> i64 {
     body["velocity"].as_i64().unwrap()
 }
 
-/// Axis 1 enabled and turning at velocity 100 under a fresh lease of
-/// `period`; the lease as the move answered it.
-async fn turning(period: Duration) -> (Router, AppState, Json) {
-    let (_, state) = demo().await;
-    let state = state.with_lease_period(period);
-    let app = super::app(state.clone());
+/// Enables axis 1 and runs it at `velocity`; the move's answer.
+async fn enable_and_run(app: &Router, velocity: i32) -> Json {
     let (status, body) = post(
-        &app,
+        app,
         &uri(1, "/state"),
         json!({"target": "operation_enabled"}),
     )
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
     let (status, body) = post(
-        &app,
+        app,
         &uri(1, "/move"),
-        json!({"mode": "velocity", "velocity": 100}),
+        json!({"mode": "velocity", "velocity": velocity}),
     )
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
+    body
+}
+
+/// Axis 1 enabled and turning at velocity 100 under a fresh lease of
+/// `period`; the lease as the move answered it.
+async fn turning(period: Duration) -> (Router, AppState, Json) {
+    let (_, state) = demo().await;
+    let state = state.with_lease_period(period);
+    let app = super::app(state.clone());
+    let body = enable_and_run(&app, 100).await;
     let lease = body["lease"].clone();
     assert_eq!(lease["mode"], "velocity", "{body}");
     assert_eq!(lease["holder"], "anonymous", "{body}");
@@ -193,20 +199,7 @@ async fn stop_all_and_leaving_operation_enabled_end_leases() {
     // A walk to switch_on_disabled is never refused, and ends the lease.
     // (Quick stop ends in switch_on_disabled once the axis stands.)
     tokio::time::sleep(PERIOD).await;
-    let (status, body) = post(
-        &app,
-        &uri(1, "/state"),
-        json!({"target": "operation_enabled"}),
-    )
-    .await;
-    assert_eq!(status, StatusCode::OK, "{body}");
-    let (status, body) = post(
-        &app,
-        &uri(1, "/move"),
-        json!({"mode": "velocity", "velocity": 80}),
-    )
-    .await;
-    assert_eq!(status, StatusCode::OK, "{body}");
+    enable_and_run(&app, 80).await;
     assert_eq!(state.leases.held(), 1);
     let (status, body) = post(
         &app,

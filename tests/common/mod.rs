@@ -198,6 +198,23 @@ pub async fn json(
     (status, json)
 }
 
+/// Enables the axis at `axis` (`/api/v1/buses/B/nodes/N/axes/A`) and
+/// starts the move `body` (JSON text); the move's answer.
+pub async fn enable_and_move(address: &str, axis: &str, body: &str) -> serde_json::Value {
+    let (status, answer) = json(
+        address,
+        "POST",
+        &format!("{axis}/state"),
+        Some(r#"{"target":"operation_enabled"}"#),
+    )
+    .await;
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(answer["state"], "operation_enabled", "{answer}");
+    let (status, answer) = json(address, "POST", &format!("{axis}/move"), Some(body)).await;
+    assert_eq!(status, 200, "{answer}");
+    answer
+}
+
 /// [`json`] with a bearer token.
 pub async fn json_with_token(
     address: &str,
