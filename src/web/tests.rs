@@ -96,30 +96,42 @@ fn every_module_import_names_an_embedded_file() {
     }
 }
 
-#[tokio::test]
-async fn the_overview_is_at_the_root_and_loads_only_embedded_files() {
-    let app = router();
-    let (status, headers, body) = fetch(&app, "/", &[]).await;
-    assert_eq!(status, StatusCode::OK);
+/// The page at `uri`, checked as every page must be: 200, HTML, never
+/// cached, naming each of `wanted` (paths under `web/static/`) under this
+/// build's prefix, and loading only files that are embedded.
+async fn page_html(app: &Router, uri: &str, wanted: &[&str]) -> String {
+    let (status, headers, body) = fetch(app, uri, &[]).await;
+    assert_eq!(status, StatusCode::OK, "{uri}");
     assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
     assert_eq!(header(&headers, "cache-control"), "no-cache");
     let html = String::from_utf8(body).unwrap();
-    assert!(html.contains("id=\"stop-all\""), "{html}");
-    assert!(html.contains("id=\"connection\""), "{html}");
     let urls = static_urls(&html);
     let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/app.css", "js/overview.js", "icon.svg"] {
+    for wanted in wanted {
         assert!(
             urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
+            "{uri}: {wanted} not in {urls:?}"
         );
     }
     for url in urls {
-        let (status, headers, body) = fetch(&app, &url, &[]).await;
+        let (status, headers, body) = fetch(app, &url, &[]).await;
         assert_eq!(status, StatusCode::OK, "{url}");
         assert!(!body.is_empty(), "{url}");
-        assert!(!header(&headers, "content-type").is_empty());
+        assert!(!header(&headers, "content-type").is_empty(), "{url}");
     }
+    html
+}
+
+#[tokio::test]
+async fn the_overview_is_at_the_root_and_loads_only_embedded_files() {
+    let html = page_html(
+        &router(),
+        "/",
+        &["css/app.css", "js/overview.js", "icon.svg"],
+    )
+    .await;
+    assert!(html.contains("id=\"stop-all\""), "{html}");
+    assert!(html.contains("id=\"connection\""), "{html}");
 }
 
 #[tokio::test]
@@ -203,12 +215,8 @@ async fn the_api_app_serves_the_dashboard_outside_the_api_and_its_document() {
 
 #[tokio::test]
 async fn the_drive_page_names_its_axis_and_loads_only_embedded_files() {
-    let app = router();
-    let (status, headers, body) = fetch(&app, "/nodes/demo/1/axes/2", &[]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
-    assert_eq!(header(&headers, "cache-control"), "no-cache");
-    let html = String::from_utf8(body).unwrap();
+    let wanted = ["css/app.css", "css/drive.css", "js/drive.js", "icon.svg"];
+    let html = page_html(&router(), "/nodes/demo/1/axes/2", &wanted).await;
     assert!(
         html.contains(r#"data-bus="demo" data-node="1" data-axis="2""#),
         "{html}"
@@ -223,19 +231,6 @@ async fn the_drive_page_names_its_axis_and_loads_only_embedded_files() {
         "status-bits",
     ] {
         assert!(html.contains(&format!("id=\"{id}\"")), "no #{id}");
-    }
-    let urls = static_urls(&html);
-    let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/app.css", "css/drive.css", "js/drive.js", "icon.svg"] {
-        assert!(
-            urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
-        );
-    }
-    for url in urls {
-        let (status, _, body) = fetch(&app, &url, &[]).await;
-        assert_eq!(status, StatusCode::OK, "{url}");
-        assert!(!body.is_empty(), "{url}");
     }
 }
 
@@ -274,31 +269,14 @@ async fn a_drive_path_with_parts_missing_or_added_is_no_page() {
 
 #[tokio::test]
 async fn the_pdo_editor_names_its_node_and_loads_only_embedded_files() {
-    let app = router();
-    let (status, headers, body) = fetch(&app, "/nodes/demo/1/pdos", &[]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
-    assert_eq!(header(&headers, "cache-control"), "no-cache");
-    let html = String::from_utf8(body).unwrap();
+    let wanted = ["css/app.css", "css/pdos.css", "js/pdos.js"];
+    let html = page_html(&router(), "/nodes/demo/1/pdos", &wanted).await;
     assert!(
         html.contains(r#"id="pdo-page" data-bus="demo" data-node="1""#),
         "{html}"
     );
     assert!(html.contains(r#"href="/nodes/demo/1""#), "{html}");
     assert!(html.contains("<title>PDOs of node 1 on demo · candeck</title>"));
-    let urls = static_urls(&html);
-    let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/app.css", "css/pdos.css", "js/pdos.js"] {
-        assert!(
-            urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
-        );
-    }
-    for url in urls {
-        let (status, _, body) = fetch(&app, &url, &[]).await;
-        assert_eq!(status, StatusCode::OK, "{url}");
-        assert!(!body.is_empty(), "{url}");
-    }
 }
 
 /// The bus and node come from the path as typed: text, never markup.
@@ -330,11 +308,12 @@ async fn the_pdo_editor_escapes_what_the_path_says() {
 #[tokio::test]
 async fn the_node_page_carries_its_bus_and_node_escaped_and_loads_only_embedded_files() {
     let app = router();
-    let (status, headers, body) = fetch(&app, "/nodes/demo/1", &[]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
-    assert_eq!(header(&headers, "cache-control"), "no-cache");
-    let html = String::from_utf8(body).unwrap();
+    let html = page_html(
+        &app,
+        "/nodes/demo/1",
+        &["css/app.css", "css/node.css", "js/node.js"],
+    )
+    .await;
     assert!(
         html.contains(r#"id="node-page" data-bus="demo" data-node="1""#),
         "{html}"
@@ -344,18 +323,6 @@ async fn the_node_page_carries_its_bus_and_node_escaped_and_loads_only_embedded_
         html.contains("<title>Node 1 · demo · candeck</title>"),
         "{html}"
     );
-    let urls = static_urls(&html);
-    let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/app.css", "css/node.css", "js/node.js"] {
-        assert!(
-            urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
-        );
-    }
-    for url in urls {
-        let (status, _, _) = fetch(&app, &url, &[]).await;
-        assert_eq!(status, StatusCode::OK, "{url}");
-    }
 
     // Whatever the path holds is text in an attribute, never markup: the
     // page itself asks the API whether the bus and node exist.
@@ -414,59 +381,30 @@ async fn a_node_path_with_a_part_missing_is_no_page() {
     }
 }
 
-/// Every static URL of a page answers 200 with content.
-async fn assert_static_urls_load(app: &Router, html: &str) {
-    for url in static_urls(html) {
-        let (status, _, body) = fetch(app, &url, &[]).await;
-        assert_eq!(status, StatusCode::OK, "{url}");
-        assert!(!body.is_empty(), "{url}");
-    }
-}
-
 #[tokio::test]
 async fn the_led_page_carries_its_bus_and_node_and_loads_its_module() {
-    let app = router();
-    let (status, headers, body) = fetch(&app, "/nodes/demo/3/leds", &[]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert_eq!(header(&headers, "content-type"), "text/html; charset=utf-8");
-    assert_eq!(header(&headers, "cache-control"), "no-cache");
-    let html = String::from_utf8(body).unwrap();
+    let wanted = ["css/app.css", "css/leds.css", "js/leds.js"];
+    let html = page_html(&router(), "/nodes/demo/3/leds", &wanted).await;
     assert!(
         html.contains(r#"id="leds-page" data-bus="demo" data-node="3""#),
         "{html}"
     );
     assert!(html.contains(r#"href="/nodes/demo/3""#), "{html}");
     assert!(html.contains("<title>LEDs · node 3 · demo · candeck</title>"));
-    let urls = static_urls(&html);
-    let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/app.css", "css/leds.css", "js/leds.js"] {
-        assert!(
-            urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
-        );
-    }
-    assert_static_urls_load(&app, &html).await;
 }
 
 #[tokio::test]
 async fn the_trace_page_carries_its_bus_and_loads_its_module() {
-    let app = router();
-    let (status, _, body) = fetch(&app, "/buses/demo/trace", &[]).await;
-    assert_eq!(status, StatusCode::OK);
-    let html = String::from_utf8(body).unwrap();
+    let html = page_html(
+        &router(),
+        "/buses/demo/trace",
+        &["css/trace.css", "js/trace.js"],
+    )
+    .await;
     assert!(
         html.contains(r#"id="trace-page" data-bus="demo""#),
         "{html}"
     );
-    let urls = static_urls(&html);
-    let prefix = format!("/static/{}/", static_version());
-    for wanted in ["css/trace.css", "js/trace.js"] {
-        assert!(
-            urls.contains(&format!("{prefix}{wanted}")),
-            "{wanted} not in {urls:?}"
-        );
-    }
-    assert_static_urls_load(&app, &html).await;
 }
 
 /// A bus name from the URL is text in the page, never markup, and the
