@@ -178,6 +178,30 @@ class Browser:
             lambda d: condition(d), message
         )
 
+    def phone(self):
+        """Emulates a phone's screen: 390 px wide, touch, twice the pixels."""
+        self.driver.execute_cdp_cmd(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
+        )
+
+    def loaded_files(self):
+        """[{url, bytes}]: the page and every file of its origin it loaded
+        but the API's, decoded sizes: what issue 7's weight counts."""
+        return self.js(
+            """
+        const nav = performance.getEntriesByType('navigation')[0];
+        const files = [{url: nav.name, bytes: nav.decodedBodySize}];
+        for (const r of performance.getEntriesByType('resource')) {
+          const url = new URL(r.name);
+          if (url.origin === location.origin && !url.pathname.startsWith('/api/')) {
+            files.push({url: url.pathname, bytes: r.decodedBodySize});
+          }
+        }
+        return files;
+            """
+        )
+
     def js(self, script, *args):
         return self.driver.execute_script(script, *args)
 

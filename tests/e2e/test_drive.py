@@ -364,10 +364,7 @@ def test_the_page_reconnects_after_the_gateway_restarts(server, browser):
 
 
 def test_phone_width_and_page_weight(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_drive(browser, server)
     layout = browser.js(
         """
@@ -379,19 +376,7 @@ def test_phone_width_and_page_weight(server, browser):
     assert layout["width"] == 390, layout
     assert layout["scroll"] <= layout["width"], f"the page scrolls sideways: {layout}"
     assert layout["widest"] <= layout["width"], layout
-    loaded = browser.js(
-        """
-        const nav = performance.getEntriesByType('navigation')[0];
-        const files = [{url: nav.name, bytes: nav.decodedBodySize}];
-        for (const r of performance.getEntriesByType('resource')) {
-          const url = new URL(r.name);
-          if (url.origin === location.origin && !url.pathname.startsWith('/api/')) {
-            files.push({url: url.pathname, bytes: r.decodedBodySize});
-          }
-        }
-        return files;
-        """
-    )
+    loaded = browser.loaded_files()
     names = [f["url"].rsplit("/", 1)[-1] for f in loaded]
     for wanted in ["app.css", "drive.css", "drive.js", "chart.js", "cia402.js", "motion.js", "layout.js", "api.js"]:
         assert wanted in names, f"{wanted} not among what the page loaded: {names}"

@@ -119,10 +119,7 @@ def test_load_older_pages_back_through_the_history(server, browser):
 
 
 def test_phone_width(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     server.request("PUT", "/api/v1/buses/demo/sync", {"period_ms": 0})
     open_events(browser, server)
     layout = browser.js("return {scroll: document.documentElement.scrollWidth, width: window.innerWidth}")

@@ -189,10 +189,7 @@ def test_the_page_rereads_what_another_client_changed(server, browser):
 
 
 def test_leds_phone_width(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_leds(browser, server)
     time.sleep(0.3)
     layout = browser.js(

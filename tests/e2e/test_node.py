@@ -289,10 +289,7 @@ def test_an_unknown_node_says_so(server, browser):
 
 
 def test_phone_width_and_weight(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_node(browser, server)
     search(browser, "0x2041")
     layout = browser.js(
@@ -302,15 +299,7 @@ def test_phone_width_and_weight(server, browser):
     assert layout["width"] == 390, layout
     assert layout["scroll"] <= layout["width"], f"the page scrolls sideways: {layout}"
     assert layout["thead"] == "none", "the sub-objects are not cards"
-    loaded = browser.js(
-        """const nav = performance.getEntriesByType('navigation')[0];
-           const files = [{url: nav.name, bytes: nav.decodedBodySize}];
-           for (const r of performance.getEntriesByType('resource')) {
-             const url = new URL(r.name);
-             if (!url.pathname.startsWith('/api/') && !url.pathname.endsWith('.svg')) files.push({url: url.pathname, bytes: r.decodedBodySize});
-           }
-           return files;"""
-    )
+    loaded = [f for f in browser.loaded_files() if not f["url"].endswith(".svg")]
     names = [f["url"].rsplit("/", 1)[-1] for f in loaded]
     for wanted in ["node.css", "node.js", "app.css", "api.js"]:
         assert wanted in names, names

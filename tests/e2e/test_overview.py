@@ -190,10 +190,7 @@ def test_the_page_reconnects_after_the_gateway_restarts(server, browser):
 
 
 def test_phone_width(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_overview(browser, server)
     layout = browser.js(
         """
@@ -211,20 +208,13 @@ def test_phone_width(server, browser):
 
 def test_page_weight_and_first_paint(server, browser):
     open_overview(browser, server)
-    loaded = browser.js(
-        """
-        const nav = performance.getEntriesByType('navigation')[0];
-        const files = [{url: nav.name, bytes: nav.decodedBodySize}];
-        for (const r of performance.getEntriesByType('resource')) {
-          const url = new URL(r.name);
-          if (url.origin === location.origin && !url.pathname.startsWith('/api/')) {
-            files.push({url: url.pathname, bytes: r.decodedBodySize});
-          }
-        }
-        const paint = performance.getEntriesByType('paint').find((p) => p.name === 'first-contentful-paint');
-        return {files, fcp: paint ? paint.startTime : null};
-        """
-    )
+    loaded = {
+        "files": browser.loaded_files(),
+        "fcp": browser.js(
+            "const p = performance.getEntriesByType('paint').find((p) => p.name === 'first-contentful-paint');"
+            "return p ? p.startTime : null;"
+        ),
+    }
     names = [f["url"].rsplit("/", 1)[-1] for f in loaded["files"]]
     for wanted in ["app.css", "overview.js", "layout.js", "stream.js", "api.js", "dom.js"]:
         assert wanted in names, f"{wanted} not among what the page loaded: {names}"

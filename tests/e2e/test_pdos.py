@@ -253,10 +253,7 @@ def test_the_jmc_page_loads(server, browser):
 
 
 def test_phone_width(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_pdos(browser, server)
     layout = browser.js(
         """
@@ -317,19 +314,7 @@ def test_live_tpdo_values_show_next_to_their_objects(server, browser):
 
 def test_page_weight(server, browser):
     open_pdos(browser, server)
-    files = browser.js(
-        """
-        const nav = performance.getEntriesByType('navigation')[0];
-        const files = [{url: nav.name, bytes: nav.decodedBodySize}];
-        for (const r of performance.getEntriesByType('resource')) {
-          const url = new URL(r.name);
-          if (url.origin === location.origin && !url.pathname.startsWith('/api/')) {
-            files.push({url: url.pathname, bytes: r.decodedBodySize});
-          }
-        }
-        return files;
-        """
-    )
+    files = browser.loaded_files()
     names = [f["url"].rsplit("/", 1)[-1] for f in files]
     for wanted in ["app.css", "pdos.css", "pdos.js", "layout.js", "stream.js", "api.js", "dom.js"]:
         assert wanted in names, f"{wanted} not among what the page loaded: {names}"

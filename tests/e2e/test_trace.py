@@ -313,10 +313,7 @@ def test_the_overview_links_each_bus_to_its_trace(server, browser):
 
 
 def test_trace_phone_width(server, browser):
-    browser.driver.execute_cdp_cmd(
-        "Emulation.setDeviceMetricsOverride",
-        {"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": True},
-    )
+    browser.phone()
     open_trace(browser, server)
     browser.wait(lambda _: rows(browser), message="no frame")
     layout = browser.js("return {scroll: document.documentElement.scrollWidth, width: window.innerWidth};")
@@ -329,19 +326,7 @@ def test_the_trace_and_led_pages_weigh_under_300_kb(server, browser):
         browser.driver.get(server.url + path)
         browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
                      message="the stream did not connect")
-        files = browser.js(
-            """
-            const nav = performance.getEntriesByType('navigation')[0];
-            const files = [{url: nav.name, bytes: nav.decodedBodySize}];
-            for (const r of performance.getEntriesByType('resource')) {
-              const url = new URL(r.name);
-              if (url.origin === location.origin && !url.pathname.startsWith('/api/') && !url.pathname.endsWith('.svg')) {
-                files.push({url: url.pathname, bytes: r.decodedBodySize});
-              }
-            }
-            return files;
-            """
-        )
+        files = [f for f in browser.loaded_files() if not f["url"].endswith(".svg")]
         assert any(f["url"].endswith(module) for f in files), files
         total = sum(f["bytes"] for f in files)
         assert 0 < total < 300 * 1024, f"{path} weighs {total} bytes: {files}"
