@@ -28,11 +28,11 @@ pub fn start(args: &[&str]) -> (Server, String) {
     start_with_env(args, &[])
 }
 
-/// [`start`] with environment variables set for the process.
-pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Server, String) {
+/// Runs `candeck ARGS` (stderr dropped) and reads the first line it
+/// prints, which says where it listens.
+fn spawn_and_read_line(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Child, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
         .args(args)
-        .args(["--listen", "127.0.0.1:0"])
         .envs(env.iter().copied())
         .env_remove("CANDECK_LOG")
         .stdout(Stdio::piped())
@@ -43,6 +43,14 @@ pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Serve
     BufReader::new(child.stdout.take().unwrap())
         .read_line(&mut line)
         .unwrap();
+    (child, line)
+}
+
+/// [`start`] with environment variables set for the process.
+pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Server, String) {
+    let mut all = args.to_vec();
+    all.extend(["--listen", "127.0.0.1:0"]);
+    let (child, line) = spawn_and_read_line(&all, env);
     let address = line
         .strip_prefix("candeck: serving http://")
         .and_then(|rest| rest.split_once('/'))
@@ -80,16 +88,8 @@ impl Drop for Vbus {
 /// one); the process, and the socketcand address and channel it serves
 /// (`127.0.0.1:PORT/can0`).
 pub fn vbus(listen: &str) -> (Vbus, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["vbus", "--listen", listen, "--devices", "demo"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("vbus starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
+    let (child, line) =
+        spawn_and_read_line(&["vbus", "--listen", listen, "--devices", "demo"], &[]);
     // "candeck vbus: socketcand on ADDR channel CHANNEL devices ..."
     let words: Vec<&str> = line.split_whitespace().collect();
     assert_eq!(

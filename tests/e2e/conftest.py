@@ -50,15 +50,19 @@ class Server:
     """`candeck serve` on the demo bus, on a port of our choosing so that a
     test can stop it and start it again on the same address."""
 
-    def __init__(self, port):
+    def __init__(self, port, args=(), token=None):
+        """`args`: more arguments of `candeck serve`; `token`: sent as a
+        bearer token with the test's own requests."""
         self.port = port
         self.url = f"http://127.0.0.1:{port}"
+        self.args = list(args)
+        self.token = token
         self.log_file = tempfile.NamedTemporaryFile(prefix="candeck-e2e-", suffix=".log", delete=False)
         self.proc = None
 
     def start(self):
         self.proc = subprocess.Popen(
-            [BIN, "serve", "--listen", f"127.0.0.1:{self.port}"],
+            [BIN, "serve", "--listen", f"127.0.0.1:{self.port}", *self.args],
             stdout=subprocess.PIPE,
             stderr=self.log_file,
             text=True,
@@ -97,6 +101,8 @@ class Server:
     def request(self, method, path, body=None):
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(self.url + path, data=data, method=method)
+        if self.token:
+            req.add_header("authorization", f"Bearer {self.token}")
         if data is not None:
             req.add_header("content-type", "application/json")
         try:

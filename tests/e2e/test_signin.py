@@ -4,10 +4,8 @@ whoami, which the browser logs and this test takes out and checks), a
 wrong token is told so, the right one lists the nodes over REST and the
 stream, and the top bar names the token until it signs out."""
 
-import json
 import os
 import re
-import subprocess
 import tempfile
 import time
 import urllib.error
@@ -15,7 +13,7 @@ import urllib.request
 
 import pytest
 
-from conftest import BIN, Server, free_port
+from conftest import Server, free_port
 from test_overview import connection, wait_for_demo_nodes
 
 OPERATOR = "line-plc-5b0e9f2c41d7a8e3"
@@ -43,41 +41,10 @@ class TokenServer(Server):
     carry the admin token."""
 
     def __init__(self, port):
-        super().__init__(port)
         self.config = tempfile.NamedTemporaryFile("w", prefix="candeck-auth-", suffix=".toml", delete=False)
         self.config.write(CONFIG)
         self.config.close()
-
-    def start(self):
-        self.proc = subprocess.Popen(
-            [BIN, "serve", "--listen", f"127.0.0.1:{self.port}", "--config", self.config.name],
-            stdout=subprocess.PIPE,
-            stderr=self.log_file,
-            text=True,
-        )
-        line = self.proc.stdout.readline()
-        if not re.search(r"serving http://127\.0\.0\.1:\d+/", line or ""):
-            raise AssertionError(f"candeck did not start: {line!r}\n{self.log()}")
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            nodes = self.get("/api/v1/buses/demo/nodes")
-            if len(nodes) >= 3 and all(n["identification"]["state"] == "done" for n in nodes):
-                return
-            time.sleep(0.1)
-        raise AssertionError(f"the demo nodes did not appear: {self.log()}")
-
-    def request(self, method, path, body=None):
-        data = None if body is None else json.dumps(body).encode()
-        req = urllib.request.Request(self.url + path, data=data, method=method)
-        req.add_header("authorization", f"Bearer {ADMIN}")
-        if data is not None:
-            req.add_header("content-type", "application/json")
-        try:
-            with urllib.request.urlopen(req, timeout=30) as resp:
-                text = resp.read().decode()
-        except urllib.error.HTTPError as err:
-            raise AssertionError(f"{method} {path}: {err.code} {err.read().decode()}") from None
-        return json.loads(text) if text else None
+        super().__init__(port, args=["--config", self.config.name], token=ADMIN)
 
 
 @pytest.fixture
