@@ -473,10 +473,68 @@ async fn with_tokens_a_connection_needs_auth_and_the_role_of_the_rest_api() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|e| e["method"] == "ASCII")
+        .find(|e| e["method"] == "ASCII" && e["status"] == 200)
         .unwrap_or_else(|| panic!("no ASCII entry in {audit}"));
+    // The viewer's refused write and NMT command are in the log too.
+    let refused: Vec<_> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["method"] == "ASCII" && e["status"] == 403)
+        .collect();
+    assert_eq!(refused.len(), 2, "{audit}");
+    assert!(refused.iter().all(|e| e["who"] == "scada"), "{audit}");
     assert_eq!(write["who"], "plc", "{write}");
     assert_eq!(write["role"], "operator", "{write}");
+
+    // CiA 309-5 takes the bearer token of every HTTP request: a viewer
+    // may not write, an operator may, and the log names it.
+    let body = r#"{"value":"0","datatype":"u16"}"#;
+    let path = "/cia309-5/1.0/20/1/3/w/0x1017/0";
+    let put = |token: &'static str| {
+        let http = http.clone();
+        async move {
+            common::request_with_headers(
+                &http,
+                "PUT",
+                path,
+                "application/json",
+                Some(body),
+                Duration::from_secs(30),
+                &format!("Authorization: Bearer {token}\r\n"),
+            )
+            .await
+        }
+    };
+    assert_eq!(put(VIEWER_TOKEN).await.status, 403);
+    let answer = put(OPERATOR_TOKEN).await;
+    assert_eq!(answer.status, 200, "{}", answer.body);
+    assert_eq!(answer.json()["response"], "OK", "{}", answer.body);
+    let (_, audit) = common::json_with_token(
+        &http,
+        "GET",
+        "/api/v1/events?kind=audit&limit=10",
+        OPERATOR_TOKEN,
+    )
+    .await;
+    let entry = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| {
+            e["path"].as_str().is_some_and(|p| p.contains("/cia309-5/")) && e["status"] == 200
+        })
+        .unwrap_or_else(|| panic!("no 309-5 entry in {audit}"));
+    assert_eq!(entry["who"], "plc", "{entry}");
+    // The viewer's refused write is in the log too.
+    let refused = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["path"] == path && e["status"] == 403)
+        .unwrap_or_else(|| panic!("no refused 309-5 entry in {audit}"));
+    assert_eq!(refused["who"], "scada", "{refused}");
+    assert_eq!(refused["error_code"], "forbidden", "{refused}");
 }
 
 /// The UMC's vendor id (0x1018:1) as the u32 reply writes it.

@@ -52,11 +52,19 @@ pub fn is_state_changing(method: &Method, path: &str) -> bool {
     changing && api && !batch_read
 }
 
+/// A CiA 309-5 command (`/cia309-5/...`, not a GET): its handler writes
+/// its own audit entry, as the CiA 309-3 gateway does, so the middleware
+/// records only those refused before it (401, 403, 413, 429).
+fn is_cia309_command(method: &Method, path: &str) -> bool {
+    *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/")
+}
+
 /// The middleware (`axum::middleware::from_fn_with_state`).
 pub async fn record(State(state): State<AppState>, request: Request, next: Next) -> Response {
     let method = request.method().clone();
     let path = request.uri().path().to_string();
-    if !is_state_changing(&method, &path) {
+    let cia309 = is_cia309_command(&method, &path);
+    if !is_state_changing(&method, &path) && !cia309 {
         return next.run(request).await;
     }
     let time = Timestamp::now();
@@ -87,6 +95,10 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             Some(format!("more than {limit} bytes")),
         ),
     };
+    let refused_before_handler = matches!(response.status().as_u16(), 401 | 403 | 413 | 429);
+    if cia309 && !refused_before_handler {
+        return response;
+    }
     let target = Target::of(&method, &path);
     let error = response.extensions().get::<ErrorSummary>();
     // The guard names who it let in or turned away; a body refused for its

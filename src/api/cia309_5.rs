@@ -119,11 +119,22 @@ fn target(
     })
 }
 
+/// Who sent the request, for the audit log: the token's name and role
+/// when the gateway has tokens (the guard put them on the request), else
+/// the client's address.
 fn identity(extensions: &Extensions) -> Identity {
     let peer = extensions
         .get::<ConnectInfo<SocketAddr>>()
         .map(|ConnectInfo(addr)| addr.to_string());
-    Identity::anonymous("http", peer)
+    let mut identity = Identity::anonymous("http", peer);
+    if let Some(token) = extensions.get::<crate::api::auth::Identity>()
+        && let Some(role) = token.role
+    {
+        identity.who = token.name.clone();
+        identity.role = role.name().to_string();
+        identity.access = Some(role);
+    }
+    identity
 }
 
 fn object(index: &str, sub: &str) -> Option<(u16, u8)> {

@@ -317,6 +317,22 @@ impl Gateway {
         Ok((served, channel))
     }
 
+    /// Records a command refused for the connection's role (or for want
+    /// of a token), as the REST API's guard records its 401 and 403.
+    pub async fn audit_refused(&self, origin: Origin<'_>, net: u16, node: Option<u8>, what: &str) {
+        let error = if origin.identity.access.is_some() {
+            AppError::Forbidden(format!(
+                "{what} needs a higher role than {}",
+                origin.identity.role
+            ))
+        } else {
+            AppError::Unauthenticated(format!("{what} needs a token: send 'auth TOKEN' first"))
+        };
+        let operation = format!("{what} (refused)");
+        self.audit(&origin, net, node, &operation, None, None, Some(&error))
+            .await;
+    }
+
     #[allow(clippy::too_many_arguments)]
     async fn audit(
         &self,

@@ -126,10 +126,25 @@ impl Session {
         };
         let sequence = request.sequence;
         self.last_sequence = sequence;
+        let net = request.net;
         if !self.allowed(&request.command) {
+            let what = match request.command {
+                Command::Write { .. } => "SDO write",
+                Command::Nmt(_) => "NMT command",
+                _ => "SDO read",
+            };
+            if what != "SDO read" {
+                let origin = Origin {
+                    identity: &self.identity,
+                    method: "ASCII",
+                    path: line.trim_end_matches(['\r', '\n']),
+                };
+                self.gateway
+                    .audit_refused(origin, net, request.node, what)
+                    .await;
+            }
             return Reply::Error(sequence, ErrorCode::InternalState);
         }
-        let net = request.net;
         let node = request.node.unwrap_or(0);
         let path = line.trim_end_matches(['\r', '\n']);
         let origin = Origin {
