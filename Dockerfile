@@ -20,7 +20,8 @@ COPY eds ./eds
 COPY benches ./benches
 COPY scripts/container-steps ./scripts/container-steps
 RUN scripts/container-steps build
-RUN scripts/container-steps smoke target/release/candeck
+RUN scripts/container-steps install
+RUN scripts/container-steps smoke dist/candeck
 
 # Runtime stage: Debian slim (the binary links glibc; same release as the
 # build stage), the binary and curl for the health check.
@@ -34,7 +35,7 @@ RUN apt-get update \
     && useradd --system --uid 10001 --gid candeck --home-dir /var/lib/candeck --shell /usr/sbin/nologin candeck \
     && mkdir -p /var/lib/candeck \
     && chown candeck:candeck /var/lib/candeck
-COPY --from=build /src/target/release/candeck /usr/local/bin/candeck
+COPY --from=build /src/dist/candeck /usr/local/bin/candeck
 USER 10001:10001
 WORKDIR /var/lib/candeck
 # --data-dir: the history (SQLite), recordings and what virtual devices save.

@@ -90,7 +90,7 @@ fn the_dockerfile_builds_and_checks_with_the_scripts_steps() {
         .iter()
         .filter_map(|line| line.strip_prefix("RUN scripts/container-steps "))
         .collect();
-    assert_eq!(steps, ["build", "smoke target/release/candeck"]);
+    assert_eq!(steps, ["build", "install", "smoke dist/candeck"]);
     let script = read("scripts/container-steps");
     assert!(
         script
@@ -99,7 +99,7 @@ fn the_dockerfile_builds_and_checks_with_the_scripts_steps() {
 
     let has = |wanted: &str| instructions.iter().any(|line| line == wanted);
     assert!(has(
-        "COPY --from=build /src/target/release/candeck /usr/local/bin/candeck"
+        "COPY --from=build /src/dist/candeck /usr/local/bin/candeck"
     ));
     assert!(has(r#"ENTRYPOINT ["candeck"]"#));
     assert!(has("EXPOSE 8080 29536"));
