@@ -106,7 +106,8 @@ pub struct ServeArgs {
     #[arg(long)]
     pub listen: Option<SocketAddr>,
     /// A bus to serve, as NAME=SPEC or SPEC (virtual:demo, virtual:empty,
-    /// socketcan:can0, socketcand:HOST:PORT/CHANNEL); repeat for more.
+    /// socketcan:can0, socketcand:HOST:PORT/CHANNEL,
+    /// replay:FILE[?speed=N|max&loop]); repeat for more.
     /// Default: demo=virtual:demo, the demo devices on an emulated bus.
     #[arg(long = "bus", value_name = "NAME=SPEC")]
     pub buses: Vec<NamedBus>,
@@ -879,6 +880,27 @@ mod tests {
             "no key in candeck.example.toml: {missing:?}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn every_option_of_every_command_has_its_help() {
+        fn check(command: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            if command.get_about().is_none() && !path.is_empty() {
+                missing.push(format!("{path} (the command)"));
+            }
+            for arg in command.get_arguments() {
+                let id = arg.get_id().as_str();
+                if !["help", "version"].contains(&id) && arg.get_help().is_none() {
+                    missing.push(format!("{path} {id}"));
+                }
+            }
+            for sub in command.get_subcommands() {
+                check(sub, &format!("{path} {}", sub.get_name()), missing);
+            }
+        }
+        let mut missing = Vec::new();
+        check(&<Cli as clap::CommandFactory>::command(), "", &mut missing);
+        assert!(missing.is_empty(), "without help: {missing:?}");
     }
 
     #[test]
