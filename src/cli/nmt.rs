@@ -18,6 +18,8 @@ pub struct NmtArgs {
     /// The node id (1 to 127), or `all`.
     #[arg(long, value_name = "ID|all", value_parser = parse_target)]
     pub node: NmtTarget,
+    /// The NMT command: start (operational), stop, pre-operational,
+    /// reset-node (the application), reset-communication.
     pub command: Command,
 }
 

@@ -17,6 +17,7 @@ use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Hi
 use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, TelemetryConfig};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
+use crate::gateway::sync::MAX_PERIOD_MS;
 
 /// How long the first scan of a bus waits for the bus to come up.
 const FIRST_SCAN_WAIT: std::time::Duration = std::time::Duration::from_secs(30);
@@ -105,7 +106,8 @@ pub struct ServeArgs {
     #[arg(long)]
     pub listen: Option<SocketAddr>,
     /// A bus to serve, as NAME=SPEC or SPEC (virtual:demo, virtual:empty,
-    /// socketcan:can0, socketcand:HOST:PORT/CHANNEL); repeat for more.
+    /// socketcan:can0, socketcand:HOST:PORT/CHANNEL,
+    /// replay:FILE[?speed=N|max&loop]); repeat for more.
     /// Default: demo=virtual:demo, the demo devices on an emulated bus.
     #[arg(long = "bus", value_name = "NAME=SPEC")]
     pub buses: Vec<NamedBus>,
@@ -120,7 +122,8 @@ pub struct ServeArgs {
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
     /// axis_poll_hz, retention_days, retention_rows, lease_ms, ascii_listen,
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
-    /// write_burst, body_limit, dcf_body_limit.
+    /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure
+    /// (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
     /// CANDECK_TOKENS="NAME:ROLE:TOKEN,..." (roles: viewer, operator, admin).
@@ -191,6 +194,29 @@ pub struct ServeArgs {
     /// 4194304.
     #[arg(long, value_name = "BYTES")]
     pub dcf_body_limit: Option<usize>,
+    /// The period in milliseconds of the gateway's SYNC producer (COB-ID
+    /// 0x080) on every bus from the start, as PUT /api/v1/buses/{bus}/sync
+    /// sets it later; 0: no SYNC. Default: 0.
+    #[arg(long, value_name = "MS", value_parser = parse_sync_period_ms)]
+    pub sync_period_ms: Option<u32>,
+}
+
+/// A SYNC period in milliseconds: 0 (off) up to what 0x1006 holds.
+fn parse_sync_period_ms(text: &str) -> Result<u32, String> {
+    let ms: u64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{text}' is no number of milliseconds"))?;
+    check_sync_period_ms(ms)
+}
+
+fn check_sync_period_ms(ms: u64) -> Result<u32, String> {
+    u32::try_from(ms)
+        .ok()
+        .filter(|ms| *ms <= MAX_PERIOD_MS)
+        .ok_or_else(|| {
+            format!("{ms} ms: a SYNC period is at most {MAX_PERIOD_MS} ms (0x1006 in µs)")
+        })
 }
 
 /// A lease period in milliseconds, within the gateway's bounds.
@@ -271,6 +297,8 @@ struct ConfigFile {
     write_burst: Option<u32>,
     body_limit: Option<usize>,
     dcf_body_limit: Option<usize>,
+    sync_period_ms: Option<u32>,
+    insecure: Option<bool>,
 }
 
 impl ConfigFile {
@@ -306,6 +334,10 @@ impl ConfigFile {
         if let Some(ms) = config.lease_ms {
             check_lease_ms(ms)
                 .map_err(|err| format!("config {}: lease_ms {err}", path.display()))?;
+        }
+        if let Some(ms) = config.sync_period_ms {
+            check_sync_period_ms(u64::from(ms))
+                .map_err(|err| format!("config {}: sync_period_ms {err}", path.display()))?;
         }
         if config.bitrate == Some(0) {
             return Err(format!(
@@ -351,6 +383,7 @@ struct Settings {
     ascii_listen: Option<SocketAddr>,
     auth: AuthConfig,
     insecure: bool,
+    sync_period: std::time::Duration,
 }
 
 impl ServeArgs {
@@ -425,7 +458,12 @@ impl ServeArgs {
                 (file.body_limit, file.dcf_body_limit),
                 tokens_env,
             )?,
-            insecure: self.insecure,
+            // A flag can only say yes: the file's `insecure = true` stands
+            // unless the flag is given too.
+            insecure: self.insecure || file.insecure.unwrap_or(false),
+            sync_period: std::time::Duration::from_millis(u64::from(
+                self.sync_period_ms.or(file.sync_period_ms).unwrap_or(0),
+            )),
         };
         settings.validate()?;
         Ok(settings)
@@ -627,6 +665,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         if let Some(dir) = &args.data_dir {
             opened = opened.with_recordings_dir(dir.join("recordings"));
         }
+        // What PUT /buses/{bus}/sync would set, from the start.
+        opened.sync.set_period(args.sync_period);
         served.push(opened);
     }
     let mut shares = Vec::new();
@@ -774,6 +814,131 @@ mod tests {
             Some(Command::Serve(args)) => Ok(args),
             other => Err(format!("not serve: {other:?}")),
         }
+    }
+
+    /// The config key of a `candeck serve` option: its long name with
+    /// underscores; the repeated options' keys are plural.
+    fn config_key(long: &str) -> String {
+        match long {
+            "bus" => "buses".to_string(),
+            "cors-origin" => "cors_origins".to_string(),
+            long => long.replace('-', "_"),
+        }
+    }
+
+    #[test]
+    fn the_example_config_parses_and_has_a_key_for_every_option() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("candeck.example.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        // "#= " lines are settings left out on purpose: with them too.
+        let full: String = text
+            .lines()
+            .map(|line| line.strip_prefix("#= ").unwrap_or(line))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let dir = std::env::temp_dir().join(format!("candeck-example-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let full_path = dir.join("full.toml");
+        std::fs::write(&full_path, &full).unwrap();
+
+        // As shipped (tokens from the environment, as the systemd unit
+        // gives them) and with every setting.
+        let shipped = serve_args(&["--config", path.to_str().unwrap()])
+            .unwrap()
+            .settings_with(Some("hmi:viewer:3f9c2a7be81d4c06a5e9"))
+            .unwrap();
+        assert_eq!(shipped.buses.len(), 2);
+        assert_eq!(shipped.data_dir, Some(PathBuf::from("/var/lib/candeck")));
+        let settings = serve_args(&["--config", full_path.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert_eq!(settings.auth.tokens[0].name, "line-plc");
+        assert_eq!(
+            settings.ascii_listen,
+            Some("127.0.0.1:60000".parse().unwrap())
+        );
+
+        // Every option of `candeck serve` but --config itself has a key in
+        // the example: a new flag without one fails here.
+        let keys: toml::Table = toml::from_str(&full).unwrap();
+        let command = <Cli as clap::CommandFactory>::command();
+        let serve = command.find_subcommand("serve").unwrap();
+        let mut missing = Vec::new();
+        for arg in serve.get_arguments() {
+            let Some(long) = arg.get_long() else { continue };
+            if ["config", "log", "help", "version"].contains(&long) {
+                continue;
+            }
+            let key = config_key(long);
+            if !keys.contains_key(&key) {
+                missing.push(key);
+            }
+        }
+        assert!(
+            missing.is_empty(),
+            "no key in candeck.example.toml: {missing:?}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn every_option_of_every_command_has_its_help() {
+        fn check(command: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            if command.get_about().is_none() && !path.is_empty() {
+                missing.push(format!("{path} (the command)"));
+            }
+            for arg in command.get_arguments() {
+                let id = arg.get_id().as_str();
+                if !["help", "version"].contains(&id) && arg.get_help().is_none() {
+                    missing.push(format!("{path} {id}"));
+                }
+            }
+            for sub in command.get_subcommands() {
+                check(sub, &format!("{path} {}", sub.get_name()), missing);
+            }
+        }
+        let mut missing = Vec::new();
+        check(&<Cli as clap::CommandFactory>::command(), "", &mut missing);
+        assert!(missing.is_empty(), "without help: {missing:?}");
+    }
+
+    #[test]
+    fn the_sync_period_and_insecure_come_from_the_file_and_the_command_line() {
+        let dir = std::env::temp_dir().join(format!("candeck-sync-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("sync.toml");
+        std::fs::write(
+            &file,
+            "listen = \"0.0.0.0:8080\"\ninsecure = true\nsync_period_ms = 10\n",
+        )
+        .unwrap();
+        let file = file.to_str().unwrap();
+
+        let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+        assert_eq!(settings.sync_period, std::time::Duration::ZERO);
+        let settings = serve_args(&["--config", file])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert_eq!(settings.sync_period, std::time::Duration::from_millis(10));
+        assert!(settings.insecure);
+        let settings = serve_args(&["--config", file, "--sync-period-ms", "0"])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        assert_eq!(settings.sync_period, std::time::Duration::ZERO);
+
+        let err = serve_args(&["--sync-period-ms", "5000000"]).unwrap_err();
+        assert!(err.contains("a SYNC period is at most"), "{err}");
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "sync_period_ms = 4294968\n").unwrap();
+        let err = serve_args(&["--config", bad.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("sync_period_ms"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

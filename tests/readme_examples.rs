@@ -1,0 +1,219 @@
+//! Every example of the README runs and gives what the README shows.
+//!
+//! An example is a fenced block opened with ```` ```sh example ````: its
+//! `curl` commands (a line ending in `\` goes on) run in order against one
+//! fresh `candeck serve` (the demo bus), with `localhost:8080` replaced by
+//! the test server's address, so that an example may build on the one
+//! before, as a reader typing them would. After each command, a line
+//! `# → JSON` (continued on lines starting `#   `) is what it prints. The
+//! comparison is of JSON values and leaves out what changes from run to run:
+//! an object shows only the keys it means (others are not compared), a
+//! string `"…"` stands for any value, and an array ending in `"…"` for any
+//! more elements after the ones shown. Other `#` lines are comments, and so
+//! is the rest of a command line after two spaces and `#`.
+
+mod common;
+
+use serde_json::Value;
+
+/// One command of an example, and what the README shows it prints.
+struct Example {
+    line: usize,
+    command: String,
+    shown: String,
+}
+
+fn examples(readme: &str) -> Vec<Example> {
+    let mut examples: Vec<Example> = Vec::new();
+    let mut in_block = false;
+    let mut command: Option<(usize, String)> = None;
+    let mut continuing_output = false;
+    for (number, line) in readme.lines().enumerate() {
+        let number = number + 1;
+        if !in_block {
+            in_block = line.trim() == "```sh example";
+            continue;
+        }
+        if line.trim() == "```" {
+            in_block = false;
+            assert!(
+                command.is_none(),
+                "README line {number}: a command without its output"
+            );
+            continue;
+        }
+        // A comment at the end of a command line.
+        let line = line.split_once("  #").map_or(line, |(code, _)| code);
+        if let Some((start, text)) = &mut command {
+            // A continued command line.
+            let part = line.trim();
+            text.push(' ');
+            text.push_str(part.trim_end_matches('\\').trim());
+            if !part.ends_with('\\') {
+                examples.push(Example {
+                    line: *start,
+                    command: std::mem::take(text),
+                    shown: String::new(),
+                });
+                command = None;
+            }
+            continue;
+        }
+        if let Some(shown) = line.strip_prefix("# → ") {
+            let example = examples
+                .last_mut()
+                .unwrap_or_else(|| panic!("README line {number}: output without a command"));
+            assert!(
+                example.shown.is_empty(),
+                "README line {number}: two outputs"
+            );
+            example.shown = shown.to_string();
+            continuing_output = true;
+            continue;
+        }
+        if continuing_output && let Some(more) = line.strip_prefix("#   ") {
+            examples.last_mut().unwrap().shown.push_str(more.trim());
+            continue;
+        }
+        continuing_output = false;
+        let trimmed = line.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        assert!(
+            trimmed.starts_with("curl "),
+            "README line {number}: an example runs curl only: {trimmed}"
+        );
+        let text = trimmed.trim_end_matches('\\').trim().to_string();
+        if trimmed.ends_with('\\') {
+            command = Some((number, text));
+        } else {
+            examples.push(Example {
+                line: number,
+                command: text,
+                shown: String::new(),
+            });
+        }
+    }
+    examples
+}
+
+/// Whether `actual` is what `shown` shows (see the module's comment);
+/// where not, the path of the first difference.
+fn matches(shown: &Value, actual: &Value, path: &str) -> Result<(), String> {
+    match (shown, actual) {
+        (Value::String(text), _) if text == "…" => Ok(()),
+        (Value::Object(shown), Value::Object(actual)) => {
+            for (key, value) in shown {
+                let actual = actual
+                    .get(key)
+                    .ok_or_else(|| format!("{path}.{key}: not in the answer"))?;
+                matches(value, actual, &format!("{path}.{key}"))?;
+            }
+            Ok(())
+        }
+        (Value::Array(shown), Value::Array(actual)) => {
+            let open = shown.last() == Some(&Value::String("…".to_string()));
+            let shown = if open {
+                &shown[..shown.len() - 1]
+            } else {
+                &shown[..]
+            };
+            if actual.len() < shown.len() || (!open && actual.len() != shown.len()) {
+                return Err(format!(
+                    "{path}: {} elements shown, {} in the answer",
+                    shown.len(),
+                    actual.len()
+                ));
+            }
+            for (at, (shown, actual)) in shown.iter().zip(actual).enumerate() {
+                matches(shown, actual, &format!("{path}[{at}]"))?;
+            }
+            Ok(())
+        }
+        _ if shown == actual => Ok(()),
+        _ => Err(format!("{path}: shown {shown}, answered {actual}")),
+    }
+}
+
+#[test]
+fn the_matching_elides_what_it_says_and_nothing_else() {
+    let actual: Value = serde_json::json!({"id": "3f2a", "items": [1, 2, 3], "n": 1});
+    let ok = |shown: &str| matches(&serde_json::from_str(shown).unwrap(), &actual, "");
+    assert!(ok(r#"{"id":"…","n":1}"#).is_ok());
+    assert!(ok(r#"{"items":[1,"…"]}"#).is_ok());
+    assert!(ok(r#"{"items":[1,2]}"#).is_err());
+    assert!(ok(r#"{"n":2}"#).is_err());
+    assert!(ok(r#"{"missing":1}"#).is_err());
+    let parsed = examples(
+        "```sh example\ncurl -X PUT \\\n  localhost:8080/a   # a note\n# → {\"a\":\n#   1}\n# a note\ncurl localhost:8080/b\n# → []\n```\n",
+    );
+    let commands: Vec<(&str, &str)> = parsed
+        .iter()
+        .map(|example| (example.command.as_str(), example.shown.as_str()))
+        .collect();
+    assert_eq!(
+        commands,
+        [
+            ("curl -X PUT localhost:8080/a", "{\"a\":1}"),
+            ("curl localhost:8080/b", "[]")
+        ]
+    );
+}
+
+#[tokio::test]
+async fn every_readme_example_gives_what_the_readme_shows() {
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    let examples = examples(&readme);
+    assert!(
+        examples.len() >= 10,
+        "README examples found: {}",
+        examples.len()
+    );
+    let (server, _) = common::start(&["serve"]);
+    // The demo as the reader finds it: the three nodes identified.
+    let (_, nodes) = common::poll(&server.address, "/api/v1/buses/demo/nodes", |_, nodes| {
+        nodes.as_array().is_some_and(|nodes| {
+            nodes.len() == 3
+                && nodes
+                    .iter()
+                    .all(|node| node["identification"]["state"] == "done")
+        })
+    })
+    .await;
+    assert_eq!(nodes.as_array().map(Vec::len), Some(3), "{nodes}");
+
+    let mut failures = Vec::new();
+    for example in &examples {
+        assert!(
+            !example.shown.is_empty(),
+            "README line {}: no '# →' output",
+            example.line
+        );
+        let command = example.command.replace("localhost:8080", &server.address);
+        let output = tokio::process::Command::new("sh")
+            .args(["-c", &format!("{command} --silent --show-error")])
+            .output()
+            .await
+            .expect("sh and curl run (Debian: apt-get install curl)");
+        let printed = String::from_utf8_lossy(&output.stdout).trim().to_string();
+        let result = match serde_json::from_str::<Value>(&example.shown) {
+            Ok(shown) => serde_json::from_str::<Value>(&printed)
+                .map_err(|err| format!("not JSON ({err})"))
+                .and_then(|actual| matches(&shown, &actual, "")),
+            Err(_) if printed == example.shown => Ok(()),
+            Err(_) => Err("not the text shown".to_string()),
+        };
+        if let Err(why) = result {
+            failures.push(format!(
+                "README line {}: {}\n  {why}\n  shown:   {}\n  printed: {printed} {}",
+                example.line,
+                example.command,
+                example.shown,
+                String::from_utf8_lossy(&output.stderr)
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
