@@ -9,8 +9,11 @@
 //! comparison is of JSON values and leaves out what changes from run to run:
 //! an object shows only the keys it means (others are not compared), a
 //! string `"…"` stands for any value, and an array ending in `"…"` for any
-//! more elements after the ones shown. Other `#` lines are comments, and so
-//! is the rest of a command line after two spaces and `#`.
+//! more elements after the ones shown. A line `# keep NAME = /json/pointer`
+//! after an output keeps that value of the answer for the commands after
+//! it, which name it `$NAME` (they run in `sh`, with it in their
+//! environment): a lease id, say. Other `#` lines are comments, and so is
+//! the rest of a command line after two spaces and `#`.
 
 mod common;
 
@@ -21,6 +24,8 @@ struct Example {
     line: usize,
     command: String,
     shown: String,
+    /// `(NAME, JSON pointer)`: values of the answer kept for later commands.
+    keep: Vec<(String, String)>,
 }
 
 fn examples(readme: &str) -> Vec<Example> {
@@ -54,6 +59,7 @@ fn examples(readme: &str) -> Vec<Example> {
                     line: *start,
                     command: std::mem::take(text),
                     shown: String::new(),
+                    keep: Vec::new(),
                 });
                 command = None;
             }
@@ -76,6 +82,17 @@ fn examples(readme: &str) -> Vec<Example> {
             continue;
         }
         continuing_output = false;
+        if let Some(kept) = line.trim().strip_prefix("# keep ") {
+            let (name, pointer) = kept
+                .split_once(" = ")
+                .unwrap_or_else(|| panic!("README line {number}: '# keep NAME = /pointer'"));
+            examples
+                .last_mut()
+                .unwrap_or_else(|| panic!("README line {number}: keep without a command"))
+                .keep
+                .push((name.trim().to_string(), pointer.trim().to_string()));
+            continue;
+        }
         let trimmed = line.trim();
         if trimmed.is_empty() || trimmed.starts_with('#') {
             continue;
@@ -92,6 +109,7 @@ fn examples(readme: &str) -> Vec<Example> {
                 line: number,
                 command: text,
                 shown: String::new(),
+                keep: Vec::new(),
             });
         }
     }
@@ -146,8 +164,10 @@ fn the_matching_elides_what_it_says_and_nothing_else() {
     assert!(ok(r#"{"n":2}"#).is_err());
     assert!(ok(r#"{"missing":1}"#).is_err());
     let parsed = examples(
-        "```sh example\ncurl -X PUT \\\n  localhost:8080/a   # a note\n# → {\"a\":\n#   1}\n# a note\ncurl localhost:8080/b\n# → []\n```\n",
+        "```sh example\ncurl -X PUT \\\n  localhost:8080/a   # a note\n# → {\"a\":\n#   1}\n# keep A = /a\n# a note\ncurl localhost:8080/b\n# → []\n```\n",
     );
+    assert_eq!(parsed[0].keep, [("A".to_string(), "/a".to_string())]);
+    assert!(parsed[1].keep.is_empty());
     let commands: Vec<(&str, &str)> = parsed
         .iter()
         .map(|example| (example.command.as_str(), example.shown.as_str()))
@@ -185,6 +205,7 @@ async fn every_readme_example_gives_what_the_readme_shows() {
     assert_eq!(nodes.as_array().map(Vec::len), Some(3), "{nodes}");
 
     let mut failures = Vec::new();
+    let mut kept: Vec<(String, String)> = Vec::new();
     for example in &examples {
         assert!(
             !example.shown.is_empty(),
@@ -194,10 +215,27 @@ async fn every_readme_example_gives_what_the_readme_shows() {
         let command = example.command.replace("localhost:8080", &server.address);
         let output = tokio::process::Command::new("sh")
             .args(["-c", &format!("{command} --silent --show-error")])
+            .envs(
+                kept.iter()
+                    .map(|(name, value)| (name.as_str(), value.as_str())),
+            )
             .output()
             .await
             .expect("sh and curl run (Debian: apt-get install curl)");
         let printed = String::from_utf8_lossy(&output.stdout).trim().to_string();
+        for (name, pointer) in &example.keep {
+            let value = serde_json::from_str::<Value>(&printed)
+                .ok()
+                .and_then(|answer| answer.pointer(pointer).cloned());
+            match value {
+                Some(Value::String(text)) => kept.push((name.clone(), text)),
+                Some(other) => kept.push((name.clone(), other.to_string())),
+                None => failures.push(format!(
+                    "README line {}: nothing at {pointer} to keep as {name} in {printed}",
+                    example.line
+                )),
+            }
+        }
         let result = match serde_json::from_str::<Value>(&example.shown) {
             Ok(shown) => serde_json::from_str::<Value>(&printed)
                 .map_err(|err| format!("not JSON ({err})"))
