@@ -33,7 +33,7 @@ fuzz_target!(|data: &[u8]| {
     while let Some(event) = input.event() {
         if client.is_idle() {
             // Keep a transfer running: downloads and uploads in turn.
-            let frames = if started % 2 == 0 {
+            let frames = if started.is_multiple_of(2) {
                 let value: Vec<u8> = (0..lengths[started / 2 % 2]).map(|i| i as u8).collect();
                 client.download(0x2000, 0, &value, now)
             } else {
