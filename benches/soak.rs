@@ -229,7 +229,13 @@ impl Client {
             .or_default() += 1;
         match result {
             Ok((status, text)) => {
-                *self.stats.statuses.lock().unwrap().entry(status).or_default() += 1;
+                *self
+                    .stats
+                    .statuses
+                    .lock()
+                    .unwrap()
+                    .entry(status)
+                    .or_default() += 1;
                 if changing {
                     self.stats.changing.lock().unwrap().push((
                         method.to_string(),
@@ -443,7 +449,10 @@ async fn drive(client: Client, node: u8, axis: u8, seed: u64, until: Instant) {
         }
         if rng.below(3) == 0 {
             client
-                .post(&format!("{base}/state"), json!({"target": "switch_on_disabled"}))
+                .post(
+                    &format!("{base}/state"),
+                    json!({"target": "switch_on_disabled"}),
+                )
                 .await;
         }
         pause(200 + rng.below(500)).await;
@@ -461,7 +470,10 @@ async fn supervisor(client: Client, seed: u64, until: Instant) {
             }
             1 => {
                 client
-                    .post("/buses/demo/nodes/2/nmt", json!({"command": "pre_operational"}))
+                    .post(
+                        "/buses/demo/nodes/2/nmt",
+                        json!({"command": "pre_operational"}),
+                    )
                     .await;
                 pause(1_000).await;
                 client
@@ -492,11 +504,16 @@ async fn faults(client: Client, seed: u64, until: Instant) {
                 // The LED controller's cable out, and back after a while:
                 // a new device with the same id, found from its boot-up.
                 let index = stats.disturb(3, "unplugged");
-                client.send("DELETE", "/buses/demo/sim/nodes/3", None, "").await;
+                client
+                    .send("DELETE", "/buses/demo/sim/nodes/3", None, "")
+                    .await;
                 stats.unplugs.fetch_add(1, Ordering::Relaxed);
                 pause(4_000 + rng.below(6_000)).await;
                 client
-                    .post("/buses/demo/sim/nodes", json!({"product": "uio1led", "id": 3}))
+                    .post(
+                        "/buses/demo/sim/nodes",
+                        json!({"product": "uio1led", "id": 3}),
+                    )
                     .await;
                 stats.settle(index);
             }
@@ -513,7 +530,12 @@ async fn faults(client: Client, seed: u64, until: Instant) {
                 }
                 pause(2_000 + rng.below(4_000)).await;
                 client
-                    .send("DELETE", &path, Some(&json!({ "kind": kind }).to_string()), "")
+                    .send(
+                        "DELETE",
+                        &path,
+                        Some(&json!({ "kind": kind }).to_string()),
+                        "",
+                    )
                     .await;
                 stats.settle(index);
             }
@@ -528,13 +550,25 @@ async fn malformed(client: Client, seed: u64, until: Instant) {
         match rng.below(7) {
             0 => {
                 client
-                    .malformed("PUT", "/buses/demo/nodes/1/od/0x6081/0", Some("{\"value\": "))
+                    .malformed(
+                        "PUT",
+                        "/buses/demo/nodes/1/od/0x6081/0",
+                        Some("{\"value\": "),
+                    )
                     .await
             }
-            1 => client.malformed("GET", "/buses/demo/nodes/1/od/0x5fff/0", None).await,
+            1 => {
+                client
+                    .malformed("GET", "/buses/demo/nodes/1/od/0x5fff/0", None)
+                    .await
+            }
             2 => {
                 client
-                    .malformed("PUT", "/buses/demo/nodes/1/od/0x5fff/0", Some("{\"value\": 1}"))
+                    .malformed(
+                        "PUT",
+                        "/buses/demo/nodes/1/od/0x5fff/0",
+                        Some("{\"value\": 1}"),
+                    )
                     .await
             }
             3 => {
@@ -557,7 +591,11 @@ async fn malformed(client: Client, seed: u64, until: Instant) {
             }
             5 => {
                 client
-                    .malformed("PUT", "/buses/demo/nodes/3/segments/11", Some("{\"effect\": \"fix\"}"))
+                    .malformed(
+                        "PUT",
+                        "/buses/demo/nodes/3/segments/11",
+                        Some("{\"effect\": \"fix\"}"),
+                    )
                     .await
             }
             _ => {
@@ -583,10 +621,8 @@ const TOPICS: &[&str] = &[
 async fn subscribe(
     address: &str,
     topics: &[&str],
-) -> Result<
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<TcpStream>>,
-    String,
-> {
+) -> Result<tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<TcpStream>>, String>
+{
     let (mut socket, _) = tokio_tungstenite::connect_async(format!("ws://{address}/api/v1/stream"))
         .await
         .map_err(|err| err.to_string())?;
@@ -766,7 +802,10 @@ async fn main() {
         .and_then(|rest| rest.split_once('/'))
         .map(|(address, _)| address.to_string())
         .unwrap_or_else(|| panic!("first line: {line}"));
-    println!("soak: candeck (pid {pid}) on {address} for {minutes} min, data in {}", dir.display());
+    println!(
+        "soak: candeck (pid {pid}) on {address} for {minutes} min, data in {}",
+        dir.display()
+    );
 
     let stats = Arc::new(Stats::default());
     let client = Client {
@@ -800,12 +839,25 @@ async fn main() {
     tasks.push(tokio::spawn(faults(client.clone(), 61, until)));
     tasks.push(tokio::spawn(malformed(client.clone(), 71, until)));
     for _ in 0..3 {
-        tasks.push(tokio::spawn(ws_reader(address.clone(), stats.clone(), until)));
+        tasks.push(tokio::spawn(ws_reader(
+            address.clone(),
+            stats.clone(),
+            until,
+        )));
     }
     for i in 0..2 {
-        tasks.push(tokio::spawn(ws_churn(address.clone(), stats.clone(), 81 + i, until)));
+        tasks.push(tokio::spawn(ws_churn(
+            address.clone(),
+            stats.clone(),
+            81 + i,
+            until,
+        )));
     }
-    tasks.push(tokio::spawn(ws_sleeper(address.clone(), stats.clone(), until)));
+    tasks.push(tokio::spawn(ws_sleeper(
+        address.clone(),
+        stats.clone(),
+        until,
+    )));
 
     let done = Arc::new(AtomicBool::new(false));
     let sampler = {
@@ -907,7 +959,11 @@ fn report(
 
     let _ = writeln!(out, "\n## candeck soak report\n");
     let _ = writeln!(out, "| | |\n|---|---|");
-    let _ = writeln!(out, "| duration | {:.1} min |", elapsed.as_secs_f64() / 60.0);
+    let _ = writeln!(
+        out,
+        "| duration | {:.1} min |",
+        elapsed.as_secs_f64() / 60.0
+    );
     let _ = writeln!(
         out,
         "| requests | {total} ({:.0}/s): 2xx {}, 4xx {}, 5xx {}, transport errors {} |",
@@ -1015,7 +1071,11 @@ fn report(
                 *balance.entry(key).or_default() -= 1;
             }
             for ((method, path, status), n) in balance.iter().filter(|(_, n)| **n != 0).take(20) {
-                let what = if *n > 0 { "sent, not audited" } else { "audited, not sent" };
+                let what = if *n > 0 {
+                    "sent, not audited"
+                } else {
+                    "audited, not sent"
+                };
                 let _ = writeln!(out, "  {method} {path} {status}: {} {what}", n.abs());
             }
         }
@@ -1023,7 +1083,11 @@ fn report(
     if panics > 0 {
         ok = false;
         let _ = writeln!(out, "\nFAIL: the gateway panicked:");
-        for line in gateway_log.lines().filter(|line| line.contains("panicked")).take(5) {
+        for line in gateway_log
+            .lines()
+            .filter(|line| line.contains("panicked"))
+            .take(5)
+        {
             let _ = writeln!(out, "  {line}");
         }
     }
