@@ -1125,7 +1125,7 @@ fn report(
         }
     }
     // Each steady reader asked 20 Hz of every axis topic: a topic far below
-    // that stalled (seen in 2 of 6 short runs: one sample each, then none).
+    // that stalled (seen in 2 of 5 short runs: one sample each, then none).
     let expected = (20.0 * elapsed.as_secs_f64() * 3.0) as u64;
     for (topic, n) in stats.ws_topics.lock().unwrap().iter() {
         if topic.contains("/axes/") && *n < expected / 2 {
