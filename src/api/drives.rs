@@ -7,10 +7,11 @@
 //! - 404 `not_a_drive`: the node's profile has no axes (`uioled`,
 //!   `generic`); 404 `unknown_axis`: no such axis on the node (axes count
 //!   from 1; a UMC1BDS32 has 2).
-//! - 409 `drive_fault`: the axis is in fault, went there during a walk, or
-//!   its fault is still present after a fault reset; 409 `drive_not_enabled`:
-//!   a move, or the target quick_stop_active, needs operation enabled. Both
-//!   carry `state`.
+//! - 409 `drive_fault`: the axis is in fault, went there during a walk or
+//!   a move's change of mode, or its fault is still present after a fault
+//!   reset; 409 `drive_not_enabled`: a move, or the target
+//!   quick_stop_active, needs operation enabled (and a move whose change of
+//!   mode a quick stop interrupts gets it too). Both carry `state`.
 //! - 422 `mode_not_supported`: the drive lacks the mode (0x6502, or the
 //!   product's fixed list).
 //! - 504 `state_change_timeout`: the statusword (or 0x6061, or the

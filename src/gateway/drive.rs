@@ -1227,6 +1227,23 @@ impl Drive {
             .await?;
         let deadline = tokio::time::Instant::now() + MODE_TIMEOUT;
         while display().await? != mode.raw() {
+            // A drive changing mode while it moves stops first (CiA 402
+            // §5.1.5); a fault or a quick stop (STOP ALL) during that stop
+            // leaves the change pending for good, and the move ends with
+            // what happened, not with a timeout seconds later.
+            let statusword = self.statusword().await?;
+            match statusword.state() {
+                Some(State::OperationEnabled) => {}
+                Some(State::Fault | State::FaultReactionActive) => {
+                    return Err(self.fault(statusword, " during the change of mode"));
+                }
+                state => {
+                    return Err(DriveError::NotEnabled {
+                        axis: self.axis,
+                        state,
+                    });
+                }
+            }
             if tokio::time::Instant::now() >= deadline {
                 return Err(DriveError::Timeout {
                     axis: self.axis,
