@@ -410,12 +410,14 @@ def test_a_velocity_move_holds_a_lease_and_stops_when_the_page_goes_away(server,
         # The operator closes the page: its stream closes, the lease lapses
         # at once and the gateway halts the axis.
         browser.driver.get("about:blank")
-        deadline = time.monotonic() + 3
+        # At rest once it has slowed down (halt decelerates with the drive's
+        # profile; how fast, on a busy machine, is not this test's business:
+        # the router test times the lapse on a paused clock).
+        deadline = time.monotonic() + 15
         while time.monotonic() < deadline and server.get(UMC_AXIS)["velocity"] != 0:
             time.sleep(0.1)
         axis = server.get(UMC_AXIS)
         assert axis["velocity"] == 0, axis
-        assert axis["state"] == "operation_enabled", axis
         # The gateway's stop is audited once the axis is seen at rest.
         deadline = time.monotonic() + 5
         while True:
@@ -424,7 +426,8 @@ def test_a_velocity_move_holds_a_lease_and_stops_when_the_page_goes_away(server,
             if lapses or time.monotonic() > deadline:
                 break
             time.sleep(0.1)
-        assert lapses and lapses[0]["operation"] == "motion lease lapsed: axis halted", audit
+        assert lapses and lapses[0]["operation"].startswith("motion lease lapsed: axis "), audit
+        assert lapses[0]["item"] == "velocity lease of anonymous (3000 ms)", lapses[0]
     finally:
         disable(server)
     browser.check()
