@@ -595,22 +595,19 @@ async fn a_fault_during_a_move_ends_it_with_the_error() {
     assert_eq!(int(&status, "velocity"), 0, "{status}");
 }
 
-/// Found by the soak test: a move that changes the mode of a moving axis
-/// waits for the drive to stop first; a fault during that stop left the
-/// change pending for good, and the move answered 504 after 5 s.
-#[tokio::test(start_paused = true)]
-async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
-    let (app, state) = demo().await;
-    enable(&app, UMC, 1).await;
-    // A slow deceleration: the stop before the mode change takes seconds.
+/// UMC axis 1 turning fast with a slow deceleration, and a profile
+/// position move by its lease holder waiting (in a task) for the axis to
+/// stop before the mode changes: the stop takes seconds.
+async fn pending_mode_change(app: &Router) -> tokio::task::JoinHandle<(StatusCode, Json)> {
+    enable(app, UMC, 1).await;
     let running = run(
-        &app,
+        app,
         UMC,
         1,
         json!({"mode": "velocity", "velocity": 1000, "deceleration": 1}),
     )
     .await;
-    let status = wait_for(&app, UMC, 1, 3000, |s| int(s, "velocity") > 500).await;
+    let status = wait_for(app, UMC, 1, 3000, |s| int(s, "velocity") > 500).await;
     assert!(int(&status, "velocity") > 500, "{status}");
     let lease = running["lease"]["id"].as_str().unwrap().to_string();
     let request = {
@@ -627,6 +624,16 @@ async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
     };
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert!(!request.is_finished(), "the mode change waits for the stop");
+    request
+}
+
+/// Found by the soak test: a move that changes the mode of a moving axis
+/// waits for the drive to stop first; a fault during that stop left the
+/// change pending for good, and the move answered 504 after 5 s.
+#[tokio::test(start_paused = true)]
+async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
+    let (app, state) = demo().await;
+    let request = pending_mode_change(&app).await;
     let rack = state.buses["demo"].rack.as_ref().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
@@ -639,31 +646,7 @@ async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
 #[tokio::test(start_paused = true)]
 async fn stop_all_during_a_pending_mode_change_is_409_not_a_timeout() {
     let (app, _) = demo().await;
-    enable(&app, UMC, 1).await;
-    let running = run(
-        &app,
-        UMC,
-        1,
-        json!({"mode": "velocity", "velocity": 1000, "deceleration": 1}),
-    )
-    .await;
-    let status = wait_for(&app, UMC, 1, 3000, |s| int(s, "velocity") > 500).await;
-    assert!(int(&status, "velocity") > 500, "{status}");
-    let lease = running["lease"]["id"].as_str().unwrap().to_string();
-    let request = {
-        let app = app.clone();
-        tokio::spawn(async move {
-            post_with_lease(
-                &app,
-                &axis_uri(UMC, 1, "/move"),
-                &lease,
-                json!({"mode": "profile_position", "target": 0}),
-            )
-            .await
-        })
-    };
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert!(!request.is_finished(), "the mode change waits for the stop");
+    let request = pending_mode_change(&app).await;
     let (status, body) = call(&app, Method::POST, "/api/v1/stop-all", None).await;
     assert_eq!(status, StatusCode::OK, "{body}");
     let response = request.await.unwrap();
