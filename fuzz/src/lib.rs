@@ -7,6 +7,17 @@
 //! a frame of `header % 9` bytes taken from what follows. Frame bytes are
 //! copied unchanged, so the comparison tracing of libFuzzer can find the
 //! command bytes and indexes the machines test for.
+//!
+//! Each target's check is a module here with a `run(&[u8])`: the libFuzzer
+//! binaries of `fuzz_targets/` call it, and `tests/fuzz_seeds.rs` of candeck
+//! replays every seed (and the corpus, when there is one) through it in the
+//! ordinary test build, without an instrumented build.
+
+pub mod eds;
+pub mod rest_bodies;
+pub mod sdo_client;
+pub mod sdo_server;
+pub mod socketcand_lines;
 
 /// Something that happens to a machine.
 #[derive(Debug, Clone, PartialEq, Eq)]

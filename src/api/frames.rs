@@ -263,5 +263,4 @@ async fn send_frame(
 }
 
 #[cfg(test)]
-#[path = "frames_tests.rs"]
 mod tests;

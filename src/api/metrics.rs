@@ -586,5 +586,4 @@ impl Exposition {
 }
 
 #[cfg(test)]
-#[path = "metrics_tests.rs"]
 mod tests;

@@ -62,27 +62,7 @@ pub mod stream;
 pub mod values;
 
 #[cfg(test)]
-mod stream_tests;
-#[cfg(test)]
-mod test_support;
-#[cfg(test)]
 mod tests;
-#[cfg(test)]
-mod tests_audit;
-#[cfg(test)]
-mod tests_auth;
-#[cfg(test)]
-mod tests_drives;
-#[cfg(test)]
-mod tests_leases;
-#[cfg(test)]
-mod tests_leds;
-#[cfg(test)]
-mod tests_pdos;
-#[cfg(test)]
-mod tests_recording;
-#[cfg(test)]
-mod tests_telemetry;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;

@@ -257,5 +257,4 @@ async fn clear_fault(
 }
 
 #[cfg(test)]
-#[path = "sim_tests.rs"]
 mod tests;

@@ -751,5 +751,4 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 #[cfg(test)]
-#[path = "recording_tests.rs"]
 mod tests;

@@ -11,9 +11,9 @@ use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 use tokio::sync::mpsc;
 
-use super::AppState;
-use super::stream::{Inbound, run_session};
-use super::test_support::{assert_error, call, demo, get, post, post_with_lease};
+use crate::api::AppState;
+use crate::api::stream::{Inbound, run_session};
+use crate::api::tests::support::{assert_error, call, demo, get, post, post_with_lease};
 
 const UMC: u8 = 1;
 
@@ -51,7 +51,7 @@ async fn enable_and_run(app: &Router, velocity: i32) -> Json {
 async fn turning(period: Duration) -> (Router, AppState, Json) {
     let (_, state) = demo().await;
     let state = state.with_lease_period(period);
-    let app = super::app(state.clone());
+    let app = crate::api::app(state.clone());
     let body = enable_and_run(&app, 100).await;
     let lease = body["lease"].clone();
     assert_eq!(lease["mode"], "velocity", "{body}");

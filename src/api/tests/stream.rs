@@ -11,9 +11,9 @@ use serde_json::{Value as Json, json};
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use super::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
 use crate::api::AppState;
-use crate::api::test_support::{delete_text, demo, post_text};
+use crate::api::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
+use crate::api::tests::support::{delete_text, demo, post_text};
 use crate::can::{CanId, Frame};
 
 /// A client of a session: what it sends, what it gets.

@@ -12,9 +12,9 @@ use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 use tokio::time::Instant;
 
-use super::AppState;
-use super::ServedBus;
-use super::test_support::{call, demo, post, put};
+use crate::api::AppState;
+use crate::api::ServedBus;
+use crate::api::tests::support::{call, demo, post, put};
 use crate::can::{CanId, Frame, FrameReceiver};
 use crate::canopen::NodeId;
 use crate::gateway::drive::DriveError;
@@ -311,8 +311,8 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
     let error = previews.subscribe(node(1), 1.0).err().unwrap();
     assert!(matches!(error, PreviewError::NotAnLedController { .. }));
     // The stream reports them as the REST API would.
-    let error = super::AppError::from(error);
-    assert!(matches!(error, super::AppError::NotAnLedController(_)));
+    let error = crate::api::AppError::from(error);
+    assert!(matches!(error, crate::api::AppError::NotAnLedController(_)));
     // Nothing runs for a refused subscription.
     assert!(!served.axes.is_running(node(1), 3));
     assert!(!served.previews.is_running(node(1)));
@@ -528,7 +528,7 @@ async fn an_animated_led_preview_moves_at_the_rate_asked_with_few_sdo_reads() {
 /// the tasks hold keeps the bus's parts alive.
 #[tokio::test(start_paused = true)]
 async fn the_producers_stop_with_their_bus() {
-    let served = super::test_support::open("demo", "virtual:demo").await;
+    let served = crate::api::tests::support::open("demo", "virtual:demo").await;
     served.registry.scan().await.unwrap();
     let mut axis = served.axes.subscribe(node(1), 1, 20.0).unwrap();
     let mut preview = served.previews.subscribe(node(3), 20.0).unwrap();

@@ -11,10 +11,10 @@ use axum::http::{HeaderMap, Method, Request, StatusCode, header};
 use serde_json::Value as Json;
 use tower::ServiceExt;
 
-use super::auth::{
+use crate::api::auth::{
     Access, AuthConfig, DEFAULT_BODY_LIMIT, FALLBACK, ROUTES, RateLimit, Role, Token, route_entry,
 };
-use super::{AppState, app, routers};
+use crate::api::{AppState, app, routers};
 
 const VIEWER: &str = "v1ewer-0123456789abcdef";
 const OPERATOR: &str = "0perator-0123456789abcdef";

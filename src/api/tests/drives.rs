@@ -9,7 +9,7 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use super::test_support::{assert_error, call, demo, post, post_with_lease};
+use crate::api::tests::support::{assert_error, call, demo, post, post_with_lease};
 use crate::canopen::NodeId;
 use crate::sim::behaviour::Fault;
 

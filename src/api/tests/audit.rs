@@ -7,7 +7,7 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use super::test_support::{assert_error, call_text, demo, get, raw_call};
+use crate::api::tests::support::{assert_error, call_text, demo, get, raw_call};
 
 /// Polls `/events?{query}` until `found` holds (the EMCY/NMT recorder
 /// writes after the registry publishes); the entries.
@@ -396,7 +396,7 @@ async fn a_body_too_large_is_refused_and_audited() {
     let (app, _) = demo().await;
     let body = format!(
         "{{\"value\":\"{}\"}}",
-        "x".repeat(super::auth::DEFAULT_BODY_LIMIT)
+        "x".repeat(crate::api::auth::DEFAULT_BODY_LIMIT)
     );
     let (status, text, _) = raw_call(
         &app,

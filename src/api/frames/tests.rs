@@ -7,7 +7,7 @@ use axum::Router;
 use axum::http::StatusCode;
 use serde_json::json;
 
-use crate::api::test_support::{assert_error, get, open, post_text as post};
+use crate::api::tests::support::{assert_error, get, open, post_text as post};
 use crate::api::{AppState, app};
 
 use crate::can::{BusState, BusStatus};

@@ -9,7 +9,7 @@ use axum::http::{Method, StatusCode};
 
 use super::{CONTENT_TYPE_TEXT, Exposition, Kind, ProcessStats, Value};
 use super::{parse_boot_time, parse_stat, status_kb};
-use crate::api::test_support::{assert_error, demo, get, raw_call};
+use crate::api::tests::support::{assert_error, demo, get, raw_call};
 use crate::can::{BusState, BusStatus};
 use crate::gateway::sdo::LATENCY_BUCKETS;
 

@@ -11,8 +11,10 @@ use axum::http::{HeaderMap, Method, Request, StatusCode};
 use serde_json::{Value as Json, json};
 use tower::ServiceExt;
 
-use super::frames::BusFrame;
-use super::test_support::{assert_error, call_text, delete_text, demo, get, post, post_text, put};
+use crate::api::frames::BusFrame;
+use crate::api::tests::support::{
+    assert_error, call_text, delete_text, demo, get, post, post_text, put,
+};
 use crate::can::candump::{LoggedFrame, read_log_from};
 use crate::can::spec::BusSpec;
 use crate::can::{BusState, Direction, Frame, TimedFrame};

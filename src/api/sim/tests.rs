@@ -8,7 +8,9 @@ use axum::Router;
 use axum::http::StatusCode;
 use serde_json::{Value as Json, json};
 
-use crate::api::test_support::{assert_error, delete_text as delete, get, open, post_text as post};
+use crate::api::tests::support::{
+    assert_error, delete_text as delete, get, open, post_text as post,
+};
 use crate::api::{AppState, app};
 
 /// `demo` (virtual:demo), `bench` (virtual:empty) and `remote`, a bus

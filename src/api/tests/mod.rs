@@ -2,6 +2,17 @@
 //! test device from `tests/data/testnode.eds` for 64-bit values), called
 //! through the router without a socket, on a paused clock.
 
+mod audit;
+mod auth;
+mod drives;
+mod leases;
+mod leds;
+mod pdos;
+mod recording;
+mod stream;
+pub(super) mod support;
+mod telemetry;
+
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -43,7 +54,7 @@ async fn served(testnode: bool) -> ServedBus {
     .await
     .unwrap();
     if testnode {
-        let text = include_str!("../../tests/data/testnode.eds");
+        let text = include_str!("../../../tests/data/testnode.eds");
         let dictionary = Eds::parse(text, "testnode.eds").unwrap().dictionary;
         let device = DeviceCore::new(dictionary, NodeId::new(TESTNODE).unwrap()).unwrap();
         served.rack.as_ref().unwrap().add_device(device).unwrap();

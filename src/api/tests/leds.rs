@@ -9,8 +9,8 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use super::AppState;
-use super::test_support::{assert_error, demo, get, post, put, raw_call};
+use crate::api::AppState;
+use crate::api::tests::support::{assert_error, demo, get, post, put, raw_call};
 use crate::can::CanId;
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;

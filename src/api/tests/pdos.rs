@@ -10,8 +10,8 @@ use axum::http::StatusCode;
 use serde_json::{Value as Json, json};
 use tokio::time::Instant;
 
-use super::test_support::{assert_error, get, post, put};
-use super::{AppState, ServedBus, app};
+use crate::api::tests::support::{assert_error, get, post, put};
+use crate::api::{AppState, ServedBus, app};
 use crate::can::{CanId, FrameReceiver};
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
@@ -38,7 +38,7 @@ async fn demo_with(stubborn: bool) -> (Router, AppState) {
     .await
     .unwrap();
     if stubborn {
-        let text = include_str!("../../eds/umc1bds32.eds");
+        let text = include_str!("../../../eds/umc1bds32.eds");
         let mut dictionary = Eds::parse(text, "umc1bds32.eds").unwrap().dictionary;
         for sub in 1..=8 {
             dictionary.sub_mut(0x1A00, sub).unwrap().access = AccessType::Ro;
