@@ -1,4 +1,4 @@
-# candeck: the gateway and dashboard in a small image (README, "Docker").
+# candeck: the gateway and dashboard in a small image (docs/deployment.md, "Docker").
 #
 # Build stage: the release binary, built and then smoke-tested by
 # scripts/container-steps, the same script scripts/test runs outside Docker
@@ -48,5 +48,5 @@ HEALTHCHECK --interval=10s --timeout=3s --start-period=5s --retries=3 \
 ENTRYPOINT ["candeck"]
 # Listening beyond loopback without tokens needs --insecure: the compose demo
 # publishes the port on the host's loopback only; give tokens
-# (CANDECK_TOKENS) for anything else (README, "Authentication and roles").
+# (CANDECK_TOKENS) for anything else (docs/security.md).
 CMD ["serve", "--listen", "0.0.0.0:8080", "--data-dir", "/var/lib/candeck", "--insecure"]

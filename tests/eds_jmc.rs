@@ -1,6 +1,6 @@
 //! Our EDS of the JMC CANopen stepper drive (`eds/jmc_stepper.eds`, embedded
 //! as `profiles::builtin::JMC_STEPPER`), checked against what its manual
-//! (`../shared/manuals/jmc-canopen-stepper-manual.txt`, Rev. 2.3) states.
+//! (Rev. 2.3) states.
 //! There is no vendor EDS to compare with, so the manual's tables are
 //! written out here.
 //!

@@ -447,27 +447,22 @@ async fn a_bus_that_goes_down_keeps_its_nodes_offline_and_brings_them_back() {
 
 #[tokio::test(start_paused = true)]
 async fn a_users_eds_file_is_preferred_for_the_identity_it_describes() {
-    // The vendor's file of the UMC1BDS32 names the identity the virtual one
-    // reports: 0x4A2, 0x1001, revision 0x01000004.
-    let vendor = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../shared/eds/umc1bds32_v1.0.4.eds"
-    );
+    // A user's file for the UMC1BDS32 (here a copy of the project's own, as
+    // a user would start from it) names the identity the virtual one reports:
+    // 0x4A2, 0x1001, revision 0x01000004.
+    let users = concat!(env!("CARGO_MANIFEST_DIR"), "/eds/umc1bds32.eds");
     let dir = std::env::temp_dir().join(format!("candeck-registry-eds-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::copy(vendor, dir.join("umc1bds32_v1.0.4.eds")).unwrap();
+    std::fs::copy(users, dir.join("my_umc1bds32.eds")).unwrap();
     let catalog = Arc::new(EdsCatalog::with_dir(&dir).unwrap());
 
     let (_hub, _rack, registry) = demo_bus(catalog).await;
     let umc = registry.node(node(1)).unwrap();
-    assert_eq!(umc.eds.as_deref(), Some("umc1bds32_v1.0.4.eds"));
+    assert_eq!(umc.eds.as_deref(), Some("my_umc1bds32.eds"));
     assert_eq!(umc.profile, Profile::Umc);
     let entry = umc.eds_entry.unwrap();
-    assert_eq!(
-        entry.source,
-        EdsSource::File(dir.join("umc1bds32_v1.0.4.eds"))
-    );
+    assert_eq!(entry.source, EdsSource::File(dir.join("my_umc1bds32.eds")));
     // The others keep the built-in files.
     let led = registry.node(node(3)).unwrap();
     assert_eq!(led.eds.as_deref(), Some("uio1led.eds"));

@@ -1,10 +1,12 @@
-//! Every example of the README runs and gives what the README shows.
+//! Every example of the documentation (`README.md` and each page of
+//! `docs/`) runs and gives what the page shows.
 //!
 //! An example is a fenced block opened with ```` ```sh example ````: its
-//! `curl` commands (a line ending in `\` goes on) run in order against one
-//! fresh `candeck serve` (the demo bus), with `localhost:8080` replaced by
-//! the test server's address, so that an example may build on the one
-//! before, as a reader typing them would. After each command, a line
+//! `curl` commands (a line ending in `\` goes on) run in order, each file's
+//! against one fresh `candeck serve` (the demo bus) of its own, with
+//! `localhost:8080` replaced by the test server's address, so that an
+//! example may build on the ones before it in the same file, as a reader
+//! typing them would. After each command, a line
 //! `# → JSON` (continued on lines starting `#   `) is what it prints. The
 //! comparison is of JSON values and leaves out what changes from run to run:
 //! an object shows only the keys it means (others are not compared), a
@@ -19,7 +21,7 @@ mod common;
 
 use serde_json::Value;
 
-/// One command of an example, and what the README shows it prints.
+/// One command of an example, and what the page shows it prints.
 struct Example {
     line: usize,
     command: String,
@@ -28,12 +30,13 @@ struct Example {
     keep: Vec<(String, String)>,
 }
 
-fn examples(readme: &str) -> Vec<Example> {
+/// The examples of `text`, the file `file` (for messages), in order.
+fn examples(file: &str, text: &str) -> Vec<Example> {
     let mut examples: Vec<Example> = Vec::new();
     let mut in_block = false;
     let mut command: Option<(usize, String)> = None;
     let mut continuing_output = false;
-    for (number, line) in readme.lines().enumerate() {
+    for (number, line) in text.lines().enumerate() {
         let number = number + 1;
         if !in_block {
             in_block = line.trim() == "```sh example";
@@ -43,7 +46,7 @@ fn examples(readme: &str) -> Vec<Example> {
             in_block = false;
             assert!(
                 command.is_none(),
-                "README line {number}: a command without its output"
+                "{file} line {number}: a command without its output"
             );
             continue;
         }
@@ -68,10 +71,10 @@ fn examples(readme: &str) -> Vec<Example> {
         if let Some(shown) = line.strip_prefix("# → ") {
             let example = examples
                 .last_mut()
-                .unwrap_or_else(|| panic!("README line {number}: output without a command"));
+                .unwrap_or_else(|| panic!("{file} line {number}: output without a command"));
             assert!(
                 example.shown.is_empty(),
-                "README line {number}: two outputs"
+                "{file} line {number}: two outputs"
             );
             example.shown = shown.to_string();
             continuing_output = true;
@@ -85,10 +88,10 @@ fn examples(readme: &str) -> Vec<Example> {
         if let Some(kept) = line.trim().strip_prefix("# keep ") {
             let (name, pointer) = kept
                 .split_once(" = ")
-                .unwrap_or_else(|| panic!("README line {number}: '# keep NAME = /pointer'"));
+                .unwrap_or_else(|| panic!("{file} line {number}: '# keep NAME = /pointer'"));
             examples
                 .last_mut()
-                .unwrap_or_else(|| panic!("README line {number}: keep without a command"))
+                .unwrap_or_else(|| panic!("{file} line {number}: keep without a command"))
                 .keep
                 .push((name.trim().to_string(), pointer.trim().to_string()));
             continue;
@@ -99,7 +102,7 @@ fn examples(readme: &str) -> Vec<Example> {
         }
         assert!(
             trimmed.starts_with("curl "),
-            "README line {number}: an example runs curl only: {trimmed}"
+            "{file} line {number}: an example runs curl only: {trimmed}"
         );
         let text = trimmed.trim_end_matches('\\').trim().to_string();
         if trimmed.ends_with('\\') {
@@ -164,6 +167,7 @@ fn the_matching_elides_what_it_says_and_nothing_else() {
     assert!(ok(r#"{"n":2}"#).is_err());
     assert!(ok(r#"{"missing":1}"#).is_err());
     let parsed = examples(
+        "test.md",
         "```sh example\ncurl -X PUT \\\n  localhost:8080/a   # a note\n# → {\"a\":\n#   1}\n# keep A = /a\n# a note\ncurl localhost:8080/b\n# → []\n```\n",
     );
     assert_eq!(parsed[0].keep, [("A".to_string(), "/a".to_string())]);
@@ -181,16 +185,63 @@ fn the_matching_elides_what_it_says_and_nothing_else() {
     );
 }
 
-#[tokio::test]
-async fn every_readme_example_gives_what_the_readme_shows() {
-    let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
-    let examples = examples(&readme);
+/// The files whose examples run: the README, then every page of `docs/`
+/// by name.
+fn documentation() -> Vec<std::path::PathBuf> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut pages: Vec<std::path::PathBuf> = std::fs::read_dir(root.join("docs"))
+        .expect("docs/ is there")
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.extension().is_some_and(|ext| ext == "md"))
+        .collect();
+    pages.sort();
+    let mut files = vec![root.join("README.md")];
+    files.extend(pages);
+    files
+}
+
+#[test]
+fn the_examples_are_where_the_text_they_check_is() {
+    let count = |page: &str| {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(page);
+        examples(page, &std::fs::read_to_string(path).unwrap()).len()
+    };
+    // The README keeps one example; the API's live in its reference.
+    assert!(count("README.md") >= 1);
     assert!(
-        examples.len() >= 10,
-        "README examples found: {}",
-        examples.len()
+        count("docs/rest-api.md") >= 30,
+        "{}",
+        count("docs/rest-api.md")
     );
+    for page in ["docs/websocket.md", "docs/security.md", "docs/cia309.md"] {
+        assert!(count(page) >= 1, "{page}");
+    }
+}
+
+#[tokio::test]
+async fn every_documented_example_gives_what_the_documentation_shows() {
+    let mut failures = Vec::new();
+    let mut total = 0;
+    for path in documentation() {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let file = path
+            .strip_prefix(env!("CARGO_MANIFEST_DIR"))
+            .unwrap()
+            .display()
+            .to_string();
+        let examples = examples(&file, &text);
+        if examples.is_empty() {
+            continue;
+        }
+        total += examples.len();
+        failures.extend(run(&file, &examples).await);
+    }
+    assert!(total >= 40, "examples found: {total}");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Runs the examples of one file against a fresh gateway; the failures.
+async fn run(file: &str, examples: &[Example]) -> Vec<String> {
     let (server, _) = common::start(&["serve"]);
     // The demo as the reader finds it: the three nodes identified.
     let (_, nodes) = common::poll(&server.address, "/api/v1/buses/demo/nodes", |_, nodes| {
@@ -206,10 +257,10 @@ async fn every_readme_example_gives_what_the_readme_shows() {
 
     let mut failures = Vec::new();
     let mut kept: Vec<(String, String)> = Vec::new();
-    for example in &examples {
+    for example in examples {
         assert!(
             !example.shown.is_empty(),
-            "README line {}: no '# →' output",
+            "{file} line {}: no '# →' output",
             example.line
         );
         let command = example.command.replace("localhost:8080", &server.address);
@@ -231,7 +282,7 @@ async fn every_readme_example_gives_what_the_readme_shows() {
                 Some(Value::String(text)) => kept.push((name.clone(), text)),
                 Some(other) => kept.push((name.clone(), other.to_string())),
                 None => failures.push(format!(
-                    "README line {}: nothing at {pointer} to keep as {name} in {printed}",
+                    "{file} line {}: nothing at {pointer} to keep as {name} in {printed}",
                     example.line
                 )),
             }
@@ -245,7 +296,7 @@ async fn every_readme_example_gives_what_the_readme_shows() {
         };
         if let Err(why) = result {
             failures.push(format!(
-                "README line {}: {}\n  {why}\n  shown:   {}\n  printed: {printed} {}",
+                "{file} line {}: {}\n  {why}\n  shown:   {}\n  printed: {printed} {}",
                 example.line,
                 example.command,
                 example.shown,
@@ -253,5 +304,5 @@ async fn every_readme_example_gives_what_the_readme_shows() {
             ));
         }
     }
-    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    failures
 }

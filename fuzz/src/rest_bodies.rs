@@ -1,4 +1,4 @@
-//! REST API (API.md): an arbitrary request to a route that changes something
+//! REST API (`docs/rest-api.md`): an arbitrary request to a route that changes something
 //! (every POST, PUT and DELETE of `openapi/openapi.json`), with path
 //! parameters from small sets of valid and invalid values and an arbitrary
 //! body, through the axum router on the demo virtual bus, in-process.

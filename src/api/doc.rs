@@ -28,7 +28,7 @@ segment, 409 when the device's or gateway's state forbids the request, 422 when 
 refused (SDO abort, with `abort_code` and `abort_text`), 502 when it broke the protocol, 503 when \
 the bus is down and 504 when the device did not answer in time.\n\n\
 When the gateway is configured with tokens, every request but `/health` needs \
-`Authorization: Bearer TOKEN` of a role that may make it (README, \"Authentication and roles\"): \
+`Authorization: Bearer TOKEN` of a role that may make it (docs/security.md): \
 401 `unauthenticated` without a valid token, 403 `forbidden` for a role below the route's, \
 429 `rate_limited` (with `Retry-After`) for writes faster than the token's rate.",
         license(name = "MIT OR Apache-2.0")

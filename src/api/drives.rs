@@ -1,4 +1,4 @@
-//! CiA 402 drives (`../shared/API.md`, "Drives"): the axes of nodes whose
+//! CiA 402 drives (`docs/rest-api.md`, "Routes"): the axes of nodes whose
 //! profile is `umc`, `jmc_stepper` or `cia402`, their state machine, fault
 //! reset, halt and moves, and `POST /stop-all`. The CiA 402 master itself is
 //! [`crate::gateway::drive`].

@@ -1,5 +1,5 @@
 //! The HTTP layer's one error type and its mapping to status codes
-//! (`../shared/API.md`, "Conventions"): every failure leaves as
+//! (`docs/rest-api.md`, "Errors"): every failure leaves as
 //! `{"error": {"code": "snake_case", "message": "human text", ...}}`.
 //!
 //! What the device said (SDO abort, 422), what the clock said (timeout, 504)

@@ -1,5 +1,5 @@
-//! `GET /events`: the persisted history (`../shared/API.md`, "Frames,
-//! events, emulation"): the audit log of state-changing requests, the
+//! `GET /events`: the persisted history (`docs/rest-api.md`, "Audit
+//! log and history"): the audit log of state-changing requests, the
 //! EMCYs (CiA 301 §7.2.7) and the NMT/supervision events of every bus,
 //! from [`History`](crate::gateway::history::History).
 //!

@@ -1,5 +1,5 @@
 //! `GET /metrics`: the gateway's numbers in the Prometheus text exposition
-//! format, version 0.0.4 (`../shared/API.md`, "Documents and operations";
+//! format, version 0.0.4 (`docs/deployment.md`, "Metrics";
 //! the format: prometheus.io, "Exposition formats").
 //!
 //! Nothing here counts: every number is read when the page is asked for,

@@ -1,4 +1,4 @@
-//! The REST interface (`../shared/API.md`, "REST", base `/api/v1`).
+//! The REST interface (`docs/rest-api.md`, base `/api/v1`).
 //!
 //! [`app`] merges one router per resource; every handler fails with
 //! [`AppError`], the one place where errors become HTTP statuses. Handlers

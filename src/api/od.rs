@@ -1,7 +1,7 @@
 //! A node's object dictionary over SDO (CiA 301 §7.2.4): the dictionary of
 //! its EDS, reads, writes and batch reads.
 //!
-//! How a request names an entry (API.md, "Conventions"):
+//! How a request names an entry (`docs/rest-api.md`, "Conventions"):
 //! - an index as `0x6041`, `6041h`, a decimal number or the EDS name; a sub
 //!   as a number or the EDS name;
 //! - a name the EDS does not have is 404 (`unknown_object`,

@@ -1,5 +1,4 @@
-//! `GET /api/v1/stream`: live telemetry over WebSocket (`../shared/API.md`,
-//! "WebSocket").
+//! `GET /api/v1/stream`: live telemetry over WebSocket (`docs/websocket.md`).
 //!
 //! Client → server, one JSON text message each:
 //! `{"op":"subscribe","topics":[...],"max_rate_hz"?:n}` and
@@ -89,7 +88,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 /// Updates come as `{"topic","ts","data"}` (`ts` in ms since the Unix
 /// epoch); values are coalesced to the newest at `max_rate_hz` (default
 /// 10, at most 1000); a client that falls behind on events or frames gets
-/// `{"topic","lagged":N}`. See the README, "WebSocket", for every topic
+/// `{"topic","lagged":N}`. See `docs/websocket.md` for every topic
 /// and message.
 #[utoipa::path(get, path = "/stream", tag = "stream",
     responses(

@@ -41,8 +41,8 @@ pub struct Session {
 }
 
 /// `[seq] auth TOKEN`: not part of CiA 309-3, candeck's way to give a
-/// connection a token when the gateway has tokens (README, "CiA 309
-/// gateways"); the sequence number and the token.
+/// connection a token when the gateway has tokens (`docs/cia309.md`,
+/// "Tokens"); the sequence number and the token.
 fn auth_line(line: &str) -> Option<(u32, &str)> {
     let mut words = line.split_whitespace();
     let first = words.next()?;

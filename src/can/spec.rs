@@ -1,5 +1,5 @@
 //! Bus specs, as the command line and the configuration write them
-//! (`../shared/API.md`, "Command line"), and opening a bus from one.
+//! (`docs/cli.md`, "Bus specs"), and opening a bus from one.
 //!
 //! | spec | bus |
 //! |---|---|

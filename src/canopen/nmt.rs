@@ -75,7 +75,7 @@ impl NmtCommand {
         }
     }
 
-    /// The name API.md uses: `start`, `stop`, `pre_operational`, `reset_node`,
+    /// The name the REST API uses: `start`, `stop`, `pre_operational`, `reset_node`,
     /// `reset_communication` (`unknown` for other specifiers).
     pub fn name(self) -> &'static str {
         match self {
@@ -88,7 +88,7 @@ impl NmtCommand {
         }
     }
 
-    /// Reads a command name as API.md (`reset_node`) or the command line
+    /// Reads a command name as the REST API (`reset_node`) or the command line
     /// (`reset-node`) spells it.
     pub fn from_name(name: &str) -> Option<Self> {
         let name = name.trim().to_ascii_lowercase().replace('-', "_");
@@ -169,7 +169,7 @@ impl NmtState {
         }
     }
 
-    /// The name API.md uses: `boot_up`, `stopped`, `operational`,
+    /// The name the REST API uses: `boot_up`, `stopped`, `operational`,
     /// `pre_operational`, `unknown`.
     pub fn name(self) -> &'static str {
         match self {

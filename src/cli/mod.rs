@@ -1,4 +1,4 @@
-//! The command line (`../shared/API.md`, "Command line").
+//! The command line (`docs/cli.md`).
 //!
 //! Every failure a user can cause ends in one line on stderr and a non-zero
 //! exit status: 2 for a command line that cannot be read, 1 for anything that

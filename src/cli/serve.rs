@@ -1,5 +1,5 @@
 //! `candeck serve`: the gateway, its REST interface over HTTP
-//! (`../shared/API.md`, "Command line" and "REST").
+//! (`docs/cli.md`, `docs/rest-api.md`).
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -582,7 +582,7 @@ impl Settings {
         let listen = self.listen;
         if listen.ip().is_loopback() {
             return Ok(Some(format!(
-                "no tokens: the API on {listen} is open to every program and user of this machine (README, \"Authentication and roles\")"
+                "no tokens: the API on {listen} is open to every program and user of this machine (docs/security.md)"
             )));
         }
         if self.insecure {

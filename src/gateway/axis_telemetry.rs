@@ -1,5 +1,5 @@
-//! The status of each drive axis for the telemetry stream (`../shared/API.md`,
-//! "WebSocket", `buses/{bus}/nodes/{id}/axes/{axis}`): statusword and the
+//! The status of each drive axis for the telemetry stream (`docs/websocket.md`,
+//! `buses/{bus}/nodes/{id}/axes/{axis}`): statusword and the
 //! CiA 402 state it encodes (CiA 402-2 §8.1.2), mode, position, velocity and
 //! torque, with where they came from (`"source": "tpdo" | "sdo"`).
 //!

@@ -1,5 +1,5 @@
 //! The LED preview of each UIO1LED for the telemetry stream
-//! (`../shared/API.md`, "WebSocket", `buses/{bus}/nodes/{id}/segments`): the
+//! (`docs/websocket.md`, `buses/{bus}/nodes/{id}/segments`): the
 //! same [`Preview`](super::uioled::Preview) as `GET .../segments/preview`,
 //! drawn by the one renderer of [`crate::profiles::uioled`].
 //!

@@ -1,5 +1,5 @@
-//! What the producers of the telemetry topics share (`../shared/API.md`,
-//! "WebSocket": the `values`, `axes/{axis}` and `segments` topics of a
+//! What the producers of the telemetry topics share (`docs/websocket.md`,
+//! "Value topics": the `values`, `axes/{axis}` and `segments` topics of a
 //! node): a set of [`ValueTopic`]s by key, each fed by at most one task,
 //! started by the first reader and ended by the task itself when the last
 //! reader is gone, and the pacing of a publish to the rate the readers want.

@@ -1,6 +1,6 @@
 //! Telemetry topics: the state the gateway follows (TPDO values, axis
 //! status, LED previews) published for whoever streams it
-//! (`../shared/API.md`, "WebSocket").
+//! (`docs/websocket.md`).
 //!
 //! A [`ValueTopic`] holds the newest [`Sample`] of one topic and nothing
 //! else: values are state, so a reader that looks late sees the newest one,

@@ -12,7 +12,7 @@
 //!
 //! This is the gateway's own view of the process data; the REST API shows
 //! it, and [`TpdoValues::subscribe`] publishes it for the telemetry stream
-//! (`../shared/API.md`, "WebSocket", `buses/{bus}/nodes/{id}/values`): one
+//! (`docs/websocket.md`, `buses/{bus}/nodes/{id}/values`): one
 //! topic per node, made on its first reader, whose producer publishes the
 //! node's values by name at most at the rate its readers want however many
 //! frames come (8,000 TPDOs a second are not 8,000 JSON objects), the

@@ -19,7 +19,8 @@ pub mod uioled;
 pub mod umc;
 
 /// The EDS files candeck carries, written for candeck from each product's
-/// manual (`../shared/manuals/`), embedded in the binary.
+/// manual (the vendors' manuals, which the repository does not carry),
+/// embedded in the binary.
 pub mod builtin {
     /// UniSwarm UMC1BDS32, two-axis motion controller.
     pub const UMC1BDS32: &str = include_str!("../../eds/umc1bds32.eds");

@@ -1,5 +1,5 @@
 //! The products candeck emulates and the `--devices` lists that put them on
-//! a bus (`../shared/API.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
+//! a bus (`docs/cli.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
 
 use std::fmt;
 use std::sync::{Arc, OnceLock};

@@ -1,4 +1,4 @@
-//! The browser dashboard (`../shared/API.md`: `GET /` the dashboard): its
+//! The browser dashboard (`docs/dashboard.md`): its
 //! pages and the static files they load, all compiled into the binary so
 //! that the gateway serves them with no file next to it, no CDN and no
 //! front-end build.

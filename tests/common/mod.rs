@@ -251,3 +251,28 @@ pub async fn poll(
     }
     json(address, "GET", path, None).await
 }
+
+/// The path of one of the vendor's EDS files (`file`, e.g.
+/// `umc1bds32_v1.0.4.eds`) in the directory named by `CANDECK_VENDOR_EDS`.
+/// They are optional test inputs, never part of the repository: when the
+/// variable is not set this says on stderr that `test` was skipped and gives
+/// `None`. When it is set, the file must be there.
+pub fn vendor_eds(file: &str, test: &str) -> Option<std::path::PathBuf> {
+    use std::io::Write as _;
+    let Some(dir) = std::env::var_os("CANDECK_VENDOR_EDS") else {
+        // Straight to stderr, past the test harness's capture, so that the
+        // skip shows in every run.
+        let _ = writeln!(
+            std::io::stderr(),
+            "skipped: {test}: CANDECK_VENDOR_EDS is not set (the directory of the vendor's EDS files; see docs/testing.md)"
+        );
+        return None;
+    };
+    let path = std::path::Path::new(&dir).join(file);
+    assert!(
+        path.is_file(),
+        "CANDECK_VENDOR_EDS is set but {} is not a file",
+        path.display()
+    );
+    Some(path)
+}

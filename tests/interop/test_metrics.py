@@ -1,6 +1,6 @@
 """`GET /metrics` of `candeck serve`, read by the Prometheus project's own
 parser (PyPI `prometheus-client`, `text_string_to_metric_families`): the
-families the README documents are there, with the right types and sane
+families docs/deployment.md documents are there, with the right types and sane
 values, and SDO reads through the REST API show up in the counters and
 the latency histogram of node 1.
 """

@@ -2,7 +2,7 @@
 implementation than the one candeck is built on: PyPI `websockets` (the
 server side is tungstenite, as is the Rust tests' client). The handshake,
 text messages both ways, a ping answered with its pong, the close
-handshake, and the protocol of the README's "WebSocket stream": a
+handshake, and the protocol of docs/websocket.md: a
 subscription acknowledged, an injected fault's EMCY and the axis topic's
 updates arriving.
 """

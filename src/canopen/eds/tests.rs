@@ -1,28 +1,65 @@
-//! The vendor's real files, hand-made files for what they lack (compact
-//! storage, DCF), malformed files, and a parser that never panics.
+//! The project's own EDS files, a small file with what vendors' files do
+//! (`tests/data/reader.eds`), hand-made files for what they lack (compact
+//! storage, DCF), malformed files, and a parser that never panics. The
+//! vendor's real files are optional test inputs: read from the directory
+//! `CANDECK_VENDOR_EDS` names, and skipped (saying so) without it.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 
 use proptest::prelude::*;
 
 use super::*;
 use crate::canopen::od::{AccessType, DataType, ObjectType, Value, ValueError};
 
-const UIO1LED: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../shared/eds/uio1led_v1.0.0.eds"
-);
-const UMC1BD90: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../shared/eds/umc1bd90_v1.0.4.eds"
-);
-const UMC1BDS32: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../shared/eds/umc1bds32_v1.0.4.eds"
-);
+/// What vendors' files do, in a few objects, written for these tests.
+const READER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/reader.eds");
+/// The EDS files candeck carries.
+const OWN_FILES: [&str; 4] = [
+    concat!(env!("CARGO_MANIFEST_DIR"), "/eds/umc1bds32.eds"),
+    concat!(env!("CARGO_MANIFEST_DIR"), "/eds/umc1bd90.eds"),
+    concat!(env!("CARGO_MANIFEST_DIR"), "/eds/uio1led.eds"),
+    concat!(env!("CARGO_MANIFEST_DIR"), "/eds/jmc_stepper.eds"),
+];
+const UMC1BDS32_OURS: &str = OWN_FILES[0];
+
+/// The vendor's files, by name in `CANDECK_VENDOR_EDS`.
+const UIO1LED: &str = "uio1led_v1.0.0.eds";
+const UMC1BD90: &str = "umc1bd90_v1.0.4.eds";
+const UMC1BDS32: &str = "umc1bds32_v1.0.4.eds";
 const VENDOR_FILES: [&str; 3] = [UIO1LED, UMC1BD90, UMC1BDS32];
 
-fn load(path: &str) -> Eds {
+/// The path of one of the vendor's files, or `None` when
+/// `CANDECK_VENDOR_EDS` is not set: then `test` says it was skipped.
+fn vendor_file(file: &str, test: &str) -> Option<PathBuf> {
+    use std::io::Write as _;
+    let Some(dir) = std::env::var_os("CANDECK_VENDOR_EDS") else {
+        // Straight to stderr, past the test harness's capture, so that the
+        // skip shows in every run.
+        let _ = writeln!(
+            std::io::stderr(),
+            "skipped: {test}: CANDECK_VENDOR_EDS is not set (the directory of the vendor's EDS files; see docs/testing.md)"
+        );
+        return None;
+    };
+    let path = PathBuf::from(dir).join(file);
+    assert!(
+        path.is_file(),
+        "CANDECK_VENDOR_EDS is set but {} is not a file",
+        path.display()
+    );
+    Some(path)
+}
+
+/// Every vendor file's path, or `None` (and `test` skipped).
+fn vendor_files(test: &str) -> Option<Vec<PathBuf>> {
+    VENDOR_FILES
+        .iter()
+        .map(|file| vendor_file(file, test))
+        .collect()
+}
+
+fn load(path: impl AsRef<std::path::Path>) -> Eds {
     read_eds_file(path).unwrap_or_else(|error| panic!("{error}"))
 }
 
@@ -38,28 +75,226 @@ fn line_of(text: &str, needle: &str) -> usize {
         + 1
 }
 
+/// No warning, an EDS and not a DCF, and the objects every device has.
+fn assert_loads_without_surprises(path: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let (eds, warnings) = Eds::parse_with_warnings(&text, path).unwrap();
+    assert!(warnings.is_empty(), "{path}: {warnings:#?}");
+    assert!(!eds.is_dcf());
+    for index in [0x1000, 0x1001, 0x1018, 0x1800, 0x1A00] {
+        assert!(
+            eds.dictionary.get(index).is_some(),
+            "{path} lacks 0x{index:04X}"
+        );
+    }
+}
+
+#[test]
+fn every_own_file_loads_without_surprises() {
+    for path in OWN_FILES.into_iter().chain([READER]) {
+        assert_loads_without_surprises(path);
+    }
+    assert_eq!(load(READER).dictionary.len(), 17);
+}
+
 #[test]
 fn every_vendor_file_loads_without_surprises() {
-    for path in VENDOR_FILES {
-        let text = std::fs::read_to_string(path).unwrap();
-        let (eds, warnings) = Eds::parse_with_warnings(&text, path).unwrap();
-        assert!(warnings.is_empty(), "{path}: {warnings:#?}");
-        assert!(!eds.is_dcf());
-        for index in [0x1000, 0x1001, 0x1018, 0x1800, 0x1A00] {
-            assert!(
-                eds.dictionary.get(index).is_some(),
-                "{path} lacks 0x{index:04X}"
-            );
+    let Some(paths) = vendor_files("every_vendor_file_loads_without_surprises") else {
+        return;
+    };
+    for path in &paths {
+        assert_loads_without_surprises(path.to_str().unwrap());
+    }
+    assert_eq!(load(&paths[0]).dictionary.len(), 187);
+    assert_eq!(load(&paths[1]).dictionary.len(), 188);
+    assert_eq!(load(&paths[2]).dictionary.len(), 320);
+}
+
+/// What vendors' files do (`tests/data/reader.eds` reproduces it from the
+/// UniSwarm files), read as they mean it.
+#[test]
+fn reader_spot_checks() {
+    let eds = load(READER);
+    let info = &eds.file_info;
+    assert_eq!(info.file_name.as_deref(), Some("reader.eds"));
+    // MM-DD-YYYY, kept as written.
+    assert_eq!(info.creation_date.as_deref(), Some("12-20-2021"));
+    assert_eq!(info.creation_time.as_deref(), Some("01:36PM"));
+    assert_eq!(info.eds_version.as_deref(), Some("4.0"));
+    let device = &eds.device_info;
+    assert_eq!(device.vendor_name.as_deref(), Some("Example SASU"));
+    assert_eq!(device.vendor_number, Some(0x4A2));
+    assert_eq!(device.product_number, Some(0x4101));
+    assert_eq!(device.revision_number, Some(1));
+    assert_eq!(device.order_code.as_deref(), Some("0"));
+    assert_eq!(
+        device.baud_rates.iter().copied().collect::<Vec<_>>(),
+        [10, 20, 50, 125, 250, 500, 1000]
+    );
+    assert_eq!(
+        (device.nr_of_rx_pdo, device.nr_of_tx_pdo),
+        (Some(1), Some(1))
+    );
+    assert_eq!(device.granularity, Some(8));
+    assert_eq!(device.simple_boot_up_slave, Some(true));
+    assert_eq!(device.lss_supported, Some(false));
+    // A bit field in decimal: which PDO parameters the compact PDO form
+    // leaves out.
+    assert_eq!(device.compact_pdo, Some(0x37));
+    assert!(device.other.is_empty(), "{:?}", device.other);
+    assert_eq!(
+        eds.dummy_usage.iter().copied().collect::<Vec<_>>(),
+        [2, 3, 4, 5, 6, 7]
+    );
+    assert_eq!(eds.comments, ["Reader test device"]);
+
+    let device_type = eds.dictionary.get(0x1000).unwrap();
+    assert_eq!(device_type.object_type, ObjectType::Var);
+    assert_eq!(device_type.name, "Device Type");
+    let sub = device_type.sub(0).unwrap();
+    assert_eq!(
+        (sub.data_type, sub.access, sub.pdo_mappable),
+        (DataType::Unsigned32, AccessType::Ro, false)
+    );
+    assert_eq!(sub.default_value(None), Ok(Some(Value::Unsigned32(428))));
+
+    // The API's name for it, though this file spells it "Vendor Id".
+    let identity = eds.dictionary.resolve_index("Identity_Object").unwrap();
+    let vendor = identity.resolve_sub("Vendor_ID").unwrap();
+    assert_eq!((vendor.sub_index, vendor.name.as_str()), (1, "Vendor Id"));
+    assert_eq!(
+        vendor.default_value(None),
+        Ok(Some(Value::Unsigned32(0x4A2)))
+    );
+    assert_eq!(identity.resolve_sub("vendor_id").unwrap().sub_index, 1);
+
+    // TPDO 1 starts invalid (bit 31), its COB-ID needs a node id.
+    let cob_id = eds.dictionary.sub(0x1800, 1).unwrap();
+    assert_eq!(cob_id.default.as_deref(), Some("$NODEID+0x80000180"));
+    assert_eq!(
+        cob_id.default_value(node(3)),
+        Ok(Some(Value::Unsigned32(0x8000_0183)))
+    );
+    assert!(matches!(
+        cob_id.default_value(None),
+        Err(ValueError::NodeIdRequired { .. })
+    ));
+    let mapping = eds.dictionary.sub(0x1A00, 1).unwrap();
+    assert_eq!(
+        mapping.default_value(None),
+        Ok(Some(Value::Unsigned32(0x6041_0010)))
+    );
+    // The RPDO communication objects have no sub 4 (CiA 301 reserves it).
+    let rpdo = eds.dictionary.get(0x1400).unwrap();
+    assert_eq!(
+        rpdo.subs.keys().copied().collect::<Vec<_>>(),
+        [0, 1, 2, 3, 5]
+    );
+
+    let voltage = eds.dictionary.get(0x2000).unwrap();
+    assert_eq!(
+        (voltage.name.as_str(), voltage.object_type),
+        ("Board_voltage", ObjectType::Array)
+    );
+    assert_eq!(voltage.sub(1).unwrap().name, "Board_voltage_input");
+    assert!(voltage.sub(1).unwrap().pdo_mappable);
+    // A UNICODE_STRING whose default is quoted ASCII.
+    let date = eds.dictionary.sub(0x2001, 0).unwrap();
+    assert_eq!(date.data_type, DataType::UnicodeString);
+    assert_eq!(
+        date.default_value(None),
+        Ok(Some(Value::UnicodeString("XXXX/XX/XX XX:XX:XX".into())))
+    );
+    let errors = eds.dictionary.get(0x1003).unwrap();
+    assert_eq!(errors.object_type, ObjectType::Array);
+    assert_eq!(errors.sub(0).unwrap().access, AccessType::Rw);
+    // A bare $NODEID default.
+    let node_id = eds
+        .dictionary
+        .get(0x2040)
+        .unwrap()
+        .resolve_sub("Node_ID")
+        .unwrap();
+    assert_eq!(
+        node_id.default_value(node(42)),
+        Ok(Some(Value::Unsigned8(42)))
+    );
+    let board = eds.dictionary.get(0x2800).unwrap();
+    assert_eq!(
+        (board.name.as_str(), board.object_type),
+        ("Board_status", ObjectType::Record)
+    );
+    let torque_pid = eds.dictionary.get(0x4020).unwrap();
+    assert_eq!(torque_pid.name, "a1_Torque_PID_status");
+    assert_eq!(torque_pid.resolve_sub("Integrator").unwrap().sub_index, 3);
+
+    // Names by index and index by names, in any case.
+    let status = eds.dictionary.resolve_index("a1_Statusword").unwrap();
+    assert_eq!(status.index, 0x6041);
+    let sub = status.sub(0).unwrap();
+    assert_eq!(
+        (sub.data_type, sub.pdo_mappable),
+        (DataType::Unsigned16, true)
+    );
+    assert_eq!(
+        eds.dictionary.resolve_index("A2_STATUSWORD").unwrap().index,
+        0x6841
+    );
+    assert_eq!(
+        eds.dictionary.resolve_index("0x6041").unwrap().name,
+        "a1_Statusword"
+    );
+    assert!(
+        eds.dictionary
+            .subs()
+            .any(|(_, sub)| sub.name == "Set-point" && sub.access == AccessType::Rww)
+    );
+    // Limits in hex, negative hex, and a signed default at INTEGER32's minimum.
+    let low_limited = eds
+        .dictionary
+        .subs()
+        .find(|(_, sub)| sub.low.as_deref() == Some("-0x7FFFFFFF"))
+        .map(|(_, sub)| sub)
+        .unwrap();
+    assert_eq!(
+        low_limited.low_value(None),
+        Ok(Some(Value::Integer32(-0x7FFF_FFFF)))
+    );
+    assert_eq!(
+        low_limited.high_value(None),
+        Ok(Some(Value::Integer32(0x7FFF_FFFF)))
+    );
+    assert!(
+        eds.dictionary
+            .subs()
+            .any(|(_, sub)| sub.default.as_deref() == Some("-2147483648")
+                && sub.default_value(None) == Ok(Some(Value::Integer32(i32::MIN))))
+    );
+}
+
+#[test]
+fn every_default_and_limit_of_our_files_is_a_value_of_its_type() {
+    for path in OWN_FILES.into_iter().chain([READER]) {
+        let eds = load(path);
+        for (object, sub) in eds.dictionary.subs() {
+            for text in [&sub.default, &sub.low, &sub.high].into_iter().flatten() {
+                assert!(
+                    Value::parse_text(sub.data_type, text, node(127)).is_ok(),
+                    "{path}: 0x{:04X}sub{}: {text}",
+                    object.index,
+                    sub.sub_index
+                );
+            }
         }
     }
-    assert_eq!(load(UIO1LED).dictionary.len(), 187);
-    assert_eq!(load(UMC1BD90).dictionary.len(), 188);
-    assert_eq!(load(UMC1BDS32).dictionary.len(), 320);
 }
 
 #[test]
 fn uio1led_spot_checks() {
-    let eds = load(UIO1LED);
+    let Some(path) = vendor_file(UIO1LED, "uio1led_spot_checks") else {
+        return;
+    };
+    let eds = load(path);
     let info = &eds.file_info;
     assert_eq!(info.file_name.as_deref(), Some("uio1led.eds"));
     // MM-DD-YYYY, kept as written.
@@ -155,7 +390,10 @@ fn uio1led_spot_checks() {
 
 #[test]
 fn umc1bds32_spot_checks() {
-    let eds = load(UMC1BDS32);
+    let Some(path) = vendor_file(UMC1BDS32, "umc1bds32_spot_checks") else {
+        return;
+    };
+    let eds = load(path);
     // A bit field: which PDO parameters the compact PDO form leaves out.
     assert_eq!(eds.device_info.compact_pdo, Some(0x37));
     let status = eds.dictionary.resolve_index("a1_Statusword").unwrap();
@@ -230,7 +468,10 @@ fn umc1bds32_spot_checks() {
 
 #[test]
 fn umc1bd90_spot_checks() {
-    let eds = load(UMC1BD90);
+    let Some(path) = vendor_file(UMC1BD90, "umc1bd90_spot_checks") else {
+        return;
+    };
+    let eds = load(path);
     assert_eq!(eds.device_info.vendor_number, Some(0x4A2));
     let status = eds.dictionary.resolve_index("0x6041").unwrap();
     assert_eq!(status.name, "a1_Statusword");
@@ -244,17 +485,32 @@ fn umc1bd90_spot_checks() {
     assert!(set_point.is_some());
 }
 
+/// Written out, read back the same, and the text stable from then on.
+fn assert_round_trips(path: &std::path::Path) {
+    let eds = load(path);
+    let written = eds.write();
+    let (again, warnings) = Eds::parse_with_warnings(&written, "written.eds").unwrap();
+    let path = path.display();
+    assert!(warnings.is_empty(), "{path}: {warnings:#?}");
+    assert_eq!(again, eds, "{path}");
+    assert_eq!(again.write(), written);
+    assert!(written.contains("\r\n[1018sub1]\r\n"));
+}
+
+#[test]
+fn own_files_round_trip() {
+    for path in OWN_FILES.into_iter().chain([READER]) {
+        assert_round_trips(path.as_ref());
+    }
+}
+
 #[test]
 fn vendor_files_round_trip() {
-    for path in VENDOR_FILES {
-        let eds = load(path);
-        let written = eds.write();
-        let (again, warnings) = Eds::parse_with_warnings(&written, "written.eds").unwrap();
-        assert!(warnings.is_empty(), "{path}: {warnings:#?}");
-        assert_eq!(again, eds, "{path}");
-        // And the text is stable from then on.
-        assert_eq!(again.write(), written);
-        assert!(written.contains("\r\n[1018sub1]\r\n"));
+    let Some(paths) = vendor_files("vendor_files_round_trip") else {
+        return;
+    };
+    for path in &paths {
+        assert_round_trips(path);
     }
 }
 
@@ -262,7 +518,7 @@ fn vendor_files_round_trip() {
 fn python_canopen_reads_what_we_write_the_same_way() {
     // What python-canopen's configparser-based reader needs: keys it looks
     // up by exact case, lists with decimal keys, hex DataType.
-    let written = load(UMC1BDS32).write();
+    let written = load(UMC1BDS32_OURS).write();
     for needle in [
         "[MandatoryObjects]\r\nSupportedObjects=3\r\n1=0x1000\r\n2=0x1001\r\n3=0x1018\r\n",
         "[1000]\r\nParameterName=Device_type\r\nObjectType=0x7\r\nDataType=0x0007\r\nAccessType=ro\r\n",
@@ -376,7 +632,7 @@ fn compact_values_and_denotations_of_a_dcf() {
 
 #[test]
 fn a_dcf_carries_current_values_and_reads_back() {
-    let eds = load(UMC1BDS32);
+    let eds = load(UMC1BDS32_OURS);
     let values = BTreeMap::from([
         ((0x1017, 0), Value::Unsigned16(250)),
         ((0x1800, 1), Value::Unsigned32(0x182)),
@@ -832,11 +1088,12 @@ proptest! {
     }
 
     #[test]
-    fn the_parser_never_panics_on_mutated_vendor_files(
-        file in 0..VENDOR_FILES.len(),
+    fn the_parser_never_panics_on_mutated_real_files(
+        file in 0..OWN_FILES.len() + 1,
         edits in prop::collection::vec(edit(), 1..6),
     ) {
-        let text = std::fs::read_to_string(VENDOR_FILES[file]).unwrap();
+        let path = OWN_FILES.get(file).copied().unwrap_or(READER);
+        let text = std::fs::read_to_string(path).unwrap();
         let bytes = apply(&text, &edits);
         if let Ok(eds) = Eds::parse_bytes(&bytes, "mutated.eds") {
             check_round_trip(&eds);

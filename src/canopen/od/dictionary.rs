@@ -408,7 +408,7 @@ impl ObjectDictionary {
         }
     }
 
-    /// A sub-object from a request's `[index, sub]` pair, as API.md writes
+    /// A sub-object from a request's `[index, sub]` pair, as the REST API writes
     /// them (`["0x6041", 0]`, `["a1_Motor_status", "Current"]`).
     pub fn resolve_json(
         &self,

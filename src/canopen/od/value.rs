@@ -1,7 +1,7 @@
 //! Typed values of the object dictionary and their three encodings: the
 //! little-endian bytes of an SDO or PDO transfer (CiA 301 §7.1), the text of
 //! an EDS or DCF (CiA 306, with `$NODEID`), and the JSON of the REST API
-//! (API.md "Conventions").
+//! (`docs/rest-api.md`, "Conventions").
 
 use std::fmt;
 
@@ -536,13 +536,13 @@ impl Value {
         }
     }
 
-    /// The JSON of API.md: integers as numbers, except INTEGER64 and
+    /// The JSON of the REST API: integers as numbers, except INTEGER64 and
     /// UNSIGNED64 as decimal strings (JSON readers in browsers keep 53 bits);
     /// reals as numbers (`"NaN"`, `"inf"`, `"-inf"` as strings, which JSON
     /// numbers cannot be); booleans as true/false; strings as strings; octet
     /// strings and domains in base64; times as `{"ms", "days"}`.
     ///
-    /// INTEGER56/UNSIGNED56 stay numbers as API.md says, though a browser
+    /// INTEGER56/UNSIGNED56 stay numbers as the REST API says, though a browser
     /// rounds those above 2^53.
     pub fn to_json(&self) -> Json {
         match self {

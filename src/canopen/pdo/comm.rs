@@ -195,7 +195,7 @@ pub fn is_restricted(id: u16) -> bool {
 }
 
 /// The communication parameter record of one PDO. The field names are the
-/// ones API.md uses.
+/// ones the REST API uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct PdoCommParams {
     /// Sub-index 1.

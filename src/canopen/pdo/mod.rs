@@ -61,7 +61,7 @@ impl PdoKind {
     /// CiA 301 numbers PDOs 1 to 512.
     pub const MAX_NUMBER: u16 = 512;
 
-    /// `rpdo` or `tpdo`, as API.md spells them in paths.
+    /// `rpdo` or `tpdo`, as the REST API spells them in paths.
     pub fn name(self) -> &'static str {
         match self {
             Self::Rpdo => "rpdo",

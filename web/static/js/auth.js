@@ -1,6 +1,6 @@
-// Signing in to a gateway that asks for tokens (README, "Authentication
-// and roles"). The token is kept for this tab (sessionStorage) or, with
-// "Remember on this device", in localStorage; api.js sends it as
+// Signing in to a gateway that asks for tokens (docs/security.md). The
+// token is kept for this tab (sessionStorage) or, with "Remember on this
+// device", in localStorage; api.js sends it as
 // `Authorization: Bearer`, stream.js as the WebSocket subprotocol
 // `bearer.TOKEN` (a browser cannot set headers on a WebSocket). Until the
 // gateway accepts a token, API calls and the stream wait for it: one

@@ -146,7 +146,7 @@ async function reloadNode() {
 
 // The stream asks the rate of the page's first subscribe; this page wants
 // its charts at RATE_HZ: the same topic subscribed again with the rate
-// replaces the first (README, "WebSocket stream").
+// replaces the first (docs/websocket.md).
 function askRate() {
   if (!unsubscribe || stream.state !== 'connected') return;
   stream.send({ op: 'subscribe', topics: [`buses/${bus}/nodes/${detail.id}/axes/${status.axis}`], max_rate_hz: RATE_HZ });
@@ -309,7 +309,7 @@ haltOff.addEventListener('click', async () => {
 // ---- motion lease ---------------------------------------------------------------
 //
 // A velocity, torque or duty-cycle move (and releasing halt in one of those
-// modes) answers with a lease (README, "Motion leases"): the page renews it
+// modes) answers with a lease (docs/rest-api.md, "Motion leases"): the page renews it
 // on the stream every third of its period, so it lapses, and the gateway
 // halts the axis, as soon as this page goes away or loses the gateway.
 // Further commands present it, so that the page may change its own motion.

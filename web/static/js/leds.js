@@ -4,7 +4,7 @@
 // showing what the device answered when read back; and the live strip,
 // drawn from the stream topic buses/{bus}/nodes/{id}/segments (the pixels
 // the device shows now, rendered by the gateway from the parameters it
-// read: see README, "Value topics of the stream").
+// read: see docs/websocket.md, "Value topics").
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';

@@ -1,5 +1,5 @@
 // The drive page's motion forms: one per mode `POST .../axes/{axis}/move`
-// accepts (../shared/API.md "Drives"), each turning its inputs into the
+// accepts (docs/rest-api.md, "Routes"), each turning its inputs into the
 // request body, or into a FormError that says in words which input is
 // wrong before anything is sent. Values are device units; what a unit is
 // depends on the product (a JMC's velocity is in 0.1 rps), said under the

@@ -1,4 +1,4 @@
-// The WebSocket stream /api/v1/stream (README, "WebSocket stream"): topics
+// The WebSocket stream /api/v1/stream (docs/websocket.md): topics
 // subscribed by handlers, and a connection that comes back by itself. After
 // the socket closes (the gateway restarted, the network dropped) it is
 // reopened with a growing delay, and every topic in use is subscribed again.
@@ -83,7 +83,7 @@ export class Stream {
     };
   }
 
-  /** Calls `fn` with the answers to lease renewals (README, "Motion
+  /** Calls `fn` with the answers to lease renewals (docs/rest-api.md, "Motion
    * leases"): `{op: 'renewed', leases}` and `{op: 'error', lease, error}`. */
   onLease(fn) {
     this.leaseListeners.add(fn);
