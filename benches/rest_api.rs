@@ -29,7 +29,8 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use candeck::api::{AppState, ServedBus, app};
+use candeck::api::{AppState, app};
+use candeck::gateway::ServedBus;
 use candeck::canopen::NodeId;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;

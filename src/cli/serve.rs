@@ -8,11 +8,13 @@ use std::sync::Arc;
 use clap::Args;
 
 use super::{CliError, shutdown_signal};
-use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit, Token};
-use crate::api::{AppState, ServedBus};
+use crate::api::AppState;
+use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit};
 use crate::can::VirtualHub;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::can::spec::BusSpec;
+use crate::gateway::ServedBus;
+use crate::gateway::access::Token;
 use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, History, Retention};
 use crate::gateway::producers::{DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, TelemetryConfig};
 use crate::gateway::profile::EdsCatalog;
@@ -753,7 +755,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
-            crate::ascii::Gateway::new(&state),
+            crate::cia309::Cia309Gateway::new(&state.gateway),
         ))
     });
     // The peer's address goes into the audit log.
@@ -764,7 +766,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
     // No drive is left moving because the gateway went away: every axis it
     // enabled is stopped before it exits.
-    let report = crate::api::drives::stop_enabled_axes(&state).await;
+    let report = state.gateway.stop_enabled_axes().await;
     for stopped in &report.stopped {
         tracing::info!(
             "shutdown: quick stop of bus {} node {} axis {}",
@@ -779,12 +781,12 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             failed.bus,
             failed.node,
             failed.axis,
-            failed.error
+            crate::api::AppError::from(failed.error.clone()).to_json()
         );
     }
     // A running recording ends with all it received written to its file;
     // temporary recordings are removed when the buses are dropped.
-    for bus in state.buses.values() {
+    for bus in state.gateway.buses.values() {
         if bus.recorder.status().state == crate::gateway::recording::RecordingState::Recording {
             let _ = bus.recorder.stop().await;
         }
@@ -804,8 +806,8 @@ mod tests {
     use clap::Parser;
 
     use super::*;
-    use crate::api::auth::Role;
     use crate::cli::{Cli, Command};
+    use crate::gateway::access::Role;
 
     fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
         let cli = Cli::try_parse_from(["candeck", "serve"].iter().chain(args))
