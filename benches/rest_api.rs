@@ -30,8 +30,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use candeck::api::{AppState, app};
-use candeck::gateway::ServedBus;
 use candeck::canopen::NodeId;
+use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use candeck::gateway::sdo::SdoChannel;

@@ -52,7 +52,7 @@ const RULES: &[Rule] = &[
             "src/can",
             "src/sim",
         ],
-        allowed: &["src/cli/serve.rs", "src/cli/serve/"],
+        allowed: &["src/cli/serve/"],
         forbidden: &[Forbidden::Module("api"), Forbidden::Module("web")],
     },
     Rule {
