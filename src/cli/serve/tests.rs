@@ -3,10 +3,10 @@ use std::path::{Path, PathBuf};
 use clap::Parser;
 
 use super::args::*;
-use crate::gateway::history::Retention;
-use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
 use crate::cli::{Cli, Command};
 use crate::gateway::access::Role;
+use crate::gateway::history::Retention;
+use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
 
 fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
     let cli = Cli::try_parse_from(["candeck", "serve"].iter().chain(args))
