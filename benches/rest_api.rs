@@ -29,8 +29,9 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use candeck::api::{AppState, ServedBus, app};
+use candeck::api::{AppState, app};
 use candeck::canopen::NodeId;
+use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use candeck::gateway::sdo::SdoChannel;

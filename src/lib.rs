@@ -6,19 +6,29 @@
 //!
 //! # Layout
 //!
+//! The adapters ([`api`], [`ascii`], [`cia309`], [`cli`]) sit on the
+//! gateway service ([`gateway::Gateway`]) and never on each other (only the
+//! wiring of `candeck serve` puts REST and CiA 309-3 side by side);
+//! `tests/layering.rs` checks the rule.
+//!
 //! - [`api`]: the REST interface (axum): buses, nodes, NMT, the object
-//!   dictionary over SDO, with one error type mapped to HTTP statuses.
+//!   dictionary over SDO, with one error type mapped to HTTP statuses, and
+//!   the CiA 309-5 routes.
 //! - [`ascii`]: CiA 309-3, the ASCII gateway protocol (TCP and
-//!   stdin/stdout), through the same gateway as REST.
+//!   stdin/stdout), through the same gateway service as REST.
+//! - [`cia309`]: what the CiA 309 adapters share: command lines, data
+//!   types, replies, and what a request does on the gateway service.
 //! - [`can`]: frames, the [`can::Bus`] attachment and its backends (virtual
 //!   hub, socketcand client and server, SocketCAN, candump replay), and candump
 //!   logs.
 //! - [`canopen`]: the CANopen protocol (CiA 301, CiA 306) as sans-I/O state
 //!   machines: NMT, heartbeat, SYNC, EMCY, PDO, SDO, object dictionaries, EDS.
-//! - [`gateway`]: the CANopen master: SDO transfers, the EDS catalog and
-//!   the node registry of a bus (identification, heartbeat supervision,
-//!   EMCY history), the operations the REST API runs (PDOs, drives, LED
-//!   segments, DCF), and the producers of the stream's value topics.
+//! - [`gateway`]: the CANopen master as one service: the served buses, SDO
+//!   transfers, the EDS catalog and the node registry of a bus
+//!   (identification, heartbeat supervision, EMCY history), the operations
+//!   the adapters run (PDOs, drives, LED segments, DCF), motion leases and
+//!   the safe stops, tokens and roles, the history, and the producers of
+//!   the stream's value topics; its own error type, no HTTP.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
 //! - [`web`]: the browser dashboard served at `/` (askama templates and
@@ -30,6 +40,7 @@ pub mod api;
 pub mod ascii;
 pub mod can;
 pub mod canopen;
+pub mod cia309;
 pub mod cli;
 pub mod gateway;
 pub mod profiles;

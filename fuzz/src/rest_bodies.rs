@@ -14,7 +14,8 @@ use std::time::Duration;
 
 use axum::body::Body;
 use axum::http::{Method, Request};
-use candeck::api::{AppState, ServedBus, app};
+use candeck::api::{AppState, app};
+use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use serde_json::Value as Json;

@@ -123,7 +123,7 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         error_code: error.map(|error| error.code.clone()),
         abort_code: error.and_then(|error| error.abort_code.clone()),
     };
-    if let Err(err) = state.history.audit(entry).await {
+    if let Err(err) = state.gateway.history.audit(entry).await {
         tracing::error!("audit: {method} {}: not recorded: {err}", response.status());
     }
     response

@@ -31,50 +31,8 @@ use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
 use super::{AppError, AppState};
-
-/// What a token may do; each role may do what the ones before it may.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, ToSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum Role {
-    /// Reads and the stream.
-    Viewer,
-    /// Motion, LEDs, NMT, object writes.
-    Operator,
-    /// PDO configuration, store/restore, DCF restore, raw frames,
-    /// recording, `/sim`, SYNC.
-    Admin,
-}
-
-impl Role {
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Viewer => "viewer",
-            Self::Operator => "operator",
-            Self::Admin => "admin",
-        }
-    }
-}
-
-impl std::str::FromStr for Role {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<Self, String> {
-        match text.trim() {
-            "viewer" => Ok(Self::Viewer),
-            "operator" => Ok(Self::Operator),
-            "admin" => Ok(Self::Admin),
-            other => Err(format!(
-                "unknown role '{other}' (a role is viewer, operator or admin)"
-            )),
-        }
-    }
-}
-
-impl std::fmt::Display for Role {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+use crate::gateway::access::Tokens;
+pub use crate::gateway::access::{Role, Token};
 
 /// What a route asks of a request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -232,96 +190,6 @@ pub fn required(method: &Method, path: &str) -> Access {
         .map_or(ADMIN, |(_, _, access)| *access)
 }
 
-/// One configured token.
-#[derive(Clone)]
-pub struct Token {
-    pub name: String,
-    pub role: Role,
-    secret: Vec<u8>,
-}
-
-impl std::fmt::Debug for Token {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        // Never the secret, not even in a debug print.
-        f.debug_struct("Token")
-            .field("name", &self.name)
-            .field("role", &self.role)
-            .finish_non_exhaustive()
-    }
-}
-
-/// The shortest token accepted: 20 characters of a 64-letter alphabet are
-/// 120 bits (`openssl rand -hex 32` gives 64).
-pub const MIN_TOKEN_LEN: usize = 20;
-
-impl Token {
-    /// A token, checked: a name of letters, digits, `-_.@`; a secret of at
-    /// least [`MIN_TOKEN_LEN`] characters of `A-Za-z0-9-._~` (so that it
-    /// fits a header and a WebSocket subprotocol unquoted), not one that
-    /// repeats a few characters.
-    pub fn new(name: &str, role: Role, secret: &str) -> Result<Self, String> {
-        if name.is_empty()
-            || !name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || "-_.@".contains(c))
-        {
-            return Err(format!(
-                "token name '{name}' is not a name: letters, digits, '-', '_', '.' and '@' only"
-            ));
-        }
-        if let Some(bad) = secret
-            .chars()
-            .find(|c| !(c.is_ascii_alphanumeric() || "-._~".contains(*c)))
-        {
-            return Err(format!(
-                "token {name}: the character {bad:?} is not allowed (A-Z a-z 0-9 - . _ ~ only; openssl rand -hex 32 makes one)"
-            ));
-        }
-        if secret.len() < MIN_TOKEN_LEN {
-            return Err(format!(
-                "token {name}: {} characters is too weak, at least {MIN_TOKEN_LEN} (openssl rand -hex 32 makes one)",
-                secret.len()
-            ));
-        }
-        let distinct = secret
-            .bytes()
-            .collect::<std::collections::BTreeSet<u8>>()
-            .len();
-        if distinct < 8 {
-            return Err(format!(
-                "token {name}: too weak, it repeats {distinct} characters (openssl rand -hex 32 makes one)"
-            ));
-        }
-        Ok(Self {
-            name: name.to_string(),
-            role,
-            secret: secret.as_bytes().to_vec(),
-        })
-    }
-
-    /// `NAME:ROLE:TOKEN`, as `CANDECK_TOKENS` lists them.
-    pub fn parse_entry(entry: &str) -> Result<Self, String> {
-        let mut parts = entry.trim().splitn(3, ':');
-        match (parts.next(), parts.next(), parts.next()) {
-            (Some(name), Some(role), Some(secret)) => {
-                let role = role.parse().map_err(|err| format!("token {name}: {err}"))?;
-                Self::new(name, role, secret)
-            }
-            _ => Err("a token is NAME:ROLE:TOKEN".to_string()),
-        }
-    }
-}
-
-/// Whether `given` equals `secret`, in a time that depends on the length of
-/// `secret` only (never on where they first differ, nor on `given`).
-pub fn constant_time_eq(given: &[u8], secret: &[u8]) -> bool {
-    let mut diff = u8::from(given.len() != secret.len());
-    for (i, byte) in secret.iter().enumerate() {
-        diff |= given.get(i).copied().unwrap_or(!*byte) ^ byte;
-    }
-    std::hint::black_box(diff) == 0
-}
-
 /// The per-token rate limit on writes: a bucket of `burst` writes that
 /// refills at `per_second`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -350,7 +218,7 @@ pub const DEFAULT_DCF_BODY_LIMIT: usize = 4 * 1024 * 1024;
 #[derive(Debug, Clone)]
 pub struct AuthConfig {
     /// No token: the gateway is open.
-    pub tokens: Vec<Token>,
+    pub tokens: Tokens,
     /// Origins (`https://scada.example`) allowed to call from other pages.
     pub cors_origins: Vec<String>,
     /// `None`: writes are not rate limited.
@@ -362,7 +230,7 @@ pub struct AuthConfig {
 impl Default for AuthConfig {
     fn default() -> Self {
         Self {
-            tokens: Vec::new(),
+            tokens: Tokens::default(),
             cors_origins: Vec::new(),
             rate_limit: Some(RateLimit::default()),
             body_limit: DEFAULT_BODY_LIMIT,
@@ -381,19 +249,7 @@ impl AuthConfig {
         body_limit: usize,
         dcf_body_limit: usize,
     ) -> Result<Self, String> {
-        for (i, token) in tokens.iter().enumerate() {
-            for other in &tokens[..i] {
-                if other.name == token.name {
-                    return Err(format!("two tokens are named '{}'", token.name));
-                }
-                if constant_time_eq(&token.secret, &other.secret) {
-                    return Err(format!(
-                        "tokens {} and {} are the same token",
-                        other.name, token.name
-                    ));
-                }
-            }
-        }
+        Tokens::check(&tokens)?;
         for origin in &cors_origins {
             let valid = origin.split_once("://").is_some_and(|(scheme, host)| {
                 matches!(scheme, "http" | "https") && !host.is_empty() && !host.contains('/')
@@ -416,7 +272,7 @@ impl AuthConfig {
             return Err("a body limit is at least 1 byte".to_string());
         }
         Ok(Self {
-            tokens,
+            tokens: Tokens::new(tokens),
             cors_origins,
             rate_limit,
             body_limit,
@@ -426,19 +282,12 @@ impl AuthConfig {
 
     /// Whether requests need a token.
     pub fn required(&self) -> bool {
-        !self.tokens.is_empty()
+        self.tokens.required()
     }
 
-    /// The token whose secret is `given`, comparing with every token (so
-    /// that the time says nothing of which one matched).
+    /// The token whose secret is `given` (see [`Tokens::find`]).
     pub fn token(&self, given: &str) -> Option<&Token> {
-        let mut found = None;
-        for token in &self.tokens {
-            if constant_time_eq(given.as_bytes(), &token.secret) {
-                found = Some(token);
-            }
-        }
-        found
+        self.tokens.find(given)
     }
 
     /// The largest body a request to `path` may carry.
@@ -513,14 +362,6 @@ impl Guard {
     /// Whether requests need a token (some are configured).
     pub fn required(&self) -> bool {
         self.config.required()
-    }
-
-    /// The name and role of the token `given`, compared in constant time
-    /// (the CiA 309-3 gateway's `auth` line uses it).
-    pub fn authenticate(&self, given: &str) -> Option<(String, Role)> {
-        self.config
-            .token(given)
-            .map(|token| (token.name.clone(), token.role))
     }
 
     /// Takes one write from `name`'s bucket, or says how long until one
@@ -819,6 +660,7 @@ async fn whoami(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gateway::access::constant_time_eq;
 
     #[test]
     fn patterns_match_segments_and_the_rest() {

@@ -1,6 +1,6 @@
 //! CiA 309-5 (CANopen access over HTTP): the routes and JSON shape of the
 //! open implementations (gocanopen's `pkg/gateway/http`), through the same
-//! gateway as REST and CiA 309-3 ([`crate::ascii::gateway`]):
+//! gateway as REST and CiA 309-3 ([`crate::cia309`]):
 //!
 //! ```text
 //! GET  /cia309-5/1.0/{sequence}/{net}/{node}/r[ead]/{index}/{sub}
@@ -27,10 +27,10 @@ use axum::routing::{get, post};
 use serde_json::{Value as Json, json};
 
 use super::AppState;
-use crate::ascii::command::Nmt;
-use crate::ascii::datatype::{Datatype, unsigned};
-use crate::ascii::gateway::{Failure, Gateway, Identity, Origin, TransferOptions};
-use crate::ascii::reply::ErrorCode;
+use crate::cia309::command::Nmt;
+use crate::cia309::datatype::{Datatype, unsigned};
+use crate::cia309::reply::ErrorCode;
+use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
 
 /// The routes, at the root (not under `/api/v1`).
 pub fn router() -> Router<AppState> {
@@ -78,7 +78,7 @@ struct Target {
 }
 
 fn target(
-    gateway: &Gateway,
+    gateway: &Cia309Gateway,
     sequence: &str,
     net: &str,
     node: &str,
@@ -147,7 +147,7 @@ async fn read_object(
     State(state): State<AppState>,
     Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
 ) -> axum::Json<Json> {
-    let gateway = Gateway::new(&state);
+    let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, &sequence, &net, &node, 1) {
         Ok(target) => target,
         Err((sequence, failure)) => return error(&sequence, failure),
@@ -180,7 +180,7 @@ async fn write_object(
     extensions: Extensions,
     body: axum::body::Bytes,
 ) -> axum::Json<Json> {
-    let gateway = Gateway::new(&state);
+    let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, &sequence, &net, &node, 1) {
         Ok(target) => target,
         Err((sequence, failure)) => return error(&sequence, failure),
@@ -303,7 +303,7 @@ async fn run_nmt(
     uri: &Uri,
     extensions: &Extensions,
 ) -> axum::Json<Json> {
-    let gateway = Gateway::new(state);
+    let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, sequence, net, node, 0) {
         Ok(target) => target,
         Err((sequence, failure)) => return error(&sequence, failure),

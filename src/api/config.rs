@@ -16,10 +16,10 @@ use utoipa_axum::routes;
 
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
-use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::eds::Eds;
 use crate::canopen::od::format_index;
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::dcf;
 use crate::gateway::registry::NodeInfo;
 

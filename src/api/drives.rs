@@ -36,23 +36,24 @@ use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
-use serde_json::{Value as Json, json};
-use tokio::task::JoinSet;
+use serde_json::Value as Json;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
-use super::leases::{InFlight, LeaseInfo, presented};
+use super::leases::{LeaseInfo, presented};
 use super::nodes::known_node;
-use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::GatewayError;
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::drive::{
     AxisStatus, Drive, DriveError, DriveKind, MoveMode, MoveRequest, TargetState, axis_count,
 };
+use crate::gateway::leases::InFlight;
 use crate::gateway::motion_lease::AxisKey;
-use crate::gateway::registry::NodeInfo;
+use crate::gateway::safe_stop::StopReport;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -67,28 +68,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 impl From<DriveError> for AppError {
     fn from(error: DriveError) -> Self {
-        let state = error.state().map_or("unknown", |s| s.name()).to_string();
-        match error {
-            DriveError::NotADrive { .. } => Self::NotADrive(error.to_string()),
-            DriveError::UnknownAxis { .. } => Self::UnknownAxis(error.to_string()),
-            DriveError::Sdo(error) => Self::from_sdo(error),
-            DriveError::Registry(error) => Self::from(error),
-            DriveError::Fault { .. } => Self::DriveFault {
-                message: error.to_string(),
-                state,
-            },
-            DriveError::Timeout { .. } => Self::StateChangeTimeout {
-                message: error.to_string(),
-                state,
-            },
-            DriveError::ModeNotSupported { .. } => Self::ModeNotSupported(error.to_string()),
-            DriveError::NotEnabled { .. } => Self::DriveNotEnabled {
-                message: error.to_string(),
-                state,
-            },
-            DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
-            DriveError::Invalid(message) => Self::InvalidValue(message),
-        }
+        GatewayError::from(error).into()
     }
 }
 
@@ -199,22 +179,10 @@ fn holder(identity: Option<&Extension<Identity>>) -> String {
     identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
 }
 
-/// The node's axis from the path, after the checks that need no bus.
+/// The node's axis from the path, after the checks that need no bus (see
+/// [`crate::gateway::Gateway::drive`]).
 fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, AppError> {
-    let (served, info) = known_node(state, bus, id)?;
-    let drive = Drive::new(&served.registry, &info, axis)?;
-    check_sdo_allowed(&served, &info)?;
-    // A drive supervised by heartbeat that went silent: every transfer would
-    // wait out its timeout, and a motion command could not be followed up.
-    if !info.online && info.heartbeat_ms.is_some() {
-        return Err(AppError::NodeOffline(format!(
-            "node {} is offline (no heartbeat within 1.5 periods of {} ms): \
-             drive operations wait until it is heard again",
-            info.id,
-            info.heartbeat_ms.unwrap_or_default()
-        )));
-    }
-    Ok(drive)
+    Ok(state.gateway.drive(bus, id, axis)?)
 }
 
 fn task_failed(err: tokio::task::JoinError) -> AppError {
@@ -320,10 +288,10 @@ async fn set_state(
     let target = request.target.state();
     let axis_key = key(&bus, &drive);
     if request.target == TargetState::OperationEnabled {
-        state.leases.check(&axis_key, presented(&headers))?;
+        state.gateway.leases.check(&axis_key, presented(&headers))?;
         // Before the walk, not after it: a walk that fails half way may
         // have powered the axis already.
-        state.enabled_axes.insert(&bus, &drive);
+        state.gateway.enabled_axes.insert(&bus, &drive);
     }
     let status = spawned(
         drive,
@@ -332,7 +300,7 @@ async fn set_state(
     .await?;
     if request.target != TargetState::OperationEnabled {
         // Out of operation enabled nothing moves: the motion is over.
-        state.leases.release(&axis_key);
+        state.gateway.leases.release(&axis_key);
     }
     Ok(status)
 }
@@ -388,7 +356,7 @@ async fn halt(
     let axis_key = key(&bus, &drive);
     if request.halt {
         let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(true).await }).await?;
-        state.leases.release(&axis_key);
+        state.gateway.leases.release(&axis_key);
         return Ok(ApiJson(MotionResponse {
             status,
             lease: None,
@@ -397,12 +365,15 @@ async fn halt(
     // Releasing halt resumes the set-point the axis has: in a mode without
     // an end, that is a motion like any other, and it is leased.
     let lease_header = presented(&headers).map(str::to_string);
-    state.leases.check(&axis_key, lease_header.as_deref())?;
+    state
+        .gateway
+        .leases
+        .check(&axis_key, lease_header.as_deref())?;
     let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
     let lease = match endless_displayed(status.mode.as_deref()) {
         Some(mode) if status.state == "operation_enabled" => {
-            let lease = state.leases.grant(
-                &state,
+            let lease = state.gateway.leases.grant(
+                &state.gateway,
                 axis_key,
                 lease_header.as_deref(),
                 &holder(identity.as_ref()),
@@ -411,7 +382,7 @@ async fn halt(
             Some(LeaseInfo::of(&lease, tokio::time::Instant::now()))
         }
         _ => {
-            state.leases.release(&axis_key);
+            state.gateway.leases.release(&axis_key);
             None
         }
     };
@@ -456,30 +427,30 @@ async fn run_move(
     if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
         // A move with an end of its own: the holder may give it (and its
         // lease ends), nobody else.
-        state.leases.check(&axis_key, lease_header)?;
-        state.enabled_axes.insert(&bus, &drive);
+        state.gateway.leases.check(&axis_key, lease_header)?;
+        state.gateway.enabled_axes.insert(&bus, &drive);
         let ApiJson(status) = spawned(
             drive,
             move |drive| async move { drive.run_move(&request).await },
         )
         .await?;
-        state.leases.release(&axis_key);
+        state.gateway.leases.release(&axis_key);
         return Ok(ApiJson(MotionResponse {
             status,
             lease: None,
         }));
     }
-    let lease = state.leases.grant(
-        &state,
+    let lease = state.gateway.leases.grant(
+        &state.gateway,
         axis_key.clone(),
         lease_header,
         &holder(identity.as_ref()),
         mode.name(),
     )?;
-    state.enabled_axes.insert(&bus, &drive);
+    state.gateway.enabled_axes.insert(&bus, &drive);
     // While this request runs it keeps the lease alive; if its client hangs
     // up, the lease lapses at once.
-    let result = InFlight::new(&state, &lease)
+    let result = InFlight::new(&state.gateway.leases, &lease)
         .run(spawned(drive, move |drive| async move {
             drive.run_move(&request).await
         }))
@@ -488,20 +459,20 @@ async fn run_move(
         Ok(ApiJson(status)) => status,
         Err(error) => {
             // A failed move halted the axis: nothing is left to lease.
-            state.leases.release(&axis_key);
+            state.gateway.leases.release(&axis_key);
             return Err(error);
         }
     };
     if !endless(mode) {
         // The interpolated points are all in the buffer: the drive stops
         // at the last one by itself.
-        state.leases.release(&axis_key);
+        state.gateway.leases.release(&axis_key);
         return Ok(ApiJson(MotionResponse {
             status,
             lease: None,
         }));
     }
-    let lease = state.leases.renew(&lease.id, None)?;
+    let lease = state.gateway.leases.renew(&lease.id, None)?;
     Ok(ApiJson(MotionResponse {
         status,
         lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),
@@ -518,179 +489,28 @@ async fn run_move(
         (status = 200, description = "What was stopped, and what failed", body = StopAllReport),
     ))]
 async fn stop_all(State(state): State<AppState>) -> Result<ApiJson<StopAllReport>, AppError> {
-    // In a task of its own: dropping a JoinSet aborts its tasks, so the
-    // set must not live in the handler's future, which a client hanging up
-    // drops.
-    let leases = state.leases.clone();
-    let report = tokio::spawn(stop_everything(state))
-        .await
-        .map_err(task_failed)??;
-    // Every enabled axis got quick stop: no motion is left to lease.
-    leases.release_all();
-    Ok(ApiJson(report))
+    let report = state.gateway.stop_all().await?;
+    Ok(ApiJson(StopAllReport::from(report)))
 }
 
-async fn stop_everything(state: AppState) -> Result<StopAllReport, AppError> {
-    let mut tasks = JoinSet::new();
-    let mut report = StopAllReport {
-        stopped: Vec::new(),
-        failed: Vec::new(),
-    };
-    for (name, served) in state.buses.iter() {
-        for info in served.registry.nodes() {
-            let Some(kind) = DriveKind::from_profile(info.profile) else {
-                continue;
-            };
-            let node = info.id.get();
-            let fail = |error: AppError| StopFailure {
-                bus: name.clone(),
-                node,
-                axis: None,
-                error: error.to_json(),
-            };
-            if !info.online {
-                report.failed.push(StopFailure {
-                    bus: name.clone(),
-                    node,
-                    axis: None,
-                    error: json!({"code": "node_offline", "message": format!("node {node} is offline")}),
-                });
-                continue;
-            }
-            if let Err(error) = check_sdo_allowed(served, &info) {
-                report.failed.push(fail(error));
-                continue;
-            }
-            let drives = match axes_of(served, &info, kind) {
-                Ok(drives) => drives,
-                Err(error) => {
-                    report.failed.push(fail(error));
-                    continue;
-                }
-            };
-            let name = name.clone();
-            tasks.spawn(async move {
-                let mut results = Vec::new();
-                for drive in drives {
-                    results.push((drive.axis(), drive.quick_stop_if_enabled().await));
-                }
-                (name, node, results)
-            });
+impl From<StopReport> for StopAllReport {
+    fn from(report: StopReport) -> Self {
+        Self {
+            stopped: report
+                .stopped
+                .into_iter()
+                .map(|AxisKey { bus, node, axis }| StoppedAxis { bus, node, axis })
+                .collect(),
+            failed: report
+                .failed
+                .into_iter()
+                .map(|failure| StopFailure {
+                    bus: failure.bus,
+                    node: failure.node,
+                    axis: failure.axis,
+                    error: AppError::from(failure.error).to_json(),
+                })
+                .collect(),
         }
     }
-    while let Some(joined) = tasks.join_next().await {
-        let (bus, node, results) = joined.map_err(task_failed)?;
-        for (axis, result) in results {
-            match result {
-                Ok(Some(_)) => report.stopped.push(StoppedAxis {
-                    bus: bus.clone(),
-                    node,
-                    axis,
-                }),
-                Ok(None) => {}
-                Err(error) => report.failed.push(StopFailure {
-                    bus: bus.clone(),
-                    node,
-                    axis: Some(axis),
-                    error: AppError::from(error).to_json(),
-                }),
-            }
-        }
-    }
-    Ok(report)
-}
-
-fn axes_of(
-    served: &super::ServedBus,
-    info: &NodeInfo,
-    kind: DriveKind,
-) -> Result<Vec<Drive>, AppError> {
-    (1..=axis_count(kind, info.eds_entry.as_deref()))
-        .map(|axis| Ok(Drive::new(&served.registry, info, &axis.to_string())?))
-        .collect()
-}
-
-/// The axes the gateway itself enabled or set moving through the API, by
-/// bus, node and axis: the ones it stops before it exits. Axes another
-/// master enabled are not the gateway's to touch.
-#[derive(Debug, Default)]
-pub struct EnabledAxes(std::sync::Mutex<std::collections::BTreeSet<(String, u8, u8)>>);
-
-impl EnabledAxes {
-    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::BTreeSet<(String, u8, u8)>> {
-        // A set of plain keys is never left half-written.
-        self.0
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-    }
-
-    fn insert(&self, bus: &str, drive: &Drive) {
-        self.lock()
-            .insert((bus.to_string(), drive.node(), drive.axis()));
-    }
-
-    /// Every axis recorded, in order.
-    pub fn list(&self) -> Vec<(String, u8, u8)> {
-        self.lock().iter().cloned().collect()
-    }
-}
-
-/// How long the gateway's shutdown waits for its axes to be stopped.
-pub const SHUTDOWN_STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
-
-/// Quick stop of every axis the gateway enabled that is still in operation
-/// enabled, all nodes at once (for SIGTERM and Ctrl-C: a drive must not be
-/// left moving because the gateway went away). Bounded by
-/// [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is in the report.
-pub async fn stop_enabled_axes(state: &AppState) -> StopAllReport {
-    let mut report = StopAllReport {
-        stopped: Vec::new(),
-        failed: Vec::new(),
-    };
-    let mut tasks = JoinSet::new();
-    for (bus, node, axis) in state.enabled_axes.list() {
-        let prepared = (|| {
-            let served = state.bus(&bus)?;
-            let (_, info) = super::nodes::known_node(state, &bus, &node.to_string())?;
-            Ok::<_, AppError>(Drive::new(&served.registry, &info, &axis.to_string())?)
-        })();
-        match prepared {
-            Ok(drive) => {
-                tasks.spawn(async move { (bus, node, axis, drive.quick_stop_if_enabled().await) });
-            }
-            Err(error) => report.failed.push(StopFailure {
-                bus,
-                node,
-                axis: Some(axis),
-                error: error.to_json(),
-            }),
-        }
-    }
-    let collect = async {
-        while let Some(joined) = tasks.join_next().await {
-            let Ok((bus, node, axis, result)) = joined else {
-                continue;
-            };
-            match result {
-                Ok(Some(_)) => report.stopped.push(StoppedAxis { bus, node, axis }),
-                Ok(None) => {}
-                Err(error) => report.failed.push(StopFailure {
-                    bus,
-                    node,
-                    axis: Some(axis),
-                    error: AppError::from(error).to_json(),
-                }),
-            }
-        }
-    };
-    let timed_out = tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
-        .await
-        .is_err();
-    state.leases.release_all();
-    if timed_out {
-        tracing::error!(
-            "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
-        );
-    }
-    report
 }

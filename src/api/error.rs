@@ -16,7 +16,8 @@ use serde_json::{Value as Json, json};
 use crate::can::BusError;
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{DictionaryError, ValueError};
-use crate::canopen::sdo::{AbortCode, SdoError};
+use crate::canopen::sdo::AbortCode;
+use crate::gateway::GatewayError;
 use crate::gateway::recording::RecordingError;
 use crate::gateway::registry::RegistryError;
 use crate::gateway::sdo::SdoRequestError;
@@ -262,43 +263,56 @@ impl AppError {
 
     /// A failed SDO transfer of `node`.
     pub fn from_sdo(error: SdoRequestError) -> Self {
+        GatewayError::from(error).into()
+    }
+}
+
+/// The gateway's errors, variant by variant (their statuses are those of
+/// [`AppError::status_and_code`]).
+impl From<GatewayError> for AppError {
+    fn from(error: GatewayError) -> Self {
         match error {
-            SdoRequestError::Sdo { node, error } => {
-                let node = node.get();
-                match error {
-                    SdoError::ServerAborted(code) => Self::SdoAbort { node, code },
-                    SdoError::Timeout => Self::SdoTimeout { node },
-                    SdoError::Protocol { code, detail } => Self::SdoProtocol { node, code, detail },
-                    SdoError::TooLarge(len) => {
-                        Self::InvalidValue(format!("{len} bytes do not fit an SDO transfer"))
-                    }
-                    // The channel runs one transfer at a time; a busy client
-                    // is a fault of the gateway.
-                    SdoError::Busy => Self::Internal(format!("node {node}: SDO client busy")),
-                }
+            GatewayError::InvalidRequest(message) => Self::InvalidRequest(message),
+            GatewayError::InvalidValue(message) => Self::InvalidValue(message),
+            GatewayError::ValueOutOfRange(message) => Self::ValueOutOfRange(message),
+            GatewayError::UnknownBus(bus) => Self::UnknownBus(bus),
+            GatewayError::UnknownNode { bus, node } => Self::UnknownNode { bus, node },
+            GatewayError::WrongNmtState { node, state } => Self::WrongNmtState { node, state },
+            GatewayError::SdoAbort { node, code } => Self::SdoAbort { node, code },
+            GatewayError::SdoProtocol { node, code, detail } => {
+                Self::SdoProtocol { node, code, detail }
             }
-            SdoRequestError::Bus { error, .. } => Self::from(error),
+            GatewayError::SdoTimeout { node } => Self::SdoTimeout { node },
+            GatewayError::BusDown(message) => Self::BusDown(message),
+            GatewayError::NodeOffline(message) => Self::NodeOffline(message),
+            GatewayError::NotADrive(message) => Self::NotADrive(message),
+            GatewayError::UnknownAxis(message) => Self::UnknownAxis(message),
+            GatewayError::DriveFault { message, state } => Self::DriveFault { message, state },
+            GatewayError::DriveNotEnabled { message, state } => {
+                Self::DriveNotEnabled { message, state }
+            }
+            GatewayError::ModeNotSupported(message) => Self::ModeNotSupported(message),
+            GatewayError::StateChangeTimeout { message, state } => {
+                Self::StateChangeTimeout { message, state }
+            }
+            GatewayError::LeaseConflict(message) => Self::LeaseConflict(message),
+            GatewayError::UnknownLease(message) => Self::UnknownLease(message),
+            GatewayError::Unauthenticated(message) => Self::Unauthenticated(message),
+            GatewayError::Forbidden(message) => Self::Forbidden(message),
+            GatewayError::Internal(detail) => Self::Internal(detail),
         }
     }
 }
 
 impl From<BusError> for AppError {
     fn from(error: BusError) -> Self {
-        Self::BusDown(error.to_string())
+        GatewayError::from(error).into()
     }
 }
 
 impl From<RegistryError> for AppError {
     fn from(error: RegistryError) -> Self {
-        match error {
-            RegistryError::UnknownNode { bus, node } => Self::UnknownNode {
-                bus,
-                node: node.to_string(),
-            },
-            RegistryError::Bus(error) => Self::from(error),
-            RegistryError::Sdo(error) => Self::from_sdo(error),
-            other => Self::Internal(other.to_string()),
-        }
+        GatewayError::from(error).into()
     }
 }
 
@@ -455,3 +469,6 @@ pub async fn method_not_allowed(
         path: uri.path().to_string(),
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -225,6 +225,7 @@ async fn events(
         )));
     }
     let found = state
+        .gateway
         .history
         .query(history::Query {
             kind,

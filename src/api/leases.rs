@@ -3,20 +3,17 @@
 //! answers with a lease that its client renews with
 //! `POST .../axes/{axis}/lease` `{"lease": id}` or the stream's
 //! `{"op":"renew","leases":[id]}`; an interpolated move holds one while its
-//! request feeds points. A supervisor task halts the axis of every lease
-//! that lapses, and quick-stops it if it is not stopped one period later.
+//! request feeds points. The leases and the supervisor that stops the
+//! axis of every lease that lapses are [`crate::gateway::leases`].
 //!
 //! A stream session that renewed a lease is its client's heartbeat: when
 //! the socket closes the lease lapses at once.
 
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
 
 use axum::extract::State;
 use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
-use tokio::sync::Notify;
 use tokio::time::Instant;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
@@ -26,17 +23,11 @@ use super::doc::ErrorBody;
 use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::can::Timestamp;
-use crate::gateway::drive::Drive;
-use crate::gateway::history::AuditEntry;
-use crate::gateway::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease};
+use crate::gateway::GatewayError;
+use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
 
 /// The request header that presents a lease to a command on a held axis.
 pub const LEASE_HEADER: &str = "candeck-lease";
-
-/// How often the status of a lapsed lease's axis is read while it slows
-/// down under halt.
-const STOPPING_POLL: Duration = Duration::from_millis(50);
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(renew))
@@ -93,154 +84,8 @@ pub struct RenewRequest {
 
 impl From<LeaseError> for AppError {
     fn from(error: LeaseError) -> Self {
-        match error {
-            LeaseError::Conflict { .. } => AppError::LeaseConflict(error.to_string()),
-            LeaseError::Unknown(_) => AppError::UnknownLease(error.to_string()),
-        }
+        GatewayError::from(error).into()
     }
-}
-
-/// The gateway's leases and the task that stops the lapsed ones.
-#[derive(Debug)]
-pub struct MotionLeases {
-    table: Mutex<LeaseTable>,
-    period: Duration,
-    /// Wakes the supervisor when the earliest expiry may have moved closer.
-    wake: Notify,
-    supervisor: OnceLock<()>,
-    next_session: AtomicU64,
-}
-
-impl MotionLeases {
-    pub fn new(period: Duration) -> Self {
-        Self {
-            table: Mutex::new(LeaseTable::new()),
-            period,
-            wake: Notify::new(),
-            supervisor: OnceLock::new(),
-            next_session: AtomicU64::new(1),
-        }
-    }
-
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
-    fn table(&self) -> MutexGuard<'_, LeaseTable> {
-        self.table
-            .lock()
-            .unwrap_or_else(|poison| poison.into_inner())
-    }
-
-    /// Refuses a command on a held axis that does not present its lease.
-    pub fn check(&self, axis: &AxisKey, presented: Option<&str>) -> Result<(), AppError> {
-        Ok(self.table().check(axis, presented, Instant::now())?)
-    }
-
-    /// Grants (or, presented, renews) the lease for a move on `axis`, and
-    /// starts the supervisor on the first one.
-    pub fn grant(
-        &self,
-        state: &AppState,
-        axis: AxisKey,
-        presented: Option<&str>,
-        holder: &str,
-        mode: &str,
-    ) -> Result<MotionLease, AppError> {
-        let lease = self.table().grant(
-            axis,
-            presented,
-            fresh_id(),
-            holder,
-            mode,
-            self.period,
-            Instant::now(),
-        )?;
-        self.supervisor.get_or_init(|| {
-            tokio::spawn(supervise(state.clone()));
-        });
-        self.wake.notify_one();
-        Ok(lease)
-    }
-
-    /// Renews the lease `id`, binding it to a stream session when given.
-    pub fn renew(&self, id: &str, session: Option<u64>) -> Result<MotionLease, AppError> {
-        Ok(self.table().renew(id, session, Instant::now())?)
-    }
-
-    /// The lease on `axis` is over: its motion was stopped (or is bounded).
-    pub fn release(&self, axis: &AxisKey) -> Option<MotionLease> {
-        self.table().release(axis)
-    }
-
-    /// Ends every lease (STOP ALL, shutdown): their axes are being stopped.
-    pub fn release_all(&self) -> usize {
-        self.table().release_all().len()
-    }
-
-    /// Lapses the lease `id` now (its client went away), so that the
-    /// supervisor stops its axis; an unknown id is nothing to do.
-    pub fn lapse_now(&self, id: &str) {
-        let now = Instant::now();
-        let mut table = self.table();
-        if let Ok(lease) = table.release_id(id) {
-            // Put back, expired: the supervisor takes it as lapsed.
-            let axis = lease.axis.clone();
-            let _ = table.grant(
-                axis,
-                None,
-                lease.id,
-                &lease.holder,
-                &lease.mode,
-                Duration::ZERO,
-                now,
-            );
-        }
-        drop(table);
-        self.wake.notify_one();
-    }
-
-    /// A number for a new stream session.
-    pub fn new_session(&self) -> u64 {
-        self.next_session.fetch_add(1, Ordering::Relaxed)
-    }
-
-    /// The stream session ended: the leases it renewed lapse now.
-    pub fn session_ended(&self, session: u64) {
-        if self.table().session_ended(session, Instant::now()) > 0 {
-            self.wake.notify_one();
-        }
-    }
-
-    /// How many leases are held.
-    pub fn held(&self) -> usize {
-        self.table().len()
-    }
-}
-
-impl Default for MotionLeases {
-    fn default() -> Self {
-        Self::new(crate::gateway::motion_lease::DEFAULT_PERIOD)
-    }
-}
-
-/// 128 bits from the operating system's generator, as hex: a lease is the
-/// right to move an axis, so its id must not be guessable.
-fn fresh_id() -> String {
-    use std::io::Read;
-    let mut bytes = [0u8; 16];
-    let read = std::fs::File::open("/dev/urandom").and_then(|mut f| f.read_exact(&mut bytes));
-    if read.is_err() {
-        // No /dev/urandom (not Linux): the standard library's hasher keys
-        // are drawn from the system's generator too.
-        use std::hash::{BuildHasher, Hasher};
-        for chunk in bytes.chunks_mut(8) {
-            let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
-            hasher.write_u128(Instant::now().elapsed().as_nanos());
-            chunk.copy_from_slice(&hasher.finish().to_le_bytes());
-        }
-    }
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// The lease presented in a request's `Candeck-Lease` header.
@@ -249,127 +94,6 @@ pub fn presented(headers: &HeaderMap) -> Option<&str> {
         .get(LEASE_HEADER)
         .and_then(|value| value.to_str().ok())
         .map(str::trim)
-}
-
-/// Sleeps until the next lease expires (or the table changes), then stops
-/// the axes of the lapsed ones, each in a task of its own.
-async fn supervise(state: AppState) {
-    let leases = state.leases.clone();
-    loop {
-        let next = leases.table().next_expiry();
-        match next {
-            Some(at) => {
-                tokio::select! {
-                    () = tokio::time::sleep_until(at) => {}
-                    () = leases.wake.notified() => {}
-                }
-            }
-            None => leases.wake.notified().await,
-        }
-        let lapsed = leases.table().lapsed(Instant::now());
-        for lease in lapsed {
-            tokio::spawn(stop_lapsed(state.clone(), lease));
-        }
-    }
-}
-
-/// How a lapsed lease's axis was stopped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Stopped {
-    /// Halted, and at rest (or no longer enabled) within a period.
-    Halted,
-    /// Still moving a period after halt: quick-stopped.
-    QuickStopped,
-}
-
-async fn stop_lapsed(state: AppState, lease: MotionLease) {
-    tracing::warn!(
-        "motion lease {} of {} on {} ({}) lapsed: halting the axis",
-        lease.id,
-        lease.holder,
-        lease.axis,
-        lease.mode
-    );
-    let result = halt_then_quick_stop(&state, &lease).await;
-    let (status, error_code, abort_code, outcome) = match &result {
-        Ok(Stopped::Halted) => (200, None, None, "halted"),
-        Ok(Stopped::QuickStopped) => (200, None, None, "quick-stopped"),
-        Err(error) => {
-            tracing::error!(
-                "lapsed lease on {}: the axis could not be stopped: {error}",
-                lease.axis
-            );
-            let json = error.to_json();
-            (
-                error.status().as_u16(),
-                json["code"].as_str().map(str::to_string),
-                json["abort_code"].as_str().map(str::to_string),
-                "not stopped",
-            )
-        }
-    };
-    let AxisKey { bus, node, axis } = lease.axis.clone();
-    let entry = AuditEntry {
-        time: Timestamp::now(),
-        who: "gateway".to_string(),
-        peer: None,
-        role: "system".to_string(),
-        method: "POST".to_string(),
-        path: format!("/api/v1/buses/{bus}/nodes/{node}/axes/{axis}/halt"),
-        operation: format!("motion lease lapsed: axis {outcome}"),
-        bus: Some(bus),
-        node: Some(node),
-        axis: Some(axis),
-        item: Some(format!(
-            "{} lease of {} ({} ms)",
-            lease.mode,
-            lease.holder,
-            lease.period.as_millis()
-        )),
-        request: None,
-        status,
-        error_code,
-        abort_code,
-    };
-    if let Err(err) = state.history.audit(entry).await {
-        tracing::error!("audit: lapsed lease on {}: not recorded: {err}", lease.axis);
-    }
-}
-
-/// Halt, then wait up to one lease period for the axis to come to rest;
-/// quick stop if it has not. If halt cannot be given, quick stop is tried
-/// anyway.
-async fn halt_then_quick_stop(state: &AppState, lease: &MotionLease) -> Result<Stopped, AppError> {
-    let AxisKey { bus, node, axis } = &lease.axis;
-    let (served, info) = known_node(state, bus, &node.to_string())?;
-    let drive = Drive::new(&served.registry, &info, &axis.to_string())?;
-    // In a task of its own, like every drive sequence: nothing cancels it
-    // half way.
-    let period = lease.period;
-    let task = tokio::spawn(async move {
-        if let Err(error) = drive.halt(true).await {
-            tracing::error!("halt failed ({error}); quick stop instead");
-            drive.quick_stop_if_enabled().await?;
-            return Ok(Stopped::QuickStopped);
-        }
-        let deadline = Instant::now() + period;
-        loop {
-            let status = drive.status().await?;
-            let at_rest = status.velocity.map_or(status.target_reached, |v| v == 0);
-            if status.state != "operation_enabled" || at_rest {
-                return Ok(Stopped::Halted);
-            }
-            if Instant::now() >= deadline {
-                break;
-            }
-            tokio::time::sleep(STOPPING_POLL).await;
-        }
-        drive.quick_stop_if_enabled().await?;
-        Ok(Stopped::QuickStopped)
-    });
-    task.await
-        .map_err(|err| AppError::Internal(format!("stopping a lapsed axis: {err}")))?
-        .map_err(|err: crate::gateway::drive::DriveError| AppError::from(err))
 }
 
 /// Renews a motion lease for another period.
@@ -399,60 +123,6 @@ async fn renew(
             .parse()
             .map_err(|_| AppError::InvalidRequest(format!("axis '{axis}' is not a number")))?,
     };
-    // Only the axis's own lease: a lease id is not renewed through a path
-    // that names another axis.
-    let now = Instant::now();
-    let held = state.leases.table().get(&key, now).map(|l| l.id.clone());
-    if held.as_deref() != Some(request.lease.as_str()) {
-        return Err(LeaseError::Unknown(request.lease).into());
-    }
-    let lease = state.leases.renew(&request.lease, None)?;
+    let lease = state.gateway.leases.renew_on(&key, &request.lease)?;
     Ok(ApiJson(LeaseInfo::of(&lease, Instant::now())))
-}
-
-/// Keeps a lease alive while a request that holds it runs (an interpolated
-/// move feeding its points); if the request is dropped — its client hung
-/// up — the lease lapses at once and the axis is stopped.
-pub struct InFlight {
-    state: AppState,
-    id: String,
-    done: bool,
-}
-
-impl InFlight {
-    pub fn new(state: &AppState, lease: &MotionLease) -> Self {
-        Self {
-            state: state.clone(),
-            id: lease.id.clone(),
-            done: false,
-        }
-    }
-
-    /// Renews the lease every third of a period until `work` ends.
-    pub async fn run<T>(mut self, work: impl Future<Output = T>) -> T {
-        let leases = self.state.leases.clone();
-        let every = (leases.period() / 3).max(Duration::from_millis(10));
-        let work = std::pin::pin!(work);
-        let mut work = work;
-        let result = loop {
-            tokio::select! {
-                result = &mut work => break result,
-                () = tokio::time::sleep(every) => {
-                    // Lapsed already (a stop ended it): nothing to keep.
-                    let _ = leases.renew(&self.id, None);
-                }
-            }
-        };
-        self.done = true;
-        result
-    }
-}
-
-impl Drop for InFlight {
-    fn drop(&mut self) {
-        if !self.done {
-            tracing::warn!("the client of lease {} went away mid-request", self.id);
-            self.state.leases.lapse_now(&self.id);
-        }
-    }
 }

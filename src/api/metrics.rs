@@ -25,8 +25,9 @@ use axum::response::IntoResponse;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{AppState, Traffic};
+use super::AppState;
 use crate::can::CounterSnapshot;
+use crate::gateway::load::Traffic;
 use crate::gateway::registry::NodeMetrics;
 use crate::gateway::sdo::{LATENCY_BUCKETS, SdoStatsSnapshot};
 
@@ -83,6 +84,7 @@ impl BusSnapshot {
 /// The page: every family, in a fixed order.
 pub fn render(state: &AppState) -> String {
     let buses: Vec<BusSnapshot> = state
+        .gateway
         .buses
         .values()
         .map(|served| {

@@ -12,8 +12,8 @@ use utoipa_axum::routes;
 
 use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
-use crate::canopen::NodeId;
-use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+use crate::canopen::nmt::{NmtCommand, NmtTarget};
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
 
@@ -152,18 +152,7 @@ pub(super) fn known_node(
     bus: &str,
     id: &str,
 ) -> Result<(Arc<ServedBus>, NodeInfo), AppError> {
-    let served = state.bus(bus)?;
-    let node: NodeId = id
-        .parse()
-        .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))?;
-    let info = served
-        .registry
-        .node(node)
-        .ok_or_else(|| AppError::UnknownNode {
-            bus: bus.to_string(),
-            node: id.to_string(),
-        })?;
-    Ok((served, info))
+    Ok(state.gateway.node(bus, id)?)
 }
 
 fn to_json<T: serde::Serialize>(value: &T) -> Result<Json, AppError> {
@@ -281,20 +270,6 @@ fn nmt_command(request: &NmtRequest) -> Result<NmtCommand, AppError> {
     })
 }
 
-/// NMT is unconfirmed (CiA 301 §7.2.8.2.1): the answer says the command
-/// was sent; the node's new state shows in the node list once it reports it.
-pub(crate) async fn send_nmt(
-    served: &ServedBus,
-    command: NmtCommand,
-    target: NmtTarget,
-) -> Result<(), AppError> {
-    served
-        .bus
-        .send(NmtMessage::new(command, target).encode())
-        .await
-        .map_err(AppError::from)
-}
-
 /// Sends an NMT command to one node.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/nmt", tag = "nodes", params(NodePath),
     request_body = NmtRequest,
@@ -311,7 +286,7 @@ async fn nmt_node(
 ) -> Result<ApiJson<NmtSent>, AppError> {
     let command = nmt_command(&request)?;
     let (served, info) = known_node(&state, &bus, &id)?;
-    send_nmt(&served, command, NmtTarget::Node(info.id)).await?;
+    served.send_nmt(command, NmtTarget::Node(info.id)).await?;
     Ok(ApiJson(NmtSent {
         command: command.name(),
         node: info.id.get().to_string(),
@@ -335,7 +310,7 @@ async fn nmt_all(
 ) -> Result<ApiJson<NmtSent>, AppError> {
     let command = nmt_command(&request)?;
     let served = state.bus(&bus)?;
-    send_nmt(&served, command, NmtTarget::All).await?;
+    served.send_nmt(command, NmtTarget::All).await?;
     Ok(ApiJson(NmtSent {
         command: command.name(),
         node: "all".to_string(),
@@ -348,7 +323,7 @@ async fn axes_summary(
     served: &ServedBus,
     info: &NodeInfo,
 ) -> Result<Vec<crate::gateway::drive::AxisStatus>, AppError> {
-    super::od::check_sdo_allowed(served, info)?;
+    check_sdo_allowed(served, info)?;
     let registry = served.registry.clone();
     let info = info.clone();
     tokio::spawn(async move { crate::gateway::drive::axes_summary(&registry, &info).await })

@@ -35,8 +35,8 @@ use utoipa_axum::routes;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
-use crate::canopen::nmt::{NmtService, NmtState};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::registry::NodeInfo;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -269,32 +269,6 @@ fn numeric_sub(sub: &Json) -> Result<u8, AppError> {
             "{sub} is no sub-index: give 0 to 255 (the EDS does not describe the object, so names are unknown)"
         ))
     })
-}
-
-/// Refuses before the bus what cannot succeed on it.
-pub(crate) fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), AppError> {
-    if !served.bus.state().can_send() {
-        let status = served.bus.status();
-        return Err(AppError::BusDown(format!(
-            "bus {} is {}{}",
-            served.name,
-            status.state.as_str(),
-            status.reason.map(|r| format!(": {r}")).unwrap_or_default()
-        )));
-    }
-    match info.nmt {
-        // A node whose last word was its boot-up message is pre-operational
-        // by then (CiA 301 §7.3.2.2.1: it enters pre-operational on its own
-        // once initialised); a state byte the gateway does not know may
-        // allow SDO: only a node known to be stopped is refused.
-        Some(state @ NmtState::Stopped) if !state.allows(NmtService::Sdo) => {
-            Err(AppError::WrongNmtState {
-                node: info.id.get(),
-                state,
-            })
-        }
-        _ => Ok(()),
-    }
 }
 
 pub(super) fn task_failed(err: tokio::task::JoinError) -> AppError {

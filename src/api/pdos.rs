@@ -26,11 +26,12 @@ use utoipa_axum::routes;
 
 use super::doc::{BusPath, ErrorBody, NodePath};
 use super::nodes::known_node;
-use super::od::{AnyValue, check_sdo_allowed, dictionary, hex, task_failed};
+use super::od::{AnyValue, dictionary, hex, task_failed};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::nmt::NmtService;
 use crate::canopen::od::{ObjectDictionary, format_index};
 use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::pdo::{
     self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
     RpdoValueError,

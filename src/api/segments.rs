@@ -17,8 +17,8 @@ use utoipa_axum::routes;
 
 use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
-use super::od::check_sdo_allowed;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::gateway::check_sdo_allowed;
 use crate::gateway::led_preview::PreviewError;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;

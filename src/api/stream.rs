@@ -150,7 +150,7 @@ where
 {
     let counters = state.stream_counters.clone();
     let _client = ClientGuard::new(counters.clone());
-    let _leases = LeaseGuard::new(state.leases.clone());
+    let _leases = LeaseGuard::new(state.gateway.leases.clone());
     let lease_session = _leases.session;
     let mut session = Session {
         lease_session,
@@ -204,12 +204,12 @@ impl Drop for ClientGuard {
 /// The session's number for the leases it renews, which lapse when it ends
 /// (the client is gone, or its network).
 struct LeaseGuard {
-    leases: Arc<super::leases::MotionLeases>,
+    leases: Arc<crate::gateway::leases::MotionLeases>,
     session: u64,
 }
 
 impl LeaseGuard {
-    fn new(leases: Arc<super::leases::MotionLeases>) -> Self {
+    fn new(leases: Arc<crate::gateway::leases::MotionLeases>) -> Self {
         let session = leases.new_session();
         Self { leases, session }
     }
@@ -397,13 +397,19 @@ impl Session {
         let mut renewed = Vec::new();
         let mut replies = Vec::new();
         for id in ids {
-            match self.state.leases.renew(&id, Some(self.lease_session)) {
+            match self
+                .state
+                .gateway
+                .leases
+                .renew(&id, Some(self.lease_session))
+            {
                 Ok(lease) => {
                     let left = lease.remaining(tokio::time::Instant::now()).as_millis();
                     renewed.push(json!({"id": id, "expires_in_ms": left as u64}));
                 }
                 Err(err) => {
-                    let mut message = json!({"op": "error", "error": err.to_json()});
+                    let mut message =
+                        json!({"op": "error", "error": AppError::from(err).to_json()});
                     message["lease"] = Json::from(id);
                     replies.push(message.to_string());
                 }
@@ -492,6 +498,7 @@ impl Session {
         let tasks = match topic {
             Topic::Nodes | Topic::Emcy => self
                 .state
+                .gateway
                 .buses
                 .values()
                 .map(|served| {

@@ -13,11 +13,11 @@ use tokio::io::{AsyncBufRead, AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWrite
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
 
-use super::command::{self, Command, Context, HelpTopic, Line};
-use super::gateway::{Failure, Gateway, Identity, Origin, TransferOptions};
-use super::reply::{self, ErrorCode, Event, Reply};
-use crate::api::auth::Role;
 use crate::canopen::nmt::NmtState;
+use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
+use crate::cia309::reply::{self, ErrorCode, Event, Reply};
+use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
+use crate::gateway::access::Role;
 use crate::gateway::registry::{NodeEvent, OfflineReason};
 
 /// The longest command line read; a longer one is a syntax error.
@@ -32,7 +32,7 @@ const QUEUE: usize = 256;
 /// (what a line without a readable one is answered with, as CANopenNode
 /// does), and who it is.
 pub struct Session {
-    gateway: Gateway,
+    gateway: Cia309Gateway,
     identity: Identity,
     default_net: u16,
     default_node: Option<u8>,
@@ -65,7 +65,7 @@ impl Session {
     /// `auth TOKEN`: the connection takes the token's name and role.
     fn authenticate(&mut self, sequence: u32, token: &str) -> Reply {
         self.last_sequence = sequence;
-        match self.gateway.guard().authenticate(token) {
+        match self.gateway.tokens().authenticate(token) {
             Some((name, role)) => {
                 self.identity.who = name;
                 self.identity.role = role.name().to_string();
@@ -91,10 +91,10 @@ impl Session {
             Command::Write { .. } | Command::Nmt(_) => Role::Operator,
             _ => return true,
         };
-        !self.gateway.guard().required() || self.identity.access.is_some_and(|role| role >= needed)
+        self.gateway.allows(self.identity.access, needed)
     }
 
-    pub fn new(gateway: Gateway, identity: Identity) -> Self {
+    pub fn new(gateway: Cia309Gateway, identity: Identity) -> Self {
         Self {
             gateway,
             identity,
@@ -162,7 +162,7 @@ impl Session {
                     Ok(bytes) => {
                         let text = match datatype {
                             Some(datatype) => datatype.format(&bytes),
-                            None => super::datatype::hex_text(&bytes),
+                            None => crate::cia309::datatype::hex_text(&bytes),
                         };
                         Reply::Value(sequence, text)
                     }
@@ -241,8 +241,12 @@ pub fn event_of(net: u16, event: &NodeEvent) -> Option<Event> {
 
 /// Serves one connection until its input ends: a line in, a reply out,
 /// events in between.
-pub async fn serve_connection<R, W>(gateway: Gateway, identity: Identity, input: R, mut output: W)
-where
+pub async fn serve_connection<R, W>(
+    gateway: Cia309Gateway,
+    identity: Identity,
+    input: R,
+    mut output: W,
+) where
     R: AsyncRead + Unpin,
     W: AsyncWrite + Unpin + Send + 'static,
 {
@@ -341,7 +345,7 @@ async fn read_line<R: AsyncBufRead + Unpin>(input: &mut R) -> Option<Result<Stri
 
 /// Accepts CiA 309-3 clients on `listener` until the task is dropped, each
 /// served by [`serve_connection`] as `ascii:<peer address>`.
-pub async fn listen(listener: TcpListener, gateway: Gateway) {
+pub async fn listen(listener: TcpListener, gateway: Cia309Gateway) {
     loop {
         let (stream, peer) = match listener.accept().await {
             Ok(accepted) => accepted,

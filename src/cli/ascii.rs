@@ -9,10 +9,11 @@ use clap::Args;
 
 use super::CliError;
 use super::serve::NamedBus;
-use crate::api::{AppState, ServedBus};
-use crate::ascii::{Gateway, Identity, serve_connection};
+use crate::ascii::serve_connection;
+use crate::cia309::{Cia309Gateway, Identity};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
+use crate::gateway::{Gateway, ServedBus};
 
 #[derive(Debug, Args)]
 pub struct AsciiArgs {
@@ -59,8 +60,7 @@ pub async fn run(args: AsciiArgs) -> Result<(), CliError> {
             tracing::warn!("bus {}: scan failed: {err}", bus.name);
         }
     }
-    let state = AppState::new(served);
-    let gateway = Gateway::new(&state);
+    let gateway = Cia309Gateway::new(&Gateway::new(served));
     let identity = Identity::anonymous("ascii-stdio", None);
     serve_connection(gateway, identity, tokio::io::stdin(), tokio::io::stdout()).await;
     Ok(())

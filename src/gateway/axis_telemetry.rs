@@ -28,12 +28,13 @@ use std::time::Duration;
 use serde::Serialize;
 use tokio::time::Instant;
 
-use super::drive::{AxisReading, Drive, DriveError, obj};
+use super::drive::{AxisReading, Drive, DriveError};
 use super::producers::{IDLE_CHECK, Lease, TelemetryConfig, TopicSet, idle, period, unreachable};
 use super::registry::{NodeRegistry, RegistryError};
 use super::telemetry::{TopicReceiver, ValueTopic};
 use super::values::TpdoValues;
 use crate::canopen::NodeId;
+use crate::profiles::cia402::objects as obj;
 use crate::profiles::cia402::{Mode, State, Statusword};
 
 /// How recent the TPDO values of an axis must be to be its source: a
@@ -287,7 +288,7 @@ impl AxisTask {
         };
         let reading = AxisReading {
             statusword: statusword.as_i64(false) as u16,
-            mode_raw: optional(obj::MODES_DISPLAY, true).map(|mode| mode as i8),
+            mode_raw: optional(obj::MODES_OF_OPERATION_DISPLAY, true).map(|mode| mode as i8),
             position: Some(position.as_i64(true) as i32),
             velocity: optional(obj::VELOCITY_ACTUAL, true).map(|v| v as i32),
             torque: optional(obj::TQ_ACTUAL, true).map(|v| v as i16),

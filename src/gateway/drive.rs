@@ -31,8 +31,9 @@ use super::profile::{EdsEntry, Profile};
 use super::registry::{NodeInfo, NodeRegistry, RegistryError};
 use super::sdo::{SdoChannel, SdoRequestError};
 use crate::canopen::od::DataType;
+use crate::profiles::cia402::objects as obj;
 use crate::profiles::cia402::{Command, Mode, PlanError, State, Statusword, expected_state, plan};
-use crate::profiles::umc;
+use crate::profiles::{jmc, umc};
 
 /// How long one step of the state walk may take to show in the
 /// statusword: a quick stop or a disable may run a deceleration ramp first.
@@ -55,35 +56,6 @@ const CW_BIT6: u16 = 1 << 6;
 const CW_HALT: u16 = 1 << 8;
 /// Statusword bit 12 in PP: set-point acknowledge.
 const SW_BIT12: u16 = 1 << 12;
-
-/// The CiA 402 objects, axis 1's indexes.
-pub mod obj {
-    pub const CONTROLWORD: u16 = 0x6040;
-    pub const STATUSWORD: u16 = 0x6041;
-    pub const VL_TARGET: u16 = 0x6042;
-    pub const VL_ACCELERATION: u16 = 0x6048;
-    pub const VL_DECELERATION: u16 = 0x6049;
-    pub const MODES_OF_OPERATION: u16 = 0x6060;
-    pub const MODES_DISPLAY: u16 = 0x6061;
-    pub const POSITION_ACTUAL: u16 = 0x6064;
-    pub const VELOCITY_ACTUAL: u16 = 0x606C;
-    pub const TQ_TARGET: u16 = 0x6071;
-    pub const TQ_ACTUAL: u16 = 0x6077;
-    pub const TARGET_POSITION: u16 = 0x607A;
-    pub const HOME_OFFSET: u16 = 0x607C;
-    pub const PROFILE_VELOCITY: u16 = 0x6081;
-    pub const PROFILE_ACCELERATION: u16 = 0x6083;
-    pub const PROFILE_DECELERATION: u16 = 0x6084;
-    pub const TQ_SLOPE: u16 = 0x6087;
-    pub const HOMING_METHOD: u16 = 0x6098;
-    pub const HOMING_SPEEDS: u16 = 0x6099;
-    pub const HOMING_ACCELERATION: u16 = 0x609A;
-    pub const IP_DATA_RECORD: u16 = 0x60C1;
-    pub const IP_TIME_PERIOD: u16 = 0x60C2;
-    pub const IP_DATA_CONFIGURATION: u16 = 0x60C4;
-    pub const TARGET_VELOCITY: u16 = 0x60FF;
-    pub const SUPPORTED_DRIVE_MODES: u16 = 0x6502;
-}
 
 /// The drive products the master knows, from the node's profile.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -111,10 +83,10 @@ impl DriveKind {
     fn may_support(self, mode: MoveMode) -> bool {
         match self {
             Self::Umc => true,
-            Self::Jmc => matches!(
-                mode,
-                MoveMode::ProfilePosition | MoveMode::Velocity | MoveMode::Homing
-            ),
+            Self::Jmc => mode
+                .modes()
+                .iter()
+                .any(|mode| jmc::CIA402_MODES.contains(mode)),
             Self::Cia402 => !matches!(mode, MoveMode::DutyCycle | MoveMode::ContinuousPosition),
         }
     }
@@ -615,7 +587,7 @@ impl Drive {
     /// fixed three.
     async fn supported(&self) -> Result<Vec<Mode>, DriveError> {
         Ok(match self.kind {
-            DriveKind::Jmc => vec![Mode::ProfilePosition, Mode::ProfileVelocity, Mode::Homing],
+            DriveKind::Jmc => jmc::CIA402_MODES.to_vec(),
             DriveKind::Umc | DriveKind::Cia402 => {
                 match self
                     .read_optional(obj::SUPPORTED_DRIVE_MODES, 0, false)
@@ -648,7 +620,7 @@ impl Drive {
     pub async fn status(&self) -> Result<AxisStatus, DriveError> {
         let statusword = self.statusword().await?;
         let mode_raw = self
-            .read_optional(obj::MODES_DISPLAY, 0, true)
+            .read_optional(obj::MODES_OF_OPERATION_DISPLAY, 0, true)
             .await?
             .unwrap_or(0) as i8;
         let supported = self.supported().await?;
@@ -676,7 +648,7 @@ impl Drive {
     pub async fn reading(&self) -> Result<AxisReading, DriveError> {
         let statusword = self.statusword().await?.raw();
         let mode_raw = self
-            .read_optional(obj::MODES_DISPLAY, 0, true)
+            .read_optional(obj::MODES_OF_OPERATION_DISPLAY, 0, true)
             .await?
             .map(|mode| mode as i8);
         let position = self.read_optional(obj::POSITION_ACTUAL, 0, true).await?;
@@ -981,10 +953,8 @@ impl Drive {
                         put(obj::VL_DECELERATION, 2, T::Unsigned16, 1, "delta time")?;
                     }
                 } else {
-                    // The JMC has no 0x60FF: its 0x6081 is the target of
-                    // both position and velocity mode.
                     let target = match self.kind {
-                        DriveKind::Jmc => obj::PROFILE_VELOCITY,
+                        DriveKind::Jmc => jmc::VELOCITY_MOVE_TARGET,
                         _ => obj::TARGET_VELOCITY,
                     };
                     put(target, 0, T::Integer32, velocity, "velocity")?;
@@ -1074,9 +1044,7 @@ impl Drive {
                 acceleration,
                 offset,
             } => {
-                if self.kind == DriveKind::Jmc
-                    && crate::profiles::jmc::HomingMethod::from_raw(*method).is_none()
-                {
+                if self.kind == DriveKind::Jmc && jmc::HomingMethod::from_raw(*method).is_none() {
                     return Err(DriveError::OutOfRange(format!(
                         "homing method {method}: the JMC has methods 0 to 12"
                     )));
@@ -1211,7 +1179,7 @@ impl Drive {
     /// 0x6061 to show it.
     async fn set_mode(&self, mode: Mode) -> Result<(), DriveError> {
         let display = || async {
-            self.read_int(obj::MODES_DISPLAY, 0, true)
+            self.read_int(obj::MODES_OF_OPERATION_DISPLAY, 0, true)
                 .await
                 .map(|raw| raw as i8)
         };

@@ -1,8 +1,21 @@
 //! The CANopen master: what candeck does on a bus with the protocol of
-//! [`crate::canopen`].
+//! [`crate::canopen`], as one service ([`Gateway`]) that every adapter
+//! (REST in `crate::api`, CiA 309 in `crate::cia309` and
+//! `crate::ascii`, the command line) holds. Nothing here knows HTTP: a
+//! test (`tests/layering.rs`) keeps it so.
 //!
 //! # Layout
 //!
+//! - [`service`]: the [`Gateway`] service and each [`ServedBus`] (its
+//!   registry, telemetry, SYNC producer, recorder, virtual devices); the
+//!   rules every adapter obeys ([`check_sdo_allowed`], a drive's checks),
+//!   NMT.
+//! - [`error`]: [`GatewayError`], the service's one error type.
+//! - [`access`]: tokens and roles, for every adapter.
+//! - [`leases`]: the motion leases granted and the supervisor that stops
+//!   the axis of a lapsed one ([`motion_lease`] is their table).
+//! - [`safe_stop`]: STOP ALL and the stop on shutdown.
+//! - [`load`]: the measured load of a bus.
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue; each node's transfers counted by outcome,
 //!   with a latency histogram (for `/metrics`).
@@ -32,20 +45,29 @@
 //!   TPDOs or SDO polling.
 //! - [`led_preview`]: each LED controller's preview for the stream.
 
+pub mod access;
 pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
+pub mod error;
 pub mod frames;
 pub mod history;
+pub mod leases;
 pub mod led_preview;
+pub mod load;
 pub mod motion_lease;
 pub mod pdo;
 pub mod producers;
 pub mod profile;
 pub mod recording;
 pub mod registry;
+pub mod safe_stop;
 pub mod sdo;
+pub mod service;
 pub mod sync;
 pub mod telemetry;
 pub mod uioled;
 pub mod values;
+
+pub use error::GatewayError;
+pub use service::{Gateway, ServedBus, check_sdo_allowed};

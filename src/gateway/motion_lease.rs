@@ -13,7 +13,7 @@
 //!
 //! This module is the table only, sans I/O: time is passed in, ids are
 //! made by the caller, and what lapsed is returned for the caller to stop
-//! (`crate::api::leases` does, on the drive).
+//! ([`super::leases`] does, on the drive).
 //!
 //! While a lease is held, the axis belongs to its holder: another client's
 //! move is refused (`lease_conflict`) unless it presents the lease. Whatever

@@ -18,49 +18,58 @@
 //!   ([`OVERSIZED_WRITE_ABORT`]).
 
 use crate::canopen::sdo::AbortCode;
-use crate::profiles::cia402::{HaltOption, QuickStopOption, StopKind};
+use crate::profiles::cia402::{HaltOption, Mode, QuickStopOption, StopKind, objects};
 
 /// 0x6040, controlword (UNSIGNED16, write only on this drive).
-pub const CONTROLWORD: u16 = 0x6040;
+pub const CONTROLWORD: u16 = objects::CONTROLWORD;
 /// 0x6041, statusword (UNSIGNED16).
-pub const STATUSWORD: u16 = 0x6041;
+pub const STATUSWORD: u16 = objects::STATUSWORD;
 /// 0x605A, quick stop code (INTEGER16), see [`StopCode`].
-pub const QUICK_STOP_CODE: u16 = 0x605A;
+pub const QUICK_STOP_CODE: u16 = objects::QUICK_STOP_OPTION;
 /// 0x605D, halt code (INTEGER16), see [`StopCode`].
-pub const HALT_CODE: u16 = 0x605D;
+pub const HALT_CODE: u16 = objects::HALT_OPTION;
 /// 0x6060, modes of operation (INTEGER8, write only), see [`JmcMode`].
-pub const MODES_OF_OPERATION: u16 = 0x6060;
+pub const MODES_OF_OPERATION: u16 = objects::MODES_OF_OPERATION;
 /// 0x6061, mode code response (INTEGER8).
-pub const MODE_DISPLAY: u16 = 0x6061;
+pub const MODE_DISPLAY: u16 = objects::MODES_OF_OPERATION_DISPLAY;
 /// 0x6064, position actual value (INTEGER32, steps).
-pub const POSITION_ACTUAL: u16 = 0x6064;
+pub const POSITION_ACTUAL: u16 = objects::POSITION_ACTUAL;
 /// 0x606C, velocity actual value (INTEGER32, 0.1 rps).
-pub const VELOCITY_ACTUAL: u16 = 0x606C;
+pub const VELOCITY_ACTUAL: u16 = objects::VELOCITY_ACTUAL;
 /// 0x607A, target position (INTEGER32, steps).
-pub const TARGET_POSITION: u16 = 0x607A;
+pub const TARGET_POSITION: u16 = objects::TARGET_POSITION;
 /// 0x607C, home offset (INTEGER32, steps).
-pub const HOME_OFFSET: u16 = 0x607C;
+pub const HOME_OFFSET: u16 = objects::HOME_OFFSET;
 /// 0x6081, target velocity of both position and velocity mode (INTEGER32,
 /// 0.1 rps; the drive has no 0x60FF).
-pub const TARGET_VELOCITY: u16 = 0x6081;
+pub const TARGET_VELOCITY: u16 = objects::PROFILE_VELOCITY;
 /// 0x6083, acceleration (UNSIGNED16, 0.1 rps/s).
-pub const ACCELERATION: u16 = 0x6083;
+pub const ACCELERATION: u16 = objects::PROFILE_ACCELERATION;
 /// 0x6084, deceleration (UNSIGNED16, 0.1 rps/s).
-pub const DECELERATION: u16 = 0x6084;
+pub const DECELERATION: u16 = objects::PROFILE_DECELERATION;
 /// 0x6085, quick stop deceleration (UNSIGNED16, 0.1 rps/s).
-pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
+pub const QUICK_STOP_DECELERATION: u16 = objects::QUICK_STOP_DECELERATION;
 /// 0x6098, homing method (INTEGER8, 0–12), see [`HomingMethod`].
-pub const HOMING_METHOD: u16 = 0x6098;
+pub const HOMING_METHOD: u16 = objects::HOMING_METHOD;
 /// 0x6099, homing speeds (UNSIGNED32, 0.1 rps): sub 1 the search for the
 /// mechanical origin, sub 2 the slow approach and the run to the zero.
-pub const HOMING_SPEEDS: u16 = 0x6099;
+pub const HOMING_SPEEDS: u16 = objects::HOMING_SPEEDS;
 /// 0x609A, homing acceleration (UNSIGNED16, 0.1 rps/s), used for every
 /// ramp of a homing run.
-pub const HOMING_ACCELERATION: u16 = 0x609A;
+pub const HOMING_ACCELERATION: u16 = objects::HOMING_ACCELERATION;
 /// 0x60C5, maximum acceleration (UNSIGNED32, 0.1 rps/s; 0: no limit).
-pub const MAX_ACCELERATION: u16 = 0x60C5;
+pub const MAX_ACCELERATION: u16 = objects::MAX_ACCELERATION;
 /// 0x60C6, maximum deceleration (UNSIGNED32, 0.1 rps/s; 0: no limit).
-pub const MAX_DECELERATION: u16 = 0x60C6;
+pub const MAX_DECELERATION: u16 = objects::MAX_DECELERATION;
+
+/// The CiA 402 modes the drive has over CANopen, by their CiA 402 names
+/// ([`JmcMode`] gives its numbers): position, velocity, homing. It has no
+/// 0x6502 to say so, and no torque.
+pub const CIA402_MODES: [Mode; 3] = [Mode::ProfilePosition, Mode::ProfileVelocity, Mode::Homing];
+
+/// The object a velocity move's target goes to: the drive has no 0x60FF,
+/// its 0x6081 is the target of both position and velocity mode.
+pub const VELOCITY_MOVE_TARGET: u16 = TARGET_VELOCITY;
 
 /// The drive's answer to a download longer than the 2-byte object it
 /// writes (an acceleration sent with command 0x23 instead of 0x2B):

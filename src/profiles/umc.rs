@@ -175,112 +175,114 @@ pub mod axis {
 /// Axis-1 CiA 402 objects (chapter 2) as the UMC has them, with the units
 /// of [`units`]; axis `n` at `+ 0x800 * (n - 1)` ([`axis_index`]).
 pub mod drive {
+    use crate::profiles::cia402::objects;
+
     /// 0x6007: INT16, Table 2.10.
-    pub const ABORT_CONNECTION_OPTION: u16 = 0x6007;
+    pub const ABORT_CONNECTION_OPTION: u16 = objects::ABORT_CONNECTION_OPTION;
     /// 0x6040: UINT16, Figure 2.4.
-    pub const CONTROLWORD: u16 = 0x6040;
+    pub const CONTROLWORD: u16 = objects::CONTROLWORD;
     /// 0x6041: UINT16, Tables 2.7 and 2.8.
-    pub const STATUSWORD: u16 = 0x6041;
+    pub const STATUSWORD: u16 = objects::STATUSWORD;
     /// 0x6042: INT16, velocity units.
-    pub const VL_TARGET: u16 = 0x6042;
+    pub const VL_TARGET: u16 = objects::VL_TARGET;
     /// 0x6043: INT16.
-    pub const VL_DEMAND: u16 = 0x6043;
+    pub const VL_DEMAND: u16 = objects::VL_DEMAND;
     /// 0x6044: INT16.
-    pub const VL_ACTUAL: u16 = 0x6044;
+    pub const VL_ACTUAL: u16 = objects::VL_ACTUAL;
     /// 0x6046: UINT32 sub 1 min, 2 max.
-    pub const VL_MIN_MAX: u16 = 0x6046;
+    pub const VL_MIN_MAX: u16 = objects::VL_MIN_MAX;
     /// 0x6048: sub 1 delta speed, sub 2 delta time (ms).
-    pub const VL_ACCELERATION: u16 = 0x6048;
+    pub const VL_ACCELERATION: u16 = objects::VL_ACCELERATION;
     /// 0x6049: as 0x6048.
-    pub const VL_DECELERATION: u16 = 0x6049;
+    pub const VL_DECELERATION: u16 = objects::VL_DECELERATION;
     /// 0x604A: as 0x6048.
-    pub const VL_QUICK_STOP: u16 = 0x604A;
+    pub const VL_QUICK_STOP: u16 = objects::VL_QUICK_STOP;
     /// 0x604B: INT16 sub 1 numerator, 2 denominator.
-    pub const VL_SET_POINT_FACTOR: u16 = 0x604B;
+    pub const VL_SET_POINT_FACTOR: u16 = objects::VL_SET_POINT_FACTOR;
     /// 0x604C: INT32 sub 1 numerator, 2 denominator: increments/ms per unit.
-    pub const VL_DIMENSION_FACTOR: u16 = 0x604C;
+    pub const VL_DIMENSION_FACTOR: u16 = objects::VL_DIMENSION_FACTOR;
     /// 0x605A: INT16, Table 2.11.
-    pub const QUICK_STOP_OPTION: u16 = 0x605A;
+    pub const QUICK_STOP_OPTION: u16 = objects::QUICK_STOP_OPTION;
     /// 0x605B: INT16, Table 2.12.
-    pub const SHUTDOWN_OPTION: u16 = 0x605B;
+    pub const SHUTDOWN_OPTION: u16 = objects::SHUTDOWN_OPTION;
     /// 0x605C: INT16, Table 2.13.
-    pub const DISABLE_OPERATION_OPTION: u16 = 0x605C;
+    pub const DISABLE_OPERATION_OPTION: u16 = objects::DISABLE_OPERATION_OPTION;
     /// 0x605D: INT16, Table 2.14.
-    pub const HALT_OPTION: u16 = 0x605D;
+    pub const HALT_OPTION: u16 = objects::HALT_OPTION;
     /// 0x605E: INT16, Table 2.15.
-    pub const FAULT_REACTION_OPTION: u16 = 0x605E;
+    pub const FAULT_REACTION_OPTION: u16 = objects::FAULT_REACTION_OPTION;
     /// 0x6060: INT8, Figure 2.5.
-    pub const MODES_OF_OPERATION: u16 = 0x6060;
+    pub const MODES_OF_OPERATION: u16 = objects::MODES_OF_OPERATION;
     /// 0x6061: INT8.
-    pub const MODES_OF_OPERATION_DISPLAY: u16 = 0x6061;
+    pub const MODES_OF_OPERATION_DISPLAY: u16 = objects::MODES_OF_OPERATION_DISPLAY;
     /// 0x6062: INT32, increments.
-    pub const POSITION_DEMAND: u16 = 0x6062;
+    pub const POSITION_DEMAND: u16 = objects::POSITION_DEMAND;
     /// 0x6063: INT32, increments.
-    pub const POSITION_ACTUAL_INTERNAL: u16 = 0x6063;
+    pub const POSITION_ACTUAL_INTERNAL: u16 = objects::POSITION_ACTUAL_INTERNAL;
     /// 0x6064: INT32, increments.
-    pub const POSITION_ACTUAL: u16 = 0x6064;
+    pub const POSITION_ACTUAL: u16 = objects::POSITION_ACTUAL;
     /// 0x6065: UINT32, increments; 0xFFFFFFFF switches detection off.
-    pub const FOLLOWING_ERROR_WINDOW: u16 = 0x6065;
+    pub const FOLLOWING_ERROR_WINDOW: u16 = objects::FOLLOWING_ERROR_WINDOW;
     /// 0x6066: UINT16, ms.
-    pub const FOLLOWING_ERROR_TIME_OUT: u16 = 0x6066;
+    pub const FOLLOWING_ERROR_TIME_OUT: u16 = objects::FOLLOWING_ERROR_TIME_OUT;
     /// 0x6067: UINT32, increments.
-    pub const POSITION_WINDOW: u16 = 0x6067;
+    pub const POSITION_WINDOW: u16 = objects::POSITION_WINDOW;
     /// 0x6068: UINT16, ms.
-    pub const POSITION_WINDOW_TIME: u16 = 0x6068;
+    pub const POSITION_WINDOW_TIME: u16 = objects::POSITION_WINDOW_TIME;
     /// 0x606B: INT32, increments/ms.
-    pub const VELOCITY_DEMAND: u16 = 0x606B;
+    pub const VELOCITY_DEMAND: u16 = objects::VELOCITY_DEMAND;
     /// 0x606C: INT32, increments/ms.
-    pub const VELOCITY_ACTUAL: u16 = 0x606C;
+    pub const VELOCITY_ACTUAL: u16 = objects::VELOCITY_ACTUAL;
     /// 0x6071: INT16, per mille of rated torque.
-    pub const TQ_TARGET: u16 = 0x6071;
+    pub const TQ_TARGET: u16 = objects::TQ_TARGET;
     /// 0x6072: UINT16, per mille of rated torque.
-    pub const TQ_MAX: u16 = 0x6072;
+    pub const TQ_MAX: u16 = objects::TQ_MAX;
     /// 0x6073: UINT16, per mille of rated current (0: the peak current).
-    pub const MAX_CURRENT: u16 = 0x6073;
+    pub const MAX_CURRENT: u16 = objects::MAX_CURRENT;
     /// 0x6074: INT16, per mille of rated torque.
-    pub const TQ_DEMAND: u16 = 0x6074;
+    pub const TQ_DEMAND: u16 = objects::TQ_DEMAND;
     /// 0x6075: UINT32, mA (0: the sustained current 0x4007.5).
-    pub const RATED_CURRENT: u16 = 0x6075;
+    pub const RATED_CURRENT: u16 = objects::RATED_CURRENT;
     /// 0x6077: INT16, per mille of rated torque.
-    pub const TQ_ACTUAL: u16 = 0x6077;
+    pub const TQ_ACTUAL: u16 = objects::TQ_ACTUAL;
     /// 0x6078: INT16, per mille of rated current.
-    pub const CURRENT_ACTUAL: u16 = 0x6078;
+    pub const CURRENT_ACTUAL: u16 = objects::CURRENT_ACTUAL;
     /// 0x6079: UINT32, mV.
-    pub const DC_LINK_VOLTAGE: u16 = 0x6079;
+    pub const DC_LINK_VOLTAGE: u16 = objects::DC_LINK_VOLTAGE;
     /// 0x607A: INT32, increments.
-    pub const TARGET_POSITION: u16 = 0x607A;
+    pub const TARGET_POSITION: u16 = objects::TARGET_POSITION;
     /// 0x607D: INT32 sub 1 min, 2 max; both 0 switch them off.
-    pub const SOFTWARE_POSITION_LIMIT: u16 = 0x607D;
+    pub const SOFTWARE_POSITION_LIMIT: u16 = objects::SOFTWARE_POSITION_LIMIT;
     /// 0x607F: UINT32, increments/ms.
-    pub const MAX_PROFILE_VELOCITY: u16 = 0x607F;
+    pub const MAX_PROFILE_VELOCITY: u16 = objects::MAX_PROFILE_VELOCITY;
     /// 0x6080: UINT32, increments/ms.
-    pub const MAX_MOTOR_SPEED: u16 = 0x6080;
+    pub const MAX_MOTOR_SPEED: u16 = objects::MAX_MOTOR_SPEED;
     /// 0x6081: UINT32, increments/ms.
-    pub const PROFILE_VELOCITY: u16 = 0x6081;
+    pub const PROFILE_VELOCITY: u16 = objects::PROFILE_VELOCITY;
     /// 0x6083: UINT32, increments/ms².
-    pub const PROFILE_ACCELERATION: u16 = 0x6083;
+    pub const PROFILE_ACCELERATION: u16 = objects::PROFILE_ACCELERATION;
     /// 0x6084: UINT32, increments/ms².
-    pub const PROFILE_DECELERATION: u16 = 0x6084;
+    pub const PROFILE_DECELERATION: u16 = objects::PROFILE_DECELERATION;
     /// 0x6085: UINT32, increments/ms².
-    pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
+    pub const QUICK_STOP_DECELERATION: u16 = objects::QUICK_STOP_DECELERATION;
     /// 0x6087: UINT32, per mille of rated torque per second.
-    pub const TQ_SLOPE: u16 = 0x6087;
+    pub const TQ_SLOPE: u16 = objects::TQ_SLOPE;
     /// 0x60C1: INT32 sub 1: a set-point into the FIFO.
-    pub const IP_DATA_RECORD: u16 = 0x60C1;
+    pub const IP_DATA_RECORD: u16 = objects::IP_DATA_RECORD;
     /// 0x60C2: sub 1 units (UINT8), sub 2 index (INT8): units × 10^index s.
-    pub const IP_TIME_PERIOD: u16 = 0x60C2;
+    pub const IP_TIME_PERIOD: u16 = objects::IP_TIME_PERIOD;
     /// 0x60C4: sub 1 maximum, 2 actual buffer size, 6 buffer clear (0 clears).
-    pub const IP_DATA_CONFIGURATION: u16 = 0x60C4;
+    pub const IP_DATA_CONFIGURATION: u16 = objects::IP_DATA_CONFIGURATION;
     /// 0x60C5: UINT32, increments/ms².
-    pub const MAX_ACCELERATION: u16 = 0x60C5;
+    pub const MAX_ACCELERATION: u16 = objects::MAX_ACCELERATION;
     /// 0x60C6: UINT32, increments/ms².
-    pub const MAX_DECELERATION: u16 = 0x60C6;
+    pub const MAX_DECELERATION: u16 = objects::MAX_DECELERATION;
     /// 0x60F4: INT32, increments.
-    pub const FOLLOWING_ERROR_ACTUAL: u16 = 0x60F4;
+    pub const FOLLOWING_ERROR_ACTUAL: u16 = objects::FOLLOWING_ERROR_ACTUAL;
     /// 0x60FA: INT32: the velocity loop's command, increments/ms.
-    pub const CONTROL_EFFORT: u16 = 0x60FA;
+    pub const CONTROL_EFFORT: u16 = objects::CONTROL_EFFORT;
     /// 0x6502: UINT32, Figure 2.6.
-    pub const SUPPORTED_DRIVE_MODES: u16 = 0x6502;
+    pub const SUPPORTED_DRIVE_MODES: u16 = objects::SUPPORTED_DRIVE_MODES;
 }
 
 /// The units the virtual UMC gives its user-defined units (the manual

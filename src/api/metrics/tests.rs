@@ -455,7 +455,7 @@ async fn an_object_the_node_lacks_counts_an_abort() {
 #[tokio::test(start_paused = true)]
 async fn a_bus_that_goes_down_shows_as_down() {
     let (app, state) = demo().await;
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     served
         .hub
         .as_ref()

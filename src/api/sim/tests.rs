@@ -74,7 +74,7 @@ async fn a_device_added_to_an_empty_bus_boots_and_is_found() {
 #[tokio::test(start_paused = true)]
 async fn a_removed_device_falls_silent_and_its_id_is_free_again() {
     let (app, state) = buses().await;
-    state.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.buses["demo"].registry.scan().await.unwrap();
     let (status, body) = delete(&app, "/api/v1/buses/demo/sim/nodes/3", None).await;
     assert_eq!((status, body), (StatusCode::NO_CONTENT, Json::Null));
     let (_, list) = get(&app, "/api/v1/buses/demo/sim/nodes").await;
@@ -105,7 +105,7 @@ async fn a_removed_device_falls_silent_and_its_id_is_free_again() {
 #[tokio::test(start_paused = true)]
 async fn an_injected_fault_is_an_emcy_and_clears() {
     let (app, state) = buses().await;
-    state.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.buses["demo"].registry.scan().await.unwrap();
     let uri = "/api/v1/buses/demo/sim/nodes/1/faults";
     let (status, _) = post(&app, uri, r#"{"kind": "over_temperature"}"#).await;
     assert_eq!(status, StatusCode::NO_CONTENT);

@@ -490,7 +490,7 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
 async fn a_drive_in_fault_is_409_until_reset() {
     let (app, state) = demo().await;
     enable(&app, UMC, 1).await;
-    let rack = state.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
     let umc = NodeId::new(UMC).unwrap();
     rack.inject_fault(umc, Fault::OverTemperature).unwrap();
     let status = wait_for(&app, UMC, 1, 2000, |s| s["state"] == "fault").await;
@@ -582,7 +582,7 @@ async fn a_fault_during_a_move_ends_it_with_the_error() {
         })
     };
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let rack = state.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -634,7 +634,7 @@ async fn pending_mode_change(app: &Router) -> tokio::task::JoinHandle<(StatusCod
 async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
     let (app, state) = demo().await;
     let request = pending_mode_change(&app).await;
-    let rack = state.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -684,7 +684,7 @@ async fn jmc_halt_keeps_the_rest_of_its_write_only_controlword() {
 #[tokio::test(start_paused = true)]
 async fn the_node_summary_lists_a_drives_axes() {
     let (_, state) = demo().await;
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     for (node, axes) in [(UMC, 2), (JMC, 1), (LED, 0)] {
         let info = served.registry.node(NodeId::new(node).unwrap()).unwrap();
         let summary = crate::gateway::drive::axes_summary(&served.registry, &info)
@@ -781,7 +781,7 @@ fn stuck_cia402_drive(node: u8, statusword: &str, mode: &str) -> crate::sim::dev
 #[tokio::test(start_paused = true)]
 async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() {
     let (app, state) = demo().await;
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     served
         .rack
         .as_ref()
@@ -876,7 +876,7 @@ async fn a_client_that_hangs_up_mid_interpolated_move_gets_its_axis_halted() {
 #[tokio::test(start_paused = true)]
 async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
     let (app, state) = demo().await;
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     // Operation enabled in profile position, but it never acknowledges a
     // set-point: the target is written, then the wait for bit 12 fails.
     served
@@ -918,7 +918,7 @@ async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
 async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() {
     let (app, state) = demo().await;
     let jmc = NodeId::new(2).unwrap();
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     let period = served.registry.node(jmc).unwrap().heartbeat_ms.unwrap();
     served.rack.as_ref().unwrap().unplug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;

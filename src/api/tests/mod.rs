@@ -105,7 +105,7 @@ fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
 }
 
 fn tx_frames(state: &AppState) -> u64 {
-    state.buses["demo"].bus.counters().tx_frames
+    state.gateway.buses["demo"].bus.counters().tx_frames
 }
 
 #[tokio::test(start_paused = true)]
@@ -493,7 +493,7 @@ async fn od_listing_comes_from_the_eds_and_filters() {
 #[tokio::test(start_paused = true)]
 async fn silent_device_is_504_and_bus_down_503() {
     let (app, state) = demo().await;
-    let served = &state.buses["demo"];
+    let served = &state.gateway.buses["demo"];
     served
         .rack
         .as_ref()
@@ -633,7 +633,7 @@ async fn one_node_has_its_profile_summary() {
 #[tokio::test(start_paused = true)]
 async fn a_node_heard_only_booting_takes_sdo() {
     let (app, state) = demo().await;
-    let rack = state.buses["demo"].rack.clone().unwrap();
+    let rack = state.gateway.buses["demo"].rack.clone().unwrap();
     rack.add(
         crate::sim::products::Product::Uio1led,
         NodeId::new(9).unwrap(),

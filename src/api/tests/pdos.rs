@@ -57,7 +57,7 @@ async fn demo() -> (Router, AppState) {
 }
 
 fn tx_frames(state: &AppState) -> u64 {
-    state.buses["demo"].bus.counters().tx_frames
+    state.gateway.buses["demo"].bus.counters().tx_frames
 }
 
 async fn od_value(app: &Router, node: u8, index: &str) -> Json {
@@ -174,7 +174,7 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
 
     // Operational, with SYNC every 10 ms: TPDO1 (type 1) goes at each.
     nmt(&app, 1, "start").await;
-    let served = state.buses["demo"].clone();
+    let served = state.gateway.buses["demo"].clone();
     let mut monitor = served.bus.monitor();
     let (status, sync) = put(&app, "/api/v1/buses/demo/sync", json!({"period_ms": 10})).await;
     assert_eq!(status, StatusCode::OK, "{sync}");
@@ -473,9 +473,9 @@ async fn an_rpdo_sets_the_values_on_the_device() {
         assert_error(&response, StatusCode::BAD_REQUEST, code);
     }
     // The mapping was read (SDO), but no RPDO went out.
-    let sent_rpdo = state.buses["demo"].bus.counters().tx_frames - before;
+    let sent_rpdo = state.gateway.buses["demo"].bus.counters().tx_frames - before;
     assert!(sent_rpdo > 0);
-    let mut monitor = state.buses["demo"].bus.monitor();
+    let mut monitor = state.gateway.buses["demo"].bus.monitor();
     let (status, sent) = post(
         &app,
         uri,

@@ -196,7 +196,7 @@ async fn requests_are_acknowledged_and_bad_ones_get_the_apis_error_codes() {
 async fn an_unplugged_node_goes_offline_within_two_heartbeat_periods_and_comes_back() {
     let (app, state) = demo().await;
     // The JMC is the demo device that sends heartbeats (its EDS's 0x1017).
-    let jmc = state.buses["demo"]
+    let jmc = state.gateway.buses["demo"]
         .registry
         .node(2.try_into().unwrap())
         .unwrap();
@@ -265,7 +265,7 @@ async fn an_injected_fault_arrives_as_an_emcy_with_its_code_and_text() {
 /// Sends `count` frames with id 0x555 in bursts, letting the gateway's
 /// tasks run between them.
 async fn traffic(state: &AppState, count: usize) {
-    let bus = &state.buses["demo"].bus;
+    let bus = &state.gateway.buses["demo"].bus;
     for n in 0..count {
         let frame = Frame::new(CanId::standard(0x555).unwrap(), &(n as u32).to_le_bytes()).unwrap();
         bus.send(frame).await.unwrap();

@@ -27,7 +27,7 @@ fn node(id: u8) -> NodeId {
 }
 
 fn demo_bus(state: &AppState) -> Arc<ServedBus> {
-    state.buses["demo"].clone()
+    state.gateway.buses["demo"].clone()
 }
 
 async fn enable_and_run(app: &Router, body: Json) {

@@ -22,10 +22,12 @@
 //!   drive sees them, and the [`Reaction`] each asks of the drive.
 //! - [`plan`](mod@plan): [`plan()`] and [`expected_state`], the master's walk.
 //! - [`mode`]: [`Mode`], 0x6060/0x6061 (Figure 2.5) and 0x6502 (Figure 2.6).
+//! - [`objects`]: the one table of the CiA 402 object indexes.
 
 pub mod command;
 pub mod drive;
 pub mod mode;
+pub mod objects;
 pub mod options;
 pub mod plan;
 pub mod state;

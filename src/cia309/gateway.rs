@@ -1,24 +1,24 @@
-//! What a CiA 309 request does, through the same gateway as REST (CiA
-//! 309-1 §5, the services a gateway offers): SDO transfers on the node's
-//! shared channel ([`crate::gateway::sdo::SdoChannel`], the per-node queue
-//! REST uses), NMT through REST's own sender, the same checks (a node the
-//! registry does not know, a stopped node, a bus that is down), and an
-//! audit entry in the history for every write and NMT command, whatever
-//! its outcome.
+//! What a CiA 309 request does, through the same gateway service as REST
+//! (CiA 309-1 §5, the services a gateway offers): SDO transfers on the
+//! node's shared channel ([`crate::gateway::sdo::SdoChannel`], the per-node
+//! queue REST uses), NMT through the service's sender, the same checks (a
+//! node the registry does not know, a stopped node, a bus that is down),
+//! and an audit entry in the history for every write and NMT command,
+//! whatever its outcome.
 //!
-//! Used by the CiA 309-3 connections ([`super::serve`]) and the CiA 309-5
-//! routes ([`crate::api::cia309_5`]).
+//! Used by the CiA 309-3 connections (`candeck ascii`, `--ascii-listen`)
+//! and the CiA 309-5 routes of the HTTP server.
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::api::auth::{Guard, Role};
-use crate::api::{AppError, AppState, ServedBus};
 use crate::can::Timestamp;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::{AbortCode, ClientConfig};
+use crate::gateway::access::{Role, Tokens};
 use crate::gateway::history::{AuditEntry, History};
+use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed};
 
 use super::command::Nmt;
 use super::reply::ErrorCode;
@@ -65,17 +65,17 @@ pub enum Failure {
 }
 
 impl Failure {
-    /// A REST error as CiA 309 says it.
-    fn of(error: &AppError) -> Self {
+    /// A gateway error as CiA 309 says it.
+    pub fn of(error: &GatewayError) -> Self {
         match error {
-            AppError::SdoAbort { code, .. } => Self::Abort(*code),
-            AppError::SdoProtocol { code, .. } => Self::Abort(*code),
-            AppError::SdoTimeout { .. } => Self::Abort(AbortCode::from_raw(0x0504_0000)),
-            AppError::WrongNmtState { .. } => Self::Error(ErrorCode::WrongNmtState),
-            AppError::UnknownNode { .. } | AppError::InvalidRequest(_) => {
+            GatewayError::SdoAbort { code, .. } => Self::Abort(*code),
+            GatewayError::SdoProtocol { code, .. } => Self::Abort(*code),
+            GatewayError::SdoTimeout { .. } => Self::Abort(AbortCode::from_raw(0x0504_0000)),
+            GatewayError::WrongNmtState { .. } => Self::Error(ErrorCode::WrongNmtState),
+            GatewayError::UnknownNode { .. } | GatewayError::InvalidRequest(_) => {
                 Self::Error(ErrorCode::UnsupportedNode)
             }
-            AppError::UnknownBus(_) => Self::Error(ErrorCode::UnsupportedNet),
+            GatewayError::UnknownBus(_) => Self::Error(ErrorCode::UnsupportedNet),
             _ => Self::Error(ErrorCode::InternalState),
         }
     }
@@ -126,27 +126,33 @@ pub struct Origin<'a> {
     pub path: &'a str,
 }
 
-/// The buses by CiA 309 net number, and the history.
+/// The gateway service's buses by CiA 309 net number, and its history.
 #[derive(Clone)]
-pub struct Gateway {
+pub struct Cia309Gateway {
     buses: Arc<Vec<Arc<ServedBus>>>,
     history: History,
-    /// The tokens and roles of the REST API: the same apply here.
-    guard: Arc<Guard>,
+    /// The gateway's tokens and roles: the same as REST's.
+    tokens: Arc<Tokens>,
 }
 
-impl Gateway {
-    pub fn new(state: &AppState) -> Self {
+impl Cia309Gateway {
+    pub fn new(gateway: &Gateway) -> Self {
         Self {
-            buses: Arc::new(state.buses_in_order()),
-            history: state.history.clone(),
-            guard: state.guard.clone(),
+            buses: Arc::new(gateway.buses_in_order()),
+            history: gateway.history.clone(),
+            tokens: gateway.tokens.clone(),
         }
     }
 
     /// The gateway's tokens and roles.
-    pub fn guard(&self) -> &Guard {
-        &self.guard
+    pub fn tokens(&self) -> &Tokens {
+        &self.tokens
+    }
+
+    /// Whether a client holding `held` may send a command that needs
+    /// `needed` (anyone may on an open gateway).
+    pub fn allows(&self, held: Option<Role>, needed: Role) -> bool {
+        self.tokens.allows(held, needed)
     }
 
     /// How many nets there are (1 to this).
@@ -187,15 +193,15 @@ impl Gateway {
         index: u16,
         sub: u8,
         options: TransferOptions,
-    ) -> Result<Vec<u8>, AppError> {
+    ) -> Result<Vec<u8>, GatewayError> {
         let (_, channel) = self.channel(net, node)?;
         let config = options.apply(channel.config());
         // In a task of its own, as REST does: a client that goes away
         // mid-transfer does not cut it halfway.
         tokio::spawn(async move { channel.upload_with(index, sub, config.as_ref()).await })
             .await
-            .map_err(|err| AppError::Internal(format!("SDO task: {err}")))?
-            .map_err(AppError::from_sdo)
+            .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
+            .map_err(GatewayError::from)
     }
 
     /// Writes an object, and audits it.
@@ -233,7 +239,7 @@ impl Gateway {
         sub: u8,
         data: Vec<u8>,
         options: TransferOptions,
-    ) -> Result<(), AppError> {
+    ) -> Result<(), GatewayError> {
         let (_, channel) = self.channel(net, node)?;
         let config = options.apply(channel.config());
         tokio::spawn(async move {
@@ -242,8 +248,8 @@ impl Gateway {
                 .await
         })
         .await
-        .map_err(|err| AppError::Internal(format!("SDO task: {err}")))?
-        .map_err(AppError::from_sdo)
+        .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
+        .map_err(GatewayError::from)
     }
 
     /// Sends an NMT command (node 0: every node), and audits it.
@@ -280,39 +286,39 @@ impl Gateway {
         result.map_err(|error| Failure::of(&error))
     }
 
-    async fn send_nmt(&self, net: u16, node: u8, command: NmtCommand) -> Result<(), AppError> {
+    async fn send_nmt(&self, net: u16, node: u8, command: NmtCommand) -> Result<(), GatewayError> {
         let served = self
             .bus(net)
-            .ok_or_else(|| AppError::UnknownBus(net.to_string()))?;
+            .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?;
         let target = if node == 0 {
             NmtTarget::All
         } else {
             NmtTarget::Node(
-                NodeId::new(node).map_err(|err| AppError::InvalidRequest(err.to_string()))?,
+                NodeId::new(node).map_err(|err| GatewayError::InvalidRequest(err.to_string()))?,
             )
         };
-        crate::api::nodes::send_nmt(served, command, target).await
+        served.send_nmt(command, target).await
     }
 
-    /// The node's shared SDO channel, after REST's checks.
+    /// The node's shared SDO channel, after the gateway's checks.
     fn channel(
         &self,
         net: u16,
         node: u8,
-    ) -> Result<(Arc<ServedBus>, crate::gateway::sdo::SdoChannel), AppError> {
+    ) -> Result<(Arc<ServedBus>, crate::gateway::sdo::SdoChannel), GatewayError> {
         let served = self
             .bus(net)
-            .ok_or_else(|| AppError::UnknownBus(net.to_string()))?
+            .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?
             .clone();
-        let id = NodeId::new(node).map_err(|err| AppError::InvalidRequest(err.to_string()))?;
+        let id = NodeId::new(node).map_err(|err| GatewayError::InvalidRequest(err.to_string()))?;
         let info = served
             .registry
             .node(id)
-            .ok_or_else(|| AppError::UnknownNode {
+            .ok_or_else(|| GatewayError::UnknownNode {
                 bus: served.name.clone(),
                 node: node.to_string(),
             })?;
-        crate::api::od::check_sdo_allowed(&served, &info)?;
+        check_sdo_allowed(&served, &info)?;
         let channel = served.registry.sdo(id)?;
         Ok((served, channel))
     }
@@ -321,12 +327,12 @@ impl Gateway {
     /// of a token), as the REST API's guard records its 401 and 403.
     pub async fn audit_refused(&self, origin: Origin<'_>, net: u16, node: Option<u8>, what: &str) {
         let error = if origin.identity.access.is_some() {
-            AppError::Forbidden(format!(
+            GatewayError::Forbidden(format!(
                 "{what} needs a higher role than {}",
                 origin.identity.role
             ))
         } else {
-            AppError::Unauthenticated(format!("{what} needs a token: send 'auth TOKEN' first"))
+            GatewayError::Unauthenticated(format!("{what} needs a token: send 'auth TOKEN' first"))
         };
         let operation = format!("{what} (refused)");
         self.audit(&origin, net, node, &operation, None, None, Some(&error))
@@ -342,16 +348,20 @@ impl Gateway {
         operation: &str,
         item: Option<String>,
         request: Option<String>,
-        error: Option<&AppError>,
+        error: Option<&GatewayError>,
     ) {
         let (status, error_code, abort_code) = match error {
             None => (200, None, None),
             Some(error) => {
-                let body = error.to_json();
+                if let GatewayError::Internal(detail) = error {
+                    tracing::error!("cia309: {detail}");
+                }
                 (
-                    error.status().as_u16(),
-                    body["code"].as_str().map(str::to_string),
-                    body["abort_code"].as_str().map(str::to_string),
+                    error.audit_status(),
+                    Some(error.code().to_string()),
+                    error
+                        .abort_code()
+                        .map(|code| format!("0x{:08X}", code.raw())),
                 )
             }
         };

@@ -1,0 +1,133 @@
+use super::*;
+use crate::canopen::nmt::NmtState;
+
+/// Every variant of [`GatewayError`], by number (no wildcard: a new
+/// variant does not compile until it is numbered here, and then the test
+/// below wants a sample of it).
+fn variant(error: &GatewayError) -> usize {
+    match error {
+        GatewayError::InvalidRequest(_) => 0,
+        GatewayError::InvalidValue(_) => 1,
+        GatewayError::ValueOutOfRange(_) => 2,
+        GatewayError::UnknownBus(_) => 3,
+        GatewayError::UnknownNode { .. } => 4,
+        GatewayError::WrongNmtState { .. } => 5,
+        GatewayError::SdoAbort { .. } => 6,
+        GatewayError::SdoProtocol { .. } => 7,
+        GatewayError::SdoTimeout { .. } => 8,
+        GatewayError::BusDown(_) => 9,
+        GatewayError::NodeOffline(_) => 10,
+        GatewayError::NotADrive(_) => 11,
+        GatewayError::UnknownAxis(_) => 12,
+        GatewayError::DriveFault { .. } => 13,
+        GatewayError::DriveNotEnabled { .. } => 14,
+        GatewayError::ModeNotSupported(_) => 15,
+        GatewayError::StateChangeTimeout { .. } => 16,
+        GatewayError::LeaseConflict(_) => 17,
+        GatewayError::UnknownLease(_) => 18,
+        GatewayError::Unauthenticated(_) => 19,
+        GatewayError::Forbidden(_) => 20,
+        GatewayError::Internal(_) => 21,
+    }
+}
+
+const VARIANTS: usize = 22;
+
+fn samples() -> Vec<GatewayError> {
+    let text = || "text".to_string();
+    let abort = AbortCode::from_raw(0x0609_0011);
+    vec![
+        GatewayError::InvalidRequest(text()),
+        GatewayError::InvalidValue(text()),
+        GatewayError::ValueOutOfRange(text()),
+        GatewayError::UnknownBus("can9".to_string()),
+        GatewayError::UnknownNode {
+            bus: "demo".to_string(),
+            node: "9".to_string(),
+        },
+        GatewayError::WrongNmtState {
+            node: 3,
+            state: NmtState::Stopped,
+        },
+        GatewayError::SdoAbort {
+            node: 3,
+            code: abort,
+        },
+        GatewayError::SdoProtocol {
+            node: 3,
+            code: AbortCode::from_raw(0x0504_0001),
+            detail: text(),
+        },
+        GatewayError::SdoTimeout { node: 3 },
+        GatewayError::BusDown(text()),
+        GatewayError::NodeOffline(text()),
+        GatewayError::NotADrive(text()),
+        GatewayError::UnknownAxis(text()),
+        GatewayError::DriveFault {
+            message: text(),
+            state: "fault".to_string(),
+        },
+        GatewayError::DriveNotEnabled {
+            message: text(),
+            state: "switched_on".to_string(),
+        },
+        GatewayError::ModeNotSupported(text()),
+        GatewayError::StateChangeTimeout {
+            message: text(),
+            state: "ready_to_switch_on".to_string(),
+        },
+        GatewayError::LeaseConflict(text()),
+        GatewayError::UnknownLease(text()),
+        GatewayError::Unauthenticated(text()),
+        GatewayError::Forbidden(text()),
+        GatewayError::Internal(text()),
+    ]
+}
+
+/// The audit log records a gateway error (a CiA 309 request, a lapsed
+/// lease) with the status and code REST answers the same error with.
+#[test]
+fn the_gateway_errors_audit_as_rest_answers_them() {
+    let samples = samples();
+    let mut seen: Vec<usize> = samples.iter().map(variant).collect();
+    seen.sort_unstable();
+    seen.dedup();
+    assert_eq!(
+        seen,
+        (0..VARIANTS).collect::<Vec<_>>(),
+        "a variant has no sample"
+    );
+    for error in samples {
+        let rest = AppError::from(error.clone());
+        let body = rest.to_json();
+        assert_eq!(
+            (error.audit_status(), error.code()),
+            (rest.status().as_u16(), body["code"].as_str().unwrap()),
+            "{error:?}"
+        );
+        assert_eq!(
+            error
+                .abort_code()
+                .map(|code| format!("0x{:08X}", code.raw())),
+            body["abort_code"].as_str().map(str::to_string),
+            "{error:?}"
+        );
+    }
+}
+
+/// The REST messages are the gateway's, but for the hint of where to look
+/// for a node the registry does not know.
+#[test]
+fn rest_keeps_the_gateway_s_message() {
+    for error in samples() {
+        let rest = AppError::from(error.clone());
+        match error {
+            GatewayError::UnknownNode { .. } => assert_eq!(
+                rest.to_string(),
+                "node 9 is not known on bus demo (try POST /api/v1/buses/demo/scan)"
+            ),
+            GatewayError::Internal(_) => assert_eq!(rest.to_string(), "internal error"),
+            _ => assert_eq!(rest.to_string(), error.to_string()),
+        }
+    }
+}

@@ -1,0 +1,352 @@
+//! What `candeck serve` runs with: the config file (`--config`, TOML or
+//! JSON), merged under the command line's flags, the tokens of the file
+//! and of the environment, and the checks of the whole.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit};
+use crate::can::VirtualHub;
+use crate::can::spec::BusSpec;
+use crate::gateway::ServedBus;
+use crate::gateway::access::Token;
+use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Retention};
+use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
+
+use super::args::*;
+
+/// One token of the config file.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct TokenEntry {
+    pub(super) name: String,
+    pub(super) role: String,
+    pub(super) token: String,
+}
+
+/// The settings of a config file (`--config`).
+#[derive(Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ConfigFile {
+    pub(super) listen: Option<SocketAddr>,
+    #[serde(default)]
+    pub(super) buses: Vec<NamedBus>,
+    pub(super) eds_dir: Option<PathBuf>,
+    pub(super) data_dir: Option<PathBuf>,
+    pub(super) bitrate: Option<u32>,
+    #[serde(default)]
+    pub(super) share: Vec<Share>,
+    pub(super) axis_poll_hz: Option<f64>,
+    pub(super) retention_days: Option<u32>,
+    pub(super) retention_rows: Option<u64>,
+    pub(super) lease_ms: Option<u64>,
+    pub(super) ascii_listen: Option<SocketAddr>,
+    #[serde(default)]
+    pub(super) tokens: Vec<TokenEntry>,
+    #[serde(default)]
+    pub(super) cors_origins: Vec<String>,
+    pub(super) write_rate: Option<f64>,
+    pub(super) write_burst: Option<u32>,
+    pub(super) body_limit: Option<usize>,
+    pub(super) dcf_body_limit: Option<usize>,
+    pub(super) sync_period_ms: Option<u32>,
+    pub(super) insecure: Option<bool>,
+}
+
+impl ConfigFile {
+    /// Reads `path`: JSON when named `*.json`, TOML otherwise. The error
+    /// names the file and the line.
+    pub(super) fn read(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|err| format!("config {}: {err}", path.display()))?;
+        let is_json = path
+            .extension()
+            .is_some_and(|ext| ext.eq_ignore_ascii_case("json"));
+        let mut config: Self = if is_json {
+            serde_json::from_str(&text)
+                .map_err(|err| format!("config {}: {err}", path.display()))?
+        } else {
+            toml::from_str(&text).map_err(|err| {
+                // toml's message is several lines (the line quoted, a
+                // caret); one line for the terminal: where, then what.
+                let message = err.message();
+                match err.span().map(|span| line_column(&text, span.start)) {
+                    Some((line, column)) => format!(
+                        "config {}: line {line}, column {column}: {message}",
+                        path.display()
+                    ),
+                    None => format!("config {}: {message}", path.display()),
+                }
+            })?
+        };
+        if let Some(hz) = config.axis_poll_hz {
+            check_poll_hz(hz)
+                .map_err(|err| format!("config {}: axis_poll_hz {err}", path.display()))?;
+        }
+        if let Some(ms) = config.lease_ms {
+            check_lease_ms(ms)
+                .map_err(|err| format!("config {}: lease_ms {err}", path.display()))?;
+        }
+        if let Some(ms) = config.sync_period_ms {
+            check_sync_period_ms(u64::from(ms))
+                .map_err(|err| format!("config {}: sync_period_ms {err}", path.display()))?;
+        }
+        if config.bitrate == Some(0) {
+            return Err(format!(
+                "config {}: bitrate 0: a bit rate is at least 1",
+                path.display()
+            ));
+        }
+        // Relative paths are the file's: the same wherever candeck starts.
+        let base = path.parent().unwrap_or(Path::new(""));
+        for dir in [&mut config.eds_dir, &mut config.data_dir]
+            .into_iter()
+            .flatten()
+        {
+            if dir.is_relative() {
+                *dir = base.join(&*dir);
+            }
+        }
+        Ok(config)
+    }
+}
+
+/// The 1-based line and column of byte `offset` of `text`.
+pub(super) fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before.len() - before.rfind('\n').map_or(0, |at| at + 1) + 1;
+    (line, column)
+}
+
+/// What `candeck serve` runs with: the command line over the config file
+/// over the defaults.
+#[derive(Debug)]
+pub(super) struct Settings {
+    pub(super) listen: SocketAddr,
+    pub(super) buses: Vec<NamedBus>,
+    pub(super) eds_dir: Option<PathBuf>,
+    pub(super) data_dir: Option<PathBuf>,
+    pub(super) bitrate: u32,
+    pub(super) share: Vec<Share>,
+    pub(super) axis_poll_hz: f64,
+    pub(super) retention: Retention,
+    pub(super) lease_period: std::time::Duration,
+    pub(super) ascii_listen: Option<SocketAddr>,
+    pub(super) auth: AuthConfig,
+    pub(super) insecure: bool,
+    pub(super) sync_period: std::time::Duration,
+}
+
+impl ServeArgs {
+    /// The settings: each option from the command line, else from the
+    /// config file, else its default (the demo bus when no bus is given);
+    /// tokens from the file and [`TOKENS_ENV`].
+    pub(super) fn settings(&self) -> Result<Settings, String> {
+        self.settings_with(std::env::var(TOKENS_ENV).ok().as_deref())
+    }
+
+    /// [`ServeArgs::settings`] with `tokens_env` as the environment's tokens.
+    pub(super) fn settings_with(&self, tokens_env: Option<&str>) -> Result<Settings, String> {
+        let file = match &self.config {
+            Some(path) => ConfigFile::read(path)?,
+            None => ConfigFile::default(),
+        };
+        let pick = |flag: &Vec<NamedBus>, file: Vec<NamedBus>| {
+            if flag.is_empty() { file } else { flag.clone() }
+        };
+        let mut buses = pick(&self.buses, file.buses);
+        if buses.is_empty() {
+            buses.push(NamedBus {
+                name: "demo".to_string(),
+                spec: BusSpec::Virtual {
+                    preset: "demo".to_string(),
+                },
+            });
+        }
+        let settings = Settings {
+            ascii_listen: self.ascii_listen.or(file.ascii_listen),
+            listen: self
+                .listen
+                .or(file.listen)
+                .unwrap_or_else(default_serve_listen),
+            buses,
+            eds_dir: self.eds_dir.clone().or(file.eds_dir),
+            data_dir: self.data_dir.clone().or(file.data_dir),
+            bitrate: self.bitrate.or(file.bitrate).unwrap_or(DEFAULT_BITRATE),
+            share: if self.share.is_empty() {
+                file.share
+            } else {
+                self.share.clone()
+            },
+            axis_poll_hz: self
+                .axis_poll_hz
+                .or(file.axis_poll_hz)
+                .unwrap_or(DEFAULT_AXIS_POLL_HZ),
+            lease_period: std::time::Duration::from_millis(
+                self.lease_ms
+                    .or(file.lease_ms)
+                    .unwrap_or(crate::gateway::motion_lease::DEFAULT_PERIOD.as_millis() as u64),
+            ),
+            // 0 lifts a limit.
+            retention: Retention {
+                days: Some(
+                    self.retention_days
+                        .or(file.retention_days)
+                        .unwrap_or(DEFAULT_RETENTION_DAYS),
+                )
+                .filter(|days| *days > 0),
+                rows: Some(
+                    self.retention_rows
+                        .or(file.retention_rows)
+                        .unwrap_or(DEFAULT_RETENTION_ROWS),
+                )
+                .filter(|rows| *rows > 0),
+            },
+            auth: self.auth_config(
+                file.tokens,
+                file.cors_origins,
+                (file.write_rate, file.write_burst),
+                (file.body_limit, file.dcf_body_limit),
+                tokens_env,
+            )?,
+            // A flag can only say yes: the file's `insecure = true` stands
+            // unless the flag is given too.
+            insecure: self.insecure || file.insecure.unwrap_or(false),
+            sync_period: std::time::Duration::from_millis(u64::from(
+                self.sync_period_ms.or(file.sync_period_ms).unwrap_or(0),
+            )),
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+
+    /// Tokens from the file and the environment, the rest from the command
+    /// line over the file over the defaults.
+    pub(super) fn auth_config(
+        &self,
+        file_tokens: Vec<TokenEntry>,
+        file_origins: Vec<String>,
+        (rate, burst): (Option<f64>, Option<u32>),
+        (body, dcf_body): (Option<usize>, Option<usize>),
+        tokens_env: Option<&str>,
+    ) -> Result<AuthConfig, String> {
+        let mut tokens = Vec::new();
+        for entry in file_tokens {
+            let role = entry
+                .role
+                .parse()
+                .map_err(|err| format!("config tokens: token {}: {err}", entry.name))?;
+            tokens.push(
+                Token::new(&entry.name, role, &entry.token)
+                    .map_err(|err| format!("config tokens: {err}"))?,
+            );
+        }
+        for entry in tokens_env
+            .unwrap_or("")
+            .split(',')
+            .filter(|entry| !entry.trim().is_empty())
+        {
+            tokens.push(Token::parse_entry(entry).map_err(|err| format!("{TOKENS_ENV}: {err}"))?);
+        }
+        let origins = if self.cors_origins.is_empty() {
+            file_origins
+        } else {
+            self.cors_origins.clone()
+        };
+        let defaults = RateLimit::default();
+        let per_second = self.write_rate.or(rate).unwrap_or(defaults.per_second);
+        // 0 turns the limit off.
+        let rate_limit = (per_second != 0.0).then(|| RateLimit {
+            per_second,
+            burst: self.write_burst.or(burst).unwrap_or(defaults.burst),
+        });
+        AuthConfig::new(
+            tokens,
+            origins,
+            rate_limit,
+            self.body_limit.or(body).unwrap_or(DEFAULT_BODY_LIMIT),
+            self.dcf_body_limit
+                .or(dcf_body)
+                .unwrap_or(DEFAULT_DCF_BODY_LIMIT),
+        )
+    }
+}
+
+impl Settings {
+    pub(super) fn validate(&self) -> Result<(), String> {
+        unique_names(&self.buses, "buses")?;
+        self.exposure()?;
+        for share in &self.share {
+            match &share.bus {
+                Some(name) => {
+                    let bus = self
+                        .buses
+                        .iter()
+                        .find(|bus| &bus.name == name)
+                        .ok_or_else(|| format!("--share {name}=...: no bus is named '{name}'"))?;
+                    if !matches!(bus.spec, BusSpec::Virtual { .. }) {
+                        return Err(format!(
+                            "--share {name}=...: bus {name} is {}, not a virtual bus; only a virtual bus can be shared",
+                            bus.spec
+                        ));
+                    }
+                }
+                None => {
+                    if !self
+                        .buses
+                        .iter()
+                        .any(|bus| matches!(bus.spec, BusSpec::Virtual { .. }))
+                    {
+                        return Err(format!("--share {}: no virtual bus to share", share.addr));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether the gateway may listen where it is told, and the warning to
+    /// give: without tokens anyone who reaches the port may move motors, so
+    /// an address other than loopback needs tokens or `--insecure`.
+    pub(super) fn exposure(&self) -> Result<Option<String>, String> {
+        if self.auth.required() {
+            return Ok(None);
+        }
+        let listen = self.listen;
+        if listen.ip().is_loopback() {
+            return Ok(Some(format!(
+                "no tokens: the API on {listen} is open to every program and user of this machine (docs/security.md)"
+            )));
+        }
+        if self.insecure {
+            return Ok(Some(format!(
+                "--insecure: no tokens, the API on {listen} is open to anyone who reaches it, and may move motors"
+            )));
+        }
+        Err(format!(
+            "refusing to listen on {listen} without tokens: anyone who reaches it could move motors; configure tokens (config file [[tokens]] or {TOKENS_ENV}), listen on 127.0.0.1, or pass --insecure"
+        ))
+    }
+
+    /// The socketcand servers to start: each address with the virtual
+    /// buses it shares, as (channel, hub).
+    pub(super) fn shared(
+        &self,
+        served: &[ServedBus],
+    ) -> std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> {
+        let mut servers: std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> =
+            std::collections::BTreeMap::new();
+        for share in &self.share {
+            let channels = servers.entry(share.addr).or_default();
+            for bus in served {
+                let Some(hub) = &bus.hub else { continue };
+                let wanted = share.bus.as_ref().is_none_or(|name| name == &bus.name);
+                if wanted && !channels.iter().any(|(name, _)| name == &bus.name) {
+                    channels.push((bus.name.clone(), hub.clone()));
+                }
+            }
+        }
+        servers
+    }
+}

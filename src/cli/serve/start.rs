@@ -1,0 +1,202 @@
+//! The start-up of `candeck serve`: the buses opened, the gateway service
+//! and its adapters (REST over HTTP, CiA 309-3 over TCP, socketcand shares)
+//! started, and on shutdown the axes the gateway enabled stopped.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use crate::api::AppState;
+use crate::can::socketcand::{ServerConfig, SocketcandServer};
+use crate::cli::{CliError, shutdown_signal};
+use crate::gateway::ServedBus;
+use crate::gateway::history::History;
+use crate::gateway::producers::TelemetryConfig;
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::RegistryConfig;
+
+use super::args::*;
+
+/// How long the first scan of a bus waits for the bus to come up.
+pub(super) const FIRST_SCAN_WAIT: std::time::Duration = std::time::Duration::from_secs(30);
+
+pub async fn run(args: ServeArgs) -> Result<(), CliError> {
+    let args = args.settings().map_err(CliError::new)?;
+    // Refused by settings() already when it is an error; warned about once
+    // the gateway listens (a start that fails says one line only).
+    let exposure = args.exposure().map_err(CliError::new)?;
+    if let Some(dir) = &args.data_dir {
+        std::fs::create_dir_all(dir)
+            .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
+    }
+    // Opened before the buses, so that their first events are kept.
+    let history = match &args.data_dir {
+        Some(dir) => History::open(dir),
+        None => History::in_memory(),
+    }
+    .map_err(|err| CliError::new(err.to_string()))?;
+    let pruner = history.spawn_pruner(args.retention);
+    let catalog = match &args.eds_dir {
+        Some(dir) => EdsCatalog::with_dir(dir),
+        None => EdsCatalog::builtin(),
+    }
+    .map_err(CliError::new)?;
+    let catalog = Arc::new(catalog);
+    let mut served = Vec::new();
+    for bus in &args.buses {
+        let data_dir = args
+            .data_dir
+            .as_ref()
+            .map(|dir| dir.join("sim").join(&bus.name));
+        let config = RegistryConfig {
+            telemetry: TelemetryConfig {
+                axis_poll_hz: args.axis_poll_hz,
+                ..TelemetryConfig::default()
+            },
+            ..RegistryConfig::default()
+        };
+        let mut opened = ServedBus::open_with_data_dir(
+            &bus.name,
+            &bus.spec,
+            catalog.clone(),
+            config,
+            args.bitrate,
+            data_dir,
+        )
+        .await
+        .map_err(|err| CliError::new(format!("bus {}: {err}", bus.name)))?;
+        if let Some(dir) = &args.data_dir {
+            opened = opened.with_recordings_dir(dir.join("recordings"));
+        }
+        // What PUT /buses/{bus}/sync would set, from the start.
+        opened.sync.set_period(args.sync_period);
+        served.push(opened);
+    }
+    let mut shares = Vec::new();
+    for (addr, channels) in args.shared(&served) {
+        let names: Vec<String> = channels.iter().map(|(name, _)| name.clone()).collect();
+        let server = SocketcandServer::bind(addr, channels, ServerConfig::default())
+            .await
+            .and_then(SocketcandServer::spawn)
+            .map_err(|err| CliError::new(format!("--share: cannot listen on {addr}: {err}")))?;
+        shares.push((server, names));
+    }
+    let listener = tokio::net::TcpListener::bind(args.listen)
+        .await
+        .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    let local = listener
+        .local_addr()
+        .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
+    let ascii_listener = match args.ascii_listen {
+        Some(addr) => {
+            let listener = tokio::net::TcpListener::bind(addr).await.map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            let local = listener.local_addr().map_err(|err| {
+                CliError::new(format!("--ascii-listen: cannot listen on {addr}: {err}"))
+            })?;
+            Some((listener, local))
+        }
+        None => None,
+    };
+    let described: Vec<String> = served
+        .iter()
+        .map(|bus| format!("{}: {}", bus.name, bus.spec))
+        .collect();
+    let label = if described.len() == 1 { "bus" } else { "buses" };
+    // One line on stdout that people and scripts read (the port, when 0 was asked).
+    println!(
+        "candeck: serving http://{local}/ ({label} {})",
+        described.join(", ")
+    );
+    for (server, names) in &shares {
+        let label = if names.len() == 1 { "bus" } else { "buses" };
+        println!(
+            "candeck: sharing {label} {} over socketcand on {} (channel = bus name)",
+            names.join(", "),
+            server.local_addr()
+        );
+    }
+    if let Some((_, addr)) = &ascii_listener {
+        println!("candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)");
+    }
+    match exposure {
+        // The address as it listens (the port, when 0 was asked).
+        Some(warning) => tracing::warn!(
+            "{}",
+            warning.replace(&args.listen.to_string(), &local.to_string())
+        ),
+        None => tracing::info!(
+            "tokens: {}; every request but the health check and the dashboard's pages needs one",
+            args.auth.tokens.len()
+        ),
+    }
+    // Nodes that booted before the gateway listened, and nodes without
+    // heartbeat, are found by a scan; the API answers meanwhile.
+    for bus in &served {
+        let registry = bus.registry.clone();
+        let attachment = bus.bus.clone();
+        let name = bus.name.clone();
+        tokio::spawn(async move {
+            // A socketcand bus is still connecting: scanning a bus that is
+            // down finds nothing, so wait for it (the API answers meanwhile).
+            if let Err(err) = attachment.wait_up(FIRST_SCAN_WAIT).await {
+                tracing::warn!("bus {name}: not up for the first scan ({err}); POST /scan later");
+                return;
+            }
+            match registry.scan().await {
+                Ok(nodes) => tracing::info!("bus {name}: {} nodes found", nodes.len()),
+                Err(err) => tracing::warn!("bus {name}: first scan failed: {err}"),
+            }
+        });
+    }
+    let state = AppState::with_history(served, history)
+        .with_lease_period(args.lease_period)
+        .with_auth(args.auth.clone());
+    let ascii = ascii_listener.map(|(listener, _)| {
+        tokio::spawn(crate::ascii::listen(
+            listener,
+            crate::cia309::Cia309Gateway::new(&state.gateway),
+        ))
+    });
+    // The peer's address goes into the audit log.
+    let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
+    axum::serve(listener, app)
+        .with_graceful_shutdown(shutdown_signal())
+        .await
+        .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    // No drive is left moving because the gateway went away: every axis it
+    // enabled is stopped before it exits.
+    let report = state.gateway.stop_enabled_axes().await;
+    for stopped in &report.stopped {
+        tracing::info!(
+            "shutdown: quick stop of bus {} node {} axis {}",
+            stopped.bus,
+            stopped.node,
+            stopped.axis
+        );
+    }
+    for failed in &report.failed {
+        tracing::error!(
+            "shutdown: could not stop bus {} node {} axis {:?}: {}",
+            failed.bus,
+            failed.node,
+            failed.axis,
+            crate::api::AppError::from(failed.error.clone()).to_json()
+        );
+    }
+    // A running recording ends with all it received written to its file;
+    // temporary recordings are removed when the buses are dropped.
+    for bus in state.gateway.buses.values() {
+        if bus.recorder.status().state == crate::gateway::recording::RecordingState::Recording {
+            let _ = bus.recorder.stop().await;
+        }
+    }
+    pruner.abort();
+    if let Some(ascii) = ascii {
+        ascii.abort();
+    }
+    drop(state);
+    drop(shares);
+    tracing::info!("serve: stopped");
+    Ok(())
+}

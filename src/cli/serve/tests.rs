@@ -1,0 +1,325 @@
+use std::path::{Path, PathBuf};
+
+use clap::Parser;
+
+use super::args::*;
+use crate::cli::{Cli, Command};
+use crate::gateway::access::Role;
+use crate::gateway::history::Retention;
+use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
+
+fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
+    let cli = Cli::try_parse_from(["candeck", "serve"].iter().chain(args))
+        .map_err(|err| err.to_string())?;
+    match cli.command {
+        Some(Command::Serve(args)) => Ok(args),
+        other => Err(format!("not serve: {other:?}")),
+    }
+}
+
+/// The config key of a `candeck serve` option: its long name with
+/// underscores; the repeated options' keys are plural.
+fn config_key(long: &str) -> String {
+    match long {
+        "bus" => "buses".to_string(),
+        "cors-origin" => "cors_origins".to_string(),
+        long => long.replace('-', "_"),
+    }
+}
+
+#[test]
+fn the_example_config_parses_and_has_a_key_for_every_option() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("candeck.example.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    // "#= " lines are settings left out on purpose: with them too.
+    let full: String = text
+        .lines()
+        .map(|line| line.strip_prefix("#= ").unwrap_or(line))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let dir = std::env::temp_dir().join(format!("candeck-example-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let full_path = dir.join("full.toml");
+    std::fs::write(&full_path, &full).unwrap();
+
+    // As shipped (tokens from the environment, as the systemd unit
+    // gives them) and with every setting.
+    let shipped = serve_args(&["--config", path.to_str().unwrap()])
+        .unwrap()
+        .settings_with(Some("hmi:viewer:3f9c2a7be81d4c06a5e9"))
+        .unwrap();
+    assert_eq!(shipped.buses.len(), 2);
+    assert_eq!(shipped.data_dir, Some(PathBuf::from("/var/lib/candeck")));
+    let settings = serve_args(&["--config", full_path.to_str().unwrap()])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.auth.tokens[0].name, "line-plc");
+    assert_eq!(
+        settings.ascii_listen,
+        Some("127.0.0.1:60000".parse().unwrap())
+    );
+
+    // Every option of `candeck serve` but --config itself has a key in
+    // the example: a new flag without one fails here.
+    let keys: toml::Table = toml::from_str(&full).unwrap();
+    let command = <Cli as clap::CommandFactory>::command();
+    let serve = command.find_subcommand("serve").unwrap();
+    let mut missing = Vec::new();
+    for arg in serve.get_arguments() {
+        let Some(long) = arg.get_long() else { continue };
+        if ["config", "log", "help", "version"].contains(&long) {
+            continue;
+        }
+        let key = config_key(long);
+        if !keys.contains_key(&key) {
+            missing.push(key);
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "no key in candeck.example.toml: {missing:?}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn every_option_of_every_command_has_its_help() {
+    fn check(command: &clap::Command, path: &str, missing: &mut Vec<String>) {
+        if command.get_about().is_none() && !path.is_empty() {
+            missing.push(format!("{path} (the command)"));
+        }
+        for arg in command.get_arguments() {
+            let id = arg.get_id().as_str();
+            if !["help", "version"].contains(&id) && arg.get_help().is_none() {
+                missing.push(format!("{path} {id}"));
+            }
+        }
+        for sub in command.get_subcommands() {
+            check(sub, &format!("{path} {}", sub.get_name()), missing);
+        }
+    }
+    let mut missing = Vec::new();
+    check(&<Cli as clap::CommandFactory>::command(), "", &mut missing);
+    assert!(missing.is_empty(), "without help: {missing:?}");
+}
+
+#[test]
+fn the_sync_period_and_insecure_come_from_the_file_and_the_command_line() {
+    let dir = std::env::temp_dir().join(format!("candeck-sync-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("sync.toml");
+    std::fs::write(
+        &file,
+        "listen = \"0.0.0.0:8080\"\ninsecure = true\nsync_period_ms = 10\n",
+    )
+    .unwrap();
+    let file = file.to_str().unwrap();
+
+    let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+    assert_eq!(settings.sync_period, std::time::Duration::ZERO);
+    let settings = serve_args(&["--config", file])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.sync_period, std::time::Duration::from_millis(10));
+    assert!(settings.insecure);
+    let settings = serve_args(&["--config", file, "--sync-period-ms", "0"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.sync_period, std::time::Duration::ZERO);
+
+    let err = serve_args(&["--sync-period-ms", "5000000"]).unwrap_err();
+    assert!(err.contains("a SYNC period is at most"), "{err}");
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "sync_period_ms = 4294968\n").unwrap();
+    let err = serve_args(&["--config", bad.to_str().unwrap()])
+        .unwrap()
+        .settings_with(None)
+        .unwrap_err();
+    assert!(err.contains("sync_period_ms"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_ascii_listener_comes_from_the_command_line_over_the_file() {
+    let dir = std::env::temp_dir().join(format!("candeck-ascii-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("ascii.toml");
+    std::fs::write(&file, "ascii_listen = \"127.0.0.1:6000\"\n").unwrap();
+    let file = file.to_str().unwrap();
+
+    assert_eq!(
+        serve_args(&[]).unwrap().settings().unwrap().ascii_listen,
+        None
+    );
+    let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+    assert_eq!(
+        settings.ascii_listen,
+        Some("127.0.0.1:6000".parse().unwrap())
+    );
+    let settings = serve_args(&["--config", file, "--ascii-listen", "0.0.0.0:6001"])
+        .unwrap()
+        .settings()
+        .unwrap();
+    assert_eq!(settings.ascii_listen, Some("0.0.0.0:6001".parse().unwrap()));
+    assert!(serve_args(&["--ascii-listen", "nowhere"]).is_err());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn retention_comes_from_the_command_line_over_the_file_over_the_default() {
+    let dir = std::env::temp_dir().join(format!("candeck-retention-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("retention.toml");
+    std::fs::write(&file, "retention_days = 7\nretention_rows = 500\n").unwrap();
+    let file = file.to_str().unwrap();
+
+    let settings = serve_args(&[]).unwrap().settings().unwrap();
+    assert_eq!(settings.retention, Retention::default());
+    let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+    assert_eq!(
+        settings.retention,
+        Retention {
+            days: Some(7),
+            rows: Some(500)
+        }
+    );
+    // 0 lifts a limit.
+    let settings = serve_args(&["--config", file, "--retention-days", "0"])
+        .unwrap()
+        .settings()
+        .unwrap();
+    assert_eq!(
+        settings.retention,
+        Retention {
+            days: None,
+            rows: Some(500)
+        }
+    );
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "retention_rows = -1\n").unwrap();
+    let err = serve_args(&["--config", bad.to_str().unwrap()])
+        .unwrap()
+        .settings()
+        .unwrap_err();
+    assert!(err.contains("line 1"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_axis_poll_rate_comes_from_the_command_line_over_the_file_over_the_default() {
+    let dir = std::env::temp_dir().join(format!("candeck-serve-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("poll.toml");
+    std::fs::write(&file, "axis_poll_hz = 50\n").unwrap();
+    let file = file.to_str().unwrap();
+
+    let settings = serve_args(&[]).unwrap().settings().unwrap();
+    assert_eq!(settings.axis_poll_hz, DEFAULT_AXIS_POLL_HZ);
+    let settings = serve_args(&["--config", file]).unwrap().settings().unwrap();
+    assert_eq!(settings.axis_poll_hz, 50.0);
+    let settings = serve_args(&["--config", file, "--axis-poll-hz", "12.5"])
+        .unwrap()
+        .settings()
+        .unwrap();
+    assert_eq!(settings.axis_poll_hz, 12.5);
+
+    for bad in ["0", "-3", "nan", "fast", "150"] {
+        let err = serve_args(&[&format!("--axis-poll-hz={bad}")]).unwrap_err();
+        assert!(err.contains("--axis-poll-hz"), "{bad}: {err}");
+    }
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "axis_poll_hz = 0\n").unwrap();
+    let err = serve_args(&["--config", bad.to_str().unwrap()])
+        .unwrap()
+        .settings()
+        .unwrap_err();
+    assert!(err.contains("axis_poll_hz"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn without_tokens_only_loopback_is_served_unless_insecure() {
+    let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+    assert!(settings.exposure().unwrap().unwrap().contains("no tokens"));
+    let err = serve_args(&["--listen", "0.0.0.0:8080"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap_err();
+    assert!(
+        err.contains("refusing to listen on 0.0.0.0:8080 without tokens"),
+        "{err}"
+    );
+    let settings = serve_args(&["--listen", "0.0.0.0:8080", "--insecure"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert!(settings.exposure().unwrap().unwrap().contains("--insecure"));
+    let settings = serve_args(&["--listen", "[::]:8080"])
+        .unwrap()
+        .settings_with(Some("plc:operator:3f9c2a7be81d4c06a5e9"))
+        .unwrap();
+    assert_eq!(settings.exposure(), Ok(None));
+    assert_eq!(settings.auth.tokens[0].name, "plc");
+}
+
+#[test]
+fn tokens_and_limits_come_from_the_file_and_the_environment() {
+    let dir = std::env::temp_dir().join(format!("candeck-auth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("auth.toml");
+    std::fs::write(
+        &file,
+        "cors_origins = [\"https://scada.example\"]\nwrite_rate = 5\nbody_limit = 2048\n\
+         [[tokens]]\nname = \"line-plc\"\nrole = \"operator\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+    )
+    .unwrap();
+    let path = file.to_str().unwrap();
+    let settings = serve_args(&["--config", path])
+        .unwrap()
+        .settings_with(Some("hmi:viewer:0123456789abcdefghij"))
+        .unwrap();
+    let names: Vec<(&str, Role)> = settings
+        .auth
+        .tokens
+        .iter()
+        .map(|t| (t.name.as_str(), t.role))
+        .collect();
+    assert_eq!(names, [("line-plc", Role::Operator), ("hmi", Role::Viewer)]);
+    assert_eq!(settings.auth.cors_origins, ["https://scada.example"]);
+    assert_eq!(settings.auth.rate_limit.unwrap().per_second, 5.0);
+    assert_eq!(settings.auth.body_limit, 2048);
+    // The command line wins; 0 turns the rate limit off.
+    let settings = serve_args(&["--config", path, "--write-rate", "0"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.auth.rate_limit, None);
+    // The same token twice, a weak one, an unknown role: refused.
+    let err = serve_args(&["--config", path])
+        .unwrap()
+        .settings_with(Some("other:admin:3f9c2a7be81d4c06a5e9"))
+        .unwrap_err();
+    assert!(err.contains("the same token"), "{err}");
+    let err = serve_args(&[])
+        .unwrap()
+        .settings_with(Some("plc:operator:secret"))
+        .unwrap_err();
+    assert!(
+        err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"),
+        "{err}"
+    );
+    std::fs::write(
+        &file,
+        "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
+    )
+    .unwrap();
+    let err = serve_args(&["--config", path])
+        .unwrap()
+        .settings_with(None)
+        .unwrap_err();
+    assert!(err.contains("unknown role 'root'"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

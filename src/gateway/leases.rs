@@ -1,0 +1,349 @@
+//! The motion leases the gateway grants, and their supervisor (the policy
+//! and its table are [`super::motion_lease`]): a velocity, torque or
+//! duty-cycle move holds a lease that its client renews; an interpolated
+//! move holds one while its request feeds points. A supervisor task halts
+//! the axis of every lease that lapses, and quick-stops it if it is not
+//! stopped one period later; the audit log records what it did.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
+use std::time::Duration;
+
+use tokio::sync::Notify;
+use tokio::time::Instant;
+
+use super::GatewayError;
+use super::drive::{Drive, DriveError};
+use super::history::AuditEntry;
+use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease};
+use super::service::Gateway;
+use crate::can::Timestamp;
+
+/// How often the status of a lapsed lease's axis is read while it slows
+/// down under halt.
+const STOPPING_POLL: Duration = Duration::from_millis(50);
+
+/// The gateway's leases and the task that stops the lapsed ones.
+#[derive(Debug)]
+pub struct MotionLeases {
+    table: Mutex<LeaseTable>,
+    period: Duration,
+    /// Wakes the supervisor when the earliest expiry may have moved closer.
+    wake: Notify,
+    supervisor: OnceLock<()>,
+    next_session: AtomicU64,
+}
+
+impl MotionLeases {
+    pub fn new(period: Duration) -> Self {
+        Self {
+            table: Mutex::new(LeaseTable::new()),
+            period,
+            wake: Notify::new(),
+            supervisor: OnceLock::new(),
+            next_session: AtomicU64::new(1),
+        }
+    }
+
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    fn table(&self) -> MutexGuard<'_, LeaseTable> {
+        self.table
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner())
+    }
+
+    /// Refuses a command on a held axis that does not present its lease.
+    pub fn check(&self, axis: &AxisKey, presented: Option<&str>) -> Result<(), GatewayError> {
+        Ok(self.table().check(axis, presented, Instant::now())?)
+    }
+
+    /// Grants (or, presented, renews) the lease for a move on `axis`, and
+    /// starts the supervisor on the first one.
+    pub fn grant(
+        &self,
+        gateway: &Gateway,
+        axis: AxisKey,
+        presented: Option<&str>,
+        holder: &str,
+        mode: &str,
+    ) -> Result<MotionLease, GatewayError> {
+        let lease = self.table().grant(
+            axis,
+            presented,
+            fresh_id(),
+            holder,
+            mode,
+            self.period,
+            Instant::now(),
+        )?;
+        self.supervisor.get_or_init(|| {
+            tokio::spawn(supervise(gateway.clone()));
+        });
+        self.wake.notify_one();
+        Ok(lease)
+    }
+
+    /// Renews the lease `id`, binding it to a stream session when given.
+    pub fn renew(&self, id: &str, session: Option<u64>) -> Result<MotionLease, GatewayError> {
+        Ok(self.table().renew(id, session, Instant::now())?)
+    }
+
+    /// Renews the lease `id` held on `axis`: a lease id is not renewed
+    /// through a request that names another axis.
+    pub fn renew_on(&self, axis: &AxisKey, id: &str) -> Result<MotionLease, GatewayError> {
+        let held = self.table().get(axis, Instant::now()).map(|l| l.id.clone());
+        if held.as_deref() != Some(id) {
+            return Err(LeaseError::Unknown(id.to_string()).into());
+        }
+        self.renew(id, None)
+    }
+
+    /// The lease on `axis` is over: its motion was stopped (or is bounded).
+    pub fn release(&self, axis: &AxisKey) -> Option<MotionLease> {
+        self.table().release(axis)
+    }
+
+    /// Ends every lease (STOP ALL, shutdown): their axes are being stopped.
+    pub fn release_all(&self) -> usize {
+        self.table().release_all().len()
+    }
+
+    /// Lapses the lease `id` now (its client went away), so that the
+    /// supervisor stops its axis; an unknown id is nothing to do.
+    pub fn lapse_now(&self, id: &str) {
+        let now = Instant::now();
+        let mut table = self.table();
+        if let Ok(lease) = table.release_id(id) {
+            // Put back, expired: the supervisor takes it as lapsed.
+            let axis = lease.axis.clone();
+            let _ = table.grant(
+                axis,
+                None,
+                lease.id,
+                &lease.holder,
+                &lease.mode,
+                Duration::ZERO,
+                now,
+            );
+        }
+        drop(table);
+        self.wake.notify_one();
+    }
+
+    /// A number for a new stream session.
+    pub fn new_session(&self) -> u64 {
+        self.next_session.fetch_add(1, Ordering::Relaxed)
+    }
+
+    /// The stream session ended: the leases it renewed lapse now.
+    pub fn session_ended(&self, session: u64) {
+        if self.table().session_ended(session, Instant::now()) > 0 {
+            self.wake.notify_one();
+        }
+    }
+
+    /// How many leases are held.
+    pub fn held(&self) -> usize {
+        self.table().len()
+    }
+}
+
+impl Default for MotionLeases {
+    fn default() -> Self {
+        Self::new(super::motion_lease::DEFAULT_PERIOD)
+    }
+}
+
+/// 128 bits from the operating system's generator, as hex: a lease is the
+/// right to move an axis, so its id must not be guessable.
+fn fresh_id() -> String {
+    use std::io::Read;
+    let mut bytes = [0u8; 16];
+    let read = std::fs::File::open("/dev/urandom").and_then(|mut f| f.read_exact(&mut bytes));
+    if read.is_err() {
+        // No /dev/urandom (not Linux): the standard library's hasher keys
+        // are drawn from the system's generator too.
+        use std::hash::{BuildHasher, Hasher};
+        for chunk in bytes.chunks_mut(8) {
+            let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+            hasher.write_u128(Instant::now().elapsed().as_nanos());
+            chunk.copy_from_slice(&hasher.finish().to_le_bytes());
+        }
+    }
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Sleeps until the next lease expires (or the table changes), then stops
+/// the axes of the lapsed ones, each in a task of its own.
+async fn supervise(gateway: Gateway) {
+    let leases = gateway.leases.clone();
+    loop {
+        let next = leases.table().next_expiry();
+        match next {
+            Some(at) => {
+                tokio::select! {
+                    () = tokio::time::sleep_until(at) => {}
+                    () = leases.wake.notified() => {}
+                }
+            }
+            None => leases.wake.notified().await,
+        }
+        let lapsed = leases.table().lapsed(Instant::now());
+        for lease in lapsed {
+            tokio::spawn(stop_lapsed(gateway.clone(), lease));
+        }
+    }
+}
+
+/// How a lapsed lease's axis was stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stopped {
+    /// Halted, and at rest (or no longer enabled) within a period.
+    Halted,
+    /// Still moving a period after halt: quick-stopped.
+    QuickStopped,
+}
+
+async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
+    tracing::warn!(
+        "motion lease {} of {} on {} ({}) lapsed: halting the axis",
+        lease.id,
+        lease.holder,
+        lease.axis,
+        lease.mode
+    );
+    let result = halt_then_quick_stop(&gateway, &lease).await;
+    let (status, error_code, abort_code, outcome) = match &result {
+        Ok(Stopped::Halted) => (200, None, None, "halted"),
+        Ok(Stopped::QuickStopped) => (200, None, None, "quick-stopped"),
+        Err(error) => {
+            tracing::error!(
+                "lapsed lease on {}: the axis could not be stopped: {error}",
+                lease.axis
+            );
+            (
+                error.audit_status(),
+                Some(error.code().to_string()),
+                error
+                    .abort_code()
+                    .map(|code| format!("0x{:08X}", code.raw())),
+                "not stopped",
+            )
+        }
+    };
+    let AxisKey { bus, node, axis } = lease.axis.clone();
+    let entry = AuditEntry {
+        time: Timestamp::now(),
+        who: "gateway".to_string(),
+        peer: None,
+        role: "system".to_string(),
+        method: "POST".to_string(),
+        path: format!("/api/v1/buses/{bus}/nodes/{node}/axes/{axis}/halt"),
+        operation: format!("motion lease lapsed: axis {outcome}"),
+        bus: Some(bus),
+        node: Some(node),
+        axis: Some(axis),
+        item: Some(format!(
+            "{} lease of {} ({} ms)",
+            lease.mode,
+            lease.holder,
+            lease.period.as_millis()
+        )),
+        request: None,
+        status,
+        error_code,
+        abort_code,
+    };
+    if let Err(err) = gateway.history.audit(entry).await {
+        tracing::error!("audit: lapsed lease on {}: not recorded: {err}", lease.axis);
+    }
+}
+
+/// Halt, then wait up to one lease period for the axis to come to rest;
+/// quick stop if it has not. If halt cannot be given, quick stop is tried
+/// anyway.
+async fn halt_then_quick_stop(
+    gateway: &Gateway,
+    lease: &MotionLease,
+) -> Result<Stopped, GatewayError> {
+    let AxisKey { bus, node, axis } = &lease.axis;
+    let (served, info) = gateway.node(bus, &node.to_string())?;
+    let drive = Drive::new(&served.registry, &info, &axis.to_string())?;
+    // In a task of its own, like every drive sequence: nothing cancels it
+    // half way.
+    let period = lease.period;
+    let task = tokio::spawn(async move {
+        if let Err(error) = drive.halt(true).await {
+            tracing::error!("halt failed ({error}); quick stop instead");
+            drive.quick_stop_if_enabled().await?;
+            return Ok(Stopped::QuickStopped);
+        }
+        let deadline = Instant::now() + period;
+        loop {
+            let status = drive.status().await?;
+            let at_rest = status.velocity.map_or(status.target_reached, |v| v == 0);
+            if status.state != "operation_enabled" || at_rest {
+                return Ok(Stopped::Halted);
+            }
+            if Instant::now() >= deadline {
+                break;
+            }
+            tokio::time::sleep(STOPPING_POLL).await;
+        }
+        drive.quick_stop_if_enabled().await?;
+        Ok(Stopped::QuickStopped)
+    });
+    task.await
+        .map_err(|err| GatewayError::Internal(format!("stopping a lapsed axis: {err}")))?
+        .map_err(|err: DriveError| GatewayError::from(err))
+}
+
+/// Keeps a lease alive while a request that holds it runs (an interpolated
+/// move feeding its points); if the request is dropped — its client hung
+/// up — the lease lapses at once and the axis is stopped.
+pub struct InFlight {
+    leases: Arc<MotionLeases>,
+    id: String,
+    done: bool,
+}
+
+impl InFlight {
+    pub fn new(leases: &Arc<MotionLeases>, lease: &MotionLease) -> Self {
+        Self {
+            leases: leases.clone(),
+            id: lease.id.clone(),
+            done: false,
+        }
+    }
+
+    /// Renews the lease every third of a period until `work` ends.
+    pub async fn run<T>(mut self, work: impl Future<Output = T>) -> T {
+        let leases = self.leases.clone();
+        let every = (leases.period() / 3).max(Duration::from_millis(10));
+        let work = std::pin::pin!(work);
+        let mut work = work;
+        let result = loop {
+            tokio::select! {
+                result = &mut work => break result,
+                () = tokio::time::sleep(every) => {
+                    // Lapsed already (a stop ended it): nothing to keep.
+                    let _ = leases.renew(&self.id, None);
+                }
+            }
+        };
+        self.done = true;
+        result
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        if !self.done {
+            tracing::warn!("the client of lease {} went away mid-request", self.id);
+            self.leases.lapse_now(&self.id);
+        }
+    }
+}

@@ -1,0 +1,307 @@
+//! The gateway service: the buses it serves, each with its registry,
+//! telemetry, SYNC producer, recorder and (on a virtual bus) virtual
+//! devices, and what every adapter shares on top of them: the history, the
+//! motion leases, the axes the gateway enabled, the tokens. REST
+//! (`crate::api`), CiA 309 (`crate::cia309`, `crate::ascii`) and the
+//! command line use it; it knows none of them.
+//!
+//! The rules that hold whichever adapter asks are here: no SDO to a node
+//! known to be stopped or on a bus that is down ([`check_sdo_allowed`]), no
+//! drive command to a drive whose heartbeat is lost ([`Gateway::drive`]).
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use crate::can::spec::BusSpec;
+use crate::can::{Bus, VirtualHub};
+use crate::canopen::NodeId;
+use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarget};
+use crate::sim::rack::Rack;
+
+use super::GatewayError;
+use super::access::Tokens;
+use super::axis_telemetry::AxisTelemetry;
+use super::drive::Drive;
+use super::frames::FrameLog;
+use super::history::History;
+use super::leases::MotionLeases;
+use super::led_preview::LedPreviews;
+use super::load::{LoadMeter, Traffic};
+use super::profile::EdsCatalog;
+use super::recording::Recorder;
+use super::registry::{NodeEvent, NodeInfo, NodeRegistry, RegistryConfig};
+use super::safe_stop::EnabledAxes;
+use super::sync::SyncService;
+use super::values::TpdoValues;
+
+/// One bus the gateway serves.
+pub struct ServedBus {
+    pub name: String,
+    /// The spec it was opened from, as the user wrote it (`virtual:demo`).
+    pub spec: String,
+    pub bus: Bus,
+    pub registry: NodeRegistry,
+    /// The hub of a virtual bus, which counts every frame on it (an
+    /// attachment to a hub counts only what it sends).
+    pub hub: Option<VirtualHub>,
+    /// The virtual devices of a virtual bus (`virtual:demo` starts with
+    /// the demo devices, `virtual:empty` with none); `None` elsewhere.
+    pub rack: Option<Rack>,
+    pub load: LoadMeter,
+    /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
+    pub sync: SyncService,
+    /// The nodes' TPDO values, decoded by the mappings read from them; the
+    /// `values` topics of the stream ([`TpdoValues::subscribe`]).
+    pub values: TpdoValues,
+    /// The `axes/{axis}` topics of the stream
+    /// ([`AxisTelemetry::subscribe`]).
+    pub axes: AxisTelemetry,
+    /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
+    pub previews: LedPreviews,
+    /// The bus's recent frames.
+    pub frames: FrameLog,
+    /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
+    pub recorder: Recorder,
+    /// The registry's events from the moment it started (the devices'
+    /// boot-ups included), until [`Gateway::with_history`] takes it to
+    /// write them to the history.
+    history_events: std::sync::Mutex<Option<tokio::sync::broadcast::Receiver<NodeEvent>>>,
+}
+
+impl ServedBus {
+    /// Opens `spec` as the bus `name` and starts its registry; a
+    /// `virtual:demo` bus gets the demo devices, booted after the registry
+    /// listens so that it hears their boot-up messages.
+    pub async fn open(
+        name: &str,
+        spec: &BusSpec,
+        catalog: Arc<EdsCatalog>,
+        config: RegistryConfig,
+        bitrate: u32,
+    ) -> Result<Self, String> {
+        Self::open_with_data_dir(name, spec, catalog, config, bitrate, None).await
+    }
+
+    /// [`ServedBus::open`], and the virtual devices of a virtual bus keep
+    /// what they save (0x1010) under `data_dir` (see
+    /// [`Rack::with_data_dir`]).
+    pub async fn open_with_data_dir(
+        name: &str,
+        spec: &BusSpec,
+        catalog: Arc<EdsCatalog>,
+        config: RegistryConfig,
+        bitrate: u32,
+        data_dir: Option<std::path::PathBuf>,
+    ) -> Result<Self, String> {
+        let opened = spec.open(name).await.map_err(|err| err.to_string())?;
+        let telemetry = config.telemetry.clone();
+        let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
+        let history_events = std::sync::Mutex::new(Some(registry.subscribe()));
+        let values = TpdoValues::spawn(opened.bus.clone(), registry.clone());
+        // Recording starts before the devices boot: their boot-ups are the
+        // first frames of the log.
+        let frames = FrameLog::spawn(&opened.bus);
+        let rack = match (spec, &opened.hub) {
+            (BusSpec::Virtual { preset }, Some(hub)) => {
+                let rack = Rack::with_data_dir(hub.clone(), data_dir);
+                if preset == "demo" {
+                    rack.add_all(&crate::sim::products::demo())
+                        .map_err(|err| err.to_string())?;
+                }
+                Some(rack)
+            }
+            _ => None,
+        };
+        Ok(Self {
+            // In a private temporary directory until told otherwise.
+            recorder: Recorder::new(&opened.bus, None),
+            frames,
+            name: name.to_string(),
+            spec: spec.to_string(),
+            load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),
+            sync: SyncService::spawn(opened.bus.clone()),
+            axes: AxisTelemetry::new(registry.clone(), values.clone(), telemetry.clone()),
+            previews: LedPreviews::new(registry.clone(), &telemetry),
+            values,
+            hub: opened.hub,
+            bus: opened.bus,
+            registry,
+            rack,
+            history_events,
+        })
+    }
+}
+
+impl ServedBus {
+    /// Keeps this bus's recordings in `dir` (`--data-dir DIR` gives
+    /// `DIR/recordings`) instead of a temporary directory. Call before any
+    /// recording starts.
+    pub fn with_recordings_dir(mut self, dir: std::path::PathBuf) -> Self {
+        self.recorder = Recorder::new(&self.bus, Some(dir));
+        self
+    }
+}
+
+impl ServedBus {
+    /// Sends an NMT command. NMT is unconfirmed (CiA 301 §7.2.8.2.1): this
+    /// says the command was sent; the node's new state shows in the
+    /// registry once it reports it.
+    pub async fn send_nmt(
+        &self,
+        command: NmtCommand,
+        target: NmtTarget,
+    ) -> Result<(), GatewayError> {
+        self.bus
+            .send(NmtMessage::new(command, target).encode())
+            .await
+            .map_err(GatewayError::from)
+    }
+}
+
+/// Refuses before the bus what cannot succeed on it: an SDO transfer on a
+/// bus that is down, or to a node known to be stopped.
+pub fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), GatewayError> {
+    if !served.bus.state().can_send() {
+        let status = served.bus.status();
+        return Err(GatewayError::BusDown(format!(
+            "bus {} is {}{}",
+            served.name,
+            status.state.as_str(),
+            status.reason.map(|r| format!(": {r}")).unwrap_or_default()
+        )));
+    }
+    match info.nmt {
+        // A node whose last word was its boot-up message is pre-operational
+        // by then (CiA 301 §7.3.2.2.1: it enters pre-operational on its own
+        // once initialised); a state byte the gateway does not know may
+        // allow SDO: only a node known to be stopped is refused.
+        Some(state @ NmtState::Stopped) if !state.allows(NmtService::Sdo) => {
+            Err(GatewayError::WrongNmtState {
+                node: info.id.get(),
+                state,
+            })
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The gateway service every adapter holds: the buses by name, and what
+/// they share. A `Clone` of `Arc`s.
+#[derive(Clone)]
+pub struct Gateway {
+    pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
+    /// The bus names in the order they were given (`--bus`, the config
+    /// file): CiA 309 net 1 is the first.
+    pub bus_order: Arc<Vec<String>>,
+    /// The audit log and the EMCY/NMT history.
+    pub history: History,
+    /// The motion leases of velocity, torque and duty-cycle moves.
+    pub leases: Arc<MotionLeases>,
+    /// The axes the gateway enabled, which it stops before it exits.
+    pub enabled_axes: Arc<EnabledAxes>,
+    /// The tokens and their roles; none: the gateway is open.
+    pub tokens: Arc<Tokens>,
+}
+
+impl Gateway {
+    /// The buses, with a history in memory (lost on exit).
+    pub fn new(buses: impl IntoIterator<Item = ServedBus>) -> Self {
+        // An in-memory SQLite database fails to open only when memory is
+        // exhausted, when nothing else would work either.
+        let history = History::in_memory().expect("an in-memory SQLite database opens");
+        Self::with_history(buses, history)
+    }
+
+    /// The buses, their registry events written to `history` by a task per
+    /// bus (call within a tokio runtime when there are buses).
+    pub fn with_history(buses: impl IntoIterator<Item = ServedBus>, history: History) -> Self {
+        let buses: Vec<ServedBus> = buses.into_iter().collect();
+        let bus_order: Vec<String> = buses.iter().map(|bus| bus.name.clone()).collect();
+        let buses: BTreeMap<String, Arc<ServedBus>> = buses
+            .into_iter()
+            .map(|bus| (bus.name.clone(), Arc::new(bus)))
+            .collect();
+        for bus in buses.values() {
+            let taken = bus
+                .history_events
+                .lock()
+                .unwrap_or_else(|poison| poison.into_inner())
+                .take();
+            let events = taken.unwrap_or_else(|| bus.registry.subscribe());
+            history.spawn_recorder(&bus.name, events);
+        }
+        Self {
+            buses: Arc::new(buses),
+            bus_order: Arc::new(bus_order),
+            history,
+            leases: Arc::new(MotionLeases::default()),
+            enabled_axes: Arc::new(EnabledAxes::default()),
+            tokens: Arc::new(Tokens::default()),
+        }
+    }
+
+    /// The same, granting motion leases of `period` (`--lease-ms`).
+    pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
+        self.leases = Arc::new(MotionLeases::new(period));
+        self
+    }
+
+    /// The same with these tokens.
+    pub fn with_tokens(mut self, tokens: Tokens) -> Self {
+        self.tokens = Arc::new(tokens);
+        self
+    }
+
+    /// The buses in the order they were given: CiA 309 net `n` is the
+    /// `n`-th (1-based).
+    pub fn buses_in_order(&self) -> Vec<Arc<ServedBus>> {
+        self.bus_order
+            .iter()
+            .filter_map(|name| self.buses.get(name).cloned())
+            .collect()
+    }
+
+    /// The bus named `name`.
+    pub fn bus(&self, name: &str) -> Result<Arc<ServedBus>, GatewayError> {
+        self.buses
+            .get(name)
+            .cloned()
+            .ok_or_else(|| GatewayError::UnknownBus(name.to_string()))
+    }
+
+    /// The bus and the registry's view of a node: an id that is no node id
+    /// (1–127) is an invalid request; a bus or node not known, unknown.
+    pub fn node(&self, bus: &str, id: &str) -> Result<(Arc<ServedBus>, NodeInfo), GatewayError> {
+        let served = self.bus(bus)?;
+        let node: NodeId = id
+            .parse()
+            .map_err(|err| GatewayError::InvalidRequest(format!("node id '{id}': {err}")))?;
+        let info = served
+            .registry
+            .node(node)
+            .ok_or_else(|| GatewayError::UnknownNode {
+                bus: bus.to_string(),
+                node: id.to_string(),
+            })?;
+        Ok((served, info))
+    }
+
+    /// A node's axis, after the checks that need no bus: the node is a
+    /// drive with that axis, SDO is allowed, and a drive supervised by
+    /// heartbeat is heard (else every transfer would wait out its timeout,
+    /// and a motion command could not be followed up).
+    pub fn drive(&self, bus: &str, id: &str, axis: &str) -> Result<Drive, GatewayError> {
+        let (served, info) = self.node(bus, id)?;
+        let drive = Drive::new(&served.registry, &info, axis)?;
+        check_sdo_allowed(&served, &info)?;
+        if !info.online && info.heartbeat_ms.is_some() {
+            return Err(GatewayError::NodeOffline(format!(
+                "node {} is offline (no heartbeat within 1.5 periods of {} ms): \
+                 drive operations wait until it is heard again",
+                info.id,
+                info.heartbeat_ms.unwrap_or_default()
+            )));
+        }
+        Ok(drive)
+    }
+}
