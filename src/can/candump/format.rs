@@ -252,7 +252,7 @@ pub(super) fn data_problem(hex: &str, max: usize, what: &str) -> Option<String> 
 }
 
 /// Writes frames as candump `-L` lines. Unbuffered: wrap `out` in a
-/// [`BufWriter`] and [`flush`](Self::flush) when a batch is written.
+/// [`BufWriter`](tokio::io::BufWriter) and [`flush`](Self::flush) when a batch is written.
 pub struct LogWriter<W> {
     out: W,
     /// Reused for every line, so writing allocates nothing per frame.

@@ -9,7 +9,7 @@
 //!
 //! # Layout
 //!
-//! - [`format`]: [`read_log`], a whole log as [`LoggedFrame`]s, or an error
+//! - [`format`](mod@format): [`read_log`], a whole log as [`LoggedFrame`]s, or an error
 //!   naming the file, the line and what is wrong with it; [`LogWriter`], a
 //!   frame as a line;
 //! - [`record`]: the one record loop ([`LogRecorder`]), a bus written out

@@ -154,7 +154,7 @@ pub(super) const MIN_LOOP_GAP_US: u64 = 1_000;
 ///
 /// The bus is named after the file stem, its spec is `replay:PATH` with the
 /// options as a `?` query. Sending fails with
-/// [`BusError::ReadOnly`](super::bus::BusError::ReadOnly). Playback starts
+/// [`BusError::ReadOnly`](crate::can::bus::BusError::ReadOnly). Playback starts
 /// when the first receiver subscribes, so nothing is played before anyone
 /// can listen. When looping, each pass starts one average frame gap after
 /// the last frame, so a periodic log repeats without a hiccup. At the end

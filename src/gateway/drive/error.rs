@@ -1,6 +1,5 @@
 //! Why a drive request failed.
 
-
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::RegistryError;
 use crate::gateway::sdo::SdoRequestError;

@@ -25,12 +25,12 @@
 //! - this module: [`Drive`], one axis, and what every sequence uses
 //!   (encoded writes, reads, the statusword, waits); [`axis_count`] and
 //!   [`axes_summary`].
-//! - [`kind`]: [`DriveKind`], what differs between products.
-//! - [`types`]: the requests (moves, target states) and the axis status the
+//! - `kind`: [`DriveKind`], what differs between products.
+//! - `types`: the requests (moves, target states) and the axis status the
 //!   master answers with.
-//! - [`error`]: [`DriveError`].
-//! - [`state`]: the state walk, fault reset, halt and quick stop.
-//! - [`moves`]: a move in each mode: its mode, its writes, its controlwords.
+//! - `error`: why a request failed, [`DriveError`].
+//! - `state`: the state walk, fault reset, halt and quick stop.
+//! - `moves`: a move in each mode: its mode, its writes, its controlwords.
 
 mod error;
 mod kind;
@@ -46,7 +46,6 @@ pub use types::{
 
 use std::sync::Arc;
 use std::time::Duration;
-
 
 use crate::canopen::od::DataType;
 use crate::gateway::profile::EdsEntry;
