@@ -268,7 +268,7 @@ impl AppError {
 }
 
 /// The gateway's errors, variant by variant (their statuses are those of
-/// [`AppError::status_and_code`]).
+/// `AppError::status_and_code`).
 impl From<GatewayError> for AppError {
     fn from(error: GatewayError) -> Self {
         match error {

@@ -25,7 +25,8 @@
 //! - [`history`]: the persisted audit log and EMCY/NMT history (SQLite).
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
-//! - [`recording`]: a bus recorded to a candump `-L` log file, started and
+//! - [`recording`]: a bus recorded to a candump `-L` log file (by the record
+//!   loop of [`crate::can::candump::LogRecorder`]), started and
 //!   stopped at will.
 //! - [`registry`]: the node registry of one bus: nodes found by boot-up,
 //!   heartbeat and scan, identified, supervised, with their EMCY history.

@@ -42,10 +42,10 @@ use std::time::Duration;
 
 use tokio::io::{AsyncWrite, BufWriter};
 use tokio::sync::{mpsc, oneshot};
-use tokio::time::{Instant, MissedTickBehavior};
+use tokio::time::Instant;
 
-use crate::can::candump::LogWriter;
-use crate::can::{Bus, FrameReceiver, RecvError, Timestamp};
+use crate::can::candump::{Ended, FlushPolicy, LogRecorder, RecordEnd, RecordProgress};
+use crate::can::{Bus, FrameReceiver, Timestamp};
 
 /// The most frames one recording may be asked for, and its default limit.
 pub const MAX_FRAMES: u64 = 1_000_000;
@@ -462,8 +462,10 @@ struct Job {
 }
 
 /// The recording task: `frames` to `file` until a limit, a stop, a closed
-/// bus or a write error. Writes what is queued before it stops for a
-/// command or the time limit, so a stop loses nothing already received.
+/// bus or a write error, by the one record loop of
+/// [`crate::can::candump::LogRecorder`]. Writes what is queued before it
+/// stops for a command or the time limit, so a stop loses nothing already
+/// received.
 async fn record<W: AsyncWrite + Unpin>(
     mut frames: FrameReceiver,
     file: W,
@@ -477,47 +479,57 @@ async fn record<W: AsyncWrite + Unpin>(
         limits,
         since,
     } = job;
-    let mut writer = Writer {
-        log: LogWriter::new(BufWriter::with_capacity(BUFFER, file), &iface),
-        progress: &progress,
-        limits,
-        dirty: false,
-        bus: &bus,
-    };
+    let mut recorder = LogRecorder::new(
+        BufWriter::with_capacity(BUFFER, file),
+        &iface,
+        &bus,
+        Some(limits.max_frames),
+        FlushPolicy::Every(FLUSH_EVERY),
+        since,
+    );
     let deadline = tokio::time::sleep_until(since + Duration::from_secs(limits.max_seconds));
     tokio::pin!(deadline);
-    let mut flush = tokio::time::interval_at(since + FLUSH_EVERY, FLUSH_EVERY);
-    flush.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut answer: Option<oneshot::Sender<()>> = None;
     let outcome: Result<StopReason, io::Error> = loop {
-        let step = tokio::select! {
-            // Commands first: a busy bus would otherwise never let one in.
-            biased;
-            command = commands.recv() => match command {
-                Some(Command::Flush(reply)) => {
-                    let done = writer.drain(&mut frames).await.and(writer.flush().await.map(|()| None));
-                    let _ = reply.send(());
-                    done
-                }
-                Some(Command::Stop(reply)) => {
-                    answer = Some(reply);
-                    writer.drain(&mut frames).await.map(|full| Some(full.unwrap_or(StopReason::Asked)))
-                }
-                // The recorder is gone.
-                None => writer.drain(&mut frames).await.map(|full| Some(full.unwrap_or(StopReason::Asked))),
-            },
-            () = &mut deadline => writer
-                .drain(&mut frames)
-                .await
-                .map(|full| Some(full.unwrap_or(StopReason::MaxSeconds))),
-            _ = flush.tick() => writer.flush().await.map(|()| None),
-            next = frames.recv() => writer.take(next).await,
+        // Commands first: a busy bus would otherwise never let one in.
+        let control = async {
+            tokio::select! {
+                biased;
+                command = commands.recv() => Some(command),
+                () = &mut deadline => None,
+            }
         };
-        match step {
-            Ok(None) => {}
-            Ok(Some(reason)) => break writer.flush().await.map(|()| reason),
+        let (control, ended) = match recorder.run(&mut frames, &*progress, control).await {
             Err(err) => break Err(err),
-        }
+            Ok(RecordEnd::Ended(ended)) => (None, Some(ended)),
+            Ok(RecordEnd::Control(control)) => (Some(control), recorder.ended()),
+        };
+        // A limit or the bus's end reached meanwhile is the reason to stop.
+        let or_ended = |reason| match ended {
+            Some(Ended::MaxFrames) => StopReason::MaxFrames,
+            Some(Ended::Closed) => StopReason::BusClosed,
+            None => reason,
+        };
+        let reason = match control {
+            None => or_ended(StopReason::Asked),
+            Some(None) => or_ended(StopReason::MaxSeconds),
+            Some(Some(Some(Command::Flush(reply)))) => {
+                let done = recorder.flush().await;
+                let _ = reply.send(());
+                match (done, ended) {
+                    (Err(err), _) => break Err(err),
+                    (Ok(()), None) => continue,
+                    (Ok(()), Some(_)) => or_ended(StopReason::Asked),
+                }
+            }
+            Some(Some(Some(Command::Stop(reply)))) => {
+                answer = Some(reply);
+                or_ended(StopReason::Asked)
+            }
+            // The recorder is gone.
+            Some(Some(None)) => or_ended(StopReason::Asked),
+        };
+        break recorder.flush().await.map(|()| reason);
     };
     let mut end = lock(&progress.end);
     end.stopped = Some(Timestamp::now());
@@ -545,62 +557,14 @@ async fn record<W: AsyncWrite + Unpin>(
     }
 }
 
-struct Writer<'a, W> {
-    log: LogWriter<BufWriter<W>>,
-    progress: &'a Progress,
-    limits: Limits,
-    dirty: bool,
-    bus: &'a str,
-}
-
-impl<W: AsyncWrite + Unpin> Writer<'_, W> {
-    /// Handles one receive result; the reason to stop, if any.
-    async fn take(
-        &mut self,
-        next: Result<crate::can::TimedFrame, RecvError>,
-    ) -> io::Result<Option<StopReason>> {
-        match next {
-            Ok(frame) => {
-                let len = self.log.write(&frame).await?;
-                self.dirty = true;
-                self.progress.bytes.fetch_add(len as u64, Ordering::Relaxed);
-                let frames = self.progress.frames.fetch_add(1, Ordering::Relaxed) + 1;
-                Ok((frames >= self.limits.max_frames).then_some(StopReason::MaxFrames))
-            }
-            Err(RecvError::Lagged(lost)) => {
-                self.progress.lost.fetch_add(lost, Ordering::Relaxed);
-                tracing::warn!(
-                    bus = self.bus,
-                    lost,
-                    "recording fell behind the bus; frames lost"
-                );
-                Ok(None)
-            }
-            Err(RecvError::Closed) => Ok(Some(StopReason::BusClosed)),
-        }
+impl RecordProgress for Progress {
+    fn written(&self, bytes: usize) {
+        self.bytes.fetch_add(bytes as u64, Ordering::Relaxed);
+        self.frames.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Writes what is queued, without waiting for more; the reason to stop
-    /// if the frame limit or the bus's end came meanwhile.
-    async fn drain(&mut self, frames: &mut FrameReceiver) -> io::Result<Option<StopReason>> {
-        loop {
-            let next = match frames.try_recv() {
-                Ok(Some(frame)) => Ok(frame),
-                Ok(None) => return Ok(None),
-                Err(err) => Err(err),
-            };
-            if let Some(reason) = self.take(next).await? {
-                return Ok(Some(reason));
-            }
-        }
-    }
-
-    async fn flush(&mut self) -> io::Result<()> {
-        if self.dirty {
-            self.log.flush().await?;
-            self.dirty = false;
-        }
-        Ok(())
+    fn lost(&self, frames: u64) {
+        self.lost.fetch_add(frames, Ordering::Relaxed);
     }
 }
 

@@ -3,10 +3,10 @@
 //!
 //! # Layout
 //!
-//! - [`args`]: the arguments (clap) and what each accepts.
-//! - [`config`]: the config file merged under the flags, the tokens, the
+//! - `args`: the arguments (clap) and what each accepts.
+//! - `config`: the config file merged under the flags, the tokens, the
 //!   checks of the whole.
-//! - [`start`]: the start-up: the buses, the gateway service and its
+//! - `start`: the start-up: the buses, the gateway service and its
 //!   adapters, and the stop on shutdown. The one place in `cli` that wires
 //!   the REST adapter (`crate::api`) to the gateway service.
 

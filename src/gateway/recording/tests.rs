@@ -153,6 +153,35 @@ async fn a_recording_stops_at_its_frame_limit() {
     ));
 }
 
+/// A download (which flushes the log) that comes while the frames that
+/// reach the limit are queued still stops the recording at the limit: the
+/// frame after it is not recorded.
+#[tokio::test(start_paused = true)]
+async fn a_download_at_the_frame_limit_records_no_frame_beyond_it() {
+    let hub = VirtualHub::new("count");
+    let gateway = hub.attach();
+    let other = hub.attach();
+    let recorder = Recorder::new(&gateway, None);
+    let limits = Limits::new(Some(3), None).unwrap();
+    recorder.start(limits).await.unwrap();
+    for n in 0..3 {
+        other.send(data(0x100 + n, &[])).await.unwrap();
+    }
+    // Queued for the recorder with the three above, which has not run yet.
+    let log = recorder.log().await.unwrap();
+    other.send(data(0x1FF, &[])).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(1)).await;
+    let status = recorder.status();
+    assert_eq!(status.state, RecordingState::Stopped);
+    assert_eq!(status.stop_reason, Some(StopReason::MaxFrames));
+    assert_eq!(status.frames, 3);
+    let ids: Vec<u32> = frames_of(&log.path)
+        .iter()
+        .map(|(_, f)| f.id().raw())
+        .collect();
+    assert_eq!(ids, [0x100, 0x101, 0x102]);
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_recording_stops_at_its_time_limit() {
     let hub = VirtualHub::new("clock");
