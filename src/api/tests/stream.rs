@@ -501,3 +501,65 @@ async fn value_topics_of_the_wrong_kind_of_node_are_refused_with_the_apis_codes(
         "{preview}"
     );
 }
+
+/// Issue 19, point 8: a viewer's `max_rate_hz` of 1e-300 was accepted, and
+/// `Duration::from_secs_f64(1e300)` panicked in the session's forwarding
+/// task and in the axis's producer. Every rate outside 0.01 to 1000 (and
+/// every number JSON cannot carry) is refused, and the session goes on.
+#[tokio::test(start_paused = true)]
+async fn a_rate_that_is_no_sleepable_period_is_refused_and_the_session_goes_on() {
+    let (_, state) = demo().await;
+    let topic = "buses/demo/nodes/1/axes/1";
+    let mut client = Client::start(&state, 1024);
+    for rate in [
+        "1e-300", "5e-324", "0.0099", "0", "-0", "-1", "-1e300", "1000.001", "1e9", "1e308",
+    ] {
+        let request = format!(r#"{{"op":"subscribe","topics":["{topic}"],"max_rate_hz":{rate}}}"#);
+        client.send(&request).await;
+        let answer = client.next().await;
+        assert_eq!(
+            (answer["op"].as_str(), answer["error"]["code"].as_str()),
+            (Some("error"), Some("value_out_of_range")),
+            "{request}: {answer}"
+        );
+        let message = answer["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains("0.01") && message.contains("1000"),
+            "{message}"
+        );
+    }
+    // Not numbers JSON knows (serde_json refuses them): not a request.
+    for rate in ["NaN", "Infinity", "-Infinity", "1e400", "\"fast\""] {
+        let request = format!(r#"{{"op":"subscribe","topics":["{topic}"],"max_rate_hz":{rate}}}"#);
+        client.send(&request).await;
+        let answer = client.next().await;
+        assert_eq!(
+            (answer["op"].as_str(), answer["error"]["code"].as_str()),
+            (Some("error"), Some("invalid_request")),
+            "{request}: {answer}"
+        );
+    }
+    // Nothing was subscribed, no producer was started by the refusals...
+    assert!(
+        !state.gateway.buses["demo"]
+            .axes
+            .is_running(crate::canopen::NodeId::new(1).unwrap(), 1)
+    );
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert!(
+        client.messages.try_recv().is_err(),
+        "updates of a refused topic"
+    );
+
+    // ... and the session is whole: the bounds themselves are rates, and
+    // updates come.
+    for (rate, expected) in [(0.01, 0.01), (1000.0, 1000.0)] {
+        let ack = client.subscribe(&[topic], Some(rate)).await;
+        assert_eq!(
+            ack,
+            json!({"op": "subscribed", "topics": [topic], "max_rate_hz": expected})
+        );
+        let update = client.until(|message| message["topic"] == topic).await;
+        assert_eq!(update["data"]["axis"], 1, "{update}");
+    }
+}
