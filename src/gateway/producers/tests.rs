@@ -106,3 +106,73 @@ async fn dropping_the_set_ends_its_producers() {
     assert_eq!(topic.latest().unwrap().seq, seq, "the task still publishes");
     drop(reader);
 }
+
+/// The suspects of the soak's stalled topics (issue 19, point 11) on this
+/// side: a reader that comes just as its producer decides to end, a task
+/// that ends while its topic has readers. Readers come and go in a seeded
+/// random order, at 0 to 15 ms apart around a producer of 10 ms rounds
+/// (0: in the same instant, only a yield between): whenever someone
+/// reads, a producer runs and publishes.
+#[tokio::test(start_paused = true)]
+async fn no_reader_is_left_without_a_producer_however_readers_come_and_go() {
+    let set = TopicSet::new();
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = move |n: u64| {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng % n
+    };
+    let mut readers: Vec<TopicReceiver> = Vec::new();
+    let mut read_since: Option<tokio::time::Instant> = None;
+    let mut seen = (0, tokio::time::Instant::now());
+    let mut restarts = 0;
+    for step in 0..3000 {
+        // Leaving a little likelier than coming: the topic is often left
+        // without readers, long enough for its producer to end.
+        match next(6) {
+            0 | 1 => {
+                if !set.is_running(&1) {
+                    restarts += 1;
+                }
+                readers.push(set.subscribe(1u8, 100.0, count));
+            }
+            2..=4 if !readers.is_empty() => {
+                let gone = next(readers.len() as u64) as usize;
+                readers.swap_remove(gone);
+            }
+            _ => {}
+        }
+        match next(16) {
+            0 => tokio::task::yield_now().await,
+            ms => tokio::time::sleep(Duration::from_millis(ms)).await,
+        }
+        let now = tokio::time::Instant::now();
+        let seq = set
+            .topic(&1)
+            .and_then(|topic| topic.latest())
+            .map_or(0, |s| s.seq);
+        if seq != seen.0 {
+            seen = (seq, now);
+        }
+        if readers.is_empty() {
+            read_since = None;
+            continue;
+        }
+        assert!(set.is_running(&1), "step {step}: readers, no producer");
+        let since = *read_since.get_or_insert(now);
+        // Someone has read for 25 ms: something was published within them.
+        if now - since >= Duration::from_millis(25) {
+            assert!(
+                now - seen.1 <= Duration::from_millis(25),
+                "step {step}: nothing published for {:?} with {} readers",
+                now - seen.1,
+                readers.len()
+            );
+        }
+    }
+    assert!(
+        restarts > 100,
+        "the producer ended and started again {restarts} times"
+    );
+}
