@@ -62,8 +62,9 @@ pub fn period_at_most(rate_hz: f64, max_hz: f64) -> Duration {
     } else {
         1.0
     };
-    // `min` and `max` take the number when the other is NaN.
-    let rate = rate.min(max_hz).min(MAX_RATE_HZ).max(MIN_RATE_HZ);
+    // `min` takes the number when `max_hz` is NaN, so what is clamped is a
+    // number, between bounds that are.
+    let rate = rate.min(max_hz).clamp(MIN_RATE_HZ, MAX_RATE_HZ);
     Duration::from_secs_f64(1.0 / rate).min(LONGEST_PERIOD)
 }
 
