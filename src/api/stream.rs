@@ -14,7 +14,10 @@
 //! `{"op":"error","topic"?,"error":{"code","message"}}` with the codes of the
 //! REST API (`unknown_bus`, `unknown_node`, `not_a_drive`, ...) and
 //! `invalid_request`. A subscribe with some bad topics subscribes the good
-//! ones and names each bad one.
+//! ones and names each bad one. `max_rate_hz` is a number from
+//! [`MIN_RATE_HZ`] (0.01: one update every 100 s) to [`MAX_RATE_HZ`]
+//! (1000); any other (0, negative, 1e-300, 1e9) is answered
+//! `value_out_of_range` and subscribes nothing, and the session goes on.
 //!
 //! Topics: `nodes` (appeared, identified, NMT state changed, offline,
 //! online), `emcy`, `buses/{bus}/frames[?ids=0x181,0x701]` (frames in
@@ -59,13 +62,16 @@ use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
+use crate::gateway::producers::{self, period_at_most};
 use crate::gateway::registry::NodeEvent;
 use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
 
 /// Updates per second of a value topic when the client asks no rate.
 pub const DEFAULT_RATE_HZ: f64 = 10.0;
 /// The fastest rate a client may ask for.
-pub const MAX_RATE_HZ: f64 = 1000.0;
+pub const MAX_RATE_HZ: f64 = producers::MAX_RATE_HZ;
+/// The slowest rate a client may ask for: one update every 100 s.
+pub const MIN_RATE_HZ: f64 = producers::MIN_RATE_HZ;
 /// Topics one client may hold.
 pub const MAX_TOPICS: usize = 256;
 /// Events (`nodes`, `emcy`) queued for one client before the oldest go.
@@ -87,7 +93,9 @@ pub fn router() -> OpenApiRouter<AppState> {
 /// `{"op":"subscribe","topics":["nodes","emcy","buses/demo/nodes/1/axes/1"],"max_rate_hz":20}`.
 /// Updates come as `{"topic","ts","data"}` (`ts` in ms since the Unix
 /// epoch); values are coalesced to the newest at `max_rate_hz` (default
-/// 10, at most 1000); a client that falls behind on events or frames gets
+/// 10, from 0.01 to 1000; another rate is answered
+/// `{"op":"error","error":{"code":"value_out_of_range",...}}` and the
+/// session goes on); a client that falls behind on events or frames gets
 /// `{"topic","lagged":N}`. See `docs/websocket.md` for every topic
 /// and message.
 #[utoipa::path(get, path = "/stream", tag = "stream",
@@ -422,12 +430,15 @@ impl Session {
     fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {
         let rate_hz = match max_rate_hz {
             None => self.default_rate_hz,
-            Some(rate) if rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ => rate,
+            // Every number the stream takes is checked here, at its edge:
+            // a rate of 1e-300 Hz is a period no clock can wait.
+            Some(rate) if (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate) => rate,
             Some(rate) => {
                 return vec![error_message(
                     None,
                     &AppError::ValueOutOfRange(format!(
-                        "max_rate_hz {rate} is out of range: above 0, at most {MAX_RATE_HZ}"
+                        "max_rate_hz {rate} is out of range: from {MIN_RATE_HZ} \
+                         (one update every 100 s) to {MAX_RATE_HZ} updates per second"
                     )),
                 )];
             }
@@ -697,7 +708,7 @@ impl Mailbox {
 /// would beat against a producer publishing at the same rate and deliver
 /// each sample up to a whole period late.
 async fn forward_values(mut receiver: TopicReceiver, topic: Arc<str>, mailbox: Arc<Mailbox>) {
-    let period = Duration::from_secs_f64(1.0 / receiver.rate_hz());
+    let period = period_at_most(receiver.rate_hz(), MAX_RATE_HZ);
     let mut due = Instant::now();
     if let Some(sample) = receiver.take() {
         mailbox.put_value(&topic, sample);
@@ -781,7 +792,7 @@ async fn forward_frames(
     topic: Arc<str>,
     mailbox: Arc<Mailbox>,
 ) {
-    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let period = period_at_most(rate_hz, MAX_RATE_HZ);
     let mut next_wake = Instant::now();
     let mut queued = false;
     loop {

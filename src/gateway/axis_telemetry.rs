@@ -20,7 +20,7 @@
 //!
 //! One task per axis that someone reads; it ends when its last reader goes,
 //! and polls nothing meanwhile. A node the registry does not know (or no
-//! longer as a drive) ends nothing: the topic waits for it.
+//! longer, or not yet, as a drive) ends nothing: the topic waits for it.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -30,12 +30,13 @@ use tokio::time::Instant;
 
 use super::drive::{AxisReading, Drive, DriveError};
 use super::producers::{IDLE_CHECK, Lease, TelemetryConfig, TopicSet, idle, period, unreachable};
-use super::registry::{NodeRegistry, RegistryError};
+use super::registry::{Identification, NodeRegistry, RegistryError};
 use super::telemetry::{TopicReceiver, ValueTopic};
 use super::values::TpdoValues;
 use crate::canopen::NodeId;
 use crate::profiles::cia402::objects as obj;
 use crate::profiles::cia402::{Mode, State, Statusword};
+use crate::profiles::umc;
 
 /// How recent the TPDO values of an axis must be to be its source: a
 /// dashboard sees a TPDO that stopped within a second, and then the status
@@ -154,7 +155,12 @@ impl AxisTelemetry {
 
     /// A reader of axis `axis` of `node` wanting `rate_hz`. An unknown
     /// node, a node that is no drive and an axis the drive does not have
-    /// are errors, as they are for `GET .../axes/{axis}`.
+    /// are errors, as they are for `GET .../axes/{axis}`; but a node the
+    /// gateway is still identifying (it has just booted: the gateway
+    /// started, or the node was reset or plugged back) is no drive *yet*,
+    /// so its topic is made and waits for it, as it waits for a drive that
+    /// goes and comes back. Refusing it sent a client that subscribed in
+    /// that window one error and then nothing, for good.
     pub fn subscribe(
         &self,
         node: NodeId,
@@ -168,7 +174,16 @@ impl AxisTelemetry {
                 bus: registry.bus_name().to_string(),
                 node,
             })?;
-        Drive::new(registry, &info, &axis.to_string())?;
+        if info.identification != Identification::Pending {
+            Drive::new(registry, &info, &axis.to_string())?;
+        } else if !(1..=umc::MAX_AXES).contains(&axis) {
+            // No drive has more axes than a UMC can.
+            return Err(DriveError::UnknownAxis {
+                node: node.get(),
+                axis: axis.to_string(),
+                axes: umc::MAX_AXES,
+            });
+        }
         let task = AxisTask {
             registry: registry.clone(),
             values: self.inner.values.clone(),

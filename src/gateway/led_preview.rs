@@ -22,7 +22,7 @@ use tokio::time::Instant;
 
 use super::producers::{IDLE_CHECK, Lease, TelemetryConfig, TopicSet, idle, period, unreachable};
 use super::profile::Profile;
-use super::registry::{NodeRegistry, RegistryError};
+use super::registry::{Identification, NodeRegistry, RegistryError};
 use super::telemetry::{TopicReceiver, ValueTopic};
 use super::uioled::{ReadSegment, preview, read_preview};
 use crate::canopen::NodeId;
@@ -76,7 +76,9 @@ impl LedPreviews {
     }
 
     /// A reader of the preview of `node` wanting `rate_hz`; an unknown node
-    /// and a node that is no LED controller are errors.
+    /// and a node that is no LED controller are errors, but a node still
+    /// being identified is not known to be none: its topic waits for it
+    /// (see [`AxisTelemetry::subscribe`](super::axis_telemetry::AxisTelemetry::subscribe)).
     pub fn subscribe(&self, node: NodeId, rate_hz: f64) -> Result<TopicReceiver, PreviewError> {
         let registry = &self.inner.registry;
         let info = registry
@@ -85,7 +87,7 @@ impl LedPreviews {
                 bus: registry.bus_name().to_string(),
                 node,
             })?;
-        if info.profile != Profile::Uioled {
+        if info.profile != Profile::Uioled && info.identification != Identification::Pending {
             return Err(PreviewError::NotAnLedController {
                 node,
                 profile: info.profile,

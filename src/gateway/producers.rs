@@ -31,16 +31,41 @@ pub const MAX_PUBLISH_HZ: f64 = 100.0;
 /// anyone still reads.
 pub const IDLE_CHECK: Duration = Duration::from_secs(1);
 
+/// The slowest rate anything is paced at: one update every
+/// [`LONGEST_PERIOD`]. The stream refuses slower rates at its edge; here
+/// it bounds every period, so that no rate makes a duration that cannot be
+/// slept (or added to an instant).
+pub const MIN_RATE_HZ: f64 = 0.01;
+
+/// The period of [`MIN_RATE_HZ`].
+pub const LONGEST_PERIOD: Duration = Duration::from_secs(100);
+
+/// The fastest rate anything is paced at (the fastest a stream client may
+/// ask its values forwarded): one update every millisecond.
+pub const MAX_RATE_HZ: f64 = 1000.0;
+
 /// The time between two publishes at `rate_hz`, at most
-/// [`MAX_PUBLISH_HZ`]; a rate that is no positive number counts as 1 Hz, as
-/// [`ValueTopic::subscribe`] counts it.
+/// [`MAX_PUBLISH_HZ`]; see [`period_at_most`].
 pub fn period(rate_hz: f64) -> Duration {
+    period_at_most(rate_hz, MAX_PUBLISH_HZ)
+}
+
+/// The time between two updates at `rate_hz` capped at `max_hz`, for any
+/// numbers: a rate that is no positive number counts as 1 Hz (as
+/// [`ValueTopic::subscribe`] counts it), and the rate is held between
+/// [`MIN_RATE_HZ`] and the lower of `max_hz` and [`MAX_RATE_HZ`]. So the
+/// period is 1 ms to [`LONGEST_PERIOD`] whatever comes in: a rate of
+/// 1e-300 Hz would be a period of 1e300 s, which no [`Duration`] holds.
+pub fn period_at_most(rate_hz: f64, max_hz: f64) -> Duration {
     let rate = if rate_hz.is_finite() && rate_hz > 0.0 {
-        rate_hz.min(MAX_PUBLISH_HZ)
+        rate_hz
     } else {
         1.0
     };
-    Duration::from_secs_f64(1.0 / rate)
+    // `min` takes the number when `max_hz` is NaN, so what is clamped is a
+    // number, between bounds that are.
+    let rate = rate.min(max_hz).clamp(MIN_RATE_HZ, MAX_RATE_HZ);
+    Duration::from_secs_f64(1.0 / rate).min(LONGEST_PERIOD)
 }
 
 /// The settings of the telemetry producers of a bus.
@@ -200,60 +225,4 @@ impl<K: Hash + Eq> Lease<K> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_period_is_capped_and_odd_rates_count_as_one_hertz() {
-        assert_eq!(period(20.0), Duration::from_millis(50));
-        assert_eq!(period(1e9), Duration::from_millis(10));
-        assert_eq!(period(0.0), Duration::from_secs(1));
-        assert_eq!(period(f64::NAN), Duration::from_secs(1));
-    }
-
-    /// A producer that publishes a count every 10 ms while it has readers.
-    async fn count(topic: ValueTopic, lease: Lease<u8>) {
-        let mut n = 0;
-        while lease.keep_going() {
-            n += 1;
-            topic.publish(serde_json::json!(n));
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn a_producer_runs_while_someone_reads_and_starts_again_for_the_next_reader() {
-        let set = TopicSet::new();
-        let mut first = set.subscribe(1u8, 10.0, count);
-        let second = set.subscribe(1u8, 10.0, count);
-        assert_eq!(first.changed().await.unwrap().data, serde_json::json!(1));
-        assert!(set.is_running(&1));
-        drop(second);
-        tokio::time::sleep(Duration::from_millis(25)).await;
-        assert!(set.is_running(&1), "one reader is left");
-        drop(first);
-        tokio::time::sleep(Duration::from_millis(25)).await;
-        assert!(!set.is_running(&1));
-        let published = set.topic(&1).unwrap().latest().unwrap().seq;
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        assert_eq!(set.topic(&1).unwrap().latest().unwrap().seq, published);
-
-        let mut again = set.subscribe(1u8, 10.0, count);
-        assert!(set.is_running(&1));
-        assert_eq!(again.changed().await.unwrap().data, serde_json::json!(1));
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn dropping_the_set_ends_its_producers() {
-        let set = TopicSet::new();
-        let reader = set.subscribe(7u8, 10.0, count);
-        let topic = set.topic(&7).unwrap();
-        tokio::time::sleep(Duration::from_millis(15)).await;
-        drop(set);
-        tokio::time::sleep(Duration::from_millis(5)).await;
-        let seq = topic.latest().unwrap().seq;
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        assert_eq!(topic.latest().unwrap().seq, seq, "the task still publishes");
-        drop(reader);
-    }
-}
+mod tests;

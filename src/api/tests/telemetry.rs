@@ -559,3 +559,48 @@ async fn the_producers_stop_with_their_bus() {
     assert_eq!(from_gateway, 0);
     drop((axis, preview, values));
 }
+
+/// Issue 19, point 8: a rate of 1e-300 Hz (or one whose inverse is no
+/// number at all) made `Duration::from_secs_f64` panic in the producers:
+/// the axis's before its first poll, the LED preview's after its first
+/// sample. The stream refuses such rates at its edge; the producers, which
+/// are the gateway's to call, take any number and pace it to a period they
+/// can sleep.
+#[tokio::test(start_paused = true)]
+async fn a_producer_takes_any_rate_and_goes_on() {
+    let (_, state) = demo().await;
+    let served = demo_bus(&state);
+    for rate in [
+        1e-300,
+        5e-324,
+        f64::MIN_POSITIVE,
+        -1.0,
+        f64::NAN,
+        f64::INFINITY,
+        1e300,
+    ] {
+        let mut axis = served.axes.subscribe(node(1), 1, rate).unwrap();
+        let mut preview = served.previews.subscribe(node(3), rate).unwrap();
+        for (what, reader) in [("axis", &mut axis), ("preview", &mut preview)] {
+            let first = tokio::time::timeout(Duration::from_secs(5), reader.changed()).await;
+            assert!(
+                matches!(first, Ok(Some(_))),
+                "{rate} Hz: no {what} sample within 5 s"
+            );
+        }
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        assert!(
+            served.axes.is_running(node(1), 1),
+            "{rate} Hz: the axis task ended"
+        );
+        assert!(
+            served.previews.is_running(node(3)),
+            "{rate} Hz: the preview task ended"
+        );
+        drop((axis, preview));
+        // Its readers gone, each task ends (within its longest wait).
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        assert!(!served.axes.is_running(node(1), 1), "{rate} Hz");
+        assert!(!served.previews.is_running(node(3)), "{rate} Hz");
+    }
+}
