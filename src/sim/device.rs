@@ -453,7 +453,10 @@ impl DeviceCore {
         let boot_up = self.nmt.boot_up();
         self.pdos = DevicePdos::new(&self.store, now);
         self.guard.reset();
-        self.heartbeat_ms = 0;
+        // The producer restarts from 0x1017 as the reset left it, whatever
+        // period ran before (comparing with the old one would keep it).
+        self.heartbeat_ms = self.heartbeat_period();
+        self.heartbeat.set_period_ms(self.heartbeat_ms, now);
         self.follow_communication_parameters(now);
         if self.silent {
             return Vec::new();
@@ -660,13 +663,18 @@ impl DeviceCore {
 
     /// A write to 0x1017 changes the heartbeat from the next period on.
     fn follow_heartbeat_time(&mut self, now: Instant) {
-        let period = match self.store.get(PRODUCER_HEARTBEAT_TIME, 0) {
-            Some(Value::Unsigned16(ms)) => *ms,
-            _ => 0,
-        };
+        let period = self.heartbeat_period();
         if period != self.heartbeat_ms {
             self.heartbeat_ms = period;
             self.heartbeat.set_period_ms(period, now);
+        }
+    }
+
+    /// 0x1017 as it is in the store, in ms.
+    fn heartbeat_period(&self) -> u16 {
+        match self.store.get(PRODUCER_HEARTBEAT_TIME, 0) {
+            Some(Value::Unsigned16(ms)) => *ms,
+            _ => 0,
         }
     }
 
@@ -1135,6 +1143,59 @@ mod tests {
         rig.sdo.download(0x1011, 5, &LOAD).await.unwrap();
         assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![9]);
         rig.task.abort();
+    }
+
+    /// UMC manual chapter 3 §4.2.2 and §9.1.7 (the UIO1LED manual's are the
+    /// same words): the heartbeat is on while 0x1017 is not zero, at its
+    /// period. After reset communication or reset node 0x1017 is back to
+    /// its default 0, so no heartbeat; writing a period starts it again and
+    /// writing 0 stops it.
+    #[test]
+    fn after_a_reset_the_heartbeat_follows_0x1017_again() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let heartbeat = CanId::standard(0x709).unwrap();
+        let write_1017 = |ms: u16| {
+            let [lo, hi] = ms.to_le_bytes();
+            Frame::new(CanId::standard(0x609).unwrap(), &[0x2B, 0x17, 0x10, 0, lo, hi, 0, 0])
+                .unwrap()
+        };
+        // Heartbeats (not the boot-up) sent from `from` for `ms` simulated ms.
+        let run = |device: &mut DeviceCore, from: Instant, ms: u64| {
+            let mut beats = 0;
+            for step in 1..=ms {
+                let now = from + Duration::from_millis(step);
+                device.tick_to(now);
+                beats += device
+                    .poll(now)
+                    .iter()
+                    .filter(|f| f.id() == heartbeat && f.data() != [0x00])
+                    .count();
+            }
+            beats
+        };
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            for reset in [NmtCommand::ResetCommunication, NmtCommand::ResetNode] {
+                let mut device = product.device(id).unwrap();
+                let start = Instant::now();
+                device.boot(start);
+                device.handle_frame(&write_1017(200), start);
+                assert_eq!(run(&mut device, start, 1000), 5, "{product:?}");
+                let now = start + Duration::from_millis(1000);
+                let frame = NmtMessage::new(reset, NmtTarget::Node(id)).encode();
+                device.handle_frame(&frame, now);
+                assert_eq!(device.store().int(0x1017, 0), Some(0));
+                assert_eq!(run(&mut device, now, 1000), 0, "{product:?} {reset:?}");
+                let now = now + Duration::from_millis(1000);
+                device.handle_frame(&write_1017(100), now);
+                assert_eq!(run(&mut device, now, 1000), 10, "{product:?} {reset:?}");
+                let now = now + Duration::from_millis(1000);
+                device.handle_frame(&write_1017(0), now);
+                assert_eq!(run(&mut device, now, 1000), 0, "{product:?} {reset:?}");
+            }
+        }
     }
 
     #[test]
