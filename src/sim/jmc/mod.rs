@@ -317,6 +317,9 @@ impl Jmc {
                 Reaction::EnableOutput => {
                     self.output = true;
                     self.stopping = None;
+                    // Transition 4 starts unhalted; a bit 8 still high
+                    // halts afresh (the next reaction).
+                    self.halted = false;
                     self.set_points.reset(self.position_actual());
                 }
                 Reaction::DisableOutput => {
@@ -353,6 +356,12 @@ impl Jmc {
         let before = self.pds.state();
         let reactions = self.pds.controlword(Controlword(word));
         self.react(reactions);
+        if self.pds.state() != State::OperationEnabled {
+            // The halt is a function of operation enabled: leaving it (a
+            // shutdown after routine 4's 0x010F) drops it, as the state
+            // machine does, so that statusword bit 8 does not stay latched.
+            self.halted = false;
+        }
         if before == State::Fault && self.pds.state() != State::Fault {
             self.alarms_reset(io);
         }
