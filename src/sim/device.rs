@@ -39,7 +39,9 @@ use crate::canopen::heartbeat::{
     ConsumerTime, HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, LifeGuard, LifeGuardEvent,
     heartbeat_node,
 };
-use crate::canopen::nmt::{NmtEvent, NmtService, NmtSlave, NmtState};
+use crate::canopen::nmt::{
+    NmtCommand, NmtEvent, NmtMessage, NmtService, NmtSlave, NmtState, NmtTarget,
+};
 use crate::canopen::od::{ObjectDictionary, Value};
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
@@ -64,6 +66,8 @@ const CONSUMER_HEARTBEAT_TIME: u16 = 0x1016;
 const GUARD_TIME: u16 = 0x100C;
 /// 0x100D: life time factor.
 const LIFE_TIME_FACTOR: u16 = 0x100D;
+/// 0x1029: error behaviour, sub 1 communication error.
+const ERROR_BEHAVIOUR: u16 = 0x1029;
 /// 0x1014: COB-ID EMCY.
 const COB_ID_EMCY: u16 = 0x1014;
 /// 0x1015: inhibit time EMCY, in 100 µs.
@@ -125,6 +129,9 @@ pub struct DeviceCore {
     consumed: Vec<(NodeId, std::time::Duration)>,
     /// The injected heartbeat loss: no heartbeat, no guarding reply.
     silent: bool,
+    /// A communication error in operational waits for 0x1029's reaction,
+    /// which the next poll applies once its EMCY is out.
+    communication_error: Option<Instant>,
     /// Milliseconds of simulated time, and the instant they were reached.
     sim_ms: u64,
     last_tick: Option<Instant>,
@@ -182,6 +189,7 @@ impl DeviceCore {
             consumer: HeartbeatConsumer::new(),
             consumed: Vec::new(),
             silent: false,
+            communication_error: None,
             sim_ms: 0,
             last_tick: None,
             skipped_ticks: 0,
@@ -388,6 +396,30 @@ impl DeviceCore {
                 io.emcy(0x0000, [0; 5]);
             }
         });
+        if lost && self.nmt.state() == NmtState::Operational {
+            // After the EMCY has gone out (none is sent in stopped).
+            self.communication_error = Some(now);
+        }
+    }
+
+    /// A communication error in operational (CiA 301 §7.2.8.2.1.1; UMC
+    /// manual chapter 3 §6.1.2, Table 3.11): 0x1029.1 says where the node
+    /// goes, 0 pre-operational, 1 nowhere, 2 stopped. A device without
+    /// 0x1029 (the JMC) stays where it is.
+    fn apply_error_behaviour(&mut self, now: Instant) {
+        self.communication_error = None;
+        if self.nmt.state() != NmtState::Operational {
+            return;
+        }
+        let command = match self.store.int(ERROR_BEHAVIOUR, 1) {
+            Some(0) => NmtCommand::EnterPreOperational,
+            Some(2) => NmtCommand::Stop,
+            _ => return,
+        };
+        let message = NmtMessage::new(command, NmtTarget::Node(self.node()));
+        if let Some(NmtEvent::StateChanged { from, to }) = self.nmt.handle(message) {
+            self.with_application(now, |behaviour, io| behaviour.nmt_changed(io, from, to));
+        }
     }
 
     /// A heartbeat (or boot-up) of a node 0x1016 watches.
@@ -453,6 +485,7 @@ impl DeviceCore {
         let boot_up = self.nmt.boot_up();
         self.pdos = DevicePdos::new(&self.store, now);
         self.guard.reset();
+        self.communication_error = None;
         // The producer restarts from 0x1017 as the reset left it, whatever
         // period ran before (comparing with the old one would keep it).
         self.heartbeat_ms = self.heartbeat_period();
@@ -580,6 +613,9 @@ impl DeviceCore {
                 }
             }
         }
+        if self.communication_error.is_some_and(|at| at <= now) {
+            self.apply_error_behaviour(now);
+        }
         if self.nmt.allows(NmtService::Pdo) {
             out.extend(self.pdos.poll(&self.store, now));
         }
@@ -605,6 +641,7 @@ impl DeviceCore {
             self.consumer.deadline(),
             emcy,
             pdos,
+            self.communication_error,
             self.next_tick(),
         ]
         .into_iter()
@@ -1194,6 +1231,53 @@ mod tests {
                 let now = now + Duration::from_millis(1000);
                 device.handle_frame(&write_1017(0), now);
                 assert_eq!(run(&mut device, now, 1000), 0, "{product:?} {reset:?}");
+            }
+        }
+    }
+
+    /// UMC manual chapter 3 §6.1.2 (0x1029, Table 3.11; the UIO1LED
+    /// manual's §6.1.2, Table 2.11), CiA 301 §7.2.8.2.1.1: a heartbeat
+    /// time-out in operational is a communication error, and 0x1029.1 says
+    /// what follows: 0 pre-operational (the default), 1 no change of the NMT
+    /// state, 2 stopped. The EMCY 0x8130 goes out in every case.
+    #[test]
+    fn a_heartbeat_time_out_in_operational_follows_0x1029() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let sdo = |data: [u8; 8]| Frame::new(CanId::standard(0x609).unwrap(), &data).unwrap();
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            for (behaviour, expected) in [
+                (0u8, NmtState::PreOperational),
+                (1, NmtState::Operational),
+                (2, NmtState::Stopped),
+            ] {
+                let mut device = product.device(id).unwrap();
+                let start = Instant::now();
+                device.boot(start);
+                device.handle_frame(&sdo([0x2F, 0x29, 0x10, 1, behaviour, 0, 0, 0]), start);
+                assert_eq!(device.store().int(0x1029, 1), Some(behaviour.into()));
+                // Watch node 0x7F's heartbeat, 100 ms.
+                device.handle_frame(&sdo([0x23, 0x16, 0x10, 1, 100, 0, 0x7F, 0]), start);
+                let go = NmtMessage::new(NmtCommand::Start, NmtTarget::Node(id)).encode();
+                device.handle_frame(&go, start);
+                let beat = Frame::new(CanId::standard(0x77F).unwrap(), &[0x05]).unwrap();
+                device.handle_frame(&beat, start);
+                assert_eq!(device.nmt_state(), NmtState::Operational);
+                let mut emcys = Vec::new();
+                for ms in 1..=200 {
+                    let now = start + Duration::from_millis(ms);
+                    device.tick_to(now);
+                    let out = device.poll(now);
+                    emcys.extend(
+                        out.iter()
+                            .filter(|f| f.id() == CanId::standard(0x89).unwrap())
+                            .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]])),
+                    );
+                }
+                assert!(emcys.contains(&0x8130), "{product:?} {emcys:04X?}");
+                assert_eq!(device.nmt_state(), expected, "{product:?}, 0x1029.1 = {behaviour}");
             }
         }
     }
