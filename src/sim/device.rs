@@ -43,6 +43,7 @@ use crate::canopen::nmt::{
     NmtCommand, NmtEvent, NmtMessage, NmtService, NmtSlave, NmtState, NmtTarget,
 };
 use crate::canopen::od::{ObjectDictionary, Value};
+use crate::canopen::pdo::EMCY_PDO_LENGTH_EXCEEDED;
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
 use super::behaviour::{
@@ -552,8 +553,16 @@ impl DeviceCore {
             }
             replies
         } else if self.nmt.allows(NmtService::Pdo) {
-            self.pdos
-                .handle_frame(frame, &mut self.store, now, &mut written)
+            let out = self
+                .pdos
+                .handle_frame(frame, &mut self.store, now, &mut written);
+            let exceeded_too = self.behaviour.reports_pdo_length_exceeded();
+            for code in self.pdos.take_length_errors() {
+                if code != EMCY_PDO_LENGTH_EXCEEDED || exceeded_too {
+                    self.with_application(now, |_, io| io.emcy(code, [0; 5]));
+                }
+            }
+            out
         } else {
             Vec::new()
         };
@@ -1279,6 +1288,62 @@ mod tests {
                 assert!(emcys.contains(&0x8130), "{product:?} {emcys:04X?}");
                 assert_eq!(device.nmt_state(), expected, "{product:?}, 0x1029.1 = {behaviour}");
             }
+        }
+    }
+
+    /// CiA 301 §7.2.2.2 and the EMCY tables of the UMC manual (chapter 3
+    /// §6.1, "0x8210 PDO not processed due to length error", "0x8220 PDO
+    /// length exceeded") and the UIO1LED manual (the same table): an RPDO
+    /// shorter than its mapping is not processed and says so with 0x8210;
+    /// a longer one is processed and the UniSwarm devices report 0x8220. The
+    /// JMC's manual lists no 0x8220, so it only reports the short one.
+    #[test]
+    fn an_rpdo_of_the_wrong_length_raises_its_emcy() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let rpdo1 = |len: usize| Frame::new(CanId::standard(0x209).unwrap(), &[0; 8][..len]).unwrap();
+        for (product, reports_longer) in [
+            (Product::Umc1bds32, true),
+            (Product::Uio1led, true),
+            (Product::Jmc, false),
+        ] {
+            let mut device = product.device(id).unwrap();
+            let start = Instant::now();
+            device.boot(start);
+            // RPDO1: two dummies, 16 and 32 bits (6 bytes), on 0x209.
+            let store = device.store_mut();
+            store.set(0x1600, 0, Value::Unsigned8(0)).unwrap();
+            store.set(0x1600, 1, Value::Unsigned32(0x0006_0010)).unwrap();
+            store.set(0x1600, 2, Value::Unsigned32(0x0007_0020)).unwrap();
+            store.set(0x1600, 0, Value::Unsigned8(2)).unwrap();
+            store.set(0x1400, 1, Value::Unsigned32(0x209)).unwrap();
+            store.set(0x1400, 2, Value::Unsigned8(255)).unwrap();
+            device.pdo_parameters_changed(start);
+            let go = NmtMessage::new(NmtCommand::Start, NmtTarget::Node(id)).encode();
+            device.handle_frame(&go, start);
+            let mut emcys = |len: usize, at: u64| {
+                let now = start + Duration::from_millis(at);
+                device.handle_frame(&rpdo1(len), now);
+                let mut codes = Vec::new();
+                for ms in at..at + 10 {
+                    let now = start + Duration::from_millis(ms);
+                    device.tick_to(now);
+                    codes.extend(
+                        device
+                            .poll(now)
+                            .iter()
+                            .filter(|f| f.id() == CanId::standard(0x89).unwrap())
+                            .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]])),
+                    );
+                }
+                codes
+            };
+            assert_eq!(emcys(6, 100), Vec::<u16>::new(), "{product:?}");
+            assert_eq!(emcys(5, 200), [0x8210], "{product:?}");
+            let longer = if reports_longer { vec![0x8220] } else { vec![] };
+            assert_eq!(emcys(8, 300), longer, "{product:?}");
         }
     }
 
