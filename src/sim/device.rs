@@ -1347,6 +1347,51 @@ mod tests {
         }
     }
 
+    /// One expedited SDO request to node 9 and its answer.
+    fn sdo_exchange(device: &mut DeviceCore, request: [u8; 8]) -> [u8; 8] {
+        let frame = Frame::new(CanId::standard(0x609).unwrap(), &request).unwrap();
+        let replies = device.handle_frame(&frame, Instant::now());
+        let reply = replies
+            .iter()
+            .find(|f| f.id() == CanId::standard(0x589).unwrap())
+            .expect("an SDO answer");
+        reply.data().try_into().unwrap()
+    }
+
+    /// The abort code of an answer, `None` for a confirmation.
+    fn abort_of(reply: [u8; 8]) -> Option<u32> {
+        (reply[0] == 0x80).then(|| u32::from_le_bytes(reply[4..8].try_into().unwrap()))
+    }
+
+    /// CiA 306 §4.5.4 `[DummyUsage]` and CiA 301 §7.4.7.1: the UIO1LED's EDS
+    /// declares Dummy0002–Dummy0007, the dummy objects an RPDO may map; a
+    /// device reading them answers the length of their type in bits as
+    /// UNSIGNED32 (const), as python-canopen's reading of such an EDS
+    /// expects. The EDS's 0x1014 (COB_ID_EMCY) has limits 0x80–0x100: a value
+    /// outside them is refused with 0x06090032 / 0x06090031.
+    #[test]
+    fn the_uio1led_answers_its_dummy_objects_and_keeps_0x1014_in_its_limits() {
+        use crate::sim::products::Product;
+
+        let mut device = Product::Uio1led.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        for (index, bits) in [(2u8, 8u8), (3, 16), (4, 32), (5, 8), (6, 16), (7, 32)] {
+            let reply = sdo_exchange(&mut device, [0x40, index, 0, 0, 0, 0, 0, 0]);
+            assert_eq!(reply, [0x43, index, 0, 0, bits, 0, 0, 0], "0x{index:04X}");
+            let write = sdo_exchange(&mut device, [0x23, index, 0, 0, bits, 0, 0, 0]);
+            assert_eq!(abort_of(write), Some(0x0601_0002), "0x{index:04X} is const");
+        }
+        // Dummy0001 is not declared.
+        let reply = sdo_exchange(&mut device, [0x40, 1, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(abort_of(reply), Some(0x0602_0000));
+        for (value, abort) in [(0x7Fu32, 0x0609_0032u32), (0x101, 0x0609_0031)] {
+            let [a, b, c, d] = value.to_le_bytes();
+            let reply = sdo_exchange(&mut device, [0x23, 0x14, 0x10, 0, a, b, c, d]);
+            assert_eq!(abort_of(reply), Some(abort), "0x1014 = {value:#X}");
+        }
+        assert_eq!(device.store().int(0x1014, 0), Some(0x89));
+    }
+
     #[test]
     fn values_saved_before_a_restart_are_in_force() {
         let mut device = DeviceCore::new(testnode(), node()).unwrap();

@@ -516,7 +516,10 @@ mod tests {
     }
 
     fn probe(id: u8) -> DeviceCore {
-        let dictionary = Eds::parse(UIO1LED, "uio1led.eds").unwrap().dictionary;
+        let mut dictionary = Eds::parse(UIO1LED, "uio1led.eds").unwrap().dictionary;
+        // The UIO1LED's limits on 0x1014 (0x80–0x100) keep bit 31 out; the
+        // probe is the core's, which may be told not to send EMCYs.
+        dictionary.sub_mut(0x1014, 0).unwrap().high = None;
         DeviceCore::with_behaviour(dictionary, node(id), Box::new(Probe::default())).unwrap()
     }
 
