@@ -783,6 +783,23 @@ impl DeviceAccess<'_> {
         matches!(index, STORE_PARAMETERS | RESTORE_PARAMETERS) && sub >= 1
     }
 
+    /// CiA 301 §7.5.2.16: bits 0–29 of 0x1014 do not change while the
+    /// EMCY exists (bit 31 clear): 0x06090030.
+    fn check_emcy_cob_id(&self, before: Option<&Value>, data: &[u8]) -> Result<(), AbortCode> {
+        let (Some(old), Ok(new)) = (
+            before.and_then(Value::as_i128),
+            <[u8; 4]>::try_from(data),
+        ) else {
+            return Ok(());
+        };
+        let (old, new) = (old as u32, u32::from_le_bytes(new));
+        const ID_AND_FORMAT: u32 = 0x3FFF_FFFF;
+        if old & 0x8000_0000 == 0 && old & ID_AND_FORMAT != new & ID_AND_FORMAT {
+            return Err(AbortCode::InvalidValue);
+        }
+        Ok(())
+    }
+
     fn save(&mut self, area: Area) {
         *self.saved_version += 1;
         self.saved.retain(|(index, _), _| !area.contains(*index));
@@ -854,6 +871,7 @@ impl ObjectAccess for DeviceAccess<'_> {
             }
             if pdo::is_pdo_parameter(index) {
                 self.store.check_write(index, sub, Some(data.len()))?;
+                self.behaviour.check_value(self.store, index, sub, data)?;
                 pdo::check_write(
                     self.store,
                     index,
@@ -866,7 +884,17 @@ impl ObjectAccess for DeviceAccess<'_> {
                 return Ok(());
             }
             self.behaviour.check_value(self.store, index, sub, data)?;
+            let before = self.store.get(index, sub).cloned();
             self.store.write(index, sub, data)?;
+            if index == COB_ID_EMCY
+                && let Err(abort) = self.check_emcy_cob_id(before.as_ref(), data)
+            {
+                // Within the dictionary's limits, but not allowed now.
+                if let Some(before) = before {
+                    let _ = self.store.set(index, sub, before);
+                }
+                return Err(abort);
+            }
             self.written.push((index, sub));
             return Ok(());
         }
@@ -1390,6 +1418,73 @@ mod tests {
             assert_eq!(abort_of(reply), Some(abort), "0x1014 = {value:#X}");
         }
         assert_eq!(device.store().int(0x1014, 0), Some(0x89));
+    }
+
+    /// An expedited download of a 32-bit `value`; the abort code, if any.
+    fn download_u32(device: &mut DeviceCore, index: u16, sub: u8, value: u32) -> Option<u32> {
+        let [i0, i1] = index.to_le_bytes();
+        let [a, b, c, d] = value.to_le_bytes();
+        abort_of(sdo_exchange(device, [0x23, i0, i1, sub, a, b, c, d]))
+    }
+
+    /// CiA 301 §7.5.2.16 (0x1014 COB-ID EMCY): bits 0–29 shall not be
+    /// changed while the EMCY exists (bit 31 = 0); the UMC and the UIO1LED
+    /// refuse such a write with 0x06090030 (invalid value). Setting bit 31
+    /// first, the COB-ID can be changed (the UMC; the UIO1LED's EDS limits
+    /// keep bit 31 out).
+    #[test]
+    fn the_emcy_cob_id_does_not_change_while_the_emcy_is_valid() {
+        use crate::sim::products::Product;
+
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            let mut device = product.device(NodeId::new(9).unwrap()).unwrap();
+            device.boot(Instant::now());
+            assert_eq!(
+                download_u32(&mut device, 0x1014, 0, 0x8A),
+                Some(0x0609_0030),
+                "{product:?}"
+            );
+            // The same value again changes nothing and is taken.
+            assert_eq!(download_u32(&mut device, 0x1014, 0, 0x89), None);
+            assert_eq!(device.store().int(0x1014, 0), Some(0x89));
+        }
+        let mut device = Product::Umc1bds32.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8000_0089), None);
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8000_008A), None);
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8A), None);
+        assert_eq!(device.store().int(0x1014, 0), Some(0x8A));
+    }
+
+    /// The JMC manual, 0x1005: "The device supports standard CAN data
+    /// frames. When attempting to modify bit 29, Will be invalid and an
+    /// error code of 0609 0030h will be returned", and bit 30 (the device
+    /// generates SYNC) the same for a device that does not; 0x1400–0x1803
+    /// ("PDO COB-ID description"): "modify the 29th bit is 1 ... will cause
+    /// the error code: 0609 0030h".
+    #[test]
+    fn the_jmc_refuses_29_bit_and_sync_producer_cob_ids() {
+        use crate::sim::products::Product;
+
+        let mut device = Product::Jmc.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        for value in [0x2000_0080u32, 0x4000_0080] {
+            assert_eq!(
+                download_u32(&mut device, 0x1005, 0, value),
+                Some(0x0609_0030),
+                "0x1005 = {value:#X}"
+            );
+        }
+        assert_eq!(device.store().int(0x1005, 0), Some(0x80));
+        for (index, cob_id) in [(0x1801u16, 0x283u32), (0x1401, 0x303)] {
+            assert_eq!(
+                download_u32(&mut device, index, 1, cob_id | 0x2000_0000),
+                Some(0x0609_0030),
+                "0x{index:04X}.1"
+            );
+            // The 11-bit one is taken (the JMC re-maps a valid PDO).
+            assert_eq!(download_u32(&mut device, index, 1, cob_id), None);
+        }
     }
 
     #[test]
