@@ -777,7 +777,11 @@ async fn homing_after_the_velocity_routine_is_not_halted() {
     bench.confirmed(&HOMING_START).await;
     bench.run(500).await;
     assert_eq!(bench.velocity(), -10, "homing at 1 rps");
-    assert_eq!(bench.statusword().await & 0x3700, 0x0200, "running, not halted");
+    assert_eq!(
+        bench.statusword().await & 0x3700,
+        0x0200,
+        "running, not halted"
+    );
 }
 
 /// The PDO routines re-map PDOs that are in use without setting bit 31 of

@@ -355,8 +355,8 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
-                // The hub counts the frame when it has crossed the bus.
                 link.send(frame).await;
+                self.inner.counters.count_tx(&frame);
                 Ok(())
             }
             TxPath::Driver(queue) => queue
@@ -371,9 +371,12 @@ impl Bus {
     pub fn try_send(&self, frame: Frame) -> Result<(), BusError> {
         self.check_up()?;
         match &self.inner.tx {
-            TxPath::Hub(link) => link
-                .try_send(frame)
-                .map_err(|_| BusError::TxQueueFull(self.inner.name.clone())),
+            TxPath::Hub(link) => {
+                link.try_send(frame)
+                    .map_err(|_| BusError::TxQueueFull(self.inner.name.clone()))?;
+                self.inner.counters.count_tx(&frame);
+                Ok(())
+            }
             TxPath::Driver(queue) => queue.try_send(frame).map_err(|err| match err {
                 mpsc::error::TrySendError::Full(_) => {
                     BusError::TxQueueFull(self.inner.name.clone())

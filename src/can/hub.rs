@@ -36,8 +36,7 @@ struct Attachment {
     origin: Origin,
     rx_frames: broadcast::Sender<Envelope>,
     monitor_frames: LazyChannel,
-    /// The attachment's counters: the hub counts what it receives and,
-    /// once on the wire, what it sent.
+    /// The attachment's counters: the hub counts what it receives.
     counters: Arc<BusCounters>,
     /// Room in its transmit queue (a timed hub only).
     tx_room: Arc<Semaphore>,
@@ -172,11 +171,8 @@ impl HubInner {
             if attachment.origin != origin {
                 attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
-            } else {
-                attachment.counters.count_tx(&frame);
-                if !released {
-                    attachment.tx_room.add_permits(1);
-                }
+            } else if !released {
+                attachment.tx_room.add_permits(1);
             }
             attachment.monitor_frames.send(envelope);
         }
@@ -343,8 +339,8 @@ impl VirtualHub {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::can::bus::{BusError, RecvError};
     use crate::can::Bitrate;
+    use crate::can::bus::{BusError, RecvError};
     use crate::can::frame::{CanId, Direction};
 
     fn frame(id: u32, data: &[u8]) -> Frame {
@@ -505,7 +501,10 @@ mod tests {
         for (n, (frame, at)) in got[..200].iter().enumerate() {
             assert_eq!(frame.id(), CanId::Standard(0x081));
             let crossed = bit * full * (n as u32 + 1);
-            assert!(on_time(*at, crossed), "flood frame {n}: {at:?}, {crossed:?}");
+            assert!(
+                on_time(*at, crossed),
+                "flood frame {n}: {at:?}, {crossed:?}"
+            );
         }
         let (heartbeat, at) = got[200];
         assert_eq!(heartbeat.id(), CanId::Standard(0x705));

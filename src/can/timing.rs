@@ -278,7 +278,9 @@ impl<S: Copy + Eq> Wire<S> {
         else {
             return false;
         };
-        let start = self.free_from.map_or(first_queued, |free| free.max(first_queued));
+        let start = self
+            .free_from
+            .map_or(first_queued, |free| free.max(first_queued));
         if start > now {
             return false;
         }
@@ -321,7 +323,10 @@ impl<S: Copy + Eq> Wire<S> {
             .iter()
             .filter_map(|(_, queue)| queue.front().map(|q| q.queued_at))
             .min()?;
-        Some(self.free_from.map_or(first_queued, |free| free.max(first_queued)))
+        Some(
+            self.free_from
+                .map_or(first_queued, |free| free.max(first_queued)),
+        )
     }
 }
 

@@ -786,10 +786,8 @@ impl DeviceAccess<'_> {
     /// CiA 301 §7.5.2.16: bits 0–29 of 0x1014 do not change while the
     /// EMCY exists (bit 31 clear): 0x06090030.
     fn check_emcy_cob_id(&self, before: Option<&Value>, data: &[u8]) -> Result<(), AbortCode> {
-        let (Some(old), Ok(new)) = (
-            before.and_then(Value::as_i128),
-            <[u8; 4]>::try_from(data),
-        ) else {
+        let (Some(old), Ok(new)) = (before.and_then(Value::as_i128), <[u8; 4]>::try_from(data))
+        else {
             return Ok(());
         };
         let (old, new) = (old as u32, u32::from_le_bytes(new));
@@ -1233,8 +1231,11 @@ mod tests {
         let heartbeat = CanId::standard(0x709).unwrap();
         let write_1017 = |ms: u16| {
             let [lo, hi] = ms.to_le_bytes();
-            Frame::new(CanId::standard(0x609).unwrap(), &[0x2B, 0x17, 0x10, 0, lo, hi, 0, 0])
-                .unwrap()
+            Frame::new(
+                CanId::standard(0x609).unwrap(),
+                &[0x2B, 0x17, 0x10, 0, lo, hi, 0, 0],
+            )
+            .unwrap()
         };
         // Heartbeats (not the boot-up) sent from `from` for `ms` simulated ms.
         let run = |device: &mut DeviceCore, from: Instant, ms: u64| {
@@ -1314,7 +1315,11 @@ mod tests {
                     );
                 }
                 assert!(emcys.contains(&0x8130), "{product:?} {emcys:04X?}");
-                assert_eq!(device.nmt_state(), expected, "{product:?}, 0x1029.1 = {behaviour}");
+                assert_eq!(
+                    device.nmt_state(),
+                    expected,
+                    "{product:?}, 0x1029.1 = {behaviour}"
+                );
             }
         }
     }
@@ -1331,7 +1336,8 @@ mod tests {
         use crate::sim::products::Product;
 
         let id = NodeId::new(9).unwrap();
-        let rpdo1 = |len: usize| Frame::new(CanId::standard(0x209).unwrap(), &[0; 8][..len]).unwrap();
+        let rpdo1 =
+            |len: usize| Frame::new(CanId::standard(0x209).unwrap(), &[0; 8][..len]).unwrap();
         for (product, reports_longer) in [
             (Product::Umc1bds32, true),
             (Product::Uio1led, true),
@@ -1343,8 +1349,12 @@ mod tests {
             // RPDO1: two dummies, 16 and 32 bits (6 bytes), on 0x209.
             let store = device.store_mut();
             store.set(0x1600, 0, Value::Unsigned8(0)).unwrap();
-            store.set(0x1600, 1, Value::Unsigned32(0x0006_0010)).unwrap();
-            store.set(0x1600, 2, Value::Unsigned32(0x0007_0020)).unwrap();
+            store
+                .set(0x1600, 1, Value::Unsigned32(0x0006_0010))
+                .unwrap();
+            store
+                .set(0x1600, 2, Value::Unsigned32(0x0007_0020))
+                .unwrap();
             store.set(0x1600, 0, Value::Unsigned8(2)).unwrap();
             store.set(0x1400, 1, Value::Unsigned32(0x209)).unwrap();
             store.set(0x1400, 2, Value::Unsigned8(255)).unwrap();

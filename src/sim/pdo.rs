@@ -16,8 +16,8 @@ use std::time::{Duration, Instant};
 use crate::can::{CanId, Frame};
 use crate::canopen::od::Value;
 use crate::canopen::pdo::{
-    EMCY_PDO_LENGTH_EXCEEDED, MappedValue, MappingEntry, PdoCobId, PdoCommParams, PdoKind, PdoMapping, Rpdo, TpdoTrigger,
-    TransmissionType,
+    EMCY_PDO_LENGTH_EXCEEDED, MappedValue, MappingEntry, PdoCobId, PdoCommParams, PdoKind,
+    PdoMapping, Rpdo, TpdoTrigger, TransmissionType,
 };
 use crate::canopen::sdo::AbortCode;
 use crate::canopen::sync::{SYNC_COB_ID, SyncConsumer};

@@ -11,8 +11,8 @@ use crate::profiles::builtin;
 
 use super::behaviour::Behaviour;
 use super::device::DeviceCore;
-use super::objects::add_dummy_objects;
 use super::jmc::Jmc;
+use super::objects::add_dummy_objects;
 use super::uioled::Uioled;
 use super::umc::Umc;
 

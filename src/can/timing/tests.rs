@@ -98,7 +98,10 @@ fn a_frame_queued_after_the_bus_freed_waits_for_no_one() {
     wire.queue('b', data(0x7FF, 0), later);
     assert_eq!(wire.deadline(), Some(later));
     let crossed = wire.poll(later + bits(55));
-    assert_eq!((crossed[0].start, crossed[0].end), (later, later + bits(55)));
+    assert_eq!(
+        (crossed[0].start, crossed[0].end),
+        (later, later + bits(55))
+    );
 }
 
 #[test]

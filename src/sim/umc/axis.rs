@@ -767,10 +767,7 @@ impl Axis {
         let before = self.pds.state();
         let reactions = self.pds.event(Event::ConnectionLost);
         self.apply(io, &reactions);
-        let faulted = matches!(
-            self.pds.state(),
-            State::FaultReactionActive | State::Fault
-        );
+        let faulted = matches!(self.pds.state(), State::FaultReactionActive | State::Fault);
         if faulted && !matches!(before, State::FaultReactionActive | State::Fault) {
             // A fault always says why (§1.5): EMCY and error register.
             let condition = Condition::ConnectionLost;

@@ -274,16 +274,27 @@ fn leaving_operational_faults_only_enabled_axes_and_leaves_a_trace() {
     assert_eq!(rig.state(2), State::SwitchOnDisabled);
     assert_eq!(rig.statusword(2), idle);
     assert_eq!(rig.state(1), State::Fault);
-    let codes: Vec<_> = rig.raised.iter().map(|r| (r.code, r.manufacturer[0])).collect();
+    let codes: Vec<_> = rig
+        .raised
+        .iter()
+        .map(|r| (r.code, r.manufacturer[0]))
+        .collect();
     assert_eq!(codes, [(0x8100, 1)]);
     let register = rig.int(0x1001, 0);
-    assert_ne!(register & 0x20, 0, "device profile bit, 0x1001 = {register:#x}");
+    assert_ne!(
+        register & 0x20,
+        0,
+        "device profile bit, 0x1001 = {register:#x}"
+    );
     // The fault reset ends it: the bit goes, the error reset EMCY follows.
     rig.raised.clear();
     rig.controlword(1, 0x80);
     assert_eq!(rig.state(1), State::SwitchOnDisabled);
     assert_eq!(rig.int(0x1001, 0) & 0x20, 0);
-    assert_eq!(rig.raised.iter().map(|r| r.code).collect::<Vec<_>>(), [0x0000]);
+    assert_eq!(
+        rig.raised.iter().map(|r| r.code).collect::<Vec<_>>(),
+        [0x0000]
+    );
 }
 
 // ---- profile position ----
