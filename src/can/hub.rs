@@ -118,13 +118,11 @@ impl HubLink {
 
 impl Drop for HubLink {
     fn drop(&mut self) {
+        // Frames it queued still go out: a socketcand client that sends and
+        // hangs up at once has handed them to the bus.
         self.hub
             .attachments()
             .retain(|attachment| attachment.origin != self.origin);
-        if let Some(wire) = &self.hub.wire {
-            // Gone from the bus, its queued frames with it.
-            lock(wire).remove(self.origin);
-        }
     }
 }
 
@@ -547,6 +545,23 @@ mod tests {
             assert!((load - 1.0).abs() < 0.02, "{bitrate} bit/s: load {load}");
             let sender = task.await.unwrap();
             assert_eq!(sender.counters().tx_frames, frames as u64);
+        }
+    }
+
+    /// A socketcand client that sends and hangs up at once (`candeck nmt`)
+    /// has handed its frames to the bus: they cross after it is gone.
+    #[tokio::test(start_paused = true)]
+    async fn frames_queued_by_a_sender_that_detaches_still_cross() {
+        let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+        let listener = hub.attach();
+        let mut rx = listener.subscribe();
+        let sender = hub.attach();
+        for i in 0..3u8 {
+            sender.try_send(frame(0x000, &[1, i])).unwrap();
+        }
+        drop(sender);
+        for i in 0..3u8 {
+            assert_eq!(rx.recv().await.unwrap().frame, frame(0x000, &[1, i]));
         }
     }
 
