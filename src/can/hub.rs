@@ -12,9 +12,9 @@
 //! identifier wins arbitration, and receivers get a frame when its last bit
 //! has crossed the bus. A task of the hub's drives the wire on tokio's clock,
 //! whose timers have a resolution of one millisecond: a frame reaches the
-//! receivers in the millisecond its last bit crossed (frames that crossed
-//! within one millisecond arrive together, in order). The wire itself keeps
-//! exact time, so the frames a second and the load are exact. Unlimited, a frame reaches the others
+//! receivers within the millisecond before its last bit crosses (frames
+//! that cross within one millisecond arrive together, in order). The wire
+//! itself keeps exact time, so the frames a second and the load are exact. Unlimited, a frame reaches the others
 //! the moment it is sent and the hub never blocks a sender.
 //!
 //! Its state can be forced (down, bus-off, ...) to test what sits above it.
@@ -177,6 +177,14 @@ impl HubInner {
     }
 }
 
+/// How early a frame may reach the receivers: tokio's timers have a
+/// resolution of one millisecond, so a frame is delivered at the timer tick
+/// before its last bit crosses rather than the one after. The wire keeps
+/// exact time whatever the receivers do (a reply cannot start before the
+/// request has crossed), and a request and its reply cost the wire's time,
+/// not two timer ticks.
+const EARLY: std::time::Duration = std::time::Duration::from_millis(1);
+
 /// The task of a timed hub: runs its wire on tokio's clock and delivers
 /// each frame when it has crossed, until the hub is gone.
 async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
@@ -189,17 +197,17 @@ async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
                 return;
             };
             let now = tokio::time::Instant::now().into_std();
-            let crossed = lock(wire).poll(now);
+            let crossed = lock(wire).poll(now + EARLY);
             for frame in crossed {
                 hub.publish(frame.sender, frame.frame, false);
             }
-            let deadline = lock(wire).deadline();
-            deadline
+            lock(wire).deadline()
         };
         match deadline {
             Some(deadline) => {
+                let wake_at = deadline.checked_sub(EARLY).unwrap_or(deadline);
                 tokio::select! {
-                    _ = tokio::time::sleep_until(deadline.into()) => {}
+                    _ = tokio::time::sleep_until(wake_at.into()) => {}
                     _ = wake.notified() => {}
                 }
             }
@@ -491,10 +499,10 @@ mod tests {
         let bit = Duration::from_micros(8);
         let full = frame_bits(&frame(0x081, &[0; 8]));
         assert_eq!(full, 135);
-        // A frame arrives in the millisecond (tokio's timer resolution) its
-        // last bit crossed the bus.
+        // A frame arrives within the millisecond (tokio's timer resolution)
+        // before its last bit crosses the bus.
         let on_time = |at: Duration, crossed: Duration| {
-            at >= crossed && at < crossed + Duration::from_millis(1)
+            at <= crossed && at + Duration::from_millis(1) >= crossed
         };
         for (n, (frame, at)) in got[..200].iter().enumerate() {
             assert_eq!(frame.id(), CanId::Standard(0x081));
@@ -510,7 +518,7 @@ mod tests {
         assert!(on_time(at, crossed), "heartbeat: {at:?}, {crossed:?}");
         // 216 ms late: a consumer watching it with 200 ms would have
         // declared the node lost, as on a real bus.
-        assert!(at > Duration::from_millis(216));
+        assert!(at > Duration::from_millis(215));
         assert_eq!(hub.busy_bits(), u64::from(200 * full + 65));
     }
 
@@ -578,14 +586,13 @@ mod tests {
             sender.try_send(frame(0x181, &[0; 8])),
             Err(BusError::TxQueueFull("test".into()))
         );
-        // Once the first frame has crossed (1080 µs, seen at the next
-        // millisecond) there is room again.
+        // Once the first frame has crossed (1080 µs, delivered at the timer
+        // tick before) there is room again.
         let t0 = tokio::time::Instant::now();
         sender.send(frame(0x181, &[0; 8])).await.unwrap();
         let waited = t0.elapsed();
         assert!(
-            waited >= std::time::Duration::from_micros(1080)
-                && waited <= std::time::Duration::from_millis(2),
+            waited > std::time::Duration::ZERO && waited <= std::time::Duration::from_micros(1080),
             "{waited:?}"
         );
     }
