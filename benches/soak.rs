@@ -788,7 +788,9 @@ async fn main() {
     let log_path = dir.join("gateway.log");
     let log = std::fs::File::create(&log_path).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+        // The gateway under load is measured, not the wire.
+        .args(["serve", "--listen", "127.0.0.1:0"])
+        .args(["--bus", "demo=virtual:demo?bitrate=unlimited", "--data-dir"])
         .arg(dir.join("data"))
         .args(["--lease-ms", &LEASE_MS.to_string()])
         .env("CANDECK_LOG", "info")

@@ -291,7 +291,15 @@ fn main() {
     let options = Options::from_args(Duration::from_secs(2), Duration::from_secs(10));
     let devices: Vec<String> = (1..=NODES).map(|n| format!("umc1bds32@{n}")).collect();
     let devices = devices.join(",");
-    let (_vbus, line) = spawn(&["vbus", "--listen", "127.0.0.1:0", "--devices", &devices]);
+    let (_vbus, line) = spawn(&[
+        "vbus",
+        "--listen",
+        "127.0.0.1:0",
+        "--bitrate",
+        "unlimited",
+        "--devices",
+        &devices,
+    ]);
     let vbus = line
         .split_whitespace()
         .nth(4)

@@ -125,7 +125,9 @@ fn main() {
         .map(|node| format!("{}@{node}", product_of(node)))
         .collect();
     let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["vbus", "--listen", "127.0.0.1:0", "--devices"])
+        // The simulation is measured, not the wire.
+        .args(["vbus", "--listen", "127.0.0.1:0", "--bitrate", "unlimited"])
+        .arg("--devices")
         .arg(devices.join(","))
         .env("CANDECK_LOG", "info")
         .stdout(Stdio::piped())

@@ -144,7 +144,10 @@ fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
         "{first}"
     );
     assert!(
-        first.trim_end().ends_with("channel can0 devices none"),
+        // The bus runs at 500 kbit/s unless told.
+        first
+            .trim_end()
+            .ends_with("channel can0 devices none bitrate 500000"),
         "{first}"
     );
 

@@ -744,6 +744,46 @@ async fn homing_mode_stopped_on_the_way() {
     assert!(bench.machine_position() > -100_000.0);
 }
 
+/// "4. Velocity mode" verbatim, ending on 0x010F (halt), then "5. Homing
+/// mode" verbatim: its walk (Shutdown 0x06, Switched on 0x07, Operation
+/// Enabled 0x0F) leaves operation enabled, which drops the halt (the
+/// manual's controlword table: bit 8 "1—>0: normal operation"; CiA 402: the
+/// halt is a function of operation enabled), so the statusword's bit 8
+/// ("1: Motor halt") is clear after the walk and "Start homing" starts.
+#[tokio::test(start_paused = true)]
+async fn homing_after_the_velocity_routine_is_not_halted() {
+    let mut bench = Bench::new().await;
+    bench
+        .start_and_power(Some((&VELOCITY_HALTED, 0x0137)))
+        .await;
+    bench.all_confirmed(VELOCITY_MODE).await;
+    bench.confirmed(&VELOCITY_START).await;
+    bench.run(200).await;
+    bench.confirmed(&VELOCITY_CHANGE).await;
+    bench.run(200).await;
+    bench.confirmed(&VELOCITY_STOP).await;
+    bench.run(200).await;
+    assert_eq!(bench.statusword().await, 0x1537, "halted, stopped");
+
+    // Routine 5 from its first line: NMT start again, then the walk (the
+    // velocity mode's bits 10 and 12 stay until "Set homing mode").
+    assert_eq!(bench.send(&START).await, None, "{}", START.comment);
+    for (step, _) in POWER_THE_MOTOR {
+        bench.confirmed(step).await;
+        let statusword = bench.statusword().await;
+        assert_eq!(statusword & 0x0100, 0, "bit 8 after '{}'", step.comment);
+    }
+    bench.all_confirmed(HOMING_MODE).await;
+    bench.confirmed(&HOMING_START).await;
+    bench.run(500).await;
+    assert_eq!(bench.velocity(), -10, "homing at 1 rps");
+    assert_eq!(
+        bench.statusword().await & 0x3700,
+        0x0200,
+        "running, not halted"
+    );
+}
+
 /// The PDO routines re-map PDOs that are in use without setting bit 31 of
 /// their COB-IDs first, which CiA 301 refuses; the drive takes them (the
 /// manual's 0x1600 section: "If you need to remap the sub-index first set to

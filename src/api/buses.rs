@@ -2,11 +2,13 @@
 //!
 //! The bus load is measured, not assumed: every second a task reads the
 //! attachment's bit counters (each frame counted by
-//! [`Frame::wire_bits`](crate::can::Frame::wire_bits), sent or received,
-//! stuff bits left out) and divides the bits of the last second by the bus's
-//! bit rate (`candeck serve --bitrate`, 500 kbit/s unless told). `load` is
-//! that fraction (0.0 to 1.0, a little low since stuff bits are not on the
-//! counters); `bits_per_second` is the measurement itself.
+//! [`frame_bits`](crate::can::timing::frame_bits), sent or received, with
+//! the worst-case stuff bits) and divides the bits of the last second by the
+//! bus's bit rate (a virtual bus's own, otherwise `candeck serve --bitrate`,
+//! 500 kbit/s unless told). `load` is that fraction: on a virtual bus, whose
+//! frames take exactly those bits, the occupancy (1.0 saturated); on a wire,
+//! whose frames have fewer stuff bits, a little high. `bits_per_second` is
+//! the measurement itself.
 
 use axum::extract::State;
 use serde::Serialize;

@@ -25,6 +25,7 @@ use tokio::task::JoinHandle;
 
 use super::frame::{Direction, Frame, TimedFrame, Timestamp};
 use super::hub::HubLink;
+use super::timing::frame_bits;
 
 /// How many frames a receiver may fall behind before it loses the oldest.
 /// About one second of a saturated 1 Mbit/s bus.
@@ -153,7 +154,7 @@ impl BusCounters {
     pub(crate) fn count_rx(&self, frame: &Frame) {
         self.rx_frames.fetch_add(1, Ordering::Relaxed);
         self.rx_bits
-            .fetch_add(u64::from(frame.wire_bits()), Ordering::Relaxed);
+            .fetch_add(u64::from(frame_bits(frame)), Ordering::Relaxed);
         if frame.is_error() {
             self.error_frames.fetch_add(1, Ordering::Relaxed);
         }
@@ -162,7 +163,7 @@ impl BusCounters {
     pub(crate) fn count_tx(&self, frame: &Frame) {
         self.tx_frames.fetch_add(1, Ordering::Relaxed);
         self.tx_bits
-            .fetch_add(u64::from(frame.wire_bits()), Ordering::Relaxed);
+            .fetch_add(u64::from(frame_bits(frame)), Ordering::Relaxed);
     }
 
     pub(crate) fn bump(counter: &AtomicU64) {
@@ -354,7 +355,7 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
-                link.publish(frame);
+                link.send(frame).await;
                 self.inner.counters.count_tx(&frame);
                 Ok(())
             }
@@ -371,7 +372,8 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
-                link.publish(frame);
+                link.try_send(frame)
+                    .map_err(|_| BusError::TxQueueFull(self.inner.name.clone()))?;
                 self.inner.counters.count_tx(&frame);
                 Ok(())
             }

@@ -1,23 +1,35 @@
 //! The virtual bus: an in-process hub with any number of attachments.
 //!
 //! A frame sent by one attachment reaches every other attachment, in one
-//! order that all of them see (the order a real bus's arbitration would give),
-//! and never the sender. The hub never blocks a sender: a reader that falls
+//! order that all of them see, and never the sender. A reader that falls
 //! more than [`DEFAULT_RX_QUEUE`] frames behind loses the oldest, as a CAN
 //! controller does on receive overrun.
+//!
+//! A hub has a bit rate ([`Bitrate`]). At a number of bit/s the frames take
+//! time on the wire ([`super::timing`]): each attachment has a transmit
+//! queue of [`DEFAULT_TX_QUEUE`] frames (a sender waits when it is full, and
+//! `try_send` fails), the frames wait while the bus is busy, the lowest
+//! identifier wins arbitration, and receivers get a frame when its last bit
+//! has crossed the bus. A task of the hub's drives the wire on tokio's clock,
+//! whose timers have a resolution of one millisecond: a frame reaches the
+//! receivers within the millisecond before its last bit crosses (frames
+//! that cross within one millisecond arrive together, in order). The wire
+//! itself keeps exact time, so the frames a second and the load are exact. Unlimited, a frame reaches the others
+//! the moment it is sent and the hub never blocks a sender.
 //!
 //! Its state can be forced (down, bus-off, ...) to test what sits above it.
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard, Weak};
 
-use tokio::sync::{broadcast, watch};
+use tokio::sync::{Notify, Semaphore, broadcast, watch};
 
 use super::bus::{
-    Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, Envelope,
-    LazyChannel, Origin, TxPath, WIRE,
+    Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, DEFAULT_TX_QUEUE,
+    Envelope, LazyChannel, Origin, TxPath, WIRE,
 };
 use super::frame::{Frame, Timestamp};
+use super::timing::{Bitrate, Wire, frame_bits};
 
 /// The queues of one attachment (see [`crate::can::bus`]).
 struct Attachment {
@@ -26,6 +38,8 @@ struct Attachment {
     monitor_frames: LazyChannel,
     /// The attachment's counters: the hub counts what it receives.
     counters: Arc<BusCounters>,
+    /// Room in its transmit queue (a timed hub only).
+    tx_room: Arc<Semaphore>,
 }
 
 struct HubInner {
@@ -38,6 +52,17 @@ struct HubInner {
     next_origin: AtomicU32,
     frames_total: AtomicU64,
     bits_total: AtomicU64,
+    /// The wire of a timed hub; `None` when the bit rate is unlimited.
+    wire: Option<Mutex<Wire<Origin>>>,
+    /// Wakes the wire's task: a frame was queued, or the hub is gone.
+    wake: Arc<Notify>,
+}
+
+impl Drop for HubInner {
+    fn drop(&mut self) {
+        // The wire's task sees the hub gone and ends.
+        self.wake.notify_one();
+    }
 }
 
 /// An in-process CAN bus. Cheap to clone; clones are the same bus.
@@ -58,20 +83,53 @@ impl std::fmt::Debug for VirtualHub {
 pub(crate) struct HubLink {
     hub: Arc<HubInner>,
     origin: Origin,
+    tx_room: Arc<Semaphore>,
 }
 
+/// The attachment's transmit queue is full.
+#[derive(Debug)]
+pub(crate) struct TxQueueFull;
+
 impl HubLink {
-    pub fn publish(&self, frame: Frame) {
-        self.hub.publish(self.origin, frame);
+    /// Puts `frame` on the bus, waiting for room in the transmit queue of a
+    /// timed hub.
+    pub async fn send(&self, frame: Frame) {
+        if self.hub.wire.is_some() {
+            // The semaphore is never closed.
+            if let Ok(permit) = self.tx_room.acquire().await {
+                permit.forget();
+            }
+        }
+        self.hub.transmit(self.origin, frame);
+    }
+
+    /// [`HubLink::send`] without waiting.
+    pub fn try_send(&self, frame: Frame) -> Result<(), TxQueueFull> {
+        if self.hub.wire.is_some() {
+            self.tx_room
+                .try_acquire()
+                .map_err(|_| TxQueueFull)?
+                .forget();
+        }
+        self.hub.transmit(self.origin, frame);
+        Ok(())
     }
 }
 
 impl Drop for HubLink {
     fn drop(&mut self) {
+        // Frames it queued still go out: a socketcand client that sends and
+        // hangs up at once has handed them to the bus.
         self.hub
             .attachments()
             .retain(|attachment| attachment.origin != self.origin);
     }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 impl HubInner {
@@ -82,10 +140,24 @@ impl HubInner {
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
-    fn publish(&self, origin: Origin, frame: Frame) {
+    /// A frame sent: on the wire's queue, or to everyone at once.
+    fn transmit(&self, origin: Origin, frame: Frame) {
+        match &self.wire {
+            Some(wire) => {
+                let now = tokio::time::Instant::now().into_std();
+                lock(wire).queue(origin, frame, now);
+                self.wake.notify_one();
+            }
+            None => self.publish(origin, frame, true),
+        }
+    }
+
+    /// A frame that crossed the bus reaches every other attachment; the
+    /// sender's transmit queue has room for one more (`released`).
+    fn publish(&self, origin: Origin, frame: Frame, released: bool) {
         self.frames_total.fetch_add(1, Ordering::Relaxed);
         self.bits_total
-            .fetch_add(u64::from(frame.wire_bits()), Ordering::Relaxed);
+            .fetch_add(u64::from(frame_bits(&frame)), Ordering::Relaxed);
         let envelope = Envelope {
             origin,
             frame,
@@ -97,35 +169,110 @@ impl HubInner {
             if attachment.origin != origin {
                 attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
+            } else if !released {
+                attachment.tx_room.add_permits(1);
             }
             attachment.monitor_frames.send(envelope);
         }
     }
 }
 
+/// How early a frame may reach the receivers: tokio's timers have a
+/// resolution of one millisecond, so a frame is delivered at the timer tick
+/// before its last bit crosses rather than the one after. The wire keeps
+/// exact time whatever the receivers do (a reply cannot start before the
+/// request has crossed), and a request and its reply cost the wire's time,
+/// not two timer ticks.
+const EARLY: std::time::Duration = std::time::Duration::from_millis(1);
+
+/// The task of a timed hub: runs its wire on tokio's clock and delivers
+/// each frame when it has crossed, until the hub is gone.
+async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
+    loop {
+        let deadline = {
+            let Some(hub) = hub.upgrade() else {
+                return;
+            };
+            let Some(wire) = &hub.wire else {
+                return;
+            };
+            let now = tokio::time::Instant::now().into_std();
+            let crossed = lock(wire).poll(now + EARLY);
+            for frame in crossed {
+                hub.publish(frame.sender, frame.frame, false);
+            }
+            lock(wire).deadline()
+        };
+        match deadline {
+            Some(deadline) => {
+                let wake_at = deadline.checked_sub(EARLY).unwrap_or(deadline);
+                tokio::select! {
+                    _ = tokio::time::sleep_until(wake_at.into()) => {}
+                    _ = wake.notified() => {}
+                }
+            }
+            None => wake.notified().await,
+        }
+    }
+}
+
 impl VirtualHub {
+    /// A hub of unlimited bit rate: every frame crosses at once.
     pub fn new(name: impl Into<String>) -> Self {
         Self::with_queue(name, DEFAULT_RX_QUEUE)
     }
 
-    /// A hub whose readers may fall `queue` frames behind before losing any.
+    /// A hub whose readers may fall `queue` frames behind before losing any
+    /// (unlimited bit rate).
     pub fn with_queue(name: impl Into<String>, queue: usize) -> Self {
+        Self::build(name.into(), queue, Bitrate::Unlimited)
+    }
+
+    /// A hub whose frames take the time `bitrate` gives them on the wire
+    /// (see the module documentation). A timed hub needs a tokio runtime:
+    /// its wire runs on a task.
+    pub fn with_bitrate(name: impl Into<String>, bitrate: Bitrate) -> Self {
+        Self::build(name.into(), DEFAULT_RX_QUEUE, bitrate)
+    }
+
+    fn build(name: String, queue: usize, bitrate: Bitrate) -> Self {
         let (status, _) = watch::channel(BusStatus::up());
-        Self {
-            inner: Arc::new(HubInner {
-                name: name.into(),
-                queue: queue.max(1),
-                attachments: Mutex::new(Vec::new()),
-                status,
-                next_origin: AtomicU32::new(WIRE + 1),
-                frames_total: AtomicU64::new(0),
-                bits_total: AtomicU64::new(0),
-            }),
+        let wake = Arc::new(Notify::new());
+        let inner = Arc::new(HubInner {
+            name,
+            queue: queue.max(1),
+            attachments: Mutex::new(Vec::new()),
+            status,
+            next_origin: AtomicU32::new(WIRE + 1),
+            frames_total: AtomicU64::new(0),
+            bits_total: AtomicU64::new(0),
+            wire: bitrate.get().map(|_| Mutex::new(Wire::new(bitrate))),
+            wake: wake.clone(),
+        });
+        if inner.wire.is_some() {
+            tokio::spawn(drive_wire(Arc::downgrade(&inner), wake));
         }
+        Self { inner }
     }
 
     pub fn name(&self) -> &str {
         &self.inner.name
+    }
+
+    /// The bus's bit rate.
+    pub fn bitrate(&self) -> Bitrate {
+        self.inner
+            .wire
+            .as_ref()
+            .map_or(Bitrate::Unlimited, |wire| lock(wire).bitrate())
+    }
+
+    /// Bit times the wire of a timed hub has been busy (0 when unlimited).
+    pub fn busy_bits(&self) -> u64 {
+        self.inner
+            .wire
+            .as_ref()
+            .map_or(0, |wire| lock(wire).busy_bits())
     }
 
     /// A new attachment to this bus.
@@ -134,11 +281,13 @@ impl VirtualHub {
         let (rx_frames, _) = broadcast::channel(self.inner.queue);
         let monitor_frames = LazyChannel::new(self.inner.queue);
         let counters = Arc::new(BusCounters::default());
+        let tx_room = Arc::new(Semaphore::new(DEFAULT_TX_QUEUE));
         self.inner.attachments().push(Attachment {
             origin,
             rx_frames: rx_frames.clone(),
             monitor_frames: monitor_frames.clone(),
             counters: counters.clone(),
+            tx_room: tx_room.clone(),
         });
         Bus::from_parts(BusParts {
             name: self.inner.name.clone(),
@@ -148,6 +297,7 @@ impl VirtualHub {
             tx: TxPath::Hub(HubLink {
                 hub: self.inner.clone(),
                 origin,
+                tx_room,
             }),
             rx_frames,
             monitor_frames,
@@ -171,7 +321,8 @@ impl VirtualHub {
         self.inner.frames_total.load(Ordering::Relaxed)
     }
 
-    /// Wire bits carried since the hub was made (for a load estimate).
+    /// Bits carried since the hub was made, stuff bits counted as the
+    /// worst case ([`frame_bits`]).
     pub fn bits_total(&self) -> u64 {
         self.inner.bits_total.load(Ordering::Relaxed)
     }
@@ -194,6 +345,7 @@ impl VirtualHub {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::can::Bitrate;
     use crate::can::bus::{BusError, RecvError};
     use crate::can::frame::{CanId, Direction};
 
@@ -309,6 +461,140 @@ mod tests {
         };
         assert_eq!(hub.attachments(), 0);
         assert_eq!(rx.recv().await, Err(RecvError::Closed));
+    }
+
+    /// Receives `count` frames; each with the time it arrived since `t0`.
+    async fn arrivals(
+        rx: &mut crate::can::FrameReceiver,
+        count: usize,
+        t0: tokio::time::Instant,
+    ) -> Vec<(Frame, std::time::Duration)> {
+        let mut out = Vec::new();
+        while out.len() < count {
+            let frame = rx.recv().await.unwrap().frame;
+            out.push((frame, t0.elapsed()));
+        }
+        out
+    }
+
+    /// ISO 11898-1 arbitration at 125 kbit/s (8 µs a bit): a node that
+    /// keeps high-priority frames queued wins every round, so a heartbeat
+    /// queued with them goes only when the flood's queue is empty.
+    #[tokio::test(start_paused = true)]
+    async fn at_125_kbit_s_a_flood_holds_a_low_priority_heartbeat_back() {
+        use crate::can::timing::frame_bits;
+        use std::time::Duration;
+
+        let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+        let flood = hub.attach();
+        let device = hub.attach();
+        let master = hub.attach();
+        let mut rx = master.subscribe();
+        let t0 = tokio::time::Instant::now();
+        for i in 0..200u32 {
+            flood.try_send(frame(0x081, &[i as u8; 8])).unwrap();
+        }
+        device.send(frame(0x705, &[0x05])).await.unwrap();
+        let got = arrivals(&mut rx, 201, t0).await;
+        let bit = Duration::from_micros(8);
+        let full = frame_bits(&frame(0x081, &[0; 8]));
+        assert_eq!(full, 135);
+        // A frame arrives within the millisecond (tokio's timer resolution)
+        // before its last bit crosses the bus.
+        let on_time = |at: Duration, crossed: Duration| {
+            at <= crossed && at + Duration::from_millis(1) >= crossed
+        };
+        for (n, (frame, at)) in got[..200].iter().enumerate() {
+            assert_eq!(frame.id(), CanId::Standard(0x081));
+            let crossed = bit * full * (n as u32 + 1);
+            assert!(
+                on_time(*at, crossed),
+                "flood frame {n}: {at:?}, {crossed:?}"
+            );
+        }
+        let (heartbeat, at) = got[200];
+        assert_eq!(heartbeat.id(), CanId::Standard(0x705));
+        let crossed = bit * (200 * full + 65);
+        assert!(on_time(at, crossed), "heartbeat: {at:?}, {crossed:?}");
+        // 216 ms late: a consumer watching it with 200 ms would have
+        // declared the node lost, as on a real bus.
+        assert!(at > Duration::from_millis(215));
+        assert_eq!(hub.busy_bits(), u64::from(200 * full + 65));
+    }
+
+    /// At 100 % load (a sender that keeps its transmit queue full), the
+    /// frames a second are the bit rate over the frame's bits: 8-byte
+    /// standard frames are 135 bits with worst-case stuffing.
+    #[tokio::test(start_paused = true)]
+    async fn frames_a_second_at_full_load_are_the_bit_rate_over_the_frame_length() {
+        for bitrate in [125_000u32, 250_000, 500_000, 1_000_000] {
+            let hub = VirtualHub::with_bitrate("test", Bitrate::bits_per_second(bitrate));
+            let sender = hub.attach();
+            let receiver = hub.attach();
+            let mut rx = receiver.subscribe();
+            let frames = 3_000usize;
+            let t0 = tokio::time::Instant::now();
+            let task = tokio::spawn(async move {
+                for i in 0..frames {
+                    sender.send(frame(0x181, &[i as u8; 8])).await.unwrap();
+                }
+                sender
+            });
+            let got = arrivals(&mut rx, frames, t0).await;
+            let elapsed = got.last().unwrap().1.as_secs_f64();
+            let measured = frames as f64 / elapsed;
+            let arithmetic = f64::from(bitrate) / 135.0;
+            assert!(
+                (measured / arithmetic - 1.0).abs() < 0.02,
+                "{bitrate} bit/s: {measured:.1} frames/s, arithmetic {arithmetic:.1}"
+            );
+            // The counters measure the occupancy: 100 % of the bit rate.
+            let load = receiver.counters().rx_bits as f64 / elapsed / f64::from(bitrate);
+            assert!((load - 1.0).abs() < 0.02, "{bitrate} bit/s: load {load}");
+            let sender = task.await.unwrap();
+            assert_eq!(sender.counters().tx_frames, frames as u64);
+        }
+    }
+
+    /// A socketcand client that sends and hangs up at once (`candeck nmt`)
+    /// has handed its frames to the bus: they cross after it is gone.
+    #[tokio::test(start_paused = true)]
+    async fn frames_queued_by_a_sender_that_detaches_still_cross() {
+        let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+        let listener = hub.attach();
+        let mut rx = listener.subscribe();
+        let sender = hub.attach();
+        for i in 0..3u8 {
+            sender.try_send(frame(0x000, &[1, i])).unwrap();
+        }
+        drop(sender);
+        for i in 0..3u8 {
+            assert_eq!(rx.recv().await.unwrap().frame, frame(0x000, &[1, i]));
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_full_transmit_queue_refuses_try_send_and_makes_send_wait() {
+        use crate::can::bus::DEFAULT_TX_QUEUE;
+
+        let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+        let sender = hub.attach();
+        for _ in 0..DEFAULT_TX_QUEUE {
+            sender.try_send(frame(0x181, &[0; 8])).unwrap();
+        }
+        assert_eq!(
+            sender.try_send(frame(0x181, &[0; 8])),
+            Err(BusError::TxQueueFull("test".into()))
+        );
+        // Once the first frame has crossed (1080 µs, delivered at the timer
+        // tick before) there is room again.
+        let t0 = tokio::time::Instant::now();
+        sender.send(frame(0x181, &[0; 8])).await.unwrap();
+        let waited = t0.elapsed();
+        assert!(
+            waited > std::time::Duration::ZERO && waited <= std::time::Duration::from_micros(1080),
+            "{waited:?}"
+        );
     }
 
     #[tokio::test]

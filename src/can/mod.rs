@@ -7,6 +7,8 @@
 //! - [`bus`]: the [`Bus`] attachment every backend hands out: send, receive,
 //!   state, counters.
 //! - [`hub`]: [`VirtualHub`], the in-process emulated bus.
+//! - [`timing`]: the virtual bus's wire: bit rate, frame lengths with
+//!   stuffing, arbitration by identifier (sans-I/O, driven by the hub).
 //! - [`socketcand`]: the socketcand protocol (linux-can/socketcand
 //!   `doc/protocol.md`, raw mode): its line codec, a server that shares a
 //!   virtual hub over TCP, and a client backend that joins a remote server.
@@ -22,10 +24,12 @@ pub mod frame;
 pub mod hub;
 pub mod socketcan;
 pub mod socketcand;
+pub mod timing;
 
 pub use bus::{
     Bus, BusError, BusKind, BusState, BusStatus, CounterSnapshot, FrameReceiver, RecvError,
 };
 pub use frame::{CanId, Direction, FdFlags, Frame, FrameError, FrameKind, TimedFrame, Timestamp};
 pub use hub::VirtualHub;
+pub use timing::Bitrate;
 pub mod spec;

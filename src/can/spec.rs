@@ -3,8 +3,8 @@
 //!
 //! | spec | bus |
 //! |---|---|
-//! | `virtual:empty` | a new in-process bus with no devices |
-//! | `virtual:demo` | a new in-process bus with the demo devices |
+//! | `virtual:empty[?bitrate=N\|unlimited]` | a new in-process bus with no devices |
+//! | `virtual:demo[?bitrate=N\|unlimited]` | a new in-process bus with the demo devices |
 //! | `socketcan:can0` | a Linux SocketCAN interface |
 //! | `socketcand:HOST:PORT/CHANNEL` | a channel of a socketcand server (HOST may be `[v6]`) |
 //! | `replay:FILE[?speed=N\|max&loop&iface=can0]` | a candump `-L` log played back |
@@ -16,13 +16,17 @@ use std::str::FromStr;
 use super::bus::Bus;
 use super::hub::VirtualHub;
 use super::socketcand::{ClientConfig, open_socketcand};
+use super::timing::Bitrate;
 
 /// A parsed bus spec.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum BusSpec {
-    /// An in-process emulated bus with a device preset (`demo`, `empty`).
+    /// An in-process emulated bus with a device preset (`demo`, `empty`)
+    /// and its bit rate when the spec gives one (`?bitrate=125k`); without
+    /// it, the bit rate of whoever opens it (500 kbit/s unless told).
     Virtual {
         preset: String,
+        bitrate: Option<Bitrate>,
     },
     Socketcan {
         interface: String,
@@ -69,15 +73,36 @@ impl FromStr for BusSpec {
             .split_once(':')
             .ok_or_else(|| SpecError::UnknownKind(spec.to_string()))?;
         match kind {
-            "virtual" => match rest {
-                "demo" | "empty" => Ok(Self::Virtual {
-                    preset: rest.to_string(),
-                }),
-                _ => Err(SpecError::invalid(
-                    spec,
-                    "a virtual bus is 'virtual:demo' or 'virtual:empty'",
-                )),
-            },
+            "virtual" => {
+                let (preset, options) = match rest.split_once('?') {
+                    Some((preset, options)) => (preset, Some(options)),
+                    None => (rest, None),
+                };
+                if !matches!(preset, "demo" | "empty") {
+                    return Err(SpecError::invalid(
+                        spec,
+                        "a virtual bus is 'virtual:demo' or 'virtual:empty'",
+                    ));
+                }
+                let bitrate = match options.map(|o| o.split_once('=')) {
+                    None => None,
+                    Some(Some(("bitrate", value))) => Some(
+                        value
+                            .parse::<Bitrate>()
+                            .map_err(|err| SpecError::invalid(spec, err.to_string()))?,
+                    ),
+                    Some(_) => {
+                        return Err(SpecError::invalid(
+                            spec,
+                            "a virtual bus takes one option, ?bitrate=N|unlimited",
+                        ));
+                    }
+                };
+                Ok(Self::Virtual {
+                    preset: preset.to_string(),
+                    bitrate,
+                })
+            }
             "socketcan" => {
                 // Linux interface names: at most 15 bytes, no '/' or space.
                 if rest.is_empty() || rest.len() > 15 || rest.contains(['/', ' ', ':']) {
@@ -149,7 +174,14 @@ fn parse_socketcand(spec: &str, rest: &str) -> Result<BusSpec, SpecError> {
 impl fmt::Display for BusSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::Virtual { preset } => write!(f, "virtual:{preset}"),
+            Self::Virtual {
+                preset,
+                bitrate: None,
+            } => write!(f, "virtual:{preset}"),
+            Self::Virtual {
+                preset,
+                bitrate: Some(bitrate),
+            } => write!(f, "virtual:{preset}?bitrate={bitrate}"),
             Self::Socketcan { interface } => write!(f, "socketcan:{interface}"),
             Self::Socketcand {
                 host,
@@ -177,7 +209,7 @@ impl BusSpec {
     /// otherwise the channel, interface or log name.
     pub fn default_name(&self) -> String {
         match self {
-            Self::Virtual { preset } => preset.clone(),
+            Self::Virtual { preset, .. } => preset.clone(),
             Self::Socketcan { interface } => interface.clone(),
             Self::Socketcand { channel, .. } => channel.clone(),
             Self::Replay { path, .. } => path
@@ -192,11 +224,23 @@ impl BusSpec {
     /// cannot be opened. A virtual bus comes with its hub, for the devices
     /// that will live on it.
     pub async fn open(&self, name: &str) -> Result<OpenedBus, SpecError> {
+        self.open_with_bitrate(name, Bitrate::default()).await
+    }
+
+    /// [`BusSpec::open`], a virtual bus at `bitrate` unless its spec says.
+    pub async fn open_with_bitrate(
+        &self,
+        name: &str,
+        bitrate: Bitrate,
+    ) -> Result<OpenedBus, SpecError> {
         match self {
             // The devices of `virtual:demo` live above this layer: whoever
             // opened the bus puts them on the hub it gets back.
-            Self::Virtual { .. } => {
-                let hub = VirtualHub::new(name);
+            Self::Virtual {
+                bitrate: spec_bitrate,
+                ..
+            } => {
+                let hub = VirtualHub::with_bitrate(name, spec_bitrate.unwrap_or(bitrate));
                 Ok(OpenedBus {
                     bus: hub.attach(),
                     hub: Some(hub),
@@ -287,12 +331,28 @@ mod tests {
                 "virtual:demo",
                 BusSpec::Virtual {
                     preset: "demo".into(),
+                    bitrate: None,
                 },
             ),
             (
                 "virtual:empty",
                 BusSpec::Virtual {
                     preset: "empty".into(),
+                    bitrate: None,
+                },
+            ),
+            (
+                "virtual:demo?bitrate=125000",
+                BusSpec::Virtual {
+                    preset: "demo".into(),
+                    bitrate: Some(Bitrate::bits_per_second(125_000)),
+                },
+            ),
+            (
+                "virtual:empty?bitrate=unlimited",
+                BusSpec::Virtual {
+                    preset: "empty".into(),
+                    bitrate: Some(Bitrate::Unlimited),
                 },
             ),
             (
@@ -355,6 +415,8 @@ mod tests {
                 "virtual:other",
                 "a virtual bus is 'virtual:demo' or 'virtual:empty'",
             ),
+            ("virtual:demo?bitrate=fast", "bit rate 'fast' is not"),
+            ("virtual:demo?speed=2", "?bitrate=N|unlimited"),
             ("socketcan:", "expected a network interface name"),
             (
                 "socketcan:averyveryverylongname",
@@ -405,6 +467,20 @@ mod tests {
             .unwrap();
         assert_eq!(opened.bus.name(), "line");
         assert!(opened.hub.is_some());
+        // 500 kbit/s unless told; the spec's own rate before the opener's.
+        assert_eq!(opened.hub.unwrap().bitrate(), Bitrate::default());
+        let spec = "virtual:empty?bitrate=125k".parse::<BusSpec>().unwrap();
+        let opened = spec
+            .open_with_bitrate("line", Bitrate::Unlimited)
+            .await
+            .unwrap();
+        assert_eq!(opened.hub.unwrap().bitrate().get(), Some(125_000));
+        let spec = "virtual:empty".parse::<BusSpec>().unwrap();
+        let opened = spec
+            .open_with_bitrate("line", Bitrate::Unlimited)
+            .await
+            .unwrap();
+        assert_eq!(opened.hub.unwrap().bitrate(), Bitrate::Unlimited);
     }
 
     #[cfg(not(feature = "socketcan"))]

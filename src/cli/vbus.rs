@@ -5,9 +5,9 @@ use std::net::SocketAddr;
 use clap::Args;
 
 use super::{CliError, shutdown_signal};
-use crate::can::VirtualHub;
 use crate::can::socketcand::DEFAULT_PORT;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
+use crate::can::{Bitrate, VirtualHub};
 use crate::sim::products::DeviceList;
 use crate::sim::rack::Rack;
 
@@ -32,6 +32,12 @@ pub struct VbusArgs {
     /// without it, saved values last until candeck stops.
     #[arg(long, value_name = "DIR")]
     pub data_dir: Option<std::path::PathBuf>,
+    /// The bus's bit rate in bit/s (`125000`, `250k`, `1M`): each frame takes
+    /// its time on the wire and the lowest identifier wins arbitration;
+    /// `unlimited` lets every frame cross at once (for benchmarks of the
+    /// software).
+    #[arg(long, value_name = "N|unlimited", default_value_t = Bitrate::default())]
+    pub bitrate: Bitrate,
 }
 
 pub async fn run(args: VbusArgs) -> Result<(), CliError> {
@@ -44,7 +50,7 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
             args.channel
         )));
     }
-    let hub = VirtualHub::new(args.channel.clone());
+    let hub = VirtualHub::with_bitrate(args.channel.clone(), args.bitrate);
     let rack = Rack::with_data_dir(hub.clone(), args.data_dir.clone());
     rack.add_all(&args.devices.0)
         .map_err(|err| CliError::new(err.to_string()))?;
@@ -60,10 +66,11 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
     // One line on stdout that people and scripts read (the port, when 0 was asked).
     println!(
-        "candeck vbus: socketcand on {} channel {} devices {}",
+        "candeck vbus: socketcand on {} channel {} devices {} bitrate {}",
         handle.local_addr(),
         args.channel,
-        args.devices
+        args.devices,
+        args.bitrate
     );
     shutdown_signal().await;
     let stats = rack.stats();

@@ -93,7 +93,16 @@ impl ServedBus {
         bitrate: u32,
         data_dir: Option<std::path::PathBuf>,
     ) -> Result<Self, String> {
-        let opened = spec.open(name).await.map_err(|err| err.to_string())?;
+        let opened = spec
+            .open_with_bitrate(name, crate::can::Bitrate::bits_per_second(bitrate))
+            .await
+            .map_err(|err| err.to_string())?;
+        // A virtual bus's load is measured against its own bit rate.
+        let bitrate = opened
+            .hub
+            .as_ref()
+            .and_then(|hub| hub.bitrate().get())
+            .unwrap_or(bitrate);
         let telemetry = config.telemetry.clone();
         let registry = NodeRegistry::spawn(opened.bus.clone(), catalog, config);
         let history_events = std::sync::Mutex::new(Some(registry.subscribe()));
@@ -102,7 +111,7 @@ impl ServedBus {
         // first frames of the log.
         let frames = FrameLog::spawn(&opened.bus);
         let rack = match (spec, &opened.hub) {
-            (BusSpec::Virtual { preset }, Some(hub)) => {
+            (BusSpec::Virtual { preset, .. }, Some(hub)) => {
                 let rack = Rack::with_data_dir(hub.clone(), data_dir);
                 if preset == "demo" {
                     rack.add_all(&crate::sim::products::demo())

@@ -222,6 +222,12 @@ pub trait Behaviour: Send + std::any::Any {
         PdoRules::Cia301
     }
 
+    /// Whether an RPDO longer than its mapping raises EMCY 0x8220 (CiA 301
+    /// leaves it to the device; the UniSwarm manuals list the code).
+    fn reports_pdo_length_exceeded(&self) -> bool {
+        false
+    }
+
     /// A value written from the bus (SDO download or RPDO) is in the store.
     fn written(&mut self, io: &mut DeviceIo<'_>, index: u16, sub: u8);
 

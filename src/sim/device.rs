@@ -39,8 +39,11 @@ use crate::canopen::heartbeat::{
     ConsumerTime, HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, LifeGuard, LifeGuardEvent,
     heartbeat_node,
 };
-use crate::canopen::nmt::{NmtEvent, NmtService, NmtSlave, NmtState};
+use crate::canopen::nmt::{
+    NmtCommand, NmtEvent, NmtMessage, NmtService, NmtSlave, NmtState, NmtTarget,
+};
 use crate::canopen::od::{ObjectDictionary, Value};
+use crate::canopen::pdo::EMCY_PDO_LENGTH_EXCEEDED;
 use crate::canopen::sdo::{AbortCode, ObjectAccess, SdoServer, ServerConfig};
 
 use super::behaviour::{
@@ -64,6 +67,8 @@ const CONSUMER_HEARTBEAT_TIME: u16 = 0x1016;
 const GUARD_TIME: u16 = 0x100C;
 /// 0x100D: life time factor.
 const LIFE_TIME_FACTOR: u16 = 0x100D;
+/// 0x1029: error behaviour, sub 1 communication error.
+const ERROR_BEHAVIOUR: u16 = 0x1029;
 /// 0x1014: COB-ID EMCY.
 const COB_ID_EMCY: u16 = 0x1014;
 /// 0x1015: inhibit time EMCY, in 100 µs.
@@ -125,6 +130,9 @@ pub struct DeviceCore {
     consumed: Vec<(NodeId, std::time::Duration)>,
     /// The injected heartbeat loss: no heartbeat, no guarding reply.
     silent: bool,
+    /// A communication error in operational waits for 0x1029's reaction,
+    /// which the next poll applies once its EMCY is out.
+    communication_error: Option<Instant>,
     /// Milliseconds of simulated time, and the instant they were reached.
     sim_ms: u64,
     last_tick: Option<Instant>,
@@ -182,6 +190,7 @@ impl DeviceCore {
             consumer: HeartbeatConsumer::new(),
             consumed: Vec::new(),
             silent: false,
+            communication_error: None,
             sim_ms: 0,
             last_tick: None,
             skipped_ticks: 0,
@@ -388,6 +397,30 @@ impl DeviceCore {
                 io.emcy(0x0000, [0; 5]);
             }
         });
+        if lost && self.nmt.state() == NmtState::Operational {
+            // After the EMCY has gone out (none is sent in stopped).
+            self.communication_error = Some(now);
+        }
+    }
+
+    /// A communication error in operational (CiA 301 §7.2.8.2.1.1; UMC
+    /// manual chapter 3 §6.1.2, Table 3.11): 0x1029.1 says where the node
+    /// goes, 0 pre-operational, 1 nowhere, 2 stopped. A device without
+    /// 0x1029 (the JMC) stays where it is.
+    fn apply_error_behaviour(&mut self, now: Instant) {
+        self.communication_error = None;
+        if self.nmt.state() != NmtState::Operational {
+            return;
+        }
+        let command = match self.store.int(ERROR_BEHAVIOUR, 1) {
+            Some(0) => NmtCommand::EnterPreOperational,
+            Some(2) => NmtCommand::Stop,
+            _ => return,
+        };
+        let message = NmtMessage::new(command, NmtTarget::Node(self.node()));
+        if let Some(NmtEvent::StateChanged { from, to }) = self.nmt.handle(message) {
+            self.with_application(now, |behaviour, io| behaviour.nmt_changed(io, from, to));
+        }
     }
 
     /// A heartbeat (or boot-up) of a node 0x1016 watches.
@@ -453,7 +486,11 @@ impl DeviceCore {
         let boot_up = self.nmt.boot_up();
         self.pdos = DevicePdos::new(&self.store, now);
         self.guard.reset();
-        self.heartbeat_ms = 0;
+        self.communication_error = None;
+        // The producer restarts from 0x1017 as the reset left it, whatever
+        // period ran before (comparing with the old one would keep it).
+        self.heartbeat_ms = self.heartbeat_period();
+        self.heartbeat.set_period_ms(self.heartbeat_ms, now);
         self.follow_communication_parameters(now);
         if self.silent {
             return Vec::new();
@@ -516,8 +553,16 @@ impl DeviceCore {
             }
             replies
         } else if self.nmt.allows(NmtService::Pdo) {
-            self.pdos
-                .handle_frame(frame, &mut self.store, now, &mut written)
+            let out = self
+                .pdos
+                .handle_frame(frame, &mut self.store, now, &mut written);
+            let exceeded_too = self.behaviour.reports_pdo_length_exceeded();
+            for code in self.pdos.take_length_errors() {
+                if code != EMCY_PDO_LENGTH_EXCEEDED || exceeded_too {
+                    self.with_application(now, |_, io| io.emcy(code, [0; 5]));
+                }
+            }
+            out
         } else {
             Vec::new()
         };
@@ -577,6 +622,9 @@ impl DeviceCore {
                 }
             }
         }
+        if self.communication_error.is_some_and(|at| at <= now) {
+            self.apply_error_behaviour(now);
+        }
         if self.nmt.allows(NmtService::Pdo) {
             out.extend(self.pdos.poll(&self.store, now));
         }
@@ -602,6 +650,7 @@ impl DeviceCore {
             self.consumer.deadline(),
             emcy,
             pdos,
+            self.communication_error,
             self.next_tick(),
         ]
         .into_iter()
@@ -660,13 +709,18 @@ impl DeviceCore {
 
     /// A write to 0x1017 changes the heartbeat from the next period on.
     fn follow_heartbeat_time(&mut self, now: Instant) {
-        let period = match self.store.get(PRODUCER_HEARTBEAT_TIME, 0) {
-            Some(Value::Unsigned16(ms)) => *ms,
-            _ => 0,
-        };
+        let period = self.heartbeat_period();
         if period != self.heartbeat_ms {
             self.heartbeat_ms = period;
             self.heartbeat.set_period_ms(period, now);
+        }
+    }
+
+    /// 0x1017 as it is in the store, in ms.
+    fn heartbeat_period(&self) -> u16 {
+        match self.store.get(PRODUCER_HEARTBEAT_TIME, 0) {
+            Some(Value::Unsigned16(ms)) => *ms,
+            _ => 0,
         }
     }
 
@@ -727,6 +781,21 @@ struct DeviceAccess<'a> {
 impl DeviceAccess<'_> {
     fn is_command(index: u16, sub: u8) -> bool {
         matches!(index, STORE_PARAMETERS | RESTORE_PARAMETERS) && sub >= 1
+    }
+
+    /// CiA 301 §7.5.2.16: bits 0–29 of 0x1014 do not change while the
+    /// EMCY exists (bit 31 clear): 0x06090030.
+    fn check_emcy_cob_id(&self, before: Option<&Value>, data: &[u8]) -> Result<(), AbortCode> {
+        let (Some(old), Ok(new)) = (before.and_then(Value::as_i128), <[u8; 4]>::try_from(data))
+        else {
+            return Ok(());
+        };
+        let (old, new) = (old as u32, u32::from_le_bytes(new));
+        const ID_AND_FORMAT: u32 = 0x3FFF_FFFF;
+        if old & 0x8000_0000 == 0 && old & ID_AND_FORMAT != new & ID_AND_FORMAT {
+            return Err(AbortCode::InvalidValue);
+        }
+        Ok(())
     }
 
     fn save(&mut self, area: Area) {
@@ -800,6 +869,7 @@ impl ObjectAccess for DeviceAccess<'_> {
             }
             if pdo::is_pdo_parameter(index) {
                 self.store.check_write(index, sub, Some(data.len()))?;
+                self.behaviour.check_value(self.store, index, sub, data)?;
                 pdo::check_write(
                     self.store,
                     index,
@@ -812,7 +882,17 @@ impl ObjectAccess for DeviceAccess<'_> {
                 return Ok(());
             }
             self.behaviour.check_value(self.store, index, sub, data)?;
+            let before = self.store.get(index, sub).cloned();
             self.store.write(index, sub, data)?;
+            if index == COB_ID_EMCY
+                && let Err(abort) = self.check_emcy_cob_id(before.as_ref(), data)
+            {
+                // Within the dictionary's limits, but not allowed now.
+                if let Some(before) = before {
+                    let _ = self.store.set(index, sub, before);
+                }
+                return Err(abort);
+            }
             self.written.push((index, sub));
             return Ok(());
         }
@@ -1135,6 +1215,286 @@ mod tests {
         rig.sdo.download(0x1011, 5, &LOAD).await.unwrap();
         assert_eq!(rig.sdo.upload(0x2001, 0).await.unwrap(), vec![9]);
         rig.task.abort();
+    }
+
+    /// UMC manual chapter 3 §4.2.2 and §9.1.7 (the UIO1LED manual's are the
+    /// same words): the heartbeat is on while 0x1017 is not zero, at its
+    /// period. After reset communication or reset node 0x1017 is back to
+    /// its default 0, so no heartbeat; writing a period starts it again and
+    /// writing 0 stops it.
+    #[test]
+    fn after_a_reset_the_heartbeat_follows_0x1017_again() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let heartbeat = CanId::standard(0x709).unwrap();
+        let write_1017 = |ms: u16| {
+            let [lo, hi] = ms.to_le_bytes();
+            Frame::new(
+                CanId::standard(0x609).unwrap(),
+                &[0x2B, 0x17, 0x10, 0, lo, hi, 0, 0],
+            )
+            .unwrap()
+        };
+        // Heartbeats (not the boot-up) sent from `from` for `ms` simulated ms.
+        let run = |device: &mut DeviceCore, from: Instant, ms: u64| {
+            let mut beats = 0;
+            for step in 1..=ms {
+                let now = from + Duration::from_millis(step);
+                device.tick_to(now);
+                beats += device
+                    .poll(now)
+                    .iter()
+                    .filter(|f| f.id() == heartbeat && f.data() != [0x00])
+                    .count();
+            }
+            beats
+        };
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            for reset in [NmtCommand::ResetCommunication, NmtCommand::ResetNode] {
+                let mut device = product.device(id).unwrap();
+                let start = Instant::now();
+                device.boot(start);
+                device.handle_frame(&write_1017(200), start);
+                assert_eq!(run(&mut device, start, 1000), 5, "{product:?}");
+                let now = start + Duration::from_millis(1000);
+                let frame = NmtMessage::new(reset, NmtTarget::Node(id)).encode();
+                device.handle_frame(&frame, now);
+                assert_eq!(device.store().int(0x1017, 0), Some(0));
+                assert_eq!(run(&mut device, now, 1000), 0, "{product:?} {reset:?}");
+                let now = now + Duration::from_millis(1000);
+                device.handle_frame(&write_1017(100), now);
+                assert_eq!(run(&mut device, now, 1000), 10, "{product:?} {reset:?}");
+                let now = now + Duration::from_millis(1000);
+                device.handle_frame(&write_1017(0), now);
+                assert_eq!(run(&mut device, now, 1000), 0, "{product:?} {reset:?}");
+            }
+        }
+    }
+
+    /// UMC manual chapter 3 §6.1.2 (0x1029, Table 3.11; the UIO1LED
+    /// manual's §6.1.2, Table 2.11), CiA 301 §7.2.8.2.1.1: a heartbeat
+    /// time-out in operational is a communication error, and 0x1029.1 says
+    /// what follows: 0 pre-operational (the default), 1 no change of the NMT
+    /// state, 2 stopped. The EMCY 0x8130 goes out in every case.
+    #[test]
+    fn a_heartbeat_time_out_in_operational_follows_0x1029() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let sdo = |data: [u8; 8]| Frame::new(CanId::standard(0x609).unwrap(), &data).unwrap();
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            for (behaviour, expected) in [
+                (0u8, NmtState::PreOperational),
+                (1, NmtState::Operational),
+                (2, NmtState::Stopped),
+            ] {
+                let mut device = product.device(id).unwrap();
+                let start = Instant::now();
+                device.boot(start);
+                device.handle_frame(&sdo([0x2F, 0x29, 0x10, 1, behaviour, 0, 0, 0]), start);
+                assert_eq!(device.store().int(0x1029, 1), Some(behaviour.into()));
+                // Watch node 0x7F's heartbeat, 100 ms.
+                device.handle_frame(&sdo([0x23, 0x16, 0x10, 1, 100, 0, 0x7F, 0]), start);
+                let go = NmtMessage::new(NmtCommand::Start, NmtTarget::Node(id)).encode();
+                device.handle_frame(&go, start);
+                let beat = Frame::new(CanId::standard(0x77F).unwrap(), &[0x05]).unwrap();
+                device.handle_frame(&beat, start);
+                assert_eq!(device.nmt_state(), NmtState::Operational);
+                let mut emcys = Vec::new();
+                for ms in 1..=200 {
+                    let now = start + Duration::from_millis(ms);
+                    device.tick_to(now);
+                    let out = device.poll(now);
+                    emcys.extend(
+                        out.iter()
+                            .filter(|f| f.id() == CanId::standard(0x89).unwrap())
+                            .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]])),
+                    );
+                }
+                assert!(emcys.contains(&0x8130), "{product:?} {emcys:04X?}");
+                assert_eq!(
+                    device.nmt_state(),
+                    expected,
+                    "{product:?}, 0x1029.1 = {behaviour}"
+                );
+            }
+        }
+    }
+
+    /// CiA 301 §7.2.2.2 and the EMCY tables of the UMC manual (chapter 3
+    /// §6.1, "0x8210 PDO not processed due to length error", "0x8220 PDO
+    /// length exceeded") and the UIO1LED manual (the same table): an RPDO
+    /// shorter than its mapping is not processed and says so with 0x8210;
+    /// a longer one is processed and the UniSwarm devices report 0x8220. The
+    /// JMC's manual lists no 0x8220, so it only reports the short one.
+    #[test]
+    fn an_rpdo_of_the_wrong_length_raises_its_emcy() {
+        use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+        use crate::sim::products::Product;
+
+        let id = NodeId::new(9).unwrap();
+        let rpdo1 =
+            |len: usize| Frame::new(CanId::standard(0x209).unwrap(), &[0; 8][..len]).unwrap();
+        for (product, reports_longer) in [
+            (Product::Umc1bds32, true),
+            (Product::Uio1led, true),
+            (Product::Jmc, false),
+        ] {
+            let mut device = product.device(id).unwrap();
+            let start = Instant::now();
+            device.boot(start);
+            // RPDO1: two dummies, 16 and 32 bits (6 bytes), on 0x209.
+            let store = device.store_mut();
+            store.set(0x1600, 0, Value::Unsigned8(0)).unwrap();
+            store
+                .set(0x1600, 1, Value::Unsigned32(0x0006_0010))
+                .unwrap();
+            store
+                .set(0x1600, 2, Value::Unsigned32(0x0007_0020))
+                .unwrap();
+            store.set(0x1600, 0, Value::Unsigned8(2)).unwrap();
+            store.set(0x1400, 1, Value::Unsigned32(0x209)).unwrap();
+            store.set(0x1400, 2, Value::Unsigned8(255)).unwrap();
+            device.pdo_parameters_changed(start);
+            let go = NmtMessage::new(NmtCommand::Start, NmtTarget::Node(id)).encode();
+            device.handle_frame(&go, start);
+            let mut emcys = |len: usize, at: u64| {
+                let now = start + Duration::from_millis(at);
+                device.handle_frame(&rpdo1(len), now);
+                let mut codes = Vec::new();
+                for ms in at..at + 10 {
+                    let now = start + Duration::from_millis(ms);
+                    device.tick_to(now);
+                    codes.extend(
+                        device
+                            .poll(now)
+                            .iter()
+                            .filter(|f| f.id() == CanId::standard(0x89).unwrap())
+                            .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]])),
+                    );
+                }
+                codes
+            };
+            assert_eq!(emcys(6, 100), Vec::<u16>::new(), "{product:?}");
+            assert_eq!(emcys(5, 200), [0x8210], "{product:?}");
+            let longer = if reports_longer { vec![0x8220] } else { vec![] };
+            assert_eq!(emcys(8, 300), longer, "{product:?}");
+        }
+    }
+
+    /// One expedited SDO request to node 9 and its answer.
+    fn sdo_exchange(device: &mut DeviceCore, request: [u8; 8]) -> [u8; 8] {
+        let frame = Frame::new(CanId::standard(0x609).unwrap(), &request).unwrap();
+        let replies = device.handle_frame(&frame, Instant::now());
+        let reply = replies
+            .iter()
+            .find(|f| f.id() == CanId::standard(0x589).unwrap())
+            .expect("an SDO answer");
+        reply.data().try_into().unwrap()
+    }
+
+    /// The abort code of an answer, `None` for a confirmation.
+    fn abort_of(reply: [u8; 8]) -> Option<u32> {
+        (reply[0] == 0x80).then(|| u32::from_le_bytes(reply[4..8].try_into().unwrap()))
+    }
+
+    /// CiA 306 §4.5.4 `[DummyUsage]` and CiA 301 §7.4.7.1: the UIO1LED's EDS
+    /// declares Dummy0002–Dummy0007, the dummy objects an RPDO may map; a
+    /// device reading them answers the length of their type in bits as
+    /// UNSIGNED32 (const), as python-canopen's reading of such an EDS
+    /// expects. The EDS's 0x1014 (COB_ID_EMCY) has limits 0x80–0x100: a value
+    /// outside them is refused with 0x06090032 / 0x06090031.
+    #[test]
+    fn the_uio1led_answers_its_dummy_objects_and_keeps_0x1014_in_its_limits() {
+        use crate::sim::products::Product;
+
+        let mut device = Product::Uio1led.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        for (index, bits) in [(2u8, 8u8), (3, 16), (4, 32), (5, 8), (6, 16), (7, 32)] {
+            let reply = sdo_exchange(&mut device, [0x40, index, 0, 0, 0, 0, 0, 0]);
+            assert_eq!(reply, [0x43, index, 0, 0, bits, 0, 0, 0], "0x{index:04X}");
+            let write = sdo_exchange(&mut device, [0x23, index, 0, 0, bits, 0, 0, 0]);
+            assert_eq!(abort_of(write), Some(0x0601_0002), "0x{index:04X} is const");
+        }
+        // Dummy0001 is not declared.
+        let reply = sdo_exchange(&mut device, [0x40, 1, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(abort_of(reply), Some(0x0602_0000));
+        for (value, abort) in [(0x7Fu32, 0x0609_0032u32), (0x101, 0x0609_0031)] {
+            let [a, b, c, d] = value.to_le_bytes();
+            let reply = sdo_exchange(&mut device, [0x23, 0x14, 0x10, 0, a, b, c, d]);
+            assert_eq!(abort_of(reply), Some(abort), "0x1014 = {value:#X}");
+        }
+        assert_eq!(device.store().int(0x1014, 0), Some(0x89));
+    }
+
+    /// An expedited download of a 32-bit `value`; the abort code, if any.
+    fn download_u32(device: &mut DeviceCore, index: u16, sub: u8, value: u32) -> Option<u32> {
+        let [i0, i1] = index.to_le_bytes();
+        let [a, b, c, d] = value.to_le_bytes();
+        abort_of(sdo_exchange(device, [0x23, i0, i1, sub, a, b, c, d]))
+    }
+
+    /// CiA 301 §7.5.2.16 (0x1014 COB-ID EMCY): bits 0–29 shall not be
+    /// changed while the EMCY exists (bit 31 = 0); the UMC and the UIO1LED
+    /// refuse such a write with 0x06090030 (invalid value). Setting bit 31
+    /// first, the COB-ID can be changed (the UMC; the UIO1LED's EDS limits
+    /// keep bit 31 out).
+    #[test]
+    fn the_emcy_cob_id_does_not_change_while_the_emcy_is_valid() {
+        use crate::sim::products::Product;
+
+        for product in [Product::Umc1bds32, Product::Uio1led] {
+            let mut device = product.device(NodeId::new(9).unwrap()).unwrap();
+            device.boot(Instant::now());
+            assert_eq!(
+                download_u32(&mut device, 0x1014, 0, 0x8A),
+                Some(0x0609_0030),
+                "{product:?}"
+            );
+            // The same value again changes nothing and is taken.
+            assert_eq!(download_u32(&mut device, 0x1014, 0, 0x89), None);
+            assert_eq!(device.store().int(0x1014, 0), Some(0x89));
+        }
+        let mut device = Product::Umc1bds32.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8000_0089), None);
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8000_008A), None);
+        assert_eq!(download_u32(&mut device, 0x1014, 0, 0x8A), None);
+        assert_eq!(device.store().int(0x1014, 0), Some(0x8A));
+    }
+
+    /// The JMC manual, 0x1005: "The device supports standard CAN data
+    /// frames. When attempting to modify bit 29, Will be invalid and an
+    /// error code of 0609 0030h will be returned", and bit 30 (the device
+    /// generates SYNC) the same for a device that does not; 0x1400–0x1803
+    /// ("PDO COB-ID description"): "modify the 29th bit is 1 ... will cause
+    /// the error code: 0609 0030h".
+    #[test]
+    fn the_jmc_refuses_29_bit_and_sync_producer_cob_ids() {
+        use crate::sim::products::Product;
+
+        let mut device = Product::Jmc.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        for value in [0x2000_0080u32, 0x4000_0080] {
+            assert_eq!(
+                download_u32(&mut device, 0x1005, 0, value),
+                Some(0x0609_0030),
+                "0x1005 = {value:#X}"
+            );
+        }
+        assert_eq!(device.store().int(0x1005, 0), Some(0x80));
+        for (index, cob_id) in [(0x1801u16, 0x283u32), (0x1401, 0x303)] {
+            assert_eq!(
+                download_u32(&mut device, index, 1, cob_id | 0x2000_0000),
+                Some(0x0609_0030),
+                "0x{index:04X}.1"
+            );
+            // The 11-bit one is taken (the JMC re-maps a valid PDO).
+            assert_eq!(download_u32(&mut device, index, 1, cob_id), None);
+        }
     }
 
     #[test]

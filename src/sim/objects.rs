@@ -6,11 +6,13 @@
 //! existence (0x06020000, 0x06090011), access type (0x06010001, 0x06010002),
 //! length (0x06070010/12/13) and range (0x06090030/31/32).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use crate::canopen::NodeId;
-use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, ValueError};
+use crate::canopen::od::{
+    AccessType, DataType, Object, ObjectDictionary, SubObject, Value, ValueError,
+};
 use crate::canopen::sdo::{AbortCode, ObjectAccess};
 
 /// Why a dictionary cannot be made into a store.
@@ -163,6 +165,26 @@ impl ObjectStore {
             return Err(AbortCode::ReadOnlyObject);
         }
         Ok(entry)
+    }
+}
+
+/// The dummy objects an EDS's `[DummyUsage]` declares (CiA 306 §4.5.4):
+/// the data types 0x0001–0x0007 a device accepts in an RPDO mapping, which
+/// it also answers when read (CiA 301 §7.4.7.1): the type's length in bits,
+/// an UNSIGNED32 const.
+pub fn add_dummy_objects(dictionary: &mut ObjectDictionary, usage: &BTreeSet<u16>) {
+    for &index in usage {
+        let data_type = DataType::from_raw(index);
+        let Some(bits) = data_type.bits() else {
+            continue;
+        };
+        if dictionary.get(index).is_some() {
+            continue;
+        }
+        let name = format!("Dummy{index:04X}");
+        let mut sub = SubObject::new(0, name, DataType::Unsigned32, AccessType::Const);
+        sub.default = Some(bits.to_string());
+        dictionary.insert(Object::var(index, sub));
     }
 }
 

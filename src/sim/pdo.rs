@@ -16,8 +16,8 @@ use std::time::{Duration, Instant};
 use crate::can::{CanId, Frame};
 use crate::canopen::od::Value;
 use crate::canopen::pdo::{
-    MappedValue, MappingEntry, PdoCobId, PdoCommParams, PdoKind, PdoMapping, Rpdo, TpdoTrigger,
-    TransmissionType,
+    EMCY_PDO_LENGTH_EXCEEDED, MappedValue, MappingEntry, PdoCobId, PdoCommParams, PdoKind,
+    PdoMapping, Rpdo, TpdoTrigger, TransmissionType,
 };
 use crate::canopen::sdo::AbortCode;
 use crate::canopen::sync::{SYNC_COB_ID, SyncConsumer};
@@ -271,6 +271,8 @@ pub struct DevicePdos {
     sync: SyncConsumer,
     /// When mapped values are next compared for a change of state.
     next_scan: Option<Instant>,
+    /// EMCY codes of RPDOs of the wrong length, for the device to raise.
+    length_errors: Vec<u16>,
 }
 
 impl DevicePdos {
@@ -321,6 +323,7 @@ impl DevicePdos {
             rpdos,
             sync,
             next_scan: Some(now),
+            length_errors: Vec::new(),
         }
     }
 
@@ -397,12 +400,26 @@ impl DevicePdos {
             return out;
         }
         for rpdo in &mut self.rpdos {
-            // A frame too short for the mapping is not applied.
-            if let Ok(Some(received)) = rpdo.on_frame(frame, now) {
-                apply(store, &received.apply, written);
+            // A frame too short for the mapping is not applied (0x8210); a
+            // longer one is, and said to be (0x8220) where the device does.
+            match rpdo.on_frame(frame, now) {
+                Ok(Some(received)) => {
+                    apply(store, &received.apply, written);
+                    if received.length_exceeded {
+                        self.length_errors.push(EMCY_PDO_LENGTH_EXCEEDED);
+                    }
+                }
+                Ok(None) => {}
+                Err(error) => self.length_errors.extend(error.emcy_code()),
             }
         }
         out
+    }
+
+    /// The EMCY codes of the RPDOs received with the wrong length since the
+    /// last call (0x8210 too short, 0x8220 too long).
+    pub fn take_length_errors(&mut self) -> Vec<u16> {
+        std::mem::take(&mut self.length_errors)
     }
 
     /// Timers due at `now` (event timers, inhibit times, RPDO deadlines) and

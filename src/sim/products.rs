@@ -12,6 +12,7 @@ use crate::profiles::builtin;
 use super::behaviour::Behaviour;
 use super::device::DeviceCore;
 use super::jmc::Jmc;
+use super::objects::add_dummy_objects;
 use super::uioled::Uioled;
 use super::umc::Umc;
 
@@ -76,7 +77,11 @@ impl Product {
             .get_or_init(|| {
                 let file = format!("{}.eds (built in)", self.name());
                 Eds::parse(self.eds_text(), &file)
-                    .map(|eds| Arc::new(eds.dictionary))
+                    .map(|eds| {
+                        let mut dictionary = eds.dictionary;
+                        add_dummy_objects(&mut dictionary, &eds.dummy_usage);
+                        Arc::new(dictionary)
+                    })
                     .map_err(|err| err.to_string())
             })
             .clone()

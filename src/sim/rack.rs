@@ -516,7 +516,10 @@ mod tests {
     }
 
     fn probe(id: u8) -> DeviceCore {
-        let dictionary = Eds::parse(UIO1LED, "uio1led.eds").unwrap().dictionary;
+        let mut dictionary = Eds::parse(UIO1LED, "uio1led.eds").unwrap().dictionary;
+        // The UIO1LED's limits on 0x1014 (0x80–0x100) keep bit 31 out; the
+        // probe is the core's, which may be told not to send EMCYs.
+        dictionary.sub_mut(0x1014, 0).unwrap().high = None;
         DeviceCore::with_behaviour(dictionary, node(id), Box::new(Probe::default())).unwrap()
     }
 
@@ -836,16 +839,19 @@ mod tests {
         }
         assert!(frames_on(&mut frames, 0x081, 1).await.is_empty());
         // The master goes silent: EMCY 0x8130, communication bit, and the
-        // axis faults (0x6007 = 1, fault signal).
+        // axis faults (0x6007 = 1, fault signal) with its own EMCY 0x8100
+        // and the device profile bit.
         let emcys = frames_on(&mut frames, 0x081, 400).await;
-        assert_eq!(emcys[0][..3], [0x30, 0x81, 0x11], "{emcys:02X?}");
+        assert_eq!(emcys[0][..3], [0x30, 0x81, 0x31], "{emcys:02X?}");
+        assert_eq!(emcys[1][..4], [0x00, 0x81, 0x31, 0x01], "{emcys:02X?}");
         let status = statusword(sdo.upload(0x6041, 0).await.unwrap());
         assert_eq!(status & 0x4F, 0x08, "{status:04X}: fault");
-        // The master is back: the error reset (the fault itself stays
-        // until a fault reset, as on the drive).
+        // The master is back: the error reset of the communication error;
+        // the axis's fault stays (register 0x21) until a fault reset, as
+        // on the drive.
         master.send(heartbeat).await.unwrap();
         let reset = frames_on(&mut frames, 0x081, 10).await;
-        assert_eq!(reset, vec![vec![0, 0, 0, 0, 0, 0, 0, 0]]);
+        assert_eq!(reset, vec![vec![0, 0, 0x21, 0, 0, 0, 0, 0]]);
     }
 
     #[tokio::test(start_paused = true)]

@@ -166,6 +166,11 @@ impl Uioled {
 }
 
 impl Behaviour for Uioled {
+    /// The manual's EMCY table (chapter 3 §6.1) lists 0x8220.
+    fn reports_pdo_length_exceeded(&self) -> bool {
+        true
+    }
+
     fn product(&self) -> &'static str {
         "uio1led"
     }

@@ -68,3 +68,12 @@ def vbus():
     server = Vbus("--devices", "none")
     yield server
     server.stop()
+
+
+@pytest.fixture
+def unlimited_vbus():
+    """A vbus without wire timing, for floods beyond what a 500 kbit/s bus
+    carries (a test of the server, not of the wire)."""
+    server = Vbus("--devices", "none", "--bitrate", "unlimited")
+    yield server
+    server.stop()

@@ -99,7 +99,10 @@ async fn a_scene_is_applied_read_back_and_its_preview_moves() {
     tokio::time::sleep(Duration::from_millis(500)).await;
     let after = ok(get(&app, &format!("{SEGMENTS}/preview")).await);
     let head_after = head(after["pixels"].as_array().unwrap());
-    assert_eq!((head_before + 5) % 10, head_after, "{before} {after}");
+    // Each read is an SDO exchange on the 500 kbit/s wire, a millisecond
+    // or so: the head moved 5 LEDs, give or take the one a read straddles.
+    let moved = (head_after + 10 - head_before) % 10;
+    assert!((4..=6).contains(&moved), "{moved}: {before} {after}");
     assert_ne!(before["pixels"], after["pixels"]);
 }
 

@@ -639,9 +639,11 @@ async fn a_node_heard_only_booting_takes_sdo() {
         NodeId::new(9).unwrap(),
     )
     .unwrap();
-    // Long enough for the boot-up to be heard, too short for any scan.
-    tokio::time::sleep(Duration::from_millis(5)).await;
+    // Long enough for the boot-up to be heard and the node identified (on
+    // the 500 kbit/s wire the frames wait behind lower identifiers), too
+    // short for any scan.
+    tokio::time::sleep(Duration::from_millis(100)).await;
     let (status, body) = get(&app, "/api/v1/buses/demo/nodes/9/od/0x1000/0").await;
     assert_eq!(status, StatusCode::OK, "{body}");
-    assert_eq!(body["value"], 428);
+    assert_eq!(body["value"], 428, "{body}");
 }

@@ -13,7 +13,7 @@ use tokio::time::Instant;
 
 use crate::api::AppState;
 use crate::api::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
-use crate::api::tests::support::{delete_text, demo, post_text};
+use crate::api::tests::support::{delete_text, demo, demo_at, post_text};
 use crate::can::{CanId, Frame};
 use crate::gateway::registry::Identification;
 
@@ -263,6 +263,10 @@ async fn an_injected_fault_arrives_as_an_emcy_with_its_code_and_text() {
     assert_eq!(data["manufacturer"].as_str().unwrap().len(), 10, "{emcy}");
 }
 
+/// A demo bus without wire timing: the stream tests send floods far beyond
+/// what a 500 kbit/s bus carries, to load the stream hub, not the wire.
+const UNLIMITED: &str = "virtual:demo?bitrate=unlimited";
+
 /// Sends `count` frames with id 0x555 in bursts, letting the gateway's
 /// tasks run between them.
 async fn traffic(state: &AppState, count: usize) {
@@ -300,7 +304,7 @@ fn frames_and_lagged(messages: &mut mpsc::Receiver<String>) -> (Vec<u32>, u64) {
 
 #[tokio::test(start_paused = true)]
 async fn a_client_that_stops_reading_loses_frames_counted_and_delays_no_one() {
-    let (_, state) = demo().await;
+    let (_, state) = demo_at(UNLIMITED).await;
     let topic = "buses/demo/frames?ids=0x555";
     // The reader's channel is large enough to take everything it is sent.
     let mut reader = Client::start(&state, 100_000);
@@ -350,7 +354,7 @@ async fn a_client_that_stops_reading_loses_frames_counted_and_delays_no_one() {
 
 #[tokio::test(start_paused = true)]
 async fn events_beyond_the_queue_are_reported_as_lagged_not_dropped() {
-    let (app, state) = demo().await;
+    let (app, state) = demo_at(UNLIMITED).await;
     let mut stuck = Client::start(&state, 1);
     stuck.subscribe(&["nodes"], None).await;
     // Each add and remove of a device is an appeared or NMT and offline

@@ -31,7 +31,13 @@ pub async fn open(name: &str, spec: &str) -> ServedBus {
 /// tests of other things may watch a velocity move for a while unrenewed
 /// (`tests_leases` sets its own).
 pub async fn demo() -> (Router, AppState) {
-    let served = open("demo", "virtual:demo").await;
+    demo_at("virtual:demo").await
+}
+
+/// [`demo`] on the bus `spec` (`virtual:demo?bitrate=unlimited` for tests
+/// of the software that send more than a wire carries).
+pub async fn demo_at(spec: &str) -> (Router, AppState) {
+    let served = open("demo", spec).await;
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
     let state = AppState::new([served]).with_lease_period(crate::gateway::motion_lease::MAX_PERIOD);

@@ -161,6 +161,7 @@ impl ServeArgs {
                 name: "demo".to_string(),
                 spec: BusSpec::Virtual {
                     preset: "demo".to_string(),
+                    bitrate: None,
                 },
             });
         }

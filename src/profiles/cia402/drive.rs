@@ -194,6 +194,9 @@ impl DriveStateMachine {
                 self.flags.voltage_enabled = present;
                 Vec::new()
             }
+            // CiA 402-2 0x6007: the option is what an enabled drive does;
+            // a drive whose function is off has no connection to abort.
+            Event::ConnectionLost if !self.state.drive_function_enabled() => Vec::new(),
             Event::ConnectionLost => match self.options.abort_connection {
                 AbortConnectionOption::NoAction => Vec::new(),
                 // A lost master is no lasting condition: the fault can be

@@ -317,6 +317,9 @@ impl Jmc {
                 Reaction::EnableOutput => {
                     self.output = true;
                     self.stopping = None;
+                    // Transition 4 starts unhalted; a bit 8 still high
+                    // halts afresh (the next reaction).
+                    self.halted = false;
                     self.set_points.reset(self.position_actual());
                 }
                 Reaction::DisableOutput => {
@@ -353,6 +356,12 @@ impl Jmc {
         let before = self.pds.state();
         let reactions = self.pds.controlword(Controlword(word));
         self.react(reactions);
+        if self.pds.state() != State::OperationEnabled {
+            // The halt is a function of operation enabled: leaving it (a
+            // shutdown after routine 4's 0x010F) drops it, as the state
+            // machine does, so that statusword bit 8 does not stay latched.
+            self.halted = false;
+        }
         if before == State::Fault && self.pds.state() != State::Fault {
             self.alarms_reset(io);
         }
@@ -694,12 +703,24 @@ impl Behaviour for Jmc {
         &self,
         _store: &ObjectStore,
         index: u16,
-        _sub: u8,
+        sub: u8,
         data: &[u8],
     ) -> Result<(), AbortCode> {
         if index == jmc::MODES_OF_OPERATION
             && let [raw] = data
             && !JmcMode::from_raw(*raw as i8).is_supported()
+        {
+            return Err(AbortCode::InvalidValue);
+        }
+        // The manual's 0x1005 and PDO COB-ID descriptions: standard frames
+        // only, and no SYNC producer; bit 29 (and 30 of 0x1005) is 0609 0030h.
+        let refused_bits = match (index, sub) {
+            (0x1005, 0) => 0x6000_0000,
+            (0x1400..=0x1403 | 0x1800..=0x1803, 1) => 0x2000_0000,
+            _ => 0,
+        };
+        if let Ok(raw) = <[u8; 4]>::try_from(data)
+            && u32::from_le_bytes(raw) & refused_bits != 0
         {
             return Err(AbortCode::InvalidValue);
         }

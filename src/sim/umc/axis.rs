@@ -764,8 +764,17 @@ impl Axis {
 
     /// The master is gone (0x6007).
     pub fn connection_lost(&mut self, io: &mut DeviceIo<'_>) {
+        let before = self.pds.state();
         let reactions = self.pds.event(Event::ConnectionLost);
         self.apply(io, &reactions);
+        let faulted = matches!(self.pds.state(), State::FaultReactionActive | State::Fault);
+        if faulted && !matches!(before, State::FaultReactionActive | State::Fault) {
+            // A fault always says why (§1.5): EMCY and error register.
+            let condition = Condition::ConnectionLost;
+            io.set_error_bit(condition.error_bit(), true);
+            io.emcy(condition.emcy_code(), [self.number, 0, 0, 0, 0]);
+            self.latched = self.latched.with(condition);
+        }
         self.publish(io, true);
     }
 

@@ -24,23 +24,30 @@ pub enum Condition {
     /// The motor turned faster than 0x4007.7 Max_velocity ("if this
     /// velocity is exceeded, a motor fault is generated").
     OverSpeed,
+    /// The master went away (0x6007: NMT change of status, heartbeat or
+    /// guarding) while the drive function was enabled, and the option was
+    /// the fault signal. Never present: it lasts until the fault reset.
+    ConnectionLost,
 }
 
 impl Condition {
-    pub const ALL: [Condition; 6] = [
+    pub const ALL: [Condition; 7] = [
         Condition::OverTemperature,
         Condition::UnderVoltage,
         Condition::OverVoltage,
         Condition::FollowingError,
         Condition::OverCurrent,
         Condition::OverSpeed,
+        Condition::ConnectionLost,
     ];
 
     /// The EMCY error code (Table 2.16): 0x4310 excess temperature drive,
     /// 0x3220 DC link under-voltage, 0x3210 DC link over-voltage (the board
     /// input feeds the bridges directly), 0x8611 following error, 0x2310
     /// continuous over current (device output side), 0x8400 velocity
-    /// controller (the speed monitoring's deviation).
+    /// controller (the speed monitoring's deviation); 0x8100 communication
+    /// generic (CiA 301 table 21) for a lost connection, which Table 2.16
+    /// has no code for.
     pub fn emcy_code(self) -> u16 {
         match self {
             Condition::OverTemperature => 0x4310,
@@ -49,6 +56,7 @@ impl Condition {
             Condition::FollowingError => 0x8611,
             Condition::OverCurrent => 0x2310,
             Condition::OverSpeed => 0x8400,
+            Condition::ConnectionLost => 0x8100,
         }
     }
 
@@ -61,6 +69,9 @@ impl Condition {
             Condition::OverCurrent => ErrorBit::Current,
             // A motor error of 0x4006.6: the manufacturer's.
             Condition::OverSpeed => ErrorBit::Manufacturer,
+            // A reaction of the drive profile (the communication bit is the
+            // core's, for as long as the master stays lost).
+            Condition::ConnectionLost => ErrorBit::DeviceProfile,
         }
     }
 
@@ -82,6 +93,7 @@ impl Condition {
             }
             Condition::FollowingError => motion_error::POSITION_CONTROLLER,
             Condition::OverCurrent | Condition::OverSpeed => motion_error::MOTOR,
+            Condition::ConnectionLost => 0,
         }
     }
 
@@ -171,11 +183,16 @@ mod tests {
     #[test]
     fn every_condition_has_a_table_2_16_code_and_a_register_bit() {
         let codes: Vec<u16> = Condition::ALL.iter().map(|c| c.emcy_code()).collect();
-        assert_eq!(codes, [0x4310, 0x3220, 0x3210, 0x8611, 0x2310, 0x8400]);
+        assert_eq!(
+            codes,
+            [0x4310, 0x3220, 0x3210, 0x8611, 0x2310, 0x8400, 0x8100]
+        );
         for condition in Condition::ALL {
+            use crate::canopen::emcy::codes::{DRIVE_CODES, GENERAL_CODES};
             assert!(
-                crate::canopen::emcy::codes::DRIVE_CODES
+                DRIVE_CODES
                     .iter()
+                    .chain(GENERAL_CODES)
                     .any(|(code, _)| *code == condition.emcy_code()),
                 "{condition:?}"
             );

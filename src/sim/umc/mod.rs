@@ -190,6 +190,11 @@ impl Umc {
 }
 
 impl Behaviour for Umc {
+    /// The manual's EMCY table (chapter 3 §6.1) lists 0x8220.
+    fn reports_pdo_length_exceeded(&self) -> bool {
+        true
+    }
+
     fn product(&self) -> &'static str {
         if self.axes.len() > 1 {
             "umc1bds32"

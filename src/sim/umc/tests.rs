@@ -256,6 +256,47 @@ fn leaving_operational_signals_a_fault_as_0x6007_asks() {
     assert_eq!(rig.state(1), State::SwitchOnDisabled);
 }
 
+/// UMC manual chapter 2 §1.4.8 (0x6007, Table 2.10): the NMT change of
+/// status is an abort connection event, and its option is a command to the
+/// drive; CiA 402-2 applies it to a drive whose function is enabled. An idle
+/// axis (switch on disabled) has nothing to abort and stays where it is; the
+/// axis that faults leaves its trace as every fault does (§1.5, an EMCY and
+/// the error register 0x1001, which the core records in 0x1003).
+#[test]
+fn leaving_operational_faults_only_enabled_axes_and_leaves_a_trace() {
+    let mut rig = Rig::umc1bds32();
+    rig.enable(1, 1);
+    let idle = rig.statusword(2);
+    assert_eq!(rig.state(2), State::SwitchOnDisabled);
+    rig.raised.clear();
+    rig.with(|umc, io| umc.nmt_changed(io, NmtState::Operational, NmtState::PreOperational));
+    rig.tick(50);
+    assert_eq!(rig.state(2), State::SwitchOnDisabled);
+    assert_eq!(rig.statusword(2), idle);
+    assert_eq!(rig.state(1), State::Fault);
+    let codes: Vec<_> = rig
+        .raised
+        .iter()
+        .map(|r| (r.code, r.manufacturer[0]))
+        .collect();
+    assert_eq!(codes, [(0x8100, 1)]);
+    let register = rig.int(0x1001, 0);
+    assert_ne!(
+        register & 0x20,
+        0,
+        "device profile bit, 0x1001 = {register:#x}"
+    );
+    // The fault reset ends it: the bit goes, the error reset EMCY follows.
+    rig.raised.clear();
+    rig.controlword(1, 0x80);
+    assert_eq!(rig.state(1), State::SwitchOnDisabled);
+    assert_eq!(rig.int(0x1001, 0) & 0x20, 0);
+    assert_eq!(
+        rig.raised.iter().map(|r| r.code).collect::<Vec<_>>(),
+        [0x0000]
+    );
+}
+
 // ---- profile position ----
 
 /// Runs until target reached, checking the demand against the limits on
