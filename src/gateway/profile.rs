@@ -515,7 +515,8 @@ mod tests {
         std::fs::write(dir.join("good.eds"), eds_text(0x77, 0x10, 1, 402)).unwrap();
         std::fs::write(
             dir.join("broken.eds"),
-            "[1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0xZZ\n",
+            // No EDS at all (a flawed EDS loads, with warnings).
+            "[Settings]\nColour=blue\n",
         )
         .unwrap();
         let error = EdsCatalog::with_dir(&dir).unwrap_err();
