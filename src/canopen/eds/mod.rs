@@ -329,7 +329,11 @@ impl Eds {
                     + 1;
                 match decode_windows_1252(bytes) {
                     Some(text) => (text, line, "Windows-1252"),
-                    None => (bytes.iter().map(|&b| char::from(b)).collect(), line, "Latin-1"),
+                    None => (
+                        bytes.iter().map(|&b| char::from(b)).collect(),
+                        line,
+                        "Latin-1",
+                    ),
                 }
             }
         };

@@ -12,9 +12,7 @@
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use super::ini::{self, Entry, Ini, Section};
-use super::{
-    Action, DeviceCommissioning, DeviceInfo, Eds, EdsError, EdsWarning, FileInfo,
-};
+use super::{Action, DeviceCommissioning, DeviceInfo, Eds, EdsError, EdsWarning, FileInfo};
 use crate::canopen::od::{
     AccessType, DataType, Object, ObjectDictionary, ObjectType, SubObject, Value, snippet,
 };
@@ -219,10 +217,15 @@ impl<'a> Reader<'a> {
     /// True when the file has a section CiA 306 defines.
     fn has_cia306_section(&self) -> bool {
         self.ini.sections.iter().any(|section| {
-            ["FileInfo", "DeviceInfo", "DeviceComissioning", "DeviceCommissioning"]
-                .into_iter()
-                .chain(LISTS)
-                .any(|name| section.name.eq_ignore_ascii_case(name))
+            [
+                "FileInfo",
+                "DeviceInfo",
+                "DeviceComissioning",
+                "DeviceCommissioning",
+            ]
+            .into_iter()
+            .chain(LISTS)
+            .any(|name| section.name.eq_ignore_ascii_case(name))
                 || matches!(classify(&section.name), Ok(Kind::Object(_) | Kind::Sub(..)))
         })
     }
@@ -407,7 +410,11 @@ impl<'a> Reader<'a> {
     fn identity(&mut self, info: &mut DeviceInfo, dictionary: &ObjectDictionary) {
         let device_info = self.ini.section("DeviceInfo");
         let line = device_info.map_or(self.end_line(), |section| section.line);
-        for (sub, key) in [(1, "VendorNumber"), (2, "ProductNumber"), (3, "RevisionNumber")] {
+        for (sub, key) in [
+            (1, "VendorNumber"),
+            (2, "ProductNumber"),
+            (3, "RevisionNumber"),
+        ] {
             let field = match sub {
                 1 => &mut info.vendor_number,
                 2 => &mut info.product_number,
@@ -431,7 +438,8 @@ impl<'a> Reader<'a> {
                 Some(value) => {
                     *field = Some(value);
                     // The text is replaced, not kept beside the number.
-                    info.other.retain(|(other, _)| !other.eq_ignore_ascii_case(key));
+                    info.other
+                        .retain(|(other, _)| !other.eq_ignore_ascii_case(key));
                     self.warn(
                         at,
                         format!("[DeviceInfo] {key}"),
@@ -802,7 +810,10 @@ impl<'a> Reader<'a> {
         match section.get("ParameterName") {
             Some(entry) if !entry.value.is_empty() => entry.value.clone(),
             _ => {
-                let message = format!("[{}] has no ParameterName; named '{fallback}'", section.name);
+                let message = format!(
+                    "[{}] has no ParameterName; named '{fallback}'",
+                    section.name
+                );
                 self.warn(
                     section.line,
                     key_of(section, "ParameterName"),
@@ -847,18 +858,36 @@ impl<'a> Reader<'a> {
         }
         if let Some(entry) = section.get("ObjFlags") {
             object.obj_flags = self
-                .number(section, entry, DataType::Unsigned32, Action::Dropped, "dropped")
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned32,
+                    Action::Dropped,
+                    "dropped",
+                )
                 .map(|v| v as u32);
         }
         let compact = match section.get("CompactSubObj") {
             Some(entry) => self
-                .number(section, entry, DataType::Unsigned8, Action::Dropped, "read as 0")
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned8,
+                    Action::Dropped,
+                    "read as 0",
+                )
                 .map_or(0, |v| v as u8),
             None => 0,
         };
         let sub_number = match section.get("SubNumber") {
             Some(entry) => self
-                .number(section, entry, DataType::Unsigned16, Action::Dropped, "ignored")
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned16,
+                    Action::Dropped,
+                    "ignored",
+                )
                 .map(|number| (number, entry.line)),
             None => None,
         };
@@ -975,7 +1004,12 @@ impl<'a> Reader<'a> {
     /// node 1); `None` when empty. What does not read as written is read
     /// the way its writer meant where that is clear (a C literal suffix, a
     /// negative number in an unsigned type) and dropped otherwise.
-    fn value_text(&mut self, section: &Section, entry: &Entry, data_type: DataType) -> Option<String> {
+    fn value_text(
+        &mut self,
+        section: &Section,
+        entry: &Entry,
+        data_type: DataType,
+    ) -> Option<String> {
         if entry.value.is_empty() {
             return None;
         }
@@ -985,7 +1019,7 @@ impl<'a> Reader<'a> {
         };
         let key = key_of(section, &entry.key);
         let shown = snippet(&entry.value);
-        if let Some(corrected) = corrected_integer(data_type, &entry.value) {
+        if let Some(corrected) = corrected_number(data_type, &entry.value) {
             self.warn(
                 entry.line,
                 key,
@@ -1084,7 +1118,10 @@ impl<'a> Reader<'a> {
                     section.line,
                     key_of(section, "AccessType"),
                     Action::Defaulted,
-                    format!("[{}] has no AccessType; read as {DEFAULT_ACCESS}", section.name),
+                    format!(
+                        "[{}] has no AccessType; read as {DEFAULT_ACCESS}",
+                        section.name
+                    ),
                 );
                 DEFAULT_ACCESS
             }
@@ -1092,12 +1129,24 @@ impl<'a> Reader<'a> {
         let mut sub = SubObject::new(sub_index, name, data_type, access);
         if let Some(entry) = section.get("PDOMapping") {
             sub.pdo_mappable = self
-                .number(section, entry, DataType::Unsigned8, Action::Defaulted, "read as 0 (not mappable)")
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned8,
+                    Action::Defaulted,
+                    "read as 0 (not mappable)",
+                )
                 .is_some_and(|v| v != 0);
         }
         if let Some(entry) = section.get("ObjFlags") {
             sub.obj_flags = self
-                .number(section, entry, DataType::Unsigned32, Action::Dropped, "dropped")
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned32,
+                    Action::Dropped,
+                    "dropped",
+                )
                 .map(|v| v as u32);
         }
         let mut text = |key: &str| {
@@ -1129,7 +1178,9 @@ impl<'a> Reader<'a> {
                 "[{}]: LowLimit {low} is above HighLimit {high}; both dropped",
                 section.name
             );
-            let line = section.get("LowLimit").map_or(section.line, |entry| entry.line);
+            let line = section
+                .get("LowLimit")
+                .map_or(section.line, |entry| entry.line);
             self.warn(line, key_of(section, "LowLimit"), Action::Dropped, message);
             sub.low = None;
             sub.high = None;
@@ -1151,16 +1202,21 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// An integer value text as its writer meant it, as text that reads: a C
-/// literal suffix dropped (`0x1234567890ABCDEFLL`, `100U`), a negative
+/// A number's value text as its writer meant it, as text that reads: a C
+/// literal suffix dropped (`0x1234567890ABCDEFLL`, `100U`, `1.5f`), a negative
 /// number in an unsigned type as its two's complement (`-1` in an UNSIGNED32
 /// is 0xFFFFFFFF, as C compilers and the tools built with them have it).
-fn corrected_integer(data_type: DataType, text: &str) -> Option<String> {
+fn corrected_number(data_type: DataType, text: &str) -> Option<String> {
+    let reads = |text: &str| Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)).is_ok();
+    let trimmed = text.trim();
+    if data_type.is_real() {
+        // `1.0f`: a C float literal.
+        let unsuffixed = trimmed.strip_suffix(['f', 'F'])?;
+        return reads(unsuffixed).then(|| unsuffixed.to_string());
+    }
     if !data_type.is_integer() || data_type == DataType::Boolean {
         return None;
     }
-    let reads = |text: &str| Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)).is_ok();
-    let trimmed = text.trim();
     let unsuffixed = trimmed.trim_end_matches(['u', 'U', 'l', 'L']);
     let digits_left = unsuffixed
         .chars()

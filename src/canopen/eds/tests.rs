@@ -840,14 +840,20 @@ fn an_empty_or_unknown_access_type_is_read_as_rw() {
     assert_eq!(warning.message, "AccessType is empty; read as rw");
     let eds = load_odd(&text);
     let entry = eds.dictionary.sub(0x2000, 0).unwrap();
-    assert_eq!((entry.access, entry.default.as_deref()), (AccessType::Rw, Some("5")));
+    assert_eq!(
+        (entry.access, entry.default.as_deref()),
+        (AccessType::Rw, Some("5"))
+    );
 
     let unknown = text.replace("AccessType=\n", "AccessType=readable\n");
     warning_at(&unknown, "readable", Action::Defaulted);
     let missing = text.replace("AccessType=\n", "");
     let warning = warning_at(&missing, "[2000]", Action::Defaulted);
     assert_eq!(warning.message, "[2000] has no AccessType; read as rw");
-    assert_eq!(load_odd(&missing).dictionary.sub(0x2000, 0).unwrap().access, AccessType::Rw);
+    assert_eq!(
+        load_odd(&missing).dictionary.sub(0x2000, 0).unwrap().access,
+        AccessType::Rw
+    );
 }
 
 #[test]
@@ -858,16 +864,31 @@ fn a_domain_default_that_is_no_hex_bytes_is_dropped() {
             "ObjectType=0x7\nDataType=0x000F\nAccessType=rw\nDefaultValue={default}\n"
         ));
         let warning = warning_at(&text, &format!("DefaultValue={default}\n"), Action::Dropped);
-        assert!(warning.message.contains("a DOMAIN value is hex bytes"), "{warning}");
+        assert!(
+            warning.message.contains("a DOMAIN value is hex bytes"),
+            "{warning}"
+        );
         let eds = load_odd(&text);
         let entry = eds.dictionary.sub(0x2000, 0).unwrap();
-        assert_eq!((entry.data_type, entry.default.as_deref()), (DataType::Domain, None));
+        assert_eq!(
+            (entry.data_type, entry.default.as_deref()),
+            (DataType::Domain, None)
+        );
     }
     // Hex bytes are a DOMAIN default.
     let text = with_2000("ObjectType=0x7\nDataType=0x000F\nAccessType=rw\nDefaultValue=0A0B\n");
     let eds = load_odd(&text);
-    assert_eq!(eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(), Some("0A0B"));
-    assert_eq!(eds.warnings.iter().filter(|w| w.key.starts_with("[2000]")).count(), 0);
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(),
+        Some("0A0B")
+    );
+    assert_eq!(
+        eds.warnings
+            .iter()
+            .filter(|w| w.key.starts_with("[2000]"))
+            .count(),
+        0
+    );
 }
 
 #[test]
@@ -894,8 +915,10 @@ fn a_type_that_is_no_basic_type_is_read_as_domain() {
 
 #[test]
 fn an_object_listed_without_a_section_is_dropped_from_the_list() {
-    let text = with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n")
-        .replace("SupportedObjects=1\n1=0x2000", "SupportedObjects=2\n1=0x2000\n2=0x2001");
+    let text = with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n").replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=2\n1=0x2000\n2=0x2001",
+    );
     let warning = warning_at(&text, "2=0x2001", Action::Dropped);
     assert_eq!(warning.key, "[OptionalObjects] 2");
     assert_eq!(
@@ -906,8 +929,11 @@ fn an_object_listed_without_a_section_is_dropped_from_the_list() {
     assert!(eds.dictionary.get(0x2000).is_some());
     assert!(eds.dictionary.get(0x2001).is_none());
     // The rest of the file is as without the defect.
-    let clean = Eds::parse(&with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"), "x")
-        .unwrap();
+    let clean = Eds::parse(
+        &with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"),
+        "x",
+    )
+    .unwrap();
     assert_eq!(eds.dictionary, clean.dictionary);
 }
 
@@ -921,7 +947,10 @@ fn an_array_with_neither_sub_sections_nor_compact_storage_is_kept_empty() {
     );
     let eds = load_odd(&text);
     let object = eds.dictionary.get(0x2000).unwrap();
-    assert_eq!((object.object_type, object.subs.len()), (ObjectType::Array, 0));
+    assert_eq!(
+        (object.object_type, object.subs.len()),
+        (ObjectType::Array, 0)
+    );
     assert_eq!(object.name, "Extra");
 }
 
@@ -932,14 +961,22 @@ fn c_literal_suffixes_are_dropped() {
         ("0x0007", "100U", "100"),
         ("0x0007", "0xFFUL", "0xFF"),
         ("0x0004", "-5L", "-5"),
+        // A C float literal (Faulhaber's files).
+        ("0x0008", "1.5f", "1.5"),
     ] {
         let text = with_2000(&format!(
             "ObjectType=0x7\nDataType={data_type}\nAccessType=rw\nDefaultValue={written}\n"
         ));
         let warning = warning_at(&text, written, Action::Corrected);
-        assert!(warning.message.contains(&format!("read as {read}")), "{warning}");
+        assert!(
+            warning.message.contains(&format!("read as {read}")),
+            "{warning}"
+        );
         let eds = load_odd(&text);
-        assert_eq!(eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(), Some(read));
+        assert_eq!(
+            eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(),
+            Some(read)
+        );
     }
     let eds = load_odd(&with_2000(
         "ObjectType=0x7\nDataType=0x001B\nAccessType=rw\nDefaultValue=0x1234567890ABCDEFLL\n",
@@ -954,7 +991,10 @@ fn c_literal_suffixes_are_dropped() {
 fn a_negative_default_of_an_unsigned_type_is_its_twos_complement() {
     let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=-1\n");
     let warning = warning_at(&text, "DefaultValue=-1", Action::Corrected);
-    assert_eq!(warning.message, "DefaultValue=-1 is read as 0xFFFFFFFF (UNSIGNED32)");
+    assert_eq!(
+        warning.message,
+        "DefaultValue=-1 is read as 0xFFFFFFFF (UNSIGNED32)"
+    );
     let eds = load_odd(&text);
     assert_eq!(
         eds.dictionary.sub(0x2000, 0).unwrap().default_value(None),
@@ -963,7 +1003,10 @@ fn a_negative_default_of_an_unsigned_type_is_its_twos_complement() {
     // Beyond what the type's bits hold, it is no value of it: dropped.
     let text = with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=-300\n");
     warning_at(&text, "DefaultValue=-300", Action::Dropped);
-    assert_eq!(load_odd(&text).dictionary.sub(0x2000, 0).unwrap().default, None);
+    assert_eq!(
+        load_odd(&text).dictionary.sub(0x2000, 0).unwrap().default,
+        None
+    );
 }
 
 #[test]
@@ -988,8 +1031,14 @@ fn code_page_bytes_are_read_as_windows_1252_else_latin_1() {
         .find(|w| w.message.contains("not UTF-8"))
         .unwrap();
     assert_eq!(warning.line, 2);
-    assert_eq!(warning.message, "not UTF-8: the file is read as Windows-1252");
-    assert_eq!(eds.dictionary, Eds::parse(MINI, "mini.eds").unwrap().dictionary);
+    assert_eq!(
+        warning.message,
+        "not UTF-8: the file is read as Windows-1252"
+    );
+    assert_eq!(
+        eds.dictionary,
+        Eds::parse(MINI, "mini.eds").unwrap().dictionary
+    );
     // 0x81 is no character of Windows-1252: the file is Latin-1 then.
     bytes[at] = 0x81;
     let eds = Eds::parse_bytes(&bytes, "latin1.eds").unwrap();
@@ -997,12 +1046,19 @@ fn code_page_bytes_are_read_as_windows_1252_else_latin_1() {
         eds.file_info.description.as_deref(),
         Some("Sch\u{F6}naich \u{81}")
     );
-    assert!(eds.warnings.iter().any(|w| w.message.ends_with("read as Latin-1")));
+    assert!(
+        eds.warnings
+            .iter()
+            .any(|w| w.message.ends_with("read as Latin-1"))
+    );
 }
 
 #[test]
 fn a_file_without_mandatory_objects_loads() {
-    let text = MINI.replace("[MandatoryObjects]\nSupportedObjects=2\n1=0x1000\n2=0x1018\n", "");
+    let text = MINI.replace(
+        "[MandatoryObjects]\nSupportedObjects=2\n1=0x1000\n2=0x1018\n",
+        "",
+    );
     let eds = load_odd(&text);
     let warning = eds
         .warnings
@@ -1011,7 +1067,10 @@ fn a_file_without_mandatory_objects_loads() {
         .unwrap();
     assert_eq!(warning.line, text.lines().count());
     assert_eq!(warning.action, Action::Kept);
-    assert_eq!(eds.dictionary, Eds::parse(MINI, "mini.eds").unwrap().dictionary);
+    assert_eq!(
+        eds.dictionary,
+        Eds::parse(MINI, "mini.eds").unwrap().dictionary
+    );
     // Each object now is in no list, and says so.
     assert!(
         eds.warnings
@@ -1055,7 +1114,9 @@ fn a_revision_that_is_no_number_is_kept_as_text_or_taken_from_0x1018() {
     let eds = Eds::parse(MINI, "mini.eds").unwrap();
     assert_eq!(eds.device_info.revision_number, None);
     // With a 0x1018 sub 3 default, that is the revision; the text goes.
-    let text = MINI.replace("SubNumber=2", "SubNumber=3").replace("DefaultValue=1\n", "DefaultValue=3\n")
+    let text = MINI
+        .replace("SubNumber=2", "SubNumber=3")
+        .replace("DefaultValue=1\n", "DefaultValue=3\n")
         + "[1018sub3]\nParameterName=Revision\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x00010002\n";
     let eds = load_odd(&text);
     assert_eq!(eds.device_info.revision_number, Some(0x0001_0002));
@@ -1071,8 +1132,14 @@ fn a_revision_that_is_no_number_is_kept_as_text_or_taken_from_0x1018() {
 fn a_sub_number_that_does_not_count_the_sections_is_a_warning() {
     let text = MINI.replace("SubNumber=2", "SubNumber=5");
     let warning = warning_at(&text, "SubNumber=5", Action::Kept);
-    assert_eq!(warning.message, "SubNumber=5 but there are 2 sub-object sections");
-    assert_eq!(load_odd(&text).dictionary.get(0x1018).unwrap().subs.len(), 2);
+    assert_eq!(
+        warning.message,
+        "SubNumber=5 but there are 2 sub-object sections"
+    );
+    assert_eq!(
+        load_odd(&text).dictionary.get(0x1018).unwrap().subs.len(),
+        2
+    );
 }
 
 #[test]
@@ -1081,7 +1148,10 @@ fn inverted_limits_are_dropped() {
         "ObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=5\nLowLimit=20\nHighLimit=10\n",
     );
     let warning = warning_at(&text, "LowLimit=20", Action::Dropped);
-    assert_eq!(warning.message, "[2000]: LowLimit 20 is above HighLimit 10; both dropped");
+    assert_eq!(
+        warning.message,
+        "[2000]: LowLimit 20 is above HighLimit 10; both dropped"
+    );
     let eds = load_odd(&text);
     let entry = eds.dictionary.sub(0x2000, 0).unwrap();
     assert_eq!((entry.low.as_deref(), entry.high.as_deref()), (None, None));
@@ -1089,7 +1159,10 @@ fn inverted_limits_are_dropped() {
     // A default outside sound limits is kept, with a warning.
     let text = text.replace("LowLimit=20\nHighLimit=10", "LowLimit=10\nHighLimit=20");
     let warning = warning_at(&text, "DefaultValue=5", Action::Kept);
-    assert!(warning.message.contains("below the low limit 10"), "{warning}");
+    assert!(
+        warning.message.contains("below the low limit 10"),
+        "{warning}"
+    );
 }
 
 #[test]
@@ -1098,9 +1171,12 @@ fn every_problem_of_a_file_is_reported_together() {
     let text = with_2000(
         "ObjectType=0x7\nDataType=0x0007\nAccessType=\nDefaultValue=-1\nLowLimit=9\nHighLimit=1\n",
     )
-    .replace("SupportedObjects=1\n1=0x2000", "SupportedObjects=2\n1=0x2000\n2=0x2001")
+    .replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=2\n1=0x2000\n2=0x2001",
+    )
     .replace("SubNumber=2", "SubNumber=4")
-    + "[2002]\nParameterName=Blob\nDataType=0x000F\nAccessType=rw\nDefaultValue=0\n";
+        + "[2002]\nParameterName=Blob\nDataType=0x000F\nAccessType=rw\nDefaultValue=0\n";
     let eds = load_odd(&text);
     let lines: Vec<_> = eds.warnings.iter().map(|w| (w.line, w.action)).collect();
     let expected = [
@@ -1125,29 +1201,84 @@ fn every_problem_of_a_file_is_reported_together() {
 #[test]
 fn each_deviation_is_a_warning_at_its_line() {
     let cases: [(String, &str, Action); 14] = [
-        (MINI.replace("DefaultValue=0x4A2", "DefaultValue=0x4G2"), "0x4G2", Action::Dropped),
-        (MINI.replace("DefaultValue=1\n", "DefaultValue=256\n"), "DefaultValue=256", Action::Dropped),
-        (MINI.replace("[1018sub1]", "[1018sub100]"), "[1018sub100]", Action::Dropped),
-        (MINI.replace("[1000]", "[10000]"), "[10000]", Action::Dropped),
         (
-            MINI.replace("AccessType=ro\nDefaultValue=0x191", "AccessType=ro\naccesstype=rw"),
+            MINI.replace("DefaultValue=0x4A2", "DefaultValue=0x4G2"),
+            "0x4G2",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("DefaultValue=1\n", "DefaultValue=256\n"),
+            "DefaultValue=256",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("[1018sub1]", "[1018sub100]"),
+            "[1018sub100]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("[1000]", "[10000]"),
+            "[10000]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace(
+                "AccessType=ro\nDefaultValue=0x191",
+                "AccessType=ro\naccesstype=rw",
+            ),
             "accesstype=rw",
             Action::Dropped,
         ),
-        (format!("{MINI}[1000]\nParameterName=Again\n"), "ParameterName=Again", Action::Dropped),
-        (format!("{MINI}[01000]\nParameterName=Again\n"), "[01000]", Action::Dropped),
-        (MINI.replace("SupportedObjects=2", "SupportedObjects=3"), "SupportedObjects", Action::Kept),
-        (MINI.replace("ParameterName=Vendor Id\n", ""), "[1018sub1]", Action::Defaulted),
-        (MINI.replace("DataType=0x0005\n", ""), "[1018sub0]", Action::Dropped),
-        (MINI.replace("ObjectType=0x9", "ObjectType=0x3"), "ObjectType=0x3", Action::Dropped),
+        (
+            format!("{MINI}[1000]\nParameterName=Again\n"),
+            "ParameterName=Again",
+            Action::Dropped,
+        ),
+        (
+            format!("{MINI}[01000]\nParameterName=Again\n"),
+            "[01000]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("SupportedObjects=2", "SupportedObjects=3"),
+            "SupportedObjects",
+            Action::Kept,
+        ),
+        (
+            MINI.replace("ParameterName=Vendor Id\n", ""),
+            "[1018sub1]",
+            Action::Defaulted,
+        ),
+        (
+            MINI.replace("DataType=0x0005\n", ""),
+            "[1018sub0]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("ObjectType=0x9", "ObjectType=0x3"),
+            "ObjectType=0x3",
+            Action::Dropped,
+        ),
         (format!("NoSection=1\n{MINI}"), "NoSection", Action::Dropped),
-        (MINI.replace("[DeviceInfo]", "[DeviceInfo"), "[DeviceInfo", Action::Kept),
-        (MINI.replace("FileVersion=1.0.2", "just some words"), "just some words", Action::Dropped),
+        (
+            MINI.replace("[DeviceInfo]", "[DeviceInfo"),
+            "[DeviceInfo",
+            Action::Kept,
+        ),
+        (
+            MINI.replace("FileVersion=1.0.2", "just some words"),
+            "just some words",
+            Action::Dropped,
+        ),
     ];
     let reference = Eds::parse(MINI, "mini.eds").unwrap();
     for (text, at, action) in &cases {
         // A repeated section's warning sits on its header.
-        let at = if *at == "ParameterName=Again" { "[1000]\nParameterName=Again" } else { at };
+        let at = if *at == "ParameterName=Again" {
+            "[1000]\nParameterName=Again"
+        } else {
+            at
+        };
         let line = match at.split_once('\n') {
             Some((_, _)) => text.lines().count() - 1,
             None => line_of(text, at),
