@@ -9,6 +9,7 @@ use clap::{Args, Subcommand};
 use serde_json::{Value as Json, json};
 
 use super::CliError;
+use crate::canopen::NodeId;
 use crate::canopen::eds::{Eds, EdsError, read_eds_file};
 use crate::canopen::od::{ObjectDictionary, SubObject};
 
@@ -36,7 +37,8 @@ pub struct CheckArgs {
     #[arg(long)]
     pub json: bool,
     /// With --json: each file's dictionary too (every entry's object type,
-    /// data type, access type, PDO mapping, default and limits).
+    /// data type, access type, PDO mapping, default and limits; the default
+    /// also as a value).
     #[arg(long, requires = "json")]
     pub dictionary: bool,
     /// The EDS or DCF files.
@@ -199,7 +201,7 @@ fn file_json(checked: &Checked, strict: bool, dictionary: bool) -> Json {
                 "warnings": warnings,
             });
             if dictionary {
-                file["dictionary"] = dictionary_json(&eds.dictionary);
+                file["dictionary"] = dictionary_json(&eds.dictionary, eds.node_id());
             }
             file
         }
@@ -208,7 +210,7 @@ fn file_json(checked: &Checked, strict: bool, dictionary: bool) -> Json {
 
 /// Each object with its entries, as read: what a comparison with another
 /// reader needs.
-fn dictionary_json(dictionary: &ObjectDictionary) -> Json {
+fn dictionary_json(dictionary: &ObjectDictionary, node: Option<NodeId>) -> Json {
     let entry = |sub: &SubObject| {
         json!({
             "sub_index": sub.sub_index,
@@ -217,6 +219,14 @@ fn dictionary_json(dictionary: &ObjectDictionary) -> Json {
             "access": sub.access.as_str(),
             "pdo_mappable": sub.pdo_mappable,
             "default": sub.default,
+            // As a value (REST JSON form), `$NODEID` resolved with a DCF's
+            // node id; null when there is none or it depends on a node id
+            // the file does not give.
+            "default_value": sub
+                .default_value(node)
+                .ok()
+                .flatten()
+                .map(|value| value.to_json()),
             "low": sub.low,
             "high": sub.high,
             "parameter_value": sub.parameter_value,
