@@ -20,7 +20,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::canopen::eds::{Eds, read_eds_file};
+use crate::canopen::eds::{Eds, EdsWarning, read_eds_file};
 use crate::profiles::builtin;
 
 use super::registry::RegistryError;
@@ -175,6 +175,8 @@ pub struct EdsCatalog {
 pub struct SkippedFile {
     pub path: PathBuf,
     pub message: String,
+    /// The reader's warnings, when the file is an EDS at all.
+    pub warnings: Vec<EdsWarning>,
 }
 
 /// The built-in files: name, text, and the profile of the product.
@@ -245,9 +247,13 @@ impl EdsCatalog {
                 Ok(_) => {}
                 Err(error) => {
                     tracing::error!("EDS {} left out: {error}", path.display());
+                    let warnings = read_eds_file(&path)
+                        .map(|eds| eds.warnings)
+                        .unwrap_or_default();
                     catalog.skipped.push(SkippedFile {
                         path,
                         message: error.to_string(),
+                        warnings,
                     });
                 }
             }
