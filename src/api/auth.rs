@@ -110,6 +110,7 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
     ("GET",    "/api/v1/stream", VIEWER),
     ("GET",    "/api/v1/events", VIEWER),
+    ("GET",    "/api/v1/eds", VIEWER),
     ("GET",    "/metrics", VIEWER),
     // The interface's description: no data, and the docs UI is where one
     // enters a token to try the API ("Authorize").

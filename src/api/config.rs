@@ -17,7 +17,7 @@ use utoipa_axum::routes;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::eds::Eds;
+use crate::canopen::eds::{Action, Eds};
 use crate::canopen::od::format_index;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::dcf;
@@ -362,6 +362,18 @@ async fn put_dcf(
         message: error.to_string(),
         line: Some(error.line).filter(|line| *line > 0),
     })?;
+    // A restore writes the device: what the tolerant reader had to drop or
+    // correct is refused rather than guessed.
+    if let Some(warning) = parsed
+        .warnings
+        .iter()
+        .find(|warning| matches!(warning.action, Action::Dropped | Action::Corrected))
+    {
+        return Err(AppError::InvalidDcf {
+            message: warning.to_string(),
+            line: Some(warning.line),
+        });
+    }
     let invalid = |message: String| AppError::InvalidDcf {
         message,
         line: None,

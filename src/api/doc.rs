@@ -46,6 +46,7 @@ When the gateway is configured with tokens, every request but `/health` needs \
         (name = "events", description = "The persisted history: audit log of state-changing requests, EMCYs (CiA 301 §7.2.7), NMT and supervision events"),
         (name = "metrics", description = "The gateway's metrics for Prometheus (text format 0.0.4), at the root path"),
         (name = "auth", description = "Who the request's bearer token is (RFC 6750)"),
+        (name = "eds", description = "The EDS catalog (CiA 306): built-in and --eds-dir files, their warnings, the files left out"),
     ),
     modifiers(&BearerAuth),
     security(("bearer" = []))

@@ -38,6 +38,8 @@
 //! - [`audit`]: the layer that writes every state-changing request to the
 //!   audit log before its response leaves.
 //! - [`events`]: `/events`, the persisted history (audit, EMCY, NMT).
+//! - [`eds`]: `/eds`, the EDS catalog with each file's warnings and the
+//!   files left out.
 //! - [`metrics`]: `/metrics` (at the root, not under `/api/v1`) in the
 //!   Prometheus text format.
 //! - [`stream`]: `/stream`, the live telemetry over WebSocket, and each
@@ -55,6 +57,7 @@ pub mod cia309_5;
 pub mod config;
 pub mod doc;
 pub mod drives;
+pub mod eds;
 pub mod error;
 pub mod events;
 pub mod frames;
@@ -158,6 +161,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(sim::router())
         .merge(stream::router())
         .merge(events::router())
+        .merge(eds::router())
         .merge(auth::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);

@@ -14,9 +14,12 @@
 //! - [`nmt`]: `candeck nmt`, NMT node control.
 //! - [`ascii`]: `candeck ascii`, the CiA 309-3 ASCII gateway on
 //!   stdin/stdout.
+//! - [`eds`]: `candeck eds check`, EDS/DCF files read as the gateway reads
+//!   them, with every warning.
 
 pub mod ascii;
 pub mod dump;
+pub mod eds;
 pub mod nmt;
 pub mod od;
 pub mod serve;
@@ -69,6 +72,9 @@ pub enum Command {
     /// Serve the CiA 309-3 ASCII gateway protocol (CANopenNode's
     /// canopend/cocomm) on stdin/stdout until the input ends.
     Ascii(ascii::AsciiArgs),
+    /// Check EDS and DCF files (CiA 306): every warning and error, one
+    /// summary line per file.
+    Eds(eds::EdsArgs),
 }
 
 /// A failure while running a command: printed as one line.
@@ -92,7 +98,7 @@ pub fn main() -> ExitCode {
     // stderr.
     let one_shot = matches!(
         cli.command,
-        Some(Command::Od(_) | Command::Nmt(_) | Command::Ascii(_))
+        Some(Command::Od(_) | Command::Nmt(_) | Command::Ascii(_) | Command::Eds(_))
     );
     let default_log = if one_shot { "warn" } else { "info" };
     init_logging(cli.log.as_deref().unwrap_or(default_log));
@@ -125,6 +131,7 @@ pub fn main() -> ExitCode {
             Command::Od(args) => od::run(args).await,
             Command::Nmt(args) => nmt::run(args).await,
             Command::Ascii(args) => ascii::run(args).await,
+            Command::Eds(args) => eds::run(args).await,
         }
     });
     match result {

@@ -20,7 +20,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::canopen::eds::{Eds, read_eds_file};
+use crate::canopen::eds::{Eds, EdsWarning, read_eds_file};
 use crate::profiles::builtin;
 
 use super::registry::RegistryError;
@@ -165,6 +165,18 @@ impl EdsEntry {
 #[derive(Debug)]
 pub struct EdsCatalog {
     entries: Vec<Arc<EdsEntry>>,
+    /// The users' files that could not join the catalog, in file name order.
+    skipped: Vec<SkippedFile>,
+}
+
+/// A file of the EDS directory the catalog left out, and why (it is no EDS,
+/// or it names no vendor or product to match a device by).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SkippedFile {
+    pub path: PathBuf,
+    pub message: String,
+    /// The reader's warnings, when the file is an EDS at all.
+    pub warnings: Vec<EdsWarning>,
 }
 
 /// The built-in files: name, text, and the profile of the product.
@@ -192,14 +204,18 @@ impl EdsCatalog {
                 Some(profile),
             )?));
         }
-        Ok(Self { entries })
+        Ok(Self {
+            entries,
+            skipped: Vec::new(),
+        })
     }
 
     /// The built-in files and every `*.eds` and `*.dcf` file of `dir` (not
-    /// its subdirectories). A file that cannot be read, or that names no
-    /// vendor and product, is an error naming the file: a catalog that
-    /// silently lacks a user's file would match their device to the wrong
-    /// EDS.
+    /// its subdirectories). A bad file never stops the gateway: a file that
+    /// is no EDS, or that names no vendor and product, is left out, logged
+    /// with its reason and listed in [`EdsCatalog::skipped`]; a file's
+    /// warnings are logged. Only a directory that cannot be read is an
+    /// error.
     pub fn with_dir(dir: impl AsRef<Path>) -> Result<Self, RegistryError> {
         let mut catalog = Self::builtin()?;
         let dir = dir.as_ref();
@@ -222,7 +238,25 @@ impl EdsCatalog {
         // same everywhere.
         paths.sort();
         for path in paths {
-            catalog.add_file(&path)?;
+            match catalog.add_file(&path) {
+                Ok(entry) if !entry.eds.warnings.is_empty() => tracing::warn!(
+                    "EDS {}: {} warnings, read anyway (candeck eds check {0} lists them)",
+                    path.display(),
+                    entry.eds.warnings.len()
+                ),
+                Ok(_) => {}
+                Err(error) => {
+                    tracing::error!("EDS {} left out: {error}", path.display());
+                    let warnings = read_eds_file(&path)
+                        .map(|eds| eds.warnings)
+                        .unwrap_or_default();
+                    catalog.skipped.push(SkippedFile {
+                        path,
+                        message: error.to_string(),
+                        warnings,
+                    });
+                }
+            }
         }
         Ok(catalog)
     }
@@ -251,6 +285,11 @@ impl EdsCatalog {
         )?);
         self.entries.push(added.clone());
         Ok(added)
+    }
+
+    /// The files of the EDS directory that were left out, with why.
+    pub fn skipped(&self) -> &[SkippedFile] {
+        &self.skipped
     }
 
     /// Every entry: the built-in ones first, then the users' in file name
@@ -510,28 +549,31 @@ mod tests {
     }
 
     #[test]
-    fn a_broken_or_unmatchable_file_is_an_error_naming_it() {
+    fn a_broken_or_unmatchable_file_is_left_out_and_named_and_the_rest_serves() {
         let dir = temp_dir("broken");
         std::fs::write(dir.join("good.eds"), eds_text(0x77, 0x10, 1, 402)).unwrap();
-        std::fs::write(
-            dir.join("broken.eds"),
-            "[1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0xZZ\n",
-        )
-        .unwrap();
-        let error = EdsCatalog::with_dir(&dir).unwrap_err();
-        assert!(matches!(error, RegistryError::Eds(_)), "{error:?}");
-        assert!(error.to_string().contains("broken.eds"), "{error}");
-        std::fs::remove_file(dir.join("broken.eds")).unwrap();
-
-        let text = eds_text(0x77, 0x10, 1, 402).replace("VendorNumber=0x77\n", "");
+        // No EDS at all (a flawed EDS loads, with warnings).
+        std::fs::write(dir.join("broken.eds"), "[Settings]\nColour=blue\n").unwrap();
+        let text = eds_text(0x77, 0x11, 1, 402).replace("VendorNumber=0x77\n", "");
         std::fs::write(dir.join("anonymous.eds"), text).unwrap();
-        let error = EdsCatalog::with_dir(&dir).unwrap_err();
-        assert!(
-            matches!(error, RegistryError::EdsUnmatchable { .. }),
-            "{error:?}"
-        );
-        assert!(error.to_string().contains("anonymous.eds"), "{error}");
-        assert!(error.to_string().contains("vendor number"), "{error}");
+        let catalog = EdsCatalog::with_dir(&dir).unwrap();
+        assert_eq!(catalog.entries().len(), BUILT_IN.len() + 1);
+        assert!(catalog.lookup(&identity(0x77, 0x10, Some(1))).is_some());
+        let skipped: Vec<_> = catalog
+            .skipped()
+            .iter()
+            .map(|file| {
+                (
+                    file.path.file_name().unwrap().to_str().unwrap(),
+                    &file.message,
+                )
+            })
+            .collect();
+        assert_eq!(skipped.len(), 2, "{skipped:?}");
+        assert_eq!(skipped[0].0, "anonymous.eds");
+        assert!(skipped[0].1.contains("vendor number"), "{}", skipped[0].1);
+        assert_eq!(skipped[1].0, "broken.eds");
+        assert!(skipped[1].1.contains("not an EDS"), "{}", skipped[1].1);
 
         let missing = dir.join("no-such-dir");
         let error = EdsCatalog::with_dir(&missing).unwrap_err();

@@ -501,9 +501,10 @@ async fn a_malformed_or_foreign_dcf_is_refused_and_nothing_written() {
         "line {line}: {body}"
     );
 
-    let (status, body) = restore_dcf(&app, 1, "[1017]\njunk\n").await;
+    let junk = "[1017]\nParameterName=Heartbeat\nDataType=0x0006\nAccessType=rw\njunk\n";
+    let (status, body) = restore_dcf(&app, 1, junk).await;
     assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
-    assert_eq!(body["error"]["line"], 2);
+    assert_eq!(body["error"]["line"], 5);
 
     // The UIO1LED's configuration is not the UMC's.
     let led = backup(&app, 3).await;

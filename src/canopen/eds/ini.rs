@@ -2,9 +2,13 @@
 //! headers and `key=value` lines, names compared without case, `;` comment
 //! lines, CR LF or LF or CR line ends, an optional UTF-8 byte order mark.
 //!
-//! Anything ambiguous is an error with its line rather than a guess: a
-//! section or key that appears twice (which copy would count?), a line that is
-//! neither header nor `key=value`, control characters (a binary file).
+//! Nothing here refuses a file: what is ambiguous or malformed becomes a
+//! warning with its line, and the sensible reading goes on. A section that
+//! appears twice keeps its first copy (the second is dropped), a key that
+//! appears twice in a section keeps its first value, a header without `]`
+//! is read up to the end of the line, and a line that is neither header nor
+//! `key=value` (or carries control characters) is dropped. Whether what is
+//! left is an EDS at all is for `read` to say.
 
 use std::collections::HashMap;
 
@@ -15,7 +19,7 @@ pub(super) struct Ini {
     pub sections: Vec<Section>,
     /// Lower-case section name to its position in `sections`.
     by_name: HashMap<String, usize>,
-    /// The number of lines, for errors about what is missing.
+    /// The number of lines, for warnings about what is missing.
     pub lines: usize,
 }
 
@@ -36,10 +40,14 @@ pub(super) struct Entry {
     pub line: usize,
 }
 
+/// Something the INI reader got past: the line, the section or key it is
+/// about (empty when none), what was wrong and what was done.
 #[derive(Debug, PartialEq, Eq)]
-pub(super) struct IniError {
+pub(super) struct IniWarning {
     pub line: usize,
+    pub key: String,
     pub message: String,
+    pub dropped: bool,
 }
 
 impl Ini {
@@ -101,68 +109,101 @@ fn clean_value(raw: &str) -> &str {
     }
 }
 
-/// C0 controls but tab, DEL, and C1 controls (U+0080 to U+009F, which is
-/// what stray bytes 0x80 to 0x9F become when a file is read as Latin-1).
-/// Byte by byte, as lines can be megabytes long.
+/// C0 controls but tab, and DEL. Byte by byte, as lines can be megabytes
+/// long. (C1 controls, U+0080 to U+009F, are not looked for: the bytes 0x80
+/// to 0x9F of a Windows code page are read as the characters they print.)
 fn has_control_characters(line: &str) -> bool {
-    let bytes = line.as_bytes();
-    bytes.iter().enumerate().any(|(i, &b)| {
-        (b < 0x20 && b != b'\t')
-            || b == 0x7F
-            || (b == 0xC2
-                && bytes
-                    .get(i + 1)
-                    .is_some_and(|next| (0x80..=0x9F).contains(next)))
-    })
+    line.bytes().any(|b| (b < 0x20 && b != b'\t') || b == 0x7F)
 }
 
-pub(super) fn parse(text: &str) -> Result<Ini, IniError> {
+pub(super) fn parse(text: &str) -> (Ini, Vec<IniWarning>) {
     let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
     let mut ini = Ini {
         sections: Vec::new(),
         by_name: HashMap::new(),
         lines: 0,
     };
+    let mut warnings = Vec::new();
     // Lower-case key to its line, for the current section.
     let mut keys: HashMap<String, usize> = HashMap::new();
+    // False while the lines belong to a section that is dropped (a repeated
+    // or unnamed one), or before the first section.
+    let mut in_section = false;
+    let mut seen_header = false;
     for (number, line) in lines(text) {
         ini.lines = number;
-        let error = |message: String| IniError {
-            line: number,
-            message,
+        let mut warn = |key: &str, message: String, dropped: bool| {
+            warnings.push(IniWarning {
+                line: number,
+                key: key.to_string(),
+                message,
+                dropped,
+            })
         };
         if has_control_characters(line) {
-            return Err(error("control characters: this is not a text file".into()));
+            warn(
+                "",
+                "control characters in a text line; line dropped".into(),
+                true,
+            );
+            continue;
         }
         let line = line.trim();
         if line.is_empty() || line.starts_with(';') {
             continue;
         }
         if let Some(header) = line.strip_prefix('[') {
-            let Some((name, after)) = header.split_once(']') else {
-                return Err(error(format!(
-                    "section header '{}' has no ']'",
-                    snippet(line)
-                )));
+            let name = match header.split_once(']') {
+                Some((name, after)) => {
+                    let after = after.trim();
+                    if !after.is_empty() && !after.starts_with(';') {
+                        warn(
+                            name.trim(),
+                            format!(
+                                "text after the section header: '{}'; ignored",
+                                snippet(after)
+                            ),
+                            false,
+                        );
+                    }
+                    name
+                }
+                None => {
+                    warn(
+                        header.trim(),
+                        format!(
+                            "section header '{}' has no ']'; read up to the end of the line",
+                            snippet(line)
+                        ),
+                        false,
+                    );
+                    header
+                }
             };
-            let after = after.trim();
-            if !after.is_empty() && !after.starts_with(';') {
-                return Err(error(format!(
-                    "text after the section header: '{}'",
-                    snippet(after)
-                )));
-            }
             let name = name.trim();
+            keys.clear();
+            in_section = false;
+            seen_header = true;
             if name.is_empty() {
-                return Err(error("empty section name".into()));
+                warn(
+                    "",
+                    "empty section name; the section is dropped".into(),
+                    true,
+                );
+                continue;
             }
             let folded = name.to_ascii_lowercase();
             if let Some(&first) = ini.by_name.get(&folded) {
                 let first_line = ini.sections[first].line;
-                return Err(error(format!(
-                    "section [{}] appears twice (first at line {first_line})",
-                    snippet(name)
-                )));
+                warn(
+                    name,
+                    format!(
+                        "section [{}] appears twice (first at line {first_line}); the second is dropped",
+                        snippet(name)
+                    ),
+                    true,
+                );
+                continue;
             }
             ini.by_name.insert(folded, ini.sections.len());
             ini.sections.push(Section {
@@ -170,39 +211,55 @@ pub(super) fn parse(text: &str) -> Result<Ini, IniError> {
                 line: number,
                 entries: Vec::new(),
             });
-            keys.clear();
+            in_section = true;
             continue;
         }
         let Some((key, value)) = line.split_once('=') else {
-            return Err(error(format!(
-                "expected [section] or key=value, found '{}'",
-                snippet(line)
-            )));
+            warn(
+                "",
+                format!(
+                    "expected [section] or key=value, found '{}'; line dropped",
+                    snippet(line)
+                ),
+                true,
+            );
+            continue;
         };
         let key = key.trim();
         if key.is_empty() {
-            return Err(error("key=value with no key".into()));
+            warn("", "key=value with no key; line dropped".into(), true);
+            continue;
         }
-        let Some(section) = ini.sections.last_mut() else {
-            return Err(error(format!(
-                "'{}' comes before any [section]",
-                snippet(key)
-            )));
+        let Some(section) = ini.sections.last_mut().filter(|_| in_section) else {
+            if !seen_header {
+                warn(
+                    key,
+                    format!("'{}' comes before any [section]; dropped", snippet(key)),
+                    true,
+                );
+            }
+            continue;
         };
-        if let Some(first) = keys.insert(key.to_ascii_lowercase(), number) {
-            return Err(error(format!(
-                "{} appears twice in [{}] (first at line {first})",
-                snippet(key),
-                section.name
-            )));
+        if let Some(first) = keys.get(&key.to_ascii_lowercase()) {
+            warn(
+                key,
+                format!(
+                    "{} appears twice in [{}] (first at line {first}); the first counts",
+                    snippet(key),
+                    section.name
+                ),
+                true,
+            );
+            continue;
         }
+        keys.insert(key.to_ascii_lowercase(), number);
         section.entries.push(Entry {
             key: key.to_string(),
             value: clean_value(value).to_string(),
             line: number,
         });
     }
-    Ok(ini)
+    (ini, warnings)
 }
 
 #[cfg(test)]
@@ -211,12 +268,12 @@ mod tests {
 
     #[test]
     fn sections_keys_and_comments() {
-        let ini = parse(
+        let (ini, warnings) = parse(
             "\u{FEFF}; written by hand\r\n[FileInfo]\r\nFileName = x.eds \r\n\r\n\
              [1000]\nParameterName=Device Type ; the device profile\nDefaultValue=\"a ; b\"\n\
              Odd=\"quoted\" trailing\nNoComment=a;b\n  ;indented comment\n[Empty]\rKey=\r",
-        )
-        .unwrap();
+        );
+        assert_eq!(warnings, []);
         assert_eq!(ini.lines, 12);
         let names: Vec<_> = ini
             .sections
@@ -243,31 +300,54 @@ mod tests {
     }
 
     #[test]
-    fn ambiguity_is_an_error_with_its_line() {
-        let error = |text: &str| parse(text).unwrap_err();
+    fn ambiguity_is_a_warning_with_its_line_and_the_first_counts() {
+        let warned = |text: &str| {
+            let (ini, warnings) = parse(text);
+            assert_eq!(warnings.len(), 1, "{text:?}: {warnings:?}");
+            (ini, warnings.into_iter().next().unwrap())
+        };
+        let (ini, warning) = warned("[A]\nx=1\n[a]\nx=2\ny=3\n");
         assert_eq!(
-            error("[A]\nx=1\n[a]\n"),
-            IniError {
+            warning,
+            IniWarning {
                 line: 3,
-                message: "section [a] appears twice (first at line 1)".into()
+                key: "a".into(),
+                message: "section [a] appears twice (first at line 1); the second is dropped"
+                    .into(),
+                dropped: true,
             }
         );
+        assert_eq!(ini.sections.len(), 1);
+        assert_eq!(ini.section("A").unwrap().get("x").unwrap().value, "1");
+        assert!(ini.section("A").unwrap().get("y").is_none());
+
+        let (ini, warning) = warned("[A]\nKey=1\nkey=2\n");
+        assert_eq!(warning.line, 3);
         assert_eq!(
-            error("[A]\nKey=1\nkey=2\n"),
-            IniError {
-                line: 3,
-                message: "key appears twice in [A] (first at line 2)".into()
-            }
+            warning.message,
+            "key appears twice in [A] (first at line 2); the first counts"
         );
-        assert_eq!(error("x=1\n").line, 1);
-        assert_eq!(error("[A]\njunk\n").line, 2);
-        assert_eq!(error("[A\n").line, 1);
-        assert_eq!(error("[]\n").line, 1);
-        assert_eq!(error("[A] x\n").line, 1);
-        assert_eq!(error("[A]\n=1\n").line, 2);
-        assert_eq!(error("[A]\nk=\u{0}\n").line, 2);
-        // The same key in two sections is fine.
-        assert!(parse("[A]\nk=1\n[B]\nk=2\n").is_ok());
-        assert_eq!(parse("").unwrap().lines, 0);
+        assert_eq!(ini.section("A").unwrap().get("KEY").unwrap().value, "1");
+
+        assert_eq!(warned("x=1\n[A]\n").1.line, 1);
+        let (ini, warning) = warned("[A]\njunk\ny=1\n");
+        assert_eq!((warning.line, warning.dropped), (2, true));
+        assert_eq!(ini.section("A").unwrap().get("y").unwrap().value, "1");
+        // A header without `]` is read to the end of its line.
+        let (ini, warning) = warned("[A\nk=1\n");
+        assert_eq!((warning.line, warning.dropped), (1, false));
+        assert_eq!(ini.section("A").unwrap().get("k").unwrap().value, "1");
+        // An unnamed section is dropped with its keys.
+        let (ini, warning) = warned("[]\nk=1\n[B]\n");
+        assert_eq!(warning.line, 1);
+        assert_eq!(ini.sections.len(), 1);
+        assert_eq!(warned("[A] x\n").1.line, 1);
+        assert_eq!(warned("[A]\n=1\n").1.line, 2);
+        assert_eq!(warned("[A]\nk=\u{0}\n").1.line, 2);
+        // The same key in two sections is fine, and so are code-page
+        // characters (0x80-0x9F of Windows-1252, decoded before).
+        assert_eq!(parse("[A]\nk=1\n[B]\nk=2\n").1, []);
+        assert_eq!(parse("[A]\nk=Sch\u{F6}naich \u{2019}\u{80}\n").1, []);
+        assert_eq!(parse("").0.lines, 0);
     }
 }

@@ -3,15 +3,18 @@
 //! `ParameterValue`s and `[DeviceComissioning]`, one configured device (DCF).
 //!
 //! The reader is our own (see `ini`), because vendor files are not the INI
-//! that generic crates expect, and because a broken file must be reported as
-//! `file:line: what is wrong` rather than as a panic or a silently missing
-//! object. It takes what vendor files do: case-insensitive names, CR LF,
-//! `$NODEID+0x180` defaults, quoted string defaults, sub-sections with gaps,
-//! `CompactSubObj` arrays with their `[xxxxName]` / `[xxxxValue]` sections,
-//! versions like `1.0.2` and dates in either order (kept as text). What
-//! describes the wire (types, sub-indexes, values) is checked strictly; what
-//! is only information (`[DeviceInfo]` numbers, comments) is kept as written
-//! when it cannot be read, with a warning.
+//! that generic crates expect, and because every problem of a file must be
+//! reported as `file:line: what is wrong, what was done` rather than as a
+//! panic or a silently missing object. It takes what vendor files do:
+//! case-insensitive names, CR LF, `$NODEID+0x180` defaults, quoted string
+//! defaults, sub-sections with gaps, `CompactSubObj` arrays with their
+//! `[xxxxName]` / `[xxxxValue]` sections, versions like `1.0.2` and dates in
+//! either order (kept as text), Windows code pages. It is as tolerant as the
+//! tools engineers use: a deviation from CiA 306 that a sensible reading
+//! survives is an [`EdsWarning`] that says what was kept, corrected,
+//! defaulted or dropped, and the rest of the file loads; only what is not an
+//! EDS at all (no CiA 306 section, a binary file) is an [`EdsError`]. The
+//! rules, one per defect class, are in docs/eds.md.
 //!
 //! # Layout
 //!
@@ -40,7 +43,7 @@ use crate::canopen::NodeId;
 use crate::canopen::od::{DictionaryError, ObjectDictionary, Value};
 
 /// An EDS or DCF file, read or to be written.
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct Eds {
     pub file_info: FileInfo,
     pub device_info: DeviceInfo,
@@ -53,7 +56,34 @@ pub struct Eds {
     /// `[DeviceComissioning]` (CiA 306 spells it with one m): present in a
     /// DCF only.
     pub commissioning: Option<DeviceCommissioning>,
+    /// What the reader got past, in line order (empty for an `Eds` that was
+    /// built rather than read). Not part of equality: two reads of the same
+    /// device from differently flawed files are the same `Eds`.
+    pub warnings: Vec<EdsWarning>,
 }
+
+impl PartialEq for Eds {
+    fn eq(&self, other: &Self) -> bool {
+        // Destructured, so that a new field is not forgotten here.
+        let Eds {
+            file_info,
+            device_info,
+            dummy_usage,
+            comments,
+            dictionary,
+            commissioning,
+            warnings: _,
+        } = self;
+        *file_info == other.file_info
+            && *device_info == other.device_info
+            && *dummy_usage == other.dummy_usage
+            && *comments == other.comments
+            && *dictionary == other.dictionary
+            && *commissioning == other.commissioning
+    }
+}
+
+impl Eq for Eds {}
 
 /// `[FileInfo]`, every value as written: vendors write
 /// dates as MM-DD-YYYY or DD-MM-YYYY and versions as `1` or `1.0.2`, and
@@ -126,8 +156,9 @@ impl DeviceCommissioning {
     }
 }
 
-/// A file that cannot be read: which file, which line (0 when the file
-/// itself could not be opened), and what is wrong.
+/// A file that cannot be read at all (it could not be opened, or it is not
+/// an EDS: empty, no CiA 306 section, binary): which file, which line (0
+/// when the file itself could not be opened), and what is wrong.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct EdsError {
     pub file: String,
@@ -158,20 +189,107 @@ pub fn read_eds_file(path: impl AsRef<Path>) -> Result<Eds, EdsError> {
     Eds::parse_bytes(&bytes, &file)
 }
 
-/// Something odd that the reader got past: an object section that no list
-/// names, a `SubNumber` that does not count the sub-sections, a
-/// `[DeviceInfo]` number that is not one.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// A deviation from CiA 306 that the reader got past: an object section that
+/// no list names, a `SubNumber` that does not count the sub-sections, a
+/// `[DeviceInfo]` number that is not one, an empty `AccessType`...
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
 pub struct EdsWarning {
     pub file: String,
     pub line: usize,
+    /// What it is about: `[section] Key`, `[section]`, or empty for a line
+    /// that is neither.
+    pub key: String,
+    /// What the reader did.
+    pub action: Action,
+    /// What is wrong and what was done, in words.
     pub message: String,
+}
+
+/// What the reader did about a deviation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Action {
+    /// Read as written (the warning is information).
+    Kept,
+    /// Read the way its writer evidently meant (a C literal suffix dropped,
+    /// `-1` in an unsigned type, an unknown data type as DOMAIN).
+    Corrected,
+    /// Missing or unreadable, and replaced by a default that is said.
+    Defaulted,
+    /// Left out: the rest of the file does not depend on it.
+    Dropped,
+}
+
+impl Action {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Action::Kept => "kept",
+            Action::Corrected => "corrected",
+            Action::Defaulted => "defaulted",
+            Action::Dropped => "dropped",
+        }
+    }
+}
+
+impl fmt::Display for Action {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 impl fmt::Display for EdsWarning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}:{}: {}", self.file, self.line, self.message)
     }
+}
+
+/// The characters of Windows-1252 for the bytes 0x80 to 0x9F; `None` for
+/// the five it leaves undefined.
+const WINDOWS_1252_HIGH: [Option<char>; 32] = [
+    Some('\u{20AC}'),
+    None,
+    Some('\u{201A}'),
+    Some('\u{0192}'),
+    Some('\u{201E}'),
+    Some('\u{2026}'),
+    Some('\u{2020}'),
+    Some('\u{2021}'),
+    Some('\u{02C6}'),
+    Some('\u{2030}'),
+    Some('\u{0160}'),
+    Some('\u{2039}'),
+    Some('\u{0152}'),
+    None,
+    Some('\u{017D}'),
+    None,
+    None,
+    Some('\u{2018}'),
+    Some('\u{2019}'),
+    Some('\u{201C}'),
+    Some('\u{201D}'),
+    Some('\u{2022}'),
+    Some('\u{2013}'),
+    Some('\u{2014}'),
+    Some('\u{02DC}'),
+    Some('\u{2122}'),
+    Some('\u{0161}'),
+    Some('\u{203A}'),
+    Some('\u{0153}'),
+    None,
+    Some('\u{017E}'),
+    Some('\u{0178}'),
+];
+
+/// `bytes` as Windows-1252, `None` if one is a byte it does not define.
+/// (0xA0 to 0xFF are Latin-1's.)
+fn decode_windows_1252(bytes: &[u8]) -> Option<String> {
+    bytes
+        .iter()
+        .map(|&b| match b {
+            0x80..=0x9F => WINDOWS_1252_HIGH[usize::from(b - 0x80)],
+            _ => Some(char::from(b)),
+        })
+        .collect()
 }
 
 impl Eds {
@@ -183,26 +301,53 @@ impl Eds {
         }
     }
 
-    /// Reads an EDS or DCF. `file` names it in errors.
+    /// Reads an EDS or DCF. `file` names it in errors and warnings; the
+    /// warnings are in [`Eds::warnings`].
     pub fn parse(text: &str, file: &str) -> Result<Eds, EdsError> {
-        Eds::parse_with_warnings(text, file).map(|(eds, _)| eds)
-    }
-
-    /// [`Eds::parse`], also returning what was odd but readable.
-    pub fn parse_with_warnings(text: &str, file: &str) -> Result<(Eds, Vec<EdsWarning>), EdsError> {
         read::read(text, file)
     }
 
-    /// Reads a file's bytes: UTF-8, or else Latin-1 (each byte one
-    /// character), which is what vendors' Windows tools write.
+    /// [`Eds::parse`], also returning a copy of its warnings.
+    pub fn parse_with_warnings(text: &str, file: &str) -> Result<(Eds, Vec<EdsWarning>), EdsError> {
+        let eds = read::read(text, file)?;
+        let warnings = eds.warnings.clone();
+        Ok((eds, warnings))
+    }
+
+    /// Reads a file's bytes: UTF-8, else Windows-1252 when every byte is a
+    /// printable character of it, else Latin-1 (each byte one character):
+    /// what vendors' Windows tools write. A file that is not UTF-8 gets a
+    /// warning at the line of its first such byte.
     pub fn parse_bytes(bytes: &[u8], file: &str) -> Result<Eds, EdsError> {
-        match std::str::from_utf8(bytes) {
-            Ok(text) => Eds::parse(text, file),
-            Err(_) => {
-                let text: String = bytes.iter().map(|&b| char::from(b)).collect();
-                Eds::parse(&text, file)
+        let (text, first_line, encoding) = match std::str::from_utf8(bytes) {
+            Ok(text) => return Eds::parse(text, file),
+            Err(error) => {
+                let line = bytes[..error.valid_up_to()]
+                    .iter()
+                    .filter(|&&b| b == b'\n')
+                    .count()
+                    + 1;
+                match decode_windows_1252(bytes) {
+                    Some(text) => (text, line, "Windows-1252"),
+                    None => (
+                        bytes.iter().map(|&b| char::from(b)).collect(),
+                        line,
+                        "Latin-1",
+                    ),
+                }
             }
-        }
+        };
+        let mut eds = Eds::parse(&text, file)?;
+        let warning = EdsWarning {
+            file: file.to_string(),
+            line: first_line,
+            key: String::new(),
+            action: Action::Kept,
+            message: format!("not UTF-8: the file is read as {encoding}"),
+        };
+        let at = eds.warnings.partition_point(|w| w.line <= first_line);
+        eds.warnings.insert(at, warning);
+        Ok(eds)
     }
 
     /// The file as text (CR LF line ends, as CiA 306 tools expect). With

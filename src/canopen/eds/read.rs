@@ -1,11 +1,18 @@
 //! INI sections to an [`Eds`]: the file and device information, the object
 //! lists and the object descriptions of CiA 306 (§4.6.3.2, with compact
 //! storage), and the DCF additions.
+//!
+//! The reader is tolerant (docs/eds.md, "Reading EDS files"): every deviation
+//! that a sensible reading survives is a warning naming the line, the key and
+//! what was done ([`Action`]), and the rest of the file loads. Only a file
+//! that is no EDS at all (no CiA 306 section) is refused. What is right in a
+//! file is read exactly as before: a tolerated defect never changes an entry
+//! that has none.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use super::ini::{self, Entry, Ini, Section};
-use super::{DeviceCommissioning, DeviceInfo, Eds, EdsError, EdsWarning, FileInfo};
+use super::{Action, DeviceCommissioning, DeviceInfo, Eds, EdsError, EdsWarning, FileInfo};
 use crate::canopen::od::{
     AccessType, DataType, Object, ObjectDictionary, ObjectType, SubObject, Value, snippet,
 };
@@ -20,19 +27,40 @@ const CHECK_NODE: u8 = 1;
 /// The name CiA 306 gives sub-index 0 of a `CompactSubObj` array.
 const COMPACT_SUB0_NAME: &str = "NrOfObjects";
 
-pub(super) fn read(text: &str, file: &str) -> Result<(Eds, Vec<EdsWarning>), EdsError> {
-    let ini = ini::parse(text).map_err(|error| EdsError {
-        file: file.to_string(),
-        line: error.line,
-        message: error.message,
-    })?;
+/// The access type of an entry whose `AccessType` is missing, empty or
+/// unknown: the device decides with an SDO abort what it does not allow,
+/// whereas a guessed `ro` would forbid writes the device takes.
+const DEFAULT_ACCESS: AccessType = AccessType::Rw;
+
+pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
+    if let Some(at) = text.find('\0') {
+        let line = text[..at].matches('\n').count() + 1;
+        return Err(EdsError {
+            file: file.to_string(),
+            line,
+            message: "NUL bytes: this is a binary file, not an EDS or DCF".into(),
+        });
+    }
+    let (ini, ini_warnings) = ini::parse(text);
     let mut reader = Reader {
         file,
         ini: &ini,
         warnings: Vec::new(),
     };
-    let eds = reader.eds()?;
-    Ok((eds, reader.warnings))
+    for warning in ini_warnings {
+        let action = if warning.dropped {
+            Action::Dropped
+        } else {
+            Action::Kept
+        };
+        reader.warn(warning.line, warning.key, action, warning.message);
+    }
+    let mut eds = reader.eds()?;
+    let mut warnings = reader.warnings;
+    // In file order; warnings of one line in the order they were found.
+    warnings.sort_by_key(|warning| warning.line);
+    eds.warnings = warnings;
+    Ok(eds)
 }
 
 /// What a section name says it is.
@@ -122,6 +150,16 @@ struct Reader<'a> {
     warnings: Vec<EdsWarning>,
 }
 
+/// `[section] key`, the key of a warning.
+fn key_of(section: &Section, key: &str) -> String {
+    format!("[{}] {key}", section.name)
+}
+
+/// `[section]`, the key of a warning about a whole section.
+fn section_key(section: &Section) -> String {
+    format!("[{}]", section.name)
+}
+
 impl<'a> Reader<'a> {
     fn error(&self, line: usize, message: impl Into<String>) -> EdsError {
         EdsError {
@@ -131,42 +169,85 @@ impl<'a> Reader<'a> {
         }
     }
 
-    fn warn(&mut self, line: usize, message: impl Into<String>) {
+    fn warn(
+        &mut self,
+        line: usize,
+        key: impl Into<String>,
+        action: Action,
+        message: impl Into<String>,
+    ) {
         self.warnings.push(EdsWarning {
             file: self.file.to_string(),
             line,
+            key: key.into(),
+            action,
             message: message.into(),
         });
     }
 
-    /// The line errors about something missing point at: the end of the file.
+    /// The line warnings about something missing point at: the end of the file.
     fn end_line(&self) -> usize {
         self.ini.lines.max(1)
     }
 
-    /// A number of `data_type` (an unsigned type) from an entry; an error
-    /// naming the key otherwise.
-    fn number(&self, entry: &Entry, data_type: DataType) -> Result<u64, EdsError> {
-        parse_unsigned(&entry.value, data_type)
-            .map_err(|message| self.error(entry.line, format!("{}: {message}", entry.key)))
+    /// A number of `data_type` (an unsigned type) from an entry, or a
+    /// warning naming the key and `then` (what is done instead).
+    fn number(
+        &mut self,
+        section: &Section,
+        entry: &Entry,
+        data_type: DataType,
+        action: Action,
+        then: &str,
+    ) -> Option<u64> {
+        match parse_unsigned(&entry.value, data_type) {
+            Ok(value) => Some(value),
+            Err(message) => {
+                self.warn(
+                    entry.line,
+                    key_of(section, &entry.key),
+                    action,
+                    format!("{}: {message}; {then}", entry.key),
+                );
+                None
+            }
+        }
     }
 
-    fn required<'s>(&self, section: &'s Section, key: &str) -> Result<&'s Entry, EdsError> {
-        section
-            .get(key)
-            .ok_or_else(|| self.error(section.line, format!("[{}] has no {key}", section.name)))
+    /// True when the file has a section CiA 306 defines.
+    fn has_cia306_section(&self) -> bool {
+        self.ini.sections.iter().any(|section| {
+            [
+                "FileInfo",
+                "DeviceInfo",
+                "DeviceComissioning",
+                "DeviceCommissioning",
+            ]
+            .into_iter()
+            .chain(LISTS)
+            .any(|name| section.name.eq_ignore_ascii_case(name))
+                || matches!(classify(&section.name), Ok(Kind::Object(_) | Kind::Sub(..)))
+        })
     }
 
     fn eds(&mut self) -> Result<Eds, EdsError> {
         if self.ini.sections.is_empty() {
             return Err(self.error(self.end_line(), "no sections: this is not an EDS or DCF"));
         }
+        if !self.has_cia306_section() {
+            return Err(self.error(
+                self.end_line(),
+                "no section of CiA 306 ([FileInfo], [DeviceInfo], an object list or an object): \
+                 this is not an EDS or DCF",
+            ));
+        }
         let file_info = self.file_info();
-        let device_info = self.device_info();
+        let mut device_info = self.device_info();
         let dummy_usage = self.dummy_usage();
         let comments = self.comments();
-        let commissioning = self.commissioning()?;
-        let dictionary = self.dictionary()?;
+        let commissioning = self.commissioning();
+        let dictionary = self.dictionary();
+        self.identity(&mut device_info, &dictionary);
         Ok(Eds {
             file_info,
             device_info,
@@ -174,6 +255,7 @@ impl<'a> Reader<'a> {
             comments,
             dictionary,
             commissioning,
+            warnings: Vec::new(),
         })
     }
 
@@ -205,7 +287,12 @@ impl<'a> Reader<'a> {
     fn device_info(&mut self) -> DeviceInfo {
         let mut info = DeviceInfo::default();
         let Some(section) = self.ini.section("DeviceInfo") else {
-            self.warn(self.end_line(), "no [DeviceInfo] section");
+            self.warn(
+                self.end_line(),
+                "[DeviceInfo]",
+                Action::Defaulted,
+                "no [DeviceInfo] section; the identity is taken from object 0x1018",
+            );
             return info;
         };
         for entry in &section.entries {
@@ -292,9 +379,18 @@ impl<'a> Reader<'a> {
                     true
                 }
             };
-            if !read {
+            // The identity numbers are warned about with object 0x1018.
+            let identity = matches!(
+                key.as_str(),
+                "vendornumber" | "productnumber" | "revisionnumber"
+            );
+            if !read && identity {
+                info.other.push((entry.key.clone(), entry.value.clone()));
+            } else if !read {
                 self.warn(
                     entry.line,
+                    key_of(section, &entry.key),
+                    Action::Kept,
                     format!(
                         "{}={} is not a number; kept as text",
                         entry.key,
@@ -305,6 +401,80 @@ impl<'a> Reader<'a> {
             }
         }
         info
+    }
+
+    /// Vendor, product and revision numbers that `[DeviceInfo]` lacks (or
+    /// writes as no number) from the defaults of object 0x1018, which
+    /// describe the same device; what neither has is said, because such a
+    /// file matches no device by identity.
+    fn identity(&mut self, info: &mut DeviceInfo, dictionary: &ObjectDictionary) {
+        let device_info = self.ini.section("DeviceInfo");
+        let line = device_info.map_or(self.end_line(), |section| section.line);
+        for (sub, key) in [
+            (1, "VendorNumber"),
+            (2, "ProductNumber"),
+            (3, "RevisionNumber"),
+        ] {
+            let field = match sub {
+                1 => &mut info.vendor_number,
+                2 => &mut info.product_number,
+                _ => &mut info.revision_number,
+            };
+            if field.is_some() {
+                continue;
+            }
+            let written = device_info.and_then(|section| section.get(key));
+            let at = written.map_or(line, |entry| entry.line);
+            let default = dictionary
+                .sub(0x1018, sub)
+                .and_then(|entry| entry.default_value(None).ok().flatten())
+                .and_then(|value| value.as_i128())
+                .and_then(|value| u32::try_from(value).ok());
+            let what = match written {
+                Some(entry) => format!("{key}={} is not a number", snippet(&entry.value)),
+                None => format!("no {key} in [DeviceInfo]"),
+            };
+            match default {
+                Some(value) => {
+                    *field = Some(value);
+                    // The text is replaced, not kept beside the number.
+                    info.other
+                        .retain(|(other, _)| !other.eq_ignore_ascii_case(key));
+                    self.warn(
+                        at,
+                        format!("[DeviceInfo] {key}"),
+                        Action::Defaulted,
+                        format!("{what}; the default of 0x1018 sub {sub} (0x{value:08X}) is used"),
+                    );
+                }
+                None if sub < 3 && written.is_none() => self.warn(
+                    at,
+                    format!("[DeviceInfo] {key}"),
+                    Action::Kept,
+                    format!(
+                        "{what} nor a 0x1018 sub {sub} default: the file matches no device by \
+                         identity (assign it to a node by hand)"
+                    ),
+                ),
+                None if sub < 3 => self.warn(
+                    at,
+                    format!("[DeviceInfo] {key}"),
+                    Action::Kept,
+                    format!(
+                        "{what}; kept as text: the file matches no device by identity (assign \
+                         it to a node by hand)"
+                    ),
+                ),
+                // A revision is no part of matching.
+                None if written.is_some() => self.warn(
+                    at,
+                    format!("[DeviceInfo] {key}"),
+                    Action::Kept,
+                    format!("{what}; kept as text"),
+                ),
+                None => {}
+            }
+        }
     }
 
     fn dummy_usage(&mut self) -> BTreeSet<u16> {
@@ -329,6 +499,8 @@ impl<'a> Reader<'a> {
                 }
                 _ => self.warn(
                     entry.line,
+                    key_of(section, &entry.key),
+                    Action::Dropped,
                     format!(
                         "{}={} is no DummyXXXX=0|1; ignored",
                         snippet(&entry.key),
@@ -352,6 +524,8 @@ impl<'a> Reader<'a> {
         let Some(count) = count else {
             self.warn(
                 section.line,
+                "[Comments] Lines",
+                Action::Dropped,
                 "[Comments] has no usable Lines=; comments dropped",
             );
             return Vec::new();
@@ -360,14 +534,19 @@ impl<'a> Reader<'a> {
             .map(|n| match section.get(&format!("Line{n}")) {
                 Some(entry) => entry.value.clone(),
                 None => {
-                    self.warn(section.line, format!("[Comments] has no Line{n}"));
+                    self.warn(
+                        section.line,
+                        format!("[Comments] Line{n}"),
+                        Action::Defaulted,
+                        format!("[Comments] has no Line{n}; an empty line"),
+                    );
                     String::new()
                 }
             })
             .collect()
     }
 
-    fn commissioning(&mut self) -> Result<Option<DeviceCommissioning>, EdsError> {
+    fn commissioning(&mut self) -> Option<DeviceCommissioning> {
         let section = match (
             self.ini.section("DeviceComissioning"),
             self.ini.section("DeviceCommissioning"),
@@ -375,201 +554,341 @@ impl<'a> Reader<'a> {
             (Some(section), Some(other)) => {
                 self.warn(
                     other.line,
+                    section_key(other),
+                    Action::Dropped,
                     "both [DeviceComissioning] and [DeviceCommissioning]; the first counts",
                 );
                 section
             }
             (Some(section), None) | (None, Some(section)) => section,
-            (None, None) => return Ok(None),
+            (None, None) => return None,
         };
         let mut commissioning = DeviceCommissioning::default();
+        let dropped = Action::Dropped;
         for entry in &section.entries {
+            let mut number = |data_type| self.number(section, entry, data_type, dropped, "dropped");
             match entry.key.to_ascii_lowercase().as_str() {
                 "nodeid" => {
-                    commissioning.node_id = Some(self.number(entry, DataType::Unsigned8)? as u8)
+                    commissioning.node_id = number(DataType::Unsigned8).map(|v| v as u8);
                 }
                 "nodename" => commissioning.node_name = Some(entry.value.clone()),
                 "baudrate" => {
-                    commissioning.baudrate = Some(self.number(entry, DataType::Unsigned32)? as u32)
+                    commissioning.baudrate = number(DataType::Unsigned32).map(|v| v as u32);
                 }
                 "netnumber" => {
-                    commissioning.net_number =
-                        Some(self.number(entry, DataType::Unsigned32)? as u32)
+                    commissioning.net_number = number(DataType::Unsigned32).map(|v| v as u32);
                 }
                 "networkname" => commissioning.network_name = Some(entry.value.clone()),
                 "canopenmanager" => {
-                    commissioning.canopen_manager =
-                        Some(self.number(entry, DataType::Boolean)? != 0)
+                    commissioning.canopen_manager = number(DataType::Boolean).map(|v| v != 0);
                 }
                 "lss_serialnumber" => {
                     commissioning.lss_serial_number =
-                        Some(self.number(entry, DataType::Unsigned32)? as u32)
+                        number(DataType::Unsigned32).map(|v| v as u32);
                 }
                 _ => commissioning
                     .other
                     .push((entry.key.clone(), entry.value.clone())),
             }
         }
-        Ok(Some(commissioning))
+        Some(commissioning)
     }
 
-    fn layout(&self) -> Result<Layout<'a>, EdsError> {
+    fn layout(&mut self) -> Layout<'a> {
         let ini: &'a Ini = self.ini;
         let mut layout = Layout::default();
         for section in &ini.sections {
-            let kind =
-                classify(&section.name).map_err(|message| self.error(section.line, message))?;
+            let kind = match classify(&section.name) {
+                Ok(kind) => kind,
+                Err(message) => {
+                    self.warn(
+                        section.line,
+                        section_key(section),
+                        Action::Dropped,
+                        format!("{message}; section dropped"),
+                    );
+                    continue;
+                }
+            };
             let first = match kind {
-                Kind::Object(index) => layout.objects.insert(index, section),
-                Kind::Sub(index, sub) => layout.subs.entry(index).or_default().insert(sub, section),
-                Kind::Names(index) => layout.names.insert(index, section),
-                Kind::Values(index) => layout.values.insert(index, section),
-                Kind::Denotations(index) => layout.denotations.insert(index, section),
+                Kind::Object(index) => layout.objects.get(&index),
+                Kind::Sub(index, sub) => layout.subs.get(&index).and_then(|subs| subs.get(&sub)),
+                Kind::Names(index) => layout.names.get(&index),
+                Kind::Values(index) => layout.values.get(&index),
+                Kind::Denotations(index) => layout.denotations.get(&index),
                 Kind::Other => None,
             };
             if let Some(first) = first {
-                return Err(self.error(
-                    section.line,
-                    format!(
-                        "[{}] repeats [{}] of line {}",
-                        section.name, first.name, first.line
-                    ),
-                ));
+                let message = format!(
+                    "[{}] repeats [{}] of line {}; the first counts",
+                    section.name, first.name, first.line
+                );
+                self.warn(section.line, section_key(section), Action::Dropped, message);
+                continue;
+            }
+            match kind {
+                Kind::Object(index) => {
+                    layout.objects.insert(index, section);
+                }
+                Kind::Sub(index, sub) => {
+                    layout.subs.entry(index).or_default().insert(sub, section);
+                }
+                Kind::Names(index) => {
+                    layout.names.insert(index, section);
+                }
+                Kind::Values(index) => {
+                    layout.values.insert(index, section);
+                }
+                Kind::Denotations(index) => {
+                    layout.denotations.insert(index, section);
+                }
+                Kind::Other => {}
             }
         }
-        Ok(layout)
+        layout
     }
 
     /// The indexes the object lists name, with the line that names each.
-    fn lists(&mut self, layout: &Layout) -> Result<BTreeMap<u16, usize>, EdsError> {
+    /// An object listed without a section is dropped from the list.
+    fn lists(&mut self, layout: &Layout) -> BTreeMap<u16, usize> {
         let mut listed = BTreeMap::new();
         for list in LISTS {
             let Some(section) = self.ini.section(list) else {
                 if list == "MandatoryObjects" {
-                    return Err(self.error(self.end_line(), "no [MandatoryObjects] section"));
+                    self.warn(
+                        self.end_line(),
+                        "[MandatoryObjects]",
+                        Action::Kept,
+                        "no [MandatoryObjects] section; the objects are read from their sections",
+                    );
                 }
                 continue;
             };
-            let count_entry = self.required(section, "SupportedObjects")?;
-            let count = self.number(count_entry, DataType::Unsigned16)?;
-            // Never loop on a count beyond the entries there are.
-            if count as usize >= section.entries.len() {
-                return Err(self.error(
-                    count_entry.line,
-                    format!(
-                        "SupportedObjects={count} but [{list}] lists only {} objects",
-                        section.entries.len() - 1
-                    ),
-                ));
-            }
-            for n in 1..=count {
-                let entry = section.get(&n.to_string()).ok_or_else(|| {
-                    self.error(
+            let count = match section.get("SupportedObjects") {
+                Some(entry) => self.number(
+                    section,
+                    entry,
+                    DataType::Unsigned16,
+                    Action::Dropped,
+                    "every numbered entry is read",
+                ),
+                None => {
+                    self.warn(
                         section.line,
-                        format!("SupportedObjects={count} but [{list}] has no {n}="),
-                    )
-                })?;
-                let index = self.number(entry, DataType::Unsigned16)? as u16;
-                if !layout.objects.contains_key(&index) {
-                    return Err(self.error(
+                        key_of(section, "SupportedObjects"),
+                        Action::Defaulted,
+                        format!("[{list}] has no SupportedObjects; every numbered entry is read"),
+                    );
+                    None
+                }
+            };
+            let mut numbered = 0u64;
+            for entry in &section.entries {
+                let Ok(n) = entry.key.parse::<u64>() else {
+                    continue;
+                };
+                if n == 0 || count.is_some_and(|count| n > count) {
+                    let limit = count.map_or(String::new(), |count| {
+                        format!(" beyond SupportedObjects={count}")
+                    });
+                    self.warn(
                         entry.line,
+                        key_of(section, &entry.key),
+                        Action::Dropped,
+                        format!("{}= is{limit}; ignored", entry.key),
+                    );
+                    continue;
+                }
+                numbered += 1;
+                let Some(index) = self.number(
+                    section,
+                    entry,
+                    DataType::Unsigned16,
+                    Action::Dropped,
+                    "dropped from the list",
+                ) else {
+                    continue;
+                };
+                let index = index as u16;
+                if !layout.objects.contains_key(&index) {
+                    self.warn(
+                        entry.line,
+                        key_of(section, &entry.key),
+                        Action::Dropped,
                         format!(
-                            "object 0x{index:04X} is listed but there is no [{index:04X}] section"
+                            "object 0x{index:04X} is listed but there is no [{index:04X}] section; \
+                             dropped from the list"
                         ),
-                    ));
+                    );
+                    continue;
                 }
                 if let Some(first) = listed.insert(index, entry.line) {
                     self.warn(
                         entry.line,
+                        key_of(section, &entry.key),
+                        Action::Kept,
                         format!("object 0x{index:04X} is listed twice (first at line {first})"),
                     );
                 }
             }
-            for entry in &section.entries {
-                let beyond = entry.key.parse::<u64>().is_ok_and(|n| n == 0 || n > count);
-                if beyond {
-                    self.warn(
-                        entry.line,
-                        format!("{}= is beyond SupportedObjects={count}; ignored", entry.key),
-                    );
-                }
+            if let Some(count) = count.filter(|&count| count != numbered)
+                && let Some(entry) = section.get("SupportedObjects")
+            {
+                self.warn(
+                    entry.line,
+                    key_of(section, "SupportedObjects"),
+                    Action::Kept,
+                    format!("SupportedObjects={count} but [{list}] has {numbered} numbered entries; those there are count"),
+                );
             }
         }
-        Ok(listed)
+        listed
     }
 
-    fn dictionary(&mut self) -> Result<ObjectDictionary, EdsError> {
-        let layout = self.layout()?;
-        let listed = self.lists(&layout)?;
+    fn dictionary(&mut self) -> ObjectDictionary {
+        let layout = self.layout();
+        let listed = self.lists(&layout);
         let mut dictionary = ObjectDictionary::new();
         for (&index, section) in &layout.objects {
             if !listed.contains_key(&index) {
                 self.warn(
                     section.line,
+                    section_key(section),
+                    Action::Kept,
                     format!("object 0x{index:04X} is in no object list; read anyway"),
                 );
             }
-            let object = self.object(index, section, &layout)?;
-            dictionary.insert(object);
+            if let Some(object) = self.object(index, section, &layout) {
+                dictionary.insert(object);
+            }
         }
         for (index, subs) in &layout.subs {
-            if !layout.objects.contains_key(index) {
-                let line = subs.values().next().map_or(0, |section| section.line);
+            if !layout.objects.contains_key(index)
+                && let Some(section) = subs.values().next()
+            {
                 self.warn(
-                    line,
+                    section.line,
+                    section_key(section),
+                    Action::Dropped,
                     format!("sub-objects of 0x{index:04X}, which has no section; ignored"),
                 );
             }
         }
-        Ok(dictionary)
+        dictionary
     }
 
-    fn object_type(&self, section: &Section) -> Result<ObjectType, EdsError> {
+    /// The `ObjectType` of a section, `None` (with a warning) when it is no
+    /// object type: the section is dropped then, as it is not known what
+    /// it describes.
+    fn object_type(&mut self, section: &Section) -> Option<ObjectType> {
         let Some(entry) = section.get("ObjectType") else {
             // CiA 306 §4.6.3.2: a missing ObjectType means VAR.
-            return Ok(ObjectType::Var);
+            return Some(ObjectType::Var);
         };
-        let object_type = ObjectType::from_raw(self.number(entry, DataType::Unsigned8)? as u8);
+        let raw = self.number(
+            section,
+            entry,
+            DataType::Unsigned8,
+            Action::Dropped,
+            "section dropped",
+        )?;
+        let object_type = ObjectType::from_raw(raw as u8);
         if let ObjectType::Unknown(raw) = object_type {
-            return Err(self.error(entry.line, format!("ObjectType 0x{raw:X} is unknown")));
+            self.warn(
+                entry.line,
+                key_of(section, &entry.key),
+                Action::Dropped,
+                format!("ObjectType 0x{raw:X} is unknown; section dropped"),
+            );
+            return None;
         }
-        Ok(object_type)
+        Some(object_type)
     }
 
-    fn object(
-        &mut self,
-        index: u16,
-        section: &Section,
-        layout: &Layout,
-    ) -> Result<Object, EdsError> {
-        let name = self.required(section, "ParameterName")?.value.clone();
+    /// The `ParameterName`, or a name made of `fallback` when there is none.
+    fn name(&mut self, section: &Section, fallback: String) -> String {
+        match section.get("ParameterName") {
+            Some(entry) if !entry.value.is_empty() => entry.value.clone(),
+            _ => {
+                let message = format!(
+                    "[{}] has no ParameterName; named '{fallback}'",
+                    section.name
+                );
+                self.warn(
+                    section.line,
+                    key_of(section, "ParameterName"),
+                    Action::Defaulted,
+                    message,
+                );
+                fallback
+            }
+        }
+    }
+
+    /// The `ParameterName`, or `fallback` without a warning.
+    fn name_or(&self, section: &Section, fallback: String) -> String {
+        match section.get("ParameterName") {
+            Some(entry) if !entry.value.is_empty() => entry.value.clone(),
+            _ => fallback,
+        }
+    }
+
+    fn object(&mut self, index: u16, section: &Section, layout: &Layout) -> Option<Object> {
         let object_type = self.object_type(section)?;
+        let name = self.name(section, format!("Object 0x{index:04X}"));
         let mut object = Object::new(index, name, object_type);
         let subs = layout.subs.get(&index);
         if !object_type.has_sub_objects() {
-            if let Some(subs) = subs {
-                let line = subs.values().next().map_or(section.line, |sub| sub.line);
+            if let Some(sub) = subs.and_then(|subs| subs.values().next()) {
                 self.warn(
-                    line,
+                    sub.line,
+                    section_key(sub),
+                    Action::Dropped,
                     format!(
                         "0x{index:04X} is a {object_type} and has no sub-objects; sections ignored"
                     ),
                 );
             }
             if object_type != ObjectType::Null {
-                object.insert_sub(self.sub_object(section, 0, object_type)?);
+                // A VAR or DOMAIN without a readable type is no entry.
+                let name = object.name.clone();
+                object.insert_sub(self.sub_object(section, 0, object_type, Some(&name))?);
             }
-            return Ok(object);
+            return Some(object);
         }
         if let Some(entry) = section.get("ObjFlags") {
-            object.obj_flags = Some(self.number(entry, DataType::Unsigned32)? as u32);
+            object.obj_flags = self
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned32,
+                    Action::Dropped,
+                    "dropped",
+                )
+                .map(|v| v as u32);
         }
         let compact = match section.get("CompactSubObj") {
-            Some(entry) => self.number(entry, DataType::Unsigned8)? as u8,
+            Some(entry) => self
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned8,
+                    Action::Dropped,
+                    "read as 0",
+                )
+                .map_or(0, |v| v as u8),
             None => 0,
         };
         let sub_number = match section.get("SubNumber") {
-            Some(entry) => Some((self.number(entry, DataType::Unsigned16)?, entry.line)),
+            Some(entry) => self
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned16,
+                    Action::Dropped,
+                    "ignored",
+                )
+                .map(|number| (number, entry.line)),
             None => None,
         };
         match subs {
@@ -577,6 +896,8 @@ impl<'a> Reader<'a> {
                 if compact > 0 {
                     self.warn(
                         section.line,
+                        key_of(section, "CompactSubObj"),
+                        Action::Dropped,
                         "both CompactSubObj and sub-object sections; the sections count",
                     );
                 }
@@ -585,6 +906,8 @@ impl<'a> Reader<'a> {
                 {
                     self.warn(
                         line,
+                        key_of(section, "SubNumber"),
+                        Action::Kept,
                         format!(
                             "SubNumber={number} but there are {} sub-object sections",
                             subs.len()
@@ -592,28 +915,30 @@ impl<'a> Reader<'a> {
                     );
                 }
                 for (&sub_index, sub_section) in subs {
-                    let sub_type = self.object_type(sub_section)?;
-                    object.insert_sub(self.sub_object(sub_section, sub_index, sub_type)?);
+                    let Some(sub_type) = self.object_type(sub_section) else {
+                        continue;
+                    };
+                    if let Some(sub) = self.sub_object(sub_section, sub_index, sub_type, None) {
+                        object.insert_sub(sub);
+                    }
                 }
             }
             None if compact > 0 => {
-                for sub in self.compact_subs(index, section, compact, layout)? {
+                for sub in self.compact_subs(index, section, compact, layout) {
                     object.insert_sub(sub);
                 }
             }
-            None if sub_number.is_some() => {
-                self.warn(section.line, format!("0x{index:04X} has no sub-objects"));
-            }
-            None => {
-                return Err(self.error(
-                    section.line,
-                    format!(
-                        "{object_type} 0x{index:04X} has neither [{index:04X}subN] sections nor CompactSubObj"
-                    ),
-                ));
-            }
+            None => self.warn(
+                section.line,
+                section_key(section),
+                Action::Kept,
+                format!(
+                    "{object_type} 0x{index:04X} has neither [{index:04X}subN] sections nor \
+                     CompactSubObj; kept with no sub-objects"
+                ),
+            ),
         }
-        Ok(object)
+        Some(object)
     }
 
     /// The sub-objects of a `CompactSubObj` array (CiA 306 compact storage): sub 0
@@ -626,8 +951,11 @@ impl<'a> Reader<'a> {
         section: &Section,
         count: u8,
         layout: &Layout,
-    ) -> Result<Vec<SubObject>, EdsError> {
-        let mut template = self.sub_object(section, 1, ObjectType::Var)?;
+    ) -> Vec<SubObject> {
+        let name = self.name_or(section, format!("Object 0x{index:04X}"));
+        let Some(mut template) = self.sub_object(section, 1, ObjectType::Var, Some(&name)) else {
+            return Vec::new();
+        };
         template.denotation = None;
         let mut sub0 = SubObject::new(0, COMPACT_SUB0_NAME, DataType::Unsigned8, AccessType::Ro);
         sub0.default = Some(count.to_string());
@@ -643,8 +971,10 @@ impl<'a> Reader<'a> {
                 Some(entry) => entry.value.clone(),
                 None => format!("{}{n}", template.name),
             };
-            if let Some(entry) = values.and_then(|values| values.get(&key)) {
-                sub.parameter_value = self.value_text(entry, sub.data_type)?;
+            if let Some((values, entry)) =
+                values.and_then(|values| values.get(&key).map(|entry| (values, entry)))
+            {
+                sub.parameter_value = self.value_text(values, entry, sub.data_type);
             }
             if let Some(entry) = denotations.and_then(|denotations| denotations.get(&key)) {
                 sub.denotation = Some(entry.value.clone());
@@ -660,23 +990,94 @@ impl<'a> Reader<'a> {
                 {
                     self.warn(
                         entry.line,
+                        key_of(extra, &entry.key),
+                        Action::Dropped,
                         format!("{}= is beyond CompactSubObj={count}; ignored", entry.key),
                     );
                 }
             }
         }
-        Ok(subs)
+        subs
     }
 
     /// A value text, checked against the type (with `$NODEID` standing for
-    /// node 1); `None` when empty.
-    fn value_text(&self, entry: &Entry, data_type: DataType) -> Result<Option<String>, EdsError> {
+    /// node 1); `None` when empty. What does not read as written is read
+    /// the way its writer meant where that is clear (a C literal suffix, a
+    /// negative number in an unsigned type) and dropped otherwise.
+    fn value_text(
+        &mut self,
+        section: &Section,
+        entry: &Entry,
+        data_type: DataType,
+    ) -> Option<String> {
         if entry.value.is_empty() {
-            return Ok(None);
+            return None;
         }
-        Value::parse_text_with_node(data_type, &entry.value, Some(CHECK_NODE))
-            .map_err(|error| self.error(entry.line, format!("{}: {error}", entry.key)))?;
-        Ok(Some(entry.value.clone()))
+        let error = match Value::parse_text_with_node(data_type, &entry.value, Some(CHECK_NODE)) {
+            Ok(_) => return Some(entry.value.clone()),
+            Err(error) => error,
+        };
+        let key = key_of(section, &entry.key);
+        let shown = snippet(&entry.value);
+        if let Some(corrected) = corrected_number(data_type, &entry.value) {
+            self.warn(
+                entry.line,
+                key,
+                Action::Corrected,
+                format!("{}={shown} is read as {corrected} ({data_type})", entry.key),
+            );
+            return Some(corrected);
+        }
+        let message = if data_type == DataType::Domain {
+            format!(
+                "{}={shown}: a DOMAIN value is hex bytes; dropped (no value)",
+                entry.key
+            )
+        } else {
+            format!("{}: {error}; dropped", entry.key)
+        };
+        self.warn(entry.line, key, Action::Dropped, message);
+        None
+    }
+
+    fn data_type(&mut self, section: &Section, object_type: ObjectType) -> Option<DataType> {
+        let Some(entry) = section.get("DataType") else {
+            // CiA 306 §4.6.3.2: a DOMAIN object needs no DataType.
+            if object_type == ObjectType::Domain {
+                return Some(DataType::Domain);
+            }
+            self.warn(
+                section.line,
+                key_of(section, "DataType"),
+                Action::Dropped,
+                format!(
+                    "[{}] has no DataType: the entry cannot be read or written; dropped",
+                    section.name
+                ),
+            );
+            return None;
+        };
+        let raw = self.number(
+            section,
+            entry,
+            DataType::Unsigned16,
+            Action::Dropped,
+            "the entry cannot be read or written; dropped",
+        )? as u16;
+        let data_type = DataType::from_raw(raw);
+        if data_type.is_known() {
+            return Some(data_type);
+        }
+        self.warn(
+            entry.line,
+            key_of(section, &entry.key),
+            Action::Corrected,
+            format!(
+                "DataType 0x{raw:04X} is no basic type of CiA 301 (a manufacturer's or a \
+                 structure's); read as DOMAIN (raw bytes)"
+            ),
+        );
+        Some(DataType::Domain)
     }
 
     fn sub_object(
@@ -684,61 +1085,88 @@ impl<'a> Reader<'a> {
         section: &Section,
         sub_index: u8,
         object_type: ObjectType,
-    ) -> Result<SubObject, EdsError> {
-        let name = self.required(section, "ParameterName")?.value.clone();
-        let data_type = match section.get("DataType") {
-            Some(entry) => {
-                let raw = self.number(entry, DataType::Unsigned16)? as u16;
-                let data_type = DataType::from_raw(raw);
-                if !data_type.is_known() {
-                    return Err(self.error(entry.line, format!("DataType 0x{raw:04X} is unknown")));
-                }
-                data_type
-            }
-            // CiA 306 §4.6.3.2: a DOMAIN object needs no DataType.
-            None if object_type == ObjectType::Domain => DataType::Domain,
-            None => {
-                return Err(self.error(section.line, format!("[{}] has no DataType", section.name)));
-            }
+        parent_name: Option<&str>,
+    ) -> Option<SubObject> {
+        let data_type = self.data_type(section, object_type)?;
+        // The entry of a VAR or a compact array is named by the object's
+        // section, whose missing name has been warned about.
+        let name = match parent_name {
+            Some(parent) => self.name_or(section, parent.to_string()),
+            None => self.name(section, format!("Sub-index {sub_index}")),
         };
         let access = match section.get("AccessType") {
-            Some(entry) => entry
-                .value
-                .parse::<AccessType>()
-                .map_err(|error| self.error(entry.line, error.to_string()))?,
+            Some(entry) => match entry.value.parse::<AccessType>() {
+                Ok(access) => access,
+                Err(error) => {
+                    let what = if entry.value.trim().is_empty() {
+                        "AccessType is empty".to_string()
+                    } else {
+                        error.to_string()
+                    };
+                    self.warn(
+                        entry.line,
+                        key_of(section, &entry.key),
+                        Action::Defaulted,
+                        format!("{what}; read as {DEFAULT_ACCESS}"),
+                    );
+                    DEFAULT_ACCESS
+                }
+            },
             None if data_type == DataType::Domain => AccessType::Rw,
             None => {
-                return Err(self.error(
+                self.warn(
                     section.line,
-                    format!("[{}] has no AccessType", section.name),
-                ));
+                    key_of(section, "AccessType"),
+                    Action::Defaulted,
+                    format!(
+                        "[{}] has no AccessType; read as {DEFAULT_ACCESS}",
+                        section.name
+                    ),
+                );
+                DEFAULT_ACCESS
             }
         };
         let mut sub = SubObject::new(sub_index, name, data_type, access);
         if let Some(entry) = section.get("PDOMapping") {
-            sub.pdo_mappable = self.number(entry, DataType::Unsigned8)? != 0;
+            sub.pdo_mappable = self
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned8,
+                    Action::Defaulted,
+                    "read as 0 (not mappable)",
+                )
+                .is_some_and(|v| v != 0);
         }
         if let Some(entry) = section.get("ObjFlags") {
-            sub.obj_flags = Some(self.number(entry, DataType::Unsigned32)? as u32);
+            sub.obj_flags = self
+                .number(
+                    section,
+                    entry,
+                    DataType::Unsigned32,
+                    Action::Dropped,
+                    "dropped",
+                )
+                .map(|v| v as u32);
         }
-        let text = |key: &str| {
+        let mut text = |key: &str| {
             section
                 .get(key)
-                .map(|entry| self.value_text(entry, data_type))
-                .transpose()
+                .and_then(|entry| self.value_text(section, entry, data_type))
         };
-        sub.default = text("DefaultValue")?.flatten();
-        sub.low = text("LowLimit")?.flatten();
-        sub.high = text("HighLimit")?.flatten();
-        sub.parameter_value = text("ParameterValue")?.flatten();
+        sub.default = text("DefaultValue");
+        sub.low = text("LowLimit");
+        sub.high = text("HighLimit");
+        sub.parameter_value = text("ParameterValue");
         sub.denotation = section.get("Denotation").map(|entry| entry.value.clone());
-        self.check_limits(section, &sub);
-        Ok(sub)
+        self.check_limits(section, &mut sub);
+        Some(sub)
     }
 
-    /// Warns about limits that contradict each other or the default, as the
-    /// device would refuse its own default.
-    fn check_limits(&mut self, section: &Section, sub: &SubObject) {
+    /// Limits that contradict each other are dropped (no value could pass
+    /// both, so they say nothing about the device); a default outside the
+    /// limits is kept with a warning, as the device would refuse it.
+    fn check_limits(&mut self, section: &Section, sub: &mut SubObject) {
         let check = crate::canopen::NodeId::new(CHECK_NODE).ok();
         let (Ok(low), Ok(high)) = (sub.low_value(check), sub.high_value(check)) else {
             return;
@@ -747,21 +1175,74 @@ impl<'a> Reader<'a> {
             && low.check_limits(None, Some(high)).is_err()
         {
             let message = format!(
-                "[{}]: LowLimit {low} is above HighLimit {high}",
+                "[{}]: LowLimit {low} is above HighLimit {high}; both dropped",
                 section.name
             );
-            self.warn(section.line, message);
+            let line = section
+                .get("LowLimit")
+                .map_or(section.line, |entry| entry.line);
+            self.warn(line, key_of(section, "LowLimit"), Action::Dropped, message);
+            sub.low = None;
+            sub.high = None;
             return;
         }
         if let Ok(Some(default)) = sub.default_value(check)
             && let Err(error) = default.check_limits(low.as_ref(), high.as_ref())
         {
+            let line = section
+                .get("DefaultValue")
+                .map_or(section.line, |entry| entry.line);
             self.warn(
-                section.line,
+                line,
+                key_of(section, "DefaultValue"),
+                Action::Kept,
                 format!("[{}]: DefaultValue {error}", section.name),
             );
         }
     }
+}
+
+/// A number's value text as its writer meant it, as text that reads: a C
+/// literal suffix dropped (`0x1234567890ABCDEFLL`, `100U`, `1.5f`), a negative
+/// number in an unsigned type as its two's complement (`-1` in an UNSIGNED32
+/// is 0xFFFFFFFF, as C compilers and the tools built with them have it).
+fn corrected_number(data_type: DataType, text: &str) -> Option<String> {
+    let reads = |text: &str| Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)).is_ok();
+    let trimmed = text.trim();
+    if data_type.is_real() {
+        // `1.0f`: a C float literal.
+        let unsuffixed = trimmed.strip_suffix(['f', 'F'])?;
+        return reads(unsuffixed).then(|| unsuffixed.to_string());
+    }
+    if !data_type.is_integer() || data_type == DataType::Boolean {
+        return None;
+    }
+    let unsuffixed = trimmed.trim_end_matches(['u', 'U', 'l', 'L']);
+    let digits_left = unsuffixed
+        .chars()
+        .last()
+        .is_some_and(|c| c.is_ascii_hexdigit());
+    let candidate = if unsuffixed.len() < trimmed.len() && digits_left {
+        unsuffixed
+    } else {
+        trimmed
+    };
+    if candidate != trimmed && reads(candidate) {
+        return Some(candidate.to_string());
+    }
+    let bits = data_type.bits()?;
+    if data_type.is_signed() || !candidate.starts_with('-') {
+        return None;
+    }
+    let negative = Value::parse_text_with_node(DataType::Integer64, candidate, None)
+        .ok()?
+        .as_i128()?;
+    let modulus = 1i128 << bits;
+    if negative >= 0 || negative < -(modulus / 2) {
+        return None;
+    }
+    let text = format!("0x{:X}", negative + modulus);
+    reads(&text).then_some(text)
 }
 
 /// An unsigned number (or BOOLEAN) in any CiA 306 form, within `data_type`.

@@ -68,9 +68,14 @@ fn node(id: u8) -> Option<NodeId> {
 }
 
 /// The line of `text` that contains `needle`, counted from 1.
+/// A needle ending in a line break is the whole line.
 fn line_of(text: &str, needle: &str) -> usize {
+    let whole = needle.strip_suffix('\n');
     text.lines()
-        .position(|line| line.contains(needle))
+        .position(|line| match whole {
+            Some(whole) => line == whole,
+            None => line.contains(needle),
+        })
         .expect(needle)
         + 1
 }
@@ -625,9 +630,12 @@ fn compact_values_and_denotations_of_a_dcf() {
     assert_eq!(gain.sub(1).unwrap().denotation.as_deref(), Some("Left"));
     assert_eq!(Eds::parse(&eds.write(), "again.dcf").unwrap(), eds);
 
+    // A value that is none of its type is dropped, with its line.
     let bad = dcf.replace("3=0x10", "3=0xZZ");
-    let error = Eds::parse(&bad, "compact.dcf").unwrap_err();
-    assert_eq!(error.line, line_of(&bad, "3=0xZZ"));
+    let warning = warning_at(&bad, "3=0xZZ", Action::Dropped);
+    assert!(warning.message.contains("bad hex digits"), "{warning}");
+    let eds = Eds::parse(&bad, "compact.dcf").unwrap();
+    assert_eq!(eds.dictionary.sub(0x2100, 3).unwrap().parameter_value, None);
 }
 
 #[test]
@@ -726,11 +734,18 @@ fn odd_but_readable_files_give_warnings() {
     );
     assert_eq!(eds.file_info.file_version.as_deref(), Some("1.0.2"));
     assert_eq!(eds.file_info.creation_date.as_deref(), Some("20-12-2021"));
-    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    let shown: Vec<_> = warnings.iter().map(ToString::to_string).collect();
     assert_eq!(
-        warnings[0].to_string(),
-        "mini.eds:7: RevisionNumber=1.0.2 is not a number; kept as text"
+        shown,
+        [
+            "mini.eds:5: no ProductNumber in [DeviceInfo] nor a 0x1018 sub 2 default: the file \
+             matches no device by identity (assign it to a node by hand)",
+            "mini.eds:7: RevisionNumber=1.0.2 is not a number; kept as text",
+        ]
     );
+    assert_eq!(warnings[1].key, "[DeviceInfo] RevisionNumber");
+    assert_eq!(warnings[1].action, Action::Kept);
+    assert_eq!(eds.warnings, warnings);
     assert_eq!(Eds::parse(&eds.write(), "again.eds").unwrap(), eds);
 
     // An unlisted object, a miscounted SubNumber, limits against the default.
@@ -782,119 +797,522 @@ fn vendor_quirks_in_spelling_are_accepted() {
     );
 }
 
-/// The error for `text`, which must name `file` and the line containing `at`.
-fn error_at(text: &str, at: &str) -> EdsError {
-    let error = Eds::parse(text, "broken.eds").unwrap_err();
-    assert_eq!(error.file, "broken.eds");
-    assert_eq!(error.line, line_of(text, at), "{error}");
+/// Reads `text`, which must load, and returns its one warning at the line
+/// containing `at`, which must name the file, the line and `action`.
+fn warning_at(text: &str, at: &str, action: Action) -> EdsWarning {
+    let eds = Eds::parse(text, "odd.eds").unwrap_or_else(|error| panic!("{error}"));
+    let line = line_of(text, at);
+    let here: Vec<_> = eds.warnings.iter().filter(|w| w.line == line).collect();
+    assert_eq!(here.len(), 1, "line {line}: {:#?}", eds.warnings);
+    let warning = here[0].clone();
+    assert_eq!(warning.file, "odd.eds");
+    assert_eq!(warning.action, action, "{warning}");
     assert!(
-        error
+        warning
             .to_string()
-            .starts_with(&format!("broken.eds:{}: ", error.line))
+            .starts_with(&format!("odd.eds:{line}: ")),
+        "{warning}"
     );
-    error
+    warning
+}
+
+/// Reads `text`, which must load, and checks that the round trip through
+/// the writer keeps what was read.
+fn load_odd(text: &str) -> Eds {
+    let eds = Eds::parse(text, "odd.eds").unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(Eds::parse(&eds.write(), "again.eds").unwrap(), eds);
+    eds
+}
+
+/// MINI with one more object, `[2000]` made of `keys`, listed as optional.
+fn with_2000(keys: &str) -> String {
+    format!(
+        "{MINI}[OptionalObjects]\nSupportedObjects=1\n1=0x2000\n[2000]\nParameterName=Extra\n{keys}"
+    )
 }
 
 #[test]
-fn malformed_files_say_where() {
-    let unknown_type = MINI.replace("DataType=0x0005", "DataType=0x9999");
-    let error = error_at(&unknown_type, "DataType=0x9999");
+fn an_empty_or_unknown_access_type_is_read_as_rw() {
+    // UniSwarm's umckin1.eds, umc1bds32.eds (old) and uio8ad.eds.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=\nDefaultValue=5\n");
+    let warning = warning_at(&text, "AccessType=\n", Action::Defaulted);
+    assert_eq!(warning.key, "[2000] AccessType");
+    assert_eq!(warning.message, "AccessType is empty; read as rw");
+    let eds = load_odd(&text);
+    let entry = eds.dictionary.sub(0x2000, 0).unwrap();
     assert_eq!(
-        error.to_string(),
-        format!("broken.eds:{}: DataType 0x9999 is unknown", error.line)
+        (entry.access, entry.default.as_deref()),
+        (AccessType::Rw, Some("5"))
     );
 
-    let bad_hex = MINI.replace("DefaultValue=0x4A2", "DefaultValue=0x4G2");
-    let error = error_at(&bad_hex, "0x4G2");
-    assert!(error.message.contains("bad hex digits"), "{error}");
-    error_at(
-        &MINI.replace(
-            "DataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
-            "DataType=0xQ7\nAccessType=ro",
+    let unknown = text.replace("AccessType=\n", "AccessType=readable\n");
+    warning_at(&unknown, "readable", Action::Defaulted);
+    let missing = text.replace("AccessType=\n", "");
+    let warning = warning_at(&missing, "[2000]", Action::Defaulted);
+    assert_eq!(warning.message, "[2000] has no AccessType; read as rw");
+    assert_eq!(
+        load_odd(&missing).dictionary.sub(0x2000, 0).unwrap().access,
+        AccessType::Rw
+    );
+}
+
+#[test]
+fn a_domain_default_that_is_no_hex_bytes_is_dropped() {
+    // CANopenNode's editor writes DefaultValue=0 for every DOMAIN.
+    for default in ["0", "not hex", "0x123"] {
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType=0x000F\nAccessType=rw\nDefaultValue={default}\n"
+        ));
+        let warning = warning_at(&text, &format!("DefaultValue={default}\n"), Action::Dropped);
+        assert!(
+            warning.message.contains("a DOMAIN value is hex bytes"),
+            "{warning}"
+        );
+        let eds = load_odd(&text);
+        let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+        assert_eq!(
+            (entry.data_type, entry.default.as_deref()),
+            (DataType::Domain, None)
+        );
+    }
+    // Hex bytes are a DOMAIN default.
+    let text = with_2000("ObjectType=0x7\nDataType=0x000F\nAccessType=rw\nDefaultValue=0A0B\n");
+    let eds = load_odd(&text);
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(),
+        Some("0A0B")
+    );
+    assert_eq!(
+        eds.warnings
+            .iter()
+            .filter(|w| w.key.starts_with("[2000]"))
+            .count(),
+        0
+    );
+}
+
+#[test]
+fn a_type_that_is_no_basic_type_is_read_as_domain() {
+    // Manufacturers' and structure types (0x0020 PDO parameter, 0x0040 and
+    // up), and 0x0000, seen in vendor files.
+    for raw in ["0x0020", "0x0040", "0x0000", "0x0099"] {
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType={raw}\nAccessType=ro\nDefaultValue=0102\n"
+        ));
+        let warning = warning_at(&text, &format!("DataType={raw}"), Action::Corrected);
+        assert!(warning.message.contains("read as DOMAIN"), "{warning}");
+        let eds = load_odd(&text);
+        let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+        assert_eq!(entry.data_type, DataType::Domain);
+        assert_eq!(entry.access, AccessType::Ro);
+        assert_eq!(entry.default.as_deref(), Some("0102"));
+    }
+    // A DataType that is no number at all: the entry cannot be used.
+    let text = with_2000("ObjectType=0x7\nDataType=0xQ7\nAccessType=ro\n");
+    warning_at(&text, "0xQ7", Action::Dropped);
+    assert!(load_odd(&text).dictionary.get(0x2000).is_none());
+}
+
+#[test]
+fn an_object_listed_without_a_section_is_dropped_from_the_list() {
+    let text = with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n").replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=2\n1=0x2000\n2=0x2001",
+    );
+    let warning = warning_at(&text, "2=0x2001", Action::Dropped);
+    assert_eq!(warning.key, "[OptionalObjects] 2");
+    assert_eq!(
+        warning.message,
+        "object 0x2001 is listed but there is no [2001] section; dropped from the list"
+    );
+    let eds = load_odd(&text);
+    assert!(eds.dictionary.get(0x2000).is_some());
+    assert!(eds.dictionary.get(0x2001).is_none());
+    // The rest of the file is as without the defect.
+    let clean = Eds::parse(
+        &with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"),
+        "x",
+    )
+    .unwrap();
+    assert_eq!(eds.dictionary, clean.dictionary);
+}
+
+#[test]
+fn an_array_with_neither_sub_sections_nor_compact_storage_is_kept_empty() {
+    let text = with_2000("ObjectType=0x8\nSubNumber=3\n");
+    let warning = warning_at(&text, "[2000]", Action::Kept);
+    assert_eq!(
+        warning.message,
+        "array 0x2000 has neither [2000subN] sections nor CompactSubObj; kept with no sub-objects"
+    );
+    let eds = load_odd(&text);
+    let object = eds.dictionary.get(0x2000).unwrap();
+    assert_eq!(
+        (object.object_type, object.subs.len()),
+        (ObjectType::Array, 0)
+    );
+    assert_eq!(object.name, "Extra");
+}
+
+#[test]
+fn c_literal_suffixes_are_dropped() {
+    for (data_type, written, read) in [
+        ("0x001B", "0x1234567890ABCDEFLL", "0x1234567890ABCDEF"),
+        ("0x0007", "100U", "100"),
+        ("0x0007", "0xFFUL", "0xFF"),
+        ("0x0004", "-5L", "-5"),
+        // A C float literal (Faulhaber's files).
+        ("0x0008", "1.5f", "1.5"),
+    ] {
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType={data_type}\nAccessType=rw\nDefaultValue={written}\n"
+        ));
+        let warning = warning_at(&text, written, Action::Corrected);
+        assert!(
+            warning.message.contains(&format!("read as {read}")),
+            "{warning}"
+        );
+        let eds = load_odd(&text);
+        assert_eq!(
+            eds.dictionary.sub(0x2000, 0).unwrap().default.as_deref(),
+            Some(read)
+        );
+    }
+    let eds = load_odd(&with_2000(
+        "ObjectType=0x7\nDataType=0x001B\nAccessType=rw\nDefaultValue=0x1234567890ABCDEFLL\n",
+    ));
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().default_value(None),
+        Ok(Some(Value::Unsigned64(0x1234_5678_90AB_CDEF)))
+    );
+}
+
+#[test]
+fn a_negative_default_of_an_unsigned_type_is_its_twos_complement() {
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=-1\n");
+    let warning = warning_at(&text, "DefaultValue=-1", Action::Corrected);
+    assert_eq!(
+        warning.message,
+        "DefaultValue=-1 is read as 0xFFFFFFFF (UNSIGNED32)"
+    );
+    let eds = load_odd(&text);
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().default_value(None),
+        Ok(Some(Value::Unsigned32(u32::MAX)))
+    );
+    // Beyond what the type's bits hold, it is no value of it: dropped.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=-300\n");
+    warning_at(&text, "DefaultValue=-300", Action::Dropped);
+    assert_eq!(
+        load_odd(&text).dictionary.sub(0x2000, 0).unwrap().default,
+        None
+    );
+}
+
+#[test]
+fn code_page_bytes_are_read_as_windows_1252_else_latin_1() {
+    // Faulhaber's files: "Schönaich" in CP1252/Latin-1, and a "’" (0x92),
+    // which Latin-1 would make a control character.
+    let mut bytes = MINI
+        .replace("FileName=mini.eds", "Description=Sch_naich X")
+        .into_bytes();
+    let at = bytes.iter().position(|&b| b == b'_').unwrap();
+    bytes[at] = 0xF6;
+    let at = bytes.iter().position(|&b| b == b'X').unwrap();
+    bytes[at] = 0x92;
+    let eds = Eds::parse_bytes(&bytes, "cp1252.eds").unwrap();
+    assert_eq!(
+        eds.file_info.description.as_deref(),
+        Some("Sch\u{F6}naich \u{2019}")
+    );
+    let warning = eds
+        .warnings
+        .iter()
+        .find(|w| w.message.contains("not UTF-8"))
+        .unwrap();
+    assert_eq!(warning.line, 2);
+    assert_eq!(
+        warning.message,
+        "not UTF-8: the file is read as Windows-1252"
+    );
+    assert_eq!(
+        eds.dictionary,
+        Eds::parse(MINI, "mini.eds").unwrap().dictionary
+    );
+    // 0x81 is no character of Windows-1252: the file is Latin-1 then.
+    bytes[at] = 0x81;
+    let eds = Eds::parse_bytes(&bytes, "latin1.eds").unwrap();
+    assert_eq!(
+        eds.file_info.description.as_deref(),
+        Some("Sch\u{F6}naich \u{81}")
+    );
+    assert!(
+        eds.warnings
+            .iter()
+            .any(|w| w.message.ends_with("read as Latin-1"))
+    );
+}
+
+#[test]
+fn a_file_without_mandatory_objects_loads() {
+    let text = MINI.replace(
+        "[MandatoryObjects]\nSupportedObjects=2\n1=0x1000\n2=0x1018\n",
+        "",
+    );
+    let eds = load_odd(&text);
+    let warning = eds
+        .warnings
+        .iter()
+        .find(|w| w.key == "[MandatoryObjects]")
+        .unwrap();
+    assert_eq!(warning.line, text.lines().count());
+    assert_eq!(warning.action, Action::Kept);
+    assert_eq!(
+        eds.dictionary,
+        Eds::parse(MINI, "mini.eds").unwrap().dictionary
+    );
+    // Each object now is in no list, and says so.
+    assert!(
+        eds.warnings
+            .iter()
+            .any(|w| w.message == "object 0x1018 is in no object list; read anyway")
+    );
+}
+
+#[test]
+fn identity_numbers_come_from_0x1018_when_device_info_lacks_them() {
+    // Technosoft iPOS, SCHUNK, Pilz: no VendorNumber/ProductNumber.
+    let text = MINI.replace("VendorNumber=0x4A2\n", "");
+    let eds = load_odd(&text);
+    assert_eq!(eds.device_info.vendor_number, Some(0x4A2));
+    let warning = eds
+        .warnings
+        .iter()
+        .find(|w| w.key == "[DeviceInfo] VendorNumber")
+        .unwrap();
+    assert_eq!(warning.line, line_of(&text, "[DeviceInfo]"));
+    assert_eq!(warning.action, Action::Defaulted);
+    assert_eq!(
+        warning.message,
+        "no VendorNumber in [DeviceInfo]; the default of 0x1018 sub 1 (0x000004A2) is used"
+    );
+    // Neither: the file is said to match no device (product, in MINI).
+    let eds = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds.device_info.product_number, None);
+    let warning = eds
+        .warnings
+        .iter()
+        .find(|w| w.key == "[DeviceInfo] ProductNumber")
+        .unwrap();
+    assert_eq!(warning.action, Action::Kept);
+    assert!(warning.message.contains("matches no device by identity"));
+}
+
+#[test]
+fn a_revision_that_is_no_number_is_kept_as_text_or_taken_from_0x1018() {
+    // MINI: RevisionNumber=1.0.2 and no 0x1018 sub 3: kept as text.
+    let eds = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds.device_info.revision_number, None);
+    // With a 0x1018 sub 3 default, that is the revision; the text goes.
+    let text = MINI
+        .replace("SubNumber=2", "SubNumber=3")
+        .replace("DefaultValue=1\n", "DefaultValue=3\n")
+        + "[1018sub3]\nParameterName=Revision\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x00010002\n";
+    let eds = load_odd(&text);
+    assert_eq!(eds.device_info.revision_number, Some(0x0001_0002));
+    assert!(eds.device_info.other.is_empty());
+    let warning = warning_at(&text, "RevisionNumber=1.0.2", Action::Defaulted);
+    assert_eq!(
+        warning.message,
+        "RevisionNumber=1.0.2 is not a number; the default of 0x1018 sub 3 (0x00010002) is used"
+    );
+}
+
+#[test]
+fn a_sub_number_that_does_not_count_the_sections_is_a_warning() {
+    let text = MINI.replace("SubNumber=2", "SubNumber=5");
+    let warning = warning_at(&text, "SubNumber=5", Action::Kept);
+    assert_eq!(
+        warning.message,
+        "SubNumber=5 but there are 2 sub-object sections"
+    );
+    assert_eq!(
+        load_odd(&text).dictionary.get(0x1018).unwrap().subs.len(),
+        2
+    );
+}
+
+#[test]
+fn inverted_limits_are_dropped() {
+    let text = with_2000(
+        "ObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=5\nLowLimit=20\nHighLimit=10\n",
+    );
+    let warning = warning_at(&text, "LowLimit=20", Action::Dropped);
+    assert_eq!(
+        warning.message,
+        "[2000]: LowLimit 20 is above HighLimit 10; both dropped"
+    );
+    let eds = load_odd(&text);
+    let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+    assert_eq!((entry.low.as_deref(), entry.high.as_deref()), (None, None));
+    assert_eq!(entry.check(&Value::Unsigned8(200), None), Ok(()));
+    // A default outside sound limits is kept, with a warning.
+    let text = text.replace("LowLimit=20\nHighLimit=10", "LowLimit=10\nHighLimit=20");
+    let warning = warning_at(&text, "DefaultValue=5", Action::Kept);
+    assert!(
+        warning.message.contains("below the low limit 10"),
+        "{warning}"
+    );
+}
+
+#[test]
+fn every_problem_of_a_file_is_reported_together() {
+    // As UniSwarm's uio44.eds: six problems, each with its own line.
+    let text = with_2000(
+        "ObjectType=0x7\nDataType=0x0007\nAccessType=\nDefaultValue=-1\nLowLimit=9\nHighLimit=1\n",
+    )
+    .replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=2\n1=0x2000\n2=0x2001",
+    )
+    .replace("SubNumber=2", "SubNumber=4")
+        + "[2002]\nParameterName=Blob\nDataType=0x000F\nAccessType=rw\nDefaultValue=0\n";
+    let eds = load_odd(&text);
+    let lines: Vec<_> = eds.warnings.iter().map(|w| (w.line, w.action)).collect();
+    let expected = [
+        (line_of(&text, "SubNumber=4"), Action::Kept),
+        // MINI names no product, and its revision is a version.
+        (line_of(&text, "[DeviceInfo]"), Action::Kept),
+        (line_of(&text, "RevisionNumber=1.0.2"), Action::Kept),
+        (line_of(&text, "2=0x2001"), Action::Dropped),
+        (line_of(&text, "AccessType=\n"), Action::Defaulted),
+        (line_of(&text, "DefaultValue=-1"), Action::Corrected),
+        (line_of(&text, "LowLimit=9"), Action::Dropped),
+        (line_of(&text, "[2002]"), Action::Kept),
+        (text.lines().count(), Action::Dropped),
+    ];
+    let mut expected = expected.to_vec();
+    expected.sort_by_key(|&(line, _)| line);
+    assert_eq!(lines, expected, "{:#?}", eds.warnings);
+}
+
+/// Every deviation, one edit of MINI each, loads with a warning at the
+/// line of the defect, and the rest of the file as it was.
+#[test]
+fn each_deviation_is_a_warning_at_its_line() {
+    let cases: [(String, &str, Action); 14] = [
+        (
+            MINI.replace("DefaultValue=0x4A2", "DefaultValue=0x4G2"),
+            "0x4G2",
+            Action::Dropped,
         ),
-        "0xQ7",
-    );
-    error_at(&MINI.replace("2=0x1018", "2=0x10189"), "0x10189");
-    error_at(
-        &MINI.replace("DefaultValue=1\n", "DefaultValue=256\n"),
-        "DefaultValue=256",
-    );
-
-    let over_255 = MINI.replace("[1018sub1]", "[1018sub100]");
-    let error = error_at(&over_255, "[1018sub100]");
-    assert!(error.message.contains("over 255"), "{error}");
-    error_at(&MINI.replace("[1000]", "[10000]"), "[10000]");
-
-    let duplicate_key = MINI.replace(
-        "AccessType=ro\nDefaultValue=0x191",
-        "AccessType=ro\naccesstype=rw",
-    );
-    let error = error_at(&duplicate_key, "accesstype=rw");
-    assert!(error.message.contains("appears twice"), "{error}");
-    let duplicate_section = format!("{MINI}[1000]\nParameterName=Again\n");
-    let error = Eds::parse(&duplicate_section, "broken.eds").unwrap_err();
-    assert_eq!(
-        error.line,
-        line_of(&duplicate_section, "ParameterName=Again") - 1
-    );
-    assert!(error.message.contains("appears twice"), "{error}");
-    let same_index = format!("{MINI}[01000]\nParameterName=Again\n");
-    error_at(&same_index, "[01000]");
-
-    // A listed object whose section is missing, and a missing list.
-    let missing_object = MINI.replace("2=0x1018", "2=0x1019");
-    error_at(&missing_object, "2=0x1019");
-    let no_list = MINI.replace("[MandatoryObjects]", "[NotTheList]");
-    let error = Eds::parse(&no_list, "broken.eds").unwrap_err();
-    assert_eq!(error.line, no_list.lines().count());
-    assert!(error.message.contains("no [MandatoryObjects]"), "{error}");
-    error_at(
-        &MINI.replace("SupportedObjects=2", "SupportedObjects=4000000000"),
-        "SupportedObjects",
-    );
-    error_at(
-        &MINI.replace("SupportedObjects=2", "SupportedObjects=3"),
-        "SupportedObjects",
-    );
-    error_at(
-        &MINI.replace("SupportedObjects=2\n", ""),
-        "[MandatoryObjects]",
-    );
-    error_at(
-        &MINI
-            .replace("SubNumber=2\n", "")
-            .replace("[1018sub0]", "[X0]")
-            .replace("[1018sub1]", "[X1]"),
-        "[1018]",
-    );
-
-    // Missing or unreadable keys of an object.
-    error_at(&MINI.replace("ParameterName=Vendor Id\n", ""), "[1018sub1]");
-    error_at(&MINI.replace("DataType=0x0005\n", ""), "[1018sub0]");
-    error_at(
-        &MINI.replace("AccessType=ro\nDefaultValue=1", "DefaultValue=1"),
-        "[1018sub0]",
-    );
-    error_at(
-        &MINI.replace("AccessType=ro\nDefaultValue=1", "AccessType=readable"),
-        "readable",
-    );
-    error_at(
-        &MINI.replace("ObjectType=0x9", "ObjectType=0x3"),
-        "ObjectType=0x3",
-    );
-    error_at(
-        &MINI.replace("ObjectType=0x9", "ObjectType=nine"),
-        "ObjectType=nine",
-    );
-
-    // Structure.
-    error_at(&format!("NoSection=1\n{MINI}"), "NoSection");
-    error_at(&MINI.replace("[DeviceInfo]", "[DeviceInfo"), "[DeviceInfo");
-    error_at(
-        &MINI.replace("FileVersion=1.0.2", "just some words"),
-        "just some words",
-    );
+        (
+            MINI.replace("DefaultValue=1\n", "DefaultValue=256\n"),
+            "DefaultValue=256",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("[1018sub1]", "[1018sub100]"),
+            "[1018sub100]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("[1000]", "[10000]"),
+            "[10000]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace(
+                "AccessType=ro\nDefaultValue=0x191",
+                "AccessType=ro\naccesstype=rw",
+            ),
+            "accesstype=rw",
+            Action::Dropped,
+        ),
+        (
+            format!("{MINI}[1000]\nParameterName=Again\n"),
+            "ParameterName=Again",
+            Action::Dropped,
+        ),
+        (
+            format!("{MINI}[01000]\nParameterName=Again\n"),
+            "[01000]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("SupportedObjects=2", "SupportedObjects=3"),
+            "SupportedObjects",
+            Action::Kept,
+        ),
+        (
+            MINI.replace("ParameterName=Vendor Id\n", ""),
+            "[1018sub1]",
+            Action::Defaulted,
+        ),
+        (
+            MINI.replace("DataType=0x0005\n", ""),
+            "[1018sub0]",
+            Action::Dropped,
+        ),
+        (
+            MINI.replace("ObjectType=0x9", "ObjectType=0x3"),
+            "ObjectType=0x3",
+            Action::Dropped,
+        ),
+        (format!("NoSection=1\n{MINI}"), "NoSection", Action::Dropped),
+        (
+            MINI.replace("[DeviceInfo]", "[DeviceInfo"),
+            "[DeviceInfo",
+            Action::Kept,
+        ),
+        (
+            MINI.replace("FileVersion=1.0.2", "just some words"),
+            "just some words",
+            Action::Dropped,
+        ),
+    ];
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    for (text, at, action) in &cases {
+        // A repeated section's warning sits on its header.
+        let at = if *at == "ParameterName=Again" {
+            "[1000]\nParameterName=Again"
+        } else {
+            at
+        };
+        let line = match at.split_once('\n') {
+            Some((_, _)) => text.lines().count() - 1,
+            None => line_of(text, at),
+        };
+        let eds = load_odd(text);
+        // MINI names no product: that warning is always there.
+        let here: Vec<_> = eds
+            .warnings
+            .iter()
+            .filter(|w| w.line == line && w.key != "[DeviceInfo] ProductNumber")
+            .collect();
+        assert_eq!(here.len(), 1, "{at}: {:#?}", eds.warnings);
+        assert_eq!(here[0].action, *action, "{}", here[0]);
+        // Everything the defect does not touch is read as before.
+        for object in reference.dictionary.iter() {
+            let Some(read) = eds.dictionary.get(object.index) else {
+                continue;
+            };
+            for sub in object.subs.values() {
+                if let Some(same) = read.sub(sub.sub_index)
+                    && same.name == sub.name
+                {
+                    assert_eq!(
+                        (same.data_type, same.access),
+                        (sub.data_type, sub.access),
+                        "{at}"
+                    );
+                }
+            }
+        }
+    }
+    // A sub-object section whose index is no number is no object section.
+    let eds = load_odd(&MINI.replace("[1018sub1]", "[1018subx]"));
+    assert!(eds.dictionary.sub(0x1018, 1).is_none());
 }
 
 #[test]
@@ -910,19 +1328,24 @@ fn empty_garbage_and_huge_inputs_give_errors_not_panics() {
     let error = Eds::parse_bytes(b"[FileInfo]\nFileName=x\xFF\x00\x01\n", "nul.eds").unwrap_err();
     assert_eq!(error.line, 2);
 
-    // A 10 MB line, in a value and as a line of its own: refused quickly, and
-    // the message quotes only the start of it.
+    // Text with no CiA 306 section is no EDS.
+    let error = Eds::parse("[Settings]\nColour=blue\n", "other.ini").unwrap_err();
+    assert_eq!(error.line, 2);
+    assert!(error.message.contains("not an EDS"), "{error}");
+
+    // A 10 MB line, in a value and as a line of its own: dropped quickly, and
+    // the warning quotes only the start of it.
     let huge = "9".repeat(10 << 20);
     let in_value = MINI.replace("DefaultValue=0x191", &format!("DefaultValue={huge}"));
-    let error = error_at(&in_value, &huge[..100]);
+    let warning = warning_at(&in_value, &huge[..100], Action::Dropped);
     assert!(
-        error.to_string().len() < 200,
+        warning.to_string().len() < 200,
         "{} bytes",
-        error.to_string().len()
+        warning.to_string().len()
     );
     let as_line = MINI.replace("FileVersion=1.0.2", &huge);
-    let error = error_at(&as_line, &huge[..100]);
-    assert!(error.to_string().len() < 200);
+    let warning = warning_at(&as_line, &huge[..100], Action::Dropped);
+    assert!(warning.to_string().len() < 200);
 
     let missing = read_eds_file("/nonexistent/dir/x.eds").unwrap_err();
     assert_eq!(missing.line, 0);
@@ -971,7 +1394,13 @@ fn a_written_eds_of_a_built_dictionary_reads_back() {
     eds.comments = vec!["first".into(), String::new(), "third".into()];
     let (again, warnings) = Eds::parse_with_warnings(&eds.write(), "built.eds").unwrap();
     assert_eq!(again, eds);
-    assert!(warnings.is_empty(), "{warnings:?}");
+    // It names no vendor or product (nor does its 0x1018): said, nothing else.
+    let keys: Vec<_> = warnings.iter().map(|w| w.key.as_str()).collect();
+    assert_eq!(
+        keys,
+        ["[DeviceInfo] VendorNumber", "[DeviceInfo] ProductNumber"],
+        "{warnings:?}"
+    );
 }
 
 /// A mutation of a vendor file: bytes changed, lines dropped or repeated,
