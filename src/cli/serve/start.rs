@@ -170,18 +170,19 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     for stopped in &report.stopped {
         tracing::info!(
             "shutdown: quick stop of bus {} node {} axis {}",
-            stopped.bus,
-            stopped.node,
-            stopped.axis
+            stopped.axis.bus,
+            stopped.axis.node,
+            stopped.axis.axis
         );
     }
     for failed in &report.failed {
         tracing::error!(
-            "shutdown: could not stop bus {} node {} axis {:?}: {}",
+            "shutdown: could not stop bus {} node {} axis {:?}: {}; tried: {}",
             failed.bus,
             failed.node,
             failed.axis,
-            crate::api::AppError::from(failed.error.clone()).to_json()
+            crate::api::AppError::from(failed.error.clone()).to_json(),
+            serde_json::json!(failed.attempts)
         );
     }
     // A running recording ends with all it received written to its file;
