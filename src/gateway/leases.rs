@@ -200,7 +200,7 @@ async fn supervise(gateway: Gateway) {
 
 /// How a lapsed lease's axis was stopped.
 #[derive(Debug, Clone, PartialEq)]
-enum Stopped {
+enum LapseStop {
     /// Halted, and at rest (or no longer enabled) within a period.
     Halted,
     /// Still moving a period after halt, or halt could not be given:
@@ -232,9 +232,9 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
         )
     };
     let (status, error_code, abort_code, outcome) = match &result {
-        Ok(Stopped::Halted) => (200, None, None, "halted".to_string()),
-        Ok(Stopped::QuickStopped) => (200, None, None, "quick-stopped".to_string()),
-        Ok(Stopped::NotConfirmed { error, attempts }) => {
+        Ok(LapseStop::Halted) => (200, None, None, "halted".to_string()),
+        Ok(LapseStop::QuickStopped) => (200, None, None, "quick-stopped".to_string()),
+        Ok(LapseStop::NotConfirmed { error, attempts }) => {
             tracing::error!(
                 "lapsed lease on {}: the quick stop was not confirmed ({error}); attempts: {attempts:?}",
                 lease.axis
@@ -294,7 +294,7 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
 async fn halt_then_quick_stop(
     gateway: &Gateway,
     lease: &MotionLease,
-) -> Result<Stopped, GatewayError> {
+) -> Result<LapseStop, GatewayError> {
     let AxisKey { bus, node, axis } = &lease.axis;
     let (bus, drive) = gateway.stop_target(bus, &node.to_string(), &axis.to_string())?;
     // In a task of its own, like every drive sequence: nothing cancels it
@@ -311,7 +311,7 @@ async fn halt_then_quick_stop(
                     };
                     let at_rest = status.velocity.map_or(status.target_reached, |v| v == 0);
                     if status.state != "operation_enabled" || at_rest {
-                        return Stopped::Halted;
+                        return LapseStop::Halted;
                     }
                     if Instant::now() >= deadline {
                         break;
@@ -323,8 +323,8 @@ async fn halt_then_quick_stop(
             Err(_) => tracing::error!("halt not given in time; quick stop instead"),
         }
         match Gateway::quick_stop_or_nmt(bus, drive).await {
-            AxisStop::Stopped(_) | AxisStop::NotEnabled(_) => Stopped::QuickStopped,
-            AxisStop::Failed { error, attempts } => Stopped::NotConfirmed { error, attempts },
+            AxisStop::Stopped(_) | AxisStop::NotEnabled(_) => LapseStop::QuickStopped,
+            AxisStop::Failed { error, attempts } => LapseStop::NotConfirmed { error, attempts },
         }
     });
     task.await
