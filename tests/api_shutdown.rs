@@ -6,10 +6,19 @@
 
 mod common;
 
+use std::time::Duration;
+
 use common::{enable_and_move, poll, start, terminate, vbus};
+use tokio::io::AsyncWriteExt;
+use tokio::net::TcpStream;
+
+/// One test at a time: each starts gateways (and a `candeck vbus`) whose
+/// first scan must find the UMC, which has no heartbeat to be found by.
+static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 #[tokio::test]
 async fn sigterm_during_a_move_leaves_the_axis_stopped() {
+    let _serial = SERIAL.lock().await;
     let (_vbus, channel) = vbus("127.0.0.1:0");
     let spec = format!("demo=socketcand:{channel}");
     // A lease longer than the test, so that only the shutdown can have
@@ -42,4 +51,136 @@ async fn sigterm_during_a_move_leaves_the_axis_stopped() {
     assert_eq!(status, 200, "{body}");
     assert_ne!(body["state"], "operation_enabled", "{body}");
     assert_eq!(body["velocity"], 0, "{body}");
+}
+
+/// `candeck serve ARGS --listen 127.0.0.1:0`, its log (stderr) read line by
+/// line into a channel: the process, its address and the log.
+fn start_logged(args: &[&str]) -> (common::Server, std::sync::mpsc::Receiver<String>) {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(args)
+        .args(["--listen", "127.0.0.1:0"])
+        .env("CANDECK_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("candeck starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let address = line
+        .strip_prefix("candeck: serving http://")
+        .and_then(|rest| rest.split_once('/'))
+        .map(|(address, _)| address.to_string())
+        .unwrap_or_else(|| panic!("first line: {line}"));
+    let (lines, log) = std::sync::mpsc::channel();
+    let stderr = child.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if lines.send(line).is_err() {
+                return;
+            }
+        }
+    });
+    (common::Server { child, address }, log)
+}
+
+/// Waits (at most `limit`) for a log line that contains `text`.
+fn wait_for_line(log: &std::sync::mpsc::Receiver<String>, text: &str, limit: Duration) -> bool {
+    let deadline = std::time::Instant::now() + limit;
+    while let Some(left) = deadline.checked_duration_since(std::time::Instant::now()) {
+        match log.recv_timeout(left) {
+            Ok(line) if line.contains(text) => return true,
+            Ok(_) => {}
+            Err(_) => return false,
+        }
+    }
+    false
+}
+
+/// A client that opened a connection and sent half a request header.
+async fn half_sent_request(address: &str) -> TcpStream {
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    stream
+        .write_all(b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Partial: ")
+        .await
+        .unwrap();
+    stream
+}
+
+fn send_sigterm(server: &common::Server) {
+    let pid = server.child.id().to_string();
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+}
+
+/// Issue 19, point 2: a client holding a half-sent request kept the
+/// process alive, the axes moving, until SIGKILL: the quick stop ran only
+/// once every connection had ended. The axes are stopped first now; the
+/// connection is drained afterwards.
+#[tokio::test]
+async fn sigterm_stops_the_axes_before_draining_a_half_sent_request() {
+    let _serial = SERIAL.lock().await;
+    let (_vbus, channel) = vbus("127.0.0.1:0");
+    let spec = format!("demo=socketcand:{channel}");
+    // A grace period longer than the test: only the stop can come first.
+    let (mut gateway, log) = start_logged(&[
+        "--bus",
+        &spec,
+        "--lease-ms",
+        "60000",
+        "--shutdown-grace-ms",
+        "600000",
+    ]);
+    let address = gateway.address.clone();
+    let axis = "/api/v1/buses/demo/nodes/1/axes/1";
+    let (status, body) = poll(&address, axis, |status, _| status == 200).await;
+    assert_eq!(status, 200, "{body}");
+    enable_and_move(&address, axis, r#"{"mode":"velocity","velocity":200}"#).await;
+    let (_, moving) = poll(&address, axis, |_, s| {
+        s["velocity"].as_i64().is_some_and(|v| v > 0)
+    })
+    .await;
+    assert!(moving["velocity"].as_i64().unwrap() > 0, "{moving}");
+
+    let held = half_sent_request(&address).await;
+    send_sigterm(&gateway);
+    // The drive confirmed the quick stop (the gateway logs only what the
+    // statusword showed) while the connection is still held.
+    let log = tokio::task::spawn_blocking(move || {
+        let seen = wait_for_line(
+            &log,
+            "shutdown: quick stop of bus demo node 1 axis 1",
+            Duration::from_secs(20),
+        );
+        (seen, log)
+    });
+    let (seen, _log) = log.await.unwrap();
+    assert!(seen, "the axis was quick-stopped while a request was held");
+    assert!(
+        gateway.child.try_wait().unwrap().is_none(),
+        "still draining the held connection"
+    );
+    // The client gives up: the drain ends, and so does the process.
+    drop(held);
+    assert_eq!(terminate(&mut gateway).await, Some(0));
+}
+
+/// The drain is bounded: a connection that never finishes its request is
+/// closed after the grace period, and the process exits.
+#[tokio::test]
+async fn a_half_sent_request_does_not_outlast_the_grace_period() {
+    let _serial = SERIAL.lock().await;
+    let (mut gateway, _) = start(&["--shutdown-grace-ms", "500"]);
+    let address = gateway.address.clone();
+    let (status, _) = poll(&address, "/api/v1/health", |status, _| status == 200).await;
+    assert_eq!(status, 200);
+    let _held = half_sent_request(&address).await;
+    // Within the 5 s terminate() waits, with the connection still open.
+    assert_eq!(terminate(&mut gateway).await, Some(0));
 }

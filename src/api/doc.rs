@@ -106,6 +106,10 @@ pub struct ErrorDetail {
     /// step that failed; the steps before it took effect.
     #[schema(example = "write_mapping_entry_2")]
     pub step: Option<String>,
+    /// When a stop (halt, quick stop) was not confirmed by the drive: every
+    /// step tried, the fallbacks included (quick stop, NMT stop of the
+    /// node), with its outcome.
+    pub attempts: Option<Vec<crate::gateway::safe_stop::StopAttempt>>,
 }
 
 /// A bus named in a path.

@@ -53,7 +53,7 @@ use crate::gateway::drive::{
 };
 use crate::gateway::leases::InFlight;
 use crate::gateway::motion_lease::AxisKey;
-use crate::gateway::safe_stop::StopReport;
+use crate::gateway::safe_stop::{AxisStopFailed, StopAttempt, StopReport};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -112,6 +112,8 @@ pub struct StoppedAxis {
     pub node: u8,
     #[schema(example = 1)]
     pub axis: u8,
+    /// What was tried and what the drive confirmed.
+    pub attempts: Vec<StopAttempt>,
 }
 
 /// A node or axis `POST /stop-all` could not stop (or not ask).
@@ -121,19 +123,39 @@ pub struct StopFailure {
     pub bus: String,
     #[schema(example = 2)]
     pub node: u8,
-    /// Null when the node as a whole failed (offline, wrong NMT state).
+    /// Null when the node as a whole failed (its axes could not be named).
     #[schema(example = 1)]
     pub axis: Option<u8>,
+    /// The first failure (`sdo_timeout`: the node did not answer;
+    /// `state_change_timeout`: the statusword did not show the quick stop).
     #[schema(value_type = ErrorDetail)]
     pub error: Json,
+    /// What was tried, in order, with its outcome: the quick stop, then NMT
+    /// stop of the node.
+    pub attempts: Vec<StopAttempt>,
 }
 
 /// What `POST /stop-all` did.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct StopAllReport {
-    /// The axes that were in operation enabled and were sent quick stop.
+    /// The axes that were in operation enabled and confirmed the quick stop
+    /// (the statusword read back out of operation enabled).
     pub stopped: Vec<StoppedAxis>,
+    /// The axes that did not confirm it (or could not be read), whatever
+    /// was sent instead.
     pub failed: Vec<StopFailure>,
+}
+
+/// An axis after a state walk; after a quick stop, what was tried.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StateResponse {
+    #[serde(flatten)]
+    pub status: AxisStatus,
+    /// With the target `quick_stop_active`: the steps of the stop and their
+    /// outcome (`[{"method":"quick_stop","outcome":"confirmed",...}]`;
+    /// empty when the axis was in quick stop active already).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attempts: Option<Vec<StopAttempt>>,
 }
 
 /// An axis after a command that may start motion: its status, and the
@@ -144,6 +166,9 @@ pub struct MotionResponse {
     #[serde(flatten)]
     pub status: AxisStatus,
     pub lease: Option<LeaseInfo>,
+    /// With a halt: the steps of the stop and their outcome.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attempts: Option<Vec<StopAttempt>>,
 }
 
 /// Whether a motion in this mode runs until told otherwise, and so needs a
@@ -263,27 +288,44 @@ async fn one_axis(
 ///
 /// One transition at a time, the statusword checked after each. A drive in
 /// fault is not reset by this (`fault-reset` does that): 409 `drive_fault`.
+///
 /// Quick stop active is reached from operation enabled only (409
 /// `drive_not_enabled` otherwise: the motor is not powered to be stopped).
+/// It is sent whatever the gateway believes of the node (offline, NMT state,
+/// not identified yet), each step bounded by 500 ms: the quick stop
+/// controlword, confirmed in the statusword; if the drive does not confirm
+/// or answer, NMT stop of the node. The answer's `attempts` say what was
+/// tried; a stop not confirmed answers with the error of the quick stop and
+/// the `attempts` in the error.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives",
     params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
     request_body = StateRequest,
     responses(
-        (status = 200, description = "The axis in the state asked for", body = AxisStatus),
+        (status = 200, description = "The axis in the state asked for; after a quick stop, the steps tried in `attempts`", body = StateResponse),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`; `node_offline`: its heartbeat is lost; `lease_conflict`: operation_enabled asked of an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`, `node_offline` (its heartbeat is lost): any target but quick_stop_active; `lease_conflict`: operation_enabled asked of an axis another client's lease holds", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
-        (status = 504, description = "`state_change_timeout` (with the `state` it stopped in), `sdo_timeout`", body = ErrorBody),
+        (status = 504, description = "`state_change_timeout` (with the `state` it stopped in), `sdo_timeout`; a quick stop not confirmed carries `attempts` (NMT stop `sent`)", body = ErrorBody),
     ))]
 async fn set_state(
     State(state): State<AppState>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
-) -> Result<ApiJson<AxisStatus>, AppError> {
+) -> Result<ApiJson<StateResponse>, AppError> {
+    if request.target == TargetState::QuickStopActive {
+        // Sent whatever the gateway believes of the node.
+        let stopped = state.gateway.quick_stop_axis(&bus, &id, &axis).await;
+        release_stopped(&state, &bus, &id, &axis);
+        let stopped = stopped.map_err(not_confirmed)?;
+        return Ok(ApiJson(StateResponse {
+            status: stopped.status,
+            attempts: Some(stopped.attempts),
+        }));
+    }
     let drive = drive(&state, &bus, &id, &axis)?;
     let target = request.target.state();
     let axis_key = key(&bus, &drive);
@@ -293,7 +335,7 @@ async fn set_state(
         // have powered the axis already.
         state.gateway.enabled_axes.insert(&bus, &drive);
     }
-    let status = spawned(
+    let ApiJson(status) = spawned(
         drive,
         move |drive| async move { drive.set_state(target).await },
     )
@@ -302,7 +344,33 @@ async fn set_state(
         // Out of operation enabled nothing moves: the motion is over.
         state.gateway.leases.release(&axis_key);
     }
-    Ok(status)
+    Ok(ApiJson(StateResponse {
+        status,
+        attempts: None,
+    }))
+}
+
+/// A stop was asked for (confirmed or not): the axis's lease is over.
+fn release_stopped(state: &AppState, bus: &str, id: &str, axis: &str) {
+    if let (Ok(node), Ok(axis)) = (id.parse::<u8>(), axis.parse::<u8>()) {
+        state.gateway.leases.release(&AxisKey {
+            bus: bus.to_string(),
+            node,
+            axis,
+        });
+    }
+}
+
+/// A stop the drive did not confirm, with what was tried.
+fn not_confirmed(failed: AxisStopFailed) -> AppError {
+    let source = Box::new(AppError::from(failed.error));
+    if failed.attempts.is_empty() {
+        return *source;
+    }
+    AppError::StopNotConfirmed {
+        source,
+        attempts: failed.attempts,
+    }
 }
 
 /// Resets a fault (controlword bit 7, 0→1).
@@ -332,6 +400,12 @@ async fn fault_reset(
 ///
 /// The rest of the controlword is kept (read back on a UMC; implied by the
 /// state on a JMC, whose controlword is write only).
+///
+/// `halt: true` is sent whatever the gateway believes of the node (offline,
+/// NMT state, not identified yet), bounded by 1 s; if it cannot be given,
+/// quick stop by controlword, then NMT stop of the node if the drive does
+/// not confirm. The answer's `attempts` say what was tried; a halt that
+/// could not be given answers with its error and the `attempts` in it.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/halt", tag = "drives",
     params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
     request_body = HaltRequest,
@@ -339,11 +413,11 @@ async fn fault_reset(
         (status = 200, description = "The axis after the controlword; releasing halt in velocity, torque or duty-cycle mode answers with a motion lease", body = MotionResponse),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost; `lease_conflict`: halt released on an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`, `node_offline` (its heartbeat is lost): halt released only; `lease_conflict`: halt released on an axis another client's lease holds", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
-        (status = 504, description = "`sdo_timeout`", body = ErrorBody),
+        (status = 504, description = "`sdo_timeout`; a halt that could not be given carries `attempts` (quick stop, NMT stop)", body = ErrorBody),
     ))]
 async fn halt(
     State(state): State<AppState>,
@@ -352,16 +426,20 @@ async fn halt(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
 ) -> Result<ApiJson<MotionResponse>, AppError> {
-    let drive = drive(&state, &bus, &id, &axis)?;
-    let axis_key = key(&bus, &drive);
     if request.halt {
-        let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(true).await }).await?;
-        state.gateway.leases.release(&axis_key);
+        // Sent whatever the gateway believes of the node; quick stop, then
+        // NMT stop, if it cannot be given.
+        let halted = state.gateway.halt_axis(&bus, &id, &axis).await;
+        release_stopped(&state, &bus, &id, &axis);
+        let halted = halted.map_err(not_confirmed)?;
         return Ok(ApiJson(MotionResponse {
-            status,
+            status: halted.status,
             lease: None,
+            attempts: Some(halted.attempts),
         }));
     }
+    let drive = drive(&state, &bus, &id, &axis)?;
+    let axis_key = key(&bus, &drive);
     // Releasing halt resumes the set-point the axis has: in a mode without
     // an end, that is a motion like any other, and it is leased.
     let lease_header = presented(&headers).map(str::to_string);
@@ -369,6 +447,8 @@ async fn halt(
         .gateway
         .leases
         .check(&axis_key, lease_header.as_deref())?;
+    // Motion the gateway resumes is motion it stops on shutdown.
+    state.gateway.enabled_axes.insert(&bus, &drive);
     let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
     let lease = match endless_displayed(status.mode.as_deref()) {
         Some(mode) if status.state == "operation_enabled" => {
@@ -386,7 +466,11 @@ async fn halt(
             None
         }
     };
-    Ok(ApiJson(MotionResponse { status, lease }))
+    Ok(ApiJson(MotionResponse {
+        status,
+        lease,
+        attempts: None,
+    }))
 }
 
 /// Starts a motion in one of the drive's modes.
@@ -438,6 +522,7 @@ async fn run_move(
         return Ok(ApiJson(MotionResponse {
             status,
             lease: None,
+            attempts: None,
         }));
     }
     let lease = state.gateway.leases.grant(
@@ -470,20 +555,26 @@ async fn run_move(
         return Ok(ApiJson(MotionResponse {
             status,
             lease: None,
+            attempts: None,
         }));
     }
     let lease = state.gateway.leases.renew(&lease.id, None)?;
     Ok(ApiJson(MotionResponse {
         status,
         lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),
+        attempts: None,
     }))
 }
 
 /// Quick stop of every enabled axis on every bus.
 ///
-/// Every drive node that is online is asked, all at once; an axis in
-/// operation enabled gets the quick stop command. The answer lists what was
-/// stopped and every node or axis that could not be asked or stopped.
+/// Every axis of every node known as a drive, online or not and whatever
+/// its NMT state, and every axis the gateway enabled, all nodes at once; an
+/// axis in operation enabled gets the quick stop command, confirmed in its
+/// statusword. Each step is bounded by 500 ms; a drive that does not confirm
+/// or answer gets NMT stop of its node. The answer lists the axes that
+/// confirmed and those that did not, each with the steps tried
+/// (`attempts`).
 #[utoipa::path(post, path = "/stop-all", tag = "drives",
     responses(
         (status = 200, description = "What was stopped, and what failed", body = StopAllReport),
@@ -499,7 +590,12 @@ impl From<StopReport> for StopAllReport {
             stopped: report
                 .stopped
                 .into_iter()
-                .map(|AxisKey { bus, node, axis }| StoppedAxis { bus, node, axis })
+                .map(|stopped| StoppedAxis {
+                    bus: stopped.axis.bus,
+                    node: stopped.axis.node,
+                    axis: stopped.axis.axis,
+                    attempts: stopped.attempts,
+                })
                 .collect(),
             failed: report
                 .failed
@@ -509,6 +605,7 @@ impl From<StopReport> for StopAllReport {
                     node: failure.node,
                     axis: failure.axis,
                     error: AppError::from(failure.error).to_json(),
+                    attempts: failure.attempts,
                 })
                 .collect(),
         }

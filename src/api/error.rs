@@ -105,6 +105,13 @@ pub enum AppError {
     /// with the step named (the steps before it took effect).
     #[error("step {step} failed: {source}")]
     FailedAt { step: String, source: Box<AppError> },
+    /// A stop the drive did not confirm: the error of the stop asked for,
+    /// with every step tried (the fallbacks included) and its outcome.
+    #[error("{source}")]
+    StopNotConfirmed {
+        source: Box<AppError>,
+        attempts: Vec<crate::gateway::safe_stop::StopAttempt>,
+    },
     /// A `/sim` request on a bus that has no virtual devices.
     #[error("bus {0} is no virtual bus: it has no virtual devices to control")]
     NotVirtual(String),
@@ -201,7 +208,9 @@ impl AppError {
             Self::UnknownPdo(_) => (StatusCode::NOT_FOUND, "unknown_pdo"),
             Self::InvalidMapping(_) => (StatusCode::BAD_REQUEST, "invalid_mapping"),
             Self::PdoDisabled(_) => (StatusCode::CONFLICT, "pdo_disabled"),
-            Self::FailedAt { source, .. } => source.status_and_code(),
+            Self::FailedAt { source, .. } | Self::StopNotConfirmed { source, .. } => {
+                source.status_and_code()
+            }
             Self::NotVirtual(_) => (StatusCode::CONFLICT, "not_virtual"),
             Self::UnknownDevice { .. } => (StatusCode::NOT_FOUND, "unknown_node"),
             Self::NodeTaken(_) => (StatusCode::CONFLICT, "node_taken"),
@@ -237,6 +246,11 @@ impl AppError {
             let mut body = source.to_json();
             body["message"] = json!(self.to_string());
             body["step"] = json!(step);
+            return body;
+        }
+        if let Self::StopNotConfirmed { source, attempts } = self {
+            let mut body = source.to_json();
+            body["attempts"] = json!(attempts);
             return body;
         }
         let mut body = json!({ "code": code, "message": self.to_string() });

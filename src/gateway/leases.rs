@@ -13,9 +13,9 @@ use tokio::sync::Notify;
 use tokio::time::Instant;
 
 use super::GatewayError;
-use super::drive::{Drive, DriveError};
 use super::history::AuditEntry;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease};
+use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
 use crate::can::Timestamp;
 
@@ -199,12 +199,18 @@ async fn supervise(gateway: Gateway) {
 }
 
 /// How a lapsed lease's axis was stopped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Stopped {
+#[derive(Debug, Clone, PartialEq)]
+enum LapseStop {
     /// Halted, and at rest (or no longer enabled) within a period.
     Halted,
-    /// Still moving a period after halt: quick-stopped.
+    /// Still moving a period after halt, or halt could not be given:
+    /// quick-stopped (confirmed by the drive), or found not enabled.
     QuickStopped,
+    /// The drive did not confirm the quick stop: the node was sent NMT stop.
+    NotConfirmed {
+        error: GatewayError,
+        attempts: Vec<StopAttempt>,
+    },
 }
 
 async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
@@ -216,22 +222,41 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
         lease.mode
     );
     let result = halt_then_quick_stop(&gateway, &lease).await;
+    let failure = |error: &GatewayError| {
+        (
+            error.audit_status(),
+            Some(error.code().to_string()),
+            error
+                .abort_code()
+                .map(|code| format!("0x{:08X}", code.raw())),
+        )
+    };
     let (status, error_code, abort_code, outcome) = match &result {
-        Ok(Stopped::Halted) => (200, None, None, "halted"),
-        Ok(Stopped::QuickStopped) => (200, None, None, "quick-stopped"),
+        Ok(LapseStop::Halted) => (200, None, None, "halted".to_string()),
+        Ok(LapseStop::QuickStopped) => (200, None, None, "quick-stopped".to_string()),
+        Ok(LapseStop::NotConfirmed { error, attempts }) => {
+            tracing::error!(
+                "lapsed lease on {}: the quick stop was not confirmed ({error}); attempts: {attempts:?}",
+                lease.axis
+            );
+            let (status, code, abort) = failure(error);
+            let nmt = attempts
+                .iter()
+                .any(|a| a.method == StopMethod::NmtStop && a.outcome == StopOutcome::Sent);
+            let outcome = if nmt {
+                "not confirmed, node sent NMT stop"
+            } else {
+                "not stopped"
+            };
+            (status, code, abort, outcome.to_string())
+        }
         Err(error) => {
             tracing::error!(
                 "lapsed lease on {}: the axis could not be stopped: {error}",
                 lease.axis
             );
-            (
-                error.audit_status(),
-                Some(error.code().to_string()),
-                error
-                    .abort_code()
-                    .map(|code| format!("0x{:08X}", code.raw())),
-                "not stopped",
-            )
+            let (status, code, abort) = failure(error);
+            (status, code, abort, "not stopped".to_string())
         }
     };
     let AxisKey { bus, node, axis } = lease.axis.clone();
@@ -263,42 +288,47 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
 }
 
 /// Halt, then wait up to one lease period for the axis to come to rest;
-/// quick stop if it has not. If halt cannot be given, quick stop is tried
-/// anyway.
+/// quick stop if it has not (NMT stop of the node if the drive does not
+/// confirm). If halt cannot be given, or the axis cannot be read, the
+/// quick stop is tried at once. Whatever the gateway believes of the node.
 async fn halt_then_quick_stop(
     gateway: &Gateway,
     lease: &MotionLease,
-) -> Result<Stopped, GatewayError> {
+) -> Result<LapseStop, GatewayError> {
     let AxisKey { bus, node, axis } = &lease.axis;
-    let (served, info) = gateway.node(bus, &node.to_string())?;
-    let drive = Drive::new(&served.registry, &info, &axis.to_string())?;
+    let (bus, drive) = gateway.stop_target(bus, &node.to_string(), &axis.to_string())?;
     // In a task of its own, like every drive sequence: nothing cancels it
     // half way.
     let period = lease.period;
     let task = tokio::spawn(async move {
-        if let Err(error) = drive.halt(true).await {
-            tracing::error!("halt failed ({error}); quick stop instead");
-            drive.quick_stop_if_enabled().await?;
-            return Ok(Stopped::QuickStopped);
-        }
-        let deadline = Instant::now() + period;
-        loop {
-            let status = drive.status().await?;
-            let at_rest = status.velocity.map_or(status.target_reached, |v| v == 0);
-            if status.state != "operation_enabled" || at_rest {
-                return Ok(Stopped::Halted);
+        match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
+            Ok(Ok(_)) => {
+                let deadline = Instant::now() + period;
+                loop {
+                    let Ok(Ok(status)) = tokio::time::timeout(HALT_TIMEOUT, drive.status()).await
+                    else {
+                        break;
+                    };
+                    let at_rest = status.velocity.map_or(status.target_reached, |v| v == 0);
+                    if status.state != "operation_enabled" || at_rest {
+                        return LapseStop::Halted;
+                    }
+                    if Instant::now() >= deadline {
+                        break;
+                    }
+                    tokio::time::sleep(STOPPING_POLL).await;
+                }
             }
-            if Instant::now() >= deadline {
-                break;
-            }
-            tokio::time::sleep(STOPPING_POLL).await;
+            Ok(Err(error)) => tracing::error!("halt failed ({error}); quick stop instead"),
+            Err(_) => tracing::error!("halt not given in time; quick stop instead"),
         }
-        drive.quick_stop_if_enabled().await?;
-        Ok(Stopped::QuickStopped)
+        match Gateway::quick_stop_or_nmt(bus, drive).await {
+            AxisStop::Stopped(_) | AxisStop::NotEnabled(_) => LapseStop::QuickStopped,
+            AxisStop::Failed { error, attempts } => LapseStop::NotConfirmed { error, attempts },
+        }
     });
     task.await
-        .map_err(|err| GatewayError::Internal(format!("stopping a lapsed axis: {err}")))?
-        .map_err(|err: DriveError| GatewayError::from(err))
+        .map_err(|err| GatewayError::Internal(format!("stopping a lapsed axis: {err}")))
 }
 
 /// Keeps a lease alive while a request that holds it runs (an interpolated

@@ -1,212 +1,705 @@
-//! Stopping motion whoever asks: STOP ALL (quick stop of every enabled axis
-//! on every bus) and the stop on shutdown (quick stop of the axes the
-//! gateway itself enabled, for SIGTERM and Ctrl-C: a drive must not be
-//! left moving because the gateway went away). Both end every motion lease.
+//! Stopping motion whoever asks (CiA 402-2 §6.3, quick stop; CiA 301
+//! §7.2.8.3.2.1, NMT stop): STOP ALL, the quick stop and halt of one axis,
+//! the stop on shutdown (SIGTERM, Ctrl-C: a drive must not be left moving
+//! because the gateway went away) and the stop of a lapsed motion lease.
+//!
+//! A stop is always sent, whatever the gateway believes of the node:
+//! offline (its heartbeat lost), in an NMT state that allows no SDO, not
+//! identified yet. Each step has a short timeout of its own, the wait in
+//! the node's SDO queue included, and each falls back to the next:
+//!
+//! 1. quick stop by controlword (0x6040 of the axis, at the product's axis
+//!    offset), confirmed when the statusword (0x6041) shows the axis out of
+//!    operation enabled;
+//! 2. if the drive does not confirm, or does not answer, or the transfer
+//!    fails: NMT stop of the node, after which the drive reacts as its
+//!    0x6007 (abort connection option) says.
+//!
+//! What was tried and what the drive confirmed is reported axis by axis as
+//! [`StopAttempt`]s.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use serde::Serialize;
 use tokio::task::JoinSet;
+use utoipa::ToSchema;
 
 use super::GatewayError;
-use super::drive::{Drive, DriveKind, axis_count};
+use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
 use super::motion_lease::AxisKey;
-use super::registry::NodeInfo;
-use super::service::{Gateway, ServedBus, check_sdo_allowed};
+use super::service::Gateway;
+use crate::can::Bus;
+use crate::canopen::NodeId;
+use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+use crate::canopen::sdo::ClientConfig;
+use crate::profiles::cia402::objects as obj;
+use crate::profiles::cia402::{Command, State, Statusword};
+
+/// How long one SDO transfer of a stop may take, its wait in the node's
+/// queue included.
+pub const STOP_STEP_TIMEOUT: Duration = Duration::from_millis(500);
+/// How long the statusword is read back for the drive to show a quick
+/// stop (it enters quick stop active at once and ramps down there).
+pub const STOP_CONFIRM_TIMEOUT: Duration = Duration::from_millis(500);
+/// How long a halt (statusword, controlword read back, controlword
+/// written, status) may take before the quick stop takes over.
+pub const HALT_TIMEOUT: Duration = Duration::from_secs(1);
+/// The statusword is read this often while a quick stop is confirmed.
+const CONFIRM_POLL: Duration = Duration::from_millis(10);
+/// How long the gateway's shutdown waits for its axes to be stopped.
+pub const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// How a stop was tried.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StopMethod {
+    /// Controlword bit 8 (halt), the rest of the controlword kept.
+    Halt,
+    /// The quick stop command in the axis's controlword.
+    QuickStop,
+    /// NMT stop of the whole node.
+    NmtStop,
+}
+
+/// What came of one [`StopMethod`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StopOutcome {
+    /// The drive showed it: the statusword out of operation enabled after a
+    /// quick stop; the controlword written and the axis read back after a
+    /// halt.
+    Confirmed,
+    /// Sent, but not confirmed: the controlword was written and the
+    /// statusword did not show the stop in time; an NMT stop is never
+    /// confirmed.
+    Sent,
+    /// The node did not answer in time.
+    Timeout,
+    /// The node refused the transfer (`detail` has the abort code).
+    SdoAbort,
+    /// The node broke the SDO protocol.
+    SdoProtocolError,
+    /// The bus could not carry the frame.
+    BusDown,
+    /// Not tried: the node did not answer an earlier axis's transfer.
+    Skipped,
+    /// Anything else (`detail` says what).
+    Failed,
+}
+
+/// One step of a stop.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, ToSchema)]
+pub struct StopAttempt {
+    #[schema(example = "quick_stop")]
+    pub method: StopMethod,
+    #[schema(example = "confirmed")]
+    pub outcome: StopOutcome,
+    /// What the drive showed or why the step failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(example = "statusword 0x0007: quick_stop_active")]
+    pub detail: Option<String>,
+}
+
+impl StopAttempt {
+    fn new(method: StopMethod, outcome: StopOutcome, detail: impl Into<String>) -> Self {
+        Self {
+            method,
+            outcome,
+            detail: Some(detail.into()),
+        }
+    }
+
+    fn failed(method: StopMethod, error: &GatewayError, context: &str) -> Self {
+        let outcome = match error {
+            GatewayError::SdoTimeout { .. } => StopOutcome::Timeout,
+            GatewayError::SdoAbort { .. } => StopOutcome::SdoAbort,
+            GatewayError::SdoProtocol { .. } => StopOutcome::SdoProtocolError,
+            GatewayError::BusDown(_) => StopOutcome::BusDown,
+            _ => StopOutcome::Failed,
+        };
+        Self::new(method, outcome, format!("{context}{error}"))
+    }
+}
+
+/// How the stop of one axis ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AxisStop {
+    /// The drive said the axis was not in operation enabled: nothing
+    /// moved under power to be stopped. Its state, if the statusword names
+    /// one.
+    NotEnabled(Option<State>),
+    /// The drive confirmed the stop (the last attempt).
+    Stopped(Vec<StopAttempt>),
+    /// The drive did not confirm: the first failure, and every attempt
+    /// (an NMT stop last, when it was sent).
+    Failed {
+        error: GatewayError,
+        attempts: Vec<StopAttempt>,
+    },
+}
+
+/// An axis a stop confirmed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoppedAxis {
+    pub axis: AxisKey,
+    pub attempts: Vec<StopAttempt>,
+}
 
 /// A node or axis that could not be stopped (or not asked).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StopFailure {
     pub bus: String,
     pub node: u8,
-    /// `None` when the node as a whole failed (offline, wrong NMT state).
+    /// `None` when the node as a whole failed (its axes could not be
+    /// named).
     pub axis: Option<u8>,
     pub error: GatewayError,
+    /// What was tried, in order.
+    pub attempts: Vec<StopAttempt>,
 }
 
 /// What a stop did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StopReport {
-    /// The axes that were in operation enabled and were sent quick stop.
-    pub stopped: Vec<AxisKey>,
+    /// The axes that were in operation enabled and confirmed the stop.
+    pub stopped: Vec<StoppedAxis>,
     pub failed: Vec<StopFailure>,
 }
 
+impl StopReport {
+    fn add(&mut self, bus: &str, node: u8, axis: u8, stop: AxisStop) {
+        match stop {
+            AxisStop::NotEnabled(_) => {}
+            AxisStop::Stopped(attempts) => self.stopped.push(StoppedAxis {
+                axis: AxisKey {
+                    bus: bus.to_string(),
+                    node,
+                    axis,
+                },
+                attempts,
+            }),
+            AxisStop::Failed { error, attempts } => self.failed.push(StopFailure {
+                bus: bus.to_string(),
+                node,
+                axis: Some(axis),
+                error,
+                attempts,
+            }),
+        }
+    }
+}
+
 /// The axes the gateway itself enabled or set moving, by bus, node and
-/// axis: the ones it stops before it exits. Axes another master enabled are
-/// not the gateway's to touch.
-#[derive(Debug, Default)]
-pub struct EnabledAxes(Mutex<BTreeSet<(String, u8, u8)>>);
+/// axis, with the drive as it was then: the ones it stops before it exits
+/// and in every STOP ALL, even when the registry no longer knows the node
+/// as a drive (a node rebooting is not identified yet).
+#[derive(Default)]
+pub struct EnabledAxes(Mutex<BTreeMap<(String, u8, u8), Drive>>);
+
+impl std::fmt::Debug for EnabledAxes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_set().entries(self.lock().keys()).finish()
+    }
+}
 
 impl EnabledAxes {
-    fn lock(&self) -> MutexGuard<'_, BTreeSet<(String, u8, u8)>> {
-        // A set of plain keys is never left half-written.
+    fn lock(&self) -> MutexGuard<'_, BTreeMap<(String, u8, u8), Drive>> {
+        // A map of plain keys and handles is never left half-written.
         self.0.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     /// Records the axis of `drive` on `bus`.
     pub fn insert(&self, bus: &str, drive: &Drive) {
         self.lock()
-            .insert((bus.to_string(), drive.node(), drive.axis()));
+            .insert((bus.to_string(), drive.node(), drive.axis()), drive.clone());
     }
 
     /// Every axis recorded, in order.
     pub fn list(&self) -> Vec<(String, u8, u8)> {
-        self.lock().iter().cloned().collect()
+        self.lock().keys().cloned().collect()
+    }
+
+    /// The drive recorded for an axis.
+    pub fn get(&self, bus: &str, node: u8, axis: u8) -> Option<Drive> {
+        self.lock().get(&(bus.to_string(), node, axis)).cloned()
+    }
+
+    fn drives(&self) -> Vec<(String, Drive)> {
+        self.lock()
+            .iter()
+            .map(|((bus, _, _), drive)| (bus.clone(), drive.clone()))
+            .collect()
     }
 }
 
-/// How long the gateway's shutdown waits for its axes to be stopped.
-pub const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_secs(5);
-
 fn task_failed(err: tokio::task::JoinError) -> GatewayError {
-    GatewayError::Internal(format!("drive task: {err}"))
+    GatewayError::Internal(format!("stop task: {err}"))
+}
+
+/// One axis to stop, with bounded transfers of its own.
+struct Stopper {
+    drive: Drive,
+    config: ClientConfig,
+}
+
+impl Stopper {
+    fn new(drive: Drive) -> Self {
+        let mut config = drive.channel().config().clone();
+        config.timeout = config.timeout.min(STOP_STEP_TIMEOUT);
+        Self { drive, config }
+    }
+
+    fn node(&self) -> u8 {
+        self.drive.node()
+    }
+
+    /// A transfer bounded by [`STOP_STEP_TIMEOUT`], the queue included.
+    async fn bounded<T>(
+        &self,
+        transfer: impl Future<Output = Result<T, super::sdo::SdoRequestError>>,
+    ) -> Result<T, GatewayError> {
+        match tokio::time::timeout(STOP_STEP_TIMEOUT, transfer).await {
+            Ok(result) => result.map_err(GatewayError::from),
+            Err(_) => Err(GatewayError::SdoTimeout { node: self.node() }),
+        }
+    }
+
+    async fn statusword(&self) -> Result<Statusword, GatewayError> {
+        let index = self.drive.object(obj::STATUSWORD);
+        let data = self
+            .bounded(
+                self.drive
+                    .channel()
+                    .upload_with(index, 0, Some(&self.config)),
+            )
+            .await?;
+        let mut bytes = [0u8; 2];
+        for (byte, value) in bytes.iter_mut().zip(&data) {
+            *byte = *value;
+        }
+        Ok(Statusword(u16::from_le_bytes(bytes)))
+    }
+
+    async fn controlword(&self, word: u16) -> Result<(), GatewayError> {
+        let index = self.drive.object(obj::CONTROLWORD);
+        self.bounded(self.drive.channel().download_with(
+            index,
+            0,
+            &word.to_le_bytes(),
+            Some(&self.config),
+        ))
+        .await
+    }
+
+    /// Quick stop by controlword, confirmed in the statusword; no fallback.
+    async fn quick_stop(&self) -> AxisStop {
+        let method = StopMethod::QuickStop;
+        let fail = |error: GatewayError, context: &str| AxisStop::Failed {
+            attempts: vec![StopAttempt::failed(method, &error, context)],
+            error,
+        };
+        match self.statusword().await {
+            Ok(statusword) => match statusword.state() {
+                Some(State::OperationEnabled) | None => {}
+                state => return AxisStop::NotEnabled(state),
+            },
+            // Not heard at all: the write would wait as long for nothing.
+            Err(error @ (GatewayError::SdoTimeout { .. } | GatewayError::BusDown(_))) => {
+                return fail(error, "statusword not read: ");
+            }
+            // It answers, and refused the read: the write may still work.
+            Err(_) => {}
+        }
+        if let Err(error) = self.controlword(Command::QuickStop.bits()).await {
+            return fail(error, "controlword not written: ");
+        }
+        let deadline = tokio::time::Instant::now() + STOP_CONFIRM_TIMEOUT;
+        loop {
+            let last = match self.statusword().await {
+                Ok(statusword) => match statusword.state() {
+                    Some(state) if state != State::OperationEnabled => {
+                        return AxisStop::Stopped(vec![StopAttempt::new(
+                            method,
+                            StopOutcome::Confirmed,
+                            format!("statusword 0x{:04X}: {}", statusword.raw(), state.name()),
+                        )]);
+                    }
+                    state => format!(
+                        "statusword 0x{:04X}: still {}",
+                        statusword.raw(),
+                        state.map_or("unknown", State::name)
+                    ),
+                },
+                Err(error) => format!("statusword not read: {error}"),
+            };
+            if tokio::time::Instant::now() >= deadline {
+                let error = GatewayError::StateChangeTimeout {
+                    message: format!(
+                        "node {} axis {}: the quick stop did not show in the statusword within {} ms ({last})",
+                        self.node(),
+                        self.drive.axis(),
+                        STOP_CONFIRM_TIMEOUT.as_millis()
+                    ),
+                    state: "unknown".into(),
+                };
+                return AxisStop::Failed {
+                    error,
+                    attempts: vec![StopAttempt::new(method, StopOutcome::Sent, last)],
+                };
+            }
+            tokio::time::sleep(CONFIRM_POLL).await;
+        }
+    }
+}
+
+/// Whether a failed step says the node is not heard at all (then its
+/// other axes are not asked: each would wait out the same timeout).
+fn unanswered(stop: &AxisStop) -> Option<GatewayError> {
+    match stop {
+        AxisStop::Failed {
+            error: error @ (GatewayError::SdoTimeout { .. } | GatewayError::BusDown(_)),
+            ..
+        } => Some(error.clone()),
+        _ => None,
+    }
+}
+
+/// NMT stop of `node`, bounded like every step.
+async fn nmt_stop(bus: &Bus, node: NodeId) -> StopAttempt {
+    let frame = NmtMessage::new(NmtCommand::Stop, NmtTarget::Node(node)).encode();
+    match tokio::time::timeout(STOP_STEP_TIMEOUT, bus.send(frame)).await {
+        Ok(Ok(())) => StopAttempt {
+            method: StopMethod::NmtStop,
+            outcome: StopOutcome::Sent,
+            detail: None,
+        },
+        Ok(Err(error)) => StopAttempt::failed(StopMethod::NmtStop, &GatewayError::from(error), ""),
+        Err(_) => StopAttempt::new(
+            StopMethod::NmtStop,
+            StopOutcome::BusDown,
+            format!(
+                "the frame was not taken within {} ms",
+                STOP_STEP_TIMEOUT.as_millis()
+            ),
+        ),
+    }
+}
+
+/// Quick stop of the axes of one node, one after another (they share its
+/// SDO channel); then, if any of them did not confirm, one NMT stop of the
+/// node. Once the node is not heard, its remaining axes are not asked.
+async fn stop_node(bus: Bus, drives: Vec<Drive>) -> Vec<(u8, AxisStop)> {
+    let Some(node) = drives.first().map(|drive| drive.channel().node()) else {
+        return Vec::new();
+    };
+    let mut results = Vec::new();
+    let mut silent: Option<GatewayError> = None;
+    for drive in drives {
+        let axis = drive.axis();
+        if let Some(error) = &silent {
+            results.push((
+                axis,
+                AxisStop::Failed {
+                    error: error.clone(),
+                    attempts: vec![StopAttempt::new(
+                        StopMethod::QuickStop,
+                        StopOutcome::Skipped,
+                        format!("node {node} did not answer another axis's transfer"),
+                    )],
+                },
+            ));
+            continue;
+        }
+        let stop = Stopper::new(drive).quick_stop().await;
+        silent = unanswered(&stop);
+        results.push((axis, stop));
+    }
+    if results
+        .iter()
+        .any(|(_, stop)| matches!(stop, AxisStop::Failed { .. }))
+    {
+        let attempt = nmt_stop(&bus, node).await;
+        tracing::warn!("node {node}: a quick stop was not confirmed; NMT stop {attempt:?}");
+        for (_, stop) in &mut results {
+            if let AxisStop::Failed { attempts, .. } = stop {
+                attempts.push(attempt.clone());
+            }
+        }
+    }
+    results
+}
+
+/// Stops every axis of `targets` (bus name, bus, drive), each node in a
+/// task of its own, all at once.
+async fn stop_axes(targets: Vec<(String, Bus, Drive)>) -> Result<StopReport, GatewayError> {
+    let mut by_node: BTreeMap<(String, u8), (Bus, Vec<Drive>)> = BTreeMap::new();
+    let mut seen = BTreeSet::new();
+    for (name, bus, drive) in targets {
+        if !seen.insert((name.clone(), drive.node(), drive.axis())) {
+            continue;
+        }
+        by_node
+            .entry((name, drive.node()))
+            .or_insert_with(|| (bus, Vec::new()))
+            .1
+            .push(drive);
+    }
+    let mut tasks = JoinSet::new();
+    for ((name, node), (bus, mut drives)) in by_node {
+        drives.sort_by_key(Drive::axis);
+        tasks.spawn(async move { (name, node, stop_node(bus, drives).await) });
+    }
+    let mut report = StopReport::default();
+    while let Some(joined) = tasks.join_next().await {
+        let (bus, node, results) = joined.map_err(task_failed)?;
+        for (axis, stop) in results {
+            report.add(&bus, node, axis, stop);
+        }
+    }
+    report.stopped.sort_by(|a, b| a.axis.cmp(&b.axis));
+    Ok(report)
+}
+
+/// What the stop of one axis asked for by a client did.
+#[derive(Debug)]
+pub struct AxisStopped {
+    /// The axis read after the stop.
+    pub status: AxisStatus,
+    pub attempts: Vec<StopAttempt>,
+}
+
+/// Why the stop of one axis asked for by a client was not confirmed: the
+/// first failure, and what was tried (fallbacks included).
+#[derive(Debug)]
+pub struct AxisStopFailed {
+    pub error: GatewayError,
+    pub attempts: Vec<StopAttempt>,
+}
+
+impl From<GatewayError> for AxisStopFailed {
+    fn from(error: GatewayError) -> Self {
+        Self {
+            error,
+            attempts: Vec::new(),
+        }
+    }
 }
 
 impl Gateway {
-    /// Quick stop of every enabled axis on every bus (STOP ALL): every
-    /// drive node that is online is asked, all at once; an axis in
-    /// operation enabled gets the quick stop command. Every lease ends.
+    /// A node's axis for a stop: none of the checks of [`Gateway::drive`]
+    /// (a stop is sent whatever the gateway believes of the node); a node
+    /// the registry does not know as a drive (not identified yet) is
+    /// stopped as the gateway knew it when it enabled the axis.
+    pub fn stop_target(
+        &self,
+        bus: &str,
+        id: &str,
+        axis: &str,
+    ) -> Result<(Bus, Drive), GatewayError> {
+        let served = self.bus(bus)?;
+        let recorded = || {
+            let node = id.parse::<u8>().ok()?;
+            let axis = axis.parse::<u8>().ok()?;
+            self.enabled_axes.get(bus, node, axis)
+        };
+        let drive = match self.node(bus, id) {
+            Ok((_, info)) => match Drive::new(&served.registry, &info, axis) {
+                Ok(drive) => drive,
+                Err(error) => recorded().ok_or(error)?,
+            },
+            Err(error) => recorded().ok_or(error)?,
+        };
+        Ok((served.bus.clone(), drive))
+    }
+
+    /// Quick stop of one axis (`quick_stop_active`), NMT stop of its node
+    /// if the drive does not confirm. An axis not in operation enabled is
+    /// not touched: 409 `drive_not_enabled` (quick stop active already is
+    /// no error).
+    pub async fn quick_stop_axis(
+        &self,
+        bus: &str,
+        id: &str,
+        axis: &str,
+    ) -> Result<AxisStopped, AxisStopFailed> {
+        let (bus, drive) = self.stop_target(bus, id, axis)?;
+        tokio::spawn(async move {
+            let number = drive.axis();
+            let stop = stop_node(bus, vec![drive.clone()]).await;
+            let stop = stop.into_iter().next().map(|(_, stop)| stop);
+            let attempts = match stop {
+                Some(AxisStop::Stopped(attempts)) => attempts,
+                Some(AxisStop::NotEnabled(Some(State::QuickStopActive))) => Vec::new(),
+                Some(AxisStop::NotEnabled(state)) => {
+                    return Err(AxisStopFailed::from(GatewayError::from(
+                        super::drive::DriveError::NotEnabled {
+                            axis: number,
+                            state,
+                        },
+                    )));
+                }
+                Some(AxisStop::Failed { error, attempts }) => {
+                    return Err(AxisStopFailed { error, attempts });
+                }
+                None => Vec::new(),
+            };
+            match drive.status().await {
+                Ok(status) => Ok(AxisStopped { status, attempts }),
+                Err(error) => Err(AxisStopFailed {
+                    error: error.into(),
+                    attempts,
+                }),
+            }
+        })
+        .await
+        .map_err(|err| AxisStopFailed::from(task_failed(err)))?
+    }
+
+    /// Halt of one axis (controlword bit 8), bounded by [`HALT_TIMEOUT`];
+    /// if it cannot be given, quick stop, then NMT stop of the node.
+    pub async fn halt_axis(
+        &self,
+        bus: &str,
+        id: &str,
+        axis: &str,
+    ) -> Result<AxisStopped, AxisStopFailed> {
+        let (bus, drive) = self.stop_target(bus, id, axis)?;
+        tokio::spawn(async move {
+            let error = match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
+                Ok(Ok(status)) => {
+                    return Ok(AxisStopped {
+                        status,
+                        attempts: vec![StopAttempt {
+                            method: StopMethod::Halt,
+                            outcome: StopOutcome::Confirmed,
+                            detail: None,
+                        }],
+                    });
+                }
+                Ok(Err(error)) => GatewayError::from(error),
+                Err(_) => GatewayError::SdoTimeout { node: drive.node() },
+            };
+            tracing::warn!(
+                "node {} axis {}: halt failed ({error}); quick stop instead",
+                drive.node(),
+                drive.axis()
+            );
+            let mut attempts = vec![StopAttempt::failed(StopMethod::Halt, &error, "")];
+            match stop_node(bus, vec![drive]).await.into_iter().next() {
+                Some((_, AxisStop::Stopped(more) | AxisStop::Failed { attempts: more, .. })) => {
+                    attempts.extend(more);
+                }
+                Some((_, AxisStop::NotEnabled(state))) => attempts.push(StopAttempt::new(
+                    StopMethod::QuickStop,
+                    StopOutcome::Skipped,
+                    format!(
+                        "the axis is in {}: nothing to stop",
+                        state.map_or("unknown", State::name)
+                    ),
+                )),
+                None => {}
+            }
+            Err(AxisStopFailed { error, attempts })
+        })
+        .await
+        .map_err(|err| AxisStopFailed::from(task_failed(err)))?
+    }
+
+    /// Quick stop of every enabled axis on every bus (STOP ALL), all nodes
+    /// at once: every axis of every node the registry knows as a drive,
+    /// online or not, whatever its NMT state, and every axis the gateway
+    /// enabled; an axis in operation enabled gets the quick stop, and its
+    /// node an NMT stop if the drive does not confirm. Every lease ends.
     ///
     /// In a task of its own: dropping a `JoinSet` aborts its tasks, so the
     /// set must not live in the caller's future (a request handler's is
     /// dropped when its client hangs up).
     pub async fn stop_all(&self) -> Result<StopReport, GatewayError> {
-        let report = tokio::spawn(stop_everything(self.clone()))
-            .await
-            .map_err(task_failed)??;
+        let gateway = self.clone();
+        let report = tokio::spawn(async move {
+            let mut targets = Vec::new();
+            let mut failed = Vec::new();
+            for (name, served) in gateway.buses.iter() {
+                for info in served.registry.nodes() {
+                    let Some(kind) = DriveKind::from_profile(info.profile) else {
+                        continue;
+                    };
+                    let node = info.id.get();
+                    for axis in 1..=axis_count(kind, info.eds_entry.as_deref()) {
+                        match Drive::new(&served.registry, &info, &axis.to_string()) {
+                            Ok(drive) => targets.push((name.clone(), served.bus.clone(), drive)),
+                            Err(error) => failed.push(StopFailure {
+                                bus: name.clone(),
+                                node,
+                                axis: None,
+                                error: error.into(),
+                                attempts: Vec::new(),
+                            }),
+                        }
+                    }
+                }
+            }
+            targets.extend(gateway.recorded_targets());
+            let mut report = stop_axes(targets).await?;
+            report.failed.extend(failed);
+            Ok::<_, GatewayError>(report)
+        })
+        .await
+        .map_err(task_failed)??;
         // Every enabled axis got quick stop: no motion is left to lease.
         self.leases.release_all();
         Ok(report)
     }
 
+    /// The axes the gateway enabled, with their bus.
+    fn recorded_targets(&self) -> Vec<(String, Bus, Drive)> {
+        self.enabled_axes
+            .drives()
+            .into_iter()
+            .filter_map(|(name, drive)| {
+                let bus = self.buses.get(&name)?.bus.clone();
+                Some((name, bus, drive))
+            })
+            .collect()
+    }
+
     /// Quick stop of every axis the gateway enabled that is still in
-    /// operation enabled, all nodes at once (for SIGTERM and Ctrl-C).
-    /// Bounded by [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is
-    /// in the report.
+    /// operation enabled, all nodes at once, NMT stop where the drive does
+    /// not confirm (for SIGTERM and Ctrl-C). Bounded by
+    /// [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is in the
+    /// report.
     pub async fn stop_enabled_axes(&self) -> StopReport {
-        let mut report = StopReport::default();
-        let mut tasks = JoinSet::new();
-        for (bus, node, axis) in self.enabled_axes.list() {
-            let prepared = (|| {
-                let (served, info) = self.node(&bus, &node.to_string())?;
-                Ok::<_, GatewayError>(Drive::new(&served.registry, &info, &axis.to_string())?)
-            })();
-            match prepared {
-                Ok(drive) => {
-                    tasks.spawn(
-                        async move { (bus, node, axis, drive.quick_stop_if_enabled().await) },
-                    );
-                }
-                Err(error) => report.failed.push(StopFailure {
-                    bus,
-                    node,
-                    axis: Some(axis),
-                    error,
-                }),
+        let task = tokio::spawn(stop_axes(self.recorded_targets()));
+        let report = match tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, task).await {
+            Ok(Ok(Ok(report))) => report,
+            Ok(Ok(Err(error))) => {
+                tracing::error!("shutdown: stopping the axes failed: {error}");
+                StopReport::default()
             }
-        }
-        let collect = async {
-            while let Some(joined) = tasks.join_next().await {
-                let Ok((bus, node, axis, result)) = joined else {
-                    continue;
-                };
-                match result {
-                    Ok(Some(_)) => report.stopped.push(AxisKey { bus, node, axis }),
-                    Ok(None) => {}
-                    Err(error) => report.failed.push(StopFailure {
-                        bus,
-                        node,
-                        axis: Some(axis),
-                        error: error.into(),
-                    }),
-                }
+            Ok(Err(error)) => {
+                tracing::error!("shutdown: stopping the axes failed: {error}");
+                StopReport::default()
+            }
+            Err(_) => {
+                tracing::error!(
+                    "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
+                );
+                StopReport::default()
             }
         };
-        let timed_out = tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, collect)
-            .await
-            .is_err();
         self.leases.release_all();
-        if timed_out {
-            tracing::error!(
-                "shutdown: axes still being stopped after {SHUTDOWN_STOP_TIMEOUT:?}; exiting anyway"
-            );
-        }
         report
     }
-}
 
-async fn stop_everything(gateway: Gateway) -> Result<StopReport, GatewayError> {
-    let mut tasks = JoinSet::new();
-    let mut report = StopReport::default();
-    for (name, served) in gateway.buses.iter() {
-        for info in served.registry.nodes() {
-            let Some(kind) = DriveKind::from_profile(info.profile) else {
-                continue;
-            };
-            let node = info.id.get();
-            let fail = |error: GatewayError| StopFailure {
-                bus: name.clone(),
-                node,
-                axis: None,
-                error,
-            };
-            if !info.online {
-                report.failed.push(fail(GatewayError::NodeOffline(format!(
-                    "node {node} is offline"
-                ))));
-                continue;
-            }
-            if let Err(error) = check_sdo_allowed(served, &info) {
-                report.failed.push(fail(error));
-                continue;
-            }
-            let drives = match axes_of(served, &info, kind) {
-                Ok(drives) => drives,
-                Err(error) => {
-                    report.failed.push(fail(error));
-                    continue;
-                }
-            };
-            let name = name.clone();
-            tasks.spawn(async move {
-                let mut results = Vec::new();
-                for drive in drives {
-                    results.push((drive.axis(), drive.quick_stop_if_enabled().await));
-                }
-                (name, node, results)
-            });
-        }
+    /// Stops one axis after a lapsed lease or a failed halt: quick stop,
+    /// then NMT stop of its node.
+    pub(super) async fn quick_stop_or_nmt(bus: Bus, drive: Drive) -> AxisStop {
+        stop_node(bus, vec![drive])
+            .await
+            .into_iter()
+            .next()
+            .map_or(AxisStop::NotEnabled(None), |(_, stop)| stop)
     }
-    while let Some(joined) = tasks.join_next().await {
-        let (bus, node, results) = joined.map_err(task_failed)?;
-        for (axis, result) in results {
-            match result {
-                Ok(Some(_)) => report.stopped.push(AxisKey {
-                    bus: bus.clone(),
-                    node,
-                    axis,
-                }),
-                Ok(None) => {}
-                Err(error) => report.failed.push(StopFailure {
-                    bus: bus.clone(),
-                    node,
-                    axis: Some(axis),
-                    error: error.into(),
-                }),
-            }
-        }
-    }
-    Ok(report)
-}
-
-fn axes_of(
-    served: &ServedBus,
-    info: &NodeInfo,
-    kind: DriveKind,
-) -> Result<Vec<Drive>, GatewayError> {
-    (1..=axis_count(kind, info.eds_entry.as_deref()))
-        .map(|axis| Ok(Drive::new(&served.registry, info, &axis.to_string())?))
-        .collect()
 }

@@ -934,8 +934,17 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
     assert_error(&refused, StatusCode::CONFLICT, "node_offline");
     // Refused before any SDO timeout could run out.
     assert_eq!(started.elapsed(), Duration::ZERO);
-    let refused = post(&app, &axis_uri(2, 1, "/halt"), json!({"halt": true})).await;
-    assert_error(&refused, StatusCode::CONFLICT, "node_offline");
+    // A stop is never refused: the halt is sent, and with no answer the
+    // gateway falls back to the quick stop, then NMT stop of the node.
+    let (status, body) = post(&app, &axis_uri(2, 1, "/halt"), json!({"halt": true})).await;
+    assert_eq!(status, StatusCode::GATEWAY_TIMEOUT, "{body}");
+    let methods: Vec<&str> = body["error"]["attempts"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{body}"))
+        .iter()
+        .map(|a| a["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["halt", "quick_stop", "nmt_stop"], "{body}");
 
     served.rack.as_ref().unwrap().plug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;

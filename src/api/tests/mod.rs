@@ -10,6 +10,7 @@ mod leases;
 mod leds;
 mod pdos;
 mod recording;
+mod stops;
 mod stream;
 pub(super) mod support;
 mod telemetry;

@@ -107,7 +107,8 @@ pub struct ServeArgs {
     pub bitrate: Option<u32>,
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
-    /// axis_poll_hz, retention_days, retention_rows, lease_ms, ascii_listen,
+    /// axis_poll_hz, retention_days, retention_rows, lease_ms,
+    /// shutdown_grace_ms, ascii_listen,
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure
     /// (candeck.example.toml is an annotated example of every key).
@@ -151,6 +152,12 @@ pub struct ServeArgs {
     /// still moves). 200 to 60000. Default: 3000.
     #[arg(long, value_name = "MS", value_parser = parse_lease_ms)]
     pub lease_ms: Option<u64>,
+    /// On SIGTERM or Ctrl-C the axes the gateway enabled are stopped first;
+    /// then the HTTP connections still open get this long to finish their
+    /// requests before they are closed, in milliseconds. 0 to 600000.
+    /// Default: 5000.
+    #[arg(long, value_name = "MS", value_parser = parse_shutdown_grace_ms)]
+    pub shutdown_grace_ms: Option<u64>,
     /// Also serve the CiA 309-3 ASCII gateway protocol (CANopenNode's
     /// canopend/cocomm) over TCP on ADDR (port 0 picks a free port); net 1
     /// is the first bus given.
@@ -204,6 +211,29 @@ pub(super) fn check_sync_period_ms(ms: u64) -> Result<u32, String> {
         .ok_or_else(|| {
             format!("{ms} ms: a SYNC period is at most {MAX_PERIOD_MS} ms (0x1006 in µs)")
         })
+}
+
+/// The longest shutdown grace period: 10 minutes.
+pub(super) const MAX_SHUTDOWN_GRACE_MS: u64 = 600_000;
+/// The default shutdown grace period.
+pub(super) const DEFAULT_SHUTDOWN_GRACE_MS: u64 = 5_000;
+
+/// A shutdown grace period in milliseconds.
+pub(super) fn parse_shutdown_grace_ms(text: &str) -> Result<u64, String> {
+    let ms: u64 = text
+        .parse()
+        .map_err(|_| format!("'{text}': a shutdown grace period is a number of milliseconds"))?;
+    check_shutdown_grace_ms(ms)
+}
+
+pub(super) fn check_shutdown_grace_ms(ms: u64) -> Result<u64, String> {
+    if ms <= MAX_SHUTDOWN_GRACE_MS {
+        Ok(ms)
+    } else {
+        Err(format!(
+            "{ms} ms: a shutdown grace period is 0 to {MAX_SHUTDOWN_GRACE_MS} ms"
+        ))
+    }
 }
 
 /// A lease period in milliseconds, within the gateway's bounds.

@@ -40,6 +40,7 @@ pub(super) struct ConfigFile {
     pub(super) retention_days: Option<u32>,
     pub(super) retention_rows: Option<u64>,
     pub(super) lease_ms: Option<u64>,
+    pub(super) shutdown_grace_ms: Option<u64>,
     pub(super) ascii_listen: Option<SocketAddr>,
     #[serde(default)]
     pub(super) tokens: Vec<TokenEntry>,
@@ -87,6 +88,10 @@ impl ConfigFile {
             check_lease_ms(ms)
                 .map_err(|err| format!("config {}: lease_ms {err}", path.display()))?;
         }
+        if let Some(ms) = config.shutdown_grace_ms {
+            check_shutdown_grace_ms(ms)
+                .map_err(|err| format!("config {}: shutdown_grace_ms {err}", path.display()))?;
+        }
         if let Some(ms) = config.sync_period_ms {
             check_sync_period_ms(u64::from(ms))
                 .map_err(|err| format!("config {}: sync_period_ms {err}", path.display()))?;
@@ -132,6 +137,9 @@ pub(super) struct Settings {
     pub(super) axis_poll_hz: f64,
     pub(super) retention: Retention,
     pub(super) lease_period: std::time::Duration,
+    /// How long open HTTP connections may take to finish once the axes
+    /// are stopped on shutdown.
+    pub(super) shutdown_grace: std::time::Duration,
     pub(super) ascii_listen: Option<SocketAddr>,
     pub(super) auth: AuthConfig,
     pub(super) insecure: bool,
@@ -188,6 +196,11 @@ impl ServeArgs {
                 self.lease_ms
                     .or(file.lease_ms)
                     .unwrap_or(crate::gateway::motion_lease::DEFAULT_PERIOD.as_millis() as u64),
+            ),
+            shutdown_grace: std::time::Duration::from_millis(
+                self.shutdown_grace_ms
+                    .or(file.shutdown_grace_ms)
+                    .unwrap_or(DEFAULT_SHUTDOWN_GRACE_MS),
             ),
             // 0 lifts a limit.
             retention: Retention {

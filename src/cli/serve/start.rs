@@ -160,30 +160,53 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     });
     // The peer's address goes into the audit log.
     let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
-    axum::serve(listener, app)
-        .with_graceful_shutdown(shutdown_signal())
-        .await
-        .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    let (drain, draining) = tokio::sync::oneshot::channel::<()>();
+    let mut server = tokio::spawn(
+        axum::serve(listener, app)
+            .with_graceful_shutdown(async {
+                let _ = draining.await;
+            })
+            .into_future(),
+    );
+    tokio::select! {
+        () = shutdown_signal() => {}
+        ended = &mut server => {
+            // The server ended by itself: an error (it never does otherwise
+            // before the signal). The axes are stopped all the same.
+            stop_axes(&state).await;
+            return Err(match ended {
+                Ok(Err(err)) => CliError::new(format!("HTTP server on {local}: {err}")),
+                Ok(Ok(())) => CliError::new(format!("HTTP server on {local} ended")),
+                Err(err) => CliError::new(format!("HTTP server on {local}: {err}")),
+            });
+        }
+    }
+    let grace_ends = tokio::time::Instant::now() + args.shutdown_grace;
+    // No new connection from now on; the open ones are told to finish.
+    let _ = drain.send(());
     // No drive is left moving because the gateway went away: every axis it
-    // enabled is stopped before it exits.
-    let report = state.gateway.stop_enabled_axes().await;
-    for stopped in &report.stopped {
-        tracing::info!(
-            "shutdown: quick stop of bus {} node {} axis {}",
-            stopped.bus,
-            stopped.node,
-            stopped.axis
-        );
+    // enabled is stopped first, whatever the connections still open are
+    // doing (a client holding a half-sent request must not hold up the
+    // stop).
+    tracing::info!("shutdown: stopping the axes the gateway enabled");
+    stop_axes(&state).await;
+    // The open connections get what is left of the grace period to finish
+    // their requests; then they are closed.
+    match tokio::time::timeout_at(grace_ends, &mut server).await {
+        Ok(Ok(Ok(()))) => {}
+        Ok(Ok(Err(err))) => tracing::warn!("shutdown: HTTP server on {local}: {err}"),
+        Ok(Err(err)) => tracing::warn!("shutdown: HTTP server on {local}: {err}"),
+        Err(_) => {
+            tracing::warn!(
+                "shutdown: HTTP connections still open after the grace period of {} ms: closed",
+                args.shutdown_grace.as_millis()
+            );
+            server.abort();
+        }
     }
-    for failed in &report.failed {
-        tracing::error!(
-            "shutdown: could not stop bus {} node {} axis {:?}: {}",
-            failed.bus,
-            failed.node,
-            failed.axis,
-            crate::api::AppError::from(failed.error.clone()).to_json()
-        );
-    }
+    // A request that finished during the grace period may have set an
+    // axis moving again.
+    stop_axes(&state).await;
     // A running recording ends with all it received written to its file;
     // temporary recordings are removed when the buses are dropped.
     for bus in state.gateway.buses.values() {
@@ -199,4 +222,28 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     drop(shares);
     tracing::info!("serve: stopped");
     Ok(())
+}
+
+/// The stop on shutdown ([`crate::gateway::Gateway::stop_enabled_axes`]),
+/// logged axis by axis.
+async fn stop_axes(state: &AppState) {
+    let report = state.gateway.stop_enabled_axes().await;
+    for stopped in &report.stopped {
+        tracing::info!(
+            "shutdown: quick stop of bus {} node {} axis {}",
+            stopped.axis.bus,
+            stopped.axis.node,
+            stopped.axis.axis
+        );
+    }
+    for failed in &report.failed {
+        tracing::error!(
+            "shutdown: could not stop bus {} node {} axis {:?}: {}; tried: {}",
+            failed.bus,
+            failed.node,
+            failed.axis,
+            crate::api::AppError::from(failed.error.clone()).to_json(),
+            serde_json::json!(failed.attempts)
+        );
+    }
 }

@@ -172,6 +172,12 @@ impl Drive {
         self.kind
     }
 
+    /// The node's SDO channel (the stops of [`super::safe_stop`] use it
+    /// with their own short timeouts).
+    pub fn channel(&self) -> &SdoChannel {
+        &self.channel
+    }
+
     /// The axis's copy of the axis-1 CiA 402 object `index` (a UMC's axis
     /// 2 has its statusword at 0x6841).
     pub fn object(&self, index: u16) -> u16 {
