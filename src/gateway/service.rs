@@ -19,7 +19,7 @@ use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarge
 use crate::sim::rack::Rack;
 
 use super::GatewayError;
-use super::access::Tokens;
+use super::access::{RateLimit, Tokens, WriteLimiter};
 use super::axis_telemetry::AxisTelemetry;
 use super::drive::Drive;
 use super::frames::FrameLog;
@@ -201,6 +201,9 @@ pub struct Gateway {
     pub enabled_axes: Arc<EnabledAxes>,
     /// The tokens and their roles; none: the gateway is open.
     pub tokens: Arc<Tokens>,
+    /// The write rate limit of every token, whichever adapter its writes
+    /// come through (REST, CiA 309-5, CiA 309-3).
+    pub writes: Arc<WriteLimiter>,
 }
 
 impl Gateway {
@@ -237,6 +240,7 @@ impl Gateway {
             leases: Arc::new(MotionLeases::default()),
             enabled_axes: Arc::new(EnabledAxes::default()),
             tokens: Arc::new(Tokens::default()),
+            writes: Arc::new(WriteLimiter::default()),
         }
     }
 
@@ -250,6 +254,22 @@ impl Gateway {
     pub fn with_tokens(mut self, tokens: Tokens) -> Self {
         self.tokens = Arc::new(tokens);
         self
+    }
+
+    /// The same with this write rate limit per token (`None`: none).
+    pub fn with_write_limit(mut self, limit: Option<RateLimit>) -> Self {
+        self.writes = Arc::new(WriteLimiter::new(limit));
+        self
+    }
+
+    /// Takes one write of `who` (a token's name) from the shared write
+    /// rate limit, when the gateway has tokens (an open gateway has no
+    /// names to count by); `rate_limited` when `who` is over its rate.
+    pub fn take_write(&self, who: &str) -> Result<(), GatewayError> {
+        if !self.tokens.required() {
+            return Ok(());
+        }
+        self.writes.take_or_refuse(who)
     }
 
     /// The buses in the order they were given: CiA 309 net `n` is the

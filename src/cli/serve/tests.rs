@@ -311,6 +311,26 @@ fn tokens_and_limits_come_from_the_file_and_the_environment() {
         err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"),
         "{err}"
     );
+    // Fields swapped: the error says what is wrong, never the secret
+    // (issue 19, point 10).
+    let secret = "3f9c2a7be81d4c06a5e9";
+    for entry in [
+        format!("plc:{secret}:operator"),
+        format!("{secret}:operator:plc"),
+        format!("{secret}:plc:operator"),
+    ] {
+        let err = serve_args(&[])
+            .unwrap()
+            .settings_with(Some(&entry))
+            .unwrap_err();
+        assert!(err.starts_with("CANDECK_TOKENS: token "), "{err}");
+        assert!(!err.contains(secret), "{entry}: {err}");
+    }
+    let err = serve_args(&[])
+        .unwrap()
+        .settings_with(Some(&format!("plc:{secret}:operator")))
+        .unwrap_err();
+    assert!(err.contains("not a role"), "{err}");
     std::fs::write(
         &file,
         "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
