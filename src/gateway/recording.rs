@@ -339,7 +339,9 @@ impl Recorder {
                 empty.insert(temp).0.clone()
             }
         };
-        tokio::fs::create_dir_all(&dir).await.map_err(io_error)?;
+        // Only the gateway's user reads what the bus carried (0700, and
+        // each log 0600).
+        crate::gateway::files::create_private_dir(&dir).map_err(io_error)?;
         let started = Timestamp::now();
         let (file, path) = create_log(&dir, &file_stem(self.bus.name()), started)
             .await
@@ -619,12 +621,10 @@ async fn create_log(
             format!("{base}-{n}.log")
         };
         let path = dir.join(name);
-        match tokio::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-            .await
-        {
+        let mut options = tokio::fs::OpenOptions::new();
+        #[cfg(unix)]
+        options.mode(crate::gateway::files::FILE_MODE);
+        match options.write(true).create_new(true).open(&path).await {
             Ok(file) => return Ok((file, path)),
             Err(err) if err.kind() == io::ErrorKind::AlreadyExists => {}
             Err(err) => return Err(err),

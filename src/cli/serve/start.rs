@@ -25,7 +25,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // the gateway listens (a start that fails says one line only).
     let exposure = args.exposure().map_err(CliError::new)?;
     if let Some(dir) = &args.data_dir {
-        std::fs::create_dir_all(dir)
+        // 0700 when candeck makes it (docs/security.md, "Files").
+        crate::gateway::files::create_private_dir(dir)
             .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
     }
     // Opened before the buses, so that their first events are kept.
