@@ -23,6 +23,11 @@ fn start() -> (Server, String, String) {
 
 /// [`start`], with `CANDECK_TOKENS` set when given.
 fn start_with_tokens(tokens: Option<&str>) -> (Server, String, String) {
+    start_with(tokens, &[])
+}
+
+/// [`start_with_tokens`], with more arguments of `candeck serve`.
+fn start_with(tokens: Option<&str>, more: &[&str]) -> (Server, String, String) {
     let mut command = Command::new(env!("CARGO_BIN_EXE_candeck"));
     if let Some(tokens) = tokens {
         command.env("CANDECK_TOKENS", tokens);
@@ -35,6 +40,7 @@ fn start_with_tokens(tokens: Option<&str>) -> (Server, String, String) {
             "--ascii-listen",
             "127.0.0.1:0",
         ])
+        .args(more)
         .env_remove("CANDECK_LOG")
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -56,7 +62,38 @@ fn start_with_tokens(tokens: Option<&str>) -> (Server, String, String) {
         .map(|(address, _)| address.to_string())
         .unwrap_or_else(|| panic!("second line: {second}"));
     let address = http.clone();
-    (Server { child, address }, http, ascii)
+    let server = Server { child, address };
+    wait_identified(&http, tokens);
+    (server, http, ascii)
+}
+
+/// Waits (at most 10 s) until the gateway has identified the three demo
+/// nodes: on a bus with a bit rate the identification takes a few
+/// milliseconds of wire time, and a command sent before it finds a node
+/// without its EDS. With tokens, asks with the first one.
+fn wait_identified(http: &str, tokens: Option<&str>) {
+    use std::io::{Read as _, Write as _};
+    let secret = tokens
+        .and_then(|tokens| tokens.split(',').next())
+        .and_then(|token| token.split(':').nth(2));
+    for _ in 0..200 {
+        let mut stream = std::net::TcpStream::connect(http).expect("the gateway listens");
+        let auth = secret
+            .map(|secret| format!("authorization: Bearer {secret}\r\n"))
+            .unwrap_or_default();
+        write!(
+            stream,
+            "GET /api/v1/buses/demo/nodes HTTP/1.1\r\nhost: {http}\r\n{auth}connection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut answer = String::new();
+        stream.read_to_string(&mut answer).unwrap();
+        if answer.matches(r#""state":"done""#).count() >= 3 {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    panic!("the demo nodes were not identified within 10 s");
 }
 
 /// A CiA 309-3 client: replies (lines starting with `[`) apart from the
@@ -546,5 +583,206 @@ async fn client_vendor(http: &str) -> String {
         VIEWER_TOKEN,
     )
     .await;
-    body["value"].as_u64().unwrap().to_string()
+    body["value"]
+        .as_u64()
+        .unwrap_or_else(|| panic!("no vendor id in {body}"))
+        .to_string()
+}
+
+const INTERNAL_STATE: &str = "ERROR:102 #Request not processed due to internal state.\r\n";
+
+/// `auth` with words after the token is a syntax error, and a failed
+/// `auth` leaves the connection without the token it had before (it used
+/// to keep it).
+#[tokio::test]
+async fn a_failed_or_malformed_auth_drops_the_earlier_token() {
+    let tokens = format!("scada:viewer:{VIEWER_TOKEN},plc:operator:{OPERATOR_TOKEN}");
+    let (_server, _http, ascii) = start_with_tokens(Some(&tokens));
+    let mut client = Client::connect(&ascii).await;
+    assert_eq!(
+        client
+            .send(&format!("[1] auth {OPERATOR_TOKEN} extra"))
+            .await,
+        "[1] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        client.send("[2] 3 w 0x1017 0 u16 0").await,
+        format!("[2] {INTERNAL_STATE}")
+    );
+    assert_eq!(
+        client.send(&format!("[3] auth {OPERATOR_TOKEN}")).await,
+        "[3] OK\r\n"
+    );
+    assert_eq!(client.send("[4] 3 w 0x1017 0 u16 0").await, "[4] OK\r\n");
+    // A re-auth with a wrong token, or a malformed one, drops the operator.
+    for (n, line) in [
+        "auth wrong-token-0123456789".to_string(),
+        format!("auth {OPERATOR_TOKEN} {OPERATOR_TOKEN}"),
+        "auth".to_string(),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let sequence = 10 + 2 * n;
+        let answer = client.send(&format!("[{sequence}] {line}")).await;
+        assert!(
+            answer.starts_with(&format!("[{sequence}] ERROR:10")),
+            "{answer}"
+        );
+        assert_eq!(
+            client
+                .send(&format!("[{}] 3 w 0x1017 0 u16 0", sequence + 1))
+                .await,
+            format!("[{}] {INTERNAL_STATE}", sequence + 1),
+            "after {line}"
+        );
+        assert_eq!(
+            client
+                .send(&format!("[{sequence}] auth {OPERATOR_TOKEN}"))
+                .await,
+            format!("[{sequence}] OK\r\n")
+        );
+    }
+}
+
+/// A token's CiA 309-3 writes and NMT commands draw on its write rate,
+/// the same bucket as its REST writes: over it, 102 (they used to pass,
+/// 200 of 200), and the refusal is audited.
+#[tokio::test]
+async fn writes_share_the_token_write_rate_with_rest() {
+    let tokens = format!("scada:viewer:{VIEWER_TOKEN},plc:operator:{OPERATOR_TOKEN}");
+    // A bucket of 4 that refills once in 1000 s: none during the test.
+    let (_server, http, ascii) = start_with(
+        Some(&tokens),
+        &["--write-burst", "4", "--write-rate", "0.001"],
+    );
+    let mut client = Client::connect(&ascii).await;
+    assert_eq!(
+        client.send(&format!("[1] auth {OPERATOR_TOKEN}")).await,
+        "[1] OK\r\n"
+    );
+    assert_eq!(client.send("[2] 3 w 0x1017 0 u16 1000").await, "[2] OK\r\n");
+    assert_eq!(client.send("[3] 3 start").await, "[3] OK\r\n");
+    // One through REST, with the same token.
+    let response = common::request_with_headers(
+        &http,
+        "PUT",
+        "/api/v1/buses/demo/nodes/3/od/0x1017/0",
+        "application/json",
+        Some(r#"{"value":1000}"#),
+        Duration::from_secs(30),
+        &format!("Authorization: Bearer {OPERATOR_TOKEN}\r\n"),
+    )
+    .await;
+    assert_eq!(response.status, 200, "{}", response.body);
+    assert_eq!(client.send("[4] 3 w 0x1017 0 u16 1000").await, "[4] OK\r\n");
+    // The bucket is empty: writes and NMT are refused, reads are not.
+    assert_eq!(
+        client.send("[5] 3 w 0x1017 0 u16 1000").await,
+        format!("[5] {INTERNAL_STATE}")
+    );
+    assert_eq!(
+        client.send("[6] 3 preop").await,
+        format!("[6] {INTERNAL_STATE}")
+    );
+    assert_eq!(client.send("[7] 3 r 0x1017 0 u16").await, "[7] 1000\r\n");
+    // REST gives the same token 429 now.
+    let response = common::request_with_headers(
+        &http,
+        "PUT",
+        "/api/v1/buses/demo/nodes/3/od/0x1017/0",
+        "application/json",
+        Some(r#"{"value":1000}"#),
+        Duration::from_secs(30),
+        &format!("Authorization: Bearer {OPERATOR_TOKEN}\r\n"),
+    )
+    .await;
+    assert_eq!(response.status, 429, "{}", response.body);
+    // Another token has a bucket of its own (a viewer may read).
+    let mut other = Client::connect(&ascii).await;
+    other.send(&format!("[1] auth {VIEWER_TOKEN}")).await;
+    assert_eq!(other.send("[2] 3 r 0x1017 0 u16").await, "[2] 1000\r\n");
+    let (_, audit) = common::json_with_token(
+        &http,
+        "GET",
+        "/api/v1/events?kind=audit&limit=20",
+        VIEWER_TOKEN,
+    )
+    .await;
+    let limited: Vec<_> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["method"] == "ASCII" && e["status"] == 429)
+        .collect();
+    assert_eq!(limited.len(), 2, "{audit}");
+    assert!(
+        limited
+            .iter()
+            .all(|e| e["who"] == "plc" && e["error_code"] == "rate_limited"),
+        "{audit}"
+    );
+}
+
+/// Writes and NMT commands the parser refuses (`ERROR:101` and the like)
+/// are in the audit log, as REST's 400s are; reads and settings are not.
+#[tokio::test]
+async fn write_lines_the_parser_refuses_are_audited() {
+    let (_server, http, ascii) = start();
+    let mut client = Client::connect(&ascii).await;
+    assert_eq!(
+        client.send("[1] 3 w 0x1017 0 u16 70000").await,
+        "[1] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        client.send("[2] 200 w 0x1017 0 u16 1").await,
+        "[2] ERROR:107 #Unsupported node.\r\n"
+    );
+    assert_eq!(
+        client.send("[3] 3 start now").await,
+        "[3] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        client.send("[4] 3 r 0x1017 0 u99").await,
+        "[4] ERROR:101 #Syntax error.\r\n"
+    );
+    assert_eq!(
+        client.send("[5] set node 0").await,
+        "[5] ERROR:101 #Syntax error.\r\n"
+    );
+    let (status, audit) = common::json(&http, "GET", "/api/v1/events?kind=audit", None).await;
+    assert_eq!(status, 200, "{audit}");
+    let seen: Vec<(String, String, u64)> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["method"] == "ASCII")
+        .map(|e| {
+            (
+                e["path"].as_str().unwrap().to_string(),
+                e["operation"].as_str().unwrap().to_string(),
+                e["status"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    let refused = |path: &str, operation: &str| (path.to_string(), operation.to_string(), 400);
+    let mut expected = vec![
+        refused("[1] 3 w 0x1017 0 u16 70000", "SDO write (refused)"),
+        refused("[2] 200 w 0x1017 0 u16 1", "SDO write (refused)"),
+        refused("[3] 3 start now", "NMT command (refused)"),
+    ];
+    let mut seen = seen;
+    seen.sort();
+    expected.sort();
+    assert_eq!(seen, expected, "{audit:#}");
+    assert!(
+        audit
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|e| e["method"] != "ASCII"
+                || (e["who"].as_str().unwrap().starts_with("ascii:")
+                    && e["error_code"] == "invalid_request")),
+        "{audit:#}"
+    );
 }

@@ -15,7 +15,9 @@
 //! Who made the request is what the access layer ([`super::auth`]) found:
 //! the token's name and role, `anonymous`/`none` without one (or when the
 //! gateway asks for none), `invalid-token`/`none` for a token it does not
-//! know; requests it refused (401, 403, 429) are written too.
+//! know; requests it refused (401, 403, 413, 429) are written too, with the
+//! token's name when the token was valid (a foreign origin or a body too
+//! large is refused with the identity known).
 //!
 //! If the entry cannot be written (disk full), the request has happened
 //! already: its response is sent unchanged, and the failure is logged as
@@ -90,10 +92,14 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             let request = Request::from_parts(parts, Body::from(bytes));
             (next.run(request).await, summary)
         }
-        Err(_) => (
-            super::auth::too_large(limit).into_response(),
-            Some(format!("more than {limit} bytes")),
-        ),
+        Err(_) => {
+            // Refused before the guard saw it: who sent it is found here,
+            // so that a token's oversized request is logged as the token's.
+            let (identity, _) = super::auth::identify(&state.guard.config, &parts.headers);
+            let mut response = super::auth::too_large(limit).into_response();
+            response.extensions_mut().insert(identity);
+            (response, Some(format!("more than {limit} bytes")))
+        }
     };
     let refused_before_handler = matches!(response.status().as_u16(), 401 | 403 | 413 | 429);
     if cia309 && !refused_before_handler {
@@ -101,8 +107,8 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     }
     let target = Target::of(&method, &path);
     let error = response.extensions().get::<ErrorSummary>();
-    // The guard names who it let in or turned away; a body refused for its
-    // size never reached it.
+    // The guard names who it let in or turned away (a body refused for its
+    // size here is named above).
     let identity = response.extensions().get::<Identity>();
     let entry = AuditEntry {
         time,

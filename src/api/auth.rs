@@ -15,16 +15,11 @@
 //! either way, so that a web page a floor PC visits cannot send writes to
 //! an open gateway on `127.0.0.1`.
 
-use std::collections::HashMap;
-use std::sync::Mutex;
-use std::time::Duration;
-
 use axum::extract::{Request, State};
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
-use tokio::time::Instant;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -32,7 +27,7 @@ use utoipa_axum::routes;
 use super::doc::ErrorBody;
 use super::{AppError, AppState};
 use crate::gateway::access::Tokens;
-pub use crate::gateway::access::{Role, Token};
+pub use crate::gateway::access::{RateLimit, Role, Token};
 
 /// What a route asks of a request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -113,9 +108,11 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("GET",    "/api/v1/eds", VIEWER),
     ("GET",    "/metrics", VIEWER),
     // The interface's description: no data, and the docs UI is where one
-    // enters a token to try the API ("Authorize").
+    // enters a token to try the API ("Authorize"). `/api/docs` redirects
+    // to `/api/docs/`, the UI's page.
     ("GET",    "/api/openapi.json", PUBLIC),
     ("GET",    "/api/docs", PUBLIC),
+    ("GET",    "/api/docs/", PUBLIC),
     ("GET",    "/api/docs/{*file}", PUBLIC),
     // CiA 309-5 (the gateway protocol): its SDO reads for viewers, its SDO
     // writes and NMT commands for operators, as the same requests through
@@ -189,25 +186,6 @@ pub fn required(method: &Method, path: &str) -> Access {
                 .find(|(m, pattern, _)| method_fits(m, method) && matches(pattern, path))
         })
         .map_or(ADMIN, |(_, _, access)| *access)
-}
-
-/// The per-token rate limit on writes: a bucket of `burst` writes that
-/// refills at `per_second`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RateLimit {
-    pub per_second: f64,
-    pub burst: u32,
-}
-
-impl Default for RateLimit {
-    /// 10 writes a second, bursts of 40: more than a person clicks, less
-    /// than a runaway script.
-    fn default() -> Self {
-        Self {
-            per_second: 10.0,
-            burst: 40,
-        }
-    }
 }
 
 /// The largest request body by default (JSON bodies are small).
@@ -326,10 +304,11 @@ impl Identity {
     }
 }
 
-/// The middleware's state: the settings and each token's write bucket.
+/// The middleware's state: the settings. The write buckets are the
+/// gateway service's ([`crate::gateway::Gateway::take_write`]), shared
+/// with CiA 309-3.
 pub struct Guard {
     pub config: AuthConfig,
-    buckets: Mutex<HashMap<String, Bucket>>,
 }
 
 impl Default for Guard {
@@ -342,56 +321,18 @@ impl std::fmt::Debug for Guard {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Guard")
             .field("config", &self.config)
-            .finish_non_exhaustive()
+            .finish()
     }
-}
-
-#[derive(Debug, Clone, Copy)]
-struct Bucket {
-    tokens: f64,
-    at: Instant,
 }
 
 impl Guard {
     pub fn new(config: AuthConfig) -> Self {
-        Self {
-            config,
-            buckets: Mutex::new(HashMap::new()),
-        }
+        Self { config }
     }
 
     /// Whether requests need a token (some are configured).
     pub fn required(&self) -> bool {
         self.config.required()
-    }
-
-    /// Takes one write from `name`'s bucket, or says how long until one
-    /// is there.
-    fn take_write(&self, name: &str) -> Result<(), Duration> {
-        let Some(limit) = self.config.rate_limit else {
-            return Ok(());
-        };
-        let now = Instant::now();
-        let burst = f64::from(limit.burst);
-        let mut buckets = self
-            .buckets
-            .lock()
-            .unwrap_or_else(|poison| poison.into_inner());
-        let bucket = buckets.entry(name.to_string()).or_insert(Bucket {
-            tokens: burst,
-            at: now,
-        });
-        let refilled = now.duration_since(bucket.at).as_secs_f64() * limit.per_second;
-        bucket.tokens = (bucket.tokens + refilled).min(burst);
-        bucket.at = now;
-        if bucket.tokens >= 1.0 {
-            bucket.tokens -= 1.0;
-            Ok(())
-        } else {
-            Err(Duration::from_secs_f64(
-                (1.0 - bucket.tokens) / limit.per_second,
-            ))
-        }
     }
 }
 
@@ -437,16 +378,52 @@ fn is_write(method: &Method) -> bool {
     )
 }
 
-/// The middleware (`axum::middleware::from_fn_with_state`): the origin
-/// check and CORS preflights, then the token and its role against
+/// Who a request says it is: the token's name and role when the gateway
+/// has tokens and the request carries one it knows, `invalid-token` for
+/// one it does not, `anonymous` without one (or on an open gateway); and
+/// whether it carried a token at all.
+pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
+    if !config.required() {
+        return (Identity::anonymous(), false);
+    }
+    let given = credentials(headers);
+    let found = given.as_deref().and_then(|given| config.token(given));
+    let identity = match (found, &given) {
+        (Some(token), _) => Identity {
+            name: token.name.clone(),
+            role: Some(token.role),
+        },
+        (None, Some(_)) => Identity {
+            name: "invalid-token".to_string(),
+            role: None,
+        },
+        (None, None) => Identity::anonymous(),
+    };
+    (identity, given.is_some())
+}
+
+/// Whether a request draws on its token's write rate: a state-changing
+/// request under `/api/v1` ([`super::audit::is_state_changing`]) or a CiA
+/// 309-5 command (SDO write, NMT), but never a safety stop.
+pub fn is_rate_limited(method: &Method, path: &str) -> bool {
+    let cia309_command =
+        *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
+    (super::audit::is_state_changing(method, path) || cia309_command) && path != "/api/v1/stop-all"
+}
+
+/// The middleware (`axum::middleware::from_fn_with_state`): who the token
+/// is, the origin check and CORS preflights, then the role against
 /// [`ROUTES`], then the body limit and the write rate. Who it found (or
-/// did not) goes into the response's extensions for the audit log.
+/// did not) goes into the response's extensions for the audit log, also
+/// when it refuses the request for its origin or its size.
 pub async fn guard(State(state): State<AppState>, mut request: Request, next: Next) -> Response {
     let guard = state.guard.clone();
     let config = &guard.config;
     let method = request.method().clone();
     let path = request.uri().path().to_string();
     let headers = request.headers();
+    // First, so that every refusal below is logged with who was refused.
+    let (identity, given) = identify(config, headers);
 
     // Other web pages: a browser sends Origin with every cross-origin
     // request, and with every same-origin one that is not a GET.
@@ -466,7 +443,7 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
                     origin.as_deref().unwrap_or("an unnamed origin")
                 ))
                 .into_response(),
-                Identity::anonymous(),
+                identity,
             ),
         };
     }
@@ -483,55 +460,39 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
                     "{method} {path} from the web page of {origin}: cross-origin writes and streams are not allowed (cors_origins lists the origins that are)"
                 ))
                 .into_response(),
-                Identity::anonymous(),
+                identity,
             );
         }
     }
 
-    let identity = if config.required() {
-        let given = credentials(headers);
-        let found = given.as_deref().and_then(|given| config.token(given));
-        let identity = match (found, &given) {
-            (Some(token), _) => Identity {
-                name: token.name.clone(),
-                role: Some(token.role),
-            },
-            (None, Some(_)) => Identity {
-                name: "invalid-token".to_string(),
-                role: None,
-            },
-            (None, None) => Identity::anonymous(),
-        };
-        if let Access::Needs(needed) = required(&method, &path) {
-            match identity.role {
-                None => {
-                    let message = if given.is_some() {
-                        "the token is not valid: sign in again"
-                    } else {
-                        "this gateway asks for a token: send Authorization: Bearer TOKEN"
-                    };
-                    return with_identity(
-                        AppError::Unauthenticated(message.to_string()).into_response(),
-                        identity,
-                    );
-                }
-                Some(role) if role < needed => {
-                    return with_identity(
-                        AppError::Forbidden(format!(
-                            "token {} has the role {role}; {method} {path} needs {needed}",
-                            identity.name
-                        ))
-                        .into_response(),
-                        identity,
-                    );
-                }
-                Some(_) => {}
+    if config.required()
+        && let Access::Needs(needed) = required(&method, &path)
+    {
+        match identity.role {
+            None => {
+                let message = if given {
+                    "the token is not valid: sign in again"
+                } else {
+                    "this gateway asks for a token: send Authorization: Bearer TOKEN"
+                };
+                return with_identity(
+                    AppError::Unauthenticated(message.to_string()).into_response(),
+                    identity,
+                );
             }
+            Some(role) if role < needed => {
+                return with_identity(
+                    AppError::Forbidden(format!(
+                        "token {} has the role {role}; {method} {path} needs {needed}",
+                        identity.name
+                    ))
+                    .into_response(),
+                    identity,
+                );
+            }
+            Some(_) => {}
         }
-        identity
-    } else {
-        Identity::anonymous()
-    };
+    }
 
     let limit = config.body_limit(&method, &path);
     let length = headers
@@ -541,24 +502,12 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     if length.is_some_and(|length| length > limit as u64) {
         return with_identity(too_large(limit).into_response(), identity);
     }
-    // Writes of a token (a safety stop never waits).
-    if config.required()
-        && super::audit::is_state_changing(&method, &path)
-        && path != "/api/v1/stop-all"
-        && let Err(wait) = guard.take_write(&identity.name)
+    // Writes of a token (a safety stop never waits), from the bucket CiA
+    // 309-3 draws on too.
+    if is_rate_limited(&method, &path)
+        && let Err(refused) = state.gateway.take_write(&identity.name)
     {
-        let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
-        return with_identity(
-            AppError::RateLimited {
-                message: format!(
-                    "token {} sends writes faster than allowed; try again in {seconds} s",
-                    identity.name
-                ),
-                retry_after_s: seconds,
-            }
-            .into_response(),
-            identity,
-        );
+        return with_identity(AppError::from(refused).into_response(), identity);
     }
 
     // A body without Content-Length is read here, up to the route's limit
@@ -720,7 +669,8 @@ mod tests {
         let err = Token::new("p l c", Role::Operator, good).unwrap_err();
         assert!(err.contains("not a name"), "{err}");
         let err = Token::parse_entry(&format!("plc:superuser:{good}")).unwrap_err();
-        assert!(err.contains("unknown role 'superuser'"), "{err}");
+        assert!(err.contains("not a role"), "{err}");
+        assert!(!err.contains("superuser"), "{err}");
         let err = Token::parse_entry("plc").unwrap_err();
         assert!(err.contains("NAME:ROLE:TOKEN"), "{err}");
         let token = Token::parse_entry(&format!("plc:admin:{good}")).unwrap();

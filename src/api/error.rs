@@ -154,6 +154,9 @@ pub enum AppError {
     /// A request body larger than the gateway reads.
     #[error("{0}")]
     PayloadTooLarge(String),
+    /// A batch with more entries than one request may carry.
+    #[error("{0}")]
+    TooManyEntries(String),
     /// No token, or one the gateway does not know (the gateway asks for
     /// tokens); answered with `WWW-Authenticate: Bearer`.
     #[error("{0}")]
@@ -226,6 +229,7 @@ impl AppError {
             Self::UnknownLease(_) => (StatusCode::NOT_FOUND, "unknown_lease"),
             Self::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
             Self::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            Self::TooManyEntries(_) => (StatusCode::BAD_REQUEST, "too_many_entries"),
             Self::Unauthenticated(_) => (StatusCode::UNAUTHORIZED, "unauthenticated"),
             Self::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
             Self::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
@@ -313,6 +317,13 @@ impl From<GatewayError> for AppError {
             GatewayError::UnknownLease(message) => Self::UnknownLease(message),
             GatewayError::Unauthenticated(message) => Self::Unauthenticated(message),
             GatewayError::Forbidden(message) => Self::Forbidden(message),
+            GatewayError::RateLimited {
+                message,
+                retry_after_s,
+            } => Self::RateLimited {
+                message,
+                retry_after_s,
+            },
             GatewayError::Internal(detail) => Self::Internal(detail),
         }
     }

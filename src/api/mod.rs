@@ -128,9 +128,13 @@ impl AppState {
     }
 
     /// The same state with these access settings (tokens, CORS, limits);
-    /// the gateway service gets the tokens, for its other adapters.
+    /// the gateway service gets the tokens and the write rate limit, for
+    /// its other adapters.
     pub fn with_auth(mut self, config: auth::AuthConfig) -> Self {
-        self.gateway = self.gateway.with_tokens(config.tokens.clone());
+        self.gateway = self
+            .gateway
+            .with_tokens(config.tokens.clone())
+            .with_write_limit(config.rate_limit);
         self.guard = Arc::new(auth::Guard::new(config));
         self
     }

@@ -242,6 +242,7 @@ async fn scan(
 
 /// An NMT command (CiA 301 §7.2.8.3.1).
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct NmtRequest {
     /// `start`, `stop`, `pre_operational`, `reset_node` or
     /// `reset_communication`.

@@ -357,6 +357,7 @@ async fn read_one(
 
 /// A value to write.
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct WriteRequest {
     /// Typed by the EDS: a number, a string (64-bit integers may be
     /// strings; `os` is base64), a boolean.
@@ -450,11 +451,17 @@ async fn write_one(
     ))
 }
 
-/// Entries to read, each `[index, sub]` (numbers or EDS names).
+/// The most entries one batch read may carry: each is an SDO transfer on
+/// the node's one channel, which other clients wait behind.
+pub const MAX_BATCH_ENTRIES: usize = 256;
+
+/// Entries to read, each `[index, sub]` (numbers or EDS names); at most
+/// 256.
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[schema(example = json!({"entries": [["0x6041", 0], ["a1_Motor_status", "Current"]]}))]
 pub struct BatchRequest {
-    #[schema(value_type = Vec<Vec<AnyValue>>)]
+    #[schema(value_type = Vec<Vec<AnyValue>>, max_items = 256)]
     pub entries: Vec<Json>,
 }
 
@@ -486,7 +493,7 @@ pub struct BatchValue {
     request_body = BatchRequest,
     responses(
         (status = 200, description = "One result per entry, in order; a failed entry carries `error`", body = [BatchValue]),
-        (status = 400, description = "`invalid_request`", body = ErrorBody),
+        (status = 400, description = "`invalid_request`; `too_many_entries` for more than 256 entries", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`", body = ErrorBody),
     ))]
 async fn read_batch(
@@ -494,6 +501,12 @@ async fn read_batch(
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<BatchRequest>,
 ) -> Result<ApiJson<Json>, AppError> {
+    if request.entries.len() > MAX_BATCH_ENTRIES {
+        return Err(AppError::TooManyEntries(format!(
+            "{} entries: a batch read takes at most {MAX_BATCH_ENTRIES} (send several)",
+            request.entries.len()
+        )));
+    }
     let (served, info) = known_node(&state, &bus, &id)?;
     let dict = dictionary(&info);
     let mut results = Vec::with_capacity(request.entries.len());

@@ -238,6 +238,7 @@ async fn list_pdos(
 /// or the EDS name) or, instead, `name`; `sub` (number or EDS name, 0 when
 /// absent); `bits` (the data type's length when absent).
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[schema(example = json!({"index": "a1_Statusword"}))]
 pub struct MappingEntryRequest {
     #[schema(value_type = Option<AnyValue>, example = "0x6041")]
@@ -254,6 +255,7 @@ pub struct MappingEntryRequest {
 
 /// A PDO to configure; absent fields keep the node's value.
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[schema(example = json!({"transmission_type": 1, "mapping": [{"index": "a1_Statusword"}, {"index": "0x6064", "sub": 0}]}))]
 pub struct PdoUpdate {
     /// If given, must be the number in the path.
@@ -377,6 +379,7 @@ async fn put_pdo(
 /// Values to send, by the EDS name of each mapped object (or `"0x6040"`,
 /// `"0x6040:0"`).
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[schema(example = json!({"values": {"a1_Controlword": 15}}))]
 pub struct RpdoSend {
     #[schema(value_type = Object)]
@@ -530,6 +533,7 @@ pub struct SyncState {
 
 /// A SYNC period to set.
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[schema(example = json!({"period_ms": 10}))]
 pub struct SyncSetting {
     /// The period in ms; 0 turns SYNC off.

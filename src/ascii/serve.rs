@@ -17,6 +17,7 @@ use crate::canopen::nmt::NmtState;
 use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
 use crate::cia309::reply::{self, ErrorCode, Event, Reply};
 use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
+use crate::gateway::GatewayError;
 use crate::gateway::access::Role;
 use crate::gateway::registry::{NodeEvent, OfflineReason};
 
@@ -34,16 +35,23 @@ const QUEUE: usize = 256;
 pub struct Session {
     gateway: Cia309Gateway,
     identity: Identity,
+    /// Who it is without a token: what a failed `auth` returns it to.
+    anonymous: Identity,
     default_net: u16,
     default_node: Option<u8>,
     options: TransferOptions,
     last_sequence: u32,
 }
 
+/// The longest part of a refused line the audit log keeps (a line may be
+/// [`MAX_LINE`] long).
+const MAX_AUDITED_LINE: usize = 256;
+
 /// `[seq] auth TOKEN`: not part of CiA 309-3, candeck's way to give a
 /// connection a token when the gateway has tokens (`docs/cia309.md`,
-/// "Tokens"); the sequence number and the token.
-fn auth_line(line: &str) -> Option<(u32, &str)> {
+/// "Tokens"); the sequence number and the token, `None` for a line with
+/// no token or with more after it (a syntax error).
+fn auth_line(line: &str) -> Option<(u32, Option<&str>)> {
     let mut words = line.split_whitespace();
     let first = words.next()?;
     let sequence = first
@@ -57,15 +65,23 @@ fn auth_line(line: &str) -> Option<(u32, &str)> {
     if !command.eq_ignore_ascii_case("auth") {
         return None;
     }
-    let token = words.next().unwrap_or("");
+    let token = match (words.next(), words.next()) {
+        (Some(token), None) => Some(token),
+        _ => None,
+    };
     Some((sequence.unwrap_or(0), token))
 }
 
 impl Session {
-    /// `auth TOKEN`: the connection takes the token's name and role.
-    fn authenticate(&mut self, sequence: u32, token: &str) -> Reply {
+    /// `auth TOKEN`: the connection takes the token's name and role. A
+    /// failed `auth` (an unknown token, none, or words after it) leaves
+    /// the connection with no token at all, whatever it had before: a
+    /// client that meant to change who it is does not carry on as the
+    /// earlier one.
+    fn authenticate(&mut self, sequence: u32, token: Option<&str>) -> Reply {
         self.last_sequence = sequence;
-        match self.gateway.tokens().authenticate(token) {
+        let found = token.and_then(|token| self.gateway.tokens().authenticate(token));
+        match found {
             Some((name, role)) => {
                 self.identity.who = name;
                 self.identity.role = role.name().to_string();
@@ -73,11 +89,17 @@ impl Session {
                 Reply::Ok(sequence)
             }
             None => {
+                self.identity = self.anonymous.clone();
                 tracing::warn!(
-                    "ascii: {} sent an unknown token",
+                    "ascii: {} sent an unknown token, or a malformed auth line",
                     self.identity.peer.as_deref().unwrap_or("a client")
                 );
-                Reply::Error(sequence, ErrorCode::InternalState)
+                let code = if token.is_some() {
+                    ErrorCode::InternalState
+                } else {
+                    ErrorCode::Syntax
+                };
+                Reply::Error(sequence, code)
             }
         }
     }
@@ -97,6 +119,7 @@ impl Session {
     pub fn new(gateway: Cia309Gateway, identity: Identity) -> Self {
         Self {
             gateway,
+            anonymous: identity.clone(),
             identity,
             default_net: 1,
             default_node: None,
@@ -121,6 +144,24 @@ impl Session {
             Err(error) => {
                 let sequence = error.sequence.unwrap_or(self.last_sequence);
                 self.last_sequence = sequence;
+                // A write or NMT command refused for its form is still an
+                // attempt to change a device: logged as REST logs its 400s.
+                if let Some(change) = command::attempted_change(line) {
+                    let path = audited_line(line);
+                    let origin = Origin {
+                        identity: &self.identity,
+                        method: "ASCII",
+                        path: &path,
+                    };
+                    let refused = GatewayError::InvalidRequest(format!(
+                        "ERROR:{} {}",
+                        error.code.number(),
+                        error.code.description()
+                    ));
+                    self.gateway
+                        .audit_rejected(origin, 0, None, change.what(), &refused)
+                        .await;
+                }
                 return Reply::Error(sequence, error.code);
             }
         };
@@ -143,6 +184,27 @@ impl Session {
                     .audit_refused(origin, net, request.node, what)
                     .await;
             }
+            return Reply::Error(sequence, ErrorCode::InternalState);
+        }
+        // Writes and NMT commands draw on the token's write rate, the same
+        // bucket as its REST and CiA 309-5 writes; over it, 102 (CiA 309-3
+        // has no "too many requests": the request is not processed for the
+        // gateway's state, docs/cia309.md).
+        if let Some(what) = match request.command {
+            Command::Write { .. } => Some("SDO write"),
+            Command::Nmt(_) => Some("NMT command"),
+            _ => None,
+        } && let Err(refused) = self.gateway.take_write(&self.identity)
+        {
+            let path = audited_line(line);
+            let origin = Origin {
+                identity: &self.identity,
+                method: "ASCII",
+                path: &path,
+            };
+            self.gateway
+                .audit_rejected(origin, net, request.node, what, &refused)
+                .await;
             return Reply::Error(sequence, ErrorCode::InternalState);
         }
         let node = request.node.unwrap_or(0);
@@ -206,6 +268,20 @@ impl Session {
             Err(failure) => failure_reply(sequence, failure),
         }
     }
+}
+
+/// A line as the audit log keeps a refused one: without its end, at most
+/// [`MAX_AUDITED_LINE`] bytes.
+fn audited_line(line: &str) -> String {
+    let line = line.trim_end_matches(['\r', '\n']);
+    if line.len() <= MAX_AUDITED_LINE {
+        return line.to_string();
+    }
+    let mut cut = MAX_AUDITED_LINE;
+    while !line.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}…", &line[..cut])
 }
 
 fn failure_reply(sequence: u32, failure: Failure) -> Reply {

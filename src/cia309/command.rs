@@ -365,6 +365,46 @@ pub fn parse(line: &str, context: &Context) -> Result<Line, ParseError> {
     }
 }
 
+/// What a line asks to change, read from its command word alone: for the
+/// audit log of lines [`parse`] refuses (a malformed SDO write is still
+/// someone trying to write). `None` for reads, settings, help, and lines
+/// without a command word.
+pub fn attempted_change(line: &str) -> Option<Change> {
+    let mut tokens = Tokens { rest: strip(line) };
+    let mut word = tokens.next()?;
+    if word.starts_with('[') {
+        word = tokens.next()?;
+    }
+    // Up to two numbers (net, node) before the command.
+    for _ in 0..2 {
+        if word.starts_with(|c: char| c.is_ascii_digit()) {
+            word = tokens.next()?;
+        }
+    }
+    match word.to_ascii_lowercase().as_str() {
+        "w" | "write" => Some(Change::Write),
+        "start" | "stop" | "preop" | "preoperational" | "reset" => Some(Change::Nmt),
+        _ => None,
+    }
+}
+
+/// What kind of change a line asks for ([`attempted_change`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Change {
+    Write,
+    Nmt,
+}
+
+impl Change {
+    /// As the audit log names it.
+    pub fn what(self) -> &'static str {
+        match self {
+            Self::Write => "SDO write",
+            Self::Nmt => "NMT command",
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -541,5 +581,23 @@ mod tests {
         assert_eq!(err("[4] set sdo_timeout 0"), (Some(4), 101));
         assert_eq!(err("[4] set sdo_block 2"), (Some(4), 101));
         assert_eq!(err("[4] set"), (Some(4), 101));
+    }
+
+    #[test]
+    fn refused_lines_are_known_by_their_command_word() {
+        let change = |line| attempted_change(line);
+        assert_eq!(change("[4] 1 w 0x1017 0 u16 70000"), Some(Change::Write));
+        assert_eq!(
+            change("[4] 1 2 WRITE 0x1017 0 bogus 1"),
+            Some(Change::Write)
+        );
+        assert_eq!(change("[4] 300 w 0x1017 0 u16 1"), Some(Change::Write));
+        assert_eq!(change("1 w 0x1017 0 u16 1"), Some(Change::Write));
+        assert_eq!(change("[4] 1 start now"), Some(Change::Nmt));
+        assert_eq!(change("[4] reset everything"), Some(Change::Nmt));
+        assert_eq!(change("[4] 1 r 0x1000 0 u24"), None);
+        assert_eq!(change("[4] set node 0"), None);
+        assert_eq!(change("[4] # w 0x1017"), None);
+        assert_eq!(change(""), None);
     }
 }

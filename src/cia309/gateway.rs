@@ -16,7 +16,7 @@ use crate::can::Timestamp;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::{AbortCode, ClientConfig};
-use crate::gateway::access::{Role, Tokens};
+use crate::gateway::access::{Role, Tokens, WriteLimiter};
 use crate::gateway::history::{AuditEntry, History};
 use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed};
 
@@ -133,6 +133,8 @@ pub struct Cia309Gateway {
     history: History,
     /// The gateway's tokens and roles: the same as REST's.
     tokens: Arc<Tokens>,
+    /// The write rate limit per token: the same buckets as REST's.
+    writes: Arc<WriteLimiter>,
 }
 
 impl Cia309Gateway {
@@ -141,6 +143,7 @@ impl Cia309Gateway {
             buses: Arc::new(gateway.buses_in_order()),
             history: gateway.history.clone(),
             tokens: gateway.tokens.clone(),
+            writes: gateway.writes.clone(),
         }
     }
 
@@ -153,6 +156,16 @@ impl Cia309Gateway {
     /// `needed` (anyone may on an open gateway).
     pub fn allows(&self, held: Option<Role>, needed: Role) -> bool {
         self.tokens.allows(held, needed)
+    }
+
+    /// Takes one write (an SDO write, an NMT command) of `identity` from
+    /// the write rate limit REST applies to the same token; an open gateway
+    /// (no tokens) has none.
+    pub fn take_write(&self, identity: &Identity) -> Result<(), GatewayError> {
+        if !self.tokens.required() {
+            return Ok(());
+        }
+        self.writes.take_or_refuse(&identity.who)
     }
 
     /// How many nets there are (1 to this).
@@ -336,6 +349,22 @@ impl Cia309Gateway {
         };
         let operation = format!("{what} (refused)");
         self.audit(&origin, net, node, &operation, None, None, Some(&error))
+            .await;
+    }
+
+    /// Records a command refused before it ran for `error` (a line the
+    /// parser refused, a write over the rate limit); `net` 0 when the
+    /// line's net is not known.
+    pub async fn audit_rejected(
+        &self,
+        origin: Origin<'_>,
+        net: u16,
+        node: Option<u8>,
+        what: &str,
+        error: &GatewayError,
+    ) {
+        let operation = format!("{what} (refused)");
+        self.audit(&origin, net, node, &operation, None, None, Some(error))
             .await;
     }
 

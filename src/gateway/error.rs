@@ -85,6 +85,10 @@ pub enum GatewayError {
     /// The client's role is below what the request needs.
     #[error("{0}")]
     Forbidden(String),
+    /// The token sends writes faster than its rate limit
+    /// ([`crate::gateway::access::WriteLimiter`]).
+    #[error("{message}")]
+    RateLimited { message: String, retry_after_s: u64 },
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -128,6 +132,7 @@ impl GatewayError {
             Self::UnknownLease(_) => (404, "unknown_lease"),
             Self::Unauthenticated(_) => (401, "unauthenticated"),
             Self::Forbidden(_) => (403, "forbidden"),
+            Self::RateLimited { .. } => (429, "rate_limited"),
             Self::Internal(_) => (500, "internal_error"),
         }
     }

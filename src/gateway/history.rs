@@ -89,6 +89,12 @@ pub enum HistoryError {
         path: String,
         source: rusqlite::Error,
     },
+    /// Its file could not be made private (0600).
+    #[error("history database {path}: {source}")]
+    File {
+        path: String,
+        source: std::io::Error,
+    },
     /// The database was written by a newer candeck.
     #[error("history database is at schema version {0}, newer than this candeck knows ({1})")]
     TooNew(i64, usize),
@@ -217,6 +223,25 @@ impl History {
             path: path.display().to_string(),
             source,
         };
+        // Only the gateway's user reads the audit log: the file is made
+        // 0600 before SQLite opens it (its -wal and -shm take its mode),
+        // and tightened if an older gateway made it 0644.
+        let file_error = |path: &Path| {
+            let path = path.display().to_string();
+            move |source| HistoryError::File { path, source }
+        };
+        crate::gateway::files::private_file_options()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(file_error(&path))?;
+        for suffix in ["", "-wal", "-shm"] {
+            let mut side = path.clone().into_os_string();
+            side.push(suffix);
+            let side = Path::new(&side);
+            crate::gateway::files::tighten(side).map_err(file_error(side))?;
+        }
         let conn = Connection::open(&path).map_err(open_error)?;
         // Another process (a backup, sqlite3 on the command line) may hold
         // the lock for a moment.

@@ -11,7 +11,9 @@
 //!   rules every adapter obeys ([`check_sdo_allowed`], a drive's checks),
 //!   NMT.
 //! - [`error`]: [`GatewayError`], the service's one error type.
-//! - [`access`]: tokens and roles, for every adapter.
+//! - [`access`]: tokens and roles, and the write rate limit, for every
+//!   adapter.
+//! - [`files`]: the data directory's modes (0700 directories, 0600 files).
 //! - [`leases`]: the motion leases granted and the supervisor that stops
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
@@ -51,6 +53,7 @@ pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
 pub mod error;
+pub mod files;
 pub mod frames;
 pub mod history;
 pub mod leases;

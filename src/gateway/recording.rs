@@ -17,7 +17,8 @@
 //! [`RecordingStatus::lost`], never dropped silently.
 //!
 //! Where the files go: with `--data-dir DIR`, into `DIR/recordings/`, where
-//! they stay. Without it, into a private directory under the system's
+//! they stay up to a quota (`recordings_quota_mb`, [`prune`]: the oldest
+//! go first, each removal audited by the gateway service). Without it, into a private directory under the system's
 //! temporary directory, made on the first recording, which is removed with
 //! the [`Recorder`] (the gateway's exit); there a new recording of the bus
 //! deletes the one before.
@@ -339,7 +340,9 @@ impl Recorder {
                 empty.insert(temp).0.clone()
             }
         };
-        tokio::fs::create_dir_all(&dir).await.map_err(io_error)?;
+        // Only the gateway's user reads what the bus carried (0700, and
+        // each log 0600).
+        crate::gateway::files::create_private_dir(&dir).map_err(io_error)?;
         let started = Timestamp::now();
         let (file, path) = create_log(&dir, &file_stem(self.bus.name()), started)
             .await
@@ -403,6 +406,13 @@ impl Recorder {
         Ok(self.status())
     }
 
+    /// The file of the running or last recording, which pruning keeps.
+    pub fn current_path(&self) -> Option<PathBuf> {
+        lock(&self.current)
+            .as_ref()
+            .map(|session| session.path.clone())
+    }
+
     /// The running or last recording's status.
     pub fn status(&self) -> RecordingStatus {
         lock(&self.current)
@@ -449,6 +459,70 @@ impl Recorder {
             self.bus.name()
         ))
     }
+}
+
+/// The most the kept recordings (`--data-dir DIR/recordings`) may take
+/// together by default, in MiB (`recordings_quota_mb`).
+pub const DEFAULT_QUOTA_MB: u64 = 1024;
+
+/// The quota of the kept recordings: the directory they are in, and the
+/// most bytes its logs may take together.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecordingsQuota {
+    pub dir: PathBuf,
+    pub bytes: u64,
+}
+
+/// A log removed by [`prune`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Pruned {
+    pub file_name: String,
+    pub bytes: u64,
+}
+
+/// Removes the oldest logs (`*.log`, by modification time, then name) of
+/// `quota.dir` until together they take at most `quota.bytes`; never one
+/// of `keep` (the running and the last recording of each bus), so that
+/// the quota may be exceeded by those. What it removed, oldest first.
+pub fn prune(quota: &RecordingsQuota, keep: &[PathBuf]) -> io::Result<Vec<Pruned>> {
+    let entries = match std::fs::read_dir(&quota.dir) {
+        Ok(entries) => entries,
+        // No recording yet.
+        Err(err) if err.kind() == io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(err) => return Err(err),
+    };
+    let mut logs = Vec::new();
+    for entry in entries {
+        let entry = entry?;
+        let path = entry.path();
+        let meta = entry.metadata()?;
+        if !meta.is_file() || path.extension().is_none_or(|ext| ext != "log") {
+            continue;
+        }
+        let modified = meta.modified().unwrap_or(std::time::UNIX_EPOCH);
+        logs.push((modified, path, meta.len()));
+    }
+    logs.sort();
+    let mut total: u64 = logs.iter().map(|(_, _, len)| len).sum();
+    let mut pruned = Vec::new();
+    for (_, path, len) in logs {
+        if total <= quota.bytes {
+            break;
+        }
+        if keep.contains(&path) {
+            continue;
+        }
+        std::fs::remove_file(&path)?;
+        total -= len;
+        pruned.push(Pruned {
+            file_name: path
+                .file_name()
+                .map(|name| name.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            bytes: len,
+        });
+    }
+    Ok(pruned)
 }
 
 /// What a recording task is to do.
@@ -583,12 +657,10 @@ async fn create_log(
             format!("{base}-{n}.log")
         };
         let path = dir.join(name);
-        match tokio::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-            .await
-        {
+        let mut options = tokio::fs::OpenOptions::new();
+        #[cfg(unix)]
+        options.mode(crate::gateway::files::FILE_MODE);
+        match options.write(true).create_new(true).open(&path).await {
             Ok(file) => return Ok((file, path)),
             Err(err) if err.kind() == io::ErrorKind::AlreadyExists => {}
             Err(err) => return Err(err),

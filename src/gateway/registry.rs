@@ -469,6 +469,11 @@ impl Node {
 
 struct State {
     nodes: BTreeMap<NodeId, Node>,
+    /// The channels a scan probes unknown node ids with. A node that
+    /// appears while its probe runs takes over that channel, so that
+    /// everyone's transfers queue behind the probe: two SDO clients talking
+    /// to one server at once see each other's answers.
+    probe_channels: BTreeMap<NodeId, SdoChannel>,
     consumer: HeartbeatConsumer,
     bus_up: bool,
 }
@@ -567,6 +572,7 @@ impl NodeRegistry {
             catalog,
             state: Mutex::new(State {
                 nodes: BTreeMap::new(),
+                probe_channels: BTreeMap::new(),
                 consumer: HeartbeatConsumer::new(),
                 bus_up,
             }),
@@ -721,11 +727,14 @@ impl Shared {
         now: Instant,
     ) -> (&'a mut Node, bool) {
         let mut new = false;
+        let probing = state.probe_channels.get(&id).cloned();
         let node = state.nodes.entry(id).or_insert_with(|| {
             new = true;
             Node {
                 id,
-                channel: SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone()),
+                channel: probing.unwrap_or_else(|| {
+                    SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone())
+                }),
                 nmt: None,
                 online: true,
                 last_seen: now,
@@ -973,17 +982,20 @@ impl Shared {
     }
 
     async fn probe(self: &Arc<Self>, id: NodeId) -> Probe {
-        let known = {
-            let state = self.lock();
+        let (known, channel) = {
+            let mut state = self.lock();
             match state.nodes.get(&id) {
-                Some(node) => Some(node.channel.clone()),
+                Some(node) => (Some(node.channel.clone()), node.channel.clone()),
                 None => {
                     // Under the state lock: a node added from now on waits
-                    // for this probe before it is identified.
+                    // for this probe before it is identified, and takes
+                    // this probe's channel as its own.
                     self.probing.send_modify(|probing| {
                         probing.insert(id);
                     });
-                    None
+                    let channel = SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone());
+                    state.probe_channels.insert(id, channel.clone());
+                    (None, channel)
                 }
             }
         };
@@ -994,9 +1006,7 @@ impl Shared {
                     timeout: self.config.probe_timeout,
                     ..self.config.sdo.clone()
                 };
-                SdoChannel::new(self.bus.clone(), id, config)
-                    .upload(DEVICE_TYPE, 0)
-                    .await
+                channel.upload_with(DEVICE_TYPE, 0, Some(&config)).await
             }
         };
         let probe = Probe::of(&result);
@@ -1026,6 +1036,7 @@ impl Shared {
             Probe::BusFailed(_) => {}
         }
         if known.is_none() {
+            state.probe_channels.remove(&id);
             self.probing.send_modify(|probing| {
                 probing.remove(&id);
             });

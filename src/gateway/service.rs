@@ -12,6 +12,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use crate::can::Timestamp;
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::canopen::NodeId;
@@ -19,16 +20,17 @@ use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarge
 use crate::sim::rack::Rack;
 
 use super::GatewayError;
-use super::access::Tokens;
+use super::access::{RateLimit, Tokens, WriteLimiter};
 use super::axis_telemetry::AxisTelemetry;
 use super::drive::Drive;
 use super::frames::FrameLog;
+use super::history::AuditEntry;
 use super::history::History;
 use super::leases::MotionLeases;
 use super::led_preview::LedPreviews;
 use super::load::{LoadMeter, Traffic};
 use super::profile::EdsCatalog;
-use super::recording::Recorder;
+use super::recording::{Pruned, Recorder, RecordingsQuota, prune};
 use super::registry::{NodeEvent, NodeInfo, NodeRegistry, RegistryConfig};
 use super::safe_stop::EnabledAxes;
 use super::sync::SyncService;
@@ -210,6 +212,11 @@ pub struct Gateway {
     pub enabled_axes: Arc<EnabledAxes>,
     /// The tokens and their roles; none: the gateway is open.
     pub tokens: Arc<Tokens>,
+    /// The write rate limit of every token, whichever adapter its writes
+    /// come through (REST, CiA 309-5, CiA 309-3).
+    pub writes: Arc<WriteLimiter>,
+    /// The quota of the kept recordings (`--data-dir`); `None`: none.
+    pub recordings_quota: Option<Arc<RecordingsQuota>>,
 }
 
 impl Gateway {
@@ -246,6 +253,8 @@ impl Gateway {
             leases: Arc::new(MotionLeases::default()),
             enabled_axes: Arc::new(EnabledAxes::default()),
             tokens: Arc::new(Tokens::default()),
+            writes: Arc::new(WriteLimiter::default()),
+            recordings_quota: None,
         }
     }
 
@@ -259,6 +268,101 @@ impl Gateway {
     pub fn with_tokens(mut self, tokens: Tokens) -> Self {
         self.tokens = Arc::new(tokens);
         self
+    }
+
+    /// The same with this write rate limit per token (`None`: none).
+    pub fn with_write_limit(mut self, limit: Option<RateLimit>) -> Self {
+        self.writes = Arc::new(WriteLimiter::new(limit));
+        self
+    }
+
+    /// The same, keeping the recordings within `quota`
+    /// ([`Gateway::prune_recordings`]).
+    pub fn with_recordings_quota(mut self, quota: RecordingsQuota) -> Self {
+        self.recordings_quota = Some(Arc::new(quota));
+        self
+    }
+
+    /// Removes the oldest kept recordings beyond the quota (never a bus's
+    /// running or last one), each removal written to the audit log as the
+    /// gateway's; what it removed.
+    pub async fn prune_recordings(&self) -> Vec<Pruned> {
+        let Some(quota) = self.recordings_quota.clone() else {
+            return Vec::new();
+        };
+        let keep: Vec<_> = self
+            .buses
+            .values()
+            .filter_map(|bus| bus.recorder.current_path())
+            .collect();
+        let pruned = match tokio::task::spawn_blocking(move || prune(&quota, &keep)).await {
+            Ok(Ok(pruned)) => pruned,
+            Ok(Err(err)) => {
+                tracing::warn!("recordings: pruning failed: {err}");
+                return Vec::new();
+            }
+            Err(err) => {
+                tracing::error!("recordings: pruning task: {err}");
+                return Vec::new();
+            }
+        };
+        for removed in &pruned {
+            tracing::info!(
+                "recordings: {} ({} bytes) removed: over recordings_quota_mb",
+                removed.file_name,
+                removed.bytes
+            );
+            let entry = AuditEntry {
+                time: Timestamp::now(),
+                who: "gateway".to_string(),
+                peer: None,
+                role: "system".to_string(),
+                method: "DELETE".to_string(),
+                path: format!("recordings/{}", removed.file_name),
+                operation: "prune recording (over quota)".to_string(),
+                bus: None,
+                node: None,
+                axis: None,
+                item: Some(removed.file_name.clone()),
+                request: Some(format!("{{\"bytes\":{}}}", removed.bytes)),
+                status: 200,
+                error_code: None,
+                abort_code: None,
+            };
+            if let Err(err) = self.history.audit(entry).await {
+                tracing::error!(
+                    "audit: pruned recording {}: not recorded: {err}",
+                    removed.file_name
+                );
+            }
+        }
+        pruned
+    }
+
+    /// Prunes the recordings now and then every `period`, until the task
+    /// is aborted.
+    pub fn spawn_recordings_pruner(
+        &self,
+        period: std::time::Duration,
+    ) -> tokio::task::JoinHandle<()> {
+        let gateway = self.clone();
+        tokio::spawn(async move {
+            let mut ticks = tokio::time::interval(period);
+            loop {
+                ticks.tick().await;
+                gateway.prune_recordings().await;
+            }
+        })
+    }
+
+    /// Takes one write of `who` (a token's name) from the shared write
+    /// rate limit, when the gateway has tokens (an open gateway has no
+    /// names to count by); `rate_limited` when `who` is over its rate.
+    pub fn take_write(&self, who: &str) -> Result<(), GatewayError> {
+        if !self.tokens.required() {
+            return Ok(());
+        }
+        self.writes.take_or_refuse(who)
     }
 
     /// The buses in the order they were given: CiA 309 net `n` is the

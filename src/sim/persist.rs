@@ -88,7 +88,16 @@ pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError>
         source,
     };
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(write_error)?;
+        // In the gateway's data directory: only its user reads it (0700
+        // and 0600, as the gateway's own files).
+        let mut builder = std::fs::DirBuilder::new();
+        builder.recursive(true);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::DirBuilderExt;
+            builder.mode(0o700);
+        }
+        builder.create(dir).map_err(write_error)?;
     }
     let entries: Vec<Json> = saved
         .iter()
@@ -103,7 +112,20 @@ pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError>
         .collect();
     let text = serde_json::to_string_pretty(&entries).unwrap_or_else(|_| "[]".to_string());
     let temporary = path.with_extension("json.tmp");
-    std::fs::write(&temporary, text).map_err(write_error)?;
+    let mut options = std::fs::OpenOptions::new();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.mode(0o600);
+    }
+    let mut file = options
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(&temporary)
+        .map_err(write_error)?;
+    std::io::Write::write_all(&mut file, text.as_bytes()).map_err(write_error)?;
+    drop(file);
     std::fs::rename(&temporary, path).map_err(write_error)
 }
 

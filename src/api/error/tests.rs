@@ -28,10 +28,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::Unauthenticated(_) => 19,
         GatewayError::Forbidden(_) => 20,
         GatewayError::Internal(_) => 21,
+        GatewayError::RateLimited { .. } => 22,
     }
 }
 
-const VARIANTS: usize = 22;
+const VARIANTS: usize = 23;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -81,6 +82,10 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::Unauthenticated(text()),
         GatewayError::Forbidden(text()),
         GatewayError::Internal(text()),
+        GatewayError::RateLimited {
+            message: text(),
+            retry_after_s: 2,
+        },
     ]
 }
 

@@ -3,6 +3,7 @@
 //! through the router without a socket, on a paused clock.
 
 mod audit;
+mod audit_and_limits;
 mod auth;
 mod drives;
 mod eds;

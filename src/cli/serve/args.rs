@@ -110,8 +110,8 @@ pub struct ServeArgs {
     /// axis_poll_hz, retention_days, retention_rows, lease_ms,
     /// shutdown_grace_ms, ascii_listen,
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
-    /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure
-    /// (candeck.example.toml is an annotated example of every key).
+    /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
+    /// recordings_quota_mb (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
     /// CANDECK_TOKENS="NAME:ROLE:TOKEN,..." (roles: viewer, operator, admin).
@@ -146,6 +146,12 @@ pub struct ServeArgs {
     /// at most, the newest; 0: no limit. Default: 1000000.
     #[arg(long, value_name = "ROWS")]
     pub retention_rows: Option<u64>,
+    /// How much the recordings kept in DIR/recordings (--data-dir) may take
+    /// together, in MiB: beyond it the oldest are removed (checked every
+    /// minute and at start; never a bus's running or last recording), each
+    /// removal in the audit log; 0: no limit. Default: 1024.
+    #[arg(long, value_name = "MIB")]
+    pub recordings_quota_mb: Option<u64>,
     /// The period of a motion lease, in milliseconds: a velocity, torque
     /// or duty-cycle move must be renewed by its client within it, or the
     /// gateway halts the axis (and quick-stops it one period later if it

@@ -39,6 +39,7 @@ pub(super) struct ConfigFile {
     pub(super) axis_poll_hz: Option<f64>,
     pub(super) retention_days: Option<u32>,
     pub(super) retention_rows: Option<u64>,
+    pub(super) recordings_quota_mb: Option<u64>,
     pub(super) lease_ms: Option<u64>,
     pub(super) shutdown_grace_ms: Option<u64>,
     pub(super) ascii_listen: Option<SocketAddr>,
@@ -136,6 +137,8 @@ pub(super) struct Settings {
     pub(super) share: Vec<Share>,
     pub(super) axis_poll_hz: f64,
     pub(super) retention: Retention,
+    /// Bytes; `None`: no quota.
+    pub(super) recordings_quota: Option<u64>,
     pub(super) lease_period: std::time::Duration,
     /// How long open HTTP connections may take to finish once the axes
     /// are stopped on shutdown.
@@ -217,6 +220,13 @@ impl ServeArgs {
                 )
                 .filter(|rows| *rows > 0),
             },
+            recordings_quota: Some(
+                self.recordings_quota_mb
+                    .or(file.recordings_quota_mb)
+                    .unwrap_or(crate::gateway::recording::DEFAULT_QUOTA_MB),
+            )
+            .filter(|mb| *mb > 0)
+            .map(|mb| mb.saturating_mul(1024 * 1024)),
             auth: self.auth_config(
                 file.tokens,
                 file.cors_origins,

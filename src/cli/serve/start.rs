@@ -12,6 +12,7 @@ use crate::gateway::ServedBus;
 use crate::gateway::history::History;
 use crate::gateway::producers::TelemetryConfig;
 use crate::gateway::profile::EdsCatalog;
+use crate::gateway::recording::RecordingsQuota;
 use crate::gateway::registry::RegistryConfig;
 
 use super::args::*;
@@ -25,7 +26,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // the gateway listens (a start that fails says one line only).
     let exposure = args.exposure().map_err(CliError::new)?;
     if let Some(dir) = &args.data_dir {
-        std::fs::create_dir_all(dir)
+        // 0700 when candeck makes it (docs/security.md, "Files").
+        crate::gateway::files::create_private_dir(dir)
             .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
     }
     // Opened before the buses, so that their first events are kept.
@@ -149,9 +151,20 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             }
         });
     }
-    let state = AppState::with_history(served, history)
+    let mut state = AppState::with_history(served, history)
         .with_lease_period(args.lease_period)
         .with_auth(args.auth.clone());
+    // Kept recordings within recordings_quota_mb, checked every minute.
+    if let (Some(dir), Some(bytes)) = (&args.data_dir, args.recordings_quota) {
+        let quota = RecordingsQuota {
+            dir: dir.join("recordings"),
+            bytes,
+        };
+        state.gateway = state.gateway.with_recordings_quota(quota);
+    }
+    let recordings_pruner = state
+        .gateway
+        .spawn_recordings_pruner(std::time::Duration::from_secs(60));
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
@@ -215,6 +228,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         }
     }
     pruner.abort();
+    recordings_pruner.abort();
     if let Some(ascii) = ascii {
         ascii.abort();
     }

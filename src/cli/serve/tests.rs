@@ -311,6 +311,26 @@ fn tokens_and_limits_come_from_the_file_and_the_environment() {
         err.starts_with("CANDECK_TOKENS: token plc:") && err.contains("too weak"),
         "{err}"
     );
+    // Fields swapped: the error says what is wrong, never the secret
+    // (issue 19, point 10).
+    let secret = "3f9c2a7be81d4c06a5e9";
+    for entry in [
+        format!("plc:{secret}:operator"),
+        format!("{secret}:operator:plc"),
+        format!("{secret}:plc:operator"),
+    ] {
+        let err = serve_args(&[])
+            .unwrap()
+            .settings_with(Some(&entry))
+            .unwrap_err();
+        assert!(err.starts_with("CANDECK_TOKENS: token "), "{err}");
+        assert!(!err.contains(secret), "{entry}: {err}");
+    }
+    let err = serve_args(&[])
+        .unwrap()
+        .settings_with(Some(&format!("plc:{secret}:operator")))
+        .unwrap_err();
+    assert!(err.contains("not a role"), "{err}");
     std::fs::write(
         &file,
         "[[tokens]]\nname = \"x\"\nrole = \"root\"\ntoken = \"3f9c2a7be81d4c06a5e9\"\n",
@@ -321,5 +341,29 @@ fn tokens_and_limits_come_from_the_file_and_the_environment() {
         .settings_with(None)
         .unwrap_err();
     assert!(err.contains("unknown role 'root'"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_recordings_quota_comes_from_the_command_line_over_the_file_over_the_default() {
+    let dir = std::env::temp_dir().join(format!("candeck-quota-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("quota.toml");
+    std::fs::write(&file, "recordings_quota_mb = 20\n").unwrap();
+    let file = file.to_str().unwrap();
+    let quota = |args: &[&str]| {
+        serve_args(args)
+            .unwrap()
+            .settings_with(None)
+            .unwrap()
+            .recordings_quota
+    };
+    assert_eq!(quota(&[]), Some(1024 * 1024 * 1024));
+    assert_eq!(quota(&["--config", file]), Some(20 * 1024 * 1024));
+    assert_eq!(
+        quota(&["--config", file, "--recordings-quota-mb", "5"]),
+        Some(5 * 1024 * 1024)
+    );
+    assert_eq!(quota(&["--recordings-quota-mb", "0"]), None);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -488,3 +488,97 @@ async fn frames_per_second() {
     );
     assert_eq!(status.frames + status.lost, u64::from(FRAMES));
 }
+
+/// Logs of `bytes` bytes in `dir`, named `n.log`, each modified a minute
+/// after the one before (`0.log` the oldest).
+fn logs_of(dir: &Path, sizes: &[usize]) -> Vec<PathBuf> {
+    std::fs::create_dir_all(dir).unwrap();
+    let start = std::time::SystemTime::UNIX_EPOCH + Duration::from_secs(1_790_000_000);
+    sizes
+        .iter()
+        .enumerate()
+        .map(|(n, size)| {
+            let path = dir.join(format!("{n}.log"));
+            std::fs::write(&path, vec![b'x'; *size]).unwrap();
+            let file = std::fs::File::options().write(true).open(&path).unwrap();
+            file.set_modified(start + Duration::from_secs(60 * n as u64))
+                .unwrap();
+            path
+        })
+        .collect()
+}
+
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|entry| entry.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn pruning_removes_the_oldest_logs_beyond_the_quota_but_never_a_kept_one() {
+    let scratch = Scratch::new("prune");
+    let logs = logs_of(&scratch.0, &[100, 100, 100, 100]);
+    std::fs::write(scratch.0.join("notes.txt"), vec![b'x'; 1000]).unwrap();
+    let quota = RecordingsQuota {
+        dir: scratch.0.clone(),
+        bytes: 250,
+    };
+    // The oldest is a bus's last recording: kept, the next two go.
+    let pruned = prune(&quota, &logs[..1]).unwrap();
+    let names: Vec<&str> = pruned.iter().map(|p| p.file_name.as_str()).collect();
+    assert_eq!(names, ["1.log", "2.log"]);
+    assert!(pruned.iter().all(|p| p.bytes == 100));
+    assert_eq!(names_in(&scratch.0), ["0.log", "3.log", "notes.txt"]);
+    // Within the quota: nothing more.
+    assert_eq!(prune(&quota, &[]).unwrap(), []);
+    // No directory yet: nothing to do.
+    let missing = RecordingsQuota {
+        dir: scratch.0.join("none"),
+        bytes: 0,
+    };
+    assert_eq!(prune(&missing, &[]).unwrap(), []);
+}
+
+#[tokio::test]
+async fn the_gateway_audits_each_pruned_recording_as_its_own() {
+    use crate::gateway::Gateway;
+    use crate::gateway::history::{EventKind, Query};
+    let scratch = Scratch::new("prune-audit");
+    logs_of(&scratch.0, &[300, 300, 300]);
+    let gateway = Gateway::new([]).with_recordings_quota(RecordingsQuota {
+        dir: scratch.0.clone(),
+        bytes: 400,
+    });
+    let pruned = gateway.prune_recordings().await;
+    assert_eq!(pruned.len(), 2, "{pruned:?}");
+    assert_eq!(names_in(&scratch.0), ["2.log"]);
+    let audit = gateway
+        .history
+        .query(Query {
+            kind: Some(EventKind::Audit),
+            since_us: None,
+            until_us: None,
+            limit: 10,
+        })
+        .await
+        .unwrap();
+    let mut items: Vec<String> = audit
+        .iter()
+        .map(|event| {
+            assert_eq!(event.fields["who"], "gateway", "{:?}", event.fields);
+            assert_eq!(
+                event.fields["operation"], "prune recording (over quota)",
+                "{:?}",
+                event.fields
+            );
+            event.fields["item"].as_str().unwrap().to_string()
+        })
+        .collect();
+    items.sort();
+    assert_eq!(items, ["0.log", "1.log"]);
+    // Without a quota (no --data-dir, or 0), nothing is pruned.
+    assert_eq!(Gateway::new([]).prune_recordings().await, []);
+}
