@@ -5,6 +5,7 @@
 mod audit;
 mod auth;
 mod drives;
+mod edge;
 mod leases;
 mod leds;
 mod pdos;

@@ -2,7 +2,6 @@
 //! and its adapters (REST over HTTP, CiA 309-3 over TCP, socketcand shares)
 //! started, and on shutdown the axes the gateway enabled stopped.
 
-use std::net::SocketAddr;
 use std::sync::Arc;
 
 use crate::api::AppState;
@@ -24,6 +23,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // Refused by settings() already when it is an error; warned about once
     // the gateway listens (a start that fails says one line only).
     let exposure = args.exposure().map_err(CliError::new)?;
+    let listener_warnings = args.listeners().map_err(CliError::new)?;
     if let Some(dir) = &args.data_dir {
         std::fs::create_dir_all(dir)
             .map_err(|err| CliError::new(format!("--data-dir {}: {err}", dir.display())))?;
@@ -130,6 +130,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             args.auth.tokens.len()
         ),
     }
+    for warning in &listener_warnings {
+        tracing::warn!("{warning}");
+    }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
     for bus in &served {
@@ -151,19 +154,24 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     }
     let state = AppState::with_history(served, history)
         .with_lease_period(args.lease_period)
-        .with_auth(args.auth.clone());
+        .with_auth(args.auth.clone())
+        .with_allowed_hosts(args.allowed_hosts.clone());
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
             crate::cia309::Cia309Gateway::new(&state.gateway),
+            args.ascii_limits,
         ))
     });
-    // The peer's address goes into the audit log.
-    let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
-    axum::serve(listener, app)
-        .with_graceful_shutdown(shutdown_signal())
-        .await
-        .map_err(|err| CliError::new(format!("HTTP server on {local}: {err}")))?;
+    // Timeouts and a connection limit (the peer's address goes into the
+    // audit log).
+    crate::api::serve::serve(
+        listener,
+        crate::api::app(state.clone()),
+        args.http_limits,
+        shutdown_signal(),
+    )
+    .await;
     // No drive is left moving because the gateway went away: every axis it
     // enabled is stopped before it exits.
     let report = state.gateway.stop_enabled_axes().await;
