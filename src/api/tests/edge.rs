@@ -67,7 +67,7 @@ async fn a_rebinding_page_is_refused_on_every_route_and_the_stream() {
         Method::POST,
         enable,
         EVIL,
-        Some(r#"{"state":"operation_enabled"}"#),
+        Some(r#"{"target":"operation_enabled"}"#),
     )
     .await;
     assert_eq!(status, StatusCode::MISDIRECTED_REQUEST, "{json}");

@@ -164,7 +164,10 @@ fn the_ascii_listener_comes_from_the_command_line_over_the_file() {
         .unwrap()
         .settings()
         .unwrap();
-    assert_eq!(settings.ascii_listen, Some("127.0.0.2:6001".parse().unwrap()));
+    assert_eq!(
+        settings.ascii_listen,
+        Some("127.0.0.2:6001".parse().unwrap())
+    );
     assert!(serve_args(&["--ascii-listen", "nowhere"]).is_err());
     std::fs::remove_dir_all(&dir).unwrap();
 }
