@@ -63,9 +63,9 @@ fn raise_nofile(wanted: u64) {
             rlim_max: 0,
         };
         assert_eq!(libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit), 0);
-        if (limit.rlim_cur as u64) < wanted {
+        if limit.rlim_cur < wanted {
             assert!(
-                limit.rlim_max as u64 >= wanted,
+                limit.rlim_max >= wanted,
                 "the hard limit of open files ({}) is below the {wanted} this test needs",
                 limit.rlim_max
             );

@@ -260,28 +260,33 @@ struct Activity {
 }
 
 impl Activity {
+    /// Applies `change`; the task is woken only when the phase changes
+    /// kind (a later instant within one phase is seen when its deadline
+    /// comes and is checked again).
     fn update(&self, change: impl FnOnce(Phase) -> Phase) {
         let mut phase = self
             .phase
             .lock()
             .unwrap_or_else(|poison| poison.into_inner());
+        let before = std::mem::discriminant(&*phase);
         *phase = change(*phase);
+        let changed = before != std::mem::discriminant(&*phase);
         drop(phase);
-        self.changed.notify_one();
+        if changed {
+            self.changed.notify_one();
+        }
     }
 
     fn read(&self) {
-        let now = Instant::now();
         self.update(|phase| match phase {
-            Phase::Waiting(_) => Phase::Reading(now),
+            Phase::Waiting(_) => Phase::Reading(Instant::now()),
             other => other,
         });
     }
 
     fn wrote(&self) {
-        let now = Instant::now();
         self.update(|phase| match phase {
-            Phase::Waiting(_) => Phase::Waiting(now),
+            Phase::Waiting(_) => Phase::Waiting(Instant::now()),
             other => other,
         });
     }
@@ -294,10 +299,9 @@ impl Activity {
     }
 
     fn end(&self) {
-        let now = Instant::now();
         self.update(|phase| match phase {
             Phase::Busy(n) if n > 1 => Phase::Busy(n - 1),
-            _ => Phase::Waiting(now),
+            _ => Phase::Waiting(Instant::now()),
         });
     }
 }
