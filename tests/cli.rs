@@ -240,10 +240,33 @@ fn virtual_demo_carries_the_demo_devices_for_every_command() {
 }
 
 #[test]
+fn a_socketcand_share_beyond_loopback_needs_its_own_flag_even_with_tokens() {
+    // Raw bus access that no token guards: tokens do not open it.
+    let output = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["serve", "--share", "0.0.0.0:0"])
+        .env_remove("CANDECK_LOG")
+        .env("CANDECK_TOKENS", "plc:operator:3f9c2a7be81d4c06a5e9")
+        .output()
+        .expect("candeck runs");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert_one_clear_line(
+        &stderr,
+        "refusing --share 0.0.0.0:0: a socketcand share is raw bus access",
+    );
+    assert!(stderr.contains("--share-public"), "{stderr}");
+}
+
+#[test]
 fn serving_beyond_loopback_without_tokens_is_refused() {
     let (code, stdout, stderr) = candeck(&["serve", "--listen", "0.0.0.0:0"]);
     assert_eq!(code, 1, "{stdout}{stderr}");
     assert_one_clear_line(&stderr, "refusing to listen on 0.0.0.0:0 without tokens");
+    assert!(stderr.contains("--insecure"), "{stderr}");
+    // Every listener: the CiA 309-3 port moves motors as the API does.
+    let (code, stdout, stderr) = candeck(&["serve", "--ascii-listen", "0.0.0.0:0"]);
+    assert_eq!(code, 1, "{stdout}{stderr}");
+    assert_one_clear_line(&stderr, "refusing --ascii-listen 0.0.0.0:0 without tokens");
     assert!(stderr.contains("--insecure"), "{stderr}");
     let (code, _, stderr) = candeck(&["serve", "--config", "/nonexistent/candeck.toml"]);
     assert_eq!(code, 1);

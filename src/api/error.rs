@@ -169,6 +169,14 @@ pub enum AppError {
     /// `Retry-After`.
     #[error("{message}")]
     RateLimited { message: String, retry_after_s: u64 },
+    /// The `Host` the request was sent to is none of the gateway's names
+    /// (DNS rebinding): answered 421 Misdirected Request.
+    #[error("{0}")]
+    HostNotAllowed(String),
+    /// Every connection the HTTP server takes is in use; the reserve
+    /// answers `/health` and `stop-all` only.
+    #[error("{0}")]
+    TooManyConnections(String),
     /// The history database failed (disk full, file damaged): the
     /// gateway's machine, not the request.
     #[error("{0}")]
@@ -233,6 +241,10 @@ impl AppError {
             Self::Unauthenticated(_) => (StatusCode::UNAUTHORIZED, "unauthenticated"),
             Self::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
             Self::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
+            Self::HostNotAllowed(_) => (StatusCode::MISDIRECTED_REQUEST, "host_not_allowed"),
+            Self::TooManyConnections(_) => {
+                (StatusCode::SERVICE_UNAVAILABLE, "too_many_connections")
+            }
             Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }

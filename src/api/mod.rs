@@ -35,6 +35,10 @@
 //! - [`auth`]: the table of the least role of every route (tokens and
 //!   roles are [`crate::gateway::access`]), and the layer that applies it (origin check, CORS, body
 //!   limits, rate limit); `/auth/whoami`.
+//! - [`host`]: the `Host` check against DNS rebinding, on every route.
+//! - [`headers`]: the anti-framing and content headers of every answer.
+//! - [`serve`]: the HTTP server: timeouts, the connection limit and its
+//!   reserve for `/health` and `stop-all`.
 //! - [`audit`]: the layer that writes every state-changing request to the
 //!   audit log before its response leaves.
 //! - [`events`]: `/events`, the persisted history (audit, EMCY, NMT).
@@ -61,6 +65,8 @@ pub mod eds;
 pub mod error;
 pub mod events;
 pub mod frames;
+pub mod headers;
+pub mod host;
 pub mod leases;
 pub mod metrics;
 pub mod nodes;
@@ -68,6 +74,7 @@ pub mod od;
 pub mod pdos;
 pub mod recording;
 pub mod segments;
+pub mod serve;
 pub mod sim;
 pub mod stream;
 pub mod values;
@@ -98,6 +105,9 @@ pub struct AppState {
     pub stream_counters: Arc<StreamCounters>,
     /// Tokens, roles and limits ([`auth::guard`]); open by default.
     pub guard: Arc<auth::Guard>,
+    /// The names the gateway is served as ([`host::check`]); loopback
+    /// names and addresses by default.
+    pub allowed_hosts: Arc<host::AllowedHosts>,
 }
 
 impl AppState {
@@ -107,6 +117,7 @@ impl AppState {
             gateway,
             stream_counters: Arc::new(StreamCounters::default()),
             guard: Arc::new(auth::Guard::default()),
+            allowed_hosts: Arc::new(host::AllowedHosts::default()),
         }
     }
 
@@ -136,6 +147,12 @@ impl AppState {
             .with_tokens(config.tokens.clone())
             .with_write_limit(config.rate_limit);
         self.guard = Arc::new(auth::Guard::new(config));
+        self
+    }
+
+    /// The same state answering to these names too (`allowed_hosts`).
+    pub fn with_allowed_hosts(mut self, hosts: host::AllowedHosts) -> Self {
+        self.allowed_hosts = Arc::new(hosts);
         self
     }
 
@@ -204,7 +221,15 @@ pub fn app(state: AppState) -> Router {
             state.clone(),
             auth::guard,
         ))
+        // Before anyone looks at the request: a foreign Host is a DNS
+        // rebinding page.
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            host::check,
+        ))
         // Outside every route and fallback: refused and unknown requests
         // are audited too.
         .layer(axum::middleware::from_fn_with_state(state, audit::record))
+        // On every answer, refusals included.
+        .layer(axum::middleware::from_fn(headers::layer))
 }

@@ -11,4 +11,4 @@
 
 pub mod serve;
 
-pub use serve::{Session, listen, serve_connection};
+pub use serve::{Limits, Session, listen, serve_connection};

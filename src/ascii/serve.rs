@@ -7,11 +7,17 @@
 //! gateway (a reply is written before the next line is read); connections
 //! run side by side, their SDO transfers queued per node with REST's.
 
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::Poll;
 use std::time::Duration;
 
-use tokio::io::{AsyncBufRead, AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::io::{
+    AsyncBufRead, AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadBuf,
+};
 use tokio::net::TcpListener;
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{Semaphore, broadcast, mpsc};
 
 use crate::canopen::nmt::NmtState;
 use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
@@ -419,9 +425,91 @@ async fn read_line<R: AsyncBufRead + Unpin>(input: &mut R) -> Option<Result<Stri
     Some(Ok(String::from_utf8_lossy(&buf).into_owned()))
 }
 
+/// The limits of the TCP listener (config keys `ascii_idle_timeout_ms`,
+/// `ascii_max_connections`): a client that sends no line for
+/// `idle_timeout` is closed (the events it would get do not keep it open),
+/// and a connection beyond `max_connections` is closed at once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    pub idle_timeout: Duration,
+    pub max_connections: usize,
+}
+
+/// How long a CiA 309-3 client may send nothing, by default.
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(300);
+/// CiA 309-3 connections at once, by default.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+        }
+    }
+}
+
+impl Limits {
+    /// The limits, checked: a timeout above 0, at least one connection.
+    pub fn new(idle_timeout: Duration, max_connections: usize) -> Result<Self, String> {
+        if idle_timeout.is_zero() {
+            return Err("ascii_idle_timeout_ms: a timeout is at least 1 ms".to_string());
+        }
+        if max_connections == 0 {
+            return Err("ascii_max_connections: at least 1".to_string());
+        }
+        Ok(Self {
+            idle_timeout,
+            max_connections,
+        })
+    }
+}
+
+/// Reads what comes from `input` until it has sent nothing for `idle`.
+struct IdleLimited<R> {
+    input: R,
+    idle: Duration,
+    deadline: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl<R> IdleLimited<R> {
+    fn new(input: R, idle: Duration) -> Self {
+        Self {
+            input,
+            idle,
+            deadline: Box::pin(tokio::time::sleep(idle)),
+        }
+    }
+}
+
+impl<R: AsyncRead + Unpin> AsyncRead for IdleLimited<R> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        match Pin::new(&mut self.input).poll_read(cx, buf) {
+            Poll::Ready(result) => {
+                if buf.filled().len() > before {
+                    let next = tokio::time::Instant::now() + self.idle;
+                    self.deadline.as_mut().reset(next);
+                }
+                Poll::Ready(result)
+            }
+            Poll::Pending => match self.deadline.as_mut().poll(cx) {
+                // The end of the input, as if the client had closed.
+                Poll::Ready(()) => Poll::Ready(Ok(())),
+                Poll::Pending => Poll::Pending,
+            },
+        }
+    }
+}
+
 /// Accepts CiA 309-3 clients on `listener` until the task is dropped, each
-/// served by [`serve_connection`] as `ascii:<peer address>`.
-pub async fn listen(listener: TcpListener, gateway: Cia309Gateway) {
+/// served by [`serve_connection`] within `limits`.
+pub async fn listen(listener: TcpListener, gateway: Cia309Gateway, limits: Limits) {
+    let connections = Arc::new(Semaphore::new(limits.max_connections));
     loop {
         let (stream, peer) = match listener.accept().await {
             Ok(accepted) => accepted,
@@ -432,13 +520,22 @@ pub async fn listen(listener: TcpListener, gateway: Cia309Gateway) {
                 continue;
             }
         };
+        let Ok(permit) = connections.clone().try_acquire_owned() else {
+            tracing::warn!(
+                "ascii: {peer} refused: {} connections already (ascii_max_connections)",
+                limits.max_connections
+            );
+            continue;
+        };
         let _ = stream.set_nodelay(true);
         let identity = Identity::anonymous("ascii", Some(peer.to_string()));
         let gateway = gateway.clone();
         tokio::spawn(async move {
             tracing::debug!("ascii: {peer} connected");
             let (input, output) = stream.into_split();
+            let input = IdleLimited::new(input, limits.idle_timeout);
             serve_connection(gateway, identity, input, output).await;
+            drop(permit);
             tracing::debug!("ascii: {peer} disconnected");
         });
     }

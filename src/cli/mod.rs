@@ -55,6 +55,9 @@ pub struct Cli {
     pub command: Option<Command>,
 }
 
+// Parsed once at start and matched once: the size of `serve`'s many
+// options costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Run the gateway: the REST API over HTTP for one or more buses (the

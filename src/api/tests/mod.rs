@@ -7,6 +7,7 @@ mod audit_and_limits;
 mod auth;
 mod drives;
 mod eds;
+mod edge;
 mod leases;
 mod leds;
 mod pdos;

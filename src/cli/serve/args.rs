@@ -111,7 +111,9 @@ pub struct ServeArgs {
     /// shutdown_grace_ms, ascii_listen,
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
-    /// recordings_quota_mb (candeck.example.toml is an annotated example of every key).
+    /// recordings_quota_mb, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
+    /// max_connections, ascii_idle_timeout_ms, ascii_max_connections
+    /// (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
     /// CANDECK_TOKENS="NAME:ROLE:TOKEN,..." (roles: viewer, operator, admin).
@@ -169,9 +171,10 @@ pub struct ServeArgs {
     /// is the first bus given.
     #[arg(long, value_name = "ADDR")]
     pub ascii_listen: Option<SocketAddr>,
-    /// Serve without tokens on an address other than loopback: anyone who
-    /// reaches it may move the motors. Without tokens (config `tokens`,
-    /// CANDECK_TOKENS) candeck refuses such an address unless told this.
+    /// Serve without tokens on an address other than loopback (--listen,
+    /// --ascii-listen): anyone who reaches it may move the motors. Without
+    /// tokens (config `tokens`, CANDECK_TOKENS) candeck refuses such an
+    /// address unless told this.
     #[arg(long)]
     pub insecure: bool,
     /// An origin (scheme://host:port, exactly) whose web pages may call the
@@ -199,6 +202,35 @@ pub struct ServeArgs {
     /// sets it later; 0: no SYNC. Default: 0.
     #[arg(long, value_name = "MS", value_parser = parse_sync_period_ms)]
     pub sync_period_ms: Option<u32>,
+    /// A host name the gateway is served as, besides localhost and IP
+    /// addresses; requests sent to another name (a DNS rebinding page) are
+    /// refused with 421. Repeat for more; `*` allows any. Default: none.
+    #[arg(long = "allowed-host", value_name = "NAME")]
+    pub allowed_hosts: Vec<String>,
+    /// Allow --share on an address other than loopback: the socketcand
+    /// share is raw bus access (SDO, NMT, any frame) without tokens or
+    /// audit, to anyone who reaches it.
+    #[arg(long)]
+    pub share_public: bool,
+    /// How long an HTTP request's head may take from its first byte before
+    /// the connection is closed, in milliseconds. Default: 10000.
+    #[arg(long, value_name = "MS")]
+    pub header_timeout_ms: Option<u64>,
+    /// How long an HTTP connection may sit with nothing in flight before
+    /// it is closed, in milliseconds. Default: 30000.
+    #[arg(long, value_name = "MS")]
+    pub idle_timeout_ms: Option<u64>,
+    /// HTTP connections at once; the last 16 answer GET /api/v1/health and
+    /// POST /api/v1/stop-all only. Default: 512.
+    #[arg(long, value_name = "N")]
+    pub max_connections: Option<usize>,
+    /// How long a CiA 309-3 client (--ascii-listen) may send nothing
+    /// before it is closed, in milliseconds. Default: 300000.
+    #[arg(long, value_name = "MS")]
+    pub ascii_idle_timeout_ms: Option<u64>,
+    /// CiA 309-3 connections at once (--ascii-listen). Default: 32.
+    #[arg(long, value_name = "N")]
+    pub ascii_max_connections: Option<usize>,
 }
 
 /// A SYNC period in milliseconds: 0 (off) up to what 0x1006 holds.

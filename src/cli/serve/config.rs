@@ -5,7 +5,12 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
+use std::time::Duration;
+
 use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, DEFAULT_DCF_BODY_LIMIT, RateLimit};
+use crate::api::host::AllowedHosts;
+use crate::api::serve::Limits as HttpLimits;
+use crate::ascii::Limits as AsciiLimits;
 use crate::can::VirtualHub;
 use crate::can::spec::BusSpec;
 use crate::gateway::ServedBus;
@@ -53,6 +58,14 @@ pub(super) struct ConfigFile {
     pub(super) dcf_body_limit: Option<usize>,
     pub(super) sync_period_ms: Option<u32>,
     pub(super) insecure: Option<bool>,
+    #[serde(default)]
+    pub(super) allowed_hosts: Vec<String>,
+    pub(super) share_public: Option<bool>,
+    pub(super) header_timeout_ms: Option<u64>,
+    pub(super) idle_timeout_ms: Option<u64>,
+    pub(super) max_connections: Option<usize>,
+    pub(super) ascii_idle_timeout_ms: Option<u64>,
+    pub(super) ascii_max_connections: Option<usize>,
 }
 
 impl ConfigFile {
@@ -147,6 +160,10 @@ pub(super) struct Settings {
     pub(super) auth: AuthConfig,
     pub(super) insecure: bool,
     pub(super) sync_period: std::time::Duration,
+    pub(super) allowed_hosts: AllowedHosts,
+    pub(super) share_public: bool,
+    pub(super) http_limits: HttpLimits,
+    pub(super) ascii_limits: AsciiLimits,
 }
 
 impl ServeArgs {
@@ -240,6 +257,45 @@ impl ServeArgs {
             sync_period: std::time::Duration::from_millis(u64::from(
                 self.sync_period_ms.or(file.sync_period_ms).unwrap_or(0),
             )),
+            allowed_hosts: AllowedHosts::new(if self.allowed_hosts.is_empty() {
+                &file.allowed_hosts
+            } else {
+                &self.allowed_hosts
+            })?,
+            // Like --insecure, a flag can only say yes.
+            share_public: self.share_public || file.share_public.unwrap_or(false),
+            http_limits: {
+                let defaults = HttpLimits::default();
+                let ms = |flag: Option<u64>, key: Option<u64>, default: Duration| {
+                    flag.or(key).map_or(default, Duration::from_millis)
+                };
+                HttpLimits::new(
+                    ms(
+                        self.header_timeout_ms,
+                        file.header_timeout_ms,
+                        defaults.header_timeout,
+                    ),
+                    ms(
+                        self.idle_timeout_ms,
+                        file.idle_timeout_ms,
+                        defaults.idle_timeout,
+                    ),
+                    self.max_connections
+                        .or(file.max_connections)
+                        .unwrap_or(defaults.max_connections),
+                )?
+            },
+            ascii_limits: {
+                let defaults = AsciiLimits::default();
+                AsciiLimits::new(
+                    self.ascii_idle_timeout_ms
+                        .or(file.ascii_idle_timeout_ms)
+                        .map_or(defaults.idle_timeout, Duration::from_millis),
+                    self.ascii_max_connections
+                        .or(file.ascii_max_connections)
+                        .unwrap_or(defaults.max_connections),
+                )?
+            },
         };
         settings.validate()?;
         Ok(settings)
@@ -301,6 +357,7 @@ impl Settings {
     pub(super) fn validate(&self) -> Result<(), String> {
         unique_names(&self.buses, "buses")?;
         self.exposure()?;
+        self.listeners()?;
         for share in &self.share {
             match &share.bus {
                 Some(name) => {
@@ -351,6 +408,54 @@ impl Settings {
         Err(format!(
             "refusing to listen on {listen} without tokens: anyone who reaches it could move motors; configure tokens (config file [[tokens]] or {TOKENS_ENV}), listen on 127.0.0.1, or pass --insecure"
         ))
+    }
+
+    /// Whether the other listeners may listen where they are told (issue
+    /// 19, point 6), and the warnings to give: the CiA 309-3 port moves
+    /// motors as the API does, so it follows the API's rule (loopback, or
+    /// tokens, or `--insecure`); a socketcand share is raw bus access that
+    /// no token guards, so an address other than loopback needs
+    /// `--share-public` whatever the tokens.
+    pub(super) fn listeners(&self) -> Result<Vec<String>, String> {
+        let mut warnings = Vec::new();
+        if let Some(ascii) = self.ascii_listen
+            && !ascii.ip().is_loopback()
+            && !self.auth.required()
+        {
+            if !self.insecure {
+                return Err(format!(
+                    "refusing --ascii-listen {ascii} without tokens: anyone who reaches it could move motors; configure tokens (config file [[tokens]] or {TOKENS_ENV}), listen on 127.0.0.1, or pass --insecure"
+                ));
+            }
+            warnings.push(format!(
+                "--insecure: no tokens, the CiA 309-3 port on {ascii} is open to anyone who reaches it, and may move motors"
+            ));
+        }
+        for share in &self.share {
+            if share.addr.ip().is_loopback() {
+                continue;
+            }
+            if !self.share_public {
+                return Err(format!(
+                    "refusing --share {}: a socketcand share is raw bus access (SDO, NMT, any frame) without tokens or audit; share on 127.0.0.1, or pass --share-public to open it to anyone who reaches {}",
+                    share.addr, share.addr
+                ));
+            }
+            warnings.push(format!(
+                "--share-public: the socketcand share on {} gives raw bus access, without tokens or audit, to anyone who reaches it",
+                share.addr
+            ));
+        }
+        if !self.listen.ip().is_loopback()
+            && !self.allowed_hosts.any()
+            && self.allowed_hosts.names().is_empty()
+        {
+            warnings.push(format!(
+                "{} is no loopback address and allowed_hosts is empty: the gateway cannot know the names it is reached by, so it answers requests sent to localhost and IP addresses only (421 for any other name); list its names in allowed_hosts (--allowed-host)",
+                self.listen
+            ));
+        }
+        Ok(warnings)
     }
 
     /// The socketcand servers to start: each address with the virtual

@@ -2,7 +2,6 @@
 //! and its adapters (REST over HTTP, CiA 309-3 over TCP, socketcand shares)
 //! started, and on shutdown the axes the gateway enabled stopped.
 
-use std::net::SocketAddr;
 use std::sync::Arc;
 
 use crate::api::AppState;
@@ -25,6 +24,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // Refused by settings() already when it is an error; warned about once
     // the gateway listens (a start that fails says one line only).
     let exposure = args.exposure().map_err(CliError::new)?;
+    let listener_warnings = args.listeners().map_err(CliError::new)?;
     if let Some(dir) = &args.data_dir {
         // 0700 when candeck makes it (docs/security.md, "Files").
         crate::gateway::files::create_private_dir(dir)
@@ -132,6 +132,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             args.auth.tokens.len()
         ),
     }
+    for warning in &listener_warnings {
+        tracing::warn!("{warning}");
+    }
     // Nodes that booted before the gateway listened, and nodes without
     // heartbeat, are found by a scan; the API answers meanwhile.
     for bus in &served {
@@ -153,7 +156,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     }
     let mut state = AppState::with_history(served, history)
         .with_lease_period(args.lease_period)
-        .with_auth(args.auth.clone());
+        .with_auth(args.auth.clone())
+        .with_allowed_hosts(args.allowed_hosts.clone());
     // Kept recordings within recordings_quota_mb, checked every minute.
     if let (Some(dir), Some(bytes)) = (&args.data_dir, args.recordings_quota) {
         let quota = RecordingsQuota {
@@ -169,18 +173,20 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         tokio::spawn(crate::ascii::listen(
             listener,
             crate::cia309::Cia309Gateway::new(&state.gateway),
+            args.ascii_limits,
         ))
     });
-    // The peer's address goes into the audit log.
-    let app = crate::api::app(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
+    // Timeouts and a connection limit (the peer's address goes into the
+    // audit log); the server stops accepting when `drain` is sent.
     let (drain, draining) = tokio::sync::oneshot::channel::<()>();
-    let mut server = tokio::spawn(
-        axum::serve(listener, app)
-            .with_graceful_shutdown(async {
-                let _ = draining.await;
-            })
-            .into_future(),
-    );
+    let mut server = tokio::spawn(crate::api::serve::serve(
+        listener,
+        crate::api::app(state.clone()),
+        args.http_limits,
+        async {
+            let _ = draining.await;
+        },
+    ));
     tokio::select! {
         () = shutdown_signal() => {}
         ended = &mut server => {
@@ -188,8 +194,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             // before the signal). The axes are stopped all the same.
             stop_axes(&state).await;
             return Err(match ended {
-                Ok(Err(err)) => CliError::new(format!("HTTP server on {local}: {err}")),
-                Ok(Ok(())) => CliError::new(format!("HTTP server on {local} ended")),
+                Ok(()) => CliError::new(format!("HTTP server on {local} ended")),
                 Err(err) => CliError::new(format!("HTTP server on {local}: {err}")),
             });
         }
@@ -206,8 +211,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // The open connections get what is left of the grace period to finish
     // their requests; then they are closed.
     match tokio::time::timeout_at(grace_ends, &mut server).await {
-        Ok(Ok(Ok(()))) => {}
-        Ok(Ok(Err(err))) => tracing::warn!("shutdown: HTTP server on {local}: {err}"),
+        Ok(Ok(())) => {}
         Ok(Err(err)) => tracing::warn!("shutdown: HTTP server on {local}: {err}"),
         Err(_) => {
             tracing::warn!(

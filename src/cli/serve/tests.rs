@@ -23,6 +23,7 @@ fn config_key(long: &str) -> String {
     match long {
         "bus" => "buses".to_string(),
         "cors-origin" => "cors_origins".to_string(),
+        "allowed-host" => "allowed_hosts".to_string(),
         long => long.replace('-', "_"),
     }
 }
@@ -159,11 +160,14 @@ fn the_ascii_listener_comes_from_the_command_line_over_the_file() {
         settings.ascii_listen,
         Some("127.0.0.1:6000".parse().unwrap())
     );
-    let settings = serve_args(&["--config", file, "--ascii-listen", "0.0.0.0:6001"])
+    let settings = serve_args(&["--config", file, "--ascii-listen", "127.0.0.2:6001"])
         .unwrap()
         .settings()
         .unwrap();
-    assert_eq!(settings.ascii_listen, Some("0.0.0.0:6001".parse().unwrap()));
+    assert_eq!(
+        settings.ascii_listen,
+        Some("127.0.0.2:6001".parse().unwrap())
+    );
     assert!(serve_args(&["--ascii-listen", "nowhere"]).is_err());
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -365,5 +369,110 @@ fn the_recordings_quota_comes_from_the_command_line_over_the_file_over_the_defau
         Some(5 * 1024 * 1024)
     );
     assert_eq!(quota(&["--recordings-quota-mb", "0"]), None);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn every_listener_follows_the_loopback_rule_and_the_share_needs_its_own_flag() {
+    const TOKENS: Option<&str> = Some("plc:operator:3f9c2a7be81d4c06a5e9");
+    // CiA 309-3 moves motors as the API does: the same rule.
+    let err = serve_args(&["--ascii-listen", "0.0.0.0:5000"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap_err();
+    assert!(
+        err.contains("refusing --ascii-listen 0.0.0.0:5000 without tokens"),
+        "{err}"
+    );
+    for (args, tokens) in [
+        (&["--ascii-listen", "0.0.0.0:5000"][..], TOKENS),
+        (&["--ascii-listen", "127.0.0.1:5000"][..], None),
+    ] {
+        let settings = serve_args(args).unwrap().settings_with(tokens).unwrap();
+        assert!(settings.listeners().unwrap().is_empty(), "{args:?}");
+    }
+    let settings = serve_args(&["--ascii-listen", "0.0.0.0:5000", "--insecure"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    let warnings = settings.listeners().unwrap();
+    assert!(
+        warnings[0].contains("CiA 309-3 port on 0.0.0.0:5000"),
+        "{warnings:?}"
+    );
+
+    // A share is raw bus access that no token guards: tokens do not open it.
+    for tokens in [None, TOKENS] {
+        let err = serve_args(&["--share", "0.0.0.0:29536"])
+            .unwrap()
+            .settings_with(tokens)
+            .unwrap_err();
+        assert!(err.contains("refusing --share 0.0.0.0:29536"), "{err}");
+        assert!(err.contains("--share-public"), "{err}");
+    }
+    let settings = serve_args(&["--share", "0.0.0.0:29536", "--share-public"])
+        .unwrap()
+        .settings_with(TOKENS)
+        .unwrap();
+    let warnings = settings.listeners().unwrap();
+    assert!(warnings[0].contains("raw bus access"), "{warnings:?}");
+    let settings = serve_args(&["--share", "127.0.0.1:29536"])
+        .unwrap()
+        .settings_with(TOKENS)
+        .unwrap();
+    assert!(settings.listeners().unwrap().is_empty());
+
+    // Beyond loopback the gateway cannot know its names: the warning says
+    // to list them.
+    let settings = serve_args(&["--listen", "0.0.0.0:8080"])
+        .unwrap()
+        .settings_with(TOKENS)
+        .unwrap();
+    let warnings = settings.listeners().unwrap();
+    assert!(warnings[0].contains("allowed_hosts"), "{warnings:?}");
+    let settings = serve_args(&["--listen", "0.0.0.0:8080", "--allowed-host", "gw.example"])
+        .unwrap()
+        .settings_with(TOKENS)
+        .unwrap();
+    assert!(settings.listeners().unwrap().is_empty());
+}
+
+#[test]
+fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_default() {
+    use std::time::Duration;
+    let settings = serve_args(&[]).unwrap().settings_with(None).unwrap();
+    assert_eq!(settings.http_limits, crate::api::serve::Limits::default());
+    assert_eq!(settings.ascii_limits, crate::ascii::Limits::default());
+    let dir = std::env::temp_dir().join(format!("candeck-limits-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("limits.toml");
+    std::fs::write(
+        &file,
+        "header_timeout_ms = 2000\nidle_timeout_ms = 3000\nmax_connections = 100\nascii_idle_timeout_ms = 4000\nascii_max_connections = 5\nallowed_hosts = [\"gw.example\"]\n",
+    )
+    .unwrap();
+    let file = file.to_str().unwrap();
+    let settings = serve_args(&["--config", file, "--max-connections", "50"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.http_limits.header_timeout, Duration::from_secs(2));
+    assert_eq!(settings.http_limits.idle_timeout, Duration::from_secs(3));
+    assert_eq!(settings.http_limits.max_connections, 50);
+    assert_eq!(settings.ascii_limits.idle_timeout, Duration::from_secs(4));
+    assert_eq!(settings.ascii_limits.max_connections, 5);
+    assert!(settings.allowed_hosts.allows("gw.example:8080"));
+    for (args, expected) in [
+        (&["--max-connections", "16"][..], "max_connections 16"),
+        (&["--header-timeout-ms", "0"][..], "at least 1 ms"),
+        (
+            &["--ascii-max-connections", "0"][..],
+            "ascii_max_connections",
+        ),
+        (&["--allowed-host", "http://gw"][..], "no host name"),
+    ] {
+        let err = serve_args(args).unwrap().settings_with(None).unwrap_err();
+        assert!(err.contains(expected), "{args:?}: {err}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -2,8 +2,9 @@
 
 /**
  * Creates an element. `props`: `class`, `text`, `dataset` (an object),
- * `on` (event name -> listener) and any other attribute; a null or false
- * attribute is left out. Children are nodes or strings (added as text,
+ * `on` (event name -> listener), `style` ("name: value; ..." set property by
+ * property through the CSSOM: the Content-Security-Policy refuses style
+ * attributes) and any other attribute; a null or false attribute is left out. Children are nodes or strings (added as text,
  * never parsed as HTML: device strings cannot inject markup).
  */
 export function h(tag, props = {}, ...children) {
@@ -14,6 +15,12 @@ export function h(tag, props = {}, ...children) {
     else if (key === 'text') el.textContent = value;
     else if (key === 'dataset') Object.assign(el.dataset, value);
     else if (key === 'on') for (const [event, fn] of Object.entries(value)) el.addEventListener(event, fn);
+    else if (key === 'style') {
+      for (const declaration of String(value).split(';')) {
+        const at = declaration.indexOf(':');
+        if (at > 0) el.style.setProperty(declaration.slice(0, at).trim(), declaration.slice(at + 1).trim());
+      }
+    }
     else el.setAttribute(key, value === true ? '' : value);
   }
   for (const child of children.flat()) {

@@ -1,0 +1,196 @@
+//! The limits of `candeck serve`'s listeners against a real process
+//! (issue 19, point 4): idle clients cannot keep `/health` and STOP ALL
+//! out, and half-sent requests and idle clients are closed after their
+//! timeouts, on the HTTP port and on the CiA 309-3 port.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use common::Server;
+
+/// `candeck serve ARGS --listen 127.0.0.1:0` run by `sh` under a soft
+/// file-descriptor limit of `nofile` (1,024 is what a process gets by
+/// default, under systemd too); its HTTP address and its other stdout
+/// lines up to the one that starts with `until`.
+fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Vec<String>) {
+    let mut child = Command::new("sh")
+        .arg("-c")
+        .arg(format!("ulimit -n {nofile} && exec \"$0\" \"$@\""))
+        .arg(env!("CARGO_BIN_EXE_candeck"))
+        .arg("serve")
+        .args(args)
+        .args(["--listen", "127.0.0.1:0"])
+        .env_remove("CANDECK_LOG")
+        .env_remove("CANDECK_TOKENS")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("candeck starts");
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let first = lines.next().unwrap().unwrap();
+    let address = first
+        .strip_prefix("candeck: serving http://")
+        .and_then(|rest| rest.split_once('/'))
+        .map(|(address, _)| address.to_string())
+        .unwrap_or_else(|| panic!("first line: {first}"));
+    let mut more = Vec::new();
+    if !until.is_empty() {
+        for line in lines.by_ref() {
+            let line = line.unwrap();
+            let done = line.starts_with(until);
+            more.push(line);
+            if done {
+                break;
+            }
+        }
+    }
+    (Server { child, address }, first, more)
+}
+
+/// Raises this process's own soft file-descriptor limit to its hard one:
+/// the test holds more than 1,024 sockets.
+fn raise_nofile(wanted: u64) {
+    // SAFETY: getrlimit and setrlimit only read and write the struct given.
+    unsafe {
+        let mut limit = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        assert_eq!(libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit), 0);
+        if limit.rlim_cur < wanted {
+            assert!(
+                limit.rlim_max >= wanted,
+                "the hard limit of open files ({}) is below the {wanted} this test needs",
+                limit.rlim_max
+            );
+            limit.rlim_cur = limit.rlim_max;
+            assert_eq!(libc::setrlimit(libc::RLIMIT_NOFILE, &limit), 0);
+        }
+    }
+}
+
+/// Reads until the server closes the connection; what it sent. Panics when
+/// it is still open after `bound` (far above the timeouts under test).
+async fn closed_by_server(stream: &mut TcpStream, bound: Duration) -> Vec<u8> {
+    let mut received = Vec::new();
+    match tokio::time::timeout(bound, stream.read_to_end(&mut received)).await {
+        Ok(_) => received,
+        Err(_) => panic!(
+            "the connection is still open after {bound:?}; received {:?}",
+            String::from_utf8_lossy(&received)
+        ),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_connections_do_not_keep_health_and_stop_all_out() {
+    const IDLE: usize = 1_100;
+    raise_nofile(IDLE as u64 + 200);
+    // The defaults, under the default limit of open files: more idle
+    // clients than the gateway has file descriptors.
+    let (server, _, _) = start_limited(1024, &[], "");
+    let mut idle = Vec::with_capacity(IDLE);
+    for _ in 0..IDLE {
+        let stream =
+            tokio::time::timeout(Duration::from_secs(10), TcpStream::connect(&server.address))
+                .await
+                .expect("connected within 10 s")
+                .unwrap();
+        idle.push(stream);
+    }
+    // Every one of them still open on this side: they sit on the socket.
+    assert_eq!(idle.len(), IDLE);
+    for (method, path) in [("GET", "/api/v1/health"), ("POST", "/api/v1/stop-all")] {
+        let answer = tokio::time::timeout(
+            Duration::from_secs(20),
+            common::request(
+                &server.address,
+                method,
+                path,
+                "application/json",
+                Some("{}").filter(|_| method == "POST"),
+                Duration::from_secs(20),
+            ),
+        )
+        .await
+        .unwrap_or_else(|_| panic!("{method} {path}: no answer within 20 s"));
+        assert_eq!(answer.status, 200, "{method} {path}: {}", answer.body);
+    }
+    drop(idle);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
+    let (server, _, lines) = start_limited(
+        1024,
+        &[
+            "--header-timeout-ms",
+            "300",
+            "--idle-timeout-ms",
+            "300",
+            "--ascii-listen",
+            "127.0.0.1:0",
+            "--ascii-idle-timeout-ms",
+            "300",
+            "--ascii-max-connections",
+            "2",
+        ],
+        "candeck: CiA 309-3 ASCII gateway on ",
+    );
+    let ascii = lines
+        .last()
+        .and_then(|line| line.strip_prefix("candeck: CiA 309-3 ASCII gateway on "))
+        .and_then(|rest| rest.split_whitespace().next())
+        .unwrap_or_else(|| panic!("{lines:?}"))
+        .to_string();
+    let bound = Duration::from_secs(30);
+
+    // A request whose head never ends.
+    let mut half = TcpStream::connect(&server.address).await.unwrap();
+    half.write_all(b"GET /api/v1/health HTTP/1.1\r\nHost: localhost\r\nX-Slow: 1")
+        .await
+        .unwrap();
+    assert!(closed_by_server(&mut half, bound).await.is_empty());
+    // A client that connects and sends nothing.
+    let mut silent = TcpStream::connect(&server.address).await.unwrap();
+    assert!(closed_by_server(&mut silent, bound).await.is_empty());
+    // A kept-alive connection, idle after its answer.
+    let mut kept = TcpStream::connect(&server.address).await.unwrap();
+    kept.write_all(b"GET /api/v1/health HTTP/1.1\r\nHost: localhost\r\n\r\n")
+        .await
+        .unwrap();
+    let answer = closed_by_server(&mut kept, bound).await;
+    assert!(answer.starts_with(b"HTTP/1.1 200"), "{answer:?}");
+    // The gateway still answers.
+    let (status, _) = common::http(&server.address, "GET", "/api/v1/health", None).await;
+    assert_eq!(status, 200);
+
+    // CiA 309-3: two connections at most; a third one is closed at once.
+    let mut first = TcpStream::connect(&ascii).await.unwrap();
+    first.write_all(b"[1] 1 r 0x1000 0 u32\n").await.unwrap();
+    let mut reply = [0u8; 64];
+    let n = tokio::time::timeout(bound, first.read(&mut reply))
+        .await
+        .expect("a reply")
+        .unwrap();
+    assert!(reply[..n].starts_with(b"[1] "), "{:?}", &reply[..n]);
+    let mut second = TcpStream::connect(&ascii).await.unwrap();
+    let mut third = TcpStream::connect(&ascii).await.unwrap();
+    // Closed at once, without an answer, while the first got one.
+    third.write_all(b"[2] 1 r 0x1000 0 u32\n").await.ok();
+    let refused = closed_by_server(&mut third, bound).await;
+    assert!(
+        refused.is_empty(),
+        "{:?}",
+        String::from_utf8_lossy(&refused)
+    );
+    // And clients that send nothing are closed after the idle timeout.
+    closed_by_server(&mut first, bound).await;
+    closed_by_server(&mut second, bound).await;
+}
