@@ -55,6 +55,7 @@ fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Ve
 
 /// Raises this process's own soft file-descriptor limit to its hard one:
 /// the test holds more than 1,024 sockets.
+#[allow(unsafe_code)] // the one FFI call of the test suite
 fn raise_nofile(wanted: u64) {
     // SAFETY: getrlimit and setrlimit only read and write the struct given.
     unsafe {

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 #[derive(Clone, Copy)]
-pub struct Options {
+pub(crate) struct Options {
     pub warmup: Duration,
     pub measure: Duration,
 }
@@ -12,7 +12,7 @@ pub struct Options {
 impl Options {
     /// `--seconds N` (measured) and `--warmup N` over the defaults given;
     /// `cargo bench` passes `--bench`, and anything else is ignored too.
-    pub fn from_args(warmup: Duration, measure: Duration) -> Self {
+    pub(crate) fn from_args(warmup: Duration, measure: Duration) -> Self {
         let mut options = Self { warmup, measure };
         let args: Vec<String> = std::env::args().collect();
         let mut i = 1;

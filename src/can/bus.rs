@@ -223,31 +223,31 @@ pub(crate) struct LazyChannel {
 }
 
 impl LazyChannel {
-    pub fn new(capacity: usize) -> Self {
+    pub(crate) fn new(capacity: usize) -> Self {
         Self {
             cell: Arc::new(OnceLock::new()),
             capacity,
         }
     }
 
-    pub fn subscribe(&self) -> broadcast::Receiver<Envelope> {
+    pub(crate) fn subscribe(&self) -> broadcast::Receiver<Envelope> {
         self.cell
             .get_or_init(|| broadcast::channel(self.capacity).0)
             .subscribe()
     }
 
     /// Sends if anyone ever subscribed; a channel never made costs nothing.
-    pub fn send(&self, envelope: Envelope) {
+    pub(crate) fn send(&self, envelope: Envelope) {
         if let Some(channel) = self.cell.get() {
             let _ = channel.send(envelope);
         }
     }
 
-    pub fn receiver_count(&self) -> usize {
+    pub(crate) fn receiver_count(&self) -> usize {
         self.cell.get().map_or(0, |c| c.receiver_count())
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.cell.get().map_or(0, |c| c.len())
     }
 }
@@ -556,7 +556,7 @@ pub(crate) const DRIVER_SELF: Origin = 1;
 
 impl DriverSide {
     /// Publishes a frame that came from the wire.
-    pub fn received(&self, frame: Frame, timestamp: Timestamp) {
+    pub(crate) fn received(&self, frame: Frame, timestamp: Timestamp) {
         self.counters.count_rx(&frame);
         let envelope = Envelope {
             origin: WIRE,
@@ -569,7 +569,7 @@ impl DriverSide {
     }
 
     /// Publishes a frame this attachment has written, for monitors.
-    pub fn sent(&self, frame: Frame) {
+    pub(crate) fn sent(&self, frame: Frame) {
         self.counters.count_tx(&frame);
         self.monitor_frames.send(Envelope {
             origin: DRIVER_SELF,
@@ -579,16 +579,16 @@ impl DriverSide {
     }
 
     /// Receivers of this bus, of both kinds.
-    pub fn receivers(&self) -> usize {
+    pub(crate) fn receivers(&self) -> usize {
         self.rx_frames.receiver_count() + self.monitor_frames.receiver_count()
     }
 
     /// Frames the slowest receiver has yet to read.
-    pub fn backlog(&self) -> usize {
+    pub(crate) fn backlog(&self) -> usize {
         self.rx_frames.len().max(self.monitor_frames.len())
     }
 
-    pub fn set_status(&self, status: BusStatus) {
+    pub(crate) fn set_status(&self, status: BusStatus) {
         self.status.send_if_modified(|current| {
             if *current == status {
                 false
@@ -599,7 +599,7 @@ impl DriverSide {
         });
     }
 
-    pub fn state(&self) -> BusState {
+    pub(crate) fn state(&self) -> BusState {
         self.status.borrow().state
     }
 }

@@ -93,7 +93,7 @@ pub(crate) struct TxQueueFull;
 impl HubLink {
     /// Puts `frame` on the bus, waiting for room in the transmit queue of a
     /// timed hub.
-    pub async fn send(&self, frame: Frame) {
+    pub(crate) async fn send(&self, frame: Frame) {
         if self.hub.wire.is_some() {
             // The semaphore is never closed.
             if let Ok(permit) = self.tx_room.acquire().await {
@@ -104,7 +104,7 @@ impl HubLink {
     }
 
     /// [`HubLink::send`] without waiting.
-    pub fn try_send(&self, frame: Frame) -> Result<(), TxQueueFull> {
+    pub(crate) fn try_send(&self, frame: Frame) -> Result<(), TxQueueFull> {
         if self.hub.wire.is_some() {
             self.tx_room
                 .try_acquire()

@@ -41,11 +41,11 @@ const INVALID_BIT: u32 = 1 << 31;
 
 /// Communication parameter sub-indexes (§7.5.2.35, §7.5.2.37).
 mod comm_sub {
-    pub const COB_ID: u8 = 1;
-    pub const TRANSMISSION_TYPE: u8 = 2;
-    pub const INHIBIT_TIME: u8 = 3;
-    pub const EVENT_TIMER: u8 = 5;
-    pub const SYNC_START: u8 = 6;
+    pub(super) const COB_ID: u8 = 1;
+    pub(super) const TRANSMISSION_TYPE: u8 = 2;
+    pub(super) const INHIBIT_TIME: u8 = 3;
+    pub(super) const EVENT_TIMER: u8 = 5;
+    pub(super) const SYNC_START: u8 = 6;
 }
 
 /// One PDO's configuration as read from the node. The optional parameters

@@ -10,7 +10,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-pub struct Server {
+pub(crate) struct Server {
     pub child: Child,
     pub address: String,
 }
@@ -24,7 +24,7 @@ impl Drop for Server {
 
 /// Starts `candeck ARGS --listen 127.0.0.1:0` and reads the address from its
 /// first stdout line.
-pub fn start(args: &[&str]) -> (Server, String) {
+pub(crate) fn start(args: &[&str]) -> (Server, String) {
     start_with_env(args, &[])
 }
 
@@ -47,7 +47,7 @@ fn spawn_and_read_line(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Chil
 }
 
 /// [`start`] with environment variables set for the process.
-pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Server, String) {
+pub(crate) fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Server, String) {
     let mut all = args.to_vec();
     all.extend(["--listen", "127.0.0.1:0"]);
     let (child, line) = spawn_and_read_line(&all, env);
@@ -61,7 +61,7 @@ pub fn start_with_env(args: &[&str], env: &[(&str, &std::path::Path)]) -> (Serve
 
 /// Sends SIGTERM and waits (at most 5 s) for the process to end; its exit
 /// code.
-pub async fn terminate(server: &mut Server) -> Option<i32> {
+pub(crate) async fn terminate(server: &mut Server) -> Option<i32> {
     let pid = server.child.id().to_string();
     let killed = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
     assert!(killed.success());
@@ -75,7 +75,7 @@ pub async fn terminate(server: &mut Server) -> Option<i32> {
 }
 
 /// A `candeck vbus` child process, killed when dropped.
-pub struct Vbus(pub Child);
+pub(crate) struct Vbus(pub Child);
 
 impl Drop for Vbus {
     fn drop(&mut self) {
@@ -87,7 +87,7 @@ impl Drop for Vbus {
 /// `candeck vbus --devices demo` listening on `listen` (port 0: a free
 /// one); the process, and the socketcand address and channel it serves
 /// (`127.0.0.1:PORT/can0`).
-pub fn vbus(listen: &str) -> (Vbus, String) {
+pub(crate) fn vbus(listen: &str) -> (Vbus, String) {
     let (child, line) =
         spawn_and_read_line(&["vbus", "--listen", listen, "--devices", "demo"], &[]);
     // "candeck vbus: socketcand on ADDR channel CHANNEL devices ..."
@@ -101,7 +101,7 @@ pub fn vbus(listen: &str) -> (Vbus, String) {
 }
 
 /// What came back from one request.
-pub struct Response {
+pub(crate) struct Response {
     pub status: u16,
     /// The `Content-Type` header, empty when there is none.
     pub content_type: String,
@@ -109,7 +109,7 @@ pub struct Response {
 }
 
 impl Response {
-    pub fn json(&self) -> serde_json::Value {
+    pub(crate) fn json(&self) -> serde_json::Value {
         serde_json::from_str(&self.body)
             .unwrap_or_else(|err| panic!("no JSON ({err}): {}", self.body))
     }
@@ -117,7 +117,7 @@ impl Response {
 
 /// One request with a body of `content_type`, `Connection: close`, answered
 /// within `timeout`.
-pub async fn request(
+pub(crate) async fn request(
     address: &str,
     method: &str,
     path: &str,
@@ -129,7 +129,7 @@ pub async fn request(
 }
 
 /// [`request`] with more header lines (each ending in `\r\n`).
-pub async fn request_with_headers(
+pub(crate) async fn request_with_headers(
     address: &str,
     method: &str,
     path: &str,
@@ -173,7 +173,12 @@ pub async fn request_with_headers(
 
 /// One request with a JSON body, `Connection: close`, answered within
 /// 10 s; returns the status code and body.
-pub async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
+pub(crate) async fn http(
+    address: &str,
+    method: &str,
+    path: &str,
+    body: Option<&str>,
+) -> (u16, String) {
     let response = request(
         address,
         method,
@@ -187,7 +192,7 @@ pub async fn http(address: &str, method: &str, path: &str, body: Option<&str>) -
 }
 
 /// One request whose answer is JSON (every API answer is): status and body.
-pub async fn json(
+pub(crate) async fn json(
     address: &str,
     method: &str,
     path: &str,
@@ -200,7 +205,7 @@ pub async fn json(
 
 /// Enables the axis at `axis` (`/api/v1/buses/B/nodes/N/axes/A`) and
 /// starts the move `body` (JSON text); the move's answer.
-pub async fn enable_and_move(address: &str, axis: &str, body: &str) -> serde_json::Value {
+pub(crate) async fn enable_and_move(address: &str, axis: &str, body: &str) -> serde_json::Value {
     let (status, answer) = json(
         address,
         "POST",
@@ -216,7 +221,7 @@ pub async fn enable_and_move(address: &str, axis: &str, body: &str) -> serde_jso
 }
 
 /// [`json`] with a bearer token.
-pub async fn json_with_token(
+pub(crate) async fn json_with_token(
     address: &str,
     method: &str,
     path: &str,
@@ -237,7 +242,7 @@ pub async fn json_with_token(
 
 /// Polls `GET path` every 50 ms, for at most 10 s, until `done`; the last
 /// answer either way.
-pub async fn poll(
+pub(crate) async fn poll(
     address: &str,
     path: &str,
     done: impl Fn(u16, &serde_json::Value) -> bool,
@@ -257,7 +262,7 @@ pub async fn poll(
 /// They are optional test inputs, never part of the repository: when the
 /// variable is not set this says on stderr that `test` was skipped and gives
 /// `None`. When it is set, the file must be there.
-pub fn vendor_eds(file: &str, test: &str) -> Option<std::path::PathBuf> {
+pub(crate) fn vendor_eds(file: &str, test: &str) -> Option<std::path::PathBuf> {
     use std::io::Write as _;
     let Some(dir) = std::env::var_os("CANDECK_VENDOR_EDS") else {
         // Straight to stderr, past the test harness's capture, so that the

@@ -14,7 +14,7 @@ use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 
 /// `spec` opened as bus `name` with the built-in EDS catalog.
-pub async fn open(name: &str, spec: &str) -> ServedBus {
+pub(crate) async fn open(name: &str, spec: &str) -> ServedBus {
     ServedBus::open(
         name,
         &spec.parse().unwrap(),
@@ -30,13 +30,13 @@ pub async fn open(name: &str, spec: &str) -> ServedBus {
 /// Motion leases last the longest period the gateway grants, so that
 /// tests of other things may watch a velocity move for a while unrenewed
 /// (`tests_leases` sets its own).
-pub async fn demo() -> (Router, AppState) {
+pub(crate) async fn demo() -> (Router, AppState) {
     demo_at("virtual:demo").await
 }
 
 /// [`demo`] on the bus `spec` (`virtual:demo?bitrate=unlimited` for tests
 /// of the software that send more than a wire carries).
-pub async fn demo_at(spec: &str) -> (Router, AppState) {
+pub(crate) async fn demo_at(spec: &str) -> (Router, AppState) {
     let served = open("demo", spec).await;
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
@@ -45,7 +45,7 @@ pub async fn demo_at(spec: &str) -> (Router, AppState) {
 }
 
 /// One request; the status, the body as text and its content type.
-pub async fn raw_call(
+pub(crate) async fn raw_call(
     app: &Router,
     method: Method,
     uri: &str,
@@ -77,7 +77,7 @@ pub async fn raw_call(
 
 /// One request with a JSON body given as text; the answer's JSON (`null`
 /// for an empty body, as a 204 has).
-pub async fn call_text(
+pub(crate) async fn call_text(
     app: &Router,
     method: Method,
     uri: &str,
@@ -100,7 +100,7 @@ pub async fn call_text(
 }
 
 /// [`call_text`] with a JSON value.
-pub async fn call(
+pub(crate) async fn call(
     app: &Router,
     method: Method,
     uri: &str,
@@ -115,20 +115,20 @@ pub async fn call(
     .await
 }
 
-pub async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
+pub(crate) async fn get(app: &Router, uri: &str) -> (StatusCode, Json) {
     call(app, Method::GET, uri, None).await
 }
 
-pub async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
+pub(crate) async fn put(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
     call(app, Method::PUT, uri, Some(body)).await
 }
 
-pub async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
+pub(crate) async fn post(app: &Router, uri: &str, body: Json) -> (StatusCode, Json) {
     call(app, Method::POST, uri, Some(body)).await
 }
 
 /// POST a JSON body presenting a motion lease (`Candeck-Lease`).
-pub async fn post_with_lease(
+pub(crate) async fn post_with_lease(
     app: &Router,
     uri: &str,
     lease: &str,
@@ -149,16 +149,16 @@ pub async fn post_with_lease(
     (status, serde_json::from_slice(&bytes).unwrap())
 }
 
-pub async fn post_text(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {
+pub(crate) async fn post_text(app: &Router, uri: &str, body: &str) -> (StatusCode, Json) {
     call_text(app, Method::POST, uri, Some(body)).await
 }
 
-pub async fn delete_text(app: &Router, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
+pub(crate) async fn delete_text(app: &Router, uri: &str, body: Option<&str>) -> (StatusCode, Json) {
     call_text(app, Method::DELETE, uri, body).await
 }
 
 /// Asserts the API's error shape and code.
-pub fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
+pub(crate) fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
     assert_eq!(response.0, status, "{}", response.1);
     assert_eq!(response.1["error"]["code"], code, "{}", response.1);
     assert!(

@@ -51,7 +51,7 @@ pub(super) struct IniWarning {
 }
 
 impl Ini {
-    pub fn section(&self, name: &str) -> Option<&Section> {
+    pub(super) fn section(&self, name: &str) -> Option<&Section> {
         self.by_name
             .get(&name.to_ascii_lowercase())
             .map(|&i| &self.sections[i])
@@ -59,7 +59,7 @@ impl Ini {
 }
 
 impl Section {
-    pub fn get(&self, key: &str) -> Option<&Entry> {
+    pub(super) fn get(&self, key: &str) -> Option<&Entry> {
         self.entries
             .iter()
             .find(|entry| entry.key.eq_ignore_ascii_case(key))

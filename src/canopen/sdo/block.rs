@@ -70,7 +70,7 @@ pub(super) struct BlockReceiver {
 }
 
 impl BlockReceiver {
-    pub fn new(block_size: u8) -> Self {
+    pub(super) fn new(block_size: u8) -> Self {
         Self {
             block_size,
             last_good: 0,
@@ -80,13 +80,13 @@ impl BlockReceiver {
         }
     }
 
-    pub fn block_size(&self) -> u8 {
+    pub(super) fn block_size(&self) -> u8 {
         self.block_size
     }
 
     /// Takes one segment; `Err` when its sequence number cannot be in a
     /// block of this size (0, or above the block size).
-    pub fn receive(&mut self, segment: &BlockSegment) -> Result<Received, ()> {
+    pub(super) fn receive(&mut self, segment: &BlockSegment) -> Result<Received, ()> {
         if segment.seqno == 0 || segment.seqno > self.block_size {
             return Err(());
         }
@@ -124,7 +124,7 @@ impl BlockReceiver {
 
     /// Whether a silence now calls for [`BlockReceiver::rescue`] rather than
     /// for giving up.
-    pub fn wants_rescue(&self) -> bool {
+    pub(super) fn wants_rescue(&self) -> bool {
         self.seen && !self.rescued
     }
 
@@ -133,7 +133,7 @@ impl BlockReceiver {
     /// the sender resume from there, as CANopenNode does, instead of
     /// aborting the whole transfer. Once per stall; `None` when the sender
     /// has shown no sign of life since the last rescue.
-    pub fn rescue(&mut self) -> Option<u8> {
+    pub(super) fn rescue(&mut self) -> Option<u8> {
         if !self.wants_rescue() {
             return None;
         }
