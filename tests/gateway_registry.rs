@@ -467,15 +467,20 @@ async fn a_users_eds_file_is_preferred_for_the_identity_it_describes() {
     let led = registry.node(node(3)).unwrap();
     assert_eq!(led.eds.as_deref(), Some("uio1led.eds"));
 
-    // A broken file in the directory is an error that names it.
-    std::fs::write(
-        dir.join("zz_broken.eds"),
-        "[DeviceInfo]\nVendorNumber=1\nProductNumber=2\n[MandatoryObjects]\nSupportedObjects=1\n1=0x1000\n\
-         [1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0xBAD\nAccessType=ro\n",
-    )
-    .unwrap();
-    let error = EdsCatalog::with_dir(&dir).unwrap_err();
-    assert!(error.to_string().contains("zz_broken.eds"), "{error}");
+    // A file in the directory that is no EDS is left out and named; the
+    // others still load (a bad file never stops the gateway).
+    std::fs::write(dir.join("zz_broken.eds"), "\0\u{1}binary, not text\n").unwrap();
+    let catalog = EdsCatalog::with_dir(&dir).unwrap();
+    let skipped = catalog.skipped();
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    assert_eq!(skipped[0].path, dir.join("zz_broken.eds"));
+    assert!(
+        catalog
+            .entries()
+            .iter()
+            .any(|entry| entry.name == "my_umc1bds32.eds"),
+        "the good file is still in the catalog"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

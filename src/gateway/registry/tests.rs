@@ -293,3 +293,65 @@ async fn an_unknown_node_has_no_channel() {
     );
     assert_eq!(registry.bus_name(), "test");
 }
+
+/// A node that speaks while the scan probes it takes the probe's channel:
+/// a read of it waits for the probe, so the server never has two requests
+/// of two clients open at once (on a bus with a bit rate the probe and a
+/// client's read overlapped, and the read got the probe's answer:
+/// "it answered for object 0x1000 instead of 0x1008").
+#[tokio::test(start_paused = true)]
+async fn a_node_heard_during_its_probe_is_read_only_after_the_probe() {
+    let hub = VirtualHub::new("test");
+    let registry = registry(&hub, RegistryConfig::default());
+    let device = hub.attach();
+    let mut frames = device.subscribe();
+    let scan = tokio::spawn({
+        let registry = registry.clone();
+        async move { registry.scan().await }
+    });
+    // The probe of node 5: an upload of 0x1000:0, left unanswered for now.
+    let request = |frame: &Frame| frame.id() == CanId::Standard(0x605) && frame.data()[0] == 0x40;
+    let probe = loop {
+        let frame = frames.recv().await.unwrap().frame;
+        if request(&frame) {
+            break frame;
+        }
+    };
+    assert_eq!(&probe.data()[1..4], &[0x00, 0x10, 0x00]);
+    // Node 5 speaks meanwhile (a heartbeat, pre-operational), and a client
+    // reads its 0x1008 through the node's channel at once.
+    device.send(frame(0x705, &[0x7F])).await.unwrap();
+    tokio::time::sleep(ms(1)).await;
+    let channel = registry.sdo(node(5)).expect("the node is known");
+    let read = tokio::spawn(async move { channel.upload(0x1008, 0).await });
+    // No second request while the probe's is open.
+    let deadline = tokio::time::Instant::now() + ms(20);
+    while let Ok(received) = tokio::time::timeout_at(deadline, frames.recv()).await {
+        let frame = received.unwrap().frame;
+        assert!(
+            !request(&frame),
+            "a second request to node 5 while its probe is open: {frame:?}"
+        );
+    }
+    // The probe's answer (device type 0x00020192), then the read's turn.
+    device
+        .send(frame(
+            0x585,
+            &[0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00],
+        ))
+        .await
+        .unwrap();
+    let second = loop {
+        let frame = frames.recv().await.unwrap().frame;
+        if request(&frame) && frame.data()[1..4] == [0x08, 0x10, 0x00] {
+            break frame;
+        }
+    };
+    assert_eq!(second.data()[0], 0x40);
+    device
+        .send(frame(0x585, &[0x4F, 0x08, 0x10, 0x00, b'X', 0, 0, 0]))
+        .await
+        .unwrap();
+    assert_eq!(read.await.unwrap().unwrap(), b"X".to_vec());
+    scan.abort();
+}

@@ -1,0 +1,194 @@
+use super::*;
+
+fn identity(vendor: u32, product: u32, revision: Option<u32>) -> Identity {
+    Identity {
+        vendor_id: vendor,
+        product_code: Some(product),
+        revision,
+        serial: None,
+    }
+}
+
+/// A minimal EDS with an identity and a device type.
+fn eds_text(vendor: u32, product: u32, revision: u32, device_type: u32) -> String {
+    format!(
+        "[FileInfo]\nFileName=test.eds\n\n[DeviceInfo]\nVendorName=Test\nVendorNumber=0x{vendor:X}\n\
+         ProductName=Test device\nProductNumber=0x{product:X}\nRevisionNumber=0x{revision:X}\n\n\
+         [MandatoryObjects]\nSupportedObjects=2\n1=0x1000\n2=0x1001\n\n\
+         [1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\n\
+         DefaultValue=0x{device_type:X}\nPDOMapping=0\n\n\
+         [1001]\nParameterName=Error register\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\n\
+         DefaultValue=0\nPDOMapping=0\n"
+    )
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("candeck-profile-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn profile_names_are_the_api_names_both_ways() {
+    for profile in Profile::ALL {
+        assert_eq!(Profile::from_name(profile.name()), Some(profile));
+        assert_eq!(
+            serde_json::to_value(profile).unwrap(),
+            serde_json::json!(profile.name())
+        );
+    }
+    assert_eq!(Profile::from_name("servo"), None);
+    assert_eq!(Profile::JmcStepper.to_string(), "jmc_stepper");
+}
+
+#[test]
+fn the_device_type_gives_cia402_by_its_low_16_bits() {
+    assert_eq!(Profile::from_device_type(402), Profile::Cia402);
+    assert_eq!(Profile::from_device_type(0x0002_0192), Profile::Cia402);
+    assert_eq!(Profile::from_device_type(0x0006_0912), Profile::Generic);
+    assert_eq!(Profile::from_device_type(428), Profile::Generic);
+    assert_eq!(Profile::from_device_type(0), Profile::Generic);
+}
+
+#[test]
+fn the_built_in_files_match_what_our_products_report() {
+    let catalog = EdsCatalog::builtin().unwrap();
+    let cases = [
+        (
+            0x4A2,
+            0x1001,
+            Some(0x0100_0004),
+            "umc1bds32.eds",
+            Profile::Umc,
+        ),
+        (
+            0x4A2,
+            0x1002,
+            Some(0x0100_0004),
+            "umc1bd90.eds",
+            Profile::Umc,
+        ),
+        (0x4A2, 0x4101, Some(1), "uio1led.eds", Profile::Uioled),
+        // The JMC drive reports product 0 and revision 0 in 0x1018.
+        (0x2D9, 0, Some(0), "jmc_stepper.eds", Profile::JmcStepper),
+    ];
+    for (vendor, product, revision, name, profile) in cases {
+        let found = catalog
+            .lookup(&identity(vendor, product, revision))
+            .unwrap();
+        assert_eq!((found.name.as_str(), found.profile), (name, profile));
+        assert_eq!(found.source, EdsSource::BuiltIn);
+        assert!(!found.eds.dictionary.is_empty());
+    }
+    assert!(catalog.lookup(&identity(0x4A2, 0x9999, Some(1))).is_none());
+    assert!(catalog.lookup(&identity(0x123, 0x1001, Some(1))).is_none());
+    // A missing product code matches nothing.
+    let no_product = Identity {
+        product_code: None,
+        ..identity(0x4A2, 0, None)
+    };
+    assert!(catalog.lookup(&no_product).is_none());
+    assert_eq!(
+        catalog.profile(Some(&no_product), Some(402)),
+        Profile::Cia402
+    );
+    assert_eq!(catalog.profile(None, None), Profile::Generic);
+}
+
+#[test]
+fn the_exact_revision_wins_then_the_closest_below_then_any() {
+    let dir = temp_dir("ranking");
+    for (file, revision) in [("r1.eds", 1), ("r3.eds", 3), ("r5.eds", 5)] {
+        std::fs::write(dir.join(file), eds_text(0x77, 0x10, revision, 402)).unwrap();
+    }
+    let catalog = EdsCatalog::with_dir(&dir).unwrap();
+    let name = |revision| {
+        catalog
+            .lookup(&identity(0x77, 0x10, revision))
+            .map(|entry| entry.name.clone())
+    };
+    assert_eq!(name(Some(3)).as_deref(), Some("r3.eds"));
+    assert_eq!(name(Some(4)).as_deref(), Some("r3.eds"));
+    assert_eq!(name(Some(9)).as_deref(), Some("r5.eds"));
+    // Below every file: the highest of the product.
+    assert_eq!(name(Some(0)).as_deref(), Some("r5.eds"));
+    // No revision reported: the highest.
+    assert_eq!(name(None).as_deref(), Some("r5.eds"));
+    let entry = catalog.lookup(&identity(0x77, 0x10, Some(1))).unwrap();
+    assert_eq!(entry.profile, Profile::Cia402);
+    assert_eq!(entry.source, EdsSource::File(dir.join("r1.eds")));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_users_file_wins_over_a_built_in_one_and_keeps_the_products_profile() {
+    let dir = temp_dir("user");
+    // Our UMC1BDS32, but described by the user's own file (device type
+    // 402 would say cia402; the product says umc).
+    std::fs::write(
+        dir.join("my_umc.EDS"),
+        eds_text(0x4A2, 0x1001, 0x0100_0004, 402),
+    )
+    .unwrap();
+    std::fs::write(dir.join("other.eds"), eds_text(0x99, 1, 1, 0x0191)).unwrap();
+    std::fs::write(dir.join("notes.txt"), "not an EDS").unwrap();
+    let catalog = EdsCatalog::with_dir(&dir).unwrap();
+    assert_eq!(catalog.entries().len(), BUILT_IN.len() + 2);
+    let umc = catalog
+        .lookup(&identity(0x4A2, 0x1001, Some(0x0100_0004)))
+        .unwrap();
+    assert_eq!(
+        (umc.name.as_str(), umc.profile),
+        ("my_umc.EDS", Profile::Umc)
+    );
+    // An exact built-in still beats a user's file of another revision.
+    let dir2 = temp_dir("user-older");
+    std::fs::write(
+        dir2.join("old.eds"),
+        eds_text(0x4A2, 0x1001, 0x0100_0001, 402),
+    )
+    .unwrap();
+    let catalog2 = EdsCatalog::with_dir(&dir2).unwrap();
+    let umc = catalog2
+        .lookup(&identity(0x4A2, 0x1001, Some(0x0100_0004)))
+        .unwrap();
+    assert_eq!(umc.name, "umc1bds32.eds");
+    let other = catalog.lookup(&identity(0x99, 1, Some(1))).unwrap();
+    assert_eq!(other.profile, Profile::Generic);
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&dir2).unwrap();
+}
+
+#[test]
+fn a_broken_or_unmatchable_file_is_left_out_and_named_and_the_rest_serves() {
+    let dir = temp_dir("broken");
+    std::fs::write(dir.join("good.eds"), eds_text(0x77, 0x10, 1, 402)).unwrap();
+    // No EDS at all (a flawed EDS loads, with warnings).
+    std::fs::write(dir.join("broken.eds"), "[Settings]\nColour=blue\n").unwrap();
+    let text = eds_text(0x77, 0x11, 1, 402).replace("VendorNumber=0x77\n", "");
+    std::fs::write(dir.join("anonymous.eds"), text).unwrap();
+    let catalog = EdsCatalog::with_dir(&dir).unwrap();
+    assert_eq!(catalog.entries().len(), BUILT_IN.len() + 1);
+    assert!(catalog.lookup(&identity(0x77, 0x10, Some(1))).is_some());
+    let skipped: Vec<_> = catalog
+        .skipped()
+        .iter()
+        .map(|file| {
+            (
+                file.path.file_name().unwrap().to_str().unwrap(),
+                &file.message,
+            )
+        })
+        .collect();
+    assert_eq!(skipped.len(), 2, "{skipped:?}");
+    assert_eq!(skipped[0].0, "anonymous.eds");
+    assert!(skipped[0].1.contains("vendor number"), "{}", skipped[0].1);
+    assert_eq!(skipped[1].0, "broken.eds");
+    assert!(skipped[1].1.contains("not an EDS"), "{}", skipped[1].1);
+
+    let missing = dir.join("no-such-dir");
+    let error = EdsCatalog::with_dir(&missing).unwrap_err();
+    assert!(error.to_string().contains("no-such-dir"), "{error}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
