@@ -9,7 +9,7 @@ use axum::http::{Method, Request, StatusCode};
 use serde_json::{Value as Json, json};
 use tower::ServiceExt;
 
-use super::support::{self, assert_error};
+use super::support::{self, assert_error, send_with_headers};
 use crate::api::auth::{AuthConfig, RateLimit, Role, Token};
 use crate::api::{AppState, app};
 
@@ -47,25 +47,14 @@ async fn send(
     headers: &[(&str, &str)],
     body: Option<&str>,
 ) -> (StatusCode, Json) {
-    let mut request = Request::builder().method(method).uri(path);
-    if let Some(token) = token {
-        request = request.header("authorization", format!("Bearer {token}"));
-    }
-    for (name, value) in headers {
-        request = request.header(*name, *value);
-    }
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |b| Body::from(b.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    (status, serde_json::from_slice(&bytes).unwrap_or(Json::Null))
+    let authorization = token.map(|token| format!("Bearer {token}"));
+    let mut all: Vec<(&str, &str)> = authorization
+        .iter()
+        .map(|value| ("authorization", value.as_str()))
+        .collect();
+    all.extend_from_slice(headers);
+    let (status, _, json) = send_with_headers(app, method, path, &all, body).await;
+    (status, json)
 }
 
 /// The audit log, oldest first.

@@ -6,14 +6,13 @@
 use std::time::Duration;
 
 use axum::Router;
-use axum::body::Body;
-use axum::http::{HeaderMap, Method, Request, StatusCode, header};
+use axum::http::{Method, StatusCode, header};
 use serde_json::Value as Json;
-use tower::ServiceExt;
 
 use crate::api::auth::{
     Access, AuthConfig, DEFAULT_BODY_LIMIT, FALLBACK, ROUTES, RateLimit, Role, Token, route_entry,
 };
+use crate::api::tests::support::send_with_headers as send;
 use crate::api::{AppState, app, routers};
 
 const VIEWER: &str = "v1ewer-0123456789abcdef";
@@ -39,38 +38,6 @@ fn config(rate_limit: Option<RateLimit>) -> AuthConfig {
 /// and nothing moves), with the three tokens.
 fn gateway(rate_limit: Option<RateLimit>) -> Router {
     app(AppState::new([]).with_auth(config(rate_limit)))
-}
-
-/// One request with these headers; status, headers and the body as JSON
-/// (`null` when empty or not JSON).
-async fn send(
-    app: &Router,
-    method: Method,
-    path: &str,
-    headers: &[(&str, &str)],
-    body: Option<&str>,
-) -> (StatusCode, HeaderMap, Json) {
-    let mut request = Request::builder().method(method).uri(path);
-    for (name, value) in headers {
-        request = request.header(*name, *value);
-    }
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |b| Body::from(b.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let headers = response.headers().clone();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    (
-        status,
-        headers,
-        serde_json::from_slice(&bytes).unwrap_or(Json::Null),
-    )
 }
 
 fn bearer(token: &str) -> String {

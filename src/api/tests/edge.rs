@@ -2,42 +2,11 @@
 //! rebinding on every route, and the anti-framing and content headers of
 //! every answer.
 
-use axum::Router;
-use axum::body::Body;
-use axum::http::{HeaderMap, Method, Request, StatusCode};
-use serde_json::Value as Json;
-use tower::ServiceExt;
+use axum::http::{Method, StatusCode};
 
-use super::support::demo;
+use super::support::{demo, send_with_headers as send};
 use crate::api::headers::{CONTENT_SECURITY_POLICY, DOCS_CONTENT_SECURITY_POLICY};
 use crate::api::host::AllowedHosts;
-
-async fn send(
-    app: &Router,
-    method: Method,
-    uri: &str,
-    headers: &[(&str, &str)],
-    body: Option<&str>,
-) -> (StatusCode, HeaderMap, Json) {
-    let mut request = Request::builder().method(method).uri(uri);
-    for (name, value) in headers {
-        request = request.header(*name, *value);
-    }
-    if body.is_some() {
-        request = request.header("content-type", "application/json");
-    }
-    let request = request
-        .body(body.map_or_else(Body::empty, |b| Body::from(b.to_string())))
-        .unwrap();
-    let response = app.clone().oneshot(request).await.unwrap();
-    let status = response.status();
-    let headers = response.headers().clone();
-    let bytes = axum::body::to_bytes(response.into_body(), usize::MAX)
-        .await
-        .unwrap();
-    let json = serde_json::from_slice(&bytes).unwrap_or(Json::Null);
-    (status, headers, json)
-}
 
 const EVIL: &[(&str, &str)] = &[
     ("host", "evil.example:8080"),
