@@ -24,7 +24,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::frame::{Direction, Frame, TimedFrame, Timestamp};
-use super::hub::HubLink;
+use super::hub::{ControllerFault, HubLink};
 use super::timing::frame_bits;
 
 /// How many frames a receiver may fall behind before it loses the oldest.
@@ -148,6 +148,12 @@ pub struct BusCounters {
     pub reconnects: AtomicU64,
     /// Malformed input from the transport (counted, never fatal).
     pub malformed: AtomicU64,
+    /// The controller's transmit error counter (TEC) as last known: the
+    /// virtual hub's fault confinement, or data[6] of SocketCAN's error
+    /// frames. A level, not a count.
+    pub tec: AtomicU64,
+    /// The controller's receive error counter (REC), likewise (data[7]).
+    pub rec: AtomicU64,
 }
 
 impl BusCounters {
@@ -182,6 +188,8 @@ impl BusCounters {
             error_frames: get(&self.error_frames),
             reconnects: get(&self.reconnects),
             malformed: get(&self.malformed),
+            tec: get(&self.tec),
+            rec: get(&self.rec),
         }
     }
 }
@@ -198,6 +206,10 @@ pub struct CounterSnapshot {
     pub error_frames: u64,
     pub reconnects: u64,
     pub malformed: u64,
+    /// Transmit error counter (see [`BusCounters::tec`]).
+    pub tec: u64,
+    /// Receive error counter (see [`BusCounters::rec`]).
+    pub rec: u64,
 }
 
 /// Who put a frame on a fan-out channel: an attachment id, or [`WIRE`] for
@@ -384,6 +396,22 @@ impl Bus {
                 mpsc::error::TrySendError::Closed(_) => BusError::Closed(self.inner.name.clone()),
             }),
             TxPath::ReadOnly => Err(BusError::ReadOnly(self.inner.name.clone())),
+        }
+    }
+
+    /// Injects a fault into this attachment's CAN controller (see
+    /// [`ControllerFault`]); only an attachment to a virtual hub has one to
+    /// inject into.
+    pub fn controller_fault(&self, fault: ControllerFault) -> Result<(), BusError> {
+        match &self.inner.tx {
+            TxPath::Hub(link) => {
+                link.controller_fault(fault);
+                Ok(())
+            }
+            _ => Err(BusError::Unsupported {
+                bus: self.inner.name.clone(),
+                what: "controller faults (a virtual bus only)",
+            }),
         }
     }
 

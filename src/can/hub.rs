@@ -18,6 +18,18 @@
 //! the moment it is sent and the hub never blocks a sender.
 //!
 //! Its state can be forced (down, bus-off, ...) to test what sits above it.
+//!
+//! Each attachment has a CAN controller's fault confinement
+//! ([`super::fault`]): its error counters rise with the errors it sees and
+//! fall with the frames that cross, and its state (error active, error
+//! passive, bus-off) is the attachment's [`BusStatus`]. [`Bus::controller_fault`]
+//! injects bit errors into an attachment's frames, takes it bus-off, and
+//! asks it to recover (128 × 11 recessive bits later at the hub's bit
+//! rate, as if the bus were idle; at once when unlimited). A frame that
+//! meets a bit error reaches the others as a SocketCAN error frame
+//! (`CAN_ERR_PROT | CAN_ERR_BUSERROR`, a stuff error: what receivers see of
+//! an error flag) and is sent again; a bus-off attachment neither sends nor
+//! receives.
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, Weak};
@@ -28,7 +40,8 @@ use super::bus::{
     Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, DEFAULT_TX_QUEUE,
     Envelope, LazyChannel, Origin, TxPath, WIRE,
 };
-use super::frame::{Frame, Timestamp};
+use super::fault::{ErrorState, FaultConfinement, Transition};
+use super::frame::{ERROR_FRAME_LEN, Frame, Timestamp};
 use super::timing::{Bitrate, Wire, frame_bits};
 
 /// The queues of one attachment (see [`crate::can::bus`]).
@@ -40,6 +53,74 @@ struct Attachment {
     counters: Arc<BusCounters>,
     /// Room in its transmit queue (a timed hub only).
     tx_room: Arc<Semaphore>,
+    /// Its own status: the hub's forced one, or its controller's state.
+    status: watch::Sender<BusStatus>,
+    /// Its controller's error counters and state.
+    confinement: FaultConfinement,
+    /// Injected: each of its frames meets one bit error.
+    bit_errors: bool,
+}
+
+/// Error class of what receivers see of an error flag: `CAN_ERR_PROT |
+/// CAN_ERR_BUSERROR` (`linux/can/error.h`).
+pub const BIT_ERROR_CLASS: u32 = 0x08 | 0x80;
+/// Its details: data[2] `CAN_ERR_PROT_STUFF` (six dominant bits break the
+/// stuffing rule), location unspecified.
+pub const BIT_ERROR_DATA: [u8; ERROR_FRAME_LEN] = [0, 0, 0x04, 0, 0, 0, 0, 0];
+
+/// The error frame a bit error puts on the bus.
+pub fn bit_error_frame() -> Frame {
+    Frame::error(BIT_ERROR_CLASS, BIT_ERROR_DATA).expect("a valid error class")
+}
+
+/// A fault of one attachment's CAN controller (virtual buses only).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ControllerFault {
+    /// From now on each frame it sends meets one bit error (TEC + 8) and
+    /// crosses on its retransmission (TEC − 1): error passive after 19
+    /// frames, bus-off at the 37th.
+    BitErrors,
+    /// No more bit errors.
+    NoBitErrors,
+    /// Off the bus at once.
+    BusOff,
+    /// Asks a bus-off controller to recover.
+    Recover,
+}
+
+impl Attachment {
+    /// Its status from the hub's and its controller's.
+    fn status(&self, hub: &BusStatus) -> BusStatus {
+        if hub.state != BusState::Up {
+            return hub.clone();
+        }
+        match self.confinement.state() {
+            ErrorState::ErrorActive => BusStatus::up(),
+            ErrorState::ErrorPassive => {
+                BusStatus::new(BusState::ErrorPassive, "controller is error passive")
+            }
+            ErrorState::BusOff => BusStatus::new(
+                BusState::BusOff,
+                "controller is bus-off (too many transmit errors)",
+            ),
+        }
+    }
+
+    /// After its counters moved: they are published, and its status if the
+    /// state changed.
+    fn follow(&self, transition: Option<Transition>, hub: &BusStatus) {
+        let tec = u64::from(self.confinement.tec());
+        let rec = u64::from(self.confinement.rec());
+        if self.counters.tec.load(Ordering::Relaxed) != tec {
+            self.counters.tec.store(tec, Ordering::Relaxed);
+        }
+        if self.counters.rec.load(Ordering::Relaxed) != rec {
+            self.counters.rec.store(rec, Ordering::Relaxed);
+        }
+        if transition.is_some() {
+            self.status.send_replace(self.status(hub));
+        }
+    }
 }
 
 struct HubInner {
@@ -140,8 +221,40 @@ impl HubInner {
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
-    /// A frame sent: on the wire's queue, or to everyone at once.
+    /// A frame sent: on the wire's queue, or to everyone at once. A frame
+    /// of an attachment with bit errors first fails once (an error frame
+    /// for the others); one that takes it bus-off is lost.
     fn transmit(&self, origin: Origin, frame: Frame) {
+        let mut failed = false;
+        let mut lost = false;
+        {
+            let hub = self.status.borrow().clone();
+            let mut attachments = self.attachments();
+            if let Some(sender) = attachments.iter_mut().find(|a| a.origin == origin) {
+                if !sender.confinement.can_transmit() {
+                    lost = true;
+                } else if sender.bit_errors && !frame.is_error() {
+                    failed = true;
+                    let transition = sender.confinement.transmit_error();
+                    lost = !sender.confinement.can_transmit();
+                    if !lost {
+                        let ok = sender.confinement.transmit_ok();
+                        sender.follow(transition.or(ok), &hub);
+                    } else {
+                        sender.follow(transition, &hub);
+                    }
+                } else if sender.confinement.tec() > 0 && !frame.is_error() {
+                    let transition = sender.confinement.transmit_ok();
+                    sender.follow(transition, &hub);
+                }
+            }
+        }
+        if failed {
+            self.publish(origin, bit_error_frame(), true);
+        }
+        if lost {
+            return;
+        }
         match &self.wire {
             Some(wire) => {
                 let now = tokio::time::Instant::now().into_std();
@@ -163,10 +276,24 @@ impl HubInner {
             frame,
             timestamp: Timestamp::now(),
         };
+        let hub = self.status.borrow().clone();
         // A queue nobody reads refuses the frame and stores nothing, so an
         // attachment without readers costs next to nothing.
-        for attachment in self.attachments().iter() {
+        for attachment in self.attachments().iter_mut() {
             if attachment.origin != origin {
+                if !attachment.confinement.can_transmit() {
+                    // Bus-off: off the bus, it hears nothing.
+                    continue;
+                }
+                let before = attachment.confinement.rec();
+                let transition = if frame.is_error() {
+                    attachment.confinement.receive_error()
+                } else {
+                    attachment.confinement.receive_ok()
+                };
+                if transition.is_some() || attachment.confinement.rec() != before {
+                    attachment.follow(transition, &hub);
+                }
                 attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
             } else if !released {
@@ -213,6 +340,66 @@ async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
             }
             None => wake.notified().await,
         }
+    }
+}
+
+impl HubInner {
+    /// A fault of the controller of attachment `origin`.
+    fn controller_fault(self: &Arc<Self>, origin: Origin, fault: ControllerFault) {
+        let hub = self.status.borrow().clone();
+        let recovery_bits = {
+            let mut attachments = self.attachments();
+            let Some(attachment) = attachments.iter_mut().find(|a| a.origin == origin) else {
+                return;
+            };
+            match fault {
+                ControllerFault::BitErrors => attachment.bit_errors = true,
+                ControllerFault::NoBitErrors => attachment.bit_errors = false,
+                ControllerFault::BusOff => {
+                    let transition = attachment.confinement.force_bus_off();
+                    attachment.follow(transition, &hub);
+                }
+                ControllerFault::Recover => attachment.confinement.request_recovery(),
+            }
+            attachment.confinement.recovery_bits_left()
+        };
+        if fault == ControllerFault::Recover
+            && let Some(bits) = recovery_bits
+        {
+            let duration = self
+                .wire
+                .as_ref()
+                .map_or(Bitrate::Unlimited, |wire| lock(wire).bitrate())
+                .duration_of(u32::try_from(bits).unwrap_or(u32::MAX));
+            if duration.is_zero() {
+                self.recessive_bits(origin, bits);
+            } else {
+                let hub = Arc::downgrade(self);
+                tokio::spawn(async move {
+                    tokio::time::sleep(duration).await;
+                    if let Some(hub) = hub.upgrade() {
+                        hub.recessive_bits(origin, bits);
+                    }
+                });
+            }
+        }
+    }
+
+    /// `bits` recessive bit times went by for a recovering attachment.
+    fn recessive_bits(&self, origin: Origin, bits: u64) {
+        let hub = self.status.borrow().clone();
+        let mut attachments = self.attachments();
+        if let Some(attachment) = attachments.iter_mut().find(|a| a.origin == origin) {
+            let transition = attachment.confinement.recessive_bits(bits);
+            attachment.follow(transition, &hub);
+        }
+    }
+}
+
+impl HubLink {
+    /// A fault of this attachment's controller.
+    pub(crate) fn controller_fault(&self, fault: ControllerFault) {
+        self.hub.controller_fault(self.origin, fault);
     }
 }
 
@@ -282,12 +469,16 @@ impl VirtualHub {
         let monitor_frames = LazyChannel::new(self.inner.queue);
         let counters = Arc::new(BusCounters::default());
         let tx_room = Arc::new(Semaphore::new(DEFAULT_TX_QUEUE));
+        let (status, status_rx) = watch::channel(self.inner.status.borrow().clone());
         self.inner.attachments().push(Attachment {
             origin,
             rx_frames: rx_frames.clone(),
             monitor_frames: monitor_frames.clone(),
             counters: counters.clone(),
             tx_room: tx_room.clone(),
+            status,
+            confinement: FaultConfinement::new(),
+            bit_errors: false,
         });
         Bus::from_parts(BusParts {
             name: self.inner.name.clone(),
@@ -301,15 +492,19 @@ impl VirtualHub {
             }),
             rx_frames,
             monitor_frames,
-            status: self.inner.status.subscribe(),
+            status: status_rx,
             counters,
             driver: None,
         })
     }
 
-    /// Forces the bus state seen by every attachment (fault injection).
+    /// Forces the bus state seen by every attachment (fault injection);
+    /// back up, each attachment shows its controller's state again.
     pub fn set_status(&self, status: BusStatus) {
-        self.inner.status.send_replace(status);
+        self.inner.status.send_replace(status.clone());
+        for attachment in self.inner.attachments().iter() {
+            attachment.status.send_replace(attachment.status(&status));
+        }
     }
 
     pub fn state(&self) -> BusState {

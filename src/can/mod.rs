@@ -7,6 +7,8 @@
 //! - [`bus`]: the [`Bus`] attachment every backend hands out: send, receive,
 //!   state, counters.
 //! - [`hub`]: [`VirtualHub`], the in-process emulated bus.
+//! - [`fault`]: fault confinement (ISO 11898-1): error counters and the
+//!   error-active / error-passive / bus-off states (sans-I/O).
 //! - [`timing`]: the virtual bus's wire: bit rate, frame lengths with
 //!   stuffing, arbitration by identifier (sans-I/O, driven by the hub).
 //! - [`socketcand`]: the socketcand protocol (linux-can/socketcand
@@ -20,6 +22,7 @@
 
 pub mod bus;
 pub mod candump;
+pub mod fault;
 pub mod frame;
 pub mod hub;
 pub mod socketcan;
@@ -29,7 +32,8 @@ pub mod timing;
 pub use bus::{
     Bus, BusError, BusKind, BusState, BusStatus, CounterSnapshot, FrameReceiver, RecvError,
 };
+pub use fault::{ControllerStatus, ErrorState, FaultConfinement};
 pub use frame::{CanId, Direction, FdFlags, Frame, FrameError, FrameKind, TimedFrame, Timestamp};
-pub use hub::VirtualHub;
+pub use hub::{ControllerFault, VirtualHub};
 pub use timing::Bitrate;
 pub mod spec;

@@ -5,7 +5,9 @@
 //! - [`to_socketcan`] / [`from_socketcan`]: our [`Frame`] and the crate's
 //!   [`CanAnyFrame`] (`struct can_frame` / `struct canfd_frame`), both ways;
 //! - [`bus_state_after_error`]: what an error frame (`CAN_ERR_FLAG`,
-//!   `linux/can/error.h`) says about the controller's state.
+//!   `linux/can/error.h`) says about the controller's state, and
+//!   [`error_frame_report`], that with the error counters it carries: the
+//!   same events the virtual hub's fault confinement gives.
 //!
 //! Behind the `socketcan` cargo feature: `open_socketcan`, a [`Bus`](crate::can::Bus)
 //! on a CAN network interface (`can0`, `vcan0`, ...).
@@ -126,6 +128,52 @@ pub fn bus_state_after_error(frame: &Frame, current: BusState) -> Option<BusStat
     (state != current).then(|| BusStatus::new(state, reason))
 }
 
+/// `CAN_ERR_CNT` of `linux/can/error.h`: data[6] holds the transmit error
+/// counter, data[7] the receive error counter.
+pub const CAN_ERR_CNT: u32 = 0x200;
+
+/// The error counters an error frame carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ErrorCounters {
+    pub tec: u8,
+    pub rec: u8,
+}
+
+/// What one error frame tells about the controller.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ErrorFrameReport {
+    /// The new status, as [`bus_state_after_error`] gives it.
+    pub status: Option<BusStatus>,
+    /// The counters, when the frame has them: with `CAN_ERR_CNT` (0x200),
+    /// and with `CAN_ERR_CRTL`, where drivers wrote them before the flag
+    /// existed; 0 and 0 after `CAN_ERR_RESTARTED` (a restarted controller
+    /// starts afresh) unless the frame says otherwise.
+    pub counters: Option<ErrorCounters>,
+}
+
+/// Reads an error frame (`CAN_ERR_FLAG`) as the events of the bus: state
+/// and counters. Not an error frame: nothing.
+pub fn error_frame_report(frame: &Frame, current: BusState) -> ErrorFrameReport {
+    let Some(class) = frame.error_class() else {
+        return ErrorFrameReport::default();
+    };
+    let data = frame.data();
+    let counters = if class & (CAN_ERR_CNT | CAN_ERR_CRTL) != 0 {
+        Some(ErrorCounters {
+            tec: data.get(6).copied().unwrap_or(0),
+            rec: data.get(7).copied().unwrap_or(0),
+        })
+    } else if class & CAN_ERR_RESTARTED != 0 {
+        Some(ErrorCounters { tec: 0, rec: 0 })
+    } else {
+        None
+    };
+    ErrorFrameReport {
+        status: bus_state_after_error(frame, current),
+        counters,
+    }
+}
+
 /// The state named by the controller status byte of a `CAN_ERR_CRTL` frame.
 /// Warning levels are still error active, so they mean [`BusState::Up`]: the
 /// kernel reports them when a controller comes back down from passive.
@@ -179,7 +227,7 @@ mod driver {
     use socketcan_rs::{CanAnyFrame, CanFrame, CanTimestamps, SocketOptions};
     use tokio::time::Instant;
 
-    use super::{bus_state_after_error, from_socketcan, to_socketcan};
+    use super::{error_frame_report, from_socketcan, to_socketcan};
     use crate::can::bus::{
         Bus, BusCounters, BusKind, BusState, BusStatus, DriverSide, attach_driver, driver_channels,
     };
@@ -409,7 +457,15 @@ mod driver {
             .map(Timestamp::from)
             .unwrap_or_else(Timestamp::now);
         driver.received(frame, timestamp);
-        if let Some(status) = bus_state_after_error(&frame, driver.state()) {
+        let report = error_frame_report(&frame, driver.state());
+        if let Some(counters) = report.counters {
+            let store = |counter: &std::sync::atomic::AtomicU64, value: u8| {
+                counter.store(u64::from(value), std::sync::atomic::Ordering::Relaxed);
+            };
+            store(&driver.counters.tec, counters.tec);
+            store(&driver.counters.rec, counters.rec);
+        }
+        if let Some(status) = report.status {
             tracing::info!(%iface, state = status.state.as_str(), reason = status.reason.as_deref().unwrap_or(""), "CAN controller state changed");
             driver.set_status(status);
         }

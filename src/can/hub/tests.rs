@@ -264,3 +264,95 @@ async fn a_busy_sender_keeps_its_whole_receive_window_for_others() {
     assert_eq!(chatty_rx.recv().await.unwrap().frame, frame(0x581, &[1]));
     assert_eq!(chatty_rx.try_recv().unwrap(), None);
 }
+
+#[tokio::test]
+async fn bit_errors_make_an_attachment_error_passive_then_bus_off_and_the_others_see_error_frames()
+{
+    let hub = VirtualHub::new("line");
+    let node = hub.attach();
+    let gateway = hub.attach();
+    let mut rx = gateway.subscribe();
+    node.controller_fault(ControllerFault::BitErrors).unwrap();
+    for i in 0..18u8 {
+        node.send(frame(0x181, &[i])).await.unwrap();
+    }
+    // 18 × (8 − 1) = 126: still error active.
+    assert_eq!(node.state(), BusState::Up);
+    assert_eq!(node.counters().tec, 126);
+    node.send(frame(0x181, &[18])).await.unwrap();
+    assert_eq!(node.state(), BusState::ErrorPassive);
+    assert_eq!(node.counters().tec, 133);
+    // An error-passive node keeps working: every frame crossed, each after
+    // an error frame.
+    for i in 0..19u8 {
+        let error = rx.recv().await.unwrap().frame;
+        assert_eq!(error.error_class(), Some(0x88));
+        assert_eq!(error.data(), &[0, 0, 0x04, 0, 0, 0, 0, 0]);
+        assert_eq!(rx.recv().await.unwrap().frame, frame(0x181, &[i]));
+    }
+    // The receiver's REC went up by one for each error and down for each
+    // good frame.
+    assert_eq!(gateway.counters().rec, 0);
+    assert_eq!(gateway.counters().error_frames, 19);
+    for i in 19..36u8 {
+        node.send(frame(0x181, &[i])).await.unwrap();
+    }
+    assert_eq!(node.counters().tec, 252);
+    // The 37th frame's error passes 255: bus-off, and the frame is lost.
+    node.send(frame(0x181, &[36])).await.unwrap();
+    assert_eq!(node.state(), BusState::BusOff);
+    assert_eq!(node.counters().tec, 260);
+    let err = node.send(frame(0x181, &[37])).await.unwrap_err();
+    assert!(matches!(err, BusError::NotUp { state: BusState::BusOff, .. }), "{err:?}");
+    let mut seen = Vec::new();
+    while let Ok(Some(got)) = rx.try_recv() {
+        seen.push(got.frame);
+    }
+    // 17 frames with their errors, then the last error alone.
+    assert_eq!(seen.len(), 17 * 2 + 1);
+    assert!(seen.last().unwrap().is_error());
+    // The gateway's own controller is unharmed.
+    assert_eq!(gateway.state(), BusState::Up);
+}
+
+#[tokio::test]
+async fn a_bus_off_attachment_hears_nothing_and_recovers_on_request() {
+    let hub = VirtualHub::new("line");
+    let node = hub.attach();
+    let other = hub.attach();
+    let mut rx = node.subscribe();
+    node.controller_fault(ControllerFault::BusOff).unwrap();
+    assert_eq!(node.state(), BusState::BusOff);
+    other.send(frame(0x80, &[])).await.unwrap();
+    assert_eq!(rx.try_recv().unwrap(), None);
+    // Unlimited: the 128 × 11 recessive bits take no time.
+    node.controller_fault(ControllerFault::Recover).unwrap();
+    assert_eq!(node.state(), BusState::Up);
+    assert_eq!((node.counters().tec, node.counters().rec), (0, 0));
+    other.send(frame(0x80, &[])).await.unwrap();
+    assert_eq!(rx.recv().await.unwrap().frame, frame(0x80, &[]));
+}
+
+#[tokio::test(start_paused = true)]
+async fn bus_off_recovery_takes_128_times_11_bit_times_at_the_bit_rate() {
+    let hub = VirtualHub::with_bitrate("line", "125k".parse().unwrap());
+    let node = hub.attach();
+    node.controller_fault(ControllerFault::BusOff).unwrap();
+    let start = tokio::time::Instant::now();
+    node.controller_fault(ControllerFault::Recover).unwrap();
+    let mut status = node.watch_status();
+    status.wait_for(|s| s.state == BusState::Up).await.unwrap();
+    // 1408 bits at 125 kbit/s: 11.264 ms, on tokio's millisecond timer.
+    let elapsed = start.elapsed();
+    let exact = std::time::Duration::from_micros(11_264);
+    assert!(
+        elapsed >= exact && elapsed < exact + std::time::Duration::from_millis(1),
+        "{elapsed:?}"
+    );
+    // Forced down and back up, an attachment shows its controller again.
+    node.controller_fault(ControllerFault::BusOff).unwrap();
+    hub.set_status(BusStatus::new(BusState::Down, "cable pulled"));
+    assert_eq!(node.state(), BusState::Down);
+    hub.set_status(BusStatus::up());
+    assert_eq!(node.state(), BusState::BusOff);
+}

@@ -286,3 +286,74 @@ fn a_down_bus_is_not_revived_by_error_frames() {
         assert_eq!(change(&frame, BusState::Down), None, "{frame}");
     }
 }
+
+/// An error frame as the kernel hands it over: `struct can_frame` with
+/// `CAN_ERR_FLAG | class` in can_id and the eight detail bytes.
+fn kernel_error(class: u32, data: [u8; 8]) -> Frame {
+    let raw = CanErrorFrame::new_error(class, &data).unwrap();
+    from_socketcan(&CanAnyFrame::Error(raw)).unwrap()
+}
+
+#[test]
+fn error_passive_with_counters_is_read_byte_for_byte() {
+    // CAN_ERR_CRTL | CAN_ERR_CNT, data[1] CAN_ERR_CRTL_TX_PASSIVE, data[6]
+    // TEC 136, data[7] REC 5: what mcp251xfd and flexcan send.
+    let frame = kernel_error(0x204, [0, 0x20, 0, 0, 0, 0, 136, 5]);
+    let report = error_frame_report(&frame, BusState::Up);
+    assert_eq!(
+        report.status,
+        Some(BusStatus::new(
+            BusState::ErrorPassive,
+            "controller is error passive (transmit errors)"
+        ))
+    );
+    assert_eq!(report.counters, Some(ErrorCounters { tec: 136, rec: 5 }));
+    // RX passive: REC 128 in data[7].
+    let frame = kernel_error(0x204, [0, 0x10, 0, 0, 0, 0, 0, 128]);
+    let report = error_frame_report(&frame, BusState::Up);
+    assert_eq!(
+        report.status.map(|s| s.state),
+        Some(BusState::ErrorPassive)
+    );
+    assert_eq!(report.counters, Some(ErrorCounters { tec: 0, rec: 128 }));
+}
+
+#[test]
+fn bus_off_and_restart_are_read_with_the_counters_they_carry() {
+    // CAN_ERR_BUSOFF | CAN_ERR_CNT: TEC 255 is what a byte can say of 256+.
+    let frame = kernel_error(0x240, [0, 0, 0, 0, 0, 0, 255, 0]);
+    let report = error_frame_report(&frame, BusState::ErrorPassive);
+    assert_eq!(report.status.map(|s| s.state), Some(BusState::BusOff));
+    assert_eq!(report.counters, Some(ErrorCounters { tec: 255, rec: 0 }));
+    // CAN_ERR_BUSOFF alone (older drivers): the state, no counters.
+    let report = error_frame_report(&kernel_error(0x40, [0; 8]), BusState::Up);
+    assert_eq!(report.status.map(|s| s.state), Some(BusState::BusOff));
+    assert_eq!(report.counters, None);
+    // CAN_ERR_RESTARTED: back up, the controller's counters start at 0.
+    let report = error_frame_report(&kernel_error(0x100, [0; 8]), BusState::BusOff);
+    assert_eq!(report.status.map(|s| s.state), Some(BusState::Up));
+    assert_eq!(report.counters, Some(ErrorCounters { tec: 0, rec: 0 }));
+    // Back to error active (CAN_ERR_CRTL_ACTIVE) with counters.
+    let frame = kernel_error(0x204, [0, 0x40, 0, 0, 0, 0, 90, 3]);
+    let report = error_frame_report(&frame, BusState::ErrorPassive);
+    assert_eq!(report.status.map(|s| s.state), Some(BusState::Up));
+    assert_eq!(report.counters, Some(ErrorCounters { tec: 90, rec: 3 }));
+}
+
+#[test]
+fn protocol_errors_and_data_frames_report_nothing_about_the_controller() {
+    // CAN_ERR_PROT | CAN_ERR_BUSERROR, a stuff error: what the virtual hub
+    // sends the others when a node's frame meets a bit error.
+    let frame = kernel_error(0x88, [0, 0, 0x04, 0, 0, 0, 0, 0]);
+    assert_eq!(
+        error_frame_report(&frame, BusState::Up),
+        ErrorFrameReport::default()
+    );
+    assert_eq!(frame, crate::can::hub::bit_error_frame());
+    let data = Frame::new(std_id(0x204), &[0, 0x20, 0, 0, 0, 0, 136, 5]).unwrap();
+    assert_eq!(
+        error_frame_report(&data, BusState::Up),
+        ErrorFrameReport::default()
+    );
+    assert_eq!(CAN_ERR_CNT, 0x200);
+}
