@@ -65,7 +65,7 @@ pub struct AddDevice {
 #[schema(example = json!({"kind": "over_temperature"}))]
 pub struct FaultRequest {
     /// `over_temperature`, `under_voltage`, `following_error`,
-    /// `over_current` or `heartbeat_loss`.
+    /// `over_current`, `heartbeat_loss`, `bit_errors` or `bus_off`.
     #[schema(example = "over_temperature")]
     pub kind: String,
 }
@@ -207,7 +207,13 @@ async fn remove_device(
 ///
 /// The device reacts as the product does (EMCY, error register 0x1001,
 /// error history 0x1003; a drive's axes fault). `heartbeat_loss` stops its
-/// heartbeat while it runs on.
+/// heartbeat while it runs on. The CAN faults act on its CAN controller
+/// (ISO 11898-1 fault confinement): `bit_errors` makes each frame it sends
+/// meet one bit error (the others see an error frame, the frame is sent
+/// again): its transmit error counter rises by 7 a frame, error passive
+/// after 19 frames (EMCY 0x8120, error register bit 4; it keeps working),
+/// bus-off at the 37th. `bus_off` takes it bus-off at once. Bus-off, it
+/// neither sends nor hears anything, so its heartbeat stops.
 #[utoipa::path(post, path = "/buses/{bus}/sim/nodes/{id}/faults", tag = "sim", params(NodePath),
     request_body = FaultRequest,
     responses(
@@ -233,7 +239,12 @@ async fn inject_fault(
 /// Ends an injected fault condition.
 ///
 /// A drive stays in its fault state until a fault reset, as a real one
-/// does; the error reset EMCY follows that.
+/// does; the error reset EMCY follows that. Clearing `bus_off` is the
+/// recovery request: the device is error active again after 128 × 11
+/// recessive bit times at the bus's bit rate (2.8 ms at 500 kbit/s), sends
+/// EMCY 0x8140 "recovered from bus-off" and an error reset, and its
+/// heartbeat resumes. Clearing `bit_errors` stops the bit errors (a
+/// bus-off device stays bus-off until `bus_off` is cleared).
 #[utoipa::path(delete, path = "/buses/{bus}/sim/nodes/{id}/faults", tag = "sim", params(NodePath),
     request_body = FaultRequest,
     responses(

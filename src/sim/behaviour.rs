@@ -39,19 +39,36 @@ pub enum Fault {
     /// The device stops producing heartbeats (and answering node guarding)
     /// while it goes on running: handled by the device core.
     HeartbeatLoss,
+    /// Each frame the device sends meets one bit error and is sent again:
+    /// its CAN controller's transmit error counter rises by 7 a frame, error
+    /// passive after 19 frames, bus-off at the 37th (the device core's CAN
+    /// controller, [`crate::can::fault`]).
+    BitErrors,
+    /// The device's CAN controller goes bus-off at once; clearing the fault
+    /// is the host's recovery request (128 × 11 recessive bits later it is
+    /// error active again).
+    BusOff,
 }
 
 impl Fault {
-    pub const ALL: [Fault; 5] = [
+    pub const ALL: [Fault; 7] = [
         Fault::OverTemperature,
         Fault::UnderVoltage,
         Fault::FollowingError,
         Fault::OverCurrent,
         Fault::HeartbeatLoss,
+        Fault::BitErrors,
+        Fault::BusOff,
     ];
 
+    /// Whether the device core handles it (every product has it).
+    pub fn is_communication(self) -> bool {
+        matches!(self, Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff)
+    }
+
     /// The name in the HTTP API: `over_temperature`, `under_voltage`,
-    /// `following_error`, `over_current`, `heartbeat_loss`.
+    /// `following_error`, `over_current`, `heartbeat_loss`, `bit_errors`,
+    /// `bus_off`.
     pub fn name(self) -> &'static str {
         match self {
             Fault::OverTemperature => "over_temperature",
@@ -59,6 +76,8 @@ impl Fault {
             Fault::FollowingError => "following_error",
             Fault::OverCurrent => "over_current",
             Fault::HeartbeatLoss => "heartbeat_loss",
+            Fault::BitErrors => "bit_errors",
+            Fault::BusOff => "bus_off",
         }
     }
 

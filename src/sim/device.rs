@@ -23,6 +23,17 @@
 //! (§7.2.8.3.2.1) while 0x1017 is 0, with life guarding from 0x100C and
 //! 0x100D.
 //!
+//! Its CAN controller keeps fault confinement ([`FaultConfinement`],
+//! ISO 11898-1): the runner asks it for each frame the device sends
+//! ([`DeviceCore::transmit`]), and it hears every frame. Error passive, the
+//! device sends EMCY 0x8120 "CAN in error passive mode" with the
+//! communication bit (bit 4) of the error register; back to error active,
+//! an error reset. Bus-off, it neither sends nor hears anything, so its
+//! heartbeat stops; it is a communication error (0x1029 sub 1, and a CiA
+//! 402 drive's abort connection option 0x6007). Recovered, it sends EMCY
+//! 0x8140 "recovered from bus-off", then an error reset (CiA 301 table 21;
+//! the UMC and UIO1LED manuals' EMCY tables).
+//!
 //! Like the protocol layer it does no I/O: frames and the current time go in,
 //! frames and a deadline come out. [`run_device`] drives one on a bus, the
 //! [`Rack`](super::rack::Rack) many.
@@ -31,7 +42,8 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
-use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
+use crate::can::fault::{ErrorState, FaultConfinement, RECOVERY_BITS, Transition};
+use crate::can::{Bitrate, Bus, CanId, Frame, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::cob::Function;
 use crate::canopen::emcy::{Emcy, EmcyProducer, ErrorBit, ErrorHistory, ErrorRegister};
@@ -76,6 +88,10 @@ const INHIBIT_TIME_EMCY: u16 = 0x1015;
 /// EMCY 0x8130: life guard error or heartbeat error (CiA 301 table 21);
 /// the same code for both, as the standard has it.
 const LIFE_GUARD_ERROR: u16 = 0x8130;
+/// EMCY 0x8120: CAN in error passive mode (CiA 301 table 21).
+pub const CAN_ERROR_PASSIVE: u16 = 0x8120;
+/// EMCY 0x8140: recovered from bus-off (CiA 301 table 21).
+pub const CAN_BUS_OFF_RECOVERED: u16 = 0x8140;
 /// How much simulated time one [`DeviceCore::tick_to`] catches up at most;
 /// beyond it (a stalled host) the simulation skips rather than runs a burst.
 const MAX_CATCH_UP_TICKS: u64 = 1000;
@@ -114,6 +130,15 @@ impl Area {
     }
 }
 
+/// What [`DeviceCore::transmit`] made of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Transmitted {
+    /// It met a bit error first: the others see an error frame.
+    pub error_frame: bool,
+    /// It crossed the bus (false: the controller is bus-off).
+    pub crossed: bool,
+}
+
 /// Saved parameter values, by index and sub-index.
 pub type SavedValues = BTreeMap<(u16, u8), Value>;
 
@@ -130,6 +155,15 @@ pub struct DeviceCore {
     consumed: Vec<(NodeId, std::time::Duration)>,
     /// The injected heartbeat loss: no heartbeat, no guarding reply.
     silent: bool,
+    /// Its CAN controller's error counters and state.
+    controller: FaultConfinement,
+    /// Injected: each frame it sends meets one bit error.
+    bit_errors: bool,
+    /// The bus's bit rate, for the time a bus-off recovery takes.
+    bitrate: Bitrate,
+    /// When a requested bus-off recovery has seen its 128 × 11 recessive
+    /// bits.
+    recovery_due: Option<Instant>,
     /// A communication error in operational waits for 0x1029's reaction,
     /// which the next poll applies once its EMCY is out.
     communication_error: Option<Instant>,
@@ -190,6 +224,10 @@ impl DeviceCore {
             consumer: HeartbeatConsumer::new(),
             consumed: Vec::new(),
             silent: false,
+            controller: FaultConfinement::new(),
+            bit_errors: false,
+            bitrate: Bitrate::Unlimited,
+            recovery_due: None,
             communication_error: None,
             sim_ms: 0,
             last_tick: None,
@@ -259,15 +297,39 @@ impl DeviceCore {
     /// Injects a fault: heartbeat loss into the core, the rest into the
     /// product's application.
     pub fn inject_fault(&mut self, fault: Fault, now: Instant) -> Result<(), FaultError> {
-        if fault == Fault::HeartbeatLoss {
-            self.silent = true;
-            return Ok(());
+        match fault {
+            Fault::HeartbeatLoss => {
+                self.silent = true;
+                return Ok(());
+            }
+            Fault::BitErrors => {
+                self.bit_errors = true;
+                return Ok(());
+            }
+            Fault::BusOff => {
+                if let Some(transition) = self.controller.force_bus_off() {
+                    self.can_state_changed(transition, now);
+                }
+                return Ok(());
+            }
+            _ => {}
         }
         self.with_application(now, |behaviour, io| behaviour.inject_fault(io, fault))
     }
 
     /// Ends an injected fault condition.
     pub fn clear_fault(&mut self, fault: Fault, now: Instant) -> Result<(), FaultError> {
+        match fault {
+            Fault::BitErrors => {
+                self.bit_errors = false;
+                return Ok(());
+            }
+            Fault::BusOff => {
+                self.request_recovery(now);
+                return Ok(());
+            }
+            _ => {}
+        }
         if fault == Fault::HeartbeatLoss {
             if self.silent {
                 self.silent = false;
@@ -277,6 +339,117 @@ impl DeviceCore {
             return Ok(());
         }
         self.with_application(now, |behaviour, io| behaviour.clear_fault(io, fault))
+    }
+
+    /// The bit rate of the bus the device is on (a bus-off recovery lasts
+    /// 128 × 11 bit times of it; none when unlimited).
+    pub fn set_bitrate(&mut self, bitrate: Bitrate) {
+        self.bitrate = bitrate;
+    }
+
+    /// Its CAN controller's error counters and state.
+    pub fn controller(&self) -> &FaultConfinement {
+        &self.controller
+    }
+
+    /// The host asks the bus-off controller to recover: it is error active
+    /// again after 128 × 11 recessive bits (at [`DeviceCore::poll`]).
+    pub fn request_recovery(&mut self, now: Instant) {
+        if self.controller.state() != ErrorState::BusOff || self.recovery_due.is_some() {
+            return;
+        }
+        self.controller.request_recovery();
+        let bits = u32::try_from(RECOVERY_BITS).unwrap_or(u32::MAX);
+        self.recovery_due = Some(now + self.bitrate.duration_of(bits));
+    }
+
+    /// What the CAN controller makes of one frame the device sends: whether
+    /// it met a bit error first (the others see an error frame) and whether
+    /// it crossed. A bus-off controller sends nothing.
+    pub fn transmit(&mut self, now: Instant) -> Transmitted {
+        if !self.controller.can_transmit() {
+            return Transmitted::default();
+        }
+        let mut error_frame = false;
+        if self.bit_errors {
+            error_frame = true;
+            if let Some(transition) = self.controller.transmit_error() {
+                self.can_state_changed(transition, now);
+            }
+            if !self.controller.can_transmit() {
+                return Transmitted {
+                    error_frame,
+                    crossed: false,
+                };
+            }
+        }
+        if let Some(transition) = self.controller.transmit_ok() {
+            self.can_state_changed(transition, now);
+        }
+        Transmitted {
+            error_frame,
+            crossed: true,
+        }
+    }
+
+    /// The frames one frame the device sends puts on the bus: an error
+    /// frame if it met a bit error, then the frame if it crossed.
+    pub fn on_the_wire(&mut self, frame: Frame, now: Instant) -> [Option<Frame>; 2] {
+        let sent = self.transmit(now);
+        [
+            sent.error_frame.then(crate::can::hub::bit_error_frame),
+            sent.crossed.then_some(frame),
+        ]
+    }
+
+    /// The reaction to a change of the CAN controller's error state (see
+    /// the module documentation).
+    fn can_state_changed(&mut self, transition: Transition, now: Instant) {
+        let other_loss = self.guard.is_lost()
+            || self
+                .consumed
+                .iter()
+                .any(|(node, _)| self.consumer.is_lost(*node));
+        match (transition.from, transition.to) {
+            (ErrorState::ErrorActive, ErrorState::ErrorPassive) => {
+                self.with_application(now, |_, io| {
+                    io.set_error_bit(ErrorBit::Communication, true);
+                    io.emcy(CAN_ERROR_PASSIVE, [0; 5]);
+                });
+            }
+            (ErrorState::ErrorPassive, ErrorState::ErrorActive) => {
+                self.with_application(now, |_, io| {
+                    if !other_loss {
+                        io.set_error_bit(ErrorBit::Communication, false);
+                    }
+                    io.emcy(0x0000, [0; 5]);
+                });
+            }
+            (_, ErrorState::BusOff) => {
+                self.with_application(now, |behaviour, io| {
+                    io.set_error_bit(ErrorBit::Communication, true);
+                    behaviour.connection_lost(io);
+                });
+                if self.nmt.state() == NmtState::Operational {
+                    self.communication_error = Some(now);
+                }
+            }
+            (ErrorState::BusOff, _) => {
+                self.with_application(now, |_, io| {
+                    io.set_error_bit(ErrorBit::Communication, true);
+                    io.emcy(CAN_BUS_OFF_RECOVERED, [0; 5]);
+                });
+                self.with_application(now, |_, io| {
+                    if !other_loss {
+                        io.set_error_bit(ErrorBit::Communication, false);
+                    }
+                    io.emcy(0x0000, [0; 5]);
+                });
+                // The heartbeat comes back from now on, not in a burst.
+                self.heartbeat.set_period_ms(self.heartbeat_ms, now);
+            }
+            _ => {}
+        }
     }
 
     /// Milliseconds of simulated time the application has run.
@@ -500,6 +673,21 @@ impl DeviceCore {
 
     /// Takes a frame from the bus; returns the frames to send.
     pub fn handle_frame(&mut self, frame: &Frame, now: Instant) -> Vec<Frame> {
+        if !self.controller.can_transmit() {
+            // Bus-off: off the bus, it hears nothing.
+            return Vec::new();
+        }
+        if frame.is_error() {
+            if let Some(transition) = self.controller.receive_error() {
+                self.can_state_changed(transition, now);
+            }
+            return Vec::new();
+        }
+        if self.controller.rec() > 0
+            && let Some(transition) = self.controller.receive_ok()
+        {
+            self.can_state_changed(transition, now);
+        }
         match self.nmt.on_frame(frame) {
             Ok(Some(NmtEvent::ResetNode)) => {
                 self.store = self.defaults.clone();
@@ -595,6 +783,12 @@ impl DeviceCore {
     /// and PDOs. The application's ticks are [`DeviceCore::tick_to`]'s.
     pub fn poll(&mut self, now: Instant) -> Vec<Frame> {
         let mut out = Vec::new();
+        if self.recovery_due.is_some_and(|due| due <= now) {
+            self.recovery_due = None;
+            if let Some(transition) = self.controller.recessive_bits(RECOVERY_BITS) {
+                self.can_state_changed(transition, now);
+            }
+        }
         if self.sdo.deadline().is_some_and(|d| d <= now) {
             out.extend(self.sdo.handle_timeout(now));
         }
@@ -651,6 +845,7 @@ impl DeviceCore {
             emcy,
             pdos,
             self.communication_error,
+            self.recovery_due,
             self.next_tick(),
         ]
         .into_iter()
@@ -950,6 +1145,14 @@ async fn drive(bus: Bus, mut frames: FrameReceiver, device: Arc<Mutex<DeviceCore
                 device.tick_to(now());
                 device.poll(now())
             }
+        };
+        let out: Vec<Frame> = {
+            let mut device = lock(&device);
+            let now = now();
+            out.into_iter()
+                .flat_map(|frame| device.on_the_wire(frame, now))
+                .flatten()
+                .collect()
         };
         send_all(&bus, out).await;
     }

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::Notify;
 
-use crate::can::{Bus, Frame, FrameReceiver, RecvError, VirtualHub};
+use crate::can::{Bitrate, Bus, Frame, FrameReceiver, RecvError, VirtualHub};
 use crate::canopen::NodeId;
 
 use super::behaviour::{Fault, FaultError, TICK_MS};
@@ -57,6 +57,8 @@ struct Slot {
 #[derive(Default)]
 struct Inner {
     slots: BTreeMap<NodeId, Slot>,
+    /// The bus's bit rate (a bus-off recovery takes 128 × 11 bit times).
+    bitrate: Bitrate,
     /// Frames the controls produced (boot-up of an added device), for the
     /// runner to send.
     outbox: Vec<(NodeId, Frame)>,
@@ -129,7 +131,10 @@ impl Rack {
     /// With `data_dir`, each device added starts with the parameters it
     /// saved there before and keeps what it saves (see [`super::persist`]).
     pub fn with_data_dir(hub: VirtualHub, data_dir: Option<PathBuf>) -> Self {
-        let inner = Arc::new(Mutex::new(Inner::default()));
+        let inner = Arc::new(Mutex::new(Inner {
+            bitrate: hub.bitrate(),
+            ..Inner::default()
+        }));
         let wake = Arc::new(Notify::new());
         let stats = Arc::new(RackStats::default());
         let bus = hub.attach();
@@ -205,6 +210,7 @@ impl Rack {
             return Err(RackError::NodeTaken(node, product_name(slot)));
         }
         let now = now();
+        core.set_bitrate(inner.bitrate);
         let boot = core.boot(now);
         core.tick_to(now);
         let version = core.saved_version();
@@ -429,14 +435,15 @@ fn deliver(
 
 /// The devices hear each other's frames (a TPDO of one may be an RPDO of
 /// another), and whatever they answer in turn, a bounded number of rounds.
+/// Each frame first passes its sender's CAN controller
+/// ([`DeviceCore::on_the_wire`]): a bus-off device sends nothing, one with
+/// bit errors an error frame before its frame.
 fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId, Frame)>) {
-    if inner.slots.len() < 2 {
-        return;
-    }
     let mut start = 0;
     for _ in 0..MAX_LOCAL_ROUNDS {
+        on_the_wire(inner, now, out, start);
         let end = out.len();
-        if start == end {
+        if start == end || inner.slots.len() < 2 {
             return;
         }
         for i in start..end {
@@ -444,6 +451,23 @@ fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId,
             deliver(inner, Some(sender), &frame, now, out);
         }
         start = end;
+    }
+    on_the_wire(inner, now, out, start);
+}
+
+/// Passes `out[start..]` through their senders' CAN controllers.
+fn on_the_wire(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId, Frame)>, start: usize) {
+    if start == out.len() {
+        return;
+    }
+    let sent: Vec<(NodeId, Frame)> = out.drain(start..).collect();
+    for (node, frame) in sent {
+        let Some(slot) = inner.slots.get_mut(&node) else {
+            continue;
+        };
+        for frame in slot.core.on_the_wire(frame, now).into_iter().flatten() {
+            out.push((node, frame));
+        }
     }
 }
 

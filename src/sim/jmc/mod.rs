@@ -106,7 +106,7 @@ fn alarm(fault: Fault) -> Option<(ErrorBit, u16)> {
         Fault::OverTemperature => (ErrorBit::Temperature, emcy::OVER_TEMPERATURE),
         // 0x1001 bit 5, "over position (stepping servo drive)".
         Fault::FollowingError => (ErrorBit::DeviceProfile, emcy::FOLLOWING_ERROR),
-        Fault::HeartbeatLoss => return None,
+        Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff => return None,
     })
 }
 

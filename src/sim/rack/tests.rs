@@ -463,3 +463,77 @@ async fn saved_parameters_are_kept_under_the_data_dir() {
     drop(rack);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[tokio::test(start_paused = true)]
+async fn bit_errors_make_a_device_error_passive_then_bus_off_and_it_recovers_on_request() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add_device(probe(4)).unwrap();
+    let sdo = sdo(&master, 4);
+    sdo.download(0x1017, 0, &10u16.to_le_bytes()).await.unwrap();
+    let mut frames = master.subscribe();
+    let errors_before = master.counters().error_frames;
+    rack.inject_fault(node(4), Fault::BitErrors).unwrap();
+    let seen = frames_on_any(&mut frames, &[0x704, 0x084], 600).await;
+    // Every frame costs 8 − 1: the 19th heartbeat makes it error passive,
+    // and EMCY 0x8120 (communication bit 4 in the error register) goes out
+    // at once (with the generic bit 0, as every error sets it); an
+    // error-passive device keeps working, until the 37th
+    // frame's error passes 255: bus-off, that frame and all after it lost.
+    let heartbeat = vec![0x7F];
+    let passive = vec![0x20, 0x81, 0x11, 0, 0, 0, 0, 0];
+    let mut expected = vec![heartbeat.clone(); 19];
+    expected.push(passive);
+    expected.extend(vec![heartbeat.clone(); 16]);
+    assert_eq!(seen, expected);
+    assert_eq!(master.counters().error_frames - errors_before, 37);
+    let (state, tec, register) = rack
+        .with_device(node(4), |core| {
+            (
+                core.controller().state(),
+                core.controller().tec(),
+                core.store().int(0x1001, 0),
+            )
+        })
+        .unwrap();
+    assert_eq!((state, tec), (crate::can::ErrorState::BusOff, 260));
+    assert_eq!(register, Some(0x11));
+    // Bus-off, it hears nothing either: an SDO request goes unanswered.
+    let request = Frame::new(CanId::Standard(0x604), &[0x40, 0x17, 0x10, 0, 0, 0, 0, 0]).unwrap();
+    master.send(request).await.unwrap();
+    assert!(frames_on(&mut frames, 0x584, 50).await.is_empty());
+
+    // Clearing the bit errors does not bring it back; the recovery request
+    // does (no time at all on an unlimited bus): EMCY 0x8140, an error
+    // reset, and the heartbeat again.
+    rack.clear_fault(node(4), Fault::BitErrors).unwrap();
+    assert!(frames_on(&mut frames, 0x704, 50).await.is_empty());
+    rack.clear_fault(node(4), Fault::BusOff).unwrap();
+    let seen = frames_on_any(&mut frames, &[0x704, 0x084], 25).await;
+    assert_eq!(
+        seen[..2],
+        [vec![0x40, 0x81, 0x11, 0, 0, 0, 0, 0], vec![0; 8]]
+    );
+    assert_eq!(seen[2..], vec![heartbeat; 2]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_bus_off_recovery_takes_128_times_11_bit_times_of_the_bus() {
+    let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+    let rack = Rack::new(hub.clone());
+    rack.add_device(probe(4)).unwrap();
+    rack.inject_fault(node(4), Fault::BusOff).unwrap();
+    let start = tokio::time::Instant::now();
+    rack.clear_fault(node(4), Fault::BusOff).unwrap();
+    let state = || {
+        rack.with_device(node(4), |core| core.controller().state())
+            .unwrap()
+    };
+    // 1408 bits at 125 kbit/s: 11.264 ms; the runner looks every ms.
+    tokio::time::sleep(Duration::from_millis(11)).await;
+    assert_eq!(state(), crate::can::ErrorState::BusOff);
+    tokio::time::sleep(Duration::from_millis(2)).await;
+    assert_eq!(state(), crate::can::ErrorState::ErrorActive);
+    assert!(start.elapsed() < Duration::from_millis(14));
+}

@@ -105,7 +105,7 @@ impl Condition {
             Fault::UnderVoltage => Some(Condition::UnderVoltage),
             Fault::FollowingError => Some(Condition::FollowingError),
             Fault::OverCurrent => Some(Condition::OverCurrent),
-            Fault::HeartbeatLoss => None,
+            Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff => None,
         }
     }
 
