@@ -103,6 +103,8 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}", ADMIN),
     ("POST",   "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
     ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/sim/faults", ADMIN),
+    ("DELETE", "/api/v1/buses/{bus}/sim/faults", ADMIN),
     ("GET",    "/api/v1/stream", VIEWER),
     ("GET",    "/api/v1/events", VIEWER),
     ("GET",    "/api/v1/eds", VIEWER),

@@ -83,6 +83,20 @@ pub struct BusInfo {
     /// How often the backend has reconnected (socketcand, socketcan).
     #[schema(example = 0)]
     pub reconnects: u64,
+    /// The error state of the gateway's CAN controller on this bus (ISO
+    /// 11898-1 fault confinement): `error_active`, `error_passive` (frames
+    /// still flow) or `bus_off`; null while the bus is down. From the
+    /// kernel's error frames on SocketCAN, from the attachment's own
+    /// controller on a virtual bus; socketcand reports none (always
+    /// `error_active` while connected).
+    #[schema(example = "error_active")]
+    pub error_state: Option<&'static str>,
+    /// The controller's transmit error counter (TEC), as last reported.
+    #[schema(example = 0)]
+    pub tx_error_counter: u64,
+    /// The controller's receive error counter (REC), as last reported.
+    #[schema(example = 0)]
+    pub rx_error_counter: u64,
 }
 
 /// The buses the gateway serves, with their traffic and measured load.
@@ -96,6 +110,7 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
         .map(|served| {
             let traffic = Traffic::new(&served.bus).sample();
             let status = served.bus.status();
+            let counters = served.bus.counters();
             let state = if status.state.can_send() {
                 "up"
             } else {
@@ -112,7 +127,10 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
                 bits_per_second: served.load.bits_per_second(),
                 bitrate: served.load.bitrate(),
                 reason: status.reason,
-                reconnects: served.bus.counters().reconnects,
+                reconnects: counters.reconnects,
+                error_state: status.state.error_state().map(|s| s.as_str()),
+                tx_error_counter: counters.tec,
+                rx_error_counter: counters.rec,
             }
         })
         .collect();

@@ -64,6 +64,8 @@ struct BusSnapshot {
     kind: &'static str,
     spec: String,
     up: bool,
+    /// The controller's error state; `None` while down.
+    error_state: Option<crate::can::ErrorState>,
     counters: CounterSnapshot,
     rx_frames: u64,
     tx_frames: u64,
@@ -95,6 +97,7 @@ pub fn render(state: &AppState) -> String {
                 kind: served.bus.kind().as_str(),
                 spec: served.spec.clone(),
                 up: served.bus.status().state.can_send(),
+                error_state: served.bus.status().state.error_state(),
                 counters: served.bus.counters(),
                 rx_frames: traffic.rx_frames,
                 tx_frames: traffic.tx_frames,
@@ -209,6 +212,38 @@ fn render_buses(out: &mut Exposition, buses: &[BusSnapshot]) {
         Kind::Counter,
         "Error frames reported by the CAN controller.",
         &|bus| Value::from(bus.counters.error_frames),
+    );
+    out.family(
+        "candeck_bus_error_state",
+        Kind::Gauge,
+        "The error state of the gateway's CAN controller on the bus: 1 for the state it is in (error_active, error_passive, bus_off), 0 for the others; all 0 while the bus is down.",
+    );
+    for bus in buses {
+        for state in [
+            crate::can::ErrorState::ErrorActive,
+            crate::can::ErrorState::ErrorPassive,
+            crate::can::ErrorState::BusOff,
+        ] {
+            out.sample(
+                "candeck_bus_error_state",
+                &[("bus", &bus.name), ("state", state.as_str())],
+                u64::from(bus.error_state == Some(state)),
+            );
+        }
+    }
+    per_bus(
+        out,
+        "candeck_bus_tx_error_counter",
+        Kind::Gauge,
+        "The CAN controller's transmit error counter (TEC), as last reported.",
+        &|bus| Value::from(bus.counters.tec),
+    );
+    per_bus(
+        out,
+        "candeck_bus_rx_error_counter",
+        Kind::Gauge,
+        "The CAN controller's receive error counter (REC), as last reported.",
+        &|bus| Value::from(bus.counters.rec),
     );
     per_bus(
         out,

@@ -21,6 +21,7 @@ use utoipa_axum::routes;
 
 use super::doc::{BusPath, ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::can::ControllerFault;
 use crate::canopen::NodeId;
 use crate::sim::behaviour::Fault;
 use crate::sim::products::Product;
@@ -31,6 +32,91 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(list_devices, add_device))
         .routes(routes!(remove_device))
         .routes(routes!(inject_fault, clear_fault))
+        .routes(routes!(inject_gateway_fault, clear_gateway_fault))
+}
+
+/// A fault of the gateway's own CAN controller on a virtual bus.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"kind": "bit_errors"}))]
+pub struct GatewayFaultRequest {
+    /// `bit_errors` or `bus_off`.
+    #[schema(example = "bit_errors")]
+    pub kind: String,
+}
+
+impl GatewayFaultRequest {
+    /// The fault to inject, or to clear (`clear`).
+    fn fault(&self, clear: bool) -> Result<ControllerFault, AppError> {
+        match (self.kind.trim(), clear) {
+            ("bit_errors", false) => Ok(ControllerFault::BitErrors),
+            ("bit_errors", true) => Ok(ControllerFault::NoBitErrors),
+            ("bus_off", false) => Ok(ControllerFault::BusOff),
+            ("bus_off", true) => Ok(ControllerFault::Recover),
+            _ => Err(AppError::InvalidValue(format!(
+                "fault '{}' is none of bit_errors, bus_off",
+                self.kind
+            ))),
+        }
+    }
+}
+
+/// Injects a fault into the gateway's own CAN controller on a virtual bus
+/// (its attachment to the bus).
+///
+/// `bit_errors`: each frame the gateway sends meets one bit error (the
+/// others see an error frame) and is sent again, so its transmit error
+/// counter rises by 7 a frame: error passive after 19 frames, bus-off at
+/// the 37th. `bus_off`: bus-off at once. The gateway reports it as it
+/// reports a SocketCAN interface's: `error_state` and the counters in
+/// `GET /buses`, `candeck_bus_error_state` in `/metrics`, a `bus_state`
+/// event on the `nodes` topic; bus-off, the bus is down for the gateway
+/// and its nodes go offline.
+#[utoipa::path(post, path = "/buses/{bus}/sim/faults", tag = "sim", params(BusPath),
+    request_body = GatewayFaultRequest,
+    responses(
+        (status = 204, description = "Injected"),
+        (status = 400, description = "`invalid_request` (malformed body), `invalid_value` (unknown fault)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus is no virtual bus", body = ErrorBody),
+    ))]
+async fn inject_gateway_fault(
+    State(state): State<AppState>,
+    ApiPath(bus): ApiPath<String>,
+    ApiJson(request): ApiJson<GatewayFaultRequest>,
+) -> Result<StatusCode, AppError> {
+    gateway_fault(&state, &bus, request.fault(false)?)
+}
+
+/// Ends a fault of the gateway's own CAN controller on a virtual bus.
+///
+/// Clearing `bus_off` is the recovery request: the controller is error
+/// active again, counters 0, after 128 × 11 recessive bit times at the
+/// bus's bit rate. Clearing `bit_errors` stops the bit errors.
+#[utoipa::path(delete, path = "/buses/{bus}/sim/faults", tag = "sim", params(BusPath),
+    request_body = GatewayFaultRequest,
+    responses(
+        (status = 204, description = "Cleared"),
+        (status = 400, description = "`invalid_request` (malformed body), `invalid_value` (unknown fault)", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`", body = ErrorBody),
+        (status = 409, description = "`not_virtual`: the bus is no virtual bus", body = ErrorBody),
+    ))]
+async fn clear_gateway_fault(
+    State(state): State<AppState>,
+    ApiPath(bus): ApiPath<String>,
+    ApiJson(request): ApiJson<GatewayFaultRequest>,
+) -> Result<StatusCode, AppError> {
+    gateway_fault(&state, &bus, request.fault(true)?)
+}
+
+fn gateway_fault(state: &AppState, bus: &str, fault: ControllerFault) -> Result<StatusCode, AppError> {
+    rack(state, bus)?;
+    state
+        .bus(bus)?
+        .bus
+        .controller_fault(fault)
+        .map_err(|_| AppError::NotVirtual(bus.to_string()))?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// A virtual device on a bus.

@@ -507,23 +507,36 @@ impl Session {
         let key: Arc<str> = Arc::from(text);
         let mailbox = self.mailbox.clone();
         let tasks = match topic {
-            Topic::Nodes | Topic::Emcy => self
-                .state
-                .gateway
-                .buses
-                .values()
-                .map(|served| {
-                    let events = served.registry.subscribe();
-                    let bus: Arc<str> = Arc::from(served.name.as_str());
-                    tokio::spawn(forward_events(
-                        events,
-                        bus,
-                        topic == Topic::Emcy,
-                        key.clone(),
-                        mailbox.clone(),
-                    ))
-                })
-                .collect(),
+            Topic::Nodes | Topic::Emcy => {
+                let mut tasks: Vec<JoinHandle<()>> = self
+                    .state
+                    .gateway
+                    .buses
+                    .values()
+                    .map(|served| {
+                        let events = served.registry.subscribe();
+                        let bus: Arc<str> = Arc::from(served.name.as_str());
+                        tokio::spawn(forward_events(
+                            events,
+                            bus,
+                            topic == Topic::Emcy,
+                            key.clone(),
+                            mailbox.clone(),
+                        ))
+                    })
+                    .collect();
+                if topic == Topic::Nodes {
+                    tasks.extend(self.state.gateway.buses.values().map(|served| {
+                        tokio::spawn(forward_bus_states(
+                            served.bus.clone(),
+                            Arc::from(served.name.as_str()),
+                            key.clone(),
+                            mailbox.clone(),
+                        ))
+                    }));
+                }
+                tasks
+            }
             Topic::Frames { bus, ids } => {
                 let served = self.state.bus(&bus)?;
                 let frames = served.bus.monitor();
@@ -749,6 +762,34 @@ async fn forward_events(
             Err(EventError::Lagged(n)) => mailbox.lost(&topic, n),
             Err(EventError::Closed) => return,
         }
+    }
+}
+
+/// The changes of a bus's state, as `bus_state` events of the `nodes`
+/// topic: up or down, and the CAN controller's error state and counters
+/// (`error_active`, `error_passive`, `bus_off`), as a real interface
+/// reports them.
+async fn forward_bus_states(
+    bus: crate::can::Bus,
+    name: Arc<str>,
+    topic: Arc<str>,
+    mailbox: Arc<Mailbox>,
+) {
+    let mut status = bus.watch_status();
+    status.mark_unchanged();
+    while status.changed().await.is_ok() {
+        let current = status.borrow_and_update().clone();
+        let counters = bus.counters();
+        let data = json!({
+            "bus": &*name,
+            "event": "bus_state",
+            "state": if current.state.can_send() { "up" } else { "down" },
+            "error_state": current.state.error_state().map(|state| state.as_str()),
+            "reason": current.reason,
+            "tx_error_counter": counters.tec,
+            "rx_error_counter": counters.rec,
+        });
+        mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
     }
 }
 

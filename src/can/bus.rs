@@ -77,6 +77,18 @@ impl BusState {
         }
     }
 
+    /// The CAN controller's error state this state names; `None` when the
+    /// bus is down (there is no controller to speak of).
+    pub fn error_state(self) -> Option<super::fault::ErrorState> {
+        use super::fault::ErrorState;
+        match self {
+            Self::Up => Some(ErrorState::ErrorActive),
+            Self::ErrorPassive => Some(ErrorState::ErrorPassive),
+            Self::BusOff => Some(ErrorState::BusOff),
+            Self::Down => None,
+        }
+    }
+
     /// Whether frames can be sent in this state.
     pub fn can_send(self) -> bool {
         matches!(self, Self::Up | Self::ErrorPassive)

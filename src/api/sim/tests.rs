@@ -227,3 +227,113 @@ async fn sim_errors() {
         assert_error(&delete(&app, &faults, Some(fault)).await, status, code);
     }
 }
+
+#[tokio::test(start_paused = true)]
+async fn bit_errors_make_a_node_error_passive_then_bus_off_and_recovered_it_is_back() {
+    let (app, state) = buses().await;
+    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    // The JMC (node 2) sends heartbeats: the gateway supervises it.
+    let uri = "/api/v1/buses/demo/sim/nodes/2/faults";
+    let (status, _) = post(&app, uri, r#"{"kind": "bit_errors"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let codes = |node: &Json| -> Vec<String> {
+        node["emcy"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|emcy| emcy["code"].as_str().unwrap().to_string())
+            .collect()
+    };
+    // 37 frames take it bus-off; by then it sent EMCY 0x8120 and fell
+    // silent, so the gateway's heartbeat supervision took it offline.
+    tokio::time::sleep(Duration::from_secs(60)).await;
+    let (_, node) = get(&app, "/api/v1/buses/demo/nodes/2").await;
+    assert!(codes(&node).contains(&"0x8120".to_string()), "{node}");
+    assert_eq!(node["online"], false, "{node}");
+    let (_, devices) = get(&app, "/api/v1/buses/demo/sim/nodes").await;
+    assert_eq!(devices[1]["id"], 2);
+    // The others saw an error frame for each of its 37 errors.
+    let (_, buses) = get(&app, "/api/v1/buses").await;
+    assert_eq!(buses[0]["error_state"], "error_active", "{buses}");
+    let error_frames = state.gateway.buses["demo"].bus.counters().error_frames;
+    assert_eq!(error_frames, 37);
+
+    // Stop the errors, ask for the recovery: EMCY 0x8140 and online again.
+    let (status, _) = delete(&app, uri, Some(r#"{"kind": "bit_errors"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let (status, _) = delete(&app, uri, Some(r#"{"kind": "bus_off"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let (_, node) = get(&app, "/api/v1/buses/demo/nodes/2").await;
+    assert!(codes(&node).contains(&"0x8140".to_string()), "{node}");
+    assert_eq!(node["online"], true, "{node}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
+    let (app, state) = buses().await;
+    let bench = |buses: &Json| -> Json {
+        buses
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|bus| bus["name"] == "bench")
+            .unwrap()
+            .clone()
+    };
+    let (_, buses) = get(&app, "/api/v1/buses").await;
+    let info = bench(&buses);
+    assert_eq!(
+        (&info["state"], &info["error_state"], &info["tx_error_counter"], &info["rx_error_counter"]),
+        (&json!("up"), &json!("error_active"), &json!(0), &json!(0))
+    );
+    let uri = "/api/v1/buses/bench/sim/faults";
+    let (status, _) = post(&app, uri, r#"{"kind": "bus_off"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let (_, buses) = get(&app, "/api/v1/buses").await;
+    let info = bench(&buses);
+    assert_eq!(info["state"], "down", "{info}");
+    assert_eq!(info["error_state"], "bus_off", "{info}");
+    assert_eq!(info["tx_error_counter"], 256, "{info}");
+    let metrics = crate::api::metrics::render(&state);
+    assert!(
+        metrics.contains("candeck_bus_error_state{bus=\"bench\",state=\"bus_off\"} 1"),
+        "{metrics}"
+    );
+    assert!(metrics.contains("candeck_bus_tx_error_counter{bus=\"bench\"} 256"));
+    // Recovery: 128 × 11 bit times at 500 kbit/s, 2.816 ms.
+    let (status, _) = delete(&app, uri, Some(r#"{"kind": "bus_off"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    let (_, buses) = get(&app, "/api/v1/buses").await;
+    let info = bench(&buses);
+    assert_eq!(
+        (&info["state"], &info["error_state"], &info["tx_error_counter"]),
+        (&json!("up"), &json!("error_active"), &json!(0))
+    );
+    // Bit errors on the gateway's frames: error passive after 19, and it
+    // still sends.
+    let (status, _) = post(&app, uri, r#"{"kind": "bit_errors"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let bus = state.gateway.buses["bench"].bus.clone();
+    let frame = crate::can::Frame::new(crate::can::CanId::Standard(0x80), &[]).unwrap();
+    for _ in 0..19 {
+        bus.send(frame).await.unwrap();
+    }
+    let (_, buses) = get(&app, "/api/v1/buses").await;
+    let info = bench(&buses);
+    assert_eq!(
+        (&info["state"], &info["error_state"], &info["tx_error_counter"]),
+        (&json!("up"), &json!("error_passive"), &json!(133))
+    );
+    let metrics = crate::api::metrics::render(&state);
+    assert!(metrics.contains("candeck_bus_error_state{bus=\"bench\",state=\"error_passive\"} 1"));
+    assert!(metrics.contains("candeck_bus_error_state{bus=\"bench\",state=\"error_active\"} 0"));
+
+    let refused = post(&app, uri, r#"{"kind": "over_current"}"#).await;
+    assert_error(&refused, StatusCode::BAD_REQUEST, "invalid_value");
+    let refused = post(&app, "/api/v1/buses/remote/sim/faults", r#"{"kind": "bus_off"}"#).await;
+    assert_error(&refused, StatusCode::CONFLICT, "not_virtual");
+    let refused = post(&app, "/api/v1/buses/nope/sim/faults", r#"{"kind": "bus_off"}"#).await;
+    assert_error(&refused, StatusCode::NOT_FOUND, "unknown_bus");
+}

@@ -652,3 +652,52 @@ async fn a_value_topic_of_a_node_still_being_identified_waits_for_it() {
         assert!((30..=45).contains(&n), "{topic}: {n} in 2 s: {counts:?}");
     }
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_bus_off_node_goes_offline_and_the_gateways_controller_state_is_an_event() {
+    let (app, state) = demo().await;
+    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    let mut client = Client::start(&state, 256);
+    client.subscribe(&["nodes", "emcy"], None).await;
+
+    // The JMC (node 2) bus-off: it sends nothing, its heartbeat is missed.
+    let uri = "/api/v1/buses/demo/sim/nodes/2/faults";
+    let (status, _) = post_text(&app, uri, r#"{"kind": "bus_off"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let offline = client.until(|m| m["data"]["event"] == "offline").await;
+    assert_eq!(
+        offline["data"],
+        json!({"bus": "demo", "node": 2, "event": "offline", "reason": "heartbeat_lost"})
+    );
+    // Recovered on request: EMCY 0x8140, then online again.
+    let (status, _) = delete_text(&app, uri, Some(r#"{"kind": "bus_off"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let recovered = client.until(|m| m["data"]["code"] == "0x8140").await;
+    assert_eq!(recovered["data"]["node"], 2);
+    client.until(|m| m["data"]["event"] == "online").await;
+
+    // The gateway's own controller: a bus_state event for each change.
+    let uri = "/api/v1/buses/demo/sim/faults";
+    let (status, _) = post_text(&app, uri, r#"{"kind": "bus_off"}"#).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let event = client.until(|m| m["data"]["event"] == "bus_state").await;
+    assert_eq!(event["topic"], "nodes");
+    assert_eq!(
+        event["data"],
+        json!({
+            "bus": "demo", "event": "bus_state", "state": "down", "error_state": "bus_off",
+            "reason": "controller is bus-off (too many transmit errors)",
+            "tx_error_counter": 256, "rx_error_counter": 0,
+        })
+    );
+    let (status, _) = delete_text(&app, uri, Some(r#"{"kind": "bus_off"}"#)).await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let event = client.until(|m| m["data"]["event"] == "bus_state").await;
+    assert_eq!(
+        event["data"],
+        json!({
+            "bus": "demo", "event": "bus_state", "state": "up", "error_state": "error_active",
+            "reason": null, "tx_error_counter": 0, "rx_error_counter": 0,
+        })
+    );
+}

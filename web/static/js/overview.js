@@ -67,6 +67,8 @@ function renderBuses() {
       h('div', { class: 'sub' }, info.spec)),
     h('td', { 'data-label': 'Kind' }, info.kind),
     h('td', { 'data-label': 'State' }, h('span', { class: `badge ${info.state === 'up' ? 'ok' : 'bad'}` }, info.state),
+      info.error_state && info.error_state !== 'error_active'
+        ? h('div', { class: 'sub' }, `${info.error_state.replace('_', ' ')} (TEC ${info.tx_error_counter}, REC ${info.rx_error_counter})`) : null,
       info.reason ? h('div', { class: 'sub' }, info.reason) : null),
     h('td', { 'data-label': 'Load', class: 'num' }, `${(info.load * 100).toFixed(1)} %`),
     h('td', { 'data-label': 'Frames/s', class: 'num' }, fps === null ? '…' : fps.toFixed(0)),
@@ -213,6 +215,13 @@ function lagged(message) {
 
 stream.subscribe(['nodes'], (data, message) => {
   if (message.lagged) return lagged(message);
+  if (data.event === 'bus_state') {
+    const what = data.error_state ? data.error_state.replace('_', ' ') : data.state;
+    addEvent(message.ts, `${data.bus}: CAN controller ${what} (TEC ${data.tx_error_counter}, REC ${data.rx_error_counter})${data.reason ? `: ${data.reason}` : ''}`,
+      data.error_state === 'error_active' ? 'info' : 'warn');
+    loadBuses();
+    return;
+  }
   addEvent(message.ts, nodeEventText(data), data.event === 'offline' ? 'warn' : 'info');
   refreshNode(data.bus, data.node);
 });
