@@ -383,9 +383,12 @@ pub struct GuardPoll {
 }
 
 /// The master side of node guarding for one node: a remote request every
-/// guard time; the node is lost after `life_time_factor` requests in a row
-/// without a valid reply (the node life time, guard time × factor, of CiA
-/// 301).
+/// guard time; the node is lost when no valid reply came for the node life
+/// time, guard time × life time factor (CiA 301 §7.2.8.3.2.1), counted from
+/// its last valid reply (or from the start). So a node that falls silent is
+/// reported lost within the node life time of its last word, whenever in
+/// the guard cycle that was; [`deadline`](Self::deadline) includes the
+/// instant it will be.
 ///
 /// A reply is valid when its toggle bit is the opposite of the previous
 /// valid reply's. The first reply is taken whatever its toggle (the master
@@ -400,7 +403,9 @@ pub struct NodeGuardMaster {
     life_time_factor: u8,
     next_request: Option<Instant>,
     awaiting_reply: bool,
-    missed: u8,
+    /// The last valid reply, boot-up or start: the node life time runs from
+    /// here.
+    alive_since: Option<Instant>,
     expected_toggle: Option<bool>,
     state: Option<NmtState>,
     last_seen: Option<Instant>,
@@ -419,7 +424,7 @@ impl NodeGuardMaster {
             life_time_factor,
             next_request: None,
             awaiting_reply: false,
-            missed: 0,
+            alive_since: None,
             expected_toggle: None,
             state: None,
             last_seen: None,
@@ -440,13 +445,14 @@ impl NodeGuardMaster {
     pub fn start(&mut self, now: Instant) {
         if self.guard_time.is_some() {
             self.next_request = Some(now);
+            self.alive_since = Some(now);
         }
     }
 
     pub fn stop(&mut self) {
         self.next_request = None;
         self.awaiting_reply = false;
-        self.missed = 0;
+        self.alive_since = None;
     }
 
     /// After the master reset the node: its next reply has toggle 0.
@@ -454,9 +460,22 @@ impl NodeGuardMaster {
         self.expected_toggle = Some(false);
     }
 
-    /// When the next request is due.
+    /// When [`poll`](Self::poll) has work next: the next request, or the
+    /// end of the node life time if that comes first.
     pub fn deadline(&self) -> Option<Instant> {
-        self.next_request
+        let request = self.next_request?;
+        Some(match self.loss_deadline() {
+            Some(loss) => request.min(loss),
+            None => request,
+        })
+    }
+
+    /// When the node will be lost if nothing valid comes; `None` once lost.
+    fn loss_deadline(&self) -> Option<Instant> {
+        if self.lost {
+            return None;
+        }
+        Some(self.alive_since? + self.life_time()?)
     }
 
     #[must_use = "the frame must be sent"]
@@ -464,16 +483,16 @@ impl NodeGuardMaster {
         let (Some(period), Some(due)) = (self.guard_time, self.next_request) else {
             return GuardPoll::default();
         };
-        if now < due {
-            return GuardPoll::default();
-        }
         let mut event = None;
-        if self.awaiting_reply {
-            self.missed = self.missed.saturating_add(1);
-            if self.missed >= self.life_time_factor && !self.lost {
-                self.lost = true;
-                event = Some(HeartbeatEvent::Lost { node: self.node });
-            }
+        if self.loss_deadline().is_some_and(|loss| now >= loss) {
+            self.lost = true;
+            event = Some(HeartbeatEvent::Lost { node: self.node });
+        }
+        if now < due {
+            return GuardPoll {
+                request: None,
+                event,
+            };
         }
         self.awaiting_reply = true;
         self.next_request = Some(next_period(due, period, now));
@@ -502,7 +521,7 @@ impl NodeGuardMaster {
             // it is alive, and counts its toggle from 0 again.
             self.expected_toggle = Some(false);
             self.awaiting_reply = false;
-            self.missed = 0;
+            self.alive_since = Some(now);
             self.last_seen = Some(now);
             if std::mem::take(&mut self.lost) {
                 events.push(HeartbeatEvent::Recovered {
@@ -525,7 +544,7 @@ impl NodeGuardMaster {
         }
         self.expected_toggle = Some(!reply.toggle);
         self.awaiting_reply = false;
-        self.missed = 0;
+        self.alive_since = Some(now);
         self.last_seen = Some(now);
         if std::mem::take(&mut self.lost) {
             events.push(HeartbeatEvent::Recovered {

@@ -354,17 +354,25 @@ fn the_guarding_master_polls_checks_the_toggle_and_loses_a_silent_node() {
     );
     assert_eq!(guard.state(), Some(NmtState::Operational));
     assert_eq!(guard.last_seen(), Some(t0 + ms(201)));
-    // Silence: requests at 300, 400, 500 unanswered; at 600 the third
-    // miss is counted.
+    // Silence: requests at 300, 400 and 500 unanswered. The node life time
+    // (300 ms) runs from the last valid reply at 201: lost at 501, within
+    // guard time × life time factor of its last word (counting three missed
+    // requests would report it at 600, 399 ms after it).
     for t in [300, 400, 500] {
+        assert_eq!(guard.deadline(), Some(t0 + ms(t)));
         let poll = guard.poll(t0 + ms(t));
         assert!(poll.request.is_some());
         assert_eq!(poll.event, None, "at {t} ms");
     }
-    let poll = guard.poll(t0 + ms(600));
-    assert!(poll.request.is_some());
+    assert_eq!(guard.deadline(), Some(t0 + ms(501)));
+    let poll = guard.poll(t0 + ms(501));
+    assert_eq!(poll.request, None);
     assert_eq!(poll.event, Some(HeartbeatEvent::Lost { node: node(4) }));
     assert!(guard.is_lost());
+    assert_eq!(guard.deadline(), Some(t0 + ms(600)));
+    let poll = guard.poll(t0 + ms(600));
+    assert!(poll.request.is_some(), "a lost node is still asked");
+    assert_eq!(poll.event, None);
     assert_eq!(guard.poll(t0 + ms(700)).event, None);
     // It answers again, toggle continuing from the last valid reply (1).
     assert_eq!(
@@ -380,7 +388,7 @@ fn the_guarding_master_polls_checks_the_toggle_and_loses_a_silent_node() {
 #[test]
 fn a_wrong_toggle_costs_one_request() {
     let t0 = Instant::now();
-    let mut guard = NodeGuardMaster::new(node(4), 100, 2);
+    let mut guard = NodeGuardMaster::new(node(4), 100, 3);
     guard.start(t0);
     let _ = guard.poll(t0);
     let _ = guard.on_frame(&hb(0x704, &[0x05]), t0);
@@ -396,10 +404,12 @@ fn a_wrong_toggle_costs_one_request() {
         guard.on_frame(&hb(0x704, &[0x85]), t0 + ms(201)),
         Ok(vec![])
     );
+    assert_eq!(guard.last_seen(), Some(t0 + ms(201)));
     assert_eq!(guard.poll(t0 + ms(300)).event, None);
     assert_eq!(guard.poll(t0 + ms(400)).event, None);
+    assert_eq!(guard.poll(t0 + ms(500)).event, None);
     assert_eq!(
-        guard.poll(t0 + ms(500)).event,
+        guard.poll(t0 + ms(501)).event,
         Some(HeartbeatEvent::Lost { node: node(4) })
     );
 }
