@@ -158,7 +158,7 @@ fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
             "--bus",
             &format!("socketcand:{addr}/can0"),
             "--count",
-            "2",
+            "3",
             "--log",
             "warn",
         ])
@@ -182,6 +182,13 @@ fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
         bus.send(Frame::new(CanId::Extended(0x1ABCDEF), &[]).unwrap())
             .await
             .unwrap();
+        // A node-guarding request: a remote frame crosses socketcand as
+        // `< sendrtr 701 1 >` one way and `< rtr 701 SECS.USECS 1 >` the
+        // other (python-can's socketcand client can neither send nor show
+        // one: it writes every frame as `< send >`, and skips `< rtr >`).
+        bus.send(Frame::remote(CanId::Standard(0x701), 1).unwrap())
+            .await
+            .unwrap();
         bus.close().await;
     });
     let output = dump.wait_with_output().unwrap();
@@ -194,12 +201,13 @@ fn vbus_names_its_address_and_dump_prints_what_crosses_it() {
     );
     let stdout = String::from_utf8(output.stdout).unwrap();
     let lines: Vec<&str> = stdout.lines().collect();
-    assert_eq!(lines.len(), 2, "{stdout}");
+    assert_eq!(lines.len(), 3, "{stdout}");
     assert!(
         lines[0].starts_with('(') && lines[0].ends_with(") can0 123#1122"),
         "{stdout}"
     );
     assert!(lines[1].ends_with(") can0 01ABCDEF#"), "{stdout}");
+    assert!(lines[2].ends_with(") can0 701#R1"), "{stdout}");
 }
 
 #[test]

@@ -320,3 +320,109 @@ async fn a_silent_server_is_probed_with_echo_and_given_up() {
     fake.abort();
     assert!(down.is_ok(), "status: {:?}", bus.status());
 }
+
+/// An expedited SDO download to `node` over `bus`, waiting for its answer.
+async fn sdo_write(bus: &Bus, rx: &mut candeck::can::FrameReceiver, node: u8, index: u16, sub: u8, value: &[u8]) {
+    let command = match value.len() {
+        1 => 0x2F,
+        2 => 0x2B,
+        _ => 0x23,
+    };
+    let [lo, hi] = index.to_le_bytes();
+    let mut data = [command, lo, hi, sub, 0, 0, 0, 0];
+    data[4..4 + value.len()].copy_from_slice(value);
+    bus.send(Frame::new(CanId::Standard(0x600 + u16::from(node)), &data).unwrap())
+        .await
+        .unwrap();
+    loop {
+        let frame = recv(rx).await;
+        if frame.id() == CanId::Standard(0x580 + u16::from(node)) {
+            assert_eq!(frame.data()[0], 0x60, "{frame} answers the write of {index:04X}");
+            return;
+        }
+    }
+}
+
+/// Node guarding end to end over socketcand: the gateway's side is a
+/// socketcand client (what `--bus socketcand:HOST:PORT/can0` opens), the
+/// device's side what `candeck vbus` runs (a hub at 500 kbit/s, a rack of
+/// virtual devices, the socketcand server). The master's remote requests
+/// cross as `< sendrtr 705 1 >` and reach the device as remote frames; its
+/// replies come back with the toggle bit alternating.
+///
+/// python-can's socketcand interface could not play the master here: it
+/// writes every frame as `< send ID LEN DATA >`, which has no remote
+/// frames, and it drops the `< rtr >` lines it receives. Upstream socketcand
+/// (linux-can/socketcand `state_raw.c`) has no syntax for them either (a
+/// received remote frame is a "TODO"); `sendrtr` and `rtr` are candeck's,
+/// on both ends.
+#[tokio::test]
+async fn node_guarding_crosses_socketcand_and_an_unplugged_node_is_lost_within_its_life_time() {
+    use candeck::canopen::NodeId;
+    use candeck::canopen::heartbeat::{HeartbeatEvent, NodeGuardMaster};
+    use candeck::sim::products::Product;
+    use candeck::sim::rack::Rack;
+
+    let hub = VirtualHub::with_bitrate("can0", candeck::can::Bitrate::default());
+    let rack = Rack::new(hub.clone());
+    let id = NodeId::new(5).unwrap();
+    rack.add(Product::Uio1led, id).unwrap();
+    let server = serve(&hub, ServerConfig::default()).await;
+    let bus = client(server.local_addr());
+    bus.wait_up(WAIT).await.unwrap();
+    let mut rx = bus.subscribe();
+    // Guarding needs the heartbeat off (it takes precedence); guard time
+    // 200 ms, life time factor 3: a node life time of 600 ms.
+    sdo_write(&bus, &mut rx, 5, 0x1017, 0, &0u16.to_le_bytes()).await;
+    sdo_write(&bus, &mut rx, 5, 0x100C, 0, &200u16.to_le_bytes()).await;
+    sdo_write(&bus, &mut rx, 5, 0x100D, 0, &[3]).await;
+
+    let mut guard = NodeGuardMaster::new(id, 200, 3);
+    let life_time = guard.life_time().unwrap();
+    guard.start(std::time::Instant::now());
+    let mut replies = Vec::new();
+    let mut unplugged = None;
+    let lost_at = loop {
+        let deadline = guard.deadline().expect("guarding runs");
+        tokio::select! {
+            _ = tokio::time::sleep_until(deadline.into()) => {
+                // The master's own clock: the instant the poll was due.
+                let poll = guard.poll(deadline);
+                if let Some(request) = poll.request {
+                    assert!(request.is_remote());
+                    assert_eq!(request.to_string(), "705#R1");
+                    bus.send(request).await.unwrap();
+                }
+                if let Some(event) = poll.event {
+                    assert_eq!(event, HeartbeatEvent::Lost { node: id });
+                    break deadline;
+                }
+            }
+            frame = recv(&mut rx) => {
+                if frame.id() != CanId::Standard(0x705) {
+                    continue;
+                }
+                assert!(unplugged.is_none(), "a reply from an unplugged node: {frame}");
+                replies.push(frame.data().to_vec());
+                guard.on_frame(&frame, std::time::Instant::now()).unwrap();
+                if replies.len() == 5 {
+                    rack.unplug(id).unwrap();
+                    unplugged = Some(std::time::Instant::now());
+                }
+            }
+        }
+    };
+    // Pre-operational (0x7F), the toggle bit 7 alternating from 0.
+    assert_eq!(
+        replies,
+        vec![vec![0x7F], vec![0xFF], vec![0x7F], vec![0xFF], vec![0x7F]]
+    );
+    let last_seen = guard.last_seen().unwrap();
+    let unplugged = unplugged.unwrap();
+    assert!(last_seen <= unplugged);
+    // Reported lost at the end of the node life time after its last reply,
+    // so within guard time × life time factor of the unplugging.
+    assert_eq!(lost_at, last_seen + life_time);
+    assert!(lost_at.saturating_duration_since(unplugged) <= life_time);
+    assert!(guard.is_lost());
+}
