@@ -322,7 +322,14 @@ async fn a_silent_server_is_probed_with_echo_and_given_up() {
 }
 
 /// An expedited SDO download to `node` over `bus`, waiting for its answer.
-async fn sdo_write(bus: &Bus, rx: &mut candeck::can::FrameReceiver, node: u8, index: u16, sub: u8, value: &[u8]) {
+async fn sdo_write(
+    bus: &Bus,
+    rx: &mut candeck::can::FrameReceiver,
+    node: u8,
+    index: u16,
+    sub: u8,
+    value: &[u8],
+) {
     let command = match value.len() {
         1 => 0x2F,
         2 => 0x2B,
@@ -337,7 +344,11 @@ async fn sdo_write(bus: &Bus, rx: &mut candeck::can::FrameReceiver, node: u8, in
     loop {
         let frame = recv(rx).await;
         if frame.id() == CanId::Standard(0x580 + u16::from(node)) {
-            assert_eq!(frame.data()[0], 0x60, "{frame} answers the write of {index:04X}");
+            assert_eq!(
+                frame.data()[0],
+                0x60,
+                "{frame} answers the write of {index:04X}"
+            );
             return;
         }
     }

@@ -109,7 +109,11 @@ async fn clear_gateway_fault(
     gateway_fault(&state, &bus, request.fault(true)?)
 }
 
-fn gateway_fault(state: &AppState, bus: &str, fault: ControllerFault) -> Result<StatusCode, AppError> {
+fn gateway_fault(
+    state: &AppState,
+    bus: &str,
+    fault: ControllerFault,
+) -> Result<StatusCode, AppError> {
     rack(state, bus)?;
     state
         .bus(bus)?

@@ -63,7 +63,10 @@ impl Fault {
 
     /// Whether the device core handles it (every product has it).
     pub fn is_communication(self) -> bool {
-        matches!(self, Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff)
+        matches!(
+            self,
+            Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff
+        )
     }
 
     /// The name in the HTTP API: `over_temperature`, `under_voltage`,

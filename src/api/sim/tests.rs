@@ -284,7 +284,12 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
     let (_, buses) = get(&app, "/api/v1/buses").await;
     let info = bench(&buses);
     assert_eq!(
-        (&info["state"], &info["error_state"], &info["tx_error_counter"], &info["rx_error_counter"]),
+        (
+            &info["state"],
+            &info["error_state"],
+            &info["tx_error_counter"],
+            &info["rx_error_counter"]
+        ),
         (&json!("up"), &json!("error_active"), &json!(0), &json!(0))
     );
     let uri = "/api/v1/buses/bench/sim/faults";
@@ -308,7 +313,11 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
     let (_, buses) = get(&app, "/api/v1/buses").await;
     let info = bench(&buses);
     assert_eq!(
-        (&info["state"], &info["error_state"], &info["tx_error_counter"]),
+        (
+            &info["state"],
+            &info["error_state"],
+            &info["tx_error_counter"]
+        ),
         (&json!("up"), &json!("error_active"), &json!(0))
     );
     // Bit errors on the gateway's frames: error passive after 19, and it
@@ -323,7 +332,11 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
     let (_, buses) = get(&app, "/api/v1/buses").await;
     let info = bench(&buses);
     assert_eq!(
-        (&info["state"], &info["error_state"], &info["tx_error_counter"]),
+        (
+            &info["state"],
+            &info["error_state"],
+            &info["tx_error_counter"]
+        ),
         (&json!("up"), &json!("error_passive"), &json!(133))
     );
     let metrics = crate::api::metrics::render(&state);
@@ -332,8 +345,18 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
 
     let refused = post(&app, uri, r#"{"kind": "over_current"}"#).await;
     assert_error(&refused, StatusCode::BAD_REQUEST, "invalid_value");
-    let refused = post(&app, "/api/v1/buses/remote/sim/faults", r#"{"kind": "bus_off"}"#).await;
+    let refused = post(
+        &app,
+        "/api/v1/buses/remote/sim/faults",
+        r#"{"kind": "bus_off"}"#,
+    )
+    .await;
     assert_error(&refused, StatusCode::CONFLICT, "not_virtual");
-    let refused = post(&app, "/api/v1/buses/nope/sim/faults", r#"{"kind": "bus_off"}"#).await;
+    let refused = post(
+        &app,
+        "/api/v1/buses/nope/sim/faults",
+        r#"{"kind": "bus_off"}"#,
+    )
+    .await;
     assert_error(&refused, StatusCode::NOT_FOUND, "unknown_bus");
 }

@@ -110,10 +110,7 @@ fn receive_errors_make_a_node_passive_but_never_bus_off() {
 #[test]
 fn bus_off_recovery_waits_for_the_request_then_128_runs_of_11_recessive_bits() {
     let mut node = FaultConfinement::new();
-    assert_eq!(
-        node.force_bus_off().map(|t| t.to),
-        Some(ErrorState::BusOff)
-    );
+    assert_eq!(node.force_bus_off().map(|t| t.to), Some(ErrorState::BusOff));
     // Not requested: recessive bits alone do nothing.
     assert_eq!(node.recessive_bits(100_000), None);
     assert_eq!(node.state(), ErrorState::BusOff);

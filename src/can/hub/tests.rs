@@ -303,7 +303,16 @@ async fn bit_errors_make_an_attachment_error_passive_then_bus_off_and_the_others
     assert_eq!(node.state(), BusState::BusOff);
     assert_eq!(node.counters().tec, 260);
     let err = node.send(frame(0x181, &[37])).await.unwrap_err();
-    assert!(matches!(err, BusError::NotUp { state: BusState::BusOff, .. }), "{err:?}");
+    assert!(
+        matches!(
+            err,
+            BusError::NotUp {
+                state: BusState::BusOff,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
     let mut seen = Vec::new();
     while let Ok(Some(got)) = rx.try_recv() {
         seen.push(got.frame);

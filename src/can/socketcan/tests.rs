@@ -311,10 +311,7 @@ fn error_passive_with_counters_is_read_byte_for_byte() {
     // RX passive: REC 128 in data[7].
     let frame = kernel_error(0x204, [0, 0x10, 0, 0, 0, 0, 0, 128]);
     let report = error_frame_report(&frame, BusState::Up);
-    assert_eq!(
-        report.status.map(|s| s.state),
-        Some(BusState::ErrorPassive)
-    );
+    assert_eq!(report.status.map(|s| s.state), Some(BusState::ErrorPassive));
     assert_eq!(report.counters, Some(ErrorCounters { tec: 0, rec: 128 }));
 }
 
