@@ -61,14 +61,6 @@ impl Fault {
         Fault::BusOff,
     ];
 
-    /// Whether the device core handles it (every product has it).
-    pub fn is_communication(self) -> bool {
-        matches!(
-            self,
-            Fault::HeartbeatLoss | Fault::BitErrors | Fault::BusOff
-        )
-    }
-
     /// The name in the HTTP API: `over_temperature`, `under_voltage`,
     /// `following_error`, `over_current`, `heartbeat_loss`, `bit_errors`,
     /// `bus_off`.

@@ -537,3 +537,27 @@ async fn a_bus_off_recovery_takes_128_times_11_bit_times_of_the_bus() {
     assert_eq!(state(), crate::can::ErrorState::ErrorActive);
     assert!(start.elapsed() < Duration::from_millis(14));
 }
+
+#[tokio::test(start_paused = true)]
+async fn bus_off_in_operational_is_a_communication_error_for_0x1029() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add_device(probe(4)).unwrap();
+    let sdo = sdo(&master, 4);
+    sdo.download(0x1017, 0, &10u16.to_le_bytes()).await.unwrap();
+    // 0x1029.1 = 0: pre-operational on a communication error (CiA 301
+    // §7.2.8.2.1.1; bus-off is one).
+    sdo.download(0x1029, 1, &[0]).await.unwrap();
+    master
+        .send(Frame::new(CanId::Standard(0), &[0x01, 4]).unwrap())
+        .await
+        .unwrap();
+    let mut frames = master.subscribe();
+    assert_eq!(frames_on(&mut frames, 0x704, 25).await, vec![vec![0x05]; 2]);
+    rack.inject_fault(node(4), Fault::BusOff).unwrap();
+    assert!(frames_on(&mut frames, 0x704, 50).await.is_empty());
+    rack.clear_fault(node(4), Fault::BusOff).unwrap();
+    let seen = frames_on(&mut frames, 0x704, 25).await;
+    assert_eq!(seen, vec![vec![0x7F]; 2]);
+}
