@@ -31,7 +31,7 @@
 //! an error flag) and is sent again; a bus-off attachment neither sends nor
 //! receives.
 
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, Weak};
 
 use tokio::sync::{Notify, Semaphore, broadcast, watch};
@@ -59,6 +59,10 @@ struct Attachment {
     confinement: FaultConfinement,
     /// Injected: each of its frames meets one bit error.
     bit_errors: bool,
+    /// Set while its controller needs a look at each frame it sends (bit
+    /// errors, a TEC above 0, bus-off), so that a healthy attachment's
+    /// frames skip the lock.
+    tx_watched: Arc<AtomicBool>,
 }
 
 /// Error class of what receivers see of an error flag: `CAN_ERR_PROT |
@@ -108,7 +112,7 @@ impl Attachment {
 
     /// After its counters moved: they are published, and its status if the
     /// state changed.
-    fn follow(&self, transition: Option<Transition>, hub: &BusStatus) {
+    fn follow(&self, transition: Option<Transition>, hub: &watch::Sender<BusStatus>) {
         let tec = u64::from(self.confinement.tec());
         let rec = u64::from(self.confinement.rec());
         if self.counters.tec.load(Ordering::Relaxed) != tec {
@@ -118,8 +122,13 @@ impl Attachment {
             self.counters.rec.store(rec, Ordering::Relaxed);
         }
         if transition.is_some() {
-            self.status.send_replace(self.status(hub));
+            let hub = hub.borrow().clone();
+            self.status.send_replace(self.status(&hub));
         }
+        self.tx_watched.store(
+            self.bit_errors || self.confinement.tec() > 0 || !self.confinement.can_transmit(),
+            Ordering::Relaxed,
+        );
     }
 }
 
@@ -165,6 +174,7 @@ pub(crate) struct HubLink {
     hub: Arc<HubInner>,
     origin: Origin,
     tx_room: Arc<Semaphore>,
+    tx_watched: Arc<AtomicBool>,
 }
 
 /// The attachment's transmit queue is full.
@@ -181,7 +191,8 @@ impl HubLink {
                 permit.forget();
             }
         }
-        self.hub.transmit(self.origin, frame);
+        self.hub
+            .transmit(self.origin, frame, self.tx_watched.load(Ordering::Relaxed));
     }
 
     /// [`HubLink::send`] without waiting.
@@ -192,7 +203,8 @@ impl HubLink {
                 .map_err(|_| TxQueueFull)?
                 .forget();
         }
-        self.hub.transmit(self.origin, frame);
+        self.hub
+            .transmit(self.origin, frame, self.tx_watched.load(Ordering::Relaxed));
         Ok(())
     }
 }
@@ -224,11 +236,11 @@ impl HubInner {
     /// A frame sent: on the wire's queue, or to everyone at once. A frame
     /// of an attachment with bit errors first fails once (an error frame
     /// for the others); one that takes it bus-off is lost.
-    fn transmit(&self, origin: Origin, frame: Frame) {
+    fn transmit(&self, origin: Origin, frame: Frame, watched: bool) {
         let mut failed = false;
         let mut lost = false;
-        {
-            let hub = self.status.borrow().clone();
+        if watched {
+            let hub = &self.status;
             let mut attachments = self.attachments();
             if let Some(sender) = attachments.iter_mut().find(|a| a.origin == origin) {
                 if !sender.confinement.can_transmit() {
@@ -239,13 +251,13 @@ impl HubInner {
                     lost = !sender.confinement.can_transmit();
                     if !lost {
                         let ok = sender.confinement.transmit_ok();
-                        sender.follow(transition.or(ok), &hub);
+                        sender.follow(transition.or(ok), hub);
                     } else {
-                        sender.follow(transition, &hub);
+                        sender.follow(transition, hub);
                     }
                 } else if sender.confinement.tec() > 0 && !frame.is_error() {
                     let transition = sender.confinement.transmit_ok();
-                    sender.follow(transition, &hub);
+                    sender.follow(transition, hub);
                 }
             }
         }
@@ -276,7 +288,7 @@ impl HubInner {
             frame,
             timestamp: Timestamp::now(),
         };
-        let hub = self.status.borrow().clone();
+        let hub = &self.status;
         // A queue nobody reads refuses the frame and stores nothing, so an
         // attachment without readers costs next to nothing.
         for attachment in self.attachments().iter_mut() {
@@ -285,14 +297,12 @@ impl HubInner {
                     // Bus-off: off the bus, it hears nothing.
                     continue;
                 }
-                let before = attachment.confinement.rec();
-                let transition = if frame.is_error() {
-                    attachment.confinement.receive_error()
-                } else {
-                    attachment.confinement.receive_ok()
-                };
-                if transition.is_some() || attachment.confinement.rec() != before {
-                    attachment.follow(transition, &hub);
+                if frame.is_error() {
+                    let transition = attachment.confinement.receive_error();
+                    attachment.follow(transition, hub);
+                } else if attachment.confinement.rec() > 0 {
+                    let transition = attachment.confinement.receive_ok();
+                    attachment.follow(transition, hub);
                 }
                 attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
@@ -346,18 +356,24 @@ async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
 impl HubInner {
     /// A fault of the controller of attachment `origin`.
     fn controller_fault(self: &Arc<Self>, origin: Origin, fault: ControllerFault) {
-        let hub = self.status.borrow().clone();
+        let hub = &self.status;
         let recovery_bits = {
             let mut attachments = self.attachments();
             let Some(attachment) = attachments.iter_mut().find(|a| a.origin == origin) else {
                 return;
             };
             match fault {
-                ControllerFault::BitErrors => attachment.bit_errors = true,
-                ControllerFault::NoBitErrors => attachment.bit_errors = false,
+                ControllerFault::BitErrors => {
+                    attachment.bit_errors = true;
+                    attachment.follow(None, hub);
+                }
+                ControllerFault::NoBitErrors => {
+                    attachment.bit_errors = false;
+                    attachment.follow(None, hub);
+                }
                 ControllerFault::BusOff => {
                     let transition = attachment.confinement.force_bus_off();
-                    attachment.follow(transition, &hub);
+                    attachment.follow(transition, hub);
                 }
                 ControllerFault::Recover => attachment.confinement.request_recovery(),
             }
@@ -387,11 +403,11 @@ impl HubInner {
 
     /// `bits` recessive bit times went by for a recovering attachment.
     fn recessive_bits(&self, origin: Origin, bits: u64) {
-        let hub = self.status.borrow().clone();
+        let hub = &self.status;
         let mut attachments = self.attachments();
         if let Some(attachment) = attachments.iter_mut().find(|a| a.origin == origin) {
             let transition = attachment.confinement.recessive_bits(bits);
-            attachment.follow(transition, &hub);
+            attachment.follow(transition, hub);
         }
     }
 }
@@ -469,6 +485,7 @@ impl VirtualHub {
         let monitor_frames = LazyChannel::new(self.inner.queue);
         let counters = Arc::new(BusCounters::default());
         let tx_room = Arc::new(Semaphore::new(DEFAULT_TX_QUEUE));
+        let tx_watched = Arc::new(AtomicBool::new(false));
         let (status, status_rx) = watch::channel(self.inner.status.borrow().clone());
         self.inner.attachments().push(Attachment {
             origin,
@@ -479,6 +496,7 @@ impl VirtualHub {
             status,
             confinement: FaultConfinement::new(),
             bit_errors: false,
+            tx_watched: tx_watched.clone(),
         });
         Bus::from_parts(BusParts {
             name: self.inner.name.clone(),
@@ -489,6 +507,7 @@ impl VirtualHub {
                 hub: self.inner.clone(),
                 origin,
                 tx_room,
+                tx_watched,
             }),
             rx_frames,
             monitor_frames,
