@@ -17,14 +17,13 @@ use tokio::sync::{Mutex, OwnedMutexGuard};
 use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::lss::{
-    Inquiry, LssAddress, LssError, LssMaster, LssOutcome, LssService, LssState,
-    UNCONFIGURED,
+    Inquiry, LssAddress, LssError, LssMaster, LssOutcome, LssService, LssState, UNCONFIGURED,
 };
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 
 use super::GatewayError;
 use super::profile::Profile;
-use super::registry::NodeInfo;
+use super::registry::{Identification, NodeInfo};
 use super::service::ServedBus;
 
 /// How long the master waits for each LSS answer. CANopenNode's master
@@ -33,8 +32,9 @@ use super::service::ServedBus;
 pub const LSS_TIMEOUT: Duration = Duration::from_millis(25);
 /// How long a configured device has to boot up under its new node-ID.
 pub const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(3);
-/// How long the registry has to take a node that booted up.
-const REGISTRY_TIMEOUT: Duration = Duration::from_secs(1);
+/// How long the registry has to take a node that booted up and read its
+/// identity.
+const REGISTRY_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// The LSS master of one bus.
 pub struct BusLss {
@@ -72,7 +72,10 @@ impl BusLss {
 
 impl LssTransaction<'_> {
     /// Runs one service of the master to its end.
-    pub async fn run(&self, service: LssService) -> Result<Result<LssOutcome, LssError>, GatewayError> {
+    pub async fn run(
+        &self,
+        service: LssService,
+    ) -> Result<Result<LssOutcome, LssError>, GatewayError> {
         let bus = &self.lss.bus;
         let mut frames = bus.subscribe();
         let now = || tokio::time::Instant::now().into_std();
@@ -147,7 +150,9 @@ pub async fn configure(
     let node = new_node_id(node_id)?;
     check_free(served, node)?;
     let transaction = served.lss.begin()?;
-    let selected = transaction.run(LssService::SwitchSelective(address)).await?;
+    let selected = transaction
+        .run(LssService::SwitchSelective(address))
+        .await?;
     if selected.is_err() {
         return Err(GatewayError::LssNotFound(format!(
             "no device with {address} answered on bus {}",
@@ -237,13 +242,19 @@ async fn wait_for_boot_up(
     }
     let until = tokio::time::Instant::now() + REGISTRY_TIMEOUT;
     loop {
-        if let Some(info) = served.registry.node(node) {
-            return Ok(info);
+        let info = served.registry.node(node);
+        // Answered once its identity is read (or could not be).
+        if let Some(info) = &info
+            && info.identification != Identification::Pending
+        {
+            return Ok(info.clone());
         }
         if tokio::time::Instant::now() >= until {
-            return Err(GatewayError::Internal(format!(
-                "node {node} booted up but the registry did not take it"
-            )));
+            return info.ok_or_else(|| {
+                GatewayError::Internal(format!(
+                    "node {node} booted up but the registry did not take it"
+                ))
+            });
         }
         tokio::time::sleep(Duration::from_millis(5)).await;
     }

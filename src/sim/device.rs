@@ -35,12 +35,12 @@ use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::cob::Function;
 use crate::canopen::emcy::{Emcy, EmcyProducer, ErrorBit, ErrorHistory, ErrorRegister};
-use crate::canopen::lss::slave::LssSlaveOutput;
-use crate::canopen::lss::{LssAddress, LssSlave, LssSlaveEvent, is_lss_request};
 use crate::canopen::heartbeat::{
     ConsumerTime, HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, LifeGuard, LifeGuardEvent,
     heartbeat_node,
 };
+use crate::canopen::lss::slave::LssSlaveOutput;
+use crate::canopen::lss::{LssAddress, LssSlave, LssSlaveEvent, is_lss_request};
 use crate::canopen::nmt::{
     NmtCommand, NmtEvent, NmtMessage, NmtService, NmtSlave, NmtState, NmtTarget,
 };
@@ -313,7 +313,8 @@ impl DeviceCore {
         let mut translated = false;
         for (key, value) in self.saved.iter_mut() {
             let (old, new) = (self.defaults.get(key.0, key.1), defaults.get(key.0, key.1));
-            if old == Some(value) && new != old
+            if old == Some(value)
+                && new != old
                 && let Some(new) = new
             {
                 *value = new.clone();

@@ -142,9 +142,7 @@ pub fn demo() -> Vec<DeviceSpec> {
         (Product::Uio1led, 3),
     ]
     .into_iter()
-    .map(|(product, node)| {
-        DeviceSpec::at(product, NodeId::new(node).expect("1 to 3 are node ids"))
-    })
+    .map(|(product, node)| DeviceSpec::at(product, NodeId::new(node).expect("1 to 3 are node ids")))
     .collect()
 }
 
@@ -205,7 +203,10 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
                 let serial = serial.strip_prefix('/').ok_or_else(|| {
                     format!("'{item}': an LSS device is PRODUCT@lss or PRODUCT@lss/SERIAL")
                 })?;
-                let parsed = match serial.strip_prefix("0x").or_else(|| serial.strip_prefix("0X")) {
+                let parsed = match serial
+                    .strip_prefix("0x")
+                    .or_else(|| serial.strip_prefix("0X"))
+                {
                     Some(hex) => u32::from_str_radix(hex, 16),
                     None => serial.parse::<u32>(),
                 };

@@ -273,7 +273,10 @@ impl Rack {
         // An unconfigured device is built for any node-ID; it takes its own
         // from the LSS master.
         let mut core = product
-            .device(spec.node.unwrap_or(NodeId::new(NodeId::MAX).expect("127 is a node-ID")))
+            .device(
+                spec.node
+                    .unwrap_or(NodeId::new(NodeId::MAX).expect("127 is a node-ID")),
+            )
             .map_err(RackError::Device)?;
         core.set_serial(serial);
         if spec.node.is_none() {
@@ -284,7 +287,8 @@ impl Rack {
             None => saved_path_lss(dir, product.name(), serial),
         });
         if let Some(path) = &path {
-            let device_error = |err: super::persist::PersistError| RackError::Device(err.to_string());
+            let device_error =
+                |err: super::persist::PersistError| RackError::Device(err.to_string());
             core.load_saved(read_saved(path).map_err(device_error)?);
             core.load_lss_stored(read_lss(&lss_path(path)).map_err(device_error)?);
         }
@@ -345,7 +349,13 @@ impl Rack {
         lock(&self.inner)
             .loose
             .iter()
-            .map(|slot| (slot.core.active_node(), slot.product, slot.core.lss_address()))
+            .map(|slot| {
+                (
+                    slot.core.active_node(),
+                    slot.product,
+                    slot.core.lss_address(),
+                )
+            })
             .collect()
     }
 
