@@ -108,3 +108,37 @@ async fn a_uniswarm_node_changes_its_node_id_by_0x2040() {
         "node_id_change_not_supported",
     );
 }
+
+#[tokio::test(start_paused = true)]
+async fn sim_nodes_adds_an_unconfigured_device_which_lss_finds() {
+    let app = line("virtual:empty").await;
+    let added = crate::api::tests::support::call(
+        &app,
+        axum::http::Method::POST,
+        "/api/v1/buses/line/sim/nodes",
+        Some(json!({"product": "jmc", "lss": true, "serial": 42})),
+    )
+    .await;
+    assert_eq!(added.0, StatusCode::CREATED, "{}", added.1);
+    assert_eq!(
+        added.1,
+        json!({"id": null, "product": "jmc", "plugged": true, "serial": 42})
+    );
+    assert_eq!(
+        ok(get(&app, "/api/v1/buses/line/sim/nodes").await),
+        json!([added.1])
+    );
+    let scan = ok(post(&app, "/api/v1/buses/line/lss/scan", json!({})).await);
+    assert_eq!(
+        scan,
+        json!({"found": [{"vendor_id": 0x2D9, "product_code": 0, "revision": 0, "serial": 42}]})
+    );
+    let bad = crate::api::tests::support::call(
+        &app,
+        axum::http::Method::POST,
+        "/api/v1/buses/line/sim/nodes",
+        Some(json!({"product": "jmc", "lss": true, "id": 4})),
+    )
+    .await;
+    assert_error(&bad, StatusCode::BAD_REQUEST, "invalid_request");
+}
