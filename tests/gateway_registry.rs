@@ -66,12 +66,13 @@ async fn event_within<T>(
     .flatten()
 }
 
-fn identity(vendor: u32, product: u32, revision: u32) -> Option<Identity> {
+/// A virtual device's identity: its serial number is its node-ID.
+fn identity(vendor: u32, product: u32, revision: u32, serial: u32) -> Option<Identity> {
     Some(Identity {
         vendor_id: vendor,
         product_code: Some(product),
         revision: Some(revision),
-        serial: Some(0),
+        serial: Some(serial),
     })
 }
 
@@ -108,14 +109,14 @@ fn check_demo_identities(nodes: &[NodeInfo]) {
     let [umc, jmc, led] = nodes else {
         panic!("three nodes: {nodes:?}");
     };
-    assert_eq!(umc.identity, identity(0x4A2, 0x1001, 0x0100_0004));
+    assert_eq!(umc.identity, identity(0x4A2, 0x1001, 0x0100_0004, 1));
     assert_eq!(umc.device_type, Some(402));
     assert_eq!(umc.name.as_deref(), Some("UMC1BDS32 motion controller"));
     // The JMC drive reports vendor 0x2D9, product 0, revision 0.
-    assert_eq!(jmc.identity, identity(0x2D9, 0, 0));
+    assert_eq!(jmc.identity, identity(0x2D9, 0, 0, 2));
     assert_eq!(jmc.device_type, Some(0x0006_0912));
     assert_eq!(jmc.name.as_deref(), Some("AMA CANopen Motor Driver"));
-    assert_eq!(led.identity, identity(0x4A2, 0x4101, 1));
+    assert_eq!(led.identity, identity(0x4A2, 0x4101, 1, 3));
     assert_eq!(led.device_type, Some(428));
     assert_eq!(led.name.as_deref(), Some("UIO1LED LEDs controller"));
     for n in nodes {
@@ -181,7 +182,7 @@ async fn the_demo_nodes_appear_from_their_boot_up_identified_and_matched() {
     assert_eq!(json["name"], "UMC1BDS32 motion controller");
     assert_eq!(
         json["identity"],
-        serde_json::json!({"vendor_id": 0x4A2, "product_code": 0x1001, "revision": 0x0100_0004, "serial": 0})
+        serde_json::json!({"vendor_id": 0x4A2, "product_code": 0x1001, "revision": 0x0100_0004, "serial": 1})
     );
     assert!(json["last_seen_ms"].is_u64());
     assert!(json.get("eds_entry").is_none());

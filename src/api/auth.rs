@@ -98,6 +98,11 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("POST",   "/api/v1/buses/{bus}/recording", ADMIN),
     ("DELETE", "/api/v1/buses/{bus}/recording", ADMIN),
     ("GET",    "/api/v1/buses/{bus}/recording.log", VIEWER),
+    // LSS reconfigures the bus's node-IDs: the administrator's.
+    ("POST",   "/api/v1/buses/{bus}/lss/scan", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/lss/configure", ADMIN),
+    // A node-ID change of one node, as its operator's NMT reset is.
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/node-id", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/sim/nodes", VIEWER),
     ("POST",   "/api/v1/buses/{bus}/sim/nodes", ADMIN),
     ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}", ADMIN),

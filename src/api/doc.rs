@@ -42,6 +42,7 @@ When the gateway is configured with tokens, every request but `/health` needs \
         (name = "drives", description = "CiA 402 drives: axes, state machine, moves (profiles umc, jmc_stepper, cia402)"),
         (name = "pdo", description = "PDOs (CiA 301 §7.2.2): configuration, re-mapping, RPDO send; the SYNC producer (§7.2.5)"),
         (name = "frames", description = "Raw CAN frames of a bus (ISO 11898-1)"),
+        (name = "lss", description = "Node-IDs: LSS (CiA 305) Fastscan and assignment, the UniSwarm node-ID change (0x2040)"),
         (name = "sim", description = "The virtual devices of an emulated bus: add, remove, inject faults"),
         (name = "events", description = "The persisted history: audit log of state-changing requests, EMCYs (CiA 301 §7.2.7), NMT and supervision events"),
         (name = "metrics", description = "The gateway's metrics for Prometheus (text format 0.0.4), at the root path"),

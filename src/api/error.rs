@@ -181,6 +181,24 @@ pub enum AppError {
     /// gateway's machine, not the request.
     #[error("{0}")]
     HistoryFailed(String),
+    /// Another LSS transaction runs on the bus.
+    #[error("{0}")]
+    LssBusy(String),
+    /// No device with the LSS address asked for answered.
+    #[error("{0}")]
+    LssNotFound(String),
+    /// An LSS answer (or the boot-up after one) did not come in time.
+    #[error("{0}")]
+    LssTimeout(String),
+    /// The LSS slave refused a configuration service.
+    #[error("{0}")]
+    LssRefused(String),
+    /// The node-ID asked for is in use on the bus.
+    #[error("{0}")]
+    NodeIdInUse(String),
+    /// The node's product cannot change its node-ID over SDO (no 0x2040).
+    #[error("{0}")]
+    NodeIdNotSupported(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -246,6 +264,15 @@ impl AppError {
                 (StatusCode::SERVICE_UNAVAILABLE, "too_many_connections")
             }
             Self::HistoryFailed(_) => (StatusCode::INTERNAL_SERVER_ERROR, "history_failed"),
+            Self::LssBusy(_) => (StatusCode::CONFLICT, "lss_busy"),
+            Self::LssNotFound(_) => (StatusCode::NOT_FOUND, "lss_not_found"),
+            Self::LssTimeout(_) => (StatusCode::GATEWAY_TIMEOUT, "lss_timeout"),
+            Self::LssRefused(_) => (StatusCode::UNPROCESSABLE_ENTITY, "lss_refused"),
+            Self::NodeIdInUse(_) => (StatusCode::CONFLICT, "node_id_in_use"),
+            Self::NodeIdNotSupported(_) => (
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "node_id_change_not_supported",
+            ),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -336,6 +363,12 @@ impl From<GatewayError> for AppError {
                 message,
                 retry_after_s,
             },
+            GatewayError::LssBusy(message) => Self::LssBusy(message),
+            GatewayError::LssNotFound(message) => Self::LssNotFound(message),
+            GatewayError::LssTimeout(message) => Self::LssTimeout(message),
+            GatewayError::LssRefused(message) => Self::LssRefused(message),
+            GatewayError::NodeIdInUse(message) => Self::NodeIdInUse(message),
+            GatewayError::NodeIdNotSupported(message) => Self::NodeIdNotSupported(message),
             GatewayError::Internal(detail) => Self::Internal(detail),
         }
     }

@@ -32,6 +32,8 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`lss`]: LSS (CiA 305): Fastscan for unconfigured devices, node-ID
+//!   assignment; the UniSwarm node-ID change (0x2040).
 //! - [`auth`]: the table of the least role of every route (tokens and
 //!   roles are [`crate::gateway::access`]), and the layer that applies it (origin check, CORS, body
 //!   limits, rate limit); `/auth/whoami`.
@@ -68,6 +70,7 @@ pub mod frames;
 pub mod headers;
 pub mod host;
 pub mod leases;
+pub mod lss;
 pub mod metrics;
 pub mod nodes;
 pub mod od;
@@ -180,6 +183,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(frames::router())
         .merge(recording::router())
         .merge(sim::router())
+        .merge(lss::router())
         .merge(stream::router())
         .merge(events::router())
         .merge(eds::router())

@@ -126,14 +126,21 @@ fn gateway_fault(
 /// A virtual device on a bus.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct SimDevice {
+    /// Its node id; null for a device without one (an unconfigured LSS
+    /// device, `"lss": true`).
     #[schema(example = 4, minimum = 1, maximum = 127)]
-    pub id: u8,
+    pub id: Option<u8>,
     /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`; null for a device
     /// built from a dictionary of its own (tests).
     #[schema(example = "uio1led")]
     pub product: Option<String>,
     /// Whether its cable is in.
     pub plugged: bool,
+    /// The serial number (0x1018 sub 4) of a device with no node id of its
+    /// own, which LSS finds it by.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(example = 257)]
+    pub serial: Option<u32>,
 }
 
 /// A virtual device to add.
@@ -144,9 +151,16 @@ pub struct AddDevice {
     /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`.
     #[schema(example = "uio1led")]
     pub product: String,
-    /// The node id, 1 to 127.
+    /// The node id, 1 to 127; absent with `lss`.
     #[schema(example = 4)]
-    pub id: i64,
+    pub id: Option<i64>,
+    /// A device without a node id, waiting for an LSS master (as
+    /// `PRODUCT@lss` in a device list). Default false.
+    #[serde(default)]
+    pub lss: bool,
+    /// With `lss`: its serial number (0x1018 sub 4); by default the rack
+    /// gives 0x100 + the how-manieth `lss` device it is.
+    pub serial: Option<u32>,
 }
 
 /// A fault to inject or clear.
@@ -209,16 +223,33 @@ fn device(rack: &Rack, node: NodeId) -> Option<SimDevice> {
 
 fn to_doc((id, product, plugged): (NodeId, Option<Product>, bool)) -> SimDevice {
     SimDevice {
-        id: id.get(),
+        id: Some(id.get()),
         product: product.map(|product| product.name().to_string()),
         plugged,
+        serial: None,
+    }
+}
+
+/// A device with no node id of its own (see [`Rack::loose_devices`]).
+fn loose_doc(
+    (id, product, address): (
+        Option<NodeId>,
+        Option<Product>,
+        crate::canopen::lss::LssAddress,
+    ),
+) -> SimDevice {
+    SimDevice {
+        id: id.map(NodeId::get),
+        product: product.map(|product| product.name().to_string()),
+        plugged: true,
+        serial: Some(address.serial),
     }
 }
 
 /// The virtual devices of the bus.
 #[utoipa::path(get, path = "/buses/{bus}/sim/nodes", tag = "sim", params(BusPath),
     responses(
-        (status = 200, description = "The devices, by node id", body = [SimDevice]),
+        (status = 200, description = "The devices, by node id, then those without a node id of their own (LSS)", body = [SimDevice]),
         (status = 404, description = "`unknown_bus`", body = ErrorBody),
         (status = 409, description = "`not_virtual`: the bus has no virtual devices", body = ErrorBody),
     ))]
@@ -227,18 +258,21 @@ async fn list_devices(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<Vec<SimDevice>>, AppError> {
     let rack = rack(&state, &bus)?;
-    Ok(ApiJson(rack.devices().into_iter().map(to_doc).collect()))
+    let devices = rack.devices().into_iter().map(to_doc);
+    let loose = rack.loose_devices().into_iter().map(loose_doc);
+    Ok(ApiJson(devices.chain(loose).collect()))
 }
 
 /// Adds a virtual device; it boots at once.
 ///
 /// With `--data-dir`, it starts with the parameters a device of this
-/// product and node id saved there before.
+/// product and node id saved there before. With `"lss": true` it has no
+/// node id: it waits, silent, for an LSS master (`POST .../lss/configure`).
 #[utoipa::path(post, path = "/buses/{bus}/sim/nodes", tag = "sim", params(BusPath),
     request_body = AddDevice,
     responses(
         (status = 201, description = "The device, booted", body = SimDevice),
-        (status = 400, description = "`invalid_request` (malformed body), `invalid_value` (unknown product), `value_out_of_range` (id not 1 to 127)", body = ErrorBody),
+        (status = 400, description = "`invalid_request` (malformed body; `id` missing, or given with `lss`), `invalid_value` (unknown product), `value_out_of_range` (id not 1 to 127)", body = ErrorBody),
         (status = 404, description = "`unknown_bus`", body = ErrorBody),
         (status = 409, description = "`not_virtual`: the bus has no virtual devices; `node_taken`: a device has this id", body = ErrorBody),
     ))]
@@ -256,18 +290,42 @@ async fn add_device(
             known.join(", ")
         ))
     })?;
-    let node = u8::try_from(request.id)
+    let id = match (request.id, request.lss) {
+        (None, true) => {
+            let spec = crate::sim::products::DeviceSpec {
+                product,
+                node: None,
+                serial: request.serial,
+            };
+            rack.add_spec(&spec).map_err(|err| rack_error(&bus, err))?;
+            let added = rack.loose_devices().pop().map(loose_doc).ok_or_else(|| {
+                AppError::Internal("the LSS device added is not in the rack".to_string())
+            })?;
+            return Ok((StatusCode::CREATED, ApiJson(added)));
+        }
+        (Some(_), true) => {
+            return Err(AppError::InvalidRequest(
+                "a device with \"lss\": true has no \"id\": LSS gives it one".to_string(),
+            ));
+        }
+        (None, false) => {
+            return Err(AppError::InvalidRequest(
+                "\"id\" is missing (or \"lss\": true for a device without one)".to_string(),
+            ));
+        }
+        (Some(id), false) => id,
+    };
+    let node = u8::try_from(id)
         .ok()
         .and_then(|id| NodeId::new(id).ok())
-        .ok_or_else(|| {
-            AppError::ValueOutOfRange(format!("node id {} is not 1 to 127", request.id))
-        })?;
+        .ok_or_else(|| AppError::ValueOutOfRange(format!("node id {id} is not 1 to 127")))?;
     rack.add(product, node)
         .map_err(|err| rack_error(&bus, err))?;
     let added = device(&rack, node).unwrap_or_else(|| SimDevice {
-        id: node.get(),
+        id: Some(node.get()),
         product: Some(product.name().to_string()),
         plugged: true,
+        serial: None,
     });
     Ok((StatusCode::CREATED, ApiJson(added)))
 }

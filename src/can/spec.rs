@@ -5,6 +5,7 @@
 //! |---|---|
 //! | `virtual:empty[?bitrate=N\|unlimited]` | a new in-process bus with no devices |
 //! | `virtual:demo[?bitrate=N\|unlimited]` | a new in-process bus with the demo devices |
+//! | `virtual:DEVICES[?bitrate=…]` | a new in-process bus with a device list, `umc1bds32@1,uio1led@lss` |
 //! | `socketcan:can0` | a Linux SocketCAN interface |
 //! | `socketcand:HOST:PORT/CHANNEL` | a channel of a socketcand server (HOST may be `[v6]`) |
 //! | `replay:FILE[?speed=N\|max&loop&iface=can0]` | a candump `-L` log played back |
@@ -78,10 +79,17 @@ impl FromStr for BusSpec {
                     Some((preset, options)) => (preset, Some(options)),
                     None => (rest, None),
                 };
-                if !matches!(preset, "demo" | "empty") {
+                // A device list is read by the emulator, which knows the
+                // products; here only its shape.
+                let device_list = preset.contains('@')
+                    && preset
+                        .chars()
+                        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '@' | ',' | '/'));
+                if !matches!(preset, "demo" | "empty") && !device_list {
                     return Err(SpecError::invalid(
                         spec,
-                        "a virtual bus is 'virtual:demo' or 'virtual:empty'",
+                        "a virtual bus is 'virtual:demo', 'virtual:empty' or a device list \
+                         such as 'virtual:umc1bds32@1,uio1led@lss'",
                     ));
                 }
                 let bitrate = match options.map(|o| o.split_once('=')) {
@@ -209,6 +217,7 @@ impl BusSpec {
     /// otherwise the channel, interface or log name.
     pub fn default_name(&self) -> String {
         match self {
+            Self::Virtual { preset, .. } if preset.contains('@') => "virtual".to_string(),
             Self::Virtual { preset, .. } => preset.clone(),
             Self::Socketcan { interface } => interface.clone(),
             Self::Socketcand { channel, .. } => channel.clone(),

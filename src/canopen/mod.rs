@@ -11,6 +11,7 @@
 //! - [`cob`]: node ids, COB-IDs and the predefined connection set (CiA 301 §7.3.3).
 //! - [`nmt`]: network management commands and states, boot-up (§7.2.8.3.2).
 //! - [`heartbeat`]: heartbeat producer and consumer, node guarding (§7.2.8.3.2).
+//! - [`lss`]: layer setting services, master and slave (CiA 305).
 //! - [`sync`]: SYNC producer and consumer with the optional counter (§7.2.5).
 //! - [`emcy`]: emergency messages and their texts (§7.2.7).
 //! - [`pdo`]: PDO mapping, bit-level packing, communication parameters and
@@ -25,6 +26,7 @@ pub mod cob;
 pub mod eds;
 pub mod emcy;
 pub mod heartbeat;
+pub mod lss;
 pub mod nmt;
 pub mod od;
 pub mod pdo;

@@ -203,10 +203,10 @@ pub async fn open_bus(spec: &crate::can::spec::BusSpec) -> Result<CommandBus, Cl
     let name = spec.default_name();
     let opened = spec.open(&name).await.map_err(CliError::new)?;
     let devices = match (spec, &opened.hub) {
-        (crate::can::spec::BusSpec::Virtual { preset, .. }, Some(hub)) if preset == "demo" => {
+        (crate::can::spec::BusSpec::Virtual { preset, .. }, Some(hub)) if preset != "empty" => {
             let rack = crate::sim::rack::Rack::new(hub.clone());
-            rack.add_all(&crate::sim::products::demo())
-                .map_err(CliError::new)?;
+            let devices = crate::sim::products::parse_devices(preset).map_err(CliError::new)?;
+            rack.add_all(&devices).map_err(CliError::new)?;
             Some(rack)
         }
         _ => None,

@@ -89,6 +89,24 @@ pub enum GatewayError {
     /// ([`crate::gateway::access::WriteLimiter`]).
     #[error("{message}")]
     RateLimited { message: String, retry_after_s: u64 },
+    /// Another LSS transaction runs on the bus.
+    #[error("{0}")]
+    LssBusy(String),
+    /// No device with the LSS address asked for answered.
+    #[error("{0}")]
+    LssNotFound(String),
+    /// An LSS answer (or the boot-up after one) did not come in time.
+    #[error("{0}")]
+    LssTimeout(String),
+    /// The LSS slave refused a configuration service.
+    #[error("{0}")]
+    LssRefused(String),
+    /// The node-ID asked for is in use on the bus.
+    #[error("{0}")]
+    NodeIdInUse(String),
+    /// The node's product cannot change its node-ID over SDO (no 0x2040).
+    #[error("{0}")]
+    NodeIdNotSupported(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -133,6 +151,12 @@ impl GatewayError {
             Self::Unauthenticated(_) => (401, "unauthenticated"),
             Self::Forbidden(_) => (403, "forbidden"),
             Self::RateLimited { .. } => (429, "rate_limited"),
+            Self::LssBusy(_) => (409, "lss_busy"),
+            Self::LssNotFound(_) => (404, "lss_not_found"),
+            Self::LssTimeout(_) => (504, "lss_timeout"),
+            Self::LssRefused(_) => (422, "lss_refused"),
+            Self::NodeIdInUse(_) => (409, "node_id_in_use"),
+            Self::NodeIdNotSupported(_) => (422, "node_id_change_not_supported"),
             Self::Internal(_) => (500, "internal_error"),
         }
     }

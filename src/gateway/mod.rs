@@ -18,6 +18,8 @@
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
+//! - [`lss`]: LSS (CiA 305) on a bus: Fastscan for unconfigured devices,
+//!   node-ID assignment, and the UniSwarm node-ID change by 0x2040.
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue; each node's transfers counted by outcome,
 //!   with a latency histogram (for `/metrics`).
@@ -59,6 +61,7 @@ pub mod history;
 pub mod leases;
 pub mod led_preview;
 pub mod load;
+pub mod lss;
 pub mod motion_lease;
 pub mod pdo;
 pub mod producers;

@@ -62,6 +62,8 @@ pub struct ServedBus {
     pub previews: LedPreviews,
     /// The bus's recent frames.
     pub frames: FrameLog,
+    /// The bus's LSS master, one transaction at a time.
+    pub lss: super::lss::BusLss,
     /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
     pub recorder: Recorder,
     /// The registry's events from the moment it started (the devices'
@@ -115,10 +117,12 @@ impl ServedBus {
         let rack = match (spec, &opened.hub) {
             (BusSpec::Virtual { preset, .. }, Some(hub)) => {
                 let rack = Rack::with_data_dir(hub.clone(), data_dir);
-                if preset == "demo" {
-                    rack.add_all(&crate::sim::products::demo())
-                        .map_err(|err| err.to_string())?;
-                }
+                let devices = match preset.as_str() {
+                    "empty" => Vec::new(),
+                    preset => crate::sim::products::parse_devices(preset)
+                        .map_err(|err| format!("bus '{name}': {err}"))?,
+                };
+                rack.add_all(&devices).map_err(|err| err.to_string())?;
                 Some(rack)
             }
             _ => None,
@@ -127,6 +131,7 @@ impl ServedBus {
             // In a private temporary directory until told otherwise.
             recorder: Recorder::new(&opened.bus, None),
             frames,
+            lss: super::lss::BusLss::new(opened.bus.clone()),
             name: name.to_string(),
             spec: spec.to_string(),
             load: LoadMeter::spawn(Traffic::new(&opened.bus), bitrate),

@@ -8,6 +8,10 @@
 //! at `index + 0x800 * (n - 1)` and the manufacturer axis objects at
 //! `index + 0x200 * (n - 1)`. The constants below are axis 1's.
 
+/// 0x2040 Communication_config (§2.3): sub 1 Node_ID, sub 2 Bit_rate.
+/// A new value takes effect once stored (0x1010) and the node restarted;
+/// the UIO1LED has the same object (its manual §4.2).
+pub const COMMUNICATION_CONFIG: u16 = 0x2040;
 /// Index step of the standardized profile area (0x6000–0x9FFF) per axis
 /// (Table 2.1: axis 2 at 0x6800–0x6FFF).
 pub const PROFILE_AXIS_STEP: u16 = 0x800;

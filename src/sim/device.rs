@@ -51,6 +51,8 @@ use crate::canopen::heartbeat::{
     ConsumerTime, HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, LifeGuard, LifeGuardEvent,
     heartbeat_node,
 };
+use crate::canopen::lss::slave::LssSlaveOutput;
+use crate::canopen::lss::{LssAddress, LssSlave, LssSlaveEvent, is_lss_request};
 use crate::canopen::nmt::{
     NmtCommand, NmtEvent, NmtMessage, NmtService, NmtSlave, NmtState, NmtTarget,
 };
@@ -95,6 +97,11 @@ pub const CAN_BUS_OFF_RECOVERED: u16 = 0x8140;
 /// How much simulated time one [`DeviceCore::tick_to`] catches up at most;
 /// beyond it (a stalled host) the simulation skips rather than runs a burst.
 const MAX_CATCH_UP_TICKS: u64 = 1000;
+/// 0x2040: UniSwarm's communication configuration, sub 1 the node-ID the
+/// device boots with once saved (UMC manual §2.3, UIO1LED manual §4.2).
+const COMMUNICATION_CONFIG: u16 = 0x2040;
+/// 0x1018: identity; sub 4 the serial number.
+const IDENTITY: u16 = 0x1018;
 /// "save" as a little-endian UNSIGNED32.
 const SAVE_SIGNATURE: [u8; 4] = *b"save";
 /// "load" as a little-endian UNSIGNED32.
@@ -141,6 +148,14 @@ pub struct Transmitted {
 
 /// Saved parameter values, by index and sub-index.
 pub type SavedValues = BTreeMap<(u16, u8), Value>;
+
+/// What LSS store configuration kept in the device's non-volatile memory
+/// (CiA 305 §6.4.5): the node-ID (`None`: unconfigured) and bit timing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LssStored {
+    pub node_id: Option<NodeId>,
+    pub bit_timing: Option<u8>,
+}
 
 /// One virtual CANopen node. See the module documentation.
 pub struct DeviceCore {
@@ -191,6 +206,14 @@ pub struct DeviceCore {
     sdo_request: CanId,
     guard_request: CanId,
     pdos: DevicePdos,
+    /// The LSS slave (CiA 305): its active node-ID is the one the device
+    /// uses; without one the device answers nothing but LSS.
+    lss: LssSlave,
+    /// The node-ID the device has from the factory (its place in the device
+    /// list); `None` for an unconfigured (`@lss`) device.
+    factory_node: Option<NodeId>,
+    /// What LSS store configuration kept.
+    lss_stored: Option<LssStored>,
 }
 
 impl DeviceCore {
@@ -211,6 +234,7 @@ impl DeviceCore {
     ) -> Result<Self, StoreError> {
         let defaults = ObjectStore::new(dictionary, node)?;
         let pdos = DevicePdos::new(&defaults, Instant::now());
+        let address = identity(&defaults);
         let history_len = defaults
             .dictionary()
             .get(PREDEFINED_ERROR_FIELD)
@@ -245,11 +269,166 @@ impl DeviceCore {
             sdo_request: Function::SdoRx.can_id(node),
             guard_request: Function::Heartbeat.can_id(node),
             pdos,
+            lss: LssSlave::new(address, Some(node)),
+            factory_node: Some(node),
+            lss_stored: None,
         })
     }
 
+    /// The node-ID the device was built for, or last used. See
+    /// [`DeviceCore::active_node`] for the one it has on the bus.
     pub fn node(&self) -> NodeId {
         self.nmt.node()
+    }
+
+    /// The node-ID the device uses on the bus; `None` while it is an
+    /// unconfigured LSS slave (node-ID 0xFF), which sends nothing and
+    /// answers only LSS.
+    pub fn active_node(&self) -> Option<NodeId> {
+        self.lss.active()
+    }
+
+    /// Its LSS address: 0x1018 sub 1 to 4.
+    pub fn lss_address(&self) -> LssAddress {
+        self.lss.address()
+    }
+
+    /// Sets the serial number (0x1018 sub 4), before the device boots.
+    pub fn set_serial(&mut self, serial: u32) {
+        for store in [&mut self.defaults, &mut self.store] {
+            let _ = store.set(IDENTITY, 4, Value::Unsigned32(serial));
+        }
+        self.lss = LssSlave::new(identity(&self.defaults), self.factory_node);
+    }
+
+    /// Makes the device an unconfigured LSS slave (`PRODUCT@lss`), before it
+    /// boots: it waits for a node-ID from an LSS master.
+    pub fn unconfigure(&mut self) {
+        self.factory_node = None;
+        self.lss.power_on(None);
+    }
+
+    /// What LSS store configuration kept (to keep it across a restart).
+    pub fn lss_stored(&self) -> Option<LssStored> {
+        self.lss_stored
+    }
+
+    /// Takes what LSS stored before a restart; in force from the next boot.
+    pub fn load_lss_stored(&mut self, stored: Option<LssStored>) {
+        self.lss_stored = stored;
+    }
+
+    /// The node-ID the device initialises with at power-on and reset node:
+    /// a saved 0x2040 sub 1 (UniSwarm), else the node-ID LSS stored, else
+    /// the factory one.
+    fn boot_node(&self) -> Option<NodeId> {
+        if let Some(Value::Unsigned8(raw)) = self.saved.get(&(COMMUNICATION_CONFIG, 1))
+            && let Ok(node) = NodeId::new(*raw)
+        {
+            return Some(node);
+        }
+        match self.lss_stored {
+            Some(stored) => stored.node_id,
+            None => self.factory_node,
+        }
+    }
+
+    /// Gives the device another node-ID: the values that follow the node-ID
+    /// (`$NODEID` in the EDS, the COB-IDs) follow it, in the factory values,
+    /// the saved ones and the current ones; the protocol state starts over.
+    /// The caller reloads parameters and boots.
+    fn renumber(&mut self, node: NodeId, now: Instant) {
+        if node == self.node() {
+            return;
+        }
+        let Ok(mut defaults) = ObjectStore::new(self.defaults.shared_dictionary(), node) else {
+            // The dictionary built for one node-ID builds for any.
+            return;
+        };
+        // The serial number is the device's, not the EDS's.
+        let serial = self.lss.address().serial;
+        let _ = defaults.set(IDENTITY, 4, Value::Unsigned32(serial));
+        let mut translated = false;
+        for (key, value) in self.saved.iter_mut() {
+            let (old, new) = (self.defaults.get(key.0, key.1), defaults.get(key.0, key.1));
+            if old == Some(value)
+                && new != old
+                && let Some(new) = new
+            {
+                *value = new.clone();
+                translated = true;
+            }
+        }
+        if translated {
+            self.saved_version += 1;
+        }
+        let mut store = defaults.clone();
+        for object in self.store.dictionary().objects.values() {
+            for sub in object.subs.keys() {
+                let (old, new) = (
+                    self.defaults.get(object.index, *sub),
+                    defaults.get(object.index, *sub),
+                );
+                if let Some(value) = self.store.get(object.index, *sub)
+                    && (old != Some(value) || old == new)
+                {
+                    let _ = store.set(object.index, *sub, value.clone());
+                }
+            }
+        }
+        if store.get(COMMUNICATION_CONFIG, 1).is_some() {
+            let _ = store.set(COMMUNICATION_CONFIG, 1, Value::Unsigned8(node.get()));
+        }
+        let history = self.emcy.history().clone();
+        self.emcy = EmcyProducer::new(node, history.capacity());
+        *self.emcy.history_mut() = history;
+        self.defaults = defaults;
+        self.store = store;
+        self.guard = LifeGuard::new(node);
+        self.nmt = NmtSlave::new(node);
+        self.heartbeat = HeartbeatProducer::new(node);
+        self.sdo = SdoServer::new(node, ServerConfig::default());
+        self.sdo_request = Function::SdoRx.can_id(node);
+        self.guard_request = Function::Heartbeat.can_id(node);
+        self.pdos = DevicePdos::new(&self.store, now);
+    }
+
+    /// An LSS request: the answer, and what the slave asks of the device.
+    fn handle_lss(&mut self, frame: &Frame, now: Instant) -> Vec<Frame> {
+        let LssSlaveOutput { reply, event } = self.lss.handle(frame);
+        let mut out: Vec<Frame> = reply.into_iter().collect();
+        match event {
+            Some(LssSlaveEvent::Store {
+                node_id,
+                bit_timing,
+            }) => {
+                self.lss_stored = Some(LssStored {
+                    node_id,
+                    bit_timing,
+                });
+                // On a UniSwarm device the LSS store and 0x2040 are one.
+                if self.store.get(COMMUNICATION_CONFIG, 1).is_some() {
+                    match node_id {
+                        Some(node) => {
+                            self.saved
+                                .insert((COMMUNICATION_CONFIG, 1), Value::Unsigned8(node.get()));
+                        }
+                        None => {
+                            self.saved.remove(&(COMMUNICATION_CONFIG, 1));
+                        }
+                    }
+                }
+                self.saved_version += 1;
+            }
+            Some(LssSlaveEvent::Activate(node)) => {
+                self.renumber(node, now);
+                self.reload_communication_area();
+                out.extend(self.start_communication(now));
+            }
+            // One bit rate on a virtual bus: nothing to switch.
+            Some(LssSlaveEvent::ActivateBitTiming { .. }) | None => {}
+        }
+        out
     }
 
     pub fn nmt_state(&self) -> NmtState {
@@ -641,8 +820,24 @@ impl DeviceCore {
     /// initialisation ends with the boot-up message and pre-operational, the
     /// heartbeat of 0x1017 running.
     pub fn boot(&mut self, now: Instant) -> Vec<Frame> {
+        self.power_on_node(now);
         self.reset_application(now);
         self.start_communication(now)
+    }
+
+    /// The node-ID of power-on and reset node: pending and active in the
+    /// LSS slave, and the device renumbered to it.
+    fn power_on_node(&mut self, now: Instant) {
+        let node = self.boot_node();
+        self.lss.power_on(node);
+        if let Some(node) = node
+            && node != self.node()
+        {
+            self.renumber(node, now);
+            self.store = self.defaults.clone();
+            self.apply_saved(Area::All);
+            self.pdos = DevicePdos::new(&self.store, now);
+        }
     }
 
     /// The application starts afresh: error register and error history
@@ -656,6 +851,10 @@ impl DeviceCore {
 
     /// The end of initialisation, after power-on and after either reset.
     fn start_communication(&mut self, now: Instant) -> Vec<Frame> {
+        if self.lss.active().is_none() {
+            // An unconfigured LSS slave does not leave initialisation.
+            return Vec::new();
+        }
         let boot_up = self.nmt.boot_up();
         self.pdos = DevicePdos::new(&self.store, now);
         self.guard.reset();
@@ -688,14 +887,29 @@ impl DeviceCore {
         {
             self.can_state_changed(transition, now);
         }
+        if is_lss_request(frame) {
+            return if self.silent {
+                Vec::new()
+            } else {
+                self.handle_lss(frame, now)
+            };
+        }
+        if self.lss.active().is_none() {
+            return Vec::new();
+        }
         match self.nmt.on_frame(frame) {
             Ok(Some(NmtEvent::ResetNode)) => {
+                self.power_on_node(now);
                 self.store = self.defaults.clone();
                 self.apply_saved(Area::All);
                 self.reset_application(now);
                 return self.start_communication(now);
             }
             Ok(Some(NmtEvent::ResetCommunication)) => {
+                // CiA 305 §5.2: the pending node-ID becomes active.
+                if let Some(node) = self.lss.reset_communication() {
+                    self.renumber(node, now);
+                }
                 self.reload_communication_area();
                 return self.start_communication(now);
             }
@@ -789,6 +1003,9 @@ impl DeviceCore {
                 self.can_state_changed(transition, now);
             }
         }
+        if self.lss.active().is_none() {
+            return out;
+        }
         if self.sdo.deadline().is_some_and(|d| d <= now) {
             out.extend(self.sdo.handle_timeout(now));
         }
@@ -827,6 +1044,9 @@ impl DeviceCore {
 
     /// When [`DeviceCore::poll`] (or [`DeviceCore::tick_to`]) has work next.
     pub fn deadline(&self) -> Option<Instant> {
+        if self.lss.active().is_none() {
+            return self.next_tick();
+        }
         let pdos = self
             .nmt
             .allows(NmtService::Pdo)
@@ -931,6 +1151,17 @@ impl DeviceCore {
                 let _ = self.store.set(*index, *sub, value.clone());
             }
         }
+    }
+}
+
+/// The LSS address a store's 0x1018 gives.
+fn identity(store: &ObjectStore) -> LssAddress {
+    let part = |sub| store.int(IDENTITY, sub).unwrap_or(0) as u32;
+    LssAddress {
+        vendor_id: part(1),
+        product_code: part(2),
+        revision: part(3),
+        serial: part(4),
     }
 }
 

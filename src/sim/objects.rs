@@ -78,6 +78,11 @@ impl ObjectStore {
         &self.dictionary
     }
 
+    /// The dictionary, shared (to build another store of it).
+    pub fn shared_dictionary(&self) -> Arc<ObjectDictionary> {
+        self.dictionary.clone()
+    }
+
     /// The current value of `index`:`sub`.
     pub fn get(&self, index: u16, sub: u8) -> Option<&Value> {
         self.values.get(&(index, sub))

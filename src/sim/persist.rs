@@ -4,7 +4,11 @@
 //!
 //! One JSON file per device, `DIR/devices/PRODUCT-NODE.json`: a list of
 //! `{"index": "0x2001", "sub": 0, "data_type": "u8", "value": 42}`, written to
-//! a temporary file and renamed, so a crash never leaves half a file.
+//! a temporary file and renamed, so a crash never leaves half a file. An
+//! unconfigured LSS device (`PRODUCT@lss`) keeps its values in
+//! `DIR/devices/PRODUCT-lss-SERIAL.json`. What LSS store configuration kept
+//! (CiA 305 §6.4.5) is next to it, in `….lss.json`:
+//! `{"node_id": 10, "bit_timing": null}` (`null` node-ID: unconfigured).
 
 use std::path::{Path, PathBuf};
 
@@ -13,7 +17,7 @@ use serde_json::{Value as Json, json};
 use crate::canopen::NodeId;
 use crate::canopen::od::{DataType, Value, format_index, parse_index};
 
-use super::device::SavedValues;
+use super::device::{LssStored, SavedValues};
 
 /// A saved-values file that cannot be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +39,70 @@ pub enum PersistError {
 /// Where the saved values of `product` at `node` live under `dir`.
 pub fn saved_path(dir: &Path, product: &str, node: NodeId) -> PathBuf {
     dir.join("devices").join(format!("{product}-{node}.json"))
+}
+
+/// Where the saved values of the unconfigured LSS device of `product` with
+/// serial number `serial` live under `dir`.
+pub fn saved_path_lss(dir: &Path, product: &str, serial: u32) -> PathBuf {
+    dir.join("devices")
+        .join(format!("{product}-lss-{serial}.json"))
+}
+
+/// Where what LSS stored is kept, next to the saved values in `saved`.
+pub fn lss_path(saved: &Path) -> PathBuf {
+    saved.with_extension("lss.json")
+}
+
+/// What LSS stored, from `path`; `None` when nothing was stored.
+pub fn read_lss(path: &Path) -> Result<Option<LssStored>, PersistError> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(err) if err.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(source) => {
+            return Err(PersistError::Read {
+                path: path.to_path_buf(),
+                source,
+            });
+        }
+    };
+    let invalid = |problem: &str| PersistError::Invalid {
+        path: path.to_path_buf(),
+        problem: problem.to_string(),
+    };
+    let json: Json = serde_json::from_str(&text).map_err(|_| invalid("not JSON"))?;
+    let node_id = match json.get("node_id") {
+        None | Some(Json::Null) => None,
+        Some(value) => Some(
+            value
+                .as_u64()
+                .and_then(|raw| u8::try_from(raw).ok())
+                .and_then(|raw| NodeId::new(raw).ok())
+                .ok_or_else(|| invalid("node_id is not 1 to 127 or null"))?,
+        ),
+    };
+    let bit_timing = match json.get("bit_timing") {
+        None | Some(Json::Null) => None,
+        Some(value) => Some(
+            value
+                .as_u64()
+                .and_then(|raw| u8::try_from(raw).ok())
+                .ok_or_else(|| invalid("bit_timing is not 0 to 255 or null"))?,
+        ),
+    };
+    Ok(Some(LssStored {
+        node_id,
+        bit_timing,
+    }))
+}
+
+/// Writes what LSS stored to `path` (next to the saved values).
+pub fn write_lss(path: &Path, stored: &LssStored) -> Result<(), PersistError> {
+    let text = json!({
+        "node_id": stored.node_id.map(NodeId::get),
+        "bit_timing": stored.bit_timing,
+    })
+    .to_string();
+    write_private(path, &text)
 }
 
 /// The values saved in `path`; none when the file does not exist yet.
@@ -83,6 +151,23 @@ pub fn read_saved(path: &Path) -> Result<SavedValues, PersistError> {
 
 /// Writes `saved` to `path`, creating its directory.
 pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError> {
+    let entries: Vec<Json> = saved
+        .iter()
+        .map(|((index, sub), value)| {
+            json!({
+                "index": format_index(*index),
+                "sub": sub,
+                "data_type": value.data_type().short_name(),
+                "value": value.to_json(),
+            })
+        })
+        .collect();
+    let text = serde_json::to_string_pretty(&entries).unwrap_or_else(|_| "[]".to_string());
+    write_private(path, &text)
+}
+
+/// Writes `text` to `path` by a temporary file, only the user reading it.
+fn write_private(path: &Path, text: &str) -> Result<(), PersistError> {
     let write_error = |source| PersistError::Write {
         path: path.to_path_buf(),
         source,
@@ -99,19 +184,9 @@ pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError>
         }
         builder.create(dir).map_err(write_error)?;
     }
-    let entries: Vec<Json> = saved
-        .iter()
-        .map(|((index, sub), value)| {
-            json!({
-                "index": format_index(*index),
-                "sub": sub,
-                "data_type": value.data_type().short_name(),
-                "value": value.to_json(),
-            })
-        })
-        .collect();
-    let text = serde_json::to_string_pretty(&entries).unwrap_or_else(|_| "[]".to_string());
-    let temporary = path.with_extension("json.tmp");
+    let mut temporary = path.as_os_str().to_owned();
+    temporary.push(".tmp");
+    let temporary = PathBuf::from(temporary);
     let mut options = std::fs::OpenOptions::new();
     #[cfg(unix)]
     {
@@ -178,6 +253,31 @@ mod tests {
             assert!(err.starts_with(&path.display().to_string()), "{err}");
             assert!(err.contains(problem), "{err}");
         }
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn lss_stored_round_trips_next_to_the_saved_values() {
+        let dir = scratch("lss");
+        let saved = saved_path_lss(&dir, "uio1led", 0x101);
+        assert!(saved.ends_with("devices/uio1led-lss-257.json"));
+        let path = lss_path(&saved);
+        assert!(path.ends_with("devices/uio1led-lss-257.lss.json"));
+        assert_eq!(read_lss(&path).unwrap(), None);
+        for stored in [
+            LssStored {
+                node_id: NodeId::new(10).ok(),
+                bit_timing: Some(2),
+            },
+            LssStored::default(),
+        ] {
+            write_saved(&saved, &SavedValues::new()).unwrap();
+            write_lss(&path, &stored).unwrap();
+            assert_eq!(read_lss(&path).unwrap(), Some(stored));
+        }
+        std::fs::write(&path, r#"{"node_id": 200}"#).unwrap();
+        let err = read_lss(&path).unwrap_err().to_string();
+        assert!(err.contains("node_id is not 1 to 127"), "{err}");
         let _ = std::fs::remove_dir_all(dir);
     }
 }

@@ -1,5 +1,7 @@
 //! The products candeck emulates and the `--devices` lists that put them on
-//! a bus (`docs/cli.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`).
+//! a bus (`docs/cli.md`: `demo`, `none`, or `umc1bds32@1,jmc@2,uio1led@3`;
+//! `uio1led@lss` or `uio1led@lss/SERIAL` for a device with no node-ID yet,
+//! which waits for an LSS master, CiA 305).
 
 use std::fmt;
 use std::sync::{Arc, OnceLock};
@@ -104,12 +106,31 @@ impl fmt::Display for Product {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DeviceSpec {
     pub product: Product,
-    pub node: NodeId,
+    /// `None`: an unconfigured LSS slave (`@lss`).
+    pub node: Option<NodeId>,
+    /// The serial number (0x1018 sub 4) `@lss/SERIAL` gives; otherwise the
+    /// rack picks one (see [`super::rack::Rack::add_spec`]).
+    pub serial: Option<u32>,
+}
+
+impl DeviceSpec {
+    /// A device at `node`.
+    pub fn at(product: Product, node: NodeId) -> Self {
+        Self {
+            product,
+            node: Some(node),
+            serial: None,
+        }
+    }
 }
 
 impl fmt::Display for DeviceSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}@{}", self.product, self.node)
+        match (self.node, self.serial) {
+            (Some(node), _) => write!(f, "{}@{}", self.product, node),
+            (None, None) => write!(f, "{}@lss", self.product),
+            (None, Some(serial)) => write!(f, "{}@lss/{serial}", self.product),
+        }
     }
 }
 
@@ -121,10 +142,7 @@ pub fn demo() -> Vec<DeviceSpec> {
         (Product::Uio1led, 3),
     ]
     .into_iter()
-    .map(|(product, node)| DeviceSpec {
-        product,
-        node: NodeId::new(node).expect("1 to 3 are node ids"),
-    })
+    .map(|(product, node)| DeviceSpec::at(product, NodeId::new(node).expect("1 to 3 are node ids")))
     .collect()
 }
 
@@ -151,7 +169,7 @@ impl fmt::Display for DeviceList {
     }
 }
 
-/// Reads `demo`, `none` or `product@id,product@id,...`.
+/// Reads `demo`, `none` or `product@id,product@lss,product@lss/serial,...`.
 pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     match text.trim() {
         "demo" => return Ok(demo()),
@@ -163,7 +181,8 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     for item in text.split(',') {
         let (product, node) = item.trim().split_once('@').ok_or_else(|| {
             format!(
-                "'{item}' is not PRODUCT@NODE (for example jmc@2); products: {}",
+                "'{item}' is not PRODUCT@NODE (for example jmc@2, or jmc@lss for an \
+                 unconfigured LSS device); products: {}",
                 names.join(", ")
             )
         })?;
@@ -173,14 +192,53 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
                 names.join(", ")
             )
         })?;
-        let node: NodeId = node
-            .trim()
-            .parse()
-            .map_err(|err| format!("'{item}': {err}"))?;
-        if let Some(taken) = devices.iter().find(|d| d.node == node) {
+        let node = node.trim();
+        let spec = match node.strip_prefix("lss") {
+            Some("") => DeviceSpec {
+                product,
+                node: None,
+                serial: None,
+            },
+            Some(serial) => {
+                let serial = serial.strip_prefix('/').ok_or_else(|| {
+                    format!("'{item}': an LSS device is PRODUCT@lss or PRODUCT@lss/SERIAL")
+                })?;
+                let parsed = match serial
+                    .strip_prefix("0x")
+                    .or_else(|| serial.strip_prefix("0X"))
+                {
+                    Some(hex) => u32::from_str_radix(hex, 16),
+                    None => serial.parse::<u32>(),
+                };
+                let serial = parsed.map_err(|_| {
+                    format!("'{item}': serial number '{serial}' is not a 32-bit number")
+                })?;
+                DeviceSpec {
+                    product,
+                    node: None,
+                    serial: Some(serial),
+                }
+            }
+            None => DeviceSpec::at(
+                product,
+                node.parse().map_err(|err| format!("'{item}': {err}"))?,
+            ),
+        };
+        if let Some(node) = spec.node
+            && let Some(taken) = devices.iter().find(|d| d.node == Some(node))
+        {
             return Err(format!("node {node} is given twice ({taken} and {item})"));
         }
-        devices.push(DeviceSpec { product, node });
+        if let Some(serial) = spec.serial
+            && let Some(taken) = devices
+                .iter()
+                .find(|d| d.product == product && d.serial == Some(serial))
+        {
+            return Err(format!(
+                "serial number {serial} is given twice ({taken} and {item})"
+            ));
+        }
+        devices.push(spec);
     }
     Ok(devices)
 }
@@ -190,10 +248,42 @@ mod tests {
     use super::*;
 
     fn spec(product: Product, node: u8) -> DeviceSpec {
-        DeviceSpec {
-            product,
-            node: NodeId::new(node).unwrap(),
+        DeviceSpec::at(product, NodeId::new(node).unwrap())
+    }
+
+    #[test]
+    fn lss_devices_in_a_list() {
+        let devices = parse_devices("umc1bds32@1,uio1led@lss,jmc@lss/0x1F").unwrap();
+        assert_eq!(
+            devices,
+            vec![
+                spec(Product::Umc1bds32, 1),
+                DeviceSpec {
+                    product: Product::Uio1led,
+                    node: None,
+                    serial: None
+                },
+                DeviceSpec {
+                    product: Product::Jmc,
+                    node: None,
+                    serial: Some(31)
+                },
+            ]
+        );
+        assert_eq!(
+            DeviceList(devices).to_string(),
+            "umc1bds32@1,uio1led@lss,jmc@lss/31"
+        );
+        for (text, problem) in [
+            ("jmc@lss7", "PRODUCT@lss or PRODUCT@lss/SERIAL"),
+            ("jmc@lss/x", "serial number 'x' is not a 32-bit number"),
+            ("jmc@lss/4,jmc@lss/4", "serial number 4 is given twice"),
+        ] {
+            let err = parse_devices(text).unwrap_err();
+            assert!(err.contains(problem), "{text}: {err}");
         }
+        // Two of the same product without serials are two devices.
+        assert_eq!(parse_devices("jmc@lss,jmc@lss").unwrap().len(), 2);
     }
 
     #[test]
@@ -221,7 +311,7 @@ mod tests {
         let cases = [
             (
                 "jmc",
-                "'jmc' is not PRODUCT@NODE (for example jmc@2); products: umc1bds32, umc1bd90, jmc, uio1led",
+                "'jmc' is not PRODUCT@NODE (for example jmc@2, or jmc@lss for an unconfigured LSS device); products: umc1bds32, umc1bd90, jmc, uio1led",
             ),
             (
                 "servo@2",

@@ -9,6 +9,14 @@
 //! ticks every [`TICK_MS`] of tokio's time (so a paused clock in a test
 //! drives the simulation deterministically); each tick runs every device's
 //! application up to now and its timers.
+//!
+//! Devices are known by the node-ID they use. One without (an unconfigured
+//! LSS slave, `PRODUCT@lss`) or whose node-ID another device has is
+//! *loose*: it runs and hears the bus, but the controls cannot name it.
+//! After every event a device that changed its node-ID (LSS, or 0x2040 and
+//! a reset) is filed under the new one. Identical LSS answers of several
+//! devices to one request leave as one frame, as they would on a wire
+//! (the slaves send them at the same time; Fastscan relies on it).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -20,10 +28,13 @@ use tokio::sync::Notify;
 
 use crate::can::{Bitrate, Bus, Frame, FrameReceiver, RecvError, VirtualHub};
 use crate::canopen::NodeId;
+use crate::canopen::lss::LssAddress;
 
 use super::behaviour::{Fault, FaultError, TICK_MS};
-use super::device::DeviceCore;
-use super::persist::{read_saved, saved_path, write_saved};
+use super::device::{DeviceCore, LssStored};
+use super::persist::{
+    lss_path, read_lss, read_saved, saved_path, saved_path_lss, write_lss, write_saved,
+};
 use super::products::{DeviceSpec, Product};
 
 /// How many rounds of device-to-device frames one event may cause before
@@ -54,14 +65,78 @@ struct Slot {
     persist: Option<(PathBuf, u64)>,
 }
 
+/// One device's saved values (and what LSS stored) to write.
+type Save = (PathBuf, super::device::SavedValues, Option<LssStored>);
+
+/// Who sent a frame, within one wake-up of the runner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Sender {
+    Node(NodeId),
+    /// A loose device, by its place in [`Inner::loose`].
+    Loose(usize),
+}
+
 #[derive(Default)]
 struct Inner {
     slots: BTreeMap<NodeId, Slot>,
     /// The bus's bit rate (a bus-off recovery takes 128 × 11 bit times).
     bitrate: Bitrate,
+    /// The devices without a node-ID of their own (see the module
+    /// documentation).
+    loose: Vec<Slot>,
+    /// Unconfigured devices added without a serial number so far.
+    lss_added: u32,
     /// Frames the controls produced (boot-up of an added device), for the
     /// runner to send.
-    outbox: Vec<(NodeId, Frame)>,
+    outbox: Vec<(Sender, Frame)>,
+}
+
+/// The serial numbers the rack gives: a device at node N has serial
+/// number N; the k-th `@lss` device without one has 0x100 + k.
+pub const LSS_SERIAL_BASE: u32 = 0x100;
+
+impl Inner {
+    /// Files every device under the node-ID it now uses.
+    fn settle(&mut self) {
+        let moved: Vec<NodeId> = self
+            .slots
+            .iter()
+            .filter(|(node, slot)| slot.core.active_node() != Some(**node))
+            .map(|(node, _)| *node)
+            .collect();
+        for node in moved {
+            if let Some(slot) = self.slots.remove(&node) {
+                self.loose.push(slot);
+            }
+        }
+        let mut i = 0;
+        while i < self.loose.len() {
+            match self.loose[i].core.active_node() {
+                Some(node) if !self.slots.contains_key(&node) => {
+                    let slot = self.loose.remove(i);
+                    self.slots.insert(node, slot);
+                }
+                _ => i += 1,
+            }
+        }
+    }
+
+    /// Every device with the name it sends under in this wake-up.
+    fn all_mut(&mut self) -> impl Iterator<Item = (Sender, &mut Slot)> {
+        self.slots
+            .iter_mut()
+            .map(|(node, slot)| (Sender::Node(*node), slot))
+            .chain(
+                self.loose
+                    .iter_mut()
+                    .enumerate()
+                    .map(|(i, slot)| (Sender::Loose(i), slot)),
+            )
+    }
+
+    fn len(&self) -> usize {
+        self.slots.len() + self.loose.len()
+    }
 }
 
 /// How late a tick may run and still count as on time: tokio's timers
@@ -90,9 +165,11 @@ impl Rack {
     /// Simulated milliseconds the devices skipped because the host fell too
     /// far behind (0 while the simulation keeps real time).
     pub fn skipped_ticks(&self) -> u64 {
-        lock(&self.inner)
+        let inner = lock(&self.inner);
+        inner
             .slots
             .values()
+            .chain(inner.loose.iter())
             .map(|slot| slot.core.skipped_ticks())
             .sum()
     }
@@ -160,10 +237,12 @@ impl Rack {
     pub fn add_all(&self, devices: &[DeviceSpec]) -> Result<(), RackError> {
         let mut built = Vec::new();
         for spec in devices {
-            if let Some(slot) = lock(&self.inner).slots.get(&spec.node) {
-                return Err(RackError::NodeTaken(spec.node, product_name(slot)));
+            if let Some(node) = spec.node
+                && let Some(slot) = lock(&self.inner).slots.get(&node)
+            {
+                return Err(RackError::NodeTaken(node, product_name(slot)));
             }
-            built.push((spec.product, self.build(spec.product, spec.node)?));
+            built.push((spec.product, self.build(spec)?));
         }
         for (product, (core, persist)) in built {
             self.insert(Some(product), core, persist)?;
@@ -173,29 +252,57 @@ impl Rack {
 
     /// Adds a device of `product` at `node`; it boots at once.
     pub fn add(&self, product: Product, node: NodeId) -> Result<(), RackError> {
-        let (core, persist) = self.build(product, node)?;
-        self.insert(Some(product), core, persist)
+        self.add_spec(&DeviceSpec::at(product, node))
+    }
+
+    /// Adds a device as a `--devices` list spells it: at a node, or an
+    /// unconfigured LSS slave (`@lss`) waiting for a node-ID. Its serial
+    /// number (0x1018 sub 4) is the spec's, else the node-ID, else
+    /// [`LSS_SERIAL_BASE`] + the how-manieth `@lss` device it is.
+    pub fn add_spec(&self, spec: &DeviceSpec) -> Result<(), RackError> {
+        let (core, persist) = self.build(spec)?;
+        self.insert(Some(spec.product), core, persist)
+    }
+
+    fn build(&self, spec: &DeviceSpec) -> Result<(DeviceCore, Option<PathBuf>), RackError> {
+        let product = spec.product;
+        let serial = match (spec.serial, spec.node) {
+            (Some(serial), _) => serial,
+            (None, Some(node)) => u32::from(node.get()),
+            (None, None) => {
+                let mut inner = lock(&self.inner);
+                inner.lss_added += 1;
+                LSS_SERIAL_BASE + inner.lss_added
+            }
+        };
+        // An unconfigured device is built for any node-ID; it takes its own
+        // from the LSS master.
+        let mut core = product
+            .device(
+                spec.node
+                    .unwrap_or(NodeId::new(NodeId::MAX).expect("127 is a node-ID")),
+            )
+            .map_err(RackError::Device)?;
+        core.set_serial(serial);
+        if spec.node.is_none() {
+            core.unconfigure();
+        }
+        let path = self.data_dir.as_deref().map(|dir| match spec.node {
+            Some(node) => saved_path(dir, product.name(), node),
+            None => saved_path_lss(dir, product.name(), serial),
+        });
+        if let Some(path) = &path {
+            let device_error =
+                |err: super::persist::PersistError| RackError::Device(err.to_string());
+            core.load_saved(read_saved(path).map_err(device_error)?);
+            core.load_lss_stored(read_lss(&lss_path(path)).map_err(device_error)?);
+        }
+        Ok((core, path))
     }
 
     /// Adds a device built elsewhere (a test node with its own dictionary).
     pub fn add_device(&self, core: DeviceCore) -> Result<(), RackError> {
         self.insert(None, core, None)
-    }
-
-    fn build(
-        &self,
-        product: Product,
-        node: NodeId,
-    ) -> Result<(DeviceCore, Option<PathBuf>), RackError> {
-        let mut core = product.device(node).map_err(RackError::Device)?;
-        let path = self
-            .data_dir
-            .as_deref()
-            .map(|dir| saved_path(dir, product.name(), node));
-        if let Some(path) = &path {
-            core.load_saved(read_saved(path).map_err(|err| RackError::Device(err.to_string()))?);
-        }
-        Ok((core, path))
     }
 
     fn insert(
@@ -204,31 +311,58 @@ impl Rack {
         mut core: DeviceCore,
         persist: Option<PathBuf>,
     ) -> Result<(), RackError> {
-        let node = core.node();
         let mut inner = lock(&self.inner);
-        if let Some(slot) = inner.slots.get(&node) {
-            return Err(RackError::NodeTaken(node, product_name(slot)));
-        }
         let now = now();
+        // Booting decides the node-ID (a saved 0x2040, a stored LSS one).
         core.set_bitrate(inner.bitrate);
         let boot = core.boot(now);
+        let node = core.active_node();
+        if let Some(node) = node
+            && let Some(slot) = inner.slots.get(&node)
+        {
+            return Err(RackError::NodeTaken(node, product_name(slot)));
+        }
         core.tick_to(now);
         let version = core.saved_version();
+        let slot = Slot {
+            product,
+            core,
+            plugged: true,
+            persist: persist.map(|path| (path, version)),
+        };
+        let sender = match node {
+            Some(node) => {
+                inner.slots.insert(node, slot);
+                Sender::Node(node)
+            }
+            None => {
+                inner.loose.push(slot);
+                Sender::Loose(inner.loose.len() - 1)
+            }
+        };
         inner
             .outbox
-            .extend(boot.into_iter().map(|frame| (node, frame)));
-        inner.slots.insert(
-            node,
-            Slot {
-                product,
-                core,
-                plugged: true,
-                persist: persist.map(|path| (path, version)),
-            },
-        );
+            .extend(boot.into_iter().map(|frame| (sender, frame)));
         drop(inner);
         self.wake.notify_one();
         Ok(())
+    }
+
+    /// The devices that have no node-ID of their own (unconfigured LSS
+    /// slaves, or one whose node-ID another device has): node-ID, product,
+    /// LSS address.
+    pub fn loose_devices(&self) -> Vec<(Option<NodeId>, Option<Product>, LssAddress)> {
+        lock(&self.inner)
+            .loose
+            .iter()
+            .map(|slot| {
+                (
+                    slot.core.active_node(),
+                    slot.product,
+                    slot.core.lss_address(),
+                )
+            })
+            .collect()
     }
 
     /// Takes a device off the bus for good.
@@ -346,8 +480,8 @@ async fn run(
     // A late tick is not made up in a burst: the devices catch up the
     // simulated time they missed in one go.
     clock.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let mut out: Vec<(NodeId, Frame)> = Vec::new();
-    let mut saves: Vec<(PathBuf, super::device::SavedValues)> = Vec::new();
+    let mut out: Vec<(Sender, Frame)> = Vec::new();
+    let mut saves: Vec<Save> = Vec::new();
     loop {
         let woke = tokio::select! {
             received = frames.recv() => match received {
@@ -381,11 +515,11 @@ async fn run(
                     // device on its 1 ms cycle: timers and event-timer
                     // PDOs keep their periods however late the host wakes.
                     let due = due.into_std();
-                    for (node, slot) in inner.slots.iter_mut() {
+                    for (sender, slot) in inner.all_mut() {
                         slot.core.tick_to(due);
                         let frames = slot.core.poll(due);
                         if slot.plugged {
-                            out.extend(frames.into_iter().map(|frame| (*node, frame)));
+                            out.extend(frames.into_iter().map(|frame| (sender, frame)));
                         }
                     }
                 }
@@ -395,16 +529,23 @@ async fn run(
             out.extend(controls);
             relay_between_devices(&mut inner, now, &mut out);
             collect_saves(&mut inner, &mut saves);
+            inner.settle();
         }
         stats
             .max_busy_us
             .fetch_max(busy_from.elapsed().as_micros() as u64, Ordering::Relaxed);
-        for (path, saved) in saves.drain(..) {
+        for (path, saved, lss) in saves.drain(..) {
             // A device whose flash fails still runs; the log says so.
             if let Err(err) = write_saved(&path, &saved) {
                 tracing::warn!("virtual device: {err}");
             }
+            if let Some(lss) = lss
+                && let Err(err) = write_lss(&lss_path(&path), &lss)
+            {
+                tracing::warn!("virtual device: {err}");
+            }
         }
+        merge_lss_answers(&mut out);
         for (_, frame) in out.drain(..) {
             match bus.try_send(frame) {
                 Ok(()) => {
@@ -416,20 +557,36 @@ async fn run(
     }
 }
 
+/// Identical LSS answers of several devices are one frame on the wire.
+fn merge_lss_answers(out: &mut Vec<(Sender, Frame)>) {
+    let answer = crate::can::CanId::Standard(crate::canopen::lss::LSS_SLAVE_COB_ID);
+    let mut seen: Vec<Frame> = Vec::new();
+    out.retain(|(_, frame)| {
+        if frame.id() != answer {
+            return true;
+        }
+        if seen.contains(frame) {
+            return false;
+        }
+        seen.push(*frame);
+        true
+    });
+}
+
 /// A frame on the wire reaches every device plugged in but its sender.
 fn deliver(
     inner: &mut Inner,
-    sender: Option<NodeId>,
+    sender: Option<Sender>,
     frame: &Frame,
     now: Instant,
-    out: &mut Vec<(NodeId, Frame)>,
+    out: &mut Vec<(Sender, Frame)>,
 ) {
-    for (node, slot) in inner.slots.iter_mut() {
-        if !slot.plugged || Some(*node) == sender {
+    for (name, slot) in inner.all_mut() {
+        if !slot.plugged || Some(name) == sender {
             continue;
         }
         let replies = slot.core.handle_frame(frame, now);
-        out.extend(replies.into_iter().map(|reply| (*node, reply)));
+        out.extend(replies.into_iter().map(|reply| (name, reply)));
     }
 }
 
@@ -438,12 +595,12 @@ fn deliver(
 /// Each frame first passes its sender's CAN controller
 /// ([`DeviceCore::on_the_wire`]): a bus-off device sends nothing, one with
 /// bit errors an error frame before its frame.
-fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId, Frame)>) {
+fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(Sender, Frame)>) {
     let mut start = 0;
     for _ in 0..MAX_LOCAL_ROUNDS {
         on_the_wire(inner, now, out, start);
         let end = out.len();
-        if start == end || inner.slots.len() < 2 {
+        if start == end || inner.len() < 2 {
             return;
         }
         for i in start..end {
@@ -456,29 +613,37 @@ fn relay_between_devices(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId,
 }
 
 /// Passes `out[start..]` through their senders' CAN controllers.
-fn on_the_wire(inner: &mut Inner, now: Instant, out: &mut Vec<(NodeId, Frame)>, start: usize) {
+fn on_the_wire(inner: &mut Inner, now: Instant, out: &mut Vec<(Sender, Frame)>, start: usize) {
     if start == out.len() {
         return;
     }
-    let sent: Vec<(NodeId, Frame)> = out.drain(start..).collect();
-    for (node, frame) in sent {
-        let Some(slot) = inner.slots.get_mut(&node) else {
+    let sent: Vec<(Sender, Frame)> = out.drain(start..).collect();
+    for (sender, frame) in sent {
+        let slot = match sender {
+            Sender::Node(node) => inner.slots.get_mut(&node),
+            Sender::Loose(i) => inner.loose.get_mut(i),
+        };
+        let Some(slot) = slot else {
             continue;
         };
         for frame in slot.core.on_the_wire(frame, now).into_iter().flatten() {
-            out.push((node, frame));
+            out.push((sender, frame));
         }
     }
 }
 
 /// The saved values of devices that saved since they were last written.
-fn collect_saves(inner: &mut Inner, saves: &mut Vec<(PathBuf, super::device::SavedValues)>) {
-    for slot in inner.slots.values_mut() {
+fn collect_saves(inner: &mut Inner, saves: &mut Vec<Save>) {
+    for (_, slot) in inner.all_mut() {
         if let Some((path, version)) = &mut slot.persist
             && slot.core.saved_version() != *version
         {
             *version = slot.core.saved_version();
-            saves.push((path.clone(), slot.core.saved().clone()));
+            saves.push((
+                path.clone(),
+                slot.core.saved().clone(),
+                slot.core.lss_stored(),
+            ));
         }
     }
 }

@@ -94,6 +94,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/events.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/leds.js", JS),
+    asset!("js/lss.js", JS),
     asset!("js/motion.js", JS),
     asset!("js/node.js", JS),
     asset!("js/overview.js", JS),

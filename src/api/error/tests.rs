@@ -29,10 +29,16 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::Forbidden(_) => 20,
         GatewayError::Internal(_) => 21,
         GatewayError::RateLimited { .. } => 22,
+        GatewayError::LssBusy(_) => 23,
+        GatewayError::LssNotFound(_) => 24,
+        GatewayError::LssTimeout(_) => 25,
+        GatewayError::LssRefused(_) => 26,
+        GatewayError::NodeIdInUse(_) => 27,
+        GatewayError::NodeIdNotSupported(_) => 28,
     }
 }
 
-const VARIANTS: usize = 23;
+const VARIANTS: usize = 29;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -78,6 +84,12 @@ fn samples() -> Vec<GatewayError> {
             state: "ready_to_switch_on".to_string(),
         },
         GatewayError::LeaseConflict(text()),
+        GatewayError::LssBusy(text()),
+        GatewayError::LssNotFound(text()),
+        GatewayError::LssTimeout(text()),
+        GatewayError::LssRefused(text()),
+        GatewayError::NodeIdInUse(text()),
+        GatewayError::NodeIdNotSupported(text()),
         GatewayError::UnknownLease(text()),
         GatewayError::Unauthenticated(text()),
         GatewayError::Forbidden(text()),

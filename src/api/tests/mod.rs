@@ -10,6 +10,7 @@ mod edge;
 mod eds;
 mod leases;
 mod leds;
+mod lss;
 mod pdos;
 mod recording;
 mod stops;

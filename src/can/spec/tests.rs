@@ -89,7 +89,7 @@ fn bad_specs_say_what_is_expected() {
         ("serial:ttyUSB0", "bus spec 'serial:ttyUSB0' is not one of"),
         (
             "virtual:other",
-            "a virtual bus is 'virtual:demo' or 'virtual:empty'",
+            "a virtual bus is 'virtual:demo', 'virtual:empty' or a device list",
         ),
         ("virtual:demo?bitrate=fast", "bit rate 'fast' is not"),
         ("virtual:demo?speed=2", "?bitrate=N|unlimited"),

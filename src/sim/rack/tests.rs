@@ -561,3 +561,194 @@ async fn bus_off_in_operational_is_a_communication_error_for_0x1029() {
     let seen = frames_on(&mut frames, 0x704, 25).await;
     assert_eq!(seen, vec![vec![0x7F]; 2]);
 }
+
+/// An LSS transaction of a master on `master`, run to its end.
+async fn lss(
+    master: &Bus,
+    service: crate::canopen::lss::LssService,
+) -> crate::canopen::lss::LssOutcome {
+    let lss = crate::gateway::lss::BusLss::new(master.clone());
+    lss.begin()
+        .unwrap()
+        .run(service)
+        .await
+        .unwrap()
+        .unwrap_or_else(|err| panic!("{service:?}: {err}"))
+}
+
+fn lss_device(product: Product, serial: Option<u32>) -> DeviceSpec {
+    DeviceSpec {
+        product,
+        node: None,
+        serial,
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn unconfigured_devices_are_silent_until_lss_gives_them_a_node_id() {
+    use crate::canopen::lss::{LssAddress, LssOutcome, LssService, LssState};
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let mut frames = master.subscribe();
+    let rack = Rack::new(hub.clone());
+    rack.add_all(&[
+        DeviceSpec::at(Product::Jmc, node(2)),
+        lss_device(Product::Uio1led, None),
+        lss_device(Product::Uio1led, None),
+        lss_device(Product::Umc1bds32, Some(0xC0FFEE)),
+    ])
+    .unwrap();
+    // Only the configured device boots up; nothing else is heard.
+    let heard = frames_on_any(&mut frames, &(0x700..0x7FF).collect::<Vec<_>>(), 500).await;
+    assert_eq!(heard, vec![vec![0]]);
+    assert_eq!(rack.devices().len(), 1);
+    assert_eq!(rack.loose_devices().len(), 3);
+    let LssOutcome::FoundAll(mut found) = lss(&master, LssService::FastscanAll).await else {
+        panic!("no Fastscan result");
+    };
+    found.sort();
+    let uio = |serial| LssAddress {
+        vendor_id: 0x4A2,
+        product_code: 0x4101,
+        revision: 1,
+        serial,
+    };
+    let umc = LssAddress {
+        vendor_id: 0x4A2,
+        product_code: 0x1001,
+        revision: 0x0100_0004,
+        serial: 0xC0FFEE,
+    };
+    // Two of the same product told apart by their serial numbers.
+    assert_eq!(found, vec![umc, uio(0x101), uio(0x102)]);
+    // Configure one, stored: it boots up as node 10 and answers SDO there.
+    let mut frames = master.subscribe();
+    lss(&master, LssService::SwitchSelective(uio(0x102))).await;
+    lss(&master, LssService::ConfigureNodeId(10)).await;
+    lss(&master, LssService::StoreConfiguration).await;
+    lss(&master, LssService::SwitchGlobal(LssState::Waiting)).await;
+    assert_eq!(frames_on(&mut frames, 0x70A, 50).await, vec![vec![0]]);
+    assert_eq!(
+        sdo(&master, 10).upload(0x1018, 4).await.unwrap(),
+        0x102u32.to_le_bytes()
+    );
+    assert_eq!(
+        rack.devices()
+            .iter()
+            .map(|(node, product, _)| (node.get(), *product))
+            .collect::<Vec<_>>(),
+        vec![(2, Some(Product::Jmc)), (10, Some(Product::Uio1led))]
+    );
+    // The other, not stored: node 11 until its next reset.
+    lss(&master, LssService::SwitchSelective(uio(0x101))).await;
+    lss(&master, LssService::ConfigureNodeId(11)).await;
+    lss(&master, LssService::SwitchGlobal(LssState::Waiting)).await;
+    assert_eq!(frames_on(&mut frames, 0x70B, 50).await, vec![vec![0]]);
+    // Reset node: the stored node-ID survives, the other is lost.
+    let reset_all = crate::canopen::nmt::NmtMessage::new(
+        crate::canopen::nmt::NmtCommand::ResetNode,
+        crate::canopen::nmt::NmtTarget::All,
+    );
+    master.send(reset_all.encode()).await.unwrap();
+    let boot_ups = frames_on_any(&mut frames, &[0x702, 0x70A, 0x70B], 100).await;
+    assert_eq!(boot_ups.len(), 2, "{boot_ups:?}");
+    assert_eq!(sdo(&master, 10).upload(0x1000, 0).await.unwrap().len(), 4);
+    assert!(sdo(&master, 11).upload(0x1000, 0).await.is_err());
+    let LssOutcome::FoundAll(found) = lss(&master, LssService::FastscanAll).await else {
+        panic!("no Fastscan result");
+    };
+    assert_eq!(found.len(), 2, "{found:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_node_id_saved_in_0x2040_is_the_one_the_device_boots_with() {
+    let dir = std::env::temp_dir().join(format!("candeck-rack-2040-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let mut frames = master.subscribe();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    let channel = sdo(&master, 3);
+    channel.download(0x2040, 1, &[9]).await.unwrap();
+    // Written but not saved: a reset keeps node 3.
+    let reset = |target| {
+        crate::canopen::nmt::NmtMessage::new(
+            crate::canopen::nmt::NmtCommand::ResetNode,
+            crate::canopen::nmt::NmtTarget::Node(node(target)),
+        )
+        .encode()
+    };
+    master.send(reset(3)).await.unwrap();
+    assert_eq!(
+        frames_on_any(&mut frames, &[0x703, 0x709], 50).await,
+        vec![vec![0], vec![0]]
+    );
+    channel.download(0x2040, 1, &[9]).await.unwrap();
+    channel.download(0x1010, 1, b"save").await.unwrap();
+    master.send(reset(3)).await.unwrap();
+    assert_eq!(frames_on(&mut frames, 0x709, 50).await, vec![vec![0]]);
+    let moved = sdo(&master, 9);
+    assert_eq!(moved.upload(0x2040, 1).await.unwrap(), vec![9]);
+    // What followed the node-ID follows the new one: the TPDO COB-ID.
+    let cob_id = moved.upload(0x1800, 1).await.unwrap();
+    assert_eq!(
+        u32::from_le_bytes(cob_id.try_into().unwrap()) & 0x7FF,
+        0x189
+    );
+    assert_eq!(moved.upload(0x1018, 4).await.unwrap(), 3u32.to_le_bytes());
+    assert!(channel.upload(0x1000, 0).await.is_err());
+    assert_eq!(rack.is_plugged(node(9)), Some(true));
+    assert_eq!(rack.is_plugged(node(3)), None);
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    drop(rack);
+    // A restart (vbus --data-dir) with the same device list boots it as 9.
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let mut frames = master.subscribe();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    assert_eq!(
+        frames_on_any(&mut frames, &[0x703, 0x709], 50).await,
+        vec![vec![0]]
+    );
+    assert_eq!(sdo(&master, 9).upload(0x2040, 1).await.unwrap(), vec![9]);
+    drop(rack);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_stored_lss_node_id_survives_a_restart_under_the_data_dir() {
+    use crate::canopen::lss::{LssOutcome, LssService, LssState};
+    let dir = std::env::temp_dir().join(format!("candeck-rack-lss-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let devices = [lss_device(Product::Jmc, Some(77))];
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let mut frames = master.subscribe();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add_all(&devices).unwrap();
+    let LssOutcome::FoundAll(found) = lss(&master, LssService::FastscanAll).await else {
+        panic!("no Fastscan result");
+    };
+    assert_eq!(found.len(), 1);
+    lss(&master, LssService::SwitchSelective(found[0])).await;
+    lss(&master, LssService::ConfigureNodeId(20)).await;
+    lss(&master, LssService::StoreConfiguration).await;
+    lss(&master, LssService::SwitchGlobal(LssState::Waiting)).await;
+    assert_eq!(frames_on(&mut frames, 0x714, 50).await, vec![vec![0]]);
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    drop(rack);
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let mut frames = master.subscribe();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add_all(&devices).unwrap();
+    assert_eq!(frames_on(&mut frames, 0x714, 50).await, vec![vec![0]]);
+    assert_eq!(
+        sdo(&master, 20).upload(0x1018, 4).await.unwrap(),
+        77u32.to_le_bytes()
+    );
+    drop(rack);
+    let _ = std::fs::remove_dir_all(dir);
+}

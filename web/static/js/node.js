@@ -146,6 +146,7 @@ async function loadDetail() {
     showMessage(pageMessage, '');
     body.hidden = false;
     renderIdentity();
+    showNodeIdPanel();
     if (first) loadDictionary();
   } catch (error) {
     if (error.status === 404 || error.status === 400) {
@@ -205,6 +206,32 @@ for (const button of document.querySelectorAll('#nmt-buttons button')) {
     setTimeout(loadDetail, 1500);
   });
 }
+
+// ---- node ID (UniSwarm 0x2040) ---------------------------------------------
+
+// The products that change their node ID by 0x2040, save and reset.
+const NODE_ID_PROFILES = new Set(['umc', 'uioled']);
+const nodeIdResult = $('#node-id-result');
+
+function showNodeIdPanel() {
+  $('#node-id-panel').hidden = !detail || !NODE_ID_PROFILES.has(detail.profile);
+}
+
+$('#node-id-form').addEventListener('submit', async (event) => {
+  event.preventDefault();
+  const button = $('#node-id-change');
+  const newId = Number($('#node-id-new').value);
+  if (!(await confirmAction(`Change node ${nodeId} to node ID ${newId}? The device stores it and restarts: its drives stop and unsaved parameters are lost.`, 'Change node ID'))) return;
+  result(nodeIdResult, 'busy', `Changing to node ID ${newId}…`);
+  const done = await runAction(button, 'Changing…', () => api(`${base}/node-id`, { method: 'POST', body: { node_id: newId } }));
+  if (!done.ok) {
+    result(nodeIdResult, 'failed', h('strong', {}, `Change failed (${clock()}): `), errorView(done.error));
+    return;
+  }
+  const href = `/nodes/${encodeURIComponent(bus)}/${done.value.id}`;
+  result(nodeIdResult, 'done', h('strong', {}, `The device booted up as node ${done.value.id} (${clock()}). `),
+    h('a', { href, id: 'node-id-new-page' }, `Open node ${done.value.id}`));
+});
 
 // ---- store, restore, DCF ---------------------------------------------------
 

@@ -1,0 +1,306 @@
+//! LSS on a served bus (CiA 305), and the UniSwarm way of changing a node's
+//! node-ID (0x2040): what `POST /buses/{bus}/lss/scan`, `.../lss/configure`
+//! and `.../nodes/{id}/node-id` do, for any adapter.
+//!
+//! The protocol is [`crate::canopen::lss`]'s master, driven here over the
+//! bus with tokio's clock. One LSS transaction runs per bus at a time
+//! ([`BusLss::begin`]): a second is refused rather than queued, since two
+//! masters' selections would mix on the wire. A configured device boots up
+//! under its new node-ID, which the registry hears like any boot-up; these
+//! operations end once the registry knows it.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::{Mutex, OwnedMutexGuard};
+
+use crate::can::{Bus, CanId, Frame, FrameReceiver, RecvError};
+use crate::canopen::NodeId;
+use crate::canopen::lss::{
+    Inquiry, LssAddress, LssError, LssMaster, LssOutcome, LssService, LssState, UNCONFIGURED,
+};
+use crate::canopen::nmt::{NmtCommand, NmtTarget};
+
+use super::GatewayError;
+use super::profile::Profile;
+use super::registry::{Identification, NodeInfo};
+use super::service::ServedBus;
+
+/// How long the master waits for each LSS answer. CANopenNode's master
+/// uses 10 ms on a wire; a bus bridged over TCP (socketcand) takes a few
+/// ms more per round trip.
+pub const LSS_TIMEOUT: Duration = Duration::from_millis(25);
+/// How long a configured device has to boot up under its new node-ID.
+pub const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long the registry has to take a node that booted up and read its
+/// identity.
+const REGISTRY_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The LSS master of one bus.
+pub struct BusLss {
+    bus: Bus,
+    busy: Arc<Mutex<()>>,
+    timeout: Duration,
+}
+
+/// The one LSS transaction of a bus, while it is held.
+pub struct LssTransaction<'a> {
+    lss: &'a BusLss,
+    _held: OwnedMutexGuard<()>,
+}
+
+impl BusLss {
+    pub fn new(bus: Bus) -> Self {
+        Self {
+            bus,
+            busy: Arc::new(Mutex::new(())),
+            timeout: LSS_TIMEOUT,
+        }
+    }
+
+    /// Starts the bus's LSS transaction; `LssBusy` while another runs.
+    pub fn begin(&self) -> Result<LssTransaction<'_>, GatewayError> {
+        let held = self.busy.clone().try_lock_owned().map_err(|_| {
+            GatewayError::LssBusy("another LSS transaction runs on this bus".to_string())
+        })?;
+        Ok(LssTransaction {
+            lss: self,
+            _held: held,
+        })
+    }
+}
+
+impl LssTransaction<'_> {
+    /// Runs one service of the master to its end.
+    pub async fn run(
+        &self,
+        service: LssService,
+    ) -> Result<Result<LssOutcome, LssError>, GatewayError> {
+        let bus = &self.lss.bus;
+        let mut frames = bus.subscribe();
+        let now = || tokio::time::Instant::now().into_std();
+        let mut master = LssMaster::new(self.lss.timeout);
+        let mut step = master.start(service, now());
+        loop {
+            for frame in step.send.drain(..) {
+                bus.send(frame).await?;
+            }
+            if let Some(done) = step.done {
+                return Ok(done);
+            }
+            let deadline = master
+                .deadline()
+                .map(tokio::time::Instant::from_std)
+                .unwrap_or_else(tokio::time::Instant::now);
+            step = tokio::select! {
+                received = frames.recv() => match received {
+                    Ok(frame) => master.on_frame(&frame.frame, now()),
+                    Err(RecvError::Lagged(_)) => continue,
+                    Err(RecvError::Closed) => {
+                        return Err(GatewayError::BusDown("bus closed".to_string()));
+                    }
+                },
+                _ = tokio::time::sleep_until(deadline) => master.handle_timeout(now()),
+            };
+        }
+    }
+}
+
+/// Every unconfigured device on the bus, by Fastscan; they stay
+/// unconfigured and waiting.
+pub async fn scan(served: &ServedBus) -> Result<Vec<LssAddress>, GatewayError> {
+    let transaction = served.lss.begin()?;
+    match transaction.run(LssService::FastscanAll).await? {
+        Ok(LssOutcome::FoundAll(found)) => Ok(found),
+        Ok(other) => Err(GatewayError::Internal(format!(
+            "Fastscan ended with {other:?}"
+        ))),
+        Err(error) => Err(GatewayError::LssTimeout(format!(
+            "Fastscan lost the device it was scanning: {error}"
+        ))),
+    }
+}
+
+/// A node-ID as a request gives it: 1 to 127.
+fn new_node_id(raw: i64) -> Result<NodeId, GatewayError> {
+    NodeId::try_from(raw).map_err(|err| GatewayError::InvalidValue(err.to_string()))
+}
+
+/// Refuses a node-ID a node on the bus has.
+fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
+    match served.registry.node(node) {
+        Some(info) if info.online => Err(GatewayError::NodeIdInUse(format!(
+            "node {node} is in use on bus {}",
+            served.name
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// Gives the device with `address` the node-ID `node_id`, stores it if
+/// `store`, and switches it back to waiting: it boots up under that ID
+/// (an unconfigured one at once, a configured one at the NMT reset
+/// communication sent to its old ID). Ends once the registry knows it.
+pub async fn configure(
+    served: &ServedBus,
+    address: LssAddress,
+    node_id: i64,
+    store: bool,
+) -> Result<NodeInfo, GatewayError> {
+    let node = new_node_id(node_id)?;
+    check_free(served, node)?;
+    let transaction = served.lss.begin()?;
+    let selected = transaction
+        .run(LssService::SwitchSelective(address))
+        .await?;
+    if selected.is_err() {
+        return Err(GatewayError::LssNotFound(format!(
+            "no device with {address} answered on bus {}",
+            served.name
+        )));
+    }
+    let result = configure_selected(served, &transaction, node, store).await;
+    // Whatever happened, nobody is left in the configuration state.
+    let waiting = transaction
+        .run(LssService::SwitchGlobal(LssState::Waiting))
+        .await;
+    let (old, mut boot_up) = result?;
+    // Switch state global has no answer: only the bus can fail it.
+    let _ = waiting?;
+    if let Some(old) = old
+        && old != node
+    {
+        // A configured device takes its pending node-ID at reset
+        // communication (CiA 305 §5.2).
+        served
+            .send_nmt(NmtCommand::ResetCommunication, NmtTarget::Node(old))
+            .await?;
+    }
+    wait_for_boot_up(served, &mut boot_up, node).await
+}
+
+/// The configuration services on the selected device: its old node-ID
+/// (`None`: unconfigured), and a receiver that hears its boot-up.
+async fn configure_selected(
+    served: &ServedBus,
+    transaction: &LssTransaction<'_>,
+    node: NodeId,
+    store: bool,
+) -> Result<(Option<NodeId>, FrameReceiver), GatewayError> {
+    let lss_error = |step: &str, error: LssError| match error {
+        LssError::Refused { .. } => GatewayError::LssRefused(format!("{step}: {error}")),
+        other => GatewayError::LssTimeout(format!("{step}: {other}")),
+    };
+    let old = match transaction
+        .run(LssService::Inquire(Inquiry::NodeId))
+        .await?
+    {
+        Ok(LssOutcome::Inquired(raw)) if raw != u32::from(UNCONFIGURED) => {
+            NodeId::new(raw as u8).ok()
+        }
+        Ok(_) => None,
+        Err(error) => return Err(lss_error("inquire node-ID", error)),
+    };
+    transaction
+        .run(LssService::ConfigureNodeId(node.get()))
+        .await?
+        .map_err(|error| lss_error("configure node-ID", error))?;
+    if store {
+        transaction
+            .run(LssService::StoreConfiguration)
+            .await?
+            .map_err(|error| lss_error("store configuration", error))?;
+    }
+    // Listening before the switch to waiting that makes it boot.
+    Ok((old, served.bus.subscribe()))
+}
+
+/// Waits for the boot-up message of `node`, then for the registry to know
+/// it.
+async fn wait_for_boot_up(
+    served: &ServedBus,
+    frames: &mut FrameReceiver,
+    node: NodeId,
+) -> Result<NodeInfo, GatewayError> {
+    let boot_up = Frame::new(CanId::Standard(0x700 + u16::from(node.get())), &[0])
+        .expect("a boot-up message is a frame");
+    let until = tokio::time::Instant::now() + BOOT_UP_TIMEOUT;
+    loop {
+        match tokio::time::timeout_at(until, frames.recv()).await {
+            Ok(Ok(frame)) if frame.frame == boot_up => break,
+            Ok(Ok(_)) | Ok(Err(RecvError::Lagged(_))) => {}
+            Ok(Err(RecvError::Closed)) => {
+                return Err(GatewayError::BusDown("bus closed".to_string()));
+            }
+            Err(_) => {
+                return Err(GatewayError::LssTimeout(format!(
+                    "no boot-up from node {node} within {} s",
+                    BOOT_UP_TIMEOUT.as_secs()
+                )));
+            }
+        }
+    }
+    let until = tokio::time::Instant::now() + REGISTRY_TIMEOUT;
+    loop {
+        let info = served.registry.node(node);
+        // Answered once its identity is read (or could not be).
+        if let Some(info) = &info
+            && info.identification != Identification::Pending
+        {
+            return Ok(info.clone());
+        }
+        if tokio::time::Instant::now() >= until {
+            return info.ok_or_else(|| {
+                GatewayError::Internal(format!(
+                    "node {node} booted up but the registry did not take it"
+                ))
+            });
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// Whether a node's product changes its node-ID by 0x2040 (the UniSwarm
+/// products: UMC manual §2.3, UIO1LED manual §4.2).
+pub fn has_node_id_object(info: &NodeInfo) -> bool {
+    matches!(info.profile, Profile::Umc | Profile::Uioled)
+}
+
+/// The UniSwarm way of changing a node-ID: the new one into 0x2040 sub 1,
+/// store the manufacturer parameters (0x1010 sub 4, `save`), reset node;
+/// the device boots up under the new ID. Ends once the registry knows it.
+pub async fn change_node_id(
+    served: &ServedBus,
+    info: &NodeInfo,
+    node_id: i64,
+) -> Result<NodeInfo, GatewayError> {
+    let node = new_node_id(node_id)?;
+    if !has_node_id_object(info) {
+        return Err(GatewayError::NodeIdNotSupported(format!(
+            "node {} ({}) has no 0x2040 Node_ID: only UniSwarm UMC and UIO1LED change their node-ID that way; use LSS",
+            info.id,
+            info.profile.name()
+        )));
+    }
+    if node == info.id {
+        return Ok(info.clone());
+    }
+    check_free(served, node)?;
+    super::check_sdo_allowed(served, info)?;
+    let sdo = served.registry.sdo(info.id)?;
+    sdo.download(COMMUNICATION_CONFIG, 1, &[node.get()]).await?;
+    sdo.download(STORE_PARAMETERS, MANUFACTURER_AREA, b"save")
+        .await?;
+    let mut frames = served.bus.subscribe();
+    served
+        .send_nmt(NmtCommand::ResetNode, NmtTarget::Node(info.id))
+        .await?;
+    wait_for_boot_up(served, &mut frames, node).await
+}
+
+/// 0x2040: UniSwarm's communication configuration, sub 1 Node_ID.
+const COMMUNICATION_CONFIG: u16 = crate::profiles::umc::COMMUNICATION_CONFIG;
+/// 0x1010: store parameters.
+const STORE_PARAMETERS: u16 = 0x1010;
+/// 0x1010 sub 4: the manufacturer area (0x2000–0x5FFF), where 0x2040 is.
+const MANUFACTURER_AREA: u8 = 4;
