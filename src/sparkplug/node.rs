@@ -321,6 +321,9 @@ impl Runner {
 
     fn disconnected(&mut self) {
         self.live = false;
+        // The primary host's state is learnt anew on the next connection
+        // (its retained STATE, or its next message).
+        self.host_online = self.config.primary_host.is_none();
         self.stats
             .connected
             .store(false, std::sync::atomic::Ordering::Relaxed);
