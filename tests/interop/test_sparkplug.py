@@ -250,8 +250,10 @@ def started(gateway, host):
 
 
 def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, host):
-    _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+    at, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
     assert nbirth["seq"] == 0
+    # One connection: no will of a connection the edge node made twice.
+    assert not any(m["kind"] == "NDEATH" for m in host.messages[:at])
     assert metric(nbirth, "bdSeq")["datatype"] == DT.UInt64
     assert metric(nbirth, "Node Control/Rebirth")["value"] is False
     assert metric(nbirth, "Buses/demo/State")["value"] == "up"
