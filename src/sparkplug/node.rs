@@ -11,7 +11,7 @@
 //! leaks into the next); the data made meanwhile goes to the spool, and
 //! after the next births it is sent in order, historical.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -97,12 +97,39 @@ enum Input {
     Node { bus: String, event: NodeEvent },
 }
 
-/// The nodes whose TPDO values changed since the runner last looked.
+/// The nodes whose TPDO values (or axes, or segments) changed since the
+/// runner last looked, and the newest axis and segment metrics of each.
 #[derive(Default)]
 struct Dirty {
     nodes: Mutex<HashSet<(String, NodeId)>>,
+    /// The newest `Axis {n}/...` and `Segments` metrics, by node and name.
+    extra: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
     notify: Notify,
 }
+
+impl Dirty {
+    fn mark(&self, key: (String, NodeId)) {
+        lock(&self.nodes).insert(key);
+        self.notify.notify_one();
+    }
+
+    fn extra(&self, key: &(String, NodeId)) -> Vec<Sample> {
+        lock(&self.extra)
+            .get(key)
+            .map(|metrics| metrics.values().cloned().collect())
+            .unwrap_or_default()
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|poison| poison.into_inner())
+}
+
+/// How often the axes (state, statusword, position, velocity, fault) and
+/// the LED segments are read for their metrics: the stream's topics at
+/// this rate (from the TPDOs where the drive sends them, else by SDO at
+/// the gateway's `axis_poll_hz` at most).
+const AXIS_RATE_HZ: f64 = 10.0;
 
 /// The MQTT connection of the moment. Its event loop runs in a task of
 /// its own (rumqttc's `poll` is not to be dropped halfway: a connect cut
@@ -161,6 +188,8 @@ struct Runner {
     watchers: Vec<tokio::task::JoinHandle<()>>,
     /// Nodes whose TPDO values are followed.
     watched: HashSet<(String, NodeId)>,
+    /// Nodes whose axes or segments are followed.
+    followed: HashSet<(String, NodeId)>,
 }
 
 impl Runner {
@@ -186,6 +215,7 @@ impl Runner {
             started: Instant::now(),
             watchers: Vec::new(),
             watched: HashSet::new(),
+            followed: HashSet::new(),
         }
     }
 
@@ -579,6 +609,8 @@ impl Runner {
                 metrics.push(Sample::new(name, value, now));
             }
         }
+        self.follow_profile(bus, info);
+        metrics.extend(self.dirty.extra(&(bus.to_string(), info.id)));
         if let Some(served) = self.gateway.buses.get(bus) {
             let values = tpdo_samples(&served.values.values(info.id));
             // Mapped values that have not come yet: null, typed by the
@@ -661,6 +693,70 @@ impl Runner {
         }
     }
 
+    /// Follows a drive's axes and an LED controller's segments (once per
+    /// node): their metrics go to [`Dirty::extra`].
+    fn follow_profile(&mut self, bus: &str, info: &NodeInfo) {
+        let key = (bus.to_string(), info.id);
+        if !self.followed.insert(key.clone()) {
+            return;
+        }
+        let Some(served) = self.gateway.buses.get(bus).cloned() else {
+            return;
+        };
+        if info.profile.is_drive() {
+            for axis in 1..=crate::profiles::umc::MAX_AXES {
+                if crate::gateway::drive::Drive::new(&served.registry, info, &axis.to_string())
+                    .is_err()
+                {
+                    break;
+                }
+                let Ok(mut topic) = served.axes.subscribe(info.id, axis, AXIS_RATE_HZ) else {
+                    break;
+                };
+                let dirty = self.dirty.clone();
+                let key = key.clone();
+                self.watchers.push(tokio::spawn(async move {
+                    while let Some(sample) = topic.changed().await {
+                        let now = unix_ms();
+                        let metrics = axis_samples(axis, &sample.data, now);
+                        if metrics.is_empty() {
+                            continue;
+                        }
+                        let mut extra = lock(&dirty.extra);
+                        let node = extra.entry(key.clone()).or_default();
+                        for metric in metrics {
+                            node.insert(metric.name.clone(), metric);
+                        }
+                        drop(extra);
+                        dirty.mark(key.clone());
+                    }
+                }));
+            }
+        } else if info.profile == crate::gateway::profile::Profile::Uioled {
+            let Ok(mut topic) = served.previews.subscribe(info.id, 1.0) else {
+                return;
+            };
+            let dirty = self.dirty.clone();
+            self.watchers.push(tokio::spawn(async move {
+                while let Some(sample) = topic.changed().await {
+                    let Some(segments) = sample.data.get("segments") else {
+                        continue;
+                    };
+                    let metric = Sample::new(
+                        "Segments",
+                        MetricValue::String(segments.to_string()),
+                        unix_ms(),
+                    );
+                    lock(&dirty.extra)
+                        .entry(key.clone())
+                        .or_default()
+                        .insert(metric.name.clone(), metric);
+                    dirty.mark(key.clone());
+                }
+            }));
+        }
+    }
+
     /// Follows a node's TPDO values (once).
     fn watch(&mut self, bus: &str, node: NodeId) {
         if !self.watched.insert((bus.to_string(), node)) {
@@ -674,12 +770,7 @@ impl Runner {
         let key = (bus.to_string(), node);
         self.watchers.push(tokio::spawn(async move {
             while frames.changed().await.is_ok() {
-                dirty
-                    .nodes
-                    .lock()
-                    .unwrap_or_else(|poison| poison.into_inner())
-                    .insert(key.clone());
-                dirty.notify.notify_one();
+                dirty.mark(key.clone());
             }
         }));
     }
@@ -704,7 +795,8 @@ impl Runner {
             let Some(served) = self.gateway.buses.get(&bus).cloned() else {
                 continue;
             };
-            let samples = tpdo_samples(&served.values.values(node));
+            let mut samples = tpdo_samples(&served.values.values(node));
+            samples.extend(self.dirty.extra(&(bus.clone(), node)));
             if self.live
                 && samples
                     .iter()
@@ -812,6 +904,43 @@ fn tpdo_samples(values: &[crate::gateway::values::TpdoValue]) -> Vec<Sample> {
             )
         })
         .collect()
+}
+
+/// An axis's metrics from its stream sample (`AxisSample` as JSON):
+/// `Axis {n}/State`, `Statusword`, `Position`, `Velocity`, `Fault`; fields
+/// not read yet are left out.
+fn axis_samples(axis: u8, data: &serde_json::Value, now: u64) -> Vec<Sample> {
+    let name = |field: &str| format!("Axis {axis}/{field}");
+    let mut metrics = Vec::new();
+    if let Some(state) = data.get("state").and_then(serde_json::Value::as_str) {
+        metrics.push(Sample::new(
+            name("State"),
+            MetricValue::String(state.to_string()),
+            now,
+        ));
+    }
+    if let Some(word) = data.get("statusword").and_then(serde_json::Value::as_u64) {
+        metrics.push(Sample::new(
+            name("Statusword"),
+            MetricValue::UInt16(word as u16),
+            now,
+        ));
+    }
+    for field in ["position", "velocity"] {
+        if let Some(value) = data.get(field).and_then(serde_json::Value::as_i64) {
+            let mut title = field.to_string();
+            title[..1].make_ascii_uppercase();
+            metrics.push(Sample::new(
+                name(&title),
+                MetricValue::Int32(value as i32),
+                now,
+            ));
+        }
+    }
+    if let Some(fault) = data.get("fault").and_then(serde_json::Value::as_bool) {
+        metrics.push(Sample::new(name("Fault"), MetricValue::Boolean(fault), now));
+    }
+    metrics
 }
 
 async fn poll(connection: &mut Option<Connection>) -> Result<Event, rumqttc::ConnectionError> {

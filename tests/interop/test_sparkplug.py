@@ -278,6 +278,19 @@ def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, ho
     assert changed["historical"] is False
     # CiA 402: operation enabled is xxxx xxxx x01x 0111.
     assert changed["value"] & 0x6F == 0x27
+    # The axis's own metrics follow it.
+    host.wait_for(
+        lambda m: m["device"] == "demo-1"
+        and m["kind"] in ("DBIRTH", "DDATA")
+        and (metric(m, "Axis 1/State") or {}).get("value") == "operation_enabled",
+        start=at,
+    )
+    # The LED controller's segments, as JSON text.
+    _, leds = host.wait_for(
+        lambda m: m["device"] == "demo-3" and m["kind"] in ("DBIRTH", "DDATA") and metric(m, "Segments")
+    )
+    assert metric(leds, "Segments")["datatype"] == DT.String
+    json.loads(metric(leds, "Segments")["value"])
 
 
 def test_a_dcmd_write_of_0x1017_reaches_the_device_and_is_audited(gateway, host):
