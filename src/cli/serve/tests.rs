@@ -60,6 +60,11 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
         settings.ascii_listen,
         Some("127.0.0.1:60000".parse().unwrap())
     );
+    // The edge node is off as shipped, and every key of it parses.
+    assert_eq!(shipped.sparkplug, None);
+    let sparkplug = settings.sparkplug.unwrap();
+    assert_eq!(sparkplug.role, Role::Operator);
+    assert_eq!(sparkplug.policy.rules.len(), 1);
 
     // Every option of `candeck serve` but --config itself has a key in
     // the example: a new flag without one fails here.
@@ -519,4 +524,22 @@ fn the_sparkplug_edge_node_comes_from_the_config_file_and_is_off_without_mqtt_ur
     .unwrap_err();
     assert!(err.contains("sparkplug_role"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_compose_sparkplug_demo_configs_parse_as_two_edge_nodes_of_one_group() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/sparkplug");
+    let mut edge_nodes = Vec::new();
+    for line in ["a", "b"] {
+        let path = dir.join(format!("line-{line}.toml"));
+        let settings = serve_args(&["--config", path.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        let sparkplug = settings.sparkplug.unwrap();
+        assert_eq!(sparkplug.group_id, "plant");
+        assert_eq!(sparkplug.broker.host, "mosquitto");
+        edge_nodes.push(sparkplug.edge_node_id);
+    }
+    assert_eq!(edge_nodes, ["line-a", "line-b"]);
 }
