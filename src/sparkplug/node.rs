@@ -190,6 +190,8 @@ struct Runner {
     watched: HashSet<(String, NodeId)>,
     /// Nodes whose axes or segments are followed.
     followed: HashSet<(String, NodeId)>,
+    /// The spool's drops already added to the stats.
+    spool_dropped: u64,
 }
 
 impl Runner {
@@ -216,6 +218,7 @@ impl Runner {
             watchers: Vec::new(),
             watched: HashSet::new(),
             followed: HashSet::new(),
+            spool_dropped: 0,
         }
     }
 
@@ -828,9 +831,9 @@ impl Runner {
                 self.spool.len() as u64,
                 std::sync::atomic::Ordering::Relaxed,
             );
-            self.stats
-                .dropped
-                .store(self.spool.dropped(), std::sync::atomic::Ordering::Relaxed);
+            let dropped = self.spool.dropped();
+            EdgeNodeStats::add(&self.stats.dropped, dropped - self.spool_dropped);
+            self.spool_dropped = dropped;
         }
     }
 
@@ -848,7 +851,12 @@ impl Runner {
                 EdgeNodeStats::add(&self.stats.messages, 1);
                 EdgeNodeStats::add(&self.stats.metrics, metrics);
             }
-            Err(err) => tracing::warn!("sparkplug: {}: not published: {err}", message.topic),
+            // The client's queue is full (the broker does not keep up):
+            // counted as dropped, as the spool's are.
+            Err(err) => {
+                EdgeNodeStats::add(&self.stats.dropped, 1);
+                tracing::debug!("sparkplug: {}: not published: {err}", message.topic);
+            }
         }
     }
 

@@ -270,14 +270,15 @@ def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, ho
         lambda m: m["kind"] == "DDATA"
         and m["device"] == "demo-1"
         and metric(m, "TPDO/a1_Statusword") is not None
-        and metric(m, "TPDO/a1_Statusword")["value"] != status["value"],
+        # CiA 402: operation enabled is xxxx xxxx x01x 0111 (the walk
+        # there may show the states between first).
+        and metric(m, "TPDO/a1_Statusword")["value"] & 0x6F == 0x27,
         start=at,
     )
+    assert status["value"] & 0x6F != 0x27
     changed = metric(data, "TPDO/a1_Statusword")
     assert changed["datatype"] == DT.UInt16
     assert changed["historical"] is False
-    # CiA 402: operation enabled is xxxx xxxx x01x 0111.
-    assert changed["value"] & 0x6F == 0x27
     # The axis's own metrics follow it.
     host.wait_for(
         lambda m: m["device"] == "demo-1"
@@ -331,6 +332,15 @@ def test_killing_the_gateway_gives_its_will_ndeath_with_the_births_bdseq(gateway
     assert death["seq"] is None
 
 
+def test_a_clean_stop_publishes_ndeath_with_the_births_bdseq(gateway, host):
+    _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+    at = len(host.messages)
+    gateway.proc.send_signal(signal.SIGTERM)
+    gateway.proc.wait(timeout=30)
+    _, death = host.wait_for(lambda m: m["kind"] == "NDEATH", start=at, timeout=10)
+    assert metric(death, "bdSeq")["value"] == metric(nbirth, "bdSeq")["value"]
+
+
 def offline(gateway):
     text = urllib.request.urlopen(gateway.base.replace("/api/v1", "") + "/metrics", timeout=10).read().decode()
     for line in text.splitlines():
@@ -341,6 +351,16 @@ def offline(gateway):
 
 def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     at, _ = started(gateway, host)
+    # Enabled first: from then on each toggle is one transition of the CiA
+    # 402 state machine (disable operation, enable operation), with no
+    # state between.
+    gateway.request("POST", "/buses/demo/nodes/1/axes/1/state", {"target": "operation_enabled"})
+    host.wait_for(
+        lambda m: m["kind"] == "DDATA"
+        and m["device"] == "demo-1"
+        and ((metric(m, "TPDO/a1_Statusword") or {}).get("value") or 0) & 0x6F == 0x27,
+        start=at,
+    )
     broker.stop()
     deadline = time.monotonic() + 15
     while not offline(gateway):
@@ -350,7 +370,7 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     # disabled in turn, each state held long enough for a SYNC TPDO.
     targets = []
     outage_end = time.monotonic() + 10
-    target = "operation_enabled"
+    target = "switched_on"
     while time.monotonic() < outage_end:
         gateway.request("POST", "/buses/demo/nodes/1/axes/1/state", {"target": target})
         targets.append(target)
@@ -360,19 +380,7 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     first_after = len(host.messages)
     broker.start()
     nbirth_at, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH", start=first_after, timeout=30)
-    # The historical data comes after the births, before any live data.
-    time.sleep(3)
-    with host.cond:
-        session = list(host.messages[nbirth_at:])
-    seqs = [m["seq"] for m in session if m["seq"] is not None]
-    assert seqs[0] == 0
-    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
-    historical = [
-        metric(m, "TPDO/a1_Statusword")
-        for m in session
-        if m["kind"] == "DDATA" and m["device"] == "demo-1" and metric(m, "TPDO/a1_Statusword") is not None
-        and metric(m, "TPDO/a1_Statusword")["historical"]
-    ]
+
     # Every state walked to while away, in order: operation enabled and
     # switched on (xxxx xxxx x01x 0011) in turn.
     def state(word):
@@ -382,11 +390,34 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
             return "switched_on"
         return None
 
-    seen = []
-    for m in historical:
-        s = state(m["value"])
-        if s and (not seen or seen[-1] != s):
-            seen.append(s)
+    def replayed():
+        with host.cond:
+            session = list(host.messages[nbirth_at:])
+        historical = [
+            metric(m, "TPDO/a1_Statusword")
+            for m in session
+            if m["kind"] == "DDATA"
+            and m["device"] == "demo-1"
+            and metric(m, "TPDO/a1_Statusword") is not None
+            and metric(m, "TPDO/a1_Statusword")["historical"]
+        ]
+        seen = []
+        for m in historical:
+            s = state(m["value"])
+            if s and (not seen or seen[-1] != s):
+                seen.append(s)
+        return session, historical, seen
+
+    # The queue follows the births at once; wait for all of it.
+    deadline = time.monotonic() + 30
+    while True:
+        session, historical, seen = replayed()
+        if len(seen) >= len(targets) or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
     assert seen == targets, (seen, targets)
+    seqs = [m["seq"] for m in session if m["seq"] is not None]
+    assert seqs[0] == 0
+    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
     stamps = [m["timestamp"] for m in historical]
     assert stamps == sorted(stamps)
