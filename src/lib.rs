@@ -31,6 +31,8 @@
 //!   the stream's value topics; its own error type, no HTTP.
 //! - [`profiles`]: what each product means (built-in EDS, LED effects, ...).
 //! - [`sim`]: virtual devices on an emulated bus.
+//! - [`sparkplug`]: the Sparkplug B edge node on an MQTT broker (rumqttc),
+//!   each CANopen node a device; an adapter on the gateway service.
 //! - [`web`]: the browser dashboard served at `/` (askama templates and
 //!   the static files of `web/`, compiled into the binary).
 //! - [`cli`]: the command line (`candeck serve`, `candeck vbus`, `candeck dump`, ...); `main.rs`
@@ -45,6 +47,7 @@ pub mod cli;
 pub mod gateway;
 pub mod profiles;
 pub mod sim;
+pub mod sparkplug;
 pub mod web;
 
 #[cfg(test)]

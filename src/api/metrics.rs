@@ -126,6 +126,7 @@ pub fn render(state: &AppState) -> String {
     render_buses(&mut out, &buses);
     render_nodes(&mut out, &buses);
     render_stream(&mut out, state);
+    render_sparkplug(&mut out, state);
     render_process(&mut out, &ProcessStats::read());
     out.text
 }
@@ -416,6 +417,79 @@ fn render_stream(out: &mut Exposition, state: &AppState) {
         ),
     ] {
         out.family(name, kind, help);
+        out.sample(name, &[], counter.load(Ordering::Relaxed));
+    }
+}
+
+/// The Sparkplug B edge node's figures (docs/sparkplug.md), when it runs.
+fn render_sparkplug(out: &mut Exposition, state: &AppState) {
+    let stats = &state.gateway.edge_node;
+    if !stats.enabled.load(Ordering::Relaxed) {
+        return;
+    }
+    for (name, help, flag) in [
+        (
+            "candeck_sparkplug_connected",
+            "1 while the Sparkplug edge node is connected to its MQTT broker.",
+            &stats.connected,
+        ),
+        (
+            "candeck_sparkplug_publishing",
+            "1 while it publishes (connected, births sent, the primary host online).",
+            &stats.publishing,
+        ),
+    ] {
+        out.family(name, Kind::Gauge, help);
+        out.sample(name, &[], u64::from(flag.load(Ordering::Relaxed)));
+    }
+    out.family(
+        "candeck_sparkplug_queued_messages",
+        Kind::Gauge,
+        "Data messages in the store-and-forward queue now.",
+    );
+    out.sample(
+        "candeck_sparkplug_queued_messages",
+        &[],
+        stats.queued.load(Ordering::Relaxed),
+    );
+    for (name, help, counter) in [
+        (
+            "candeck_sparkplug_connects_total",
+            "Connections made to the MQTT broker.",
+            &stats.connects,
+        ),
+        (
+            "candeck_sparkplug_messages_total",
+            "Sparkplug messages published.",
+            &stats.messages,
+        ),
+        (
+            "candeck_sparkplug_metrics_total",
+            "Metrics in the published messages.",
+            &stats.metrics,
+        ),
+        (
+            "candeck_sparkplug_historical_messages_total",
+            "Messages sent from the store-and-forward queue (historical).",
+            &stats.historical,
+        ),
+        (
+            "candeck_sparkplug_dropped_messages_total",
+            "Messages dropped from the full store-and-forward queue (the oldest first).",
+            &stats.dropped,
+        ),
+        (
+            "candeck_sparkplug_commands_total",
+            "NCMD and DCMD command metrics received.",
+            &stats.commands,
+        ),
+        (
+            "candeck_sparkplug_commands_failed_total",
+            "Of those, refused or failed.",
+            &stats.commands_failed,
+        ),
+    ] {
+        out.family(name, Kind::Counter, help);
         out.sample(name, &[], counter.load(Ordering::Relaxed));
     }
 }

@@ -49,11 +49,14 @@
 //! - [`axis_telemetry`]: each drive axis's status for the stream, from
 //!   TPDOs or SDO polling.
 //! - [`led_preview`]: each LED controller's preview for the stream.
+//! - [`edge_node`]: the counters of the Sparkplug B edge node, for
+//!   `/metrics`.
 
 pub mod access;
 pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
+pub mod edge_node;
 pub mod error;
 pub mod files;
 pub mod frames;

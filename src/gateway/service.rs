@@ -222,6 +222,8 @@ pub struct Gateway {
     pub writes: Arc<WriteLimiter>,
     /// The quota of the kept recordings (`--data-dir`); `None`: none.
     pub recordings_quota: Option<Arc<RecordingsQuota>>,
+    /// The Sparkplug B edge node's counters (`mqtt_url`).
+    pub edge_node: Arc<super::edge_node::EdgeNodeStats>,
 }
 
 impl Gateway {
@@ -260,6 +262,7 @@ impl Gateway {
             tokens: Arc::new(Tokens::default()),
             writes: Arc::new(WriteLimiter::default()),
             recordings_quota: None,
+            edge_node: Arc::default(),
         }
     }
 

@@ -18,6 +18,10 @@ use crate::gateway::access::Token;
 use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Retention};
 use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
 
+use crate::sparkplug::SparkplugConfig;
+use crate::sparkplug::config::{BrokerUrl, TlsFiles};
+use crate::sparkplug::edge::{MetricRule, Policy, Reporting};
+
 use super::args::*;
 
 /// One token of the config file.
@@ -66,9 +70,110 @@ pub(super) struct ConfigFile {
     pub(super) max_connections: Option<usize>,
     pub(super) ascii_idle_timeout_ms: Option<u64>,
     pub(super) ascii_max_connections: Option<usize>,
+    // The Sparkplug B edge node (docs/sparkplug.md); off without mqtt_url.
+    pub(super) mqtt_url: Option<String>,
+    pub(super) mqtt_username: Option<String>,
+    pub(super) mqtt_password: Option<String>,
+    pub(super) mqtt_ca_file: Option<PathBuf>,
+    pub(super) mqtt_client_cert: Option<PathBuf>,
+    pub(super) mqtt_client_key: Option<PathBuf>,
+    pub(super) sparkplug_group_id: Option<String>,
+    pub(super) sparkplug_edge_node_id: Option<String>,
+    pub(super) sparkplug_primary_host: Option<String>,
+    pub(super) sparkplug_role: Option<String>,
+    pub(super) sparkplug_queue_messages: Option<usize>,
+    pub(super) sparkplug_deadband: Option<f64>,
+    pub(super) sparkplug_max_rate_hz: Option<f64>,
+    #[serde(default)]
+    pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
+}
+
+/// A `[[sparkplug_metrics]]` entry: how the metrics of one name are
+/// reported.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SparkplugMetric {
+    /// The whole metric name (`TPDO/a1_Position_actual_value`) or its last
+    /// element (`a1_Position_actual_value`).
+    pub(super) metric: String,
+    pub(super) deadband: Option<f64>,
+    pub(super) max_rate_hz: Option<f64>,
+}
+
+/// The reporting of a deadband and a maximum rate (0 or none: every
+/// change).
+fn reporting(deadband: Option<f64>, max_rate_hz: Option<f64>) -> Result<Reporting, String> {
+    let deadband = deadband.unwrap_or(0.0);
+    if !deadband.is_finite() || deadband < 0.0 {
+        return Err(format!("deadband {deadband}: a number of at least 0"));
+    }
+    let min_interval_ms = match max_rate_hz {
+        None => 0,
+        Some(hz) if hz == 0.0 => 0,
+        Some(hz) if hz.is_finite() && hz > 0.0 => (1000.0 / hz).round() as u64,
+        Some(hz) => return Err(format!("max_rate_hz {hz}: a rate of at least 0")),
+    };
+    Ok(Reporting {
+        deadband,
+        min_interval_ms,
+    })
 }
 
 impl ConfigFile {
+    /// The edge node's settings; `None` without `mqtt_url`.
+    pub(super) fn sparkplug(
+        &self,
+        data_dir: Option<&Path>,
+    ) -> Result<Option<SparkplugConfig>, String> {
+        let Some(url) = &self.mqtt_url else {
+            return Ok(None);
+        };
+        let broker: BrokerUrl = url.parse()?;
+        let group = self
+            .sparkplug_group_id
+            .as_deref()
+            .ok_or("mqtt_url needs sparkplug_group_id (the Sparkplug group of this edge node)")?;
+        let edge_node = self
+            .sparkplug_edge_node_id
+            .clone()
+            .unwrap_or_else(crate::sparkplug::config::host_name);
+        let mut config = SparkplugConfig::new(broker, group, &edge_node);
+        config.username = self.mqtt_username.clone();
+        config.password = self.mqtt_password.clone();
+        config.tls = TlsFiles {
+            ca_file: self.mqtt_ca_file.clone(),
+            client_cert: self.mqtt_client_cert.clone(),
+            client_key: self.mqtt_client_key.clone(),
+        };
+        config.primary_host = self.sparkplug_primary_host.clone();
+        if let Some(role) = &self.sparkplug_role {
+            config.role = role
+                .parse()
+                .map_err(|err| format!("sparkplug_role: {err}"))?;
+        }
+        if let Some(messages) = self.sparkplug_queue_messages {
+            config.queue_messages = messages;
+        }
+        config.policy = Policy {
+            default: reporting(self.sparkplug_deadband, self.sparkplug_max_rate_hz)
+                .map_err(|err| format!("sparkplug_{err}"))?,
+            rules: self
+                .sparkplug_metrics
+                .iter()
+                .map(|rule| {
+                    Ok(MetricRule {
+                        metric: rule.metric.clone(),
+                        reporting: reporting(rule.deadband, rule.max_rate_hz)
+                            .map_err(|err| format!("sparkplug_metrics {}: {err}", rule.metric))?,
+                    })
+                })
+                .collect::<Result<_, String>>()?,
+        };
+        config.spool_file = data_dir.map(|dir| dir.join("sparkplug-spool.bin"));
+        config.validate()?;
+        Ok(Some(config))
+    }
+
     /// Reads `path`: JSON when named `*.json`, TOML otherwise. The error
     /// names the file and the line.
     pub(super) fn read(path: &Path) -> Result<Self, String> {
@@ -118,9 +223,15 @@ impl ConfigFile {
         }
         // Relative paths are the file's: the same wherever candeck starts.
         let base = path.parent().unwrap_or(Path::new(""));
-        for dir in [&mut config.eds_dir, &mut config.data_dir]
-            .into_iter()
-            .flatten()
+        for dir in [
+            &mut config.eds_dir,
+            &mut config.data_dir,
+            &mut config.mqtt_ca_file,
+            &mut config.mqtt_client_cert,
+            &mut config.mqtt_client_key,
+        ]
+        .into_iter()
+        .flatten()
         {
             if dir.is_relative() {
                 *dir = base.join(&*dir);
@@ -164,6 +275,8 @@ pub(super) struct Settings {
     pub(super) share_public: bool,
     pub(super) http_limits: HttpLimits,
     pub(super) ascii_limits: AsciiLimits,
+    /// The Sparkplug B edge node; `None`: off.
+    pub(super) sparkplug: Option<SparkplugConfig>,
 }
 
 impl ServeArgs {
@@ -180,6 +293,8 @@ impl ServeArgs {
             Some(path) => ConfigFile::read(path)?,
             None => ConfigFile::default(),
         };
+        let data_dir = self.data_dir.clone().or(file.data_dir.clone());
+        let sparkplug = file.sparkplug(data_dir.as_deref())?;
         let pick = |flag: &Vec<NamedBus>, file: Vec<NamedBus>| {
             if flag.is_empty() { file } else { flag.clone() }
         };
@@ -194,6 +309,7 @@ impl ServeArgs {
             });
         }
         let settings = Settings {
+            sparkplug,
             ascii_listen: self.ascii_listen.or(file.ascii_listen),
             listen: self
                 .listen

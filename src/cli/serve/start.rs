@@ -169,6 +169,24 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let recordings_pruner = state
         .gateway
         .spawn_recordings_pruner(std::time::Duration::from_secs(60));
+    // The Sparkplug B edge node (mqtt_url), on the same gateway service.
+    let edge_node = match args.sparkplug.clone() {
+        Some(config) => {
+            println!(
+                "candeck: Sparkplug B edge node {}/{} on {}://{}:{}",
+                config.group_id,
+                config.edge_node_id,
+                if config.broker.tls { "mqtts" } else { "mqtt" },
+                config.broker.host,
+                config.broker.port
+            );
+            Some(
+                crate::sparkplug::EdgeNode::spawn(state.gateway.clone(), config)
+                    .map_err(|err| CliError::new(format!("sparkplug: store and forward: {err}")))?,
+            )
+        }
+        None => None,
+    };
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
@@ -193,6 +211,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             // The server ended by itself: an error (it never does otherwise
             // before the signal). The axes are stopped all the same.
             stop_axes(&state).await;
+            if let Some(edge_node) = edge_node {
+                edge_node.stop(std::time::Duration::from_secs(2)).await;
+            }
             return Err(match ended {
                 Ok(()) => CliError::new(format!("HTTP server on {local} ended")),
                 Err(err) => CliError::new(format!("HTTP server on {local}: {err}")),
@@ -230,6 +251,10 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         if bus.recorder.status().state == crate::gateway::recording::RecordingState::Recording {
             let _ = bus.recorder.stop().await;
         }
+    }
+    // NDEATH published, then DISCONNECT (the will is for an unclean end).
+    if let Some(edge_node) = edge_node {
+        edge_node.stop(std::time::Duration::from_secs(2)).await;
     }
     pruner.abort();
     recordings_pruner.abort();

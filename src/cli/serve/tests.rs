@@ -60,6 +60,11 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
         settings.ascii_listen,
         Some("127.0.0.1:60000".parse().unwrap())
     );
+    // The edge node is off as shipped, and every key of it parses.
+    assert_eq!(shipped.sparkplug, None);
+    let sparkplug = settings.sparkplug.unwrap();
+    assert_eq!(sparkplug.role, Role::Operator);
+    assert_eq!(sparkplug.policy.rules.len(), 1);
 
     // Every option of `candeck serve` but --config itself has a key in
     // the example: a new flag without one fails here.
@@ -475,4 +480,66 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
         assert!(err.contains(expected), "{args:?}: {err}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_sparkplug_edge_node_comes_from_the_config_file_and_is_off_without_mqtt_url() {
+    let dir = std::env::temp_dir().join(format!("candeck-sparkplug-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("candeck.toml");
+    let settings = |text: &str| {
+        std::fs::write(&file, text).unwrap();
+        serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+    };
+    assert_eq!(settings("").unwrap().sparkplug, None);
+    let config = settings(
+        "mqtt_url = \"mqtt://127.0.0.1:1884\"\nsparkplug_group_id = \"plant\"\n\
+         sparkplug_edge_node_id = \"line1\"\nsparkplug_max_rate_hz = 10\n\
+         [[sparkplug_metrics]]\nmetric = \"Position\"\ndeadband = 5\n",
+    )
+    .unwrap()
+    .sparkplug
+    .unwrap();
+    assert_eq!(config.broker.port, 1884);
+    assert_eq!(
+        (config.group_id.as_str(), config.edge_node_id.as_str()),
+        ("plant", "line1")
+    );
+    // Commands from MQTT are refused unless a role is given.
+    assert_eq!(config.role, Role::Viewer);
+    assert_eq!(config.policy.default.min_interval_ms, 100);
+    assert_eq!(config.policy.reporting("TPDO/Position").deadband, 5.0);
+    assert_eq!(config.spool_file, None);
+    let err = settings("mqtt_url = \"mqtt://b\"\n").unwrap_err();
+    assert!(err.contains("sparkplug_group_id"), "{err}");
+    let err = settings("mqtt_url = \"mqtts://b\"\nsparkplug_group_id = \"g\"\n").unwrap_err();
+    assert!(err.contains("mqtt_ca_file"), "{err}");
+    let err = settings("mqtt_url = \"mqtt://b\"\nsparkplug_group_id = \"a/b\"\n").unwrap_err();
+    assert!(err.contains("sparkplug_group_id"), "{err}");
+    let err = settings(
+        "mqtt_url = \"mqtt://b\"\nsparkplug_group_id = \"g\"\nsparkplug_role = \"boss\"\n",
+    )
+    .unwrap_err();
+    assert!(err.contains("sparkplug_role"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_compose_sparkplug_demo_configs_parse_as_two_edge_nodes_of_one_group() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/sparkplug");
+    let mut edge_nodes = Vec::new();
+    for line in ["a", "b"] {
+        let path = dir.join(format!("line-{line}.toml"));
+        let settings = serve_args(&["--config", path.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap();
+        let sparkplug = settings.sparkplug.unwrap();
+        assert_eq!(sparkplug.group_id, "plant");
+        assert_eq!(sparkplug.broker.host, "mosquitto");
+        edge_nodes.push(sparkplug.edge_node_id);
+    }
+    assert_eq!(edge_nodes, ["line-a", "line-b"]);
 }

@@ -1,0 +1,168 @@
+//! The edge node's settings (config keys `mqtt_url`, `sparkplug_*`;
+//! docs/configuration.md) and the broker's address read from `mqtt_url`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use super::edge::Policy;
+use super::topic::valid_element;
+use crate::gateway::access::Role;
+
+/// The default size of the store-and-forward queue, in messages.
+pub const DEFAULT_QUEUE_MESSAGES: usize = 100_000;
+
+/// A broker address: `mqtt://host[:port]` (1883) or `mqtts://host[:port]`
+/// (8883, TLS).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BrokerUrl {
+    pub host: String,
+    pub port: u16,
+    pub tls: bool,
+}
+
+impl std::str::FromStr for BrokerUrl {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (tls, rest) = if let Some(rest) = text.strip_prefix("mqtt://") {
+            (false, rest)
+        } else if let Some(rest) = text.strip_prefix("mqtts://") {
+            (true, rest)
+        } else {
+            return Err(format!(
+                "mqtt_url '{text}': give mqtt://host:port or mqtts://host:port"
+            ));
+        };
+        let rest = rest.trim_end_matches('/');
+        let (host, port) = match rest.rsplit_once(':') {
+            Some((host, port)) if !host.ends_with(']') || host.starts_with('[') => (
+                host,
+                port.parse::<u16>()
+                    .map_err(|err| format!("mqtt_url '{text}': port '{port}': {err}"))?,
+            ),
+            _ => (rest, if tls { 8883 } else { 1883 }),
+        };
+        let host = host.trim_start_matches('[').trim_end_matches(']');
+        if host.is_empty() || host.contains(['/', '@', '?']) {
+            return Err(format!(
+                "mqtt_url '{text}': give mqtt://host:port (credentials go in mqtt_username and mqtt_password)"
+            ));
+        }
+        Ok(Self {
+            host: host.to_string(),
+            port,
+            tls,
+        })
+    }
+}
+
+/// TLS files for `mqtts://`.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct TlsFiles {
+    /// The CA certificate(s) the broker's certificate is checked against
+    /// (PEM).
+    pub ca_file: Option<PathBuf>,
+    /// A client certificate (PEM) and its key (PEM), for brokers that
+    /// authenticate clients by certificate.
+    pub client_cert: Option<PathBuf>,
+    pub client_key: Option<PathBuf>,
+}
+
+/// Everything the edge node runs with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SparkplugConfig {
+    pub broker: BrokerUrl,
+    pub tls: TlsFiles,
+    pub username: Option<String>,
+    pub password: Option<String>,
+    pub group_id: String,
+    pub edge_node_id: String,
+    /// The primary host application to wait for (`STATE/{host_id}`).
+    pub primary_host: Option<String>,
+    /// The role the commands from MQTT run with (`viewer`: refused).
+    pub role: Role,
+    /// How metrics are reported by exception.
+    pub policy: Policy,
+    /// The store-and-forward queue's size, in messages.
+    pub queue_messages: usize,
+    /// Where the queue is mirrored (the data directory's
+    /// `sparkplug-spool.bin`), if anywhere.
+    pub spool_file: Option<PathBuf>,
+    /// How often the edge node's own metrics (bus states) are checked.
+    pub node_check: Duration,
+    /// The MQTT keep-alive.
+    pub keep_alive: Duration,
+}
+
+impl SparkplugConfig {
+    /// The settings for `broker`, group and edge node ID, the rest by
+    /// default.
+    pub fn new(broker: BrokerUrl, group_id: &str, edge_node_id: &str) -> Self {
+        Self {
+            broker,
+            tls: TlsFiles::default(),
+            username: None,
+            password: None,
+            group_id: group_id.to_string(),
+            edge_node_id: edge_node_id.to_string(),
+            primary_host: None,
+            role: Role::Viewer,
+            policy: Policy::default(),
+            queue_messages: DEFAULT_QUEUE_MESSAGES,
+            spool_file: None,
+            node_check: Duration::from_secs(1),
+            keep_alive: Duration::from_secs(10),
+        }
+    }
+
+    /// The IDs are topic elements: no `/`, `+` or `#`.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, value) in [
+            ("sparkplug_group_id", Some(&self.group_id)),
+            ("sparkplug_edge_node_id", Some(&self.edge_node_id)),
+            ("sparkplug_primary_host", self.primary_host.as_ref()),
+        ] {
+            if let Some(value) = value
+                && !valid_element(value)
+            {
+                return Err(format!(
+                    "{key} '{value}': a Sparkplug ID is not empty and has no '/', '+' or '#'"
+                ));
+            }
+        }
+        if self.broker.tls && self.tls.ca_file.is_none() {
+            return Err("mqtt_url mqtts://: give mqtt_ca_file (the broker's CA, PEM)".to_string());
+        }
+        if self.tls.client_cert.is_some() != self.tls.client_key.is_some() {
+            return Err("mqtt_client_cert and mqtt_client_key go together".to_string());
+        }
+        if self.queue_messages == 0 {
+            return Err("sparkplug_queue_messages: at least 1".to_string());
+        }
+        Ok(())
+    }
+
+    /// The MQTT client ID: unique per edge node of a group.
+    pub fn client_id(&self) -> String {
+        format!("candeck-{}-{}", self.group_id, self.edge_node_id)
+    }
+
+    /// Who the commands from MQTT are, in the audit log: the MQTT user, else
+    /// the client ID.
+    pub fn who(&self) -> String {
+        format!(
+            "mqtt:{}",
+            self.username.clone().unwrap_or_else(|| self.client_id())
+        )
+    }
+}
+
+/// The host name, the default edge node ID (`sparkplug_edge_node_id`).
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|name| name.trim().replace(['/', '+', '#', '.'], "_"))
+        .filter(|name| !name.is_empty())
+        .unwrap_or_else(|| "candeck".to_string())
+}

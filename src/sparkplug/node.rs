@@ -1,0 +1,1074 @@
+//! The edge node at work: the [`EdgeSession`] fed from the gateway service
+//! (the registry's node events, the decoded TPDO values, the buses'
+//! states) and connected to the broker with rumqttc. One task owns the
+//! session, the MQTT client and the store-and-forward [`Spool`]; the
+//! commands run in tasks of their own (an SDO transfer must not hold up
+//! the data).
+//!
+//! Each MQTT connection has its own `bdSeq`: its will is the NDEATH with
+//! that number, and the NBIRTH after it carries the same. A connection
+//! lost is dropped with its client (nothing half-sent of the old session
+//! leaks into the next); the data made meanwhile goes to the spool, and
+//! after the next births it is sent in order, historical.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use prost::Message;
+use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Packet, QoS};
+use tokio::sync::{Notify, mpsc, oneshot};
+use tokio::time::Instant;
+
+use super::command::{self, Command, device_id, parse_device};
+use super::config::SparkplugConfig;
+use super::edge::{EdgeSession, Outgoing};
+use super::metric::{MetricValue, Sample};
+use super::spool::Spool;
+use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use crate::canopen::NodeId;
+use crate::gateway::edge_node::EdgeNodeStats;
+use crate::gateway::history::AuditEntry;
+use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
+use crate::gateway::telemetry::unix_ms;
+use crate::gateway::{Gateway, GatewayError, check_sdo_allowed};
+
+/// How long to wait before connecting again after a connection failed or
+/// was lost.
+const RECONNECT_AFTER: Duration = Duration::from_secs(1);
+/// How many requests the MQTT client queues for its event loop.
+const CLIENT_QUEUE: usize = 10_000;
+
+/// The hook for the network manager's machine state (the NBIRTH metric
+/// `Machine State`): `None` while the gateway exposes none. Wired to the
+/// network manager when the gateway has one.
+pub fn machine_state(_gateway: &Gateway) -> Option<String> {
+    None
+}
+
+/// A running edge node; [`EdgeNode::stop`] publishes its NDEATH and
+/// disconnects.
+pub struct EdgeNode {
+    stop: Option<oneshot::Sender<oneshot::Sender<()>>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl EdgeNode {
+    /// Starts the edge node of `gateway`.
+    pub fn spawn(gateway: Gateway, config: SparkplugConfig) -> std::io::Result<Self> {
+        let spool = match &config.spool_file {
+            Some(file) => Spool::with_file(config.queue_messages, file.clone())?,
+            None => Spool::new(config.queue_messages),
+        };
+        let (stop, stopped) = oneshot::channel();
+        let stats = gateway.edge_node.clone();
+        stats
+            .enabled
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+        let runner = Runner::new(gateway, config, spool);
+        let task = tokio::spawn(runner.run(stopped));
+        Ok(Self {
+            stop: Some(stop),
+            task,
+        })
+    }
+
+    /// Publishes the NDEATH (a clean stop), disconnects, and ends the task
+    /// (within `grace` at most).
+    pub async fn stop(mut self, grace: Duration) {
+        if let Some(stop) = self.stop.take() {
+            let (done, finished) = oneshot::channel();
+            if stop.send(done).is_ok() {
+                let _ = tokio::time::timeout(grace, finished).await;
+            }
+        }
+        self.task.abort();
+    }
+}
+
+impl Drop for EdgeNode {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// What the feeders tell the runner.
+enum Input {
+    Node { bus: String, event: NodeEvent },
+}
+
+/// The nodes whose TPDO values (or axes, or segments) changed since the
+/// runner last looked, and the newest axis and segment metrics of each.
+#[derive(Default)]
+struct Dirty {
+    nodes: Mutex<HashSet<(String, NodeId)>>,
+    /// The newest `Axis {n}/...` and `Segments` metrics, by node and name.
+    extra: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
+    notify: Notify,
+}
+
+impl Dirty {
+    fn mark(&self, key: (String, NodeId)) {
+        lock(&self.nodes).insert(key);
+        self.notify.notify_one();
+    }
+
+    fn extra(&self, key: &(String, NodeId)) -> Vec<Sample> {
+        lock(&self.extra)
+            .get(key)
+            .map(|metrics| metrics.values().cloned().collect())
+            .unwrap_or_default()
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|poison| poison.into_inner())
+}
+
+/// How often the axes (state, statusword, position, velocity, fault) and
+/// the LED segments are read for their metrics: the stream's topics at
+/// this rate (from the TPDOs where the drive sends them, else by SDO at
+/// the gateway's `axis_poll_hz` at most).
+const AXIS_RATE_HZ: f64 = 10.0;
+
+/// The MQTT connection of the moment. Its event loop runs in a task of
+/// its own (rumqttc's `poll` is not to be dropped halfway: a connect cut
+/// short would be made again, and the broker would end the first one with
+/// its will); the events come over a channel, an error last.
+struct Connection {
+    client: AsyncClient,
+    events: mpsc::Receiver<Result<Event, rumqttc::ConnectionError>>,
+    task: tokio::task::JoinHandle<()>,
+    /// The CONNACK came.
+    connected: bool,
+}
+
+impl Connection {
+    fn new(client: AsyncClient, mut events: EventLoop) -> Self {
+        let (tx, rx) = mpsc::channel(256);
+        let task = tokio::spawn(async move {
+            loop {
+                let event = events.poll().await;
+                let failed = event.is_err();
+                if tx.send(event).await.is_err() || failed {
+                    return;
+                }
+            }
+        });
+        Self {
+            client,
+            events: rx,
+            task,
+            connected: false,
+        }
+    }
+}
+
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+struct Runner {
+    gateway: Gateway,
+    config: SparkplugConfig,
+    session: EdgeSession,
+    spool: Spool,
+    stats: Arc<EdgeNodeStats>,
+    dirty: Arc<Dirty>,
+    /// Whether the births of the current connection are out (and data is
+    /// published rather than queued).
+    live: bool,
+    /// The primary host's last word (true without one).
+    host_online: bool,
+    /// The state each bus was last reported in.
+    bus_states: BTreeMap<String, String>,
+    started: Instant,
+    watchers: Vec<tokio::task::JoinHandle<()>>,
+    /// Nodes whose TPDO values are followed.
+    watched: HashSet<(String, NodeId)>,
+    /// Nodes whose axes or segments are followed.
+    followed: HashSet<(String, NodeId)>,
+    /// The spool's drops already added to the stats.
+    spool_dropped: u64,
+}
+
+impl Runner {
+    fn new(gateway: Gateway, config: SparkplugConfig, spool: Spool) -> Self {
+        let session = EdgeSession::new(
+            &config.group_id,
+            &config.edge_node_id,
+            // The first connection's is 0: next_connection() before each.
+            u8::MAX,
+            config.policy.clone(),
+        );
+        let stats = gateway.edge_node.clone();
+        Self {
+            host_online: config.primary_host.is_none(),
+            gateway,
+            config,
+            session,
+            spool,
+            stats,
+            dirty: Arc::new(Dirty::default()),
+            live: false,
+            bus_states: BTreeMap::new(),
+            started: Instant::now(),
+            watchers: Vec::new(),
+            watched: HashSet::new(),
+            followed: HashSet::new(),
+            spool_dropped: 0,
+        }
+    }
+
+    fn now_ms(&self) -> u64 {
+        self.started.elapsed().as_millis() as u64
+    }
+
+    async fn run(mut self, mut stop: oneshot::Receiver<oneshot::Sender<()>>) {
+        let (inputs, mut input) = mpsc::channel::<Input>(1024);
+        for bus in self.gateway.buses.values() {
+            let mut events = bus.registry.subscribe();
+            let inputs = inputs.clone();
+            let name = bus.name.clone();
+            self.watchers.push(tokio::spawn(async move {
+                loop {
+                    match events.recv().await {
+                        Ok(event) => {
+                            if inputs
+                                .send(Input::Node {
+                                    bus: name.clone(),
+                                    event,
+                                })
+                                .await
+                                .is_err()
+                            {
+                                return;
+                            }
+                        }
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                        Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                    }
+                }
+            }));
+        }
+        drop(inputs);
+        for bus in self.gateway.buses_in_order() {
+            for info in bus.registry.nodes() {
+                self.watch(&bus.name, info.id);
+            }
+        }
+        let mut connection: Option<Connection> = None;
+        let mut reconnect_at = Instant::now();
+        let mut node_check = tokio::time::interval(self.config.node_check);
+        node_check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            if connection.is_none() && Instant::now() >= reconnect_at {
+                connection = Some(self.connect());
+            }
+            let due = self
+                .session
+                .next_due()
+                .map(|at| self.started + Duration::from_millis(at));
+            let dirty = self.dirty.clone();
+            tokio::select! {
+                biased;
+                stopped = &mut stop => {
+                    if let Some(connection) = connection.as_mut() {
+                        self.clean_stop(connection).await;
+                    }
+                    if let Ok(done) = stopped {
+                        let _ = done.send(());
+                    }
+                    break;
+                }
+                event = poll(&mut connection) => {
+                    if let Err(err) = self.on_mqtt(&mut connection, event).await {
+                        tracing::warn!("sparkplug: broker {}:{}: {err}", self.config.broker.host, self.config.broker.port);
+                        connection = None;
+                        self.disconnected();
+                        reconnect_at = Instant::now() + RECONNECT_AFTER;
+                    }
+                }
+                Some(Input::Node { bus, event }) = input.recv() => {
+                    self.on_node_event(&mut connection, &bus, event);
+                }
+                () = dirty.notify.notified() => {
+                    self.on_values(&mut connection);
+                }
+                () = sleep_until(due) => {
+                    let names = !self.live;
+                    for message in self.session.due(self.now_ms(), names) {
+                        self.send_data(&mut connection, message);
+                    }
+                }
+                _ = node_check.tick() => {
+                    self.check_buses(&mut connection);
+                }
+                () = tokio::time::sleep_until(reconnect_at), if connection.is_none() => {}
+            }
+        }
+        for watcher in self.watchers.drain(..) {
+            watcher.abort();
+        }
+    }
+
+    /// A new MQTT connection, its will the NDEATH of the next `bdSeq`.
+    fn connect(&mut self) -> Connection {
+        let bd_seq = self.session.next_connection();
+        let config = &self.config;
+        let mut options = MqttOptions::new(
+            config.client_id(),
+            config.broker.host.clone(),
+            config.broker.port,
+        );
+        options.set_keep_alive(config.keep_alive);
+        // Sparkplug 3.0 §7.1: a clean session for edge nodes.
+        options.set_clean_session(true);
+        options.set_max_packet_size(16 * 1024 * 1024, 16 * 1024 * 1024);
+        if let Some(user) = &config.username {
+            options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
+        }
+        if config.broker.tls {
+            match super::tls::client_config(&config.tls) {
+                Ok(tls) => {
+                    options.set_transport(rumqttc::Transport::tls_with_config(
+                        rumqttc::TlsConfiguration::Rustls(Arc::new(tls)),
+                    ));
+                }
+                Err(err) => tracing::error!("sparkplug: TLS: {err}"),
+            }
+        }
+        let death = self.session.death(unix_ms());
+        options.set_last_will(LastWill::new(
+            death.topic.to_string(),
+            death.payload.encode_to_vec(),
+            QoS::AtLeastOnce,
+            false,
+        ));
+        tracing::debug!("sparkplug: connecting with bdSeq {bd_seq}");
+        let (client, events) = AsyncClient::new(options, CLIENT_QUEUE);
+        Connection::new(client, events)
+    }
+
+    fn disconnected(&mut self) {
+        self.live = false;
+        // The primary host's state is learnt anew on the next connection
+        // (its retained STATE, or its next message).
+        self.host_online = self.config.primary_host.is_none();
+        self.stats
+            .connected
+            .store(false, std::sync::atomic::Ordering::Relaxed);
+        self.stats
+            .publishing
+            .store(false, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// What the broker sent, or the connection's error.
+    async fn on_mqtt(
+        &mut self,
+        connection: &mut Option<Connection>,
+        event: Result<Event, rumqttc::ConnectionError>,
+    ) -> Result<(), rumqttc::ConnectionError> {
+        match event? {
+            Event::Incoming(Packet::ConnAck(_)) => {
+                if let Some(conn) = connection.as_mut() {
+                    conn.connected = true;
+                    self.stats
+                        .connected
+                        .store(true, std::sync::atomic::Ordering::Relaxed);
+                    EdgeNodeStats::add(&self.stats.connects, 1);
+                    tracing::info!(
+                        "sparkplug: connected to {}:{} as edge node {}/{} (bdSeq {})",
+                        self.config.broker.host,
+                        self.config.broker.port,
+                        self.config.group_id,
+                        self.config.edge_node_id,
+                        self.session.bd_seq()
+                    );
+                    let group = &self.config.group_id;
+                    let node = &self.config.edge_node_id;
+                    let mut topics = vec![
+                        Topic::node(group, MessageType::NCmd, node).to_string(),
+                        format!("spBv1.0/{group}/DCMD/{node}/+"),
+                    ];
+                    if let Some(host) = &self.config.primary_host {
+                        topics.push(state_topic(host));
+                    }
+                    for topic in topics {
+                        let _ = conn.client.try_subscribe(topic, QoS::AtLeastOnce);
+                    }
+                }
+                if self.host_online {
+                    self.go_live(connection);
+                }
+            }
+            Event::Incoming(Packet::Publish(publish)) => {
+                self.on_publish(connection, &publish.topic, &publish.payload);
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn on_publish(&mut self, connection: &mut Option<Connection>, topic: &str, payload: &[u8]) {
+        if let Some(host) = &self.config.primary_host
+            && topic == state_topic(host)
+        {
+            let Some(state) = parse_host_state(payload) else {
+                tracing::warn!("sparkplug: {topic}: not a STATE payload");
+                return;
+            };
+            tracing::info!(
+                "sparkplug: primary host {host} is {}",
+                if state.online { "online" } else { "offline" }
+            );
+            self.host_online = state.online;
+            if state.online {
+                // Sparkplug 3.0 §5.3: (re)birth when the host comes (back).
+                self.go_live(connection);
+            } else {
+                self.live = false;
+                self.stats
+                    .publishing
+                    .store(false, std::sync::atomic::Ordering::Relaxed);
+            }
+            return;
+        }
+        let Some(topic) = Topic::parse(topic) else {
+            return;
+        };
+        let Ok(payload) = super::proto::Payload::decode(payload) else {
+            tracing::warn!("sparkplug: {topic}: payload is no Sparkplug B payload");
+            return;
+        };
+        let device = topic.kind == MessageType::DCmd;
+        for command in command::parse(&payload, device) {
+            EdgeNodeStats::add(&self.stats.commands, 1);
+            if command == Command::Rebirth {
+                tracing::info!("sparkplug: rebirth asked");
+                if self.host_online {
+                    self.go_live(connection);
+                }
+                continue;
+            }
+            let gateway = self.gateway.clone();
+            let config = self.config.clone();
+            let stats = self.stats.clone();
+            let topic = topic.clone();
+            tokio::spawn(async move {
+                if let Err(err) = run_command(&gateway, &config, &topic, &command).await {
+                    EdgeNodeStats::add(&stats.commands_failed, 1);
+                    tracing::warn!("sparkplug: {topic}: {}: {err}", command.operation());
+                }
+            });
+        }
+    }
+
+    /// The births (NBIRTH, a DBIRTH per identified node online), then the
+    /// queued data, historical; from then on data is published.
+    fn go_live(&mut self, connection: &mut Option<Connection>) {
+        if !connection.as_ref().is_some_and(|conn| conn.connected) {
+            return;
+        }
+        let now = unix_ms();
+        let metrics = self.node_metrics(now);
+        let birth = self.session.birth(metrics, now);
+        self.live = true;
+        self.stats
+            .publishing
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+        self.publish(connection, birth);
+        for bus in self.gateway.buses_in_order() {
+            for info in bus.registry.nodes() {
+                self.watch(&bus.name, info.id);
+                if born_device(&info) {
+                    let message = self.device_birth(&bus.name, &info);
+                    self.publish(connection, message);
+                }
+            }
+        }
+        let queued = self.spool.drain();
+        EdgeNodeStats::add(&self.stats.historical, queued.len() as u64);
+        self.stats
+            .queued
+            .store(0, std::sync::atomic::Ordering::Relaxed);
+        for mut message in queued {
+            self.session.sequence(&mut message.payload);
+            self.publish(connection, message);
+        }
+    }
+
+    /// The edge node's own metrics: version, buses and their states, the
+    /// machine state when the gateway has one.
+    fn node_metrics(&mut self, now: u64) -> Vec<Sample> {
+        let mut metrics = vec![Sample::new(
+            "Properties/Version",
+            MetricValue::String(env!("CARGO_PKG_VERSION").to_string()),
+            now,
+        )];
+        if let Some(state) = machine_state(&self.gateway) {
+            metrics.push(Sample::new(
+                "Machine State",
+                MetricValue::String(state),
+                now,
+            ));
+        }
+        for bus in self.gateway.buses_in_order() {
+            let state = bus.bus.state().as_str().to_string();
+            metrics.push(Sample::new(
+                format!("Buses/{}/State", bus.name),
+                MetricValue::String(state.clone()),
+                now,
+            ));
+            metrics.push(Sample::new(
+                format!("Buses/{}/Spec", bus.name),
+                MetricValue::String(bus.spec.clone()),
+                now,
+            ));
+            self.bus_states.insert(bus.name.clone(), state);
+        }
+        metrics
+    }
+
+    /// The buses' states (and the machine state), NDATA when they changed.
+    fn check_buses(&mut self, connection: &mut Option<Connection>) {
+        let now = unix_ms();
+        let mut samples = Vec::new();
+        for bus in self.gateway.buses_in_order() {
+            let state = bus.bus.state().as_str().to_string();
+            if self.bus_states.get(&bus.name) != Some(&state) {
+                self.bus_states.insert(bus.name.clone(), state.clone());
+                samples.push(Sample::new(
+                    format!("Buses/{}/State", bus.name),
+                    MetricValue::String(state),
+                    now,
+                ));
+            }
+        }
+        if let Some(state) = machine_state(&self.gateway) {
+            samples.push(Sample::new(
+                "Machine State",
+                MetricValue::String(state),
+                now,
+            ));
+        }
+        if samples.is_empty() {
+            return;
+        }
+        let names = !self.live;
+        if let Some(message) = self.session.data(None, samples, self.now_ms(), names) {
+            self.send_data(connection, message);
+        }
+    }
+
+    /// A node's DBIRTH: online, NMT state, identity, every TPDO-mapped
+    /// value by its EDS name, typed.
+    fn device_birth(&mut self, bus: &str, info: &NodeInfo) -> Outgoing {
+        let now = unix_ms();
+        let mut metrics = vec![
+            Sample::new("Online", MetricValue::Boolean(info.online), now),
+            Sample::new(
+                "NMT State",
+                MetricValue::String(info.nmt.map_or("unknown", |state| state.name()).to_string()),
+                now,
+            ),
+            Sample::new(
+                "Profile",
+                MetricValue::String(info.profile.name().to_string()),
+                now,
+            ),
+        ];
+        if let Some(name) = &info.name {
+            metrics.push(Sample::new(
+                "Identity/Device Name",
+                MetricValue::String(name.clone()),
+                now,
+            ));
+        }
+        if let Some(eds) = &info.eds {
+            metrics.push(Sample::new(
+                "Identity/EDS",
+                MetricValue::String(eds.clone()),
+                now,
+            ));
+        }
+        if let Some(identity) = &info.identity {
+            metrics.push(Sample::new(
+                "Identity/Vendor ID",
+                MetricValue::UInt32(identity.vendor_id),
+                now,
+            ));
+            for (name, value) in [
+                ("Identity/Product Code", identity.product_code),
+                ("Identity/Revision", identity.revision),
+                ("Identity/Serial Number", identity.serial),
+            ] {
+                let value = value.map_or(
+                    MetricValue::Null(super::proto::DataType::UInt32),
+                    MetricValue::UInt32,
+                );
+                metrics.push(Sample::new(name, value, now));
+            }
+        }
+        self.follow_profile(bus, info);
+        metrics.extend(self.dirty.extra(&(bus.to_string(), info.id)));
+        if let Some(served) = self.gateway.buses.get(bus) {
+            let values = tpdo_samples(&served.values.values(info.id));
+            // Mapped values that have not come yet: null, typed by the
+            // mapping (their first frame is a DDATA).
+            if let Some(tpdos) = served.values.tpdos(info.id) {
+                for (_, decoder) in &tpdos.decoders {
+                    let Ok(fields) = decoder.decode(&[0; 8]) else {
+                        continue;
+                    };
+                    for field in fields {
+                        let name = format!(
+                            "TPDO/{}",
+                            field.name.clone().unwrap_or_else(|| format!(
+                                "{}:{}",
+                                crate::canopen::od::format_index(field.entry.index),
+                                field.entry.sub
+                            ))
+                        );
+                        if values.iter().any(|sample| sample.name == name) {
+                            continue;
+                        }
+                        let datatype = field
+                            .value
+                            .as_ref()
+                            .map_or(super::proto::DataType::UInt64, |value| {
+                                MetricValue::from_canopen(value).datatype()
+                            });
+                        metrics.push(Sample::new(name, MetricValue::Null(datatype), now));
+                    }
+                }
+            }
+            metrics.extend(values);
+        }
+        self.session
+            .device_birth(&device_id(bus, info.id.get()), metrics, now)
+    }
+
+    fn on_node_event(&mut self, connection: &mut Option<Connection>, bus: &str, event: NodeEvent) {
+        let node = event.node();
+        self.watch(bus, node);
+        let device = device_id(bus, node.get());
+        let Some(info) = self
+            .gateway
+            .buses
+            .get(bus)
+            .and_then(|served| served.registry.node(node))
+        else {
+            return;
+        };
+        if !self.live {
+            // The births of the next session will say it.
+            return;
+        }
+        match event {
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {
+                if born_device(&info) {
+                    let message = self.device_birth(bus, &info);
+                    self.publish(connection, message);
+                }
+            }
+            NodeEvent::Offline { .. } => {
+                if let Some(message) = self.session.device_death(&device, unix_ms()) {
+                    self.publish(connection, message);
+                }
+            }
+            NodeEvent::NmtChanged { to, .. } => {
+                let sample = Sample::new(
+                    "NMT State",
+                    MetricValue::String(to.name().to_string()),
+                    unix_ms(),
+                );
+                if let Some(message) =
+                    self.session
+                        .data(Some(&device), vec![sample], self.now_ms(), false)
+                {
+                    self.send_data(connection, message);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Follows a drive's axes and an LED controller's segments (once per
+    /// node): their metrics go to [`Dirty::extra`].
+    fn follow_profile(&mut self, bus: &str, info: &NodeInfo) {
+        let key = (bus.to_string(), info.id);
+        if !self.followed.insert(key.clone()) {
+            return;
+        }
+        let Some(served) = self.gateway.buses.get(bus).cloned() else {
+            return;
+        };
+        if info.profile.is_drive() {
+            for axis in 1..=crate::profiles::umc::MAX_AXES {
+                if crate::gateway::drive::Drive::new(&served.registry, info, &axis.to_string())
+                    .is_err()
+                {
+                    break;
+                }
+                let Ok(mut topic) = served.axes.subscribe(info.id, axis, AXIS_RATE_HZ) else {
+                    break;
+                };
+                let dirty = self.dirty.clone();
+                let key = key.clone();
+                self.watchers.push(tokio::spawn(async move {
+                    while let Some(sample) = topic.changed().await {
+                        let now = unix_ms();
+                        let metrics = axis_samples(axis, &sample.data, now);
+                        if metrics.is_empty() {
+                            continue;
+                        }
+                        let mut extra = lock(&dirty.extra);
+                        let node = extra.entry(key.clone()).or_default();
+                        for metric in metrics {
+                            node.insert(metric.name.clone(), metric);
+                        }
+                        drop(extra);
+                        dirty.mark(key.clone());
+                    }
+                }));
+            }
+        } else if info.profile == crate::gateway::profile::Profile::Uioled {
+            let Ok(mut topic) = served.previews.subscribe(info.id, 1.0) else {
+                return;
+            };
+            let dirty = self.dirty.clone();
+            self.watchers.push(tokio::spawn(async move {
+                while let Some(sample) = topic.changed().await {
+                    let Some(segments) = sample.data.get("segments") else {
+                        continue;
+                    };
+                    let metric = Sample::new(
+                        "Segments",
+                        MetricValue::String(segments.to_string()),
+                        unix_ms(),
+                    );
+                    lock(&dirty.extra)
+                        .entry(key.clone())
+                        .or_default()
+                        .insert(metric.name.clone(), metric);
+                    dirty.mark(key.clone());
+                }
+            }));
+        }
+    }
+
+    /// Follows a node's TPDO values (once).
+    fn watch(&mut self, bus: &str, node: NodeId) {
+        if !self.watched.insert((bus.to_string(), node)) {
+            return;
+        }
+        let Some(served) = self.gateway.buses.get(bus) else {
+            return;
+        };
+        let mut frames = served.values.watch_frames(node);
+        let dirty = self.dirty.clone();
+        let key = (bus.to_string(), node);
+        self.watchers.push(tokio::spawn(async move {
+            while frames.changed().await.is_ok() {
+                dirty.mark(key.clone());
+            }
+        }));
+    }
+
+    /// The TPDO values of the nodes that sent some: DDATA of those that
+    /// changed; a DBIRTH again for a node with a value its birth did not
+    /// name (its mapping was read since).
+    fn on_values(&mut self, connection: &mut Option<Connection>) {
+        let nodes: Vec<(String, NodeId)> = self
+            .dirty
+            .nodes
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner())
+            .drain()
+            .collect();
+        let names = !self.live;
+        for (bus, node) in nodes {
+            let device = device_id(&bus, node.get());
+            if !self.session.is_born(&device) {
+                continue;
+            }
+            let Some(served) = self.gateway.buses.get(&bus).cloned() else {
+                continue;
+            };
+            let mut samples = tpdo_samples(&served.values.values(node));
+            samples.extend(self.dirty.extra(&(bus.clone(), node)));
+            if self.live
+                && samples
+                    .iter()
+                    .any(|sample| !self.session.knows(&device, &sample.name))
+            {
+                if let Some(info) = served.registry.node(node) {
+                    let message = self.device_birth(&bus, &info);
+                    self.publish(connection, message);
+                }
+                continue;
+            }
+            if let Some(message) = self
+                .session
+                .data(Some(&device), samples, self.now_ms(), names)
+            {
+                self.send_data(connection, message);
+            }
+        }
+    }
+
+    /// A data message: published when live, else queued.
+    fn send_data(&mut self, connection: &mut Option<Connection>, mut message: Outgoing) {
+        if self.live {
+            self.session.sequence(&mut message.payload);
+            self.publish(connection, message);
+        } else {
+            self.spool.push(message);
+            self.stats.queued.store(
+                self.spool.len() as u64,
+                std::sync::atomic::Ordering::Relaxed,
+            );
+            let dropped = self.spool.dropped();
+            EdgeNodeStats::add(&self.stats.dropped, dropped - self.spool_dropped);
+            self.spool_dropped = dropped;
+        }
+    }
+
+    fn publish(&mut self, connection: &mut Option<Connection>, message: Outgoing) {
+        let Some(conn) = connection.as_mut() else {
+            return;
+        };
+        let metrics = message.payload.metrics.len() as u64;
+        let bytes = message.payload.encode_to_vec();
+        match conn
+            .client
+            .try_publish(message.topic.to_string(), QoS::AtMostOnce, false, bytes)
+        {
+            Ok(()) => {
+                EdgeNodeStats::add(&self.stats.messages, 1);
+                EdgeNodeStats::add(&self.stats.metrics, metrics);
+            }
+            // The client's queue is full (the broker does not keep up):
+            // counted as dropped, as the spool's are.
+            Err(err) => {
+                EdgeNodeStats::add(&self.stats.dropped, 1);
+                tracing::debug!("sparkplug: {}: not published: {err}", message.topic);
+            }
+        }
+    }
+
+    /// The NDEATH of a clean stop (the will is not sent on a clean
+    /// DISCONNECT), then DISCONNECT, the client's queue flushed.
+    async fn clean_stop(&mut self, connection: &mut Connection) {
+        if connection.connected {
+            let death = self.session.death(unix_ms());
+            let _ = connection.client.try_publish(
+                death.topic.to_string(),
+                QoS::AtLeastOnce,
+                false,
+                death.payload.encode_to_vec(),
+            );
+            let _ = connection.client.try_disconnect();
+            let flushed = async {
+                loop {
+                    match connection.events.recv().await {
+                        Some(Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)))
+                        | Some(Err(_))
+                        | None => break,
+                        Some(Ok(_)) => {}
+                    }
+                }
+            };
+            let _ = tokio::time::timeout(Duration::from_secs(2), flushed).await;
+        }
+        self.disconnected();
+    }
+}
+
+/// Whether a node gets a DBIRTH: identified and online.
+fn born_device(info: &NodeInfo) -> bool {
+    info.online && info.identification == Identification::Done
+}
+
+/// A node's TPDO values as metrics `TPDO/{EDS name}`, typed (an object the
+/// EDS does not describe: its raw bits as UInt64).
+fn tpdo_samples(values: &[crate::gateway::values::TpdoValue]) -> Vec<Sample> {
+    let now = unix_ms();
+    values
+        .iter()
+        .map(|value| {
+            let age = value.at.elapsed().as_millis() as u64;
+            let metric = match &value.value {
+                Some(typed) => MetricValue::from_canopen(typed),
+                None => MetricValue::UInt64(value.raw),
+            };
+            Sample::new(
+                format!("TPDO/{}", value.key()),
+                metric,
+                now.saturating_sub(age),
+            )
+        })
+        .collect()
+}
+
+/// An axis's metrics from its stream sample (`AxisSample` as JSON):
+/// `Axis {n}/State`, `Statusword`, `Position`, `Velocity`, `Fault`; fields
+/// not read yet are left out.
+fn axis_samples(axis: u8, data: &serde_json::Value, now: u64) -> Vec<Sample> {
+    let name = |field: &str| format!("Axis {axis}/{field}");
+    let mut metrics = Vec::new();
+    if let Some(state) = data.get("state").and_then(serde_json::Value::as_str) {
+        metrics.push(Sample::new(
+            name("State"),
+            MetricValue::String(state.to_string()),
+            now,
+        ));
+    }
+    if let Some(word) = data.get("statusword").and_then(serde_json::Value::as_u64) {
+        metrics.push(Sample::new(
+            name("Statusword"),
+            MetricValue::UInt16(word as u16),
+            now,
+        ));
+    }
+    for field in ["position", "velocity"] {
+        if let Some(value) = data.get(field).and_then(serde_json::Value::as_i64) {
+            let mut title = field.to_string();
+            title[..1].make_ascii_uppercase();
+            metrics.push(Sample::new(
+                name(&title),
+                MetricValue::Int32(value as i32),
+                now,
+            ));
+        }
+    }
+    if let Some(fault) = data.get("fault").and_then(serde_json::Value::as_bool) {
+        metrics.push(Sample::new(name("Fault"), MetricValue::Boolean(fault), now));
+    }
+    metrics
+}
+
+async fn poll(connection: &mut Option<Connection>) -> Result<Event, rumqttc::ConnectionError> {
+    match connection {
+        Some(connection) => match connection.events.recv().await {
+            Some(event) => event,
+            None => Err(rumqttc::ConnectionError::RequestsDone),
+        },
+        None => std::future::pending().await,
+    }
+}
+
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// One command from MQTT, through the gateway's operations and checks as
+/// REST runs them: the role, the write rate limit, the node's checks, the
+/// EDS's; audited whatever its outcome, `who` the MQTT identity.
+async fn run_command(
+    gateway: &Gateway,
+    config: &SparkplugConfig,
+    topic: &Topic,
+    command: &Command,
+) -> Result<(), GatewayError> {
+    let device = topic.device.as_deref().and_then(parse_device);
+    let (bus, node) = match device {
+        Some((bus, node)) => (Some(bus.to_string()), Some(node)),
+        None => (None, None),
+    };
+    let mut item = None;
+    let mut request = None;
+    let result = async {
+        if config.role < crate::gateway::access::Role::Operator {
+            return Err(GatewayError::Forbidden(format!(
+                "{} from MQTT needs the operator role; sparkplug_role is {}",
+                command.operation(),
+                config.role
+            )));
+        }
+        let (Some(bus), Some(node)) = (&bus, node) else {
+            return Err(GatewayError::InvalidRequest(format!(
+                "{topic}: not a device of this edge node"
+            )));
+        };
+        gateway.writes.take_or_refuse(&config.who())?;
+        match command {
+            Command::Write { index, sub, value } => {
+                item = Some(format!("0x{index:04X}:{sub}"));
+                request = Some(value.to_json().to_string());
+                let (served, info) = gateway.node(bus, &node.to_string())?;
+                let bytes = match info
+                    .eds_entry
+                    .as_ref()
+                    .and_then(|entry| entry.eds.dictionary.sub(*index, *sub))
+                {
+                    Some(described) => described
+                        .value_from_json(&value.to_json(), Some(info.id))
+                        .map_err(|err| GatewayError::InvalidRequest(err.to_string()))?
+                        .to_bytes(),
+                    None => {
+                        return Err(GatewayError::InvalidRequest(format!(
+                            "the EDS of node {node} does not describe 0x{index:04X} sub {sub}"
+                        )));
+                    }
+                };
+                check_sdo_allowed(&served, &info)?;
+                let channel = served.registry.sdo(info.id)?;
+                let (index, sub) = (*index, *sub);
+                tokio::spawn(async move { channel.download(index, sub, &bytes).await })
+                    .await
+                    .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
+                    .map_err(GatewayError::from)
+            }
+            Command::Nmt(nmt) => {
+                request = Some(format!("{{\"command\":\"{}\"}}", nmt.name()));
+                let (served, info) = gateway.node(bus, &node.to_string())?;
+                served
+                    .send_nmt(*nmt, crate::canopen::nmt::NmtTarget::Node(info.id))
+                    .await
+            }
+            Command::Unsupported(what) => Err(GatewayError::InvalidRequest(format!(
+                "unsupported command metric '{what}'"
+            ))),
+            Command::Rebirth => Ok(()),
+        }
+    }
+    .await;
+    let (status, error_code, abort_code) = match &result {
+        Ok(()) => (200, None, None),
+        Err(error) => (
+            error.audit_status(),
+            Some(error.code().to_string()),
+            error
+                .abort_code()
+                .map(|code| format!("0x{:08X}", code.raw())),
+        ),
+    };
+    let entry = AuditEntry {
+        time: crate::can::Timestamp::now(),
+        who: config.who(),
+        peer: Some(format!("{}:{}", config.broker.host, config.broker.port)),
+        role: config.role.name().to_string(),
+        method: topic.kind.as_str().to_string(),
+        path: topic.to_string(),
+        operation: command.operation().to_string(),
+        bus,
+        node,
+        axis: None,
+        item,
+        request,
+        status,
+        error_code,
+        abort_code,
+    };
+    if let Err(err) = gateway.history.audit(entry).await {
+        tracing::error!("audit: {topic}: not recorded: {err}");
+    }
+    result
+}

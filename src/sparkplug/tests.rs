@@ -1,0 +1,518 @@
+use prost::Message;
+
+use super::command::{self, Command, parse_device};
+use super::config::BrokerUrl;
+use super::edge::{EdgeSession, MetricRule, Policy, REBIRTH, Reporting};
+use super::metric::{MetricValue, Sample};
+use super::proto::payload::{Metric, metric};
+use super::proto::{DataType, Payload};
+use super::spool::{Spool, read_records};
+use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use crate::canopen::nmt::NmtCommand;
+use crate::canopen::od::Value;
+
+fn session() -> EdgeSession {
+    EdgeSession::new("plant", "line1", 0, Policy::default())
+}
+
+fn sample(name: &str, value: MetricValue) -> Sample {
+    Sample::new(name, value, 1_000)
+}
+
+fn device_born(session: &mut EdgeSession, metrics: Vec<Sample>) {
+    session.birth(Vec::new(), 1_000);
+    session.device_birth("demo-1", metrics, 1_000);
+}
+
+#[test]
+fn topics_are_written_and_read_as_the_namespace_says() {
+    let topic = Topic::device("plant", MessageType::DData, "line1", "demo-1");
+    assert_eq!(topic.to_string(), "spBv1.0/plant/DDATA/line1/demo-1");
+    assert_eq!(
+        Topic::parse("spBv1.0/plant/DDATA/line1/demo-1"),
+        Some(topic)
+    );
+    let node = Topic::node("plant", MessageType::NBirth, "line1");
+    assert_eq!(node.to_string(), "spBv1.0/plant/NBIRTH/line1");
+    assert_eq!(Topic::parse(&node.to_string()), Some(node));
+    for bad in [
+        "spBv1.0/plant/DDATA/line1",
+        "spBv1.0/plant/NDATA/line1/demo-1",
+        "spBv2.0/plant/NDATA/line1",
+        "spBv1.0/plant/XDATA/line1",
+        "spBv1.0//NDATA/line1",
+        "spBv1.0/plant/DCMD/line1/demo-1/x",
+    ] {
+        assert_eq!(Topic::parse(bad), None, "{bad}");
+    }
+    assert_eq!(state_topic("scada"), "spBv1.0/STATE/scada");
+}
+
+#[test]
+fn a_host_state_is_json_with_online() {
+    let state = parse_host_state(br#"{"online":true,"timestamp":5}"#).unwrap();
+    assert!(state.online);
+    assert_eq!(state.timestamp, Some(5));
+    assert!(!parse_host_state(br#"{"online":false}"#).unwrap().online);
+    assert_eq!(parse_host_state(b"ONLINE"), None);
+    assert_eq!(parse_host_state(br#"{"timestamp":5}"#), None);
+}
+
+#[test]
+fn signed_integers_go_as_sign_extended_u32_and_come_back() {
+    let mut m = Metric::default();
+    MetricValue::Int8(-1).fill(&mut m);
+    assert_eq!(m.value, Some(metric::Value::IntValue(0xFFFF_FFFF)));
+    assert_eq!(m.datatype, Some(DataType::Int8 as u32));
+    assert_eq!(MetricValue::from_metric(&m), Some(MetricValue::Int8(-1)));
+    for value in [
+        MetricValue::Int16(-300),
+        MetricValue::Int32(i32::MIN),
+        MetricValue::Int64(-5),
+        MetricValue::UInt8(200),
+        MetricValue::UInt16(65_535),
+        MetricValue::UInt32(u32::MAX),
+        MetricValue::UInt64(u64::MAX),
+        MetricValue::Float(1.5),
+        MetricValue::Double(-2.25),
+        MetricValue::Boolean(true),
+        MetricValue::String("operational".into()),
+        MetricValue::Bytes(vec![1, 2]),
+        MetricValue::Null(DataType::UInt16),
+    ] {
+        let mut m = Metric::default();
+        value.fill(&mut m);
+        assert_eq!(
+            MetricValue::from_metric(&m),
+            Some(value.clone()),
+            "{value:?}"
+        );
+    }
+    // A UInt8 whose value does not fit is no UInt8.
+    let m = Metric {
+        datatype: Some(DataType::UInt8 as u32),
+        value: Some(metric::Value::IntValue(256)),
+        ..Metric::default()
+    };
+    assert_eq!(MetricValue::from_metric(&m), None);
+}
+
+#[test]
+fn canopen_values_take_their_nearest_sparkplug_type() {
+    assert_eq!(
+        MetricValue::from_canopen(&Value::Unsigned16(0x637)),
+        MetricValue::UInt16(0x637)
+    );
+    assert_eq!(
+        MetricValue::from_canopen(&Value::Integer24(-7)),
+        MetricValue::Int32(-7)
+    );
+    assert_eq!(
+        MetricValue::from_canopen(&Value::Unsigned40(1 << 33)),
+        MetricValue::UInt64(1 << 33)
+    );
+    assert_eq!(
+        MetricValue::from_canopen(&Value::VisibleString("x".into())),
+        MetricValue::String("x".into())
+    );
+    assert_eq!(
+        MetricValue::from_canopen(&Value::Real32(0.5)),
+        MetricValue::Float(0.5)
+    );
+}
+
+#[test]
+fn nbirth_has_seq_0_the_bdseq_and_rebirth_and_ndeath_has_no_seq() {
+    let mut s = EdgeSession::new("plant", "line1", 254, Policy::default());
+    assert_eq!(s.next_connection(), 255);
+    let birth = s.birth(
+        vec![sample(
+            "Properties/Version",
+            MetricValue::String("1".into()),
+        )],
+        9,
+    );
+    assert_eq!(birth.topic.to_string(), "spBv1.0/plant/NBIRTH/line1");
+    assert_eq!(birth.payload.seq, Some(0));
+    let names: Vec<_> = birth
+        .payload
+        .metrics
+        .iter()
+        .map(|m| m.name.clone().unwrap())
+        .collect();
+    assert_eq!(names, ["bdSeq", REBIRTH, "Properties/Version"]);
+    assert_eq!(
+        MetricValue::from_metric(&birth.payload.metrics[0]),
+        Some(MetricValue::UInt64(255))
+    );
+    let death = s.death(10);
+    assert_eq!(death.topic.to_string(), "spBv1.0/plant/NDEATH/line1");
+    assert_eq!(death.payload.seq, None);
+    assert_eq!(
+        MetricValue::from_metric(&death.payload.metrics[0]),
+        Some(MetricValue::UInt64(255))
+    );
+    // The next connection's bdSeq wraps.
+    assert_eq!(s.next_connection(), 0);
+}
+
+#[test]
+fn seq_counts_every_message_after_the_birth_and_wraps_after_255() {
+    let mut s = session();
+    device_born(&mut s, vec![sample("v", MetricValue::UInt32(0))]);
+    let mut last = 1;
+    for i in 1..=300u32 {
+        let mut message = s
+            .data(
+                Some("demo-1"),
+                vec![sample("v", MetricValue::UInt32(i))],
+                0,
+                false,
+            )
+            .unwrap();
+        s.sequence(&mut message.payload);
+        let seq = message.payload.seq.unwrap();
+        assert_eq!(seq, (last + 1) % 256);
+        last = seq;
+    }
+    // A new birth starts at 0 again.
+    assert_eq!(s.birth(Vec::new(), 0).payload.seq, Some(0));
+}
+
+#[test]
+fn data_carries_aliases_alone_and_only_what_changed() {
+    let mut s = session();
+    device_born(
+        &mut s,
+        vec![
+            sample("a", MetricValue::UInt16(1)),
+            sample("b", MetricValue::String("x".into())),
+        ],
+    );
+    let birth_alias = |s: &mut EdgeSession| {
+        s.device_birth(
+            "demo-1",
+            vec![
+                sample("a", MetricValue::UInt16(1)),
+                sample("b", MetricValue::String("x".into())),
+            ],
+            0,
+        )
+        .payload
+        .metrics[0]
+            .alias
+    };
+    let alias_a = birth_alias(&mut s);
+    let message = s
+        .data(
+            Some("demo-1"),
+            vec![
+                sample("a", MetricValue::UInt16(2)),
+                sample("b", MetricValue::String("x".into())),
+                sample("never born", MetricValue::UInt16(2)),
+            ],
+            0,
+            false,
+        )
+        .unwrap();
+    assert_eq!(
+        message.topic.to_string(),
+        "spBv1.0/plant/DDATA/line1/demo-1"
+    );
+    assert_eq!(message.payload.metrics.len(), 1);
+    let m = &message.payload.metrics[0];
+    assert_eq!((m.name.as_deref(), m.alias), (None, alias_a));
+    assert_eq!(MetricValue::from_metric(m), Some(MetricValue::UInt16(2)));
+    // The same value again is no change.
+    assert_eq!(
+        s.data(
+            Some("demo-1"),
+            vec![sample("a", MetricValue::UInt16(2))],
+            0,
+            false
+        ),
+        None
+    );
+    // Offline, the names go along (a later session's aliases may differ).
+    let named = s
+        .data(
+            Some("demo-1"),
+            vec![sample("a", MetricValue::UInt16(3))],
+            0,
+            true,
+        )
+        .unwrap();
+    assert_eq!(named.payload.metrics[0].name.as_deref(), Some("a"));
+    // A device that was not born reports nothing.
+    assert_eq!(
+        s.data(
+            Some("demo-9"),
+            vec![sample("a", MetricValue::UInt16(3))],
+            0,
+            false
+        ),
+        None
+    );
+}
+
+#[test]
+fn a_deadband_holds_small_moves_back() {
+    let policy = Policy {
+        default: Reporting::default(),
+        rules: vec![MetricRule {
+            metric: "Position".into(),
+            reporting: Reporting {
+                deadband: 10.0,
+                min_interval_ms: 0,
+            },
+        }],
+    };
+    let mut s = EdgeSession::new("plant", "line1", 0, policy);
+    device_born(
+        &mut s,
+        vec![sample("Axis 1/Position", MetricValue::Int32(100))],
+    );
+    let report = |s: &mut EdgeSession, v| {
+        s.data(
+            Some("demo-1"),
+            vec![sample("Axis 1/Position", MetricValue::Int32(v))],
+            0,
+            false,
+        )
+        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+    };
+    assert_eq!(report(&mut s, 105), None);
+    assert_eq!(report(&mut s, 110), None);
+    assert_eq!(report(&mut s, 111), Some(MetricValue::Int32(111)));
+    // Measured from what was reported last.
+    assert_eq!(report(&mut s, 120), None);
+    assert_eq!(report(&mut s, 100), Some(MetricValue::Int32(100)));
+}
+
+#[test]
+fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
+    let policy = Policy {
+        default: Reporting {
+            deadband: 0.0,
+            min_interval_ms: 100,
+        },
+        rules: Vec::new(),
+    };
+    let mut s = EdgeSession::new("plant", "line1", 0, policy);
+    device_born(&mut s, vec![sample("v", MetricValue::UInt32(0))]);
+    let at = |s: &mut EdgeSession, v, now| {
+        s.data(
+            Some("demo-1"),
+            vec![sample("v", MetricValue::UInt32(v))],
+            now,
+            false,
+        )
+    };
+    assert!(at(&mut s, 1, 1_000).is_some());
+    assert!(at(&mut s, 2, 1_010).is_none());
+    assert!(at(&mut s, 3, 1_050).is_none());
+    assert_eq!(s.next_due(), Some(1_100));
+    assert!(s.due(1_099, false).is_empty());
+    let due = s.due(1_100, false);
+    assert_eq!(due.len(), 1);
+    assert_eq!(
+        MetricValue::from_metric(&due[0].payload.metrics[0]),
+        Some(MetricValue::UInt32(3))
+    );
+    assert_eq!(s.next_due(), None);
+    // A held change that goes back to what was reported is void.
+    assert!(at(&mut s, 4, 1_150).is_none());
+    assert!(at(&mut s, 3, 1_160).is_none());
+    assert_eq!(s.next_due(), None);
+    assert!(s.due(5_000, false).is_empty());
+}
+
+#[test]
+fn ddeath_only_for_a_born_device_and_a_new_nbirth_unbirths_all() {
+    let mut s = session();
+    assert!(s.device_death("demo-1", 0).is_none());
+    device_born(&mut s, vec![sample("v", MetricValue::UInt8(1))]);
+    assert!(s.is_born("demo-1"));
+    assert!(s.knows("demo-1", "v"));
+    let death = s.device_death("demo-1", 0).unwrap();
+    assert_eq!(death.topic.to_string(), "spBv1.0/plant/DDEATH/line1/demo-1");
+    assert_eq!(death.payload.seq, Some(2));
+    assert!(!s.is_born("demo-1"));
+    device_born(&mut s, vec![sample("v", MetricValue::UInt8(1))]);
+    s.birth(Vec::new(), 0);
+    assert_eq!(s.born().count(), 0);
+}
+
+#[test]
+fn aliases_are_unique_within_a_session() {
+    let mut s = session();
+    let nbirth = s.birth(vec![sample("n", MetricValue::UInt8(0))], 0);
+    let d1 = s.device_birth("demo-1", vec![sample("v", MetricValue::UInt8(0))], 0);
+    let d2 = s.device_birth("demo-2", vec![sample("v", MetricValue::UInt8(0))], 0);
+    let mut aliases: Vec<u64> = [nbirth, d1, d2]
+        .iter()
+        .flat_map(|m| m.payload.metrics.iter().map(|m| m.alias.unwrap()))
+        .collect();
+    let count = aliases.len();
+    aliases.sort_unstable();
+    aliases.dedup();
+    assert_eq!(aliases.len(), count);
+}
+
+fn message(s: &mut EdgeSession, v: u32) -> super::edge::Outgoing {
+    s.data(
+        Some("demo-1"),
+        vec![sample("v", MetricValue::UInt32(v))],
+        0,
+        true,
+    )
+    .unwrap()
+}
+
+#[test]
+fn the_spool_is_bounded_counts_its_drops_and_drains_in_order_as_historical() {
+    let mut s = session();
+    device_born(&mut s, vec![sample("v", MetricValue::UInt32(0))]);
+    let mut spool = Spool::new(3);
+    for v in 1..=5 {
+        spool.push(message(&mut s, v));
+    }
+    assert_eq!((spool.len(), spool.dropped()), (3, 2));
+    let drained = spool.drain();
+    assert!(spool.is_empty());
+    let values: Vec<_> = drained
+        .iter()
+        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .collect();
+    assert_eq!(
+        values,
+        [3, 4, 5].map(MetricValue::UInt32).to_vec(),
+        "the oldest dropped, the rest in order"
+    );
+    for m in &drained {
+        let metric = &m.payload.metrics[0];
+        assert_eq!(metric.is_historical, Some(true));
+        assert_eq!(metric.name.as_deref(), Some("v"));
+        assert_eq!(metric.alias, None);
+        assert_eq!(m.payload.seq, None, "sequenced when sent");
+    }
+}
+
+#[test]
+fn the_spool_file_keeps_the_queue_across_a_restart() {
+    let dir = std::env::temp_dir().join(format!("candeck-spool-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("sparkplug-spool.bin");
+    let mut s = session();
+    device_born(&mut s, vec![sample("v", MetricValue::UInt32(0))]);
+    {
+        let mut spool = Spool::with_file(2, file.clone()).unwrap();
+        for v in 1..=3 {
+            spool.push(message(&mut s, v));
+        }
+    }
+    let mut again = Spool::with_file(10, file.clone()).unwrap();
+    let values: Vec<_> = again
+        .drain()
+        .iter()
+        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .collect();
+    assert_eq!(values, [2, 3].map(MetricValue::UInt32).to_vec());
+    // Drained: the file is empty too.
+    assert!(Spool::with_file(10, file.clone()).unwrap().is_empty());
+    // A record cut short (a crash mid-write) ends the reading.
+    {
+        let mut spool = Spool::with_file(10, file.clone()).unwrap();
+        spool.push(message(&mut s, 7));
+        spool.push(message(&mut s, 8));
+    }
+    let bytes = std::fs::read(&file).unwrap();
+    assert_eq!(read_records(&bytes).len(), 2);
+    assert_eq!(read_records(&bytes[..bytes.len() - 1]).len(), 1);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn commands_are_read_from_ncmd_and_dcmd_metrics() {
+    let m = |name: &str, value: MetricValue| {
+        let mut metric = Metric {
+            name: Some(name.into()),
+            ..Metric::default()
+        };
+        value.fill(&mut metric);
+        metric
+    };
+    let ncmd = Payload {
+        metrics: vec![m(REBIRTH, MetricValue::Boolean(true))],
+        ..Payload::default()
+    };
+    assert_eq!(command::parse(&ncmd, false), [Command::Rebirth]);
+    // Rebirth is no device command.
+    assert!(matches!(
+        command::parse(&ncmd, true)[0],
+        Command::Unsupported(_)
+    ));
+    let dcmd = Payload {
+        metrics: vec![
+            m("OD/0x1017:0", MetricValue::UInt16(500)),
+            m("NMT", MetricValue::String("reset_node".into())),
+            m("NMT", MetricValue::String("dance".into())),
+            m("OD/zz:0", MetricValue::UInt16(1)),
+        ],
+        ..Payload::default()
+    };
+    let commands = command::parse(&dcmd, true);
+    assert_eq!(
+        commands[..2],
+        [
+            Command::Write {
+                index: 0x1017,
+                sub: 0,
+                value: MetricValue::UInt16(500)
+            },
+            Command::Nmt(NmtCommand::ResetNode),
+        ]
+    );
+    assert!(matches!(commands[2], Command::Unsupported(_)));
+    assert!(matches!(commands[3], Command::Unsupported(_)));
+}
+
+#[test]
+fn device_ids_are_bus_dash_node() {
+    assert_eq!(command::device_id("demo", 1), "demo-1");
+    assert_eq!(parse_device("demo-1"), Some(("demo", 1)));
+    assert_eq!(parse_device("line-a-127"), Some(("line-a", 127)));
+    assert_eq!(parse_device("demo-0"), None);
+    assert_eq!(parse_device("demo-128"), None);
+    assert_eq!(parse_device("-5"), None);
+}
+
+#[test]
+fn broker_urls_are_mqtt_or_mqtts_with_default_ports() {
+    let url: BrokerUrl = "mqtt://127.0.0.1:1884".parse().unwrap();
+    assert_eq!(
+        (url.host.as_str(), url.port, url.tls),
+        ("127.0.0.1", 1884, false)
+    );
+    let url: BrokerUrl = "mqtts://broker.plant".parse().unwrap();
+    assert_eq!(
+        (url.host.as_str(), url.port, url.tls),
+        ("broker.plant", 8883, true)
+    );
+    assert_eq!("mqtt://b".parse::<BrokerUrl>().unwrap().port, 1883);
+    assert_eq!(
+        "mqtt://[::1]:1900".parse::<BrokerUrl>().unwrap().host,
+        "::1"
+    );
+    for bad in ["tcp://b:1", "mqtt://", "mqtt://u:p@b:1", "mqtt://b:x"] {
+        assert!(bad.parse::<BrokerUrl>().is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn a_payload_survives_protobuf_both_ways() {
+    let mut s = session();
+    let birth = s.birth(vec![sample("x", MetricValue::Double(1.25))], 7);
+    let bytes = birth.payload.encode_to_vec();
+    assert_eq!(Payload::decode(bytes.as_slice()).unwrap(), birth.payload);
+}

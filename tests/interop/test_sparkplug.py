@@ -1,0 +1,423 @@
+"""candeck as a Sparkplug B edge node, against a real broker (Debian's
+mosquitto, started here on a free loopback port) and a Sparkplug host
+application written with paho-mqtt and the protobuf module generated from
+the same sparkplug_b.proto (grpcio-tools' protoc, into a temporary folder).
+
+The host is the primary host (`sparkplug_primary_host`): it publishes its
+STATE, so the edge node publishes only while the host listens.
+"""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+
+import pytest
+
+from conftest import BIN, Process
+
+mqtt = pytest.importorskip("paho.mqtt.client")
+pytest.importorskip("google.protobuf")
+grpc_tools = pytest.importorskip("grpc_tools.protoc")
+
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+if not os.path.exists(MOSQUITTO):
+    pytest.skip("mosquitto is not installed (Debian: apt-get install mosquitto)", allow_module_level=True)
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PROTO_DIR = os.path.join(ROOT, "src", "sparkplug")
+GROUP, EDGE, HOST_ID = "plant", "line1", "scada"
+
+
+def _proto_module():
+    out = tempfile.mkdtemp(prefix="candeck-spb-")
+    rc = grpc_tools.main(["protoc", f"-I{PROTO_DIR}", f"--python_out={out}", "sparkplug_b.proto"])
+    assert rc == 0, "protoc (grpcio-tools) failed on sparkplug_b.proto"
+    sys.path.insert(0, out)
+    import sparkplug_b_pb2  # noqa: E402
+
+    return sparkplug_b_pb2
+
+
+pb = _proto_module()
+DT = pb.DataType
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Broker:
+    """mosquitto on a loopback port, stopped and started again at will."""
+
+    def __init__(self):
+        self.port = free_port()
+        self.dir = tempfile.mkdtemp(prefix="candeck-mosquitto-")
+        self.conf = os.path.join(self.dir, "mosquitto.conf")
+        with open(self.conf, "w") as f:
+            f.write(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+        self.proc = None
+        self.start()
+
+    def start(self):
+        self.proc = subprocess.Popen([MOSQUITTO, "-c", self.conf], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.2).close()
+                return
+            except OSError:
+                time.sleep(0.05)
+        raise AssertionError("mosquitto did not start")
+
+    def stop(self):
+        if self.proc and self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(timeout=10)
+
+    def close(self):
+        self.stop()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+class Host:
+    """A Sparkplug primary host: STATE online (retained, its will offline),
+    every message of the group recorded with the metrics' names resolved
+    from the births' aliases."""
+
+    def __init__(self, port):
+        self.messages = []
+        self.cond = threading.Condition()
+        self.aliases = {}
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"host-{HOST_ID}")
+        state = f"spBv1.0/STATE/{HOST_ID}"
+        self.client.will_set(state, json.dumps({"online": False, "timestamp": 0}), qos=1, retain=True)
+        self.client.on_connect = self._on_connect
+        self.client.on_message = self._on_message
+        self.client.reconnect_delay_set(min_delay=1, max_delay=1)
+        self.client.connect("127.0.0.1", port, keepalive=5)
+        self.client.loop_start()
+
+    def _on_connect(self, client, userdata, flags, reason, properties):
+        client.subscribe(f"spBv1.0/{GROUP}/#", qos=0)
+        client.publish(
+            f"spBv1.0/STATE/{HOST_ID}",
+            json.dumps({"online": True, "timestamp": int(time.time() * 1000)}),
+            qos=1,
+            retain=True,
+        )
+
+    def _on_message(self, client, userdata, msg):
+        payload = pb.Payload()
+        payload.ParseFromString(msg.payload)
+        parts = msg.topic.split("/")
+        kind = parts[2]
+        device = parts[4] if len(parts) > 4 else None
+        metrics = []
+        for m in payload.metrics:
+            if kind in ("NBIRTH", "DBIRTH") and m.HasField("alias"):
+                self.aliases[(device, m.alias)] = m.name
+            name = m.name if m.name else self.aliases.get((device, m.alias))
+            which = m.WhichOneof("value")
+            metrics.append(
+                {
+                    "name": name,
+                    "datatype": m.datatype,
+                    "value": getattr(m, which) if which else None,
+                    "historical": m.is_historical,
+                    "timestamp": m.timestamp,
+                }
+            )
+        with self.cond:
+            self.messages.append(
+                {
+                    "kind": kind,
+                    "device": device,
+                    "seq": payload.seq if payload.HasField("seq") else None,
+                    "metrics": metrics,
+                }
+            )
+            self.cond.notify_all()
+
+    def wait_for(self, predicate, timeout=30, start=0):
+        """The first message from index `start` on that satisfies `predicate`."""
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                for i, message in enumerate(self.messages[start:], start):
+                    if predicate(message):
+                        return i, message
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    kinds = [(m["kind"], m["device"]) for m in self.messages]
+                    raise AssertionError(f"no such message within {timeout} s; got {kinds}")
+                self.cond.wait(left)
+
+    def send_dcmd(self, device, metrics):
+        payload = pb.Payload()
+        payload.timestamp = int(time.time() * 1000)
+        for name, datatype, field, value in metrics:
+            m = payload.metrics.add()
+            m.name = name
+            m.datatype = datatype
+            setattr(m, field, value)
+        self.client.publish(f"spBv1.0/{GROUP}/DCMD/{EDGE}/{device}", payload.SerializeToString(), qos=0)
+
+    def close(self):
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+def metric(message, name):
+    for m in message["metrics"]:
+        if m["name"] == name:
+            return m
+    return None
+
+
+class Gateway(Process):
+    def __init__(self, broker_port):
+        self.dir = tempfile.mkdtemp(prefix="candeck-spb-gw-")
+        config = os.path.join(self.dir, "candeck.toml")
+        with open(config, "w") as f:
+            f.write(
+                f'mqtt_url = "mqtt://127.0.0.1:{broker_port}"\n'
+                f'sparkplug_group_id = "{GROUP}"\n'
+                f'sparkplug_edge_node_id = "{EDGE}"\n'
+                f'sparkplug_primary_host = "{HOST_ID}"\n'
+                'sparkplug_role = "operator"\n'
+                # The demo drives send their TPDOs on SYNC.
+                "sync_period_ms = 50\n"
+            )
+        super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config])
+        line = self.first_line()
+        self.base = "http://" + line.split("http://")[1].split("/")[0] + "/api/v1"
+
+    def request(self, method, path, body=None):
+        data = json.dumps(body).encode() if body is not None else None
+        req = urllib.request.Request(self.base + path, data=data, method=method)
+        req.add_header("content-type", "application/json")
+        with urllib.request.urlopen(req, timeout=30) as resp:
+            text = resp.read()
+            return json.loads(text) if text else None
+
+    def close(self):
+        self.stop()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+@pytest.fixture
+def broker():
+    b = Broker()
+    yield b
+    b.close()
+
+
+@pytest.fixture
+def host(broker):
+    h = Host(broker.port)
+    yield h
+    h.close()
+
+
+@pytest.fixture
+def gateway(broker, host):
+    g = Gateway(broker.port)
+    yield g
+    g.close()
+
+
+def started(gateway, host):
+    """The demo nodes started; the index of the DBIRTH of node 1 that names
+    its TPDO values (a DBIRTH again once its mapping is read)."""
+    host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+    gateway.request("POST", "/buses/demo/nmt", {"command": "start"})
+    return host.wait_for(
+        lambda m: m["kind"] == "DBIRTH"
+        and m["device"] == "demo-1"
+        and metric(m, "TPDO/a1_Statusword") is not None
+        and metric(m, "TPDO/a1_Statusword")["value"] is not None
+    )
+
+
+def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, host):
+    at, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+    assert nbirth["seq"] == 0
+    # One connection: no will of a connection the edge node made twice.
+    assert not any(m["kind"] == "NDEATH" for m in host.messages[:at])
+    assert metric(nbirth, "bdSeq")["datatype"] == DT.UInt64
+    assert metric(nbirth, "Node Control/Rebirth")["value"] is False
+    assert metric(nbirth, "Buses/demo/State")["value"] == "up"
+    for device in ("demo-1", "demo-2", "demo-3"):
+        _, birth = host.wait_for(lambda m, d=device: m["kind"] == "DBIRTH" and m["device"] == d)
+        assert metric(birth, "Online") == metric(birth, "Online") | {"datatype": DT.Boolean, "value": True}
+        assert metric(birth, "Identity/Vendor ID")["datatype"] == DT.UInt32
+        assert metric(birth, "NMT State")["datatype"] == DT.String
+    at, birth = started(gateway, host)
+    status = metric(birth, "TPDO/a1_Statusword")
+    assert status["datatype"] == DT.UInt16
+    gateway.request("POST", "/buses/demo/nodes/1/axes/1/state", {"target": "operation_enabled"})
+    _, data = host.wait_for(
+        lambda m: m["kind"] == "DDATA"
+        and m["device"] == "demo-1"
+        and metric(m, "TPDO/a1_Statusword") is not None
+        # CiA 402: operation enabled is xxxx xxxx x01x 0111 (the walk
+        # there may show the states between first).
+        and metric(m, "TPDO/a1_Statusword")["value"] & 0x6F == 0x27,
+        start=at,
+    )
+    assert status["value"] & 0x6F != 0x27
+    changed = metric(data, "TPDO/a1_Statusword")
+    assert changed["datatype"] == DT.UInt16
+    assert changed["historical"] is False
+    # The axis's own metrics follow it.
+    host.wait_for(
+        lambda m: m["device"] == "demo-1"
+        and m["kind"] in ("DBIRTH", "DDATA")
+        and (metric(m, "Axis 1/State") or {}).get("value") == "operation_enabled",
+        start=at,
+    )
+    # The LED controller's segments, as JSON text.
+    _, leds = host.wait_for(
+        lambda m: m["device"] == "demo-3" and m["kind"] in ("DBIRTH", "DDATA") and metric(m, "Segments")
+    )
+    assert metric(leds, "Segments")["datatype"] == DT.String
+    json.loads(metric(leds, "Segments")["value"])
+
+
+def test_a_dcmd_write_of_0x1017_reaches_the_device_and_is_audited(gateway, host):
+    host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+    host.send_dcmd("demo-1", [("OD/0x1017:0", DT.UInt16, "int_value", 750)])
+    deadline = time.monotonic() + 15
+    while True:
+        value = gateway.request("GET", "/buses/demo/nodes/1/od/0x1017/0")["value"]
+        if value == 750 or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert value == 750
+    events = gateway.request("GET", "/events?kind=audit&limit=50")
+    writes = [e for e in events if e.get("operation") == "write object" and e.get("item") == "0x1017:0"]
+    assert writes, events
+    assert writes[-1]["who"].startswith("mqtt:")
+    assert writes[-1]["method"] == "DCMD"
+    assert writes[-1]["status"] == 200
+
+
+def test_an_unplugged_node_gives_ddeath(gateway, host):
+    host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-2")
+    at = len(host.messages)
+    # Node 2 (the JMC) sends a heartbeat: its silence is noticed.
+    gateway.request("DELETE", "/buses/demo/sim/nodes/2")
+    _, death = host.wait_for(lambda m: m["kind"] == "DDEATH" and m["device"] == "demo-2", start=at)
+    assert death["seq"] is not None
+
+
+def test_killing_the_gateway_gives_its_will_ndeath_with_the_births_bdseq(gateway, host):
+    _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+    bd_seq = metric(nbirth, "bdSeq")["value"]
+    at = len(host.messages)
+    gateway.proc.send_signal(signal.SIGKILL)
+    gateway.proc.wait()
+    _, death = host.wait_for(lambda m: m["kind"] == "NDEATH", start=at, timeout=30)
+    assert metric(death, "bdSeq")["value"] == bd_seq
+    assert death["seq"] is None
+
+
+def test_a_clean_stop_publishes_ndeath_with_the_births_bdseq(gateway, host):
+    _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+    at = len(host.messages)
+    gateway.proc.send_signal(signal.SIGTERM)
+    gateway.proc.wait(timeout=30)
+    _, death = host.wait_for(lambda m: m["kind"] == "NDEATH", start=at, timeout=10)
+    assert metric(death, "bdSeq")["value"] == metric(nbirth, "bdSeq")["value"]
+
+
+def offline(gateway):
+    text = urllib.request.urlopen(gateway.base.replace("/api/v1", "") + "/metrics", timeout=10).read().decode()
+    for line in text.splitlines():
+        if line.startswith("candeck_sparkplug_connected "):
+            return line.split()[1] == "0"
+    raise AssertionError("no candeck_sparkplug_connected in /metrics")
+
+
+def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
+    at, _ = started(gateway, host)
+    # Enabled first: from then on each toggle is one transition of the CiA
+    # 402 state machine (disable operation, enable operation), with no
+    # state between.
+    gateway.request("POST", "/buses/demo/nodes/1/axes/1/state", {"target": "operation_enabled"})
+    host.wait_for(
+        lambda m: m["kind"] == "DDATA"
+        and m["device"] == "demo-1"
+        and ((metric(m, "TPDO/a1_Statusword") or {}).get("value") or 0) & 0x6F == 0x27,
+        start=at,
+    )
+    broker.stop()
+    deadline = time.monotonic() + 15
+    while not offline(gateway):
+        assert time.monotonic() < deadline, "the gateway did not notice the broker went"
+        time.sleep(0.1)
+    # 10 s of TPDO changes while the broker is away: the axis enabled and
+    # disabled in turn, each state held long enough for a SYNC TPDO.
+    targets = []
+    outage_end = time.monotonic() + 10
+    target = "switched_on"
+    while time.monotonic() < outage_end:
+        gateway.request("POST", "/buses/demo/nodes/1/axes/1/state", {"target": target})
+        targets.append(target)
+        target = "switched_on" if target == "operation_enabled" else "operation_enabled"
+        time.sleep(0.5)
+    assert len(targets) >= 10
+    first_after = len(host.messages)
+    broker.start()
+    nbirth_at, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH", start=first_after, timeout=30)
+
+    # Every state walked to while away, in order: operation enabled and
+    # switched on (xxxx xxxx x01x 0011) in turn.
+    def state(word):
+        if word & 0x6F == 0x27:
+            return "operation_enabled"
+        if word & 0x6F == 0x23:
+            return "switched_on"
+        return None
+
+    def replayed():
+        with host.cond:
+            session = list(host.messages[nbirth_at:])
+        historical = [
+            metric(m, "TPDO/a1_Statusword")
+            for m in session
+            if m["kind"] == "DDATA"
+            and m["device"] == "demo-1"
+            and metric(m, "TPDO/a1_Statusword") is not None
+            and metric(m, "TPDO/a1_Statusword")["historical"]
+        ]
+        seen = []
+        for m in historical:
+            s = state(m["value"])
+            if s and (not seen or seen[-1] != s):
+                seen.append(s)
+        return session, historical, seen
+
+    # The queue follows the births at once; wait for all of it.
+    deadline = time.monotonic() + 30
+    while True:
+        session, historical, seen = replayed()
+        if len(seen) >= len(targets) or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert seen == targets, (seen, targets)
+    seqs = [m["seq"] for m in session if m["seq"] is not None]
+    assert seqs[0] == 0
+    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
+    stamps = [m["timestamp"] for m in historical]
+    assert stamps == sorted(stamps)
