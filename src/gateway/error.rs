@@ -89,6 +89,25 @@ pub enum GatewayError {
     /// ([`crate::gateway::access::WriteLimiter`]).
     #[error("{message}")]
     RateLimited { message: String, retry_after_s: u64 },
+    /// No EDS file of the catalog has this name.
+    #[error("no EDS file is named '{0}'")]
+    UnknownEds(String),
+    /// An uploaded file that is no EDS (the reader's error, with its line).
+    #[error("{message}")]
+    InvalidEds {
+        message: String,
+        line: Option<usize>,
+    },
+    /// An EDS file that cannot be added or deleted now: its name is taken,
+    /// it is not an uploaded one, or a node is assigned to it.
+    #[error("{0}")]
+    EdsConflict(String),
+    /// The node is no CiA 401 I/O module (its profile is not cia401).
+    #[error("{0}")]
+    NotAnIoModule(String),
+    /// The I/O module has no such channel.
+    #[error("{0}")]
+    UnknownChannel(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -133,6 +152,11 @@ impl GatewayError {
             Self::Unauthenticated(_) => (401, "unauthenticated"),
             Self::Forbidden(_) => (403, "forbidden"),
             Self::RateLimited { .. } => (429, "rate_limited"),
+            Self::UnknownEds(_) => (404, "unknown_eds"),
+            Self::InvalidEds { .. } => (400, "invalid_eds"),
+            Self::EdsConflict(_) => (409, "eds_conflict"),
+            Self::NotAnIoModule(_) => (404, "not_an_io_module"),
+            Self::UnknownChannel(_) => (404, "unknown_channel"),
             Self::Internal(_) => (500, "internal_error"),
         }
     }

@@ -24,6 +24,8 @@
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
+//! - [`eds_files`]: EDS files uploaded and deleted, and assigned to nodes
+//!   by hand, as operations of the [`Gateway`].
 //! - [`history`]: the persisted audit log and EMCY/NMT history (SQLite).
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
@@ -52,6 +54,7 @@ pub mod access;
 pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
+pub mod eds_files;
 pub mod error;
 pub mod files;
 pub mod frames;

@@ -29,10 +29,15 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::Forbidden(_) => 20,
         GatewayError::Internal(_) => 21,
         GatewayError::RateLimited { .. } => 22,
+        GatewayError::UnknownEds(_) => 23,
+        GatewayError::InvalidEds { .. } => 24,
+        GatewayError::EdsConflict(_) => 25,
+        GatewayError::NotAnIoModule(_) => 26,
+        GatewayError::UnknownChannel(_) => 27,
     }
 }
 
-const VARIANTS: usize = 23;
+const VARIANTS: usize = 28;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -86,6 +91,14 @@ fn samples() -> Vec<GatewayError> {
             message: text(),
             retry_after_s: 2,
         },
+        GatewayError::UnknownEds("x.eds".to_string()),
+        GatewayError::InvalidEds {
+            message: text(),
+            line: Some(3),
+        },
+        GatewayError::EdsConflict(text()),
+        GatewayError::NotAnIoModule(text()),
+        GatewayError::UnknownChannel(text()),
     ]
 }
 
