@@ -86,6 +86,8 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     // names the token. Never rate limited.
     ("POST",   "/api/v1/stop-all", VIEWER),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/values", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/io", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/io", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEWER),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", ADMIN),
     // Process data straight to a device's mapped objects: as raw as a frame.

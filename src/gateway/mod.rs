@@ -14,6 +14,8 @@
 //! - [`access`]: tokens and roles, and the write rate limit, for every
 //!   adapter.
 //! - [`files`]: the data directory's modes (0700 directories, 0600 files).
+//! - [`io`]: the I/O of a CiA 401 module: every channel with its value
+//!   and age, outputs set and read back.
 //! - [`leases`]: the motion leases granted and the supervisor that stops
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
@@ -59,6 +61,7 @@ pub mod error;
 pub mod files;
 pub mod frames;
 pub mod history;
+pub mod io;
 pub mod leases;
 pub mod led_preview;
 pub mod load;
