@@ -34,7 +34,7 @@ function problemItem(file, problem) {
 
 function nodeLinks(nodes) {
   if (!nodes.length) return h('span', { class: 'sub' }, 'none');
-  return nodes.map((n, i) => [i ? ', ' : '',
+  return nodes.flatMap((n, i) => [i ? ', ' : '',
     h('a', { href: `/nodes/${encodeURIComponent(n.bus)}/${n.node}` }, `${n.bus} ${n.node}`),
     n.assigned ? h('span', { class: 'sub' }, ' (assigned)') : null]);
 }
@@ -46,7 +46,7 @@ function rows(file) {
     ? h('span', { class: 'sub' }, 'none: assign by hand')
     : [`vendor ${hex(file.vendor_id)}`, h('br'), `product ${hex(file.product_code)}`,
       file.revision !== null ? [h('br'), `revision ${hex(file.revision)}`] : null,
-      file.matches_by_identity ? null : [h('br'), h('span', { class: 'sub' }, 'matched by hand only')]];
+      file.matches_by_identity ? null : [h('br'), h('span', { class: 'sub' }, 'matched by hand only')]].flat();
   const toggle = h('button', {
     type: 'button', class: 'toggle-problems', 'aria-expanded': String(open.has(file.name)),
     disabled: warnings + errors === 0,
@@ -69,8 +69,8 @@ function rows(file) {
   if (!open.has(file.name)) return [row];
   const details = h('tr', { class: 'problems', dataset: { name: file.name } },
     h('td', { colspan: '9' },
-      errors ? [h('strong', {}, 'Errors'), h('ul', { class: 'problem-list errors-list' }, file.errors.map((p) => problemItem(file.name, p)))] : null,
-      warnings ? [h('strong', {}, 'Warnings'), h('ul', { class: 'problem-list warnings-list' }, file.warnings.map((p) => problemItem(file.name, p)))] : null));
+      ...(errors ? [h('strong', {}, 'Errors'), h('ul', { class: 'problem-list errors-list' }, file.errors.map((p) => problemItem(file.name, p)))] : []),
+      ...(warnings ? [h('strong', {}, 'Warnings'), h('ul', { class: 'problem-list warnings-list' }, file.warnings.map((p) => problemItem(file.name, p)))] : [])));
   return [row, details];
 }
 
