@@ -38,7 +38,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 pub struct SimDevice {
     #[schema(example = 4, minimum = 1, maximum = 127)]
     pub id: u8,
-    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`; null for a device
+    /// `umc1bds32`, `umc1bd90`, `jmc`, `uio1led` or `io401`; null for a device
     /// built from a dictionary of its own (tests).
     #[schema(example = "uio1led")]
     pub product: Option<String>,
@@ -51,7 +51,7 @@ pub struct SimDevice {
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"product": "uio1led", "id": 4}))]
 pub struct AddDevice {
-    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`.
+    /// `umc1bds32`, `umc1bd90`, `jmc`, `uio1led` or `io401`.
     #[schema(example = "uio1led")]
     pub product: String,
     /// The node id, 1 to 127.

@@ -22,7 +22,7 @@ pub struct VbusArgs {
     pub listen: SocketAddr,
     /// Virtual devices on the bus: `demo` (UMC1BDS32 at 1, JMC at 2, UIO1LED
     /// at 3), `none`, or a list like `umc1bds32@1,jmc@2,uio1led@3` (products:
-    /// umc1bds32, umc1bd90, jmc, uio1led).
+    /// umc1bds32, umc1bd90, jmc, uio1led, io401).
     #[arg(long, default_value = "demo")]
     pub devices: DeviceList,
     /// The socketcand channel name clients open.
