@@ -199,11 +199,12 @@ async fn list_eds(State(state): State<AppState>) -> ApiJson<EdsList> {
 
 /// The name of an uploaded file.
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct UploadQuery {
-    /// The file's name in the catalog: letters, digits, `.`, `_`, `-`,
-    /// `+`, at most 100 characters, ending in `.eds` or `.dcf`.
-    #[param(example = "my_drive.eds")]
-    pub name: String,
+    /// The file's name in the catalog (required): letters, digits, `.`,
+    /// `_`, `-`, `+`, at most 100 characters, ending in `.eds` or `.dcf`.
+    #[param(example = "my_drive.eds", required = true)]
+    pub name: Option<String>,
 }
 
 /// The name of a file of the catalog.
@@ -235,12 +236,17 @@ pub struct EdsPath {
 async fn upload_eds(
     State(state): State<AppState>,
     identity: Option<Extension<Identity>>,
-    Query(query): Query<UploadQuery>,
+    query: Result<Query<UploadQuery>, axum::extract::rejection::QueryRejection>,
     body: Bytes,
 ) -> Result<(axum::http::StatusCode, ApiJson<EdsFile>), AppError> {
+    let name = query
+        .ok()
+        .and_then(|Query(query)| query.name)
+        .ok_or_else(|| {
+            AppError::InvalidRequest("give the file's name: POST /api/v1/eds?name=FILE.eds".into())
+        })?;
     let who = who(identity.as_ref());
     let gateway = state.gateway.clone();
-    let name = query.name.clone();
     // Parsing a large file and writing it to disk is blocking work.
     let entry = tokio::task::spawn_blocking(move || gateway.upload_eds(&name, &body, &who))
         .await

@@ -225,6 +225,18 @@ async fn an_upload_is_validated_kept_0600_listed_as_uploaded_and_deleted() {
         );
     }
 
+    // No name at all.
+    let (status, body, _) = super::support::raw_call(
+        &app,
+        Method::POST,
+        "/api/v1/eds",
+        "text/plain",
+        Some(IPOS_LIKE.to_string()),
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    assert!(body.contains("invalid_request"), "{body}");
+
     // Only uploaded files are deleted.
     let response = send(&app, Method::DELETE, "/api/v1/eds/umc1bds32.eds", None).await;
     assert_eq!(response.0, StatusCode::CONFLICT, "{}", response.1);
@@ -235,6 +247,29 @@ async fn an_upload_is_validated_kept_0600_listed_as_uploaded_and_deleted() {
     assert!(!kept.exists());
     let (_, list) = get(&app, "/api/v1/eds").await;
     assert!(listed(&list, "ipos.eds").is_none());
+
+    // Audited, with the file's name.
+    let (_, audit) = get(&app, "/api/v1/events?kind=audit&limit=100").await;
+    let entries: Vec<(String, Option<String>, u64)> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["operation"].as_str().unwrap().to_string(),
+                e["item"].as_str().map(str::to_string),
+                e["status"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert!(
+        entries.contains(&("upload eds".into(), Some("ipos.eds".into()), 201)),
+        "{entries:?}"
+    );
+    assert!(
+        entries.contains(&("delete eds".into(), Some("ipos.eds".into()), 204)),
+        "{entries:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
