@@ -70,8 +70,8 @@ fn every_corpus_file_loads_and_reads_back_the_same() {
 #[test]
 fn the_corpus_has_the_defect_classes_and_each_is_a_warning() {
     let classes = [
-        // UniSwarm: an empty AccessType.
-        ("UniSwarm+UDTStudio__eds_umckin1.eds", "AccessType is empty"),
+        // UniSwarm's umckin1.eds (imitated): an empty AccessType.
+        ("synthetic/uniswarm-umckin1-like.eds", "AccessType is empty"),
         // Faulhaber: "ö" of a code page.
         (
             "KITmedical+kacanopen_old__eds_Faulhaber_605.3150.51-V-EK-2-60.eds",
@@ -91,20 +91,45 @@ fn the_corpus_has_the_defect_classes_and_each_is_a_warning() {
             "samsamfire+gocanopen__pkg_od_base.eds",
             "a DOMAIN value is hex bytes",
         ),
-        // UniSwarm's uio44.eds, at the head of their repository: an object
-        // listed without a section, a manufacturer's data type, an empty
-        // AccessType, a DOMAIN default, all reported together.
-        ("UniSwarm+UDTStudio__eds_uio44.eds", "there is no"),
-        ("UniSwarm+UDTStudio__eds_uio44.eds", "read as DOMAIN"),
-        ("UniSwarm+UDTStudio__eds_uio44.eds", "AccessType is empty"),
+        // UniSwarm's uio44.eds (imitated): an object listed without a
+        // section, a manufacturer's data type, an empty AccessType, a DOMAIN
+        // default, all reported together.
+        ("synthetic/uniswarm-uio44-like.eds", "there is no"),
+        ("synthetic/uniswarm-uio44-like.eds", "read as DOMAIN"),
+        ("synthetic/uniswarm-uio44-like.eds", "AccessType is empty"),
         (
-            "UniSwarm+UDTStudio__eds_uio44.eds",
+            "synthetic/uniswarm-uio44-like.eds",
             "a DOMAIN value is hex bytes",
         ),
-        // No [MandatoryObjects].
+        // No [MandatoryObjects] (UniSwarm's custom.eds, imitated).
         (
-            "UniSwarm+UDTStudio__eds_custom.eds",
+            "synthetic/uniswarm-custom-like.eds",
             "no [MandatoryObjects]",
+        ),
+        // The revision as text (UniSwarm's umc1bds32_v1.0.2.eds, imitated).
+        (
+            "synthetic/uniswarm-revision-text.eds",
+            "RevisionNumber=1.0.2 is not a number",
+        ),
+        // A default above its limit (UniSwarm's uio8ad_v1.0.1.eds, imitated).
+        (
+            "synthetic/uniswarm-uio8ad-like.eds",
+            "is above the high limit",
+        ),
+        // A negative unsigned default (UniSwarm's uio1led.eds, imitated).
+        (
+            "synthetic/uniswarm-uio1led-like.eds",
+            "is read as 0xFFFFFFFF",
+        ),
+        // No product number (Technosoft iPOS), no identity at all (SCHUNK,
+        // Pilz), imitated.
+        (
+            "synthetic/technosoft-ipos-like.eds",
+            "matches no device by identity",
+        ),
+        (
+            "synthetic/schunk-pilz-like.dcf",
+            "matches no device by identity",
         ),
         // C literal suffixes and negative unsigned defaults.
         ("heig-vd-iai+canopen-stack__od.eds", "is read as"),
@@ -117,5 +142,34 @@ fn the_corpus_has_the_defect_classes_and_each_is_a_warning() {
             "{file}: no '{class}' in {:#?}",
             eds.warnings
         );
+    }
+}
+
+/// The synthetic files that stand for the files whose licence keeps them
+/// out of the repository (SOURCES.md): each loads, says whose defect class
+/// it imitates, and is listed in SOURCES.md.
+#[test]
+fn every_synthetic_file_loads_and_names_the_source_it_imitates() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/eds-corpus/synthetic");
+    let sources = std::fs::read_to_string(dir.join("../SOURCES.md")).unwrap();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .collect();
+    files.sort();
+    assert!(files.len() >= 8, "{files:?}");
+    for path in files {
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with("; Synthetic"), "{name}");
+        assert!(text.contains("imitates"), "{name}");
+        assert!(
+            sources.contains(&format!("`synthetic/{name}`")),
+            "{name} not in SOURCES.md"
+        );
+        let eds = read_eds_file(&path).unwrap_or_else(|error| panic!("{error}"));
+        assert!(!eds.warnings.is_empty(), "{name} shows no defect");
+        let again = Eds::parse(&eds.write(), "again.eds").unwrap();
+        assert_eq!(again, eds, "{name} does not read back");
     }
 }

@@ -9,10 +9,10 @@ async fn a_broken_file_in_the_eds_dir_does_not_stop_serve() {
     let dir = std::env::temp_dir().join(format!("candeck-eds-dir-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    // A real file of the corpus (UniSwarm's uio44.eds: several problems,
-    // usable), and one that is no EDS.
+    // A file of the corpus with several problems, usable (the synthetic
+    // imitation of UniSwarm's uio44.eds), and one that is no EDS.
     let corpus = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/eds-corpus/UniSwarm+UDTStudio__eds_uio44.eds");
+        .join("tests/data/eds-corpus/synthetic/uniswarm-uio44-like.eds");
     std::fs::copy(&corpus, dir.join("uio44.eds")).unwrap();
     std::fs::write(dir.join("broken.eds"), [0u8, 159, 146, 150]).unwrap();
     let dir_arg = dir.display().to_string();

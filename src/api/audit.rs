@@ -65,6 +65,7 @@ fn is_cia309_command(method: &Method, path: &str) -> bool {
 pub async fn record(State(state): State<AppState>, request: Request, next: Next) -> Response {
     let method = request.method().clone();
     let path = request.uri().path().to_string();
+    let uri = request.uri().clone();
     let cia309 = is_cia309_command(&method, &path);
     if !is_state_changing(&method, &path) && !cia309 {
         return next.run(request).await;
@@ -105,7 +106,10 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     if cia309 && !refused_before_handler {
         return response;
     }
-    let target = Target::of(&method, &path);
+    let mut target = Target::of(&method, &path);
+    if target.operation == "upload eds" {
+        target.item = upload_name(&uri);
+    }
     let error = response.extensions().get::<ErrorSummary>();
     // The guard names who it let in or turned away (a body refused for its
     // size here is named above).
@@ -179,6 +183,18 @@ fn mask(json: &mut Json) {
     }
 }
 
+/// The `name` of an EDS upload's query (`?name=my_file.eds`), decoded.
+fn upload_name(uri: &axum::http::Uri) -> Option<String> {
+    #[derive(serde::Deserialize)]
+    struct Upload {
+        name: Option<String>,
+    }
+    axum::extract::Query::<Upload>::try_from_uri(uri)
+        .ok()?
+        .0
+        .name
+}
+
 /// What a request acts on, from its path.
 #[derive(Debug, Default, PartialEq, Eq)]
 pub struct Target {
@@ -197,6 +213,9 @@ impl Target {
         let word = |text: &str| Some(text.to_string());
         let (operation, item): (&str, Option<String>) = match (method, segments.as_slice()) {
             (&Method::POST, ["stop-all"]) => ("stop all axes", None),
+            // The file's name is in the query (`?name=`): see `record`.
+            (&Method::POST, ["eds"]) => ("upload eds", None),
+            (&Method::DELETE, ["eds", name]) => ("delete eds", word(name)),
             (_, ["buses", bus, rest @ ..]) => {
                 target.bus = word(bus);
                 match (method, rest) {
@@ -249,6 +268,9 @@ fn node_operation(
         (&Method::POST, ["pdos", kind, n, "send"]) => ("send rpdo", Some(format!("{kind} {n}"))),
         (&Method::PUT, ["segments"]) => ("set scene", None),
         (&Method::PUT, ["segments", n]) => ("set segment", Some(format!("segment {n}"))),
+        (&Method::PUT, ["eds"]) => ("assign eds", None),
+        (&Method::DELETE, ["eds"]) => ("unassign eds", None),
+        (&Method::PUT, ["io"]) => ("set outputs", None),
         (&Method::POST, ["axes", axis, action]) => {
             target.axis = axis.parse().ok();
             let operation = match *action {

@@ -86,6 +86,8 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     // names the token. Never rate limited.
     ("POST",   "/api/v1/stop-all", VIEWER),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/values", VIEWER),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/io", VIEWER),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/io", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEWER),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", ADMIN),
     // Process data straight to a device's mapped objects: as raw as a frame.
@@ -113,6 +115,10 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("GET",    "/api/v1/stream", VIEWER),
     ("GET",    "/api/v1/events", VIEWER),
     ("GET",    "/api/v1/eds", VIEWER),
+    ("POST",   "/api/v1/eds", ADMIN),
+    ("DELETE", "/api/v1/eds/{name}", ADMIN),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/eds", OPERATOR),
+    ("DELETE", "/api/v1/buses/{bus}/nodes/{id}/eds", OPERATOR),
     ("GET",    "/metrics", VIEWER),
     // The interface's description: no data, and the docs UI is where one
     // enters a token to try the API ("Authorize"). `/api/docs` redirects
@@ -278,7 +284,8 @@ impl AuthConfig {
 
     /// The largest body a request to `path` may carry.
     pub fn body_limit(&self, method: &Method, path: &str) -> usize {
-        if *method == Method::PUT && path.ends_with("/config.dcf") {
+        let eds_upload = *method == Method::POST && path == "/api/v1/eds";
+        if eds_upload || *method == Method::PUT && path.ends_with("/config.dcf") {
             self.dcf_body_limit
         } else {
             self.body_limit

@@ -47,7 +47,8 @@ When the gateway is configured with tokens, every request but `/health` needs \
         (name = "events", description = "The persisted history: audit log of state-changing requests, EMCYs (CiA 301 §7.2.7), NMT and supervision events"),
         (name = "metrics", description = "The gateway's metrics for Prometheus (text format 0.0.4), at the root path"),
         (name = "auth", description = "Who the request's bearer token is (RFC 6750)"),
-        (name = "eds", description = "The EDS catalog (CiA 306): built-in and --eds-dir files, their warnings, the files left out"),
+        (name = "eds", description = "The EDS catalog (CiA 306): built-in, --eds-dir and uploaded files, their warnings, the files left out, the nodes each describes; uploads, deletions, assignment to a node by hand"),
+        (name = "io", description = "CiA 401 generic I/O modules: inputs live, outputs set and read back"),
     ),
     modifiers(&BearerAuth),
     security(("bearer" = []))

@@ -199,6 +199,25 @@ pub enum AppError {
     /// The node's product cannot change its node-ID over SDO (no 0x2040).
     #[error("{0}")]
     NodeIdNotSupported(String),
+    /// No EDS file of the catalog has this name.
+    #[error("no EDS file is named '{0}'")]
+    UnknownEds(String),
+    /// An uploaded file that is no EDS; nothing was kept.
+    #[error("{message}")]
+    InvalidEds {
+        message: String,
+        line: Option<usize>,
+    },
+    /// An EDS file's name is taken, it is not an uploaded one, or a node is
+    /// assigned to it.
+    #[error("{0}")]
+    EdsConflict(String),
+    /// The node is no CiA 401 I/O module (its profile is not cia401).
+    #[error("{0}")]
+    NotAnIoModule(String),
+    /// The I/O module has no such channel.
+    #[error("{0}")]
+    UnknownChannel(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -273,6 +292,11 @@ impl AppError {
                 StatusCode::UNPROCESSABLE_ENTITY,
                 "node_id_change_not_supported",
             ),
+            Self::UnknownEds(_) => (StatusCode::NOT_FOUND, "unknown_eds"),
+            Self::InvalidEds { .. } => (StatusCode::BAD_REQUEST, "invalid_eds"),
+            Self::EdsConflict(_) => (StatusCode::CONFLICT, "eds_conflict"),
+            Self::NotAnIoModule(_) => (StatusCode::NOT_FOUND, "not_an_io_module"),
+            Self::UnknownChannel(_) => (StatusCode::NOT_FOUND, "unknown_channel"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -304,6 +328,9 @@ impl AppError {
             }
             Self::WrongNmtState { state, .. } => body["nmt"] = json!(state.name()),
             Self::InvalidDcf {
+                line: Some(line), ..
+            }
+            | Self::InvalidEds {
                 line: Some(line), ..
             } => body["line"] = json!(line),
             Self::DriveFault { state, .. }
@@ -369,6 +396,11 @@ impl From<GatewayError> for AppError {
             GatewayError::LssRefused(message) => Self::LssRefused(message),
             GatewayError::NodeIdInUse(message) => Self::NodeIdInUse(message),
             GatewayError::NodeIdNotSupported(message) => Self::NodeIdNotSupported(message),
+            GatewayError::UnknownEds(name) => Self::UnknownEds(name),
+            GatewayError::InvalidEds { message, line } => Self::InvalidEds { message, line },
+            GatewayError::EdsConflict(message) => Self::EdsConflict(message),
+            GatewayError::NotAnIoModule(message) => Self::NotAnIoModule(message),
+            GatewayError::UnknownChannel(message) => Self::UnknownChannel(message),
             GatewayError::Internal(detail) => Self::Internal(detail),
         }
     }

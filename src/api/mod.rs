@@ -23,6 +23,8 @@
 //! - [`drives`]: CiA 402 drives: axes, state walk, fault reset, halt,
 //!   moves, stop-all (the stops themselves are
 //!   [`crate::gateway::safe_stop`]).
+//! - [`io`]: a CiA 401 I/O module's channels: inputs live, outputs set
+//!   and read back.
 //! - [`leases`]: renewing a motion lease (the leases and their supervisor
 //!   are [`crate::gateway::leases`]).
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
@@ -69,6 +71,7 @@ pub mod events;
 pub mod frames;
 pub mod headers;
 pub mod host;
+pub mod io;
 pub mod leases;
 pub mod lss;
 pub mod metrics;
@@ -187,6 +190,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(stream::router())
         .merge(events::router())
         .merge(eds::router())
+        .merge(io::router())
         .merge(auth::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);

@@ -53,6 +53,9 @@ pub struct Node {
     /// The EDS file the node is described by.
     #[schema(example = "umc1bds32.eds")]
     pub eds: Option<String>,
+    /// Whether `eds` was assigned by hand (`PUT .../eds`) rather than
+    /// matched by the node's identity.
+    pub eds_assigned: bool,
     /// The heartbeat period it is supervised with; null without heartbeat.
     #[schema(example = 100)]
     pub heartbeat_ms: Option<u64>,
@@ -80,6 +83,7 @@ pub enum ProfileName {
     JmcStepper,
     Uioled,
     Cia402,
+    Cia401,
     Generic,
 }
 
@@ -206,7 +210,8 @@ async fn one_node(
                 .await
                 .and_then(|segments| Ok(("segments", to_json(&segments)?))),
         ),
-        Profile::Generic => None,
+        // The I/O view is GET .../io: a read of every channel.
+        Profile::Cia401 | Profile::Generic => None,
     };
     match summary {
         Some(Ok((key, value))) => body[key] = value,

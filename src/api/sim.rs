@@ -130,7 +130,7 @@ pub struct SimDevice {
     /// device, `"lss": true`).
     #[schema(example = 4, minimum = 1, maximum = 127)]
     pub id: Option<u8>,
-    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`; null for a device
+    /// `umc1bds32`, `umc1bd90`, `jmc`, `uio1led` or `io401`; null for a device
     /// built from a dictionary of its own (tests).
     #[schema(example = "uio1led")]
     pub product: Option<String>,
@@ -148,7 +148,7 @@ pub struct SimDevice {
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"product": "uio1led", "id": 4}))]
 pub struct AddDevice {
-    /// `umc1bds32`, `umc1bd90`, `jmc` or `uio1led`.
+    /// `umc1bds32`, `umc1bd90`, `jmc`, `uio1led` or `io401`.
     #[schema(example = "uio1led")]
     pub product: String,
     /// The node id, 1 to 127; absent with `lss`.

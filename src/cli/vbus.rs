@@ -22,7 +22,7 @@ pub struct VbusArgs {
     pub listen: SocketAddr,
     /// Virtual devices on the bus: `demo` (UMC1BDS32 at 1, JMC at 2, UIO1LED
     /// at 3), `none`, or a list like `umc1bds32@1,jmc@2,uio1led@3` (products:
-    /// umc1bds32, umc1bd90, jmc, uio1led); `uio1led@lss` or
+    /// umc1bds32, umc1bd90, jmc, uio1led, io401); `uio1led@lss` or
     /// `uio1led@lss/SERIAL` is a device without a node-ID, waiting for an
     /// LSS master (CiA 305).
     #[arg(long, default_value = "demo")]

@@ -107,6 +107,25 @@ pub enum GatewayError {
     /// The node's product cannot change its node-ID over SDO (no 0x2040).
     #[error("{0}")]
     NodeIdNotSupported(String),
+    /// No EDS file of the catalog has this name.
+    #[error("no EDS file is named '{0}'")]
+    UnknownEds(String),
+    /// An uploaded file that is no EDS (the reader's error, with its line).
+    #[error("{message}")]
+    InvalidEds {
+        message: String,
+        line: Option<usize>,
+    },
+    /// An EDS file that cannot be added or deleted now: its name is taken,
+    /// it is not an uploaded one, or a node is assigned to it.
+    #[error("{0}")]
+    EdsConflict(String),
+    /// The node is no CiA 401 I/O module (its profile is not cia401).
+    #[error("{0}")]
+    NotAnIoModule(String),
+    /// The I/O module has no such channel.
+    #[error("{0}")]
+    UnknownChannel(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -157,6 +176,11 @@ impl GatewayError {
             Self::LssRefused(_) => (422, "lss_refused"),
             Self::NodeIdInUse(_) => (409, "node_id_in_use"),
             Self::NodeIdNotSupported(_) => (422, "node_id_change_not_supported"),
+            Self::UnknownEds(_) => (404, "unknown_eds"),
+            Self::InvalidEds { .. } => (400, "invalid_eds"),
+            Self::EdsConflict(_) => (409, "eds_conflict"),
+            Self::NotAnIoModule(_) => (404, "not_an_io_module"),
+            Self::UnknownChannel(_) => (404, "unknown_channel"),
             Self::Internal(_) => (500, "internal_error"),
         }
     }

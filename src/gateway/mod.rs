@@ -14,6 +14,8 @@
 //! - [`access`]: tokens and roles, and the write rate limit, for every
 //!   adapter.
 //! - [`files`]: the data directory's modes (0700 directories, 0600 files).
+//! - [`io`]: the I/O of a CiA 401 module: every channel with its value
+//!   and age, outputs set and read back.
 //! - [`leases`]: the motion leases granted and the supervisor that stops
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
@@ -26,6 +28,8 @@
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
+//! - [`eds_files`]: EDS files uploaded and deleted, and assigned to nodes
+//!   by hand, as operations of the [`Gateway`].
 //! - [`history`]: the persisted audit log and EMCY/NMT history (SQLite).
 //! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
 //!   catalog (built-in and `--eds-dir` files) its identity is matched to.
@@ -57,10 +61,12 @@ pub mod axis_telemetry;
 pub mod dcf;
 pub mod drive;
 pub mod edge_node;
+pub mod eds_files;
 pub mod error;
 pub mod files;
 pub mod frames;
 pub mod history;
+pub mod io;
 pub mod leases;
 pub mod led_preview;
 pub mod load;

@@ -240,6 +240,9 @@ pub struct NodeInfo {
     pub profile: Profile,
     /// The name of the EDS file that describes the node.
     pub eds: Option<String>,
+    /// Whether that file was assigned to the node by hand
+    /// ([`NodeRegistry::assign_eds`]) rather than matched by its identity.
+    pub eds_assigned: bool,
     /// The EDS itself, shared with the catalog.
     #[serde(skip)]
     pub eds_entry: Option<Arc<EdsEntry>>,
@@ -421,6 +424,7 @@ struct Node {
     name: Option<String>,
     profile: Profile,
     eds: Option<Arc<EdsEntry>>,
+    eds_assigned: bool,
     identification: Identification,
     /// Bumped by every boot-up: an identification that started before it is
     /// out of date.
@@ -444,6 +448,7 @@ impl Node {
             name: self.name.clone(),
             profile: self.profile,
             eds: self.eds.as_ref().map(|entry| entry.name.clone()),
+            eds_assigned: self.eds_assigned,
             eds_entry: self.eds.clone(),
             heartbeat_ms: self
                 .heartbeat
@@ -464,6 +469,33 @@ impl Node {
         self.name = None;
         self.profile = Profile::Generic;
         self.eds = None;
+        self.eds_assigned = false;
+    }
+
+    /// Its EDS and profile: the file assigned to it by hand if there is
+    /// one (the profile from that file, else from the device's 0x1000),
+    /// else the catalog's match for its identity. Whether they changed.
+    fn describe(&mut self, catalog: &EdsCatalog, assigned: Option<&Arc<EdsEntry>>) -> bool {
+        let (eds, profile) = match assigned {
+            Some(entry) => (Some(entry.clone()), entry.profile_for(self.device_type)),
+            None if self.identification == Identification::Done => (
+                self.identity
+                    .as_ref()
+                    .and_then(|identity| catalog.lookup(identity)),
+                catalog.profile(self.identity.as_ref(), self.device_type),
+            ),
+            None => (None, Profile::Generic),
+        };
+        let same_eds = match (&self.eds, &eds) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            (None, None) => true,
+            _ => false,
+        };
+        let changed = !same_eds || self.profile != profile;
+        self.eds = eds;
+        self.profile = profile;
+        self.eds_assigned = assigned.is_some();
+        changed
     }
 }
 
@@ -476,6 +508,9 @@ struct State {
     probe_channels: BTreeMap<NodeId, SdoChannel>,
     consumer: HeartbeatConsumer,
     bus_up: bool,
+    /// The EDS files assigned to node ids by hand, whether or not the node
+    /// has been heard yet.
+    assigned: BTreeMap<NodeId, Arc<EdsEntry>>,
 }
 
 struct Shared {
@@ -575,6 +610,7 @@ impl NodeRegistry {
                 probe_channels: BTreeMap::new(),
                 consumer: HeartbeatConsumer::new(),
                 bus_up,
+                assigned: BTreeMap::new(),
             }),
             events,
             probing: watch::Sender::new(BTreeSet::new()),
@@ -655,6 +691,62 @@ impl NodeRegistry {
                 bus: self.bus_name().to_string(),
                 node: id,
             })
+    }
+
+    /// Describes node `id` by `entry` from now on, whatever its identity
+    /// says (`None`: by its identity again, as the catalog matches it). The
+    /// assignment holds for the node id: through the node's boot-ups, and
+    /// for a node not heard yet, from when it is. The node's profile
+    /// follows the file's device type (or the device's, when the file has
+    /// none). Returns the node as it is now, if it is known; a change is
+    /// published as [`NodeEvent::Identified`].
+    pub fn assign_eds(&self, id: NodeId, entry: Option<Arc<EdsEntry>>) -> Option<NodeInfo> {
+        let mut state = self.shared.lock();
+        match entry {
+            Some(entry) => state.assigned.insert(id, entry),
+            None => state.assigned.remove(&id),
+        };
+        let State {
+            nodes, assigned, ..
+        } = &mut *state;
+        let node = nodes.get_mut(&id)?;
+        if node.describe(&self.shared.catalog, assigned.get(&id)) {
+            self.shared.emit(NodeEvent::Identified {
+                node: id,
+                profile: node.profile,
+                eds: node.eds.as_ref().map(|entry| entry.name.clone()),
+            });
+        }
+        Some(node.info(Instant::now()))
+    }
+
+    /// The EDS files assigned by hand, by node id.
+    pub fn assignments(&self) -> BTreeMap<NodeId, String> {
+        self.shared
+            .lock()
+            .assigned
+            .iter()
+            .map(|(id, entry)| (*id, entry.name.clone()))
+            .collect()
+    }
+
+    /// Matches every node to the catalog again (a file joined or left it);
+    /// the nodes whose EDS or profile changed are published as
+    /// [`NodeEvent::Identified`].
+    pub fn rematch(&self) {
+        let mut state = self.shared.lock();
+        let State {
+            nodes, assigned, ..
+        } = &mut *state;
+        for node in nodes.values_mut() {
+            if node.describe(&self.shared.catalog, assigned.get(&node.id)) {
+                self.shared.emit(NodeEvent::Identified {
+                    node: node.id,
+                    profile: node.profile,
+                    eds: node.eds.as_ref().map(|entry| entry.name.clone()),
+                });
+            }
+        }
     }
 
     /// What happens to the nodes from now on.
@@ -743,6 +835,7 @@ impl Shared {
                 name: None,
                 profile: Profile::Generic,
                 eds: None,
+                eds_assigned: false,
                 identification: Identification::Pending,
                 generation: 0,
                 identifying: false,
@@ -751,6 +844,7 @@ impl Shared {
             }
         });
         if new {
+            node.describe(&self.catalog, state.assigned.get(&id));
             self.emit(NodeEvent::Appeared { node: id });
         }
         (node, new)
@@ -823,6 +917,7 @@ impl Shared {
             }
         };
         let bus_up = state.bus_up;
+        let assigned = state.assigned.get(&id).cloned();
         let (node, new) = self.ensure_node(state, id, now);
         let mut boot_up = false;
         for event in events {
@@ -846,6 +941,7 @@ impl Shared {
         if boot_up {
             self.set_nmt(node, NmtState::BootUp);
             node.forget_identity();
+            node.describe(&self.catalog, assigned.as_ref());
             node.heartbeat.reset();
         } else {
             period = node.heartbeat.on_heartbeat(now);
@@ -1125,7 +1221,10 @@ impl Shared {
         outcome: Result<Identified, SdoRequestError>,
     ) {
         let State {
-            nodes, consumer, ..
+            nodes,
+            consumer,
+            assigned,
+            ..
         } = state;
         let Some(node) = nodes.get_mut(&id) else {
             return;
@@ -1135,14 +1234,8 @@ impl Shared {
                 node.device_type = found.device_type;
                 node.identity = found.identity;
                 node.name = found.name;
-                node.eds = node
-                    .identity
-                    .as_ref()
-                    .and_then(|identity| self.catalog.lookup(identity));
-                node.profile = self
-                    .catalog
-                    .profile(node.identity.as_ref(), node.device_type);
                 node.identification = Identification::Done;
+                node.describe(&self.catalog, assigned.get(&id));
                 // The boot-up message is sent on entering pre-operational,
                 // and the node answered SDO, which it does not when stopped.
                 if node.nmt == Some(NmtState::BootUp) {
@@ -1162,6 +1255,7 @@ impl Shared {
             }
             Err(error) => {
                 node.forget_identity();
+                node.describe(&self.catalog, assigned.get(&id));
                 let error = error.to_string();
                 node.identification = Identification::Failed {
                     error: error.clone(),

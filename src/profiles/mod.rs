@@ -5,6 +5,8 @@
 //!
 //! - [`builtin`]: the EDS files candeck carries for its products, written from
 //!   their manuals (`eds/` in the repository).
+//! - [`cia401`]: CiA 401 generic I/O modules: the digital and analogue
+//!   input and output objects, their channels and values.
 //! - [`cia402`]: the CiA 402 power drive system (states, controlword, modes).
 //! - [`jmc`]: JMC CANopen stepper drives: mode numbers, units, controlword
 //!   and statusword bits, homing methods.
@@ -13,6 +15,7 @@
 //! - [`uioled`]: UniSwarm UIO1LED LED strip controllers: segments, effects and
 //!   the renderer of the strip's pixels.
 
+pub mod cia401;
 pub mod cia402;
 pub mod jmc;
 pub mod uioled;
@@ -28,6 +31,9 @@ pub mod builtin {
     pub const UMC1BD90: &str = include_str!("../../eds/umc1bd90.eds");
     /// UniSwarm UIO1LED, 10-segment LED strip controller.
     pub const UIO1LED: &str = include_str!("../../eds/uio1led.eds");
+    /// candeck io401, the virtual CiA 401 generic I/O module (no vendor's
+    /// product: written for candeck).
+    pub const IO401: &str = include_str!("../../eds/io401.eds");
     /// JMC CANopen stepper drive.
     pub const JMC_STEPPER: &str = include_str!("../../eds/jmc_stepper.eds");
 }

@@ -13,7 +13,8 @@
 //!   boot-up, heartbeat from 0x1017, SDO server, resets.
 //! - [`pdo`]: the device's PDOs from their parameters, SYNC, re-mapping.
 //! - [`products`]: the emulated products and the `--devices` lists.
-//! - [`umc`], [`jmc`], [`uioled`]: the behaviour of each product.
+//! - [`umc`], [`jmc`], [`uioled`], [`io401`]: the behaviour of each
+//!   product.
 //! - [`rack`]: [`Rack`](rack::Rack), the devices of one virtual bus on one
 //!   runner and one simulation clock, with unplug, plug and fault injection.
 //! - [`persist`]: saved parameters on disk under `--data-dir`.
@@ -21,6 +22,7 @@
 pub mod behaviour;
 pub mod board;
 pub mod device;
+pub mod io401;
 pub mod jmc;
 pub mod objects;
 pub mod pdo;

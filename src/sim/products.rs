@@ -13,6 +13,7 @@ use crate::profiles::builtin;
 
 use super::behaviour::Behaviour;
 use super::device::DeviceCore;
+use super::io401::Io401;
 use super::jmc::Jmc;
 use super::objects::add_dummy_objects;
 use super::uioled::Uioled;
@@ -29,10 +30,18 @@ pub enum Product {
     Jmc,
     /// UniSwarm UIO1LED, LED strip controller.
     Uio1led,
+    /// candeck io401, a CiA 401 generic I/O module (not in the demo).
+    Io401,
 }
 
 impl Product {
-    pub const ALL: [Product; 4] = [Self::Umc1bds32, Self::Umc1bd90, Self::Jmc, Self::Uio1led];
+    pub const ALL: [Product; 5] = [
+        Self::Umc1bds32,
+        Self::Umc1bd90,
+        Self::Jmc,
+        Self::Uio1led,
+        Self::Io401,
+    ];
 
     /// The name of `--devices` and of `POST /sim/nodes`.
     pub fn name(self) -> &'static str {
@@ -41,6 +50,7 @@ impl Product {
             Self::Umc1bd90 => "umc1bd90",
             Self::Jmc => "jmc",
             Self::Uio1led => "uio1led",
+            Self::Io401 => "io401",
         }
     }
 
@@ -57,6 +67,7 @@ impl Product {
             Self::Umc1bd90 => builtin::UMC1BD90,
             Self::Jmc => builtin::JMC_STEPPER,
             Self::Uio1led => builtin::UIO1LED,
+            Self::Io401 => builtin::IO401,
         }
     }
 
@@ -67,6 +78,7 @@ impl Product {
             Self::Umc1bd90 => Box::new(Umc::new(1)),
             Self::Jmc => Box::new(Jmc::new()),
             Self::Uio1led => Box::new(Uioled::new()),
+            Self::Io401 => Box::new(Io401::new()),
         }
     }
 
@@ -311,11 +323,11 @@ mod tests {
         let cases = [
             (
                 "jmc",
-                "'jmc' is not PRODUCT@NODE (for example jmc@2, or jmc@lss for an unconfigured LSS device); products: umc1bds32, umc1bd90, jmc, uio1led",
+                "'jmc' is not PRODUCT@NODE (for example jmc@2, or jmc@lss for an unconfigured LSS device); products: umc1bds32, umc1bd90, jmc, uio1led, io401",
             ),
             (
                 "servo@2",
-                "unknown product 'servo'; products: umc1bds32, umc1bd90, jmc, uio1led",
+                "unknown product 'servo'; products: umc1bds32, umc1bd90, jmc, uio1led, io401",
             ),
             ("jmc@0", "'jmc@0': node id 0 is not 1 to 127"),
             (

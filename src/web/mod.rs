@@ -22,7 +22,9 @@
 //!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor),
 //!   `/nodes/{bus}/{node}/leds` (an LED controller's segments and live
 //!   strip), `/buses/{bus}/trace` (a bus's live frames, decoded, and its
-//!   recording) and `/events` (the persisted history), and
+//!   recording), `/events` (the persisted history), `/eds` (the device
+//!   descriptions: the EDS catalog, uploads) and `/nodes/{bus}/{node}/io`
+//!   (a CiA 401 module's inputs and outputs), and
 //!   `/static/{version}/{*path}`; none is under
 //!   `/api/v1` nor in the OpenAPI document. A page is rendered for any bus
 //!   and node in its path: it asks the API, and shows its 404 in words
@@ -35,6 +37,8 @@
 //! - `PdosPage`: the PDO editor (`web/templates/pdos.html`).
 //! - `NodePage`, `EventsPage`: a node and the history
 //!   (`web/templates/node.html`, `events.html`).
+//! - `EdsPage`, `IoPage`: the device descriptions and the I/O page
+//!   (`web/templates/eds.html`, `io.html`).
 //! - `LedsPage`, `TracePage`: the LED and trace pages, which carry the bus
 //!   and node of their path in data attributes for their modules.
 
@@ -79,7 +83,9 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/app.css", CSS),
     asset!("css/auth.css", CSS),
     asset!("css/drive.css", CSS),
+    asset!("css/eds.css", CSS),
     asset!("css/events.css", CSS),
+    asset!("css/io.css", CSS),
     asset!("css/leds.css", CSS),
     asset!("css/node.css", CSS),
     asset!("css/pdos.css", CSS),
@@ -91,7 +97,9 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/cia402.js", JS),
     asset!("js/dom.js", JS),
     asset!("js/drive.js", JS),
+    asset!("js/eds.js", JS),
     asset!("js/events.js", JS),
+    asset!("js/io.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/leds.js", JS),
     asset!("js/lss.js", JS),
@@ -143,6 +151,8 @@ pub fn router() -> Router {
         .route("/", get(overview))
         .route("/nodes/{bus}/{node}", get(node))
         .route("/events", get(events))
+        .route("/eds", get(eds))
+        .route("/nodes/{bus}/{node}/io", get(io))
         .route("/nodes/{bus}/{node}/leds", get(leds))
         .route("/buses/{bus}/trace", get(trace))
         .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
@@ -213,6 +223,20 @@ struct NodePage {
 
 /// The persisted history: EMCYs, NMT events and the audit log.
 #[derive(Template)]
+#[template(path = "eds.html")]
+struct EdsPage {
+    layout: Layout,
+}
+
+#[derive(Template)]
+#[template(path = "io.html")]
+struct IoPage {
+    layout: Layout,
+    bus: String,
+    node: String,
+}
+
+#[derive(Template)]
 #[template(path = "events.html")]
 struct EventsPage {
     layout: Layout,
@@ -282,6 +306,20 @@ async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
 async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
     page(&NodePage {
         layout: Layout::new("node"),
+        bus,
+        node,
+    })
+}
+
+async fn eds() -> Response {
+    page(&EdsPage {
+        layout: Layout::new("eds"),
+    })
+}
+
+async fn io(Path((bus, node)): Path<(String, String)>) -> Response {
+    page(&IoPage {
+        layout: Layout::new("io"),
         bus,
         node,
     })

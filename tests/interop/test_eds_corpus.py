@@ -175,5 +175,8 @@ def test_dictionaries_agree_with_python_canopen(candeck_dictionaries):
     print(f"compared: {compared}; python-canopen refused {len(python_failed)} files")
     for failure in python_failed:
         print("  python-canopen:", failure)
-    assert compared["files"] >= 60, python_failed
+    # python-canopen 2.4.1 reads 52 of the 62 files; it refuses Lely's DCFs
+    # without Dummy000N keys, CANopenNode's files whose [Comments] count more
+    # lines than they have, and an empty number.
+    assert compared["files"] >= 50, python_failed
     assert not mismatches, "\n".join(mismatches[:50]) + f"\n({len(mismatches)} in all)"

@@ -35,10 +35,15 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::LssRefused(_) => 26,
         GatewayError::NodeIdInUse(_) => 27,
         GatewayError::NodeIdNotSupported(_) => 28,
+        GatewayError::UnknownEds(_) => 29,
+        GatewayError::InvalidEds { .. } => 30,
+        GatewayError::EdsConflict(_) => 31,
+        GatewayError::NotAnIoModule(_) => 32,
+        GatewayError::UnknownChannel(_) => 33,
     }
 }
 
-const VARIANTS: usize = 29;
+const VARIANTS: usize = 34;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -98,6 +103,14 @@ fn samples() -> Vec<GatewayError> {
             message: text(),
             retry_after_s: 2,
         },
+        GatewayError::UnknownEds("x.eds".to_string()),
+        GatewayError::InvalidEds {
+            message: text(),
+            line: Some(3),
+        },
+        GatewayError::EdsConflict(text()),
+        GatewayError::NotAnIoModule(text()),
+        GatewayError::UnknownChannel(text()),
     ]
 }
 

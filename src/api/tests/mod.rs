@@ -8,6 +8,7 @@ mod auth;
 mod drives;
 mod edge;
 mod eds;
+mod io;
 mod leases;
 mod leds;
 mod lss;

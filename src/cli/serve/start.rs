@@ -42,6 +42,13 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         None => EdsCatalog::builtin(),
     }
     .map_err(CliError::new)?;
+    // Uploaded EDS files are kept in DATA/eds; without a data directory,
+    // in memory.
+    let catalog = match &args.data_dir {
+        Some(dir) => catalog.with_uploads(dir.join("eds")),
+        None => Ok(catalog),
+    }
+    .map_err(CliError::new)?;
     let catalog = Arc::new(catalog);
     let mut served = Vec::new();
     for bus in &args.buses {

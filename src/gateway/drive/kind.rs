@@ -23,7 +23,7 @@ impl DriveKind {
             Profile::Umc => Some(Self::Umc),
             Profile::JmcStepper => Some(Self::Jmc),
             Profile::Cia402 => Some(Self::Cia402),
-            Profile::Uioled | Profile::Generic => None,
+            Profile::Uioled | Profile::Cia401 | Profile::Generic => None,
         }
     }
 

@@ -49,6 +49,9 @@ fn the_device_type_gives_cia402_by_its_low_16_bits() {
     assert_eq!(Profile::from_device_type(0x0006_0912), Profile::Generic);
     assert_eq!(Profile::from_device_type(428), Profile::Generic);
     assert_eq!(Profile::from_device_type(0), Profile::Generic);
+    // CiA 401 I/O modules, whatever their function bits.
+    assert_eq!(Profile::from_device_type(401), Profile::Cia401);
+    assert_eq!(Profile::from_device_type(0x000F_0191), Profile::Cia401);
 }
 
 #[test]
@@ -131,7 +134,7 @@ fn a_users_file_wins_over_a_built_in_one_and_keeps_the_products_profile() {
         eds_text(0x4A2, 0x1001, 0x0100_0004, 402),
     )
     .unwrap();
-    std::fs::write(dir.join("other.eds"), eds_text(0x99, 1, 1, 0x0191)).unwrap();
+    std::fs::write(dir.join("other.eds"), eds_text(0x99, 1, 1, 0x0195)).unwrap();
     std::fs::write(dir.join("notes.txt"), "not an EDS").unwrap();
     let catalog = EdsCatalog::with_dir(&dir).unwrap();
     assert_eq!(catalog.entries().len(), BUILT_IN.len() + 2);
@@ -161,7 +164,7 @@ fn a_users_file_wins_over_a_built_in_one_and_keeps_the_products_profile() {
 }
 
 #[test]
-fn a_broken_or_unmatchable_file_is_left_out_and_named_and_the_rest_serves() {
+fn a_broken_file_is_left_out_and_named_an_unmatchable_one_kept_for_assignment() {
     let dir = temp_dir("broken");
     std::fs::write(dir.join("good.eds"), eds_text(0x77, 0x10, 1, 402)).unwrap();
     // No EDS at all (a flawed EDS loads, with warnings).
@@ -169,8 +172,14 @@ fn a_broken_or_unmatchable_file_is_left_out_and_named_and_the_rest_serves() {
     let text = eds_text(0x77, 0x11, 1, 402).replace("VendorNumber=0x77\n", "");
     std::fs::write(dir.join("anonymous.eds"), text).unwrap();
     let catalog = EdsCatalog::with_dir(&dir).unwrap();
-    assert_eq!(catalog.entries().len(), BUILT_IN.len() + 1);
+    assert_eq!(catalog.entries().len(), BUILT_IN.len() + 2);
     assert!(catalog.lookup(&identity(0x77, 0x10, Some(1))).is_some());
+    // In the catalog, but matched to no device: only assigned by hand.
+    let anonymous = catalog.find("anonymous.eds").unwrap();
+    assert!(!anonymous.matches_by_identity());
+    assert_eq!(anonymous.product_code, Some(0x11));
+    assert!(catalog.lookup(&identity(0x77, 0x11, Some(1))).is_none());
+    assert_eq!(anonymous.profile_for(None), Profile::Cia402);
     let skipped: Vec<_> = catalog
         .skipped()
         .iter()
@@ -181,14 +190,33 @@ fn a_broken_or_unmatchable_file_is_left_out_and_named_and_the_rest_serves() {
             )
         })
         .collect();
-    assert_eq!(skipped.len(), 2, "{skipped:?}");
-    assert_eq!(skipped[0].0, "anonymous.eds");
-    assert!(skipped[0].1.contains("vendor number"), "{}", skipped[0].1);
-    assert_eq!(skipped[1].0, "broken.eds");
-    assert!(skipped[1].1.contains("not an EDS"), "{}", skipped[1].1);
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    assert_eq!(skipped[0].0, "broken.eds");
+    assert!(skipped[0].1.contains("not an EDS"), "{}", skipped[0].1);
 
     let missing = dir.join("no-such-dir");
     let error = EdsCatalog::with_dir(&missing).unwrap_err();
     assert!(error.to_string().contains("no-such-dir"), "{error}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_assigned_file_without_device_type_takes_the_device_s() {
+    let catalog = EdsCatalog::builtin().unwrap();
+    let text = eds_text(0x99, 1, 1, 0).replace(
+        "DefaultValue=0x0\nPDOMapping=0\n\n[1001]",
+        "PDOMapping=0\n\n[1001]",
+    );
+    let entry = catalog.upload("typeless.eds", text.as_bytes()).unwrap();
+    assert_eq!(entry.device_type, None);
+    assert_eq!(entry.profile_for(Some(0x0002_0192)), Profile::Cia402);
+    assert_eq!(entry.profile_for(Some(0x000F_0191)), Profile::Cia401);
+    assert_eq!(entry.profile_for(None), Profile::Generic);
+    // A file of one of our products keeps the product's profile.
+    let umc = catalog.find("umc1bds32.eds").unwrap();
+    assert_eq!(umc.profile_for(Some(0x0001_0191)), Profile::Umc);
+    // In memory (no data directory), removed again.
+    assert_eq!(entry.source, EdsSource::Uploaded(None));
+    catalog.remove("typeless.eds").unwrap();
+    assert!(catalog.find("typeless.eds").is_none());
 }

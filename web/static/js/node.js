@@ -111,8 +111,55 @@ function renderIdentity() {
       : h('span', { class: 'sub' }, 'none'), 'emcy'),
   );
   renderLinks();
+  renderEds();
   if (pendingNmt) showNmtState();
 }
+
+// ---- EDS assignment ------------------------------------------------------
+
+const edsCurrent = $('#eds-current');
+const edsSelect = $('#eds-file');
+const edsResult = $('#eds-result');
+let edsFiles = null; // names of the catalog's usable files
+
+function renderEds() {
+  const d = detail;
+  edsCurrent.textContent = d.eds
+    ? `Described by ${d.eds}, ${d.eds_assigned ? 'assigned by hand' : 'matched by its identity'}.`
+    : 'No EDS describes this node: none matches its identity. Assign one.';
+  edsCurrent.dataset.assigned = String(Boolean(d.eds_assigned));
+  $('#eds-unassign').disabled = !d.eds_assigned;
+  if (edsFiles && d.eds && edsFiles.includes(d.eds)) edsSelect.value = d.eds;
+}
+
+async function loadEdsFiles() {
+  try {
+    const list = await api('/eds');
+    edsFiles = list.files.filter((f) => f.usable).map((f) => f.name);
+    edsSelect.replaceChildren(...edsFiles.map((name) => h('option', { value: name }, name)));
+    if (detail) renderEds();
+  } catch (error) {
+    result(edsResult, 'failed', `The EDS files: ${error.message}`);
+  }
+}
+
+async function assignEds(button, file) {
+  const request = file
+    ? api(`${base}/eds`, { method: 'PUT', body: { file } })
+    : api(`${base}/eds`, { method: 'DELETE' });
+  const done = await runAction(button, file ? 'Assigning…' : 'Unassigning…', () => request);
+  if (!done.ok) {
+    result(edsResult, 'failed', h('strong', {}, `Not changed (${clock()}): `), errorView(done.error));
+    return;
+  }
+  result(edsResult, 'done', h('strong', {}, file ? `${file} assigned (${clock()}).` : `Matched by identity again (${clock()}).`));
+  await loadDetail();
+  loadDictionary();
+}
+
+$('#eds-assign').addEventListener('click', (event) => assignEds(event.currentTarget, edsSelect.value));
+$('#eds-unassign').addEventListener('click', (event) => assignEds(event.currentTarget, null));
+loadEdsFiles();
 
 function renderLinks() {
   const d = detail;
@@ -124,6 +171,7 @@ function renderLinks() {
     }
   }
   if (d.profile === 'uioled') items.push(h('a', { href: `${path}/leds`, class: 'pill' }, 'LEDs'));
+  if (d.profile === 'cia401') items.push(h('a', { href: `${path}/io`, class: 'pill', id: 'io-link' }, 'I/O'));
   items.push(h('a', { href: `${path}/pdos`, class: 'pill' }, 'PDOs'));
   links.replaceChildren(...items);
 }
