@@ -142,3 +142,29 @@ async fn sim_nodes_adds_an_unconfigured_device_which_lss_finds() {
     .await;
     assert_error(&bad, StatusCode::BAD_REQUEST, "invalid_request");
 }
+
+#[tokio::test(start_paused = true)]
+async fn one_lss_transaction_per_bus_at_a_time() {
+    let served = open("line", "virtual:uio1led@lss").await;
+    let state = AppState::new([served]);
+    let app = app(state.clone());
+    let served = state.bus("line").unwrap();
+    let held = served.lss.begin().unwrap();
+    assert_error(
+        &post(&app, "/api/v1/buses/line/lss/scan", json!({})).await,
+        StatusCode::CONFLICT,
+        "lss_busy",
+    );
+    let request = json!({"vendor_id": 0x4A2, "product_code": 0x4101, "revision": 1,
+        "serial": 0x101, "node_id": 5});
+    assert_error(
+        &post(&app, "/api/v1/buses/line/lss/configure", request.clone()).await,
+        StatusCode::CONFLICT,
+        "lss_busy",
+    );
+    drop(held);
+    assert_eq!(
+        ok(post(&app, "/api/v1/buses/line/lss/configure", request).await)["id"],
+        5
+    );
+}

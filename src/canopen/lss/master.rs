@@ -13,6 +13,11 @@
 //! (still unconfigured), and so finds every unconfigured slave on the bus.
 //! Several slaves answering one request send the same frame at the same
 //! time, which the bus carries as one.
+//!
+//! An answer that comes after its timeout reads as a bit set that is not
+//! (and may be taken for the answer to the next request): the part then
+//! fails its confirmation, and Fastscan starts over from the confirm, at
+//! most [`FASTSCAN_RETRIES`] times per slave, before it reports the timeout.
 
 use std::time::{Duration, Instant};
 
@@ -26,6 +31,9 @@ use super::{
 /// How many slaves [`LssService::FastscanAll`] finds at most (one per
 /// node-ID a bus can give).
 pub const MAX_FOUND: usize = 127;
+/// How many times Fastscan starts over for one slave whose part failed its
+/// confirmation.
+pub const FASTSCAN_RETRIES: u8 = 3;
 
 /// A service of the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -135,6 +143,8 @@ struct Scan {
     phase: Phase,
     /// `Some` for [`LssService::FastscanAll`]: the slaves found so far.
     all: Option<Vec<LssAddress>>,
+    /// Start-overs for the slave being scanned.
+    retries: u8,
 }
 
 impl Scan {
@@ -144,7 +154,15 @@ impl Scan {
             sub: 0,
             phase: Phase::Confirm,
             all,
+            retries: 0,
         }
+    }
+
+    /// From the confirm again, for the same slave.
+    fn start_over(&mut self) {
+        let retries = self.retries + 1;
+        *self = Self::new(self.all.take());
+        self.retries = retries;
     }
 
     fn request(&self) -> Frame {
@@ -167,7 +185,8 @@ impl Scan {
         match self.phase {
             Phase::Confirm if !answered => return Err(None),
             Phase::Confirm => {
-                *self = Self::new(self.all.take());
+                self.id = [0; 4];
+                self.sub = 0;
                 self.phase = Phase::Bit(31);
             }
             Phase::Bit(bit) => {
@@ -417,6 +436,12 @@ impl LssMaster {
                 None => self.finish(Ok(LssOutcome::Found(None))),
                 Some(all) => self.finish_all(all),
             },
+            Err(Some(_)) if scan.retries < FASTSCAN_RETRIES => {
+                scan.start_over();
+                let frame = scan.request();
+                self.deadline = Some(now + self.timeout);
+                LssStep::send(vec![frame])
+            }
             Err(Some(error)) => {
                 let waiting = scan.all.is_some();
                 let mut step = self.finish(Err(error));

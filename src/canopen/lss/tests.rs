@@ -194,6 +194,9 @@ struct Wire {
     now: Instant,
     events: Vec<(usize, LssSlaveEvent)>,
     requests: usize,
+    /// The answers to these requests (by number, from 1) come too late:
+    /// after the master's timeout, before its next request's.
+    late: Vec<usize>,
 }
 
 impl Wire {
@@ -204,15 +207,19 @@ impl Wire {
             now: Instant::now(),
             events: Vec::new(),
             requests: 0,
+            late: Vec::new(),
         }
     }
 
     fn run(&mut self, service: LssService) -> Result<LssOutcome, LssError> {
         let mut step = self.master.start(service, self.now);
+        let mut late: Vec<Frame> = Vec::new();
         loop {
-            let mut answers: Vec<Frame> = Vec::new();
+            let mut answers: Vec<Frame> = std::mem::take(&mut late);
+            let mut delayed = false;
             for frame in &step.send {
                 self.requests += 1;
+                delayed |= self.late.contains(&self.requests);
                 for (n, slave) in self.slaves.iter_mut().enumerate() {
                     let out = slave.handle(frame);
                     if let Some(event) = out.event {
@@ -227,6 +234,9 @@ impl Wire {
             }
             if let Some(done) = step.done {
                 return done;
+            }
+            if delayed {
+                late = std::mem::take(&mut answers);
             }
             step = match answers.first() {
                 Some(answer) => {
@@ -253,6 +263,67 @@ fn fastscan_finds_one_unconfigured_slave_in_133_requests() {
     assert_eq!(found, Ok(LssOutcome::Found(Some(address(0xDEAD_BEEF)))));
     assert_eq!(wire.requests, 1 + 4 * 33);
     assert_eq!(wire.slaves[0].state(), LssState::Configuration);
+}
+
+#[test]
+fn fastscan_starts_over_when_an_answer_comes_too_late() {
+    // Late answers to a bit, and to the request after it; then to a
+    // confirmation of a part. Each time the scan starts over and finds
+    // the right address.
+    let slaves = || {
+        vec![
+            LssSlave::new(address(0x1234_5678), None),
+            LssSlave::new(address(0x0F0F_0F0F), None),
+        ]
+    };
+    let mut wire = Wire::new(slaves());
+    wire.run(LssService::FastscanAll).unwrap();
+    let on_time = wire.requests;
+    // Request 10 asks for bit 24 of the vendor-ID (0), 40 and 41 for bits
+    // 27 and 26 of the product code, 35 confirms the vendor-ID.
+    for late in [vec![10], vec![40, 41], vec![35]] {
+        let mut wire = Wire::new(slaves());
+        wire.late = late.clone();
+        let Ok(LssOutcome::FoundAll(mut found)) = wire.run(LssService::FastscanAll) else {
+            panic!("Fastscan failed with late answers {late:?}");
+        };
+        found.sort();
+        assert_eq!(
+            found,
+            vec![address(0x0F0F_0F0F), address(0x1234_5678)],
+            "{late:?}"
+        );
+        assert!(wire.requests > on_time, "{late:?}: no start-over");
+    }
+    // A slave that answers the confirm and nothing else fails the scan
+    // after the start-overs.
+    let mut master = LssMaster::new(Duration::from_millis(10));
+    let mut now = Instant::now();
+    let mut step = master.start(LssService::Fastscan, now);
+    let mut confirms = 0;
+    let outcome = loop {
+        if let Some(done) = step.done {
+            break done;
+        }
+        let confirm = step.send.iter().any(|frame| {
+            matches!(
+                LssRequest::decode(frame),
+                Ok(LssRequest::Fastscan {
+                    bit_checked: FASTSCAN_CONFIRM,
+                    ..
+                })
+            )
+        });
+        now = master.deadline().unwrap();
+        step = if confirm {
+            confirms += 1;
+            master.on_frame(&LssResponse::IdentifySlave.encode(), now)
+        } else {
+            master.handle_timeout(now)
+        };
+    };
+    assert_eq!(outcome, Err(LssError::Timeout(CommandSpecifier::Fastscan)));
+    assert_eq!(confirms, 1 + usize::from(master::FASTSCAN_RETRIES));
 }
 
 #[test]
