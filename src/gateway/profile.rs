@@ -3,9 +3,13 @@
 //! §7.5.2.28) matched against the EDS files the gateway knows (CiA 306
 //! `[DeviceInfo]`).
 //!
-//! The [`EdsCatalog`] holds the built-in EDS files of candeck's products and
-//! the users' EDS files of an `--eds-dir`, each parsed once and shared. A
-//! node's identity picks the best entry: the exact revision first, else the
+//! The [`EdsCatalog`] holds the built-in EDS files of candeck's products,
+//! the users' EDS files of an `--eds-dir` and those uploaded while the
+//! gateway runs (kept in the data directory's `eds/`, or in memory), each
+//! parsed once and shared. A file that names no vendor or product is in the
+//! catalog too, but describes only the nodes it is assigned to by hand
+//! ([`super::registry::NodeRegistry::assign_eds`]). A node's identity picks
+//! the best entry: the exact revision first, else the
 //! highest revision of the same vendor and product that is not above the
 //! device's (a newer firmware usually keeps the objects of an older one),
 //! else any revision of the product (the highest). At equal rank a user's
@@ -14,7 +18,8 @@
 //! The [`Profile`] says what the gateway can do with the node beyond SDO:
 //! candeck's own products are known by vendor and product, whichever file
 //! describes them; any other device whose device type is CiA 402 is driven
-//! as a generic CiA 402 drive; everything else is generic.
+//! as a generic CiA 402 drive, one of CiA 401 is a generic I/O module;
+//! everything else is generic.
 
 use std::fmt;
 use std::path::{Path, PathBuf};

@@ -303,7 +303,7 @@ async fn demo_with_anonymous_drive() -> (axum::Router, AppState) {
 #[tokio::test(start_paused = true)]
 async fn a_node_whose_eds_names_no_product_is_assigned_then_read_and_written_by_name() {
     use axum::http::Method;
-    let (app, _) = demo_with_anonymous_drive().await;
+    let (app, state) = demo_with_anonymous_drive().await;
     let (status, body) = upload(&app, "ipos.eds", IPOS_LIKE).await;
     assert_eq!(status, StatusCode::CREATED, "{body}");
     // Nothing describes node 6: its names are unknown.
@@ -365,6 +365,56 @@ async fn a_node_whose_eds_names_no_product_is_assigned_then_read_and_written_by_
     )
     .await;
     assert_eq!(response.1["error"]["code"], "unknown_eds");
+
+    // The assignment holds through a boot-up of the node.
+    let (status, body) = send(
+        &app,
+        Method::POST,
+        "/api/v1/buses/demo/nodes/6/nmt",
+        Some(r#"{"command":"reset_node"}"#),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+    state.gateway.buses["demo"].registry.settle().await;
+    let (_, node) = get(&app, "/api/v1/buses/demo/nodes/6").await;
+    assert_eq!(
+        (
+            &node["eds"],
+            &node["eds_assigned"],
+            &node["identification"]["state"]
+        ),
+        (&"ipos.eds".into(), &true.into(), &"done".into()),
+        "{node}"
+    );
+
+    // A node id not heard yet takes the file when it is.
+    let (status, nothing) = send(
+        &app,
+        Method::PUT,
+        "/api/v1/buses/demo/nodes/7/eds",
+        Some(r#"{"file":"ipos.eds"}"#),
+    )
+    .await;
+    assert_eq!((status, &nothing), (StatusCode::OK, &Json::Null));
+    let dictionary = crate::canopen::eds::Eds::parse(IPOS_LIKE, "ipos.eds")
+        .unwrap()
+        .dictionary;
+    let device =
+        crate::sim::device::DeviceCore::new(dictionary, crate::canopen::NodeId::new(7).unwrap())
+            .unwrap();
+    let served = &state.gateway.buses["demo"];
+    served.rack.as_ref().unwrap().add_device(device).unwrap();
+    served.registry.scan().await.unwrap();
+    let (_, node) = get(&app, "/api/v1/buses/demo/nodes/7").await;
+    assert_eq!(
+        (&node["eds"], &node["eds_assigned"]),
+        (&"ipos.eds".into(), &true.into()),
+        "{node}"
+    );
+    let (_, read) = get(&app, "/api/v1/buses/demo/nodes/7/od/Jerk%20time/0").await;
+    assert_eq!(read["value"], 100, "{read}");
+    send(&app, Method::DELETE, "/api/v1/buses/demo/nodes/7/eds", None).await;
 
     // Back to matching by identity: nothing describes it again.
     let (status, node) = send(&app, Method::DELETE, "/api/v1/buses/demo/nodes/6/eds", None).await;

@@ -220,3 +220,42 @@ fn an_assigned_file_without_device_type_takes_the_device_s() {
     catalog.remove("typeless.eds").unwrap();
     assert!(catalog.find("typeless.eds").is_none());
 }
+
+#[test]
+fn uploads_are_kept_in_the_data_dir_and_read_again_at_the_next_start() {
+    let dir = temp_dir("uploads").join("eds");
+    let catalog = EdsCatalog::builtin().unwrap().with_uploads(&dir).unwrap();
+    let text = eds_text(0x77, 0x20, 1, 402);
+    let entry = catalog.upload("kept.eds", text.as_bytes()).unwrap();
+    assert_eq!(
+        entry.source,
+        EdsSource::Uploaded(Some(dir.join("kept.eds")))
+    );
+    // Only the file: no temporary left behind.
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert_eq!(names, ["kept.eds"]);
+    // Refused uploads leave nothing.
+    assert!(matches!(
+        catalog.upload("notes.eds", b"just notes\n"),
+        Err(CatalogError::NotEds(_))
+    ));
+    assert!(matches!(
+        catalog.upload("../escape.eds", text.as_bytes()),
+        Err(CatalogError::InvalidName(_))
+    ));
+    assert!(!dir.join("notes.eds").exists());
+
+    // The next start finds it, as uploaded, matched by its identity.
+    let again = EdsCatalog::builtin().unwrap().with_uploads(&dir).unwrap();
+    let found = again.lookup(&identity(0x77, 0x20, Some(1))).unwrap();
+    assert_eq!(
+        (found.name.as_str(), &found.source),
+        ("kept.eds", &EdsSource::Uploaded(Some(dir.join("kept.eds"))))
+    );
+    again.remove("kept.eds").unwrap();
+    assert!(!dir.join("kept.eds").exists());
+    std::fs::remove_dir_all(dir.parent().unwrap()).unwrap();
+}
