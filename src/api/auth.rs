@@ -296,7 +296,7 @@ pub struct Identity {
 }
 
 impl Identity {
-    fn anonymous() -> Self {
+    pub fn anonymous() -> Self {
         Self {
             name: "anonymous".to_string(),
             role: None,

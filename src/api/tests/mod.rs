@@ -8,6 +8,7 @@ mod auth;
 mod drives;
 mod edge;
 mod eds;
+mod lease_holders;
 mod leases;
 mod leds;
 mod pdos;
