@@ -66,6 +66,7 @@ pub(super) struct ConfigFile {
     pub(super) max_connections: Option<usize>,
     pub(super) ascii_idle_timeout_ms: Option<u64>,
     pub(super) ascii_max_connections: Option<usize>,
+    pub(super) share_max_connections: Option<usize>,
 }
 
 impl ConfigFile {
@@ -164,6 +165,8 @@ pub(super) struct Settings {
     pub(super) share_public: bool,
     pub(super) http_limits: HttpLimits,
     pub(super) ascii_limits: AsciiLimits,
+    /// socketcand clients at once per share.
+    pub(super) share_max_connections: usize,
 }
 
 impl ServeArgs {
@@ -295,6 +298,14 @@ impl ServeArgs {
                         .or(file.ascii_max_connections)
                         .unwrap_or(defaults.max_connections),
                 )?
+            },
+            share_max_connections: match self
+                .share_max_connections
+                .or(file.share_max_connections)
+            {
+                Some(0) => return Err("share_max_connections: at least 1".to_string()),
+                Some(n) => n,
+                None => crate::can::socketcand::DEFAULT_SHARE_MAX_CONNECTIONS,
             },
         };
         settings.validate()?;
