@@ -328,12 +328,17 @@ async fn set_state(
     let target = request.target.state();
     let axis_key = key(&bus, &drive);
     if request.target == TargetState::OperationEnabled {
-        take_over_if_asked(&state, &headers, &axis_key, identity.as_ref(), note.as_ref())?;
-        state.gateway.leases.check(
+        take_over_if_asked(
+            &state,
+            &headers,
             &axis_key,
-            presented(&headers),
-            &holder(identity.as_ref()),
+            identity.as_ref(),
+            note.as_ref(),
         )?;
+        state
+            .gateway
+            .leases
+            .check(&axis_key, presented(&headers), &holder(identity.as_ref()))?;
         // Before the walk, not after it: a walk that fails half way may
         // have powered the axis already.
         state.gateway.enabled_axes.insert(&bus, &drive);
@@ -447,7 +452,13 @@ async fn halt(
     // Releasing halt resumes the set-point the axis has: in a mode without
     // an end, that is a motion like any other, and it is leased.
     let lease_header = presented(&headers).map(str::to_string);
-    take_over_if_asked(&state, &headers, &axis_key, identity.as_ref(), note.as_ref())?;
+    take_over_if_asked(
+        &state,
+        &headers,
+        &axis_key,
+        identity.as_ref(),
+        note.as_ref(),
+    )?;
     state.gateway.leases.check(
         &axis_key,
         lease_header.as_deref(),
@@ -514,7 +525,13 @@ async fn run_move(
     drive.validate(&request)?;
     let axis_key = key(&bus, &drive);
     let lease_header = presented(&headers);
-    take_over_if_asked(&state, &headers, &axis_key, identity.as_ref(), note.as_ref())?;
+    take_over_if_asked(
+        &state,
+        &headers,
+        &axis_key,
+        identity.as_ref(),
+        note.as_ref(),
+    )?;
     let mode = request.mode();
     if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
         // A move with an end of its own: the holder may give it (and its

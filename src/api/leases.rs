@@ -32,9 +32,9 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::{Identity, Role};
 use super::doc::ErrorBody;
 use super::drives::AxisPath;
-use super::auth::{Identity, Role};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
@@ -108,15 +108,15 @@ pub fn take_over_if_asked(
             "a take-over of a held axis needs the operator role".to_string(),
         ));
     }
-    if let Some(previous) = state.gateway.leases.take_over(axis) {
-        if let Some(Extension(note)) = note {
-            note.set(format!(
-                "took over the {} lease {} of {}",
-                previous.mode,
-                mask(&previous.id),
-                previous.holder
-            ));
-        }
+    if let Some(previous) = state.gateway.leases.take_over(axis)
+        && let Some(Extension(note)) = note
+    {
+        note.set(format!(
+            "took over the {} lease {} of {}",
+            previous.mode,
+            mask(&previous.id),
+            previous.holder
+        ));
     }
     Ok(())
 }
@@ -218,10 +218,9 @@ async fn renew(
             .parse()
             .map_err(|_| AppError::InvalidRequest(format!("axis '{axis}' is not a number")))?,
     };
-    let lease =
-        state
-            .gateway
-            .leases
-            .renew_on(&key, &request.lease, &holder(identity.as_ref()))?;
+    let lease = state
+        .gateway
+        .leases
+        .renew_on(&key, &request.lease, &holder(identity.as_ref()))?;
     Ok(ApiJson(LeaseInfo::of(&lease, Instant::now())))
 }

@@ -206,10 +206,12 @@ impl From<DriveError> for GatewayError {
                 state,
             },
             DriveError::ModeNotSupported { .. } => Self::ModeNotSupported(error.to_string()),
-            DriveError::NotEnabled { .. } => Self::DriveNotEnabled {
-                message: error.to_string(),
-                state,
-            },
+            DriveError::NotEnabled { .. } | DriveError::Interrupted { .. } => {
+                Self::DriveNotEnabled {
+                    message: error.to_string(),
+                    state,
+                }
+            }
             DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
             DriveError::Invalid(message) => Self::InvalidValue(message),
         }

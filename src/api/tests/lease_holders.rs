@@ -95,7 +95,11 @@ async fn turning() -> (Router, AppState, String) {
     assert_eq!(body["lease"]["holder"], "line-plc", "{body}");
     tokio::time::sleep(PERIOD / 4).await;
     assert!(velocity(&app).await > 0);
-    (app, state, body["lease"]["id"].as_str().unwrap().to_string())
+    (
+        app,
+        state,
+        body["lease"]["id"].as_str().unwrap().to_string(),
+    )
 }
 
 async fn audit(app: &Router) -> Vec<Json> {
@@ -116,7 +120,11 @@ async fn audit(app: &Router) -> Vec<Json> {
 
 fn assert_conflict(response: &(StatusCode, Json)) {
     assert_eq!(response.0, StatusCode::CONFLICT, "{}", response.1);
-    assert_eq!(response.1["error"]["code"], "lease_conflict", "{}", response.1);
+    assert_eq!(
+        response.1["error"]["code"], "lease_conflict",
+        "{}",
+        response.1
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -262,7 +270,10 @@ async fn an_explicit_take_over_ends_the_old_lease_and_is_audited_naming_both() {
     let operation = takeover["operation"].as_str().unwrap();
     assert_eq!(
         operation,
-        format!("move; took over the velocity lease {}… of line-plc", &id[..4]),
+        format!(
+            "move; took over the velocity lease {}… of line-plc",
+            &id[..4]
+        ),
         "{takeover}"
     );
 }

@@ -16,8 +16,8 @@ pub mod session;
 
 pub use client::{ClientConfig, open_socketcand};
 pub use server::{
-    DEFAULT_MAX_CONNECTIONS as DEFAULT_SHARE_MAX_CONNECTIONS, ServerConfig, ServerHandle, ServerStats,
-    SocketcandServer,
+    DEFAULT_MAX_CONNECTIONS as DEFAULT_SHARE_MAX_CONNECTIONS, ServerConfig, ServerHandle,
+    ServerStats, SocketcandServer,
 };
 
 /// The port socketcand listens on by default.

@@ -299,10 +299,7 @@ impl ServeArgs {
                         .unwrap_or(defaults.max_connections),
                 )?
             },
-            share_max_connections: match self
-                .share_max_connections
-                .or(file.share_max_connections)
-            {
+            share_max_connections: match self.share_max_connections.or(file.share_max_connections) {
                 Some(0) => return Err("share_max_connections: at least 1".to_string()),
                 Some(n) => n,
                 None => crate::can::socketcand::DEFAULT_SHARE_MAX_CONNECTIONS,

@@ -83,7 +83,10 @@ fn renewing_moves_the_expiry_and_an_expired_lease_cannot_be_renewed() {
     let mut table = LeaseTable::new();
     grant(&mut table, 1, None, "aaaa", now);
     let t1 = now + Duration::from_millis(900);
-    assert_eq!(table.renew("aaaa", Some("plc"), None, t1).unwrap().expires, t1 + PERIOD);
+    assert_eq!(
+        table.renew("aaaa", Some("plc"), None, t1).unwrap().expires,
+        t1 + PERIOD
+    );
     assert!(table.lapsed(now + Duration::from_millis(1500)).is_empty());
     let t2 = t1 + PERIOD;
     assert_eq!(
@@ -211,14 +214,25 @@ fn a_take_over_ends_the_held_lease_and_its_id() {
     assert_eq!(table.take_over(&axis(1), now), None);
     grant(&mut table, 1, None, "aaaa", now);
     let previous = table.take_over(&axis(1), now).unwrap();
-    assert_eq!((previous.id.as_str(), previous.holder.as_str()), ("aaaa", "plc"));
+    assert_eq!(
+        (previous.id.as_str(), previous.holder.as_str()),
+        ("aaaa", "plc")
+    );
     assert!(table.is_empty());
     assert_eq!(
         table.renew("aaaa", Some("plc"), None, now),
         Err(LeaseError::Unknown("aaaa".into()))
     );
     let new = table
-        .grant(axis(1), None, "bbbb".into(), "admin", "velocity", PERIOD, now)
+        .grant(
+            axis(1),
+            None,
+            "bbbb".into(),
+            "admin",
+            "velocity",
+            PERIOD,
+            now,
+        )
         .unwrap();
     assert_eq!(new.id, "bbbb");
     assert!(matches!(
