@@ -11,7 +11,8 @@
 //!   a move's change of mode, or its fault is still present after a fault
 //!   reset; 409 `drive_not_enabled`: a move, or the target
 //!   quick_stop_active, needs operation enabled (and a move whose change of
-//!   mode a quick stop interrupts gets it too). Both carry `state`.
+//!   mode a quick stop interrupts gets it too, as does a state walk that
+//!   sees the drive stopped by someone else meanwhile). Both carry `state`.
 //! - 422 `mode_not_supported`: the drive lacks the mode (0x6502, or the
 //!   product's fixed list).
 //! - 504 `state_change_timeout`: the statusword (or 0x6061, or the
@@ -300,7 +301,7 @@ async fn one_axis(
         (status = 200, description = "The axis in the state asked for; after a quick stop, the steps tried in `attempts`", body = StateResponse),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`, `node_offline` (its heartbeat is lost): any target but quick_stop_active; `lease_conflict`: operation_enabled asked of an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled, or a walk interrupted by a stop (STOP ALL, a quick stop, a lapsed lease) meanwhile; `wrong_nmt_state`, `node_offline` (its heartbeat is lost): any target but quick_stop_active; `lease_conflict`: operation_enabled asked of an axis another client's lease holds, or with a lease of another token", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -421,7 +422,7 @@ async fn fault_reset(
         (status = 200, description = "The axis after the controlword; releasing halt in velocity, torque or duty-cycle mode answers with a motion lease", body = MotionResponse),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`, `node_offline` (its heartbeat is lost): halt released only; `lease_conflict`: halt released on an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`, `node_offline` (its heartbeat is lost): halt released only; `lease_conflict`: halt released on an axis another client's lease holds, or with a lease of another token", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -507,7 +508,7 @@ async fn halt(
         (status = 200, description = "The motion is under way; the axis as it is now, and for velocity, torque and duty cycle the lease to renew", body = MotionResponse),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost; `lease_conflict`: another client's lease holds the axis", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost; `lease_conflict`: another client's lease holds the axis, or the lease presented is another token's", body = ErrorBody),
         (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
