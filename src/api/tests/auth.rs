@@ -483,7 +483,11 @@ async fn writes_beyond_the_token_rate_are_429_until_the_bucket_refills() {
     ] {
         let path = format!("{axis}{what}");
         let (status, _, json) = send(&app, Method::POST, &path, &auth, Some(body)).await;
-        assert_eq!(status, StatusCode::TOO_MANY_REQUESTS, "{path} {body}: {json}");
+        assert_eq!(
+            status,
+            StatusCode::TOO_MANY_REQUESTS,
+            "{path} {body}: {json}"
+        );
     }
     // Half a second gives one write back (2 per second).
     tokio::time::advance(Duration::from_millis(499)).await;
