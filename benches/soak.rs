@@ -34,6 +34,13 @@
 //! minute and at the end. Exits non-zero on any mismatch, panic or
 //! unexplained 5xx.
 //!
+//! A `state_change_timeout` is never excused, but the report tells its
+//! likely cause: the stops the soak sent during that request (STOP ALL, a
+//! halt, quick stop or walk out of operation enabled on the node: a race
+//! the gateway must answer with 409, not a timeout) and the slowest
+//! `GET /health` round trip around it (sampled every 500 ms: seconds there
+//! mean the gateway was starved of CPU, not that the drive hung).
+//!
 //! Run: `cargo bench --bench soak -- --minutes 30` (not in CI: it is long).
 
 use std::collections::{BTreeMap, HashSet};
@@ -94,6 +101,7 @@ enum Outcome {
 
 /// A 5xx answer, kept to be classified at the end.
 struct ServerError {
+    sent: Instant,
     at: Instant,
     method: String,
     path: String,
@@ -119,6 +127,10 @@ struct Stats {
     /// have them).
     changing_unanswered: AtomicU64,
     server_errors: Mutex<Vec<ServerError>>,
+    /// Stops the soak sent: (sent, answered, method and path, body).
+    stops: Mutex<Vec<(Instant, Instant, String)>>,
+    /// `GET /health` round trips: (sent, how long).
+    health: Mutex<Vec<(Instant, Duration)>>,
     disturbances: Mutex<Vec<Disturbance>>,
     /// Malformed requests that were not answered 4xx.
     malformed_not_4xx: Mutex<Vec<String>>,
@@ -212,7 +224,20 @@ impl Client {
         headers: &str,
     ) -> Option<(u16, Json)> {
         let full = format!("/api/v1{path}");
+        let sent = Instant::now();
         let result = raw(&self.address, method, &full, body, headers).await;
+        let text = body.unwrap_or("");
+        let stop = full.ends_with("/stop-all")
+            || (full.ends_with("/halt") && text.contains("true"))
+            || (full.ends_with("/state")
+                && (text.contains("quick_stop_active") || text.contains("switch_on_disabled")));
+        if method == "POST" && stop {
+            self.stats.stops.lock().unwrap().push((
+                sent,
+                Instant::now(),
+                format!("{method} {full} {text}"),
+            ));
+        }
         let changing = is_state_changing(&Method::from_bytes(method.as_bytes()).unwrap(), &full);
         let outcome = match &result {
             Ok((status, _)) if *status < 400 => Outcome::Success,
@@ -245,6 +270,7 @@ impl Client {
                 }
                 if status >= 500 {
                     self.stats.server_errors.lock().unwrap().push(ServerError {
+                        sent,
                         at: Instant::now(),
                         method: method.to_string(),
                         path: full,
@@ -456,6 +482,23 @@ async fn drive(client: Client, node: u8, axis: u8, seed: u64, until: Instant) {
                 .await;
         }
         pause(200 + rng.below(500)).await;
+    }
+}
+
+/// `GET /health` every 500 ms, its round trip kept: how responsive the
+/// gateway was at any moment of the run.
+async fn health(client: Client, until: Instant) {
+    while Instant::now() < until {
+        let sent = Instant::now();
+        if client.get("/health").await.is_some() {
+            client
+                .stats
+                .health
+                .lock()
+                .unwrap()
+                .push((sent, sent.elapsed()));
+        }
+        pause(500).await;
     }
 }
 
@@ -859,6 +902,7 @@ async fn main() {
     tasks.push(tokio::spawn(drive(client.clone(), 1, 2, 42, until)));
     tasks.push(tokio::spawn(drive(client.clone(), 2, 1, 43, until)));
     tasks.push(tokio::spawn(supervisor(client.clone(), 51, until)));
+    tasks.push(tokio::spawn(health(client.clone(), until)));
     tasks.push(tokio::spawn(faults(client.clone(), 61, until)));
     tasks.push(tokio::spawn(malformed(client.clone(), 71, until)));
     for _ in 0..3 {
@@ -1067,6 +1111,27 @@ fn report(
         changing.len()
     );
     let _ = writeln!(out, "| panics | {panics} |");
+    {
+        let mut rtts: Vec<Duration> = stats
+            .health
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(_, rtt)| *rtt)
+            .collect();
+        rtts.sort();
+        if !rtts.is_empty() {
+            let at = |q: f64| rtts[((rtts.len() - 1) as f64 * q) as usize].as_secs_f64() * 1000.0;
+            let _ = writeln!(
+                out,
+                "| /health round trip (every 500 ms) | {} samples: median {:.1} ms, p99 {:.1} ms, max {:.1} ms |",
+                rtts.len(),
+                at(0.5),
+                at(0.99),
+                at(1.0)
+            );
+        }
+    }
     let _ = writeln!(
         out,
         "| gateway RSS | start {:.1} MiB, peak {:.1} MiB, end {:.1} MiB |",
@@ -1127,6 +1192,62 @@ fn report(
             .take(5)
         {
             let _ = writeln!(out, "  {line}");
+        }
+    }
+    let timeouts: Vec<&ServerError> = errors
+        .iter()
+        .filter(|e| e.body.contains("state_change_timeout"))
+        .collect();
+    if !timeouts.is_empty() {
+        let _ = writeln!(
+            out,
+            "\nstate_change_timeout, with the soak's stops during the request and the \
+             slowest /health round trip from 1 s before it to its answer:"
+        );
+        let stops = stats.stops.lock().unwrap();
+        let health = stats.health.lock().unwrap();
+        for error in &timeouts {
+            let node = error
+                .path
+                .split("/nodes/")
+                .nth(1)
+                .and_then(|rest| rest.split('/').next())
+                .unwrap_or("?");
+            let during: Vec<&str> = stops
+                .iter()
+                .filter(|(sent, answered, what)| {
+                    *sent <= error.at
+                        && *answered >= error.sent
+                        && (what.contains("/stop-all") || what.contains(&format!("/nodes/{node}/")))
+                })
+                .map(|(_, _, what)| what.as_str())
+                .collect();
+            let window_start = error
+                .sent
+                .checked_sub(Duration::from_secs(1))
+                .unwrap_or(error.sent);
+            let slowest = health
+                .iter()
+                .filter(|(sent, _)| *sent >= window_start && *sent <= error.at)
+                .map(|(_, rtt)| *rtt)
+                .max();
+            let _ = writeln!(
+                out,
+                "  {} {} after {} ms: {}\n    stops during it: {}\n    slowest /health: {}",
+                error.method,
+                error.path,
+                (error.at - error.sent).as_millis(),
+                error.body,
+                if during.is_empty() {
+                    "none".to_string()
+                } else {
+                    during.join("; ")
+                },
+                slowest.map_or("no sample".to_string(), |rtt| format!(
+                    "{} ms",
+                    rtt.as_millis()
+                )),
+            );
         }
     }
     if !unexplained.is_empty() {

@@ -437,3 +437,56 @@ async fn node_guarding_crosses_socketcand_and_an_unplugged_node_is_lost_within_i
     assert!(lost_at.saturating_duration_since(unplugged) <= life_time);
     assert!(guard.is_lost());
 }
+
+/// Reads until the server closes the connection; what it sent.
+async fn read_to_close(stream: &mut TcpStream) -> String {
+    let mut seen = Vec::new();
+    tokio::time::timeout(WAIT, stream.read_to_end(&mut seen))
+        .await
+        .expect("closed in time")
+        .expect("read");
+    String::from_utf8(seen).unwrap()
+}
+
+#[tokio::test]
+async fn clients_beyond_the_connection_limit_are_refused_and_counted() {
+    let hub = VirtualHub::new("can0");
+    let config = ServerConfig {
+        max_connections: 2,
+        ..ServerConfig::default()
+    };
+    let server = serve(&hub, config).await;
+    let addr = server.local_addr();
+    let mut first = TcpStream::connect(addr).await.unwrap();
+    read_until(&mut first, "< hi >").await;
+    let mut second = TcpStream::connect(addr).await.unwrap();
+    read_until(&mut second, "< hi >").await;
+    // The third: told why, and closed; never greeted.
+    let mut third = TcpStream::connect(addr).await.unwrap();
+    let said = read_to_close(&mut third).await;
+    assert_eq!(
+        said, "< error too many clients (share_max_connections) >",
+        "{said}"
+    );
+    assert_eq!(server.stats().refused.load(Ordering::Relaxed), 1);
+    // The two still work.
+    second.write_all(b"< open can0 >").await.unwrap();
+    read_until(&mut second, "< ok >").await;
+    // One goes: its place is free again.
+    drop(first);
+    let mut fourth = loop {
+        let mut stream = TcpStream::connect(addr).await.unwrap();
+        let mut buf = [0u8; 64];
+        let n = tokio::time::timeout(WAIT, stream.read(&mut buf))
+            .await
+            .expect("an answer in time")
+            .unwrap();
+        if String::from_utf8_lossy(&buf[..n]).contains("< hi >") {
+            break stream;
+        }
+        // The first's session had not ended yet: refused, try again.
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    fourth.write_all(b"< open can0 >").await.unwrap();
+    read_until(&mut fourth, "< ok >").await;
+}

@@ -19,6 +19,12 @@
 //! token's name when the token was valid (a foreign origin or a body too
 //! large is refused with the identity known).
 //!
+//! Lease ids (`lease`, `leases` in a body) are masked to their first 4
+//! characters: the log is shown to viewers (`GET /events`), and a lease is
+//! the right to move an axis. A handler adds to its entry through the
+//! [`AuditNote`] in the request's extensions (a take-over names the holder
+//! it took the axis from).
+//!
 //! If the entry cannot be written (disk full), the request has happened
 //! already: its response is sent unchanged, and the failure is logged as
 //! an error.
@@ -35,6 +41,7 @@ use serde_json::Value as Json;
 use super::AppState;
 use super::auth::Identity;
 use super::error::ErrorSummary;
+use super::leases::AuditNote;
 use crate::can::Timestamp;
 use crate::gateway::history::AuditEntry;
 
@@ -42,6 +49,8 @@ use crate::gateway::history::AuditEntry;
 pub const MAX_SUMMARY: usize = 1024;
 /// Keys whose values are never written to the log.
 const SECRET_KEYS: &[&str] = &["token", "password", "secret", "authorization", "api_key"];
+/// Keys whose values are lease ids: written masked (`3f2a…`).
+const LEASE_KEYS: &[&str] = &["lease", "leases"];
 
 /// Whether a request is one the audit log records.
 pub fn is_state_changing(method: &Method, path: &str) -> bool {
@@ -75,7 +84,9 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         .extensions()
         .get::<ConnectInfo<SocketAddr>>()
         .map(|ConnectInfo(addr)| addr.to_string());
-    let (parts, body) = request.into_parts();
+    let (mut parts, body) = request.into_parts();
+    let note = AuditNote::default();
+    parts.extensions.insert(note.clone());
     let content_type = parts
         .headers
         .get(header::CONTENT_TYPE)
@@ -123,7 +134,10 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             .map_or_else(|| "none".to_string(), |role| role.name().to_string()),
         method: method.to_string(),
         path,
-        operation: target.operation,
+        operation: match note.take() {
+            Some(note) => format!("{}; {note}", target.operation),
+            None => target.operation,
+        },
         bus: target.bus,
         node: target.node,
         axis: target.axis,
@@ -173,6 +187,8 @@ fn mask(json: &mut Json) {
                 let key = key.to_ascii_lowercase();
                 if SECRET_KEYS.iter().any(|secret| key.contains(secret)) {
                     *value = Json::from("***");
+                } else if LEASE_KEYS.contains(&key.as_str()) {
+                    mask_leases(value);
                 } else {
                     mask(value);
                 }
@@ -193,6 +209,16 @@ fn upload_name(uri: &axum::http::Uri) -> Option<String> {
         .ok()?
         .0
         .name
+}
+
+/// Lease ids, wherever they are in `json`, masked.
+fn mask_leases(json: &mut Json) {
+    match json {
+        Json::String(id) => *id = crate::gateway::motion_lease::mask(id),
+        Json::Array(items) => items.iter_mut().for_each(mask_leases),
+        Json::Object(map) => map.values_mut().for_each(mask_leases),
+        _ => {}
+    }
 }
 
 /// What a request acts on, from its path.
@@ -278,6 +304,7 @@ fn node_operation(
                 "fault-reset" => "fault reset",
                 "halt" => "halt",
                 "move" => "move",
+                "lease" => "renew motion lease",
                 _ => "unknown request",
             };
             (operation, None)
@@ -344,5 +371,19 @@ mod tests {
             "13 bytes, not JSON (text/plain)"
         );
         assert_eq!(summarise(b"", ""), None);
+    }
+
+    #[test]
+    fn lease_ids_are_masked() {
+        let body = br#"{"lease":"3f2a9c0e5b7d41e8a6c2f0d9b8e7a615"}"#;
+        assert_eq!(
+            summarise(body, "application/json").unwrap(),
+            r#"{"lease":"3f2a…"}"#
+        );
+        let body = br#"{"op":"renew","leases":["3f2a9c0e5b7d41e8","feedfeedfeed"]}"#;
+        assert_eq!(
+            summarise(body, "application/json").unwrap(),
+            r#"{"leases":["3f2a…","feed…"],"op":"renew"}"#
+        );
     }
 }

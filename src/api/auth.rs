@@ -310,7 +310,7 @@ pub struct Identity {
 }
 
 impl Identity {
-    fn anonymous() -> Self {
+    pub fn anonymous() -> Self {
         Self {
             name: "anonymous".to_string(),
             role: None,
@@ -418,11 +418,36 @@ pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
 
 /// Whether a request draws on its token's write rate: a state-changing
 /// request under `/api/v1` ([`super::audit::is_state_changing`]) or a CiA
-/// 309-5 command (SDO write, NMT), but never a safety stop.
+/// 309-5 command (SDO write, NMT), but never a safety stop (STOP ALL here;
+/// a halt or a walk out of operation enabled by its body, in [`guard`]).
 pub fn is_rate_limited(method: &Method, path: &str) -> bool {
     let cia309_command =
         *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
     (super::audit::is_state_changing(method, path) || cia309_command) && path != "/api/v1/stop-all"
+}
+
+/// Whether the request may be a stop of an axis, told by its body
+/// ([`is_stop`]).
+fn may_be_stop(method: &Method, path: &str) -> bool {
+    *method == Method::POST
+        && path.starts_with("/api/v1/buses/")
+        && (path.ends_with("/halt") || path.ends_with("/state"))
+}
+
+/// `POST .../halt` `{"halt": true}`, or `POST .../state` with a target
+/// other than `operation_enabled` (each leaves motion): a stop, which the
+/// write rate never refuses, as STOP ALL.
+fn is_stop(path: &str, body: &[u8]) -> bool {
+    let Ok(json) = serde_json::from_slice::<serde_json::Value>(body) else {
+        return false;
+    };
+    if path.ends_with("/halt") {
+        json["halt"] == serde_json::Value::Bool(true)
+    } else {
+        json["target"]
+            .as_str()
+            .is_some_and(|target| target != "operation_enabled")
+    }
 }
 
 /// The middleware (`axum::middleware::from_fn_with_state`): who the token
@@ -516,9 +541,24 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     if length.is_some_and(|length| length > limit as u64) {
         return with_identity(too_large(limit).into_response(), identity);
     }
+    // A halt or a walk out of operation enabled is a stop too, told by its
+    // body: read here (bounded, as below) so that it is never refused for
+    // the rate.
+    let mut stop = false;
+    if is_rate_limited(&method, &path) && may_be_stop(&method, &path) {
+        let (parts, body) = request.into_parts();
+        match axum::body::to_bytes(body, limit).await {
+            Ok(bytes) => {
+                stop = is_stop(&path, &bytes);
+                request = Request::from_parts(parts, axum::body::Body::from(bytes));
+            }
+            Err(_) => return with_identity(too_large(limit).into_response(), identity),
+        }
+    }
     // Writes of a token (a safety stop never waits), from the bucket CiA
     // 309-3 draws on too.
     if is_rate_limited(&method, &path)
+        && !stop
         && let Err(refused) = state.gateway.take_write(&identity.name)
     {
         return with_identity(AppError::from(refused).into_response(), identity);

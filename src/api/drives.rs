@@ -11,7 +11,8 @@
 //!   a move's change of mode, or its fault is still present after a fault
 //!   reset; 409 `drive_not_enabled`: a move, or the target
 //!   quick_stop_active, needs operation enabled (and a move whose change of
-//!   mode a quick stop interrupts gets it too). Both carry `state`.
+//!   mode a quick stop interrupts gets it too, as does a state walk that
+//!   sees the drive stopped by someone else meanwhile). Both carry `state`.
 //! - 422 `mode_not_supported`: the drive lacks the mode (0x6502, or the
 //!   product's fixed list).
 //! - 504 `state_change_timeout`: the statusword (or 0x6061, or the
@@ -23,9 +24,11 @@
 //! client renews; an interpolated move holds one while its request feeds
 //! points. While a lease is held, a move, `halt: false` or the target
 //! `operation_enabled` from anyone who does not present it in the
-//! `Candeck-Lease` header is refused with 409 `lease_conflict`; halting,
-//! quick stop, a walk out of operation enabled and STOP ALL are never
-//! refused, and end the lease.
+//! `Candeck-Lease` header, or presents it but is not its holder, is refused
+//! with 409 `lease_conflict`, unless it asks for an explicit take-over
+//! (`Candeck-Lease-Takeover: true`: the lease ends, and the audit entry
+//! names both holders); halting, quick stop, a walk out of operation
+//! enabled and STOP ALL are never refused, and end the lease.
 //!
 //! Every sequence runs in a task of its own and the handler awaits it: a
 //! client that hangs up never cuts a walk or a move half way. A move that
@@ -43,7 +46,7 @@ use utoipa_axum::routes;
 
 use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
-use super::leases::{LeaseInfo, presented};
+use super::leases::{AuditNote, LeaseInfo, holder, presented, take_over_if_asked};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
@@ -198,12 +201,6 @@ fn key(bus: &str, drive: &Drive) -> AxisKey {
     }
 }
 
-/// Who a request acts for, as the lease records it: its token's name
-/// (`anonymous` on an open gateway).
-fn holder(identity: Option<&Extension<Identity>>) -> String {
-    identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
-}
-
 /// The node's axis from the path, after the checks that need no bus (see
 /// [`crate::gateway::Gateway::drive`]).
 fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, AppError> {
@@ -298,13 +295,13 @@ async fn one_axis(
 /// tried; a stop not confirmed answers with the error of the quick stop and
 /// the `attempts` in the error.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/state", tag = "drives",
-    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
     request_body = StateRequest,
     responses(
         (status = 200, description = "The axis in the state asked for; after a quick stop, the steps tried in `attempts`", body = StateResponse),
         (status = 400, description = "`invalid_request`: no such target", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled; `wrong_nmt_state`, `node_offline` (its heartbeat is lost): any target but quick_stop_active; `lease_conflict`: operation_enabled asked of an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`drive_fault` (with `state`); `drive_not_enabled`: quick_stop_active asked of an axis not in operation_enabled, or a walk interrupted by a stop (STOP ALL, a quick stop, a lapsed lease) meanwhile; `wrong_nmt_state`, `node_offline` (its heartbeat is lost): any target but quick_stop_active; `lease_conflict`: operation_enabled asked of an axis another client's lease holds, or with a lease of another token", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -312,6 +309,8 @@ async fn one_axis(
     ))]
 async fn set_state(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
+    note: Option<Extension<AuditNote>>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
@@ -330,7 +329,17 @@ async fn set_state(
     let target = request.target.state();
     let axis_key = key(&bus, &drive);
     if request.target == TargetState::OperationEnabled {
-        state.gateway.leases.check(&axis_key, presented(&headers))?;
+        take_over_if_asked(
+            &state,
+            &headers,
+            &axis_key,
+            identity.as_ref(),
+            note.as_ref(),
+        )?;
+        state
+            .gateway
+            .leases
+            .check(&axis_key, presented(&headers), &holder(identity.as_ref()))?;
         // Before the walk, not after it: a walk that fails half way may
         // have powered the axis already.
         state.gateway.enabled_axes.insert(&bus, &drive);
@@ -407,13 +416,13 @@ async fn fault_reset(
 /// not confirm. The answer's `attempts` say what was tried; a halt that
 /// could not be given answers with its error and the `attempts` in it.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/halt", tag = "drives",
-    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
     request_body = HaltRequest,
     responses(
         (status = 200, description = "The axis after the controlword; releasing halt in velocity, torque or duty-cycle mode answers with a motion lease", body = MotionResponse),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`, `node_offline` (its heartbeat is lost): halt released only; `lease_conflict`: halt released on an axis another client's lease holds", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`, `node_offline` (its heartbeat is lost): halt released only; `lease_conflict`: halt released on an axis another client's lease holds, or with a lease of another token", body = ErrorBody),
         (status = 422, description = "`sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -422,6 +431,7 @@ async fn fault_reset(
 async fn halt(
     State(state): State<AppState>,
     identity: Option<Extension<Identity>>,
+    note: Option<Extension<AuditNote>>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
@@ -443,10 +453,18 @@ async fn halt(
     // Releasing halt resumes the set-point the axis has: in a mode without
     // an end, that is a motion like any other, and it is leased.
     let lease_header = presented(&headers).map(str::to_string);
-    state
-        .gateway
-        .leases
-        .check(&axis_key, lease_header.as_deref())?;
+    take_over_if_asked(
+        &state,
+        &headers,
+        &axis_key,
+        identity.as_ref(),
+        note.as_ref(),
+    )?;
+    state.gateway.leases.check(
+        &axis_key,
+        lease_header.as_deref(),
+        &holder(identity.as_ref()),
+    )?;
     // Motion the gateway resumes is motion it stops on shutdown.
     state.gateway.enabled_axes.insert(&bus, &drive);
     let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
@@ -484,13 +502,13 @@ async fn halt(
 /// move clears halt. If it fails half way, the axis is halted (or
 /// quick-stopped) before the error is answered.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/move", tag = "drives",
-    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held")),
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
     request_body = MoveRequest,
     responses(
         (status = 200, description = "The motion is under way; the axis as it is now, and for velocity, torque and duty cycle the lease to renew", body = MotionResponse),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
-        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost; `lease_conflict`: another client's lease holds the axis", body = ErrorBody),
+        (status = 409, description = "`drive_fault`, `drive_not_enabled` (with `state`), `wrong_nmt_state`, `node_offline`: its heartbeat is lost; `lease_conflict`: another client's lease holds the axis, or the lease presented is another token's", body = ErrorBody),
         (status = 422, description = "`mode_not_supported`, `sdo_abort`", body = ErrorBody),
         (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
         (status = 503, description = "`bus_down`", body = ErrorBody),
@@ -499,6 +517,7 @@ async fn halt(
 async fn run_move(
     State(state): State<AppState>,
     identity: Option<Extension<Identity>>,
+    note: Option<Extension<AuditNote>>,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<MoveRequest>,
@@ -507,11 +526,21 @@ async fn run_move(
     drive.validate(&request)?;
     let axis_key = key(&bus, &drive);
     let lease_header = presented(&headers);
+    take_over_if_asked(
+        &state,
+        &headers,
+        &axis_key,
+        identity.as_ref(),
+        note.as_ref(),
+    )?;
     let mode = request.mode();
     if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
         // A move with an end of its own: the holder may give it (and its
         // lease ends), nobody else.
-        state.gateway.leases.check(&axis_key, lease_header)?;
+        state
+            .gateway
+            .leases
+            .check(&axis_key, lease_header, &holder(identity.as_ref()))?;
         state.gateway.enabled_axes.insert(&bus, &drive);
         let ApiJson(status) = spawned(
             drive,
@@ -558,7 +587,7 @@ async fn run_move(
             attempts: None,
         }));
     }
-    let lease = state.gateway.leases.renew(&lease.id, None)?;
+    let lease = state.gateway.leases.renew(&lease.id, None, None)?;
     Ok(ApiJson(MotionResponse {
         status,
         lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),

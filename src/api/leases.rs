@@ -8,9 +8,22 @@
 //!
 //! A stream session that renewed a lease is its client's heartbeat: when
 //! the socket closes the lease lapses at once.
+//!
+//! A lease is bound to its holder, the identity that took it (the token's
+//! name; `anonymous` on a gateway without tokens, where the lease id alone
+//! is the credential): renewing it, or presenting it in `Candeck-Lease`, as
+//! anyone else is 409 `lease_conflict`. An operator or admin takes a held
+//! axis over explicitly with `Candeck-Lease-Takeover: true` on a move,
+//! `halt: false` or the target `operation_enabled`: the lease held ends
+//! (its id is refused from then on) and the request's audit entry names
+//! both holders. Lease ids are masked (`3f2a…`) in the audit log, events
+//! and the gateway's log.
 
 use std::time::Duration;
 
+use std::sync::{Arc, Mutex};
+
+use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
@@ -19,15 +32,94 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::{Identity, Role};
 use super::doc::ErrorBody;
 use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
+use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease, mask};
 
 /// The request header that presents a lease to a command on a held axis.
 pub const LEASE_HEADER: &str = "candeck-lease";
+/// The request header (`true`) that takes a held axis over explicitly.
+pub const TAKEOVER_HEADER: &str = "candeck-lease-takeover";
+
+/// A note a handler adds to its request's audit entry (the audit layer puts
+/// one in every audited request's extensions and reads it back).
+#[derive(Debug, Clone, Default)]
+pub struct AuditNote(Arc<Mutex<Option<String>>>);
+
+impl AuditNote {
+    pub fn set(&self, note: String) {
+        *self.0.lock().unwrap_or_else(|poison| poison.into_inner()) = Some(note);
+    }
+
+    pub fn take(&self) -> Option<String> {
+        self.0
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner())
+            .take()
+    }
+}
+
+/// Whether the request asks for a take-over (`Candeck-Lease-Takeover`:
+/// `true` or `false`; anything else is a mistake worth saying).
+pub fn takeover_asked(headers: &HeaderMap) -> Result<bool, AppError> {
+    let Some(value) = headers.get(TAKEOVER_HEADER) else {
+        return Ok(false);
+    };
+    match value.to_str().map(str::trim) {
+        Ok(text) if text.eq_ignore_ascii_case("true") => Ok(true),
+        Ok(text) if text.eq_ignore_ascii_case("false") => Ok(false),
+        _ => Err(AppError::InvalidRequest(
+            "Candeck-Lease-Takeover is true or false".to_string(),
+        )),
+    }
+}
+
+/// Who a request acts for, as a lease records it: its token's name
+/// (`anonymous` on a gateway without tokens).
+pub fn holder(identity: Option<&Extension<Identity>>) -> String {
+    identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
+}
+
+/// An explicit take-over, when the request asks for one: the lease held on
+/// `axis` ends (the axis is not stopped: the request's own command follows)
+/// and the request's audit entry names its holder and mode. Operators and
+/// admins only (the routes that take the header ask for an operator
+/// already; this says it again where the rule lives).
+pub fn take_over_if_asked(
+    state: &AppState,
+    headers: &HeaderMap,
+    axis: &AxisKey,
+    identity: Option<&Extension<Identity>>,
+    note: Option<&Extension<AuditNote>>,
+) -> Result<(), AppError> {
+    if !takeover_asked(headers)? {
+        return Ok(());
+    }
+    if state.guard.config.required()
+        && identity
+            .and_then(|Extension(id)| id.role)
+            .is_none_or(|role| role < Role::Operator)
+    {
+        return Err(AppError::Forbidden(
+            "a take-over of a held axis needs the operator role".to_string(),
+        ));
+    }
+    if let Some(previous) = state.gateway.leases.take_over(axis)
+        && let Some(Extension(note)) = note
+    {
+        note.set(format!(
+            "took over the {} lease {} of {}",
+            previous.mode,
+            mask(&previous.id),
+            previous.holder
+        ));
+    }
+    Ok(())
+}
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(renew))
@@ -102,16 +194,19 @@ pub fn presented(headers: &HeaderMap) -> Option<&str> {
 /// `{"op":"renew","leases":[id]}` on the stream) more often than the
 /// lease's `period_ms`; if the lease lapses, the gateway halts the axis,
 /// and quick-stops it if it has not stopped one period later. Halting or
-/// stopping the axis ends the lease.
+/// stopping the axis ends the lease. Only the lease's holder (the token
+/// that took it) renews it: anyone else is refused with `lease_conflict`.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/lease", tag = "drives", params(AxisPath),
     request_body = RenewRequest,
     responses(
         (status = 200, description = "The lease, renewed", body = LeaseInfo),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
-        (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_lease`: it lapsed, was ended by a stop, or is not this axis's", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_lease`: it lapsed, was ended by a stop or a take-over, or is not this axis's", body = ErrorBody),
+        (status = 409, description = "`lease_conflict`: the lease is held by another token", body = ErrorBody),
     ))]
 async fn renew(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<RenewRequest>,
 ) -> Result<ApiJson<LeaseInfo>, AppError> {
@@ -123,6 +218,9 @@ async fn renew(
             .parse()
             .map_err(|_| AppError::InvalidRequest(format!("axis '{axis}' is not a number")))?,
     };
-    let lease = state.gateway.leases.renew_on(&key, &request.lease)?;
+    let lease = state
+        .gateway
+        .leases
+        .renew_on(&key, &request.lease, &holder(identity.as_ref()))?;
     Ok(ApiJson(LeaseInfo::of(&lease, Instant::now())))
 }

@@ -127,6 +127,7 @@ pub fn render(state: &AppState) -> String {
     render_nodes(&mut out, &buses);
     render_stream(&mut out, state);
     render_sparkplug(&mut out, state);
+    render_http(&mut out, state);
     render_process(&mut out, &ProcessStats::read());
     out.text
 }
@@ -491,6 +492,23 @@ fn render_sparkplug(out: &mut Exposition, state: &AppState) {
     ] {
         out.family(name, Kind::Counter, help);
         out.sample(name, &[], counter.load(Ordering::Relaxed));
+    }
+}
+
+fn render_http(out: &mut Exposition, state: &AppState) {
+    let refusals = &state.connection_refusals;
+    let name = "candeck_http_connections_refused_total";
+    out.family(
+        name,
+        Kind::Counter,
+        "HTTP connections the connection limit (max_connections) turned away: answered 503 on a reserve place (answered_503), closed as soon as accepted (closed), pushed out of the reserve by a newer one (evicted).",
+    );
+    for (how, counter) in [
+        ("answered_503", &refusals.answered_503),
+        ("closed", &refusals.closed),
+        ("evicted", &refusals.evicted),
+    ] {
+        out.sample(name, &[("how", how)], counter.load(Ordering::Relaxed));
     }
 }
 

@@ -109,6 +109,8 @@ pub struct AppState {
     pub gateway: Gateway,
     /// The WebSocket stream's numbers, for `/metrics`.
     pub stream_counters: Arc<StreamCounters>,
+    /// The connections the HTTP server's limit turned away, for `/metrics`.
+    pub connection_refusals: Arc<serve::ConnectionRefusals>,
     /// Tokens, roles and limits ([`auth::guard`]); open by default.
     pub guard: Arc<auth::Guard>,
     /// The names the gateway is served as ([`host::check`]); loopback
@@ -122,6 +124,7 @@ impl AppState {
         Self {
             gateway,
             stream_counters: Arc::new(StreamCounters::default()),
+            connection_refusals: Arc::default(),
             guard: Arc::new(auth::Guard::default()),
             allowed_hosts: Arc::new(host::AllowedHosts::default()),
         }

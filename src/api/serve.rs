@@ -20,13 +20,21 @@
 //!
 //! A WebSocket keeps its place in the limit until it closes; the timeouts
 //! end with the upgrade (the stream has its own keep-alive).
+//!
+//! What the limit turns away ([`ConnectionRefusals`]: answered 503, closed
+//! at once, pushed out of the reserve) is counted for `/metrics`
+//! (`candeck_http_connections_refused_total`) and logged as a warning at
+//! most once per [`REFUSAL_LOG_EVERY`], with the counts since the last
+//! line: a flood of connections must not flood the log. They are not in
+//! the audit log: nothing was asked of the gateway, and a flood would
+//! fill it.
 
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -55,6 +63,57 @@ pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
 /// The connections of [`Limits::max_connections`] kept for `/health` and
 /// `stop-all`.
 pub const RESERVED_CONNECTIONS: usize = 16;
+
+/// Refused connections are logged at most once per this interval.
+pub const REFUSAL_LOG_EVERY: Duration = Duration::from_secs(60);
+
+/// The connections the limit turned away, by how.
+#[derive(Debug, Default)]
+pub struct ConnectionRefusals {
+    /// Reserve connections that asked for something other than `/health`
+    /// or `stop-all`: answered 503 `too_many_connections`.
+    pub answered_503: AtomicU64,
+    /// Closed as soon as accepted: every place, the reserve's too, had a
+    /// request in flight.
+    pub closed: AtomicU64,
+    /// Reserve connections pushed out by a newer one before they sent a
+    /// request.
+    pub evicted: AtomicU64,
+    /// When a refusal was last logged, and the refusals since.
+    log: Mutex<(Option<Instant>, u64)>,
+}
+
+impl ConnectionRefusals {
+    /// Counts one refusal in `counter` and logs it if no refusal was logged
+    /// for [`REFUSAL_LOG_EVERY`].
+    fn note(&self, counter: &AtomicU64, peer: SocketAddr, how: &str) {
+        counter.fetch_add(1, Ordering::Relaxed);
+        if let Some(since) = self.log_due(Instant::now()) {
+            tracing::warn!(
+                "http: {peer} {how}: every connection is in use (max_connections); \
+                 {since} connections refused since the last such line \
+                 (503: {}, closed: {}, pushed out of the reserve: {} in all)",
+                self.answered_503.load(Ordering::Relaxed),
+                self.closed.load(Ordering::Relaxed),
+                self.evicted.load(Ordering::Relaxed),
+            );
+        }
+    }
+
+    /// One more refusal at `now`: `Some(refusals since the last line)`
+    /// when a line is due, the first one and then once per
+    /// [`REFUSAL_LOG_EVERY`].
+    pub fn log_due(&self, now: Instant) -> Option<u64> {
+        let mut log = self.log.lock().unwrap_or_else(|poison| poison.into_inner());
+        let (last, unlogged) = &mut *log;
+        *unlogged += 1;
+        if last.is_some_and(|last| now.saturating_duration_since(last) < REFUSAL_LOG_EVERY) {
+            return None;
+        }
+        *last = Some(now);
+        Some(std::mem::take(unlogged))
+    }
+}
 
 /// The server's limits (config keys `header_timeout_ms`,
 /// `idle_timeout_ms`, `max_connections`).
@@ -111,6 +170,7 @@ pub async fn serve(
     listener: TcpListener,
     app: Router,
     limits: Limits,
+    refusals: Arc<ConnectionRefusals>,
     shutdown: impl Future<Output = ()>,
 ) {
     let general = Arc::new(AtomicUsize::new(0));
@@ -141,7 +201,7 @@ pub async fn serve(
                 match Reserve::enter(&reserve) {
                     Some(place) => Class::Reserve(place),
                     None => {
-                        tracing::debug!("http: {peer} refused, every connection is in use");
+                        refusals.note(&refusals.closed, peer, "closed at once");
                         continue;
                     }
                 }
@@ -152,6 +212,7 @@ pub async fn serve(
             app.clone(),
             limits,
             class,
+            refusals.clone(),
             stopping.clone(),
         ));
     }
@@ -375,6 +436,7 @@ async fn connection(
     app: Router,
     limits: Limits,
     class: Class,
+    refusals: Arc<ConnectionRefusals>,
     mut stopping: watch::Receiver<bool>,
 ) {
     let activity = Arc::new(Activity {
@@ -395,9 +457,11 @@ async fn connection(
         _counted: counted,
     };
     let service_activity = activity.clone();
+    let service_refusals = refusals.clone();
     let service = hyper::service::service_fn(move |mut request: Request<Incoming>| {
         let mut app = app.clone();
         let activity = service_activity.clone();
+        let refusals = service_refusals.clone();
         if let Some(started) = &started {
             started.store(true, Ordering::Release);
         }
@@ -405,6 +469,7 @@ async fn connection(
         async move {
             request.extensions_mut().insert(ConnectInfo(peer));
             let response = if reserve && !reserved_route(request.method(), request.uri().path()) {
+                refusals.note(&refusals.answered_503, peer, "answered 503");
                 AppError::TooManyConnections(
                     "every connection of the gateway is in use; this one answers GET /api/v1/health and POST /api/v1/stop-all only (max_connections)"
                         .to_string(),
@@ -477,7 +542,7 @@ async fn connection(
                 }
             }
             () = evict => {
-                tracing::debug!("http: {peer}: reserve place taken by a newer connection");
+                refusals.note(&refusals.evicted, peer, "pushed out of the reserve by a newer connection");
                 return;
             }
             changed = stopping.changed(), if !closing => {
@@ -496,3 +561,6 @@ async fn connection(
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -6,7 +6,10 @@
 //! for motion leases ([`super::leases`]: answered with
 //! `{"op":"renewed","leases":[{"id","expires_in_ms"}]}`, an unknown one with
 //! an error naming it in `lease`; a lease renewed here lapses as soon as
-//! the session ends). Server → client:
+//! the session ends; only the lease's holder renews it — another token is
+//! answered `lease_conflict`, a viewer `forbidden`; renewals are audited,
+//! the first of each lease then one a minute, refusals one a minute per
+//! session with the count of those left out). Server → client:
 //! `{"topic","ts","data"}` for an update, `{"topic","lagged":N}` when the
 //! client fell behind and lost N events (or frames) of a topic, and, for the
 //! requests themselves, `{"op":"subscribed","topics":[...],"max_rate_hz"}`,
@@ -41,12 +44,14 @@
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt::Write as _;
+use std::net::SocketAddr;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use axum::extract::State;
+use axum::Extension;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{ConnectInfo, State};
 use axum::response::Response;
 use futures_util::{Sink, SinkExt, Stream, StreamExt};
 use serde::Deserialize;
@@ -57,11 +62,15 @@ use tokio::time::Instant;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::{Identity, Role};
 use super::doc::ErrorBody;
 use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
-use crate::can::{CanId, RecvError, TimedFrame};
+use crate::can::{CanId, RecvError, TimedFrame, Timestamp};
+use crate::gateway::history::AuditEntry;
+use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
+use crate::gateway::motion_lease::{MotionLease, mask};
 use crate::gateway::producers::{self, period_at_most};
 use crate::gateway::registry::NodeEvent;
 use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
@@ -105,15 +114,39 @@ pub fn router() -> OpenApiRouter<AppState> {
     ))]
 async fn stream(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
+    peer: Option<Extension<ConnectInfo<SocketAddr>>>,
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, AppError> {
+    let client = Client {
+        identity: identity.map_or_else(Identity::anonymous, |Extension(id)| id),
+        peer: peer.map(|Extension(ConnectInfo(addr))| addr.to_string()),
+    };
     let upgrade = upgrade.map_err(|rejection| AppError::UpgradeRequired(rejection.body_text()))?;
     // A browser sends its token as a second subprotocol (`bearer.TOKEN`,
     // checked by the access layer); the answer names ours only.
     Ok(upgrade
         .protocols([super::auth::STREAM_PROTOCOL])
         .max_message_size(MAX_CLIENT_MESSAGE)
-        .on_upgrade(move |socket| serve_socket(state, socket)))
+        .on_upgrade(move |socket| serve_socket(state, client, socket)))
+}
+
+/// Who a session serves, as the access layer found it: leases are renewed
+/// for this identity, and its renewals are audited under its name.
+#[derive(Debug, Clone)]
+pub struct Client {
+    pub identity: Identity,
+    pub peer: Option<String>,
+}
+
+impl Client {
+    /// A client without a token (a gateway without tokens), address unknown.
+    pub fn anonymous() -> Self {
+        Self {
+            identity: Identity::anonymous(),
+            peer: None,
+        }
+    }
 }
 
 /// What a client sent, as the session sees it.
@@ -124,7 +157,7 @@ pub enum Inbound {
     Binary,
 }
 
-async fn serve_socket(state: AppState, socket: WebSocket) {
+async fn serve_socket(state: AppState, client: Client, socket: WebSocket) {
     let (sink, stream) = socket.split();
     let sink = sink.with(|text: String| async move { Ok::<_, axum::Error>(Message::text(text)) });
     // Pings are answered by the WebSocket layer itself; a close or an error
@@ -141,7 +174,7 @@ async fn serve_socket(state: AppState, socket: WebSocket) {
             }
         });
     let mut sink = Box::pin(sink);
-    run_session(state, Box::pin(inbound), &mut sink).await;
+    run_session_as(state, client, Box::pin(inbound), &mut sink).await;
     // The close handshake: the WebSocket layer queued its answer to the
     // client's Close frame (or ours, when the session ended first); closing
     // the sink sends it, so the client sees a clean 1000 rather than a
@@ -149,9 +182,18 @@ async fn serve_socket(state: AppState, socket: WebSocket) {
     let _ = tokio::time::timeout(SEND_TIMEOUT, sink.close()).await;
 }
 
+/// [`run_session_as`] for a client without a token.
+pub async fn run_session<I, O>(state: AppState, inbound: I, outbound: O)
+where
+    I: Stream<Item = Inbound> + Unpin,
+    O: Sink<String> + Unpin,
+{
+    run_session_as(state, Client::anonymous(), inbound, outbound).await;
+}
+
 /// One client's session: reads its requests from `inbound` and writes the
 /// stream to `outbound` until either ends (or a write times out).
-pub async fn run_session<I, O>(state: AppState, mut inbound: I, mut outbound: O)
+pub async fn run_session_as<I, O>(state: AppState, client: Client, mut inbound: I, mut outbound: O)
 where
     I: Stream<Item = Inbound> + Unpin,
     O: Sink<String> + Unpin,
@@ -162,6 +204,8 @@ where
     let lease_session = _leases.session;
     let mut session = Session {
         lease_session,
+        client,
+        refusals: RefusalAudit::default(),
         state,
         mailbox: Arc::new(Mailbox::default()),
         topics: BTreeMap::new(),
@@ -352,8 +396,18 @@ impl Drop for Subscription {
     }
 }
 
+/// Refused renewals of a session, audited one entry per
+/// [`RENEWAL_AUDIT_EVERY`] (a client may send a thousand a second).
+#[derive(Default)]
+struct RefusalAudit {
+    last: Option<Instant>,
+    left_out: u64,
+}
+
 struct Session {
     state: AppState,
+    client: Client,
+    refusals: RefusalAudit,
     lease_session: u64,
     mailbox: Arc<Mailbox>,
     /// By the topic string as the client wrote it (the messages carry it
@@ -404,20 +458,36 @@ impl Session {
     fn renew(&mut self, ids: Vec<String>) -> Vec<String> {
         let mut renewed = Vec::new();
         let mut replies = Vec::new();
+        // A viewer watches: it never holds, renews or uses a lease.
+        let identity = self.client.identity.clone();
+        let viewer = self.state.guard.config.required()
+            && identity.role.is_none_or(|role| role < Role::Operator);
         for id in ids {
-            match self
-                .state
-                .gateway
-                .leases
-                .renew(&id, Some(self.lease_session))
-            {
+            let result = if viewer {
+                Err(AppError::Forbidden(format!(
+                    "token {} has the role {}; renewing a motion lease needs operator \
+                     (and only its holder renews it)",
+                    identity.name,
+                    identity.role.map_or("none", Role::name)
+                )))
+            } else {
+                self.state
+                    .gateway
+                    .leases
+                    .renew(&id, Some(&identity.name), Some(self.lease_session))
+                    .map_err(AppError::from)
+            };
+            match result {
                 Ok(lease) => {
                     let left = lease.remaining(tokio::time::Instant::now()).as_millis();
                     renewed.push(json!({"id": id, "expires_in_ms": left as u64}));
+                    if self.state.gateway.leases.renewal_audit_due(&id) {
+                        self.audit_renewal(&id, Some(&lease), None);
+                    }
                 }
-                Err(err) => {
-                    let mut message =
-                        json!({"op": "error", "error": AppError::from(err).to_json()});
+                Err(error) => {
+                    self.audit_refusal(&id, &error);
+                    let mut message = json!({"op": "error", "error": error.to_json()});
                     message["lease"] = Json::from(id);
                     replies.push(message.to_string());
                 }
@@ -425,6 +495,75 @@ impl Session {
         }
         replies.insert(0, json!({"op": "renewed", "leases": renewed}).to_string());
         replies
+    }
+
+    /// A refused renewal: audited if none was for [`RENEWAL_AUDIT_EVERY`],
+    /// else counted into the next entry.
+    fn audit_refusal(&mut self, id: &str, error: &AppError) {
+        let now = Instant::now();
+        let due = self
+            .refusals
+            .last
+            .is_none_or(|last| now.saturating_duration_since(last) >= RENEWAL_AUDIT_EVERY);
+        if !due {
+            self.refusals.left_out += 1;
+            return;
+        }
+        self.refusals.last = Some(now);
+        let left_out = std::mem::take(&mut self.refusals.left_out);
+        self.audit_renewal(id, None, Some((error, left_out)));
+    }
+
+    /// One audit entry for a stream renewal (in a task: the session never
+    /// waits for the disk).
+    fn audit_renewal(
+        &self,
+        id: &str,
+        lease: Option<&MotionLease>,
+        refused: Option<(&AppError, u64)>,
+    ) {
+        let identity = &self.client.identity;
+        let mut item = format!("lease {}", mask(id));
+        if let Some(lease) = lease {
+            let _ = write!(item, " ({} lease of {})", lease.mode, lease.holder);
+        }
+        if let Some((_, left_out)) = refused
+            && left_out > 0
+        {
+            let _ = write!(item, "; {left_out} more refused renewals not logged");
+        }
+        let (status, error_code) = match refused {
+            Some((error, _)) => (
+                error.status().as_u16(),
+                error.to_json()["code"].as_str().map(str::to_string),
+            ),
+            None => (200, None),
+        };
+        let entry = AuditEntry {
+            time: Timestamp::now(),
+            who: identity.name.clone(),
+            peer: self.client.peer.clone(),
+            role: identity
+                .role
+                .map_or_else(|| "none".to_string(), |role| role.name().to_string()),
+            method: "WS".to_string(),
+            path: "/api/v1/stream".to_string(),
+            operation: "renew motion lease (stream)".to_string(),
+            bus: lease.map(|lease| lease.axis.bus.clone()),
+            node: lease.map(|lease| lease.axis.node),
+            axis: lease.map(|lease| lease.axis.axis),
+            item: Some(item),
+            request: Some(json!({"op": "renew", "leases": [mask(id)]}).to_string()),
+            status,
+            error_code,
+            abort_code: None,
+        };
+        let history = self.state.gateway.history.clone();
+        tokio::spawn(async move {
+            if let Err(err) = history.audit(entry).await {
+                tracing::error!("audit: a stream lease renewal: not recorded: {err}");
+            }
+        });
     }
 
     fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {

@@ -254,10 +254,12 @@ impl From<DriveError> for GatewayError {
                 state,
             },
             DriveError::ModeNotSupported { .. } => Self::ModeNotSupported(error.to_string()),
-            DriveError::NotEnabled { .. } => Self::DriveNotEnabled {
-                message: error.to_string(),
-                state,
-            },
+            DriveError::NotEnabled { .. } | DriveError::Interrupted { .. } => {
+                Self::DriveNotEnabled {
+                    message: error.to_string(),
+                    state,
+                }
+            }
             DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
             DriveError::Invalid(message) => Self::InvalidValue(message),
         }
@@ -267,7 +269,9 @@ impl From<DriveError> for GatewayError {
 impl From<LeaseError> for GatewayError {
     fn from(error: LeaseError) -> Self {
         match error {
-            LeaseError::Conflict { .. } => Self::LeaseConflict(error.to_string()),
+            LeaseError::Conflict { .. } | LeaseError::NotHolder { .. } => {
+                Self::LeaseConflict(error.to_string())
+            }
             LeaseError::Unknown(_) => Self::UnknownLease(error.to_string()),
         }
     }

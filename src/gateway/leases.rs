@@ -14,7 +14,7 @@ use tokio::time::Instant;
 
 use super::GatewayError;
 use super::history::AuditEntry;
-use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease};
+use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
 use crate::can::Timestamp;
@@ -22,6 +22,9 @@ use crate::can::Timestamp;
 /// How often the status of a lapsed lease's axis is read while it slows
 /// down under halt.
 const STOPPING_POLL: Duration = Duration::from_millis(50);
+/// Stream renewals of one lease are audited once, then at most once per
+/// this interval (a client renews every second or so).
+pub const RENEWAL_AUDIT_EVERY: Duration = Duration::from_secs(60);
 
 /// The gateway's leases and the task that stops the lapsed ones.
 #[derive(Debug)]
@@ -55,9 +58,38 @@ impl MotionLeases {
             .unwrap_or_else(|poison| poison.into_inner())
     }
 
-    /// Refuses a command on a held axis that does not present its lease.
-    pub fn check(&self, axis: &AxisKey, presented: Option<&str>) -> Result<(), GatewayError> {
-        Ok(self.table().check(axis, presented, Instant::now())?)
+    /// Refuses a command on a held axis that does not present its lease,
+    /// or that `by` presents who is not its holder.
+    pub fn check(
+        &self,
+        axis: &AxisKey,
+        presented: Option<&str>,
+        by: &str,
+    ) -> Result<(), GatewayError> {
+        Ok(self.table().check(axis, presented, by, Instant::now())?)
+    }
+
+    /// An explicit take-over of `axis` (audited by the caller): the lease
+    /// held on it ends and is returned; the axis is not stopped.
+    pub fn take_over(&self, axis: &AxisKey) -> Option<MotionLease> {
+        let previous = self.table().take_over(axis, Instant::now());
+        if let Some(lease) = &previous {
+            tracing::warn!(
+                "motion lease {} of {} on {} ({}) taken over",
+                mask(&lease.id),
+                lease.holder,
+                lease.axis,
+                lease.mode
+            );
+        }
+        previous
+    }
+
+    /// Whether a stream renewal of `id` is to be audited now (the first,
+    /// then one per [`RENEWAL_AUDIT_EVERY`]).
+    pub fn renewal_audit_due(&self, id: &str) -> bool {
+        self.table()
+            .audit_due(id, RENEWAL_AUDIT_EVERY, Instant::now())
     }
 
     /// Grants (or, presented, renews) the lease for a move on `axis`, and
@@ -86,19 +118,30 @@ impl MotionLeases {
         Ok(lease)
     }
 
-    /// Renews the lease `id`, binding it to a stream session when given.
-    pub fn renew(&self, id: &str, session: Option<u64>) -> Result<MotionLease, GatewayError> {
-        Ok(self.table().renew(id, session, Instant::now())?)
+    /// Renews the lease `id` for `by`, its holder (`None`: the gateway
+    /// itself), binding it to a stream session when given.
+    pub fn renew(
+        &self,
+        id: &str,
+        by: Option<&str>,
+        session: Option<u64>,
+    ) -> Result<MotionLease, GatewayError> {
+        Ok(self.table().renew(id, by, session, Instant::now())?)
     }
 
-    /// Renews the lease `id` held on `axis`: a lease id is not renewed
-    /// through a request that names another axis.
-    pub fn renew_on(&self, axis: &AxisKey, id: &str) -> Result<MotionLease, GatewayError> {
+    /// Renews the lease `id` held on `axis` for `by`: a lease id is not
+    /// renewed through a request that names another axis.
+    pub fn renew_on(
+        &self,
+        axis: &AxisKey,
+        id: &str,
+        by: &str,
+    ) -> Result<MotionLease, GatewayError> {
         let held = self.table().get(axis, Instant::now()).map(|l| l.id.clone());
         if held.as_deref() != Some(id) {
             return Err(LeaseError::Unknown(id.to_string()).into());
         }
-        self.renew(id, None)
+        self.renew(id, Some(by), None)
     }
 
     /// The lease on `axis` is over: its motion was stopped (or is bounded).
@@ -216,7 +259,7 @@ enum LapseStop {
 async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
     tracing::warn!(
         "motion lease {} of {} on {} ({}) lapsed: halting the axis",
-        lease.id,
+        mask(&lease.id),
         lease.holder,
         lease.axis,
         lease.mode
@@ -360,7 +403,7 @@ impl InFlight {
                 result = &mut work => break result,
                 () = tokio::time::sleep(every) => {
                     // Lapsed already (a stop ended it): nothing to keep.
-                    let _ = leases.renew(&self.id, None);
+                    let _ = leases.renew(&self.id, None, None);
                 }
             }
         };
@@ -372,7 +415,10 @@ impl InFlight {
 impl Drop for InFlight {
     fn drop(&mut self) {
         if !self.done {
-            tracing::warn!("the client of lease {} went away mid-request", self.id);
+            tracing::warn!(
+                "the client of lease {} went away mid-request",
+                mask(&self.id)
+            );
             self.leases.lapse_now(&self.id);
         }
     }

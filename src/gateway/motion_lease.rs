@@ -19,6 +19,15 @@
 //! move is refused (`lease_conflict`) unless it presents the lease. Whatever
 //! stops motion (halt, quick stop, STOP ALL, leaving operation enabled) is
 //! never refused, and ends the lease.
+//!
+//! A lease is bound to its holder, the identity that took it (a token's
+//! name; `anonymous` on a gateway without tokens, where the id alone is the
+//! credential): presenting or renewing it as anyone else is refused
+//! (`lease_conflict`), even with the right id. The one way past is an
+//! explicit take-over ([`LeaseTable::take_over`]): the lease ends, its id
+//! is refused from then on, and the new holder gets a lease of its own.
+//! Lease ids are secrets: wherever they are logged or shown to others they
+//! are [`mask`]ed.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -33,6 +42,13 @@ pub const MAX_PERIOD: Duration = Duration::from_secs(60);
 /// The default (`--lease-ms`): a dashboard renews every second, and a
 /// client that went away stops its axis within three.
 pub const DEFAULT_PERIOD: Duration = Duration::from_secs(3);
+
+/// A lease id as logs and the audit log show it: its first 4 characters
+/// and an ellipsis (enough to tell two leases apart, not to use one).
+pub fn mask(id: &str) -> String {
+    let shown: String = id.chars().take(4).collect();
+    format!("{shown}…")
+}
 
 /// One axis of one node of one bus.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -63,6 +79,9 @@ pub struct MotionLease {
     /// The stream session that renews it, if any: when that session ends,
     /// the lease lapses at once rather than a period later.
     pub session: Option<u64>,
+    /// When a renewal of it was last written to the audit log (stream
+    /// renewals are audited at most once per [`Self::audit_due`] interval).
+    pub audited: Option<Instant>,
 }
 
 impl MotionLease {
@@ -87,11 +106,26 @@ pub enum LeaseError {
         mode: String,
         remaining: Duration,
     },
-    /// No lease has this id: it lapsed (and its axis was stopped), was
-    /// ended by a stop, or never existed.
+    /// The lease presented is held, by someone else: a lease is renewed and
+    /// used by its holder only.
     #[error(
-        "no motion lease '{0}' is held: it lapsed or was ended by a stop \
-         (the axis was halted), or it never existed"
+        "motion lease '{masked}' on {axis} is held by {holder}, not {by}: only its \
+         holder renews or uses it (an operator may take the axis over with \
+         Candeck-Lease-Takeover: true, which is audited)",
+        masked = mask(.id)
+    )]
+    NotHolder {
+        id: String,
+        axis: AxisKey,
+        holder: String,
+        by: String,
+    },
+    /// No lease has this id: it lapsed (and its axis was stopped), was
+    /// ended by a stop or a take-over, or never existed.
+    #[error(
+        "no motion lease '{masked}' is held: it lapsed, was ended by a stop \
+         (the axis was halted) or taken over, or it never existed",
+        masked = mask(.0)
     )]
     Unknown(String),
 }
@@ -120,13 +154,14 @@ impl LeaseTable {
         self.by_axis.is_empty()
     }
 
-    /// Whether a request that presents `presented` (or nothing) may command
-    /// motion on `axis` at `now`: yes when no lease is held or it presents
-    /// the one held.
+    /// Whether a request of `by` that presents `presented` (or nothing) may
+    /// command motion on `axis` at `now`: yes when no lease is held, or its
+    /// holder presents the one held.
     pub fn check(
         &self,
         axis: &AxisKey,
         presented: Option<&str>,
+        by: &str,
         now: Instant,
     ) -> Result<(), LeaseError> {
         match self.get(axis, now) {
@@ -136,14 +171,20 @@ impl LeaseTable {
                 mode: lease.mode.clone(),
                 remaining: lease.remaining(now),
             }),
+            Some(lease) if lease.holder != by => Err(LeaseError::NotHolder {
+                id: lease.id.clone(),
+                axis: axis.clone(),
+                holder: lease.holder.clone(),
+                by: by.to_string(),
+            }),
             _ => Ok(()),
         }
     }
 
     /// Grants a lease on `axis` for a motion that needs one: the one held,
     /// renewed, when the request presents it (the holder changing its
-    /// set-point), else a new one with `fresh_id`. Refused when another
-    /// lease is held and not presented.
+    /// set-point), else a new one with `fresh_id` for `holder`. Refused when
+    /// another lease is held and not presented by its holder.
     #[allow(clippy::too_many_arguments)]
     pub fn grant(
         &mut self,
@@ -155,10 +196,10 @@ impl LeaseTable {
         period: Duration,
         now: Instant,
     ) -> Result<MotionLease, LeaseError> {
-        self.check(&axis, presented, now)?;
-        let (id, session) = match self.get(&axis, now) {
-            Some(held) => (held.id.clone(), held.session),
-            None => (fresh_id, None),
+        self.check(&axis, presented, holder, now)?;
+        let (id, session, audited) = match self.get(&axis, now) {
+            Some(held) => (held.id.clone(), held.session, held.audited),
+            None => (fresh_id, None, None),
         };
         let lease = MotionLease {
             id,
@@ -168,16 +209,20 @@ impl LeaseTable {
             period,
             expires: now + period,
             session,
+            audited,
         };
         self.by_axis.insert(axis, lease.clone());
         Ok(lease)
     }
 
-    /// Renews the lease `id` for another period from `now`; `session`, when
-    /// given, binds it to that stream session.
+    /// Renews the lease `id` for another period from `now`, for `by`, its
+    /// holder (`None`: the gateway itself, for a request that holds it
+    /// while it runs); `session`, when given, binds it to that stream
+    /// session.
     pub fn renew(
         &mut self,
         id: &str,
+        by: Option<&str>,
         session: Option<u64>,
         now: Instant,
     ) -> Result<MotionLease, LeaseError> {
@@ -186,11 +231,47 @@ impl LeaseTable {
             .values_mut()
             .find(|lease| lease.id == id && lease.expires > now)
             .ok_or_else(|| LeaseError::Unknown(id.to_string()))?;
+        if let Some(by) = by
+            && lease.holder != by
+        {
+            return Err(LeaseError::NotHolder {
+                id: id.to_string(),
+                axis: lease.axis.clone(),
+                holder: lease.holder.clone(),
+                by: by.to_string(),
+            });
+        }
         lease.expires = now + lease.period;
         if session.is_some() {
             lease.session = session;
         }
         Ok(lease.clone())
+    }
+
+    /// An explicit take-over of `axis`: the lease held on it (if any) ends
+    /// and is returned, for the audit log to name its holder; its id is
+    /// refused from then on. The axis keeps moving: the new holder's
+    /// command takes it from here.
+    pub fn take_over(&mut self, axis: &AxisKey, now: Instant) -> Option<MotionLease> {
+        self.get(axis, now)?;
+        self.by_axis.remove(axis)
+    }
+
+    /// Whether a renewal of the lease `id` at `now` is to be audited: the
+    /// first one, then at most one per `every` (a client renews every
+    /// second or so; the audit log must not fill with them). Marks it
+    /// audited when it is.
+    pub fn audit_due(&mut self, id: &str, every: Duration, now: Instant) -> bool {
+        let Some(lease) = self.by_axis.values_mut().find(|lease| lease.id == id) else {
+            return false;
+        };
+        let due = lease
+            .audited
+            .is_none_or(|last| now.saturating_duration_since(last) >= every);
+        if due {
+            lease.audited = Some(now);
+        }
+        due
     }
 
     /// Ends the lease on `axis` (its motion was stopped), returning it.

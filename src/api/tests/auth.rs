@@ -463,6 +463,32 @@ async fn writes_beyond_the_token_rate_are_429_until_the_bucket_refills() {
         let (status, _, _) = send(&app, Method::POST, "/api/v1/stop-all", &auth, Some("{}")).await;
         assert_eq!(status, StatusCode::OK);
     }
+    // Nor a halt or a walk out of operation enabled (found by the
+    // re-probe of issue 19: an operator whose bucket was spent could not
+    // halt its axis). No bus here: past the guard, 404.
+    let axis = "/api/v1/buses/nobus/nodes/1/axes/1";
+    for (what, body) in [
+        ("/halt", r#"{"halt":true}"#),
+        ("/state", r#"{"target":"quick_stop_active"}"#),
+        ("/state", r#"{"target":"switch_on_disabled"}"#),
+    ] {
+        let path = format!("{axis}{what}");
+        let (status, _, json) = send(&app, Method::POST, &path, &auth, Some(body)).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{path} {body}: {json}");
+    }
+    // What starts motion still draws on the bucket.
+    for (what, body) in [
+        ("/halt", r#"{"halt":false}"#),
+        ("/state", r#"{"target":"operation_enabled"}"#),
+    ] {
+        let path = format!("{axis}{what}");
+        let (status, _, json) = send(&app, Method::POST, &path, &auth, Some(body)).await;
+        assert_eq!(
+            status,
+            StatusCode::TOO_MANY_REQUESTS,
+            "{path} {body}: {json}"
+        );
+    }
     // Half a second gives one write back (2 per second).
     tokio::time::advance(Duration::from_millis(499)).await;
     let (status, _, _) = send(&app, Method::POST, scan, &auth, Some("{}")).await;

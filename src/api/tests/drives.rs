@@ -951,3 +951,47 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
     assert!(served.registry.node(jmc).unwrap().online);
     enable(&app, 2, 1).await;
 }
+
+/// The soak's `state_change_timeout` on an axis being enabled (issue 19,
+/// point 11): a stop by someone else (STOP ALL, a quick stop, a lapsed
+/// lease) takes the drive to switch on disabled while the walk waits for
+/// operation enabled, which no command of the walk leads to any more. It
+/// waited out its 5 s and answered 504 "did not happen in time; the drive
+/// stopped in switch_on_disabled"; it now answers 409 at once. The drive
+/// here follows no controlword: the test moves its statusword as the stop
+/// would.
+#[tokio::test(start_paused = true)]
+async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
+    let (app, state) = demo().await;
+    let served = &state.gateway.buses["demo"];
+    let rack = served.rack.as_ref().unwrap();
+    // Switched on: the walk to operation enabled is one step.
+    rack.add_device(stuck_cia402_drive(9, "0x0023", "1"))
+        .unwrap();
+    served.registry.scan().await.unwrap();
+    let request = {
+        let app = app.clone();
+        tokio::spawn(async move {
+            post(
+                &app,
+                "/api/v1/buses/demo/nodes/9/axes/1/state",
+                json!({"target": "operation_enabled"}),
+            )
+            .await
+        })
+    };
+    // The walk is waiting for its step; the stop comes.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert!(!request.is_finished());
+    rack.with_device(NodeId::new(9).unwrap(), |core| {
+        core.store_mut()
+            .set(0x6041, 0, crate::canopen::od::Value::Unsigned16(0x0040))
+            .unwrap();
+    })
+    .unwrap();
+    let response = request.await.unwrap();
+    assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
+    assert_eq!(response.1["error"]["state"], "switch_on_disabled");
+    let message = response.1["error"]["message"].as_str().unwrap();
+    assert!(message.contains("interrupted"), "{message}");
+}

@@ -9,6 +9,7 @@ mod drives;
 mod edge;
 mod eds;
 mod io;
+mod lease_holders;
 mod leases;
 mod leds;
 mod lss;

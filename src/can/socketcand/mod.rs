@@ -15,7 +15,10 @@ pub mod server;
 pub mod session;
 
 pub use client::{ClientConfig, open_socketcand};
-pub use server::{ServerConfig, ServerHandle, ServerStats, SocketcandServer};
+pub use server::{
+    DEFAULT_MAX_CONNECTIONS as DEFAULT_SHARE_MAX_CONNECTIONS, ServerConfig, ServerHandle,
+    ServerStats, SocketcandServer,
+};
 
 /// The port socketcand listens on by default.
 pub const DEFAULT_PORT: u16 = 29536;

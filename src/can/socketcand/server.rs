@@ -9,7 +9,10 @@
 //!   [`DEFAULT_RX_QUEUE`](crate::can::bus::DEFAULT_RX_QUEUE) frames behind or a
 //!   write has made no progress for [`ServerConfig::write_timeout`]; nothing is
 //!   buffered for it beyond that, and the kernel's send buffer is capped;
-//! - a client that disconnects at any point only ends its own session.
+//! - a client that disconnects at any point only ends its own session;
+//! - at most [`ServerConfig::max_connections`] clients at once (config key
+//!   `share_max_connections`): one more is told `< error ... >` and closed,
+//!   counted in [`ServerStats::refused`], and logged once a minute at most.
 
 use std::collections::BTreeMap;
 use std::io;
@@ -21,7 +24,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
-use tokio::sync::mpsc;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, mpsc};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -29,6 +32,11 @@ use super::protocol::{DEFAULT_MAX_MESSAGE, Framer, Reply, write_frame};
 use super::session::{Action, Session};
 use crate::can::bus::{Bus, FrameReceiver, RecvError};
 use crate::can::hub::VirtualHub;
+
+/// Clients of one share at once, by default (`share_max_connections`).
+pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+/// Refused connections are logged at most once per this interval.
+const REFUSAL_LOG_EVERY: Duration = Duration::from_secs(60);
 
 /// Tunables of the server.
 #[derive(Debug, Clone)]
@@ -47,6 +55,8 @@ pub struct ServerConfig {
     pub send_buffer: u32,
     /// Largest batch of frames written to a client at once.
     pub max_batch_bytes: usize,
+    /// Clients at once; one more is refused (`< error ... >`, closed).
+    pub max_connections: usize,
 }
 
 impl Default for ServerConfig {
@@ -57,6 +67,7 @@ impl Default for ServerConfig {
             write_timeout: Duration::from_secs(5),
             send_buffer: 64 * 1024,
             max_batch_bytes: 64 * 1024,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
         }
     }
 }
@@ -68,6 +79,8 @@ pub struct ServerStats {
     pub connected: AtomicU64,
     pub rejected_commands: AtomicU64,
     pub slow_clients_dropped: AtomicU64,
+    /// Connections refused because `max_connections` clients were connected.
+    pub refused: AtomicU64,
     pub frames_from_clients: AtomicU64,
     pub frames_to_clients: AtomicU64,
 }
@@ -150,15 +163,36 @@ impl SocketcandServer {
 
     async fn run(self) {
         let mut sessions = tokio::task::JoinSet::new();
+        let places = Arc::new(Semaphore::new(self.config.max_connections));
+        // When a refusal was last logged, and how many came since.
+        let mut logged: Option<Instant> = None;
+        let mut unlogged = 0u64;
         loop {
             tokio::select! {
                 accepted = self.listener.accept() => match accepted {
                     Ok((stream, peer)) => {
                         self.stats.accepted.fetch_add(1, Ordering::Relaxed);
+                        let Ok(place) = places.clone().try_acquire_owned() else {
+                            self.stats.refused.fetch_add(1, Ordering::Relaxed);
+                            unlogged += 1;
+                            let now = Instant::now();
+                            if logged.is_none_or(|at| now.duration_since(at) >= REFUSAL_LOG_EVERY) {
+                                tracing::warn!(
+                                    "socketcand: {peer} refused: {} clients already \
+                                     (share_max_connections); {unlogged} refused since the last \
+                                     such line",
+                                    self.config.max_connections
+                                );
+                                logged = Some(now);
+                                unlogged = 0;
+                            }
+                            sessions.spawn(refuse(stream));
+                            continue;
+                        };
                         let channels = self.channels.clone();
                         let config = self.config.clone();
                         let stats = self.stats.clone();
-                        sessions.spawn(serve_client(stream, peer, channels, config, stats));
+                        sessions.spawn(serve_client(stream, peer, channels, config, stats, place));
                     }
                     Err(err) => {
                         // Out of file descriptors and the like: wait, do not spin.
@@ -179,12 +213,22 @@ enum WriterCmd {
     StopForwarding,
 }
 
+/// Tells a client beyond the limit why, briefly, and closes it.
+async fn refuse(mut stream: TcpStream) {
+    let _ = tokio::time::timeout(
+        Duration::from_secs(1),
+        stream.write_all(b"< error too many clients (share_max_connections) >"),
+    )
+    .await;
+}
+
 async fn serve_client(
     stream: TcpStream,
     peer: SocketAddr,
     channels: Arc<BTreeMap<String, VirtualHub>>,
     config: ServerConfig,
     stats: Arc<ServerStats>,
+    _place: OwnedSemaphorePermit,
 ) {
     // Frames are small and latency matters (SDO round trips).
     let _ = stream.set_nodelay(true);

@@ -112,8 +112,8 @@ pub struct ServeArgs {
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
     /// recordings_quota_mb, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
-    /// max_connections, ascii_idle_timeout_ms, ascii_max_connections
-    /// (candeck.example.toml is an annotated example of every key).
+    /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
+    /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
     /// CANDECK_TOKENS="NAME:ROLE:TOKEN,..." (roles: viewer, operator, admin).
@@ -231,6 +231,10 @@ pub struct ServeArgs {
     /// CiA 309-3 connections at once (--ascii-listen). Default: 32.
     #[arg(long, value_name = "N")]
     pub ascii_max_connections: Option<usize>,
+    /// socketcand clients at once, per --share address; one more is
+    /// refused. Default: 32.
+    #[arg(long, value_name = "N")]
+    pub share_max_connections: Option<usize>,
 }
 
 /// A SYNC period in milliseconds: 0 (off) up to what 0x1006 holds.

@@ -84,6 +84,7 @@ pub(super) struct ConfigFile {
     pub(super) sparkplug_queue_messages: Option<usize>,
     pub(super) sparkplug_deadband: Option<f64>,
     pub(super) sparkplug_max_rate_hz: Option<f64>,
+    pub(super) share_max_connections: Option<usize>,
     #[serde(default)]
     pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
 }
@@ -277,6 +278,8 @@ pub(super) struct Settings {
     pub(super) ascii_limits: AsciiLimits,
     /// The Sparkplug B edge node; `None`: off.
     pub(super) sparkplug: Option<SparkplugConfig>,
+    /// socketcand clients at once per share.
+    pub(super) share_max_connections: usize,
 }
 
 impl ServeArgs {
@@ -411,6 +414,11 @@ impl ServeArgs {
                         .or(file.ascii_max_connections)
                         .unwrap_or(defaults.max_connections),
                 )?
+            },
+            share_max_connections: match self.share_max_connections.or(file.share_max_connections) {
+                Some(0) => return Err("share_max_connections: at least 1".to_string()),
+                Some(n) => n,
+                None => crate::can::socketcand::DEFAULT_SHARE_MAX_CONNECTIONS,
             },
         };
         settings.validate()?;

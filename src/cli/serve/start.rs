@@ -83,7 +83,11 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     let mut shares = Vec::new();
     for (addr, channels) in args.shared(&served) {
         let names: Vec<String> = channels.iter().map(|(name, _)| name.clone()).collect();
-        let server = SocketcandServer::bind(addr, channels, ServerConfig::default())
+        let config = ServerConfig {
+            max_connections: args.share_max_connections,
+            ..ServerConfig::default()
+        };
+        let server = SocketcandServer::bind(addr, channels, config)
             .await
             .and_then(SocketcandServer::spawn)
             .map_err(|err| CliError::new(format!("--share: cannot listen on {addr}: {err}")))?;
@@ -208,6 +212,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         listener,
         crate::api::app(state.clone()),
         args.http_limits,
+        state.connection_refusals.clone(),
         async {
             let _ = draining.await;
         },

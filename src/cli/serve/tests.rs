@@ -453,7 +453,7 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
     let file = dir.join("limits.toml");
     std::fs::write(
         &file,
-        "header_timeout_ms = 2000\nidle_timeout_ms = 3000\nmax_connections = 100\nascii_idle_timeout_ms = 4000\nascii_max_connections = 5\nallowed_hosts = [\"gw.example\"]\n",
+        "header_timeout_ms = 2000\nidle_timeout_ms = 3000\nmax_connections = 100\nascii_idle_timeout_ms = 4000\nascii_max_connections = 5\nshare_max_connections = 7\nallowed_hosts = [\"gw.example\"]\n",
     )
     .unwrap();
     let file = file.to_str().unwrap();
@@ -466,6 +466,7 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
     assert_eq!(settings.http_limits.max_connections, 50);
     assert_eq!(settings.ascii_limits.idle_timeout, Duration::from_secs(4));
     assert_eq!(settings.ascii_limits.max_connections, 5);
+    assert_eq!(settings.share_max_connections, 7);
     assert!(settings.allowed_hosts.allows("gw.example:8080"));
     for (args, expected) in [
         (&["--max-connections", "16"][..], "max_connections 16"),
@@ -475,6 +476,10 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
             "ascii_max_connections",
         ),
         (&["--allowed-host", "http://gw"][..], "no host name"),
+        (
+            &["--share-max-connections", "0"][..],
+            "share_max_connections",
+        ),
     ] {
         let err = serve_args(args).unwrap().settings_with(None).unwrap_err();
         assert!(err.contains(expected), "{args:?}: {err}");

@@ -39,6 +39,15 @@ pub enum DriveError {
         mode: MoveMode,
         supported: Vec<MoveMode>,
     },
+    /// A walk's step saw the drive stopped by another command meanwhile
+    /// (STOP ALL, a quick stop, a lapsed lease): it is not late, it is
+    /// over.
+    #[error("axis {axis}: {what} was interrupted: another command stopped the drive meanwhile (STOP ALL, a quick stop or a lapsed lease), which is now in {state}", state = state_name(.state))]
+    Interrupted {
+        axis: u8,
+        what: String,
+        state: Option<State>,
+    },
     /// A move (or a quick stop) asks for operation enabled.
     #[error("axis {axis} is in {state}; a move or a quick stop needs operation_enabled", state = state_name(.state))]
     NotEnabled { axis: u8, state: Option<State> },
@@ -68,7 +77,9 @@ impl DriveError {
     pub fn state(&self) -> Option<State> {
         match self {
             Self::Fault { state, .. } => Some(*state),
-            Self::Timeout { state, .. } | Self::NotEnabled { state, .. } => *state,
+            Self::Timeout { state, .. }
+            | Self::NotEnabled { state, .. }
+            | Self::Interrupted { state, .. } => *state,
             _ => None,
         }
     }

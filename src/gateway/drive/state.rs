@@ -6,6 +6,20 @@ use crate::profiles::cia402::{Command, PlanError, State, Statusword, expected_st
 
 use super::*;
 
+/// Whether a walk's step from `from` towards `expected` sees `seen`, a
+/// state a stop leaves (quick stop active, switch on disabled) that is
+/// neither: another command stopped the drive meanwhile. Without this the
+/// walk would wait for its step until the timeout and answer 504, though
+/// nothing is late (found by the soak test: STOP ALL while an axis was
+/// being enabled).
+fn stopped_meanwhile(from: State, expected: State, seen: Option<State>) -> bool {
+    matches!(
+        seen,
+        Some(state @ (State::QuickStopActive | State::SwitchOnDisabled))
+            if state != from && state != expected
+    )
+}
+
 impl Drive {
     /// Walks the PDS to `target`, one transition at a time, each checked
     /// in the statusword. A drive in fault is not reset here (that is
@@ -46,21 +60,35 @@ impl Drive {
                 DriveError::Invalid(error.to_string())
             }
         })?;
+        let mut from = current;
         for command in commands {
             self.controlword(command.bits()).await?;
             let expected = expected_state(command);
-            self.wait(
-                &format!("{command} (expecting {expected})"),
-                STEP_TIMEOUT,
-                false,
-                |sw| {
-                    let state = sw.state();
-                    state == Some(expected)
-                        // Quick stop options 1–4 end in switch on disabled.
-                        || (command == Command::QuickStop && state == Some(State::SwitchOnDisabled))
-                },
-            )
-            .await?;
+            let step_done = |state: Option<State>| {
+                state == Some(expected)
+                    // Quick stop options 1–4 end in switch on disabled.
+                    || (command == Command::QuickStop && state == Some(State::SwitchOnDisabled))
+            };
+            let reached = self
+                .wait(
+                    &format!("{command} (expecting {expected})"),
+                    STEP_TIMEOUT,
+                    false,
+                    // Or someone else stopped the drive during the walk
+                    // (STOP ALL, a quick stop, a lapsed lease): no command
+                    // of this walk leads on from there.
+                    |sw| step_done(sw.state()) || stopped_meanwhile(from, expected, sw.state()),
+                )
+                .await?;
+            let state = reached.state();
+            if !step_done(state) && stopped_meanwhile(from, expected, state) {
+                return Err(DriveError::Interrupted {
+                    axis: self.axis,
+                    what: format!("{command} (expecting {expected})"),
+                    state,
+                });
+            }
+            from = expected;
         }
         self.status().await
     }
