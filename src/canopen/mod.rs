@@ -11,6 +11,8 @@
 //! - [`cob`]: node ids, COB-IDs and the predefined connection set (CiA 301 §7.3.3).
 //! - [`nmt`]: network management commands and states, boot-up (§7.2.8.3.2).
 //! - [`heartbeat`]: heartbeat producer and consumer, node guarding (§7.2.8.3.2).
+//! - [`manager`]: the network manager of CiA 302-2: the expected nodes, each
+//!   one's boot-up, error control and supervision, the machine state.
 //! - [`sync`]: SYNC producer and consumer with the optional counter (§7.2.5).
 //! - [`emcy`]: emergency messages and their texts (§7.2.7).
 //! - [`pdo`]: PDO mapping, bit-level packing, communication parameters and
@@ -25,6 +27,7 @@ pub mod cob;
 pub mod eds;
 pub mod emcy;
 pub mod heartbeat;
+pub mod manager;
 pub mod nmt;
 pub mod od;
 pub mod pdo;
