@@ -18,6 +18,9 @@
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
+//! - [`machine`]: the network manager of a bus (CiA 302-2) at work: the
+//!   [`crate::canopen::manager`] driven by a task per bus, its heartbeat,
+//!   the machine's status.
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue; each node's transfers counted by outcome,
 //!   with a latency histogram (for `/metrics`).
@@ -59,6 +62,7 @@ pub mod history;
 pub mod leases;
 pub mod led_preview;
 pub mod load;
+pub mod machine;
 pub mod motion_lease;
 pub mod pdo;
 pub mod producers;

@@ -165,6 +165,9 @@ pub enum OfflineReason {
     BusDown,
     /// A node without heartbeat did not answer a scan.
     NoAnswer,
+    /// The network manager's node guarding got no reply within the node
+    /// life time.
+    GuardingLost,
 }
 
 /// One emergency message, decoded, as the API shows it.
@@ -655,6 +658,19 @@ impl NodeRegistry {
                 bus: self.bus_name().to_string(),
                 node: id,
             })
+    }
+
+    /// Someone supervising the node (the network manager) lost it: it
+    /// goes offline with `reason`, unless it already is. It is online
+    /// again with its next heartbeat (or, unsupervised, any frame).
+    pub fn report_offline(&self, id: NodeId, reason: OfflineReason) {
+        let mut state = self.shared.lock();
+        if let Some(node) = state.nodes.get_mut(&id)
+            && node.online
+        {
+            node.online = false;
+            self.shared.emit(NodeEvent::Offline { node: id, reason });
+        }
     }
 
     /// What happens to the nodes from now on.
