@@ -328,6 +328,12 @@ impl Eds {
                 continue;
             };
             let Some(entry) = dcf.dictionary.sub(index, sub) else {
+                if section.get("ParameterValue").is_some() {
+                    return Err(format!(
+                        "{file}:{}: [{name}] has a ParameterValue, but is no entry of the file's dictionary (see `candeck eds check`)",
+                        section.line
+                    ));
+                }
                 continue;
             };
             if entry.parameter_value.is_none() || !seen.insert((index, sub)) {
