@@ -598,9 +598,26 @@ impl Manager {
         self.scanned = true;
     }
 
-    /// The bus went down (`false`) or came back up.
+    /// The bus went down (`false`) or came back up. Back up, every node
+    /// that was present is booted again: what happened to it meanwhile
+    /// (a reset whose boot-up message nobody heard, a power cycle that
+    /// cleared its 0x1017) cannot be known, and a node that is gone shows
+    /// as missing when it does not answer.
     pub fn bus_up(&mut self, up: bool) {
+        let back = up && !self.bus_up;
         self.bus_up = up;
+        if !back {
+            return;
+        }
+        let again: Vec<NodeId> = self
+            .nodes
+            .values()
+            .filter(|node| node.managed && node.present)
+            .map(|node| node.description.id)
+            .collect();
+        for id in again {
+            self.begin_boot(id, "the bus is back up");
+        }
     }
 
     /// Runs a node's boot-up again (operator request); an error when the

@@ -454,3 +454,34 @@ fn no_answer_is_missing_and_retried() {
         1
     );
 }
+
+#[test]
+fn every_present_node_is_booted_again_when_the_bus_comes_back() {
+    let t0 = Instant::now();
+    let mut manager = Manager::new(config(), Vec::new(), t0);
+    manager.node_found(id(1));
+    manager.node_found(id(3));
+    run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    manager.take_events();
+    manager.bus_up(false);
+    assert_eq!(manager.status().state, MachineState::Down);
+    // Down: nothing is asked of the nodes.
+    manager.bus_up(false);
+    assert!(manager.take_events().is_empty());
+    // Back: both booted again (their boot-up may have gone unheard).
+    manager.bus_up(true);
+    let again = run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    let written: Vec<NodeId> = again
+        .iter()
+        .filter_map(|action| match action {
+            Action::Write {
+                node,
+                index: 0x1017,
+                ..
+            } => Some(*node),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(written, vec![id(1), id(3)]);
+    assert!(manager.status().nodes.iter().all(|node| node.boots_ok == 2));
+}
