@@ -68,7 +68,7 @@ async fn wait_event(
     }
 }
 
-fn node<'a>(machine: &'a Json, id: u64) -> &'a Json {
+fn node(machine: &Json, id: u64) -> &Json {
     machine["nodes"]
         .as_array()
         .unwrap()

@@ -21,6 +21,12 @@ def machine_rows(browser):
     )
 
 
+def click(browser, button):
+    """Clicks a button after scrolling it to the middle of the window."""
+    browser.js("arguments[0].scrollIntoView({block: 'center'})", button)
+    button.click()
+
+
 def machine_state(browser):
     return browser.js(
         "const b = document.querySelector('#machine-states [data-state]'); return b ? b.dataset.state : null"
@@ -55,7 +61,7 @@ def test_the_overview_shows_the_machine_live_with_its_actions(server, browser):
 
     # "Boot again" on node 2 runs its boot-up once more.
     row = browser.driver.find_element(By.CSS_SELECTOR, '#machine tbody tr[data-node="2"]')
-    row.find_element(By.CSS_SELECTOR, 'button[data-action="boot-again"]').click()
+    click(browser, row.find_element(By.CSS_SELECTOR, 'button[data-action="boot-again"]'))
     browser.wait(
         lambda _: "demo node 2: boot again sent" in browser.driver.find_element(By.ID, "events").text,
         message="the boot was not acknowledged",
@@ -73,5 +79,5 @@ def test_the_overview_shows_the_machine_live_with_its_actions(server, browser):
         message=f"node 1 not pre-operational: {machine_rows(browser)}",
     )
     row = browser.driver.find_element(By.CSS_SELECTOR, '#machine tbody tr[data-node="1"]')
-    row.find_element(By.CSS_SELECTOR, 'button[data-action="start"]').click()
+    click(browser, row.find_element(By.CSS_SELECTOR, 'button[data-action="start"]'))
     browser.wait(lambda _: all_ready(browser), message=f"node 1 not started: {machine_rows(browser)}")

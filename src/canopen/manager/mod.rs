@@ -208,6 +208,10 @@ pub struct ManagerConfig {
     pub retry_min: Duration,
     /// Retries back off (doubling) up to this.
     pub retry_max: Duration,
+    /// SDO requests of boot-ups in flight at once on the bus (a node has
+    /// at most one): a whole bus booting at once does not flood it, and
+    /// every transfer is answered well within its timeout.
+    pub max_requests: usize,
 }
 
 impl Default for ManagerConfig {
@@ -217,6 +221,7 @@ impl Default for ManagerConfig {
             heartbeat_ms: DEFAULT_MANAGER_HEARTBEAT_MS,
             retry_min: Duration::from_millis(200),
             retry_max: Duration::from_secs(10),
+            max_requests: 16,
         }
     }
 }
@@ -926,6 +931,11 @@ impl Manager {
             actions.push(Action::Send(frame));
         }
         let ids: Vec<NodeId> = self.nodes.keys().copied().collect();
+        let mut in_flight = self
+            .nodes
+            .values()
+            .filter(|node| node.in_flight.is_some())
+            .count();
         for id in ids {
             if self
                 .nodes
@@ -954,6 +964,13 @@ impl Manager {
                 }
             }
             if node.in_flight.is_some() || !self.bus_up {
+                continue;
+            }
+            // A node already on its way goes on; one that has not begun
+            // waits for a free place (an NMT start needs none).
+            let waits = in_flight >= self.config.max_requests.max(1)
+                && !matches!(node.ops.front(), Some(Op::Start) | None);
+            if waits {
                 continue;
             }
             while let Some(op) = node.ops.pop_front() {
@@ -1014,6 +1031,7 @@ impl Manager {
                     }
                 };
                 node.in_flight = Some(op);
+                in_flight += 1;
                 actions.push(action);
                 break;
             }

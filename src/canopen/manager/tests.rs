@@ -14,6 +14,7 @@ fn config() -> ManagerConfig {
         heartbeat_ms: 100,
         retry_min: Duration::from_millis(200),
         retry_max: Duration::from_millis(800),
+        max_requests: 16,
     }
 }
 
@@ -484,4 +485,41 @@ fn every_present_node_is_booted_again_when_the_bus_comes_back() {
         .collect();
     assert_eq!(written, vec![id(1), id(3)]);
     assert!(manager.status().nodes.iter().all(|node| node.boots_ok == 2));
+}
+
+#[test]
+fn boot_up_requests_in_flight_are_bounded_across_the_bus() {
+    let t0 = Instant::now();
+    let limited = ManagerConfig {
+        max_requests: 2,
+        ..config()
+    };
+    let mut manager = Manager::new(limited, Vec::new(), t0);
+    for n in 1..=5 {
+        manager.node_found(id(n));
+    }
+    let first = sdo_actions(&manager.poll(t0));
+    assert_eq!(first.len(), 2, "{first:?}");
+    // Nothing more until one is answered; then one more.
+    assert!(sdo_actions(&manager.poll(t0)).is_empty());
+    manager.on_sdo(id(1), SdoOutcome::Done(Vec::new()), t0);
+    let next = sdo_actions(&manager.poll(t0));
+    assert_eq!(next.len(), 1, "{next:?}");
+    // Every node gets there once the requests out are answered.
+    manager.on_sdo(id(2), SdoOutcome::Done(Vec::new()), t0);
+    for action in next {
+        if let Action::Read { node, .. } | Action::Write { node, .. } = action {
+            manager.on_sdo(node, SdoOutcome::Done(Vec::new()), t0);
+        }
+    }
+    run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    assert!(
+        manager
+            .status()
+            .nodes
+            .iter()
+            .all(|node| node.state == NodeState::Ready),
+        "{:?}",
+        manager.status()
+    );
 }
