@@ -170,7 +170,10 @@ async fn segments_over_http() {
 
 #[tokio::test]
 async fn store_restore_and_dcf_over_http() {
-    let (server, _) = start(&["serve"]);
+    // The demo nodes left pre-operational, where UniSwarm devices store.
+    let dir = std::env::temp_dir().join(format!("candeck-leds-store-{}", std::process::id()));
+    let config = common::demo_left_alone(&dir);
+    let (server, _) = start(&["serve", "--config", config.to_str().unwrap()]);
     let address = server.address.as_str();
     demo_ready(address).await;
 

@@ -325,11 +325,16 @@ fn saved_file(dir: &Path) -> PathBuf {
 async fn saved_parameters_survive_a_restart_with_the_same_data_dir() {
     let dir = temp_dir("data");
     let data = dir.join("state");
+    // The network manager would write 0x1017 at every boot-up, over the
+    // saved value: the demo's nodes are left as they boot.
+    let config = common::demo_left_alone(&dir);
     let args = [
         "--listen",
         "127.0.0.1:0",
         "--data-dir",
         data.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
     ];
     let server = start(&args);
     assert!(data.is_dir(), "--data-dir is created");
@@ -372,7 +377,12 @@ async fn saved_parameters_survive_a_restart_with_the_same_data_dir() {
     assert_eq!(heartbeat_time(&server.address).await, json!(1234));
     drop(server);
     // Without the data dir, the device starts from its defaults.
-    let server = start(&["--listen", "127.0.0.1:0"]);
+    let server = start(&[
+        "--listen",
+        "127.0.0.1:0",
+        "--config",
+        config.to_str().unwrap(),
+    ]);
     wait_for_nodes(&server.address, "demo", 3).await;
     assert_eq!(heartbeat_time(&server.address).await, before);
     drop(server);

@@ -72,6 +72,15 @@ async fn remap_sync_and_rpdo_over_http() {
     )
     .await;
     assert_eq!(status, 200);
+    // The node says it is operational in its next heartbeat (the network
+    // manager set one): RPDOs are refused until then.
+    for _ in 0..100 {
+        let (_, node) = call(&address, "GET", "/api/v1/buses/demo/nodes/1", None).await;
+        if node["nmt"] == "operational" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     let (status, sent) = call(
         &address,
         "POST",

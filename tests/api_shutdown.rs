@@ -184,3 +184,106 @@ async fn a_half_sent_request_does_not_outlast_the_grace_period() {
     // Within the 5 s terminate() waits, with the connection still open.
     assert_eq!(terminate(&mut gateway).await, Some(0));
 }
+
+/// `candeck od read` of node 1's `index` sub 0 as `data_type`, over the
+/// socketcand bus `channel` (a client of its own, not the gateway): the
+/// value, or `None` when the read failed.
+fn od_read(channel: &str, index: &str, data_type: &str) -> Option<i64> {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args([
+            "od",
+            "read",
+            "--bus",
+            &format!("socketcand:{channel}"),
+            "--node",
+            "1",
+        ])
+        .args([
+            index,
+            "0",
+            "--type",
+            data_type,
+            "--json",
+            "--timeout",
+            "200",
+        ])
+        .env_remove("CANDECK_LOG")
+        .output()
+        .expect("candeck od read runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let value: serde_json::Value = serde_json::from_str(text.trim()).ok()?;
+    value["value"].as_i64()
+}
+
+/// Issue 17, point 4: the gateway is its bus's heartbeat producer, and its
+/// network manager writes that heartbeat into the UMC's 0x1016; when the
+/// gateway is killed (SIGKILL: no shutdown stop, no lease supervisor) the
+/// drive notices by itself (heartbeat consumer timeout, 0x6007 abort
+/// connection option) and the axis is at rest, or out of operation
+/// enabled, within 3 s.
+#[tokio::test]
+async fn sigkill_of_the_gateway_stops_the_drive_by_its_own_heartbeat_consumer() {
+    let _serial = SERIAL.lock().await;
+    let (_vbus, channel) = vbus("127.0.0.1:0");
+    let spec = format!("demo=socketcand:{channel}");
+    // A lease longer than the test: only the drive itself can stop the axis.
+    let (mut gateway, _) = start(&["--bus", &spec, "--lease-ms", "60000"]);
+    let address = gateway.address.clone();
+    // Node 1 booted by the manager: started, and consuming its heartbeat.
+    let (_, machine) = poll(&address, "/api/v1/buses/demo/machine", |_, machine| {
+        machine["nodes"].as_array().is_some_and(|nodes| {
+            nodes.iter().any(|node| {
+                node["id"] == 1 && node["state"] == "ready" && node["nmt"] == "operational"
+            })
+        })
+    })
+    .await;
+    assert!(machine.to_string().contains("\"operational\""), "{machine}");
+    let (status, consumer) = common::json(
+        &address,
+        "GET",
+        "/api/v1/buses/demo/nodes/1/od/0x1016/1",
+        None,
+    )
+    .await;
+    assert_eq!(status, 200, "{consumer}");
+    // Node 127, 3 × 100 ms.
+    assert_eq!(consumer["value"], 0x007F_012C, "{consumer}");
+    let axis = "/api/v1/buses/demo/nodes/1/axes/1";
+    let (status, body) = poll(&address, axis, |status, _| status == 200).await;
+    assert_eq!(status, 200, "{body}");
+    enable_and_move(&address, axis, r#"{"mode":"velocity","velocity":300}"#).await;
+    let (_, moving) = poll(&address, axis, |_, s| {
+        s["velocity"].as_i64().is_some_and(|v| v > 0)
+    })
+    .await;
+    assert!(moving["velocity"].as_i64().unwrap() > 0, "{moving}");
+
+    gateway.child.kill().unwrap();
+    gateway.child.wait().unwrap();
+    let killed = std::time::Instant::now();
+    let deadline = killed + Duration::from_secs(3);
+    let channel_read = channel.clone();
+    let at_rest = tokio::task::spawn_blocking(move || {
+        let mut last = (None, None);
+        while std::time::Instant::now() < deadline {
+            let velocity = od_read(&channel_read, "0x606C", "i32");
+            let statusword = od_read(&channel_read, "0x6041", "u16");
+            last = (velocity, statusword);
+            // Operation enabled: statusword & 0x6F == 0x27.
+            let enabled = statusword.is_some_and(|word| word & 0x6F == 0x27);
+            if velocity == Some(0) || (statusword.is_some() && !enabled) {
+                return Ok(std::time::Instant::now() - killed);
+            }
+        }
+        Err(last)
+    })
+    .await
+    .unwrap();
+    match at_rest {
+        Ok(after) => assert!(after <= Duration::from_secs(3)),
+        Err((velocity, statusword)) => panic!(
+            "3 s after SIGKILL of the gateway the axis still turns: 0x606C = {velocity:?}, 0x6041 = {statusword:?}"
+        ),
+    }
+}

@@ -249,6 +249,10 @@ impl Target {
                     (&Method::POST, ["nmt"]) => ("nmt command to all nodes", None),
                     (&Method::PUT, ["sync"]) => ("set sync period", None),
                     (&Method::POST, ["frames"]) => ("send frame", None),
+                    (&Method::POST, ["machine", "nodes", node, "boot"]) => {
+                        target.node = node.parse().ok();
+                        ("boot node again", None)
+                    }
                     (&Method::POST, ["recording"]) => ("start recording", None),
                     (&Method::DELETE, ["recording"]) => ("stop recording", None),
                     (&Method::POST, ["sim", "nodes"]) => ("add virtual device", None),

@@ -60,6 +60,9 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("POST",   "/api/v1/buses/{bus}/scan", OPERATOR),
     ("POST",   "/api/v1/buses/{bus}/nmt", OPERATOR),
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/nmt", OPERATOR),
+    ("GET",    "/api/v1/buses/{bus}/machine", VIEWER),
+    // Runs a node's boot-up again: configuration download and NMT start.
+    ("POST",   "/api/v1/buses/{bus}/machine/nodes/{id}/boot", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od", VIEWER),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", VIEWER),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", OPERATOR),

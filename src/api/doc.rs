@@ -36,6 +36,7 @@ When the gateway is configured with tokens, every request but `/health` needs \
     tags(
         (name = "buses", description = "The gateway and its CAN buses"),
         (name = "nodes", description = "The nodes of a bus: discovery and NMT (CiA 301 §7.2.8)"),
+        (name = "machine", description = "The network manager (CiA 302-2): the expected nodes, their boot-up, supervision and the machine state"),
         (name = "od", description = "A node's object dictionary over SDO (CiA 301 §7.2.4)"),
         (name = "leds", description = "LED controllers (UIO1LED): segments, scenes, preview"),
         (name = "config", description = "A node's configuration: store, restore (CiA 301 0x1010, 0x1011), DCF backup and restore (CiA 306)"),

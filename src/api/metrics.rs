@@ -75,6 +75,8 @@ struct BusSnapshot {
     frame_log_lost: u64,
     tpdo_malformed: u64,
     nodes: Vec<NodeMetrics>,
+    /// The network manager's machine, when the bus has one.
+    machine: Option<crate::canopen::manager::MachineStatus>,
 }
 
 impl BusSnapshot {
@@ -107,6 +109,7 @@ pub fn render(state: &AppState) -> String {
                 frame_log_lost: served.frames.lost(),
                 tpdo_malformed: served.values.malformed(),
                 nodes: served.registry.metrics(),
+                machine: served.machine.as_ref().map(|machine| machine.status()),
             }
         })
         .collect();
@@ -125,6 +128,7 @@ pub fn render(state: &AppState) -> String {
 
     render_buses(&mut out, &buses);
     render_nodes(&mut out, &buses);
+    render_machine(&mut out, &buses);
     render_stream(&mut out, state);
     render_sparkplug(&mut out, state);
     render_http(&mut out, state);
@@ -289,6 +293,55 @@ fn render_buses(out: &mut Exposition, buses: &[BusSnapshot]) {
         "Nodes of the registry that are online.",
         &|bus| Value::from(bus.nodes.iter().filter(|node| node.online).count() as u64),
     );
+}
+
+/// The network manager: the machine state of each bus, and each node's
+/// boot-ups.
+fn render_machine(out: &mut Exposition, buses: &[BusSnapshot]) {
+    out.family(
+        "candeck_machine_state",
+        Kind::Gauge,
+        "The machine state of the bus's network manager: 3 ready, 2 booting, 1 degraded, 0 down.",
+    );
+    for bus in buses {
+        if let Some(machine) = &bus.machine {
+            out.sample(
+                "candeck_machine_state",
+                &bus.labels(),
+                u64::from(machine.state.metric()),
+            );
+        }
+    }
+    type NodeValue = fn(&crate::canopen::manager::NodeStatus) -> u64;
+    let families: [(&str, Kind, &str, NodeValue); 3] = [
+        (
+            "candeck_machine_node_boots_total",
+            Kind::Counter,
+            "Boot-ups of the node the network manager began (boot-up message, found, back, request, retry).",
+            |node| node.boots,
+        ),
+        (
+            "candeck_machine_node_boots_ok_total",
+            Kind::Counter,
+            "Boot-ups of the node that ended supervised (and started).",
+            |node| node.boots_ok,
+        ),
+        (
+            "candeck_machine_node_ready",
+            Kind::Gauge,
+            "1 while the network manager has the node ready, 0 otherwise.",
+            |node| u64::from(node.state == crate::canopen::manager::NodeState::Ready),
+        ),
+    ];
+    for (name, kind, help, value) in families {
+        out.family(name, kind, help);
+        for bus in buses {
+            for node in bus.machine.iter().flat_map(|machine| &machine.nodes) {
+                let id = node.id.to_string();
+                out.sample(name, &[("bus", &bus.name), ("node", &id)], value(node));
+            }
+        }
+    }
 }
 
 fn render_nodes(out: &mut Exposition, buses: &[BusSnapshot]) {

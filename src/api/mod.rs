@@ -17,6 +17,8 @@
 //!   [`ApiPath`], extractors whose rejections have the API's error shape.
 //! - [`buses`]: `/health`, `/buses` (with the bus-load estimate).
 //! - [`nodes`]: the node list, one node, scan, NMT.
+//! - [`machine`]: the network manager's machine of a bus, and a node's
+//!   boot-up run again.
 //! - [`od`]: the object dictionary of a node and SDO reads and writes.
 //! - [`segments`]: LED controllers: segments, scenes, the strip's preview.
 //! - [`config`]: store, restore, DCF backup and restore of a node.
@@ -74,6 +76,7 @@ pub mod host;
 pub mod io;
 pub mod leases;
 pub mod lss;
+pub mod machine;
 pub mod metrics;
 pub mod nodes;
 pub mod od;
@@ -179,6 +182,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
     let (api, api_doc) = OpenApiRouter::new()
         .merge(buses::router())
         .merge(nodes::router())
+        .merge(machine::router())
         .merge(od::router())
         .merge(segments::router())
         .merge(config::router())

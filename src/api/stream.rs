@@ -294,6 +294,7 @@ enum Request {
 enum Topic {
     Nodes,
     Emcy,
+    Machine,
     Frames {
         bus: String,
         /// Only these identifiers (raw, without the extended flag); all
@@ -325,6 +326,7 @@ impl Topic {
         let topic = match parts.as_slice() {
             ["nodes"] => Self::Nodes,
             ["emcy"] => Self::Emcy,
+            ["machine"] => Self::Machine,
             ["buses", bus, "frames"] => Self::Frames {
                 bus: bus.to_string(),
                 ids: query.map(parse_ids).transpose()?,
@@ -344,7 +346,7 @@ impl Topic {
             },
             _ => {
                 return Err(AppError::InvalidRequest(format!(
-                    "'{text}' is no topic: nodes, emcy, buses/{{bus}}/frames, \
+                    "'{text}' is no topic: nodes, emcy, machine, buses/{{bus}}/frames, \
                      buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}} or .../segments"
                 )));
             }
@@ -676,6 +678,22 @@ impl Session {
                 }
                 tasks
             }
+            Topic::Machine => self
+                .state
+                .gateway
+                .buses
+                .values()
+                .filter_map(|served| {
+                    let machine = served.machine.as_ref()?.watch();
+                    let bus: Arc<str> = Arc::from(served.name.as_str());
+                    Some(tokio::spawn(forward_machine(
+                        machine,
+                        bus,
+                        key.clone(),
+                        mailbox.clone(),
+                    )))
+                })
+                .collect(),
             Topic::Frames { bus, ids } => {
                 let served = self.state.bus(&bus)?;
                 let frames = served.bus.monitor();
@@ -929,6 +947,28 @@ async fn forward_bus_states(
             "rx_error_counter": counters.rec,
         });
         mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
+    }
+}
+
+/// Forwards one bus's machine (its network manager's status): as it is
+/// when subscribed, then every change.
+async fn forward_machine(
+    mut machine: tokio::sync::watch::Receiver<crate::canopen::manager::MachineStatus>,
+    bus: Arc<str>,
+    topic: Arc<str>,
+    mailbox: Arc<Mailbox>,
+) {
+    loop {
+        let data = {
+            let status = machine.borrow_and_update();
+            let mut data = serde_json::to_value(&*status).unwrap_or(Json::Null);
+            data["bus"] = json!(&*bus);
+            data
+        };
+        mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
+        if machine.changed().await.is_err() {
+            return;
+        }
     }
 }
 

@@ -12,6 +12,8 @@
 //! - [`nmt`]: network management commands and states, boot-up (§7.2.8.3.2).
 //! - [`heartbeat`]: heartbeat producer and consumer, node guarding (§7.2.8.3.2).
 //! - [`lss`]: layer setting services, master and slave (CiA 305).
+//! - [`manager`]: the network manager of CiA 302-2: the expected nodes, each
+//!   one's boot-up, error control and supervision, the machine state.
 //! - [`sync`]: SYNC producer and consumer with the optional counter (§7.2.5).
 //! - [`emcy`]: emergency messages and their texts (§7.2.7).
 //! - [`pdo`]: PDO mapping, bit-level packing, communication parameters and
@@ -27,6 +29,7 @@ pub mod eds;
 pub mod emcy;
 pub mod heartbeat;
 pub mod lss;
+pub mod manager;
 pub mod nmt;
 pub mod od;
 pub mod pdo;

@@ -22,6 +22,9 @@
 //! - [`load`]: the measured load of a bus.
 //! - [`lss`]: LSS (CiA 305) on a bus: Fastscan for unconfigured devices,
 //!   node-ID assignment, and the UniSwarm node-ID change by 0x2040.
+//! - [`machine`]: the network manager of a bus (CiA 302-2) at work: the
+//!   [`crate::canopen::manager`] driven by a task per bus, its heartbeat,
+//!   the machine's status.
 //! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue; each node's transfers counted by outcome,
 //!   with a latency histogram (for `/metrics`).
@@ -71,6 +74,7 @@ pub mod leases;
 pub mod led_preview;
 pub mod load;
 pub mod lss;
+pub mod machine;
 pub mod motion_lease;
 pub mod pdo;
 pub mod producers;

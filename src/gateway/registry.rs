@@ -165,6 +165,9 @@ pub enum OfflineReason {
     BusDown,
     /// A node without heartbeat did not answer a scan.
     NoAnswer,
+    /// The network manager's node guarding got no reply within the node
+    /// life time.
+    GuardingLost,
 }
 
 /// One emergency message, decoded, as the API shows it.
@@ -746,6 +749,19 @@ impl NodeRegistry {
                     eds: node.eds.as_ref().map(|entry| entry.name.clone()),
                 });
             }
+        }
+    }
+
+    /// Someone supervising the node (the network manager) lost it: it
+    /// goes offline with `reason`, unless it already is. It is online
+    /// again with its next heartbeat (or, unsupervised, any frame).
+    pub fn report_offline(&self, id: NodeId, reason: OfflineReason) {
+        let mut state = self.shared.lock();
+        if let Some(node) = state.nodes.get_mut(&id)
+            && node.online
+        {
+            node.online = false;
+            self.shared.emit(NodeEvent::Offline { node: id, reason });
         }
     }
 

@@ -66,6 +66,9 @@ pub struct ServedBus {
     pub lss: super::lss::BusLss,
     /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
     pub recorder: Recorder,
+    /// The network manager of the bus (CiA 302-2): `None` until
+    /// [`ServedBus::with_machine`] starts it (`candeck serve` always does).
+    pub machine: Option<super::machine::Machine>,
     /// The registry's events from the moment it started (the devices'
     /// boot-ups included), until [`Gateway::with_history`] takes it to
     /// write them to the history.
@@ -144,6 +147,7 @@ impl ServedBus {
             registry,
             rack,
             history_events,
+            machine: None,
         })
     }
 }
@@ -159,6 +163,31 @@ impl ServedBus {
 }
 
 impl ServedBus {
+    /// Starts the bus's network manager with `settings` (its audit entries
+    /// into `history`): the gateway's heartbeat, and the boot-up of every
+    /// node.
+    pub fn with_machine(
+        mut self,
+        settings: super::machine::MachineSettings,
+        history: Option<super::history::History>,
+    ) -> Self {
+        self.machine = Some(super::machine::Machine::spawn(
+            &self.name,
+            self.bus.clone(),
+            self.registry.clone(),
+            settings,
+            history,
+        ));
+        self
+    }
+
+    /// The bus's network manager; an error when it has none.
+    pub fn machine(&self) -> Result<&super::machine::Machine, GatewayError> {
+        self.machine.as_ref().ok_or_else(|| {
+            GatewayError::InvalidRequest(format!("bus {} has no network manager", self.name))
+        })
+    }
+
     /// Sends an NMT command. NMT is unconfirmed (CiA 301 §7.2.8.2.1): this
     /// says the command was sent; the node's new state shows in the
     /// registry once it reports it.

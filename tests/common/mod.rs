@@ -100,6 +100,24 @@ pub(crate) fn vbus(listen: &str) -> (Vbus, String) {
     (Vbus(child), format!("{}/{}", words[4], words[6]))
 }
 
+/// A config file (written to `dir`) whose machine description leaves the
+/// demo's three nodes as they boot: pre-operational, no heartbeat set, not
+/// told to consume the gateway's. For the tests that need the nodes as the
+/// devices start (storing parameters, which UniSwarm devices do only in
+/// pre-operational; a saved 0x1017 the manager would overwrite).
+pub(crate) fn demo_left_alone(dir: &std::path::Path) -> std::path::PathBuf {
+    let mut text = String::new();
+    for id in 1..=3 {
+        text.push_str(&format!(
+            "[[nodes]]\nid = {id}\nmandatory = false\nheartbeat_ms = 0\nconsume_manager_heartbeat = false\nstart = false\n\n"
+        ));
+    }
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("demo-left-alone.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 /// What came back from one request.
 pub(crate) struct Response {
     pub status: u16,

@@ -215,14 +215,16 @@ def test_nmt_shows_the_state_read_back_and_store_the_device_refusal(server, brow
     nmt_button(browser, "pre_operational").click()
     browser.wait(lambda _: fact(browser, "nmt") == "pre-operational", message="node 2 did not show pre-operational")
 
-    # The UMC sends no heartbeat: the page says what the gateway knows and
-    # why. In operational it refuses to store (UniSwarm: pre-operational
-    # only): an abort, in words.
+    # The UMC sends a heartbeat too since the network manager sets one (it
+    # had none before): the page shows the state read back. In operational
+    # it refuses to store (UniSwarm: pre-operational only): an abort, in
+    # words.
     open_node(browser, server, 1)
     nmt_button(browser, "start").click()
     browser.wait(lambda _: "Start sent" in result(browser, "nmt-result")[1] and result(browser, "nmt-result")[0] == "done",
                  message=f"NMT result: {result(browser, 'nmt-result')}")
-    assert "learns its NMT state only from its next boot-up" in result(browser, "nmt-result")[1]
+    browser.wait(lambda _: "NMT state the gateway knows: operational" in result(browser, "nmt-result")[1],
+                 message=f"NMT result: {result(browser, 'nmt-result')}")
     browser.driver.find_element(By.ID, "store").click()
     confirm(browser)
     browser.wait(lambda _: result(browser, "config-result")[0] == "failed", message="the store did not fail")

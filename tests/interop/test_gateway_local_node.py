@@ -92,10 +92,36 @@ class Api:
         return self.put(path, {"value": value})
 
 
+# The gateway's network manager boots every node it finds: it would set the
+# LocalNode's heartbeat and start it. These tests drive the node's NMT state
+# and heartbeat themselves, so the machine describes node 42 as a node to
+# leave pre-operational and unconfigured.
+MACHINE = f"""
+[[nodes]]
+id = {NODE}
+mandatory = false
+heartbeat_ms = 0
+consume_manager_heartbeat = false
+start = false
+"""
+
+
 @pytest.fixture
-def gateway(vbus):
+def gateway(vbus, tmp_path):
+    config = tmp_path / "machine.toml"
+    config.write_text(MACHINE)
     server = Process(
-        ["serve", "--listen", "127.0.0.1:0", "--bus", f"{BUS}={vbus.spec}", "--eds-dir", DATA]
+        [
+            "serve",
+            "--config",
+            str(config),
+            "--listen",
+            "127.0.0.1:0",
+            "--bus",
+            f"{BUS}={vbus.spec}",
+            "--eds-dir",
+            DATA,
+        ]
     )
     line = server.first_line()
     match = re.search(r"serving (http://[0-9.]+:\d+)/", line)

@@ -301,6 +301,54 @@ impl Eds {
         }
     }
 
+    /// The entries of a DCF that carry a `ParameterValue`, as (index, sub,
+    /// value with `$NODEID` resolved for `node`, name), in the order the
+    /// file lists their sections (CiA 302-2 downloads a configuration in
+    /// file order, unlike [`Eds::dictionary`], which is by index). An
+    /// entry whose value does not read is an error naming it.
+    pub fn parameter_values_in_file_order(
+        text: &str,
+        file: &str,
+        node: NodeId,
+    ) -> Result<Vec<(u16, u8, crate::canopen::od::Value, String)>, String> {
+        let dcf = Eds::parse(text, file).map_err(|error| error.to_string())?;
+        let (ini, _) = ini::parse(text.strip_prefix('\u{FEFF}').unwrap_or(text));
+        let mut seen = std::collections::BTreeSet::new();
+        let mut out = Vec::new();
+        for section in &ini.sections {
+            let name = section.name.trim();
+            let (index, sub) = match name.to_ascii_lowercase().split_once("sub") {
+                Some((index, sub)) => (
+                    u16::from_str_radix(index, 16).ok(),
+                    u8::from_str_radix(sub, 16).ok(),
+                ),
+                None => (u16::from_str_radix(name, 16).ok(), Some(0)),
+            };
+            let (Some(index), Some(sub)) = (index, sub) else {
+                continue;
+            };
+            let Some(entry) = dcf.dictionary.sub(index, sub) else {
+                if section.get("ParameterValue").is_some() {
+                    return Err(format!(
+                        "{file}:{}: [{name}] has a ParameterValue, but is no entry of the file's dictionary (see `candeck eds check`)",
+                        section.line
+                    ));
+                }
+                continue;
+            };
+            if entry.parameter_value.is_none() || !seen.insert((index, sub)) {
+                continue;
+            }
+            let label = format!("{file}: 0x{index:04X} sub {sub} ({})", entry.name);
+            let value = entry
+                .parameter_value(Some(node))
+                .map_err(|error| format!("{label}: {error}"))?
+                .ok_or_else(|| format!("{label}: no value"))?;
+            out.push((index, sub, value, label));
+        }
+        Ok(out)
+    }
+
     /// Reads an EDS or DCF. `file` names it in errors and warnings; the
     /// warnings are in [`Eds::warnings`].
     pub fn parse(text: &str, file: &str) -> Result<Eds, EdsError> {

@@ -13,9 +13,15 @@ use crate::api::serve::Limits as HttpLimits;
 use crate::ascii::Limits as AsciiLimits;
 use crate::can::VirtualHub;
 use crate::can::spec::BusSpec;
+use crate::canopen::NodeId;
+use crate::canopen::manager::{
+    DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID, IdentityCheck,
+    ManagerConfig, NodeDescription,
+};
 use crate::gateway::ServedBus;
 use crate::gateway::access::Token;
 use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Retention};
+use crate::gateway::machine::{MachineSettings, load_dcf};
 use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
 
 use crate::sparkplug::SparkplugConfig;
@@ -31,6 +37,26 @@ pub(super) struct TokenEntry {
     pub(super) name: String,
     pub(super) role: String,
     pub(super) token: String,
+}
+
+/// One expected node of the machine description (`[[nodes]]`).
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct NodeEntry {
+    pub(super) bus: Option<String>,
+    pub(super) id: u8,
+    pub(super) name: Option<String>,
+    pub(super) vendor_id: Option<u32>,
+    pub(super) product_code: Option<u32>,
+    pub(super) revision_min: Option<u32>,
+    pub(super) revision_max: Option<u32>,
+    pub(super) serial: Option<u32>,
+    pub(super) mandatory: Option<bool>,
+    pub(super) eds: Option<String>,
+    pub(super) dcf: Option<PathBuf>,
+    pub(super) heartbeat_ms: Option<u16>,
+    pub(super) consume_manager_heartbeat: Option<bool>,
+    pub(super) start: Option<bool>,
 }
 
 /// The settings of a config file (`--config`).
@@ -87,6 +113,10 @@ pub(super) struct ConfigFile {
     pub(super) share_max_connections: Option<usize>,
     #[serde(default)]
     pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
+    pub(super) manager_node_id: Option<u8>,
+    pub(super) manager_heartbeat_ms: Option<u16>,
+    #[serde(default)]
+    pub(super) nodes: Vec<NodeEntry>,
 }
 
 /// A `[[sparkplug_metrics]]` entry: how the metrics of one name are
@@ -232,6 +262,7 @@ impl ConfigFile {
             &mut config.mqtt_client_key,
         ]
         .into_iter()
+        .chain(config.nodes.iter_mut().map(|node| &mut node.dcf))
         .flatten()
         {
             if dir.is_relative() {
@@ -280,6 +311,10 @@ pub(super) struct Settings {
     pub(super) sparkplug: Option<SparkplugConfig>,
     /// socketcand clients at once per share.
     pub(super) share_max_connections: usize,
+    /// The network manager of every bus, and the nodes described for each
+    /// (by bus name).
+    pub(super) machine: MachineSettings,
+    pub(super) machine_nodes: std::collections::BTreeMap<String, Vec<NodeDescription>>,
 }
 
 impl ServeArgs {
@@ -311,8 +346,22 @@ impl ServeArgs {
                 },
             });
         }
+        let machine = MachineSettings {
+            manager: ManagerConfig {
+                node_id: NodeId::new(file.manager_node_id.unwrap_or(DEFAULT_MANAGER_NODE_ID))
+                    .map_err(|err| format!("config manager_node_id: {err}"))?,
+                heartbeat_ms: file
+                    .manager_heartbeat_ms
+                    .unwrap_or(DEFAULT_MANAGER_HEARTBEAT_MS),
+                ..ManagerConfig::default()
+            },
+            nodes: Vec::new(),
+        };
+        let machine_nodes = machine_nodes(&file.nodes, &buses, machine.manager.node_id)?;
         let settings = Settings {
             sparkplug,
+            machine,
+            machine_nodes,
             ascii_listen: self.ascii_listen.or(file.ascii_listen),
             listen: self
                 .listen
@@ -602,4 +651,69 @@ impl Settings {
         }
         servers
     }
+}
+
+/// The `[[nodes]]` of the config file by bus (the first bus when a node
+/// names none), each checked and its DCF read for its node id.
+fn machine_nodes(
+    entries: &[NodeEntry],
+    buses: &[NamedBus],
+    manager: NodeId,
+) -> Result<std::collections::BTreeMap<String, Vec<NodeDescription>>, String> {
+    let mut out: std::collections::BTreeMap<String, Vec<NodeDescription>> =
+        std::collections::BTreeMap::new();
+    for entry in entries {
+        let bus = match &entry.bus {
+            Some(name) => buses.iter().find(|bus| &bus.name == name).ok_or_else(|| {
+                format!("config [[nodes]] id {}: no bus is named '{name}'", entry.id)
+            })?,
+            None => buses
+                .first()
+                .ok_or_else(|| format!("config [[nodes]] id {}: no bus", entry.id))?,
+        };
+        let id = NodeId::new(entry.id)
+            .map_err(|err| format!("config [[nodes]] id {}: {err}", entry.id))?;
+        if id == manager {
+            return Err(format!(
+                "config [[nodes]] id {id}: that is the gateway's own node id (manager_node_id)"
+            ));
+        }
+        let nodes = out.entry(bus.name.clone()).or_default();
+        if nodes.iter().any(|node| node.id == id) {
+            return Err(format!(
+                "config [[nodes]]: node {id} of bus {} is described twice",
+                bus.name
+            ));
+        }
+        let config = match &entry.dcf {
+            Some(path) => {
+                load_dcf(path, id).map_err(|err| format!("config [[nodes]] id {id}: {err}"))?
+            }
+            None => Vec::new(),
+        };
+        nodes.push(NodeDescription {
+            id,
+            name: entry.name.clone(),
+            identity: IdentityCheck {
+                vendor_id: entry.vendor_id,
+                product_code: entry.product_code,
+                revision_min: entry.revision_min,
+                revision_max: entry.revision_max,
+                serial: entry.serial,
+            },
+            mandatory: entry.mandatory.unwrap_or(true),
+            eds: entry.eds.clone(),
+            dcf: entry
+                .dcf
+                .as_ref()
+                .and_then(|path| path.file_name())
+                .map(|name| name.to_string_lossy().into_owned()),
+            config,
+            heartbeat_ms: entry.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS),
+            consume_manager_heartbeat: entry.consume_manager_heartbeat,
+            start: entry.start.unwrap_or(true),
+            expected: true,
+        });
+    }
+    Ok(out)
 }

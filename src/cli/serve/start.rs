@@ -78,6 +78,17 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         }
         // What PUT /buses/{bus}/sync would set, from the start.
         opened.sync.set_period(args.sync_period);
+        // The network manager (CiA 302-2): the gateway's heartbeat, and
+        // every node booted, supervised and started.
+        let machine = crate::gateway::machine::MachineSettings {
+            nodes: args
+                .machine_nodes
+                .get(&bus.name)
+                .cloned()
+                .unwrap_or_default(),
+            ..args.machine.clone()
+        };
+        opened = opened.with_machine(machine, Some(history.clone()));
         served.push(opened);
     }
     let mut shares = Vec::new();
@@ -152,16 +163,21 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         let registry = bus.registry.clone();
         let attachment = bus.bus.clone();
         let name = bus.name.clone();
+        let machine = bus.machine.clone();
         tokio::spawn(async move {
             // A socketcand bus is still connecting: scanning a bus that is
             // down finds nothing, so wait for it (the API answers meanwhile).
             if let Err(err) = attachment.wait_up(FIRST_SCAN_WAIT).await {
                 tracing::warn!("bus {name}: not up for the first scan ({err}); POST /scan later");
-                return;
+            } else {
+                match registry.scan().await {
+                    Ok(nodes) => tracing::info!("bus {name}: {} nodes found", nodes.len()),
+                    Err(err) => tracing::warn!("bus {name}: first scan failed: {err}"),
+                }
             }
-            match registry.scan().await {
-                Ok(nodes) => tracing::info!("bus {name}: {} nodes found", nodes.len()),
-                Err(err) => tracing::warn!("bus {name}: first scan failed: {err}"),
+            // Expected nodes the scan did not find are missing from now on.
+            if let Some(machine) = machine {
+                machine.scan_done();
             }
         });
     }

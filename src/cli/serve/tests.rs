@@ -42,6 +42,12 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
     std::fs::create_dir_all(&dir).unwrap();
     let full_path = dir.join("full.toml");
     std::fs::write(&full_path, &full).unwrap();
+    // The DCF of the example's [[nodes]], next to it.
+    std::fs::write(
+        dir.join("lift.dcf"),
+        "[DeviceComissioning]\nNodeID=1\n\n[2000]\nParameterName=Some parameter\nObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=0\nParameterValue=7\n",
+    )
+    .unwrap();
 
     // As shipped (tokens from the environment, as the systemd unit
     // gives them) and with every setting.
@@ -56,6 +62,11 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
         .settings_with(None)
         .unwrap();
     assert_eq!(settings.auth.tokens[0].name, "line-plc");
+    let lift = &settings.machine_nodes["line"][0];
+    assert_eq!((lift.id.get(), lift.heartbeat_ms), (1, 200));
+    assert_eq!(lift.config.len(), 1);
+    assert_eq!(lift.identity.revision_max, Some(0x0100_FFFF));
+    assert_eq!(settings.machine.manager.heartbeat_ms, 100);
     assert_eq!(
         settings.ascii_listen,
         Some("127.0.0.1:60000".parse().unwrap())

@@ -1,4 +1,6 @@
-// The overview page: buses, nodes, STOP ALL and the recent events. Tables
+// The overview page: buses, nodes, the machine (the network manager's
+// view: expected and found nodes, their boot-up and supervision), STOP ALL
+// and the recent events. Tables
 // show what the gateway read from the devices; a stream event only says
 // that something changed, and the node is then read again over REST.
 
@@ -184,6 +186,83 @@ function renderNodes() {
   }));
 }
 
+// ---- machine (the network manager) ---------------------------------------
+
+const machineBody = $('#machine tbody');
+const machineStates = $('#machine-states');
+const machines = new Map(); // bus -> the machine as GET /buses/{bus}/machine gives it
+
+const MACHINE_BADGE = { ready: 'ok', booting: 'warn', degraded: 'bad', down: 'bad' };
+const NODE_BADGE = {
+  ready: 'ok', booting: 'warn', unexpected: 'warn',
+  missing: 'bad', wrong_identity: 'bad', config_failed: 'bad', offline: 'bad',
+};
+
+async function loadMachines(list) {
+  await Promise.all(list.map(async ({ name }) => {
+    try {
+      machines.set(name, await api(`/buses/${encodeURIComponent(name)}/machine`));
+      problem(`machine ${name}`, null);
+    } catch (error) {
+      // A bus without a network manager has no machine to show.
+      if (error.code !== 'invalid_request') problem(`machine ${name}`, `Machine of ${name}: ${error.message}`);
+    }
+  }));
+  renderMachines();
+}
+
+function machineAction(bus, id, label, busy, path, body) {
+  const button = h('button', { type: 'button', class: 'small', dataset: { action: label.toLowerCase().replace(' ', '-') } }, label);
+  button.addEventListener('click', async () => {
+    const result = await runAction(button, busy, () => api(path, { method: 'POST', body }));
+    addEvent(Date.now(), result.ok ? `${bus} node ${id}: ${label.toLowerCase()} sent`
+      : `${bus} node ${id}: ${label.toLowerCase()} failed: ${result.error.message}`, result.ok ? 'info' : 'warn');
+  });
+  return button;
+}
+
+function renderMachines() {
+  machineStates.replaceChildren(...[...machines.entries()].map(([bus, m]) => h('p', { dataset: { bus } },
+    h('strong', {}, `${bus}: `), h('span', { class: `badge ${MACHINE_BADGE[m.state] || ''}`, dataset: { state: m.state } }, m.state),
+    m.reasons.length ? h('span', { class: 'sub' }, ` ${m.reasons.join(' · ')}`) : null)));
+  const rows = [];
+  for (const [bus, m] of [...machines.entries()].sort()) {
+    for (const n of m.nodes) {
+      const base = `/buses/${encodeURIComponent(bus)}`;
+      rows.push(h('tr', { dataset: { bus, node: n.id, state: n.state } },
+        h('td', { 'data-label': 'Bus' }, bus),
+        h('td', { 'data-label': 'Node', class: 'num' }, String(n.id)),
+        h('td', { 'data-label': 'Name' }, n.name || h('span', { class: 'sub' }, '—'),
+          n.mandatory ? h('div', { class: 'sub' }, 'mandatory') : null),
+        h('td', { 'data-label': 'Expected' }, n.expected ? 'expected' : 'found'),
+        h('td', { 'data-label': 'State', class: 'machine-state' }, h('span', { class: `badge ${NODE_BADGE[n.state] || ''}` }, n.state.replace('_', ' '))),
+        h('td', { 'data-label': 'Step', class: 'step' }, n.step.replace('_', ' ')),
+        h('td', { 'data-label': 'Supervision', class: 'supervision' }, n.supervision),
+        h('td', { 'data-label': 'NMT', class: 'nmt' }, NMT[n.nmt] || n.nmt),
+        h('td', { 'data-label': 'Reason', class: 'reason' }, n.reason || ''),
+        h('td', { 'data-label': 'Actions', class: 'actions' },
+          machineAction(bus, n.id, 'Boot again', 'Booting…', `${base}/machine/nodes/${n.id}/boot`),
+          n.state === 'missing' ? null
+            : machineAction(bus, n.id, 'Start', 'Starting…', `${base}/nodes/${n.id}/nmt`, { command: 'start' })),
+      ));
+    }
+  }
+  if (rows.length === 0) {
+    machineBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 10 }, 'No node expected or found yet.')));
+    return;
+  }
+  machineBody.replaceChildren(...rows);
+}
+
+stream.subscribe(['machine'], (data, message) => {
+  if (message.lagged) return lagged(message);
+  const { bus, ...machine } = data;
+  const old = machines.get(bus);
+  if (old && old.state !== machine.state) addEvent(message.ts, `${bus}: machine ${old.state} → ${machine.state}`, machine.state === 'ready' ? 'info' : 'warn');
+  machines.set(bus, machine);
+  renderMachines();
+});
+
 // ---- events --------------------------------------------------------------
 
 function addEvent(ts, text, kind) {
@@ -269,7 +348,7 @@ stopButton.addEventListener('click', async () => {
 
 async function loadAll() {
   const list = await loadBuses();
-  if (list) await loadNodes(list);
+  if (list) await Promise.all([loadNodes(list), loadMachines(list)]);
 }
 
 let live = false; // the stream is up: one "lost" event per outage

@@ -1,0 +1,1215 @@
+//! The network manager of CiA 302-2 (network management of a CANopen
+//! manager), without I/O: the expected nodes of a bus (the machine), the
+//! boot-up of each slave, the error control the manager sets up and
+//! supervises, and the manager's own heartbeat.
+//!
+//! - **Boot slave** (CiA 302-2 §5, "boot slave process"), run for a node at
+//!   every boot-up message, when it is found present, when it comes back
+//!   after being lost, and on request: identity check against 0x1018 sub
+//!   1–4 (each key the description gives must match; a mismatch or an
+//!   entry the node refuses is `wrong_identity`, and the node is neither
+//!   configured nor started) → configuration download (the DCF's
+//!   `ParameterValue` entries in file order, each failure naming the entry
+//!   and the abort) → error control (§5, "start error control service"):
+//!   the node's producer heartbeat time into 0x1017; where 0x1017 is not
+//!   writable, node guarding with 0x100C (guard time) and 0x100D (life time
+//!   factor) driven by the manager; the manager's heartbeat into 0x1016 sub 1
+//!   (consumer time 3 × the manager's period) where the node has a 0x1016
+//!   → NMT start (§5, "start slave"), if the description says so.
+//! - A step that fails is retried with a backoff (from [`ManagerConfig::retry_min`],
+//!   doubling up to [`ManagerConfig::retry_max`]) and reported with the
+//!   step and the reason; a node with the wrong identity is not retried
+//!   until it boots again or someone asks.
+//! - **Error control** (CiA 301 §7.2.8.3.2, CiA 302-2 §7): every booted
+//!   node is supervised by its heartbeat (a consumer with a timeout of 1.5
+//!   periods) or by node guarding; where neither could be set up the node
+//!   says `supervision: none` and why. A lost node is `offline`; a node
+//!   heard again after it was lost is booted again by itself.
+//! - **Machine state**: `ready` when every mandatory node is booted,
+//!   supervised and in the NMT state it should have; `booting` while a
+//!   mandatory node is on its way there (or the first scan is under way);
+//!   `degraded` when a mandatory node is missing, lost or failed; `down`
+//!   when no mandatory node is ready and at least one is expected (or
+//!   the bus is down).
+//!
+//! Without any description every node found is booted as an unexpected,
+//! non-mandatory node with the defaults ([`NodeDescription::default_for`]).
+//! With descriptions, a node found that is not described is `unexpected`
+//! and left alone.
+//!
+//! Like the SDO client, the manager takes the current time and what
+//! happened in ([`Manager::on_frame`], [`Manager::on_sdo`],
+//! [`Manager::node_found`], ...) and gives [`Action`]s out
+//! ([`Manager::poll`]) with a deadline: SDO requests (one at a time per
+//! node), NMT commands and frames (its heartbeat, guarding requests). The
+//! gateway carries them out.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::time::{Duration, Instant};
+
+use super::cob::NodeId;
+use super::heartbeat::{HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, NodeGuardMaster};
+use super::nmt::{NmtCommand, NmtState};
+use super::sdo::AbortCode;
+use crate::can::Frame;
+
+#[cfg(test)]
+mod tests;
+
+/// Guard time object (ms).
+pub const GUARD_TIME: u16 = 0x100C;
+/// Life time factor object.
+pub const LIFE_TIME_FACTOR: u16 = 0x100D;
+/// Consumer heartbeat time array.
+pub const CONSUMER_HEARTBEAT_TIME: u16 = 0x1016;
+/// Producer heartbeat time (ms).
+pub const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
+/// Identity object: sub 1 vendor, 2 product code, 3 revision, 4 serial.
+pub const IDENTITY: u16 = 0x1018;
+/// The life time factor the manager writes when it guards a node.
+pub const LIFE_TIME_FACTOR_DEFAULT: u8 = 3;
+/// The producer heartbeat time of a node without description, ms.
+pub const DEFAULT_HEARTBEAT_MS: u16 = 500;
+/// The manager's node id by default.
+pub const DEFAULT_MANAGER_NODE_ID: u8 = 127;
+/// The manager's heartbeat period by default, ms.
+pub const DEFAULT_MANAGER_HEARTBEAT_MS: u16 = 100;
+
+/// The identity checks of a description, against 0x1018.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct IdentityCheck {
+    pub vendor_id: Option<u32>,
+    pub product_code: Option<u32>,
+    pub revision_min: Option<u32>,
+    pub revision_max: Option<u32>,
+    pub serial: Option<u32>,
+}
+
+impl IdentityCheck {
+    /// The 0x1018 sub-indices that must be read, in order.
+    fn subs(&self) -> Vec<u8> {
+        let mut subs = Vec::new();
+        if self.vendor_id.is_some() {
+            subs.push(1);
+        }
+        if self.product_code.is_some() {
+            subs.push(2);
+        }
+        if self.revision_min.is_some() || self.revision_max.is_some() {
+            subs.push(3);
+        }
+        if self.serial.is_some() {
+            subs.push(4);
+        }
+        subs
+    }
+
+    /// Why `value` read from 0x1018 `sub` does not match; `None` when it does.
+    fn mismatch(&self, sub: u8, value: u32) -> Option<String> {
+        let expect = |name: &str, want: Option<u32>| {
+            want.filter(|want| *want != value)
+                .map(|want| format!("{name} is 0x{value:08X}, expected 0x{want:08X}"))
+        };
+        match sub {
+            1 => expect("vendor_id (0x1018 sub 1)", self.vendor_id),
+            2 => expect("product_code (0x1018 sub 2)", self.product_code),
+            3 => {
+                let low = self.revision_min.unwrap_or(0);
+                let high = self.revision_max.unwrap_or(u32::MAX);
+                (!(low..=high).contains(&value)).then(|| {
+                    format!(
+                        "revision (0x1018 sub 3) is 0x{value:08X}, expected 0x{low:08X} to 0x{high:08X}"
+                    )
+                })
+            }
+            4 => expect("serial (0x1018 sub 4)", self.serial),
+            _ => None,
+        }
+    }
+}
+
+/// One value of the configuration download.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigWrite {
+    pub index: u16,
+    pub sub: u8,
+    pub data: Vec<u8>,
+    /// How a failure names it: the file, the entry and its name.
+    pub label: String,
+}
+
+/// What the machine description says of one node (`[[nodes]]`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeDescription {
+    pub id: NodeId,
+    pub name: Option<String>,
+    pub identity: IdentityCheck,
+    /// The machine is not ready without it.
+    pub mandatory: bool,
+    /// The EDS that describes the node, when its identity cannot pick one
+    /// (kept here and shown; the gateway assigns it).
+    pub eds: Option<String>,
+    /// The DCF it came from, for display.
+    pub dcf: Option<String>,
+    /// The configuration download, in order.
+    pub config: Vec<ConfigWrite>,
+    /// The producer heartbeat time written to 0x1017 (or the guard time of
+    /// node guarding), ms; 0 leaves the node unsupervised (said so).
+    pub heartbeat_ms: u16,
+    /// `Some(true)`: 0x1016 must take the manager's heartbeat; `None`:
+    /// where it exists; `Some(false)`: not written.
+    pub consume_manager_heartbeat: Option<bool>,
+    /// NMT start after a good boot-up.
+    pub start: bool,
+    /// Described in the configuration (`false`: booted with the defaults
+    /// because there is no description at all).
+    pub expected: bool,
+}
+
+impl NodeDescription {
+    /// An expected node with the defaults: mandatory, heartbeat 500 ms,
+    /// the manager's heartbeat consumed where 0x1016 exists, started.
+    pub fn new(id: NodeId) -> Self {
+        Self {
+            id,
+            name: None,
+            identity: IdentityCheck::default(),
+            mandatory: true,
+            eds: None,
+            dcf: None,
+            config: Vec::new(),
+            heartbeat_ms: DEFAULT_HEARTBEAT_MS,
+            consume_manager_heartbeat: None,
+            start: true,
+            expected: true,
+        }
+    }
+
+    /// A node found on a bus without description: unexpected, not
+    /// mandatory, booted with the defaults.
+    pub fn default_for(id: NodeId) -> Self {
+        Self {
+            mandatory: false,
+            expected: false,
+            ..Self::new(id)
+        }
+    }
+}
+
+/// The manager's settings of one bus.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ManagerConfig {
+    /// The manager's own node id (its heartbeat is on 0x700 + id).
+    pub node_id: NodeId,
+    /// Its heartbeat period, ms; 0: none.
+    pub heartbeat_ms: u16,
+    /// The first retry of a failed boot-up comes this long after it.
+    pub retry_min: Duration,
+    /// Retries back off (doubling) up to this.
+    pub retry_max: Duration,
+    /// SDO requests of boot-ups in flight at once on the bus (a node has
+    /// at most one): a whole bus booting at once does not flood it, and
+    /// every transfer is answered well within its timeout.
+    pub max_requests: usize,
+}
+
+impl Default for ManagerConfig {
+    fn default() -> Self {
+        Self {
+            node_id: NodeId::new(DEFAULT_MANAGER_NODE_ID).expect("127 is a node id"),
+            heartbeat_ms: DEFAULT_MANAGER_HEARTBEAT_MS,
+            retry_min: Duration::from_millis(200),
+            retry_max: Duration::from_secs(10),
+            max_requests: 16,
+        }
+    }
+}
+
+/// The step of a node's boot-up (`step` of the API).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Step {
+    /// Waiting to be found (or for the next try).
+    Waiting,
+    /// Reading 0x1018.
+    Identity,
+    /// Writing the DCF's values.
+    Configuration,
+    /// Setting up heartbeat or guarding, and the manager's heartbeat.
+    ErrorControl,
+    /// NMT start.
+    Start,
+    /// Booted; supervised from now on.
+    Supervised,
+}
+
+impl Step {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Waiting => "waiting",
+            Self::Identity => "identity",
+            Self::Configuration => "configuration",
+            Self::ErrorControl => "error_control",
+            Self::Start => "start",
+            Self::Supervised => "supervised",
+        }
+    }
+}
+
+/// Where a node of the machine stands (`state` of a node in the API).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NodeState {
+    Ready,
+    Booting,
+    Missing,
+    WrongIdentity,
+    ConfigFailed,
+    Offline,
+    Unexpected,
+}
+
+impl NodeState {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ready => "ready",
+            Self::Booting => "booting",
+            Self::Missing => "missing",
+            Self::WrongIdentity => "wrong_identity",
+            Self::ConfigFailed => "config_failed",
+            Self::Offline => "offline",
+            Self::Unexpected => "unexpected",
+        }
+    }
+}
+
+/// How the manager supervises a node.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Supervision {
+    Heartbeat,
+    Guarding,
+    None,
+}
+
+/// The state of the whole machine of a bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MachineState {
+    Ready,
+    Booting,
+    Degraded,
+    Down,
+}
+
+impl MachineState {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ready => "ready",
+            Self::Booting => "booting",
+            Self::Degraded => "degraded",
+            Self::Down => "down",
+        }
+    }
+
+    /// The value of `candeck_machine_state`: 0 down, 1 degraded, 2
+    /// booting, 3 ready.
+    pub fn metric(self) -> u8 {
+        match self {
+            Self::Down => 0,
+            Self::Degraded => 1,
+            Self::Booting => 2,
+            Self::Ready => 3,
+        }
+    }
+}
+
+/// How an SDO request of the manager ended. What the device said (an
+/// abort) is kept apart from no answer (timeout, bus).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SdoOutcome {
+    /// Read: the value bytes; written: empty.
+    Done(Vec<u8>),
+    Aborted(AbortCode),
+    /// No answer, or the bus failed; the text says which.
+    Failed(String),
+}
+
+/// What the manager asks the gateway to do.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Action {
+    /// Read an object of `node`; answer with [`Manager::on_sdo`].
+    Read { node: NodeId, index: u16, sub: u8 },
+    /// Write an object of `node`; answer with [`Manager::on_sdo`].
+    Write {
+        node: NodeId,
+        index: u16,
+        sub: u8,
+        data: Vec<u8>,
+    },
+    /// Send this frame (an NMT command, the manager's heartbeat, a
+    /// guarding request).
+    Send(Frame),
+}
+
+/// What happened, for the audit log, the stream and the log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ManagerEvent {
+    /// A boot-up began (`why`: boot-up message, found, back, request).
+    BootStarted { node: NodeId, why: String },
+    /// A step began.
+    Step { node: NodeId, step: Step },
+    /// The boot-up ended well: the node is supervised (and started).
+    Booted { node: NodeId },
+    /// The boot-up failed at `step`; retried after `retry` (`None`: not
+    /// retried until the node boots again or is asked to).
+    Failed {
+        node: NodeId,
+        step: Step,
+        reason: String,
+        retry: Option<Duration>,
+    },
+    /// Supervision lost the node.
+    Lost { node: NodeId, reason: String },
+    /// The machine state changed.
+    Machine {
+        from: MachineState,
+        to: MachineState,
+    },
+}
+
+/// One node of the machine, as the API shows it.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct NodeStatus {
+    pub id: u8,
+    pub name: Option<String>,
+    pub mandatory: bool,
+    pub expected: bool,
+    pub state: NodeState,
+    pub step: Step,
+    pub reason: Option<String>,
+    pub supervision: Supervision,
+    /// The last NMT state the node reported; `"unknown"` before any.
+    pub nmt: String,
+    /// The EDS the description names.
+    pub eds: Option<String>,
+    /// The DCF the description names.
+    pub dcf: Option<String>,
+    /// Boot-ups begun and completed.
+    pub boots: u64,
+    pub boots_ok: u64,
+}
+
+/// The machine of a bus, as `GET /buses/{bus}/machine` shows it.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct MachineStatus {
+    pub state: MachineState,
+    pub reasons: Vec<String>,
+    pub nodes: Vec<NodeStatus>,
+}
+
+/// An operation of a boot-up, one SDO request or one frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Op {
+    CheckIdentity(u8),
+    Configure(usize),
+    SetHeartbeat,
+    SetGuardTime,
+    SetLifeFactor,
+    ConsumeManager,
+    Start,
+}
+
+impl Op {
+    fn step(&self) -> Step {
+        match self {
+            Self::CheckIdentity(_) => Step::Identity,
+            Self::Configure(_) => Step::Configuration,
+            Self::SetHeartbeat
+            | Self::SetGuardTime
+            | Self::SetLifeFactor
+            | Self::ConsumeManager => Step::ErrorControl,
+            Self::Start => Step::Start,
+        }
+    }
+}
+
+#[derive(Debug)]
+struct Node {
+    description: NodeDescription,
+    /// Managed: booted by the manager (expected, or no description at all).
+    managed: bool,
+    state: NodeState,
+    step: Step,
+    reason: Option<String>,
+    supervision: Supervision,
+    /// Why the supervision is `none`.
+    supervision_reason: Option<String>,
+    /// The operations still to do in this boot-up, front first.
+    ops: std::collections::VecDeque<Op>,
+    /// The SDO request sent, waiting for [`Manager::on_sdo`].
+    in_flight: Option<Op>,
+    /// The request in flight belongs to a boot-up that was started again
+    /// meanwhile: its answer is dropped, and the new boot-up waits for it
+    /// (one SDO transfer at a time per node).
+    stale: bool,
+    /// A try is due at this time (backoff, or the first one).
+    retry_at: Option<Instant>,
+    backoff: Duration,
+    /// The node answered an SDO request in this boot (to tell `missing`
+    /// from a failure halfway).
+    answered: bool,
+    guard: Option<NodeGuardMaster>,
+    /// Heard at least once (boot-up, heartbeat, found).
+    present: bool,
+    /// 0x1017 could be written: heartbeat supervision.
+    heartbeat_set: bool,
+    boots: u64,
+    boots_ok: u64,
+}
+
+impl Node {
+    fn new(description: NodeDescription, managed: bool) -> Self {
+        Self {
+            state: if managed {
+                NodeState::Missing
+            } else {
+                NodeState::Unexpected
+            },
+            description,
+            managed,
+            step: Step::Waiting,
+            reason: None,
+            supervision: Supervision::None,
+            supervision_reason: Some("not booted yet".into()),
+            ops: Default::default(),
+            in_flight: None,
+            stale: false,
+            retry_at: None,
+            backoff: Duration::ZERO,
+            answered: false,
+            guard: None,
+            present: false,
+            heartbeat_set: false,
+            boots: 0,
+            boots_ok: 0,
+        }
+    }
+}
+
+impl Node {
+    /// The reason the API shows for the node's state.
+    fn shown_reason(&self) -> Option<String> {
+        match self.state {
+            NodeState::Ready if self.supervision == Supervision::None => {
+                self.supervision_reason.clone()
+            }
+            NodeState::Unexpected => Some("present, but not in the machine description".into()),
+            NodeState::Missing if self.reason.is_none() => Some("not found on the bus".into()),
+            _ => self.reason.clone(),
+        }
+    }
+}
+
+/// The network manager of one bus. See the module documentation.
+#[derive(Debug)]
+pub struct Manager {
+    config: ManagerConfig,
+    /// Some nodes are described: the others are unexpected.
+    described: bool,
+    nodes: BTreeMap<NodeId, Node>,
+    consumer: HeartbeatConsumer,
+    producer: HeartbeatProducer,
+    /// The first scan is over: expected nodes not found are missing.
+    scanned: bool,
+    bus_up: bool,
+    machine: MachineState,
+    events: Vec<ManagerEvent>,
+    /// Frames to send at the next poll (NMT commands).
+    outbox: Vec<Action>,
+}
+
+impl Manager {
+    /// The manager of a bus with these descriptions (none: every node
+    /// found is booted with the defaults), its heartbeat starting at `now`.
+    pub fn new(config: ManagerConfig, descriptions: Vec<NodeDescription>, now: Instant) -> Self {
+        let mut producer = HeartbeatProducer::new(config.node_id);
+        producer.set_period_ms(config.heartbeat_ms, now);
+        let described = !descriptions.is_empty();
+        let nodes = descriptions
+            .into_iter()
+            .map(|description| (description.id, Node::new(description, true)))
+            .collect();
+        let mut manager = Self {
+            config,
+            described,
+            nodes,
+            consumer: HeartbeatConsumer::new(),
+            producer,
+            scanned: false,
+            bus_up: true,
+            machine: MachineState::Booting,
+            events: Vec::new(),
+            outbox: Vec::new(),
+        };
+        manager.machine = manager.compute_state().0;
+        manager
+    }
+
+    pub fn config(&self) -> &ManagerConfig {
+        &self.config
+    }
+
+    /// The manager's heartbeat, sent now (at start: the first one is not
+    /// one period late).
+    pub fn heartbeat_now(&self) -> Option<Frame> {
+        (self.config.heartbeat_ms > 0).then(|| {
+            super::heartbeat::Heartbeat::new(self.config.node_id, NmtState::Operational).encode()
+        })
+    }
+
+    fn node_mut(&mut self, id: NodeId) -> Option<&mut Node> {
+        if !self.nodes.contains_key(&id) {
+            if id == self.config.node_id {
+                return None;
+            }
+            let (description, managed) = if self.described {
+                (NodeDescription::default_for(id), false)
+            } else {
+                (NodeDescription::default_for(id), true)
+            };
+            self.nodes.insert(id, Node::new(description, managed));
+        }
+        self.nodes.get_mut(&id)
+    }
+
+    /// The node is there (found by a scan, or heard for the first time):
+    /// booted unless it is already booting or booted.
+    pub fn node_found(&mut self, id: NodeId) {
+        let Some(node) = self.node_mut(id) else {
+            return;
+        };
+        node.present = true;
+        let idle = node.in_flight.is_none() && node.ops.is_empty();
+        if node.managed && idle && matches!(node.state, NodeState::Missing | NodeState::Offline) {
+            self.begin_boot(id, "found on the bus");
+        }
+    }
+
+    /// The first scan of the bus is over: the expected nodes it did not
+    /// find are missing (no longer "booting").
+    pub fn scan_done(&mut self) {
+        self.scanned = true;
+    }
+
+    /// The bus went down (`false`) or came back up. Back up, every node
+    /// that was present is booted again: what happened to it meanwhile
+    /// (a reset whose boot-up message nobody heard, a power cycle that
+    /// cleared its 0x1017) cannot be known, and a node that is gone shows
+    /// as missing when it does not answer.
+    pub fn bus_up(&mut self, up: bool) {
+        let back = up && !self.bus_up;
+        self.bus_up = up;
+        if !back {
+            return;
+        }
+        let again: Vec<NodeId> = self
+            .nodes
+            .values()
+            .filter(|node| node.managed && node.present)
+            .map(|node| node.description.id)
+            .collect();
+        for id in again {
+            self.begin_boot(id, "the bus is back up");
+        }
+    }
+
+    /// Runs a node's boot-up again (operator request); an error when the
+    /// node is not known to the manager.
+    pub fn reboot(&mut self, id: NodeId) -> Result<(), String> {
+        match self.nodes.get(&id) {
+            Some(node) if node.managed || node.present => {}
+            Some(_) | None => {
+                return Err(format!("node {id} is neither described nor present"));
+            }
+        }
+        if let Some(node) = self.nodes.get_mut(&id) {
+            node.managed = true;
+        }
+        self.begin_boot(id, "requested");
+        Ok(())
+    }
+
+    /// The descriptions of the nodes (expected or booted with the defaults).
+    pub fn description(&self, id: NodeId) -> Option<&NodeDescription> {
+        self.nodes.get(&id).map(|node| &node.description)
+    }
+
+    fn begin_boot(&mut self, id: NodeId, why: &str) {
+        let manager_heartbeat = self.config.heartbeat_ms;
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.present = true;
+        node.boots += 1;
+        node.state = NodeState::Booting;
+        node.reason = None;
+        node.answered = false;
+        node.heartbeat_set = false;
+        node.guard = None;
+        node.supervision = Supervision::None;
+        node.supervision_reason = Some("booting".into());
+        // A request in flight is answered to the old boot: dropped.
+        node.stale = node.in_flight.is_some();
+        node.retry_at = None;
+        let description = &node.description;
+        let mut ops: std::collections::VecDeque<Op> = description
+            .identity
+            .subs()
+            .into_iter()
+            .map(Op::CheckIdentity)
+            .collect();
+        ops.extend((0..description.config.len()).map(Op::Configure));
+        if description.heartbeat_ms > 0 {
+            ops.push_back(Op::SetHeartbeat);
+        }
+        if manager_heartbeat > 0 && description.consume_manager_heartbeat != Some(false) {
+            ops.push_back(Op::ConsumeManager);
+        }
+        if description.start {
+            ops.push_back(Op::Start);
+        }
+        node.ops = ops;
+        node.step = node.ops.front().map_or(Step::Supervised, Op::step);
+        // Not timed while it boots (its state is still followed): its
+        // heartbeat starts again once set.
+        self.consumer.monitor(id, Duration::ZERO);
+        self.events.push(ManagerEvent::BootStarted {
+            node: id,
+            why: why.to_string(),
+        });
+    }
+
+    /// Takes a frame received on the bus: boot-up messages, heartbeats and
+    /// node-guarding replies.
+    pub fn on_frame(&mut self, frame: &Frame, now: Instant) {
+        let Some(id) = super::heartbeat::heartbeat_node(frame.id()) else {
+            return;
+        };
+        if id == self.config.node_id || frame.is_remote() {
+            return;
+        }
+        let events = self.consumer.on_frame(frame, now).unwrap_or_default();
+        let mut guard_events = Vec::new();
+        if let Some(node) = self.nodes.get_mut(&id)
+            && let Some(guard) = node.guard.as_mut()
+        {
+            guard_events = guard.on_frame(frame, now).unwrap_or_default();
+        }
+        let mut boot = None;
+        let mut new = false;
+        if !self.nodes.contains_key(&id) {
+            new = true;
+        }
+        let Some(node) = self.node_mut(id) else {
+            return;
+        };
+        node.present = true;
+        for event in events.iter().chain(&guard_events) {
+            match event {
+                HeartbeatEvent::BootUp { .. } => boot = Some("boot-up message"),
+                HeartbeatEvent::Recovered { .. } if boot.is_none() => {
+                    boot = Some("heard again after it was lost");
+                }
+                _ => {}
+            }
+        }
+        if boot.is_none() && new {
+            boot = Some("heard for the first time");
+        }
+        if boot.is_none()
+            && node.managed
+            && node.state == NodeState::Missing
+            && node.ops.is_empty()
+            && node.in_flight.is_none()
+        {
+            boot = Some("heard");
+        }
+        if let Some(why) = boot
+            && node.managed
+        {
+            self.begin_boot(id, why);
+        }
+    }
+
+    /// The answer to the SDO request of `node` the manager asked for.
+    pub fn on_sdo(&mut self, id: NodeId, outcome: SdoOutcome, now: Instant) {
+        let retry_min = self.config.retry_min;
+        let retry_max = self.config.retry_max;
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        let Some(op) = node.in_flight.take() else {
+            return;
+        };
+        if std::mem::take(&mut node.stale) {
+            return;
+        }
+        let fail = |node: &mut Node, reason: String, retry: bool| -> ManagerEvent {
+            let step = op.step();
+            node.ops.clear();
+            node.reason = Some(format!("{}: {reason}", step.name()));
+            node.step = step;
+            let retry = retry.then(|| {
+                node.backoff = if node.backoff.is_zero() {
+                    retry_min
+                } else {
+                    (node.backoff * 2).min(retry_max)
+                };
+                node.retry_at = Some(now + node.backoff);
+                node.backoff
+            });
+            ManagerEvent::Failed {
+                node: node.description.id,
+                step,
+                reason,
+                retry,
+            }
+        };
+        match outcome {
+            SdoOutcome::Done(data) => {
+                node.answered = true;
+                if let Op::CheckIdentity(sub) = op {
+                    let value = unsigned(&data);
+                    let mismatch = match value {
+                        Some(value) => node.description.identity.mismatch(sub, value),
+                        None => Some(format!("0x1018 sub {sub}: {} bytes read", data.len())),
+                    };
+                    if let Some(reason) = mismatch {
+                        node.state = NodeState::WrongIdentity;
+                        let event = fail(node, reason, false);
+                        self.events.push(event);
+                        return;
+                    }
+                }
+                if op == Op::SetHeartbeat {
+                    node.heartbeat_set = true;
+                }
+                if op == Op::SetGuardTime {
+                    // Guarding instead of heartbeat: the factor follows.
+                    node.ops.push_front(Op::SetLifeFactor);
+                }
+                if op == Op::SetLifeFactor {
+                    let mut guard = NodeGuardMaster::new(
+                        id,
+                        node.description.heartbeat_ms,
+                        LIFE_TIME_FACTOR_DEFAULT,
+                    );
+                    guard.start(now);
+                    node.guard = Some(guard);
+                }
+                self.next(id, now);
+            }
+            SdoOutcome::Aborted(code) => {
+                node.answered = true;
+                match op {
+                    Op::CheckIdentity(sub) => {
+                        node.state = NodeState::WrongIdentity;
+                        let event = fail(
+                            node,
+                            format!("0x1018 sub {sub} cannot be read: abort {code}"),
+                            false,
+                        );
+                        self.events.push(event);
+                    }
+                    Op::Configure(at) => {
+                        let label = node.description.config[at].label.clone();
+                        node.state = NodeState::ConfigFailed;
+                        let event = fail(node, format!("{label}: abort {code}"), true);
+                        self.events.push(event);
+                    }
+                    Op::SetHeartbeat => {
+                        // No writable 0x1017: node guarding instead.
+                        node.ops.push_front(Op::SetGuardTime);
+                        node.supervision_reason =
+                            Some(format!("0x1017 not writable (abort {code})"));
+                        self.next(id, now);
+                    }
+                    Op::SetGuardTime | Op::SetLifeFactor => {
+                        node.supervision_reason = Some(format!(
+                            "neither heartbeat (0x1017) nor node guarding (0x{:04X}) can be set: abort {code}",
+                            if op == Op::SetGuardTime {
+                                GUARD_TIME
+                            } else {
+                                LIFE_TIME_FACTOR
+                            }
+                        ));
+                        self.next(id, now);
+                    }
+                    Op::ConsumeManager => {
+                        if node.description.consume_manager_heartbeat == Some(true) {
+                            node.state = NodeState::ConfigFailed;
+                            let event = fail(
+                                node,
+                                format!(
+                                    "0x1016 sub 1 (the manager's heartbeat) cannot be written: abort {code}"
+                                ),
+                                true,
+                            );
+                            self.events.push(event);
+                        } else {
+                            // Where 0x1016 exists: this node has none.
+                            self.next(id, now);
+                        }
+                    }
+                    Op::Start => self.next(id, now),
+                }
+            }
+            SdoOutcome::Failed(reason) => {
+                node.state = if node.answered {
+                    NodeState::ConfigFailed
+                } else {
+                    NodeState::Missing
+                };
+                let event = fail(node, reason, true);
+                self.events.push(event);
+            }
+        }
+    }
+
+    /// After an operation succeeded: the next one, or the end of the boot.
+    fn next(&mut self, id: NodeId, now: Instant) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        match node.ops.front() {
+            Some(op) => {
+                let step = op.step();
+                if step != node.step {
+                    node.step = step;
+                    self.events.push(ManagerEvent::Step { node: id, step });
+                }
+            }
+            None => self.booted(id, now),
+        }
+    }
+
+    fn booted(&mut self, id: NodeId, now: Instant) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.step = Step::Supervised;
+        node.state = NodeState::Ready;
+        node.reason = None;
+        node.backoff = Duration::ZERO;
+        node.boots_ok += 1;
+        let period = Duration::from_millis(u64::from(node.description.heartbeat_ms));
+        if node.heartbeat_set {
+            node.supervision = Supervision::Heartbeat;
+            node.supervision_reason = None;
+            self.consumer.monitor_producer(id, period);
+            self.consumer.arm(id, now);
+        } else if node.guard.is_some() {
+            node.supervision = Supervision::Guarding;
+            node.supervision_reason = None;
+        } else {
+            node.supervision = Supervision::None;
+            if node.supervision_reason.is_none() || node.description.heartbeat_ms == 0 {
+                node.supervision_reason = Some("heartbeat_ms is 0".into());
+            }
+        }
+        self.events.push(ManagerEvent::Booted { node: id });
+    }
+
+    /// Due work at `now`: the next SDO request of each node that waits for
+    /// none, retries, NMT commands, the manager's heartbeat, guarding
+    /// requests; and supervision timeouts (as events).
+    pub fn poll(&mut self, now: Instant) -> Vec<Action> {
+        let mut actions = std::mem::take(&mut self.outbox);
+        if let Some(frame) = self.producer.poll(now, NmtState::Operational) {
+            actions.push(Action::Send(frame));
+        }
+        let ids: Vec<NodeId> = self.nodes.keys().copied().collect();
+        let mut in_flight = self
+            .nodes
+            .values()
+            .filter(|node| node.in_flight.is_some())
+            .count();
+        for id in ids {
+            if self
+                .nodes
+                .get(&id)
+                .is_some_and(|node| node.retry_at.is_some_and(|at| at <= now))
+            {
+                self.begin_boot(id, "retry");
+            }
+            let manager = (self.config.node_id, self.config.heartbeat_ms);
+            let Some(node) = self.nodes.get_mut(&id) else {
+                continue;
+            };
+            if let Some(guard) = node.guard.as_mut() {
+                let polled = guard.poll(now);
+                if let Some(request) = polled.request {
+                    actions.push(Action::Send(request));
+                }
+                if polled.event.is_some() && node.state == NodeState::Ready {
+                    let reason = format!(
+                        "no node-guarding reply within {} ms",
+                        guard.life_time().unwrap_or_default().as_millis()
+                    );
+                    node.state = NodeState::Offline;
+                    node.reason = Some(reason.clone());
+                    self.events.push(ManagerEvent::Lost { node: id, reason });
+                }
+            }
+            if node.in_flight.is_some() || !self.bus_up {
+                continue;
+            }
+            // A node already on its way goes on; one that has not begun
+            // waits for a free place (an NMT start needs none).
+            let waits = in_flight >= self.config.max_requests.max(1)
+                && !matches!(node.ops.front(), Some(Op::Start) | None);
+            if waits {
+                continue;
+            }
+            while let Some(op) = node.ops.pop_front() {
+                let description = &node.description;
+                let action = match &op {
+                    Op::CheckIdentity(sub) => Action::Read {
+                        node: id,
+                        index: IDENTITY,
+                        sub: *sub,
+                    },
+                    Op::Configure(at) => {
+                        let write = &description.config[*at];
+                        Action::Write {
+                            node: id,
+                            index: write.index,
+                            sub: write.sub,
+                            data: write.data.clone(),
+                        }
+                    }
+                    Op::SetHeartbeat => Action::Write {
+                        node: id,
+                        index: PRODUCER_HEARTBEAT_TIME,
+                        sub: 0,
+                        data: description.heartbeat_ms.to_le_bytes().to_vec(),
+                    },
+                    Op::SetGuardTime => Action::Write {
+                        node: id,
+                        index: GUARD_TIME,
+                        sub: 0,
+                        data: description.heartbeat_ms.to_le_bytes().to_vec(),
+                    },
+                    Op::SetLifeFactor => Action::Write {
+                        node: id,
+                        index: LIFE_TIME_FACTOR,
+                        sub: 0,
+                        data: vec![LIFE_TIME_FACTOR_DEFAULT],
+                    },
+                    Op::ConsumeManager => {
+                        let time = u16::try_from(u32::from(manager.1) * 3).unwrap_or(u16::MAX);
+                        let raw = u32::from(manager.0.get()) << 16 | u32::from(time);
+                        Action::Write {
+                            node: id,
+                            index: CONSUMER_HEARTBEAT_TIME,
+                            sub: 1,
+                            data: raw.to_le_bytes().to_vec(),
+                        }
+                    }
+                    Op::Start => {
+                        // Unconfirmed: sent, and the boot is done; the
+                        // heartbeat says when the node is operational.
+                        let frame = super::nmt::NmtMessage::new(
+                            NmtCommand::Start,
+                            super::nmt::NmtTarget::Node(id),
+                        )
+                        .encode();
+                        actions.push(Action::Send(frame));
+                        continue;
+                    }
+                };
+                node.in_flight = Some(op);
+                in_flight += 1;
+                actions.push(action);
+                break;
+            }
+            if node.in_flight.is_none() && node.ops.is_empty() && node.state == NodeState::Booting {
+                // The last operation was the NMT start (or there was none).
+                self.booted(id, now);
+            }
+        }
+        for event in self.consumer.poll(now) {
+            if let HeartbeatEvent::Lost { node: id } = event
+                && let Some(node) = self.nodes.get_mut(&id)
+                && node.state == NodeState::Ready
+            {
+                let reason = format!(
+                    "no heartbeat within {} ms (1.5 × {} ms)",
+                    u64::from(node.description.heartbeat_ms) * 3 / 2,
+                    node.description.heartbeat_ms
+                );
+                node.state = NodeState::Offline;
+                node.reason = Some(reason.clone());
+                self.events.push(ManagerEvent::Lost { node: id, reason });
+            }
+        }
+        let (machine, _) = self.compute_state();
+        if machine != self.machine {
+            self.events.push(ManagerEvent::Machine {
+                from: self.machine,
+                to: machine,
+            });
+            self.machine = machine;
+        }
+        actions
+    }
+
+    /// When [`Manager::poll`] has work next.
+    pub fn deadline(&self) -> Option<Instant> {
+        // Work that is ready (the next request of a boot-up) is handed out
+        // by the poll that follows every input, so only timers count here.
+        let nodes = self.nodes.values().flat_map(|node| {
+            [
+                node.retry_at,
+                node.guard.as_ref().and_then(NodeGuardMaster::deadline),
+            ]
+        });
+        nodes
+            .chain([self.producer.deadline(), self.consumer.deadline()])
+            .flatten()
+            .min()
+    }
+
+    /// What happened since the last call.
+    pub fn take_events(&mut self) -> Vec<ManagerEvent> {
+        std::mem::take(&mut self.events)
+    }
+
+    fn compute_state(&self) -> (MachineState, Vec<String>) {
+        let mut reasons = Vec::new();
+        if !self.bus_up {
+            return (MachineState::Down, vec!["the bus is down".into()]);
+        }
+        let mut booting = !self.scanned && self.nodes.values().any(|node| node.managed);
+        let mut bad = 0;
+        let mut mandatory = 0;
+        let mut ready = 0;
+        for node in self
+            .nodes
+            .values()
+            .filter(|node| node.description.mandatory)
+        {
+            mandatory += 1;
+            let id = node.description.id;
+            let nmt = self.consumer.state(id);
+            let want = if node.description.start {
+                NmtState::Operational
+            } else {
+                NmtState::PreOperational
+            };
+            match node.state {
+                NodeState::Ready if node.supervision == Supervision::None => {
+                    bad += 1;
+                    reasons.push(format!(
+                        "node {id} is not supervised: {}",
+                        node.supervision_reason.as_deref().unwrap_or("no reason")
+                    ));
+                }
+                NodeState::Ready
+                    if node.supervision == Supervision::Heartbeat && nmt != Some(want) =>
+                {
+                    booting = true;
+                    reasons.push(format!(
+                        "node {id} is {}, not yet {}",
+                        nmt.map_or("unknown", NmtState::name),
+                        want.name()
+                    ));
+                }
+                NodeState::Ready => ready += 1,
+                NodeState::Booting => {
+                    booting = true;
+                    reasons.push(format!("node {id} is booting ({})", node.step.name()));
+                }
+                NodeState::Missing if !self.scanned && !node.present => booting = true,
+                state => {
+                    bad += 1;
+                    reasons.push(format!(
+                        "node {id} {}{}",
+                        state.name(),
+                        node.shown_reason()
+                            .map(|reason| format!(": {reason}"))
+                            .unwrap_or_default()
+                    ));
+                }
+            }
+        }
+        let state = if mandatory > 0 && ready == 0 && bad == mandatory {
+            MachineState::Down
+        } else if bad > 0 {
+            MachineState::Degraded
+        } else if booting {
+            MachineState::Booting
+        } else {
+            MachineState::Ready
+        };
+        (state, reasons)
+    }
+
+    /// The machine as the API shows it.
+    pub fn status(&self) -> MachineStatus {
+        let (state, reasons) = self.compute_state();
+        let nodes = self
+            .nodes
+            .values()
+            .map(|node| {
+                let id = node.description.id;
+                NodeStatus {
+                    id: id.get(),
+                    name: node.description.name.clone(),
+                    mandatory: node.description.mandatory,
+                    expected: node.description.expected,
+                    state: node.state,
+                    step: node.step,
+                    reason: node.shown_reason(),
+                    supervision: node.supervision,
+                    nmt: self
+                        .consumer
+                        .state(id)
+                        .map_or("unknown", NmtState::name)
+                        .to_string(),
+                    eds: node.description.eds.clone(),
+                    dcf: node.description.dcf.clone(),
+                    boots: node.boots,
+                    boots_ok: node.boots_ok,
+                }
+            })
+            .collect();
+        MachineStatus {
+            state,
+            reasons,
+            nodes,
+        }
+    }
+
+    pub fn state(&self) -> MachineState {
+        self.machine
+    }
+}
+
+impl fmt::Display for MachineState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// An unsigned integer of 1 to 4 bytes, little-endian.
+fn unsigned(data: &[u8]) -> Option<u32> {
+    if data.is_empty() || data.len() > 4 {
+        return None;
+    }
+    let mut bytes = [0u8; 4];
+    bytes[..data.len()].copy_from_slice(data);
+    Some(u32::from_le_bytes(bytes))
+}

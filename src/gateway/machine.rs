@@ -1,0 +1,466 @@
+//! The network manager of a bus at work: the sans-I/O
+//! [`Manager`](crate::canopen::manager::Manager) of CiA 302-2 driven by one
+//! task per bus, which feeds it the bus's frames, the registry's news
+//! (nodes found) and the answers of its SDO requests, and carries out what
+//! it asks: SDO transfers through each node's [`SdoChannel`](super::sdo::SdoChannel)
+//! (queued fairly with everyone else's), NMT commands, the gateway's own
+//! heartbeat (0x700 + `manager_node_id`), node-guarding requests.
+//!
+//! Every step is visible: the machine's status ([`Machine::status`], for
+//! `GET /buses/{bus}/machine` and the `machine` topic of the stream), the
+//! audit log (as the gateway: boot-ups begun, ended, failed; nodes lost;
+//! the machine's state), and the registry's `offline` events, with the
+//! reason, for a node the manager lost.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+use crate::can::{Bus, RecvError, Timestamp};
+use crate::canopen::NodeId;
+use crate::canopen::eds::Eds;
+use crate::canopen::manager::{
+    Action, ConfigWrite, MachineStatus, Manager, ManagerConfig, ManagerEvent, NodeDescription,
+    SdoOutcome,
+};
+
+use super::history::{AuditEntry, History};
+use super::registry::{NodeEvent, NodeRegistry, OfflineReason};
+use super::sdo::SdoRequestError;
+
+/// How long an SDO request of the manager waits for the registry to list
+/// a node it has just heard (both read the same frame, in two tasks).
+const REGISTRY_WAIT: Duration = Duration::from_secs(1);
+
+/// What the network manager of every bus runs with (`manager_node_id`,
+/// `manager_heartbeat_ms`, `[[nodes]]`).
+#[derive(Debug, Clone, Default)]
+pub struct MachineSettings {
+    pub manager: ManagerConfig,
+    /// The descriptions of this bus's nodes; none: every node found is
+    /// booted with the defaults.
+    pub nodes: Vec<NodeDescription>,
+}
+
+/// Reads a DCF's `ParameterValue` entries for `node`, in file order, as
+/// the writes of a configuration download.
+pub fn load_dcf(path: &Path, node: NodeId) -> Result<Vec<ConfigWrite>, String> {
+    let text =
+        std::fs::read_to_string(path).map_err(|err| format!("DCF {}: {err}", path.display()))?;
+    let file = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |name| name.to_string_lossy().into_owned(),
+    );
+    // Checked as a whole first: a DCF that does not read is refused at start.
+    Eds::parse(&text, &file).map_err(|err| format!("DCF {}: {err}", path.display()))?;
+    let values = Eds::parameter_values_in_file_order(&text, &file, node)?;
+    Ok(values
+        .into_iter()
+        .map(|(index, sub, value, label)| ConfigWrite {
+            index,
+            sub,
+            data: value.to_bytes(),
+            label,
+        })
+        .collect())
+}
+
+/// A request to the task.
+enum Command {
+    Boot(NodeId, tokio::sync::oneshot::Sender<Result<(), String>>),
+    ScanDone,
+}
+
+/// Stops the task when the last handle goes.
+struct TaskGuard(tokio::task::AbortHandle);
+
+impl Drop for TaskGuard {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// The network manager of one bus. Cheap to clone.
+#[derive(Clone)]
+pub struct Machine {
+    status: watch::Receiver<MachineStatus>,
+    commands: mpsc::UnboundedSender<Command>,
+    manager: ManagerConfig,
+    _task: Arc<TaskGuard>,
+}
+
+impl std::fmt::Debug for Machine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Machine").finish_non_exhaustive()
+    }
+}
+
+impl Machine {
+    /// Starts the manager of `bus` (needs a tokio runtime): its heartbeat
+    /// from now on, and the boot-up of every node the registry knows or
+    /// finds.
+    pub fn spawn(
+        bus_name: &str,
+        bus: Bus,
+        registry: NodeRegistry,
+        settings: MachineSettings,
+        history: Option<History>,
+    ) -> Self {
+        let now = Instant::now();
+        let manager = Manager::new(settings.manager.clone(), settings.nodes, now.into_std());
+        let (status_tx, status) = watch::channel(manager.status());
+        let (commands, commands_rx) = mpsc::unbounded_channel();
+        let driver = Driver {
+            bus_name: bus_name.to_string(),
+            bus,
+            registry,
+            manager,
+            status: status_tx,
+            history,
+        };
+        let task = tokio::spawn(driver.run(commands_rx));
+        Self {
+            status,
+            commands,
+            manager: settings.manager,
+            _task: Arc::new(TaskGuard(task.abort_handle())),
+        }
+    }
+
+    /// The machine now.
+    pub fn status(&self) -> MachineStatus {
+        self.status.borrow().clone()
+    }
+
+    /// Every change of the machine from now on.
+    pub fn watch(&self) -> watch::Receiver<MachineStatus> {
+        self.status.clone()
+    }
+
+    /// The manager's settings.
+    pub fn manager(&self) -> &ManagerConfig {
+        &self.manager
+    }
+
+    /// Runs a node's boot-up again; an error names why it cannot.
+    pub async fn boot(&self, node: NodeId) -> Result<(), String> {
+        let (reply, answer) = tokio::sync::oneshot::channel();
+        self.commands
+            .send(Command::Boot(node, reply))
+            .map_err(|_| "the network manager has stopped".to_string())?;
+        answer
+            .await
+            .map_err(|_| "the network manager has stopped".to_string())?
+    }
+
+    /// The first scan of the bus is over: expected nodes it did not find
+    /// are missing.
+    pub fn scan_done(&self) {
+        let _ = self.commands.send(Command::ScanDone);
+    }
+
+    /// Waits until the machine is in `state` or `timeout` passed; the last
+    /// status seen.
+    pub async fn wait_for(
+        &self,
+        state: crate::canopen::manager::MachineState,
+        timeout: Duration,
+    ) -> MachineStatus {
+        let mut watch = self.status.clone();
+        let _ = tokio::time::timeout(timeout, watch.wait_for(|status| status.state == state)).await;
+        self.status()
+    }
+}
+
+struct Driver {
+    bus_name: String,
+    bus: Bus,
+    registry: NodeRegistry,
+    manager: Manager,
+    status: watch::Sender<MachineStatus>,
+    history: Option<History>,
+}
+
+impl Driver {
+    async fn run(mut self, mut commands: mpsc::UnboundedReceiver<Command>) {
+        let mut frames = self.bus.subscribe();
+        let mut nodes = self.registry.subscribe();
+        let mut bus_status = self.bus.watch_status();
+        let (results_tx, mut results) = mpsc::unbounded_channel::<(NodeId, SdoOutcome)>();
+        if let Some(frame) = self.manager.heartbeat_now() {
+            let _ = self.bus.send(frame).await;
+        }
+        self.manager.bus_up(self.bus.state().can_send());
+        for node in self.registry.nodes() {
+            self.manager.node_found(node.id);
+        }
+        loop {
+            let deadline = self.manager.deadline().map(Instant::from_std);
+            tokio::select! {
+                received = frames.recv() => match received {
+                    Ok(frame) => self.manager.on_frame(&frame.frame, Instant::now().into_std()),
+                    Err(RecvError::Lagged(lost)) => {
+                        tracing::warn!(bus = self.bus_name, lost, "network manager fell behind the bus");
+                    }
+                    Err(RecvError::Closed) => return,
+                },
+                event = nodes.recv() => match event {
+                    Ok(NodeEvent::Appeared { node }) => self.manager.node_found(node),
+                    Ok(_) => {}
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                        for node in self.registry.nodes() {
+                            self.manager.node_found(node.id);
+                        }
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                },
+                Some((node, outcome)) = results.recv() => {
+                    self.manager.on_sdo(node, outcome, Instant::now().into_std());
+                }
+                command = commands.recv() => match command {
+                    Some(Command::Boot(node, reply)) => {
+                        let _ = reply.send(self.manager.reboot(node));
+                    }
+                    Some(Command::ScanDone) => self.manager.scan_done(),
+                    None => return,
+                },
+                changed = bus_status.changed() => {
+                    if changed.is_err() {
+                        return;
+                    }
+                    let up = bus_status.borrow_and_update().state.can_send();
+                    self.manager.bus_up(up);
+                }
+                () = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)), if deadline.is_some() => {}
+            }
+            let now = Instant::now();
+            for action in self.manager.poll(now.into_std()) {
+                self.carry_out(action, &results_tx).await;
+            }
+            for event in self.manager.take_events() {
+                self.report(event);
+            }
+            let status = self.manager.status();
+            self.status.send_if_modified(|current| {
+                if *current == status {
+                    false
+                } else {
+                    *current = status;
+                    true
+                }
+            });
+        }
+    }
+
+    async fn carry_out(
+        &self,
+        action: Action,
+        results: &mpsc::UnboundedSender<(NodeId, SdoOutcome)>,
+    ) {
+        match action {
+            Action::Send(frame) => {
+                // A bus that is down is reported by the bus; the manager
+                // sees it through the bus status.
+                let _ = self.bus.send(frame).await;
+            }
+            Action::Read { node, index, sub } => {
+                let registry = self.registry.clone();
+                let results = results.clone();
+                tokio::spawn(async move {
+                    let outcome = match channel(&registry, node).await {
+                        Ok(channel) => outcome(channel.upload(index, sub).await),
+                        Err(reason) => SdoOutcome::Failed(reason),
+                    };
+                    let _ = results.send((node, outcome));
+                });
+            }
+            Action::Write {
+                node,
+                index,
+                sub,
+                data,
+            } => {
+                let registry = self.registry.clone();
+                let results = results.clone();
+                tokio::spawn(async move {
+                    let outcome = match channel(&registry, node).await {
+                        Ok(channel) => outcome(
+                            channel
+                                .download(index, sub, &data)
+                                .await
+                                .map(|()| Vec::new()),
+                        ),
+                        Err(reason) => SdoOutcome::Failed(reason),
+                    };
+                    let _ = results.send((node, outcome));
+                });
+            }
+        }
+    }
+
+    /// Logs an event, writes it to the audit log as the gateway's, and
+    /// tells the registry of a node lost.
+    fn report(&self, event: ManagerEvent) {
+        let bus = &self.bus_name;
+        let (node, operation, status, error) = match &event {
+            ManagerEvent::BootStarted { node, why } => {
+                tracing::info!("bus {bus}: node {node}: boot-up started ({why})");
+                (
+                    Some(*node),
+                    format!("network manager: boot-up started ({why})"),
+                    200,
+                    None,
+                )
+            }
+            ManagerEvent::Step { node, step } => {
+                tracing::debug!("bus {bus}: node {node}: {}", step.name());
+                return;
+            }
+            ManagerEvent::Booted { node } => {
+                tracing::info!("bus {bus}: node {node}: booted");
+                self.apply_described_eds(*node);
+                (
+                    Some(*node),
+                    "network manager: node booted".to_string(),
+                    200,
+                    None,
+                )
+            }
+            ManagerEvent::Failed {
+                node,
+                step,
+                reason,
+                retry,
+            } => {
+                let retry = retry.map_or_else(
+                    || "not retried until it boots again".to_string(),
+                    |after| format!("retried in {} ms", after.as_millis()),
+                );
+                tracing::warn!(
+                    "bus {bus}: node {node}: boot-up failed at {}: {reason}; {retry}",
+                    step.name()
+                );
+                (
+                    Some(*node),
+                    format!(
+                        "network manager: boot-up failed at {}: {reason}; {retry}",
+                        step.name()
+                    ),
+                    502,
+                    Some("boot_failed".to_string()),
+                )
+            }
+            ManagerEvent::Lost { node, reason } => {
+                tracing::warn!("bus {bus}: node {node} lost: {reason}");
+                let offline = if reason.contains("guarding") {
+                    OfflineReason::GuardingLost
+                } else {
+                    OfflineReason::HeartbeatLost
+                };
+                self.registry.report_offline(*node, offline);
+                (
+                    Some(*node),
+                    format!("network manager: node lost: {reason}"),
+                    503,
+                    Some("node_lost".to_string()),
+                )
+            }
+            ManagerEvent::Machine { from, to } => {
+                tracing::info!("bus {bus}: machine {from} -> {to}");
+                (
+                    None,
+                    format!("network manager: machine {from} -> {to}"),
+                    200,
+                    None,
+                )
+            }
+        };
+        let Some(history) = self.history.clone() else {
+            return;
+        };
+        let entry = AuditEntry {
+            time: Timestamp::now(),
+            who: "gateway".to_string(),
+            peer: None,
+            role: "system".to_string(),
+            method: "NMT".to_string(),
+            path: match node {
+                Some(node) => format!("buses/{bus}/machine/nodes/{node}"),
+                None => format!("buses/{bus}/machine"),
+            },
+            operation,
+            bus: Some(bus.clone()),
+            node: node.map(NodeId::get),
+            axis: None,
+            item: None,
+            request: None,
+            status,
+            error_code: error,
+            abort_code: None,
+        };
+        tokio::spawn(async move {
+            if let Err(err) = history.audit(entry).await {
+                tracing::error!("audit: network manager event not recorded: {err}");
+            }
+        });
+    }
+}
+
+impl Driver {
+    /// Where the `eds` key of a node's description is applied, once its
+    /// boot-up ended. Assigning an EDS to a node is the registry's
+    /// operation (the EDS upload and assignment of issue 18); until it is
+    /// wired here the description's EDS is shown in the machine, and a
+    /// node whose identity picked another one (or none) is logged.
+    fn apply_described_eds(&self, node: NodeId) {
+        let Some(wanted) = self
+            .manager
+            .description(node)
+            .and_then(|description| description.eds.clone())
+        else {
+            return;
+        };
+        let found = self.registry.node(node).and_then(|info| info.eds);
+        if found.as_deref() != Some(wanted.as_str()) {
+            tracing::info!(
+                "bus {}: node {node}: described by EDS {wanted}, matched to {} by its identity",
+                self.bus_name,
+                found.as_deref().unwrap_or("none")
+            );
+        }
+    }
+}
+
+/// The node's SDO channel, once the registry lists it.
+async fn channel(registry: &NodeRegistry, node: NodeId) -> Result<super::sdo::SdoChannel, String> {
+    let until = Instant::now() + REGISTRY_WAIT;
+    loop {
+        match registry.sdo(node) {
+            Ok(channel) => return Ok(channel),
+            Err(err) if Instant::now() >= until => return Err(err.to_string()),
+            Err(_) => tokio::time::sleep(Duration::from_millis(5)).await,
+        }
+    }
+}
+
+fn outcome(result: Result<Vec<u8>, SdoRequestError>) -> SdoOutcome {
+    match result {
+        Ok(data) => SdoOutcome::Done(data),
+        Err(error) => match error.device_abort() {
+            Some(code) => SdoOutcome::Aborted(code),
+            None => SdoOutcome::Failed(error.to_string()),
+        },
+    }
+}
+
+/// Where a `[[nodes]]` file path points: relative to the config file.
+pub fn resolve(base: &Path, file: &Path) -> PathBuf {
+    if file.is_relative() {
+        base.join(file)
+    } else {
+        file.to_path_buf()
+    }
+}

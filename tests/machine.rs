@@ -1,0 +1,289 @@
+//! The network manager (CiA 302-2) of the real `candeck serve`, over the
+//! demo bus: a machine description in the config file (nodes checked,
+//! configured, supervised and started; a missing mandatory node; a wrong
+//! identity), a node unplugged and plugged back without any client request,
+//! and the default demo without a description. Real processes: the waits
+//! poll with deadlines (the bounds of issue 17), never sleep for a result.
+
+mod common;
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use common::{http, json, poll, start};
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{Value as Json, json};
+use tokio::net::TcpStream;
+use tokio::time::Instant;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+type Socket = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("candeck-machine-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+async fn connect(address: &str) -> Socket {
+    let (socket, _) = tokio_tungstenite::connect_async(format!("ws://{address}/api/v1/stream"))
+        .await
+        .expect("the stream accepts WebSockets");
+    socket
+}
+
+async fn subscribe(socket: &mut Socket, topic: &str) {
+    let request = json!({"op": "subscribe", "topics": [topic]});
+    socket
+        .send(Message::text(request.to_string()))
+        .await
+        .unwrap();
+}
+
+/// The first `nodes` event of `node` that is `event`, waited for until
+/// `deadline`; `None` when none came.
+async fn wait_event(
+    socket: &mut Socket,
+    node: u64,
+    event: &str,
+    deadline: Instant,
+) -> Option<Json> {
+    loop {
+        let message = tokio::time::timeout_at(deadline, socket.next())
+            .await
+            .ok()??
+            .ok()?;
+        let Message::Text(text) = message else {
+            continue;
+        };
+        let message: Json = serde_json::from_str(&text).unwrap();
+        if message["topic"] == "nodes"
+            && message["data"]["node"] == node
+            && message["data"]["event"] == event
+        {
+            return Some(message["data"].clone());
+        }
+    }
+}
+
+fn node(machine: &Json, id: u64) -> &Json {
+    machine["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|node| node["id"] == id)
+        .unwrap_or_else(|| panic!("node {id} not in {machine}"))
+}
+
+async fn heartbeat_time(address: &str, id: u8) -> Json {
+    let (status, value) = json(
+        address,
+        "GET",
+        &format!("/api/v1/buses/demo/nodes/{id}/od/0x1017/0"),
+        None,
+    )
+    .await;
+    assert_eq!(status, 200, "{value}");
+    value["value"].clone()
+}
+
+const MACHINE: &str = "/api/v1/buses/demo/machine";
+
+#[tokio::test]
+async fn a_described_machine_boots_supervises_and_brings_a_node_back_by_itself() {
+    let dir = temp_dir("described");
+    // A configuration value for node 3, downloaded at every boot-up.
+    std::fs::write(
+        dir.join("leds.dcf"),
+        "[DeviceComissioning]\nNodeID=3\n\n\
+         [1800]\nParameterName=TPDO communication parameter 1\nObjectType=0x9\nSubNumber=2\n\n\
+         [1800sub0]\nParameterName=Highest sub-index\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=6\n\n\
+         [1800sub5]\nParameterName=Event timer\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0\nParameterValue=250\n",
+    )
+    .unwrap();
+    let config = dir.join("machine.toml");
+    std::fs::write(
+        &config,
+        r#"
+manager_node_id = 127
+manager_heartbeat_ms = 100
+
+[[nodes]]
+id = 1
+name = "lift axes"
+heartbeat_ms = 200
+
+[[nodes]]
+id = 2
+name = "not the stepper we expect"
+product_code = 0xDEAD
+
+[[nodes]]
+id = 3
+name = "signal lights"
+vendor_id = 0x4A2
+product_code = 0x4101
+heartbeat_ms = 300
+dcf = "leds.dcf"
+
+[[nodes]]
+id = 5
+name = "the missing one"
+"#,
+    )
+    .unwrap();
+    let (server, _) = start(&["serve", "--config", config.to_str().unwrap()]);
+    let address = server.address.clone();
+
+    let (status, machine) = poll(&address, MACHINE, |_, machine| {
+        machine["state"] == "degraded"
+            && node(machine, 1)["state"] == "ready"
+            && node(machine, 1)["nmt"] == "operational"
+            && node(machine, 3)["state"] == "ready"
+            && node(machine, 3)["nmt"] == "operational"
+            && node(machine, 2)["state"] == "wrong_identity"
+            && machine["reasons"].to_string().contains("node 5 missing")
+    })
+    .await;
+    assert_eq!(status, 200);
+    assert_eq!(machine["state"], "degraded", "{machine}");
+    let reasons = machine["reasons"].to_string();
+    assert!(reasons.contains("node 5 missing"), "{machine}");
+    assert_eq!(node(&machine, 5)["state"], "missing", "{machine}");
+    for id in [1, 3] {
+        assert_eq!(node(&machine, id)["state"], "ready", "{machine}");
+        assert_eq!(node(&machine, id)["supervision"], "heartbeat", "{machine}");
+        assert_eq!(node(&machine, id)["nmt"], "operational", "{machine}");
+    }
+    let wrong = node(&machine, 2);
+    assert_eq!(wrong["state"], "wrong_identity", "{machine}");
+    assert!(
+        wrong["reason"].as_str().unwrap().contains("product_code"),
+        "{machine}"
+    );
+    assert_eq!(heartbeat_time(&address, 3).await, 300);
+    assert_eq!(heartbeat_time(&address, 1).await, 200);
+    // The DCF's value is in node 3.
+    let (_, timer) = json(
+        &address,
+        "GET",
+        "/api/v1/buses/demo/nodes/3/od/0x1800/5",
+        None,
+    )
+    .await;
+    assert_eq!(timer["value"], 250, "{timer}");
+    // Node 2 was neither configured nor started: still pre-operational.
+    let (_, two) = json(&address, "GET", "/api/v1/buses/demo/nodes/2", None).await;
+    assert_eq!(two["nmt"], "pre_operational", "{two}");
+
+    // Unplugged: offline on the nodes topic within 1 s.
+    let mut socket = connect(&address).await;
+    subscribe(&mut socket, "nodes").await;
+    let (status, body) = http(&address, "DELETE", "/api/v1/buses/demo/sim/nodes/3", None).await;
+    assert_eq!(status, 204, "{body}");
+    let unplugged = Instant::now();
+    let offline = wait_event(
+        &mut socket,
+        3,
+        "offline",
+        unplugged + Duration::from_secs(1),
+    )
+    .await;
+    assert!(offline.is_some(), "no offline event for node 3 within 1 s");
+
+    // Plugged back: ready, operational, 0x1017 = 300 again within 2 s, no
+    // client request but the plug.
+    let (status, body) = http(
+        &address,
+        "POST",
+        "/api/v1/buses/demo/sim/nodes",
+        Some(r#"{"product":"uio1led","id":3}"#),
+    )
+    .await;
+    assert!(status == 200 || status == 201, "{status} {body}");
+    let plugged = Instant::now();
+    let mut back = false;
+    while Instant::now() < plugged + Duration::from_secs(2) {
+        let (_, machine) = json(&address, "GET", MACHINE, None).await;
+        let three = node(&machine, 3);
+        if three["state"] == "ready" && three["nmt"] == "operational" && three["boots_ok"] == 2 {
+            back = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(
+        back,
+        "node 3 not ready and operational within 2 s of being plugged back"
+    );
+    assert_eq!(heartbeat_time(&address, 3).await, 300);
+    let (_, timer) = json(
+        &address,
+        "GET",
+        "/api/v1/buses/demo/nodes/3/od/0x1800/5",
+        None,
+    )
+    .await;
+    assert_eq!(timer["value"], 250, "{timer}");
+
+    // The operator's "boot again", and its refusal for a node id unknown.
+    let (status, body) = http(
+        &address,
+        "POST",
+        "/api/v1/buses/demo/machine/nodes/3/boot",
+        None,
+    )
+    .await;
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = http(
+        &address,
+        "POST",
+        "/api/v1/buses/demo/machine/nodes/9/boot",
+        None,
+    )
+    .await;
+    assert_eq!(status, 400, "{body}");
+    // The machine state on /metrics: 1, degraded.
+    let (status, metrics) = http(&address, "GET", "/metrics", None).await;
+    assert_eq!(status, 200);
+    assert!(
+        metrics.contains("candeck_machine_state{bus=\"demo\"} 1"),
+        "{metrics}"
+    );
+    drop(server);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test]
+async fn the_default_demo_is_supervised_and_notices_an_unplugged_node_within_1_s() {
+    let (server, _) = start(&["serve"]);
+    let address = server.address.clone();
+    let (_, machine) = poll(&address, MACHINE, |_, machine| {
+        machine["state"] == "ready"
+            && machine["nodes"].as_array().is_some_and(|nodes| {
+                nodes.len() == 3 && nodes.iter().all(|node| node["nmt"] == "operational")
+            })
+    })
+    .await;
+    assert_eq!(machine["state"], "ready", "{machine}");
+    for id in 1..=3 {
+        assert_eq!(node(&machine, id)["expected"], false, "{machine}");
+        assert_eq!(node(&machine, id)["supervision"], "heartbeat", "{machine}");
+    }
+    let mut socket = connect(&address).await;
+    subscribe(&mut socket, "nodes").await;
+    let (status, body) = http(&address, "DELETE", "/api/v1/buses/demo/sim/nodes/3", None).await;
+    assert_eq!(status, 204, "{body}");
+    let unplugged = Instant::now();
+    let offline = wait_event(
+        &mut socket,
+        3,
+        "offline",
+        unplugged + Duration::from_secs(1),
+    )
+    .await;
+    assert!(offline.is_some(), "no offline event for node 3 within 1 s");
+    drop(server);
+}
