@@ -138,7 +138,7 @@ fn main() {
         format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
     )
     .unwrap();
-    let _broker = Killed(
+    let broker = Killed(
         Command::new(mosquitto)
             .arg("-c")
             .arg(&conf)
@@ -315,6 +315,8 @@ fn main() {
         println!("  {line}");
     }
     drop(gateway);
+    // exit() below runs no destructor: the broker is stopped here.
+    drop(broker);
     drop(subscriber);
     std::fs::remove_dir_all(&dir).ok();
     std::process::exit(0);
