@@ -53,8 +53,17 @@ fn http(addr: &str, method: &str, path: &str, body: Option<&str>) -> (u16, Strin
         body.len()
     )
     .unwrap();
-    let mut answer = String::new();
-    stream.read_to_string(&mut answer).unwrap();
+    // The server may reset the connection once it has answered: what was
+    // read is the answer.
+    let mut bytes = Vec::new();
+    let mut buf = [0u8; 8192];
+    while let Ok(n) = stream.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+        bytes.extend_from_slice(&buf[..n]);
+    }
+    let answer = String::from_utf8_lossy(&bytes).into_owned();
     let status = answer
         .split(' ')
         .nth(1)
@@ -129,7 +138,7 @@ fn main() {
         format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
     )
     .unwrap();
-    let _broker = Killed(
+    let broker = Killed(
         Command::new(mosquitto)
             .arg("-c")
             .arg(&conf)
@@ -159,9 +168,10 @@ fn main() {
         .spawn()
         .expect("candeck serve starts");
     let mut first = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    stdout.read_line(&mut first).unwrap();
+    // Its later lines are read too (a closed pipe would end it).
+    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
     let pid = child.id();
     let gateway = Killed(child);
     let addr = first
@@ -250,7 +260,7 @@ fn main() {
             &addr,
             "POST",
             &format!("{base}/move"),
-            Some("{\"mode\":\"velocity\",\"velocity\":100000}"),
+            Some("{\"mode\":\"velocity\",\"velocity\":20000}"),
         );
         assert!(status < 300, "move node {id}: {status} {body}");
     }
@@ -305,6 +315,8 @@ fn main() {
         println!("  {line}");
     }
     drop(gateway);
+    // exit() below runs no destructor: the broker is stopped here.
+    drop(broker);
     drop(subscriber);
     std::fs::remove_dir_all(&dir).ok();
     std::process::exit(0);
