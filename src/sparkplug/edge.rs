@@ -428,10 +428,10 @@ fn report(tracked: &mut Tracked, sample: Sample, now_ms: u64, names: bool) -> Me
 fn flush(table: &mut Table, now_ms: u64, names: bool) -> Vec<Metric> {
     let mut metrics = Vec::new();
     for tracked in table.metrics.values_mut() {
-        if tracked.pending.is_some() && now_ms >= tracked.free_at() {
-            if let Some(sample) = tracked.pending.take() {
-                metrics.push(report(tracked, sample, now_ms, names));
-            }
+        if now_ms >= tracked.free_at()
+            && let Some(sample) = tracked.pending.take()
+        {
+            metrics.push(report(tracked, sample, now_ms, names));
         }
     }
     metrics.sort_by_key(|metric| metric.alias);

@@ -668,12 +668,11 @@ impl Runner {
             return;
         }
         match event {
-            NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {
-                if born_device(&info) {
-                    let message = self.device_birth(bus, &info);
-                    self.publish(connection, message);
-                }
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. } if born_device(&info) => {
+                let message = self.device_birth(bus, &info);
+                self.publish(connection, message);
             }
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {}
             NodeEvent::Offline { .. } => {
                 if let Some(message) = self.session.device_death(&device, unix_ms()) {
                     self.publish(connection, message);

@@ -110,7 +110,7 @@ fn reporting(deadband: Option<f64>, max_rate_hz: Option<f64>) -> Result<Reportin
     }
     let min_interval_ms = match max_rate_hz {
         None => 0,
-        Some(hz) if hz == 0.0 => 0,
+        Some(0.0) => 0,
         Some(hz) if hz.is_finite() && hz > 0.0 => (1000.0 / hz).round() as u64,
         Some(hz) => return Err(format!("max_rate_hz {hz}: a rate of at least 0")),
     };
