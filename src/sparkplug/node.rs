@@ -672,6 +672,7 @@ impl Runner {
                 let message = self.device_birth(bus, &info);
                 self.publish(connection, message);
             }
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {}
             NodeEvent::Offline { .. } => {
                 if let Some(message) = self.session.device_death(&device, unix_ms()) {
                     self.publish(connection, message);
