@@ -287,3 +287,86 @@ async fn the_default_demo_is_supervised_and_notices_an_unplugged_node_within_1_s
     assert!(offline.is_some(), "no offline event for node 3 within 1 s");
     drop(server);
 }
+
+/// A description's `eds` key describes its node by that file from the
+/// start (here a file that names no identity numbers, which matching by
+/// identity never picks), and a name no catalog holds stops the start
+/// with the name in the error.
+#[tokio::test]
+async fn a_described_eds_describes_its_node_and_an_unknown_one_is_refused_at_start() {
+    let dir = temp_dir("eds");
+    let eds_dir = dir.join("eds");
+    std::fs::create_dir_all(&eds_dir).unwrap();
+    let corpus = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/eds-corpus/synthetic/technosoft-ipos-like.eds");
+    std::fs::copy(&corpus, eds_dir.join("ipos.eds")).unwrap();
+    let config = dir.join("machine.toml");
+    std::fs::write(&config, "[[nodes]]\nid = 1\neds = \"ipos.eds\"\n").unwrap();
+    let (server, _) = start(&[
+        "serve",
+        "--config",
+        config.to_str().unwrap(),
+        "--eds-dir",
+        eds_dir.to_str().unwrap(),
+    ]);
+    let (status, node) = poll(&server.address, "/api/v1/buses/demo/nodes/1", |_, node| {
+        node["eds"] == "ipos.eds"
+    })
+    .await;
+    assert_eq!(status, 200, "{node}");
+    assert_eq!(node["eds"], "ipos.eds", "{node}");
+    assert_eq!(node["profile"], "cia402", "{node}");
+    drop(server);
+
+    std::fs::write(&config, "[[nodes]]\nid = 1\neds = \"nowhere.eds\"\n").unwrap();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["serve", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("nowhere.eds"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A device without a node ID, found by LSS Fastscan and given node ID 10,
+/// boots up under it and the network manager boots it like any other node:
+/// it reaches `ready`, supervised by heartbeat and operational, with no
+/// other request.
+#[tokio::test]
+async fn a_device_configured_by_lss_is_booted_by_the_manager_and_reaches_ready() {
+    let (server, _) = start(&["serve", "--bus", "line=virtual:umc1bds32@1,uio1led@lss"]);
+    let address = server.address.clone();
+    let (status, scan) = json(&address, "POST", "/api/v1/buses/line/lss/scan", Some("{}")).await;
+    assert_eq!(status, 200, "{scan}");
+    let found = scan["found"].as_array().unwrap();
+    assert_eq!(found.len(), 1, "{scan}");
+    let mut request = found[0].clone();
+    request["node_id"] = json!(10);
+    request["store"] = json!(false);
+    let (status, configured) = json(
+        &address,
+        "POST",
+        "/api/v1/buses/line/lss/configure",
+        Some(&request.to_string()),
+    )
+    .await;
+    assert_eq!(status, 200, "{configured}");
+    assert_eq!(configured["id"], 10, "{configured}");
+    let (_, machine) = poll(&address, "/api/v1/buses/line/machine", |_, machine| {
+        machine["state"] == "ready"
+            && machine["nodes"].as_array().is_some_and(|nodes| {
+                nodes
+                    .iter()
+                    .any(|node| node["id"] == 10 && node["nmt"] == "operational")
+            })
+    })
+    .await;
+    assert_eq!(machine["state"], "ready", "{machine}");
+    let ten = node(&machine, 10);
+    assert_eq!(ten["state"], "ready", "{machine}");
+    assert_eq!(ten["nmt"], "operational", "{machine}");
+    assert_eq!(ten["supervision"], "heartbeat", "{machine}");
+    drop(server);
+}

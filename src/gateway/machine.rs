@@ -321,7 +321,6 @@ impl Driver {
             }
             ManagerEvent::Booted { node } => {
                 tracing::info!("bus {bus}: node {node}: booted");
-                self.apply_described_eds(*node);
                 (
                     Some(*node),
                     "network manager: node booted".to_string(),
@@ -406,31 +405,6 @@ impl Driver {
                 tracing::error!("audit: network manager event not recorded: {err}");
             }
         });
-    }
-}
-
-impl Driver {
-    /// Where the `eds` key of a node's description is applied, once its
-    /// boot-up ended. Assigning an EDS to a node is the registry's
-    /// operation (the EDS upload and assignment of issue 18); until it is
-    /// wired here the description's EDS is shown in the machine, and a
-    /// node whose identity picked another one (or none) is logged.
-    fn apply_described_eds(&self, node: NodeId) {
-        let Some(wanted) = self
-            .manager
-            .description(node)
-            .and_then(|description| description.eds.clone())
-        else {
-            return;
-        };
-        let found = self.registry.node(node).and_then(|info| info.eds);
-        if found.as_deref() != Some(wanted.as_str()) {
-            tracing::info!(
-                "bus {}: node {node}: described by EDS {wanted}, matched to {} by its identity",
-                self.bus_name,
-                found.as_deref().unwrap_or("none")
-            );
-        }
     }
 }
 

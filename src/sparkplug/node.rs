@@ -39,11 +39,16 @@ const RECONNECT_AFTER: Duration = Duration::from_secs(1);
 /// How many requests the MQTT client queues for its event loop.
 const CLIENT_QUEUE: usize = 10_000;
 
-/// The hook for the network manager's machine state (the NBIRTH metric
-/// `Machine State`): `None` while the gateway exposes none. Wired to the
-/// network manager when the gateway has one.
-pub fn machine_state(_gateway: &Gateway) -> Option<String> {
-    None
+/// The machine state of the NBIRTH metric `Machine State`: the worst of the
+/// buses' network managers (down, degraded, booting, ready), as
+/// `GET /api/v1/buses/{bus}/machine` gives each; `None` when no bus has one.
+pub fn machine_state(gateway: &Gateway) -> Option<String> {
+    gateway
+        .buses_in_order()
+        .iter()
+        .filter_map(|bus| bus.machine.as_ref().map(|machine| machine.status().state))
+        .min_by_key(|state| state.metric())
+        .map(|state| state.name().to_string())
 }
 
 /// A running edge node; [`EdgeNode::stop`] publishes its NDEATH and

@@ -257,6 +257,8 @@ def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, ho
     assert metric(nbirth, "bdSeq")["datatype"] == DT.UInt64
     assert metric(nbirth, "Node Control/Rebirth")["value"] is False
     assert metric(nbirth, "Buses/demo/State")["value"] == "up"
+    # The network manager's machine state (the demo's nodes are booted).
+    assert metric(nbirth, "Machine State")["value"] in ("booting", "ready")
     for device in ("demo-1", "demo-2", "demo-3"):
         _, birth = host.wait_for(lambda m, d=device: m["kind"] == "DBIRTH" and m["device"] == d)
         assert metric(birth, "Online") == metric(birth, "Online") | {"datatype": DT.Boolean, "value": True}

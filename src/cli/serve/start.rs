@@ -88,6 +88,19 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
                 .unwrap_or_default(),
             ..args.machine.clone()
         };
+        // A description's `eds` describes its node from the start, before
+        // it is heard, as `PUT .../nodes/{id}/eds` would.
+        for node in &machine.nodes {
+            if let Some(name) = &node.eds {
+                let entry = opened.registry.catalog().find(name).ok_or_else(|| {
+                    CliError::new(format!(
+                        "config: [[nodes]] bus {} id {}: eds \"{name}\" is no file of the EDS catalog (built-in, --eds-dir or uploaded; `candeck eds check` tells why a file is left out)",
+                        bus.name, node.id
+                    ))
+                })?;
+                opened.registry.assign_eds(node.id, Some(entry));
+            }
+        }
         opened = opened.with_machine(machine, Some(history.clone()));
         served.push(opened);
     }
