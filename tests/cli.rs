@@ -280,3 +280,52 @@ fn serving_beyond_loopback_without_tokens_is_refused() {
     assert_eq!(code, 1);
     assert_one_clear_line(&stderr, "/nonexistent/candeck.toml");
 }
+
+/// A server whose stdout reader went away before it printed its lines
+/// (`candeck serve --share … | head -0`, a closed pipe) keeps serving:
+/// `println!` panicked on the broken pipe and took the gateway down.
+#[test]
+fn a_closed_stdout_does_not_stop_the_server() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let listen = format!("127.0.0.1:{port}");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args(["serve", "--listen", &listen, "--share", "127.0.0.1:0"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before the server says anything.
+    drop(child.stdout.take());
+    let mut answered = false;
+    for _ in 0..200 {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut stderr = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+            panic!("the server exited ({status}) with its stdout closed:\n{stderr}");
+        }
+        if let Ok(mut stream) = std::net::TcpStream::connect(&listen) {
+            use std::io::{Read, Write};
+            stream
+                .write_all(
+                    b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+                )
+                .unwrap();
+            let mut reply = String::new();
+            let _ = stream.read_to_string(&mut reply);
+            if reply.starts_with("HTTP/1.1 200") {
+                answered = true;
+                break;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(answered, "no answer from /api/v1/health");
+    assert!(child.try_wait().unwrap().is_none(), "the server exited");
+    child.kill().unwrap();
+    child.wait().unwrap();
+}

@@ -161,10 +161,10 @@ pub struct BusCounters {
     /// Malformed input from the transport (counted, never fatal).
     pub malformed: AtomicU64,
     /// The controller's transmit error counter (TEC) as last known: the
-    /// virtual hub's fault confinement, or data[6] of SocketCAN's error
+    /// virtual hub's fault confinement, or data\[6\] of SocketCAN's error
     /// frames. A level, not a count.
     pub tec: AtomicU64,
-    /// The controller's receive error counter (REC), likewise (data[7]).
+    /// The controller's receive error counter (REC), likewise (data\[7\]).
     pub rec: AtomicU64,
 }
 

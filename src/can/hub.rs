@@ -68,7 +68,7 @@ struct Attachment {
 /// Error class of what receivers see of an error flag: `CAN_ERR_PROT |
 /// CAN_ERR_BUSERROR` (`linux/can/error.h`).
 pub const BIT_ERROR_CLASS: u32 = 0x08 | 0x80;
-/// Its details: data[2] `CAN_ERR_PROT_STUFF` (six dominant bits break the
+/// Its details: data\[2\] `CAN_ERR_PROT_STUFF` (six dominant bits break the
 /// stuffing rule), location unspecified.
 pub const BIT_ERROR_DATA: [u8; ERROR_FRAME_LEN] = [0, 0, 0x04, 0, 0, 0, 0, 0];
 

@@ -128,8 +128,8 @@ pub fn bus_state_after_error(frame: &Frame, current: BusState) -> Option<BusStat
     (state != current).then(|| BusStatus::new(state, reason))
 }
 
-/// `CAN_ERR_CNT` of `linux/can/error.h`: data[6] holds the transmit error
-/// counter, data[7] the receive error counter.
+/// `CAN_ERR_CNT` of `linux/can/error.h`: data\[6\] holds the transmit error
+/// counter, data\[7\] the receive error counter.
 pub const CAN_ERR_CNT: u32 = 0x200;
 
 /// The error counters an error frame carries.

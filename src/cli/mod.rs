@@ -238,3 +238,16 @@ pub async fn shutdown_signal() {
         _ = terminate => {}
     }
 }
+
+/// A line on stdout for people and scripts (the address a server listens
+/// on). A long-running server whose reader went away (`| head -1`, a closed
+/// pipe) must keep running: a failed write is ignored where `println!`
+/// would panic.
+pub(crate) fn say(line: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    let _ = out
+        .write_fmt(line)
+        .and_then(|()| out.write_all(b"\n"))
+        .and_then(|()| out.flush());
+}

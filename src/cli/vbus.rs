@@ -67,13 +67,13 @@ pub async fn run(args: VbusArgs) -> Result<(), CliError> {
         .spawn()
         .map_err(|err| CliError::new(format!("cannot listen on {}: {err}", args.listen)))?;
     // One line on stdout that people and scripts read (the port, when 0 was asked).
-    println!(
+    crate::cli::say(format_args!(
         "candeck vbus: socketcand on {} channel {} devices {} bitrate {}",
         handle.local_addr(),
         args.channel,
         args.devices,
         args.bitrate
-    );
+    ));
     shutdown_signal().await;
     let stats = rack.stats();
     tracing::info!(

@@ -1,5 +1,5 @@
 //! The network manager of a bus at work: the sans-I/O
-//! [`Manager`](crate::canopen::manager::Manager) of CiA 302-2 driven by one
+//! [`Manager`] of CiA 302-2 driven by one
 //! task per bus, which feeds it the bus's frames, the registry's news
 //! (nodes found) and the answers of its SDO requests, and carries out what
 //! it asks: SDO transfers through each node's [`SdoChannel`](super::sdo::SdoChannel)

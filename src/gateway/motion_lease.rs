@@ -80,7 +80,7 @@ pub struct MotionLease {
     /// the lease lapses at once rather than a period later.
     pub session: Option<u64>,
     /// When a renewal of it was last written to the audit log (stream
-    /// renewals are audited at most once per [`Self::audit_due`] interval).
+    /// renewals are audited at most once per `audit_due` interval).
     pub audited: Option<Instant>,
 }
 

@@ -141,20 +141,22 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         .collect();
     let label = if described.len() == 1 { "bus" } else { "buses" };
     // One line on stdout that people and scripts read (the port, when 0 was asked).
-    println!(
+    crate::cli::say(format_args!(
         "candeck: serving http://{local}/ ({label} {})",
         described.join(", ")
-    );
+    ));
     for (server, names) in &shares {
         let label = if names.len() == 1 { "bus" } else { "buses" };
-        println!(
+        crate::cli::say(format_args!(
             "candeck: sharing {label} {} over socketcand on {} (channel = bus name)",
             names.join(", "),
             server.local_addr()
-        );
+        ));
     }
     if let Some((_, addr)) = &ascii_listener {
-        println!("candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)");
+        crate::cli::say(format_args!(
+            "candeck: CiA 309-3 ASCII gateway on {addr} (net 1 = the first bus)"
+        ));
     }
     match exposure {
         // The address as it listens (the port, when 0 was asked).
@@ -212,14 +214,14 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // The Sparkplug B edge node (mqtt_url), on the same gateway service.
     let edge_node = match args.sparkplug.clone() {
         Some(config) => {
-            println!(
+            crate::cli::say(format_args!(
                 "candeck: Sparkplug B edge node {}/{} on {}://{}:{}",
                 config.group_id,
                 config.edge_node_id,
                 if config.broker.tls { "mqtts" } else { "mqtt" },
                 config.broker.host,
                 config.broker.port
-            );
+            ));
             Some(
                 crate::sparkplug::EdgeNode::spawn(state.gateway.clone(), config)
                     .map_err(|err| CliError::new(format!("sparkplug: store and forward: {err}")))?,
