@@ -38,7 +38,11 @@ def demo_server():
     server.stop()
 
 
-DISRUPTIVE = r"/nmt$|/sim/"
+DISRUPTIVE = r"/nmt$|/sim/nodes"
+# The gateway's own CAN controller taken bus-off (or given bit errors): every
+# request that sends on the bus answers 503 `bus_down` while it lasts, as
+# documented, so it runs alone, at the very end.
+OFF_THE_BUS = r"\}/sim/faults$"
 
 
 def run_schemathesis(url, cwd, *selection):
@@ -79,7 +83,11 @@ def run_schemathesis(url, cwd, *selection):
 
 
 def test_schemathesis_finds_no_server_error_and_no_schema_violation(demo_server, tmp_path):
-    first = run_schemathesis(demo_server, tmp_path, "--exclude-path-regex", DISRUPTIVE)
+    first = run_schemathesis(
+        demo_server, tmp_path, "--exclude-path-regex", f"{DISRUPTIVE}|{OFF_THE_BUS}"
+    )
     last = run_schemathesis(demo_server, tmp_path, "--include-path-regex", DISRUPTIVE)
+    off = run_schemathesis(demo_server, tmp_path, "--include-path-regex", OFF_THE_BUS)
     assert first >= 25, first
     assert last >= 6, last
+    assert off >= 2, off
