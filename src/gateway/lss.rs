@@ -267,7 +267,8 @@ pub fn has_node_id_object(info: &NodeInfo) -> bool {
 }
 
 /// The UniSwarm way of changing a node-ID: the new one into 0x2040 sub 1,
-/// store the manufacturer parameters (0x1010 sub 4, `save`), reset node;
+/// NMT pre-operational (where it may store), store the manufacturer
+/// parameters (0x1010 sub 4, `save`), reset node;
 /// the device boots up under the new ID. Ends once the registry knows it.
 pub async fn change_node_id(
     served: &ServedBus,
@@ -288,6 +289,12 @@ pub async fn change_node_id(
     check_free(served, node)?;
     super::check_sdo_allowed(served, info)?;
     let sdo = served.registry.sdo(info.id)?;
+    // UniSwarm devices store their parameters in pre-operational only
+    // (abort 0x08000021 otherwise), and the reset below ends whatever it
+    // was doing anyway.
+    served
+        .send_nmt(NmtCommand::EnterPreOperational, NmtTarget::Node(info.id))
+        .await?;
     sdo.download(COMMUNICATION_CONFIG, 1, &[node.get()]).await?;
     sdo.download(STORE_PARAMETERS, MANUFACTURER_AREA, b"save")
         .await?;

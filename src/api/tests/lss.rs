@@ -76,6 +76,15 @@ async fn an_unconfigured_device_is_found_configured_and_listed() {
 #[tokio::test(start_paused = true)]
 async fn a_uniswarm_node_changes_its_node_id_by_0x2040() {
     let app = line("virtual:demo").await;
+    // Operational, as the network manager leaves it: the device stores its
+    // parameters in pre-operational only (0x08000021 otherwise), so the
+    // change takes it there first.
+    ok(post(
+        &app,
+        "/api/v1/buses/line/nodes/3/nmt",
+        json!({"command": "start"}),
+    )
+    .await);
     let node = ok(post(
         &app,
         "/api/v1/buses/line/nodes/3/node-id",
