@@ -19,6 +19,9 @@ OUTAGE_ERRORS = re.compile(
     r"WebSocket connection to 'ws://127\.0\.0\.1:\d+/api/v1/stream' failed"
     r"|/api/v1/\S* failed: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE|CONNECTION_CLOSED)"
     r"|127\.0\.0\.1:\d+/api/v1/\S* - Failed to load resource: net::ERR_(CONNECTION_REFUSED|CONNECTION_RESET|EMPTY_RESPONSE)"
+    # The new gateway listens before it has found the drive again (its scan,
+    # then the network manager's boot-up): until then the axis is unknown.
+    r"|/api/v1/buses/demo/nodes/1/axes/1( - Failed to load resource: the server responded with a status of 404| answered 404)"
 )
 
 
