@@ -118,7 +118,11 @@ def test_load_older_pages_back_through_the_history(server, browser):
     button.click()
     browser.wait(lambda _: len(rows(browser)) == len(history), message=f"{len(rows(browser))} rows after load older")
     ids = [r["id"] for r in rows(browser)]
-    assert ids == sorted((e["id"] for e in history), reverse=True), ids
+    # Newest first by the time each entry was received: an entry the network
+    # manager began before a later one but finished after it has the larger id
+    # and the earlier time.
+    expected = sorted(history, key=lambda e: (e["time_us"], e["id"]), reverse=True)
+    assert ids == [e["id"] for e in expected], ids
     assert not browser.js("return !document.getElementById('load-older').hidden"), "load older is still offered"
     browser.check()
 
