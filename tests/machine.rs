@@ -370,3 +370,45 @@ async fn a_device_configured_by_lss_is_booted_by_the_manager_and_reaches_ready()
     assert_eq!(ten["supervision"], "heartbeat", "{machine}");
     drop(server);
 }
+
+/// A UniSwarm node moved to another ID (0x2040) is booted by the manager
+/// under the new one, and its old ID is neither listed nor supervised (it
+/// would be "lost" for ever otherwise).
+#[tokio::test]
+async fn a_node_moved_by_0x2040_leaves_its_old_id_behind() {
+    let (server, _) = start(&["serve"]);
+    let address = server.address.clone();
+    poll(&address, MACHINE, |_, machine| machine["state"] == "ready").await;
+    let (status, moved) = json(
+        &address,
+        "POST",
+        "/api/v1/buses/demo/nodes/3/node-id",
+        Some(r#"{"node_id":9}"#),
+    )
+    .await;
+    assert_eq!(status, 200, "{moved}");
+    let ids = |machine: &Json| -> Vec<u64> {
+        machine["nodes"]
+            .as_array()
+            .map(|nodes| nodes.iter().filter_map(|n| n["id"].as_u64()).collect())
+            .unwrap_or_default()
+    };
+    let (_, machine) = poll(&address, MACHINE, |_, machine| {
+        machine["state"] == "ready"
+            && ids(machine) == [1, 2, 9]
+            && node(machine, 9)["nmt"] == "operational"
+    })
+    .await;
+    assert_eq!(ids(&machine), [1, 2, 9], "{machine}");
+    assert_eq!(machine["state"], "ready", "{machine}");
+    let (status, nodes) = json(&address, "GET", "/api/v1/buses/demo/nodes", None).await;
+    assert_eq!(status, 200);
+    let listed: Vec<u64> = nodes
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|n| n["id"].as_u64())
+        .collect();
+    assert_eq!(listed, [1, 2, 9], "{nodes}");
+    drop(server);
+}

@@ -302,7 +302,13 @@ pub async fn change_node_id(
     served
         .send_nmt(NmtCommand::ResetNode, NmtTarget::Node(info.id))
         .await?;
-    wait_for_boot_up(served, &mut frames, node).await
+    let moved = wait_for_boot_up(served, &mut frames, node).await?;
+    // Nothing answers at the old ID any more: left listed, it would only
+    // time out every request and be supervised (and lost) for ever.
+    served
+        .registry
+        .retire(info.id, super::registry::OfflineReason::NodeIdChanged);
+    Ok(moved)
 }
 
 /// 0x2040: UniSwarm's communication configuration, sub 1 Node_ID.

@@ -209,6 +209,9 @@ impl Driver {
                 },
                 event = nodes.recv() => match event {
                     Ok(NodeEvent::Appeared { node }) => self.manager.node_found(node),
+                    Ok(NodeEvent::Offline { node, reason: OfflineReason::NodeIdChanged }) => {
+                        self.manager.node_left(node, "its device moved to another node-ID");
+                    }
                     Ok(_) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
                         for node in self.registry.nodes() {

@@ -168,6 +168,9 @@ pub enum OfflineReason {
     /// The network manager's node guarding got no reply within the node
     /// life time.
     GuardingLost,
+    /// Its device moved to another node-ID (0x2040 change): the old ID is
+    /// forgotten.
+    NodeIdChanged,
 }
 
 /// One emergency message, decoded, as the API shows it.
@@ -763,6 +766,21 @@ impl NodeRegistry {
             node.online = false;
             self.shared.emit(NodeEvent::Offline { node: id, reason });
         }
+    }
+
+    /// The device at `id` moved to another node-ID for good: the old ID
+    /// goes offline (`reason`), then is forgotten (no longer listed nor
+    /// supervised; requests to it are refused as for an unknown node). A
+    /// device heard at that ID later is a new node.
+    pub fn retire(&self, id: NodeId, reason: OfflineReason) {
+        let mut state = self.shared.lock();
+        if state.nodes.remove(&id).is_none() {
+            return;
+        }
+        state.consumer.unmonitor(id);
+        // Sent even when it was offline already: those who follow the node
+        // (the network manager, the stream) learn that it left for good.
+        self.shared.emit(NodeEvent::Offline { node: id, reason });
     }
 
     /// What happens to the nodes from now on.

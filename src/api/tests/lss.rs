@@ -95,6 +95,17 @@ async fn a_uniswarm_node_changes_its_node_id_by_0x2040() {
     assert_eq!(node["identity"]["product_code"], 0x4101, "{node}");
     let value = ok(get(&app, "/api/v1/buses/line/nodes/9/od/0x2040/1").await);
     assert_eq!(value["value"], 9);
+    // The old ID is forgotten: not listed, and refused as unknown rather
+    // than left to time out every request.
+    assert_eq!(
+        node_ids(&ok(get(&app, "/api/v1/buses/line/nodes").await)),
+        vec![1, 2, 9]
+    );
+    assert_error(
+        &get(&app, "/api/v1/buses/line/nodes/3/od/0x1000/0").await,
+        StatusCode::NOT_FOUND,
+        "unknown_node",
+    );
     // Node 1 is taken; the JMC has no 0x2040.
     assert_error(
         &post(

@@ -597,6 +597,33 @@ impl Manager {
         }
     }
 
+    /// The device at `id` moved to another node-ID for good (its node-ID
+    /// was changed): an expected node is missing again, to be booted when
+    /// a device answers there; one that was only found is forgotten, so
+    /// that its old ID is not supervised (and lost) for ever.
+    pub fn node_left(&mut self, id: NodeId, why: &str) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        self.consumer.unmonitor(id);
+        if !node.description.expected {
+            self.nodes.remove(&id);
+            return;
+        }
+        node.present = false;
+        node.state = NodeState::Missing;
+        node.step = Step::Waiting;
+        node.reason = Some(why.to_string());
+        node.ops.clear();
+        node.guard = None;
+        node.heartbeat_set = false;
+        node.supervision = Supervision::None;
+        node.supervision_reason = None;
+        node.retry_at = None;
+        // An answer still to come belongs to the device that left.
+        node.stale = node.in_flight.is_some();
+    }
+
     /// The first scan of the bus is over: the expected nodes it did not
     /// find are missing (no longer "booting").
     pub fn scan_done(&mut self) {

@@ -523,3 +523,49 @@ fn boot_up_requests_in_flight_are_bounded_across_the_bus() {
         manager.status()
     );
 }
+
+#[test]
+fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
+    let t0 = Instant::now();
+    let later = t0 + Duration::from_secs(10);
+    let lost = |manager: &mut Manager| {
+        manager
+            .take_events()
+            .into_iter()
+            .filter(|event| matches!(event, ManagerEvent::Lost { .. }))
+            .count()
+    };
+    // Found only (no description): forgotten.
+    let mut manager = Manager::new(config(), Vec::new(), t0);
+    manager.node_found(id(2));
+    run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    manager.on_frame(&heartbeat(2, NmtState::Operational), t0);
+    manager.poll(t0);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    manager.take_events();
+    manager.node_left(id(2), "moved");
+    assert!(manager.status().nodes.is_empty());
+    manager.poll(later);
+    assert_eq!(lost(&mut manager), 0);
+    assert_eq!(manager.status().state, MachineState::Ready);
+
+    // Expected: missing again, with the reason, and booted when a device
+    // answers there once more.
+    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(1))], t0);
+    manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
+    run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    manager.on_frame(&heartbeat(1, NmtState::Operational), t0);
+    manager.poll(t0);
+    manager.scan_done();
+    manager.take_events();
+    manager.node_left(id(1), "moved to 9");
+    manager.poll(later);
+    assert_eq!(lost(&mut manager), 0);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.reason.as_deref()),
+        (NodeState::Missing, Some("moved to 9"))
+    );
+    manager.node_found(id(1));
+    assert!(!sdo_actions(&manager.poll(later)).is_empty());
+}
