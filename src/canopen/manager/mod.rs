@@ -417,7 +417,18 @@ enum Op {
     SetHeartbeat,
     SetGuardTime,
     SetLifeFactor,
-    ConsumeManager,
+    /// Reads 0x1016 sub 0: how many consumer entries the node has.
+    CountConsumers,
+    /// Reads 0x1016 sub `sub` of `count`, looking for the entry that
+    /// already watches the manager, else the first `free` one: the others
+    /// watch other nodes (a drive following its neighbour) and are kept.
+    FindConsumer {
+        sub: u8,
+        count: u8,
+        free: Option<u8>,
+    },
+    /// Writes the manager's heartbeat into 0x1016 sub `.0`.
+    ConsumeManager(u8),
     Start,
 }
 
@@ -429,7 +440,9 @@ impl Op {
             Self::SetHeartbeat
             | Self::SetGuardTime
             | Self::SetLifeFactor
-            | Self::ConsumeManager => Step::ErrorControl,
+            | Self::CountConsumers
+            | Self::FindConsumer { .. }
+            | Self::ConsumeManager(_) => Step::ErrorControl,
             Self::Start => Step::Start,
         }
     }
@@ -702,7 +715,7 @@ impl Manager {
             ops.push_back(Op::SetHeartbeat);
         }
         if manager_heartbeat > 0 && description.consume_manager_heartbeat != Some(false) {
-            ops.push_back(Op::ConsumeManager);
+            ops.push_back(Op::CountConsumers);
         }
         if description.start {
             ops.push_back(Op::Start);
@@ -820,8 +833,25 @@ impl Manager {
                         return;
                     }
                 }
-                if op == Op::SetHeartbeat {
-                    node.heartbeat_set = true;
+                match op {
+                    Op::CountConsumers | Op::FindConsumer { .. } => {
+                        let manager = self.config.node_id;
+                        match next_consumer_op(&op, &data, manager) {
+                            Ok(Some(next)) => node.ops.push_front(next),
+                            Ok(None) => {}
+                            Err(reason) => {
+                                if node.description.consume_manager_heartbeat == Some(true) {
+                                    node.state = NodeState::ConfigFailed;
+                                    let event = fail(node, reason, true);
+                                    self.events.push(event);
+                                    return;
+                                }
+                                // Where it can: this node cannot.
+                            }
+                        }
+                    }
+                    Op::SetHeartbeat => node.heartbeat_set = true,
+                    _ => {}
                 }
                 if op == Op::SetGuardTime {
                     // Guarding instead of heartbeat: the factor follows.
@@ -874,16 +904,19 @@ impl Manager {
                         ));
                         self.next(id, now);
                     }
-                    Op::ConsumeManager => {
+                    Op::CountConsumers | Op::FindConsumer { .. } | Op::ConsumeManager(_) => {
                         if node.description.consume_manager_heartbeat == Some(true) {
                             node.state = NodeState::ConfigFailed;
-                            let event = fail(
-                                node,
-                                format!(
-                                    "0x1016 sub 1 (the manager's heartbeat) cannot be written: abort {code}"
+                            let what = match op {
+                                Op::ConsumeManager(sub) => format!(
+                                    "0x1016 sub {sub} (the manager's heartbeat) cannot be written"
                                 ),
-                                true,
-                            );
+                                Op::FindConsumer { sub, .. } => {
+                                    format!("0x1016 sub {sub} cannot be read")
+                                }
+                                _ => "0x1016 cannot be read".to_string(),
+                            };
+                            let event = fail(node, format!("{what}: abort {code}"), true);
                             self.events.push(event);
                         } else {
                             // Where 0x1016 exists: this node has none.
@@ -1035,13 +1068,23 @@ impl Manager {
                         sub: 0,
                         data: vec![LIFE_TIME_FACTOR_DEFAULT],
                     },
-                    Op::ConsumeManager => {
+                    Op::CountConsumers => Action::Read {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: 0,
+                    },
+                    Op::FindConsumer { sub, .. } => Action::Read {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: *sub,
+                    },
+                    Op::ConsumeManager(sub) => {
                         let time = u16::try_from(u32::from(manager.1) * 3).unwrap_or(u16::MAX);
                         let raw = u32::from(manager.0.get()) << 16 | u32::from(time);
                         Action::Write {
                             node: id,
                             index: CONSUMER_HEARTBEAT_TIME,
-                            sub: 1,
+                            sub: *sub,
                             data: raw.to_le_bytes().to_vec(),
                         }
                     }
@@ -1232,6 +1275,55 @@ impl fmt::Display for MachineState {
 }
 
 /// An unsigned integer of 1 to 4 bytes, little-endian.
+/// What follows a read of 0x1016 (sub 0, or an entry) in the search for
+/// the entry the manager's heartbeat goes to: the next read, the write, or
+/// nothing more to do (`Ok(None)`: the node has no entries). An entry is
+/// free when its node-ID or its time is 0 (CiA 301 §7.5.2.32: not used).
+/// `Err` says why the manager's heartbeat cannot be consumed.
+fn next_consumer_op(op: &Op, data: &[u8], manager: NodeId) -> Result<Option<Op>, String> {
+    let value = unsigned(data).ok_or_else(|| {
+        format!(
+            "0x1016: {} bytes read where a number was expected",
+            data.len()
+        )
+    })?;
+    let (sub, count, free) = match *op {
+        Op::CountConsumers => {
+            let count = u8::try_from(value)
+                .map_err(|_| format!("0x1016 sub 0 = {value}: more entries than a sub-index"))?;
+            if count == 0 {
+                return Err("0x1016 has no entries".to_string());
+            }
+            return Ok(Some(Op::FindConsumer {
+                sub: 1,
+                count,
+                free: None,
+            }));
+        }
+        Op::FindConsumer { sub, count, free } => (sub, count, free),
+        _ => return Ok(None),
+    };
+    let node = (value >> 16) & 0xFF;
+    let time = value & 0xFFFF;
+    if node == u32::from(manager.get()) {
+        return Ok(Some(Op::ConsumeManager(sub)));
+    }
+    let free = free.or((node == 0 || time == 0).then_some(sub));
+    if sub < count {
+        return Ok(Some(Op::FindConsumer {
+            sub: sub + 1,
+            count,
+            free,
+        }));
+    }
+    match free {
+        Some(sub) => Ok(Some(Op::ConsumeManager(sub))),
+        None => Err(format!(
+            "0x1016: all {count} entries watch other nodes; none is free for the manager's heartbeat"
+        )),
+    }
+}
+
 fn unsigned(data: &[u8]) -> Option<u32> {
     if data.is_empty() || data.len() > 4 {
         return None;

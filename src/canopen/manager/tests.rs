@@ -80,6 +80,28 @@ fn the_manager_heartbeat_is_byte_exact_and_periodic() {
     assert!(manager.poll(t0 + Duration::from_secs(5)).is_empty());
 }
 
+/// Node 3's answers: its identity, and a 0x1016 of three entries, the
+/// first watching node 5 (kept), the second free (takes the manager's
+/// heartbeat).
+fn answer_node_3(action: &Action) -> SdoOutcome {
+    match action {
+        Action::Read {
+            index: 0x1016, sub, ..
+        } => SdoOutcome::Done(
+            match sub {
+                0 => 3u32,
+                1 => 0x0005_01F4,
+                _ => 0,
+            }
+            .to_le_bytes()
+            .to_vec(),
+        ),
+        Action::Read { sub: 1, .. } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
+        Action::Read { sub: 2, .. } => SdoOutcome::Done(0x1001u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    }
+}
+
 #[test]
 fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
     let t0 = Instant::now();
@@ -104,11 +126,7 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
     let mut manager = Manager::new(config(), vec![description], t0);
     assert_eq!(manager.status().state, MachineState::Booting);
     manager.on_frame(&heartbeat(3, NmtState::BootUp), t0);
-    let actions = run_boot(&mut manager, t0, |action| match action {
-        Action::Read { sub: 1, .. } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
-        Action::Read { sub: 2, .. } => SdoOutcome::Done(0x1001u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    let actions = run_boot(&mut manager, t0, answer_node_3);
     let n = id(3);
     assert_eq!(
         actions,
@@ -142,10 +160,30 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
                 data: vec![0x2C, 0x01]
             },
             // Node 127, 300 ms (3 × 100): 0x007F012C.
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 0
+            },
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 1
+            },
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 2
+            },
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 3
+            },
             Action::Write {
                 node: n,
                 index: 0x1016,
-                sub: 1,
+                sub: 2,
                 data: vec![0x2C, 0x01, 0x7F, 0x00]
             },
             Action::Send(Frame::new(CanId::Standard(0x000), &[0x01, 0x03]).unwrap()),
@@ -182,15 +220,7 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
     // Back with a boot-up: booted again by itself.
     manager.on_frame(&heartbeat(3, NmtState::BootUp), t0 + Duration::from_secs(2));
     assert_eq!(manager.status().nodes[0].state, NodeState::Booting);
-    let again = run_boot(
-        &mut manager,
-        t0 + Duration::from_secs(2),
-        |action| match action {
-            Action::Read { sub: 1, .. } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
-            Action::Read { sub: 2, .. } => SdoOutcome::Done(0x1001u32.to_le_bytes().to_vec()),
-            _ => SdoOutcome::Done(Vec::new()),
-        },
-    );
+    let again = run_boot(&mut manager, t0 + Duration::from_secs(2), answer_node_3);
     assert_eq!(again, actions);
     assert_eq!(manager.status().nodes[0].boots_ok, 2);
 }
@@ -391,6 +421,14 @@ fn without_descriptions_every_node_found_is_booted_with_the_defaults() {
         Action::Write { index: 0x1016, .. } => {
             SdoOutcome::Aborted(AbortCode::from_raw(0x0602_0000))
         }
+        // One entry, already the manager's (an earlier boot wrote it).
+        Action::Read {
+            index: 0x1016, sub, ..
+        } => SdoOutcome::Done(
+            if *sub == 0 { 1u32 } else { 0x007F_012C }
+                .to_le_bytes()
+                .to_vec(),
+        ),
         _ => SdoOutcome::Done(Vec::new()),
     });
     let n = id(2);
@@ -402,6 +440,16 @@ fn without_descriptions_every_node_found_is_booted_with_the_defaults() {
                 index: 0x1017,
                 sub: 0,
                 data: vec![0xF4, 0x01]
+            },
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 0
+            },
+            Action::Read {
+                node: n,
+                index: 0x1016,
+                sub: 1
             },
             Action::Write {
                 node: n,
@@ -568,4 +616,51 @@ fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
     );
     manager.node_found(id(1));
     assert!(!sdo_actions(&manager.poll(later)).is_empty());
+}
+
+#[test]
+fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
+    let t0 = Instant::now();
+    // Two entries, both watching other nodes.
+    let answer = |action: &Action| match action {
+        Action::Read {
+            index: 0x1016, sub, ..
+        } => SdoOutcome::Done(
+            match sub {
+                0 => 2u32,
+                1 => 0x0005_01F4,
+                _ => 0x0006_01F4,
+            }
+            .to_le_bytes()
+            .to_vec(),
+        ),
+        _ => SdoOutcome::Done(Vec::new()),
+    };
+    let writes_1016 = |actions: &[Action]| {
+        actions
+            .iter()
+            .filter(|action| matches!(action, Action::Write { index: 0x1016, .. }))
+            .count()
+    };
+    // Where it can: booted all the same, the table left alone.
+    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(4))], t0);
+    manager.node_found(id(4));
+    let actions = run_boot(&mut manager, t0, answer);
+    assert_eq!(writes_1016(&actions), 0, "{actions:?}");
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    // Required: the boot-up fails and says why.
+    let mut description = NodeDescription::new(id(4));
+    description.consume_manager_heartbeat = Some(true);
+    let mut manager = Manager::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let actions = run_boot(&mut manager, t0, answer);
+    assert_eq!(writes_1016(&actions), 0, "{actions:?}");
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.state, NodeState::ConfigFailed);
+    assert_eq!(
+        node.reason.as_deref(),
+        Some(
+            "error_control: 0x1016: all 2 entries watch other nodes; none is free for the manager's heartbeat"
+        )
+    );
 }
