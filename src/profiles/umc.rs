@@ -74,6 +74,19 @@ pub fn from_q15_16(raw: i32) -> f64 {
     f64::from(raw) / Q15_16_ONE
 }
 
+/// A Q15.16 value as it travels in an SDO or a PDO: four bytes, little
+/// endian (CiA 301 INTEGER32).
+pub fn q15_16_to_le_bytes(value: f64) -> [u8; 4] {
+    to_q15_16(value).to_le_bytes()
+}
+
+/// The number four little-endian bytes of Q15.16 hold; `None` unless
+/// there are exactly four.
+pub fn q15_16_from_le_bytes(bytes: &[u8]) -> Option<f64> {
+    let raw: [u8; 4] = bytes.try_into().ok()?;
+    Some(from_q15_16(i32::from_le_bytes(raw)))
+}
+
 /// The interpolation cycle time of 0x60C2 (eq. 2.5: `units * 10^index`
 /// seconds) in milliseconds; `None` for a zero period (no interpolation).
 pub fn ip_period_ms(time_units: u8, time_index: i8) -> Option<f64> {
@@ -137,6 +150,12 @@ pub mod axis {
     pub const VELOCITY_PID_STATUS: u16 = 0x4040;
     /// 0x4060 a1_Position_PID_status, as 0x4020.
     pub const POSITION_PID_STATUS: u16 = 0x4060;
+    /// 0x4021 a1_Torque_PID_config (§3.5.3), see [`super::pid`].
+    pub const TORQUE_PID_CONFIG: u16 = 0x4021;
+    /// 0x4041 a1_Velocity_PID_config, as 0x4021.
+    pub const VELOCITY_PID_CONFIG: u16 = 0x4041;
+    /// 0x4061 a1_Position_PID_config, as 0x4021.
+    pub const POSITION_PID_CONFIG: u16 = 0x4061;
     /// 0x4022 a1_Torque_sensor_status: 1 Raw_data, 2 Flags, 3 Value
     /// (Q15.16).
     pub const TORQUE_SENSOR_STATUS: u16 = 0x4022;
@@ -173,6 +192,156 @@ pub mod axis {
         pub const MOTOR: u16 = 1 << 1;
         /// b7 PosC: error from the position controller.
         pub const POSITION_CONTROLLER: u16 = 1 << 7;
+    }
+}
+
+/// The control loops of an axis (§3.5): three PIDs in cascade, position
+/// into velocity into torque (current), each with a status record (§3.5.2:
+/// 1 Input, 2 Error, 3 Integrator, 4 Output) and a configuration record
+/// (§3.5.3), every number in Q15.16.
+///
+/// The manual leaves the loops' units to the firmware; candeck reads them
+/// as the status objects report them: the position loop takes revolutions
+/// and gives rpm, the velocity loop takes rpm and gives amperes, the torque
+/// loop takes amperes and gives volts across the winding. I is per second
+/// of integrated error, D per unit of error change per second.
+pub mod pid {
+    use super::axis;
+    use super::{from_q15_16, to_q15_16};
+
+    /// 0x4021.8 PID_flags bit 0 ANTI_REVERSE (Table 1.15): "prevent output
+    /// with sign that differ with target".
+    pub const ANTI_REVERSE: u16 = 0x0001;
+
+    /// Sub-indices of a PID configuration record (§3.5.3).
+    pub const P: u8 = 1;
+    pub const I: u8 = 2;
+    pub const D: u8 = 3;
+    pub const MIN: u8 = 4;
+    pub const MAX: u8 = 5;
+    pub const THRESHOLD: u8 = 6;
+    pub const FREQUENCY_DIVIDER: u8 = 7;
+    pub const FLAGS: u8 = 8;
+    /// Sub-indices of a PID status record (§3.5.2).
+    pub const INPUT: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const INTEGRATOR: u8 = 3;
+    pub const OUTPUT: u8 = 4;
+
+    /// One of an axis's three control loops.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+    pub enum Loop {
+        /// 0x4020/0x4021: current, A in, V out.
+        Torque,
+        /// 0x4040/0x4041: rpm in, A out.
+        Velocity,
+        /// 0x4060/0x4061: revolutions in, rpm out.
+        Position,
+    }
+
+    impl Loop {
+        pub const ALL: [Loop; 3] = [Loop::Torque, Loop::Velocity, Loop::Position];
+
+        /// Its name in the API: `torque`, `velocity`, `position`.
+        pub fn name(self) -> &'static str {
+            match self {
+                Loop::Torque => "torque",
+                Loop::Velocity => "velocity",
+                Loop::Position => "position",
+            }
+        }
+
+        pub fn from_name(name: &str) -> Option<Loop> {
+            Loop::ALL.into_iter().find(|l| l.name() == name)
+        }
+
+        /// Axis 1's status record.
+        pub fn status_index(self) -> u16 {
+            match self {
+                Loop::Torque => axis::TORQUE_PID_STATUS,
+                Loop::Velocity => axis::VELOCITY_PID_STATUS,
+                Loop::Position => axis::POSITION_PID_STATUS,
+            }
+        }
+
+        /// Axis 1's configuration record.
+        pub fn config_index(self) -> u16 {
+            match self {
+                Loop::Torque => axis::TORQUE_PID_CONFIG,
+                Loop::Velocity => axis::VELOCITY_PID_CONFIG,
+                Loop::Position => axis::POSITION_PID_CONFIG,
+            }
+        }
+
+        /// The unit of the loop's input and error.
+        pub fn input_unit(self) -> &'static str {
+            match self {
+                Loop::Torque => "A",
+                Loop::Velocity => "rpm",
+                Loop::Position => "rev",
+            }
+        }
+
+        /// The unit of the loop's output, integrator, Min and Max.
+        pub fn output_unit(self) -> &'static str {
+            match self {
+                Loop::Torque => "V",
+                Loop::Velocity => "A",
+                Loop::Position => "rpm",
+            }
+        }
+    }
+
+    /// A PID configuration record in human numbers.
+    #[derive(Debug, Clone, Copy, PartialEq, Default)]
+    pub struct PidConfig {
+        pub p: f64,
+        pub i: f64,
+        pub d: f64,
+        pub min: f64,
+        pub max: f64,
+        /// Errors within ±threshold count as none (a dead band).
+        pub threshold: f64,
+        /// The loop runs every this many board cycles (0 counts as 1).
+        pub frequency_divider: u16,
+        pub flags: u16,
+    }
+
+    impl PidConfig {
+        /// From the record's raw values, subs 1 to 8 in order (Q15.16 for
+        /// 1–6, UINT16 for 7 and 8).
+        pub fn from_raw(raw: [i64; 8]) -> PidConfig {
+            let q = |value: i64| from_q15_16(value as i32);
+            PidConfig {
+                p: q(raw[0]),
+                i: q(raw[1]),
+                d: q(raw[2]),
+                min: q(raw[3]),
+                max: q(raw[4]),
+                threshold: q(raw[5]),
+                frequency_divider: raw[6] as u16,
+                flags: raw[7] as u16,
+            }
+        }
+
+        /// The raw values of subs 1 to 8.
+        pub fn to_raw(&self) -> [i64; 8] {
+            let q = |value: f64| i64::from(to_q15_16(value));
+            [
+                q(self.p),
+                q(self.i),
+                q(self.d),
+                q(self.min),
+                q(self.max),
+                q(self.threshold),
+                i64::from(self.frequency_divider),
+                i64::from(self.flags),
+            ]
+        }
+
+        pub fn anti_reverse(&self) -> bool {
+            self.flags & ANTI_REVERSE != 0
+        }
     }
 }
 
@@ -304,6 +473,11 @@ pub mod units {
         velocity * 1000.0 * 60.0 / INCREMENTS_PER_REV
     }
 
+    /// A velocity in rpm as increments/ms.
+    pub fn increments_per_ms_from_rpm(rpm: f64) -> f64 {
+        rpm * INCREMENTS_PER_REV / (1000.0 * 60.0)
+    }
+
     /// A velocity in increments/ms as rad/s.
     pub fn rad_per_s_from_increments_per_ms(velocity: f64) -> f64 {
         velocity * 1000.0 * std::f64::consts::TAU / INCREMENTS_PER_REV
@@ -337,6 +511,44 @@ mod tests {
         assert_eq!(to_q15_16(-0.5), -32768);
         assert_eq!(from_q15_16(98304), 1.5);
         assert_eq!(to_q15_16(40000.0), i32::MAX);
+    }
+
+    #[test]
+    fn q15_16_travels_as_four_little_endian_bytes() {
+        assert_eq!(q15_16_to_le_bytes(1.0), [0x00, 0x00, 0x01, 0x00]);
+        assert_eq!(q15_16_to_le_bytes(-1.0), [0x00, 0x00, 0xFF, 0xFF]);
+        assert_eq!(q15_16_to_le_bytes(3000.0), [0x00, 0x00, 0xB8, 0x0B]);
+        assert_eq!(q15_16_to_le_bytes(0.015), [0xD7, 0x03, 0x00, 0x00]);
+        assert_eq!(q15_16_to_le_bytes(-0.5), [0x00, 0x80, 0xFF, 0xFF]);
+        assert_eq!(q15_16_from_le_bytes(&[0x00, 0x80, 0x01, 0x00]), Some(1.5));
+        assert_eq!(
+            q15_16_from_le_bytes(&[0xFF, 0xFF, 0xFF, 0x7F]),
+            Some(32767.0 + 65535.0 / 65536.0)
+        );
+        assert_eq!(
+            q15_16_from_le_bytes(&[0x00, 0x00, 0x00, 0x80]),
+            Some(-32768.0)
+        );
+        // Truncated and over-long values are not Q15.16.
+        assert_eq!(q15_16_from_le_bytes(&[0x00, 0x00, 0x01]), None);
+        assert_eq!(q15_16_from_le_bytes(&[0, 0, 1, 0, 0]), None);
+        assert_eq!(q15_16_from_le_bytes(&[]), None);
+    }
+
+    #[test]
+    fn a_pid_record_round_trips_through_its_raw_values() {
+        use pid::{Loop, PidConfig};
+        let raw = [983, 13_107, 0, -2_097_152, 2_097_152, 655, 2, 1];
+        let config = PidConfig::from_raw(raw);
+        assert_eq!(config.p, 983.0 / 65536.0);
+        assert_eq!(config.min, -32.0);
+        assert_eq!(config.max, 32.0);
+        assert_eq!(config.frequency_divider, 2);
+        assert!(config.anti_reverse());
+        assert_eq!(config.to_raw(), raw);
+        assert_eq!(Loop::from_name("velocity"), Some(Loop::Velocity));
+        assert_eq!(Loop::from_name("speed"), None);
+        assert_eq!(axis_index(2, Loop::Position.config_index()), Some(0x4261));
     }
 
     #[test]
