@@ -74,7 +74,10 @@ impl Pid {
             self.integrator = (self.integrator + growth).clamp(low, high);
         }
         let mut output = (proportional + self.integrator + derivative).clamp(low, high);
-        if config.anti_reverse() && input != 0.0 && output != 0.0 && output.signum() != input.signum()
+        if config.anti_reverse()
+            && input != 0.0
+            && output != 0.0
+            && output.signum() != input.signum()
         {
             output = 0.0;
         }

@@ -994,10 +994,7 @@ fn velocity_step(rig: &mut Rig, to: i64, ms: usize) -> Vec<f64> {
 fn rise_and_overshoot(samples: &[f64], to: f64) -> (usize, f64) {
     let first = |level: f64| samples.iter().position(|v| *v >= level * to).unwrap();
     let peak = samples.iter().cloned().fold(f64::MIN, f64::max);
-    (
-        first(0.9) - first(0.1),
-        ((peak - to) / to * 100.0).max(0.0),
-    )
+    (first(0.9) - first(0.1), ((peak - to) / to * 100.0).max(0.0))
 }
 
 /// Writes a Q15.16 gain of axis 1's loop `config` (0x4021/0x4041/0x4061).
