@@ -484,6 +484,587 @@ pub mod units {
     }
 }
 
+/// What the commissioning pages of a UMC show (UMC manual chapter 1 §2
+/// board, §3.2 motor, §3.3 brake, §3.4 sensors): each object with its
+/// manual name, unit, scale and meaning, and whether a master may write it.
+/// Axis 1's indices; [`axis_index`] moves the axis objects.
+pub mod commissioning {
+    /// How a raw value is shown.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum Kind {
+        /// An integer times `scale` (0.01 A per unit: 0.01).
+        Scaled(f64),
+        /// Q15.16.
+        Q15_16,
+        /// A code or a bit field, shown in hexadecimal.
+        Code,
+    }
+
+    /// One object of a page.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Object {
+        pub index: u16,
+        pub sub: u8,
+        pub name: &'static str,
+        pub kind: Kind,
+        pub unit: &'static str,
+        pub writable: bool,
+        pub meaning: &'static str,
+    }
+
+    /// One commissioning page.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Page {
+        /// Its path segment: `board`, `motor`, `brake`, `sensors`.
+        pub slug: &'static str,
+        pub title: &'static str,
+        /// The manual's sections.
+        pub sections: &'static str,
+        pub objects: &'static [Object],
+    }
+
+    const fn o(
+        index: u16,
+        sub: u8,
+        name: &'static str,
+        kind: Kind,
+        unit: &'static str,
+        writable: bool,
+        meaning: &'static str,
+    ) -> Object {
+        Object {
+            index,
+            sub,
+            name,
+            kind,
+            unit,
+            writable,
+            meaning,
+        }
+    }
+
+    use Kind::{Code, Q15_16, Scaled};
+    const ONE: Kind = Scaled(1.0);
+    const CENTI: Kind = Scaled(0.01);
+    const DECI: Kind = Scaled(0.1);
+
+    pub const BOARD: Page = Page {
+        slug: "board",
+        title: "Board status",
+        sections: "§2.1–2.5",
+        objects: &[
+            o(
+                0x2000,
+                1,
+                "Board_voltage_input",
+                CENTI,
+                "V",
+                false,
+                "Input power voltage, used for under/over-voltage detection",
+            ),
+            o(
+                0x2041,
+                1,
+                "Undervoltage",
+                CENTI,
+                "V",
+                true,
+                "Below it, an under-voltage fault",
+            ),
+            o(
+                0x2041,
+                2,
+                "Overvoltage",
+                CENTI,
+                "V",
+                true,
+                "Above it, an over-voltage fault",
+            ),
+            o(
+                0x2020,
+                1,
+                "CPU1_temperature",
+                DECI,
+                "°C",
+                false,
+                "CPU temperature",
+            ),
+            o(
+                0x2021,
+                1,
+                "CPU1_life_cycle",
+                ONE,
+                "cycles",
+                false,
+                "Counts the CPU's cycles (wraps at 65536)",
+            ),
+            o(
+                0x2801,
+                1,
+                "Temperature_A",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge A temperature",
+            ),
+            o(
+                0x2801,
+                2,
+                "Temperature_B",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge B temperature",
+            ),
+            o(
+                0x2801,
+                3,
+                "Temperature_C",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge C temperature",
+            ),
+            o(
+                0x2810,
+                1,
+                "Protection_schmitt_triggers_low",
+                DECI,
+                "°C",
+                true,
+                "Below it an over-temperature ends",
+            ),
+            o(
+                0x2810,
+                2,
+                "Protection_schmitt_triggers_high",
+                DECI,
+                "°C",
+                true,
+                "Above it a bridge is over-temperature",
+            ),
+            o(
+                0x2802,
+                1,
+                "Current_A",
+                CENTI,
+                "A",
+                false,
+                "Bridge A current",
+            ),
+            o(
+                0x2802,
+                2,
+                "Current_B",
+                CENTI,
+                "A",
+                false,
+                "Bridge B current",
+            ),
+            o(
+                0x2804,
+                1,
+                "PWM_A",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Bridge A duty cycle (−1: floating)",
+            ),
+            o(
+                0x2804,
+                2,
+                "PWM_B",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Bridge B duty cycle (−1: floating)",
+            ),
+            o(
+                0x2805,
+                1,
+                "Back_EMF_A",
+                DECI,
+                "V",
+                false,
+                "Bridge A back-EMF",
+            ),
+            o(
+                0x2805,
+                2,
+                "Back_EMF_B",
+                DECI,
+                "V",
+                false,
+                "Bridge B back-EMF",
+            ),
+        ],
+    };
+
+    pub const MOTOR: Page = Page {
+        slug: "motor",
+        title: "Motor",
+        sections: "§3.2",
+        objects: &[
+            o(
+                0x4007,
+                1,
+                "Type",
+                Code,
+                "",
+                true,
+                "0x0000 no motor, 0x0101 DC, 0x0201 BLDC trapezoidal with hall, 0x0202 BLDC sinusoidal with hall",
+            ),
+            o(
+                0x4007,
+                2,
+                "Peak_current",
+                CENTI,
+                "A",
+                true,
+                "Hardware comparator: above it every bridge opens",
+            ),
+            o(
+                0x4007,
+                3,
+                "Burst_current",
+                CENTI,
+                "A",
+                true,
+                "Software limit: above it for Burst_duration, an over-current fault",
+            ),
+            o(
+                0x4007,
+                4,
+                "Burst_duration",
+                ONE,
+                "ms",
+                true,
+                "How long the burst current may last",
+            ),
+            o(
+                0x4007,
+                5,
+                "Sustained_current",
+                CENTI,
+                "A",
+                true,
+                "Continuous phase current (the rated current unless 0x6075 says)",
+            ),
+            o(
+                0x4007,
+                6,
+                "Current_constant",
+                Q15_16,
+                "N·m/A",
+                true,
+                "Torque reported per ampere",
+            ),
+            o(
+                0x4007,
+                7,
+                "Max_velocity",
+                ONE,
+                "rpm",
+                true,
+                "Above it, an over-speed fault (0: unwatched)",
+            ),
+            o(
+                0x4007,
+                8,
+                "Velocity_constant",
+                Q15_16,
+                "rpm/V",
+                true,
+                "Velocity from back-EMF, for specific motors",
+            ),
+            o(
+                0x4007,
+                9,
+                "Flags",
+                Code,
+                "",
+                true,
+                "b0 Rd: reverse motor direction",
+            ),
+            o(
+                0x4009,
+                1,
+                "Pole_pair",
+                ONE,
+                "",
+                true,
+                "Pole pairs, BLDC motors only",
+            ),
+            o(
+                0x4006,
+                1,
+                "Command",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Duty cycle sent to the power stage",
+            ),
+            o(
+                0x4006,
+                2,
+                "Current",
+                CENTI,
+                "A",
+                false,
+                "Average phase current",
+            ),
+            o(
+                0x4006,
+                3,
+                "Torque",
+                Q15_16,
+                "N·m",
+                false,
+                "Current times the current constant",
+            ),
+            o(
+                0x4006,
+                4,
+                "Velocity",
+                Q15_16,
+                "rpm",
+                false,
+                "Motor velocity",
+            ),
+            o(
+                0x4006,
+                5,
+                "Position",
+                Q15_16,
+                "rev",
+                false,
+                "Motor position",
+            ),
+            o(
+                0x4006,
+                6,
+                "Error",
+                Code,
+                "",
+                false,
+                "b0 OC over-current, b1 OS over-speed, b2 DOT driver over-temperature, b3 MOT motor over-temperature, b7 Cfg, b8 HI hall",
+            ),
+            o(
+                0x4006,
+                7,
+                "Temperature",
+                DECI,
+                "°C",
+                false,
+                "Motor temperature",
+            ),
+        ],
+    };
+
+    pub const BRAKE: Page = Page {
+        slug: "brake",
+        title: "Brake",
+        sections: "§3.3",
+        objects: &[
+            o(
+                0x4082,
+                1,
+                "Brake_mode",
+                Code,
+                "",
+                true,
+                "0 disabled; 2/3 open drain, 4/5 open source, 6/7 push-pull (even: normally closed, odd: normally open)",
+            ),
+            o(
+                0x4082,
+                2,
+                "Brake_excitation_time_ms",
+                ONE,
+                "ms",
+                true,
+                "Excitation duration (0: none)",
+            ),
+            o(
+                0x4082,
+                3,
+                "Brake_excitation_duty",
+                Scaled(100.0 / 65535.0),
+                "%",
+                true,
+                "Duty cycle during excitation",
+            ),
+            o(
+                0x4082,
+                4,
+                "Brake_activated_duty",
+                Scaled(100.0 / 65535.0),
+                "%",
+                true,
+                "Duty cycle after excitation",
+            ),
+        ],
+    };
+
+    pub const SENSORS: Page = Page {
+        slug: "sensors",
+        title: "Sensors",
+        sections: "§3.4",
+        objects: &[
+            o(
+                0x4023,
+                1,
+                "Torque Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1100 TORQUE_FROM_MOTOR, 0x3101 QEI_CH1, 0x4001 ANALOG_CH1, …",
+            ),
+            o(
+                0x4023,
+                2,
+                "Torque Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4022,
+                1,
+                "Torque Raw_data",
+                Q15_16,
+                "A",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4022,
+                3,
+                "Torque Value",
+                Q15_16,
+                "A",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4043,
+                1,
+                "Velocity Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1200 VELOCITY_FROM_MOTOR, 0x2300 VELOCITY_FROM_POSITION, …",
+            ),
+            o(
+                0x4043,
+                2,
+                "Velocity Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4042,
+                1,
+                "Velocity Raw_data",
+                Q15_16,
+                "rpm",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4042,
+                3,
+                "Velocity Value",
+                Q15_16,
+                "rpm",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4045,
+                2,
+                "Velocity Scale",
+                Q15_16,
+                "",
+                true,
+                "Conditioning: (raw + pre-offset) × scale + post-offset",
+            ),
+            o(
+                0x4063,
+                1,
+                "Position Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1300 POSITION_FROM_MOTOR, 0x2200 POSITION_FROM_VELOCITY, 0x3101 QEI_CH1, 0x3201 SSI_CH1, …",
+            ),
+            o(
+                0x4063,
+                2,
+                "Position Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4062,
+                1,
+                "Position Raw_data",
+                Q15_16,
+                "rev",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4062,
+                3,
+                "Position Value",
+                Q15_16,
+                "rev",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4064,
+                1,
+                "Position Filter_select",
+                Code,
+                "",
+                true,
+                "0x0000 no filter, 0x2000 averaging of N samples",
+            ),
+            o(
+                0x4065,
+                2,
+                "Position Scale",
+                Q15_16,
+                "",
+                true,
+                "Conditioning: (raw + pre-offset) × scale + post-offset",
+            ),
+            o(
+                0x4065,
+                8,
+                "Position Threshold_mode",
+                Code,
+                "",
+                true,
+                "0 none, 1 min-max, 2 modulo, 3 last valid value",
+            ),
+        ],
+    };
+
+    pub const PAGES: [Page; 4] = [BOARD, MOTOR, BRAKE, SENSORS];
+
+    /// The page of a path segment.
+    pub fn page(slug: &str) -> Option<Page> {
+        PAGES.into_iter().find(|page| page.slug == slug)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -549,6 +1130,31 @@ mod tests {
         assert_eq!(Loop::from_name("velocity"), Some(Loop::Velocity));
         assert_eq!(Loop::from_name("speed"), None);
         assert_eq!(axis_index(2, Loop::Position.config_index()), Some(0x4261));
+    }
+
+    #[test]
+    fn every_commissioning_object_is_in_the_umc_edses() {
+        for eds in [
+            crate::profiles::builtin::UMC1BDS32,
+            crate::profiles::builtin::UMC1BD90,
+        ] {
+            let dictionary = crate::canopen::eds::Eds::parse(eds, "x")
+                .unwrap()
+                .dictionary;
+            for page in commissioning::PAGES {
+                for object in page.objects {
+                    // The UMC1BD90 has three bridges and one CPU.
+                    let present = dictionary.sub(object.index, object.sub).is_some();
+                    assert!(
+                        present,
+                        "{} 0x{:04X}.{}",
+                        page.slug, object.index, object.sub
+                    );
+                }
+            }
+        }
+        assert_eq!(commissioning::page("motor").unwrap().title, "Motor");
+        assert!(commissioning::page("nothing").is_none());
     }
 
     #[test]
