@@ -31,7 +31,8 @@ const PARAMS = [
 let loop = null;
 const runs = [];
 
-const toQ = (v) => Math.round(v * 65536);
+// Q15.16 saturates at the INTEGER32 range (Min and Max default to its ends).
+const toQ = (v) => Math.max(-2147483648, Math.min(2147483647, Math.round(v * 65536)));
 const fromQ = (raw) => raw / 65536;
 const fmt = (v) => (Math.abs(v) >= 1000 ? v.toFixed(1) : +v.toPrecision(5));
 
