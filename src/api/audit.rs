@@ -308,6 +308,7 @@ fn node_operation(
                 "fault-reset" => "fault reset",
                 "halt" => "halt",
                 "move" => "move",
+                "step-test" => "step test",
                 "lease" => "renew motion lease",
                 _ => "unknown request",
             };

@@ -82,6 +82,7 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", OPERATOR),
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/halt", OPERATOR),
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/move", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/step-test", OPERATOR),
     // Renewing the motion lease of a move the operator started.
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/lease", OPERATOR),
     // A safety function: whoever watches a machine may stop it, as anyone

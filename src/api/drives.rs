@@ -57,6 +57,7 @@ use crate::gateway::drive::{
 use crate::gateway::leases::InFlight;
 use crate::gateway::motion_lease::AxisKey;
 use crate::gateway::safe_stop::{AxisStopFailed, StopAttempt, StopReport};
+use crate::gateway::step_test::{self, StepTestRequest, StepTestResult};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -66,6 +67,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(fault_reset))
         .routes(routes!(halt))
         .routes(routes!(run_move))
+        .routes(routes!(step_test))
         .routes(routes!(stop_all))
 }
 
@@ -593,6 +595,63 @@ async fn run_move(
         lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),
         attempts: None,
     }))
+}
+
+/// Step test of a UMC axis's control loop.
+///
+/// Holds the loop's target at `from` for `hold_ms`, steps it to `to` and
+/// holds it for `hold_ms` again while the actual value is read as fast as
+/// the node answers; answers the response and its metrics. The torque loop
+/// runs in TQ (0x6071/0x6077), the velocity loop in VL (0x6042/0x6044), the
+/// position loop in PP with change immediately (0x607A/0x6064), each
+/// through its mode's ramp. The axis holds a motion lease while the test
+/// runs and is halted at the end, and on any failure.
+#[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/step-test", tag = "drives",
+    params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
+    request_body = StepTestRequest,
+    responses(
+        (status = 200, description = "The response and its metrics; the axis is halted", body = StepTestResult),
+        (status = 400, description = "`invalid_request`, `invalid_value` (from = to, hold_ms outside 20 to 10,000, settle_band_pct outside 0 to 50), `value_out_of_range`: before the bus", body = ErrorBody),
+        (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
+        (status = 409, description = "`drive_not_enabled`: the axis is not in operation_enabled (or left it during the test); `drive_fault`; `wrong_nmt_state`, `node_offline`; `lease_conflict`", body = ErrorBody),
+        (status = 422, description = "`mode_not_supported`: the drive is not UMC-class (no control loop objects), or lacks the loop's mode; `sdo_abort`", body = ErrorBody),
+        (status = 502, description = "`sdo_protocol_error`", body = ErrorBody),
+        (status = 503, description = "`bus_down`", body = ErrorBody),
+        (status = 504, description = "`state_change_timeout`, `sdo_timeout`", body = ErrorBody),
+    ))]
+async fn step_test(
+    State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
+    note: Option<Extension<AuditNote>>,
+    headers: HeaderMap,
+    ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
+    ApiJson(request): ApiJson<StepTestRequest>,
+) -> Result<ApiJson<StepTestResult>, AppError> {
+    let drive = drive(&state, &bus, &id, &axis)?;
+    request.validate()?;
+    let axis_key = key(&bus, &drive);
+    let lease_header = presented(&headers);
+    take_over_if_asked(
+        &state,
+        &headers,
+        &axis_key,
+        identity.as_ref(),
+        note.as_ref(),
+    )?;
+    let lease = state.gateway.leases.grant(
+        &state.gateway,
+        axis_key.clone(),
+        lease_header,
+        &holder(identity.as_ref()),
+        "step_test",
+    )?;
+    state.gateway.enabled_axes.insert(&bus, &drive);
+    // The test runs in a task of its own (a client that hangs up does not
+    // cut it, and its stop goes out); the request keeps the lease alive.
+    let task = tokio::spawn(async move { step_test::run(&drive, &request).await });
+    let result = InFlight::new(&state.gateway.leases, &lease).run(task).await;
+    state.gateway.leases.release(&axis_key);
+    Ok(ApiJson(result.map_err(task_failed)??))
 }
 
 /// Quick stop of every enabled axis on every bus.

@@ -253,7 +253,9 @@ impl From<DriveError> for GatewayError {
                 message: error.to_string(),
                 state,
             },
-            DriveError::ModeNotSupported { .. } => Self::ModeNotSupported(error.to_string()),
+            DriveError::ModeNotSupported { .. } | DriveError::NotTunable(_) => {
+                Self::ModeNotSupported(error.to_string())
+            }
             DriveError::NotEnabled { .. } | DriveError::Interrupted { .. } => {
                 Self::DriveNotEnabled {
                     message: error.to_string(),

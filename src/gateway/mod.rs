@@ -30,6 +30,8 @@
 //!   with a latency histogram (for `/metrics`).
 //! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
 //!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
+//! - [`step_test`]: the step test of a UMC axis's control loop and its
+//!   metrics (rise time, overshoot, settling, steady-state error).
 //! - [`frames`]: the recent frames of a bus, in a bounded ring.
 //! - [`eds_files`]: EDS files uploaded and deleted, and assigned to nodes
 //!   by hand, as operations of the [`Gateway`].
@@ -84,6 +86,7 @@ pub mod registry;
 pub mod safe_stop;
 pub mod sdo;
 pub mod service;
+pub mod step_test;
 pub mod sync;
 pub mod telemetry;
 pub mod uioled;

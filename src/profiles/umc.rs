@@ -74,6 +74,19 @@ pub fn from_q15_16(raw: i32) -> f64 {
     f64::from(raw) / Q15_16_ONE
 }
 
+/// A Q15.16 value as it travels in an SDO or a PDO: four bytes, little
+/// endian (CiA 301 INTEGER32).
+pub fn q15_16_to_le_bytes(value: f64) -> [u8; 4] {
+    to_q15_16(value).to_le_bytes()
+}
+
+/// The number four little-endian bytes of Q15.16 hold; `None` unless
+/// there are exactly four.
+pub fn q15_16_from_le_bytes(bytes: &[u8]) -> Option<f64> {
+    let raw: [u8; 4] = bytes.try_into().ok()?;
+    Some(from_q15_16(i32::from_le_bytes(raw)))
+}
+
 /// The interpolation cycle time of 0x60C2 (eq. 2.5: `units * 10^index`
 /// seconds) in milliseconds; `None` for a zero period (no interpolation).
 pub fn ip_period_ms(time_units: u8, time_index: i8) -> Option<f64> {
@@ -137,6 +150,12 @@ pub mod axis {
     pub const VELOCITY_PID_STATUS: u16 = 0x4040;
     /// 0x4060 a1_Position_PID_status, as 0x4020.
     pub const POSITION_PID_STATUS: u16 = 0x4060;
+    /// 0x4021 a1_Torque_PID_config (§3.5.3), see [`super::pid`].
+    pub const TORQUE_PID_CONFIG: u16 = 0x4021;
+    /// 0x4041 a1_Velocity_PID_config, as 0x4021.
+    pub const VELOCITY_PID_CONFIG: u16 = 0x4041;
+    /// 0x4061 a1_Position_PID_config, as 0x4021.
+    pub const POSITION_PID_CONFIG: u16 = 0x4061;
     /// 0x4022 a1_Torque_sensor_status: 1 Raw_data, 2 Flags, 3 Value
     /// (Q15.16).
     pub const TORQUE_SENSOR_STATUS: u16 = 0x4022;
@@ -173,6 +192,156 @@ pub mod axis {
         pub const MOTOR: u16 = 1 << 1;
         /// b7 PosC: error from the position controller.
         pub const POSITION_CONTROLLER: u16 = 1 << 7;
+    }
+}
+
+/// The control loops of an axis (§3.5): three PIDs in cascade, position
+/// into velocity into torque (current), each with a status record (§3.5.2:
+/// 1 Input, 2 Error, 3 Integrator, 4 Output) and a configuration record
+/// (§3.5.3), every number in Q15.16.
+///
+/// The manual leaves the loops' units to the firmware; candeck reads them
+/// as the status objects report them: the position loop takes revolutions
+/// and gives rpm, the velocity loop takes rpm and gives amperes, the torque
+/// loop takes amperes and gives volts across the winding. I is per second
+/// of integrated error, D per unit of error change per second.
+pub mod pid {
+    use super::axis;
+    use super::{from_q15_16, to_q15_16};
+
+    /// 0x4021.8 PID_flags bit 0 ANTI_REVERSE (Table 1.15): "prevent output
+    /// with sign that differ with target".
+    pub const ANTI_REVERSE: u16 = 0x0001;
+
+    /// Sub-indices of a PID configuration record (§3.5.3).
+    pub const P: u8 = 1;
+    pub const I: u8 = 2;
+    pub const D: u8 = 3;
+    pub const MIN: u8 = 4;
+    pub const MAX: u8 = 5;
+    pub const THRESHOLD: u8 = 6;
+    pub const FREQUENCY_DIVIDER: u8 = 7;
+    pub const FLAGS: u8 = 8;
+    /// Sub-indices of a PID status record (§3.5.2).
+    pub const INPUT: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const INTEGRATOR: u8 = 3;
+    pub const OUTPUT: u8 = 4;
+
+    /// One of an axis's three control loops.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+    pub enum Loop {
+        /// 0x4020/0x4021: current, A in, V out.
+        Torque,
+        /// 0x4040/0x4041: rpm in, A out.
+        Velocity,
+        /// 0x4060/0x4061: revolutions in, rpm out.
+        Position,
+    }
+
+    impl Loop {
+        pub const ALL: [Loop; 3] = [Loop::Torque, Loop::Velocity, Loop::Position];
+
+        /// Its name in the API: `torque`, `velocity`, `position`.
+        pub fn name(self) -> &'static str {
+            match self {
+                Loop::Torque => "torque",
+                Loop::Velocity => "velocity",
+                Loop::Position => "position",
+            }
+        }
+
+        pub fn from_name(name: &str) -> Option<Loop> {
+            Loop::ALL.into_iter().find(|l| l.name() == name)
+        }
+
+        /// Axis 1's status record.
+        pub fn status_index(self) -> u16 {
+            match self {
+                Loop::Torque => axis::TORQUE_PID_STATUS,
+                Loop::Velocity => axis::VELOCITY_PID_STATUS,
+                Loop::Position => axis::POSITION_PID_STATUS,
+            }
+        }
+
+        /// Axis 1's configuration record.
+        pub fn config_index(self) -> u16 {
+            match self {
+                Loop::Torque => axis::TORQUE_PID_CONFIG,
+                Loop::Velocity => axis::VELOCITY_PID_CONFIG,
+                Loop::Position => axis::POSITION_PID_CONFIG,
+            }
+        }
+
+        /// The unit of the loop's input and error.
+        pub fn input_unit(self) -> &'static str {
+            match self {
+                Loop::Torque => "A",
+                Loop::Velocity => "rpm",
+                Loop::Position => "rev",
+            }
+        }
+
+        /// The unit of the loop's output, integrator, Min and Max.
+        pub fn output_unit(self) -> &'static str {
+            match self {
+                Loop::Torque => "V",
+                Loop::Velocity => "A",
+                Loop::Position => "rpm",
+            }
+        }
+    }
+
+    /// A PID configuration record in human numbers.
+    #[derive(Debug, Clone, Copy, PartialEq, Default)]
+    pub struct PidConfig {
+        pub p: f64,
+        pub i: f64,
+        pub d: f64,
+        pub min: f64,
+        pub max: f64,
+        /// Errors within ±threshold count as none (a dead band).
+        pub threshold: f64,
+        /// The loop runs every this many board cycles (0 counts as 1).
+        pub frequency_divider: u16,
+        pub flags: u16,
+    }
+
+    impl PidConfig {
+        /// From the record's raw values, subs 1 to 8 in order (Q15.16 for
+        /// 1–6, UINT16 for 7 and 8).
+        pub fn from_raw(raw: [i64; 8]) -> PidConfig {
+            let q = |value: i64| from_q15_16(value as i32);
+            PidConfig {
+                p: q(raw[0]),
+                i: q(raw[1]),
+                d: q(raw[2]),
+                min: q(raw[3]),
+                max: q(raw[4]),
+                threshold: q(raw[5]),
+                frequency_divider: raw[6] as u16,
+                flags: raw[7] as u16,
+            }
+        }
+
+        /// The raw values of subs 1 to 8.
+        pub fn to_raw(&self) -> [i64; 8] {
+            let q = |value: f64| i64::from(to_q15_16(value));
+            [
+                q(self.p),
+                q(self.i),
+                q(self.d),
+                q(self.min),
+                q(self.max),
+                q(self.threshold),
+                i64::from(self.frequency_divider),
+                i64::from(self.flags),
+            ]
+        }
+
+        pub fn anti_reverse(&self) -> bool {
+            self.flags & ANTI_REVERSE != 0
+        }
     }
 }
 
@@ -304,9 +473,595 @@ pub mod units {
         velocity * 1000.0 * 60.0 / INCREMENTS_PER_REV
     }
 
+    /// A velocity in rpm as increments/ms.
+    pub fn increments_per_ms_from_rpm(rpm: f64) -> f64 {
+        rpm * INCREMENTS_PER_REV / (1000.0 * 60.0)
+    }
+
     /// A velocity in increments/ms as rad/s.
     pub fn rad_per_s_from_increments_per_ms(velocity: f64) -> f64 {
         velocity * 1000.0 * std::f64::consts::TAU / INCREMENTS_PER_REV
+    }
+}
+
+/// What the commissioning pages of a UMC show (UMC manual chapter 1 §2
+/// board, §3.2 motor, §3.3 brake, §3.4 sensors): each object with its
+/// manual name, unit, scale and meaning, and whether a master may write it.
+/// Axis 1's indices; [`axis_index`] moves the axis objects.
+pub mod commissioning {
+    /// How a raw value is shown.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum Kind {
+        /// An integer times `scale` (0.01 A per unit: 0.01).
+        Scaled(f64),
+        /// Q15.16.
+        Q15_16,
+        /// A code or a bit field, shown in hexadecimal.
+        Code,
+    }
+
+    /// One object of a page.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Object {
+        pub index: u16,
+        pub sub: u8,
+        pub name: &'static str,
+        pub kind: Kind,
+        pub unit: &'static str,
+        pub writable: bool,
+        pub meaning: &'static str,
+    }
+
+    /// One commissioning page.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Page {
+        /// Its path segment: `board`, `motor`, `brake`, `sensors`.
+        pub slug: &'static str,
+        pub title: &'static str,
+        /// The manual's sections.
+        pub sections: &'static str,
+        pub objects: &'static [Object],
+    }
+
+    const fn o(
+        index: u16,
+        sub: u8,
+        name: &'static str,
+        kind: Kind,
+        unit: &'static str,
+        writable: bool,
+        meaning: &'static str,
+    ) -> Object {
+        Object {
+            index,
+            sub,
+            name,
+            kind,
+            unit,
+            writable,
+            meaning,
+        }
+    }
+
+    use Kind::{Code, Q15_16, Scaled};
+    const ONE: Kind = Scaled(1.0);
+    const CENTI: Kind = Scaled(0.01);
+    const DECI: Kind = Scaled(0.1);
+
+    pub const BOARD: Page = Page {
+        slug: "board",
+        title: "Board status",
+        sections: "§2.1–2.5",
+        objects: &[
+            o(
+                0x2000,
+                1,
+                "Board_voltage_input",
+                CENTI,
+                "V",
+                false,
+                "Input power voltage, used for under/over-voltage detection",
+            ),
+            o(
+                0x2041,
+                1,
+                "Undervoltage",
+                CENTI,
+                "V",
+                true,
+                "Below it, an under-voltage fault",
+            ),
+            o(
+                0x2041,
+                2,
+                "Overvoltage",
+                CENTI,
+                "V",
+                true,
+                "Above it, an over-voltage fault",
+            ),
+            o(
+                0x2020,
+                1,
+                "CPU1_temperature",
+                DECI,
+                "°C",
+                false,
+                "CPU temperature",
+            ),
+            o(
+                0x2021,
+                1,
+                "CPU1_life_cycle",
+                ONE,
+                "cycles",
+                false,
+                "Counts the CPU's cycles (wraps at 65536)",
+            ),
+            o(
+                0x2801,
+                1,
+                "Temperature_A",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge A temperature",
+            ),
+            o(
+                0x2801,
+                2,
+                "Temperature_B",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge B temperature",
+            ),
+            o(
+                0x2801,
+                3,
+                "Temperature_C",
+                DECI,
+                "°C",
+                false,
+                "Driver bridge C temperature",
+            ),
+            o(
+                0x2810,
+                1,
+                "Protection_schmitt_triggers_low",
+                DECI,
+                "°C",
+                true,
+                "Below it an over-temperature ends",
+            ),
+            o(
+                0x2810,
+                2,
+                "Protection_schmitt_triggers_high",
+                DECI,
+                "°C",
+                true,
+                "Above it a bridge is over-temperature",
+            ),
+            o(
+                0x2802,
+                1,
+                "Current_A",
+                CENTI,
+                "A",
+                false,
+                "Bridge A current",
+            ),
+            o(
+                0x2802,
+                2,
+                "Current_B",
+                CENTI,
+                "A",
+                false,
+                "Bridge B current",
+            ),
+            o(
+                0x2804,
+                1,
+                "PWM_A",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Bridge A duty cycle (−1: floating)",
+            ),
+            o(
+                0x2804,
+                2,
+                "PWM_B",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Bridge B duty cycle (−1: floating)",
+            ),
+            o(
+                0x2805,
+                1,
+                "Back_EMF_A",
+                DECI,
+                "V",
+                false,
+                "Bridge A back-EMF",
+            ),
+            o(
+                0x2805,
+                2,
+                "Back_EMF_B",
+                DECI,
+                "V",
+                false,
+                "Bridge B back-EMF",
+            ),
+        ],
+    };
+
+    pub const MOTOR: Page = Page {
+        slug: "motor",
+        title: "Motor",
+        sections: "§3.2",
+        objects: &[
+            o(
+                0x4007,
+                1,
+                "Type",
+                Code,
+                "",
+                true,
+                "0x0000 no motor, 0x0101 DC, 0x0201 BLDC trapezoidal with hall, 0x0202 BLDC sinusoidal with hall",
+            ),
+            o(
+                0x4007,
+                2,
+                "Peak_current",
+                CENTI,
+                "A",
+                true,
+                "Hardware comparator: above it every bridge opens",
+            ),
+            o(
+                0x4007,
+                3,
+                "Burst_current",
+                CENTI,
+                "A",
+                true,
+                "Software limit: above it for Burst_duration, an over-current fault",
+            ),
+            o(
+                0x4007,
+                4,
+                "Burst_duration",
+                ONE,
+                "ms",
+                true,
+                "How long the burst current may last",
+            ),
+            o(
+                0x4007,
+                5,
+                "Sustained_current",
+                CENTI,
+                "A",
+                true,
+                "Continuous phase current (the rated current unless 0x6075 says)",
+            ),
+            o(
+                0x4007,
+                6,
+                "Current_constant",
+                Q15_16,
+                "N·m/A",
+                true,
+                "Torque reported per ampere",
+            ),
+            o(
+                0x4007,
+                7,
+                "Max_velocity",
+                ONE,
+                "rpm",
+                true,
+                "Above it, an over-speed fault (0: unwatched)",
+            ),
+            o(
+                0x4007,
+                8,
+                "Velocity_constant",
+                Q15_16,
+                "rpm/V",
+                true,
+                "Velocity from back-EMF, for specific motors",
+            ),
+            o(
+                0x4007,
+                9,
+                "Flags",
+                Code,
+                "",
+                true,
+                "b0 Rd: reverse motor direction",
+            ),
+            o(
+                0x4009,
+                1,
+                "Pole_pair",
+                ONE,
+                "",
+                true,
+                "Pole pairs, BLDC motors only",
+            ),
+            o(
+                0x4006,
+                1,
+                "Command",
+                Scaled(100.0 / 32768.0),
+                "%",
+                false,
+                "Duty cycle sent to the power stage",
+            ),
+            o(
+                0x4006,
+                2,
+                "Current",
+                CENTI,
+                "A",
+                false,
+                "Average phase current",
+            ),
+            o(
+                0x4006,
+                3,
+                "Torque",
+                Q15_16,
+                "N·m",
+                false,
+                "Current times the current constant",
+            ),
+            o(
+                0x4006,
+                4,
+                "Velocity",
+                Q15_16,
+                "rpm",
+                false,
+                "Motor velocity",
+            ),
+            o(
+                0x4006,
+                5,
+                "Position",
+                Q15_16,
+                "rev",
+                false,
+                "Motor position",
+            ),
+            o(
+                0x4006,
+                6,
+                "Error",
+                Code,
+                "",
+                false,
+                "b0 OC over-current, b1 OS over-speed, b2 DOT driver over-temperature, b3 MOT motor over-temperature, b7 Cfg, b8 HI hall",
+            ),
+            o(
+                0x4006,
+                7,
+                "Temperature",
+                DECI,
+                "°C",
+                false,
+                "Motor temperature",
+            ),
+        ],
+    };
+
+    pub const BRAKE: Page = Page {
+        slug: "brake",
+        title: "Brake",
+        sections: "§3.3",
+        objects: &[
+            o(
+                0x4082,
+                1,
+                "Brake_mode",
+                Code,
+                "",
+                true,
+                "0 disabled; 2/3 open drain, 4/5 open source, 6/7 push-pull (even: normally closed, odd: normally open)",
+            ),
+            o(
+                0x4082,
+                2,
+                "Brake_excitation_time_ms",
+                ONE,
+                "ms",
+                true,
+                "Excitation duration (0: none)",
+            ),
+            o(
+                0x4082,
+                3,
+                "Brake_excitation_duty",
+                Scaled(100.0 / 65535.0),
+                "%",
+                true,
+                "Duty cycle during excitation",
+            ),
+            o(
+                0x4082,
+                4,
+                "Brake_activated_duty",
+                Scaled(100.0 / 65535.0),
+                "%",
+                true,
+                "Duty cycle after excitation",
+            ),
+        ],
+    };
+
+    pub const SENSORS: Page = Page {
+        slug: "sensors",
+        title: "Sensors",
+        sections: "§3.4",
+        objects: &[
+            o(
+                0x4023,
+                1,
+                "Torque Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1100 TORQUE_FROM_MOTOR, 0x3101 QEI_CH1, 0x4001 ANALOG_CH1, …",
+            ),
+            o(
+                0x4023,
+                2,
+                "Torque Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4022,
+                1,
+                "Torque Raw_data",
+                Q15_16,
+                "A",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4022,
+                3,
+                "Torque Value",
+                Q15_16,
+                "A",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4043,
+                1,
+                "Velocity Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1200 VELOCITY_FROM_MOTOR, 0x2300 VELOCITY_FROM_POSITION, …",
+            ),
+            o(
+                0x4043,
+                2,
+                "Velocity Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4042,
+                1,
+                "Velocity Raw_data",
+                Q15_16,
+                "rpm",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4042,
+                3,
+                "Velocity Value",
+                Q15_16,
+                "rpm",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4045,
+                2,
+                "Velocity Scale",
+                Q15_16,
+                "",
+                true,
+                "Conditioning: (raw + pre-offset) × scale + post-offset",
+            ),
+            o(
+                0x4063,
+                1,
+                "Position Sensor_select",
+                Code,
+                "",
+                true,
+                "0x1300 POSITION_FROM_MOTOR, 0x2200 POSITION_FROM_VELOCITY, 0x3101 QEI_CH1, 0x3201 SSI_CH1, …",
+            ),
+            o(
+                0x4063,
+                2,
+                "Position Frequency_divider",
+                ONE,
+                "",
+                true,
+                "The sensor is read every n cycles",
+            ),
+            o(
+                0x4062,
+                1,
+                "Position Raw_data",
+                Q15_16,
+                "rev",
+                false,
+                "Raw value from the sensor",
+            ),
+            o(
+                0x4062,
+                3,
+                "Position Value",
+                Q15_16,
+                "rev",
+                false,
+                "After filtering and conditioning",
+            ),
+            o(
+                0x4064,
+                1,
+                "Position Filter_select",
+                Code,
+                "",
+                true,
+                "0x0000 no filter, 0x2000 averaging of N samples",
+            ),
+            o(
+                0x4065,
+                2,
+                "Position Scale",
+                Q15_16,
+                "",
+                true,
+                "Conditioning: (raw + pre-offset) × scale + post-offset",
+            ),
+            o(
+                0x4065,
+                8,
+                "Position Threshold_mode",
+                Code,
+                "",
+                true,
+                "0 none, 1 min-max, 2 modulo, 3 last valid value",
+            ),
+        ],
+    };
+
+    pub const PAGES: [Page; 4] = [BOARD, MOTOR, BRAKE, SENSORS];
+
+    /// The page of a path segment.
+    pub fn page(slug: &str) -> Option<Page> {
+        PAGES.into_iter().find(|page| page.slug == slug)
     }
 }
 
@@ -337,6 +1092,69 @@ mod tests {
         assert_eq!(to_q15_16(-0.5), -32768);
         assert_eq!(from_q15_16(98304), 1.5);
         assert_eq!(to_q15_16(40000.0), i32::MAX);
+    }
+
+    #[test]
+    fn q15_16_travels_as_four_little_endian_bytes() {
+        assert_eq!(q15_16_to_le_bytes(1.0), [0x00, 0x00, 0x01, 0x00]);
+        assert_eq!(q15_16_to_le_bytes(-1.0), [0x00, 0x00, 0xFF, 0xFF]);
+        assert_eq!(q15_16_to_le_bytes(3000.0), [0x00, 0x00, 0xB8, 0x0B]);
+        assert_eq!(q15_16_to_le_bytes(0.015), [0xD7, 0x03, 0x00, 0x00]);
+        assert_eq!(q15_16_to_le_bytes(-0.5), [0x00, 0x80, 0xFF, 0xFF]);
+        assert_eq!(q15_16_from_le_bytes(&[0x00, 0x80, 0x01, 0x00]), Some(1.5));
+        assert_eq!(
+            q15_16_from_le_bytes(&[0xFF, 0xFF, 0xFF, 0x7F]),
+            Some(32767.0 + 65535.0 / 65536.0)
+        );
+        assert_eq!(
+            q15_16_from_le_bytes(&[0x00, 0x00, 0x00, 0x80]),
+            Some(-32768.0)
+        );
+        // Truncated and over-long values are not Q15.16.
+        assert_eq!(q15_16_from_le_bytes(&[0x00, 0x00, 0x01]), None);
+        assert_eq!(q15_16_from_le_bytes(&[0, 0, 1, 0, 0]), None);
+        assert_eq!(q15_16_from_le_bytes(&[]), None);
+    }
+
+    #[test]
+    fn a_pid_record_round_trips_through_its_raw_values() {
+        use pid::{Loop, PidConfig};
+        let raw = [983, 13_107, 0, -2_097_152, 2_097_152, 655, 2, 1];
+        let config = PidConfig::from_raw(raw);
+        assert_eq!(config.p, 983.0 / 65536.0);
+        assert_eq!(config.min, -32.0);
+        assert_eq!(config.max, 32.0);
+        assert_eq!(config.frequency_divider, 2);
+        assert!(config.anti_reverse());
+        assert_eq!(config.to_raw(), raw);
+        assert_eq!(Loop::from_name("velocity"), Some(Loop::Velocity));
+        assert_eq!(Loop::from_name("speed"), None);
+        assert_eq!(axis_index(2, Loop::Position.config_index()), Some(0x4261));
+    }
+
+    #[test]
+    fn every_commissioning_object_is_in_the_umc_edses() {
+        for eds in [
+            crate::profiles::builtin::UMC1BDS32,
+            crate::profiles::builtin::UMC1BD90,
+        ] {
+            let dictionary = crate::canopen::eds::Eds::parse(eds, "x")
+                .unwrap()
+                .dictionary;
+            for page in commissioning::PAGES {
+                for object in page.objects {
+                    // The UMC1BD90 has three bridges and one CPU.
+                    let present = dictionary.sub(object.index, object.sub).is_some();
+                    assert!(
+                        present,
+                        "{} 0x{:04X}.{}",
+                        page.slug, object.index, object.sub
+                    );
+                }
+            }
+        }
+        assert_eq!(commissioning::page("motor").unwrap().title, "Motor");
+        assert!(commissioning::page("nothing").is_none());
     }
 
     #[test]

@@ -24,7 +24,11 @@
 //!   strip), `/buses/{bus}/trace` (a bus's live frames, decoded, and its
 //!   recording), `/events` (the persisted history), `/eds` (the device
 //!   descriptions: the EDS catalog, uploads) and `/nodes/{bus}/{node}/io`
-//!   (a CiA 401 module's inputs and outputs), and
+//!   (a CiA 401 module's inputs and outputs),
+//!   `/nodes/{bus}/{node}/axes/{axis}/tune` (a UMC axis's control loops and
+//!   step test), `/nodes/{bus}/{node}/axes/{axis}/commissioning/{page}`
+//!   (a UMC's board, motor, brake and sensor objects, listed in
+//!   [`crate::profiles::umc::commissioning`]), and
 //!   `/static/{version}/{*path}`; none is under
 //!   `/api/v1` nor in the OpenAPI document. A page is rendered for any bus
 //!   and node in its path: it asks the API, and shows its 404 in words
@@ -53,6 +57,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 
 use crate::api::AppError;
+use crate::profiles::umc;
 
 /// One embedded static file.
 #[derive(Debug)]
@@ -90,6 +95,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/node.css", CSS),
     asset!("css/pdos.css", CSS),
     asset!("css/trace.css", CSS),
+    asset!("css/tune.css", CSS),
     asset!("js/api.js", JS),
     asset!("js/auth.js", JS),
     asset!("js/canopen.js", JS),
@@ -109,6 +115,8 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/pdos.js", JS),
     asset!("js/stream.js", JS),
     asset!("js/trace.js", JS),
+    asset!("js/commission.js", JS),
+    asset!("js/tune.js", JS),
     asset!("icon.svg", SVG),
 ];
 
@@ -157,6 +165,11 @@ pub fn router() -> Router {
         .route("/buses/{bus}/trace", get(trace))
         .route("/nodes/{bus}/{node}/axes/{axis}", get(drive))
         .route("/nodes/{bus}/{node}/pdos", get(pdos))
+        .route("/nodes/{bus}/{node}/axes/{axis}/tune", get(tune))
+        .route(
+            "/nodes/{bus}/{node}/axes/{axis}/commissioning/{page}",
+            get(commission),
+        )
         .route("/static/{version}/{*path}", get(static_file))
 }
 
@@ -261,6 +274,76 @@ struct TracePage {
     bus: String,
 }
 
+/// The links between a UMC axis's tuning and commissioning pages.
+struct UmcNav {
+    /// `/nodes/{bus}/{node}/axes/{axis}`, path-encoded.
+    axis_href: String,
+    /// `(slug, title)` of each commissioning page.
+    pages: Vec<(&'static str, &'static str)>,
+}
+
+impl UmcNav {
+    fn new(bus: &str, node: u8, axis: u8) -> Self {
+        Self {
+            axis_href: format!("/nodes/{}/{node}/axes/{axis}", path_segment(bus)),
+            pages: umc::commissioning::PAGES
+                .iter()
+                .map(|page| (page.slug, page.title))
+                .collect(),
+        }
+    }
+}
+
+/// One loop of the tuning page: its objects (the axis's) and units.
+struct LoopView {
+    name: &'static str,
+    config: String,
+    status: String,
+    input_unit: &'static str,
+    output_unit: &'static str,
+}
+
+/// The tuning page of a UMC axis: the PID configuration of each loop
+/// (`src/profiles/umc.rs`, `pid`), its live status, the step test.
+#[derive(Template)]
+#[template(path = "tune.html")]
+struct TunePage {
+    layout: Layout,
+    nav: UmcNav,
+    bus: String,
+    node: u8,
+    axis: u8,
+    loops: Vec<LoopView>,
+}
+
+/// One object of a commissioning page, for the template.
+struct ObjectView {
+    index: String,
+    sub: u8,
+    name: &'static str,
+    /// `q15`, `code`, or the scale of an integer.
+    kind: String,
+    unit: &'static str,
+    writable: bool,
+    meaning: &'static str,
+}
+
+/// A commissioning page of a UMC (board, motor, brake, sensors): the
+/// objects the profile lists, the axis's.
+#[derive(Template)]
+#[template(path = "commission.html")]
+struct CommissionPage {
+    layout: Layout,
+    nav: UmcNav,
+    bus: String,
+    node: u8,
+    axis: u8,
+    slug: &'static str,
+    title: &'static str,
+    sections: &'static str,
+    objects: Vec<ObjectView>,
+}
+
 /// A rendered page. It names this build's static URLs, so a browser must
 /// ask again each time (`no-cache`), or it would keep a page that loads
 /// the files of a build no longer running.
@@ -292,6 +375,84 @@ async fn drive(Path((bus, node, axis)): Path<(String, String, String)>) -> Respo
         bus,
         node,
         axis,
+    })
+}
+
+/// The node and axis of a UMC page's path, else no page.
+fn umc_axis(node: &str, axis: &str) -> Option<(u8, u8)> {
+    let axis = axis
+        .parse::<u8>()
+        .ok()
+        .filter(|axis| (1..=umc::MAX_AXES).contains(axis))?;
+    Some((node_id(node)?, axis))
+}
+
+async fn tune(Path((bus, node, axis)): Path<(String, String, String)>) -> Response {
+    let Some((node, axis)) = umc_axis(&node, &axis) else {
+        return AppError::NoRoute(format!("/nodes/{bus}/{node}/axes/{axis}/tune")).into_response();
+    };
+    let at = |index: u16| format!("0x{:04X}", umc::axis_index(axis, index).unwrap_or(index));
+    let loops = umc::pid::Loop::ALL
+        .into_iter()
+        .map(|which| LoopView {
+            name: which.name(),
+            config: at(which.config_index()),
+            status: at(which.status_index()),
+            input_unit: which.input_unit(),
+            output_unit: which.output_unit(),
+        })
+        .collect();
+    page(&TunePage {
+        layout: Layout::new("drive"),
+        nav: UmcNav::new(&bus, node, axis),
+        bus,
+        node,
+        axis,
+        loops,
+    })
+}
+
+async fn commission(
+    Path((bus, node, axis, slug)): Path<(String, String, String, String)>,
+) -> Response {
+    let found = umc_axis(&node, &axis).zip(umc::commissioning::page(&slug));
+    let Some(((node, axis), found)) = found else {
+        return AppError::NoRoute(format!(
+            "/nodes/{bus}/{node}/axes/{axis}/commissioning/{slug}"
+        ))
+        .into_response();
+    };
+    use umc::commissioning::Kind;
+    let objects = found
+        .objects
+        .iter()
+        .map(|object| ObjectView {
+            index: format!(
+                "0x{:04X}",
+                umc::axis_index(axis, object.index).unwrap_or(object.index)
+            ),
+            sub: object.sub,
+            name: object.name,
+            kind: match object.kind {
+                Kind::Q15_16 => "q15".into(),
+                Kind::Code => "code".into(),
+                Kind::Scaled(scale) => scale.to_string(),
+            },
+            unit: object.unit,
+            writable: object.writable,
+            meaning: object.meaning,
+        })
+        .collect();
+    page(&CommissionPage {
+        layout: Layout::new("drive"),
+        nav: UmcNav::new(&bus, node, axis),
+        bus,
+        node,
+        axis,
+        slug: found.slug,
+        title: found.title,
+        sections: found.sections,
+        objects,
     })
 }
 

@@ -513,3 +513,69 @@ async fn every_page_weighs_under_300_kb() {
         assert!(total > 10 * 1024, "{page}: {total} bytes");
     }
 }
+
+#[tokio::test]
+async fn the_tuning_page_lists_the_axis_loops_from_the_profile() {
+    let wanted = ["css/tune.css", "js/tune.js"];
+    let html = page_html(&router(), "/nodes/demo/1/axes/2/tune", &wanted).await;
+    // Axis 2's records, at +0x200 (UMC manual Table 1.5).
+    for (name, config, status) in [
+        ("torque", "0x4221", "0x4220"),
+        ("velocity", "0x4241", "0x4240"),
+        ("position", "0x4261", "0x4260"),
+    ] {
+        assert!(
+            html.contains(&format!(
+                r#"data-loop="{name}" data-config="{config}" data-status="{status}""#
+            )),
+            "{name}: {html}"
+        );
+    }
+    assert!(html.contains(r#"data-input-unit="rpm" data-output-unit="A""#));
+    for id in [
+        "gains",
+        "pid-status",
+        "step-form",
+        "step-chart",
+        "gains-store",
+    ] {
+        assert!(html.contains(&format!("id=\"{id}\"")), "no #{id}");
+    }
+    assert!(html.contains(r#"href="/nodes/demo/1/axes/2/commissioning/motor""#));
+}
+
+#[tokio::test]
+async fn each_commissioning_page_lists_its_objects_with_units() {
+    let app = router();
+    let html = page_html(
+        &app,
+        "/nodes/demo/1/axes/2/commissioning/motor",
+        &["css/tune.css", "js/commission.js"],
+    )
+    .await;
+    // Axis 2's Peak_current, in 0.01 A, writable.
+    assert!(
+        html.contains(r#"data-index="0x4207" data-sub="2" data-kind="0.01" data-writable="true""#),
+        "{html}"
+    );
+    assert!(
+        html.contains(r#"data-index="0x4206" data-sub="3" data-kind="q15" data-writable="false""#)
+    );
+    for (slug, object) in [
+        ("board", r#"data-index="0x2041" data-sub="1""#),
+        ("brake", r#"data-index="0x4082" data-sub="1""#),
+        ("sensors", r#"data-index="0x4063" data-sub="1""#),
+    ] {
+        let uri = format!("/nodes/demo/1/axes/1/commissioning/{slug}");
+        let html = page_html(&app, &uri, &["js/commission.js"]).await;
+        assert!(html.contains(object), "{slug}: {html}");
+    }
+    for uri in [
+        "/nodes/demo/1/axes/1/commissioning/gearbox",
+        "/nodes/demo/1/axes/9/commissioning/motor",
+        "/nodes/demo/0/axes/1/tune",
+    ] {
+        let (status, _, _) = fetch(&app, uri, &[]).await;
+        assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
+    }
+}

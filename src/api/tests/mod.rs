@@ -15,6 +15,7 @@ mod leds;
 mod lss;
 mod pdos;
 mod recording;
+mod step_test;
 mod stops;
 mod stream;
 pub(super) mod support;

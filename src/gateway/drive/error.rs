@@ -57,6 +57,9 @@ pub enum DriveError {
     OutOfRange(String),
     #[error("{0}")]
     Invalid(String),
+    /// A request only a UMC-class drive's control loops can take.
+    #[error("{0}")]
+    NotTunable(String),
 }
 
 pub(super) fn state_name(state: &Option<State>) -> &'static str {

@@ -175,7 +175,7 @@ impl Drive {
     /// first) and is left alone, as a halt's enable-operation bits could
     /// take it out of quick stop active again (transition 16). Best effort:
     /// the move's own error is what the caller reports.
-    pub(super) async fn stop_after_failure(&self) {
+    pub(crate) async fn stop_after_failure(&self) {
         let state = match self.statusword().await {
             Ok(statusword) => statusword.state(),
             // Unknown: assume the worst.

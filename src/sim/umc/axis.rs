@@ -6,10 +6,15 @@
 //! [`super::motor`], and the supervision that turns a condition into a
 //! fault with its EMCY (§1.5).
 //!
-//! The loops: `v* = v_ff + Kp·(p_d − p)`, `a* = a_ff + Kv·(v* − v)`, and
-//! the current that gives `a*` on the known inertia and friction, limited
-//! to the drive's current; the bridge's current loop then holds that
-//! current as far as the supply voltage allows.
+//! The loops ([`super::pid`], configured by 0x4021/0x4041/0x4061): the
+//! position PID turns the position error (revolutions) into a velocity
+//! (rpm) added to the trajectory's velocity; the velocity PID turns the
+//! velocity error (rpm) into a current (A) added to the feed-forward of
+//! the motor's known inertia and friction (not of an unknown load); the
+//! torque PID turns the current error (A) into a voltage across the
+//! winding added to the measured back-EMF, as a duty cycle of the supply.
+//! All three run at the board's 1 ms cycle divided by their frequency
+//! divider.
 
 use crate::canopen::emcy::ErrorBit;
 use crate::profiles::cia402::{
@@ -30,13 +35,12 @@ use super::modes::{
 };
 use super::motor::{Bridge, Motor, MotorModel};
 use super::params::Params;
+use super::pid::Pid;
 use super::publish::{Published, Slot};
 use super::trajectory::{Profile, Sample};
 
-/// Position loop gain, 1/ms.
-const KP: f64 = 0.05;
-/// Velocity loop gain, 1/ms.
-const KV: f64 = 0.2;
+/// The board's control cycle, s.
+const CYCLE_S: f64 = 1e-3;
 /// Below this speed (increments/ms, about 0.05 rpm) an axis
 /// counts as stopped for the end of a stop ramp and for "velocity of axis
 /// is 0" (Table 2.23).
@@ -81,12 +85,18 @@ struct Stop {
 /// What the loops last did, for the PID status objects.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Loops {
-    /// Position loop: demand, error (increments), velocity command.
+    /// Position loop: demand, error (increments), velocity command
+    /// (increments/ms, feed-forward included).
     position: [f64; 3],
-    /// Velocity loop: command, error (increments/ms), current command.
+    /// Velocity loop: command, error (increments/ms), current command
+    /// (A, feed-forward included).
     velocity: [f64; 3],
-    /// Current loop: command, error (A), duty.
+    /// Current loop: command, error (A), voltage (V, back-EMF included).
     current: [f64; 3],
+    /// The PIDs themselves: their integrators.
+    torque_pid: Pid,
+    velocity_pid: Pid,
+    position_pid: Pid,
 }
 
 /// What a controlword or a fault did that the board must hear of.
@@ -378,6 +388,7 @@ impl Axis {
                     self.dty = DutyMode::default();
                     self.following_ms = 0;
                     self.window_ms = 0;
+                    self.loops = Loops::default();
                 }
                 Reaction::DisableOutput => {
                     self.output = false;
@@ -580,13 +591,15 @@ impl Axis {
             }
             Some(Demand::Duty(duty)) => Bridge::Duty(duty),
         };
-        let wanted = match bridge {
-            Bridge::Current(current) => current,
-            _ => 0.0,
+        let bridge = match bridge {
+            Bridge::Current(current) => self.torque_loop(current, supply.voltage),
+            other => {
+                self.loops.current = [0.0, 0.0, self.motor.duty * supply.voltage];
+                other
+            }
         };
         self.motor
             .step(bridge, supply.voltage, self.params.peak_current);
-        self.loops.current = [wanted, wanted - self.motor.current, self.motor.duty];
         match demand {
             Some(Demand::Position(sample)) => self.demand = sample,
             Some(Demand::Velocity { velocity, .. }) => {
@@ -668,19 +681,47 @@ impl Axis {
     }
 
     fn position_loop(&mut self, sample: Sample) -> Bridge {
+        let rev = units::INCREMENTS_PER_REV;
+        let rpm = self.loops.position_pid.step(
+            &self.params.position_pid,
+            sample.position / rev,
+            self.motor.position / rev,
+            CYCLE_S,
+        );
+        let command = sample.velocity + units::increments_per_ms_from_rpm(rpm);
         let error = sample.position - self.motor.position;
-        let command = sample.velocity + KP * error;
         self.loops.position = [sample.position, error, command];
         self.velocity_loop(command, sample.acceleration)
     }
 
     fn velocity_loop(&mut self, command: f64, acceleration: f64) -> Bridge {
+        let rpm = units::rpm_from_increments_per_ms;
+        let amperes = self.loops.velocity_pid.step(
+            &self.params.velocity_pid,
+            rpm(command),
+            rpm(self.motor.velocity),
+            CYCLE_S,
+        );
         let error = command - self.motor.velocity;
-        let wanted = acceleration + KV * error;
         let limit = self.params.current_limit;
-        let current = self.motor.current_for(wanted, command).clamp(-limit, limit);
+        let current =
+            (self.motor.current_for(acceleration, command) + amperes).clamp(-limit, limit);
         self.loops.velocity = [command, error, current];
         Bridge::Current(current)
+    }
+
+    /// The torque loop: the bridge's duty cycle that drives `wanted`
+    /// amperes through the winding.
+    fn torque_loop(&mut self, wanted: f64, supply: f64) -> Bridge {
+        let volts = self.loops.torque_pid.step(
+            &self.params.torque_pid,
+            wanted,
+            self.motor.current,
+            CYCLE_S,
+        );
+        let voltage = (self.motor.back_emf() + volts).clamp(-supply, supply);
+        self.loops.current = [wanted, wanted - self.motor.current, voltage];
+        Bridge::Duty(if supply > 0.0 { voltage / supply } else { 0.0 })
     }
 
     /// The windows and timers of the statusword and the supervision.
@@ -957,23 +998,37 @@ impl Axis {
         let rpm =
             |velocity: f64| i64::from(umc::to_q15_16(units::rpm_from_increments_per_ms(velocity)));
         let amps = |current: f64| i64::from(umc::to_q15_16(current));
-        let [p_in, p_err, p_out] = self.loops.position;
+        let q = |value: f64| i64::from(umc::to_q15_16(value));
+        let loops = &self.loops;
+        let [p_in, p_err, p_out] = loops.position;
         out.set(io, Slot::PositionPidInput, rev(p_in));
         out.set(io, Slot::PositionPidError, rev(p_err));
-        out.set(io, Slot::PositionPidIntegrator, 0);
+        out.set(
+            io,
+            Slot::PositionPidIntegrator,
+            q(loops.position_pid.integrator),
+        );
         out.set(io, Slot::PositionPidOutput, rpm(p_out));
         out.set(io, Slot::PositionPidTarget, rev(p_in));
-        let [v_in, v_err, v_out] = self.loops.velocity;
+        let [v_in, v_err, v_out] = loops.velocity;
         out.set(io, Slot::VelocityPidInput, rpm(v_in));
         out.set(io, Slot::VelocityPidError, rpm(v_err));
-        out.set(io, Slot::VelocityPidIntegrator, 0);
+        out.set(
+            io,
+            Slot::VelocityPidIntegrator,
+            q(loops.velocity_pid.integrator),
+        );
         out.set(io, Slot::VelocityPidOutput, amps(v_out));
         out.set(io, Slot::VelocityPidTarget, rpm(v_in));
-        let [c_in, c_err, c_out] = self.loops.current;
+        let [c_in, c_err, c_out] = loops.current;
         out.set(io, Slot::TorquePidInput, amps(c_in));
         out.set(io, Slot::TorquePidError, amps(c_err));
-        out.set(io, Slot::TorquePidIntegrator, 0);
-        out.set(io, Slot::TorquePidOutput, i64::from(umc::to_q15_16(c_out)));
+        out.set(
+            io,
+            Slot::TorquePidIntegrator,
+            q(loops.torque_pid.integrator),
+        );
+        out.set(io, Slot::TorquePidOutput, q(c_out));
         out.set(io, Slot::TorquePidTarget, amps(c_in));
         out.set(io, Slot::PositionSensorRaw, rev(motor.position));
         out.set(io, Slot::PositionSensorValue, rev(motor.position));

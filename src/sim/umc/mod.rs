@@ -13,6 +13,7 @@
 //! - [`motor`]: the DC motor, its load and the thermal model.
 //! - [`faults`]: the fault conditions, their EMCY codes and register bits.
 //! - [`params`]: an axis's parameters, read when written.
+//! - [`pid`]: one PID of the cascade (§3.5), as its configuration reads.
 //! - [`publish`]: the status objects, written when they change.
 //!
 //! The board (this module): the supply 0x2000 against 0x2041, the driver
@@ -27,6 +28,7 @@ pub mod ip;
 pub mod modes;
 pub mod motor;
 pub mod params;
+pub mod pid;
 pub mod publish;
 pub mod trajectory;
 

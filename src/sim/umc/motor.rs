@@ -88,6 +88,9 @@ pub struct Motor {
     pub driven: bool,
     /// The load is seized: the shaft cannot turn (a jammed mechanism).
     pub jammed: bool,
+    /// A constant torque the load puts on the shaft against positive
+    /// rotation (a weight on a winch), N·m; the loops do not know it.
+    pub load_torque: f64,
 }
 
 impl Motor {
@@ -100,6 +103,7 @@ impl Motor {
             duty: 0.0,
             driven: false,
             jammed: false,
+            load_torque: 0.0,
         }
     }
 
@@ -121,7 +125,7 @@ impl Motor {
     /// Whether nothing moves and no current flows: a step would change
     /// nothing.
     pub fn at_rest(&self) -> bool {
-        self.velocity == 0.0 && self.current == 0.0 && !self.driven
+        self.velocity == 0.0 && self.current == 0.0 && !self.driven && self.load_torque == 0.0
     }
 
     /// The current (A) that gives the shaft the angular acceleration
@@ -170,7 +174,7 @@ impl Motor {
             return;
         }
         let omega = self.omega();
-        let drive = m.torque_constant * current - m.viscous * omega;
+        let drive = m.torque_constant * current - m.viscous * omega - self.load_torque;
         let next = if omega.abs() <= STICTION_SPEED && drive.abs() <= m.coulomb {
             0.0
         } else {

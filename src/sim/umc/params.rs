@@ -4,6 +4,7 @@
 //! enabled, so that a tick reads none.
 
 use crate::profiles::umc::drive as d;
+use crate::profiles::umc::pid::{Loop, PidConfig};
 use crate::profiles::umc::{self, axis as ax};
 use crate::sim::behaviour::DeviceIo;
 
@@ -70,6 +71,10 @@ pub struct Params {
     pub current_limit: f64,
     /// 0x60C2, ms; `None` for a zero period.
     pub ip_period: Option<f64>,
+    /// 0x4021, 0x4041, 0x4061: the torque, velocity and position loops.
+    pub torque_pid: PidConfig,
+    pub velocity_pid: PidConfig,
+    pub position_pid: PidConfig,
 }
 
 impl Params {
@@ -142,6 +147,9 @@ impl Params {
             ),
             current_limit,
             ip_period,
+            torque_pid: pid_config(io, Loop::Torque, m_offset),
+            velocity_pid: pid_config(io, Loop::Velocity, m_offset),
+            position_pid: pid_config(io, Loop::Position, m_offset),
         }
     }
 
@@ -152,4 +160,14 @@ impl Params {
             _ => position,
         }
     }
+}
+
+/// A loop's configuration record as the dictionary holds it.
+fn pid_config(io: &DeviceIo<'_>, which: Loop, m_offset: u16) -> PidConfig {
+    let index = which.config_index() + m_offset;
+    let mut raw = [0i64; 8];
+    for (sub, value) in (1u8..).zip(raw.iter_mut()) {
+        *value = io.int(index, sub).unwrap_or(0);
+    }
+    PidConfig::from_raw(raw)
 }

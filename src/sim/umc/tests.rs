@@ -969,3 +969,111 @@ fn the_hall_sensors_follow_the_rotor() {
     assert_eq!(rig.get(1, 0x4008, 2), 1);
     assert_eq!(rig.get(1, 0x4008, 1), 0b011);
 }
+
+// ---- the control loops (§3.5) ----
+
+/// A velocity step 0 → `to` increments/ms in VL with no ramp, `ms` long:
+/// 0x606C each millisecond.
+fn velocity_step(rig: &mut Rig, to: i64, ms: usize) -> Vec<f64> {
+    rig.set(1, 0x6046, 2, 10_000);
+    rig.set(1, 0x6048, 1, 10_000);
+    rig.set(1, 0x6048, 2, 1);
+    rig.enable(1, 2);
+    rig.controlword(1, 0x7F);
+    rig.tick(5);
+    rig.set(1, 0x6042, 0, to);
+    (0..ms)
+        .map(|_| {
+            rig.tick(1);
+            rig.get(1, 0x606C, 0) as f64
+        })
+        .collect()
+}
+
+/// Rise time 10–90 % (ms) and overshoot (% of the step) of a step to `to`.
+fn rise_and_overshoot(samples: &[f64], to: f64) -> (usize, f64) {
+    let first = |level: f64| samples.iter().position(|v| *v >= level * to).unwrap();
+    let peak = samples.iter().cloned().fold(f64::MIN, f64::max);
+    (first(0.9) - first(0.1), ((peak - to) / to * 100.0).max(0.0))
+}
+
+/// Writes a Q15.16 gain of axis 1's loop `config` (0x4021/0x4041/0x4061).
+fn gain(rig: &mut Rig, config: u16, sub: u8, value: f64) {
+    rig.set(1, config, sub, i64::from(umc::to_q15_16(value)));
+}
+
+#[test]
+fn the_velocity_gain_decides_rise_time_and_overshoot() {
+    let mut soft = Rig::umc1bds32();
+    gain(&mut soft, 0x4041, 1, 0.004);
+    gain(&mut soft, 0x4041, 2, 0.4);
+    let soft = velocity_step(&mut soft, 1_000, 400);
+    let mut stiff = Rig::umc1bds32();
+    gain(&mut stiff, 0x4041, 1, 0.02);
+    gain(&mut stiff, 0x4041, 2, 0.4);
+    let stiff = velocity_step(&mut stiff, 1_000, 400);
+    let (soft_rise, soft_over) = rise_and_overshoot(&soft, 1_000.0);
+    let (stiff_rise, stiff_over) = rise_and_overshoot(&stiff, 1_000.0);
+    eprintln!("soft {soft_rise} ms {soft_over:.1} %, stiff {stiff_rise} ms {stiff_over:.1} %");
+    assert!(soft_rise >= 2 * stiff_rise, "{soft_rise} vs {stiff_rise}");
+    assert!(soft_over > stiff_over + 5.0, "{soft_over} vs {stiff_over}");
+    // Both settle on the target.
+    assert!((soft[399] - 1_000.0).abs() <= 5.0, "{}", soft[399]);
+    assert!((stiff[399] - 1_000.0).abs() <= 5.0, "{}", stiff[399]);
+}
+
+#[test]
+fn under_load_only_the_integrator_removes_the_steady_state_error() {
+    let run = |i: f64| {
+        let mut rig = Rig::umc1bds32();
+        gain(&mut rig, 0x4041, 2, i);
+        rig.umc.axes[0].motor.load_torque = 0.05;
+        let samples = velocity_step(&mut rig, 500, 1_500);
+        let integrator = umc::from_q15_16(rig.get(1, 0x4040, 3) as i32);
+        (samples[1_499], integrator)
+    };
+    let (proportional, integrator) = run(0.0);
+    // 0.05 N·m is 1.67 A at 0.03 N·m/A; P = 0.015 A/rpm leaves 111 rpm
+    // = 121 increments/ms.
+    assert!(
+        (100.0..140.0).contains(&(500.0 - proportional)),
+        "{proportional}"
+    );
+    assert_eq!(integrator, 0.0);
+    let (integral, integrator) = run(0.3);
+    assert!((integral - 500.0).abs() <= 2.0, "{integral}");
+    // The integrator carries the load's current.
+    assert!((integrator - 1.67).abs() < 0.1, "{integrator}");
+}
+
+#[test]
+fn the_torque_loop_without_integral_leaves_the_current_short_and_too_much_gain_rings() {
+    let run = |p: f64, i: f64| {
+        let mut rig = Rig::umc1bds32();
+        gain(&mut rig, 0x4021, 1, p);
+        gain(&mut rig, 0x4021, 2, i);
+        rig.umc.axes[0].motor.jammed = true;
+        rig.set(1, 0x6087, 0, 1_000_000);
+        rig.enable(1, 4);
+        rig.set(1, 0x6071, 0, 100);
+        (0..50)
+            .map(|_| {
+                rig.tick(1);
+                rig.get(1, 0x4006, 2)
+            })
+            .collect::<Vec<i64>>()
+    };
+    // Factory: 1.5 A after one cycle of lag, and held.
+    let factory = run(0.0, 100.0);
+    assert_eq!(factory[49], 150);
+    // P alone (0.05 V/A on 0.1 Ω): i = 0.5·(i* − i), a third of the target.
+    let p_only = run(0.05, 0.0);
+    assert!((p_only[49] - 50).abs() <= 1, "{}", p_only[49]);
+    // P = 0.19 V/A: each cycle overcorrects by 90 %: it rings.
+    let ringing = run(0.19, 50.0);
+    let crossings = ringing
+        .windows(2)
+        .filter(|w| (w[0] - 150).signum() != (w[1] - 150).signum())
+        .count();
+    assert!(crossings >= 10, "{ringing:?}");
+}

@@ -1,0 +1,150 @@
+//! `POST .../axes/{axis}/step-test` against the demo devices on a paused
+//! clock: the virtual UMC's velocity loop stepped and measured, and the
+//! refusals (not a UMC, not enabled, not a drive, bad requests).
+
+use axum::Router;
+use axum::http::{Method, StatusCode};
+use serde_json::{Value as Json, json};
+
+use crate::api::tests::support::{assert_error, call, demo, post};
+
+fn uri(node: u8, axis: u8, what: &str) -> String {
+    format!("/api/v1/buses/demo/nodes/{node}/axes/{axis}{what}")
+}
+
+async fn enable(app: &Router, node: u8) {
+    let response = post(
+        app,
+        &uri(node, 1, "/state"),
+        json!({"target": "operation_enabled"}),
+    )
+    .await;
+    assert_eq!(response.0, StatusCode::OK, "{}", response.1);
+}
+
+async fn velocity_gain(app: &Router, p: f64) {
+    let raw = (p * 65536.0).round() as i64;
+    let (status, body) = call(
+        app,
+        Method::PUT,
+        "/api/v1/buses/demo/nodes/1/od/0x4041/1",
+        Some(json!({"value": raw})),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+}
+
+async fn step(app: &Router) -> Json {
+    // A steep VL ramp, so that the loop, not the ramp, shapes the step.
+    for (sub, value) in [(1, 10_000), (2, 1)] {
+        let (status, body) = call(
+            app,
+            Method::PUT,
+            &format!("/api/v1/buses/demo/nodes/1/od/0x6048/{sub}"),
+            Some(json!({"value": value})),
+        )
+        .await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+    }
+    let response = post(
+        app,
+        &uri(1, 1, "/step-test"),
+        json!({"loop": "velocity", "from": 0, "to": 800, "hold_ms": 300, "settle_band_pct": 2}),
+    )
+    .await;
+    assert_eq!(response.0, StatusCode::OK, "{}", response.1);
+    response.1
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_velocity_step_is_measured_and_the_axis_halted_after() {
+    let (app, _) = demo().await;
+    enable(&app, 1).await;
+    let body = step(&app).await;
+    let samples = body["samples"].as_array().unwrap();
+    assert!(samples.len() >= 100, "{} samples", samples.len());
+    let last = samples.last().unwrap();
+    assert!(last[0].as_f64().unwrap() >= 300.0, "{last}");
+    assert_eq!(last[1], 800.0);
+    let actual = last[2].as_f64().unwrap();
+    assert!((actual - 800.0).abs() <= 20.0, "{actual}");
+    let rise = body["rise_time_ms"].as_f64().unwrap();
+    assert!(rise > 0.0 && rise < 100.0, "{rise}");
+    assert!(body["settling_time_ms"].as_f64().is_some(), "{body}");
+    assert!(body["overshoot_pct"].as_f64().unwrap() >= 0.0);
+    assert!(body["steady_state_error"].as_f64().unwrap().abs() <= 20.0);
+    // Halted at the end: controlword bit 8, and the axis comes to rest.
+    let (_, axis) = call(&app, Method::GET, &uri(1, 1, ""), None).await;
+    assert_eq!(axis["state"], "operation_enabled", "{axis}");
+    let (_, word) = call(
+        &app,
+        Method::GET,
+        "/api/v1/buses/demo/nodes/1/od/0x6040/0",
+        None,
+    )
+    .await;
+    assert_ne!(word["value"].as_i64().unwrap() & 0x100, 0, "{word}");
+    // The lease of the test is over: a move needs none.
+    let response = post(
+        &app,
+        &uri(1, 1, "/move"),
+        json!({"mode": "profile_position", "target": 0}),
+    )
+    .await;
+    assert_eq!(response.0, StatusCode::OK, "{}", response.1);
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_velocity_gain_shows_in_the_rise_time() {
+    let (app, _) = demo().await;
+    enable(&app, 1).await;
+    velocity_gain(&app, 0.004).await;
+    let soft = step(&app).await;
+    velocity_gain(&app, 0.03).await;
+    let stiff = step(&app).await;
+    let rise = |body: &Json| body["rise_time_ms"].as_f64().unwrap();
+    assert!(
+        rise(&soft) > 2.0 * rise(&stiff),
+        "{} vs {}",
+        rise(&soft),
+        rise(&stiff)
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn refused_on_what_cannot_be_tested() {
+    let (app, _) = demo().await;
+    let request = json!({"loop": "velocity", "from": 0, "to": 100, "hold_ms": 100});
+    // Not enabled.
+    let response = post(&app, &uri(1, 1, "/step-test"), request.clone()).await;
+    assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
+    // The JMC has no control loop objects.
+    enable(&app, 2).await;
+    let response = post(&app, &uri(2, 1, "/step-test"), request.clone()).await;
+    assert_error(
+        &response,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "mode_not_supported",
+    );
+    assert!(
+        response.1["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("UMC"),
+        "{}",
+        response.1
+    );
+    // The LED controller is no drive.
+    let response = post(&app, &uri(3, 1, "/step-test"), request.clone()).await;
+    assert_error(&response, StatusCode::NOT_FOUND, "not_a_drive");
+    // Bad requests, before the bus.
+    enable(&app, 1).await;
+    for bad in [
+        json!({"loop": "velocity", "from": 5, "to": 5, "hold_ms": 100}),
+        json!({"loop": "velocity", "from": 0, "to": 5, "hold_ms": 1}),
+        json!({"loop": "speed", "from": 0, "to": 5, "hold_ms": 100}),
+    ] {
+        let response = post(&app, &uri(1, 1, "/step-test"), bad.clone()).await;
+        assert_eq!(response.0, StatusCode::BAD_REQUEST, "{bad}: {}", response.1);
+    }
+}

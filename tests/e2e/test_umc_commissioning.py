@@ -1,0 +1,85 @@
+"""The UMC's tuning and commissioning pages
+(/nodes/{bus}/{node}/axes/{axis}/tune and .../commissioning/{page}) in
+headless Chromium against `candeck serve`: each renders its objects from
+the profile with the device's values, and writes one object, which the
+device then holds."""
+
+import pytest
+from selenium.webdriver.common.by import By
+
+UMC = "/api/v1/buses/demo/nodes/1"
+
+
+def wait_identified(server):
+    import time
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        nodes = {n["id"]: n for n in server.get("/api/v1/buses/demo/nodes")}
+        if nodes.get(1, {}).get("profile") == "umc":
+            return
+        time.sleep(0.1)
+    raise AssertionError("the UMC was not identified")
+
+
+def loaded(browser, root):
+    browser.wait(lambda _: browser.js(f"return document.getElementById('{root}').dataset.loaded === 'true'"),
+                 message=f"#{root} did not load")
+
+
+# Per page: an object to write, the value typed (manual units) and the raw
+# value the device then holds.
+PAGES = [
+    ("board", "0x2041", 1, "10.5", 1050),
+    ("motor", "0x4007", 3, "18.25", 1825),
+    ("brake", "0x4082", 2, "40", 40),
+    ("sensors", "0x4063", 2, "2", 2),
+]
+
+
+@pytest.mark.parametrize("slug,index,sub,typed,raw", PAGES, ids=[p[0] for p in PAGES])
+def test_a_commissioning_page_renders_and_writes_one_object(browser, server, slug, index, sub, typed, raw):
+    wait_identified(server)
+    browser.driver.get(f"{server.url}/nodes/demo/1/axes/1/commissioning/{slug}")
+    loaded(browser, "commission-page")
+    rows = browser.js("return document.querySelectorAll('#objects tbody tr').length")
+    assert rows >= 4, rows
+    # Every object was read: none is left failed.
+    assert browser.js("return document.querySelectorAll('#objects tr[data-state=\"failed\"]').length") == 0
+    row = f"obj-{index}-{sub}"
+    field = browser.driver.find_element(By.CSS_SELECTOR, f"#{row} input.edit")
+    field.clear()
+    field.send_keys(typed)
+    browser.driver.find_element(By.CSS_SELECTOR, f"#{row} button.write").click()
+    browser.wait(lambda _: browser.js(f"return document.getElementById('{row}').dataset.written === 'true'"),
+                 message="the write was not read back")
+    assert server.get(f"{UMC}/od/{index}/{sub}")["value"] == raw
+
+
+def test_the_tuning_page_writes_a_gain_shows_the_status_and_runs_a_step(browser, server):
+    wait_identified(server)
+    server.post(f"{UMC}/axes/1/state", {"target": "operation_enabled"})
+    browser.driver.get(f"{server.url}/nodes/demo/1/axes/1")
+    browser.wait(lambda _: browser.js("return !!document.getElementById('tune-link')"), message="no tuning link")
+    browser.js("document.getElementById('tune-link').click()")
+    loaded(browser, "tune-page")
+    # The velocity loop is selected: its factory P is 0.015 A/rpm (983).
+    assert browser.js("return document.getElementById('gains-object').textContent") == "0x4041"
+    p = browser.driver.find_element(By.ID, "gain-1")
+    assert abs(float(p.get_attribute("value")) - 0.015) < 1e-3
+    p.clear()
+    p.send_keys("0.02")
+    browser.driver.find_element(By.ID, "gains-write").click()
+    browser.wait(lambda _: browser.js("return !!document.getElementById('gains-written')"), message="gains not written")
+    assert server.get(f"{UMC}/od/0x4041/1")["value"] == round(0.02 * 65536)
+    browser.wait(lambda _: browser.js("return document.getElementById('pid-status').dataset.live === 'true'"),
+                 message="no live PID status")
+    # A step from the page (through VL's factory ramp, 1 unit/ms): metrics
+    # and a chart.
+    target = browser.driver.find_element(By.ID, "step-to")
+    target.clear()
+    target.send_keys("100")
+    browser.driver.find_element(By.ID, "step-run").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('step-metrics').dataset.state === 'done'"),
+                 timeout=30, message="the step test did not finish")
+    assert float(browser.js("return document.getElementById('step-metrics').dataset.rise")) > 0
+    assert browser.js("return document.querySelectorAll('#step-runs li').length") == 1
