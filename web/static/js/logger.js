@@ -114,7 +114,10 @@ $('#new-logger').addEventListener('submit', async (event) => {
 
 // ---- the loggers -----------------------------------------------------------
 
+let listTimer = null;
+
 async function loadLoggers() {
+  clearTimeout(listTimer);
   let list;
   try {
     list = await api('/loggers');
@@ -125,6 +128,8 @@ async function loadLoggers() {
     loggerBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 7 }, 'No logger yet.')));
     return;
   }
+  // The statistics of running loggers move: read them again in a second.
+  if (list.some((logger) => logger.state === 'running')) listTimer = setTimeout(loadLoggers, 1000);
   loggerBody.replaceChildren(...list.slice().reverse().map((logger) => h('tr', { dataset: { id: String(logger.id), state: logger.state } },
     h('td', { 'data-label': 'Id' }, String(logger.id)),
     h('td', { 'data-label': 'State' }, logger.state),
@@ -188,13 +193,16 @@ async function show(logger) {
   legend.replaceChildren(...names.map((name, n) => h('li', { style: `--swatch: ${COLORS[n % COLORS.length]}` }, name)));
   chart.setChannels(names);
   // The rows the gateway dropped from memory come before the CSV's first.
-  const current = { id: logger.id, names, base: logger.samples - logger.rows, next: 0, refetching: false, unsubscribe: () => {} };
+  const current = { id: logger.id, state: logger.state, names, base: logger.samples - logger.rows, next: 0, refetching: false, unsubscribe: () => {} };
   shown = current;
   current.unsubscribe = stream.subscribe([`loggers/${logger.id}`], (data) => {
     if (shown !== current) return;
     chartStatus.textContent = `${data.state} · ${data.samples} samples · ${data.missed} missed`;
-    if (!data.rows.length) return;
-    if (current.refetching) return;
+    if (data.state !== current.state) {
+      current.state = data.state;
+      loadLoggers();
+    }
+    if (!data.rows.length || current.refetching) return;
     if (data.first > current.next) {
       refill();
       return;
@@ -204,7 +212,6 @@ async function show(logger) {
       chart.addRows(fresh);
       current.next += fresh.length;
     }
-    if (data.state !== 'running') loadLoggers();
   });
   chartStatus.textContent = `${logger.state} · ${logger.samples} samples · ${logger.missed} missed`;
   await refill();
