@@ -242,6 +242,8 @@ impl Target {
             // The file's name is in the query (`?name=`): see `record`.
             (&Method::POST, ["eds"]) => ("upload eds", None),
             (&Method::DELETE, ["eds", name]) => ("delete eds", word(name)),
+            (&Method::POST, ["loggers"]) => ("start data logger", None),
+            (&Method::DELETE, ["loggers", id]) => ("delete data logger", word(id)),
             (_, ["buses", bus, rest @ ..]) => {
                 target.bus = word(bus);
                 match (method, rest) {

@@ -116,6 +116,13 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
     ("POST",   "/api/v1/buses/{bus}/sim/faults", ADMIN),
     ("DELETE", "/api/v1/buses/{bus}/sim/faults", ADMIN),
+    // Data loggers: sampling takes the nodes' SDO queues, as an operator's
+    // reads would; reading what they sampled is a viewer's.
+    ("GET",    "/api/v1/loggers", VIEWER),
+    ("POST",   "/api/v1/loggers", OPERATOR),
+    ("GET",    "/api/v1/loggers/{id}", VIEWER),
+    ("DELETE", "/api/v1/loggers/{id}", OPERATOR),
+    ("GET",    "/api/v1/loggers/{id}/data.csv", VIEWER),
     ("GET",    "/api/v1/stream", VIEWER),
     ("GET",    "/api/v1/events", VIEWER),
     ("GET",    "/api/v1/eds", VIEWER),

@@ -18,6 +18,7 @@ use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{DictionaryError, ValueError};
 use crate::canopen::sdo::AbortCode;
 use crate::gateway::GatewayError;
+use crate::gateway::logger::LoggerError;
 use crate::gateway::recording::RecordingError;
 use crate::gateway::registry::RegistryError;
 use crate::gateway::sdo::SdoRequestError;
@@ -218,6 +219,15 @@ pub enum AppError {
     /// The I/O module has no such channel.
     #[error("{0}")]
     UnknownChannel(String),
+    /// No data logger has this id.
+    #[error("{0}")]
+    UnknownLogger(String),
+    /// Every data logger kept still runs.
+    #[error("{0}")]
+    TooManyLoggers(String),
+    /// An object a data logger cannot sample (write-only, no number).
+    #[error("{0}")]
+    NotLoggable(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -297,6 +307,9 @@ impl AppError {
             Self::EdsConflict(_) => (StatusCode::CONFLICT, "eds_conflict"),
             Self::NotAnIoModule(_) => (StatusCode::NOT_FOUND, "not_an_io_module"),
             Self::UnknownChannel(_) => (StatusCode::NOT_FOUND, "unknown_channel"),
+            Self::UnknownLogger(_) => (StatusCode::NOT_FOUND, "unknown_logger"),
+            Self::TooManyLoggers(_) => (StatusCode::CONFLICT, "too_many_loggers"),
+            Self::NotLoggable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "not_loggable"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -457,6 +470,36 @@ impl From<ValueError> for AppError {
             Self::ValueOutOfRange(error.to_string())
         } else {
             Self::InvalidValue(error.to_string())
+        }
+    }
+}
+
+/// A logger's errors; a channel's say which channel (0-based).
+impl From<LoggerError> for AppError {
+    fn from(error: LoggerError) -> Self {
+        let message = error.to_string();
+        match error {
+            LoggerError::ChannelCount(_) => Self::TooManyEntries(message),
+            LoggerError::Period(_) | LoggerError::Duration(_) => Self::ValueOutOfRange(message),
+            LoggerError::Channel { .. } => Self::InvalidIndex(message),
+            LoggerError::NotLoggable { .. } => Self::NotLoggable(message),
+            LoggerError::Dictionary { source, .. } => match Self::from(source) {
+                Self::UnknownObject(_) => Self::UnknownObject(message),
+                Self::UnknownSubObject(_) => Self::UnknownSubObject(message),
+                Self::InvalidIndex(_) => Self::InvalidIndex(message),
+                other => other,
+            },
+            // The gateway's own words (unknown_bus, unknown_node, an SDO
+            // error of a trial read), with the channel's number.
+            LoggerError::Gateway { channel, source } => match Self::from(source) {
+                Self::FailedAt { .. } => Self::Internal(message),
+                other => Self::FailedAt {
+                    step: format!("channel {channel}"),
+                    source: Box::new(other),
+                },
+            },
+            LoggerError::TooMany => Self::TooManyLoggers(message),
+            LoggerError::Unknown(_) => Self::UnknownLogger(message),
         }
     }
 }

@@ -36,6 +36,7 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`loggers`]: the data loggers: start, status, CSV, delete.
 //! - [`lss`]: LSS (CiA 305): Fastscan for unconfigured devices, node-ID
 //!   assignment; the UniSwarm node-ID change (0x2040).
 //! - [`auth`]: the table of the least role of every route (tokens and
@@ -75,6 +76,7 @@ pub mod headers;
 pub mod host;
 pub mod io;
 pub mod leases;
+pub mod loggers;
 pub mod lss;
 pub mod machine;
 pub mod metrics;
@@ -194,6 +196,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(recording::router())
         .merge(sim::router())
         .merge(lss::router())
+        .merge(loggers::router())
         .merge(stream::router())
         .merge(events::router())
         .merge(eds::router())

@@ -25,7 +25,8 @@
 //! Topics: `nodes` (appeared, identified, NMT state changed, offline,
 //! online), `emcy`, `buses/{bus}/frames[?ids=0x181,0x701]` (frames in
 //! batches: `data` is a list), `buses/{bus}/nodes/{id}/values`,
-//! `buses/{bus}/nodes/{id}/axes/{axis}` and `buses/{bus}/nodes/{id}/segments`.
+//! `buses/{bus}/nodes/{id}/axes/{axis}`, `buses/{bus}/nodes/{id}/segments`
+//! and `loggers/{id}` (a data logger's new rows, ten times a second).
 //!
 //! How a slow client is kept from hurting anyone: nothing the gateway does
 //! waits for a client. Each session has a mailbox that producers'
@@ -314,6 +315,9 @@ enum Topic {
         bus: String,
         node: String,
     },
+    Logger {
+        id: String,
+    },
 }
 
 impl Topic {
@@ -344,10 +348,11 @@ impl Topic {
                 bus: bus.to_string(),
                 node: node.to_string(),
             },
+            ["loggers", id] => Self::Logger { id: id.to_string() },
             _ => {
                 return Err(AppError::InvalidRequest(format!(
                     "'{text}' is no topic: nodes, emcy, machine, buses/{{bus}}/frames, \
-                     buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}} or .../segments"
+                     buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}}, .../segments or loggers/{{id}}"
                 )));
             }
         };
@@ -720,6 +725,10 @@ impl Session {
             Topic::Segments { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
                 let receiver = served.previews.subscribe(info.id, rate_hz)?;
+                vec![tokio::spawn(forward_values(receiver, key, mailbox))]
+            }
+            Topic::Logger { id } => {
+                let receiver = self.state.gateway.loggers.subscribe(&id, rate_hz)?;
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
         };

@@ -20,6 +20,8 @@
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
+//! - [`logger`]: the data logger: objects of any nodes sampled at a
+//!   period (TPDO or SDO), kept in memory and in the data directory.
 //! - [`lss`]: LSS (CiA 305) on a bus: Fastscan for unconfigured devices,
 //!   node-ID assignment, and the UniSwarm node-ID change by 0x2040.
 //! - [`machine`]: the network manager of a bus (CiA 302-2) at work: the
@@ -75,6 +77,7 @@ pub mod io;
 pub mod leases;
 pub mod led_preview;
 pub mod load;
+pub mod logger;
 pub mod lss;
 pub mod machine;
 pub mod motion_lease;

@@ -253,6 +253,8 @@ pub struct Gateway {
     pub recordings_quota: Option<Arc<RecordingsQuota>>,
     /// The Sparkplug B edge node's counters (`mqtt_url`).
     pub edge_node: Arc<super::edge_node::EdgeNodeStats>,
+    /// The data loggers (`/loggers`).
+    pub loggers: super::logger::Loggers,
 }
 
 impl Gateway {
@@ -292,7 +294,15 @@ impl Gateway {
             writes: Arc::new(WriteLimiter::default()),
             recordings_quota: None,
             edge_node: Arc::default(),
+            loggers: super::logger::Loggers::default(),
         }
+    }
+
+    /// The same with these loggers (`logger_max_values`, and those kept in
+    /// the data directory: [`Loggers::load`](super::logger::Loggers::load)).
+    pub fn with_loggers(mut self, loggers: super::logger::Loggers) -> Self {
+        self.loggers = loggers;
+        self
     }
 
     /// The same, granting motion leases of `period` (`--lease-ms`).

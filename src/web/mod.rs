@@ -22,7 +22,8 @@
 //!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor),
 //!   `/nodes/{bus}/{node}/leds` (an LED controller's segments and live
 //!   strip), `/buses/{bus}/trace` (a bus's live frames, decoded, and its
-//!   recording), `/events` (the persisted history), `/eds` (the device
+//!   recording), `/events` (the persisted history), `/loggers` (the data
+//!   logger: channels, live chart, CSV), `/eds` (the device
 //!   descriptions: the EDS catalog, uploads) and `/nodes/{bus}/{node}/io`
 //!   (a CiA 401 module's inputs and outputs),
 //!   `/nodes/{bus}/{node}/axes/{axis}/tune` (a UMC axis's control loops and
@@ -92,6 +93,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/events.css", CSS),
     asset!("css/io.css", CSS),
     asset!("css/leds.css", CSS),
+    asset!("css/logger.css", CSS),
     asset!("css/node.css", CSS),
     asset!("css/pdos.css", CSS),
     asset!("css/trace.css", CSS),
@@ -108,6 +110,8 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/io.js", JS),
     asset!("js/layout.js", JS),
     asset!("js/leds.js", JS),
+    asset!("js/logchart.js", JS),
+    asset!("js/logger.js", JS),
     asset!("js/lss.js", JS),
     asset!("js/motion.js", JS),
     asset!("js/node.js", JS),
@@ -159,6 +163,7 @@ pub fn router() -> Router {
         .route("/", get(overview))
         .route("/nodes/{bus}/{node}", get(node))
         .route("/events", get(events))
+        .route("/loggers", get(loggers))
         .route("/eds", get(eds))
         .route("/nodes/{bus}/{node}/io", get(io))
         .route("/nodes/{bus}/{node}/leds", get(leds))
@@ -252,6 +257,13 @@ struct IoPage {
 #[derive(Template)]
 #[template(path = "events.html")]
 struct EventsPage {
+    layout: Layout,
+}
+
+/// The data logger: channels picked by name, the loggers, a live chart.
+#[derive(Template)]
+#[template(path = "logger.html")]
+struct LoggerPage {
     layout: Layout,
 }
 
@@ -489,6 +501,12 @@ async fn io(Path((bus, node)): Path<(String, String)>) -> Response {
 async fn events() -> Response {
     page(&EventsPage {
         layout: Layout::new("events"),
+    })
+}
+
+async fn loggers() -> Response {
+    page(&LoggerPage {
+        layout: Layout::new("loggers"),
     })
 }
 

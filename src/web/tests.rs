@@ -501,6 +501,7 @@ async fn every_page_weighs_under_300_kb() {
     for page in [
         "/",
         "/events",
+        "/loggers",
         "/nodes/demo/1",
         "/nodes/demo/1/axes/1",
         "/nodes/demo/1/pdos",

@@ -12,6 +12,7 @@ mod io;
 mod lease_holders;
 mod leases;
 mod leds;
+mod loggers;
 mod lss;
 mod pdos;
 mod recording;

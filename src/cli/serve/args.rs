@@ -111,7 +111,7 @@ pub struct ServeArgs {
     /// shutdown_grace_ms, ascii_listen,
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
-    /// recordings_quota_mb, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
+    /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
     /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
     /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
@@ -154,6 +154,12 @@ pub struct ServeArgs {
     /// removal in the audit log; 0: no limit. Default: 1024.
     #[arg(long, value_name = "MIB")]
     pub recordings_quota_mb: Option<u64>,
+    /// The values (rows × channels) one data logger (POST /api/v1/loggers)
+    /// keeps in memory: beyond it its oldest rows go. 1000 to 100000000.
+    /// Default: 1000000. With --data-dir, finished loggers are kept in
+    /// DIR/loggers.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1000..=100_000_000))]
+    pub logger_max_values: Option<u64>,
     /// The period of a motion lease, in milliseconds: a velocity, torque
     /// or duty-cycle move must be renewed by its client within it, or the
     /// gateway halts the axis (and quick-stops it one period later if it

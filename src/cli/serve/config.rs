@@ -75,6 +75,7 @@ pub(super) struct ConfigFile {
     pub(super) retention_days: Option<u32>,
     pub(super) retention_rows: Option<u64>,
     pub(super) recordings_quota_mb: Option<u64>,
+    pub(super) logger_max_values: Option<u64>,
     pub(super) lease_ms: Option<u64>,
     pub(super) shutdown_grace_ms: Option<u64>,
     pub(super) ascii_listen: Option<SocketAddr>,
@@ -237,6 +238,14 @@ impl ConfigFile {
             check_lease_ms(ms)
                 .map_err(|err| format!("config {}: lease_ms {err}", path.display()))?;
         }
+        if let Some(n) = config.logger_max_values
+            && !(1000..=100_000_000).contains(&n)
+        {
+            return Err(format!(
+                "config {}: logger_max_values {n}: give 1000 to 100000000",
+                path.display()
+            ));
+        }
         if let Some(ms) = config.shutdown_grace_ms {
             check_shutdown_grace_ms(ms)
                 .map_err(|err| format!("config {}: shutdown_grace_ms {err}", path.display()))?;
@@ -294,6 +303,8 @@ pub(super) struct Settings {
     pub(super) retention: Retention,
     /// Bytes; `None`: no quota.
     pub(super) recordings_quota: Option<u64>,
+    /// Values one data logger keeps in memory.
+    pub(super) logger_max_values: usize,
     pub(super) lease_period: std::time::Duration,
     /// How long open HTTP connections may take to finish once the axes
     /// are stopped on shutdown.
@@ -404,6 +415,12 @@ impl ServeArgs {
                 )
                 .filter(|rows| *rows > 0),
             },
+            logger_max_values: self
+                .logger_max_values
+                .or(file.logger_max_values)
+                .map_or(crate::gateway::logger::DEFAULT_MAX_VALUES, |n| {
+                    usize::try_from(n).unwrap_or(usize::MAX)
+                }),
             recordings_quota: Some(
                 self.recordings_quota_mb
                     .or(file.recordings_quota_mb)

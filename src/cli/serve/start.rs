@@ -208,6 +208,12 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         };
         state.gateway = state.gateway.with_recordings_quota(quota);
     }
+    // The data loggers, with those a run before kept in DIR/loggers.
+    let loggers = crate::gateway::logger::Loggers::load(crate::gateway::logger::LoggerConfig {
+        max_values: args.logger_max_values,
+        dir: args.data_dir.as_ref().map(|dir| dir.join("loggers")),
+    });
+    state.gateway = state.gateway.with_loggers(loggers);
     let recordings_pruner = state
         .gateway
         .spawn_recordings_pruner(std::time::Duration::from_secs(60));

@@ -1,0 +1,166 @@
+//! The logger's rows: bounded memory, the CSV both ways, what the topic
+//! publishes, and loggers kept in a directory loaded again.
+
+use super::*;
+
+fn status(channels: usize) -> LoggerStatus {
+    LoggerStatus {
+        id: 3,
+        state: LoggerState::Running,
+        period_ms: 10,
+        duration_s: 1,
+        started_ms: 0,
+        samples: 0,
+        missed: 0,
+        dropped: 0,
+        rows: 0,
+        persisted: false,
+        channels: (0..channels)
+            .map(|n| ChannelInfo {
+                bus: "demo".into(),
+                node: 1,
+                index: "0x6064".into(),
+                sub: 0,
+                name: format!("demo/1/channel {n}"),
+                data_type: Some("i32".into()),
+                source: None,
+                sdo_samples: 0,
+                tpdo_samples: 0,
+                errors: 0,
+                last_error: None,
+            })
+            .collect(),
+    }
+}
+
+fn logger(channels: usize, max_rows: usize) -> Logger {
+    Logger {
+        status: status(channels),
+        rows: VecDeque::new(),
+        max_rows,
+        topic: ValueTopic::new(),
+    }
+}
+
+#[test]
+fn a_logger_keeps_its_newest_rows_and_counts_what_it_dropped() {
+    let mut logger = logger(2, 3);
+    for n in 0..5u64 {
+        let failed = (
+            Err("node 1 did not answer in time".to_string()),
+            Source::Sdo,
+        );
+        let second = if n == 2 {
+            failed
+        } else {
+            (Ok(-(n as f64)), Source::Tpdo)
+        };
+        logger.push(n * 10, vec![(Ok(n as f64), Source::Sdo), second], 1);
+    }
+    assert_eq!(logger.status.samples, 5);
+    assert_eq!(logger.status.dropped, 2);
+    assert_eq!(logger.status.missed, 5);
+    assert_eq!(logger.status.rows, 3);
+    let times: Vec<u64> = logger.rows.iter().map(|row| row.time_ms).collect();
+    assert_eq!(times, [20, 30, 40]);
+    let [first, second] = &logger.status.channels[..] else {
+        panic!()
+    };
+    assert_eq!((first.sdo_samples, first.source), (5, Some(Source::Sdo)));
+    assert_eq!((second.tpdo_samples, second.errors), (4, 1));
+    assert_eq!(
+        second.last_error.as_deref(),
+        Some("node 1 did not answer in time")
+    );
+    assert_eq!(logger.rows[0].values, [Some(2.0), None]);
+}
+
+#[test]
+fn the_csv_has_a_header_and_a_row_per_sample_and_reads_back() {
+    let mut logger = logger(2, 10);
+    logger.status.channels[1].name = "demo/1/a \"quoted\", name".into();
+    logger.push(0, vec![(Ok(1.5), Source::Sdo), (Ok(-7.0), Source::Sdo)], 0);
+    logger.push(
+        10,
+        vec![(Ok(2.0), Source::Sdo), (Err("x".into()), Source::Sdo)],
+        0,
+    );
+    let text = to_csv(&logger.status, logger.rows.iter());
+    assert_eq!(
+        text,
+        "time_ms,demo/1/channel 0,\"demo/1/a \"\"quoted\"\", name\"\n0,1.5,-7\n10,2,\n"
+    );
+    let rows = from_csv(&text.replace("\"demo/1/a \"\"quoted\"\", name\"", "b"), 2).unwrap();
+    assert_eq!(rows, logger.rows.iter().cloned().collect::<Vec<_>>());
+    assert!(from_csv("time_ms,a\n0,1,2\n", 1).is_err());
+    assert!(from_csv("time_ms,a\n0,x\n", 1).is_err());
+}
+
+#[test]
+fn the_topic_gives_the_rows_since_the_last_publish_even_after_drops() {
+    let mut logger = logger(1, 4);
+    for n in 0..3u64 {
+        logger.push(n, vec![(Ok(n as f64), Source::Sdo)], 0);
+    }
+    assert_eq!(logger.publish(0), 3);
+    let first = logger.topic.latest().unwrap();
+    assert_eq!(first.data["first"], 0);
+    assert_eq!(first.data["rows"], json!([[0, 0.0], [1, 1.0], [2, 2.0]]));
+    for n in 3..9u64 {
+        logger.push(n, vec![(Ok(n as f64), Source::Sdo)], 0);
+    }
+    // Rows 3 and 4 were dropped before they were published: the topic
+    // says where it starts again.
+    assert_eq!(logger.publish(3), 9);
+    let second = logger.topic.latest().unwrap();
+    assert_eq!(second.data["first"], 5);
+    assert_eq!(second.data["rows"].as_array().unwrap().len(), 4);
+}
+
+#[tokio::test]
+async fn kept_loggers_are_loaded_again_as_finished() {
+    let path = std::env::temp_dir().join(format!("candeck-logger-kept-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&path);
+    let dir = Scratch(path);
+    let mut logger = logger(1, 10);
+    logger.push(0, vec![(Ok(4.0), Source::Sdo)], 0);
+    logger.push(10, vec![(Ok(5.0), Source::Sdo)], 0);
+    // Killed while it ran: it comes back stopped.
+    keep(
+        dir.0.as_path(),
+        &logger.status,
+        &to_csv(&logger.status, logger.rows.iter()),
+    )
+    .unwrap();
+    std::fs::write(dir.0.as_path().join("logger-9.json"), "not json").unwrap();
+    let config = LoggerConfig {
+        max_values: 1000,
+        dir: Some(dir.0.as_path().to_path_buf()),
+    };
+    let loggers = Loggers::load(config);
+    let list = loggers.list();
+    assert_eq!(list.len(), 1, "{list:?}");
+    assert_eq!(list[0].id, 3);
+    assert_eq!(list[0].state, LoggerState::Stopped);
+    assert_eq!(
+        loggers.csv("3").unwrap(),
+        "time_ms,demo/1/channel 0\n0,4\n10,5\n"
+    );
+    assert!(loggers.subscribe("3", 1.0).is_ok());
+    // A new one follows the kept ones' ids; deleting a kept one removes
+    // its files.
+    assert_eq!(lock(&loggers.state).next_id, 4);
+    loggers.delete("3").unwrap();
+    assert!(!dir.0.as_path().join("logger-3.csv").exists());
+    assert!(!dir.0.as_path().join("logger-3.json").exists());
+    assert!(matches!(loggers.status("3"), Err(LoggerError::Unknown(_))));
+}
+
+/// A directory removed at the end of the test.
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}

@@ -1,0 +1,88 @@
+"""The data logger page in headless Chromium against `candeck serve` on the
+demo bus: channels picked by name, a logger started, its live chart filled
+to the end, zoom, pan, the cursor's read-out, the CSV download, deletion,
+and the page's weight."""
+
+from selenium.webdriver.common.action_chains import ActionChains
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import Select
+
+
+def chart(browser):
+    return browser.js(
+        """const c = document.getElementById('chart');
+           return {rows: Number(c.dataset.rows || 0), from: Number(c.dataset.from), to: Number(c.dataset.to)};"""
+    )
+
+
+def add(browser, text, index):
+    search = browser.driver.find_element(By.ID, "pick-search")
+    search.clear()
+    search.send_keys(text)
+    selector = f'#pick-results li[data-index="{index}"] button'
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, selector), message=f"{text} not found")
+    browser.driver.find_element(By.CSS_SELECTOR, selector).click()
+
+
+def test_a_logger_is_picked_started_charted_and_downloaded(server, browser):
+    browser.driver.get(server.url + "/loggers")
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
+    assert browser.js("return document.querySelector('nav a[aria-current=\"page\"]').innerText") == "Logger"
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
+    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
+    add(browser, "a1_pc_Position_actual", "0x6064")
+    add(browser, "a1_pv_Velocity_actual", "0x606C")
+    assert browser.driver.find_element(By.ID, "channel-count").text == "2 of 16"
+    period = browser.driver.find_element(By.ID, "period")
+    period.clear()
+    period.send_keys("20")
+    duration = browser.driver.find_element(By.ID, "duration")
+    duration.clear()
+    duration.send_keys("3")
+    browser.driver.find_element(By.ID, "start").click()
+
+    browser.wait(lambda _: chart(browser)["rows"] > 10, message="the chart got no live rows")
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
+                 message="the logger did not finish")
+    logger = server.get("/api/v1/loggers")[0]
+    assert logger["state"] == "done", logger
+    assert [c["index"] for c in logger["channels"]] == ["0x6064", "0x606C"]
+    browser.wait(lambda _: chart(browser)["rows"] == logger["samples"], message="the chart lacks rows")
+    assert logger["samples"] >= 100, logger
+
+    # Zoom in around the middle, then everything again.
+    whole = chart(browser)
+    assert whole["from"] == 0 and whole["to"] > 2000, whole
+    browser.driver.find_element(By.ID, "zoom-in").click()
+    browser.wait(lambda _: chart(browser)["to"] - chart(browser)["from"] < (whole["to"] - whole["from"]) * 0.6,
+                 message="zoom in did not narrow the view")
+    canvas = browser.driver.find_element(By.ID, "chart")
+    zoomed = chart(browser)
+    # A drag to the right shows earlier rows.
+    ActionChains(browser.driver).move_to_element(canvas).click_and_hold().move_by_offset(200, 0).release().perform()
+    browser.wait(lambda _: chart(browser)["from"] < zoomed["from"] - 50, message="the drag did not pan")
+    browser.driver.find_element(By.ID, "zoom-reset").click()
+    browser.wait(lambda _: chart(browser)["from"] == 0, message="reset did not show everything")
+
+    # The cursor reads out the nearest row's values.
+    ActionChains(browser.driver).move_to_element(canvas).move_by_offset(50, 0).perform()
+    browser.wait(lambda _: browser.driver.find_element(By.ID, "readout").text.startswith("t = "),
+                 message="no read-out under the cursor")
+    readout = browser.driver.find_element(By.ID, "readout").text
+    assert "demo/1/a1_pc_Position_actual_value = " in readout, readout
+
+    download = browser.driver.find_element(By.ID, "download")
+    download.click()
+    browser.wait(lambda _: download.get_attribute("data-state") == "done", message="the CSV did not download")
+
+    browser.driver.find_element(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"] button.delete').click()
+    browser.wait(lambda d: not d.find_elements(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"]'),
+                 message="the deleted logger is still listed")
+    assert server.get("/api/v1/loggers") == []
+    assert browser.js("return document.getElementById('chart-panel').hidden")
+
+    total = sum(f["bytes"] for f in browser.loaded_files())
+    assert total < 300 * 1024, total
+    browser.check()
+    assert not browser.problems, browser.problems
