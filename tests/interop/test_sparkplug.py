@@ -185,7 +185,7 @@ def metric(message, name):
 
 
 class Gateway(Process):
-    def __init__(self, broker_port):
+    def __init__(self, broker_port, extra=()):
         self.dir = tempfile.mkdtemp(prefix="candeck-spb-gw-")
         config = os.path.join(self.dir, "candeck.toml")
         with open(config, "w") as f:
@@ -198,7 +198,7 @@ class Gateway(Process):
                 # The demo drives send their TPDOs on SYNC.
                 "sync_period_ms = 50\n"
             )
-        super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config])
+        super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config, *extra])
         line = self.first_line()
         self.base = "http://" + line.split("http://")[1].split("/")[0] + "/api/v1"
 
@@ -423,3 +423,71 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
     stamps = [m["timestamp"] for m in historical]
     assert stamps == sorted(stamps)
+
+
+def axis_velocity(gateway):
+    return gateway.request("GET", "/buses/demo/nodes/1/axes/1")["velocity"]
+
+
+def wait_until(predicate, timeout=15, what="the condition"):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        time.sleep(0.1)
+
+
+ENABLE = ("Axis 1/State", DT.String, "string_value", "operation_enabled")
+VELOCITY = ("Axis 1/Move", DT.String, "string_value", json.dumps({"mode": "velocity", "velocity": 100}))
+RENEW = ("Axis 1/Lease", DT.Boolean, "boolean_value", True)
+
+
+def test_a_dcmd_move_runs_while_its_lease_is_renewed_by_metric_and_stops_when_not(broker, host):
+    gateway = Gateway(broker.port, ["--lease-ms", "1000"])
+    try:
+        _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+        assert metric(nbirth, "Properties/Lease Period")["value"] == 1000
+        host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+        # Without the lease promise, a velocity move is refused.
+        host.send_dcmd("demo-1", [ENABLE, VELOCITY])
+
+        def refused():
+            events = gateway.request("GET", "/events?kind=audit&limit=50")
+            return [e for e in events if e.get("operation") == "move" and e.get("status") != 200]
+
+        wait_until(lambda: refused(), what="the refused move in the audit log")
+        assert refused()[-1]["who"] == "mqtt:candeck-plant-line1"
+        assert refused()[-1]["axis"] == 1
+        assert axis_velocity(gateway) == 0
+        # With it, the axis turns, as long as the host renews.
+        host.send_dcmd("demo-1", [VELOCITY, RENEW])
+        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        until = time.monotonic() + 3
+        while time.monotonic() < until:
+            host.send_dcmd("demo-1", [RENEW])
+            time.sleep(0.25)
+        assert axis_velocity(gateway) > 0, "halted while the host renewed"
+        # The host stops renewing: the gateway halts the axis.
+        wait_until(lambda: axis_velocity(gateway) == 0, what="the axis halted after its lease lapsed")
+        events = gateway.request("GET", "/events?kind=audit&limit=100")
+        lapses = [e for e in events if e.get("who") == "gateway" and "lapsed" in e.get("operation", "")]
+        assert lapses and "mqtt:candeck-plant-line1" in lapses[-1]["item"], events
+        renewals = [e for e in events if e.get("operation") == "renew motion lease"]
+        assert renewals and renewals[0]["method"] == "DCMD"
+    finally:
+        gateway.close()
+
+
+def test_a_broker_outage_does_not_leave_a_dcmd_move_running(broker, host):
+    # A lease of a minute: only the lost connection can stop it this soon.
+    gateway = Gateway(broker.port, ["--lease-ms", "60000"])
+    try:
+        host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+        host.send_dcmd("demo-1", [ENABLE, VELOCITY, RENEW])
+        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        broker.stop()
+        wait_until(lambda: axis_velocity(gateway) == 0, timeout=20, what="the axis stopped after the broker went away")
+        events = gateway.request("GET", "/events?kind=audit&limit=100")
+        assert any(e.get("who") == "gateway" and "lapsed" in e.get("operation", "") for e in events), events
+    finally:
+        gateway.close()
