@@ -61,9 +61,21 @@ pub struct EdgeNode {
 
 impl EdgeNode {
     /// Starts the edge node of `gateway`.
+    /// Fails, before anything connects, when the TLS files of `mqtts://`
+    /// cannot be read (a missing or bad CA file, client certificate or key)
+    /// or the spool file cannot be opened.
     pub fn spawn(gateway: Gateway, config: SparkplugConfig) -> std::io::Result<Self> {
+        let tls = if config.broker.tls {
+            let tls = super::tls::client_config(&config.tls).map_err(std::io::Error::other)?;
+            Some(Arc::new(tls))
+        } else {
+            None
+        };
+        let store = |err: std::io::Error| {
+            std::io::Error::new(err.kind(), format!("store and forward: {err}"))
+        };
         let spool = match &config.spool_file {
-            Some(file) => Spool::with_file(config.queue_messages, file.clone())?,
+            Some(file) => Spool::with_file(config.queue_messages, file.clone()).map_err(store)?,
             None => Spool::new(config.queue_messages),
         };
         let (stop, stopped) = oneshot::channel();
@@ -71,7 +83,8 @@ impl EdgeNode {
         stats
             .enabled
             .store(true, std::sync::atomic::Ordering::Relaxed);
-        let runner = Runner::new(gateway, config, spool);
+        let mut runner = Runner::new(gateway, config, spool);
+        runner.tls = tls;
         let task = tokio::spawn(runner.run(stopped));
         Ok(Self {
             stop: Some(stop),
@@ -200,6 +213,8 @@ struct Runner {
     spool_dropped: u64,
     /// The motion leases of moves commanded over MQTT.
     held: Arc<HeldLeases>,
+    /// The TLS configuration of `mqtts://`, read once at the start.
+    tls: Option<Arc<rustls::ClientConfig>>,
 }
 
 impl Runner {
@@ -228,6 +243,7 @@ impl Runner {
             followed: HashSet::new(),
             spool_dropped: 0,
             held: Arc::new(HeldLeases::default()),
+            tls: None,
         }
     }
 
@@ -339,15 +355,10 @@ impl Runner {
         if let Some(user) = &config.username {
             options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
         }
-        if config.broker.tls {
-            match super::tls::client_config(&config.tls) {
-                Ok(tls) => {
-                    options.set_transport(rumqttc::Transport::tls_with_config(
-                        rumqttc::TlsConfiguration::Rustls(Arc::new(tls)),
-                    ));
-                }
-                Err(err) => tracing::error!("sparkplug: TLS: {err}"),
-            }
+        if let Some(tls) = &self.tls {
+            options.set_transport(rumqttc::Transport::tls_with_config(
+                rumqttc::TlsConfiguration::Rustls(tls.clone()),
+            ));
         }
         let death = self.session.death(unix_ms());
         options.set_last_will(LastWill::new(

@@ -609,3 +609,31 @@ fn a_payload_survives_protobuf_both_ways() {
     let bytes = birth.payload.encode_to_vec();
     assert_eq!(Payload::decode(bytes.as_slice()).unwrap(), birth.payload);
 }
+
+#[test]
+fn a_missing_or_bad_ca_file_is_refused_in_words() {
+    let dir = std::env::temp_dir().join(format!("candeck-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("missing.pem");
+    let files = super::config::TlsFiles {
+        ca_file: Some(missing.clone()),
+        ..Default::default()
+    };
+    let err = super::tls::client_config(&files).unwrap_err();
+    assert!(
+        err.starts_with(&format!("mqtt_ca_file {}: ", missing.display())),
+        "{err}"
+    );
+    let bad = dir.join("bad.pem");
+    std::fs::write(&bad, "this is not PEM\n").unwrap();
+    let files = super::config::TlsFiles {
+        ca_file: Some(bad.clone()),
+        ..Default::default()
+    };
+    let err = super::tls::client_config(&files).unwrap_err();
+    assert_eq!(
+        err,
+        format!("mqtt_ca_file {}: no certificate in it", bad.display())
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
