@@ -7,11 +7,26 @@
 //!   `reset_node`, `reset_communication`.
 //! - DCMD `OD/0x1017:0` (any type): an object write, checked against the
 //!   node's EDS as a REST write is.
+//! - DCMD `Axis {n}/State` (String, a target of `POST .../axes/{n}/state`),
+//!   `Axis {n}/Halt` (Boolean), `Axis {n}/Fault Reset` (Boolean true),
+//!   `Axis {n}/Move` (String: the JSON body of `POST .../axes/{n}/move`),
+//!   `Axis {n}/Lease` (Boolean: true renews the axis's motion lease, false
+//!   gives it up and the axis is halted).
+//! - DCMD `Segment {n}/{field}` of an LED controller: `Effect` (a name or
+//!   its wire value), `Color 1`..`Color 3` (String `#rrggbb[ww]`), `Led
+//!   Count`, `Dimmer`, `Value`, `Min Value`, `Max Value`, `Speed`, `Smooth`
+//!   (numbers).
+//!
+//! A move without an end of its own (velocity, torque, duty cycle), and
+//! releasing halt, is taken only with `Axis {n}/Lease` = true in the same
+//! DCMD: the host says it will renew the lease, or the move is refused.
 
 use super::edge::REBIRTH;
 use super::metric::MetricValue;
 use super::proto::Payload;
 use crate::canopen::nmt::NmtCommand;
+use crate::gateway::drive::{MoveMode, MoveRequest, TargetState};
+use crate::profiles::uioled::{Effect, Field, SEGMENTS, address};
 
 /// One command of a message.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,7 +38,42 @@ pub enum Command {
         sub: u8,
         value: MetricValue,
     },
-    /// A metric candeck does not take (named, for the log and the audit).
+    /// A CiA 402 state to walk an axis to.
+    AxisState {
+        axis: u8,
+        target: TargetState,
+    },
+    /// Halt set (a stop) or released (motion resumed: `lease` says the host
+    /// renews the lease it needs).
+    Halt {
+        axis: u8,
+        halt: bool,
+        lease: bool,
+    },
+    FaultReset {
+        axis: u8,
+    },
+    /// A move; `lease`: `Axis {n}/Lease` = true came with it.
+    Move {
+        axis: u8,
+        request: Box<MoveRequest>,
+        /// The request as the host gave it (for the audit log).
+        body: String,
+        lease: bool,
+    },
+    /// `Axis {n}/Lease` alone: true renews, false gives the lease up.
+    Lease {
+        axis: u8,
+        keep: bool,
+    },
+    /// Writes to one segment of an LED controller: objects and values, in
+    /// order.
+    Segment {
+        segment: u8,
+        writes: Vec<(u16, u8, i64)>,
+    },
+    /// A metric candeck does not take, or a value it cannot take (named,
+    /// for the log and the audit).
     Unsupported(String),
 }
 
@@ -34,14 +84,53 @@ impl Command {
             Self::Rebirth => "rebirth",
             Self::Nmt(_) => "nmt command",
             Self::Write { .. } => "write object",
+            Self::AxisState { .. } => "drive state change",
+            Self::Halt { .. } => "halt",
+            Self::FaultReset { .. } => "fault reset",
+            Self::Move { .. } => "move",
+            Self::Lease { keep: true, .. } => "renew motion lease",
+            Self::Lease { keep: false, .. } => "end motion lease",
+            Self::Segment { .. } => "set segment",
             Self::Unsupported(_) => "unsupported command",
+        }
+    }
+
+    /// The axis it commands, if any.
+    pub fn axis(&self) -> Option<u8> {
+        match self {
+            Self::AxisState { axis, .. }
+            | Self::Halt { axis, .. }
+            | Self::FaultReset { axis }
+            | Self::Move { axis, .. }
+            | Self::Lease { axis, .. } => Some(*axis),
+            _ => None,
+        }
+    }
+
+    /// Whether it stops motion (never refused by the write rate, as REST's
+    /// halts and walks out of operation enabled are not).
+    pub fn is_stop(&self) -> bool {
+        match self {
+            Self::AxisState { target, .. } => *target != TargetState::OperationEnabled,
+            Self::Halt { halt, .. } => *halt,
+            Self::Lease { keep: false, .. } => true,
+            _ => false,
         }
     }
 }
 
+/// Whether a move in this mode runs until told otherwise, and so holds a
+/// lease its client renews (as REST's moves: velocity, torque, duty cycle).
+pub fn endless(mode: MoveMode) -> bool {
+    matches!(
+        mode,
+        MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
+    )
+}
+
 /// The commands of an NCMD (`device` false) or a DCMD payload, in order.
 pub fn parse(payload: &Payload, device: bool) -> Vec<Command> {
-    payload
+    let commands: Vec<Command> = payload
         .metrics
         .iter()
         .map(|metric| {
@@ -59,10 +148,176 @@ pub fn parse(payload: &Payload, device: bool) -> Vec<Command> {
                         None => Command::Unsupported(name.to_string()),
                     }
                 }
+                (true, name, Some(value)) if name.starts_with("Axis ") => axis_command(name, value),
+                (true, name, Some(value)) if name.starts_with("Segment ") => {
+                    segment_command(name, value)
+                }
                 _ => Command::Unsupported(name),
             }
         })
-        .collect()
+        .collect();
+    fold_leases(commands)
+}
+
+/// `Axis {n}/Lease` = true beside a move or a halt release of the same axis
+/// is that command's lease promise, not a renewal of its own.
+fn fold_leases(mut commands: Vec<Command>) -> Vec<Command> {
+    let promised: Vec<u8> = commands
+        .iter()
+        .filter_map(|command| match command {
+            Command::Lease { axis, keep: true } => Some(*axis),
+            _ => None,
+        })
+        .collect();
+    let mut folded = Vec::new();
+    for command in &mut commands {
+        match command {
+            Command::Move { axis, lease, .. }
+            | Command::Halt {
+                axis,
+                lease,
+                halt: false,
+            } if promised.contains(axis) => {
+                *lease = true;
+                folded.push(*axis);
+            }
+            _ => {}
+        }
+    }
+    commands.retain(
+        |command| !matches!(command, Command::Lease { axis, keep: true } if folded.contains(axis)),
+    );
+    commands
+}
+
+/// `Axis {n}/{what}`.
+fn axis_command(name: &str, value: MetricValue) -> Command {
+    let unsupported = |why: &str| Command::Unsupported(format!("{name}: {why}"));
+    let Some((axis, what)) = name["Axis ".len()..].split_once('/') else {
+        return unsupported("no such metric");
+    };
+    let axis = match axis.parse::<u8>() {
+        Ok(axis) if (1..=crate::profiles::umc::MAX_AXES).contains(&axis) => axis,
+        _ => return unsupported("no such axis"),
+    };
+    match (what, value) {
+        ("State", MetricValue::String(text)) => {
+            match serde_json::from_value::<TargetState>(serde_json::Value::String(text.clone())) {
+                Ok(target) => Command::AxisState { axis, target },
+                Err(_) => unsupported(&format!("no target state '{text}'")),
+            }
+        }
+        ("Halt", MetricValue::Boolean(halt)) => Command::Halt {
+            axis,
+            halt,
+            lease: false,
+        },
+        ("Fault Reset", MetricValue::Boolean(true)) => Command::FaultReset { axis },
+        ("Move", MetricValue::String(text)) => match serde_json::from_str::<MoveRequest>(&text) {
+            Ok(request) => Command::Move {
+                axis,
+                request: Box::new(request),
+                body: text,
+                lease: false,
+            },
+            Err(err) => unsupported(&format!("not a move: {err}")),
+        },
+        ("Lease", MetricValue::Boolean(keep)) => Command::Lease { axis, keep },
+        _ => unsupported("no such metric, or not of its type"),
+    }
+}
+
+/// `Segment {n}/{field}` of an LED controller, as its objects' writes.
+fn segment_command(name: &str, value: MetricValue) -> Command {
+    let unsupported = |why: &str| Command::Unsupported(format!("{name}: {why}"));
+    let Some((segment, what)) = name["Segment ".len()..].split_once('/') else {
+        return unsupported("no such metric");
+    };
+    let segment = match segment.parse::<u8>() {
+        Ok(n) if (1..=SEGMENTS).contains(&n) => n,
+        _ => return unsupported("no such segment"),
+    };
+    let number = value
+        .as_f64()
+        .filter(|n| n.fract() == 0.0)
+        .map(|n| n as i64);
+    let fields: Vec<(Field, i64)> = match (what, &value) {
+        ("Effect", MetricValue::String(text)) => {
+            let folded = text.trim().to_ascii_uppercase().replace([' ', '-'], "_");
+            match [
+                Effect::Off,
+                Effect::Fix,
+                Effect::Flash,
+                Effect::Breathing,
+                Effect::Flow,
+                Effect::FlowReversed,
+            ]
+            .into_iter()
+            .find(|effect| effect.name() == folded)
+            {
+                Some(effect) => vec![(Field::Effect, i64::from(effect.raw()))],
+                None => return unsupported(&format!("no effect '{text}'")),
+            }
+        }
+        (color, MetricValue::String(text)) if color.starts_with("Color ") => {
+            let Ok(n @ 1..=3) = color["Color ".len()..].parse::<u8>() else {
+                return unsupported("a segment has colours 1 to 3");
+            };
+            let Some(channels) = hex_color(text) else {
+                return unsupported(&format!("'{text}' is not #rrggbb or #rrggbbww"));
+            };
+            channels
+                .into_iter()
+                .enumerate()
+                .map(|(i, level)| {
+                    (
+                        Field::Color {
+                            color: n,
+                            channel: i as u8 + 1,
+                        },
+                        i64::from(level),
+                    )
+                })
+                .collect()
+        }
+        (field, _) => {
+            let field = match field {
+                "Effect" => Field::Effect,
+                "Led Count" => Field::LedCount,
+                "Dimmer" => Field::Dimmer,
+                "Value" => Field::Value,
+                "Min Value" => Field::MinValue,
+                "Max Value" => Field::MaxValue,
+                "Speed" => Field::Speed,
+                "Smooth" => Field::Smooth,
+                _ => return unsupported("no such field"),
+            };
+            match number {
+                Some(number) => vec![(field, number)],
+                None => return unsupported("a whole number is wanted"),
+            }
+        }
+    };
+    let writes = fields
+        .into_iter()
+        .filter_map(|(field, value)| {
+            address(segment, field).map(|(index, sub)| (index, sub, value))
+        })
+        .collect();
+    Command::Segment { segment, writes }
+}
+
+/// `#rrggbb` (white 0) or `#rrggbbww` as its four channels.
+fn hex_color(text: &str) -> Option<[u8; 4]> {
+    let hex = text.trim().strip_prefix('#')?;
+    if !(hex.len() == 6 || hex.len() == 8) || !hex.is_ascii() {
+        return None;
+    }
+    let mut channels = [0u8; 4];
+    for (i, channel) in channels.iter_mut().enumerate().take(hex.len() / 2) {
+        *channel = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).ok()?;
+    }
+    Some(channels)
 }
 
 /// An NMT command by the name candeck's REST API gives it.

@@ -13,6 +13,8 @@
 //! - [`spool`]: store and forward: the bounded queue of the data made
 //!   while offline, sent later as historical.
 //! - [`command`]: what NCMD and DCMD metrics ask.
+//! - [`motion`]: the DCMD commands that move axes and light LEDs, and the
+//!   motion leases the edge node holds.
 //! - [`config`]: the settings (`mqtt_url`, `sparkplug_*`).
 //! - [`tls`]: rustls for `mqtts://`.
 //! - [`node`]: the edge node at work, with rumqttc, on the gateway service.
@@ -30,6 +32,7 @@ pub mod command;
 pub mod config;
 pub mod edge;
 pub mod metric;
+pub mod motion;
 pub mod node;
 #[rustfmt::skip]
 #[allow(clippy::all, clippy::pedantic, missing_docs)]

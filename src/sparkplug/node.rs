@@ -24,6 +24,7 @@ use super::command::{self, Command, device_id, parse_device};
 use super::config::SparkplugConfig;
 use super::edge::{EdgeSession, Outgoing};
 use super::metric::{MetricValue, Sample};
+use super::motion::{HeldLeases, Outcome};
 use super::spool::Spool;
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
@@ -60,9 +61,21 @@ pub struct EdgeNode {
 
 impl EdgeNode {
     /// Starts the edge node of `gateway`.
+    /// Fails, before anything connects, when the TLS files of `mqtts://`
+    /// cannot be read (a missing or bad CA file, client certificate or key)
+    /// or the spool file cannot be opened.
     pub fn spawn(gateway: Gateway, config: SparkplugConfig) -> std::io::Result<Self> {
+        let tls = if config.broker.tls {
+            let tls = super::tls::client_config(&config.tls).map_err(std::io::Error::other)?;
+            Some(Arc::new(tls))
+        } else {
+            None
+        };
+        let store = |err: std::io::Error| {
+            std::io::Error::new(err.kind(), format!("store and forward: {err}"))
+        };
         let spool = match &config.spool_file {
-            Some(file) => Spool::with_file(config.queue_messages, file.clone())?,
+            Some(file) => Spool::with_file(config.queue_messages, file.clone()).map_err(store)?,
             None => Spool::new(config.queue_messages),
         };
         let (stop, stopped) = oneshot::channel();
@@ -70,7 +83,8 @@ impl EdgeNode {
         stats
             .enabled
             .store(true, std::sync::atomic::Ordering::Relaxed);
-        let runner = Runner::new(gateway, config, spool);
+        let mut runner = Runner::new(gateway, config, spool);
+        runner.tls = tls;
         let task = tokio::spawn(runner.run(stopped));
         Ok(Self {
             stop: Some(stop),
@@ -197,6 +211,10 @@ struct Runner {
     followed: HashSet<(String, NodeId)>,
     /// The spool's drops already added to the stats.
     spool_dropped: u64,
+    /// The motion leases of moves commanded over MQTT.
+    held: Arc<HeldLeases>,
+    /// The TLS configuration of `mqtts://`, read once at the start.
+    tls: Option<Arc<rustls::ClientConfig>>,
 }
 
 impl Runner {
@@ -224,6 +242,8 @@ impl Runner {
             watched: HashSet::new(),
             followed: HashSet::new(),
             spool_dropped: 0,
+            held: Arc::new(HeldLeases::default()),
+            tls: None,
         }
     }
 
@@ -335,15 +355,10 @@ impl Runner {
         if let Some(user) = &config.username {
             options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
         }
-        if config.broker.tls {
-            match super::tls::client_config(&config.tls) {
-                Ok(tls) => {
-                    options.set_transport(rumqttc::Transport::tls_with_config(
-                        rumqttc::TlsConfiguration::Rustls(Arc::new(tls)),
-                    ));
-                }
-                Err(err) => tracing::error!("sparkplug: TLS: {err}"),
-            }
+        if let Some(tls) = &self.tls {
+            options.set_transport(rumqttc::Transport::tls_with_config(
+                rumqttc::TlsConfiguration::Rustls(tls.clone()),
+            ));
         }
         let death = self.session.death(unix_ms());
         options.set_last_will(LastWill::new(
@@ -359,6 +374,9 @@ impl Runner {
 
     fn disconnected(&mut self) {
         self.live = false;
+        // The host can renew nothing now: the motion it commanded stops.
+        self.held
+            .lapse_all(&self.gateway, "the broker connection is gone");
         // The primary host's state is learnt anew on the next connection
         // (its retained STATE, or its next message).
         self.host_online = self.config.primary_host.is_none();
@@ -435,6 +453,8 @@ impl Runner {
                 self.go_live(connection);
             } else {
                 self.live = false;
+                self.held
+                    .lapse_all(&self.gateway, "the primary host went offline");
                 self.stats
                     .publishing
                     .store(false, std::sync::atomic::Ordering::Relaxed);
@@ -449,6 +469,7 @@ impl Runner {
             return;
         };
         let device = topic.kind == MessageType::DCmd;
+        let mut commands = Vec::new();
         for command in command::parse(&payload, device) {
             EdgeNodeStats::add(&self.stats.commands, 1);
             if command == Command::Rebirth {
@@ -458,17 +479,25 @@ impl Runner {
                 }
                 continue;
             }
-            let gateway = self.gateway.clone();
-            let config = self.config.clone();
-            let stats = self.stats.clone();
-            let topic = topic.clone();
-            tokio::spawn(async move {
-                if let Err(err) = run_command(&gateway, &config, &topic, &command).await {
+            commands.push(command);
+        }
+        if commands.is_empty() {
+            return;
+        }
+        // The commands of one message run in order (a move after the state
+        // change that enables its axis), in a task of their own.
+        let gateway = self.gateway.clone();
+        let config = self.config.clone();
+        let stats = self.stats.clone();
+        let held = self.held.clone();
+        tokio::spawn(async move {
+            for command in commands {
+                if let Err(err) = run_command(&gateway, &config, &held, &topic, &command).await {
                     EdgeNodeStats::add(&stats.commands_failed, 1);
                     tracing::warn!("sparkplug: {topic}: {}: {err}", command.operation());
                 }
-            });
-        }
+            }
+        });
     }
 
     /// The births (NBIRTH, a DBIRTH per identified node online), then the
@@ -513,6 +542,11 @@ impl Runner {
             MetricValue::String(env!("CARGO_PKG_VERSION").to_string()),
             now,
         )];
+        metrics.push(Sample::new(
+            "Properties/Lease Period",
+            MetricValue::UInt32(self.gateway.leases.period().as_millis() as u32),
+            now,
+        ));
         if let Some(state) = machine_state(&self.gateway) {
             metrics.push(Sample::new(
                 "Machine State",
@@ -867,6 +901,7 @@ impl Runner {
     /// The NDEATH of a clean stop (the will is not sent on a clean
     /// DISCONNECT), then DISCONNECT, the client's queue flushed.
     async fn clean_stop(&mut self, connection: &mut Connection) {
+        self.held.lapse_all(&self.gateway, "the edge node stops");
         if connection.connected {
             let death = self.session.death(unix_ms());
             let _ = connection.client.try_publish(
@@ -975,9 +1010,10 @@ async fn sleep_until(at: Option<Instant>) {
 /// One command from MQTT, through the gateway's operations and checks as
 /// REST runs them: the role, the write rate limit, the node's checks, the
 /// EDS's; audited whatever its outcome, `who` the MQTT identity.
-async fn run_command(
+pub(super) async fn run_command(
     gateway: &Gateway,
     config: &SparkplugConfig,
+    held: &HeldLeases,
     topic: &Topic,
     command: &Command,
 ) -> Result<(), GatewayError> {
@@ -988,6 +1024,10 @@ async fn run_command(
     };
     let mut item = None;
     let mut request = None;
+    let mut outcome = Outcome {
+        audit: true,
+        ..Outcome::default()
+    };
     let result = async {
         if config.role < crate::gateway::access::Role::Operator {
             return Err(GatewayError::Forbidden(format!(
@@ -1001,7 +1041,12 @@ async fn run_command(
                 "{topic}: not a device of this edge node"
             )));
         };
-        gateway.writes.take_or_refuse(&config.who())?;
+        // A stop is never refused by the write rate (as REST's halts and
+        // walks out of operation enabled), nor is a lease renewal (a
+        // heartbeat refused would stop the axis).
+        if !(command.is_stop() || matches!(command, Command::Lease { keep: true, .. })) {
+            gateway.writes.take_or_refuse(&config.who())?;
+        }
         match command {
             Command::Write { index, sub, value } => {
                 item = Some(format!("0x{index:04X}:{sub}"));
@@ -1041,9 +1086,15 @@ async fn run_command(
                 "unsupported command metric '{what}'"
             ))),
             Command::Rebirth => Ok(()),
+            _ => super::motion::run(gateway, config, held, bus, node, command, &mut outcome).await,
         }
     }
     .await;
+    if result.is_ok() && !outcome.audit {
+        return result;
+    }
+    item = item.or(outcome.item);
+    request = request.or(outcome.request);
     let (status, error_code, abort_code) = match &result {
         Ok(()) => (200, None, None),
         Err(error) => (
@@ -1064,7 +1115,7 @@ async fn run_command(
         operation: command.operation().to_string(),
         bus,
         node,
-        axis: None,
+        axis: command.axis(),
         item,
         request,
         status,

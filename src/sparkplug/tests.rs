@@ -478,6 +478,99 @@ fn commands_are_read_from_ncmd_and_dcmd_metrics() {
 }
 
 #[test]
+fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
+    let m = |name: &str, value: MetricValue| {
+        let mut metric = Metric {
+            name: Some(name.into()),
+            ..Metric::default()
+        };
+        value.fill(&mut metric);
+        metric
+    };
+    let velocity = r#"{"mode":"velocity","velocity":100}"#;
+    let dcmd = Payload {
+        metrics: vec![
+            m(
+                "Axis 1/State",
+                MetricValue::String("operation_enabled".into()),
+            ),
+            m("Axis 1/Move", MetricValue::String(velocity.into())),
+            m("Axis 1/Lease", MetricValue::Boolean(true)),
+            m("Axis 2/Lease", MetricValue::Boolean(true)),
+            m("Axis 2/Halt", MetricValue::Boolean(true)),
+            m("Axis 1/State", MetricValue::String("flying".into())),
+            m("Axis 9/Halt", MetricValue::Boolean(true)),
+            m(
+                "Axis 1/Move",
+                MetricValue::String("{\"mode\":\"warp\"}".into()),
+            ),
+            m("Segment 3/Color 2", MetricValue::String("#0a0b0c".into())),
+            m("Segment 3/Effect", MetricValue::String("Flow".into())),
+            m("Segment 11/Dimmer", MetricValue::UInt8(1)),
+            m("Segment 3/Color 2", MetricValue::String("red".into())),
+        ],
+        ..Payload::default()
+    };
+    let commands = command::parse(&dcmd, true);
+    assert_eq!(commands.len(), 11, "{commands:#?}");
+    assert_eq!(
+        commands[0],
+        Command::AxisState {
+            axis: 1,
+            target: crate::gateway::drive::TargetState::OperationEnabled
+        }
+    );
+    // The promise is folded into the move of its axis; axis 2's, beside
+    // a halt that stops, stays a renewal of its own.
+    assert!(
+        matches!(&commands[1], Command::Move { axis: 1, lease: true, body, .. } if body == velocity),
+        "{:?}",
+        commands[1]
+    );
+    assert_eq!(
+        commands[2],
+        Command::Lease {
+            axis: 2,
+            keep: true
+        }
+    );
+    assert_eq!(
+        commands[3],
+        Command::Halt {
+            axis: 2,
+            halt: true,
+            lease: false
+        }
+    );
+    assert!(commands[3].is_stop());
+    for bad in &commands[4..7] {
+        assert!(matches!(bad, Command::Unsupported(_)), "{bad:?}");
+    }
+    // Segment 3's Color_02 is 0x6231, sub-indexes 1-4 R, G, B, W.
+    assert_eq!(
+        commands[7],
+        Command::Segment {
+            segment: 3,
+            writes: vec![
+                (0x6231, 1, 10),
+                (0x6231, 2, 11),
+                (0x6231, 3, 12),
+                (0x6231, 4, 0)
+            ]
+        }
+    );
+    assert_eq!(
+        commands[8],
+        Command::Segment {
+            segment: 3,
+            writes: vec![(0x6220, 0, 0x0300)]
+        }
+    );
+    assert!(matches!(commands[9], Command::Unsupported(_)));
+    assert!(matches!(commands[10], Command::Unsupported(_)));
+}
+
+#[test]
 fn device_ids_are_bus_dash_node() {
     assert_eq!(command::device_id("demo", 1), "demo-1");
     assert_eq!(parse_device("demo-1"), Some(("demo", 1)));
@@ -515,4 +608,32 @@ fn a_payload_survives_protobuf_both_ways() {
     let birth = s.birth(vec![sample("x", MetricValue::Double(1.25))], 7);
     let bytes = birth.payload.encode_to_vec();
     assert_eq!(Payload::decode(bytes.as_slice()).unwrap(), birth.payload);
+}
+
+#[test]
+fn a_missing_or_bad_ca_file_is_refused_in_words() {
+    let dir = std::env::temp_dir().join(format!("candeck-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("missing.pem");
+    let files = super::config::TlsFiles {
+        ca_file: Some(missing.clone()),
+        ..Default::default()
+    };
+    let err = super::tls::client_config(&files).unwrap_err();
+    assert!(
+        err.starts_with(&format!("mqtt_ca_file {}: ", missing.display())),
+        "{err}"
+    );
+    let bad = dir.join("bad.pem");
+    std::fs::write(&bad, "this is not PEM\n").unwrap();
+    let files = super::config::TlsFiles {
+        ca_file: Some(bad.clone()),
+        ..Default::default()
+    };
+    let err = super::tls::client_config(&files).unwrap_err();
+    assert_eq!(
+        err,
+        format!("mqtt_ca_file {}: no certificate in it", bad.display())
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }

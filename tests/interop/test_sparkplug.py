@@ -185,7 +185,7 @@ def metric(message, name):
 
 
 class Gateway(Process):
-    def __init__(self, broker_port):
+    def __init__(self, broker_port, extra=()):
         self.dir = tempfile.mkdtemp(prefix="candeck-spb-gw-")
         config = os.path.join(self.dir, "candeck.toml")
         with open(config, "w") as f:
@@ -198,7 +198,7 @@ class Gateway(Process):
                 # The demo drives send their TPDOs on SYNC.
                 "sync_period_ms = 50\n"
             )
-        super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config])
+        super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config, *extra])
         line = self.first_line()
         self.base = "http://" + line.split("http://")[1].split("/")[0] + "/api/v1"
 
@@ -423,3 +423,253 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
     stamps = [m["timestamp"] for m in historical]
     assert stamps == sorted(stamps)
+
+
+def axis_velocity(gateway):
+    return gateway.request("GET", "/buses/demo/nodes/1/axes/1")["velocity"]
+
+
+def wait_until(predicate, timeout=15, what="the condition"):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        time.sleep(0.1)
+
+
+ENABLE = ("Axis 1/State", DT.String, "string_value", "operation_enabled")
+VELOCITY = ("Axis 1/Move", DT.String, "string_value", json.dumps({"mode": "velocity", "velocity": 100}))
+RENEW = ("Axis 1/Lease", DT.Boolean, "boolean_value", True)
+
+
+def test_a_dcmd_move_runs_while_its_lease_is_renewed_by_metric_and_stops_when_not(broker, host):
+    gateway = Gateway(broker.port, ["--lease-ms", "1000"])
+    try:
+        _, nbirth = host.wait_for(lambda m: m["kind"] == "NBIRTH")
+        assert metric(nbirth, "Properties/Lease Period")["value"] == 1000
+        host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+        # Without the lease promise, a velocity move is refused.
+        host.send_dcmd("demo-1", [ENABLE, VELOCITY])
+
+        def refused():
+            events = gateway.request("GET", "/events?kind=audit&limit=50")
+            return [e for e in events if e.get("operation") == "move" and e.get("status") != 200]
+
+        wait_until(lambda: refused(), what="the refused move in the audit log")
+        assert refused()[-1]["who"] == "mqtt:candeck-plant-line1"
+        assert refused()[-1]["axis"] == 1
+        assert axis_velocity(gateway) == 0
+        # With it, the axis turns, as long as the host renews.
+        host.send_dcmd("demo-1", [VELOCITY, RENEW])
+        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        until = time.monotonic() + 3
+        while time.monotonic() < until:
+            host.send_dcmd("demo-1", [RENEW])
+            time.sleep(0.25)
+        assert axis_velocity(gateway) > 0, "halted while the host renewed"
+        # The host stops renewing: the gateway halts the axis.
+        wait_until(lambda: axis_velocity(gateway) == 0, what="the axis halted after its lease lapsed")
+        events = gateway.request("GET", "/events?kind=audit&limit=100")
+        lapses = [e for e in events if e.get("who") == "gateway" and "lapsed" in e.get("operation", "")]
+        assert lapses and "mqtt:candeck-plant-line1" in lapses[-1]["item"], events
+        renewals = [e for e in events if e.get("operation") == "renew motion lease"]
+        assert renewals and renewals[0]["method"] == "DCMD"
+    finally:
+        gateway.close()
+
+
+def test_a_broker_outage_does_not_leave_a_dcmd_move_running(broker, host):
+    # A lease of a minute: only the lost connection can stop it this soon.
+    gateway = Gateway(broker.port, ["--lease-ms", "60000"])
+    try:
+        host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
+        host.send_dcmd("demo-1", [ENABLE, VELOCITY, RENEW])
+        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        broker.stop()
+        wait_until(lambda: axis_velocity(gateway) == 0, timeout=20, what="the axis stopped after the broker went away")
+        events = gateway.request("GET", "/events?kind=audit&limit=100")
+        assert any(e.get("who") == "gateway" and "lapsed" in e.get("operation", "") for e in events), events
+    finally:
+        gateway.close()
+
+
+# --- mqtts:// ---------------------------------------------------------------
+
+OPENSSL = shutil.which("openssl")
+MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
+
+
+def openssl(*args, cwd):
+    subprocess.run([OPENSSL, *args], cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def make_pki(folder):
+    """A CA, a server certificate for 127.0.0.1 and a client certificate,
+    made now (EC P-256), in `folder`."""
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    openssl("req", "-x509", *ec, "-keyout", "ca.key", "-out", "ca.pem", "-days", "2", "-subj", "/CN=candeck test CA", cwd=folder)
+    with open(os.path.join(folder, "server.ext"), "w") as f:
+        f.write("subjectAltName=IP:127.0.0.1\nbasicConstraints=CA:FALSE\n")
+    with open(os.path.join(folder, "client.ext"), "w") as f:
+        f.write("basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n")
+    for name, cn in (("server", "127.0.0.1"), ("client", "line-tls")):
+        openssl("req", *ec, "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={cn}", cwd=folder)
+        openssl(
+            "x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+            "-out", f"{name}.pem", "-days", "2", "-extfile", f"{name}.ext", cwd=folder,
+        )
+    # A CA file of another CA: the broker's certificate does not check.
+    openssl("req", "-x509", *ec, "-keyout", "other.key", "-out", "other.pem", "-days", "2", "-subj", "/CN=other CA", cwd=folder)
+
+
+class TlsBroker:
+    """mosquitto with two TLS listeners on loopback (one that wants a client
+    certificate), users by password only."""
+
+    def __init__(self):
+        self.dir = tempfile.mkdtemp(prefix="candeck-mosquitto-tls-")
+        make_pki(self.dir)
+        self.pki = lambda name: os.path.join(self.dir, name)
+        subprocess.run([MOSQUITTO_PASSWD, "-b", "-c", self.pki("passwd"), "line", "s3cret"], check=True)
+        subprocess.run([MOSQUITTO_PASSWD, "-b", self.pki("passwd"), "scada", "h0st"], check=True)
+        # mosquitto started as root reads its files as the user mosquitto.
+        os.chmod(self.dir, 0o755)
+        for name in os.listdir(self.dir):
+            os.chmod(self.pki(name), 0o644)
+        self.port, self.cert_port = free_port(), free_port()
+        tls = f"cafile {self.pki('ca.pem')}\ncertfile {self.pki('server.pem')}\nkeyfile {self.pki('server.key')}\n"
+        with open(self.pki("mosquitto.conf"), "w") as f:
+            f.write(
+                f"allow_anonymous false\npassword_file {self.pki('passwd')}\npersistence false\n"
+                f"listener {self.port} 127.0.0.1\n{tls}require_certificate false\n"
+                f"listener {self.cert_port} 127.0.0.1\n{tls}require_certificate true\n"
+            )
+        self.proc = subprocess.Popen([MOSQUITTO, "-c", self.pki("mosquitto.conf")], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", self.cert_port), timeout=0.2).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "mosquitto (TLS) did not start"
+                time.sleep(0.05)
+
+    def close(self):
+        self.proc.terminate()
+        self.proc.wait(timeout=10)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+class TlsWatcher:
+    """A plain subscriber over TLS (user scada): every NBIRTH's edge node."""
+
+    def __init__(self, broker):
+        self.births = []
+        self.cond = threading.Condition()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="tls-watcher")
+        self.client.tls_set(ca_certs=broker.pki("ca.pem"))
+        self.client.username_pw_set("scada", "h0st")
+        self.client.on_connect = lambda c, u, f, r, p: c.subscribe(f"spBv1.0/{GROUP}/NBIRTH/+")
+        self.client.on_message = self._on_message
+        self.client.connect("127.0.0.1", broker.port, keepalive=5)
+        self.client.loop_start()
+
+    def _on_message(self, client, userdata, msg):
+        with self.cond:
+            self.births.append(msg.topic.split("/")[3])
+            self.cond.notify_all()
+
+    def born(self, edge, timeout):
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while edge not in self.births:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self.cond.wait(left)
+            return True
+
+    def close(self):
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+def tls_gateway(folder, edge, port, ca, cert=None, password="s3cret"):
+    config = os.path.join(folder, f"{edge}.toml")
+    with open(config, "w") as f:
+        f.write(
+            f'mqtt_url = "mqtts://127.0.0.1:{port}"\n'
+            f'mqtt_ca_file = "{ca}"\n'
+            'mqtt_username = "line"\n'
+            f'mqtt_password = "{password}"\n'
+            f'sparkplug_group_id = "{GROUP}"\n'
+            f'sparkplug_edge_node_id = "{edge}"\n'
+        )
+        if cert:
+            f.write(f'mqtt_client_cert = "{cert[0]}"\nmqtt_client_key = "{cert[1]}"\n')
+    return Process(["serve", "--listen", "127.0.0.1:0", "--config", config])
+
+
+@pytest.fixture
+def tls_broker():
+    if not OPENSSL or not os.path.exists(MOSQUITTO_PASSWD):
+        pytest.skip("openssl and mosquitto_passwd are needed for the TLS broker")
+    b = TlsBroker()
+    yield b
+    b.close()
+
+
+def test_mqtts_with_and_without_a_client_certificate_and_a_password(tls_broker):
+    watcher = TlsWatcher(tls_broker)
+    ca = tls_broker.pki("ca.pem")
+    client = (tls_broker.pki("client.pem"), tls_broker.pki("client.key"))
+    good = [
+        # Server certificate checked, user and password, no client certificate.
+        tls_gateway(tls_broker.dir, "tls-plain", tls_broker.port, ca),
+        # The listener that wants a client certificate, given one.
+        tls_gateway(tls_broker.dir, "tls-cert", tls_broker.cert_port, ca, cert=client),
+    ]
+    bad = [
+        # No client certificate where one is wanted.
+        tls_gateway(tls_broker.dir, "tls-nocert", tls_broker.cert_port, ca),
+        # A wrong password.
+        tls_gateway(tls_broker.dir, "tls-badpw", tls_broker.port, ca, password="wrong"),
+        # A CA that did not sign the broker's certificate.
+        tls_gateway(tls_broker.dir, "tls-otherca", tls_broker.port, tls_broker.pki("other.pem")),
+    ]
+    try:
+        for gateway in good + bad:
+            gateway.first_line()
+        for edge in ("tls-plain", "tls-cert"):
+            assert watcher.born(edge, timeout=30), f"no NBIRTH of {edge}: {watcher.births}"
+        # The refused ones had time to try (they retry every second).
+        time.sleep(3)
+        for edge in ("tls-nocert", "tls-badpw", "tls-otherca"):
+            assert edge not in watcher.births, watcher.births
+        for gateway in bad:
+            assert gateway.proc.poll() is None, gateway.log()
+        assert "sparkplug: broker 127.0.0.1" in bad[2].log(), bad[2].log()
+    finally:
+        watcher.close()
+        for gateway in good + bad:
+            gateway.stop()
+
+
+@pytest.mark.parametrize("ca", ["missing", "not a certificate"])
+def test_a_missing_or_bad_ca_file_is_a_clear_startup_error(tmp_path, ca):
+    path = tmp_path / "ca.pem"
+    if ca != "missing":
+        path.write_text("this is not PEM\n")
+    config = tmp_path / "candeck.toml"
+    config.write_text(
+        'mqtt_url = "mqtts://127.0.0.1:8883"\n'
+        f'mqtt_ca_file = "{path}"\n'
+        f'sparkplug_group_id = "{GROUP}"\n'
+    )
+    proc = subprocess.run([BIN, "serve", "--listen", "127.0.0.1:0", "--config", str(config)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("candeck: error:")]
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("candeck: error: sparkplug: mqtt_ca_file"), proc.stderr
+    assert "panicked" not in proc.stderr
+    assert str(path) in lines[0], proc.stderr

@@ -230,7 +230,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             ));
             Some(
                 crate::sparkplug::EdgeNode::spawn(state.gateway.clone(), config)
-                    .map_err(|err| CliError::new(format!("sparkplug: store and forward: {err}")))?,
+                    .map_err(|err| CliError::new(format!("sparkplug: {err}")))?,
             )
         }
         None => None,

@@ -1,0 +1,314 @@
+//! DCMD motion commands against the demo UMC on `virtual:demo`, on a
+//! paused clock: the lease promise, a lapse that halts the axis, renewals
+//! through `Axis 1/Lease`, the edge node's leases lapsing when its broker
+//! connection is gone, the role, and an LED segment write.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::*;
+use crate::gateway::ServedBus;
+use crate::gateway::history::{EventKind, Query};
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::RegistryConfig;
+use crate::sparkplug::command::parse;
+use crate::sparkplug::config::BrokerUrl;
+use crate::sparkplug::metric::MetricValue;
+use crate::sparkplug::node::run_command;
+use crate::sparkplug::proto::Payload;
+use crate::sparkplug::proto::payload::Metric;
+use crate::sparkplug::topic::{MessageType, Topic};
+
+const PERIOD: Duration = Duration::from_millis(1000);
+
+async fn demo() -> Gateway {
+    let served = ServedBus::open(
+        "demo",
+        &"virtual:demo".parse().unwrap(),
+        Arc::new(EdsCatalog::builtin().unwrap()),
+        RegistryConfig::default(),
+        500_000,
+    )
+    .await
+    .unwrap();
+    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
+    Gateway::new([served]).with_lease_period(PERIOD)
+}
+
+fn config(role: crate::gateway::access::Role) -> SparkplugConfig {
+    let broker: BrokerUrl = "mqtt://127.0.0.1:1883".parse().unwrap();
+    let mut config = SparkplugConfig::new(broker, "plant", "line1");
+    config.username = Some("scada".into());
+    config.role = role;
+    config
+}
+
+fn metric(name: &str, value: MetricValue) -> Metric {
+    let mut metric = Metric {
+        name: Some(name.into()),
+        ..Metric::default()
+    };
+    value.fill(&mut metric);
+    metric
+}
+
+/// A DCMD to `demo-{node}`, its commands run in order as the edge node
+/// runs them; the result of each.
+async fn dcmd(
+    gateway: &Gateway,
+    config: &SparkplugConfig,
+    held: &HeldLeases,
+    node: u8,
+    metrics: Vec<Metric>,
+) -> Vec<Result<(), GatewayError>> {
+    let topic = Topic::device("plant", MessageType::DCmd, "line1", &format!("demo-{node}"));
+    let payload = Payload {
+        metrics,
+        ..Payload::default()
+    };
+    let mut results = Vec::new();
+    for command in parse(&payload, true) {
+        results.push(run_command(gateway, config, held, &topic, &command).await);
+    }
+    results
+}
+
+async fn velocity(gateway: &Gateway) -> i64 {
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    i64::from(drive.status().await.unwrap().velocity.unwrap())
+}
+
+fn enable() -> Metric {
+    metric(
+        "Axis 1/State",
+        MetricValue::String("operation_enabled".into()),
+    )
+}
+
+fn run_at(speed: i32) -> Metric {
+    metric(
+        "Axis 1/Move",
+        MetricValue::String(format!(r#"{{"mode":"velocity","velocity":{speed}}}"#)),
+    )
+}
+
+fn renew() -> Metric {
+    metric("Axis 1/Lease", MetricValue::Boolean(true))
+}
+
+async fn audit(gateway: &Gateway) -> Vec<serde_json::Map<String, serde_json::Value>> {
+    gateway
+        .history
+        .query(Query {
+            kind: Some(EventKind::Audit),
+            since_us: None,
+            until_us: None,
+            limit: 100,
+        })
+        .await
+        .unwrap()
+        .into_iter()
+        .map(|event| event.fields)
+        .collect()
+}
+
+/// Axis 1 enabled and turning at 100 under the edge node's lease.
+async fn turning() -> (Gateway, SparkplugConfig, HeldLeases) {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![enable(), run_at(100), renew()],
+    )
+    .await;
+    assert!(results.iter().all(Result::is_ok), "{results:?}");
+    assert_eq!(held.len(), 1);
+    tokio::time::sleep(PERIOD / 4).await;
+    assert!(velocity(&gateway).await > 0, "not turning");
+    (gateway, config, held)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_move_without_an_end_is_refused_without_the_lease_promise() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    let results = dcmd(&gateway, &config, &held, 1, vec![enable(), run_at(100)]).await;
+    assert!(results[0].is_ok(), "{results:?}");
+    let refused = results[1].as_ref().unwrap_err();
+    assert_eq!(refused.code(), "invalid_request", "{refused}");
+    assert!(refused.to_string().contains("Axis 1/Lease"), "{refused}");
+    assert!(held.is_empty());
+    tokio::time::sleep(PERIOD / 2).await;
+    assert_eq!(velocity(&gateway).await, 0, "moving without a lease");
+    // A move with an end of its own needs none.
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![metric(
+            "Axis 1/Move",
+            MetricValue::String(r#"{"mode":"profile_position","target":1000}"#.into()),
+        )],
+    )
+    .await;
+    assert!(results[0].is_ok(), "{results:?}");
+    assert!(held.is_empty());
+    let entry = audit(&gateway)
+        .await
+        .into_iter()
+        .find(|e| e["operation"] == "move" && e["status"] != 200)
+        .expect("the refused move is audited");
+    assert_eq!(entry["who"], "mqtt:scada");
+    assert_eq!(entry["axis"], 1);
+    assert_eq!(entry["method"], "DCMD");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lease_not_renewed_halts_the_axis() {
+    let (gateway, _config, held) = turning().await;
+    tokio::time::sleep(PERIOD / 2).await;
+    assert!(velocity(&gateway).await > 0, "stopped before the lapse");
+    tokio::time::sleep(PERIOD / 2 + PERIOD).await;
+    assert_eq!(velocity(&gateway).await, 0, "still moving after the lapse");
+    let lapse = audit(&gateway)
+        .await
+        .into_iter()
+        .find(|e| e["who"] == "gateway")
+        .expect("the lapse is audited");
+    assert_eq!(lapse["operation"], "motion lease lapsed: axis halted");
+    assert_eq!(lapse["item"], "velocity lease of mqtt:scada (1000 ms)");
+    drop(held);
+}
+
+#[tokio::test(start_paused = true)]
+async fn lease_renewals_keep_the_axis_moving_and_a_lapsed_one_is_refused() {
+    let (gateway, config, held) = turning().await;
+    for _ in 0..6 {
+        tokio::time::sleep(PERIOD / 2).await;
+        let results = dcmd(&gateway, &config, &held, 1, vec![renew()]).await;
+        assert!(results[0].is_ok(), "{results:?}");
+    }
+    assert!(velocity(&gateway).await > 0, "halted while renewed");
+    // Renewals are audited once, not each.
+    let renewals = audit(&gateway)
+        .await
+        .into_iter()
+        .filter(|e| e["operation"] == "renew motion lease")
+        .count();
+    assert_eq!(renewals, 1);
+    // Not renewed: it lapses, and a late renewal is refused in words.
+    tokio::time::sleep(PERIOD * 3).await;
+    assert_eq!(velocity(&gateway).await, 0);
+    let results = dcmd(&gateway, &config, &held, 1, vec![renew()]).await;
+    assert_eq!(results[0].as_ref().unwrap_err().code(), "unknown_lease");
+    assert!(held.is_empty());
+}
+
+#[tokio::test(start_paused = true)]
+async fn losing_the_broker_lapses_the_edge_nodes_leases_at_once() {
+    let (gateway, _config, held) = turning().await;
+    // What the runner does when its connection is lost.
+    assert_eq!(held.lapse_all(&gateway, "test"), 1);
+    assert!(held.is_empty());
+    // Stopped well before the lease would have run out.
+    tokio::time::sleep(PERIOD / 2).await;
+    assert_eq!(velocity(&gateway).await, 0, "still moving without a host");
+}
+
+#[tokio::test(start_paused = true)]
+async fn giving_the_lease_up_halts_and_another_client_is_refused_meanwhile() {
+    let (gateway, config, held) = turning().await;
+    // REST's anonymous client may not take the axis held by MQTT.
+    let axis = AxisKey {
+        bus: "demo".into(),
+        node: 1,
+        axis: 1,
+    };
+    let refused = gateway.leases.check(&axis, None, "anonymous").unwrap_err();
+    assert_eq!(refused.code(), "lease_conflict");
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![metric("Axis 1/Lease", MetricValue::Boolean(false))],
+    )
+    .await;
+    assert!(results[0].is_ok(), "{results:?}");
+    tokio::time::sleep(PERIOD / 2).await;
+    assert_eq!(velocity(&gateway).await, 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_viewer_role_refuses_every_motion_command() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Viewer);
+    let held = HeldLeases::default();
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![enable(), run_at(100), renew()],
+    )
+    .await;
+    assert_eq!(results.len(), 2);
+    for result in &results {
+        assert_eq!(result.as_ref().unwrap_err().code(), "forbidden");
+    }
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    assert_ne!(drive.status().await.unwrap().state, "operation_enabled");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_segment_write_reaches_the_led_controller() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    let led = gateway
+        .buses
+        .get("demo")
+        .unwrap()
+        .registry
+        .nodes()
+        .into_iter()
+        .find(|info| info.profile == crate::gateway::profile::Profile::Uioled)
+        .expect("the demo has a UIO1LED");
+    let node = led.id.get();
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        node,
+        vec![
+            metric("Segment 2/Color 1", MetricValue::String("#ff5000".into())),
+            metric("Segment 2/Effect", MetricValue::String("breathing".into())),
+            metric("Segment 2/Dimmer", MetricValue::UInt8(99)),
+            metric("Segment 2/Dimmer", MetricValue::Int32(999)),
+        ],
+    )
+    .await;
+    assert!(results[..3].iter().all(Result::is_ok), "{results:?}");
+    assert_eq!(
+        results[3].as_ref().unwrap_err().code(),
+        "value_out_of_range"
+    );
+    let (served, info) = gateway.node("demo", &node.to_string()).unwrap();
+    let channel = served.registry.sdo(info.id).unwrap();
+    let segment = crate::gateway::uioled::read_segment(&channel, 2)
+        .await
+        .unwrap();
+    assert_eq!(segment.get(crate::profiles::uioled::Field::Dimmer), 99);
+    assert_eq!(
+        segment.get(crate::profiles::uioled::Field::Effect),
+        i64::from(crate::profiles::uioled::Effect::Breathing.raw())
+    );
+    assert_eq!(segment.color_1().r, 0xff);
+    assert_eq!(segment.color_1().g, 0x50);
+}
