@@ -171,3 +171,27 @@ def test_halt_and_quick_stop_stay_in_view_on_the_drive_page(server, browser):
         assert server.get(AXES[0])["state"] in ("quick_stop_active", "switch_on_disabled")
     finally:
         server.post(f"{AXES[0]}/state", {"target": "switch_on_disabled"})
+
+
+def test_a_page_for_an_axis_that_does_not_exist_shows_only_why(server, browser):
+    """Point 8: /nodes/demo/3/axes/1 (no drive) and /nodes/demo/1/axes/5
+    (no such axis) say why, and nothing of a drive page is left: no
+    enabled button, no "Loading the axis's modes…"."""
+    for path, code in [("/nodes/demo/3/axes/1", "not_a_drive"), ("/nodes/demo/1/axes/5", "unknown_axis")]:
+        browser.driver.get(server.url + path)
+        connected(browser)
+        browser.wait(lambda _: browser.js("return document.getElementById('page-message').dataset.code") == code,
+                     message=f"{path}: no {code} message")
+        shown = browser.js(
+            """
+            const vis = (e) => e.offsetParent !== null;
+            return {buttons: [...document.querySelectorAll('main button')].filter((e) => vis(e) && !e.disabled)
+                                .map((e) => e.id || e.textContent),
+                    loading: /Loading/.test(document.querySelector('main').innerText),
+                    panels: [...document.querySelectorAll('main .panel, #fault-panel, #drive-stops')].filter(vis).map((e) => e.id)};
+            """
+        )
+        assert shown == {"buttons": [], "loading": False, "panels": []}, f"{path}: {shown}"
+        problems = browser.drain()
+        assert problems and all(re.search(r"/api/v1/buses/demo/nodes/\d/axes/\d (answered 404|- Failed to load resource: .* 404)", p)
+                                for p in problems), problems
