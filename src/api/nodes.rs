@@ -127,6 +127,11 @@ pub struct Emergency {
     pub manufacturer: String,
     /// When it was received, microseconds on the gateway's clock.
     pub timestamp_us: u64,
+    /// The axis (1-based) of a multi-axis drive the EMCY belongs to, where
+    /// the product says (the UMC: its first manufacturer byte); null for
+    /// the whole node.
+    #[schema(example = 1)]
+    pub axis: Option<u8>,
 }
 
 /// One node with its recent emergencies.

@@ -1008,6 +1008,7 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
             "register": emcy.register,
             "manufacturer": emcy.manufacturer_hex(),
             "timestamp_us": emcy.timestamp.as_micros(),
+            "axis": emcy.axis,
         }),
     }
 }

@@ -617,6 +617,7 @@ mod tests {
             register: 0x09,
             manufacturer: [1, 2, 3, 4, 5],
             timestamp: crate::can::Timestamp(0),
+            axis: None,
         };
         assert_eq!(
             event_of(1, &NodeEvent::Emcy { node, emcy }).map(|e| e.to_wire()),

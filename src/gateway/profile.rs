@@ -96,6 +96,16 @@ impl Profile {
     pub fn is_drive(self) -> bool {
         matches!(self, Self::Umc | Self::JmcStepper | Self::Cia402)
     }
+
+    /// The axis an EMCY with these manufacturer bytes belongs to, where
+    /// the product says (the UMC: [`crate::profiles::umc::emcy_axis`]);
+    /// `None` for a node-wide EMCY or a product that does not say.
+    pub fn emcy_axis(self, manufacturer: &[u8; 5]) -> Option<u8> {
+        match self {
+            Self::Umc => crate::profiles::umc::emcy_axis(manufacturer),
+            _ => None,
+        }
+    }
 }
 
 impl fmt::Display for Profile {

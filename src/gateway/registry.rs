@@ -186,6 +186,9 @@ pub struct EmcyRecord {
     pub manufacturer: [u8; 5],
     /// When the frame was received.
     pub timestamp: Timestamp,
+    /// The axis (1-based) the EMCY belongs to, where the node's profile
+    /// says ([`Profile::emcy_axis`]); `None` for the whole node.
+    pub axis: Option<u8>,
 }
 
 impl EmcyRecord {
@@ -196,6 +199,7 @@ impl EmcyRecord {
             register: emcy.register.raw(),
             manufacturer: emcy.manufacturer,
             timestamp,
+            axis: None,
         }
     }
 
@@ -214,15 +218,16 @@ impl EmcyRecord {
 }
 
 impl serde::Serialize for EmcyRecord {
-    /// `{"code":"0x4310","text":..,"register":9,"manufacturer":"0102030405","timestamp_us":..}`
+    /// `{"code":"0x4310","text":..,"register":9,"manufacturer":"0102030405","timestamp_us":..,"axis":null}`
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct;
-        let mut out = serializer.serialize_struct("EmcyRecord", 5)?;
+        let mut out = serializer.serialize_struct("EmcyRecord", 6)?;
         out.serialize_field("code", &format!("0x{:04X}", self.code))?;
         out.serialize_field("text", &self.text)?;
         out.serialize_field("register", &self.register)?;
         out.serialize_field("manufacturer", &self.manufacturer_hex())?;
         out.serialize_field("timestamp_us", &self.timestamp.as_micros())?;
+        out.serialize_field("axis", &self.axis)?;
         out.end()
     }
 }
@@ -1000,10 +1005,11 @@ impl Shared {
                 return;
             }
         };
-        let record = EmcyRecord::new(&emcy, frame.timestamp);
+        let mut record = EmcyRecord::new(&emcy, frame.timestamp);
         let bus_up = state.bus_up;
         let capacity = self.config.emcy_history;
         let (node, new) = self.ensure_node(state, id, now);
+        record.axis = node.profile.emcy_axis(&emcy.manufacturer);
         if new {
             self.start_identification(node);
         }

@@ -59,6 +59,16 @@ pub fn index_axis(index: u16) -> Option<(u8, u16)> {
     }
 }
 
+/// The axis (1–8) an EMCY belongs to: the UMC's axis faults carry their
+/// axis number in the first manufacturer byte (the virtual UMC sends them
+/// so, docs/virtual-devices.md); a 0 there, or a number outside 1–8, is a
+/// board or communication EMCY that belongs to no axis in particular.
+pub fn emcy_axis(manufacturer: &[u8; 5]) -> Option<u8> {
+    (1..=MAX_AXES)
+        .contains(&manufacturer[0])
+        .then_some(manufacturer[0])
+}
+
 /// Q15.16, the manual's fixed-point type: a signed 32-bit value in
 /// 1/65536ths.
 pub const Q15_16_ONE: f64 = 65536.0;
@@ -1068,6 +1078,15 @@ pub mod commissioning {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_emcy_belongs_to_the_axis_in_its_first_manufacturer_byte() {
+        assert_eq!(emcy_axis(&[2, 0, 0, 0, 0]), Some(2));
+        assert_eq!(emcy_axis(&[1, 9, 9, 9, 9]), Some(1));
+        assert_eq!(emcy_axis(&[8, 0, 0, 0, 0]), Some(8));
+        assert_eq!(emcy_axis(&[0, 0, 0, 0, 0]), None);
+        assert_eq!(emcy_axis(&[9, 0, 0, 0, 0]), None);
+    }
 
     #[test]
     fn axes_are_at_the_manuals_offsets() {

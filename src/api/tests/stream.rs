@@ -13,7 +13,7 @@ use tokio::time::Instant;
 
 use crate::api::AppState;
 use crate::api::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
-use crate::api::tests::support::{delete_text, demo, demo_at, post_text};
+use crate::api::tests::support::{delete_text, demo, demo_at, get, post_text};
 use crate::can::{CanId, Frame};
 use crate::gateway::registry::Identification;
 
@@ -261,6 +261,35 @@ async fn an_injected_fault_arrives_as_an_emcy_with_its_code_and_text() {
     assert_eq!(data["text"], "Excess temperature drive", "{emcy}");
     assert_eq!(data["register"], 9, "{emcy}");
     assert_eq!(data["manufacturer"].as_str().unwrap().len(), 10, "{emcy}");
+    // A board fault faults both axes of the UMC: each axis's EMCY says
+    // whose it is, as the node's history does.
+    let second = client.next().await;
+    let mut axes = [&data["axis"], &second["data"]["axis"]].map(|axis| {
+        axis.as_u64()
+            .unwrap_or_else(|| panic!("no axis: {emcy} {second}"))
+    });
+    axes.sort_unstable();
+    assert_eq!(axes, [1, 2], "{emcy} {second}");
+    assert_eq!(
+        data["manufacturer"].as_str().unwrap()[..2],
+        format!("{:02x}", data["axis"].as_u64().unwrap())
+    );
+    let (status, body) = get(&app, "/api/v1/buses/demo/nodes/1").await;
+    assert_eq!(status, StatusCode::OK);
+    let history: Vec<_> = body["emcy"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| (e["code"].clone(), e["axis"].clone()))
+        .collect();
+    assert!(
+        history.contains(&(json!("0x4310"), json!(1))),
+        "{history:?}"
+    );
+    assert!(
+        history.contains(&(json!("0x4310"), json!(2))),
+        "{history:?}"
+    );
 }
 
 /// A demo bus without wire timing: the stream tests send floods far beyond

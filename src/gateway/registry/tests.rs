@@ -123,6 +123,7 @@ fn an_emcy_record_is_written_as_the_api_shows_it() {
             "register": 0x11,
             "manufacturer": "dead0001ff",
             "timestamp_us": 1_500_000,
+            "axis": null,
         })
     );
     let reset = EmcyRecord::new(

@@ -67,6 +67,26 @@ export async function api(path, { method = 'GET', body, signal, headers = {} } =
 }
 
 /**
+ * `fetch` of `/api/v1${path}` for what is not JSON (a DCF, an EDS file):
+ * like api(), it waits for a sign-in, carries the page's token and asks
+ * for a new sign-in on a 401; `init` is fetch's. Returns the Response, or
+ * throws ApiError (status 0) when the gateway cannot be reached.
+ */
+export async function apiFetch(path, init = {}) {
+  await whenSignedIn();
+  const method = init.method || 'GET';
+  let response;
+  try {
+    response = await fetch(`/api/v1${path}`, { ...init, headers: { ...(init.headers || {}), ...authorization() } });
+  } catch (err) {
+    if (err.name === 'AbortError') throw err;
+    throw new ApiError(`cannot reach the gateway (${method} ${path}): ${err.message}`);
+  }
+  if (response.status === 401) signInAgain();
+  return response;
+}
+
+/**
  * Runs `action` (an async function) as the button's action: while it runs
  * the button is disabled, says `busyLabel` and has aria-busy; afterwards
  * it gets its label back and data-state "done" or "failed". Returns

@@ -11,6 +11,7 @@
 // axis and the node are read again over REST.
 
 import { api, runAction } from './api.js';
+import { axisFault } from './axes.js';
 import { TimeChart } from './chart.js';
 import { commandable, isFault, stateDiagram, stateLabel, statuswordBits } from './cia402.js';
 import { $, clock, h, showMessage } from './dom.js';
@@ -48,6 +49,9 @@ const faultTitle = $('#fault-title');
 const faultEmcy = $('#fault-emcy');
 const faultReset = $('#fault-reset');
 const haltOn = $('#halt-on');
+const quickHalt = $('#quick-halt');
+const quickStop = $('#quick-stop');
+const quickResult = $('#quick-result');
 const haltOff = $('#halt-off');
 const modeTabs = $('#mode-tabs');
 const motionHost = $('#motion-form');
@@ -93,6 +97,7 @@ function result(el, state, ...content) {
 function giveUp(error) {
   fatal = true;
   body.hidden = true;
+  $('#drive-stops').hidden = true;
   faultPanel.hidden = true;
   stateBadge.hidden = true;
   showMessage(pageMessage, `This axis cannot be shown: ${error.message}`);
@@ -160,30 +165,51 @@ function renderNode() {
   $('#node-link').textContent = `Node ${detail.id}`;
   $('#node-product').textContent = `${detail.profile}${detail.online === false ? ' · offline' : ''}`;
   document.title = `Axis ${axisText} · ${name} · candeck`;
-  const axes = detail.axes ? detail.axes.map((a) => a.axis) : [Number(axisText)];
-  $('#axis-tabs').replaceChildren(...axes.map((n) => h('a', {
-    href: `/nodes/${encodeURIComponent(bus)}/${detail.id}/axes/${n}`,
-    'aria-current': String(n) === String(Number(axisText)) ? 'page' : null,
-  }, `Axis ${n}`)));
+  renderTabs();
 }
 
-function lastEmcy() {
-  const list = detail && detail.emcy;
-  return list && list.length ? list[list.length - 1] : null;
+/** The node's axes as tabs, each with its own fault mark: this axis's
+ * from its live status, the others' from the node as last read. */
+let tabsDrawn = ''; // what the tabs show: redrawn only when it changes (a tab replaced under a finger loses its tap)
+
+function renderTabs() {
+  const axes = (detail.axes ? detail.axes : [{ axis: Number(axisText) }]).map((a) => {
+    const current = String(a.axis) === String(Number(axisText));
+    return { a, current, ...axisFault(detail, current && status ? status : a) };
+  });
+  const drawn = JSON.stringify(axes.map(({ a, faulted, cause }) => [a.axis, faulted, cause && cause.timestamp_us]));
+  if (drawn === tabsDrawn) return;
+  tabsDrawn = drawn;
+  $('#axis-tabs').replaceChildren(...axes.map(({ a, current, faulted, cause }) => {
+    return h('a', {
+      href: `/nodes/${encodeURIComponent(bus)}/${detail.id}/axes/${a.axis}`,
+      'aria-current': current ? 'page' : null,
+      dataset: { axis: a.axis, fault: faulted ? 'yes' : 'no' },
+      title: faulted ? `Axis ${a.axis} in fault${cause ? `: ${cause.code} ${cause.text}` : ''}` : null,
+    }, `Axis ${a.axis}`, faulted ? h('span', { class: 'fault-mark', 'aria-label': ' (fault)' }, ' ⚠') : null);
+  }));
 }
 
 function renderFault() {
-  const faulted = status && (isFault(status.state) || status.fault === true);
+  const { faulted, cause, last } = axisFault(detail, status);
   faultPanel.dataset.fault = faulted ? 'yes' : 'no';
   faultTitle.textContent = !faulted ? 'No fault'
     : status.state === 'fault' ? 'FAULT' : `FAULT · ${stateLabel(status.state).toLowerCase()}`;
-  const emcy = lastEmcy();
+  // In fault: the axis's own cause (its newest EMCY that is not a reset);
+  // otherwise its newest EMCY, whatever it says.
+  const emcy = faulted ? cause : last;
+  const axisNo = status ? status.axis : Number(axisText);
   faultEmcy.replaceChildren(emcy
-    ? h('span', {}, 'Last EMCY of the node: ', h('code', { class: emcy.code === '0x0000' ? 'cleared' : null }, emcy.code), ' ', emcy.text,
-      h('span', { class: 'sub' }, ` · error register 0x${emcy.register.toString(16).padStart(2, '0').toUpperCase()}`,
+    ? h('span', {}, faulted ? 'Cause: ' : `Last EMCY of axis ${axisNo}: `,
+      h('code', { class: emcy.code === '0x0000' ? 'cleared' : null }, emcy.code), ' ', emcy.text,
+      h('span', { class: 'sub' }, emcy.axis ? ` · EMCY of axis ${emcy.axis}` : ' · EMCY of the node',
+        ` · error register 0x${emcy.register.toString(16).padStart(2, '0').toUpperCase()}`,
         ` · ${clock(emcy.timestamp_us / 1000)}`))
-    : h('span', { class: 'sub' }, detail ? 'No EMCY from the node.' : '…'));
+    : h('span', { class: 'sub' }, !detail ? '…' : faulted ? 'Cause unknown: no EMCY from this axis.' : 'No EMCY from this axis.'));
   faultReset.classList.toggle('urgent', Boolean(faulted));
+  // A reset with no fault does nothing: offered only in fault.
+  if (!faultReset.hasAttribute('aria-busy')) faultReset.disabled = acting || !faulted;
+  if (detail) renderTabs();
 }
 
 // ---- the axis status --------------------------------------------------------
@@ -237,6 +263,8 @@ function applyStatus(next) {
   moveGate.hidden = enabled;
   moveGate.textContent = `Moves need operation enabled; the drive is in ${stateLabel(state).toLowerCase()}.`;
   for (const button of [haltOn, haltOff]) if (!button.hasAttribute('aria-busy')) button.disabled = acting || !enabled;
+  // The bar kept in view: never disabled by another action running, a stop goes out at once.
+  for (const button of [quickHalt, quickStop]) if (!button.hasAttribute('aria-busy')) button.disabled = !enabled;
 }
 
 // ---- state transitions, fault reset, halt ------------------------------------
@@ -276,7 +304,7 @@ async function stateAction(button, busyLabel, what, request) {
     result(stateResult, 'failed', h('strong', {}, `${what} failed (${clock()}): `), outcome.error.message);
     if (status) applyStatus({});
   }
-  faultReset.disabled = false;
+  if (status) renderFault();
   if (status) renderTransitions(commandable(status.state), true);
   return outcome;
 }
@@ -300,6 +328,28 @@ haltOn.addEventListener('click', async () => {
     () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: true } }));
   if (outcome.ok) dropLease(null);
 });
+// The stop bar kept in view (sticky under the top bar): Halt and Quick
+// stop of this axis, whatever the rest of the page is doing.
+async function quickAction(button, busyLabel, what, request) {
+  quickResult.dataset.state = 'busy';
+  quickResult.textContent = `${what}…`;
+  const outcome = await runAction(button, busyLabel, request);
+  if (outcome.ok) {
+    applyStatus(outcome.value);
+    dropLease(null);
+    quickResult.dataset.state = 'done';
+    quickResult.textContent = `${what}: done (${clock()}), ${stateLabel(outcome.value.state).toLowerCase()}.`;
+  } else {
+    quickResult.dataset.state = 'failed';
+    quickResult.textContent = `${what} failed (${clock()}): ${outcome.error.message}`;
+    if (status) applyStatus({});
+  }
+}
+quickHalt.addEventListener('click', () => quickAction(quickHalt, 'Halting…', 'Halt',
+  () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: true } })));
+quickStop.addEventListener('click', () => quickAction(quickStop, 'Stopping…', 'Quick stop',
+  () => api(`${axisPath}/state`, { method: 'POST', body: { target: 'quick_stop_active' }, headers: leaseHeaders() })));
+
 haltOff.addEventListener('click', async () => {
   const outcome = await stateAction(haltOff, 'Releasing…', 'Release halt',
     () => api(`${axisPath}/halt`, { method: 'POST', body: { halt: false }, headers: leaseHeaders() }));

@@ -5,7 +5,7 @@
 // one an SDO read (or the read-back after a write) returned, never what
 // the page sent.
 
-import { api, ApiError, describeError, runAction } from './api.js';
+import { api, apiFetch, ApiError, describeError, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
 
@@ -318,19 +318,15 @@ $('#restore').addEventListener('click', async (event) => {
     `The device took "${v.signature}" in ${v.index}:${v.sub}${v.name ? ` (${v.name})` : ''}; the values apply after a reset node.`);
 });
 
-/** fetch for the DCF endpoints (text, not JSON), errors as ApiError. */
+/** fetch for the DCF endpoints (text, not JSON), with the page's token, errors as ApiError. */
 async function dcfRequest(method, text) {
   const init = { method, headers: { accept: 'text/plain, application/json' } };
   if (text !== undefined) {
     init.headers['content-type'] = 'text/plain; charset=utf-8';
     init.body = text;
   }
-  let response;
-  try {
-    response = await fetch(`/api/v1${base}/config.dcf`, init);
-  } catch (err) {
-    throw new ApiError(`cannot reach the gateway (${method} config.dcf): ${err.message}`);
-  }
+  // Through apiFetch: with the page's token, as every request (issue 21).
+  const response = await apiFetch(`${base}/config.dcf`, init);
   const answer = await response.text();
   if (!response.ok) {
     let data = null;

@@ -5,18 +5,20 @@
 // that something changed, and the node is then read again over REST.
 
 import { api, runAction } from './api.js';
+import { axisFault } from './axes.js';
+import { stateLabel } from './cia402.js';
 import { $, clock, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
 
 const BUS_POLL_MS = 1000;
+// The axes' states on the overview: a few samples a second are enough.
+const AXIS_RATE_HZ = 2;
 const MAX_EVENTS = 50;
 
 const busBody = $('#buses tbody');
 const nodeBody = $('#nodes tbody');
 const eventList = $('#events');
 const pageMessage = $('#page-message');
-const stopButton = $('#stop-all');
-const stopResult = $('#stop-result');
 
 const buses = new Map(); // name -> {info, fps, sample: {frames, at}}
 const nodes = new Map(); // "bus/id" -> {bus, node, detail, error, loading, again}
@@ -137,6 +139,8 @@ async function refreshNode(bus, id) {
     entry.node = detail;
     entry.detail = detail;
     entry.error = null;
+    entry.axes = new Map((detail.axes || []).map((a) => [a.axis, a]));
+    watchAxes(entry);
   } catch (error) {
     if (error.code === 'unknown_node') nodes.delete(k);
     else entry.error = error.message;
@@ -163,13 +167,61 @@ function lastEmcy(detail) {
   return h('span', { class: 'emcy' }, h('code', {}, last.code), ' ', last.text);
 }
 
+/** Each axis of a drive as a badge: its own state and, in fault, its
+ * own cause (issue 21: a node's last EMCY hides nothing of an axis). */
+function axisBadges(bus, node, entry) {
+  if (!entry.axes || entry.axes.size === 0) {
+    return h('span', { class: 'sub' }, entry.detail && entry.detail.summary_error ? 'not read' : '—');
+  }
+  return h('ul', { class: 'axis-list' }, [...entry.axes.values()].map((status) => {
+    const { faulted, cause } = axisFault(entry.detail, status);
+    const href = `/nodes/${encodeURIComponent(bus)}/${node.id}/axes/${status.axis}`;
+    return h('li', { dataset: { axis: status.axis, state: status.state || '', fault: faulted ? 'yes' : 'no' } },
+      h('a', { href, class: `axis-badge${faulted ? ' fault' : status.state === 'operation_enabled' ? ' on' : ''}` },
+        `Axis ${status.axis}: ${stateLabel(status.state)}`),
+      faulted ? h('span', { class: 'emcy axis-cause' }, ' ', cause
+        ? [h('code', {}, cause.code), ' ', cause.text] : 'cause unknown (no EMCY from this axis)') : null);
+  }));
+}
+
+// The axes of the drives listed, live on their stream topics.
+const axisTopics = new Map(); // topic -> {k, axis}
+
+function watchAxes(entry) {
+  const fresh = [];
+  for (const axis of entry.axes.keys()) {
+    const topic = `buses/${entry.bus}/nodes/${entry.node.id}/axes/${axis}`;
+    if (axisTopics.has(topic)) continue;
+    axisTopics.set(topic, { k: key(entry.bus, entry.node.id), axis });
+    fresh.push(topic);
+    stream.subscribe([topic], (data, message) => onAxisSample(topic, data, message));
+  }
+  if (fresh.length && stream.state === 'connected') askAxisRate(fresh);
+}
+
+function askAxisRate(topics = [...axisTopics.keys()]) {
+  if (topics.length) stream.send({ op: 'subscribe', topics, max_rate_hz: AXIS_RATE_HZ });
+}
+
+function onAxisSample(topic, data, message) {
+  if (message.lagged || data.error || !data.state) return;
+  const { k, axis } = axisTopics.get(topic);
+  const entry = nodes.get(k);
+  if (!entry || !entry.axes) return;
+  const old = entry.axes.get(axis);
+  entry.axes.set(axis, { ...old, ...data });
+  // Redrawn only on a change: a link replaced under a finger loses its tap.
+  if (!old || old.state !== data.state || old.fault !== data.fault) renderNodes();
+}
+
 function renderNodes() {
   const entries = [...nodes.values()].sort((a, b) => a.bus.localeCompare(b.bus) || a.node.id - b.node.id);
   if (entries.length === 0) {
-    nodeBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 7 }, 'No node found yet.')));
+    nodeBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 8 }, 'No node found yet.')));
     return;
   }
-  nodeBody.replaceChildren(...entries.map(({ bus, node, detail, error }) => {
+  nodeBody.replaceChildren(...entries.map((entry) => {
+    const { bus, node, detail, error } = entry;
     const href = `/nodes/${encodeURIComponent(bus)}/${node.id}`;
     const online = node.online;
     return h('tr', { dataset: { bus, node: node.id }, class: online === false ? 'offline' : null },
@@ -181,6 +233,7 @@ function renderNodes() {
       h('td', { 'data-label': 'NMT', class: 'nmt' }, NMT[node.nmt] || node.nmt || '…'),
       h('td', { 'data-label': 'Online' }, online === undefined ? '…'
         : h('span', { class: `badge ${online ? 'ok' : 'bad'}` }, online ? 'online' : 'offline')),
+      h('td', { 'data-label': 'Axes', class: 'axes' }, axisBadges(bus, node, entry)),
       h('td', { 'data-label': 'Last EMCY', class: 'last-emcy' }, lastEmcy(detail)),
     );
   }));
@@ -311,36 +364,9 @@ stream.subscribe(['emcy'], (data, message) => {
   refreshNode(data.bus, data.node);
 });
 
-// ---- STOP ALL ------------------------------------------------------------
+// ---- STOP ALL (the top bar's, stopall.js) ----------------------------------
 
-const axisName = (a) => `${a.bus} node ${a.node}${a.axis === null || a.axis === undefined ? '' : ` axis ${a.axis}`}`;
-
-stopButton.addEventListener('click', async () => {
-  stopResult.dataset.state = 'busy';
-  stopResult.replaceChildren('Stopping every enabled axis…');
-  const result = await runAction(stopButton, 'STOPPING…', () => api('/stop-all', { method: 'POST' }));
-  const at = clock();
-  if (!result.ok) {
-    stopResult.dataset.state = 'failed';
-    stopResult.replaceChildren(h('strong', {}, `STOP ALL failed (${at}): `), result.error.message);
-    return;
-  }
-  const { stopped, failed } = result.value;
-  stopResult.dataset.state = failed.length ? 'failed' : 'done';
-  const parts = [];
-  if (stopped.length) {
-    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Stopped ${stopped.length} axis${stopped.length > 1 ? 'es' : ''} (${at}): `),
-      stopped.map(axisName).join(', ')));
-  } else if (failed.length) {
-    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `No axis stopped (${at}).`)));
-  } else {
-    parts.push(h('p', { class: 'stopped' }, h('strong', {}, `Nothing to stop (${at}): `), 'no axis was in operation enabled.'));
-  }
-  if (failed.length) {
-    parts.push(h('p', { class: 'failed' }, h('strong', {}, `Could not stop ${failed.length}:`)),
-      h('ul', { class: 'failed' }, failed.map((f) => h('li', {}, `${axisName(f)}: ${f.error?.message || 'failed'}`))));
-  }
-  stopResult.replaceChildren(...parts);
+document.addEventListener('candeck:stopped', () => {
   for (const entry of nodes.values()) refreshNode(entry.bus, entry.node.id);
 });
 
@@ -366,6 +392,7 @@ stream.onState(({ state, reconnected, error }) => {
       addEvent(Date.now(), 'Connection to the gateway is back', 'info');
       loadAll();
     }
+    askAxisRate();
     pollBuses();
   } else if (state === 'disconnected') {
     clearTimeout(busTimer);
