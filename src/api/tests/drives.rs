@@ -995,3 +995,43 @@ async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
     let message = response.1["error"]["message"].as_str().unwrap();
     assert!(message.contains("interrupted"), "{message}");
 }
+
+/// The same race in a profile position move (issue 19, point 11: the third
+/// 30-minute soak): STOP ALL took the drive out of operation enabled while
+/// the move waited for its set-point acknowledge, which then waited out its
+/// time and answered 504 "set-point acknowledge did not happen in time; the
+/// drive stopped in switch_on_disabled". It is 409 at once now.
+#[tokio::test(start_paused = true)]
+async fn a_stop_during_a_set_point_wait_is_409_not_a_timeout() {
+    let (app, state) = demo().await;
+    let served = &state.gateway.buses["demo"];
+    let rack = served.rack.as_ref().unwrap();
+    // Operation enabled in profile position; it never acknowledges.
+    rack.add_device(stuck_cia402_drive(9, "0x0027", "1"))
+        .unwrap();
+    served.registry.scan().await.unwrap();
+    let request = {
+        let app = app.clone();
+        tokio::spawn(async move {
+            post(
+                &app,
+                "/api/v1/buses/demo/nodes/9/axes/1/move",
+                json!({"mode": "profile_position", "target": 5000}),
+            )
+            .await
+        })
+    };
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert!(!request.is_finished());
+    rack.with_device(NodeId::new(9).unwrap(), |core| {
+        core.store_mut()
+            .set(0x6041, 0, crate::canopen::od::Value::Unsigned16(0x0040))
+            .unwrap();
+    })
+    .unwrap();
+    let response = request.await.unwrap();
+    assert_error(&response, StatusCode::CONFLICT, "drive_not_enabled");
+    assert_eq!(response.1["error"]["state"], "switch_on_disabled");
+    let message = response.1["error"]["message"].as_str().unwrap();
+    assert!(message.contains("interrupted"), "{message}");
+}

@@ -290,10 +290,21 @@ impl Drive {
                 // Bit 4 low first, so that the next write is an edge.
                 self.controlword(word).await?;
                 self.controlword(word | CW_BIT4).await?;
-                self.wait("set-point acknowledge", ACK_TIMEOUT, false, |sw| {
-                    sw.raw() & SW_BIT12 != 0
-                })
-                .await?;
+                // Or someone else stopped the drive meanwhile (STOP ALL, a
+                // quick stop, a lapsed lease): no set-point is acknowledged
+                // out of operation enabled, so waiting longer is no use.
+                let seen = self
+                    .wait("set-point acknowledge", ACK_TIMEOUT, false, |sw| {
+                        sw.raw() & SW_BIT12 != 0 || sw.state() != Some(State::OperationEnabled)
+                    })
+                    .await?;
+                if seen.raw() & SW_BIT12 == 0 {
+                    return Err(DriveError::Interrupted {
+                        axis: self.axis,
+                        what: "set-point acknowledge".to_string(),
+                        state: seen.state(),
+                    });
+                }
                 self.controlword(word).await?;
             }
             MoveRequest::Velocity { .. } => {
