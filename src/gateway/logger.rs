@@ -104,6 +104,7 @@ pub enum LoggerError {
 /// (0 when not given).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
+#[schema(as = LoggerChannelRequest)]
 pub struct ChannelRequest {
     #[schema(example = "demo")]
     pub bus: String,
@@ -153,6 +154,7 @@ impl LoggerRequest {
 /// Where a channel's samples came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
+#[schema(as = LoggerSource)]
 pub enum Source {
     Sdo,
     Tpdo,
@@ -160,6 +162,7 @@ pub enum Source {
 
 /// A channel, resolved against its node's dictionary.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[schema(as = LoggerChannel)]
 pub struct ChannelInfo {
     pub bus: String,
     pub node: u8,
