@@ -104,6 +104,7 @@ pub enum LoggerError {
 /// (0 when not given).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
+#[schema(as = LoggerChannelRequest)]
 pub struct ChannelRequest {
     #[schema(example = "demo")]
     pub bus: String,
@@ -153,6 +154,7 @@ impl LoggerRequest {
 /// Where a channel's samples came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
+#[schema(as = LoggerSource)]
 pub enum Source {
     Sdo,
     Tpdo,
@@ -160,6 +162,7 @@ pub enum Source {
 
 /// A channel, resolved against its node's dictionary.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[schema(as = LoggerChannel)]
 pub struct ChannelInfo {
     pub bus: String,
     pub node: u8,
@@ -310,7 +313,7 @@ impl Sampler {
     }
 
     /// The value from a fresh TPDO, if the node's TPDOs carry it.
-    fn from_tpdo(&self, now: Instant) -> Option<f64> {
+    fn tpdo_value(&self, now: Instant) -> Option<f64> {
         let value = self.served.values.value(self.node, self.index, self.sub)?;
         if now.saturating_duration_since(value.at) > TPDO_FRESH {
             return None;
@@ -326,7 +329,7 @@ impl Sampler {
     }
 
     /// One sample by SDO.
-    async fn from_sdo(&self) -> Result<f64, String> {
+    async fn sdo_value(&self) -> Result<f64, String> {
         if let Some(info) = self.served.registry.node(self.node)
             && let Some(why) = unreachable(&info)
         {
@@ -749,9 +752,9 @@ async fn sample_round(samplers: &[Sampler]) -> Vec<Sample> {
             tokio::spawn(async move {
                 let mut out = Vec::with_capacity(group.len());
                 for (n, sampler) in group {
-                    let sample = match sampler.from_tpdo(Instant::now()) {
+                    let sample = match sampler.tpdo_value(Instant::now()) {
                         Some(value) => (Ok(value), Source::Tpdo),
-                        None => (sampler.from_sdo().await, Source::Sdo),
+                        None => (sampler.sdo_value().await, Source::Sdo),
                     };
                     out.push((n, sample));
                 }

@@ -355,3 +355,20 @@ async fn the_topic_carries_every_row_once_in_order() {
     assert!(times.windows(2).all(|pair| pair[1] > pair[0]), "{times:?}");
     assert!(state.gateway.loggers.subscribe("99", 1.0).is_err());
 }
+
+/// The document describes a channel's `source` as what it is: the schema
+/// once shared the name `Source` with the restore's `factory|saved`.
+#[tokio::test(start_paused = true)]
+async fn the_document_gives_a_channels_source_as_sdo_or_tpdo() {
+    let (_, state) = demo().await;
+    let (_, doc) = crate::api::routers(state);
+    let doc = serde_json::to_value(&doc).unwrap();
+    let schemas = &doc["components"]["schemas"];
+    let source = &schemas["LoggerChannel"]["properties"]["source"]["oneOf"][0]["$ref"];
+    let name = source
+        .as_str()
+        .and_then(|path| path.strip_prefix("#/components/schemas/"))
+        .unwrap_or_else(|| panic!("{source}"));
+    assert_eq!(schemas[name]["enum"], json!(["sdo", "tpdo"]), "{name}");
+    assert_eq!(schemas["Source"]["enum"], json!(["factory", "saved"]));
+}

@@ -289,3 +289,42 @@ fn the_server_aborts_mid_transfer_when_the_client_goes_silent() {
     assert!(link.settle());
     assert!(link.objects.writes.is_empty());
 }
+
+/// A program image's size (CiA 302-3 0x1F50 is a DOMAIN written by block
+/// download, CiA 301 §7.2.4.3.9 ff.): 64 KiB in 75 blocks of 127 segments,
+/// with and without the CRC, and the value read back by block upload.
+#[test]
+fn a_64_kib_domain_goes_by_block_download_and_comes_back() {
+    let value: Vec<u8> = (0..64 * 1024u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8)
+        .collect();
+    for crc in [true, false] {
+        let mut link = link(
+            Method::Block {
+                switch_threshold: 0,
+            },
+            127,
+            127,
+            crc,
+            crc,
+        );
+        assert_eq!(
+            link.download(0x2000, 0, &value),
+            Ok(Transfer::Downloaded),
+            "crc {crc}"
+        );
+        assert_eq!(link.objects.value(0x2000, 0), &value[..]);
+        // Initiate and its answer, 9363 segments, a confirmation per block
+        // of 127 (74 full blocks and one of 92), end and its answer.
+        let segments = value.len().div_ceil(7);
+        assert_eq!(segments, 9363);
+        assert_eq!(link.log.len(), 2 + segments + segments.div_ceil(127) + 2);
+        link.log.clear();
+        assert_eq!(
+            link.upload(0x2000, 0),
+            Ok(Transfer::Uploaded(value.clone())),
+            "crc {crc}"
+        );
+        assert!(link.client.is_idle() && link.server.is_idle());
+    }
+}
