@@ -195,3 +195,31 @@ def test_a_page_for_an_axis_that_does_not_exist_shows_only_why(server, browser):
         problems = browser.drain()
         assert problems and all(re.search(r"/api/v1/buses/demo/nodes/\d/axes/\d (answered 404|- Failed to load resource: .* 404)", p)
                                 for p in problems), problems
+
+
+def test_od_search_by_words_values_at_once_and_typed_inputs(server, browser):
+    """Point 9: "Profile velocity" (the EDS says a1_pc_Profile_velocity)
+    and "6081" find 0x6081; what the search opens shows its values without
+    a click on Read (one batch read); "abc" in a number field is said to be
+    no number, with what the field takes."""
+    from test_node import cell_text, open_node, row, search, value_text, write
+
+    open_node(browser, server)
+    for q in ("Profile velocity", "6081"):
+        search(browser, q)
+        indexes = browser.js("return [...document.querySelectorAll('.od-object')].map((o) => o.dataset.index)")
+        assert "0x6081" in indexes, f"{q}: {indexes}"
+    value = server.get(f"{NODE1}/od/0x6081/0")["value"]
+    browser.wait(lambda _: value_text(browser, "0x6081:0") == str(value),
+                 message=f"no value shown without Read: {cell_text(browser, '0x6081:0')!r}")
+    batches = [u for u in browser.js("return performance.getEntriesByType('resource').map((r) => r.name)")
+               if u.endswith("/od/read")]
+    singles = [u for u in browser.js("return performance.getEntriesByType('resource').map((r) => r.name)")
+               if re.search(r"/od/0x[0-9A-Fa-f]+/\d+$", u)]
+    assert batches and not singles, (batches, singles)
+
+    write(browser, "0x6081:0", "abc")
+    browser.wait(lambda _: "integer" in cell_text(browser, "0x6081:0"), message=f"no typed message: {cell_text(browser, '0x6081:0')!r}")
+    said = cell_text(browser, "0x6081:0")
+    assert "u32" in said or "i32" in said, said
+    assert row(browser, "0x6081:0")
