@@ -223,3 +223,30 @@ def test_od_search_by_words_values_at_once_and_typed_inputs(server, browser):
     said = cell_text(browser, "0x6081:0")
     assert "u32" in said or "i32" in said, said
     assert row(browser, "0x6081:0")
+
+
+def test_pdo_add_object_search_takes_the_highlighted_entry(server, browser):
+    """Point 10: in a TPDO's "add object" search, "position_actual" puts
+    Position_actual_value (0x6064) first and highlighted (not 0x6063),
+    the arrow keys move the highlight, Enter takes the highlighted entry,
+    and a short list ends with no "null" row."""
+    from selenium.webdriver.common.keys import Keys
+    from test_pdos import card, open_pdos, shown_mapping
+
+    open_pdos(browser, server)
+    before = shown_mapping(browser, "tpdo", 1)
+    search = card(browser, "tpdo", 1).find_element("css selector", "input.search")
+    search.send_keys("position_actual")
+    active = lambda: browser.js(  # noqa: E731
+        "const b = document.querySelector('#tpdo-1 .matches button.match.active'); return b ? b.dataset.index : null")
+    browser.wait(lambda _: active(), message="no highlighted match")
+    listed = browser.js("return [...document.querySelectorAll('#tpdo-1 .matches li')].map((li) => li.innerText.trim())")
+    assert "null" not in listed and all(listed), listed
+    assert active() == "0x6064", (active(), listed)
+    search.send_keys(Keys.ARROW_DOWN)
+    assert active() != "0x6064", listed
+    search.send_keys(Keys.ARROW_UP)
+    assert active() == "0x6064"
+    search.send_keys(Keys.ENTER)
+    browser.wait(lambda _: len(shown_mapping(browser, "tpdo", 1)) == len(before) + 1, message="Enter added nothing")
+    assert shown_mapping(browser, "tpdo", 1)[-1] == "0x6064:0", shown_mapping(browser, "tpdo", 1)
