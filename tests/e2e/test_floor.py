@@ -250,3 +250,22 @@ def test_pdo_add_object_search_takes_the_highlighted_entry(server, browser):
     search.send_keys(Keys.ENTER)
     browser.wait(lambda _: len(shown_mapping(browser, "tpdo", 1)) == len(before) + 1, message="Enter added nothing")
     assert shown_mapping(browser, "tpdo", 1)[-1] == "0x6064:0", shown_mapping(browser, "tpdo", 1)
+
+
+def test_last_seen_is_the_gateways_age_not_the_pages(server, browser):
+    """Point 5: "Last seen" follows the node's frames (the UMC's heartbeat)
+    as the gateway hears them, instead of counting up from the moment the
+    page read the node."""
+    from test_node import open_node
+
+    open_node(browser, server)
+    heartbeat = server.get(NODE1)["heartbeat_ms"]
+    assert heartbeat and heartbeat <= 2000, heartbeat
+    # Long after the page's read the age stays within a few heartbeats
+    # (without re-reading it says "8 s ago" and counts on).
+    browser.js("window.openedAt = Date.now()")
+    browser.wait(lambda _: browser.js("return Date.now() - window.openedAt") > 8000, timeout=20)
+    seen = lambda: browser.js("return document.getElementById('last-seen').innerText")  # noqa: E731
+    browser.wait(lambda _: seen() in ("just now", "1 s ago", "2 s ago", "3 s ago"),
+                 message="last seen counted up from the page's read")
+    assert "every" in browser.js("return document.querySelector('dd[data-fact=\"heartbeat\"]').innerText")

@@ -85,6 +85,10 @@ function lastSeen() {
   return seconds < 1 ? 'just now' : `${seconds.toFixed(0)} s ago`;
 }
 
+function heartbeatText(d) {
+  return d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none heard');
+}
+
 function renderIdentity() {
   const d = detail;
   const id = d.identity;
@@ -105,7 +109,7 @@ function renderIdentity() {
     ...fact('NMT state', h('span', { class: `nmt nmt-${d.nmt}` }, NMT[d.nmt] || d.nmt), 'nmt'),
     ...fact('Online', h('span', { class: `badge ${d.online ? 'ok' : 'bad'}` }, d.online ? 'online' : 'offline'), 'online'),
     ...fact('Last seen', h('span', { id: 'last-seen' }, lastSeen()), 'last-seen'),
-    ...fact('Heartbeat', d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none (0x1017 is 0)'), 'heartbeat'),
+    ...fact('Heartbeat', heartbeatText(d), 'heartbeat'),
     ...fact('Last EMCY', emcy.length
       ? h('span', { class: 'emcy' }, h('code', {}, emcy[emcy.length - 1].code), ' ', emcy[emcy.length - 1].text)
       : h('span', { class: 'sub' }, 'none'), 'emcy'),
@@ -217,9 +221,43 @@ async function loadDetail() {
   }
 }
 
+// "Last seen" and the heartbeat the gateway hears change with every frame
+// of the node: read again from the node list (no SDO, unlike the node's
+// own answer) every few seconds, so that the age shown is the gateway's,
+// not the time since the page last read the node (issue 21 point 5).
+const SEEN_POLL_MS = 2000;
+let seenPolling = false;
+
+async function pollSeen() {
+  if (!detail || seenPolling || stream.state !== 'connected') return;
+  seenPolling = true;
+  try {
+    const list = await api(`/buses/${encodeURIComponent(bus)}/nodes`);
+    const me = list.find((n) => n.id === detail.id);
+    if (me && detail) {
+      detail.last_seen_ms = me.last_seen_ms;
+      detail.heartbeat_ms = me.heartbeat_ms;
+      detail.online = me.online;
+      detailReadAt = Date.now();
+      const heartbeat = document.querySelector('dd[data-fact="heartbeat"]');
+      if (heartbeat) heartbeat.replaceChildren(heartbeatText(detail));
+    }
+  } catch {
+    // The next poll tries again; the age keeps counting meanwhile.
+  } finally {
+    seenPolling = false;
+  }
+}
+
+setInterval(pollSeen, SEEN_POLL_MS);
+
 setInterval(() => {
   const el = document.getElementById('last-seen');
-  if (el) el.textContent = lastSeen();
+  if (!el) return;
+  el.textContent = lastSeen();
+  // Older than one and a half heartbeat periods (or 5 s without one): stale.
+  const age = detail ? Date.now() - detailReadAt + detail.last_seen_ms : 0;
+  el.classList.toggle('stale', Boolean(detail) && age > Math.max(1.5 * (detail.heartbeat_ms || 0), detail.heartbeat_ms ? 0 : 5000));
 }, 1000);
 
 // ---- NMT -------------------------------------------------------------------
