@@ -291,9 +291,26 @@ async fn read_entry(served: &ServedBus, info: &NodeInfo, entry: &Entry) -> Resul
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
 struct DictionaryQuery {
-    /// Text that an object's index, name or one of its sub-objects' names
-    /// contains (any case).
+    /// Words that an object's index, name or one of its sub-objects' names
+    /// all contain, in any order and any case; spaces and underscores both
+    /// separate words (`profile velocity` finds `a1_pc_Profile_velocity`),
+    /// and an index is found with or without `0x` (`6081`, `0x6081`).
     q: Option<String>,
+}
+
+/// The words of a dictionary search: lowercase, split at spaces and
+/// underscores.
+fn search_words(q: &str) -> Vec<String> {
+    q.split(|c: char| c.is_whitespace() || c == '_')
+        .filter(|word| !word.is_empty())
+        .map(str::to_lowercase)
+        .collect()
+}
+
+/// Whether `text` contains every word (none: everything matches).
+fn matches_words(words: &[String], text: &str) -> bool {
+    let text = text.to_lowercase();
+    words.iter().all(|word| text.contains(word.as_str()))
 }
 
 /// The node's dictionary, from its EDS.
@@ -316,12 +333,8 @@ async fn list_dictionary(
             info.id
         ))
     })?;
-    let wanted = query.q.as_deref().map(str::to_lowercase);
-    let matches = |text: &str| {
-        wanted
-            .as_deref()
-            .is_none_or(|wanted| text.to_lowercase().contains(wanted))
-    };
+    let words = query.q.as_deref().map(search_words).unwrap_or_default();
+    let matches = |text: &str| matches_words(&words, text);
     let objects = dict
         .iter()
         .filter(|object| {

@@ -195,3 +195,77 @@ def test_a_page_for_an_axis_that_does_not_exist_shows_only_why(server, browser):
         problems = browser.drain()
         assert problems and all(re.search(r"/api/v1/buses/demo/nodes/\d/axes/\d (answered 404|- Failed to load resource: .* 404)", p)
                                 for p in problems), problems
+
+
+def test_od_search_by_words_values_at_once_and_typed_inputs(server, browser):
+    """Point 9: "Profile velocity" (the EDS says a1_pc_Profile_velocity)
+    and "6081" find 0x6081; what the search opens shows its values without
+    a click on Read (one batch read); "abc" in a number field is said to be
+    no number, with what the field takes."""
+    from test_node import cell_text, open_node, row, search, value_text, write
+
+    open_node(browser, server)
+    for q in ("Profile velocity", "6081"):
+        search(browser, q)
+        indexes = browser.js("return [...document.querySelectorAll('.od-object')].map((o) => o.dataset.index)")
+        assert "0x6081" in indexes, f"{q}: {indexes}"
+    value = server.get(f"{NODE1}/od/0x6081/0")["value"]
+    browser.wait(lambda _: value_text(browser, "0x6081:0") == str(value),
+                 message=f"no value shown without Read: {cell_text(browser, '0x6081:0')!r}")
+    batches = [u for u in browser.js("return performance.getEntriesByType('resource').map((r) => r.name)")
+               if u.endswith("/od/read")]
+    singles = [u for u in browser.js("return performance.getEntriesByType('resource').map((r) => r.name)")
+               if re.search(r"/od/0x[0-9A-Fa-f]+/\d+$", u)]
+    assert batches and not singles, (batches, singles)
+
+    write(browser, "0x6081:0", "abc")
+    browser.wait(lambda _: "integer" in cell_text(browser, "0x6081:0"), message=f"no typed message: {cell_text(browser, '0x6081:0')!r}")
+    said = cell_text(browser, "0x6081:0")
+    assert "u32" in said or "i32" in said, said
+    assert row(browser, "0x6081:0")
+
+
+def test_pdo_add_object_search_takes_the_highlighted_entry(server, browser):
+    """Point 10: in a TPDO's "add object" search, "position_actual" puts
+    Position_actual_value (0x6064) first and highlighted (not 0x6063),
+    the arrow keys move the highlight, Enter takes the highlighted entry,
+    and a short list ends with no "null" row."""
+    from selenium.webdriver.common.keys import Keys
+    from test_pdos import card, open_pdos, shown_mapping
+
+    open_pdos(browser, server)
+    before = shown_mapping(browser, "tpdo", 1)
+    search = card(browser, "tpdo", 1).find_element("css selector", "input.search")
+    search.send_keys("position_actual")
+    active = lambda: browser.js(  # noqa: E731
+        "const b = document.querySelector('#tpdo-1 .matches button.match.active'); return b ? b.dataset.index : null")
+    browser.wait(lambda _: active(), message="no highlighted match")
+    listed = browser.js("return [...document.querySelectorAll('#tpdo-1 .matches li')].map((li) => li.innerText.trim())")
+    assert "null" not in listed and all(listed), listed
+    assert active() == "0x6064", (active(), listed)
+    search.send_keys(Keys.ARROW_DOWN)
+    assert active() != "0x6064", listed
+    search.send_keys(Keys.ARROW_UP)
+    assert active() == "0x6064"
+    search.send_keys(Keys.ENTER)
+    browser.wait(lambda _: len(shown_mapping(browser, "tpdo", 1)) == len(before) + 1, message="Enter added nothing")
+    assert shown_mapping(browser, "tpdo", 1)[-1] == "0x6064:0", shown_mapping(browser, "tpdo", 1)
+
+
+def test_last_seen_is_the_gateways_age_not_the_pages(server, browser):
+    """Point 5: "Last seen" follows the node's frames (the UMC's heartbeat)
+    as the gateway hears them, instead of counting up from the moment the
+    page read the node."""
+    from test_node import open_node
+
+    open_node(browser, server)
+    heartbeat = server.get(NODE1)["heartbeat_ms"]
+    assert heartbeat and heartbeat <= 2000, heartbeat
+    # Long after the page's read the age stays within a few heartbeats
+    # (without re-reading it says "8 s ago" and counts on).
+    browser.js("window.openedAt = Date.now()")
+    browser.wait(lambda _: browser.js("return Date.now() - window.openedAt") > 8000, timeout=20)
+    seen = lambda: browser.js("return document.getElementById('last-seen').innerText")  # noqa: E731
+    browser.wait(lambda _: seen() in ("just now", "1 s ago", "2 s ago", "3 s ago"),
+                 message="last seen counted up from the page's read")
+    assert "every" in browser.js("return document.querySelector('dd[data-fact=\"heartbeat\"]').innerText")

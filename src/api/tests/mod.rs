@@ -497,6 +497,25 @@ async fn od_listing_comes_from_the_eds_and_filters() {
     assert!(found.iter().any(|o| o["index"] == "0x1018"));
     let (_, none) = get(&app, "/api/v1/buses/demo/nodes/1/od?q=zzzz-nothing").await;
     assert_eq!(none, json!([]));
+
+    // Words in any case and order, spaces or underscores (issue 21 point 9):
+    // "Profile velocity" is a1_pc_Profile_velocity, 0x6081.
+    for q in [
+        "Profile%20velocity",
+        "velocity%20PROFILE",
+        "profile_velocity",
+        "6081",
+        "0x6081",
+    ] {
+        let (status, found) = get(&app, &format!("/api/v1/buses/demo/nodes/1/od?q={q}")).await;
+        assert_eq!(status, StatusCode::OK);
+        let found = found.as_array().unwrap();
+        assert!(
+            found.iter().any(|o| o["index"] == "0x6081"),
+            "{q}: {found:?}"
+        );
+        assert!(found.len() < all.len(), "{q}");
+    }
 }
 
 #[tokio::test(start_paused = true)]

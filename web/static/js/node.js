@@ -85,6 +85,10 @@ function lastSeen() {
   return seconds < 1 ? 'just now' : `${seconds.toFixed(0)} s ago`;
 }
 
+function heartbeatText(d) {
+  return d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none heard');
+}
+
 function renderIdentity() {
   const d = detail;
   const id = d.identity;
@@ -105,7 +109,7 @@ function renderIdentity() {
     ...fact('NMT state', h('span', { class: `nmt nmt-${d.nmt}` }, NMT[d.nmt] || d.nmt), 'nmt'),
     ...fact('Online', h('span', { class: `badge ${d.online ? 'ok' : 'bad'}` }, d.online ? 'online' : 'offline'), 'online'),
     ...fact('Last seen', h('span', { id: 'last-seen' }, lastSeen()), 'last-seen'),
-    ...fact('Heartbeat', d.heartbeat_ms ? `every ${d.heartbeat_ms} ms` : h('span', { class: 'sub' }, 'none (0x1017 is 0)'), 'heartbeat'),
+    ...fact('Heartbeat', heartbeatText(d), 'heartbeat'),
     ...fact('Last EMCY', emcy.length
       ? h('span', { class: 'emcy' }, h('code', {}, emcy[emcy.length - 1].code), ' ', emcy[emcy.length - 1].text)
       : h('span', { class: 'sub' }, 'none'), 'emcy'),
@@ -217,9 +221,43 @@ async function loadDetail() {
   }
 }
 
+// "Last seen" and the heartbeat the gateway hears change with every frame
+// of the node: read again from the node list (no SDO, unlike the node's
+// own answer) every few seconds, so that the age shown is the gateway's,
+// not the time since the page last read the node (issue 21 point 5).
+const SEEN_POLL_MS = 2000;
+let seenPolling = false;
+
+async function pollSeen() {
+  if (!detail || seenPolling || stream.state !== 'connected') return;
+  seenPolling = true;
+  try {
+    const list = await api(`/buses/${encodeURIComponent(bus)}/nodes`);
+    const me = list.find((n) => n.id === detail.id);
+    if (me && detail) {
+      detail.last_seen_ms = me.last_seen_ms;
+      detail.heartbeat_ms = me.heartbeat_ms;
+      detail.online = me.online;
+      detailReadAt = Date.now();
+      const heartbeat = document.querySelector('dd[data-fact="heartbeat"]');
+      if (heartbeat) heartbeat.replaceChildren(heartbeatText(detail));
+    }
+  } catch {
+    // The next poll tries again; the age keeps counting meanwhile.
+  } finally {
+    seenPolling = false;
+  }
+}
+
+setInterval(pollSeen, SEEN_POLL_MS);
+
 setInterval(() => {
   const el = document.getElementById('last-seen');
-  if (el) el.textContent = lastSeen();
+  if (!el) return;
+  el.textContent = lastSeen();
+  // Older than one and a half heartbeat periods (or 5 s without one): stale.
+  const age = detail ? Date.now() - detailReadAt + detail.last_seen_ms : 0;
+  el.classList.toggle('stale', Boolean(detail) && age > Math.max(1.5 * (detail.heartbeat_ms || 0), detail.heartbeat_ms ? 0 : 5000));
 }, 1000);
 
 // ---- NMT -------------------------------------------------------------------
@@ -479,6 +517,54 @@ function renderDictionary(q) {
   odRoot.replaceChildren(...[...groups.values()].sort((x, y) => x.key - y.key).map((g) => h('section', { class: 'od-area', dataset: { area: g.title } },
     h('h3', {}, g.title, ' ', h('span', { class: 'sub' }, `${hex(g.range[0], 4)}–${hex(g.range[1], 4)} · ${g.objects.length} objects`)),
     g.objects.map((object) => objectView(object, open)))));
+  // What the search opened shows its values at once: one batch read.
+  if (open) readObjects(dictionary);
+}
+
+const MAX_BATCH = 256; // POST .../od/read takes at most this many entries
+
+/**
+ * Reads every readable entry of `objects` in as few batch reads as the
+ * API allows (one for what fits on a screen), and shows the values.
+ * `status` (optional) says how it went.
+ */
+async function readObjects(objects, status = null) {
+  const list = objects.flatMap((object) => object.subs.filter((s) => readable(s.access)).map((s) => [object.index, s.sub]));
+  if (list.length === 0) return { read: 0, failed: 0 };
+  if (status) {
+    status.dataset.state = 'busy';
+    status.textContent = `Reading ${list.length} entries…`;
+  }
+  let failed = 0;
+  for (let from = 0; from < list.length; from += MAX_BATCH) {
+    const batch = list.slice(from, from + MAX_BATCH);
+    let answers;
+    try {
+      answers = await api(`${base}/od/read`, { method: 'POST', body: { entries: batch } });
+    } catch (error) {
+      if (status) {
+        status.dataset.state = 'failed';
+        status.replaceChildren(errorView(error));
+      }
+      throw error;
+    }
+    const at = clock();
+    answers.forEach((answer, i) => {
+      const key = `${batch[i][0]}:${batch[i][1]}`;
+      if (answer.error) {
+        failed += 1;
+        values.set(key, { error: answer.error, at });
+      } else {
+        values.set(key, { value: answer.value, raw: answer.raw, data_type: answer.data_type, at });
+      }
+      refreshRow(key);
+    });
+  }
+  if (status) {
+    status.dataset.state = failed ? 'failed' : 'done';
+    status.textContent = `Read ${list.length - failed} of ${list.length} (${clock()})`;
+  }
+  return { read: list.length - failed, failed };
 }
 
 function objectView(object, open) {
@@ -488,15 +574,17 @@ function objectView(object, open) {
       h('span', { class: 'od-name' }, object.name),
       h('span', { class: 'sub' }, `${object.object_type}${object.subs.length > 1 ? ` · ${object.subs.length} subs` : ''}`)));
   let built = false;
-  const build = () => {
+  const build = (readNow) => {
     if (built || !details.open) return;
     built = true;
     details.append(objectBody(object));
+    // Opened by hand: its values, read in one batch, not "not read".
+    if (readNow) readObjects([object]).catch(() => {});
   };
-  details.addEventListener('toggle', build);
+  details.addEventListener('toggle', () => build(true));
   if (open) {
     details.open = true;
-    build();
+    build(false);
   }
   return details;
 }
@@ -505,35 +593,10 @@ function objectBody(object) {
   const rows = object.subs.map((sub) => subRow(object, sub));
   const readList = object.subs.filter((s) => readable(s.access));
   const status = h('span', { class: 'od-status', role: 'status' });
-  const readAll = h('button', { type: 'button', class: 'read-all' }, 'Read this object');
-  readAll.addEventListener('click', async () => {
-    status.dataset.state = 'busy';
-    status.textContent = `Reading ${readList.length} entries…`;
-    const done = await runAction(readAll, 'Reading…', () => api(`${base}/od/read`, {
-      method: 'POST', body: { entries: readList.map((s) => [object.index, s.sub]) },
-    }));
-    if (!done.ok) {
-      status.dataset.state = 'failed';
-      status.replaceChildren(errorView(done.error));
-      return;
-    }
-    const at = clock();
-    let failed = 0;
-    done.value.forEach((answer, i) => {
-      const key = `${object.index}:${readList[i].sub}`;
-      if (answer.error) {
-        failed += 1;
-        values.set(key, { error: answer.error, at });
-      } else {
-        values.set(key, { value: answer.value, raw: answer.raw, data_type: answer.data_type, at });
-      }
-      refreshRow(key);
-    });
-    status.dataset.state = failed ? 'failed' : 'done';
-    status.textContent = `Read ${readList.length - failed} of ${readList.length} (${at})`;
-  });
+  const readAll = h('button', { type: 'button', class: 'read-all' }, 'Read again');
+  readAll.addEventListener('click', () => runAction(readAll, 'Reading…', () => readObjects([object], status)));
   return h('div', { class: 'od-body' },
-    readList.length > 1 ? h('div', { class: 'od-actions' }, readAll, status) : null,
+    readList.length ? h('div', { class: 'od-actions' }, readAll, status) : null,
     h('table', { class: 'grid od-subs' },
       h('thead', {}, h('tr', {}, ['Sub', 'Name', 'Type', 'Access', 'Range', 'Value', ''].map((t) => h('th', {}, t)))),
       h('tbody', {}, rows)));
@@ -574,15 +637,29 @@ function inputFor(sub) {
   return null; // domains and types the page cannot edit
 }
 
+/** What an input of `type` takes, in words ("an integer from 0 to 255"). */
+function expected(input, type) {
+  const bounds = input.min !== '' && input.max !== '' ? ` from ${input.min} to ${input.max}` : '';
+  if (isInt(type)) return `an integer${bounds} (${type})`;
+  return `a number${bounds} (${type})`;
+}
+
 /** The input's content as the JSON value to send, or throws a message. */
 function parseInput(input, type) {
   const text = input.value.trim();
   if (type === 'bool') return text === 'true';
   if (type === 'vs' || type === 'us' || type === 'os') return input.value;
-  if (text === '') throw new Error('enter a value first');
-  if (isInt(type) && bitsOf(type) > 32) return text;
+  // A number field holds "" for what is no number ("abc"): say so, not "empty".
+  if (input.type === 'number' && input.validity.badInput) throw new Error(`not a number: enter ${expected(input, type)}`);
+  if (text === '') throw new Error(`enter a value first: ${expected(input, type)}`);
+  if (isInt(type) && bitsOf(type) > 32) {
+    if (!new RegExp(`^${input.pattern}$`).test(text)) throw new Error(`“${text}” is not ${expected(input, type)}`);
+    return text;
+  }
   const number = Number(text);
-  if (!Number.isFinite(number)) throw new Error(`${text} is not a number`);
+  if (!Number.isFinite(number)) throw new Error(`“${text}” is not ${expected(input, type)}`);
+  if (isInt(type) && !Number.isInteger(number)) throw new Error(`${text} is not ${expected(input, type)}`);
+  // A value out of the type's range goes to the gateway, which says why it refuses it.
   return number;
 }
 

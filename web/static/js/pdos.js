@@ -135,9 +135,15 @@ function makeCard(kind, device) {
   card.search.addEventListener('focus', () => renderMatches(card));
   card.search.addEventListener('keydown', (event) => {
     if (event.key === 'Escape') card.matches.hidden = true;
+    if (event.key === 'ArrowDown' || event.key === 'ArrowUp') {
+      event.preventDefault();
+      if (card.matches.hidden) renderMatches(card);
+      else highlight(card, card.active + (event.key === 'ArrowDown' ? 1 : -1));
+    }
     if (event.key === 'Enter') {
       event.preventDefault();
-      card.matches.querySelector('button')?.click();
+      // The highlighted entry, the one on show: never one the list hides.
+      if (!card.matches.hidden) card.matches.querySelectorAll('button.match')[card.active]?.click();
     }
   });
 
@@ -345,21 +351,66 @@ function renderEntries(card) {
   }));
 }
 
+/**
+ * The mappable objects that match `query`, best first: each word of it
+ * (split at spaces and underscores) in the name, or the index; an exact
+ * name (without the UMC's a1_pc_ prefix) first, then the shorter name
+ * ("position actual" ranks Position_actual_value above
+ * Position_actual_internal_value), then the index.
+ */
+function rankMatches(list, query) {
+  const words = query.toLowerCase().split(/[\s_]+/).filter(Boolean);
+  if (words.length === 0) return list;
+  const bare = words.join('_');
+  const index = query.trim().toLowerCase().replace(/^0x/, '');
+  const scored = [];
+  for (const o of list) {
+    const name = o.name.toLowerCase();
+    const byName = words.every((w) => name.includes(w));
+    const byIndex = `${o.index}:${o.sub}`.toLowerCase().includes(query.trim().toLowerCase())
+      || o.index.toLowerCase().replace('0x', '').startsWith(index);
+    if (!byName && !byIndex) continue;
+    const exact = name === bare || name.endsWith(`_${bare}`) ? 0 : 1;
+    scored.push({ o, key: [byIndex ? 0 : 1, exact, name.length, o.index, o.sub] });
+  }
+  scored.sort((x, y) => {
+    for (let i = 0; i < x.key.length; i += 1) {
+      if (x.key[i] < y.key[i]) return -1;
+      if (x.key[i] > y.key[i]) return 1;
+    }
+    return 0;
+  });
+  return scored.map((s) => s.o);
+}
+
+/** Highlights match `n` of the card's list (wrapping round), the one Enter takes. */
+function highlight(card, n) {
+  const buttons = [...card.matches.querySelectorAll('button.match')];
+  if (buttons.length === 0) return;
+  card.active = (n + buttons.length) % buttons.length;
+  buttons.forEach((button, i) => {
+    const on = i === card.active;
+    button.classList.toggle('active', on);
+    button.parentElement.setAttribute('aria-selected', on ? 'true' : 'false');
+    if (on) {
+      card.search.setAttribute('aria-activedescendant', button.parentElement.id);
+      button.scrollIntoView({ block: 'nearest' });
+    }
+  });
+}
+
 function renderMatches(card) {
-  const query = card.search.value.trim().toLowerCase();
+  const query = card.search.value.trim();
   const used = card.draft.mapping.reduce((sum, e) => sum + e.bits, 0);
-  const found = mappable[card.kind].filter((o) => !query
-    || o.name.toLowerCase().includes(query)
-    || `${o.index}:${o.sub}`.toLowerCase().includes(query)
-    || o.index.toLowerCase().replace('0x', '').startsWith(query.replace(/^0x/, '')));
+  const found = rankMatches(mappable[card.kind], query);
   if (mappable[card.kind].length === 0) {
     card.matches.replaceChildren(h('li', { class: 'none' }, 'The node\'s dictionary lists no mappable object for this direction.'));
   } else if (found.length === 0) {
     card.matches.replaceChildren(h('li', { class: 'none' }, `No mappable object matches “${card.search.value}”.`));
   } else {
-    card.matches.replaceChildren(...found.slice(0, 12).map((o) => h('li', { role: 'option' },
+    const items = found.slice(0, 12).map((o, i) => h('li', { role: 'option', id: `${card.kind}-${card.number}-match-${i}` },
       h('button', {
-        type: 'button', class: `match${used + o.bits > FRAME_BITS ? ' too-big' : ''}`,
+        type: 'button', class: `match${used + o.bits > FRAME_BITS ? ' too-big' : ''}`, tabindex: -1,
         dataset: { index: o.index, sub: o.sub },
         on: { click: () => {
           card.draft.mapping.push({ index: o.index, sub: o.sub, bits: o.bits, name: o.name });
@@ -367,10 +418,13 @@ function renderMatches(card) {
           card.matches.hidden = true;
           changed(card);
         } },
-      }, h('span', { class: 'match-name' }, o.name), h('span', { class: 'sub' }, ` ${o.index}:${o.sub} · ${o.data_type} · ${o.bits} bits · ${o.access}`)))),
-    found.length > 12 ? h('li', { class: 'none' }, `${found.length - 12} more: type to narrow down.`) : null);
+      }, h('span', { class: 'match-name' }, o.name), h('span', { class: 'sub' }, ` ${o.index}:${o.sub} · ${o.data_type} · ${o.bits} bits · ${o.access}`))));
+    // No "more" line for a short list (a null child would read "null").
+    if (found.length > 12) items.push(h('li', { class: 'none' }, `${found.length - 12} more: type to narrow down.`));
+    card.matches.replaceChildren(...items);
   }
   card.matches.hidden = false;
+  highlight(card, 0);
 }
 
 document.addEventListener('click', (event) => {
