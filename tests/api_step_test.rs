@@ -59,8 +59,13 @@ async fn two_velocity_gains_give_different_rise_times_and_overshoots() {
     put(&address, "0x6046/2", 10_000).await;
     put(&address, "0x6048/1", 10_000).await;
     put(&address, "0x6048/2", 1).await;
-    let (soft_rise, soft_overshoot) = step(&address, 0.004, 0.4).await;
+    // And down: the axis is back at rest before the next step.
+    put(&address, "0x6049/1", 10_000).await;
+    put(&address, "0x6049/2", 1).await;
+    // The stiff gain first: whatever the first test leaves behind favours
+    // the second, the soft one.
     let (stiff_rise, stiff_overshoot) = step(&address, 0.02, 0.4).await;
+    let (soft_rise, soft_overshoot) = step(&address, 0.004, 0.4).await;
     assert!(
         soft_rise >= 2.0 * stiff_rise,
         "rise {soft_rise} ms vs {stiff_rise} ms"

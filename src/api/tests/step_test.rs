@@ -35,12 +35,18 @@ async fn velocity_gain(app: &Router, p: f64) {
 }
 
 async fn step(app: &Router) -> Json {
-    // A steep VL ramp, so that the loop, not the ramp, shapes the step.
-    for (sub, value) in [(1, 10_000), (2, 1)] {
+    // Steep VL ramps up and down, so that the loop, not the ramp, shapes
+    // the step, and the axis is back at `from` before it.
+    for (index, sub, value) in [
+        ("0x6048", 1, 10_000),
+        ("0x6048", 2, 1),
+        ("0x6049", 1, 10_000),
+        ("0x6049", 2, 1),
+    ] {
         let (status, body) = call(
             app,
             Method::PUT,
-            &format!("/api/v1/buses/demo/nodes/1/od/0x6048/{sub}"),
+            &format!("/api/v1/buses/demo/nodes/1/od/{index}/{sub}"),
             Some(json!({"value": value})),
         )
         .await;
@@ -98,10 +104,12 @@ async fn a_velocity_step_is_measured_and_the_axis_halted_after() {
 async fn the_velocity_gain_shows_in_the_rise_time() {
     let (app, _) = demo().await;
     enable(&app, 1).await;
-    velocity_gain(&app, 0.004).await;
-    let soft = step(&app).await;
+    // The stiff gain first: whatever the first test leaves behind favours
+    // the second, the soft one.
     velocity_gain(&app, 0.03).await;
     let stiff = step(&app).await;
+    velocity_gain(&app, 0.004).await;
+    let soft = step(&app).await;
     let rise = |body: &Json| body["rise_time_ms"].as_f64().unwrap();
     assert!(
         rise(&soft) > 2.0 * rise(&stiff),

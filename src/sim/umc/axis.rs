@@ -37,6 +37,7 @@ use super::motor::{Bridge, Motor, MotorModel};
 use super::params::Params;
 use super::pid::Pid;
 use super::publish::{Published, Slot};
+use super::sensor::Sensor;
 use super::trajectory::{Profile, Sample};
 
 /// The board's control cycle, s.
@@ -164,6 +165,8 @@ pub struct Axis {
     /// Conditions raised since the last fault reset.
     latched: Conditions,
     published: Published,
+    /// The torque, velocity and position sensors, conditioned (§3.4.4).
+    sensors: [Sensor; 3],
     /// The supply seen at the last tick.
     supply: Supply,
 }
@@ -219,6 +222,7 @@ impl Axis {
             present: Conditions::default(),
             latched: Conditions::default(),
             published: Published::new(offset, m_offset),
+            sensors: [Sensor::default(); 3],
             supply: Supply {
                 voltage: 0.0,
                 under_voltage: false,
@@ -575,6 +579,7 @@ impl Axis {
             }
             return;
         }
+        self.sense();
         let demand = self.demand_now();
         let bridge = match demand {
             None => Bridge::Off,
@@ -680,12 +685,32 @@ impl Axis {
         })
     }
 
+    /// Reads the sensors through their conditioning: the torque sensor
+    /// gives N·m (the current times 0x4007.6), the velocity sensor rpm, the
+    /// position sensor revolutions.
+    fn sense(&mut self) {
+        let motor = &self.motor;
+        let params = &self.params;
+        self.sensors[0].read(
+            &params.torque_sensor,
+            motor.current * params.current_constant,
+        );
+        self.sensors[1].read(
+            &params.velocity_sensor,
+            units::rpm_from_increments_per_ms(motor.velocity),
+        );
+        self.sensors[2].read(
+            &params.position_sensor,
+            motor.position / units::INCREMENTS_PER_REV,
+        );
+    }
+
     fn position_loop(&mut self, sample: Sample) -> Bridge {
         let rev = units::INCREMENTS_PER_REV;
         let rpm = self.loops.position_pid.step(
             &self.params.position_pid,
             sample.position / rev,
-            self.motor.position / rev,
+            self.sensors[2].value,
             CYCLE_S,
         );
         let command = sample.velocity + units::increments_per_ms_from_rpm(rpm);
@@ -699,7 +724,7 @@ impl Axis {
         let amperes = self.loops.velocity_pid.step(
             &self.params.velocity_pid,
             rpm(command),
-            rpm(self.motor.velocity),
+            self.sensors[1].value,
             CYCLE_S,
         );
         let error = command - self.motor.velocity;
@@ -893,6 +918,7 @@ impl Axis {
     /// Writes the status objects that changed; `all` adds the diagnostic
     /// ones.
     pub fn publish(&mut self, io: &mut DeviceIo<'_>, all: bool) {
+        self.sense();
         self.refresh_flags();
         let statusword = self.pds.statusword().raw();
         let motor = &self.motor;
@@ -1030,13 +1056,17 @@ impl Axis {
         );
         out.set(io, Slot::TorquePidOutput, q(c_out));
         out.set(io, Slot::TorquePidTarget, amps(c_in));
+        let [torque_sensor, velocity_sensor, position_sensor] = self.sensors;
         out.set(io, Slot::PositionSensorRaw, rev(motor.position));
-        out.set(io, Slot::PositionSensorValue, rev(motor.position));
+        out.set(io, Slot::PositionSensorValue, q(position_sensor.value));
+        out.set(io, Slot::PositionSensorFlags, position_sensor.flags);
         out.set(io, Slot::VelocitySensorRaw, rpm(motor.velocity));
-        out.set(io, Slot::VelocitySensorValue, rpm(motor.velocity));
+        out.set(io, Slot::VelocitySensorValue, q(velocity_sensor.value));
+        out.set(io, Slot::VelocitySensorFlags, velocity_sensor.flags);
         let torque = amps(motor.current * params.current_constant);
         out.set(io, Slot::TorqueSensorRaw, torque);
-        out.set(io, Slot::TorqueSensorValue, torque);
+        out.set(io, Slot::TorqueSensorValue, q(torque_sensor.value));
+        out.set(io, Slot::TorqueSensorFlags, torque_sensor.flags);
         // 0x4008: the rotor's electrical angle and the hall sensors that
         // see it (six 60° sectors, the usual 120° hall sequence).
         const HALL: [i64; 6] = [0b001, 0b011, 0b010, 0b110, 0b100, 0b101];

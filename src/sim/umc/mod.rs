@@ -14,6 +14,7 @@
 //! - [`faults`]: the fault conditions, their EMCY codes and register bits.
 //! - [`params`]: an axis's parameters, read when written.
 //! - [`pid`]: one PID of the cascade (§3.5), as its configuration reads.
+//! - [`sensor`]: a sensor's conditioning (§3.4.4).
 //! - [`publish`]: the status objects, written when they change.
 //!
 //! The board (this module): the supply 0x2000 against 0x2041, the driver
@@ -30,6 +31,7 @@ pub mod motor;
 pub mod params;
 pub mod pid;
 pub mod publish;
+pub mod sensor;
 pub mod trajectory;
 
 #[cfg(test)]

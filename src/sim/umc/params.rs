@@ -5,6 +5,8 @@
 
 use crate::profiles::umc::drive as d;
 use crate::profiles::umc::pid::{Loop, PidConfig};
+
+use super::sensor::Conditioning;
 use crate::profiles::umc::{self, axis as ax};
 use crate::sim::behaviour::DeviceIo;
 
@@ -75,6 +77,11 @@ pub struct Params {
     pub torque_pid: PidConfig,
     pub velocity_pid: PidConfig,
     pub position_pid: PidConfig,
+    /// 0x4025, 0x4045, 0x4065: the torque, velocity and position sensors'
+    /// conditioning.
+    pub torque_sensor: Conditioning,
+    pub velocity_sensor: Conditioning,
+    pub position_sensor: Conditioning,
 }
 
 impl Params {
@@ -150,6 +157,9 @@ impl Params {
             torque_pid: pid_config(io, Loop::Torque, m_offset),
             velocity_pid: pid_config(io, Loop::Velocity, m_offset),
             position_pid: pid_config(io, Loop::Position, m_offset),
+            torque_sensor: conditioning(io, 0x4025 + m_offset),
+            velocity_sensor: conditioning(io, 0x4045 + m_offset),
+            position_sensor: conditioning(io, 0x4065 + m_offset),
         }
     }
 
@@ -160,6 +170,19 @@ impl Params {
             _ => position,
         }
     }
+}
+
+/// A sensor's conditioning record; the manual's defaults where the
+/// dictionary lacks it.
+fn conditioning(io: &DeviceIo<'_>, index: u16) -> Conditioning {
+    let mut raw = [0i64; 8];
+    for (sub, value) in (1u8..).zip(raw.iter_mut()) {
+        match io.int(index, sub) {
+            Some(read) => *value = read,
+            None => return Conditioning::default(),
+        }
+    }
+    Conditioning::from_raw(raw)
 }
 
 /// A loop's configuration record as the dictionary holds it.

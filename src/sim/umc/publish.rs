@@ -58,6 +58,9 @@ pub enum Slot {
     HallRaw,
     HallPhase,
     ElectricalAngle,
+    TorqueSensorFlags,
+    VelocitySensorFlags,
+    PositionSensorFlags,
     IpBufferSize,
 }
 
@@ -125,6 +128,9 @@ const OBJECTS: [(Area, u16, u8); SLOTS] = {
         (M, ax::BLDC_STATUS, 1),
         (M, ax::BLDC_STATUS, 2),
         (M, ax::BLDC_STATUS, 3),
+        (M, ax::TORQUE_SENSOR_STATUS, 2),
+        (M, ax::VELOCITY_SENSOR_STATUS, 2),
+        (M, ax::POSITION_SENSOR_STATUS, 2),
         (P, d::IP_DATA_CONFIGURATION, 2),
     ]
 };

@@ -1077,3 +1077,23 @@ fn the_torque_loop_without_integral_leaves_the_current_short_and_too_much_gain_r
         .count();
     assert!(crossings >= 10, "{ringing:?}");
 }
+
+#[test]
+fn the_velocity_loop_acts_on_the_conditioned_sensor_value() {
+    let mut rig = Rig::umc1bds32();
+    // 0x4045.2 Scale 2.0: the sensor reads twice the motor's speed.
+    rig.set(1, 0x4045, 2, 131_072);
+    let samples = velocity_step(&mut rig, 1_000, 600);
+    // The loop holds the sensor's value at the target: the motor turns at
+    // half of it.
+    let actual = samples[599];
+    assert!((actual - 500.0).abs() <= 10.0, "{actual}");
+    let value = umc::from_q15_16(rig.get(1, 0x4042, 3) as i32);
+    let raw = umc::from_q15_16(rig.get(1, 0x4042, 1) as i32);
+    assert!((value - 2.0 * raw).abs() < 0.01, "{value} vs {raw}");
+    assert_eq!(rig.get(1, 0x4042, 2), 0, "valid");
+    // Error_max below the value: flagged −2 (0x4022.2, Table 1.10).
+    rig.set(1, 0x4045, 5, 65_536 * 100);
+    rig.tick(2);
+    assert_eq!(rig.get(1, 0x4042, 2), -2);
+}
