@@ -1,18 +1,23 @@
-//! The Sparkplug B edge node under load (issue 23): the release
-//! `candeck serve` with a virtual bus of N UMC1BDS32 drives (default 127),
-//! SYNC every 10 ms (each drive sends its four TPDOs on every SYNC), axis 1
-//! of each in a velocity move (its position changes with every SYNC), and
-//! the edge node publishing to a Mosquitto on loopback (Debian's
-//! `mosquitto`, started here on a free port). A subscriber in this process
-//! (rumqttc, the same prost types) counts the metrics of every DDATA
-//! delivered and the latency of each TPDO metric: the time it was received
-//! here less its timestamp (when the gateway received the TPDO frame),
-//! both on this machine's clock, in whole milliseconds. The gateway's CPU
-//! time (`/proc/PID/stat`) over the measured window and its resident
-//! memory (`VmRSS`) at the end are read too. The virtual drives run inside
-//! the gateway process: its CPU includes them.
+//! The Sparkplug B edge node under load (issue 23): release `candeck`
+//! gateways, each attached over socketcand to a `candeck vbus` process of
+//! its own with N UMC1BDS32 drives (default 127), so that the gateway's CPU
+//! is its own and the drives' is the vbus's. SYNC every 10 ms; each drive's
+//! TPDO3 and TPDO4 are mapped (over the gateway's REST API) to axis 1's and
+//! axis 2's position actual value and position demand value, and both axes
+//! run a velocity move, so that each drive sends 4 values that change on
+//! every SYNC (plus its statuswords, mode and velocities, which do not).
+//! Every gateway's edge node publishes to one Mosquitto on loopback
+//! (Debian's `mosquitto`, started here on a free port). A subscriber in
+//! this process (rumqttc, the same prost types) counts the metrics of every
+//! DDATA delivered and the latency of each metric: the time it was received
+//! here less its timestamp (when the gateway received the TPDO frame), both
+//! on this machine's clock, in whole milliseconds. Each process's CPU time
+//! (`/proc/PID/stat`) over the measured window and its resident memory
+//! (`VmRSS`) at the end are read; the gateway's `/metrics` counters of the
+//! edge node (messages, metrics, drops) are printed.
 //!
-//! Run: `cargo bench --bench sparkplug -- --nodes 127 --seconds 20 --warmup 5`.
+//! Run: `cargo bench --bench sparkplug -- --nodes 127 --gateways 1 --tick-ms 10 --seconds 20 --warmup 5`
+//! (`--tick-ms`: the gateways' `sparkplug_publish_tick_ms`).
 
 mod common;
 
@@ -113,15 +118,181 @@ struct Counts {
     latencies: Vec<u64>,
 }
 
-fn main() {
-    let options = common::Options::from_args(Duration::from_secs(5), Duration::from_secs(20));
+fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
     let args: Vec<String> = std::env::args().collect();
-    let nodes: u8 = args
-        .iter()
-        .position(|arg| arg == "--nodes")
+    args.iter()
+        .position(|arg| arg == name)
         .and_then(|at| args.get(at + 1))
         .and_then(|n| n.parse().ok())
-        .unwrap_or(127);
+        .unwrap_or(default)
+}
+
+/// The first line a child prints on stdout; its later lines are read too
+/// (a closed pipe would end it).
+fn first_line(child: &mut Child) -> String {
+    let mut first = String::new();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    stdout.read_line(&mut first).unwrap();
+    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
+    first
+}
+
+/// One line of the plant: a vbus with `nodes` drives, and a gateway
+/// attached to it, edge node `gw{k}`.
+struct Line {
+    vbus: Killed,
+    gateway: Killed,
+    addr: String,
+}
+
+impl Line {
+    fn start(dir: &std::path::Path, k: usize, nodes: u8, broker: u16, tick_ms: u64) -> Self {
+        let share = free_port();
+        let devices: Vec<String> = (1..=nodes).map(|id| format!("umc1bds32@{id}")).collect();
+        let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
+            .args([
+                "vbus",
+                "--listen",
+                &format!("127.0.0.1:{share}"),
+                "--bitrate",
+                "unlimited",
+                "--devices",
+                &devices.join(","),
+            ])
+            .env("CANDECK_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(dir.join(format!("vbus{k}.log"))).unwrap())
+            .spawn()
+            .expect("candeck vbus starts");
+        first_line(&mut vbus);
+        let vbus = Killed(vbus);
+        let config = dir.join(format!("candeck{k}.toml"));
+        std::fs::write(
+            &config,
+            format!(
+                "listen = \"127.0.0.1:0\"\nbuses = [\"bench=socketcand:127.0.0.1:{share}/can0\"]\n\
+                 sync_period_ms = 10\nlease_ms = 60000\n\
+                 mqtt_url = \"mqtt://127.0.0.1:{broker}\"\nsparkplug_group_id = \"bench\"\n\
+                 sparkplug_edge_node_id = \"gw{k}\"\nsparkplug_publish_tick_ms = {tick_ms}\n"
+            ),
+        )
+        .unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
+            .args(["serve", "--config", config.to_str().unwrap()])
+            .env("CANDECK_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(dir.join(format!("candeck{k}.log"))).unwrap())
+            .spawn()
+            .expect("candeck serve starts");
+        let first = first_line(&mut child);
+        let addr = first
+            .split("http://")
+            .nth(1)
+            .and_then(|rest| rest.split('/').next())
+            .expect("the serving line")
+            .to_string();
+        Self {
+            vbus,
+            gateway: Killed(child),
+            addr,
+        }
+    }
+
+    /// Every drive identified, TPDO3 and TPDO4 remapped to 4 changing
+    /// values, started, both axes enabled and moving.
+    fn set_up(&self, nodes: u8) {
+        let addr = &self.addr;
+        let deadline = Instant::now() + Duration::from_secs(300);
+        loop {
+            let (_, body) = http(addr, "GET", "/buses/bench/nodes", None);
+            let done = body.matches("\"state\":\"done\"").count();
+            if done >= usize::from(nodes) {
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{addr}: only {done} nodes identified"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        http(
+            addr,
+            "POST",
+            "/buses/bench/nmt",
+            Some("{\"command\":\"pre_operational\"}"),
+        );
+        for id in 1..=nodes {
+            for (tpdo, axis) in [(3, "0x60"), (4, "0x68")] {
+                let body = format!(
+                    "{{\"transmission_type\":1,\"mapping\":[{{\"index\":\"{axis}64\"}},{{\"index\":\"{axis}62\"}}]}}"
+                );
+                // On a loaded machine an SDO may time out: tried 3 times.
+                let path = format!("/buses/bench/nodes/{id}/pdos/tpdo/{tpdo}");
+                let (mut status, mut answer) = http(addr, "PUT", &path, Some(&body));
+                for _ in 0..2 {
+                    if status < 300 {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_secs(1));
+                    (status, answer) = http(addr, "PUT", &path, Some(&body));
+                }
+                assert!(
+                    status < 300,
+                    "map TPDO{tpdo} of node {id}: {status} {answer}"
+                );
+            }
+        }
+        http(
+            addr,
+            "POST",
+            "/buses/bench/nmt",
+            Some("{\"command\":\"start\"}"),
+        );
+        for id in 1..=nodes {
+            for axis in 1..=2 {
+                let base = format!("/buses/bench/nodes/{id}/axes/{axis}");
+                let (status, body) = http(
+                    addr,
+                    "POST",
+                    &format!("{base}/state"),
+                    Some("{\"target\":\"operation_enabled\"}"),
+                );
+                assert!(
+                    status < 300,
+                    "enable node {id} axis {axis}: {status} {body}"
+                );
+                let (status, body) = http(
+                    addr,
+                    "POST",
+                    &format!("{base}/move"),
+                    Some("{\"mode\":\"velocity\",\"velocity\":20000}"),
+                );
+                assert!(status < 300, "move node {id} axis {axis}: {status} {body}");
+            }
+        }
+    }
+
+    fn edge_counters(&self) -> Vec<String> {
+        let mut stream = TcpStream::connect(&self.addr).unwrap();
+        write!(
+            stream,
+            "GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut text = String::new();
+        let _ = stream.read_to_string(&mut text);
+        text.lines()
+            .filter(|line| line.starts_with("candeck_sparkplug_") && !line.starts_with('#'))
+            .map(str::to_string)
+            .collect()
+    }
+}
+
+fn main() {
+    let options = common::Options::from_args(Duration::from_secs(5), Duration::from_secs(20));
+    let nodes: u8 = arg("--nodes", 127);
+    let lines_wanted: usize = arg("--gateways", 1);
+    let tick_ms: u64 = arg("--tick-ms", 10);
     let mosquitto = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
         .into_iter()
         .find(|path| std::path::Path::new(path).exists());
@@ -147,39 +318,8 @@ fn main() {
             .spawn()
             .expect("mosquitto starts"),
     );
+    let broker_pid = broker.0.id();
     std::thread::sleep(Duration::from_millis(300));
-    let config = dir.join("candeck.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "listen = \"127.0.0.1:0\"\nbuses = [\"bench=virtual:empty?bitrate=unlimited\"]\n\
-             sync_period_ms = 10\nlease_ms = 60000\n\
-             mqtt_url = \"mqtt://127.0.0.1:{port}\"\nsparkplug_group_id = \"bench\"\n\
-             sparkplug_edge_node_id = \"gw1\"\n"
-        ),
-    )
-    .unwrap();
-    let log = std::fs::File::create(dir.join("candeck.log")).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_candeck"))
-        .args(["serve", "--config", config.to_str().unwrap()])
-        .env("CANDECK_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(log)
-        .spawn()
-        .expect("candeck serve starts");
-    let mut first = String::new();
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    stdout.read_line(&mut first).unwrap();
-    // Its later lines are read too (a closed pipe would end it).
-    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
-    let pid = child.id();
-    let gateway = Killed(child);
-    let addr = first
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .expect("the serving line")
-        .to_string();
 
     // The subscriber first: it sees the births.
     let counts = Arc::new(Mutex::new(Counts::default()));
@@ -221,51 +361,14 @@ fn main() {
     });
 
     let setup = Instant::now();
-    for id in 1..=nodes {
-        let (status, body) = http(
-            &addr,
-            "POST",
-            "/buses/bench/sim/nodes",
-            Some(&format!("{{\"product\":\"umc1bds32\",\"id\":{id}}}")),
-        );
-        assert!(status < 300, "add node {id}: {status} {body}");
-    }
-    // Identified, and their TPDO mappings read.
-    let deadline = Instant::now() + Duration::from_secs(120);
-    loop {
-        let (_, body) = http(&addr, "GET", "/buses/bench/nodes", None);
-        let done = body.matches("\"state\":\"done\"").count();
-        if done >= usize::from(nodes) {
-            break;
-        }
-        assert!(Instant::now() < deadline, "only {done} nodes identified");
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    http(
-        &addr,
-        "POST",
-        "/buses/bench/nmt",
-        Some("{\"command\":\"start\"}"),
-    );
-    for id in 1..=nodes {
-        let base = format!("/buses/bench/nodes/{id}/axes/1");
-        let (status, body) = http(
-            &addr,
-            "POST",
-            &format!("{base}/state"),
-            Some("{\"target\":\"operation_enabled\"}"),
-        );
-        assert!(status < 300, "enable node {id}: {status} {body}");
-        let (status, body) = http(
-            &addr,
-            "POST",
-            &format!("{base}/move"),
-            Some("{\"mode\":\"velocity\",\"velocity\":20000}"),
-        );
-        assert!(status < 300, "move node {id}: {status} {body}");
+    let lines: Vec<Line> = (1..=lines_wanted)
+        .map(|k| Line::start(&dir, k, nodes, port, tick_ms))
+        .collect();
+    for line in &lines {
+        line.set_up(nodes);
     }
     println!(
-        "sparkplug: {nodes} nodes identified, started, enabled and moving after {:.1} s",
+        "sparkplug: {lines_wanted} gateway(s) x {nodes} nodes identified, remapped, started, enabled and moving after {:.1} s",
         setup.elapsed().as_secs_f64()
     );
     std::thread::sleep(options.warmup);
@@ -273,48 +376,65 @@ fn main() {
         let mut counts = counts.lock().unwrap();
         *counts = Counts::default();
     }
-    let cpu_start = cpu_seconds(pid);
+    let pids = |pick: fn(&Line) -> u32| lines.iter().map(pick).collect::<Vec<u32>>();
+    let gateway_pids = pids(|line| line.gateway.0.id());
+    let vbus_pids = pids(|line| line.vbus.0.id());
+    let cpu = |pids: &[u32]| {
+        pids.iter()
+            .map(|pid| cpu_seconds(*pid))
+            .collect::<Vec<f64>>()
+    };
+    let (gw_start, vbus_start, broker_start) =
+        (cpu(&gateway_pids), cpu(&vbus_pids), cpu_seconds(broker_pid));
     let start = Instant::now();
     std::thread::sleep(options.measure);
     let elapsed = start.elapsed().as_secs_f64();
-    let cpu = (cpu_seconds(pid) - cpu_start) / elapsed;
-    let rss = rss_mib(pid);
+    let used = |now: Vec<f64>, then: &[f64]| {
+        now.iter()
+            .zip(then)
+            .map(|(now, then)| (now - then) / elapsed)
+            .collect::<Vec<f64>>()
+    };
+    let gw_cpu = used(cpu(&gateway_pids), &gw_start);
+    let vbus_cpu = used(cpu(&vbus_pids), &vbus_start);
+    let broker_cpu = (cpu_seconds(broker_pid) - broker_start) / elapsed;
+    let gw_rss: Vec<f64> = gateway_pids.iter().map(|pid| rss_mib(*pid)).collect();
     let mut counts = std::mem::take(&mut *counts.lock().unwrap());
     counts.latencies.sort_unstable();
     let pct = |p: f64| {
         let at = ((counts.latencies.len() as f64 - 1.0) * p).round() as usize;
         counts.latencies.get(at).copied().unwrap_or(0)
     };
-    let (_, metrics_text) = {
-        let mut stream = TcpStream::connect(&addr).unwrap();
-        write!(
-            stream,
-            "GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
-        )
-        .unwrap();
-        let mut text = String::new();
-        stream.read_to_string(&mut text).unwrap();
-        (0, text)
-    };
-    let published: Vec<&str> = metrics_text
-        .lines()
-        .filter(|line| line.starts_with("candeck_sparkplug_") && !line.starts_with('#'))
-        .collect();
+    let sum = |v: &[f64]| v.iter().sum::<f64>();
+    let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
     println!(
-        "sparkplug: {nodes} nodes, SYNC 10 ms: {:.0} metrics/s in {:.0} DDATA/s delivered to the subscriber; \
-         latency p50 {} ms, p99 {} ms, max {} ms; gateway CPU {:.2} cores, RSS {:.1} MiB (over {elapsed:.1} s)",
+        "sparkplug: {lines_wanted} gateway(s) x {nodes} nodes, SYNC 10 ms, publish tick {tick_ms} ms: {:.0} metrics/s in {:.0} DDATA/s delivered to the subscriber; \
+         latency p50 {} ms, p99 {} ms, max {} ms; gateway CPU {:.2} cores in all (max {:.2} per gateway), \
+         gateway RSS max {:.1} MiB; vbus CPU {:.2} cores in all; mosquitto CPU {:.2} cores (over {elapsed:.1} s)",
         counts.metrics as f64 / elapsed,
         counts.messages as f64 / elapsed,
         pct(0.5),
         pct(0.99),
         counts.latencies.last().copied().unwrap_or(0),
-        cpu,
-        rss,
+        sum(&gw_cpu),
+        max(&gw_cpu),
+        max(&gw_rss),
+        sum(&vbus_cpu),
+        broker_cpu,
     );
-    for line in published {
-        println!("  {line}");
+    for (k, line) in lines.iter().enumerate() {
+        println!(
+            "  gw{}: CPU {:.2} cores, RSS {:.1} MiB; vbus CPU {:.2} cores",
+            k + 1,
+            gw_cpu[k],
+            gw_rss[k],
+            vbus_cpu[k]
+        );
+        for counter in line.edge_counters() {
+            println!("    {counter}");
+        }
     }
-    drop(gateway);
+    drop(lines);
     // exit() below runs no destructor: the broker is stopped here.
     drop(broker);
     drop(subscriber);

@@ -11,6 +11,9 @@ use crate::gateway::access::Role;
 /// The default size of the store-and-forward queue, in messages.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 100_000;
 
+/// The default `sparkplug_publish_tick_ms`.
+pub const DEFAULT_PUBLISH_TICK: Duration = Duration::from_millis(10);
+
 /// A broker address: `mqtt://host[:port]` (1883) or `mqtts://host[:port]`
 /// (8883, TLS).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -92,6 +95,11 @@ pub struct SparkplugConfig {
     pub node_check: Duration,
     /// The MQTT keep-alive.
     pub keep_alive: Duration,
+    /// The shortest time between two passes over the nodes whose TPDO
+    /// values changed (`sparkplug_publish_tick_ms`): each pass sends one
+    /// DDATA per device with all its changes, so the TPDOs of one SYNC
+    /// make one message; the price is this much latency at most.
+    pub publish_tick: Duration,
 }
 
 impl SparkplugConfig {
@@ -112,6 +120,7 @@ impl SparkplugConfig {
             spool_file: None,
             node_check: Duration::from_secs(1),
             keep_alive: Duration::from_secs(10),
+            publish_tick: DEFAULT_PUBLISH_TICK,
         }
     }
 
@@ -135,6 +144,9 @@ impl SparkplugConfig {
         }
         if self.tls.client_cert.is_some() != self.tls.client_key.is_some() {
             return Err("mqtt_client_cert and mqtt_client_key go together".to_string());
+        }
+        if self.publish_tick > Duration::from_secs(1) {
+            return Err("sparkplug_publish_tick_ms: 0 to 1000".to_string());
         }
         if self.queue_messages == 0 {
             return Err("sparkplug_queue_messages: at least 1".to_string());

@@ -123,6 +123,9 @@ struct Dirty {
     nodes: Mutex<HashSet<(String, NodeId)>>,
     /// The newest `Axis {n}/...` and `Segments` metrics, by node and name.
     extra: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
+    /// Of those, the ones that came since the runner last looked (a pass
+    /// takes these, not every axis metric of the node again).
+    fresh: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
     notify: Notify,
 }
 
@@ -130,6 +133,28 @@ impl Dirty {
     fn mark(&self, key: (String, NodeId)) {
         lock(&self.nodes).insert(key);
         self.notify.notify_one();
+    }
+
+    /// Keeps `metrics` as the newest of node `key`, and marks it.
+    fn update(&self, key: &(String, NodeId), metrics: Vec<Sample>) {
+        let mut fresh = lock(&self.fresh);
+        let fresh = fresh.entry(key.clone()).or_default();
+        let mut extra = lock(&self.extra);
+        let node = extra.entry(key.clone()).or_default();
+        for metric in metrics {
+            fresh.insert(metric.name.clone(), metric.clone());
+            node.insert(metric.name.clone(), metric);
+        }
+        drop(extra);
+        self.mark(key.clone());
+    }
+
+    /// The metrics of node `key` that came since the last call.
+    fn take_fresh(&self, key: &(String, NodeId)) -> Vec<Sample> {
+        lock(&self.fresh)
+            .remove(key)
+            .map(|metrics| metrics.into_values().collect())
+            .unwrap_or_default()
     }
 
     fn extra(&self, key: &(String, NodeId)) -> Vec<Sample> {
@@ -286,6 +311,8 @@ impl Runner {
         }
         let mut connection: Option<Connection> = None;
         let mut reconnect_at = Instant::now();
+        let mut last_values = Instant::now();
+        let mut values_at: Option<Instant> = None;
         let mut node_check = tokio::time::interval(self.config.node_check);
         node_check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -319,7 +346,20 @@ impl Runner {
                 Some(Input::Node { bus, event }) = input.recv() => {
                     self.on_node_event(&mut connection, &bus, event);
                 }
-                () = dirty.notify.notified() => {
+                () = dirty.notify.notified(), if values_at.is_none() => {
+                    // At most one pass per tick: the TPDOs of a SYNC that
+                    // come meanwhile go in the same DDATA of their device.
+                    let at = last_values + self.config.publish_tick;
+                    if Instant::now() >= at {
+                        last_values = Instant::now();
+                        self.on_values(&mut connection);
+                    } else {
+                        values_at = Some(at);
+                    }
+                }
+                () = sleep_until(values_at) => {
+                    values_at = None;
+                    last_values = Instant::now();
                     self.on_values(&mut connection);
                 }
                 () = sleep_until(due) => {
@@ -763,13 +803,7 @@ impl Runner {
                         if metrics.is_empty() {
                             continue;
                         }
-                        let mut extra = lock(&dirty.extra);
-                        let node = extra.entry(key.clone()).or_default();
-                        for metric in metrics {
-                            node.insert(metric.name.clone(), metric);
-                        }
-                        drop(extra);
-                        dirty.mark(key.clone());
+                        dirty.update(&key, metrics);
                     }
                 }));
             }
@@ -788,11 +822,7 @@ impl Runner {
                         MetricValue::String(segments.to_string()),
                         unix_ms(),
                     );
-                    lock(&dirty.extra)
-                        .entry(key.clone())
-                        .or_default()
-                        .insert(metric.name.clone(), metric);
-                    dirty.mark(key.clone());
+                    dirty.update(&key, vec![metric]);
                 }
             }));
         }
@@ -837,7 +867,7 @@ impl Runner {
                 continue;
             };
             let mut samples = tpdo_samples(&served.values.values(node));
-            samples.extend(self.dirty.extra(&(bus.clone(), node)));
+            samples.extend(self.dirty.take_fresh(&(bus.clone(), node)));
             if self.live
                 && samples
                     .iter()

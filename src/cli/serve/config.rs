@@ -111,6 +111,7 @@ pub(super) struct ConfigFile {
     pub(super) sparkplug_queue_messages: Option<usize>,
     pub(super) sparkplug_deadband: Option<f64>,
     pub(super) sparkplug_max_rate_hz: Option<f64>,
+    pub(super) sparkplug_publish_tick_ms: Option<u64>,
     pub(super) share_max_connections: Option<usize>,
     #[serde(default)]
     pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
@@ -184,6 +185,9 @@ impl ConfigFile {
         }
         if let Some(messages) = self.sparkplug_queue_messages {
             config.queue_messages = messages;
+        }
+        if let Some(ms) = self.sparkplug_publish_tick_ms {
+            config.publish_tick = std::time::Duration::from_millis(ms);
         }
         config.policy = Policy {
             default: reporting(self.sparkplug_deadband, self.sparkplug_max_rate_hz)

@@ -528,6 +528,18 @@ fn the_sparkplug_edge_node_comes_from_the_config_file_and_is_off_without_mqtt_ur
     assert_eq!(config.policy.default.min_interval_ms, 100);
     assert_eq!(config.policy.reporting("TPDO/Position").deadband, 5.0);
     assert_eq!(config.spool_file, None);
+    assert_eq!(config.publish_tick, std::time::Duration::from_millis(10));
+    let tick = |ms: &str| {
+        settings(&format!(
+            "mqtt_url = \"mqtt://b\"\nsparkplug_group_id = \"g\"\nsparkplug_publish_tick_ms = {ms}\n"
+        ))
+    };
+    assert_eq!(
+        tick("0").unwrap().sparkplug.unwrap().publish_tick,
+        std::time::Duration::ZERO
+    );
+    let err = tick("1001").unwrap_err();
+    assert!(err.contains("sparkplug_publish_tick_ms"), "{err}");
     let err = settings("mqtt_url = \"mqtt://b\"\n").unwrap_err();
     assert!(err.contains("sparkplug_group_id"), "{err}");
     let err = settings("mqtt_url = \"mqtts://b\"\nsparkplug_group_id = \"g\"\n").unwrap_err();
