@@ -101,6 +101,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/api.js", JS),
     asset!("js/auth.js", JS),
     asset!("js/axes.js", JS),
+    asset!("js/bustools.js", JS),
     asset!("js/canopen.js", JS),
     asset!("js/chart.js", JS),
     asset!("js/cia402.js", JS),

@@ -9,6 +9,7 @@
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
+import { syncControl } from './bustools.js';
 
 const FRAME_BITS = 64;
 const root = $('#pdo-page');
@@ -21,6 +22,8 @@ const lists = { tpdo: $('#tpdos'), rpdo: $('#rpdos') };
 const cards = new Map(); // "tpdo/1" -> card state (see makeCard)
 let mappable = { tpdo: [], rpdo: [] }; // from the node's dictionary
 let liveValues = {}; // name -> newest TPDO value from the stream
+let nmtState = null; // the node's NMT state as the gateway knows it
+let syncPeriod = null; // the bus's SYNC period in ms (0: off), once read
 
 const problems = new Map();
 function problem(key, text) {
@@ -318,7 +321,7 @@ function renderEntries(card) {
     h('span', { class: `swatch hue${i % 6}`, 'aria-hidden': 'true' }),
     h('span', { class: 'entry-name' }, label, h('span', { class: 'sub' }, ` ${e.index}:${e.sub} · ${e.bits} bits`)),
     live && onDevice.has(entryKey(e))
-      ? liveOutput(valueKey(e))
+      ? liveOutput(valueKey(e), card.device.transmission_type)
       : null,
     h('span', { class: 'entry-buttons' },
       h('button', { type: 'button', class: 'icon up', title: 'Move up', 'aria-label': `Move ${label} up`, disabled: i === 0,
@@ -525,6 +528,8 @@ async function loadNode() {
   try {
     const info = await api(base);
     $('#node-name').textContent = `${info.name || 'Unnamed device'} · node ${info.id} on ${bus}`;
+    nmtState = info.nmt || null;
+    showValues();
     problem('node', null);
   } catch (error) {
     problem('node', `Node ${node} on ${bus}: ${error.message}`);
@@ -534,20 +539,45 @@ async function loadNode() {
 // ---- live TPDO values -------------------------------------------------------
 
 /** The newest value of a mapped object, updated in place by the stream. */
-function liveOutput(key) {
-  const output = h('output', { class: 'live', dataset: { key } });
+function liveOutput(key, transmissionType) {
+  const output = h('output', { class: 'live', dataset: { key, transmission: transmissionType ?? '' } });
   showValue(output);
   return output;
 }
 
+const NMT_TEXT = { boot_up: 'booting', pre_operational: 'pre-operational', stopped: 'stopped' };
+
+/**
+ * Why a TPDO of this transmission type has not brought a value: the node
+ * is not operational, or the TPDO waits for a SYNC that nobody sends, or
+ * it is sent on request only; '' when nothing known stops it.
+ */
+export function whyNoValue(transmissionType, nmt, syncMs) {
+  if (nmt && NMT_TEXT[nmt]) return `node not operational (${NMT_TEXT[nmt]}): start it with NMT`;
+  const type = transmissionType === '' || transmissionType === null ? null : Number(transmissionType);
+  if (type !== null && type <= 240 && syncMs === 0) return 'no SYNC running: start SYNC above';
+  if (type === 252 || type === 253) return 'sent on remote request only';
+  return '';
+}
+
 function showValue(output) {
   const value = liveValues[output.dataset.key];
-  output.textContent = formatValue(value);
+  const why = value === undefined ? whyNoValue(output.dataset.transmission, nmtState, syncPeriod) : '';
+  output.textContent = why ? `no value yet: ${why}` : formatValue(value);
+  output.dataset.why = why;
   output.classList.toggle('none', value === undefined);
   output.title = value === undefined
     ? 'No TPDO with this object received since the page opened (the node sends TPDOs when operational)'
     : 'The newest value the node sent';
 }
+
+function showValues() {
+  for (const output of root.querySelectorAll('output.live')) showValue(output);
+}
+
+// The bus's SYNC at hand: synchronous TPDOs are sent at its pace.
+const sync = syncControl(bus, { onState: (state) => { syncPeriod = state.period_ms; showValues(); } });
+$('#sync-slot').replaceWith(sync.element);
 
 function formatValue(value) {
   if (value === undefined) return 'no value yet';
@@ -560,7 +590,7 @@ const valuesTopic = `buses/${bus}/nodes/${node}/values`;
 stream.subscribe([valuesTopic], (data) => {
   if (!data || typeof data !== 'object') return;
   liveValues = { ...liveValues, ...data };
-  for (const output of root.querySelectorAll('output.live')) showValue(output);
+  showValues();
 });
 
 // ---- start and reconnect ----------------------------------------------------
@@ -591,7 +621,12 @@ async function loadAll() {
 // this one is identified (or back online) its PDOs are read again.
 stream.subscribe(['nodes'], (data, message) => {
   if (message.lagged) return loadAll();
-  if (data.bus !== bus || String(data.node) !== node || !['identified', 'online'].includes(data.event)) return;
+  if (data.bus !== bus || String(data.node) !== node) return;
+  if (data.event === 'nmt_changed' && data.nmt) {
+    nmtState = data.nmt;
+    showValues();
+  }
+  if (!['identified', 'online'].includes(data.event)) return;
   // The values topic of a node the gateway did not know yet was refused
   // (unknown_node): ask for it again now that it does.
   problem('values', null);
