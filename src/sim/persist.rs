@@ -78,12 +78,10 @@ pub fn write_program(path: &Path, image: Option<&[u8]>) -> Result<(), PersistErr
     match image {
         Some(image) => write_private(path, image),
         None => match std::fs::remove_file(path) {
-            Err(err) if err.kind() != std::io::ErrorKind::NotFound => {
-                Err(PersistError::Write {
-                    path: path.to_path_buf(),
-                    source: err,
-                })
-            }
+            Err(err) if err.kind() != std::io::ErrorKind::NotFound => Err(PersistError::Write {
+                path: path.to_path_buf(),
+                source: err,
+            }),
             _ => Ok(()),
         },
     }

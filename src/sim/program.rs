@@ -251,11 +251,7 @@ impl ProgramMemory {
             ProgramState::NoProgram => FLASH_NO_VALID_PROGRAM,
             _ => 0,
         };
-        let _ = store.set(
-            PROGRAM_CONTROL,
-            1,
-            Value::Unsigned8(self.state.raw()),
-        );
+        let _ = store.set(PROGRAM_CONTROL, 1, Value::Unsigned8(self.state.raw()));
         let _ = store.set(PROGRAM_SOFTWARE_ID, 1, Value::Unsigned32(self.crc));
         let _ = store.set(FLASH_STATUS, 1, Value::Unsigned32(flash));
         if let Some(version) = &self.running_version {

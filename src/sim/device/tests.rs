@@ -530,7 +530,11 @@ fn values_saved_before_a_restart_are_in_force() {
 fn uniswarm_rig(
     product: crate::sim::products::Product,
     block_from: Option<usize>,
-) -> (Arc<Mutex<DeviceCore>>, SdoChannel, tokio::task::JoinHandle<()>) {
+) -> (
+    Arc<Mutex<DeviceCore>>,
+    SdoChannel,
+    tokio::task::JoinHandle<()>,
+) {
     let hub = VirtualHub::new("test");
     let master = hub.attach();
     let device = Arc::new(Mutex::new(product.device(node()).unwrap()));
@@ -550,7 +554,9 @@ fn image(version: Option<&str>) -> Vec<u8> {
     let mut image = version
         .map(crate::sim::program::ImageHeader::encode)
         .unwrap_or_default();
-    image.extend((0..64 * 1024u32 - image.len() as u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8));
+    image.extend(
+        (0..64 * 1024u32 - image.len() as u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8),
+    );
     image
 }
 
