@@ -56,7 +56,7 @@ fn warnings_name_file_and_line_and_each_file_gets_a_summary() {
     assert_eq!(
         lines[0],
         format!(
-            "{own}: ok: EDS, 320 objects, 887 sub-entries, vendor 0x000004A2 (UniSwarm SASU), \
+            "{own}: ok: EDS, 321 objects, 889 sub-entries, vendor 0x000004A2 (UniSwarm SASU), \
              product 0x00001001 (UMC1BDS32), revision 0x01000004, device type 0x00000192"
         )
     );

@@ -296,6 +296,7 @@ fn node_operation(
         (&Method::POST, ["store"]) => ("store parameters", None),
         (&Method::POST, ["restore"]) => ("restore parameters", None),
         (&Method::PUT, ["config.dcf"]) => ("restore configuration (DCF)", None),
+        (&Method::POST, ["program"]) => ("download program", None),
         (&Method::PUT, ["pdos", kind, n]) => ("configure pdo", Some(format!("{kind} {n}"))),
         (&Method::POST, ["pdos", kind, n, "send"]) => ("send rpdo", Some(format!("{kind} {n}"))),
         (&Method::PUT, ["segments"]) => ("set scene", None),

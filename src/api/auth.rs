@@ -76,6 +76,7 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/restore", ADMIN),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", VIEWER),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/program", ADMIN),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes", VIEWER),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}", VIEWER),
     ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/state", OPERATOR),
@@ -296,7 +297,8 @@ impl AuthConfig {
     /// The largest body a request to `path` may carry.
     pub fn body_limit(&self, method: &Method, path: &str) -> usize {
         let eds_upload = *method == Method::POST && path == "/api/v1/eds";
-        if eds_upload || *method == Method::PUT && path.ends_with("/config.dcf") {
+        let program = *method == Method::POST && path.ends_with("/program");
+        if eds_upload || program || *method == Method::PUT && path.ends_with("/config.dcf") {
             self.dcf_body_limit
         } else {
             self.body_limit

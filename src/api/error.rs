@@ -228,6 +228,9 @@ pub enum AppError {
     /// An object a data logger cannot sample (write-only, no number).
     #[error("{0}")]
     NotLoggable(String),
+    /// The device does not identify a downloaded program as the one sent.
+    #[error("{0}")]
+    ProgramNotVerified(String),
     /// A fault of the gateway itself: logged in full, reported in short.
     #[error("internal error")]
     Internal(String),
@@ -310,6 +313,7 @@ impl AppError {
             Self::UnknownLogger(_) => (StatusCode::NOT_FOUND, "unknown_logger"),
             Self::TooManyLoggers(_) => (StatusCode::CONFLICT, "too_many_loggers"),
             Self::NotLoggable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "not_loggable"),
+            Self::ProgramNotVerified(_) => (StatusCode::BAD_GATEWAY, "program_not_verified"),
             Self::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal_error"),
         }
     }
@@ -414,6 +418,7 @@ impl From<GatewayError> for AppError {
             GatewayError::EdsConflict(message) => Self::EdsConflict(message),
             GatewayError::NotAnIoModule(message) => Self::NotAnIoModule(message),
             GatewayError::UnknownChannel(message) => Self::UnknownChannel(message),
+            GatewayError::ProgramNotVerified(message) => Self::ProgramNotVerified(message),
             GatewayError::Internal(detail) => Self::Internal(detail),
         }
     }

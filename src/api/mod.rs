@@ -29,6 +29,7 @@
 //!   and read back.
 //! - [`leases`]: renewing a motion lease (the leases and their supervisor
 //!   are [`crate::gateway::leases`]).
+//! - [`program`]: program download (CiA 302-3) to a node.
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
 //!   producer.
 //! - [`values`]: the TPDO values the gateway decodes, by node.
@@ -83,6 +84,7 @@ pub mod metrics;
 pub mod nodes;
 pub mod od;
 pub mod pdos;
+pub mod program;
 pub mod recording;
 pub mod segments;
 pub mod serve;
@@ -201,6 +203,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(events::router())
         .merge(eds::router())
         .merge(io::router())
+        .merge(program::router())
         .merge(auth::router())
         .split_for_parts();
     let api = api.method_not_allowed_fallback(error::method_not_allowed);

@@ -8,6 +8,8 @@
 //!
 //! # Layout
 //!
+//! - [`crc32`]: the CRC-32 (IEEE) a CiA 302-3 program download is verified
+//!   with (0x1F56).
 //! - [`cob`]: node ids, COB-IDs and the predefined connection set (CiA 301 §7.3.3).
 //! - [`nmt`]: network management commands and states, boot-up (§7.2.8.3.2).
 //! - [`heartbeat`]: heartbeat producer and consumer, node guarding (§7.2.8.3.2).
@@ -25,6 +27,7 @@
 //! - [`eds`]: EDS and DCF files (CiA 306).
 
 pub mod cob;
+pub mod crc32;
 pub mod eds;
 pub mod emcy;
 pub mod heartbeat;

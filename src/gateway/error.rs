@@ -126,6 +126,10 @@ pub enum GatewayError {
     /// The I/O module has no such channel.
     #[error("{0}")]
     UnknownChannel(String),
+    /// A program download whose image the device does not identify as
+    /// the one sent (0x1F56 is not its CRC-32).
+    #[error("{0}")]
+    ProgramNotVerified(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -181,6 +185,7 @@ impl GatewayError {
             Self::EdsConflict(_) => (409, "eds_conflict"),
             Self::NotAnIoModule(_) => (404, "not_an_io_module"),
             Self::UnknownChannel(_) => (404, "unknown_channel"),
+            Self::ProgramNotVerified(_) => (502, "program_not_verified"),
             Self::Internal(_) => (500, "internal_error"),
         }
     }

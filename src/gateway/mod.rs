@@ -47,6 +47,8 @@
 //!   heartbeat and scan, identified, supervised, with their EMCY history.
 //! - [`uioled`]: a UIO1LED's segments over SDO.
 //! - [`dcf`]: configuration backup and restore as a CiA 306 DCF.
+//! - [`program`]: program download (CiA 302-3): stop, clear, block
+//!   download to 0x1F50, verify 0x1F56 against the image's CRC-32, start.
 //! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
 //!   procedure, TPDO decoding and RPDO encoding.
 //! - [`sync`]: the gateway's SYNC producer on a bus.
@@ -84,6 +86,7 @@ pub mod motion_lease;
 pub mod pdo;
 pub mod producers;
 pub mod profile;
+pub mod program;
 pub mod recording;
 pub mod registry;
 pub mod safe_stop;

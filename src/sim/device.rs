@@ -65,6 +65,7 @@ use super::behaviour::{
 };
 use super::objects::{ObjectStore, StoreError};
 use super::pdo::{self, DevicePdos};
+use super::program::{PROGRAM_CONTROL, PROGRAM_DATA, ProgramMemory};
 
 /// 0x1017: producer heartbeat time, in ms.
 const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
@@ -214,6 +215,9 @@ pub struct DeviceCore {
     factory_node: Option<NodeId>,
     /// What LSS store configuration kept.
     lss_stored: Option<LssStored>,
+    /// The program memory of CiA 302-3 (0x1F50 ff.), when the dictionary
+    /// lists it.
+    program: ProgramMemory,
 }
 
 impl DeviceCore {
@@ -234,6 +238,7 @@ impl DeviceCore {
     ) -> Result<Self, StoreError> {
         let defaults = ObjectStore::new(dictionary, node)?;
         let pdos = DevicePdos::new(&defaults, Instant::now());
+        let program = ProgramMemory::new(&defaults);
         let address = identity(&defaults);
         let history_len = defaults
             .dictionary()
@@ -272,6 +277,7 @@ impl DeviceCore {
             lss: LssSlave::new(address, Some(node)),
             factory_node: Some(node),
             lss_stored: None,
+            program,
         })
     }
 
@@ -802,9 +808,21 @@ impl DeviceCore {
         &self.saved
     }
 
-    /// A number that changes whenever [`DeviceCore::saved`] does.
+    /// A number that changes whenever [`DeviceCore::saved`] or the
+    /// program image ([`DeviceCore::program`]) does.
     pub fn saved_version(&self) -> u64 {
-        self.saved_version
+        self.saved_version + self.program.version()
+    }
+
+    /// The program memory of CiA 302-3 (see [`super::program`]).
+    pub fn program(&self) -> &ProgramMemory {
+        &self.program
+    }
+
+    /// Takes a program image kept before a restart; it runs from the next
+    /// boot, as after a power cycle.
+    pub fn load_program(&mut self, image: Option<Vec<u8>>) {
+        self.program.load(image);
     }
 
     /// Takes values saved before a restart; they are in force from the next
@@ -813,6 +831,7 @@ impl DeviceCore {
         self.saved = saved;
         self.store = self.defaults.clone();
         self.apply_saved(Area::All);
+        self.program.sync(&mut self.store);
         self.pdos = DevicePdos::new(&self.store, Instant::now());
     }
 
@@ -846,6 +865,9 @@ impl DeviceCore {
         self.emcy = EmcyProducer::new(self.node(), self.emcy.history().capacity());
         let _ = self.store.set_int_saturating(ERROR_REGISTER, 0, 0);
         self.sync_error_field();
+        // The stored program starts, with the version its image names.
+        self.program.boot();
+        self.program.sync(&mut self.store);
         self.with_application(now, |behaviour, io| behaviour.reset(io));
     }
 
@@ -856,6 +878,7 @@ impl DeviceCore {
             return Vec::new();
         }
         let boot_up = self.nmt.boot_up();
+        self.program.sync(&mut self.store);
         self.pdos = DevicePdos::new(&self.store, now);
         self.guard.reset();
         self.communication_error = None;
@@ -943,10 +966,13 @@ impl DeviceCore {
                 history: self.emcy.history_mut(),
                 written: &mut written,
                 pdo_changed: false,
+                program: &mut self.program,
             };
             let replies = self.sdo.handle_frame(frame, now, &mut access);
             // A restore (0x1011) brings back communication parameters too.
             let restored = access.pdo_changed;
+            // A program command, or a restore that reloaded 0x1F51 ff.
+            self.program.sync(&mut self.store);
             if restored {
                 self.pdos.rebuild(&self.store, now);
             }
@@ -1202,6 +1228,8 @@ struct DeviceAccess<'a> {
     written: &'a mut Vec<(u16, u8)>,
     /// A PDO or SYNC parameter changed: the device rebuilds its PDOs.
     pdo_changed: bool,
+    /// 0x1F50 and 0x1F51 act on the program memory (CiA 302-3).
+    program: &'a mut ProgramMemory,
 }
 
 impl DeviceAccess<'_> {
@@ -1233,7 +1261,9 @@ impl DeviceAccess<'_> {
             }
             for (sub, entry) in &object.subs {
                 // Parameters are what can be written; status values are not saved.
-                let is_command = Self::is_command(object.index, *sub);
+                // Neither are program download and control.
+                let is_command = Self::is_command(object.index, *sub)
+                    || matches!(object.index, PROGRAM_DATA | PROGRAM_CONTROL);
                 if entry.access.is_writable()
                     && !is_command
                     && let Some(value) = self.store.get(object.index, *sub)
@@ -1268,6 +1298,9 @@ impl ObjectAccess for DeviceAccess<'_> {
         self.behaviour.check_write(self.store, index, sub, size)?;
         self.store.check_write(index, sub, size)?;
         pdo::check_write(self.store, index, sub, None, self.behaviour.pdo_rules())?;
+        if self.program.handles(index, sub) {
+            self.program.check_write(index, size)?;
+        }
         if Self::is_command(index, sub) && self.state != NmtState::PreOperational {
             return Err(AbortCode::CannotStoreLocalControl);
         }
@@ -1275,6 +1308,11 @@ impl ObjectAccess for DeviceAccess<'_> {
     }
 
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
+        if self.program.handles(index, sub) {
+            self.store.check_write(index, sub, Some(data.len()))?;
+            // The image is kept in the program memory, not the store.
+            return self.program.write(index, data);
+        }
         if !Self::is_command(index, sub) {
             self.behaviour
                 .check_write(self.store, index, sub, Some(data.len()))?;

@@ -18,6 +18,8 @@
 //! - [`rack`]: [`Rack`](rack::Rack), the devices of one virtual bus on one
 //!   runner and one simulation clock, with unplug, plug and fault injection.
 //! - [`persist`]: saved parameters on disk under `--data-dir`.
+//! - [`program`]: program download (CiA 302-3): 0x1F50, 0x1F51, 0x1F56,
+//!   0x1F57 and the software version of the image's header.
 
 pub mod behaviour;
 pub mod board;
@@ -28,6 +30,7 @@ pub mod objects;
 pub mod pdo;
 pub mod persist;
 pub mod products;
+pub mod program;
 pub mod rack;
 pub mod uioled;
 pub mod umc;

@@ -9,6 +9,8 @@
 //! `DIR/devices/PRODUCT-lss-SERIAL.json`. What LSS store configuration kept
 //! (CiA 305 §6.4.5) is next to it, in `….lss.json`:
 //! `{"node_id": 10, "bit_timing": null}` (`null` node-ID: unconfigured).
+//! A program image downloaded to 0x1F50 (CiA 302-3, [`super::program`]) is
+//! next to it too, byte for byte, in `….program.bin`.
 
 use std::path::{Path, PathBuf};
 
@@ -51,6 +53,38 @@ pub fn saved_path_lss(dir: &Path, product: &str, serial: u32) -> PathBuf {
 /// Where what LSS stored is kept, next to the saved values in `saved`.
 pub fn lss_path(saved: &Path) -> PathBuf {
     saved.with_extension("lss.json")
+}
+
+/// Where a device's program image is kept, next to the saved values in
+/// `saved`.
+pub fn program_path(saved: &Path) -> PathBuf {
+    saved.with_extension("program.bin")
+}
+
+/// The program image kept at `path`; `None` when there is none.
+pub fn read_program(path: &Path) -> Result<Option<Vec<u8>>, PersistError> {
+    match std::fs::read(path) {
+        Ok(image) => Ok(Some(image)),
+        Err(err) if err.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(PersistError::Read {
+            path: path.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+/// Keeps `image` at `path`; `None` (a cleared program) removes the file.
+pub fn write_program(path: &Path, image: Option<&[u8]>) -> Result<(), PersistError> {
+    match image {
+        Some(image) => write_private(path, image),
+        None => match std::fs::remove_file(path) {
+            Err(err) if err.kind() != std::io::ErrorKind::NotFound => Err(PersistError::Write {
+                path: path.to_path_buf(),
+                source: err,
+            }),
+            _ => Ok(()),
+        },
+    }
 }
 
 /// What LSS stored, from `path`; `None` when nothing was stored.
@@ -167,7 +201,7 @@ pub fn write_saved(path: &Path, saved: &SavedValues) -> Result<(), PersistError>
 }
 
 /// Writes `text` to `path` by a temporary file, only the user reading it.
-fn write_private(path: &Path, text: &str) -> Result<(), PersistError> {
+fn write_private(path: &Path, text: impl AsRef<[u8]>) -> Result<(), PersistError> {
     let write_error = |source| PersistError::Write {
         path: path.to_path_buf(),
         source,
@@ -199,7 +233,7 @@ fn write_private(path: &Path, text: &str) -> Result<(), PersistError> {
         .truncate(true)
         .open(&temporary)
         .map_err(write_error)?;
-    std::io::Write::write_all(&mut file, text.as_bytes()).map_err(write_error)?;
+    std::io::Write::write_all(&mut file, text.as_ref()).map_err(write_error)?;
     drop(file);
     std::fs::rename(&temporary, path).map_err(write_error)
 }

@@ -33,7 +33,8 @@ use crate::canopen::lss::LssAddress;
 use super::behaviour::{Fault, FaultError, TICK_MS};
 use super::device::{DeviceCore, LssStored};
 use super::persist::{
-    lss_path, read_lss, read_saved, saved_path, saved_path_lss, write_lss, write_saved,
+    lss_path, program_path, read_lss, read_program, read_saved, saved_path, saved_path_lss,
+    write_lss, write_program, write_saved,
 };
 use super::products::{DeviceSpec, Product};
 
@@ -66,7 +67,14 @@ struct Slot {
 }
 
 /// One device's saved values (and what LSS stored) to write.
-type Save = (PathBuf, super::device::SavedValues, Option<LssStored>);
+/// A device's saved values, what LSS stored and (when it has program
+/// memory) its program image, to write under a path.
+type Save = (
+    PathBuf,
+    super::device::SavedValues,
+    Option<LssStored>,
+    Option<Option<Vec<u8>>>,
+);
 
 /// Who sent a frame, within one wake-up of the runner.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -296,6 +304,9 @@ impl Rack {
                 |err: super::persist::PersistError| RackError::Device(err.to_string());
             core.load_saved(read_saved(path).map_err(device_error)?);
             core.load_lss_stored(read_lss(&lss_path(path)).map_err(device_error)?);
+            if core.program().is_supported() {
+                core.load_program(read_program(&program_path(path)).map_err(device_error)?);
+            }
         }
         Ok((core, path))
     }
@@ -534,13 +545,18 @@ async fn run(
         stats
             .max_busy_us
             .fetch_max(busy_from.elapsed().as_micros() as u64, Ordering::Relaxed);
-        for (path, saved, lss) in saves.drain(..) {
+        for (path, saved, lss, program) in saves.drain(..) {
             // A device whose flash fails still runs; the log says so.
             if let Err(err) = write_saved(&path, &saved) {
                 tracing::warn!("virtual device: {err}");
             }
             if let Some(lss) = lss
                 && let Err(err) = write_lss(&lss_path(&path), &lss)
+            {
+                tracing::warn!("virtual device: {err}");
+            }
+            if let Some(image) = program
+                && let Err(err) = write_program(&program_path(&path), image.as_deref())
             {
                 tracing::warn!("virtual device: {err}");
             }
@@ -643,6 +659,10 @@ fn collect_saves(inner: &mut Inner, saves: &mut Vec<Save>) {
                 path.clone(),
                 slot.core.saved().clone(),
                 slot.core.lss_stored(),
+                slot.core
+                    .program()
+                    .is_supported()
+                    .then(|| slot.core.program().image().map(<[u8]>::to_vec)),
             ));
         }
     }

@@ -309,3 +309,28 @@ def test_phone_width_and_weight(server, browser):
     assert total < 300 * 1024, f"the node page weighs {total} bytes: {loaded}"
     print(f"node page: {total} bytes of HTML, CSS and JS")
     browser.check()
+
+
+def test_program_download_with_a_progress_bar(server, browser):
+    import zlib
+
+    open_node(browser, server)
+    image = b"CDKI\x031.9" + bytes((i * 7 + 1) & 0xFF for i in range(40000))
+    with tempfile.NamedTemporaryFile(suffix=".bin", delete=False) as f:
+        f.write(image)
+    try:
+        browser.driver.find_element(By.ID, "program-file").send_keys(f.name)
+        browser.driver.find_element(By.ID, "program-download").click()
+        confirm(browser)
+        browser.wait(lambda _: result(browser, "program-result")[0] in ("done", "failed"),
+                     timeout=60, message=f"no program report: {result(browser, 'program-result')}")
+    finally:
+        os.unlink(f.name)
+    state, text = result(browser, "program-result")
+    assert state == "done", text
+    crc = f"0x{zlib.crc32(image):08X}"
+    assert f"0x1F56 = {crc} verified" in text and "the program was started" in text, text
+    assert browser.js("return document.getElementById('program-progress').value") == 100
+    assert server.get(f"{NODE}/od/0x1F56/1")["value"] == zlib.crc32(image)
+    assert server.get(f"{NODE}/od/0x100A/0")["value"] == "1.9"
+    browser.check()

@@ -40,10 +40,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::EdsConflict(_) => 31,
         GatewayError::NotAnIoModule(_) => 32,
         GatewayError::UnknownChannel(_) => 33,
+        GatewayError::ProgramNotVerified(_) => 34,
     }
 }
 
-const VARIANTS: usize = 34;
+const VARIANTS: usize = 35;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -99,6 +100,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::Unauthenticated(text()),
         GatewayError::Forbidden(text()),
         GatewayError::Internal(text()),
+        GatewayError::ProgramNotVerified(text()),
         GatewayError::RateLimited {
             message: text(),
             retry_after_s: 2,

@@ -59,7 +59,7 @@ async fn the_catalog_lists_every_file_with_its_problems_and_the_ones_left_out() 
     assert_eq!(umc["usable"], true);
     assert_eq!(umc["vendor_id"], 0x4A2);
     assert_eq!(umc["profile"], "umc");
-    assert_eq!(umc["objects"], 320);
+    assert_eq!(umc["objects"], 321);
     assert_eq!(umc["warnings"], serde_json::json!([]));
 
     let good = file("good.eds");

@@ -15,6 +15,7 @@ mod leds;
 mod loggers;
 mod lss;
 mod pdos;
+mod program;
 mod recording;
 mod step_test;
 mod stops;

@@ -524,3 +524,152 @@ fn values_saved_before_a_restart_are_in_force() {
     device.load_saved(saved);
     assert_eq!(device.store().get(0x2001, 0), Some(&Value::Unsigned8(55)));
 }
+
+/// A UniSwarm device at node 5 on a virtual bus, and an SDO channel that
+/// downloads by block transfer (with the CRC) from `block_from` bytes.
+fn uniswarm_rig(
+    product: crate::sim::products::Product,
+    block_from: Option<usize>,
+) -> (
+    Arc<Mutex<DeviceCore>>,
+    SdoChannel,
+    tokio::task::JoinHandle<()>,
+) {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let device = Arc::new(Mutex::new(product.device(node()).unwrap()));
+    let task = tokio::spawn(run_device(hub.attach(), device.clone()));
+    let config = ClientConfig {
+        timeout: Duration::from_millis(200),
+        use_block_download_from: block_from,
+        crc: true,
+        ..ClientConfig::default()
+    };
+    (device, SdoChannel::new(master, node(), config), task)
+}
+
+/// A 64 KiB image: the header naming version `version` (if any), then a
+/// pattern.
+fn image(version: Option<&str>) -> Vec<u8> {
+    let mut image = version
+        .map(crate::sim::program::ImageHeader::encode)
+        .unwrap_or_default();
+    image.extend(
+        (0..64 * 1024u32 - image.len() as u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8),
+    );
+    image
+}
+
+async fn abort_code(sdo: &SdoChannel, index: u16, sub: u8, data: &[u8]) -> Option<u32> {
+    sdo.download(index, sub, data)
+        .await
+        .err()
+        .map(|err| err.device_abort().expect("a device abort").raw())
+}
+
+/// CiA 302-3 on the UIO1LED and the UMC: the running factory program
+/// refuses a download; stopped and cleared (0x1F51 = 0, 3), the device
+/// takes a 64 KiB image by block download, 0x1F56 sub 1 is its CRC-32 and
+/// 0x1F57 sub 1 no error; the software version (0x100A) changes only when
+/// the program is reset (0x1F51 = 2), to the header's, and stays so after
+/// an NMT reset node.
+#[tokio::test(start_paused = true)]
+async fn a_downloaded_program_gives_its_crc_and_after_a_reset_its_version() {
+    use crate::canopen::crc32::crc32;
+    use crate::sim::products::Product;
+
+    for product in [Product::Uio1led, Product::Umc1bds32] {
+        let (device, sdo, task) = uniswarm_rig(product, Some(1));
+        let image = image(Some("2.1.0-test"));
+        let factory_version = sdo.upload(0x100A, 0).await.unwrap();
+        assert_eq!(sdo.upload(0x1F51, 1).await.unwrap(), [1], "{product:?}");
+        assert_eq!(
+            abort_code(&sdo, 0x1F50, 1, &image).await,
+            Some(0x0800_0022),
+            "{product:?}: a running program is not overwritten"
+        );
+        assert_eq!(abort_code(&sdo, 0x1F51, 1, &[3]).await, Some(0x0800_0022));
+        sdo.download(0x1F51, 1, &[0]).await.unwrap();
+        sdo.download(0x1F51, 1, &[3]).await.unwrap();
+        assert_eq!(sdo.upload(0x1F51, 1).await.unwrap(), [3]);
+        assert_eq!(sdo.upload(0x1F57, 1).await.unwrap(), 2u32.to_le_bytes());
+        assert_eq!(abort_code(&sdo, 0x1F51, 1, &[1]).await, Some(0x0800_0022));
+        sdo.download(0x1F50, 1, &image).await.unwrap();
+        assert_eq!(
+            sdo.upload(0x1F56, 1).await.unwrap(),
+            crc32(&image).to_le_bytes(),
+            "{product:?}"
+        );
+        assert_eq!(sdo.upload(0x1F57, 1).await.unwrap(), 0u32.to_le_bytes());
+        assert_eq!(sdo.upload(0x1F51, 1).await.unwrap(), [0]);
+        assert_eq!(sdo.upload(0x100A, 0).await.unwrap(), factory_version);
+        assert_eq!(lock(&device).program().image(), Some(&image[..]));
+        sdo.download(0x1F51, 1, &[2]).await.unwrap();
+        assert_eq!(sdo.upload(0x1F51, 1).await.unwrap(), [1]);
+        assert_eq!(sdo.upload(0x100A, 0).await.unwrap(), b"2.1.0-test");
+        let reset = NmtMessage::new(NmtCommand::ResetNode, NmtTarget::Node(node())).encode();
+        sdo.download(0x1017, 0, &0u16.to_le_bytes()).await.unwrap();
+        lock(&device).handle_frame(&reset, Instant::now());
+        assert_eq!(sdo.upload(0x100A, 0).await.unwrap(), b"2.1.0-test");
+        assert_eq!(
+            sdo.upload(0x1F56, 1).await.unwrap(),
+            crc32(&image).to_le_bytes()
+        );
+        task.abort();
+    }
+}
+
+/// A segmented download works as well; an image without the header
+/// leaves 0x100A as it was; one larger than the program memory is refused
+/// with 0x05040005 at the initiate and leaves the stored one.
+#[tokio::test(start_paused = true)]
+async fn a_program_too_large_is_refused_and_one_without_header_keeps_the_version() {
+    use crate::canopen::crc32::crc32;
+    use crate::sim::products::Product;
+    use crate::sim::program::MAX_PROGRAM_SIZE;
+
+    let (_device, sdo, task) = uniswarm_rig(Product::Uio1led, None);
+    let factory_version = sdo.upload(0x100A, 0).await.unwrap();
+    sdo.download(0x1F51, 1, &[0]).await.unwrap();
+    let plain = image(None);
+    sdo.download(0x1F50, 1, &plain).await.unwrap();
+    assert_eq!(
+        sdo.upload(0x1F56, 1).await.unwrap(),
+        crc32(&plain).to_le_bytes()
+    );
+    let too_large = vec![0x55; MAX_PROGRAM_SIZE + 1];
+    assert_eq!(
+        abort_code(&sdo, 0x1F50, 1, &too_large).await,
+        Some(0x0504_0005)
+    );
+    assert_eq!(
+        sdo.upload(0x1F56, 1).await.unwrap(),
+        crc32(&plain).to_le_bytes()
+    );
+    assert_eq!(abort_code(&sdo, 0x1F51, 1, &[4]).await, Some(0x0609_0030));
+    sdo.download(0x1F51, 1, &[1]).await.unwrap();
+    assert_eq!(sdo.upload(0x100A, 0).await.unwrap(), factory_version);
+    task.abort();
+}
+
+/// An image kept before a restart ([`DeviceCore::load_program`]) runs from
+/// the boot: its CRC in 0x1F56, its header's version in 0x100A.
+#[test]
+fn a_kept_program_runs_from_the_boot() {
+    use crate::canopen::crc32::crc32;
+    use crate::sim::products::Product;
+
+    let image = image(Some("3.0"));
+    let mut device = Product::Uio1led.device(NodeId::new(9).unwrap()).unwrap();
+    device.load_program(Some(image.clone()));
+    device.boot(Instant::now());
+    assert_eq!(
+        device.store().get(0x1F56, 1),
+        Some(&Value::Unsigned32(crc32(&image)))
+    );
+    assert_eq!(
+        device.store().get(0x100A, 0),
+        Some(&Value::VisibleString("3.0".into()))
+    );
+    assert_eq!(device.store().int(0x1F51, 1), Some(1));
+}

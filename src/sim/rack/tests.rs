@@ -464,6 +464,48 @@ async fn saved_parameters_are_kept_under_the_data_dir() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// CiA 302-3: a program image downloaded to 0x1F50 is kept under the data
+/// dir (`devices/uio1led-3.program.bin`) and runs after a restart of
+/// candeck: its CRC in 0x1F56, its header's version in 0x100A; a clear
+/// removes it.
+#[tokio::test(start_paused = true)]
+async fn a_downloaded_program_is_kept_under_the_data_dir() {
+    use crate::canopen::crc32::crc32;
+    use crate::sim::program::ImageHeader;
+
+    let dir = std::env::temp_dir().join(format!("candeck-rack-program-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut image = ImageHeader::encode("9.9.9");
+    image.extend((0..4000u32).map(|i| (i * 31) as u8));
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    let channel = sdo(&master, 3);
+    channel.download(0x1F51, 1, &[0]).await.unwrap();
+    channel.download(0x1F50, 1, &image).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    let kept = dir.join("devices").join("uio1led-3.program.bin");
+    assert_eq!(std::fs::read(&kept).unwrap(), image);
+    drop(rack);
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::with_data_dir(hub.clone(), Some(dir.clone()));
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    let channel = sdo(&master, 3);
+    assert_eq!(
+        channel.upload(0x1F56, 1).await.unwrap(),
+        crc32(&image).to_le_bytes()
+    );
+    assert_eq!(channel.upload(0x100A, 0).await.unwrap(), b"9.9.9");
+    channel.download(0x1F51, 1, &[0]).await.unwrap();
+    channel.download(0x1F51, 1, &[3]).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    assert!(!kept.exists());
+    drop(rack);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 #[tokio::test(start_paused = true)]
 async fn bit_errors_make_a_device_error_passive_then_bus_off_and_it_recovers_on_request() {
     let hub = VirtualHub::new("test");

@@ -6,6 +6,7 @@
 // the page sent.
 
 import { api, apiFetch, ApiError, describeError, runAction } from './api.js';
+import { authorization, signInAgain, whenSignedIn } from './auth.js';
 import { $, clock, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
 
@@ -771,3 +772,69 @@ stream.onState(({ state, reconnected }) => {
 
 stream.connect();
 loadDetail();
+
+
+// Program download (CiA 302-3): the image goes to the gateway by
+// XMLHttpRequest, whose upload reports progress (fetch's does not); the
+// bar then waits, indeterminate, while the gateway stops, clears,
+// downloads, verifies and starts the program, and the answer says how.
+const programFile = $('#program-file');
+const programButton = $('#program-download');
+const programProgress = $('#program-progress');
+const programResult = $('#program-result');
+programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length; });
+
+async function postProgram(file, start) {
+  await whenSignedIn();
+  return new Promise((resolve, reject) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open('POST', `/api/v1${base}/program${start ? '' : '?start=false'}`);
+    xhr.setRequestHeader('content-type', 'application/octet-stream');
+    xhr.setRequestHeader('accept', 'application/json');
+    for (const [name, value] of Object.entries(authorization())) xhr.setRequestHeader(name, value);
+    xhr.upload.addEventListener('progress', (event) => {
+      if (event.lengthComputable) programProgress.value = Math.round((100 * event.loaded) / event.total);
+    });
+    xhr.upload.addEventListener('load', () => {
+      // Sent: the gateway now downloads it to the device.
+      programProgress.removeAttribute('value');
+      result(programResult, 'busy', `${file.name} sent; the gateway downloads it to the device and verifies it…`);
+    });
+    xhr.addEventListener('error', () => reject(new ApiError(`cannot reach the gateway (POST ${base}/program)`)));
+    xhr.addEventListener('load', () => {
+      let data = null;
+      try { data = JSON.parse(xhr.responseText); } catch { /* not JSON: the status says it */ }
+      if (xhr.status === 401) signInAgain();
+      if (xhr.status !== 200) {
+        reject(new ApiError(describeError(xhr.status, data, `POST program: HTTP ${xhr.status}`), {
+          status: xhr.status, code: data?.error?.code || `http_${xhr.status}`, body: data,
+        }));
+        return;
+      }
+      resolve(data);
+    });
+    xhr.send(file);
+  });
+}
+
+programButton.addEventListener('click', async () => {
+  const file = programFile.files[0];
+  if (!file) return;
+  const start = $('#program-start').checked;
+  if (!(await confirmAction(`Replace the program of node ${nodeId} with ${file.name} (${file.size.toLocaleString()} bytes)? The device's program stops first.`, 'Download program'))) return;
+  programProgress.hidden = false;
+  programProgress.value = 0;
+  result(programResult, 'busy', `Sending ${file.name}…`);
+  const done = await runAction(programButton, 'Downloading…', () => postProgram(file, start));
+  programProgress.value = done.ok ? 100 : 0;
+  if (!done.ok) {
+    const step = done.error.body?.error?.step;
+    result(programResult, 'failed', h('strong', {}, `Program download failed (${clock()}): `),
+      step ? `at step ${step}: ` : '', errorView(done.error));
+    return;
+  }
+  const v = done.value;
+  result(programResult, 'done', h('strong', {}, `Program downloaded (${clock()}): `),
+    `${v.bytes.toLocaleString()} bytes in ${v.elapsed_ms} ms (${v.bytes_per_s.toLocaleString()} bytes/s), `,
+    `0x1F56 = ${v.crc32_hex} verified; `, v.started ? 'the program was started.' : 'the program was left stopped.');
+});
