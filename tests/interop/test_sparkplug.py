@@ -469,9 +469,16 @@ def test_a_dcmd_move_runs_while_its_lease_is_renewed_by_metric_and_stops_when_no
         assert axis_velocity(gateway) > 0, "halted while the host renewed"
         # The host stops renewing: the gateway halts the axis.
         wait_until(lambda: axis_velocity(gateway) == 0, what="the axis halted after its lease lapsed")
+
+        def lapses():
+            events = gateway.request("GET", "/events?kind=audit&limit=100")
+            return [e for e in events if e.get("who") == "gateway" and "lapsed" in e.get("operation", "")]
+
+        # The lapse is audited once its stop is done, which may be a moment
+        # after the velocity reads 0.
+        wait_until(lambda: lapses(), what="the lapse in the audit log")
+        assert "mqtt:candeck-plant-line1" in lapses()[-1]["item"], lapses()
         events = gateway.request("GET", "/events?kind=audit&limit=100")
-        lapses = [e for e in events if e.get("who") == "gateway" and "lapsed" in e.get("operation", "")]
-        assert lapses and "mqtt:candeck-plant-line1" in lapses[-1]["item"], events
         renewals = [e for e in events if e.get("operation") == "renew motion lease"]
         assert renewals and renewals[0]["method"] == "DCMD"
     finally:
