@@ -183,9 +183,14 @@ function renderLinks() {
 
 let reading = false;
 let readAgain = false;
+// The device left this ID for another (a node-ID change): the gateway
+// forgets the ID, so the page reads it no more; the change's result links
+// to the new one.
+let moved = false;
 
 /** Reads the node again; one read at a time, a read asked meanwhile runs after. */
 async function loadDetail() {
+  if (moved) return;
   if (reading) {
     readAgain = true;
     return;
@@ -759,6 +764,11 @@ hexToggle.addEventListener('change', () => {
 const mine = (data) => data && data.bus === bus && String(data.node) === nodeId;
 
 stream.subscribe(['nodes'], (data, message) => {
+  if (mine(data) && data.event === 'offline' && data.reason === 'node_id_changed') {
+    moved = true;
+    showMessage(pageMessage, `Node ${nodeId} moved to another node ID: this ID is no longer on the bus.`);
+    return;
+  }
   if (message.lagged || mine(data)) loadDetail();
 });
 stream.subscribe(['emcy'], (data, message) => {
