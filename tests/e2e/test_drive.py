@@ -237,7 +237,10 @@ def test_a_fault_shows_on_the_overview_and_is_reset_from_the_drive_page(server, 
                      message="the reset gave no result")
         assert any(b["label"] == "Resetting…" for s in seen(browser) for b in s["busy"]), seen(browser)
         assert "Fault reset: done" in text(browser, "state-result")
-        assert browser.js("return document.getElementById('fault-panel').dataset.fault") == "no"
+        # The band follows the axis's state as the page hears it, a moment
+        # after the reset's own answer.
+        browser.wait(lambda _: browser.js("return document.getElementById('fault-panel').dataset.fault") == "no",
+                     message="the fault band stayed after the reset")
         assert text(browser, "fault-title") == "No fault"
         # The node's newest EMCY stays on show (the device says the error
         # is gone: 0x0000), no longer as a fault.

@@ -416,8 +416,10 @@ def test_a_busy_bus_keeps_the_table_bounded_and_the_page_responsive(server, brow
     assert services.count("sync") > 100 and services.count("pdo") > 100, {s: services.count(s) for s in set(services)}
     on_bus = after["rx_frames"] + after["tx_frames"] - before["rx_frames"] - before["tx_frames"]
     received, lost = int(counts["received"]), int(counts["lost"])
-    # Every frame once (but a heartbeat or two on their way either side).
-    assert abs(received + lost - base - on_bus) <= 10, (received, lost, base, on_bus)
+    # Every frame once, but the heartbeats on their way either side of the
+    # counters' reads: the gateway's (10 a second) and the three nodes'
+    # (2 a second each) for up to a second.
+    assert abs(received + lost - base - on_bus) <= 20, (received, lost, base, on_bus)
     gaps = browser.js("return window.gaps")
     metrics = {"frames_on_bus": on_bus, "received": received, "lost": lost, "seconds": round(seconds, 2),
                "rows": shown, "caught_up_after_s": round(caught_up, 2), "animation_frames": gaps["frames"], "longest_frame_gap_ms": round(gaps["max"], 1)}
