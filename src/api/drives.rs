@@ -214,10 +214,11 @@ fn task_failed(err: tokio::task::JoinError) -> AppError {
 }
 
 /// Runs `sequence` on the drive in a task of its own.
-async fn spawned<F, Fut>(drive: Drive, sequence: F) -> Result<ApiJson<AxisStatus>, AppError>
+async fn spawned<T, F, Fut>(drive: Drive, sequence: F) -> Result<ApiJson<T>, AppError>
 where
+    T: Send + 'static,
     F: FnOnce(Drive) -> Fut + Send + 'static,
-    Fut: Future<Output = Result<AxisStatus, DriveError>> + Send + 'static,
+    Fut: Future<Output = Result<T, DriveError>> + Send + 'static,
 {
     let status = tokio::spawn(sequence(drive)).await.map_err(task_failed)??;
     Ok(ApiJson(status))
@@ -648,10 +649,13 @@ async fn step_test(
     state.gateway.enabled_axes.insert(&bus, &drive);
     // The test runs in a task of its own (a client that hangs up does not
     // cut it, and its stop goes out); the request keeps the lease alive.
-    let task = tokio::spawn(async move { step_test::run(&drive, &request).await });
-    let result = InFlight::new(&state.gateway.leases, &lease).run(task).await;
+    let result = InFlight::new(&state.gateway.leases, &lease)
+        .run(spawned(drive, move |drive| async move {
+            step_test::run(&drive, &request).await
+        }))
+        .await;
     state.gateway.leases.release(&axis_key);
-    Ok(ApiJson(result.map_err(task_failed)??))
+    result
 }
 
 /// Quick stop of every enabled axis on every bus.
