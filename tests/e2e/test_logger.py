@@ -86,3 +86,43 @@ def test_a_logger_is_picked_started_charted_and_downloaded(server, browser):
     assert total < 300 * 1024, total
     browser.check()
     assert not browser.problems, browser.problems
+
+
+def test_rows_streamed_while_the_csv_is_read_are_not_lost(server, browser):
+    """The chart is filled from the CSV while the stream goes on; a logger
+    that finishes while the CSV is read must still end with every row (the
+    stream's last rows came during that read and no message follows them)."""
+    browser.driver.get(server.url + "/loggers")
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
+    # Every CSV answer is held back 4 s after it was read: the first fill
+    # reads the logger near its start and is seen after the logger's end.
+    browser.js(
+        """const real = window.fetch;
+           window.fetch = async (...args) => {
+             const response = await real(...args);
+             if (!String(args[0]).endsWith('/data.csv')) return response;
+             const text = await response.text();
+             await new Promise((resolve) => setTimeout(resolve, 4000));
+             return new Response(text, {status: response.status, headers: response.headers});
+           };"""
+    )
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
+    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
+    add(browser, "a1_pc_Position_actual", "0x6064")
+    for field, value in (("period", "20"), ("duration", "2")):
+        element = browser.driver.find_element(By.ID, field)
+        element.clear()
+        element.send_keys(value)
+    browser.driver.find_element(By.ID, "start").click()
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
+                 message="the logger did not finish")
+    logger = server.get("/api/v1/loggers")[0]
+    assert logger["samples"] >= 50, logger
+    browser.wait(lambda _: chart(browser)["rows"] == logger["samples"], timeout=20,
+                 message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
+    browser.driver.find_element(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"] button.delete').click()
+    browser.wait(lambda d: not d.find_elements(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"]'),
+                 message="the deleted logger is still listed")
+    browser.check()
+    assert not browser.problems, browser.problems

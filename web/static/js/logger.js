@@ -183,6 +183,12 @@ async function refill() {
   } finally {
     current.refetching = false;
   }
+  // Rows that came on the stream while the CSV was read may not be in it
+  // (the last ones of a logger that then finished would be lost): again.
+  if (current.missedWhileRefetching && shown === current) {
+    current.missedWhileRefetching = false;
+    await refill();
+  }
 }
 
 async function show(logger) {
@@ -193,7 +199,10 @@ async function show(logger) {
   legend.replaceChildren(...names.map((name, n) => h('li', { style: `--swatch: ${COLORS[n % COLORS.length]}` }, name)));
   chart.setChannels(names);
   // The rows the gateway dropped from memory come before the CSV's first.
-  const current = { id: logger.id, state: logger.state, names, base: logger.samples - logger.rows, next: 0, refetching: false, unsubscribe: () => {} };
+  const current = {
+    id: logger.id, state: logger.state, names, base: logger.samples - logger.rows, next: 0,
+    refetching: false, missedWhileRefetching: false, unsubscribe: () => {},
+  };
   shown = current;
   current.unsubscribe = stream.subscribe([`loggers/${logger.id}`], (data) => {
     if (shown !== current) return;
@@ -202,7 +211,11 @@ async function show(logger) {
       current.state = data.state;
       loadLoggers();
     }
-    if (!data.rows.length || current.refetching) return;
+    if (!data.rows.length) return;
+    if (current.refetching) {
+      current.missedWhileRefetching = true;
+      return;
+    }
     if (data.first > current.next) {
       refill();
       return;
