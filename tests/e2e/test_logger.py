@@ -48,7 +48,8 @@ def test_a_logger_is_picked_started_charted_and_downloaded(server, browser):
     logger = server.get("/api/v1/loggers")[0]
     assert logger["state"] == "done", logger
     assert [c["index"] for c in logger["channels"]] == ["0x6064", "0x606C"]
-    browser.wait(lambda _: chart(browser)["rows"] == logger["samples"], message="the chart lacks rows")
+    browser.wait(lambda _: chart(browser)["rows"] == logger["samples"],
+                 message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
     assert logger["samples"] >= 100, logger
 
     # Zoom in around the middle, then everything again.
@@ -124,5 +125,55 @@ def test_rows_streamed_while_the_csv_is_read_are_not_lost(server, browser):
     browser.driver.find_element(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"] button.delete').click()
     browser.wait(lambda d: not d.find_elements(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"]'),
                  message="the deleted logger is still listed")
+    browser.check()
+    assert not browser.problems, browser.problems
+
+
+# Before the page's scripts run: a stream that loses the logger's messages
+# after its first rows, and whose last message (the logger done) carries no
+# rows, the gateway having published them in a message coalesced away.
+COALESCING_STREAM = """
+const Real = window.WebSocket;
+window.WebSocket = class extends Real {
+  set onmessage(handler) {
+    super.onmessage = (event) => {
+      const message = JSON.parse(event.data);
+      const data = message.data;
+      if (!String(message.topic).startsWith('loggers/') || !data) return handler(event);
+      if (data.state === 'running' && data.first > 0) return undefined;
+      if (data.state === 'done') {
+        data.first = data.samples;
+        data.rows = [];
+        return handler(new MessageEvent('message', {data: JSON.stringify(message)}));
+      }
+      return handler(event);
+    };
+  }
+};
+"""
+
+
+def test_a_finished_loggers_last_message_without_rows_still_completes_the_chart(server, browser):
+    """The gateway's last message of a logger may carry no rows: the rows
+    it publishes every 100 ms went in a message the stream replaced by that
+    last one. Its `first` says rows are missing; the page reads the CSV."""
+    browser.driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": COALESCING_STREAM})
+    browser.driver.get(server.url + "/loggers")
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
+    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
+    add(browser, "a1_pc_Position_actual", "0x6064")
+    for field, value in (("period", "20"), ("duration", "2")):
+        element = browser.driver.find_element(By.ID, field)
+        element.clear()
+        element.send_keys(value)
+    browser.driver.find_element(By.ID, "start").click()
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
+                 message="the logger did not finish")
+    logger = server.get("/api/v1/loggers")[0]
+    assert logger["samples"] >= 50, logger
+    browser.wait(lambda _: chart(browser)["rows"] == logger["samples"],
+                 message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
     browser.check()
     assert not browser.problems, browser.problems

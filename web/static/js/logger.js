@@ -183,11 +183,29 @@ async function refill() {
   } finally {
     current.refetching = false;
   }
-  // Rows that came on the stream while the CSV was read may not be in it
-  // (the last ones of a logger that then finished would be lost): again.
-  if (current.missedWhileRefetching && shown === current) {
-    current.missedWhileRefetching = false;
-    await refill();
+  // What came on the stream while the CSV was read: its rows may be newer
+  // than the CSV's (a logger that then finished sends nothing after them).
+  const held = current.held.splice(0);
+  for (const data of held) if (shown === current) take(current, data);
+}
+
+/** One message of a logger's topic into the chart: its rows from the next
+ * one the chart lacks, or the CSV again when the stream coalesced rows
+ * away (`first` beyond the chart's end, with or without rows of its own:
+ * a finished logger's last message may carry none). */
+function take(current, data) {
+  if (current.refetching) {
+    current.held.push(data);
+    return;
+  }
+  if (data.first > current.next) {
+    refill();
+    return;
+  }
+  const fresh = data.rows.slice(current.next - data.first);
+  if (fresh.length) {
+    chart.addRows(fresh);
+    current.next += fresh.length;
   }
 }
 
@@ -201,7 +219,7 @@ async function show(logger) {
   // The rows the gateway dropped from memory come before the CSV's first.
   const current = {
     id: logger.id, state: logger.state, names, base: logger.samples - logger.rows, next: 0,
-    refetching: false, missedWhileRefetching: false, unsubscribe: () => {},
+    refetching: false, held: [], unsubscribe: () => {},
   };
   shown = current;
   current.unsubscribe = stream.subscribe([`loggers/${logger.id}`], (data) => {
@@ -211,20 +229,7 @@ async function show(logger) {
       current.state = data.state;
       loadLoggers();
     }
-    if (!data.rows.length) return;
-    if (current.refetching) {
-      current.missedWhileRefetching = true;
-      return;
-    }
-    if (data.first > current.next) {
-      refill();
-      return;
-    }
-    const fresh = data.rows.slice(current.next - data.first);
-    if (fresh.length) {
-      chart.addRows(fresh);
-      current.next += fresh.length;
-    }
+    take(current, data);
   });
   chartStatus.textContent = `${logger.state} · ${logger.samples} samples · ${logger.missed} missed`;
   await refill();
