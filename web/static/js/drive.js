@@ -14,11 +14,16 @@ import { api, runAction } from './api.js';
 import { axisFault } from './axes.js';
 import { TimeChart } from './chart.js';
 import { commandable, isFault, stateDiagram, stateLabel, statuswordBits } from './cia402.js';
-import { $, clock, h, showMessage } from './dom.js';
+import { $, clock, h, markAge, showMessage } from './dom.js';
 import { stream } from './layout.js';
 import { MODE_LABELS, clipText, motionForm, unitsOf } from './motion.js';
 
 const RATE_HZ = 20;
+// A value older than this is shown stale (greyed, with its age): the axis
+// topic is asked at RATE_HZ, but the gateway reads it in the node's SDO
+// queue (at most --axis-poll-hz, shared with everyone) or from TPDOs, so
+// its period is not known here: 2 s, many periods of any of them.
+const STALE_MS = 2000;
 // The device's 0x6061 names by the move mode whose form they belong to.
 const MOVE_MODE_OF = {
   profile_position: 'profile_position', velocity: 'velocity', profile_velocity: 'velocity',
@@ -224,9 +229,27 @@ function onSample(data, message) {
   applyStatus(data);
 }
 
+// When the newest value the device gave arrived (REST or stream); a
+// sample with an error repeats the last values and does not count.
+let readAt = null;
+
+function renderAges() {
+  if (readAt === null) return;
+  const age = Date.now() - readAt;
+  for (const readout of document.querySelectorAll('#live-panel .readout[data-live]')) {
+    markAge(readout, readout.querySelector('.age'), age, STALE_MS);
+  }
+  markAge($('#status-panel'), $('#statusword-age'), age, STALE_MS);
+}
+setInterval(renderAges, 250);
+
 /** Shows a status the gateway read from the drive (REST or stream). */
 function applyStatus(next) {
   status = { ...status, ...next };
+  if (next.state !== undefined && !next.error) {
+    readAt = Date.now();
+    renderAges();
+  }
   const { state } = status;
   // Out of operation enabled nothing moves, and the gateway ended the lease.
   if (lease && state && state !== 'operation_enabled') dropLease(null);
