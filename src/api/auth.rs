@@ -95,12 +95,14 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/io", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEWER),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", ADMIN),
-    // Process data straight to a device's mapped objects: as raw as a frame.
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", ADMIN),
+    // The bus tools of commissioning (issue 21): process data straight to a
+    // device's mapped objects, the bus's SYNC and raw frames are the
+    // operator's, as motion and NMT are, and audited as every write.
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/sync", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/sync", ADMIN),
+    ("PUT",    "/api/v1/buses/{bus}/sync", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/frames", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/frames", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/frames", OPERATOR),
     ("GET",    "/api/v1/buses/{bus}/recording", VIEWER),
     ("POST",   "/api/v1/buses/{bus}/recording", ADMIN),
     ("DELETE", "/api/v1/buses/{bus}/recording", ADMIN),

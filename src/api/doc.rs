@@ -137,6 +137,61 @@ pub struct NodePath {
     pub id: u8,
 }
 
+/// The docs UI's page in place of Swagger UI's own `index.html` (which
+/// has no viewport, so a phone draws it 980 px wide, and no way back):
+/// the same scripts and styles, a viewport, and a bar back to the
+/// dashboard (issue 21). Long blocks scroll inside their own box.
+pub const DOCS_INDEX: &str = r##"<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>candeck API</title>
+<link rel="stylesheet" href="./swagger-ui.css">
+<link rel="stylesheet" href="./index.css">
+<link rel="icon" type="image/png" href="./favicon-32x32.png" sizes="32x32">
+<link rel="icon" type="image/png" href="./favicon-16x16.png" sizes="16x16">
+<style>
+  html, body { max-width: 100%; }
+  .docs-bar { display: flex; align-items: center; gap: 1rem; padding: 0.4rem 1rem; background: #1b2430; font: 600 0.95rem system-ui, sans-serif; }
+  .docs-bar a { color: #fff; text-decoration: none; display: inline-flex; align-items: center; min-height: 44px; }
+  .docs-bar span { color: #c9d1db; font-weight: 400; }
+  #swagger-ui { max-width: 100vw; overflow-x: auto; }
+  #swagger-ui pre, #swagger-ui table { max-width: 100%; overflow-x: auto; }
+</style>
+</head>
+<body>
+<nav class="docs-bar" aria-label="candeck"><a id="back-to-dashboard" href="/">‹ Dashboard</a><span>REST API</span></nav>
+<div id="swagger-ui"></div>
+<script src="./swagger-ui-bundle.js" charset="UTF-8"></script>
+<script src="./swagger-ui-standalone-preset.js" charset="UTF-8"></script>
+<script src="./swagger-initializer.js" charset="UTF-8"></script>
+</body>
+</html>
+"##;
+
+/// Answers the docs UI's page with [`DOCS_INDEX`]; its other files are
+/// Swagger UI's.
+pub async fn docs_index(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::header::{CACHE_CONTROL, CONTENT_TYPE};
+    use axum::response::IntoResponse;
+    let path = request.uri().path();
+    if path == "/api/docs/" || path == "/api/docs/index.html" {
+        return (
+            [
+                (CONTENT_TYPE, "text/html; charset=utf-8"),
+                (CACHE_CONTROL, "no-cache"),
+            ],
+            DOCS_INDEX,
+        )
+            .into_response();
+    }
+    next.run(request).await
+}
+
 /// The document as served, with every router's paths.
 pub fn openapi() -> utoipa::openapi::OpenApi {
     super::routers(super::AppState::new([])).1

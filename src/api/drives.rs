@@ -52,7 +52,8 @@ use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::drive::{
-    AxisStatus, Drive, DriveError, DriveKind, MoveMode, MoveRequest, TargetState, axis_count,
+    AxisLimits, AxisStatus, AxisUnits, Drive, DriveError, DriveKind, MoveMode, MoveRequest,
+    TargetState, axis_count,
 };
 use crate::gateway::leases::InFlight;
 use crate::gateway::motion_lease::AxisKey;
@@ -149,6 +150,16 @@ pub struct StopAllReport {
     /// The axes that did not confirm it (or could not be read), whatever
     /// was sent instead.
     pub failed: Vec<StopFailure>,
+}
+
+/// One axis with what a page needs to label and bound its values: the
+/// units its product's manual gives them and the limits the drive applies.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct AxisDetail {
+    #[serde(flatten)]
+    pub status: AxisStatus,
+    pub units: AxisUnits,
+    pub limits: AxisLimits,
 }
 
 /// An axis after a state walk; after a quick stop, what was tried.
@@ -267,7 +278,7 @@ async fn list_axes(
 /// One axis, read now.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/axes/{axis}", tag = "drives", params(AxisPath),
     responses(
-        (status = 200, description = "The axis", body = AxisStatus),
+        (status = 200, description = "The axis, with its units and the limits the drive applies to requests (0x607F, 0x6080, 0x6046, 0x607D) and its factor group (0x604C, 0x608F, 0x6091)", body = AxisDetail),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
         (status = 409, description = "`wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
@@ -279,9 +290,16 @@ async fn list_axes(
 async fn one_axis(
     State(state): State<AppState>,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
-) -> Result<ApiJson<AxisStatus>, AppError> {
+) -> Result<ApiJson<AxisDetail>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
-    spawned(drive, |drive| async move { drive.status().await }).await
+    spawned(drive, |drive| async move {
+        Ok(AxisDetail {
+            status: drive.status().await?,
+            units: drive.units(),
+            limits: drive.limits().await?,
+        })
+    })
+    .await
 }
 
 /// Walks the CiA 402 state machine to a state.

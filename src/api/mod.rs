@@ -231,7 +231,7 @@ pub fn app(state: AppState) -> Router {
         .config(Config::default().validator_url("none"));
     let largest_body = state.guard.config.largest_body();
     router
-        .merge(docs)
+        .merge(Router::from(docs).layer(axum::middleware::from_fn(doc::docs_index)))
         .merge(crate::web::router())
         // The extractors' own limit, above the guard's per-route limits
         // (a body without Content-Length is cut there).

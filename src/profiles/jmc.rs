@@ -155,6 +155,13 @@ impl JmcMode {
 /// dictionary), so everything that turns revolutions into steps takes the
 /// steps per revolution.
 pub mod units {
+    /// What 0x6064, 0x607A, 0x607C count.
+    pub const POSITION_UNIT: &str = "steps";
+    /// What 0x606C, 0x6081, 0x6099 count.
+    pub const VELOCITY_UNIT: &str = "0.1 rps";
+    /// What 0x6083, 0x6084, 0x6085, 0x609A count.
+    pub const ACCELERATION_UNIT: &str = "0.1 rps/s";
+
     /// 0x606C, 0x6081, 0x6099 count tenths of a revolution per second: 100
     /// is 10 rps.
     pub const VELOCITY_PER_RPS: f64 = 10.0;

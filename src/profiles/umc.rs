@@ -477,6 +477,20 @@ pub mod drive {
 pub mod units {
     /// Position increments per motor revolution.
     pub const INCREMENTS_PER_REV: f64 = 65536.0;
+    /// What the position objects (0x6064, 0x607A, 0x607D) count.
+    pub const POSITION_UNIT: &str = "increments";
+    /// What the profile velocities (0x606C, 0x6081, 0x607F, 0x6080) count.
+    pub const VELOCITY_UNIT: &str = "increments/ms";
+    /// What the profile accelerations (0x6083, 0x6084) count.
+    pub const ACCELERATION_UNIT: &str = "increments/ms²";
+    /// What the VL objects (0x6042, 0x6044, 0x6046) count: increments/ms
+    /// times the dimension factor 0x604C (§4.2.13, equation 2.4).
+    pub const VL_VELOCITY_UNIT: &str = "vl units";
+
+    /// Revolutions per second of 1 increment/ms.
+    pub fn rps_per_increment_per_ms() -> f64 {
+        1000.0 / INCREMENTS_PER_REV
+    }
 
     /// A velocity in increments/ms as rpm.
     pub fn rpm_from_increments_per_ms(velocity: f64) -> f64 {

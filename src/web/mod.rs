@@ -189,6 +189,58 @@ struct Layout {
     current: &'static str,
     /// candeck's version, in the footer.
     version: &'static str,
+    /// The breadcrumbs over the page, the last one the page itself: the
+    /// same trail on every page (overview › bus › node › axis › page).
+    crumbs: Vec<Crumb>,
+}
+
+/// One breadcrumb: a link, or the current page (`href` empty).
+struct Crumb {
+    label: String,
+    href: String,
+    /// The element's id, empty for none (`node-link`: pages rename it).
+    id: &'static str,
+}
+
+/// Where a page is: its bus, node and axis as its path gives them (any
+/// may be absent), and its own name; `None` for the node's or the axis's
+/// own page, whose crumb is then the current one.
+fn trail(
+    bus: Option<&str>,
+    node: Option<&str>,
+    axis: Option<&str>,
+    here: Option<&str>,
+) -> Vec<Crumb> {
+    let link = |label: String, href: String, id: &'static str| Crumb { label, href, id };
+    let mut crumbs = vec![link("Overview".into(), "/".into(), "")];
+    if let Some(bus) = bus {
+        crumbs.push(link(
+            format!("Bus {bus}"),
+            format!("/buses/{}/trace", path_segment(bus)),
+            "bus-link",
+        ));
+        if let Some(node) = node {
+            let node_href = format!("/nodes/{}/{}", path_segment(bus), path_segment(node));
+            crumbs.push(link(format!("Node {node}"), node_href.clone(), "node-link"));
+            if let Some(axis) = axis {
+                crumbs.push(link(
+                    format!("Axis {axis}"),
+                    format!("{node_href}/axes/{}", path_segment(axis)),
+                    "axis-link",
+                ));
+            }
+        }
+    }
+    match here {
+        Some(here) => crumbs.push(link(here.into(), String::new(), "")),
+        // The last one is the page itself.
+        None => {
+            if let Some(last) = crumbs.last_mut() {
+                last.href.clear();
+            }
+        }
+    }
+    crumbs
 }
 
 impl Layout {
@@ -197,7 +249,13 @@ impl Layout {
             static_root: format!("/static/{}", static_version()),
             current,
             version: env!("CARGO_PKG_VERSION"),
+            crumbs: Vec::new(),
         }
+    }
+
+    fn with_crumbs(mut self, crumbs: Vec<Crumb>) -> Self {
+        self.crumbs = crumbs;
+        self
     }
 }
 
@@ -277,8 +335,6 @@ struct LedsPage {
     layout: Layout,
     bus: String,
     node: u8,
-    /// The node's page, `/nodes/{bus}/{node}`.
-    node_href: String,
 }
 
 /// A bus's trace: its live frames decoded, filters, and its recording.
@@ -386,7 +442,7 @@ async fn overview() -> Response {
 
 async fn drive(Path((bus, node, axis)): Path<(String, String, String)>) -> Response {
     page(&DrivePage {
-        layout: Layout::new("drive"),
+        layout: Layout::new("drive").with_crumbs(trail(Some(&bus), Some(&node), Some(&axis), None)),
         bus,
         node,
         axis,
@@ -418,7 +474,12 @@ async fn tune(Path((bus, node, axis)): Path<(String, String, String)>) -> Respon
         })
         .collect();
     page(&TunePage {
-        layout: Layout::new("drive"),
+        layout: Layout::new("drive").with_crumbs(trail(
+            Some(&bus),
+            Some(&node.to_string()),
+            Some(&axis.to_string()),
+            Some("Tuning"),
+        )),
         nav: UmcNav::new(&bus, node, axis),
         bus,
         node,
@@ -459,7 +520,12 @@ async fn commission(
         })
         .collect();
     page(&CommissionPage {
-        layout: Layout::new("drive"),
+        layout: Layout::new("drive").with_crumbs(trail(
+            Some(&bus),
+            Some(&node.to_string()),
+            Some(&axis.to_string()),
+            Some(found.title),
+        )),
         nav: UmcNav::new(&bus, node, axis),
         bus,
         node,
@@ -473,7 +539,7 @@ async fn commission(
 
 async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
     page(&PdosPage {
-        layout: Layout::new("pdos"),
+        layout: Layout::new("pdos").with_crumbs(trail(Some(&bus), Some(&node), None, Some("PDOs"))),
         bus,
         node,
     })
@@ -481,7 +547,7 @@ async fn pdos(Path((bus, node)): Path<(String, String)>) -> Response {
 
 async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
     page(&NodePage {
-        layout: Layout::new("node"),
+        layout: Layout::new("node").with_crumbs(trail(Some(&bus), Some(&node), None, None)),
         bus,
         node,
     })
@@ -489,13 +555,18 @@ async fn node(Path((bus, node)): Path<(String, String)>) -> Response {
 
 async fn eds() -> Response {
     page(&EdsPage {
-        layout: Layout::new("eds"),
+        layout: Layout::new("eds").with_crumbs(trail(
+            None,
+            None,
+            None,
+            Some("Device descriptions"),
+        )),
     })
 }
 
 async fn io(Path((bus, node)): Path<(String, String)>) -> Response {
     page(&IoPage {
-        layout: Layout::new("io"),
+        layout: Layout::new("io").with_crumbs(trail(Some(&bus), Some(&node), None, Some("I/O"))),
         bus,
         node,
     })
@@ -503,13 +574,13 @@ async fn io(Path((bus, node)): Path<(String, String)>) -> Response {
 
 async fn events() -> Response {
     page(&EventsPage {
-        layout: Layout::new("events"),
+        layout: Layout::new("events").with_crumbs(trail(None, None, None, Some("Events"))),
     })
 }
 
 async fn loggers() -> Response {
     page(&LoggerPage {
-        layout: Layout::new("loggers"),
+        layout: Layout::new("loggers").with_crumbs(trail(None, None, None, Some("Logger"))),
     })
 }
 
@@ -538,8 +609,12 @@ fn node_id(text: &str) -> Option<u8> {
 async fn leds(Path((bus, node)): Path<(String, String)>) -> Response {
     match node_id(&node) {
         Some(node) => page(&LedsPage {
-            layout: Layout::new("leds"),
-            node_href: format!("/nodes/{}/{node}", path_segment(&bus)),
+            layout: Layout::new("leds").with_crumbs(trail(
+                Some(&bus),
+                Some(&node.to_string()),
+                None,
+                Some("LEDs"),
+            )),
             bus,
             node,
         }),
@@ -549,7 +624,7 @@ async fn leds(Path((bus, node)): Path<(String, String)>) -> Response {
 
 async fn trace(Path(bus): Path<String>) -> Response {
     page(&TracePage {
-        layout: Layout::new("trace"),
+        layout: Layout::new("trace").with_crumbs(trail(Some(&bus), None, None, Some("Trace"))),
         bus,
     })
 }

@@ -271,6 +271,68 @@ async fn refused_requests_are_audited_with_who_tried() {
     assert!(!events.to_string().contains(OPERATOR));
 }
 
+/// Issue 21: the bus tools (SYNC, a raw frame, an RPDO sent) are the
+/// operator's and the admin's, not a viewer's, and audited with who sent.
+#[tokio::test(start_paused = true)]
+async fn the_bus_tools_are_an_operators_and_audited() {
+    let app = gateway(None);
+    let tools = [
+        (
+            Method::PUT,
+            "/api/v1/buses/nobus/sync",
+            r#"{"period_ms":0}"#,
+        ),
+        (
+            Method::POST,
+            "/api/v1/buses/nobus/frames",
+            r#"{"id":"0x7FF","data":""}"#,
+        ),
+        (
+            Method::POST,
+            "/api/v1/buses/nobus/nodes/1/pdos/rpdo/1/send",
+            r#"{"values":{}}"#,
+        ),
+    ];
+    for (method, path, body) in &tools {
+        for (token, allowed) in [(VIEWER, false), (OPERATOR, true), (ADMIN, true)] {
+            let auth = bearer(token);
+            let (status, _, json) = send(
+                &app,
+                method.clone(),
+                path,
+                &[("authorization", &auth)],
+                Some(body),
+            )
+            .await;
+            if allowed {
+                // Through the guard: the handler's answer (no such bus).
+                assert_eq!(status, StatusCode::NOT_FOUND, "{method} {path}: {json}");
+                assert_eq!(json["error"]["code"], "unknown_bus", "{json}");
+            } else {
+                assert_eq!(status, StatusCode::FORBIDDEN, "{method} {path}: {json}");
+            }
+        }
+    }
+    let admin = bearer(ADMIN);
+    let (_, _, events) = send(
+        &app,
+        Method::GET,
+        "/api/v1/events?kind=audit&limit=100",
+        &[("authorization", &admin)],
+        None,
+    )
+    .await;
+    for (method, path, _) in &tools {
+        let by_operator = events.as_array().unwrap().iter().any(|e| {
+            e["who"] == "line-plc"
+                && e["role"] == "operator"
+                && e["method"] == method.as_str()
+                && e["path"] == *path
+        });
+        assert!(by_operator, "{method} {path} not audited: {events:#}");
+    }
+}
+
 #[tokio::test(start_paused = true)]
 async fn cors_preflights_are_answered_for_listed_origins_only() {
     let app = gateway(None);

@@ -1035,3 +1035,63 @@ async fn a_stop_during_a_set_point_wait_is_409_not_a_timeout() {
     let message = response.1["error"]["message"].as_str().unwrap();
     assert!(message.contains("interrupted"), "{message}");
 }
+
+/// Issue 21 point 4: one axis answers with its product's units and the
+/// limits the drive applies, read from that axis's own objects (a UMC's
+/// axis 2 at +0x800); software limits of 0 and 0 are none.
+#[tokio::test(start_paused = true)]
+async fn one_axis_answers_with_its_units_and_limits() {
+    let (app, _) = demo().await;
+    for (index, sub, value) in [
+        ("0x687F", 0, 1200),
+        ("0x6846", 2, 700),
+        ("0x687D", 1, -5000),
+        ("0x687D", 2, 9000),
+    ] {
+        let uri = format!("/api/v1/buses/demo/nodes/{UMC}/od/{index}/{sub}");
+        let (status, body) = call(&app, Method::PUT, &uri, Some(json!({"value": value}))).await;
+        assert_eq!(status, StatusCode::OK, "{uri}: {body}");
+    }
+    let second = axis(&app, UMC, 2).await;
+    assert_eq!(second["units"]["position"], "increments", "{second}");
+    assert_eq!(second["units"]["velocity"], "increments/ms", "{second}");
+    assert_eq!(second["units"]["vl_velocity"], "vl units", "{second}");
+    assert_eq!(
+        second["units"]["position_per_revolution"], 65536.0,
+        "{second}"
+    );
+    let limits = &second["limits"];
+    assert_eq!(limits["max_profile_velocity"], 1200, "{second}");
+    assert_eq!(limits["vl_max"], 700, "{second}");
+    assert_eq!(
+        limits["software_position_limit"],
+        json!([-5000, 9000]),
+        "{second}"
+    );
+    assert_eq!(limits["vl_dimension_factor"], json!([1, 1]), "{second}");
+    // Axis 1 kept its own.
+    let first = axis(&app, UMC, 1).await;
+    assert_eq!(first["limits"]["max_profile_velocity"], 16384, "{first}");
+    assert_eq!(first["limits"]["vl_max"], 1000, "{first}");
+    for sub in [1, 2] {
+        let uri = format!("/api/v1/buses/demo/nodes/{UMC}/od/0x607D/{sub}");
+        let (status, body) = call(&app, Method::PUT, &uri, Some(json!({"value": 0}))).await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+    }
+    let first = axis(&app, UMC, 1).await;
+    assert_eq!(
+        first["limits"]["software_position_limit"],
+        Json::Null,
+        "{first}"
+    );
+
+    // The JMC: steps and 0.1 rps, and none of the UMC's limit objects.
+    let jmc = axis(&app, JMC, 1).await;
+    assert_eq!(jmc["units"]["position"], "steps", "{jmc}");
+    assert_eq!(jmc["units"]["velocity"], "0.1 rps", "{jmc}");
+    assert_eq!(jmc["units"]["rps_per_velocity_unit"], 0.1, "{jmc}");
+    assert_eq!(jmc["units"]["vl_velocity"], Json::Null, "{jmc}");
+    assert_eq!(jmc["limits"]["max_profile_velocity"], Json::Null, "{jmc}");
+    assert_eq!(jmc["limits"]["vl_max"], Json::Null, "{jmc}");
+    assert!(jmc["limits"]["profile_velocity"].is_u64(), "{jmc}");
+}

@@ -41,7 +41,8 @@ mod types;
 pub use error::DriveError;
 pub use kind::DriveKind;
 pub use types::{
-    AxisReading, AxisStatus, MAX_IP_DURATION_MS, MAX_IP_POINTS, MoveMode, MoveRequest, TargetState,
+    AxisLimits, AxisReading, AxisStatus, AxisUnits, MAX_IP_DURATION_MS, MAX_IP_POINTS, MoveMode,
+    MoveRequest, TargetState,
 };
 
 use std::sync::Arc;
@@ -349,6 +350,61 @@ impl Drive {
             target_reached: statusword.target_reached(),
             fault: statusword.fault(),
         })
+    }
+
+    /// The limits the axis applies to requests and its factor group, read
+    /// now; each `None` where the drive lacks the object.
+    pub async fn limits(&self) -> Result<AxisLimits, DriveError> {
+        let u32_of = |value: Option<i64>| value.map(|v| v as u32);
+        let pair = |a: Option<i64>, b: Option<i64>| a.zip(b).map(|(a, b)| [a as u32, b as u32]);
+        let software = self
+            .read_optional(obj::SOFTWARE_POSITION_LIMIT, 1, true)
+            .await?
+            .zip(
+                self.read_optional(obj::SOFTWARE_POSITION_LIMIT, 2, true)
+                    .await?,
+            )
+            .map(|(min, max)| [min as i32, max as i32])
+            .filter(|limits| *limits != [0, 0]);
+        let dimension = self
+            .read_optional(obj::VL_DIMENSION_FACTOR, 1, true)
+            .await?
+            .zip(
+                self.read_optional(obj::VL_DIMENSION_FACTOR, 2, true)
+                    .await?,
+            )
+            .map(|(n, d)| [n as i32, d as i32]);
+        Ok(AxisLimits {
+            max_profile_velocity: u32_of(
+                self.read_optional(obj::MAX_PROFILE_VELOCITY, 0, false)
+                    .await?,
+            ),
+            max_motor_speed: u32_of(self.read_optional(obj::MAX_MOTOR_SPEED, 0, false).await?),
+            profile_velocity: u32_of(self.read_optional(obj::PROFILE_VELOCITY, 0, false).await?),
+            profile_acceleration: u32_of(
+                self.read_optional(obj::PROFILE_ACCELERATION, 0, false)
+                    .await?,
+            ),
+            vl_min: u32_of(self.read_optional(obj::VL_MIN_MAX, 1, false).await?),
+            vl_max: u32_of(self.read_optional(obj::VL_MIN_MAX, 2, false).await?),
+            vl_dimension_factor: dimension,
+            software_position_limit: software,
+            encoder_resolution: pair(
+                self.read_optional(obj::POSITION_ENCODER_RESOLUTION, 1, false)
+                    .await?,
+                self.read_optional(obj::POSITION_ENCODER_RESOLUTION, 2, false)
+                    .await?,
+            ),
+            gear_ratio: pair(
+                self.read_optional(obj::GEAR_RATIO, 1, false).await?,
+                self.read_optional(obj::GEAR_RATIO, 2, false).await?,
+            ),
+        })
+    }
+
+    /// The units of the axis's values (its product's).
+    pub fn units(&self) -> AxisUnits {
+        self.kind.units()
     }
 
     /// The axis's statusword, mode, position, velocity and torque, read now:

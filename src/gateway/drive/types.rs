@@ -210,6 +210,75 @@ pub struct AxisStatus {
     pub fault: bool,
 }
 
+/// The units an axis's values are in, as its product's manual defines
+/// them (product knowledge from `profiles`), for a page to label them.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+pub struct AxisUnits {
+    /// Of 0x6064, 0x607A, 0x607D, 0x607C (`steps`, `increments`).
+    #[schema(example = "increments")]
+    pub position: String,
+    /// Of 0x606C, 0x6081, 0x607F, 0x6080 (`0.1 rps`, `increments/ms`).
+    #[schema(example = "increments/ms")]
+    pub velocity: String,
+    /// Of 0x6083, 0x6084 (`0.1 rps/s`, `increments/ms²`).
+    #[schema(example = "increments/ms²")]
+    pub acceleration: String,
+    /// Of the VL objects 0x6042, 0x6044, 0x6046 where the velocity move
+    /// uses them (`vl units`), else null.
+    #[schema(example = "vl units")]
+    pub vl_velocity: Option<String>,
+    /// Revolutions per second of one `velocity` unit, where the manual
+    /// fixes it (JMC 0.1; UMC 1000/65536), else null.
+    #[schema(example = 0.0152587890625)]
+    pub rps_per_velocity_unit: Option<f64>,
+    /// Position units per motor revolution, where the manual fixes it
+    /// (UMC 65536), else null (the JMC's steps depend on its subdivision).
+    #[schema(example = 65536.0)]
+    pub position_per_revolution: Option<f64>,
+    /// Of 0x6077, 0x6071.
+    #[schema(example = "‰ of rated torque")]
+    pub torque: String,
+}
+
+/// The limits an axis applies to a request, read from the drive; each null
+/// where the drive has no such object (or the EDS lacks it).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, ToSchema)]
+pub struct AxisLimits {
+    /// 0x607F, max profile velocity: caps 0x6081.
+    #[schema(example = 16384)]
+    pub max_profile_velocity: Option<u32>,
+    /// 0x6080, max motor speed: caps 0x6081 as well.
+    #[schema(example = 16384)]
+    pub max_motor_speed: Option<u32>,
+    /// 0x6081, the profile velocity set now.
+    #[schema(example = 16384)]
+    pub profile_velocity: Option<u32>,
+    /// 0x6083, the profile acceleration set now.
+    #[schema(example = 1)]
+    pub profile_acceleration: Option<u32>,
+    /// 0x6046 sub 1, vl velocity min amount.
+    #[schema(example = 0)]
+    pub vl_min: Option<u32>,
+    /// 0x6046 sub 2, vl velocity max amount: caps 0x6042.
+    #[schema(example = 1000)]
+    pub vl_max: Option<u32>,
+    /// 0x604C, vl dimension factor `[numerator, denominator]`: velocity
+    /// units in increments/ms per vl unit.
+    #[schema(example = json!([1, 1]))]
+    pub vl_dimension_factor: Option<[i32; 2]>,
+    /// 0x607D, software position limits `[min, max]`; null also when both
+    /// are 0 (which switches them off).
+    #[schema(example = json!([-1000000, 1000000]))]
+    pub software_position_limit: Option<[i32; 2]>,
+    /// 0x608F, position encoder resolution `[encoder increments, motor
+    /// revolutions]`.
+    #[schema(example = json!([65536, 1]))]
+    pub encoder_resolution: Option<[u32; 2]>,
+    /// 0x6091, gear ratio `[motor revolutions, shaft revolutions]`.
+    #[schema(example = json!([1, 1]))]
+    pub gear_ratio: Option<[u32; 2]>,
+}
+
 /// What the telemetry of an axis reads at each poll: the status but the
 /// supported modes (which do not change while the drive runs), each value
 /// `None` where the drive has no such object.

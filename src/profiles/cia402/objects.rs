@@ -96,6 +96,12 @@ pub const PROFILE_DECELERATION: u16 = 0x6084;
 pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
 /// 0x6087, torque slope (UNSIGNED32).
 pub const TQ_SLOPE: u16 = 0x6087;
+/// 0x608F, position encoder resolution (UNSIGNED32; sub 1 encoder
+/// increments, sub 2 motor revolutions).
+pub const POSITION_ENCODER_RESOLUTION: u16 = 0x608F;
+/// 0x6091, gear ratio (UNSIGNED32; sub 1 motor revolutions, sub 2 shaft
+/// revolutions).
+pub const GEAR_RATIO: u16 = 0x6091;
 /// 0x6098, homing method (INTEGER8).
 pub const HOMING_METHOD: u16 = 0x6098;
 /// 0x6099, homing speeds (UNSIGNED32; sub 1 search for switch, 2 search for zero).

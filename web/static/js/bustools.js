@@ -1,8 +1,9 @@
 // Bus tools the trace and PDO pages share: the bus's SYNC producer
 // (GET|PUT /buses/{bus}/sync), started, stopped and its period set from
 // the page, and who may use the tools that send on the bus. The gateway
-// asks an admin token for every one of them (SYNC, raw frames, RPDOs) and
-// audits them; a page signed in with less shows them disabled, with why.
+// asks an operator's or an admin's token for every one of them (SYNC, raw
+// frames, RPDOs) and audits them; a viewer's page shows them disabled,
+// with why.
 
 import { api, runAction } from './api.js';
 import { whenSignedIn } from './auth.js';
@@ -17,8 +18,8 @@ const SYNC_POLL_MS = 3000;
  */
 export async function sendRefusal() {
   const me = await whenSignedIn();
-  if (!me || !me.auth_required || me.role === 'admin') return '';
-  return `Sending on the bus needs an admin token; this page is signed in as ${me.role}.`;
+  if (!me || !me.auth_required || me.role === 'admin' || me.role === 'operator') return '';
+  return `Sending on the bus needs an operator or admin token; this page is signed in as ${me.role}.`;
 }
 
 /** Disables `controls` (elements) and says `reason` in `note`, or enables them. */

@@ -43,3 +43,26 @@ export function showMessage(el, text, kind = 'error') {
   el.dataset.kind = kind;
   el.hidden = !text;
 }
+
+/** An age in words: "0.4 s ago", "12 s ago", "3 min ago". */
+export function ageText(ms) {
+  if (ms < 10000) return `${(Math.max(0, ms) / 1000).toFixed(1)} s ago`;
+  if (ms < 120000) return `${Math.floor(ms / 1000)} s ago`;
+  return `${Math.floor(ms / 60000)} min ago`;
+}
+
+/**
+ * Marks `el` (a live value) with its age: `data-age-ms`, and stale (class
+ * and `data-stale`) once older than `staleAfterMs`, its expected period
+ * with a margin (issue 21 point 5). `ageEl` gets the age in words.
+ */
+export function markAge(el, ageEl, ageMs, staleAfterMs) {
+  const stale = ageMs > staleAfterMs;
+  el.classList.toggle('stale', stale);
+  el.dataset.stale = stale ? 'yes' : 'no';
+  el.dataset.ageMs = String(Math.round(ageMs));
+  if (ageEl) {
+    ageEl.textContent = ageText(ageMs);
+    ageEl.title = stale ? `Stale: expected at least every ${(staleAfterMs / 1000).toFixed(1)} s` : '';
+  }
+}

@@ -14,11 +14,16 @@ import { api, runAction } from './api.js';
 import { axisFault } from './axes.js';
 import { TimeChart } from './chart.js';
 import { commandable, isFault, stateDiagram, stateLabel, statuswordBits } from './cia402.js';
-import { $, clock, h, showMessage } from './dom.js';
+import { $, clock, h, markAge, showMessage } from './dom.js';
 import { stream } from './layout.js';
-import { MODE_LABELS, motionForm, unitsOf } from './motion.js';
+import { MODE_LABELS, clipText, motionForm, unitsOf } from './motion.js';
 
 const RATE_HZ = 20;
+// A value older than this is shown stale (greyed, with its age): the axis
+// topic is asked at RATE_HZ, but the gateway reads it in the node's SDO
+// queue (at most --axis-poll-hz, shared with everyone) or from TPDOs, so
+// its period is not known here: 2 s, many periods of any of them.
+const STALE_MS = 2000;
 // The device's 0x6061 names by the move mode whose form they belong to.
 const MOVE_MODE_OF = {
   profile_position: 'profile_position', velocity: 'velocity', profile_velocity: 'velocity',
@@ -70,6 +75,7 @@ const charts = {
 let detail = null; // GET node: name, profile, emcy
 let status = null; // the newest axis status read from the device
 let supported = null; // the move modes of the axis (GET axis)
+let axisInfo = {}; // the axis's units and limits (GET axis)
 let selectedMode = null;
 let acting = false; // a state, fault or halt action is running
 let moveButtons = [];
@@ -127,6 +133,8 @@ async function loadOnce() {
   problem('load', null);
   detail = node;
   supported = axis.supported_modes;
+  axisInfo = { units: axis.units, limits: axis.limits };
+  renderUnits();
   renderNode();
   renderModes();
   applyStatus(axis);
@@ -221,9 +229,27 @@ function onSample(data, message) {
   applyStatus(data);
 }
 
+// When the newest value the device gave arrived (REST or stream); a
+// sample with an error repeats the last values and does not count.
+let readAt = null;
+
+function renderAges() {
+  if (readAt === null) return;
+  const age = Date.now() - readAt;
+  for (const readout of document.querySelectorAll('#live-panel .readout[data-live]')) {
+    markAge(readout, readout.querySelector('.age'), age, STALE_MS);
+  }
+  markAge($('#status-panel'), $('#statusword-age'), age, STALE_MS);
+}
+setInterval(renderAges, 250);
+
 /** Shows a status the gateway read from the drive (REST or stream). */
 function applyStatus(next) {
   status = { ...status, ...next };
+  if (next.state !== undefined && !next.error) {
+    readAt = Date.now();
+    renderAges();
+  }
   const { state } = status;
   // Out of operation enabled nothing moves, and the gateway ended the lease.
   if (lease && state && state !== 'operation_enabled') dropLease(null);
@@ -237,6 +263,7 @@ function applyStatus(next) {
 
   $('#value-position').textContent = show(status.position);
   $('#value-velocity').textContent = show(status.velocity);
+  renderConversions();
   $('#value-torque').textContent = show(status.torque);
   $('#value-mode').textContent = modeName(status);
   const reached = $('#target-reached');
@@ -265,6 +292,68 @@ function applyStatus(next) {
   for (const button of [haltOn, haltOff]) if (!button.hasAttribute('aria-busy')) button.disabled = acting || !enabled;
   // The bar kept in view: never disabled by another action running, a stop goes out at once.
   for (const button of [quickHalt, quickStop]) if (!button.hasAttribute('aria-busy')) button.disabled = !enabled;
+}
+
+// ---- units and limits -----------------------------------------------------------
+//
+// What the drive's numbers count, from its product's manual (the gateway's
+// profiles), and the limits it applies to requests, as read with the axis.
+
+const units = () => unitsOf(detail ? detail.profile : null, axisInfo);
+const fixed = (value, digits) => Number(value).toLocaleString('en-US', { maximumFractionDigits: digits });
+
+/** Position units per shaft revolution: 0x608F where it says more than
+ * 1:1, else the product's; 0x6091 between motor and shaft. */
+function perRevolution() {
+  const u = axisInfo.units || {};
+  const { encoder_resolution: encoder, gear_ratio: gear } = axisInfo.limits || {};
+  let perMotorRev = u.position_per_revolution ?? null;
+  if (encoder && encoder[1] && !(encoder[0] === 1 && encoder[1] === 1)) perMotorRev = encoder[0] / encoder[1];
+  if (perMotorRev === null) return null;
+  const ratio = gear && gear[1] ? gear[0] / gear[1] : 1; // motor revolutions per shaft revolution
+  return { perMotorRev, perShaftRev: perMotorRev * ratio, geared: ratio !== 1 };
+}
+
+function renderConversions() {
+  const u = axisInfo.units;
+  if (!u) return;
+  const rev = perRevolution();
+  $('#conv-position').textContent = rev && status && status.position !== null && status.position !== undefined
+    ? `= ${fixed(status.position / rev.perShaftRev, 3)} ${rev.geared ? 'shaft ' : ''}rev` : '';
+  const rps = u.rps_per_velocity_unit;
+  $('#conv-velocity').textContent = rps && status && status.velocity !== null && status.velocity !== undefined
+    ? `= ${fixed(status.velocity * rps, 2)} rps (${fixed(status.velocity * rps * 60, 0)} rpm)` : '';
+}
+
+function renderUnits() {
+  const u = axisInfo.units;
+  if (!u) return;
+  $('#unit-position').textContent = u.position;
+  $('#unit-velocity').textContent = u.velocity;
+  $('#unit-torque').textContent = '‰';
+  const l = axisInfo.limits || {};
+  const num = (v) => (v === null || v === undefined ? null : Number(v).toLocaleString('en-US'));
+  const rps = (v) => (u.rps_per_velocity_unit ? ` (${fixed(v * u.rps_per_velocity_unit, 2)} rps)` : '');
+  const rows = [
+    ['Position', u.position + (u.position_per_revolution ? `, ${num(u.position_per_revolution)} per motor revolution` : '')],
+    ['Velocity', u.velocity + (u.rps_per_velocity_unit ? `, 1 = ${fixed(u.rps_per_velocity_unit, 5)} rps` : '')],
+    ['Acceleration', u.acceleration],
+    u.vl_velocity ? ['VL velocity (0x6042, 0x6044)', `${u.vl_velocity}${l.vl_dimension_factor ? `, × ${l.vl_dimension_factor[0]}/${l.vl_dimension_factor[1]} (0x604C) = ${u.velocity}` : ''}`] : null,
+    l.max_profile_velocity !== null && l.max_profile_velocity !== undefined ? ['Max profile velocity (0x607F)', `${num(l.max_profile_velocity)} ${u.velocity}${rps(l.max_profile_velocity)}`] : null,
+    l.max_motor_speed !== null && l.max_motor_speed !== undefined ? ['Max motor speed (0x6080)', `${num(l.max_motor_speed)} ${u.velocity}${rps(l.max_motor_speed)}`] : null,
+    l.profile_velocity !== null && l.profile_velocity !== undefined ? ['Profile velocity (0x6081)', `${num(l.profile_velocity)} ${u.velocity}${rps(l.profile_velocity)}`] : null,
+    l.profile_acceleration !== null && l.profile_acceleration !== undefined ? ['Profile acceleration (0x6083)', `${num(l.profile_acceleration)} ${u.acceleration}`] : null,
+    l.vl_max !== null && l.vl_max !== undefined ? ['VL min / max (0x6046)', `${num(l.vl_min ?? 0)} / ${num(l.vl_max)} ${u.vl_velocity || u.velocity}`] : null,
+    ['Software limits (0x607D)', l.software_position_limit ? `${num(l.software_position_limit[0])} to ${num(l.software_position_limit[1])} ${u.position}` : 'none'],
+    l.encoder_resolution ? ['Encoder resolution (0x608F)', `${num(l.encoder_resolution[0])} increments per ${num(l.encoder_resolution[1])} motor revolution(s)`] : null,
+    l.gear_ratio ? ['Gear ratio (0x6091)', `${num(l.gear_ratio[0])} motor : ${num(l.gear_ratio[1])} shaft revolution(s)`] : null,
+  ].filter(Boolean);
+  $('#axis-limits').replaceChildren(...rows.flatMap(([term, text]) => [h('dt', {}, term), h('dd', {}, text)]));
+  $('#units-note').textContent = u.vl_velocity && detail && detail.profile === 'umc'
+    ? 'The UMC counts the profile velocity (0x6081) and the velocity readout (0x606C) both in increments/ms. '
+      + 'A profile position move reaches 0x6081 only if it is long enough: at 0x6083 increments/ms² it peaks near '
+      + '√(0x6083 × distance), and 0x6081 is capped to 0x607F and 0x6080.'
+    : '';
 }
 
 // ---- state transitions, fault reset, halt ------------------------------------
@@ -426,7 +515,7 @@ function leaseHeaders() {
  * `request` is a `POST .../move` body; the answer is the axis as the
  * gateway read it once the motion started.
  */
-async function move(request, button) {
+async function move(request, button, clips = []) {
   const what = request.mode === 'velocity' && request.velocity === 0 ? 'Stop (velocity 0)' : MODE_LABELS[request.mode];
   result(moveResult, 'busy', `${what}: starting…`);
   const outcome = await runAction(button, 'Starting…', () => api(`${axisPath}/move`, { method: 'POST', body: request, headers: leaseHeaders() }));
@@ -436,7 +525,8 @@ async function move(request, button) {
     applyStatus(outcome.value);
     const axis = outcome.value;
     result(moveResult, 'done', h('strong', {}, `${what}: started (${clock()}). `),
-      `The drive reports ${modeName(axis).toLowerCase()}, position ${show(axis.position)}.`);
+      `The drive reports ${modeName(axis).toLowerCase()}, position ${show(axis.position)} ${units().position}.`,
+      ...clips.map((clip) => h('span', { class: 'clipped', dataset: { by: clip.by } }, ` ${clipText(clip, true)}`)));
   } else {
     result(moveResult, 'failed', h('strong', {}, `${what} failed (${clock()}): `), outcome.error.message);
     applyStatus({});
@@ -444,7 +534,7 @@ async function move(request, button) {
 }
 
 function renderModes() {
-  const units = unitsOf(detail.profile);
+  const units = unitsOf(detail.profile, axisInfo);
   if (!supported.length) {
     modeTabs.replaceChildren();
     motionHost.replaceChildren(h('p', { class: 'sub' }, 'This axis supports no motion mode the gateway can command.'));
@@ -463,6 +553,7 @@ function renderModes() {
     onSubmit: move,
     onStop: move,
     onInvalid: (text) => result(moveResult, 'failed', h('strong', {}, 'Not sent: '), text),
+    position: () => (status ? status.position : null),
   });
   moveButtons = built.buttons;
   motionHost.replaceChildren(built.form);

@@ -75,13 +75,15 @@ function sliderPair(name, [min, max], step, initial) {
 
 function profilePosition(units) {
   const inputs = [
-    field('Target', number('target', { value: 0, required: true }), `Position (0x607A), ${units.position}.`),
+    field('Target', number('target', { value: 0, required: true }), `Position (0x607A), ${units.position}`
+      + `${units.softwareLimits ? `; software limits ${fmt(units.softwareLimits[0])} to ${fmt(units.softwareLimits[1])} (0x607D)` : ''}.`),
     h('div', { class: 'checks' }, checkbox('relative', 'Relative to the current target', false),
       checkbox('immediate', 'Immediately (change set at once)', true)),
     h('div', { class: 'row3' },
-      field('Velocity', number('velocity', { min: 0, placeholder: 'as set' }), 'Profile velocity (0x6081), optional.'),
-      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), '0x6083, optional.'),
-      field('Deceleration', number('deceleration', { min: 0, placeholder: 'as set' }), '0x6084, optional.')),
+      field('Velocity', number('velocity', { min: 0, placeholder: 'as set' }), `Profile velocity (0x6081), ${units.velocityUnit}, optional`
+        + `${units.profileCap ? `; at most ${fmt(units.profileCap[1])} (${units.profileCap[0]})` : ''}.`),
+      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), `0x6083, ${units.accelerationUnit}, optional.`),
+      field('Deceleration', number('deceleration', { min: 0, placeholder: 'as set' }), `0x6084, ${units.accelerationUnit}, optional.`)),
   ];
   const body = (form) => withOptional({
     mode: 'profile_position',
@@ -102,8 +104,8 @@ function velocity(units) {
     field('Velocity', input, units.velocity),
     slider,
     h('div', { class: 'row2' },
-      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), 'Optional.'),
-      field('Deceleration', number('deceleration', { min: 0, placeholder: 'as set' }), 'Optional.')),
+      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), units.jmc ? `0x6083, ${units.accelerationUnit}, optional.` : 'Optional.'),
+      field('Deceleration', number('deceleration', { min: 0, placeholder: 'as set' }), units.jmc ? `0x6084, ${units.accelerationUnit}, optional.` : 'Optional.')),
   ];
   const body = (form) => withOptional({
     mode: 'velocity', velocity: readInt(form, 'velocity', 'Velocity', I32),
@@ -221,10 +223,10 @@ function homing(units) {
   const inputs = [
     field('Method', method, units.jmc ? 'Homing method (0x6098).' : 'Homing method (0x6098), as the drive defines it.'),
     h('div', { class: 'row2' },
-      field('Fast speed', number('fast', { min: 0, placeholder: 'as set' }), 'Search for the switch (0x6099.1).'),
-      field('Slow speed', number('slow', { min: 0, placeholder: 'as set' }), 'Search for zero (0x6099.2).')),
+      field('Fast speed', number('fast', { min: 0, placeholder: 'as set' }), `Search for the switch (0x6099.1), ${units.velocityUnit}.`),
+      field('Slow speed', number('slow', { min: 0, placeholder: 'as set' }), `Search for zero (0x6099.2), ${units.velocityUnit}.`)),
     h('div', { class: 'row2' },
-      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), '0x609A, optional.'),
+      field('Acceleration', number('acceleration', { min: 0, placeholder: 'as set' }), `0x609A, ${units.accelerationUnit}, optional.`),
       field('Offset', number('offset', { placeholder: 'as set' }), `Home offset (0x607C), ${units.position}.`)),
   ];
   const body = (form) => {
@@ -250,25 +252,84 @@ const BUILDERS = {
   homing,
 };
 
-/** The units of `profile` (the node's profile) said in words. */
-export function unitsOf(profile) {
-  if (profile === 'jmc_stepper') {
-    return {
-      jmc: true,
-      position: 'steps',
-      velocity: 'Profile velocity (0x6081) in 0.1 rps: 30 is 3 rps.',
-      velocityRange: [-300, 300],
-    };
+const fmt = (value) => Number(value).toLocaleString('en-US');
+
+/**
+ * The units of an axis (`axis`: the GET axis answer, its `units` and
+ * `limits` as the gateway read them; `profile`: the node's profile), said
+ * in words for the forms, with the limits the drive clips requests to.
+ */
+export function unitsOf(profile, axis = {}) {
+  const u = axis.units || {};
+  const limits = axis.limits || {};
+  const jmc = profile === 'jmc_stepper';
+  const velocityUnit = u.velocity || (jmc ? '0.1 rps' : 'velocity units');
+  // The UMC's velocity move is VL (0x6042) in vl units; the JMC's is 0x6081.
+  const vl = Boolean(u.vl_velocity) && !jmc;
+  const moveVelocityUnit = vl ? u.vl_velocity : velocityUnit;
+  const vlMax = vl && limits.vl_max ? limits.vl_max : null;
+  const profileCap = [['0x607F', limits.max_profile_velocity], ['0x6080', limits.max_motor_speed]]
+    .filter(([, v]) => v !== null && v !== undefined)
+    .sort((a, b) => a[1] - b[1])[0] || null;
+  return {
+    jmc,
+    position: u.position || 'position units',
+    velocityUnit,
+    accelerationUnit: u.acceleration || 'acceleration units',
+    moveVelocityUnit,
+    velocity: vl
+      ? `Target velocity (0x6042, VL), ${moveVelocityUnit}${vlMax ? `; the drive clips it to ±${fmt(vlMax)} (0x6046.2)` : ''}.`
+      : `Profile velocity (0x6081) in ${velocityUnit}${u.rps_per_velocity_unit ? `: ${fmt(Math.round(1 / u.rps_per_velocity_unit * 3))} is 3 rps` : ''}.`,
+    velocityRange: vlMax ? [-vlMax, vlMax] : jmc ? [-300, 300] : [-3000, 3000],
+    profileCap, // [object, value]: what 0x6081 is capped to
+    vlMax,
+    vlMin: vl && limits.vl_min ? limits.vl_min : null,
+    softwareLimits: limits.software_position_limit || null,
+    acceleration: limits.profile_acceleration ?? null,
+  };
+}
+
+/**
+ * What the drive will clip in `body` (a move request), by `units`' limits:
+ * [{what, from, to, by, unit}], `by` naming the object.
+ */
+export function clipsOf(body, units) {
+  const clips = [];
+  if (!body || !units) return clips;
+  if (body.mode === 'profile_position') {
+    if (body.velocity !== undefined && units.profileCap && body.velocity > units.profileCap[1]) {
+      clips.push({ what: 'Profile velocity', from: body.velocity, to: units.profileCap[1], by: units.profileCap[0], unit: units.velocityUnit });
+    }
+    const soft = units.softwareLimits;
+    if (soft && !body.relative && (body.target < soft[0] || body.target > soft[1])) {
+      clips.push({ what: 'Target', from: body.target, to: Math.min(Math.max(body.target, soft[0]), soft[1]), by: '0x607D', unit: units.position });
+    }
+  } else if (body.mode === 'velocity' && units.vlMax !== null && Math.abs(body.velocity) > units.vlMax) {
+    clips.push({ what: 'Velocity', from: body.velocity, to: Math.sign(body.velocity) * units.vlMax, by: '0x6046.2', unit: units.moveVelocityUnit });
+  } else if (body.mode === 'velocity' && units.vlMin && body.velocity !== 0 && Math.abs(body.velocity) < units.vlMin) {
+    clips.push({ what: 'Velocity', from: body.velocity, to: Math.sign(body.velocity) * units.vlMin, by: '0x6046.1', unit: units.moveVelocityUnit });
   }
-  if (profile === 'umc') {
-    return {
-      jmc: false,
-      position: 'encoder increments',
-      velocity: 'Target velocity (0x6042, VL).',
-      velocityRange: [-3000, 3000],
-    };
-  }
-  return { jmc: false, position: 'position units', velocity: 'Velocity units.', velocityRange: [-3000, 3000] };
+  return clips;
+}
+
+/** A profile position move too short to reach its velocity: the peak of
+ * its triangle, √(acceleration · distance), or null. */
+export function peakOf(body, units, position) {
+  if (!body || body.mode !== 'profile_position' || units.jmc) return null;
+  const acceleration = body.acceleration ?? units.acceleration;
+  if (!acceleration || position === null || position === undefined) return null;
+  const distance = Math.abs(body.relative ? body.target : body.target - position);
+  const clipped = clipsOf(body, units).find((c) => c.what === 'Profile velocity');
+  const cruise = clipped ? clipped.to : body.velocity;
+  const peak = Math.sqrt(acceleration * distance);
+  return cruise !== undefined && peak < cruise ? { peak: Math.round(peak), acceleration, distance, cruise } : null;
+}
+
+/** A clip said in words. */
+export function clipText({ what, from, to, by, unit }, after = false) {
+  return after
+    ? `${what} ${fmt(from)} clipped to ${fmt(to)} ${unit} by ${by}.`
+    : `The drive will clip ${what.toLowerCase()} ${fmt(from)} to ${fmt(to)} ${unit} (${by}).`;
 }
 
 /**
@@ -276,12 +337,36 @@ export function unitsOf(profile) {
  * give the request body or throw FormError. `onSubmit(body, button)` and
  * `onStop(body, button)` are called with a body that passed the checks.
  */
-export function motionForm(mode, units, { onSubmit, onStop, onInvalid }) {
+export function motionForm(mode, units, { onSubmit, onStop, onInvalid, position = () => null }) {
   const spec = BUILDERS[mode](units);
   const start = h('button', { type: 'submit', class: 'primary start', dataset: { mode } }, spec.start);
   const stop = spec.stop ? h('button', { type: 'button', class: 'stop', dataset: { mode } }, 'Stop (0)') : null;
+  // Before anything is sent: what the drive will clip, and a move too
+  // short to reach its velocity.
+  const note = h('p', { class: 'clip-note', role: 'status', 'aria-live': 'polite', hidden: true });
   const form = h('form', { class: 'motion-form', dataset: { mode }, novalidate: true },
-    ...spec.inputs, h('div', { class: 'actions' }, start, stop));
+    ...spec.inputs, note, h('div', { class: 'actions' }, start, stop));
+  const review = () => {
+    let body = null;
+    try {
+      body = spec.body(form);
+    } catch (error) {
+      if (!(error instanceof FormError)) throw error;
+    }
+    const clips = clipsOf(body, units);
+    const peak = peakOf(body, units, position());
+    const lines = clips.map((clip) => clipText(clip));
+    if (peak) {
+      lines.push(`At ${fmt(peak.acceleration)} ${units.accelerationUnit} (0x6083) this ${fmt(peak.distance)}-${units.position} move peaks near `
+        + `${fmt(peak.peak)} ${units.velocityUnit} (√(acceleration × distance)), below the profile velocity ${fmt(peak.cruise)}.`);
+    }
+    note.hidden = lines.length === 0;
+    note.dataset.clip = clips.length ? 'yes' : 'no';
+    note.textContent = lines.join(' ');
+  };
+  form.addEventListener('input', review);
+  form.addEventListener('change', review);
+  review();
   form.addEventListener('submit', (event) => {
     event.preventDefault();
     let body;
@@ -291,7 +376,7 @@ export function motionForm(mode, units, { onSubmit, onStop, onInvalid }) {
       if (error instanceof FormError) return onInvalid(error.message);
       throw error;
     }
-    onSubmit(body, start);
+    onSubmit(body, start, clipsOf(body, units));
   });
   if (stop) {
     stop.addEventListener('click', () => {

@@ -370,6 +370,36 @@ document.addEventListener('candeck:stopped', () => {
   for (const entry of nodes.values()) refreshNode(entry.bus, entry.node.id);
 });
 
+// ---- scan ------------------------------------------------------------------
+//
+// Scan bus: the gateway probes node IDs 1 to 127 of each bus for their
+// device type (POST /buses/{bus}/scan, an operator's), adds the nodes it
+// finds and marks the silent ones offline; the table is read again.
+
+const scanButton = $('#scan-bus');
+const scanResult = $('#scan-result');
+
+scanButton.addEventListener('click', async () => {
+  const names = [...buses.keys()];
+  scanResult.hidden = false;
+  scanResult.dataset.state = 'busy';
+  scanResult.textContent = `Scanning ${names.join(', ')}…`;
+  const found = [];
+  for (const name of names) {
+    const done = await runAction(scanButton, 'Scanning…', () => api(`/buses/${encodeURIComponent(name)}/scan`, { method: 'POST', body: {} }));
+    if (!done.ok) {
+      scanResult.dataset.state = 'failed';
+      scanResult.textContent = `Scan of ${name} failed (${clock()}): ${done.error.message}`;
+      return;
+    }
+    const online = done.value.filter((n) => n.online !== false).length;
+    found.push(`${name}: ${done.value.length} node${done.value.length === 1 ? '' : 's'}${online === done.value.length ? '' : `, ${online} online`}`);
+  }
+  scanResult.dataset.state = 'done';
+  scanResult.textContent = `Scanned (${clock()}): ${found.join('; ')}.`;
+  loadAll();
+});
+
 // ---- start and reconnect -------------------------------------------------
 
 async function loadAll() {

@@ -7,7 +7,7 @@
 // edits are a draft next to it, marked unsaved until applied or reverted.
 
 import { api, runAction } from './api.js';
-import { $, clock, h, showMessage } from './dom.js';
+import { $, clock, h, markAge, showMessage } from './dom.js';
 import { stream } from './layout.js';
 import { syncControl } from './bustools.js';
 
@@ -22,6 +22,7 @@ const lists = { tpdo: $('#tpdos'), rpdo: $('#rpdos') };
 const cards = new Map(); // "tpdo/1" -> card state (see makeCard)
 let mappable = { tpdo: [], rpdo: [] }; // from the node's dictionary
 let liveValues = {}; // name -> newest TPDO value from the stream
+let liveAges = {}; // name -> {ageMs, at}: its age as the gateway last said, at the page's time
 let nmtState = null; // the node's NMT state as the gateway knows it
 let syncPeriod = null; // the bus's SYNC period in ms (0: off), once read
 
@@ -321,7 +322,7 @@ function renderEntries(card) {
     h('span', { class: `swatch hue${i % 6}`, 'aria-hidden': 'true' }),
     h('span', { class: 'entry-name' }, label, h('span', { class: 'sub' }, ` ${e.index}:${e.sub} · ${e.bits} bits`)),
     live && onDevice.has(entryKey(e))
-      ? liveOutput(valueKey(e), card.device.transmission_type)
+      ? liveOutput(valueKey(e), card.device.transmission_type, card.device.event_timer_ms)
       : null,
     h('span', { class: 'entry-buttons' },
       h('button', { type: 'button', class: 'icon up', title: 'Move up', 'aria-label': `Move ${label} up`, disabled: i === 0,
@@ -539,11 +540,67 @@ async function loadNode() {
 // ---- live TPDO values -------------------------------------------------------
 
 /** The newest value of a mapped object, updated in place by the stream. */
-function liveOutput(key, transmissionType) {
-  const output = h('output', { class: 'live', dataset: { key, transmission: transmissionType ?? '' } });
+function liveOutput(key, transmissionType, eventTimer) {
+  const output = h('output', { class: 'live', dataset: { key, transmission: transmissionType ?? '', eventTimer: eventTimer ?? '' } });
+  const age = h('span', { class: 'age live-age', dataset: { key } });
   showValue(output);
-  return output;
+  return h('span', { class: 'live-value' }, output, ' ', age);
 }
+
+// ---- the values' ages (issue 21 point 5) ---------------------------------
+//
+// The values topic publishes every value at each burst of frames, so a
+// value there says nothing of its own age: GET .../values does (`age_ms`,
+// no SDO), read every AGE_POLL_MS and counted on between reads; a value
+// that changes on the stream is new. A value older than three of its
+// periods (the SYNC period times the transmission type, or the event
+// timer), or than 2 s when its period is not known, is stale, and never
+// before two reads of its age.
+
+const AGE_POLL_MS = 1000;
+const DEFAULT_STALE_MS = 2000;
+
+/** How old a value of this TPDO may be before it is stale. */
+export function staleAfter(transmissionType, eventTimerMs, syncMs) {
+  const type = transmissionType === '' || transmissionType === null || transmissionType === undefined ? null : Number(transmissionType);
+  const timer = Number(eventTimerMs) || 0;
+  let period = null;
+  if (type !== null && type >= 1 && type <= 240 && syncMs > 0) period = type * syncMs;
+  else if (type !== null && type >= 254 && timer > 0) period = timer;
+  return period === null ? DEFAULT_STALE_MS : Math.max(3 * period, 2 * AGE_POLL_MS);
+}
+
+function renderAges() {
+  const now = Date.now();
+  for (const output of root.querySelectorAll('output.live')) {
+    const ageEl = output.parentElement.querySelector('.live-age');
+    const known = liveAges[output.dataset.key];
+    if (!known || liveValues[output.dataset.key] === undefined) {
+      delete output.dataset.stale;
+      output.classList.remove('stale');
+      if (ageEl) ageEl.textContent = '';
+      continue;
+    }
+    markAge(output, ageEl, known.ageMs + (now - known.at),
+      staleAfter(output.dataset.transmission, output.dataset.eventTimer, syncPeriod));
+  }
+}
+
+async function pollAges() {
+  // Only with values to age, and not while the gateway is away.
+  if (!root.querySelector('output.live') || stream.state !== 'connected') return;
+  try {
+    const answer = await api(`${base}/values`);
+    const at = Date.now();
+    liveAges = {};
+    for (const v of answer.values) liveAges[v.name || `${v.index}:${v.sub}`] = { ageMs: v.age_ms, at };
+  } catch {
+    // The next read tries again; the ages count on meanwhile.
+  }
+  renderAges();
+}
+setInterval(pollAges, AGE_POLL_MS);
+setInterval(renderAges, 250);
 
 const NMT_TEXT = { boot_up: 'booting', pre_operational: 'pre-operational', stopped: 'stopped' };
 
@@ -589,8 +646,14 @@ function formatValue(value) {
 const valuesTopic = `buses/${bus}/nodes/${node}/values`;
 stream.subscribe([valuesTopic], (data) => {
   if (!data || typeof data !== 'object') return;
+  const at = Date.now();
+  for (const [key, value] of Object.entries(data)) {
+    // A value that changed came in a frame just now.
+    if (JSON.stringify(value) !== JSON.stringify(liveValues[key])) liveAges[key] = { ageMs: 0, at };
+  }
   liveValues = { ...liveValues, ...data };
   showValues();
+  renderAges();
 });
 
 // ---- start and reconnect ----------------------------------------------------
