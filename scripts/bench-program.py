@@ -2,10 +2,13 @@
 """Program download throughput (BENCHMARKS.md, issue 22): a 64 KiB image to a
 virtual UIO1LED by the gateway (virtual bus, then socketcand) and by
 python-canopen on the same device. Run from the repository root:
-`scripts/bench-program.py target/debug/candeck` with python-canopen installed."""
+`scripts/bench-program.py target/release/candeck [BITRATE]` with
+python-canopen installed; BITRATE (default the virtual bus's 500000, or
+`unlimited`: frames cross at once) is the wire timing of both virtual buses."""
 import json, re, socket, subprocess, sys, time, urllib.request, zlib, struct
 import canopen
 BIN = sys.argv[1]
+BITRATE = sys.argv[2] if len(sys.argv) > 2 else None
 def free():
     s = socket.socket(); s.bind(("127.0.0.1", 0)); p = s.getsockname()[1]; s.close(); return p
 version = b"1.0"
@@ -27,7 +30,8 @@ def wait_http(port):
     raise SystemExit("serve did not come up")
 # 1. the gateway on its own virtual bus (the demo), node 3.
 port = free()
-serve = subprocess.Popen([BIN, "serve", "--listen", f"127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+wire = ["--bus", f"demo=virtual:demo?bitrate={BITRATE}"] if BITRATE else []
+serve = subprocess.Popen([BIN, "serve", "--listen", f"127.0.0.1:{port}"] + wire, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 try:
     wait_http(port)
     a, t = post(port, 3)
@@ -35,7 +39,8 @@ try:
 finally:
     serve.terminate(); serve.wait()
 # 2. one vbus shared over socketcand: the gateway, then python-canopen, same device.
-vbus = subprocess.Popen([BIN, "vbus", "--listen", "127.0.0.1:0", "--devices", "uio1led@3"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+vbus = subprocess.Popen([BIN, "vbus", "--listen", "127.0.0.1:0", "--devices", "uio1led@3"]
+                        + (["--bitrate", BITRATE] if BITRATE else []), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 line = vbus.stdout.readline()
 m = re.search(r"socketcand on ([0-9.]+):(\d+) channel (\S+)", line)
 host, sport, channel = m.group(1), int(m.group(2)), m.group(3)

@@ -619,8 +619,10 @@ async fn run_move(
 /// Step test of a UMC axis's control loop.
 ///
 /// Holds the loop's target at `from` for `hold_ms`, steps it to `to` and
-/// holds it for `hold_ms` again while the actual value is read as fast as
-/// the node answers; answers the response and its metrics. The torque loop
+/// holds it for `hold_ms` again while the actual value is recorded: from
+/// each frame of a running TPDO that carries it (`source` `tpdo`), else read
+/// by SDO every millisecond or as fast as the node answers (`sdo`); answers
+/// the response and its metrics. The torque loop
 /// runs in TQ (0x6071/0x6077), the velocity loop in VL (0x6042/0x6044), the
 /// position loop in PP with change immediately (0x607A/0x6064), each
 /// through its mode's ramp. The axis holds a motion lease while the test
@@ -648,6 +650,7 @@ async fn step_test(
 ) -> Result<ApiJson<StepTestResult>, AppError> {
     let drive = drive(&state, &bus, &id, &axis)?;
     request.validate()?;
+    let values = state.bus(&bus)?.values.clone();
     let axis_key = key(&bus, &drive);
     let lease_header = presented(&headers);
     take_over_if_asked(
@@ -669,7 +672,7 @@ async fn step_test(
     // cut it, and its stop goes out); the request keeps the lease alive.
     let result = InFlight::new(&state.gateway.leases, &lease)
         .run(spawned(drive, move |drive| async move {
-            step_test::run(&drive, &request).await
+            step_test::run(&drive, &values, &request).await
         }))
         .await;
     state.gateway.leases.release(&axis_key);

@@ -32,6 +32,10 @@ pub struct ProgramQuery {
 /// What a program download did.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ProgramAnswer {
+    /// This download's number on the node (1, 2, ...), as the reports of
+    /// the `buses/{bus}/nodes/{id}/program` stream topic carry it.
+    #[schema(example = 1)]
+    pub run: u64,
     /// The image's size in bytes.
     #[schema(example = 65536)]
     pub bytes: usize,
@@ -63,7 +67,9 @@ pub struct ProgramAnswer {
 /// The steps: stop the program (0x1F51 sub 1 = 0), clear it (3), download
 /// the image to 0x1F50 sub 1 by SDO block transfer with the CRC, read
 /// 0x1F56 sub 1 and compare it with the image's CRC-32 (IEEE), then start
-/// the program (1) unless `start=false`. A failed step answers the error of
+/// the program (1) unless `start=false`. The progress (each step, the
+/// bytes the device has confirmed, the end) is published as it goes on the
+/// stream topic `buses/{bus}/nodes/{id}/program`. A failed step answers the error of
 /// its cause with `step` naming it (and `abort_code` when the device
 /// refused); the steps before it took effect. At most `dcf_body_limit`
 /// bytes (4 MiB by default); the device may take less (a virtual UniSwarm
@@ -100,17 +106,22 @@ async fn post_program(
     let (served, info) = known_node(&state, &bus, &id)?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
+    let run = served.programs.begin(info.id);
+    let number = run.run;
     // Runs to its end even if the client goes away: a download cut half
     // way leaves the device without a program.
-    let report = tokio::spawn(async move { download_program(&channel, &body, start).await })
-        .await
-        .map_err(|err| AppError::Internal(format!("program download task: {err}")))?
-        .map_err(|ProgramError { step, error }| AppError::FailedAt {
-            step: step.to_string(),
-            source: Box::new(error.into()),
-        })?;
+    let report = tokio::spawn(async move {
+        download_program(&channel, &body, start, &|progress| run.publish(progress)).await
+    })
+    .await
+    .map_err(|err| AppError::Internal(format!("program download task: {err}")))?
+    .map_err(|ProgramError { step, error }| AppError::FailedAt {
+        step: step.to_string(),
+        source: Box::new(error.into()),
+    })?;
     let seconds = (report.download_ms.max(1)) as f64 / 1000.0;
     Ok(ApiJson(ProgramAnswer {
+        run: number,
         bytes: report.bytes,
         crc32: report.crc32,
         crc32_hex: format!("0x{:08X}", report.crc32),

@@ -25,7 +25,8 @@
 //! Topics: `nodes` (appeared, identified, NMT state changed, offline,
 //! online), `emcy`, `buses/{bus}/frames[?ids=0x181,0x701]` (frames in
 //! batches: `data` is a list), `buses/{bus}/nodes/{id}/values`,
-//! `buses/{bus}/nodes/{id}/axes/{axis}`, `buses/{bus}/nodes/{id}/segments`
+//! `buses/{bus}/nodes/{id}/axes/{axis}`, `buses/{bus}/nodes/{id}/segments`,
+//! `buses/{bus}/nodes/{id}/program` (the progress of a program download)
 //! and `loggers/{id}` (a data logger's new rows, ten times a second).
 //!
 //! How a slow client is kept from hurting anyone: nothing the gateway does
@@ -318,6 +319,10 @@ enum Topic {
     Logger {
         id: String,
     },
+    Program {
+        bus: String,
+        node: String,
+    },
 }
 
 impl Topic {
@@ -348,11 +353,15 @@ impl Topic {
                 bus: bus.to_string(),
                 node: node.to_string(),
             },
+            ["buses", bus, "nodes", node, "program"] => Self::Program {
+                bus: bus.to_string(),
+                node: node.to_string(),
+            },
             ["loggers", id] => Self::Logger { id: id.to_string() },
             _ => {
                 return Err(AppError::InvalidRequest(format!(
                     "'{text}' is no topic: nodes, emcy, machine, buses/{{bus}}/frames, \
-                     buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}}, .../segments or loggers/{{id}}"
+                     buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}}, .../segments, .../program or loggers/{{id}}"
                 )));
             }
         };
@@ -725,6 +734,11 @@ impl Session {
             Topic::Segments { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
                 let receiver = served.previews.subscribe(info.id, rate_hz)?;
+                vec![tokio::spawn(forward_values(receiver, key, mailbox))]
+            }
+            Topic::Program { bus, node } => {
+                let (served, info) = known_node(&self.state, &bus, &node)?;
+                let receiver = served.programs.topic(info.id).subscribe(rate_hz);
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
             Topic::Logger { id } => {

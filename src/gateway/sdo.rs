@@ -301,7 +301,7 @@ impl SdoChannel {
         config: Option<&ClientConfig>,
     ) -> Result<Vec<u8>, SdoRequestError> {
         match self
-            .transfer(Request::Upload { index, sub }, config)
+            .transfer(Request::Upload { index, sub }, config, None)
             .await?
         {
             Transfer::Uploaded(data) => Ok(data),
@@ -318,15 +318,38 @@ impl SdoChannel {
         data: &[u8],
         config: Option<&ClientConfig>,
     ) -> Result<(), SdoRequestError> {
-        self.transfer(Request::Download { index, sub, data }, config)
+        self.transfer(Request::Download { index, sub, data }, config, None)
             .await
             .map(|_| ())
+    }
+
+    /// [`SdoChannel::download_with`] that calls `progress(confirmed,
+    /// total)` each time the device has confirmed more of the value (at
+    /// each block acknowledgement of a block download; see
+    /// [`SdoClient::download_progress`]), for a long download's progress
+    /// report.
+    pub async fn download_reporting(
+        &self,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        config: Option<&ClientConfig>,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<(), SdoRequestError> {
+        self.transfer(
+            Request::Download { index, sub, data },
+            config,
+            Some(progress),
+        )
+        .await
+        .map(|_| ())
     }
 
     async fn transfer(
         &self,
         request: Request<'_>,
         config: Option<&ClientConfig>,
+        progress: Option<&(dyn Fn(usize, usize) + Sync)>,
     ) -> Result<Transfer, SdoRequestError> {
         let mut session = self.session.lock().await;
         // Each transfer runs with its caller's configuration, or the
@@ -340,7 +363,9 @@ impl SdoChannel {
             stats: &self.stats,
             finished: false,
         };
-        let result = self.exchange(&mut session, request, started).await;
+        let result = self
+            .exchange(&mut session, request, started, progress)
+            .await;
         pending.finish(Outcome::of(&result), started.elapsed());
         result
     }
@@ -351,6 +376,7 @@ impl SdoChannel {
         session: &mut Session,
         request: Request<'_>,
         started: tokio::time::Instant,
+        progress: Option<&(dyn Fn(usize, usize) + Sync)>,
     ) -> Result<Transfer, SdoRequestError> {
         let Session { client, responses } = session;
         let mut now = started;
@@ -382,7 +408,19 @@ impl SdoChannel {
             send: first,
             done: None,
         };
+        // What `progress` was last told: every frame on the bus comes
+        // through here, few of them move the download on.
+        let mut reported = None;
         loop {
+            if let Some(progress) = progress {
+                let now = client.download_progress();
+                if now.is_some() && now != reported {
+                    reported = now;
+                    if let Some((confirmed, total)) = now {
+                        progress(confirmed, total);
+                    }
+                }
+            }
             for frame in step.send.drain(..) {
                 if let Err(error) = self.bus.send(frame).await {
                     // Leave the client ready for the next transfer.

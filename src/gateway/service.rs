@@ -60,6 +60,9 @@ pub struct ServedBus {
     pub axes: AxisTelemetry,
     /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
     pub previews: LedPreviews,
+    /// The `program` topics of the stream: each node's program download
+    /// progress.
+    pub programs: super::program::ProgramTopics,
     /// The bus's recent frames.
     pub frames: FrameLog,
     /// The bus's LSS master, one transaction at a time.
@@ -141,6 +144,7 @@ impl ServedBus {
             sync: SyncService::spawn(opened.bus.clone()),
             axes: AxisTelemetry::new(registry.clone(), values.clone(), telemetry.clone()),
             previews: LedPreviews::new(registry.clone(), &telemetry),
+            programs: Default::default(),
             values,
             hub: opened.hub,
             bus: opened.bus,

@@ -10,9 +10,16 @@
 //! 0x6044, velocity units), the position loop in PP with change
 //! immediately (0x607A → 0x6064, increments); each step passes the mode's
 //! own ramp (0x6087, 0x6048, the profile's velocity and acceleration) as
-//! the drive does. The actual value is read by SDO every millisecond (the
-//! board's control cycle), or as fast as the node answers when that is
-//! slower; each read queues on the node's channel with everyone else's.
+//! the drive does. The actual value is taken from the TPDO that carries
+//! it when one runs (the node sent the axis's actual value in a TPDO within
+//! the last [`TPDO_FRESH`] when the step is made: node operational, the
+//! TPDO on an event timer or on SYNC): one sample per frame, timed by its
+//! arrival, at whatever rate the TPDO comes, and no SDO transfer. If that
+//! TPDO then falls silent for [`TPDO_FRESH`], the rest of the hold is read
+//! by SDO. Without such a TPDO the actual value is read by SDO every
+//! millisecond (the board's control cycle), or as fast as the node answers
+//! when that is slower; each read queues on the node's channel with
+//! everyone else's. The answer's `source` says which.
 //!
 //! Only a UMC-class drive (one with the PID objects) and only an axis in
 //! operation enabled are tested. Whatever happens, the axis is stopped at
@@ -23,7 +30,9 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
+use crate::gateway::axis_telemetry::TPDO_FRESH;
 use crate::gateway::drive::{Drive, DriveError, DriveKind, MoveRequest};
+use crate::gateway::values::TpdoValues;
 use crate::profiles::cia402::State;
 use crate::profiles::cia402::objects as obj;
 
@@ -70,9 +79,26 @@ fn default_band() -> f64 {
     2.0
 }
 
+/// Where a step test's actual values came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleSource {
+    /// Every sample from a TPDO frame that carried the actual value.
+    Tpdo,
+    /// Every sample read by SDO.
+    Sdo,
+    /// From the TPDO until it fell silent, then by SDO.
+    TpdoThenSdo,
+}
+
 /// What a step test measured.
 #[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
 pub struct StepTestResult {
+    /// Where the actual values came from: `tpdo` (the frames of a running
+    /// TPDO that carries the loop's actual value, at its rate), `sdo`
+    /// (read every millisecond, or as fast as the node answers), or
+    /// `tpdo_then_sdo` (the TPDO fell silent during the hold).
+    pub source: SampleSource,
     /// 10 % to 90 % of the step, ms; null if the actual never got to 90 %.
     pub rise_time_ms: Option<f64>,
     /// How far past the target the actual went, per cent of the step.
@@ -164,7 +190,13 @@ impl StepTestRequest {
 
 /// Runs a step test on `drive`; the axis is stopped at the end whatever
 /// happened.
-pub async fn run(drive: &Drive, request: &StepTestRequest) -> Result<StepTestResult, DriveError> {
+/// `values`: the TPDO values of the drive's bus, which feed the samples
+/// when they carry the loop's actual value (see the module documentation).
+pub async fn run(
+    drive: &Drive,
+    values: &TpdoValues,
+    request: &StepTestRequest,
+) -> Result<StepTestResult, DriveError> {
     request.validate()?;
     if drive.kind() != DriveKind::Umc {
         return Err(DriveError::NotTunable(format!(
@@ -184,13 +216,17 @@ pub async fn run(drive: &Drive, request: &StepTestRequest) -> Result<StepTestRes
             });
         }
     }
-    let result = steps(drive, request).await;
+    let result = steps(drive, values, request).await;
     // The stop always goes out: after a result, and after a failure.
     drive.stop_after_failure().await;
     result
 }
 
-async fn steps(drive: &Drive, request: &StepTestRequest) -> Result<StepTestResult, DriveError> {
+async fn steps(
+    drive: &Drive,
+    values: &TpdoValues,
+    request: &StepTestRequest,
+) -> Result<StepTestResult, DriveError> {
     let hold = Duration::from_millis(u64::from(request.hold_ms));
     drive.run_move(&request.level(request.from)).await?;
     tokio::time::sleep(hold).await;
@@ -198,20 +234,42 @@ async fn steps(drive: &Drive, request: &StepTestRequest) -> Result<StepTestResul
     let start = tokio::time::Instant::now();
     drive.run_move(&request.level(request.to)).await?;
     let mut samples = Vec::new();
-    // At the loop's 1 ms rate, or as fast as the node answers if slower.
-    let mut tick = tokio::time::interval(SAMPLE_PERIOD);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    loop {
-        tick.tick().await;
-        let value = drive.read_int(actual, 0, true).await?;
-        let t = start.elapsed();
-        samples.push([
+    let sample = |t: Duration, value: i64| {
+        [
             t.as_secs_f64() * 1000.0,
             f64::from(request.to),
             value as f64,
-        ]);
-        if t >= hold || samples.len() >= MAX_SAMPLES {
-            break;
+        ]
+    };
+    let tpdo = Tpdo {
+        values,
+        node: drive.node_id(),
+        index: drive.object(actual),
+    };
+    let mut source = SampleSource::Sdo;
+    if tpdo.running(tokio::time::Instant::now()).is_some() {
+        source = SampleSource::Tpdo;
+        if !tpdo.record(start, hold, &mut samples, sample).await {
+            source = SampleSource::TpdoThenSdo;
+        }
+    }
+    let done = |samples: &Vec<[f64; 3]>| {
+        samples.len() >= MAX_SAMPLES
+            || samples
+                .last()
+                .is_some_and(|s| s[0] >= hold.as_secs_f64() * 1000.0)
+    };
+    if source != SampleSource::Tpdo && !done(&samples) {
+        // At the loop's 1 ms rate, or as fast as the node answers if slower.
+        let mut tick = tokio::time::interval(SAMPLE_PERIOD);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            tick.tick().await;
+            let value = drive.read_int(actual, 0, true).await?;
+            samples.push(sample(start.elapsed(), value));
+            if done(&samples) {
+                break;
+            }
         }
     }
     let statusword = drive.statusword().await?;
@@ -221,12 +279,74 @@ async fn steps(drive: &Drive, request: &StepTestRequest) -> Result<StepTestResul
             state: statusword.state(),
         });
     }
-    Ok(metrics(
+    let mut result = metrics(
         f64::from(request.from),
         f64::from(request.to),
         request.settle_band_pct,
         samples,
-    ))
+    );
+    result.source = source;
+    Ok(result)
+}
+
+/// The TPDO value of the loop's actual value.
+struct Tpdo<'a> {
+    values: &'a TpdoValues,
+    node: crate::canopen::NodeId,
+    index: u16,
+}
+
+impl Tpdo<'_> {
+    /// The newest value if a TPDO carries it and sent it within
+    /// [`TPDO_FRESH`] of `now`.
+    fn running(&self, now: tokio::time::Instant) -> Option<super::values::TpdoValue> {
+        self.values
+            .value(self.node, self.index, 0)
+            .filter(|value| now.saturating_duration_since(value.at) <= TPDO_FRESH)
+    }
+
+    /// One sample per frame that carries the value, from `start` until the
+    /// first frame at or after the hold's end (true: as the SDO path ends
+    /// with its first read at or after it), or until the TPDO has been
+    /// silent for [`TPDO_FRESH`] (false: the rest is for SDO).
+    async fn record(
+        &self,
+        start: tokio::time::Instant,
+        hold: Duration,
+        samples: &mut Vec<[f64; 3]>,
+        sample: impl Fn(Duration, i64) -> [f64; 3],
+    ) -> bool {
+        let mut frames = self.values.watch_frames(self.node);
+        let mut counted = None;
+        let end = start + hold;
+        loop {
+            // Seen before reading: a frame from here on wakes the wait.
+            frames.borrow_and_update();
+            let Some(value) = self.values.value(self.node, self.index, 0) else {
+                // No longer mapped (the TPDOs were read again).
+                return false;
+            };
+            // A new frame, and not one from before the step (the newest
+            // of those sent while the step was being written counts).
+            if counted != Some(value.count) {
+                counted = Some(value.count);
+                if value.at >= start {
+                    samples.push(sample(value.at - start, value.as_i64(true)));
+                    if value.at >= end || samples.len() >= MAX_SAMPLES {
+                        return true;
+                    }
+                }
+            }
+            tokio::select! {
+                changed = frames.changed() => {
+                    if changed.is_err() {
+                        return false;
+                    }
+                }
+                () = tokio::time::sleep(TPDO_FRESH) => return false,
+            }
+        }
+    }
 }
 
 /// The metrics of a step from `from` to `to` recorded as `samples`
@@ -274,6 +394,7 @@ pub fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>) -> Ste
         to - mean
     };
     StepTestResult {
+        source: SampleSource::Sdo,
         rise_time_ms,
         overshoot_pct,
         settling_time_ms,

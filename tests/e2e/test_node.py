@@ -320,6 +320,14 @@ def test_program_download_with_a_progress_bar(server, browser):
         f.write(image)
     try:
         browser.driver.find_element(By.ID, "program-file").send_keys(f.name)
+        # Every value the stream gives the bar, in order.
+        browser.js("""
+            window.programStream = [];
+            new MutationObserver(() => {
+              const bar = document.getElementById('program-progress');
+              if (bar.dataset.stream) window.programStream.push(Number(bar.dataset.stream));
+            }).observe(document.getElementById('program-progress'),
+                       {attributes: true, attributeFilter: ['data-stream']});""")
         browser.driver.find_element(By.ID, "program-download").click()
         confirm(browser)
         browser.wait(lambda _: result(browser, "program-result")[0] in ("done", "failed"),
@@ -331,6 +339,13 @@ def test_program_download_with_a_progress_bar(server, browser):
     crc = f"0x{zlib.crc32(image):08X}"
     assert f"0x1F56 = {crc} verified" in text and "the program was started" in text, text
     assert browser.js("return document.getElementById('program-progress').value") == 100
+    # The bar moved from the stream's `.../program` topic through the
+    # device's download, up to 100 %.
+    browser.wait(lambda _: browser.js("return window.programStream.at(-1)") == 100,
+                 timeout=10, message="the stream's progress did not reach 100 %")
+    steps = browser.js("return window.programStream")
+    assert any(0 < p < 100 for p in steps), steps
+    assert steps == sorted(steps), steps
     assert server.get(f"{NODE}/od/0x1F56/1")["value"] == zlib.crc32(image)
     assert server.get(f"{NODE}/od/0x100A/0")["value"] == "1.9"
     browser.check()

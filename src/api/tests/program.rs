@@ -1,12 +1,13 @@
 //! `POST /buses/{bus}/nodes/{id}/program` (CiA 302-3) against the demo's
 //! UIO1LED (node 3), the UMC (node 1) and the JMC (node 2, which has no
-//! program objects).
+//! program objects), and the progress on the `.../program` stream topic.
 
 use axum::body::Body;
 use axum::http::{Method, Request, StatusCode};
 use serde_json::Value as Json;
 use tower::ServiceExt;
 
+use super::stream::Client;
 use super::support::{demo, get};
 use crate::canopen::crc32::crc32;
 
@@ -83,4 +84,106 @@ async fn a_failed_step_is_named_with_its_abort_code() {
     let (status, body) = post_image(&app, "/api/v1/buses/demo/nodes/3/program", Vec::new()).await;
     assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
     assert_eq!(body["error"]["code"], "invalid_request");
+}
+
+/// The `program` topic follows a download: running through the download
+/// step with the bytes the device confirmed, then done at 100 %, with the
+/// run the answer gives; a late reader gets how it ended.
+#[tokio::test(start_paused = true)]
+async fn the_stream_carries_the_progress_to_100_percent() {
+    let (app, state) = demo().await;
+    let topic = "buses/demo/nodes/3/program";
+    let mut client = Client::start(&state, 1024);
+    let reply = client.subscribe(&[topic], Some(50.0)).await;
+    assert_eq!(reply["op"], "subscribed", "{reply}");
+    let big = image(64 * 1024);
+    let posted = tokio::spawn({
+        let app = app.clone();
+        let big = big.clone();
+        async move { post_image(&app, "/api/v1/buses/demo/nodes/3/program", big).await }
+    });
+    let mut seen = Vec::new();
+    loop {
+        let message = client.until(|m| m["topic"] == topic).await;
+        let data = message["data"].clone();
+        assert_eq!(data["bytes_total"], 65536, "{data}");
+        seen.push(data.clone());
+        if data["state"] != "running" {
+            break;
+        }
+    }
+    let (status, answer) = posted.await.unwrap();
+    assert_eq!(status, StatusCode::OK, "{answer}");
+    let last = seen.last().unwrap();
+    assert_eq!(
+        (
+            &last["state"],
+            &last["step"],
+            &last["percent"],
+            &last["bytes_sent"]
+        ),
+        (
+            &Json::from("done"),
+            &Json::from("start"),
+            &Json::from(100),
+            &Json::from(65536)
+        ),
+        "{last}"
+    );
+    assert!(
+        seen.iter().all(|data| data["run"] == answer["run"]),
+        "{seen:?}"
+    );
+    let percents: Vec<u64> = seen
+        .iter()
+        .filter(|data| data["step"] == "download")
+        .map(|data| data["percent"].as_u64().unwrap())
+        .collect();
+    assert!(percents.windows(2).all(|w| w[0] <= w[1]), "{percents:?}");
+    assert!(
+        percents.iter().filter(|&&p| p > 0 && p < 100).count() >= 5,
+        "the download's progress in between: {percents:?}"
+    );
+
+    let mut late = Client::start(&state, 64);
+    late.subscribe(&[topic], None).await;
+    let message = late.until(|m| m["topic"] == topic).await;
+    assert_eq!(message["data"], *last);
+}
+
+/// A refused step ends the topic's run as failed, naming the step and the
+/// abort code; an unknown node has no topic.
+#[tokio::test(start_paused = true)]
+async fn the_stream_says_at_which_step_a_download_failed() {
+    let (app, state) = demo().await;
+    let topic = "buses/demo/nodes/2/program";
+    let mut client = Client::start(&state, 1024);
+    client.subscribe(&[topic], Some(50.0)).await;
+    let (status, body) = post_image(&app, "/api/v1/buses/demo/nodes/2/program", image(100)).await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    let failed = client
+        .until(|m| m["topic"] == topic && m["data"]["state"] != "running")
+        .await;
+    let data = &failed["data"];
+    assert_eq!(
+        (
+            &data["state"],
+            &data["step"],
+            &data["abort_code"],
+            &data["run"]
+        ),
+        (
+            &Json::from("failed"),
+            &Json::from("stop"),
+            &Json::from("0x06020000"),
+            &Json::from(1)
+        ),
+        "{data}"
+    );
+    assert_eq!(data["step_name"], body["error"]["step"], "{data}");
+
+    let reply = client
+        .subscribe(&["buses/demo/nodes/99/program"], None)
+        .await;
+    assert_eq!(reply["error"]["code"], "unknown_node", "{reply}");
 }

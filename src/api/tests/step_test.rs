@@ -6,7 +6,7 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use crate::api::tests::support::{assert_error, call, demo, post};
+use crate::api::tests::support::{assert_error, call, demo, post, put};
 
 fn uri(node: u8, axis: u8, what: &str) -> String {
     format!("/api/v1/buses/demo/nodes/{node}/axes/{axis}{what}")
@@ -67,6 +67,8 @@ async fn a_velocity_step_is_measured_and_the_axis_halted_after() {
     let (app, _) = demo().await;
     enable(&app, 1).await;
     let body = step(&app).await;
+    // The demo UMC sends no TPDO before it is started: read by SDO.
+    assert_eq!(body["source"], "sdo", "{}", body["source"]);
     let samples = body["samples"].as_array().unwrap();
     assert!(samples.len() >= 100, "{} samples", samples.len());
     let last = samples.last().unwrap();
@@ -155,4 +157,90 @@ async fn refused_on_what_cannot_be_tested() {
         let response = post(&app, &uri(1, 1, "/step-test"), bad.clone()).await;
         assert_eq!(response.0, StatusCode::BAD_REQUEST, "{bad}: {}", response.1);
     }
+}
+
+/// SDO uploads of `index` sub 0 from node 1's client among `frames`.
+fn uploads_of(frames: &mut crate::can::FrameReceiver, index: u16) -> usize {
+    let mut count = 0;
+    loop {
+        let frame = match frames.try_recv() {
+            Ok(Some(frame)) => frame,
+            Ok(None) => break,
+            // A lost frame could have been one of them.
+            Err(error) => panic!("the monitor lost frames: {error:?}"),
+        };
+        let data = frame.frame.data();
+        if frame.frame.id() == crate::can::CanId::standard(0x601).unwrap()
+            && data.len() == 8
+            && data[0] == 0x40
+            && u16::from_le_bytes([data[1], data[2]]) == index
+        {
+            count += 1;
+        }
+    }
+    count
+}
+
+/// With the velocity loop's actual value (VL's 0x6044) in a TPDO sent
+/// every 2 ms by an operational node, the step is recorded from its
+/// frames, one sample each, and 0x6044 is not read by SDO at all; once the TPDO stops (the
+/// node pre-operational), the next step is read by SDO again.
+#[tokio::test(start_paused = true)]
+async fn a_step_on_an_axis_whose_tpdo_carries_the_actual_is_fed_by_it() {
+    let (app, state) = demo().await;
+    let (status, pdo) = put(
+        &app,
+        "/api/v1/buses/demo/nodes/1/pdos/tpdo/1",
+        json!({"transmission_type": 255, "event_timer_ms": 2, "mapping": [
+            {"index": "0x6044", "sub": 0},
+        ]}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{pdo}");
+    let nmt = |command: &'static str| {
+        let app = app.clone();
+        async move {
+            let (status, body) = post(
+                &app,
+                "/api/v1/buses/demo/nodes/1/nmt",
+                json!({ "command": command }),
+            )
+            .await;
+            assert_eq!(status, StatusCode::OK, "{body}");
+        }
+    };
+    nmt("start").await;
+    enable(&app, 1).await;
+    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    let served = state.bus("demo").unwrap();
+    let mut monitor = served.bus.monitor();
+    let body = step(&app).await;
+    assert_eq!(body["source"], "tpdo", "{}", body["source"]);
+    assert_eq!(uploads_of(&mut monitor, 0x6044), 0, "0x6044 read by SDO");
+    let samples = body["samples"].as_array().unwrap();
+    let times: Vec<f64> = samples.iter().map(|s| s[0].as_f64().unwrap()).collect();
+    // One sample per TPDO: 2 ms apart over the 300 ms hold.
+    assert!(
+        (140..=160).contains(&times.len()),
+        "{} samples",
+        times.len()
+    );
+    assert!(
+        times.windows(2).all(|w| (w[1] - w[0] - 2.0).abs() < 0.5),
+        "{times:?}"
+    );
+    assert!(*times.last().unwrap() >= 300.0, "{times:?}");
+    let actual = samples.last().unwrap()[2].as_f64().unwrap();
+    assert!((actual - 800.0).abs() <= 20.0, "{actual}");
+    assert!(body["rise_time_ms"].as_f64().unwrap() > 0.0, "{body}");
+
+    nmt("pre_operational").await;
+    tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+    // Leaving operational faults the UMC's axis: reset and enabled again.
+    let (status, body) = post(&app, &uri(1, 1, "/fault-reset"), json!({})).await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    enable(&app, 1).await;
+    let body = step(&app).await;
+    assert_eq!(body["source"], "sdo", "{}", body["source"]);
+    assert!(uploads_of(&mut monitor, 0x6044) > 100);
 }

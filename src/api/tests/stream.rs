@@ -18,7 +18,7 @@ use crate::can::{CanId, Frame};
 use crate::gateway::registry::Identification;
 
 /// A client of a session: what it sends, what it gets.
-struct Client {
+pub(super) struct Client {
     requests: mpsc::Sender<Inbound>,
     messages: mpsc::Receiver<String>,
 }
@@ -26,7 +26,7 @@ struct Client {
 impl Client {
     /// A session whose outgoing channel holds `capacity` messages: a client
     /// that does not read blocks its session once that many wait.
-    fn start(state: &AppState, capacity: usize) -> Self {
+    pub(super) fn start(state: &AppState, capacity: usize) -> Self {
         let (requests, inbound) = mpsc::channel::<Inbound>(16);
         let (outbound, messages) = mpsc::channel::<String>(capacity);
         let inbound = futures_util::stream::unfold(inbound, |mut rx| async move {
@@ -43,14 +43,14 @@ impl Client {
         Self { requests, messages }
     }
 
-    async fn send(&self, text: &str) {
+    pub(super) async fn send(&self, text: &str) {
         self.requests
             .send(Inbound::Text(text.to_string()))
             .await
             .unwrap();
     }
 
-    async fn next(&mut self) -> Json {
+    pub(super) async fn next(&mut self) -> Json {
         let text = tokio::time::timeout(Duration::from_secs(30), self.messages.recv())
             .await
             .expect("a message within 30 s")
@@ -59,7 +59,7 @@ impl Client {
     }
 
     /// Messages until one satisfies `wanted`, which it returns.
-    async fn until(&mut self, wanted: impl Fn(&Json) -> bool) -> Json {
+    pub(super) async fn until(&mut self, wanted: impl Fn(&Json) -> bool) -> Json {
         loop {
             let message = self.next().await;
             if wanted(&message) {
@@ -68,7 +68,7 @@ impl Client {
         }
     }
 
-    async fn subscribe(&mut self, topics: &[&str], rate: Option<f64>) -> Json {
+    pub(super) async fn subscribe(&mut self, topics: &[&str], rate: Option<f64>) -> Json {
         let mut request = json!({"op": "subscribe", "topics": topics});
         if let Some(rate) = rate {
             request["max_rate_hz"] = json!(rate);

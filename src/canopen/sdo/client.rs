@@ -216,6 +216,31 @@ impl SdoClient {
         self.active.as_ref().map(|active| active.deadline)
     }
 
+    /// How far the running download has come: the bytes of the value the
+    /// server has confirmed, and the value's size; `None` while idle or
+    /// uploading. A progress report for long (block) downloads: it moves
+    /// with each block acknowledgement (each segment confirmation in a
+    /// segmented one), and is the whole value once the last block is
+    /// acknowledged, before the end of the transfer is confirmed.
+    pub fn download_progress(&self) -> Option<(usize, usize)> {
+        let active = self.active.as_ref()?;
+        let total = active.data.len();
+        let confirmed = match active.phase {
+            Phase::InitiateDownload { .. } | Phase::InitiateBlockDownload => 0,
+            // Segments start every SEGMENT_LEN bytes: the one that ends at
+            // `end` started at the multiple below it.
+            Phase::DownloadSegment { end, .. } => end.saturating_sub(1) / SEGMENT_LEN * SEGMENT_LEN,
+            Phase::BlockDownload { first, .. } => (first * SEGMENT_LEN).min(total),
+            Phase::EndBlockDownload => total,
+            Phase::InitiateUpload
+            | Phase::UploadSegment { .. }
+            | Phase::InitiateBlockUpload
+            | Phase::BlockUpload { .. }
+            | Phase::EndBlockUpload { .. } => return None,
+        };
+        Some((confirmed, total))
+    }
+
     /// Starts reading `index`:`sub`; gives the frames to send.
     pub fn upload(&mut self, index: u16, sub: u8, now: Instant) -> Result<Vec<Frame>, SdoError> {
         if self.active.is_some() {

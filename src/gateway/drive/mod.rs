@@ -165,6 +165,10 @@ impl Drive {
         self.channel.node().get()
     }
 
+    pub fn node_id(&self) -> crate::canopen::NodeId {
+        self.channel.node()
+    }
+
     pub fn axis(&self) -> u8 {
         self.axis
     }

@@ -786,13 +786,31 @@ loadDetail();
 
 // Program download (CiA 302-3): the image goes to the gateway by
 // XMLHttpRequest, whose upload reports progress (fetch's does not); the
-// bar then waits, indeterminate, while the gateway stops, clears,
-// downloads, verifies and starts the program, and the answer says how.
+// gateway then stops, clears, downloads, verifies and starts the program,
+// and reports each step and the bytes the device has confirmed on the
+// stream topic `.../program`, which moves the bar; the answer says how it
+// ended.
 const programFile = $('#program-file');
 const programButton = $('#program-download');
 const programProgress = $('#program-progress');
 const programResult = $('#program-result');
 programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length; });
+// The stream's runs: those up to `programRunSeen` were there before the
+// last click and are left alone (the topic first gives how the last one
+// ended); a later one moves the bar, and its text until the answer came.
+let programRunSeen = 0;
+let programRunShown = 0;
+let programAnswered = true;
+stream.subscribe([`buses/${bus}/nodes/${nodeId}/program`], (data) => {
+  programRunShown = Math.max(programRunShown, data.run);
+  if (data.run <= programRunSeen || programProgress.hidden) return;
+  programProgress.value = data.percent;
+  programProgress.dataset.stream = String(data.percent);
+  if (data.state === 'running' && !programAnswered) {
+    result(programResult, 'busy', `Step ${data.step_name}: `,
+      `${data.bytes_sent.toLocaleString()} of ${data.bytes_total.toLocaleString()} bytes confirmed by the device (${data.percent} %)…`);
+  }
+});
 
 async function postProgram(file, start) {
   await whenSignedIn();
@@ -803,12 +821,16 @@ async function postProgram(file, start) {
     xhr.setRequestHeader('accept', 'application/json');
     for (const [name, value] of Object.entries(authorization())) xhr.setRequestHeader(name, value);
     xhr.upload.addEventListener('progress', (event) => {
-      if (event.lengthComputable) programProgress.value = Math.round((100 * event.loaded) / event.total);
+      if (event.lengthComputable) {
+        result(programResult, 'busy', `Sending ${file.name} to the gateway: ${Math.round((100 * event.loaded) / event.total)} %…`);
+      }
     });
     xhr.upload.addEventListener('load', () => {
-      // Sent: the gateway now downloads it to the device.
-      programProgress.removeAttribute('value');
-      result(programResult, 'busy', `${file.name} sent; the gateway downloads it to the device and verifies it…`);
+      // Sent: the gateway now downloads it to the device; the stream
+      // moves the bar.
+      if (programProgress.dataset.stream === '') {
+        result(programResult, 'busy', `${file.name} sent; the gateway downloads it to the device and verifies it…`);
+      }
     });
     xhr.addEventListener('error', () => reject(new ApiError(`cannot reach the gateway (POST ${base}/program)`)));
     xhr.addEventListener('load', () => {
@@ -834,9 +856,15 @@ programButton.addEventListener('click', async () => {
   if (!(await confirmAction(`Replace the program of node ${nodeId} with ${file.name} (${file.size.toLocaleString()} bytes)? The device's program stops first.`, 'Download program'))) return;
   programProgress.hidden = false;
   programProgress.value = 0;
+  programProgress.dataset.stream = '';
+  programRunSeen = programRunShown;
+  programAnswered = false;
   result(programResult, 'busy', `Sending ${file.name}…`);
   const done = await runAction(programButton, 'Downloading…', () => postProgram(file, start));
-  programProgress.value = done.ok ? 100 : 0;
+  // The answer may come before the stream's last reports, which still
+  // move the bar (a failed run's stays where the device stopped).
+  programAnswered = true;
+  if (done.ok) programProgress.value = 100;
   if (!done.ok) {
     const step = done.error.body?.error?.step;
     result(programResult, 'failed', h('strong', {}, `Program download failed (${clock()}): `),

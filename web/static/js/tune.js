@@ -8,6 +8,9 @@ import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
 import './layout.js';
 
+// Where a step's actual values came from (docs/rest-api.md, "Step test").
+const SOURCES = { tpdo: 'from the TPDO', sdo: 'read by SDO', tpdo_then_sdo: 'TPDO, then SDO' };
+
 const root = $('#tune-page');
 const base = `/buses/${encodeURIComponent(root.dataset.bus)}/nodes/${encodeURIComponent(root.dataset.node)}`;
 const axisBase = `${base}/axes/${encodeURIComponent(root.dataset.axis)}`;
@@ -176,6 +179,7 @@ $('#step-form').addEventListener('submit', async (event) => {
     return;
   }
   const r = done.value;
+  metrics.dataset.source = r.source;
   runs.push({ ...request, samples: r.samples });
   while (runs.length > RUNS_KEPT) runs.shift();
   metrics.dataset.state = 'done';
@@ -185,7 +189,7 @@ $('#step-form').addEventListener('submit', async (event) => {
     h('span', {}, `Overshoot ${fmt(r.overshoot_pct)} %`),
     h('span', {}, `Settling ${ms(r.settling_time_ms)}`),
     h('span', {}, `Steady-state error ${fmt(r.steady_state_error)}`),
-    h('span', { class: 'sub' }, `${r.samples.length} samples`),
+    h('span', { class: 'sub' }, `${r.samples.length} samples (${SOURCES[r.source] || r.source})`),
   );
   $('#step-runs').prepend(h('li', {}, `${clock()} ${request.loop} ${request.from} → ${request.to}: rise ${ms(r.rise_time_ms)}, overshoot ${fmt(r.overshoot_pct)} %`));
   draw();

@@ -913,3 +913,49 @@ fn errors_read_as_sentences() {
         "5000000000 bytes do not fit an SDO transfer, whose size field has 32 bits"
     );
 }
+
+#[test]
+fn download_progress_moves_with_each_block_acknowledgement() {
+    let t0 = Instant::now();
+    let value = counting(20);
+    // Blocks of one segment: 7 bytes confirmed per acknowledgement.
+    let mut client = SdoClient::new(node(), block_download_config(127));
+    assert_eq!(client.download_progress(), None);
+    client.download(0x2000, 0, &value, t0).unwrap();
+    assert_eq!(client.download_progress(), Some((0, 20)));
+    client.handle_frame(&resp([0xA0, 0x00, 0x20, 0x00, 1, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((0, 20)));
+    client.handle_frame(&resp([0xA2, 1, 1, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((7, 20)));
+    // A block acknowledged without its segment: no further.
+    client.handle_frame(&resp([0xA2, 0, 1, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((7, 20)));
+    client.handle_frame(&resp([0xA2, 1, 1, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((14, 20)));
+    client.handle_frame(&resp([0xA2, 1, 1, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((20, 20)));
+    let step = client.handle_frame(&resp([0xA1, 0, 0, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(step, finished(&[], Transfer::Downloaded));
+    assert_eq!(client.download_progress(), None);
+}
+
+#[test]
+fn download_progress_of_a_segmented_download_and_none_for_an_upload() {
+    let t0 = Instant::now();
+    let value = counting(20);
+    let mut client = SdoClient::new(node(), config());
+    client.download(0x2000, 0, &value, t0).unwrap();
+    assert_eq!(client.download_progress(), Some((0, 20)));
+    client.handle_frame(&resp([0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0]), t0);
+    // The first segment is sent, not yet confirmed.
+    assert_eq!(client.download_progress(), Some((0, 20)));
+    client.handle_frame(&resp([0x20, 0, 0, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((7, 20)));
+    client.handle_frame(&resp([0x30, 0, 0, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), Some((14, 20)));
+    client.handle_frame(&resp([0x20, 0, 0, 0, 0, 0, 0, 0]), t0);
+    assert_eq!(client.download_progress(), None);
+
+    client.upload(0x2000, 0, t0).unwrap();
+    assert_eq!(client.download_progress(), None);
+}
