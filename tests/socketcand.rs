@@ -490,3 +490,64 @@ async fn clients_beyond_the_connection_limit_are_refused_and_counted() {
     fourth.write_all(b"< open can0 >").await.unwrap();
     read_until(&mut fourth, "< ok >").await;
 }
+
+/// A socketcand server that has a backlog for the client (the gateway was
+/// busy, or the machine loaded, while its bus ran on): what the client
+/// reads in one go must not overrun the readers of the bus. Every frame of
+/// a burst far larger than a reader's queue reaches a reader that keeps
+/// reading, in order, with none lost. (The client used to push every frame
+/// of up to 128 reads of 16 KiB, tens of thousands, into the readers'
+/// queues before any of them ran: each lost thousands, SDO answers and
+/// heartbeats among them.)
+#[tokio::test]
+async fn a_backlog_from_the_server_reaches_the_readers_without_an_overrun() {
+    use std::io::{Read, Write};
+    const FRAMES: u32 = 60_000;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    // A plain thread: it writes while the client's runtime is busy.
+    let fake = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        let mut seen = Vec::new();
+        let mut expect = |s: &mut std::net::TcpStream, needle: &str| {
+            let mut buf = [0u8; 256];
+            while !String::from_utf8_lossy(&seen).contains(needle) {
+                let n = s.read(&mut buf).unwrap();
+                assert!(n > 0, "closed before '{needle}'");
+                seen.extend_from_slice(&buf[..n]);
+            }
+            seen.clear();
+        };
+        s.write_all(b"< hi >").unwrap();
+        expect(&mut s, "< open can0 >");
+        s.write_all(b"< ok >").unwrap();
+        expect(&mut s, "< rawmode >");
+        s.write_all(b"< ok >").unwrap();
+        let mut burst = Vec::new();
+        for n in 0..FRAMES {
+            burst.extend_from_slice(b"< frame 181 0.000000 ");
+            for byte in n.to_le_bytes() {
+                burst.extend_from_slice(format!("{byte:02X}").as_bytes());
+            }
+            burst.extend_from_slice(b" >");
+        }
+        // Closed once written: what is written is still delivered.
+        s.write_all(&burst).unwrap();
+    });
+    let bus = client(addr);
+    let mut rx = bus.subscribe();
+    bus.wait_up(WAIT).await.unwrap();
+    // The runtime is held while the server writes: a backlog piles up in
+    // the socket, as behind a gateway that was busy.
+    std::thread::sleep(Duration::from_millis(300));
+    for n in 0..FRAMES {
+        let frame = tokio::time::timeout(WAIT, rx.recv())
+            .await
+            .unwrap_or_else(|_| panic!("frame {n} in time"))
+            .unwrap_or_else(|err| panic!("frame {n}: {err:?}"))
+            .frame;
+        assert_eq!(frame.data(), n.to_le_bytes(), "frame {n}");
+    }
+    assert_eq!(bus.counters().rx_overruns, 0);
+    fake.join().unwrap();
+}

@@ -438,8 +438,20 @@ impl SdoChannel {
                 .deadline()
                 .map(tokio::time::Instant::from_std)
                 .unwrap_or_else(|| tokio::time::Instant::now() + Duration::from_secs(1));
+            // The frames of the bus that are not this node's answers are
+            // skipped here, one timer for the whole wait: a busy bus (127
+            // drives' TPDOs on every SYNC) no longer costs every transfer
+            // in flight a pass through the select and a new timer per frame.
+            let answer = async {
+                loop {
+                    match responses.recv().await {
+                        Ok(frame) if !client.is_response(&frame.frame) => {}
+                        other => return other,
+                    }
+                }
+            };
             step = tokio::select! {
-                received = responses.recv() => match received {
+                received = answer => match received {
                     Ok(frame) => client.handle_frame(&frame.frame, tokio::time::Instant::now().into_std()),
                     // Lost frames show up as a protocol error or a timeout.
                     Err(RecvError::Lagged(_)) => Step { send: Vec::new(), done: None },

@@ -224,8 +224,15 @@ async fn run_connection(
     let mut last_heard = Instant::now();
     let mut probed = false;
     loop {
+        // One unit of the task's budget per frame, as each reader spends
+        // one per frame it takes: after a backlog built up in the socket
+        // (the process was busy or descheduled while the bus ran on), the
+        // frames of many reads would otherwise go into the readers' queues
+        // in one poll of this task, before any reader ran, and overrun
+        // them all (SDO answers and heartbeats lost with the rest).
         for token in tokens.drain(..) {
             handle_token(driver, token);
+            tokio::task::coop::consume_budget().await;
         }
         let probe_at = last_heard
             + if probed {

@@ -211,6 +211,13 @@ impl SdoClient {
         self.active.is_none()
     }
 
+    /// Whether [`SdoClient::handle_frame`] reads `frame` at all (a data
+    /// frame on the server's response COB-ID): a caller fed every frame of
+    /// a busy bus skips the others without handling them.
+    pub fn is_response(&self, frame: &Frame) -> bool {
+        frame.id() == self.response && frame.kind() == FrameKind::Data
+    }
+
     /// When [`SdoClient::handle_timeout`] is due; `None` while idle.
     pub fn deadline(&self) -> Option<Instant> {
         self.active.as_ref().map(|active| active.deadline)
@@ -310,7 +317,7 @@ impl SdoClient {
     /// Takes a frame from the bus. Frames on other identifiers, and any
     /// frame while idle, are none of this client's business: an empty step.
     pub fn handle_frame(&mut self, frame: &Frame, now: Instant) -> Step {
-        if frame.id() != self.response || frame.kind() != FrameKind::Data {
+        if !self.is_response(frame) {
             return Step::default();
         }
         let Some(mut active) = self.active.take() else {
