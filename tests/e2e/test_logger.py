@@ -24,6 +24,24 @@ def add(browser, text, index):
     browser.driver.find_element(By.CSS_SELECTOR, selector).click()
 
 
+def log_one_position_for_2_s(server, browser):
+    """Node 1's 0x6064 every 20 ms for 2 s, started from the page and
+    waited for; the finished logger's status."""
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
+    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
+    add(browser, "a1_pc_Position_actual", "0x6064")
+    for field, value in (("period", "20"), ("duration", "2")):
+        element = browser.driver.find_element(By.ID, field)
+        element.clear()
+        element.send_keys(value)
+    browser.driver.find_element(By.ID, "start").click()
+    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
+                 message="the logger did not finish")
+    logger = server.get("/api/v1/loggers")[0]
+    assert logger["samples"] >= 50, logger
+    return logger
+
+
 def test_a_logger_is_picked_started_charted_and_downloaded(server, browser):
     browser.driver.get(server.url + "/loggers")
     browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
@@ -108,18 +126,7 @@ def test_rows_streamed_while_the_csv_is_read_are_not_lost(server, browser):
              return new Response(text, {status: response.status, headers: response.headers});
            };"""
     )
-    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
-    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
-    add(browser, "a1_pc_Position_actual", "0x6064")
-    for field, value in (("period", "20"), ("duration", "2")):
-        element = browser.driver.find_element(By.ID, field)
-        element.clear()
-        element.send_keys(value)
-    browser.driver.find_element(By.ID, "start").click()
-    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
-                 message="the logger did not finish")
-    logger = server.get("/api/v1/loggers")[0]
-    assert logger["samples"] >= 50, logger
+    logger = log_one_position_for_2_s(server, browser)
     browser.wait(lambda _: chart(browser)["rows"] == logger["samples"], timeout=20,
                  message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
     browser.driver.find_element(By.CSS_SELECTOR, f'#loggers tr[data-id="{logger["id"]}"] button.delete').click()
@@ -161,18 +168,7 @@ def test_a_finished_loggers_last_message_without_rows_still_completes_the_chart(
     browser.driver.get(server.url + "/loggers")
     browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
                  message="the stream did not connect")
-    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#pick-node option[value="1"]'), message="no nodes")
-    Select(browser.driver.find_element(By.ID, "pick-node")).select_by_value("1")
-    add(browser, "a1_pc_Position_actual", "0x6064")
-    for field, value in (("period", "20"), ("duration", "2")):
-        element = browser.driver.find_element(By.ID, field)
-        element.clear()
-        element.send_keys(value)
-    browser.driver.find_element(By.ID, "start").click()
-    browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, '#loggers tr[data-state="done"]'), timeout=20,
-                 message="the logger did not finish")
-    logger = server.get("/api/v1/loggers")[0]
-    assert logger["samples"] >= 50, logger
+    logger = log_one_position_for_2_s(server, browser)
     browser.wait(lambda _: chart(browser)["rows"] == logger["samples"],
                  message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
     browser.check()
