@@ -8,6 +8,7 @@ import os
 import pytest
 
 from conftest import SHOTS
+from test_io import add_io401
 
 PAGES = {
     "overview": "/",
@@ -18,6 +19,13 @@ PAGES = {
     "pdos": "/nodes/demo/1/pdos",
     "leds": "/nodes/demo/3/leds",
     "trace": "/buses/demo/trace",
+    "io": "/nodes/demo/4/io",
+    "loggers": "/loggers",
+    "tune": "/nodes/demo/1/axes/1/tune",
+    "board": "/nodes/demo/1/axes/1/commissioning/board",
+    "motor": "/nodes/demo/1/axes/1/commissioning/motor",
+    "brake": "/nodes/demo/1/axes/1/commissioning/brake",
+    "sensors": "/nodes/demo/1/axes/1/commissioning/sensors",
 }
 SIZES = {"tablet": (800, 1280), "phone": (390, 844)}
 MIN_TARGET = 44
@@ -73,10 +81,13 @@ def test_layout(server, browser, page, size):
         "Emulation.setDeviceMetricsOverride",
         {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": size == "phone"},
     )
+    if page == "io":
+        add_io401(server)
     browser.driver.get(server.url + PAGES[page])
-    if page != "eds":  # the one page without live updates
-        browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
-                     message="the stream did not connect")
+    # Every page connects the stream, those without live values too (the
+    # indicator says whether the gateway is reachable).
+    browser.wait(lambda _: browser.js("return document.getElementById('connection').dataset.state") == "connected",
+                 message="the stream did not connect")
     # Loaded: no "Loading…" placeholder left in the main content.
     browser.wait(lambda _: not browser.js(
         "return [...document.querySelectorAll('main *')].some((e) => e.children.length === 0 && /^Loading/.test(e.textContent.trim()) && e.offsetParent)"),

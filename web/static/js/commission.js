@@ -6,7 +6,7 @@
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
-import './layout.js';
+import { stream } from './layout.js';
 
 const root = $('#commission-page');
 const base = `/buses/${encodeURIComponent(root.dataset.bus)}/nodes/${encodeURIComponent(root.dataset.node)}`;
@@ -99,3 +99,5 @@ for (const [id, path, label] of [['#store', 'store', 'Storing…'], ['#restore',
 }
 
 readAll();
+// The connection indicator says whether the gateway is reachable, here too.
+stream.connect();

@@ -7,7 +7,7 @@
 import { api, ApiError, describeError, runAction } from './api.js';
 import { authorization, whenSignedIn } from './auth.js';
 import { $, clock, h, showMessage } from './dom.js';
-import './layout.js';
+import { stream } from './layout.js';
 
 const pageMessage = $('#page-message');
 const tbody = $('#eds tbody');
@@ -150,3 +150,5 @@ async function start() {
 }
 
 start();
+// The connection indicator says whether the gateway is reachable, here too.
+stream.connect();

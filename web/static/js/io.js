@@ -6,7 +6,7 @@
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
-import './layout.js';
+import { stream } from './layout.js';
 
 const root = $('#io-page');
 const bus = root.dataset.bus;
@@ -86,3 +86,5 @@ async function refresh() {
 
 refresh();
 setInterval(refresh, POLL_MS);
+// The connection indicator says whether the gateway is reachable, here too.
+stream.connect();

@@ -6,7 +6,7 @@
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
-import './layout.js';
+import { stream } from './layout.js';
 
 // Where a step's actual values came from (docs/rest-api.md, "Step test").
 const SOURCES = { tpdo: 'from the TPDO', sdo: 'read by SDO', tpdo_then_sdo: 'TPDO, then SDO' };
@@ -55,11 +55,13 @@ async function loadGains() {
     body.replaceChildren(...PARAMS.map((p, i) => {
       const raw = Number(values[i].value);
       const input = p.flag
-        ? h('input', { type: 'checkbox', id: `gain-${p.sub}`, checked: (raw & 1) === 1, dataset: { raw: String(raw) } })
+        ? h('input', { type: 'checkbox', id: `gain-${p.sub}`, 'aria-label': p.name, checked: (raw & 1) === 1, dataset: { raw: String(raw) } })
         : h('input', { type: 'text', id: `gain-${p.sub}`, value: String(p.integer ? raw : fmt(fromQ(raw))), 'aria-label': p.name });
       const q = h('code', { class: 'q' }, p.integer || p.flag ? String(raw) : String(raw));
       if (!p.integer && !p.flag) input.addEventListener('input', () => { q.textContent = String(toQ(Number(input.value))); });
-      return h('tr', { dataset: { sub: String(p.sub) } }, h('td', {}, p.name), h('td', {}, input), h('td', {}, p.unit(loop)), h('td', {}, q));
+      // A check box is tapped through its label (a 44 px target).
+      const field = p.flag ? h('label', { class: 'check' }, input, 'set') : input;
+      return h('tr', { dataset: { sub: String(p.sub) } }, h('td', {}, p.name), h('td', {}, field), h('td', {}, p.unit(loop)), h('td', {}, q));
     }));
     root.dataset.loaded = 'true';
     showMessage($('#page-message'), '');
@@ -198,3 +200,5 @@ $('#step-form').addEventListener('submit', async (event) => {
 select(tabs.find((t) => t.dataset.loop === 'velocity') || tabs[0]);
 for (const tab of tabs) tab.addEventListener('click', () => select(tab));
 poll();
+// The connection indicator says whether the gateway is reachable, here too.
+stream.connect();
