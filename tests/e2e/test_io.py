@@ -58,6 +58,9 @@ def test_the_inputs_are_live_and_an_output_set_there_reads_back(browser, server)
                  message="do5 is not shown on")
 
     # An analogue output: ai4 is wired to ao1 on the io401.
+    # Focused first, in one step: the page's poll then leaves the outputs
+    # alone (it may replace them between a find and a click otherwise).
+    browser.js("document.querySelector('#ch-ao1 input').focus()")
     field = browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao1 input")
     field.clear()
     field.send_keys("2000")
