@@ -51,14 +51,20 @@ def test_a_viewer_sees_the_bus_tools_disabled_with_the_reason(server, browser):
     assert browser.js("return document.getElementById('raw-send').title") == refusal
 
 
-def test_an_operator_has_the_bus_tools_and_is_audited(server, browser):
-    open_signed_in(browser, server, OPERATOR)
+def assert_bus_tools_offered(server, browser, token):
+    """Signed in with `token`: every bus tool enabled but Stop SYNC (it
+    waits for a SYNC to stop), and no refusal shown."""
+    open_signed_in(browser, server, token)
     browser.wait(lambda _: browser.js("return document.getElementById('sync-state')?.dataset.state") == "off",
                  message="the SYNC state was not read")
     states = dict(zip(CONTROLS, disabled(browser)))
     assert states.pop("sync-stop") is True
     assert not any(states.values()), states
     assert browser.js("return document.getElementById('send-refusal').hidden") is True
+
+
+def test_an_operator_has_the_bus_tools_and_is_audited(server, browser):
+    assert_bus_tools_offered(server, browser, OPERATOR)
     # SYNC from the operator's page: sent, and audited with its name.
     browser.driver.find_element(By.ID, "sync-start").click()
     browser.wait(lambda _: browser.js("return document.getElementById('sync-state').dataset.state") == "on",
@@ -71,11 +77,4 @@ def test_an_operator_has_the_bus_tools_and_is_audited(server, browser):
 
 
 def test_an_admin_has_the_bus_tools(server, browser):
-    open_signed_in(browser, server, ADMIN)
-    browser.wait(lambda _: browser.js("return document.getElementById('sync-state')?.dataset.state") == "off",
-                 message="the SYNC state was not read")
-    states = dict(zip(CONTROLS, disabled(browser)))
-    # Stop SYNC waits for a SYNC to stop; the rest are there to use.
-    assert states.pop("sync-stop") is True
-    assert not any(states.values()), states
-    assert browser.js("return document.getElementById('send-refusal').hidden") is True
+    assert_bus_tools_offered(server, browser, ADMIN)
