@@ -533,6 +533,11 @@ fn render_sparkplug(out: &mut Exposition, state: &AppState) {
             &stats.dropped,
         ),
         (
+            "candeck_sparkplug_lost_changes_total",
+            "TPDO frames the edge node fell too far behind to report one by one (it reported their devices' newest values instead).",
+            &stats.lost_changes,
+        ),
+        (
             "candeck_sparkplug_commands_total",
             "NCMD and DCMD command metrics received.",
             &stats.commands,

@@ -16,14 +16,16 @@
 //! holds what it sent. So an attachment that sends a lot never pushes out of
 //! its own receive window the frames others sent it.
 
+use std::collections::HashMap;
+use std::sync::atomic::AtomicBool;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, OnceLock, RwLock};
 use std::time::Duration;
 
 use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::frame::{Direction, Frame, TimedFrame, Timestamp};
+use super::frame::{CanId, Direction, Frame, TimedFrame, Timestamp};
 use super::hub::{ControllerFault, HubLink};
 use super::timing::frame_bits;
 
@@ -276,6 +278,71 @@ impl LazyChannel {
     }
 }
 
+/// How many frames of one identifier a reader of that identifier alone
+/// ([`Bus::subscribe_id`]) may fall behind: more than an SDO block of 127
+/// segments.
+pub const ID_RX_QUEUE: usize = 512;
+
+/// The fan-out channels of single identifiers, made on first use: a CAN
+/// controller's acceptance filters. A reader of one identifier neither
+/// wakes for the other frames of a busy bus nor has to skip them, and a
+/// bus without such readers pays one atomic load per frame.
+#[derive(Clone, Default)]
+pub(crate) struct IdChannels {
+    inner: Arc<IdChannelsInner>,
+}
+
+#[derive(Default)]
+struct IdChannelsInner {
+    /// Set once the first channel is made.
+    any: AtomicBool,
+    channels: RwLock<HashMap<CanId, broadcast::Sender<Envelope>>>,
+}
+
+impl IdChannels {
+    pub(crate) fn subscribe(&self, id: CanId) -> broadcast::Receiver<Envelope> {
+        let mut channels = self
+            .inner
+            .channels
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        // Channels whose readers are all gone go (a node's SDO channel is
+        // made again after it boots).
+        channels.retain(|_, channel| channel.receiver_count() > 0);
+        let receiver = channels
+            .entry(id)
+            .or_insert_with(|| broadcast::channel(ID_RX_QUEUE).0)
+            .subscribe();
+        self.inner.any.store(true, Ordering::Relaxed);
+        receiver
+    }
+
+    /// Hands `envelope` to the readers of its identifier, if any.
+    pub(crate) fn send(&self, envelope: Envelope) {
+        if !self.inner.any.load(Ordering::Relaxed) {
+            return;
+        }
+        let channels = self
+            .inner
+            .channels
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(channel) = channels.get(&envelope.frame.id()) {
+            let _ = channel.send(envelope);
+        }
+    }
+
+    pub(crate) fn receiver_count(&self) -> usize {
+        self.inner
+            .channels
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .values()
+            .map(broadcast::Sender::receiver_count)
+            .sum()
+    }
+}
+
 /// How an attachment's frames leave it.
 pub(crate) enum TxPath {
     /// Straight into an in-process hub.
@@ -302,6 +369,7 @@ struct BusInner {
     me: Origin,
     tx: TxPath,
     rx_frames: broadcast::Sender<Envelope>,
+    id_frames: IdChannels,
     monitor_frames: LazyChannel,
     status: watch::Receiver<BusStatus>,
     counters: Arc<BusCounters>,
@@ -332,6 +400,8 @@ pub(crate) struct BusParts {
     pub tx: TxPath,
     /// What others send.
     pub rx_frames: broadcast::Sender<Envelope>,
+    /// The same, by identifier, for the readers of one.
+    pub id_frames: IdChannels,
     /// What others send and what this attachment sends, for monitors.
     pub monitor_frames: LazyChannel,
     pub status: watch::Receiver<BusStatus>,
@@ -349,6 +419,7 @@ impl Bus {
                 me: parts.me,
                 tx: parts.tx,
                 rx_frames: parts.rx_frames,
+                id_frames: parts.id_frames,
                 monitor_frames: parts.monitor_frames,
                 status: parts.status,
                 counters: parts.counters,
@@ -445,6 +516,20 @@ impl Bus {
     /// reports [`RecvError::Closed`], so keep the [`Bus`] while reading.
     pub fn subscribe(&self) -> FrameReceiver {
         self.receiver(false)
+    }
+
+    /// The frames other nodes send with identifier `id` alone, from now on
+    /// (an acceptance filter): for a reader of one kind of answer, such as
+    /// an SDO client's, which on a bus busy with PDOs would otherwise wake
+    /// for every frame, or find thousands queued before its own. Data and
+    /// remote frames of `id` both come. Keep the [`Bus`] while reading, as
+    /// with [`Bus::subscribe`].
+    pub fn subscribe_id(&self, id: CanId) -> FrameReceiver {
+        FrameReceiver {
+            rx: self.inner.id_frames.subscribe(id),
+            me: self.inner.me,
+            counters: self.inner.counters.clone(),
+        }
     }
 
     /// Everything on the bus from now on, including the frames sent through
@@ -585,6 +670,7 @@ impl FrameReceiver {
 /// Channels a driver task uses to feed its [`Bus`].
 pub(crate) struct DriverSide {
     pub rx_frames: broadcast::Sender<Envelope>,
+    pub id_frames: IdChannels,
     pub monitor_frames: LazyChannel,
     pub status: watch::Sender<BusStatus>,
     pub counters: Arc<BusCounters>,
@@ -605,6 +691,7 @@ impl DriverSide {
         };
         // A channel nobody listens to refuses the frame: nothing is stored.
         let _ = self.rx_frames.send(envelope);
+        self.id_frames.send(envelope);
         self.monitor_frames.send(envelope);
     }
 
@@ -620,7 +707,9 @@ impl DriverSide {
 
     /// Receivers of this bus, of both kinds.
     pub(crate) fn receivers(&self) -> usize {
-        self.rx_frames.receiver_count() + self.monitor_frames.receiver_count()
+        self.rx_frames.receiver_count()
+            + self.id_frames.receiver_count()
+            + self.monitor_frames.receiver_count()
     }
 
     /// Frames the slowest receiver has yet to read.
@@ -656,6 +745,7 @@ pub(crate) fn driver_channels(
 ) -> (BusParts, DriverSide) {
     let (rx_frames, _) = broadcast::channel(DEFAULT_RX_QUEUE);
     let monitor_frames = LazyChannel::new(DEFAULT_RX_QUEUE);
+    let id_frames = IdChannels::default();
     let (status_tx, status_rx) = watch::channel(initial);
     let (tx_queue, tx_rx) = mpsc::channel(DEFAULT_TX_QUEUE);
     let counters = Arc::new(BusCounters::default());
@@ -670,6 +760,7 @@ pub(crate) fn driver_channels(
             TxPath::Driver(tx_queue)
         },
         rx_frames: rx_frames.clone(),
+        id_frames: id_frames.clone(),
         monitor_frames: monitor_frames.clone(),
         status: status_rx,
         counters: counters.clone(),
@@ -677,6 +768,7 @@ pub(crate) fn driver_channels(
     };
     let driver = DriverSide {
         rx_frames,
+        id_frames,
         monitor_frames,
         status: status_tx,
         counters,
@@ -690,3 +782,6 @@ pub(crate) fn attach_driver(mut parts: BusParts, task: JoinHandle<()>) -> Bus {
     parts.driver = Some(DriverGuard(task));
     Bus::from_parts(parts)
 }
+
+#[cfg(test)]
+mod tests;

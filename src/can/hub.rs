@@ -38,7 +38,7 @@ use tokio::sync::{Notify, Semaphore, broadcast, watch};
 
 use super::bus::{
     Bus, BusCounters, BusKind, BusParts, BusState, BusStatus, DEFAULT_RX_QUEUE, DEFAULT_TX_QUEUE,
-    Envelope, LazyChannel, Origin, TxPath, WIRE,
+    Envelope, IdChannels, LazyChannel, Origin, TxPath, WIRE,
 };
 use super::fault::{ErrorState, FaultConfinement, Transition};
 use super::frame::{ERROR_FRAME_LEN, Frame, Timestamp};
@@ -48,6 +48,7 @@ use super::timing::{Bitrate, Wire, frame_bits};
 struct Attachment {
     origin: Origin,
     rx_frames: broadcast::Sender<Envelope>,
+    id_frames: IdChannels,
     monitor_frames: LazyChannel,
     /// The attachment's counters: the hub counts what it receives.
     counters: Arc<BusCounters>,
@@ -306,6 +307,7 @@ impl HubInner {
                 }
                 attachment.counters.count_rx(&frame);
                 let _ = attachment.rx_frames.send(envelope);
+                attachment.id_frames.send(envelope);
             } else if !released {
                 attachment.tx_room.add_permits(1);
             }
@@ -483,6 +485,7 @@ impl VirtualHub {
         let origin = self.inner.next_origin.fetch_add(1, Ordering::Relaxed);
         let (rx_frames, _) = broadcast::channel(self.inner.queue);
         let monitor_frames = LazyChannel::new(self.inner.queue);
+        let id_frames = IdChannels::default();
         let counters = Arc::new(BusCounters::default());
         let tx_room = Arc::new(Semaphore::new(DEFAULT_TX_QUEUE));
         let tx_watched = Arc::new(AtomicBool::new(false));
@@ -490,6 +493,7 @@ impl VirtualHub {
         self.inner.attachments().push(Attachment {
             origin,
             rx_frames: rx_frames.clone(),
+            id_frames: id_frames.clone(),
             monitor_frames: monitor_frames.clone(),
             counters: counters.clone(),
             tx_room: tx_room.clone(),
@@ -510,6 +514,7 @@ impl VirtualHub {
                 tx_watched,
             }),
             rx_frames,
+            id_frames,
             monitor_frames,
             status: status_rx,
             counters,
@@ -546,7 +551,11 @@ impl VirtualHub {
         self.inner
             .attachments()
             .iter()
-            .map(|a| a.rx_frames.receiver_count() + a.monitor_frames.receiver_count())
+            .map(|a| {
+                a.rx_frames.receiver_count()
+                    + a.id_frames.receiver_count()
+                    + a.monitor_frames.receiver_count()
+            })
             .sum()
     }
 

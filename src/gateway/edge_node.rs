@@ -26,6 +26,9 @@ pub struct EdgeNodeStats {
     pub historical: AtomicU64,
     /// Messages dropped from the full queue (the oldest first).
     pub dropped: AtomicU64,
+    /// Decoded TPDO frames the edge node fell too far behind to report
+    /// one by one (their devices' newest values were reported instead).
+    pub lost_changes: AtomicU64,
     /// Commands (NCMD/DCMD metrics) received.
     pub commands: AtomicU64,
     /// Of those, refused (role, rate limit, checks) or failed.

@@ -920,24 +920,31 @@ impl Shared {
         }
     }
 
-    fn on_frame(self: &Arc<Self>, frame: &TimedFrame) {
+    /// Takes a frame of the bus; whether it may have moved the next
+    /// heartbeat timeout (a heartbeat or an EMCY: a new node is watched).
+    fn on_frame(self: &Arc<Self>, frame: &TimedFrame) -> bool {
         let Some((function, Some(id))) = Function::classify(frame.frame.id()) else {
-            return;
+            return false;
         };
         let now = Instant::now();
         let mut state = self.lock();
         match function {
             Function::Heartbeat if !frame.frame.is_remote() => {
                 self.on_heartbeat(&mut state, id, frame, now);
+                true
             }
-            Function::Emcy => self.on_emcy(&mut state, id, frame, now),
+            Function::Emcy => {
+                self.on_emcy(&mut state, id, frame, now);
+                true
+            }
             Function::Tpdo(_) | Function::SdoTx => {
                 let bus_up = state.bus_up;
                 if let Some(node) = state.nodes.get_mut(&id) {
                     self.heard(node, now, false, bus_up);
                 }
+                false
             }
-            _ => {}
+            _ => false,
         }
     }
 
@@ -1367,17 +1374,42 @@ async fn run(
     mut status: watch::Receiver<crate::can::BusStatus>,
 ) {
     let mut status_open = true;
+    // One timer for the loop, moved when the next heartbeat timeout moves,
+    // which only heartbeats, timeouts and rearming do: PDOs and SDOs (most
+    // of a busy bus) neither make a timer nor scan the watched nodes.
+    let mut deadline = shared.lock().consumer.deadline().map(Instant::from_std);
+    let timer = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now));
+    tokio::pin!(timer);
     loop {
-        let deadline = shared.lock().consumer.deadline().map(Instant::from_std);
         tokio::select! {
-            received = frames.recv() => match received {
-                Ok(frame) => shared.on_frame(&frame),
-                Err(RecvError::Lagged(lost)) => {
-                    tracing::warn!(bus = shared.bus.name(), lost, "node registry fell behind the bus");
+            received = frames.recv() => {
+                let mut supervision = match received {
+                    Ok(frame) => shared.on_frame(&frame),
+                    Err(RecvError::Lagged(lost)) => {
+                        tracing::warn!(bus = shared.bus.name(), lost, "node registry fell behind the bus");
+                        false
+                    }
+                    Err(RecvError::Closed) => {
+                        shared.on_bus_status(false);
+                        return;
+                    }
+                };
+                // What else is queued goes in the same turn.
+                for _ in 0..FRAME_BATCH {
+                    match frames.try_recv() {
+                        Ok(Some(frame)) => supervision |= shared.on_frame(&frame),
+                        Ok(None) => break,
+                        Err(RecvError::Lagged(lost)) => {
+                            tracing::warn!(bus = shared.bus.name(), lost, "node registry fell behind the bus");
+                        }
+                        Err(RecvError::Closed) => {
+                            shared.on_bus_status(false);
+                            return;
+                        }
+                    }
                 }
-                Err(RecvError::Closed) => {
-                    shared.on_bus_status(false);
-                    return;
+                if !supervision {
+                    continue;
                 }
             },
             changed = status.changed(), if status_open => match changed {
@@ -1387,10 +1419,18 @@ async fn run(
                 }
                 Err(_) => status_open = false,
             },
-            () = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)), if deadline.is_some() => {
+            () = &mut timer, if deadline.is_some() => {
                 shared.poll_heartbeats();
             }
             () = shared.rearm.notified() => {}
         }
+        deadline = shared.lock().consumer.deadline().map(Instant::from_std);
+        if let Some(at) = deadline {
+            timer.as_mut().reset(at);
+        }
     }
 }
+
+/// Frames the registry takes in one turn of its loop beyond the one it
+/// waited for, before it looks at its other inputs again.
+const FRAME_BATCH: usize = 256;

@@ -244,12 +244,11 @@ pub struct SdoChannel {
 
 impl SdoChannel {
     pub fn new(bus: Bus, node: NodeId, config: ClientConfig) -> Self {
-        let responses = bus.subscribe();
+        let client = SdoClient::new(node, config.clone());
+        // Its node's answers only: a channel hears nothing else of the bus.
+        let responses = bus.subscribe_id(client.response_id());
         Self {
-            session: Arc::new(Mutex::new(Session {
-                client: SdoClient::new(node, config.clone()),
-                responses,
-            })),
+            session: Arc::new(Mutex::new(Session { client, responses })),
             procedure: Arc::new(Mutex::new(())),
             stats: Arc::new(SdoStats::default()),
             bus,

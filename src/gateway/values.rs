@@ -25,7 +25,7 @@ use std::time::Duration;
 
 use serde_json::Value as Json;
 use tokio::sync::broadcast::error::RecvError as EventRecvError;
-use tokio::sync::watch;
+use tokio::sync::{Notify, broadcast, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -119,6 +119,21 @@ impl TpdoValue {
     }
 }
 
+/// The values of one TPDO frame as decoded, for a follower that wants every
+/// change rather than the newest value ([`TpdoValues::follow`]).
+#[derive(Debug, Clone)]
+pub struct TpdoFrame {
+    pub node: NodeId,
+    /// The frame's mapped values, dummies left out, as
+    /// [`TpdoValues::values`] keeps them.
+    pub values: Vec<TpdoValue>,
+}
+
+/// How many decoded frames a follower may fall behind before it loses the
+/// oldest: a third of a second of 127 nodes each sending four TPDOs every
+/// 10 ms.
+pub const FOLLOW_QUEUE: usize = 16_384;
+
 /// One node's TPDOs as the gateway decodes them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodeTpdos {
@@ -140,6 +155,10 @@ struct State {
     /// Counts each node's decoded TPDO frames, for whoever follows them
     /// (made on the first request: a node nobody follows costs a lookup).
     frames: HashMap<NodeId, watch::Sender<u64>>,
+    /// Every decoded frame, for the followers (made on the first one).
+    followers: Option<broadcast::Sender<TpdoFrame>>,
+    /// Told when a frame went to the followers.
+    wakes: Vec<Arc<Notify>>,
 }
 
 impl State {
@@ -229,6 +248,21 @@ impl TpdoValues {
     /// counts them); the newest values are then in [`TpdoValues::values`].
     pub fn watch_frames(&self, node: NodeId) -> watch::Receiver<u64> {
         self.shared.watch_frames(node)
+    }
+
+    /// Every TPDO frame decoded from now on, in order, with `wake` told
+    /// (a permit kept if nobody waits) after each: a follower that drains
+    /// the receiver when woken sees every change however many come between
+    /// its turns, up to [`FOLLOW_QUEUE`] frames, beyond which it is told
+    /// how many it lost. Costs nothing until someone follows.
+    pub fn follow(&self, wake: Arc<Notify>) -> broadcast::Receiver<TpdoFrame> {
+        let mut state = self.lock();
+        state.wakes.retain(|wake| Arc::strong_count(wake) > 1);
+        state.wakes.push(wake);
+        state
+            .followers
+            .get_or_insert_with(|| broadcast::channel(FOLLOW_QUEUE).0)
+            .subscribe()
     }
 
     /// The newest value of one mapped object of `node`.
@@ -380,24 +414,39 @@ async fn decode_frames(bus: Bus, shared: Arc<Shared>) {
                 continue;
             }
         };
+        let followed = state
+            .followers
+            .as_ref()
+            .is_some_and(|followers| followers.receiver_count() > 0);
+        let mut frame_values = Vec::new();
         let values = state.values.entry(node).or_default();
         for field in decoded {
             let key = (field.entry.index, field.entry.sub);
             let count = values.get(&key).map_or(0, |old| old.count) + 1;
-            values.insert(
-                key,
-                TpdoValue {
-                    index: field.entry.index,
-                    sub: field.entry.sub,
-                    name: field.name,
-                    value: field.value,
-                    raw: field.raw,
-                    bits: field.entry.bits,
-                    pdo,
-                    at: now,
-                    count,
-                },
-            );
+            let value = TpdoValue {
+                index: field.entry.index,
+                sub: field.entry.sub,
+                name: field.name,
+                value: field.value,
+                raw: field.raw,
+                bits: field.entry.bits,
+                pdo,
+                at: now,
+                count,
+            };
+            if followed {
+                frame_values.push(value.clone());
+            }
+            values.insert(key, value);
+        }
+        if followed && let Some(followers) = &state.followers {
+            let _ = followers.send(TpdoFrame {
+                node,
+                values: frame_values,
+            });
+            for wake in &state.wakes {
+                wake.notify_one();
+            }
         }
         if let Some(frames) = state.frames.get(&node) {
             frames.send_modify(|count| *count = count.wrapping_add(1));

@@ -117,6 +117,16 @@ struct Table {
     metrics: HashMap<String, Tracked>,
 }
 
+impl Table {
+    /// How many of its metrics hold a change back.
+    fn held(&self) -> usize {
+        self.metrics
+            .values()
+            .filter(|tracked| tracked.pending.is_some())
+            .count()
+    }
+}
+
 /// The edge node's session.
 #[derive(Debug, Clone)]
 pub struct EdgeSession {
@@ -130,6 +140,10 @@ pub struct EdgeSession {
     next_alias: u64,
     node: Table,
     devices: BTreeMap<String, Table>,
+    /// How many metrics hold a change back, in all tables: with none (no
+    /// maximum rate, or none reached), [`EdgeSession::next_due`] answers
+    /// at once instead of looking at every metric of every device.
+    held: usize,
 }
 
 impl EdgeSession {
@@ -144,6 +158,7 @@ impl EdgeSession {
             next_alias: 1,
             node: Table::default(),
             devices: BTreeMap::new(),
+            held: 0,
         }
     }
 
@@ -255,7 +270,8 @@ impl EdgeSession {
 
     /// A device's DDEATH; `None` when it was not born.
     pub fn device_death(&mut self, device: &str, now: u64) -> Option<Outgoing> {
-        self.devices.remove(device)?;
+        let table = self.devices.remove(device)?;
+        self.held -= table.held();
         let mut payload = Payload {
             timestamp: Some(now),
             ..Payload::default()
@@ -293,12 +309,19 @@ impl EdgeSession {
             };
             if !tracked.changed(&sample.value) {
                 // Back within the deadband: a held change is void.
-                tracked.pending = None;
+                if tracked.pending.take().is_some() {
+                    self.held -= 1;
+                }
                 continue;
             }
             if now_ms < tracked.free_at() {
-                tracked.pending = Some(sample);
+                if tracked.pending.replace(sample).is_none() {
+                    self.held += 1;
+                }
                 continue;
+            }
+            if tracked.pending.take().is_some() {
+                self.held -= 1;
             }
             metrics.push(report(tracked, sample, now_ms, names));
         }
@@ -309,7 +332,11 @@ impl EdgeSession {
     /// `now_ms`, one message per device.
     pub fn due(&mut self, now_ms: u64, names: bool) -> Vec<Outgoing> {
         let mut out = Vec::new();
+        if self.held == 0 {
+            return out;
+        }
         let node = flush(&mut self.node, now_ms, names);
+        self.held -= node.len();
         if let Some(message) = self.data_message(None, node) {
             out.push(message);
         }
@@ -319,6 +346,7 @@ impl EdgeSession {
                 Some(table) => flush(table, now_ms, names),
                 None => continue,
             };
+            self.held -= metrics.len();
             if let Some(message) = self.data_message(Some(&device), metrics) {
                 out.push(message);
             }
@@ -328,6 +356,9 @@ impl EdgeSession {
 
     /// When the next held change falls due (`now_ms`), if any.
     pub fn next_due(&self) -> Option<u64> {
+        if self.held == 0 {
+            return None;
+        }
         std::iter::once(&self.node)
             .chain(self.devices.values())
             .flat_map(|table| table.metrics.values())
@@ -367,8 +398,13 @@ impl EdgeSession {
     fn register(&mut self, device: Option<&str>, samples: Vec<Sample>) -> Vec<Metric> {
         let old = match device {
             Some(device) => self.devices.remove(device).unwrap_or_default(),
-            None => Table::default(),
+            None => {
+                // The edge node's metrics get new aliases in each NBIRTH.
+                self.held -= self.node.held();
+                Table::default()
+            }
         };
+        self.held -= old.held();
         let mut table = Table::default();
         let mut metrics = Vec::with_capacity(samples.len());
         for sample in samples {

@@ -11,13 +11,13 @@
 //! leaks into the next); the data made meanwhile goes to the spool, and
 //! after the next births it is sent in order, historical.
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use prost::Message;
 use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Packet, QoS};
-use tokio::sync::{Notify, mpsc, oneshot};
+use tokio::sync::{Notify, broadcast, mpsc, oneshot};
 use tokio::time::Instant;
 
 use super::command::{self, Command, device_id, parse_device};
@@ -32,6 +32,7 @@ use crate::gateway::edge_node::EdgeNodeStats;
 use crate::gateway::history::AuditEntry;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
 use crate::gateway::telemetry::unix_ms;
+use crate::gateway::values::TpdoFrame;
 use crate::gateway::{Gateway, GatewayError, check_sdo_allowed};
 
 /// How long to wait before connecting again after a connection failed or
@@ -126,7 +127,9 @@ struct Dirty {
     /// Of those, the ones that came since the runner last looked (a pass
     /// takes these, not every axis metric of the node again).
     fresh: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
-    notify: Notify,
+    /// Told when a node is marked, and by the buses' TPDO values when a
+    /// frame was decoded ([`TpdoValues::follow`]).
+    notify: Arc<Notify>,
 }
 
 impl Dirty {
@@ -230,8 +233,11 @@ struct Runner {
     bus_states: BTreeMap<String, String>,
     started: Instant,
     watchers: Vec<tokio::task::JoinHandle<()>>,
-    /// Nodes whose TPDO values are followed.
-    watched: HashSet<(String, NodeId)>,
+    /// Every decoded TPDO frame of each bus, in order, by bus name.
+    frames: Vec<(String, broadcast::Receiver<TpdoFrame>)>,
+    /// When each device's birth was made: a frame decoded before it is in
+    /// the birth's values.
+    born_at: HashMap<String, Instant>,
     /// Nodes whose axes or segments are followed.
     followed: HashSet<(String, NodeId)>,
     /// The spool's drops already added to the stats.
@@ -264,7 +270,8 @@ impl Runner {
             bus_states: BTreeMap::new(),
             started: Instant::now(),
             watchers: Vec::new(),
-            watched: HashSet::new(),
+            frames: Vec::new(),
+            born_at: HashMap::new(),
             followed: HashSet::new(),
             spool_dropped: 0,
             held: Arc::new(HeldLeases::default()),
@@ -305,9 +312,8 @@ impl Runner {
         }
         drop(inputs);
         for bus in self.gateway.buses_in_order() {
-            for info in bus.registry.nodes() {
-                self.watch(&bus.name, info.id);
-            }
+            let frames = bus.values.follow(self.dirty.notify.clone());
+            self.frames.push((bus.name.clone(), frames));
         }
         let mut connection: Option<Connection> = None;
         let mut reconnect_at = Instant::now();
@@ -554,9 +560,11 @@ impl Runner {
             .publishing
             .store(true, std::sync::atomic::Ordering::Relaxed);
         self.publish(connection, birth);
+        // What came while offline goes to the spool first, in order,
+        // before the births that follow.
+        self.on_values(connection);
         for bus in self.gateway.buses_in_order() {
             for info in bus.registry.nodes() {
-                self.watch(&bus.name, info.id);
                 if born_device(&info) {
                     let message = self.device_birth(&bus.name, &info);
                     self.publish(connection, message);
@@ -726,13 +734,13 @@ impl Runner {
             }
             metrics.extend(values);
         }
-        self.session
-            .device_birth(&device_id(bus, info.id.get()), metrics, now)
+        let device = device_id(bus, info.id.get());
+        self.born_at.insert(device.clone(), Instant::now());
+        self.session.device_birth(&device, metrics, now)
     }
 
     fn on_node_event(&mut self, connection: &mut Option<Connection>, bus: &str, event: NodeEvent) {
         let node = event.node();
-        self.watch(bus, node);
         let device = device_id(bus, node.get());
         let Some(info) = self
             .gateway
@@ -828,37 +836,49 @@ impl Runner {
         }
     }
 
-    /// Follows a node's TPDO values (once).
-    fn watch(&mut self, bus: &str, node: NodeId) {
-        if !self.watched.insert((bus.to_string(), node)) {
-            return;
-        }
-        let Some(served) = self.gateway.buses.get(bus) else {
-            return;
-        };
-        let mut frames = served.values.watch_frames(node);
-        let dirty = self.dirty.clone();
-        let key = (bus.to_string(), node);
-        self.watchers.push(tokio::spawn(async move {
-            while frames.changed().await.is_ok() {
-                dirty.mark(key.clone());
-            }
-        }));
-    }
-
-    /// The TPDO values of the nodes that sent some: DDATA of those that
-    /// changed; a DBIRTH again for a node with a value its birth did not
-    /// name (its mapping was read since).
+    /// Every TPDO change since the last pass, in order, and the axes' and
+    /// segments' newest metrics: DDATA of the devices whose values changed,
+    /// a metric that changed twice in a message of its own (every change is
+    /// reported, each with its frame's timestamp); a DBIRTH again for a
+    /// node with a value its birth did not name (its mapping was read
+    /// since). A bus whose frames came faster than this pass could take
+    /// them has its devices' newest values reported instead, the frames
+    /// lost counted.
     fn on_values(&mut self, connection: &mut Option<Connection>) {
-        let nodes: Vec<(String, NodeId)> = self
-            .dirty
-            .nodes
-            .lock()
-            .unwrap_or_else(|poison| poison.into_inner())
+        let mut changes: BTreeMap<(usize, NodeId), Vec<TpdoFrame>> = BTreeMap::new();
+        let mut behind = HashSet::new();
+        for (at, (_, frames)) in self.frames.iter_mut().enumerate() {
+            loop {
+                match frames.try_recv() {
+                    Ok(frame) => changes.entry((at, frame.node)).or_default().push(frame),
+                    Err(broadcast::error::TryRecvError::Lagged(lost)) => {
+                        EdgeNodeStats::add(&self.stats.lost_changes, lost);
+                        behind.insert(at);
+                    }
+                    Err(
+                        broadcast::error::TryRecvError::Empty
+                        | broadcast::error::TryRecvError::Closed,
+                    ) => break,
+                }
+            }
+        }
+        let mut marked: BTreeSet<(usize, NodeId)> = lock(&self.dirty.nodes)
             .drain()
+            .filter_map(|(bus, node)| {
+                let at = self.frames.iter().position(|(name, _)| *name == bus)?;
+                Some((at, node))
+            })
             .collect();
+        marked.extend(changes.keys().copied());
+        for &at in &behind {
+            let bus = &self.frames[at].0;
+            if let Some(served) = self.gateway.buses.get(bus) {
+                marked.extend(served.registry.nodes().iter().map(|info| (at, info.id)));
+            }
+        }
         let names = !self.live;
-        for (bus, node) in nodes {
+        for (at, node) in marked {
+            let bus = self.frames[at].0.clone();
             let device = device_id(&bus, node.get());
             if !self.session.is_born(&device) {
                 continue;
@@ -866,11 +886,25 @@ impl Runner {
             let Some(served) = self.gateway.buses.get(&bus).cloned() else {
                 continue;
             };
-            let mut samples = tpdo_samples(&served.values.values(node));
-            samples.extend(self.dirty.take_fresh(&(bus.clone(), node)));
-            if self.live
-                && samples
+            let mut batches: Vec<Vec<Sample>> = if behind.contains(&at) {
+                vec![tpdo_samples(&served.values.values(node))]
+            } else {
+                let born_at = self.born_at.get(&device).copied();
+                changes
+                    .remove(&(at, node))
+                    .unwrap_or_default()
                     .iter()
+                    .filter(|frame| {
+                        born_at.is_none_or(|born| frame.values.iter().any(|value| value.at > born))
+                    })
+                    .map(|frame| tpdo_samples(&frame.values))
+                    .collect()
+            };
+            batches.push(self.dirty.take_fresh(&(bus.clone(), node)));
+            if self.live
+                && batches
+                    .iter()
+                    .flatten()
                     .any(|sample| !self.session.knows(&device, &sample.name))
             {
                 if let Some(info) = served.registry.node(node) {
@@ -879,11 +913,13 @@ impl Runner {
                 }
                 continue;
             }
-            if let Some(message) = self
-                .session
-                .data(Some(&device), samples, self.now_ms(), names)
-            {
-                self.send_data(connection, message);
+            for samples in one_change_each(batches) {
+                if let Some(message) =
+                    self.session
+                        .data(Some(&device), samples, self.now_ms(), names)
+                {
+                    self.send_data(connection, message);
+                }
             }
         }
     }
@@ -958,6 +994,29 @@ impl Runner {
 }
 
 /// Whether a node gets a DBIRTH: identified and online.
+/// The samples of a device's frames, in order, gathered into as few
+/// messages as keep one change of each metric per message: a second change
+/// of a metric starts the next message.
+pub(super) fn one_change_each(batches: Vec<Vec<Sample>>) -> Vec<Vec<Sample>> {
+    let mut messages: Vec<Vec<Sample>> = Vec::new();
+    let mut current: Vec<Sample> = Vec::new();
+    for batch in batches {
+        // A message holds a few frames' values: a look through it costs
+        // less than a set of their names.
+        if batch
+            .iter()
+            .any(|sample| current.iter().any(|held| held.name == sample.name))
+        {
+            messages.push(std::mem::take(&mut current));
+        }
+        current.extend(batch);
+    }
+    if !current.is_empty() {
+        messages.push(current);
+    }
+    messages
+}
+
 fn born_device(info: &NodeInfo) -> bool {
     info.online && info.identification == Identification::Done
 }

@@ -328,6 +328,46 @@ fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
 }
 
 #[test]
+fn held_changes_end_with_their_device_birth_or_death_and_others_stay_due() {
+    let policy = Policy {
+        default: Reporting {
+            deadband: 0.0,
+            min_interval_ms: 100,
+        },
+        rules: Vec::new(),
+    };
+    let mut s = EdgeSession::new("plant", "line1", 0, policy);
+    s.birth(Vec::new(), 1_000);
+    for device in ["demo-1", "demo-2", "demo-3"] {
+        s.device_birth(device, vec![sample("v", MetricValue::UInt32(0))], 1_000);
+    }
+    let at = |s: &mut EdgeSession, device, v, now| {
+        s.data(
+            Some(device),
+            vec![sample("v", MetricValue::UInt32(v))],
+            now,
+            false,
+        )
+    };
+    for (device, now) in [("demo-1", 1_000), ("demo-2", 1_020), ("demo-3", 1_040)] {
+        assert!(at(&mut s, device, 1, now).is_some());
+        assert!(at(&mut s, device, 2, now + 1).is_none());
+    }
+    assert_eq!(s.next_due(), Some(1_100));
+    // A new birth says the newest value: nothing is held for it any more.
+    s.device_birth("demo-1", vec![sample("v", MetricValue::UInt32(2))], 1_050);
+    assert_eq!(s.next_due(), Some(1_120));
+    // Nor for a device that died.
+    assert!(s.device_death("demo-2", 1_060).is_some());
+    assert_eq!(s.next_due(), Some(1_140));
+    let due = s.due(1_140, false);
+    assert_eq!(due.len(), 1);
+    assert_eq!(due[0].topic.to_string(), "spBv1.0/plant/DDATA/line1/demo-3");
+    assert_eq!(s.next_due(), None);
+    assert!(s.due(9_000, false).is_empty());
+}
+
+#[test]
 fn ddeath_only_for_a_born_device_and_a_new_nbirth_unbirths_all() {
     let mut s = session();
     assert!(s.device_death("demo-1", 0).is_none());
@@ -636,4 +676,46 @@ fn a_missing_or_bad_ca_file_is_refused_in_words() {
         format!("mqtt_ca_file {}: no certificate in it", bad.display())
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_metric_changed_twice_starts_the_next_message_and_the_order_is_kept() {
+    let frame = |pairs: &[(&str, u32)]| -> Vec<Sample> {
+        pairs
+            .iter()
+            .map(|(name, v)| sample(name, MetricValue::UInt32(*v)))
+            .collect()
+    };
+    let messages = super::node::one_change_each(vec![
+        frame(&[("a", 1), ("b", 1)]),
+        frame(&[("c", 1)]),
+        frame(&[("a", 2)]),
+        Vec::new(),
+        frame(&[("b", 2), ("c", 2)]),
+        frame(&[("c", 3)]),
+    ]);
+    let shown: Vec<Vec<(String, MetricValue)>> = messages
+        .iter()
+        .map(|message| {
+            message
+                .iter()
+                .map(|s| (s.name.clone(), s.value.clone()))
+                .collect()
+        })
+        .collect();
+    let want = |pairs: &[(&str, u32)]| -> Vec<(String, MetricValue)> {
+        pairs
+            .iter()
+            .map(|(n, v)| (n.to_string(), MetricValue::UInt32(*v)))
+            .collect()
+    };
+    assert_eq!(
+        shown,
+        vec![
+            want(&[("a", 1), ("b", 1), ("c", 1)]),
+            want(&[("a", 2), ("b", 2), ("c", 2)]),
+            want(&[("c", 3)]),
+        ]
+    );
+    assert!(super::node::one_change_each(vec![Vec::new()]).is_empty());
 }

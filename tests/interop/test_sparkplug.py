@@ -185,7 +185,7 @@ def metric(message, name):
 
 
 class Gateway(Process):
-    def __init__(self, broker_port, extra=()):
+    def __init__(self, broker_port, extra=(), settings=""):
         self.dir = tempfile.mkdtemp(prefix="candeck-spb-gw-")
         config = os.path.join(self.dir, "candeck.toml")
         with open(config, "w") as f:
@@ -196,7 +196,7 @@ class Gateway(Process):
                 f'sparkplug_primary_host = "{HOST_ID}"\n'
                 'sparkplug_role = "operator"\n'
                 # The demo drives send their TPDOs on SYNC.
-                "sync_period_ms = 50\n"
+                + (settings or "sync_period_ms = 50\n")
             )
         super().__init__(["serve", "--listen", "127.0.0.1:0", "--config", config, *extra])
         line = self.first_line()
@@ -423,6 +423,49 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
     stamps = [m["timestamp"] for m in historical]
     assert stamps == sorted(stamps)
+
+
+def test_every_tpdo_change_comes_however_many_come_within_one_publish_tick(broker, host):
+    # A SYNC every 20 ms and a publish pass every 500 ms: a moving axis's
+    # position changes 25 times between two passes, and each change is a
+    # metric of its own, in order, never two of one metric in a message.
+    gateway = Gateway(
+        broker.port,
+        ["--lease-ms", "60000"],
+        settings="sync_period_ms = 20\nsparkplug_publish_tick_ms = 500\n",
+    )
+    try:
+        at, birth = started(gateway, host)
+        names = [m["name"] for m in birth["metrics"] if m["name"].startswith("TPDO/")]
+        position = [n for n in names if "position_actual" in n.lower()]
+        assert position, names
+        position = position[0]
+        base = "/buses/demo/nodes/1/axes/1"
+        gateway.request("POST", base + "/state", {"target": "operation_enabled"})
+        gateway.request("POST", base + "/move", {"mode": "velocity", "velocity": 2000})
+        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        from_here = len(host.messages)
+        time.sleep(3)
+        with host.cond:
+            session = list(host.messages[from_here:])
+        data = [m for m in session if m["kind"] == "DDATA" and m["device"] == "demo-1"]
+        values = []
+        for message in data:
+            mine = [m for m in message["metrics"] if m["name"] == position]
+            assert len(mine) <= 1, message
+            values += mine
+        # 3 s of 50 SYNC/s is 150 positions (a pass every 500 ms would give
+        # 6 with only the newest value of each).
+        assert len(values) >= 100, len(values)
+        stamps = [m["timestamp"] for m in values]
+        assert stamps == sorted(stamps)
+        positions = [m["value"] for m in values]
+        assert len(set(positions)) == len(positions), "a position reported twice"
+        assert positions == sorted(positions), positions
+        seqs = [m["seq"] for m in session if m["seq"] is not None]
+        assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:])), seqs
+    finally:
+        gateway.close()
 
 
 def axis_velocity(gateway):

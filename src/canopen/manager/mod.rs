@@ -731,6 +731,15 @@ impl Manager {
         });
     }
 
+    /// Whether [`Manager::on_frame`] does anything with `frame`: only the
+    /// NMT error control frames (boot-up, heartbeat, node guarding) count.
+    /// A driver skips the rest (PDOs, SDOs, SYNC: nearly all of a busy
+    /// bus) without polling, so its work grows with the nodes' heartbeats,
+    /// not with the bus load.
+    pub fn hears(frame: &Frame) -> bool {
+        super::heartbeat::heartbeat_node(frame.id()).is_some()
+    }
+
     /// Takes a frame received on the bus: boot-up messages, heartbeats and
     /// node-guarding replies.
     pub fn on_frame(&mut self, frame: &Frame, now: Instant) {

@@ -664,3 +664,34 @@ fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
         )
     );
 }
+
+#[test]
+fn the_manager_hears_error_control_frames_only_and_nothing_else_changes_it() {
+    // A driver skips every frame `hears` refuses, without a poll: such a
+    // frame must leave the manager exactly as it was.
+    let t0 = Instant::now();
+    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(1))], t0);
+    manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
+    let actions = sdo_actions(&manager.poll(t0));
+    assert!(!actions.is_empty());
+    manager.take_events();
+    let (status, deadline) = (manager.status(), manager.deadline());
+    let mut heard = Vec::new();
+    for raw in 0..0x800u16 {
+        for data in [&[][..], &[0x05][..], &[0x7F, 0, 0, 0, 0, 0, 0, 0][..]] {
+            let frame = Frame::new(CanId::Standard(raw), data).unwrap();
+            if Manager::hears(&frame) {
+                heard.push(raw);
+                continue;
+            }
+            manager.on_frame(&frame, t0);
+        }
+    }
+    heard.dedup();
+    assert_eq!(heard, (0x701..=0x77F).collect::<Vec<u16>>());
+    assert_eq!(manager.status(), status);
+    assert_eq!(manager.deadline(), deadline);
+    assert!(manager.take_events().is_empty());
+    // Nothing new to do either: the request in flight is still the one.
+    assert!(sdo_actions(&manager.poll(t0)).is_empty());
+}

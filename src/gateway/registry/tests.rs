@@ -134,6 +134,30 @@ fn an_emcy_record_is_written_as_the_api_shows_it() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn a_heartbeat_timeout_comes_on_time_on_a_bus_busy_with_pdos() {
+    // The registry skips PDOs without moving its timer: the timeout must
+    // still fire while other frames come every millisecond.
+    let hub = VirtualHub::new("test");
+    let registry = registry(&hub, RegistryConfig::default());
+    let device = hub.attach();
+    for _ in 0..5 {
+        device.send(frame(0x705, &[0x05])).await.unwrap();
+        tokio::time::sleep(ms(50)).await;
+    }
+    for _ in 0..24 {
+        device.send(frame(0x185, &[1, 2])).await.unwrap();
+        device.send(frame(0x286, &[3, 4])).await.unwrap();
+        tokio::time::sleep(ms(1)).await;
+    }
+    assert!(registry.node(node(5)).unwrap().online);
+    for _ in 0..2 {
+        device.send(frame(0x185, &[1, 2])).await.unwrap();
+        tokio::time::sleep(ms(1)).await;
+    }
+    assert!(!registry.node(node(5)).unwrap().online);
+}
+
+#[tokio::test(start_paused = true)]
 async fn a_heartbeat_adds_a_node_and_its_silence_takes_it_offline_at_one_and_a_half_periods() {
     let hub = VirtualHub::new("test");
     let registry = registry(&hub, RegistryConfig::default());

@@ -1,7 +1,8 @@
 use std::sync::Mutex as StdMutex;
 
 use super::*;
-use crate::can::{BusState, BusStatus, CanId, VirtualHub};
+use crate::can::bus::DEFAULT_RX_QUEUE;
+use crate::can::{BusState, BusStatus, CanId, Frame, VirtualHub};
 use crate::canopen::od::{AccessType, DataType, Object, ObjectDictionary, SubObject};
 use crate::sim::device::{DeviceCore, run_device};
 
@@ -214,4 +215,33 @@ async fn procedures_on_a_node_run_one_after_another() {
         assert_eq!(read, i.to_le_bytes());
     }
     server.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_channel_on_a_bus_busy_with_pdos_neither_reads_nor_loses_their_frames() {
+    // An idle channel used to hold a reader of the whole bus: every PDO
+    // queued for it, the oldest lost (counted as receive overruns), and the
+    // next transfer read through thousands of them before its answer.
+    let hub = VirtualHub::new("test");
+    let _server = spawn_device(&hub, AccessType::Rw);
+    let bus = hub.attach();
+    let channel = SdoChannel::new(bus.clone(), node(), config());
+    let producer = hub.attach();
+    for round in 0..3u32 {
+        for i in 0..DEFAULT_RX_QUEUE as u32 + 100 {
+            producer
+                .send(Frame::new(CanId::Standard(0x185), &i.to_le_bytes()).unwrap())
+                .await
+                .unwrap();
+        }
+        channel
+            .download(0x2000, 0, &round.to_le_bytes())
+            .await
+            .unwrap();
+        assert_eq!(
+            channel.upload(0x2000, 0).await,
+            Ok(round.to_le_bytes().to_vec())
+        );
+    }
+    assert_eq!(bus.counters().rx_overruns, 0);
 }
