@@ -289,8 +289,8 @@ fn a_deadband_holds_small_moves_back() {
     assert_eq!(report(&mut s, 100), Some(MetricValue::Int32(100)));
 }
 
-#[test]
-fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
+/// A session whose metrics are reported at most every 100 ms.
+fn rate_limited_session() -> EdgeSession {
     let policy = Policy {
         default: Reporting {
             deadband: 0.0,
@@ -298,7 +298,12 @@ fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
         },
         rules: Vec::new(),
     };
-    let mut s = EdgeSession::new("plant", "line1", 0, policy);
+    EdgeSession::new("plant", "line1", 0, policy)
+}
+
+#[test]
+fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
+    let mut s = rate_limited_session();
     device_born(&mut s, vec![sample("v", MetricValue::UInt32(0))]);
     let at = |s: &mut EdgeSession, v, now| {
         s.data(
@@ -329,14 +334,7 @@ fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
 
 #[test]
 fn held_changes_end_with_their_device_birth_or_death_and_others_stay_due() {
-    let policy = Policy {
-        default: Reporting {
-            deadband: 0.0,
-            min_interval_ms: 100,
-        },
-        rules: Vec::new(),
-    };
-    let mut s = EdgeSession::new("plant", "line1", 0, policy);
+    let mut s = rate_limited_session();
     s.birth(Vec::new(), 1_000);
     for device in ["demo-1", "demo-2", "demo-3"] {
         s.device_birth(device, vec![sample("v", MetricValue::UInt32(0))], 1_000);
