@@ -552,6 +552,11 @@ impl Runner {
         if !connection.as_ref().is_some_and(|conn| conn.connected) {
             return;
         }
+        // The changes not yet taken belong to the session the births end:
+        // taken now, they go out before the births (or, offline, to the
+        // spool, sent after them as historical), not lost with the old
+        // session's devices.
+        self.on_values(connection);
         let now = unix_ms();
         let metrics = self.node_metrics(now);
         let birth = self.session.birth(metrics, now);
@@ -560,9 +565,6 @@ impl Runner {
             .publishing
             .store(true, std::sync::atomic::Ordering::Relaxed);
         self.publish(connection, birth);
-        // What came while offline goes to the spool first, in order,
-        // before the births that follow.
-        self.on_values(connection);
         for bus in self.gateway.buses_in_order() {
             for info in bus.registry.nodes() {
                 if born_device(&info) {
