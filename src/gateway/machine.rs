@@ -240,6 +240,9 @@ impl Driver {
                     Ok(NodeEvent::Offline { node, reason: OfflineReason::NodeIdChanged }) => {
                         self.manager.node_left(node, "its device moved to another node-ID");
                     }
+                    Ok(NodeEvent::HeartbeatWritten { node, heartbeat_ms }) => {
+                        self.manager.producer_heartbeat_written(node, heartbeat_ms, Instant::now().into_std());
+                    }
                     Ok(_) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
                         for node in self.registry.nodes() {

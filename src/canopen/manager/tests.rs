@@ -778,9 +778,15 @@ fn a_producer_heartbeat_time_written_0_leaves_the_node_unsupervised_and_says_why
     let mut manager = booted_default_node(t0);
     manager.producer_heartbeat_written(id(2), 0, t0 + ms(10));
     let node = manager.status().nodes[0].clone();
-    assert_eq!((node.supervision, node.heartbeat_ms), (Supervision::None, 0));
+    assert_eq!(
+        (node.supervision, node.heartbeat_ms),
+        (Supervision::None, 0)
+    );
     assert!(
-        node.reason.as_deref().unwrap().contains("0x1017 was written 0"),
+        node.reason
+            .as_deref()
+            .unwrap()
+            .contains("0x1017 was written 0"),
         "{node:?}"
     );
     // Silence is no loss now.
