@@ -18,7 +18,10 @@
 //! - Heartbeat supervision: the producer period of a node is its 0x1017 as
 //!   read during identification, and is learnt from its heartbeats (the
 //!   shortest of the last few intervals, so that a changed 0x1017 is followed
-//!   and one lost heartbeat does not double it). The node goes offline when
+//!   and one lost heartbeat does not double it); a write of its 0x1017
+//!   through the gateway (any node's [`SdoChannel`] made here reports it)
+//!   sets the period at once and is published as
+//!   [`NodeEvent::HeartbeatWritten`]. The node goes offline when
 //!   no heartbeat comes within 1.5 periods
 //!   ([`HeartbeatConsumer::monitor_producer`]), and online again with its
 //!   next heartbeat. A node without heartbeat is online from any frame it

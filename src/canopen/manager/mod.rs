@@ -24,7 +24,10 @@
 //!   node is supervised by its heartbeat (a consumer with a timeout of 1.5
 //!   periods) or by node guarding; where neither could be set up the node
 //!   says `supervision: none` and why. A lost node is `offline`; a node
-//!   heard again after it was lost is booted again by itself.
+//!   heard again after it was lost is booted again by itself. A producer
+//!   heartbeat time written into a node's 0x1017 by someone else
+//!   ([`Manager::producer_heartbeat_written`]) becomes the node's: its
+//!   supervision follows at once, and its next boot-up writes it.
 //! - **Machine state**: `ready` when every mandatory node is booted,
 //!   supervised and in the NMT state it should have; `booting` while a
 //!   mandatory node is on its way there (or the first scan is under way);
