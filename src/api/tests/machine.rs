@@ -199,3 +199,32 @@ async fn without_a_manager_the_registry_follows_a_written_heartbeat_time_at_once
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, Some(1000));
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_cia_309_write_of_0x1017_is_followed_as_well() {
+    use crate::ascii::serve::Session;
+    use crate::cia309::gateway::{Cia309Gateway, Identity};
+    use crate::cia309::reply::Reply;
+
+    let (app, state) = demo_with_machine().await;
+    let before = machine_node(&app, 1).await;
+    let mut session = Session::new(
+        Cia309Gateway::new(&state.gateway),
+        Identity::anonymous("ascii", None),
+    );
+    let reply = session.handle("[1] 1 w 0x1017 0 u16 1000").await;
+    assert!(matches!(reply, Reply::Ok(1)), "{reply:?}");
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let reply = session.handle("[2] 1 r 0x1017 0 u16").await;
+    assert!(
+        matches!(&reply, Reply::Value(2, value) if value == "1000"),
+        "{reply:?}"
+    );
+    let after = machine_node(&app, 1).await;
+    assert_eq!(after["boots"], before["boots"], "{after}");
+    assert_eq!(
+        (&after["state"], &after["heartbeat_ms"]),
+        (&json!("ready"), &json!(1000)),
+        "{after}"
+    );
+}
