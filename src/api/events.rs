@@ -121,8 +121,9 @@ pub struct HistoryEvent {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub manufacturer: Option<String>,
     /// nmt: `appeared`, `identified`, `identification_failed`,
-    /// `nmt_changed`, `offline`, `online`, or `lost` (events the history
-    /// missed, counted in `reason`).
+    /// `nmt_changed`, `offline`, `online`, `heartbeat_written` (its 0x1017
+    /// written through the gateway, the time in `reason`), or `lost`
+    /// (events the history missed, counted in `reason`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub event: Option<String>,
     /// nmt: the state before an `nmt_changed`.
@@ -131,7 +132,8 @@ pub struct HistoryEvent {
     /// nmt: the state after an `nmt_changed`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub to: Option<String>,
-    /// nmt: why (`heartbeat_lost`, the profile identified, the error).
+    /// nmt: why (`heartbeat_lost`, the profile identified, the error, the
+    /// heartbeat time written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
 }

@@ -1014,6 +1014,9 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
             "bus": bus, "node": node, "event": "offline", "reason": reason,
         }),
         NodeEvent::Online { .. } => json!({"bus": bus, "node": node, "event": "online"}),
+        NodeEvent::HeartbeatWritten { heartbeat_ms, .. } => json!({
+            "bus": bus, "node": node, "event": "heartbeat_written", "heartbeat_ms": heartbeat_ms,
+        }),
         NodeEvent::Emcy { emcy, .. } => json!({
             "bus": bus,
             "node": node,

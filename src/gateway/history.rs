@@ -564,6 +564,14 @@ fn insert_event(
         NodeEvent::Online { .. } => {
             nmt("online", None, None, None)?;
         }
+        NodeEvent::HeartbeatWritten { heartbeat_ms, .. } => {
+            nmt(
+                "heartbeat_written",
+                None,
+                None,
+                Some(format!("{heartbeat_ms} ms")),
+            )?;
+        }
     }
     Ok(())
 }

@@ -4,7 +4,10 @@
 //! (nodes found) and the answers of its SDO requests, and carries out what
 //! it asks: SDO transfers through each node's [`SdoChannel`](super::sdo::SdoChannel)
 //! (queued fairly with everyone else's), NMT commands, the gateway's own
-//! heartbeat (0x700 + `manager_node_id`), node-guarding requests.
+//! heartbeat (0x700 + `manager_node_id`), node-guarding requests. A write
+//! of a node's 0x1017 through the gateway reaches it as the registry's
+//! [`NodeEvent::HeartbeatWritten`], so that the node is supervised with
+//! the written period rather than lost and booted back to the old one.
 //!
 //! Every step is visible: the machine's status ([`Machine::status`], for
 //! `GET /buses/{bus}/machine` and the `machine` topic of the stream), the
@@ -239,6 +242,9 @@ impl Driver {
                     Ok(NodeEvent::Appeared { node }) => self.manager.node_found(node),
                     Ok(NodeEvent::Offline { node, reason: OfflineReason::NodeIdChanged }) => {
                         self.manager.node_left(node, "its device moved to another node-ID");
+                    }
+                    Ok(NodeEvent::HeartbeatWritten { node, heartbeat_ms }) => {
+                        self.manager.producer_heartbeat_written(node, heartbeat_ms, Instant::now().into_std());
                     }
                     Ok(_) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {

@@ -18,7 +18,10 @@
 //! - Heartbeat supervision: the producer period of a node is its 0x1017 as
 //!   read during identification, and is learnt from its heartbeats (the
 //!   shortest of the last few intervals, so that a changed 0x1017 is followed
-//!   and one lost heartbeat does not double it). The node goes offline when
+//!   and one lost heartbeat does not double it); a write of its 0x1017
+//!   through the gateway (any node's [`SdoChannel`] made here reports it)
+//!   sets the period at once and is published as
+//!   [`NodeEvent::HeartbeatWritten`]. The node goes offline when
 //!   no heartbeat comes within 1.5 periods
 //!   ([`HeartbeatConsumer::monitor_producer`]), and online again with its
 //!   next heartbeat. A node without heartbeat is online from any frame it
@@ -320,6 +323,14 @@ pub enum NodeEvent {
         node: NodeId,
         emcy: EmcyRecord,
     },
+    /// Its producer heartbeat time (0x1017 sub 0) was written through the
+    /// gateway (by anyone: a client, the network manager's boot-up) and
+    /// the node confirmed it: the registry supervises it with this period
+    /// from now on (0: no heartbeat), and so does the network manager.
+    HeartbeatWritten {
+        node: NodeId,
+        heartbeat_ms: u16,
+    },
 }
 
 impl NodeEvent {
@@ -331,7 +342,8 @@ impl NodeEvent {
             | Self::NmtChanged { node, .. }
             | Self::Offline { node, .. }
             | Self::Online { node }
-            | Self::Emcy { node, .. } => *node,
+            | Self::Emcy { node, .. }
+            | Self::HeartbeatWritten { node, .. } => *node,
         }
     }
 }
@@ -356,6 +368,9 @@ impl fmt::Display for NodeEvent {
                 "node {node} EMCY 0x{:04X} {}, register 0x{:02X}",
                 emcy.code, emcy.text, emcy.register
             ),
+            Self::HeartbeatWritten { node, heartbeat_ms } => {
+                write!(f, "node {node} heartbeat time written: {heartbeat_ms} ms")
+            }
         }
     }
 }
@@ -404,6 +419,15 @@ impl HeartbeatLearner {
     pub(crate) fn set_period(&mut self, period: Duration) {
         self.intervals.clear();
         self.period = Some(period);
+    }
+
+    /// The node's 0x1017 was written `period` (0: off, `None`): it
+    /// replaces what was learnt, and the interval that spans the change
+    /// (half old period, half new) does not count.
+    pub(crate) fn written(&mut self, period: Option<Duration>) {
+        self.last = None;
+        self.intervals.clear();
+        self.period = period;
     }
 
     /// The next interval does not count (the bus was down): what was
@@ -850,9 +874,59 @@ impl Shared {
             .await;
     }
 
+    /// A new SDO channel to node `id`, whose confirmed writes of the
+    /// producer heartbeat time reach [`Shared::heartbeat_written`].
+    fn new_channel(self: &Arc<Self>, id: NodeId) -> SdoChannel {
+        let shared = Arc::downgrade(self);
+        let observer: super::sdo::WriteObserver = Arc::new(move |node, index, sub, data| {
+            if index != PRODUCER_HEARTBEAT_TIME || sub != 0 {
+                return;
+            }
+            let Some(ms) = unsigned(data).and_then(|ms| u16::try_from(ms).ok()) else {
+                return;
+            };
+            if let Some(shared) = shared.upgrade() {
+                shared.heartbeat_written(node, ms);
+            }
+        });
+        SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone()).with_observer(observer)
+    }
+
+    /// The node confirmed a write of `ms` into its 0x1017: it is
+    /// supervised with that period from now on, at once (its next
+    /// heartbeat is one new period away), rather than shown offline at
+    /// every heartbeat until the slower period is learnt; 0 (no heartbeat):
+    /// unsupervised, online from any frame it sends. Published as
+    /// [`NodeEvent::HeartbeatWritten`], which the network manager follows.
+    fn heartbeat_written(&self, id: NodeId, ms: u16) {
+        {
+            let mut state = self.lock();
+            let State {
+                nodes, consumer, ..
+            } = &mut *state;
+            let Some(node) = nodes.get_mut(&id) else {
+                return;
+            };
+            if ms == 0 {
+                node.heartbeat.written(None);
+                consumer.monitor(id, Duration::ZERO);
+            } else {
+                let period = Duration::from_millis(u64::from(ms));
+                node.heartbeat.written(Some(period));
+                consumer.monitor_producer(id, period);
+                consumer.arm(id, Instant::now().into_std());
+            }
+            self.emit(NodeEvent::HeartbeatWritten {
+                node: id,
+                heartbeat_ms: ms,
+            });
+        }
+        self.rearm.notify_one();
+    }
+
     /// The node, added if it is new (the flag), with its [`NodeEvent::Appeared`].
     fn ensure_node<'a>(
-        &self,
+        self: &Arc<Self>,
         state: &'a mut State,
         id: NodeId,
         now: Instant,
@@ -863,9 +937,7 @@ impl Shared {
             new = true;
             Node {
                 id,
-                channel: probing.unwrap_or_else(|| {
-                    SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone())
-                }),
+                channel: probing.unwrap_or_else(|| self.new_channel(id)),
                 nmt: None,
                 online: true,
                 last_seen: now,
@@ -1136,7 +1208,7 @@ impl Shared {
                     self.probing.send_modify(|probing| {
                         probing.insert(id);
                     });
-                    let channel = SdoChannel::new(self.bus.clone(), id, self.config.sdo.clone());
+                    let channel = self.new_channel(id);
                     state.probe_channels.insert(id, channel.clone());
                     (None, channel)
                 }

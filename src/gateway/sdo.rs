@@ -229,6 +229,13 @@ impl Drop for Pending<'_> {
     }
 }
 
+/// Told of every value a channel wrote, once the device confirmed it:
+/// the node, the index, the sub-index and the value bytes. Whoever
+/// follows what the gateway writes (the registry, for a node's producer
+/// heartbeat time) hears every path alike: REST, CiA 309, Sparkplug, the
+/// network manager.
+pub type WriteObserver = Arc<dyn Fn(NodeId, u16, u8, &[u8]) + Send + Sync>;
+
 /// The SDO client side of one node on one bus.
 #[derive(Clone)]
 pub struct SdoChannel {
@@ -240,6 +247,7 @@ pub struct SdoChannel {
     session: Arc<Mutex<Session>>,
     procedure: Arc<Mutex<()>>,
     stats: Arc<SdoStats>,
+    written: Option<WriteObserver>,
 }
 
 impl SdoChannel {
@@ -251,9 +259,22 @@ impl SdoChannel {
             session: Arc::new(Mutex::new(Session { client, responses })),
             procedure: Arc::new(Mutex::new(())),
             stats: Arc::new(SdoStats::default()),
+            written: None,
             bus,
             node,
             config,
+        }
+    }
+
+    /// This channel with `observer` told of every download that succeeds.
+    pub fn with_observer(mut self, observer: WriteObserver) -> Self {
+        self.written = Some(observer);
+        self
+    }
+
+    fn wrote(&self, index: u16, sub: u8, data: &[u8]) {
+        if let Some(observer) = &self.written {
+            observer(self.node, index, sub, data);
         }
     }
 
@@ -318,8 +339,9 @@ impl SdoChannel {
         config: Option<&ClientConfig>,
     ) -> Result<(), SdoRequestError> {
         self.transfer(Request::Download { index, sub, data }, config, None)
-            .await
-            .map(|_| ())
+            .await?;
+        self.wrote(index, sub, data);
+        Ok(())
     }
 
     /// [`SdoChannel::download_with`] that calls `progress(confirmed,
@@ -340,8 +362,9 @@ impl SdoChannel {
             config,
             Some(progress),
         )
-        .await
-        .map(|_| ())
+        .await?;
+        self.wrote(index, sub, data);
+        Ok(())
     }
 
     async fn transfer(

@@ -296,16 +296,37 @@ def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, ho
     json.loads(metric(leds, "Segments")["value"])
 
 
+def machine_node(gateway, node):
+    machine = gateway.request("GET", "/buses/demo/machine")
+    return next(n for n in machine["nodes"] if n["id"] == node)
+
+
 def test_a_dcmd_write_of_0x1017_reaches_the_device_and_is_audited(gateway, host):
     host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
-    host.send_dcmd("demo-1", [("OD/0x1017:0", DT.UInt16, "int_value", 750)])
+    deadline = time.monotonic() + 15
+    while machine_node(gateway, 1)["state"] != "ready" and time.monotonic() < deadline:
+        time.sleep(0.2)
+    before = machine_node(gateway, 1)
+    assert before["state"] == "ready", before
+    # Twice the period the network manager set (500 ms), past its old
+    # supervision timeout (750 ms).
+    host.send_dcmd("demo-1", [("OD/0x1017:0", DT.UInt16, "int_value", 1000)])
     deadline = time.monotonic() + 15
     while True:
         value = gateway.request("GET", "/buses/demo/nodes/1/od/0x1017/0")["value"]
-        if value == 750 or time.monotonic() > deadline:
+        if value == 1000 or time.monotonic() > deadline:
             break
         time.sleep(0.2)
-    assert value == 750
+    assert value == 1000
+    # Long enough for the old supervision to lose the node and boot it
+    # again, writing its 500 back: the written value stays, and the
+    # manager supervises the node with it.
+    time.sleep(2.5)
+    assert gateway.request("GET", "/buses/demo/nodes/1/od/0x1017/0")["value"] == 1000
+    after = machine_node(gateway, 1)
+    assert after["state"] == "ready", after
+    assert after["heartbeat_ms"] == 1000, after
+    assert after["boots"] == before["boots"], after
     events = gateway.request("GET", "/events?kind=audit&limit=50")
     writes = [e for e in events if e.get("operation") == "write object" and e.get("item") == "0x1017:0"]
     assert writes, events

@@ -14,6 +14,7 @@ mod leases;
 mod leds;
 mod loggers;
 mod lss;
+mod machine;
 mod pdos;
 mod program;
 mod recording;

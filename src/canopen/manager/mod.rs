@@ -24,7 +24,10 @@
 //!   node is supervised by its heartbeat (a consumer with a timeout of 1.5
 //!   periods) or by node guarding; where neither could be set up the node
 //!   says `supervision: none` and why. A lost node is `offline`; a node
-//!   heard again after it was lost is booted again by itself.
+//!   heard again after it was lost is booted again by itself. A producer
+//!   heartbeat time written into a node's 0x1017 by someone else
+//!   ([`Manager::producer_heartbeat_written`]) becomes the node's: its
+//!   supervision follows at once, and its next boot-up writes it.
 //! - **Machine state**: `ready` when every mandatory node is booted,
 //!   supervised and in the NMT state it should have; `booting` while a
 //!   mandatory node is on its way there (or the first scan is under way);
@@ -390,6 +393,10 @@ pub struct NodeStatus {
     pub step: Step,
     pub reason: Option<String>,
     pub supervision: Supervision,
+    /// The node's producer heartbeat time, ms: its description's, or what
+    /// was last written to its 0x1017 through the gateway (its heartbeat
+    /// consumer times out after 1.5 × this); 0: no heartbeat.
+    pub heartbeat_ms: u16,
     /// The last NMT state the node reported; `"unknown"` before any.
     pub nmt: String,
     /// The EDS the description names.
@@ -973,22 +980,70 @@ impl Manager {
         node.reason = None;
         node.backoff = Duration::ZERO;
         node.boots_ok += 1;
+        Self::supervise(&mut self.consumer, node, "heartbeat_ms is 0", now);
+        self.events.push(ManagerEvent::Booted { node: id });
+    }
+
+    /// How a booted node is supervised, from what its boot-up (or a later
+    /// write of its 0x1017) set up: its heartbeat (a consumer timeout of
+    /// 1.5 periods from `now`), else node guarding, else nothing, and why
+    /// (`off`: the reason when its heartbeat time is 0).
+    fn supervise(consumer: &mut HeartbeatConsumer, node: &mut Node, off: &str, now: Instant) {
+        let id = node.description.id;
         let period = Duration::from_millis(u64::from(node.description.heartbeat_ms));
-        if node.heartbeat_set {
+        if node.heartbeat_set && !period.is_zero() {
             node.supervision = Supervision::Heartbeat;
             node.supervision_reason = None;
-            self.consumer.monitor_producer(id, period);
-            self.consumer.arm(id, now);
+            consumer.monitor_producer(id, period);
+            consumer.arm(id, now);
         } else if node.guard.is_some() {
             node.supervision = Supervision::Guarding;
             node.supervision_reason = None;
         } else {
+            // Its state is still followed, without a timeout.
+            consumer.monitor(id, Duration::ZERO);
             node.supervision = Supervision::None;
-            if node.supervision_reason.is_none() || node.description.heartbeat_ms == 0 {
-                node.supervision_reason = Some("heartbeat_ms is 0".into());
+            if node.supervision_reason.is_none() || period.is_zero() {
+                node.supervision_reason = Some(off.into());
             }
         }
-        self.events.push(ManagerEvent::Booted { node: id });
+    }
+
+    /// Someone (an operator, a client of the gateway, the manager itself)
+    /// wrote `ms` into the node's producer heartbeat time (0x1017 sub 0)
+    /// and the node confirmed it at `now`. The node's description follows
+    /// (a later boot-up writes `ms`, not the old value, until the gateway
+    /// restarts), and so does its supervision at once: a consumer timeout
+    /// of 1.5 × `ms` from `now` (the node's next heartbeat is one new
+    /// period away), or, for 0 (heartbeat off), node guarding where it is
+    /// set up, else `supervision: none` with the reason, as at a boot-up.
+    /// The node is neither lost nor booted again for it. Writing the value
+    /// the description already has (the manager's own boot-up write) does
+    /// nothing.
+    pub fn producer_heartbeat_written(&mut self, id: NodeId, ms: u16, now: Instant) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        if node.description.heartbeat_ms == ms {
+            return;
+        }
+        node.description.heartbeat_ms = ms;
+        if ms > 0 && node.guard.is_none() {
+            node.heartbeat_set = true;
+        } else if ms == 0 {
+            node.heartbeat_set = false;
+        }
+        // A node on its way writes the new value itself (or has it: its
+        // supervision is decided when its boot-up ends); a lost one is
+        // booted again when it is heard, with the new value.
+        if node.state == NodeState::Ready {
+            Self::supervise(
+                &mut self.consumer,
+                node,
+                "0x1017 was written 0: the node sends no heartbeat",
+                now,
+            );
+        }
     }
 
     /// Due work at `now`: the next SDO request of each node that waits for
@@ -1253,6 +1308,7 @@ impl Manager {
                     step: node.step,
                     reason: node.shown_reason(),
                     supervision: node.supervision,
+                    heartbeat_ms: node.description.heartbeat_ms,
                     nmt: self
                         .consumer
                         .state(id)

@@ -695,3 +695,136 @@ fn the_manager_hears_error_control_frames_only_and_nothing_else_changes_it() {
     // Nothing new to do either: the request in flight is still the one.
     assert!(sdo_actions(&manager.poll(t0)).is_empty());
 }
+
+/// Boots node 2 with the defaults (heartbeat 500 ms), its 0x1016 taking
+/// the manager's heartbeat, and hears it operational at `now`.
+fn booted_default_node(now: Instant) -> Manager {
+    let mut manager = Manager::new(config(), Vec::new(), now);
+    manager.node_found(id(2));
+    run_boot(&mut manager, now, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    manager.on_frame(&heartbeat(2, NmtState::Operational), now);
+    manager.poll(now);
+    manager.take_events();
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.supervision, node.heartbeat_ms),
+        (NodeState::Ready, Supervision::Heartbeat, 500)
+    );
+    manager
+}
+
+#[test]
+fn a_written_producer_heartbeat_time_is_followed_not_undone() {
+    let t0 = Instant::now();
+    let ms = Duration::from_millis;
+    let mut manager = booted_default_node(t0);
+    // 1000 ms written: the consumer waits 1.5 s from the write.
+    let t1 = t0 + ms(100);
+    manager.producer_heartbeat_written(id(2), 1000, t1);
+    assert_eq!(manager.status().nodes[0].heartbeat_ms, 1000);
+    assert_eq!(manager.description(id(2)).unwrap().heartbeat_ms, 1000);
+    assert_eq!(manager.consumer.deadline(), Some(t1 + ms(1500)));
+    // The node's heartbeats one second apart: never lost, never booted again.
+    for beat in 1..=5u64 {
+        let at = t1 + ms(1000 * beat);
+        assert!(sdo_actions(&manager.poll(at - ms(1))).is_empty());
+        manager.on_frame(&heartbeat(2, NmtState::Operational), at);
+    }
+    manager.poll(t1 + ms(6499));
+    assert_eq!(manager.take_events(), Vec::new());
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    assert_eq!(manager.status().nodes[0].boots, 1);
+    // The manager's own write of the same value changes nothing.
+    let deadline = manager.consumer.deadline();
+    manager.producer_heartbeat_written(id(2), 1000, t1 + ms(6400));
+    assert_eq!(manager.consumer.deadline(), deadline);
+    // 200 ms written: a silence of 300 ms is a loss.
+    let t2 = t1 + ms(5200);
+    manager.producer_heartbeat_written(id(2), 200, t2);
+    manager.poll(t2 + ms(299));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    manager.poll(t2 + ms(300));
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.state, NodeState::Offline);
+    assert_eq!(
+        node.reason.as_deref(),
+        Some("no heartbeat within 300 ms (1.5 × 200 ms)")
+    );
+    // Its next boot-up writes the value written last, not the old one.
+    let t3 = t2 + ms(1000);
+    manager.on_frame(&heartbeat(2, NmtState::BootUp), t3);
+    let actions = run_boot(&mut manager, t3, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(
+        actions[0],
+        Action::Write {
+            node: id(2),
+            index: 0x1017,
+            sub: 0,
+            data: vec![200, 0]
+        }
+    );
+}
+
+#[test]
+fn a_producer_heartbeat_time_written_0_leaves_the_node_unsupervised_and_says_why() {
+    let t0 = Instant::now();
+    let ms = Duration::from_millis;
+    let mut manager = booted_default_node(t0);
+    manager.producer_heartbeat_written(id(2), 0, t0 + ms(10));
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.supervision, node.heartbeat_ms),
+        (Supervision::None, 0)
+    );
+    assert!(
+        node.reason
+            .as_deref()
+            .unwrap()
+            .contains("0x1017 was written 0"),
+        "{node:?}"
+    );
+    // Silence is no loss now.
+    manager.poll(t0 + ms(60_000));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    assert!(
+        !manager
+            .take_events()
+            .iter()
+            .any(|event| matches!(event, ManagerEvent::Lost { .. }))
+    );
+    // Its heartbeat on again: supervised by it again.
+    let t1 = t0 + ms(60_100);
+    manager.producer_heartbeat_written(id(2), 100, t1);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.supervision, node.heartbeat_ms, node.reason),
+        (Supervision::Heartbeat, 100, None)
+    );
+    manager.poll(t1 + ms(150));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+}
+
+#[test]
+fn a_producer_heartbeat_time_written_during_a_boot_up_is_the_one_it_writes() {
+    let t0 = Instant::now();
+    let mut manager = Manager::new(config(), Vec::new(), t0);
+    manager.node_found(id(2));
+    manager.producer_heartbeat_written(id(2), 750, t0);
+    let actions = run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    assert_eq!(
+        actions[0],
+        Action::Write {
+            node: id(2),
+            index: 0x1017,
+            sub: 0,
+            data: 750u16.to_le_bytes().to_vec()
+        }
+    );
+    assert_eq!(manager.status().nodes[0].heartbeat_ms, 750);
+}

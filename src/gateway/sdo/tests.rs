@@ -245,3 +245,40 @@ async fn a_channel_on_a_bus_busy_with_pdos_neither_reads_nor_loses_their_frames(
     }
     assert_eq!(bus.counters().rx_overruns, 0);
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_observer_hears_every_confirmed_download_and_nothing_else() {
+    let hub = VirtualHub::new("test");
+    let heard = Arc::new(StdMutex::new(Vec::new()));
+    let observer: WriteObserver = {
+        let heard = heard.clone();
+        Arc::new(move |node, index, sub, data: &[u8]| {
+            heard
+                .lock()
+                .unwrap()
+                .push((node, index, sub, data.to_vec()));
+        })
+    };
+    // Refused by the device: not written, not heard.
+    let server = spawn_device(&hub, AccessType::Ro);
+    let channel = SdoChannel::new(hub.attach(), node(), config()).with_observer(observer);
+    assert!(channel.download(0x2000, 0, &[1, 0, 0, 0]).await.is_err());
+    server.abort();
+    // Not answered: not heard either.
+    assert!(channel.download(0x2000, 0, &[2, 0, 0, 0]).await.is_err());
+    let server = spawn_device(&hub, AccessType::Rw);
+    channel.upload(0x2000, 0).await.unwrap();
+    channel.download(0x2000, 0, &[3, 0, 0, 0]).await.unwrap();
+    channel
+        .download_reporting(0x2000, 0, &[4, 0, 0, 0], None, &|_, _| {})
+        .await
+        .unwrap();
+    server.abort();
+    assert_eq!(
+        *heard.lock().unwrap(),
+        vec![
+            (node(), 0x2000, 0, vec![3, 0, 0, 0]),
+            (node(), 0x2000, 0, vec![4, 0, 0, 0]),
+        ]
+    );
+}

@@ -75,6 +75,7 @@ function nmtText(e) {
     case 'nmt_changed': return `NMT ${state(e.from)} → ${state(e.to)}`;
     case 'offline': return `went offline${e.reason ? ` (${e.reason.replaceAll('_', ' ')})` : ''}`;
     case 'online': return 'back online';
+    case 'heartbeat_written': return `heartbeat time written: ${e.reason || '—'}`;
     case 'lost': return `events not recorded: ${e.reason || 'some'}`;
     default: return e.event || '—';
   }

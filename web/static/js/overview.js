@@ -334,6 +334,7 @@ function nodeEventText(e) {
     case 'nmt_changed': return `${who}: NMT ${NMT[e.from] || e.from} → ${NMT[e.nmt] || e.nmt}`;
     case 'offline': return `${who} went offline (${e.reason})`;
     case 'online': return `${who} is back online`;
+    case 'heartbeat_written': return `${who}: heartbeat time written: ${e.heartbeat_ms} ms`;
     default: return `${who}: ${e.event}`;
   }
 }

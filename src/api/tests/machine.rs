@@ -1,0 +1,230 @@
+//! The network manager of the demo bus (every node booted with the
+//! defaults) and what a client writes: a producer heartbeat time written
+//! through the API is followed, by the registry and by the manager, at
+//! once, never undone by a boot-up it caused.
+
+use std::time::Duration;
+
+use axum::Router;
+use axum::http::StatusCode;
+use serde_json::{Value as Json, json};
+use tokio::sync::broadcast;
+
+use super::support::{get, open, put};
+use crate::api::{AppState, app};
+use crate::canopen::NodeId;
+use crate::canopen::manager::MachineState;
+use crate::gateway::machine::MachineSettings;
+use crate::gateway::registry::{NodeEvent, OfflineReason};
+
+const HEARTBEAT: &str = "/api/v1/buses/demo/nodes/1/od/0x1017/0";
+
+/// The demo bus scanned, its manager run with the defaults, every node
+/// booted and supervised.
+async fn demo_with_machine() -> (Router, AppState) {
+    let served = open("demo", "virtual:demo")
+        .await
+        .with_machine(MachineSettings::default(), None);
+    let nodes = served.registry.scan().await.unwrap();
+    assert_eq!(nodes.len(), 3, "{nodes:?}");
+    let machine = served.machine().unwrap().clone();
+    machine.scan_done();
+    let status = machine
+        .wait_for(MachineState::Ready, Duration::from_secs(10))
+        .await;
+    assert_eq!(status.state, MachineState::Ready, "{status:?}");
+    let state = AppState::new([served]);
+    (app(state.clone()), state)
+}
+
+async fn machine_node(app: &Router, id: u64) -> Json {
+    let (status, machine) = get(app, "/api/v1/buses/demo/machine").await;
+    assert_eq!(status, StatusCode::OK, "{machine}");
+    machine["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|node| node["id"] == id)
+        .unwrap_or_else(|| panic!("node {id} not in {machine}"))
+        .clone()
+}
+
+/// The events of node 1 since the last call.
+fn node_1_events(events: &mut broadcast::Receiver<NodeEvent>) -> Vec<NodeEvent> {
+    let mut seen = Vec::new();
+    while let Ok(event) = events.try_recv() {
+        if event.node().get() == 1 {
+            seen.push(event);
+        }
+    }
+    seen
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once() {
+    let (app, state) = demo_with_machine().await;
+    let served = state.bus("demo").unwrap();
+    let node_1 = NodeId::new(1).unwrap();
+    let before = machine_node(&app, 1).await;
+    assert_eq!(
+        (
+            &before["state"],
+            &before["supervision"],
+            &before["heartbeat_ms"]
+        ),
+        (&json!("ready"), &json!("heartbeat"), &json!(500)),
+        "{before}"
+    );
+    let mut events = served.registry.subscribe();
+
+    // Twice the period the manager set, and more than its 750 ms timeout.
+    let (status, body) = put(&app, HEARTBEAT, json!({"value": 1000})).await;
+    assert!(status.is_success(), "{status} {body}");
+    tokio::time::sleep(Duration::from_secs(5)).await;
+
+    let (status, value) = get(&app, HEARTBEAT).await;
+    assert_eq!(status, StatusCode::OK, "{value}");
+    assert_eq!(value["value"], 1000, "the write was undone: {value}");
+    let after = machine_node(&app, 1).await;
+    assert_eq!(after["boots"], before["boots"], "booted again: {after}");
+    let seen = node_1_events(&mut events);
+    assert!(
+        !seen.iter().any(|event| matches!(
+            event,
+            NodeEvent::Offline { .. } | NodeEvent::NmtChanged { .. }
+        )),
+        "node 1 went offline or booted again: {seen:?}"
+    );
+    assert!(
+        seen.contains(&NodeEvent::HeartbeatWritten {
+            node: node_1,
+            heartbeat_ms: 1000
+        }),
+        "{seen:?}"
+    );
+    assert_eq!(
+        (
+            &after["state"],
+            &after["supervision"],
+            &after["heartbeat_ms"]
+        ),
+        (&json!("ready"), &json!("heartbeat"), &json!(1000)),
+        "{after}"
+    );
+    let info = served.registry.node(node_1).unwrap();
+    assert!(info.online);
+    assert_eq!(info.heartbeat_ms, Some(1000));
+
+    // Faster: its silence of 300 ms (1.5 × 200) is a loss, for both.
+    let (status, body) = put(&app, HEARTBEAT, json!({"value": 200})).await;
+    assert!(status.is_success(), "{status} {body}");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert_eq!(machine_node(&app, 1).await["heartbeat_ms"], 200);
+    assert!(served.registry.node(node_1).unwrap().online);
+    node_1_events(&mut events);
+    served.rack.as_ref().unwrap().unplug(node_1).unwrap();
+    tokio::time::sleep(Duration::from_millis(310)).await;
+    let lost = machine_node(&app, 1).await;
+    assert_eq!(lost["state"], "offline", "{lost}");
+    assert_eq!(
+        lost["reason"], "no heartbeat within 300 ms (1.5 × 200 ms)",
+        "{lost}"
+    );
+    assert!(node_1_events(&mut events).contains(&NodeEvent::Offline {
+        node: node_1,
+        reason: OfflineReason::HeartbeatLost
+    }));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_producer_heartbeat_time_written_0_is_no_loss_and_said() {
+    let (app, state) = demo_with_machine().await;
+    let served = state.bus("demo").unwrap();
+    let node_1 = NodeId::new(1).unwrap();
+    let mut events = served.registry.subscribe();
+    let (status, body) = put(&app, HEARTBEAT, json!({"value": 0})).await;
+    assert!(status.is_success(), "{status} {body}");
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let seen = node_1_events(&mut events);
+    assert!(
+        !seen
+            .iter()
+            .any(|event| matches!(event, NodeEvent::Offline { .. })),
+        "{seen:?}"
+    );
+    let node = machine_node(&app, 1).await;
+    assert_eq!(
+        (&node["state"], &node["supervision"], &node["heartbeat_ms"]),
+        (&json!("ready"), &json!("none"), &json!(0)),
+        "{node}"
+    );
+    assert!(
+        node["reason"]
+            .as_str()
+            .is_some_and(|reason| reason.contains("0x1017 was written 0")),
+        "{node}"
+    );
+    let info = served.registry.node(node_1).unwrap();
+    assert!(info.online);
+    assert_eq!(info.heartbeat_ms, None);
+    assert_eq!(get(&app, HEARTBEAT).await.1["value"], 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn without_a_manager_the_registry_follows_a_written_heartbeat_time_at_once() {
+    let (app, state) = super::support::demo().await;
+    let served = state.bus("demo").unwrap();
+    let node_1 = NodeId::new(1).unwrap();
+    // Its heartbeat on (the demo's devices start without) and learnt.
+    let (status, body) = put(&app, HEARTBEAT, json!({"value": 500})).await;
+    assert!(status.is_success(), "{status} {body}");
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(
+        served.registry.node(node_1).unwrap().heartbeat_ms,
+        Some(500)
+    );
+    let mut events = served.registry.subscribe();
+    let (status, body) = put(&app, HEARTBEAT, json!({"value": 1000})).await;
+    assert!(status.is_success(), "{status} {body}");
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    // Not offline for a moment at every slower heartbeat until it is learnt.
+    let seen = node_1_events(&mut events);
+    assert!(
+        !seen
+            .iter()
+            .any(|event| matches!(event, NodeEvent::Offline { .. })),
+        "{seen:?}"
+    );
+    let info = served.registry.node(node_1).unwrap();
+    assert!(info.online);
+    assert_eq!(info.heartbeat_ms, Some(1000));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_cia_309_write_of_0x1017_is_followed_as_well() {
+    use crate::ascii::serve::Session;
+    use crate::cia309::gateway::{Cia309Gateway, Identity};
+    use crate::cia309::reply::Reply;
+
+    let (app, state) = demo_with_machine().await;
+    let before = machine_node(&app, 1).await;
+    let mut session = Session::new(
+        Cia309Gateway::new(&state.gateway),
+        Identity::anonymous("ascii", None),
+    );
+    let reply = session.handle("[1] 1 w 0x1017 0 u16 1000").await;
+    assert!(matches!(reply, Reply::Ok(1)), "{reply:?}");
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let reply = session.handle("[2] 1 r 0x1017 0 u16").await;
+    assert!(
+        matches!(&reply, Reply::Value(2, value) if value == "1000"),
+        "{reply:?}"
+    );
+    let after = machine_node(&app, 1).await;
+    assert_eq!(after["boots"], before["boots"], "{after}");
+    assert_eq!(
+        (&after["state"], &after["heartbeat_ms"]),
+        (&json!("ready"), &json!(1000)),
+        "{after}"
+    );
+}
