@@ -202,24 +202,36 @@ async fn without_a_manager_the_registry_follows_a_written_heartbeat_time_at_once
 
 #[tokio::test(start_paused = true)]
 async fn a_cia_309_write_of_0x1017_is_followed_as_well() {
-    use crate::ascii::serve::Session;
-    use crate::cia309::gateway::{Cia309Gateway, Identity};
-    use crate::cia309::reply::Reply;
+    // The CiA 309 gateway (what a 309-3 session and a 309-5 request call)
+    // writes through the node's channel too.
+    use crate::cia309::gateway::{Cia309Gateway, Identity, Origin, TransferOptions};
 
     let (app, state) = demo_with_machine().await;
     let before = machine_node(&app, 1).await;
-    let mut session = Session::new(
-        Cia309Gateway::new(&state.gateway),
-        Identity::anonymous("ascii", None),
-    );
-    let reply = session.handle("[1] 1 w 0x1017 0 u16 1000").await;
-    assert!(matches!(reply, Reply::Ok(1)), "{reply:?}");
+    let gateway = Cia309Gateway::new(&state.gateway);
+    let identity = Identity::anonymous("ascii", None);
+    let origin = Origin {
+        identity: &identity,
+        method: "ASCII",
+        path: "[1] 1 w 0x1017 0 u16 1000",
+    };
+    let options = TransferOptions::default();
+    gateway
+        .write(
+            origin,
+            1,
+            1,
+            0x1017,
+            0,
+            1000u16.to_le_bytes().to_vec(),
+            "1000".into(),
+            options,
+        )
+        .await
+        .unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
-    let reply = session.handle("[2] 1 r 0x1017 0 u16").await;
-    assert!(
-        matches!(&reply, Reply::Value(2, value) if value == "1000"),
-        "{reply:?}"
-    );
+    let read = gateway.read(1, 1, 0x1017, 0, options).await.unwrap();
+    assert_eq!(read, 1000u16.to_le_bytes().to_vec());
     let after = machine_node(&app, 1).await;
     assert_eq!(after["boots"], before["boots"], "{after}");
     assert_eq!(

@@ -94,7 +94,18 @@ async fn silence_heartbeat(app: &Router, state: &AppState) {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     assert!(registry.node(node).unwrap().heartbeat_ms.is_some());
-    heartbeat(0).await;
+    // Stopped by another master on the bus, not through the gateway (a
+    // write through the gateway is followed: the node would stay online,
+    // unsupervised).
+    let other_master = crate::gateway::sdo::SdoChannel::new(
+        state.gateway.buses["demo"].bus.clone(),
+        node,
+        crate::canopen::sdo::ClientConfig::default(),
+    );
+    other_master
+        .download(0x1017, 0, &0u16.to_le_bytes())
+        .await
+        .unwrap();
     for _ in 0..100 {
         if !registry.node(node).unwrap().online {
             break;
