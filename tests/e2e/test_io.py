@@ -48,8 +48,10 @@ def test_the_inputs_are_live_and_an_output_set_there_reads_back(browser, server)
     browser.wait(lambda _: browser.js("return document.querySelector('#ch-di1').dataset.source") == "tpdo",
                  message="the inputs did not come from TPDOs")
 
-    # A digital output set on the page, confirmed by the read-back.
-    browser.driver.find_element(By.CSS_SELECTOR, "#ch-do5 button.set").click()
+    # A digital output set on the page, confirmed by the read-back. Found
+    # and clicked in one step: the page's poll may replace the outputs
+    # between a find and a click.
+    browser.js("document.querySelector('#ch-do5 button.set').click()")
     browser.wait(lambda _: browser.js("const r = document.getElementById('set-result'); return r && r.dataset.channel === 'do5' && r.dataset.confirmed"),
                  message="no read-back")
     assert browser.js("return document.getElementById('set-result').dataset.confirmed") == "true"
@@ -64,7 +66,7 @@ def test_the_inputs_are_live_and_an_output_set_there_reads_back(browser, server)
     field = browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao1 input")
     field.clear()
     field.send_keys("2000")
-    browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao1 button.set").click()
+    browser.js("document.querySelector('#ch-ao1 button.set').click()")
     browser.wait(lambda _: browser.js("const r = document.getElementById('set-result'); return r && r.dataset.channel === 'ao1'"),
                  message="no read-back of ao1")
     assert browser.js("return document.getElementById('set-result').dataset.confirmed") == "true"
