@@ -446,6 +446,20 @@ def test_a_broker_outage_is_bridged_by_store_and_forward(broker, gateway, host):
     assert stamps == sorted(stamps)
 
 
+def turning_axis_position(gateway, host):
+    """The demo nodes started and node 1's axis 1 turning; the name of the
+    TPDO metric of its position actual value."""
+    _, birth = started(gateway, host)
+    names = [m["name"] for m in birth["metrics"] if m["name"].startswith("TPDO/")]
+    position = [n for n in names if "position_actual" in n.lower()]
+    assert position, names
+    base = "/buses/demo/nodes/1/axes/1"
+    gateway.request("POST", base + "/state", {"target": "operation_enabled"})
+    gateway.request("POST", base + "/move", {"mode": "velocity", "velocity": 2000})
+    wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+    return position[0]
+
+
 def test_every_tpdo_change_comes_however_many_come_within_one_publish_tick(broker, host):
     # A SYNC every 20 ms and a publish pass every 500 ms: a moving axis's
     # position changes 25 times between two passes, and each change is a
@@ -456,15 +470,7 @@ def test_every_tpdo_change_comes_however_many_come_within_one_publish_tick(broke
         settings="sync_period_ms = 20\nsparkplug_publish_tick_ms = 500\n",
     )
     try:
-        at, birth = started(gateway, host)
-        names = [m["name"] for m in birth["metrics"] if m["name"].startswith("TPDO/")]
-        position = [n for n in names if "position_actual" in n.lower()]
-        assert position, names
-        position = position[0]
-        base = "/buses/demo/nodes/1/axes/1"
-        gateway.request("POST", base + "/state", {"target": "operation_enabled"})
-        gateway.request("POST", base + "/move", {"mode": "velocity", "velocity": 2000})
-        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        position = turning_axis_position(gateway, host)
         from_here = len(host.messages)
         time.sleep(3)
         with host.cond:
@@ -499,13 +505,7 @@ def test_no_change_is_lost_when_the_edge_node_is_born_again_after_an_outage(brok
         settings="sync_period_ms = 20\nsparkplug_publish_tick_ms = 1000\n",
     )
     try:
-        _, birth = started(gateway, host)
-        names = [m["name"] for m in birth["metrics"] if m["name"].startswith("TPDO/")]
-        position = [n for n in names if "position_actual" in n.lower()][0]
-        base = "/buses/demo/nodes/1/axes/1"
-        gateway.request("POST", base + "/state", {"target": "operation_enabled"})
-        gateway.request("POST", base + "/move", {"mode": "velocity", "velocity": 2000})
-        wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        position = turning_axis_position(gateway, host)
         time.sleep(1.5)
         broker.stop()
         wait_until(lambda: offline(gateway), what="the gateway noticing the broker went")

@@ -49,6 +49,23 @@ async fn machine_node(app: &Router, id: u64) -> Json {
         .clone()
 }
 
+/// Writes node 1's producer heartbeat time (0x1017) over REST.
+async fn write_heartbeat(app: &Router, ms: u16) {
+    let (status, body) = put(app, HEARTBEAT, json!({ "value": ms })).await;
+    assert!(status.is_success(), "{status} {body}");
+}
+
+/// Node 1 was not reported offline since the last look at `events`.
+fn assert_node_1_never_offline(events: &mut broadcast::Receiver<NodeEvent>) {
+    let seen = node_1_events(events);
+    assert!(
+        !seen
+            .iter()
+            .any(|event| matches!(event, NodeEvent::Offline { .. })),
+        "{seen:?}"
+    );
+}
+
 /// The events of node 1 since the last call.
 fn node_1_events(events: &mut broadcast::Receiver<NodeEvent>) -> Vec<NodeEvent> {
     let mut seen = Vec::new();
@@ -78,8 +95,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
     let mut events = served.registry.subscribe();
 
     // Twice the period the manager set, and more than its 750 ms timeout.
-    let (status, body) = put(&app, HEARTBEAT, json!({"value": 1000})).await;
-    assert!(status.is_success(), "{status} {body}");
+    write_heartbeat(&app, 1000).await;
     tokio::time::sleep(Duration::from_secs(5)).await;
 
     let (status, value) = get(&app, HEARTBEAT).await;
@@ -116,8 +132,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
     assert_eq!(info.heartbeat_ms, Some(1000));
 
     // Faster: its silence of 300 ms (1.5 × 200) is a loss, for both.
-    let (status, body) = put(&app, HEARTBEAT, json!({"value": 200})).await;
-    assert!(status.is_success(), "{status} {body}");
+    write_heartbeat(&app, 200).await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_eq!(machine_node(&app, 1).await["heartbeat_ms"], 200);
     assert!(served.registry.node(node_1).unwrap().online);
@@ -142,16 +157,9 @@ async fn a_producer_heartbeat_time_written_0_is_no_loss_and_said() {
     let served = state.bus("demo").unwrap();
     let node_1 = NodeId::new(1).unwrap();
     let mut events = served.registry.subscribe();
-    let (status, body) = put(&app, HEARTBEAT, json!({"value": 0})).await;
-    assert!(status.is_success(), "{status} {body}");
+    write_heartbeat(&app, 0).await;
     tokio::time::sleep(Duration::from_secs(5)).await;
-    let seen = node_1_events(&mut events);
-    assert!(
-        !seen
-            .iter()
-            .any(|event| matches!(event, NodeEvent::Offline { .. })),
-        "{seen:?}"
-    );
+    assert_node_1_never_offline(&mut events);
     let node = machine_node(&app, 1).await;
     assert_eq!(
         (&node["state"], &node["supervision"], &node["heartbeat_ms"]),
@@ -176,25 +184,17 @@ async fn without_a_manager_the_registry_follows_a_written_heartbeat_time_at_once
     let served = state.bus("demo").unwrap();
     let node_1 = NodeId::new(1).unwrap();
     // Its heartbeat on (the demo's devices start without) and learnt.
-    let (status, body) = put(&app, HEARTBEAT, json!({"value": 500})).await;
-    assert!(status.is_success(), "{status} {body}");
+    write_heartbeat(&app, 500).await;
     tokio::time::sleep(Duration::from_secs(3)).await;
     assert_eq!(
         served.registry.node(node_1).unwrap().heartbeat_ms,
         Some(500)
     );
     let mut events = served.registry.subscribe();
-    let (status, body) = put(&app, HEARTBEAT, json!({"value": 1000})).await;
-    assert!(status.is_success(), "{status} {body}");
+    write_heartbeat(&app, 1000).await;
     tokio::time::sleep(Duration::from_secs(5)).await;
     // Not offline for a moment at every slower heartbeat until it is learnt.
-    let seen = node_1_events(&mut events);
-    assert!(
-        !seen
-            .iter()
-            .any(|event| matches!(event, NodeEvent::Offline { .. })),
-        "{seen:?}"
-    );
+    assert_node_1_never_offline(&mut events);
     let info = served.registry.node(node_1).unwrap();
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, Some(1000));

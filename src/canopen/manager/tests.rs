@@ -760,13 +760,18 @@ fn a_written_producer_heartbeat_time_is_followed_not_undone() {
         Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
         _ => SdoOutcome::Done(Vec::new()),
     });
+    assert_first_writes_heartbeat_of_2(&actions, 200);
+}
+
+/// A boot-up of node 2 begins by writing `ms` into its 0x1017.
+fn assert_first_writes_heartbeat_of_2(actions: &[Action], ms: u16) {
     assert_eq!(
         actions[0],
         Action::Write {
             node: id(2),
             index: 0x1017,
             sub: 0,
-            data: vec![200, 0]
+            data: ms.to_le_bytes().to_vec()
         }
     );
 }
@@ -817,14 +822,6 @@ fn a_producer_heartbeat_time_written_during_a_boot_up_is_the_one_it_writes() {
     manager.node_found(id(2));
     manager.producer_heartbeat_written(id(2), 750, t0);
     let actions = run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
-    assert_eq!(
-        actions[0],
-        Action::Write {
-            node: id(2),
-            index: 0x1017,
-            sub: 0,
-            data: 750u16.to_le_bytes().to_vec()
-        }
-    );
+    assert_first_writes_heartbeat_of_2(&actions, 750);
     assert_eq!(manager.status().nodes[0].heartbeat_ms, 750);
 }
