@@ -23,6 +23,11 @@ def add_io401(server):
     server.post(f"{IO}/nmt", {"command": "start"})
 
 
+def loaded(browser):
+    browser.wait(lambda _: browser.js("return document.getElementById('io-page').dataset.loaded === 'true'"),
+                 message="the I/O page did not load")
+
+
 def lit(browser):
     return browser.js(
         "return [...document.querySelectorAll('#digital-inputs .lamp')]"
@@ -33,11 +38,8 @@ def test_the_inputs_are_live_and_an_output_set_there_reads_back(browser, server)
     add_io401(server)
     browser.driver.get(f"{server.url}/nodes/demo/4")
     browser.wait(lambda _: browser.js("return !!document.getElementById('io-link')"), message="no I/O link")
-    # Clicked in the page: the node page redraws the link as the node's
-    # events come in, and an element found first may be gone when clicked.
-    browser.js("document.getElementById('io-link').click()")
-    browser.wait(lambda _: browser.js("return document.getElementById('io-page').dataset.loaded === 'true'"),
-                 message="the I/O page did not load")
+    browser.driver.find_element(By.ID, "io-link").click()
+    loaded(browser)
     assert browser.js("return document.querySelectorAll('#digital-inputs .lamp').length") == 16
     assert browser.js("return document.querySelectorAll('#analog-inputs .analog').length") == 4
 
@@ -48,27 +50,54 @@ def test_the_inputs_are_live_and_an_output_set_there_reads_back(browser, server)
     browser.wait(lambda _: browser.js("return document.querySelector('#ch-di1').dataset.source") == "tpdo",
                  message="the inputs did not come from TPDOs")
 
-    # A digital output set on the page, confirmed by the read-back. Found
-    # and clicked in one step: the page's poll may replace the outputs
-    # between a find and a click.
-    browser.js("document.querySelector('#ch-do5 button.set').click()")
+    # A digital output set on the page, confirmed by the read-back.
+    browser.driver.find_element(By.CSS_SELECTOR, "#ch-do5 button.set").click()
     browser.wait(lambda _: browser.js("const r = document.getElementById('set-result'); return r && r.dataset.channel === 'do5' && r.dataset.confirmed"),
                  message="no read-back")
     assert browser.js("return document.getElementById('set-result').dataset.confirmed") == "true"
     assert server.get(f"{IO}/od/0x6200/1")["value"] & 0x10
     browser.wait(lambda _: browser.js("return document.querySelector('#ch-do5').dataset.on") == "true",
                  message="do5 is not shown on")
+    browser.wait(lambda _: browser.js("return document.querySelector('#ch-do5 button.set').textContent") == "Switch off",
+                 message="do5's switch does not offer to switch it off")
 
     # An analogue output: ai4 is wired to ao1 on the io401.
-    # Focused first, in one step: the page's poll then leaves the outputs
-    # alone (it may replace them between a find and a click otherwise).
-    browser.js("document.querySelector('#ch-ao1 input').focus()")
     field = browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao1 input")
     field.clear()
     field.send_keys("2000")
-    browser.js("document.querySelector('#ch-ao1 button.set').click()")
+    browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao1 button.set").click()
     browser.wait(lambda _: browser.js("const r = document.getElementById('set-result'); return r && r.dataset.channel === 'ao1'"),
                  message="no read-back of ao1")
     assert browser.js("return document.getElementById('set-result').dataset.confirmed") == "true"
     browser.wait(lambda _: browser.js("return document.querySelector('#ch-ai4 .value').textContent") == "2000",
                  message="ai4 does not read ao1 back")
+
+
+def test_the_page_reads_leave_the_elements_under_a_finger_in_place(browser, server):
+    """The page reads every channel twice a second. A button replaced by a
+    read between touch and release loses the tap, and a field replaced
+    while typed into loses the digits: each read updates the channels in
+    place."""
+    add_io401(server)
+    browser.driver.get(f"{server.url}/nodes/demo/4/io")
+    loaded(browser)
+    switch = browser.driver.find_element(By.CSS_SELECTOR, "#ch-do2 button.set")
+    browser.js("window.kept = [...document.querySelectorAll('#io-page .lamp, #io-page .analog, #io-page button, #io-page input')]")
+    # Typed but not set, then left: the digits stay through the reads.
+    field = browser.driver.find_element(By.CSS_SELECTOR, "#ch-ao2 input")
+    field.clear()
+    field.send_keys("1234")
+    browser.js("document.activeElement.blur()")
+    # The running light moves only on reads of the page: two moves, two reads at least.
+    for _ in range(2):
+        before = lit(browser)
+        browser.wait(lambda _: lit(browser) not in ([], before), message="the inputs did not change")
+    assert browser.js("return window.kept.filter((el) => !el.isConnected).length") == 0
+    assert field.get_attribute("value") == "1234"
+
+    switch.click()
+    browser.wait(lambda _: browser.js("const r = document.getElementById('set-result'); return r && r.dataset.channel === 'do2' && r.dataset.confirmed"),
+                 message="no read-back of do2")
+    assert server.get(f"{IO}/od/0x6200/1")["value"] & 0x02
+    browser.wait(lambda _: switch.text == "Switch off", message="do2's switch does not offer to switch it off")
+    browser.check()

@@ -99,6 +99,14 @@ def test_the_umc_shows_its_identity_and_links(server, browser):
         ["Drive axis 2", "/nodes/demo/1/axes/2"],
         ["PDOs", "/nodes/demo/1/pdos"],
     ], links
+    # The node is read again at each of its events; its links stay the same
+    # elements (one replaced between touch and release loses the tap).
+    browser.js("window.keptLinks = [...document.querySelectorAll('#node-links a')]")
+    server.post(f"{NODE}/nmt", {"command": "pre_operational"})
+    browser.wait(lambda _: fact(browser, "nmt") == "pre-operational", message="node 1 did not show pre-operational")
+    server.post(f"{NODE}/nmt", {"command": "start"})
+    browser.wait(lambda _: fact(browser, "nmt") == "operational", message="node 1 did not show operational")
+    assert browser.js("return window.keptLinks.every((a) => a.isConnected)")
     # The dictionary grouped by area, the UMC's axes recognised.
     areas = browser.js("return [...document.querySelectorAll('.od-area')].map(s => s.dataset.area)")
     assert areas == [

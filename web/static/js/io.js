@@ -3,6 +3,10 @@
 // with its age and where it came from); an output is set with PUT .../io,
 // and what the page then shows is the value the gateway read back from the
 // device, with whether it confirms what was asked.
+//
+// Each channel's element is made once and updated in place by every read:
+// a button replaced under a finger between touch and release loses the tap,
+// and a field replaced while typed into loses what was typed.
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
@@ -33,54 +37,98 @@ async function set(button, channel, value) {
   refresh();
 }
 
-function lamp(c, output) {
-  const on = c.value === true;
-  return h('div', { class: 'lamp', id: `ch-${c.channel}`, dataset: { on: String(on), source: c.source } },
-    h('span', { class: 'dot', 'aria-hidden': 'true' }),
-    h('span', { class: 'label' }, c.channel),
-    h('span', { class: 'state' }, on ? 'on' : 'off'),
-    output
-      ? h('button', { type: 'button', class: 'set', on: { click: (e) => set(e.currentTarget, c.channel, !on) } }, on ? 'Switch off' : 'Switch on')
-      : h('span', { class: 'age' }, age(c)));
+/** A digital channel: its lamp, and a switch for an output. */
+function lamp(channel, output) {
+  let on = false;
+  const state = h('span', { class: 'state' });
+  const tail = output
+    ? h('button', { type: 'button', class: 'set', on: { click: (e) => set(e.currentTarget, channel, !on) } })
+    : h('span', { class: 'age' });
+  const el = h('div', { class: 'lamp', id: `ch-${channel}` },
+    h('span', { class: 'dot', 'aria-hidden': 'true' }), h('span', { class: 'label' }, channel), state, tail);
+  const update = (c) => {
+    on = c.value === true;
+    el.dataset.on = String(on);
+    el.dataset.source = c.source;
+    state.textContent = on ? 'on' : 'off';
+    // A switch being set keeps its busy label; the read after the set
+    // gives it the new one.
+    if (!output) tail.textContent = age(c);
+    else if (!tail.disabled) tail.textContent = on ? 'Switch off' : 'Switch on';
+  };
+  return { el, update };
 }
 
 const drafts = new Map(); // analogue output -> the value being typed
 
-function analog(c, output) {
-  const children = [h('div', { class: 'label' }, c.channel), h('div', { class: 'value' }, String(c.value))];
+/** An analogue channel: its value, and a field and a button for an output. */
+function analog(channel, output) {
+  const value = h('div', { class: 'value' });
+  const el = h('div', { class: 'analog', id: `ch-${channel}` }, h('div', { class: 'label' }, channel), value);
+  let input = null;
+  let ageEl = null;
   if (output) {
-    const input = h('input', {
-      type: 'number', min: '-32768', max: '32767', step: '1', 'aria-label': `New value of ${c.channel}`,
-      value: drafts.get(c.channel) ?? String(c.value), on: { input: (e) => drafts.set(c.channel, e.target.value) },
+    input = h('input', {
+      type: 'number', min: '-32768', max: '32767', step: '1', 'aria-label': `New value of ${channel}`,
+      on: { input: (e) => drafts.set(channel, e.target.value) },
     });
-    children.push(h('div', {}, input, ' ', h('button', {
+    el.append(h('div', {}, input, ' ', h('button', {
       type: 'button', class: 'set',
-      on: { click: (e) => { const v = Number(input.value); drafts.delete(c.channel); set(e.currentTarget, c.channel, v); } },
+      on: { click: (e) => { const v = Number(input.value); drafts.delete(channel); set(e.currentTarget, channel, v); } },
     }, 'Set')));
   } else {
-    children.push(h('div', { class: 'age' }, age(c)));
+    ageEl = h('div', { class: 'age' });
+    el.append(ageEl);
   }
-  return h('div', { class: 'analog', id: `ch-${c.channel}` }, ...children);
+  const update = (c) => {
+    value.textContent = String(c.value);
+    if (ageEl) ageEl.textContent = age(c);
+    // A field being typed into, or holding a value typed but not yet set,
+    // keeps it.
+    if (input && document.activeElement !== input && !drafts.has(channel)) input.value = String(c.value);
+  };
+  return { el, update };
+}
+
+/**
+ * Shows `channels` in `container`: the elements are made when the set of
+ * channels is new (the first read), and updated in place after that.
+ */
+function show(container, channels, make) {
+  const names = channels.map((c) => c.channel);
+  if (!container.views || container.views.names.join(',') !== names.join(',')) {
+    const views = new Map(names.map((name) => [name, make(name)]));
+    container.views = { names, views };
+    container.replaceChildren(...[...views.values()].map((v) => v.el));
+  }
+  for (const c of channels) container.views.views.get(c.channel).update(c);
 }
 
 let busy = false;
+let readAgain = false;
+/** Reads the channels; one read at a time, a read asked meanwhile runs after. */
 async function refresh() {
-  if (busy) return;
+  if (busy) {
+    readAgain = true;
+    return;
+  }
   busy = true;
   try {
     const io = await api(`${base}/io`);
     showMessage(pageMessage, '');
-    $('#digital-inputs').replaceChildren(...io.digital_inputs.map((c) => lamp(c, false)));
-    $('#digital-outputs').replaceChildren(...io.digital_outputs.map((c) => lamp(c, true)));
-    $('#analog-inputs').replaceChildren(...io.analog_inputs.map((c) => analog(c, false)));
-    // An output being typed into is left alone until it is set.
-    const focused = document.activeElement?.closest?.('#analog-outputs');
-    if (!focused) $('#analog-outputs').replaceChildren(...io.analog_outputs.map((c) => analog(c, true)));
+    show($('#digital-inputs'), io.digital_inputs, (name) => lamp(name, false));
+    show($('#digital-outputs'), io.digital_outputs, (name) => lamp(name, true));
+    show($('#analog-inputs'), io.analog_inputs, (name) => analog(name, false));
+    show($('#analog-outputs'), io.analog_outputs, (name) => analog(name, true));
     root.dataset.loaded = 'true';
   } catch (error) {
     showMessage(pageMessage, `I/O: ${error.message}`);
   } finally {
     busy = false;
+  }
+  if (readAgain) {
+    readAgain = false;
+    refresh();
   }
 }
 

@@ -178,6 +178,11 @@ function renderLinks() {
   if (d.profile === 'uioled') items.push(h('a', { href: `${path}/leds`, class: 'pill' }, 'LEDs'));
   if (d.profile === 'cia401') items.push(h('a', { href: `${path}/io`, class: 'pill', id: 'io-link' }, 'I/O'));
   items.push(h('a', { href: `${path}/pdos`, class: 'pill' }, 'PDOs'));
+  // Redrawn only when they change: the node is read again at each of its
+  // events, and a link replaced between touch and release loses the tap.
+  const key = items.map((a) => `${a.getAttribute('href')} ${a.textContent}`).join('\n');
+  if (links.dataset.drawn === key) return;
+  links.dataset.drawn = key;
   links.replaceChildren(...items);
 }
 
@@ -213,6 +218,7 @@ async function loadDetail() {
       detail = null;
       body.hidden = true;
       title.textContent = error.code === 'unknown_bus' ? 'Unknown bus' : 'Unknown node';
+      delete links.dataset.drawn;
       links.replaceChildren(h('a', { href: '/', class: 'pill' }, 'Back to the overview'));
       showMessage(pageMessage, error.message);
     } else {
