@@ -2,9 +2,13 @@
 binary and headless Chromium driven through chromedriver (Debian's
 `chromium` and `chromium-driver`, which scripts/test installs).
 
-Every test gets a fresh browser profile, and at its end a screenshot in
-target/e2e/<test>.png and a check of everything the browser logged: any
-console error, any request that failed or answered 4xx/5xx fails the test.
+One Chromium serves every test of a test process (starting one took about
+a second of the machine's time, a third of an average test); each test gets
+it as new: a new tab, no cookies, an empty cache, nothing logged, and at its
+end the storage of its server's origin cleared. At a test's end: a
+screenshot in target/e2e/<test>.png and a check of everything the browser
+logged: any console error, any request that failed or answered 4xx/5xx
+fails the test.
 """
 
 import json
@@ -20,6 +24,7 @@ import urllib.request
 
 import pytest
 from selenium import webdriver
+from selenium.common.exceptions import WebDriverException
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.support.ui import WebDriverWait
 
@@ -118,11 +123,35 @@ class Server:
     def post(self, path, body=None):
         return self.request("POST", path, {} if body is None else body)
 
+    def wait_operational(self, bus="demo"):
+        """Waits for the network manager to have started the bus's nodes:
+        identified nodes are pre-operational until then."""
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            nodes = self.get(f"/api/v1/buses/{bus}/nodes")
+            if all(n["nmt"] == "operational" for n in nodes):
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"the nodes of {bus} were not started: {nodes}\n{self.log()}")
+
+    def wait_ready(self, bus="demo"):
+        """Waits for the machine to be `ready`: its first scan of the bus
+        over (about 1.5 s after the start, the absent node IDs' probes
+        timing out), its nodes booted, and the change audited."""
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            machine = self.get(f"/api/v1/buses/{bus}/machine")
+            if machine["state"] == "ready":
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"the machine of {bus} is not ready: {machine}\n{self.log()}")
+
 
 @pytest.fixture
 def server():
     s = Server(free_port())
     s.start()
+    s.wait_operational()
     yield s
     s.stop()
     os.unlink(s.log_file.name)
@@ -146,14 +175,35 @@ class Browser:
         options.add_argument(f"--user-data-dir={self.profile}")
         options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
         self.driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
-        self.driver.set_window_size(1280, 800)
         self.requests = {}  # requestId -> url, from the performance log
         self.problems = []
-        # Chromium's own new-tab page, open before the test navigates,
-        # tries a host it cannot resolve here: leave it, and what it
-        # logged, behind before the test starts.
+        self.fresh()
+
+    def fresh(self):
+        """As new for the next test. A new tab: what the last test set in
+        its own (a device emulation, a script run on every page) goes with
+        it. No cookies (they are per host, not per port), an empty cache,
+        and what was logged until now left behind: Chromium's own new-tab
+        page tries a host it cannot resolve here."""
+        last = self.driver.current_window_handle
+        self.driver.switch_to.new_window("tab")
+        tab = self.driver.current_window_handle
+        self.driver.switch_to.window(last)
+        self.driver.close()
+        self.driver.switch_to.window(tab)
+        self.driver.set_window_size(1280, 800)
+        self.driver.execute_cdp_cmd("Network.clearBrowserCookies", {})
+        self.driver.execute_cdp_cmd("Network.clearBrowserCache", {})
         self.driver.get("about:blank")
         self.drain()
+        self.requests = {}
+        self.problems = []
+
+    def forget(self, origin):
+        """Leaves the page and clears what `origin` stored (a sign-in kept
+        in local storage): the next test's server may get the same port."""
+        self.driver.get("about:blank")
+        self.driver.execute_cdp_cmd("Storage.clearDataForOrigin", {"origin": origin, "storageTypes": "all"})
 
     def drain(self):
         """What went wrong since the last call: console errors, failed
@@ -212,20 +262,45 @@ class Browser:
         return self.driver.execute_script(script, *args)
 
     def quit(self):
-        self.driver.quit()
+        try:
+            self.driver.quit()
+        except WebDriverException:
+            pass  # already gone
         shutil.rmtree(self.profile, ignore_errors=True)
 
 
+@pytest.fixture(scope="session")
+def chromium():
+    """The test process's Chromium, started at its first test."""
+    holder = {}
+    yield holder
+    if "browser" in holder:
+        holder["browser"].quit()
+
+
 @pytest.fixture
-def browser(request, server):
+def browser(request, chromium, server):
     # Asks for the server so that it is torn down after the screenshot: a
     # test's picture shows the page as the test left it, still connected.
-    b = Browser()
+    b = chromium.get("browser")
+    try:
+        if b is None:
+            raise WebDriverException("no browser yet")
+        b.fresh()
+    except WebDriverException:
+        # None yet, or the last one is gone (crashed): a new one.
+        if b is not None:
+            b.quit()
+        b = chromium["browser"] = Browser()
     yield b
     try:
         os.makedirs(SHOTS, exist_ok=True)
         b.driver.save_screenshot(os.path.join(SHOTS, f"{request.node.name}.png"))
         b.check()
     finally:
-        b.quit()
+        try:
+            b.forget(server.url)
+        except WebDriverException:
+            chromium.pop("browser", None)
+            b.quit()
     assert not b.problems, "the browser reported:\n" + "\n".join(b.problems)

@@ -4,9 +4,18 @@ live, the kind filter, "Load older" paging and a phone's width."""
 
 import re
 
+import pytest
 from selenium.webdriver.common.by import By
 
 from test_node import open_node, search, value_text, write
+
+
+@pytest.fixture
+def server(server):
+    # The machine's change to ready is audited too: once it is in, the
+    # newest audit entry is the test's own.
+    server.wait_ready()
+    return server
 
 
 def rows(browser):
