@@ -81,3 +81,34 @@ def test_the_overview_shows_the_machine_live_with_its_actions(server, browser):
     row = browser.driver.find_element(By.CSS_SELECTOR, '#machine tbody tr[data-node="1"]')
     click(browser, row.find_element(By.CSS_SELECTOR, 'button[data-action="start"]'))
     browser.wait(lambda _: all_ready(browser), message=f"node 1 not started: {machine_rows(browser)}")
+
+
+def test_a_change_of_one_node_leaves_the_other_rows_and_the_buttons_in_place(server, browser):
+    """The overview redraws its tables at each machine and node event and
+    at each poll of the buses: what did not change stays the same element,
+    so a link or a button is never replaced between touch and release."""
+    browser.driver.get(server.url + "/")
+    browser.wait(lambda _: all_ready(browser), message=f"the machine is not ready: {machine_rows(browser)}")
+    browser.js("""window.kept = {
+        rows: [...document.querySelectorAll('#machine tbody tr[data-node="1"], #machine tbody tr[data-node="3"]')],
+        buttons: [...document.querySelectorAll('#machine tbody button')],
+        links: [...document.querySelectorAll('#buses a, #nodes tr[data-node="1"] a, #nodes tr[data-node="3"] a, #nodes tr[data-node="2"] td[data-label="Node"] a')],
+    };""")
+    frames = browser.js("return document.querySelector('#buses tbody tr td[data-label=\"Rx\"]').innerText")
+    boot_again = browser.driver.find_element(By.CSS_SELECTOR, '#machine tbody tr[data-node="2"] button[data-action="boot-again"]')
+
+    # Node 2 changes: its row shows it, the rest is what it was.
+    server.post("/api/v1/buses/demo/nodes/2/nmt", {"command": "pre_operational"})
+    browser.wait(lambda _: machine_rows(browser).get("2", {}).get("NMT") == "pre-operational",
+                 message=f"node 2 not pre-operational: {machine_rows(browser)}")
+    browser.wait(lambda _: browser.js("return document.querySelector('#buses tbody tr td[data-label=\"Rx\"]').innerText") != frames,
+                 message="the bus counters were not read again")
+    gone = browser.js("""return Object.entries(window.kept).flatMap(([what, els]) =>
+        els.filter((el) => !el.isConnected).map((el) => `${what}: ${el.outerHTML.slice(0, 120)}`));""")
+    assert gone == [], gone
+
+    # A button found before the change is the one on the page.
+    click(browser, boot_again)
+    browser.wait(lambda _: "demo node 2: boot again sent" in browser.driver.find_element(By.ID, "events").text,
+                 message="the boot was not acknowledged")
+    browser.wait(lambda _: all_ready(browser), message=f"node 2 not booted again: {machine_rows(browser)}")

@@ -66,3 +66,51 @@ export function markAge(el, ageEl, ageMs, staleAfterMs) {
     ageEl.title = stale ? `Stale: expected at least every ${(staleAfterMs / 1000).toFixed(1)} s` : '';
   }
 }
+
+// Each element `updateRows` placed, as it was built (its outerHTML then).
+const builtAs = new WeakMap();
+const built = (el) => {
+  if (!builtAs.has(el)) builtAs.set(el, el.outerHTML);
+  return builtAs.get(el);
+};
+
+/**
+ * Makes `rows` (elements built afresh, each with a `data-key`) the children
+ * of `parent`, keeping the elements already shown where nothing changed: a
+ * row built the same is kept whole, and in a changed row each child built
+ * the same (a cell, a link, a button) is kept. A table redrawn at every
+ * event or poll would otherwise replace a link or a button between touch
+ * and release, and the tap would be lost. Compared as built, not as shown:
+ * a button showing that it is busy is still the same button.
+ */
+export function updateRows(parent, rows) {
+  const shown = new Map();
+  for (const child of parent.children) if (child.dataset.key !== undefined) shown.set(child.dataset.key, child);
+  const wanted = rows.map((row) => {
+    const was = shown.get(row.dataset.key);
+    const html = row.outerHTML;
+    if (!was || was.tagName !== row.tagName || was.children.length !== row.children.length) {
+      builtAs.set(row, html);
+      for (const child of row.children) built(child);
+      return row;
+    }
+    if (built(was) === html) return was;
+    for (const name of was.getAttributeNames()) if (!row.hasAttribute(name)) was.removeAttribute(name);
+    for (const name of row.getAttributeNames()) was.setAttribute(name, row.getAttribute(name));
+    [...row.children].forEach((child, i) => {
+      const old = was.children[i];
+      if (built(old) !== child.outerHTML) {
+        builtAs.set(child, child.outerHTML);
+        old.replaceWith(child);
+      }
+    });
+    builtAs.set(was, html);
+    return was;
+  });
+  const keep = new Set(wanted);
+  for (const child of [...parent.childNodes]) if (!keep.has(child)) child.remove();
+  wanted.forEach((el, i) => {
+    const at = parent.children[i];
+    if (at !== el) parent.insertBefore(el, at || null);
+  });
+}

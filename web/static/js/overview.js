@@ -7,7 +7,7 @@
 import { api, runAction } from './api.js';
 import { axisFault } from './axes.js';
 import { stateLabel } from './cia402.js';
-import { $, clock, h, showMessage } from './dom.js';
+import { $, clock, h, showMessage, updateRows } from './dom.js';
 import { stream } from './layout.js';
 
 const BUS_POLL_MS = 1000;
@@ -66,7 +66,7 @@ function renderBuses() {
     busBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 7 }, 'The gateway serves no bus.')));
     return;
   }
-  busBody.replaceChildren(...[...buses.values()].map(({ info, fps }) => h('tr', { dataset: { bus: info.name } },
+  updateRows(busBody, [...buses.values()].map(({ info, fps }) => h('tr', { dataset: { bus: info.name, key: info.name } },
     h('td', { 'data-label': 'Bus' }, h('strong', {}, h('a', { href: `/buses/${encodeURIComponent(info.name)}/trace`, title: `Trace of bus ${info.name}` }, info.name)),
       h('div', { class: 'sub' }, info.spec)),
     h('td', { 'data-label': 'Kind' }, info.kind),
@@ -220,11 +220,11 @@ function renderNodes() {
     nodeBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 8 }, 'No node found yet.')));
     return;
   }
-  nodeBody.replaceChildren(...entries.map((entry) => {
+  updateRows(nodeBody, entries.map((entry) => {
     const { bus, node, detail, error } = entry;
     const href = `/nodes/${encodeURIComponent(bus)}/${node.id}`;
     const online = node.online;
-    return h('tr', { dataset: { bus, node: node.id }, class: online === false ? 'offline' : null },
+    return h('tr', { dataset: { bus, node: node.id, key: key(bus, node.id) }, class: online === false ? 'offline' : null },
       h('td', { 'data-label': 'Bus' }, bus),
       h('td', { 'data-label': 'Node', class: 'num' }, h('a', { href }, String(node.id))),
       h('td', { 'data-label': 'Product' }, node.name || h('span', { class: 'sub' }, node.identity ? 'no name' : '…'),
@@ -275,14 +275,14 @@ function machineAction(bus, id, label, busy, path, body) {
 }
 
 function renderMachines() {
-  machineStates.replaceChildren(...[...machines.entries()].map(([bus, m]) => h('p', { dataset: { bus } },
+  updateRows(machineStates, [...machines.entries()].map(([bus, m]) => h('p', { dataset: { bus, key: bus } },
     h('strong', {}, `${bus}: `), h('span', { class: `badge ${MACHINE_BADGE[m.state] || ''}`, dataset: { state: m.state } }, m.state),
     m.reasons.length ? h('span', { class: 'sub' }, ` ${m.reasons.join(' · ')}`) : null)));
   const rows = [];
   for (const [bus, m] of [...machines.entries()].sort()) {
     for (const n of m.nodes) {
       const base = `/buses/${encodeURIComponent(bus)}`;
-      rows.push(h('tr', { dataset: { bus, node: n.id, state: n.state } },
+      rows.push(h('tr', { dataset: { bus, node: n.id, state: n.state, key: key(bus, n.id) } },
         h('td', { 'data-label': 'Bus' }, bus),
         h('td', { 'data-label': 'Node', class: 'num' }, String(n.id)),
         h('td', { 'data-label': 'Name' }, n.name || h('span', { class: 'sub' }, '—'),
@@ -304,7 +304,7 @@ function renderMachines() {
     machineBody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 10 }, 'No node expected or found yet.')));
     return;
   }
-  machineBody.replaceChildren(...rows);
+  updateRows(machineBody, rows);
 }
 
 stream.subscribe(['machine'], (data, message) => {
