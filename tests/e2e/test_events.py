@@ -81,9 +81,14 @@ def test_a_write_from_the_node_page_is_in_the_audit_log(server, browser):
 def test_an_emcy_appears_live_and_the_filter_keeps_to_its_kind(server, browser):
     open_events(browser, server)
     browser.js("window.notReloaded = true")
+    # The rows already shown stay the same elements as newer ones come in
+    # (a node's link replaced between touch and release loses the tap).
+    browser.js("window.kept = [...document.querySelectorAll('#history tbody tr[data-kind], #history tbody a')]")
+    assert browser.js("return window.kept.length") > 0
     server.post("/api/v1/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
     try:
         browser.wait(lambda _: any(r["kind"] == "emcy" for r in rows(browser)), message="no EMCY appeared")
+        assert browser.js("return window.kept.filter((el) => !el.isConnected).length") == 0
         emcy = [e for e in server.get("/api/v1/events?kind=emcy") if e["node"] == 1]
         shown = next(r for r in rows(browser) if r["kind"] == "emcy")
         first = next(e for e in emcy if e["id"] == shown["id"])

@@ -6,7 +6,7 @@
 // without a reload and are always the stored ones, with their ids.
 
 import { api } from './api.js';
-import { $, h, showMessage } from './dom.js';
+import { $, h, showMessage, updateRows } from './dom.js';
 import { stream } from './layout.js';
 
 const PAGE = 100;
@@ -117,7 +117,9 @@ function render() {
     tbody.replaceChildren(h('tr', { class: 'placeholder' }, h('td', { colspan: 6 }, 'No event recorded yet.')));
     return;
   }
-  tbody.replaceChildren(...list.map((e) => h('tr', { dataset: { kind: e.kind, id: e.id }, class: `k-${e.kind}` },
+  // Only what changed is replaced: a row under a finger (its node's link)
+  // or being selected stays while newer events come in.
+  updateRows(tbody, list.map((e) => h('tr', { dataset: { kind: e.kind, id: e.id, key: `${e.kind}/${e.id}` }, class: `k-${e.kind}` },
     h('td', { 'data-label': 'Time', class: 'time' }, h('time', { datetime: e.time, title: e.time }, when(e.time_us))),
     h('td', { 'data-label': 'Kind' }, h('span', { class: `kind kind-${e.kind}` }, e.kind.toUpperCase())),
     h('td', { 'data-label': 'Where' }, where(e)),
