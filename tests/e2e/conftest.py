@@ -77,13 +77,11 @@ class Server:
             raise AssertionError(f"candeck did not start: {line!r}\n{self.log()}")
         # The demo devices boot after the server listens: wait for the three
         # to be identified (until then a node's profile is `generic`).
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            nodes = self.get("/api/v1/buses/demo/nodes")
-            if len(nodes) >= 3 and all(n["identification"]["state"] == "done" for n in nodes):
-                return
-            time.sleep(0.1)
-        raise AssertionError(f"the demo nodes did not appear: {self.log()}")
+        self.wait_for(
+            "/api/v1/buses/demo/nodes",
+            lambda nodes: len(nodes) >= 3 and all(n["identification"]["state"] == "done" for n in nodes),
+            "the demo nodes did not appear",
+        )
 
     def kill(self):
         """Ends the process at once, as a crash or a power cut would."""
@@ -123,29 +121,31 @@ class Server:
     def post(self, path, body=None):
         return self.request("POST", path, {} if body is None else body)
 
+    def wait_for(self, path, done, what, timeout=20):
+        """GETs `path` until `done(answer)` (at most `timeout` s), and
+        returns that answer; else fails with `what`, the last answer and
+        the server's log."""
+        deadline = time.monotonic() + timeout
+        while True:
+            answer = self.get(path)
+            if done(answer):
+                return answer
+            if time.monotonic() >= deadline:
+                raise AssertionError(f"{what}: {answer}\n{self.log()}")
+            time.sleep(0.05)
+
     def wait_operational(self, bus="demo"):
         """Waits for the network manager to have started the bus's nodes:
         identified nodes are pre-operational until then."""
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            nodes = self.get(f"/api/v1/buses/{bus}/nodes")
-            if all(n["nmt"] == "operational" for n in nodes):
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"the nodes of {bus} were not started: {nodes}\n{self.log()}")
+        self.wait_for(f"/api/v1/buses/{bus}/nodes", lambda nodes: all(n["nmt"] == "operational" for n in nodes),
+                      f"the nodes of {bus} were not started")
 
     def wait_ready(self, bus="demo"):
         """Waits for the machine to be `ready`: its first scan of the bus
         over (about 1.5 s after the start, the absent node IDs' probes
         timing out), its nodes booted, and the change audited."""
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            machine = self.get(f"/api/v1/buses/{bus}/machine")
-            if machine["state"] == "ready":
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"the machine of {bus} is not ready: {machine}\n{self.log()}")
-
+        self.wait_for(f"/api/v1/buses/{bus}/machine", lambda machine: machine["state"] == "ready",
+                      f"the machine of {bus} is not ready")
 
 @pytest.fixture
 def server():
@@ -283,14 +283,13 @@ def browser(request, chromium, server):
     # Asks for the server so that it is torn down after the screenshot: a
     # test's picture shows the page as the test left it, still connected.
     b = chromium.get("browser")
-    try:
-        if b is None:
-            raise WebDriverException("no browser yet")
-        b.fresh()
-    except WebDriverException:
-        # None yet, or the last one is gone (crashed): a new one.
-        if b is not None:
-            b.quit()
+    if b is not None:
+        try:
+            b.fresh()
+        except WebDriverException:
+            b.quit()  # gone (crashed): a new one
+            b = None
+    if b is None:
         b = chromium["browser"] = Browser()
     yield b
     try:

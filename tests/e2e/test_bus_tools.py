@@ -4,8 +4,6 @@ frame and an RPDO (by its mapping, typed fields) sent from the trace page
 and audited, and the PDO editor saying why a TPDO value has not come yet
 (node not operational, then no SYNC running) until SYNC brings one."""
 
-import time
-
 from selenium.webdriver.common.by import By
 
 from test_trace import open_trace, rows
@@ -32,12 +30,8 @@ def sync_period(server):
 
 def start_node(server, node):
     server.post(f"/api/v1/buses/demo/nodes/{node}/nmt", {"command": "start"})
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        if server.get(f"/api/v1/buses/demo/nodes/{node}")["nmt"] == "operational":
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"node {node} did not become operational")
+    server.wait_for(f"/api/v1/buses/demo/nodes/{node}", lambda n: n["nmt"] == "operational",
+                    f"node {node} did not become operational", timeout=10)
 
 
 def audited(server, path):

@@ -3,8 +3,6 @@ Chromium against `candeck serve`: the virtual io401 added to the demo bus,
 its inputs live on the page (from its TPDOs, changing on their own), a
 digital and an analogue output set there and read back."""
 
-import time
-
 from selenium.webdriver.common.by import By
 
 IO = "/api/v1/buses/demo/nodes/4"
@@ -12,14 +10,9 @@ IO = "/api/v1/buses/demo/nodes/4"
 
 def add_io401(server):
     server.post("/api/v1/buses/demo/sim/nodes", {"product": "io401", "id": 4})
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        nodes = {n["id"]: n for n in server.get("/api/v1/buses/demo/nodes")}
-        if nodes.get(4, {}).get("profile") == "cia401":
-            break
-        time.sleep(0.1)
-    else:
-        raise AssertionError("the io401 was not identified")
+    server.wait_for("/api/v1/buses/demo/nodes",
+                    lambda nodes: any(n["id"] == 4 and n["profile"] == "cia401" for n in nodes),
+                    "the io401 was not identified", timeout=15)
     server.post(f"{IO}/nmt", {"command": "start"})
 
 

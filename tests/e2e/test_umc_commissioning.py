@@ -11,14 +11,9 @@ UMC = "/api/v1/buses/demo/nodes/1"
 
 
 def wait_identified(server):
-    import time
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        nodes = {n["id"]: n for n in server.get("/api/v1/buses/demo/nodes")}
-        if nodes.get(1, {}).get("profile") == "umc":
-            return
-        time.sleep(0.1)
-    raise AssertionError("the UMC was not identified")
+    server.wait_for("/api/v1/buses/demo/nodes",
+                    lambda nodes: any(n["id"] == 1 and n["profile"] == "umc" for n in nodes),
+                    "the UMC was not identified", timeout=15)
 
 
 def loaded(browser, root):
