@@ -77,8 +77,9 @@ const built = (el) => {
 /**
  * Makes `rows` (elements built afresh, each with a `data-key`) the children
  * of `parent`, keeping the elements already shown where nothing changed: a
- * row built the same is kept whole, and in a changed row each child built
- * the same (a cell, a link, a button) is kept. A table redrawn at every
+ * row built the same is kept whole, and in a changed row each child element
+ * built the same (a cell, a link, a button) is kept (a changed row with
+ * text of its own, a link's, is replaced whole). A table redrawn at every
  * event or poll would otherwise replace a link or a button between touch
  * and release, and the tap would be lost. Compared as built, not as shown:
  * a button showing that it is busy is still the same button.
@@ -89,7 +90,9 @@ export function updateRows(parent, rows) {
   const wanted = rows.map((row) => {
     const was = shown.get(row.dataset.key);
     const html = row.outerHTML;
-    if (!was || was.tagName !== row.tagName || was.children.length !== row.children.length) {
+    const elementsOnly = row.childNodes.length === row.children.length;
+    if (!was || was.tagName !== row.tagName || was.children.length !== row.children.length
+      || (!elementsOnly && built(was) !== html)) {
       builtAs.set(row, html);
       for (const child of row.children) built(child);
       return row;

@@ -7,7 +7,7 @@
 
 import { api, apiFetch, ApiError, describeError, runAction } from './api.js';
 import { authorization, signInAgain, whenSignedIn } from './auth.js';
-import { $, clock, h, showMessage } from './dom.js';
+import { $, clock, h, showMessage, updateRows } from './dom.js';
 import { stream } from './layout.js';
 
 const root = $('#node-page');
@@ -178,12 +178,11 @@ function renderLinks() {
   if (d.profile === 'uioled') items.push(h('a', { href: `${path}/leds`, class: 'pill' }, 'LEDs'));
   if (d.profile === 'cia401') items.push(h('a', { href: `${path}/io`, class: 'pill', id: 'io-link' }, 'I/O'));
   items.push(h('a', { href: `${path}/pdos`, class: 'pill' }, 'PDOs'));
-  // Redrawn only when they change: the node is read again at each of its
-  // events, and a link replaced between touch and release loses the tap.
-  const key = items.map((a) => `${a.getAttribute('href')} ${a.textContent}`).join('\n');
-  if (links.dataset.drawn === key) return;
-  links.dataset.drawn = key;
-  links.replaceChildren(...items);
+  // The node is read again at each of its events: a link that stays the
+  // same stays the same element (one replaced between touch and release
+  // loses the tap).
+  for (const a of items) a.dataset.key = a.getAttribute('href');
+  updateRows(links, items);
 }
 
 let reading = false;
@@ -218,7 +217,6 @@ async function loadDetail() {
       detail = null;
       body.hidden = true;
       title.textContent = error.code === 'unknown_bus' ? 'Unknown bus' : 'Unknown node';
-      delete links.dataset.drawn;
       links.replaceChildren(h('a', { href: '/', class: 'pill' }, 'Back to the overview'));
       showMessage(pageMessage, error.message);
     } else {
