@@ -10,11 +10,12 @@ RUN apt-get update \
     && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 # Only what `cargo build --release --locked` reads: the manifest and lock
-# file, the sources, the templates and static files the binary embeds
+# file, the sources (the binary's and the workspace's crates), the templates and static files the binary embeds
 # (askama.toml, web/), the built-in EDS files (include_str!), and benches/
 # because Cargo.toml names its [[bench]] targets.
 COPY Cargo.toml Cargo.lock askama.toml ./
 COPY src ./src
+COPY crates ./crates
 COPY web ./web
 COPY eds ./eds
 COPY benches ./benches

@@ -26,7 +26,6 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use candeck::api::{AppState, app};
-use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -138,7 +137,7 @@ fn spawn_gateway() -> SocketAddr {
             .build()
             .expect("runtime");
         runtime.block_on(async move {
-            let served = ServedBus::open(
+            let served = candeck::emulator::open_bus(
                 "demo",
                 &"virtual:demo?bitrate=unlimited".parse().expect("spec"),
                 Arc::new(EdsCatalog::builtin().expect("catalog")),

@@ -10,13 +10,13 @@
 //! Run: `cargo bench --bench machine_boot` (both bit rates: the virtual
 //! bus without a bit rate, software time only, and at 500 kbit/s).
 
+use candeck::emulator::RackOf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use candeck::can::spec::BusSpec;
 use candeck::canopen::NodeId;
 use candeck::canopen::manager::{MachineState, ManagerConfig, NodeDescription};
-use candeck::gateway::ServedBus;
 use candeck::gateway::machine::MachineSettings;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
@@ -87,17 +87,18 @@ async fn run(spec: &str, dcf_path: &std::path::Path) -> Figures {
         })
         .collect();
     let started = Instant::now();
-    let served = ServedBus::open("bench", &spec, catalog, RegistryConfig::default(), 500_000)
-        .await
-        .expect("bus")
-        .with_machine(
-            MachineSettings {
-                manager: ManagerConfig::default(),
-                nodes: described,
-            },
-            None,
-        );
-    let rack = served.rack.as_ref().expect("a virtual bus");
+    let served =
+        candeck::emulator::open_bus("bench", &spec, catalog, RegistryConfig::default(), 500_000)
+            .await
+            .expect("bus")
+            .with_machine(
+                MachineSettings {
+                    manager: ManagerConfig::default(),
+                    nodes: described,
+                },
+                None,
+            );
+    let rack = served.rack().expect("a virtual bus");
     for id in 1..=nodes() {
         rack.add(Product::Uio1led, NodeId::new(id).expect("node id"))
             .expect("device");

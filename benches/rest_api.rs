@@ -31,7 +31,6 @@ use std::time::{Duration, Instant};
 
 use candeck::api::{AppState, app};
 use candeck::canopen::NodeId;
-use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use candeck::gateway::sdo::SdoChannel;
@@ -301,7 +300,7 @@ fn spawn_gateway() -> (
             .expect("runtime");
         let local = tokio::task::LocalSet::new();
         local.block_on(&runtime, async move {
-            let served = ServedBus::open(
+            let served = candeck::emulator::open_bus(
                 "demo",
                 // The software is measured, not the wire.
                 &"virtual:demo?bitrate=unlimited".parse().expect("spec"),

@@ -40,15 +40,13 @@
 
 pub mod api;
 pub mod ascii;
-pub mod can;
-pub mod canopen;
+pub use candeck_can as can;
+pub use candeck_canopen as canopen;
 pub mod cia309;
 pub mod cli;
-pub mod gateway;
-pub mod profiles;
-pub mod sim;
+pub mod emulator;
+pub use candeck_gateway as gateway;
+pub use candeck_profiles as profiles;
+pub use candeck_sim as sim;
 pub mod sparkplug;
 pub mod web;
-
-#[cfg(test)]
-mod test_support;

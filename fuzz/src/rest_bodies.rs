@@ -15,7 +15,6 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::http::{Method, Request};
 use candeck::api::{AppState, app};
-use candeck::gateway::ServedBus;
 use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use serde_json::Value as Json;
@@ -134,7 +133,7 @@ pub fn run(data: &[u8]) {
         .build()
         .expect("a runtime");
     runtime.block_on(async {
-        let served = ServedBus::open(
+        let served = candeck::emulator::open_bus(
             "demo",
             &"virtual:demo".parse().unwrap(),
             catalog(),

@@ -12,6 +12,7 @@
 //! error) is 422 `fault_not_applicable`: the request is well formed, the
 //! device refuses it, as a device refuses an SDO write with an abort.
 
+use crate::emulator::RackOf;
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
@@ -192,8 +193,8 @@ impl FaultRequest {
 fn rack(state: &AppState, bus: &str) -> Result<Rack, AppError> {
     state
         .bus(bus)?
-        .rack
-        .clone()
+        .rack()
+        .cloned()
         .ok_or_else(|| AppError::NotVirtual(bus.to_string()))
 }
 

@@ -11,9 +11,9 @@ use super::CliError;
 use super::serve::NamedBus;
 use crate::ascii::serve_connection;
 use crate::cia309::{Cia309Gateway, Identity};
+use crate::gateway::Gateway;
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
-use crate::gateway::{Gateway, ServedBus};
 
 #[derive(Debug, Args)]
 pub struct AsciiArgs {
@@ -40,7 +40,7 @@ pub async fn run(args: AsciiArgs) -> Result<(), CliError> {
     }
     let mut served = Vec::new();
     for bus in &buses {
-        let opened = ServedBus::open(
+        let opened = crate::emulator::open_bus(
             &bus.name,
             &bus.spec,
             catalog.clone(),

@@ -375,7 +375,7 @@ struct LoopView {
 }
 
 /// The tuning page of a UMC axis: the PID configuration of each loop
-/// (`src/profiles/umc.rs`, `pid`), its live status, the step test.
+/// (`crates/profiles/src/umc.rs`, `pid`), its live status, the step test.
 #[derive(Template)]
 #[template(path = "tune.html")]
 struct TunePage {

@@ -17,7 +17,7 @@ use crate::api::{AppState, app};
 /// without virtual devices.
 async fn buses() -> (Router, AppState) {
     let mut remote = open("remote", "virtual:empty").await;
-    remote.rack = None;
+    remote.devices = None;
     let state = AppState::new([
         open("demo", "virtual:demo").await,
         open("bench", "virtual:empty").await,

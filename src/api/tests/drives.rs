@@ -3,6 +3,7 @@
 //! router without a socket, on a paused clock: every motion asked for is
 //! checked in the positions and velocities the drives report.
 
+use crate::emulator::RackOf;
 use std::time::Duration;
 
 use axum::Router;
@@ -490,7 +491,7 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
 async fn a_drive_in_fault_is_409_until_reset() {
     let (app, state) = demo().await;
     enable(&app, UMC, 1).await;
-    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack().unwrap();
     let umc = NodeId::new(UMC).unwrap();
     rack.inject_fault(umc, Fault::OverTemperature).unwrap();
     let status = wait_for(&app, UMC, 1, 2000, |s| s["state"] == "fault").await;
@@ -582,7 +583,7 @@ async fn a_fault_during_a_move_ends_it_with_the_error() {
         })
     };
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -634,7 +635,7 @@ async fn pending_mode_change(app: &Router) -> tokio::task::JoinHandle<(StatusCod
 async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
     let (app, state) = demo().await;
     let request = pending_mode_change(&app).await;
-    let rack = state.gateway.buses["demo"].rack.as_ref().unwrap();
+    let rack = state.gateway.buses["demo"].rack().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -783,8 +784,7 @@ async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() 
     let (app, state) = demo().await;
     let served = &state.gateway.buses["demo"];
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .add_device(stuck_cia402_drive(9, "0x0040", "0"))
         .unwrap();
@@ -880,8 +880,7 @@ async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
     // Operation enabled in profile position, but it never acknowledges a
     // set-point: the target is written, then the wait for bit 12 fails.
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .add_device(stuck_cia402_drive(9, "0x0027", "1"))
         .unwrap();
@@ -920,7 +919,7 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
     let jmc = NodeId::new(2).unwrap();
     let served = &state.gateway.buses["demo"];
     let period = served.registry.node(jmc).unwrap().heartbeat_ms.unwrap();
-    served.rack.as_ref().unwrap().unplug(jmc).unwrap();
+    served.rack().unwrap().unplug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;
     assert!(!served.registry.node(jmc).unwrap().online);
 
@@ -946,7 +945,7 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
         .collect();
     assert_eq!(methods, ["halt", "quick_stop", "nmt_stop"], "{body}");
 
-    served.rack.as_ref().unwrap().plug(jmc).unwrap();
+    served.rack().unwrap().plug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;
     assert!(served.registry.node(jmc).unwrap().online);
     enable(&app, 2, 1).await;
@@ -964,7 +963,7 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
 async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
     let (app, state) = demo().await;
     let served = &state.gateway.buses["demo"];
-    let rack = served.rack.as_ref().unwrap();
+    let rack = served.rack().unwrap();
     // Switched on: the walk to operation enabled is one step.
     rack.add_device(stuck_cia402_drive(9, "0x0023", "1"))
         .unwrap();
@@ -1005,7 +1004,7 @@ async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
 async fn a_stop_during_a_set_point_wait_is_409_not_a_timeout() {
     let (app, state) = demo().await;
     let served = &state.gateway.buses["demo"];
-    let rack = served.rack.as_ref().unwrap();
+    let rack = served.rack().unwrap();
     // Operation enabled in profile position; it never acknowledges.
     rack.add_device(stuck_cia402_drive(9, "0x0027", "1"))
         .unwrap();

@@ -2,13 +2,14 @@
 //! `--eds-dir` that were left out with all their problems, while the good
 //! ones serve.
 
+use crate::emulator::RackOf;
 use std::sync::Arc;
 
 use axum::http::StatusCode;
 use serde_json::Value as Json;
 
 use super::get;
-use crate::api::{AppState, ServedBus, app};
+use crate::api::{AppState, app};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
 
@@ -34,7 +35,7 @@ async fn the_catalog_lists_every_file_with_its_problems_and_the_ones_left_out() 
         .replace("AccessType=ro", "AccessType=");
     std::fs::write(dir.join("anonymous.eds"), anonymous).unwrap();
     let catalog = EdsCatalog::with_dir(&dir).unwrap();
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "bench",
         &"virtual:empty".parse().unwrap(),
         Arc::new(catalog),
@@ -170,7 +171,7 @@ async fn an_upload_is_validated_kept_0600_listed_as_uploaded_and_deleted() {
         .unwrap()
         .with_uploads(dir.join("eds"))
         .unwrap();
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "bench",
         &"virtual:empty".parse().unwrap(),
         Arc::new(catalog),
@@ -293,7 +294,7 @@ async fn demo_with_anonymous_drive() -> (axum::Router, AppState) {
     let device =
         crate::sim::device::DeviceCore::new(dictionary, crate::canopen::NodeId::new(6).unwrap())
             .unwrap();
-    served.rack.as_ref().unwrap().add_device(device).unwrap();
+    served.rack().unwrap().add_device(device).unwrap();
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), 4, "{nodes:?}");
     let state = AppState::new([served]);
@@ -404,7 +405,7 @@ async fn a_node_whose_eds_names_no_product_is_assigned_then_read_and_written_by_
         crate::sim::device::DeviceCore::new(dictionary, crate::canopen::NodeId::new(7).unwrap())
             .unwrap();
     let served = &state.gateway.buses["demo"];
-    served.rack.as_ref().unwrap().add_device(device).unwrap();
+    served.rack().unwrap().add_device(device).unwrap();
     served.registry.scan().await.unwrap();
     let (_, node) = get(&app, "/api/v1/buses/demo/nodes/7").await;
     assert_eq!(
@@ -436,8 +437,7 @@ async fn a_drive_assigned_a_non_uniswarm_402_eds_lists_its_axis_and_is_enabled()
     use axum::http::Method;
     let served = super::support::open("bench", "virtual:empty").await;
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .add(
             crate::sim::products::Product::Umc1bd90,

@@ -2,6 +2,7 @@
 //! once it is operational (over SDO before), outputs set and read back,
 //! and the refusals.
 
+use crate::emulator::RackOf;
 use std::time::Duration;
 
 use axum::http::{Method, StatusCode};
@@ -14,7 +15,7 @@ use crate::sim::products::Product;
 
 async fn bench() -> axum::Router {
     let served = open("bench", "virtual:empty").await;
-    let rack = served.rack.as_ref().unwrap();
+    let rack = served.rack().unwrap();
     rack.add(Product::Io401, NodeId::new(4).unwrap()).unwrap();
     rack.add(Product::Uio1led, NodeId::new(3).unwrap()).unwrap();
     served.registry.scan().await.unwrap();

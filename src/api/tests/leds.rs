@@ -2,6 +2,7 @@
 //! router on the demo bus (node 1 UMC1BDS32, node 2 JMC, node 3 UIO1LED),
 //! on a paused clock.
 
+use crate::emulator::RackOf;
 use std::collections::BTreeMap;
 use std::time::Duration;
 
@@ -412,8 +413,7 @@ async fn a_dcf_backup_of_a_umc_restored_onto_a_second_umc_gives_identical_parame
 
     let served = &state.gateway.buses["demo"];
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .add(Product::Umc1bds32, NodeId::new(4).unwrap())
         .unwrap();

@@ -3,6 +3,7 @@
 //! through the API is followed, by the registry and by the manager, at
 //! once, never undone by a boot-up it caused.
 
+use crate::emulator::RackOf;
 use std::time::Duration;
 
 use axum::Router;
@@ -137,7 +138,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
     assert_eq!(machine_node(&app, 1).await["heartbeat_ms"], 200);
     assert!(served.registry.node(node_1).unwrap().online);
     node_1_events(&mut events);
-    served.rack.as_ref().unwrap().unplug(node_1).unwrap();
+    served.rack().unwrap().unplug(node_1).unwrap();
     tokio::time::sleep(Duration::from_millis(310)).await;
     let lost = machine_node(&app, 1).await;
     assert_eq!(lost["state"], "offline", "{lost}");

@@ -24,6 +24,7 @@ mod stream;
 pub(super) mod support;
 mod telemetry;
 
+use crate::emulator::RackOf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -55,7 +56,7 @@ async fn served(testnode: bool) -> ServedBus {
             )))
             .unwrap();
     }
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "demo",
         &"virtual:demo".parse().unwrap(),
         Arc::new(catalog),
@@ -68,7 +69,7 @@ async fn served(testnode: bool) -> ServedBus {
         let text = include_str!("../../../tests/data/testnode.eds");
         let dictionary = Eds::parse(text, "testnode.eds").unwrap().dictionary;
         let device = DeviceCore::new(dictionary, NodeId::new(TESTNODE).unwrap()).unwrap();
-        served.rack.as_ref().unwrap().add_device(device).unwrap();
+        served.rack().unwrap().add_device(device).unwrap();
     }
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), if testnode { 4 } else { 3 }, "{nodes:?}");
@@ -525,8 +526,7 @@ async fn silent_device_is_504_and_bus_down_503() {
     let (app, state) = demo().await;
     let served = &state.gateway.buses["demo"];
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .unplug(NodeId::new(3).unwrap())
         .unwrap();
@@ -663,7 +663,7 @@ async fn one_node_has_its_profile_summary() {
 #[tokio::test(start_paused = true)]
 async fn a_node_heard_only_booting_takes_sdo() {
     let (app, state) = demo().await;
-    let rack = state.gateway.buses["demo"].rack.clone().unwrap();
+    let rack = state.gateway.buses["demo"].rack().cloned().unwrap();
     rack.add(
         crate::sim::products::Product::Uio1led,
         NodeId::new(9).unwrap(),

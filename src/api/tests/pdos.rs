@@ -2,6 +2,7 @@
 //! `virtual:demo`, called through the router without a socket, on a paused
 //! clock.
 
+use crate::emulator::RackOf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -11,7 +12,7 @@ use serde_json::{Value as Json, json};
 use tokio::time::Instant;
 
 use crate::api::tests::support::{assert_error, get, post, put};
-use crate::api::{AppState, ServedBus, app};
+use crate::api::{AppState, app};
 use crate::can::{CanId, FrameReceiver};
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
@@ -28,7 +29,7 @@ const STUBBORN: u8 = 9;
 /// The demo bus with every node identified; with `stubborn`, also a
 /// UMC1BDS32 core at node 9 whose 0x1A00 entries are read-only.
 async fn demo_with(stubborn: bool) -> (Router, AppState) {
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "demo",
         &"virtual:demo".parse().unwrap(),
         Arc::new(EdsCatalog::builtin().unwrap()),
@@ -44,7 +45,7 @@ async fn demo_with(stubborn: bool) -> (Router, AppState) {
             dictionary.sub_mut(0x1A00, sub).unwrap().access = AccessType::Ro;
         }
         let device = DeviceCore::new(dictionary, NodeId::new(STUBBORN).unwrap()).unwrap();
-        served.rack.as_ref().unwrap().add_device(device).unwrap();
+        served.rack().unwrap().add_device(device).unwrap();
     }
     let nodes = served.registry.scan().await.unwrap();
     assert_eq!(nodes.len(), if stubborn { 4 } else { 3 }, "{nodes:?}");

@@ -4,6 +4,7 @@
 //! NMT stop of a node that does not answer SDO at all, from STOP ALL, a
 //! halt and a lapsed lease.
 
+use crate::emulator::RackOf;
 use std::time::Duration;
 
 use axum::Router;
@@ -231,8 +232,7 @@ async fn stop_all_sends_nmt_stop_to_a_drive_that_does_not_answer_sdo() {
     let mut frames = served.bus.monitor();
     // The node hears nothing and answers nothing from now on.
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .unplug(NodeId::new(UMC).unwrap())
         .unwrap();
@@ -283,8 +283,7 @@ async fn a_halt_of_a_drive_that_does_not_answer_falls_back_to_nmt_stop() {
     let served = &state.gateway.buses["demo"];
     let mut frames = served.bus.monitor();
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .unplug(NodeId::new(UMC).unwrap())
         .unwrap();
@@ -316,8 +315,7 @@ async fn a_lapsed_lease_on_a_drive_that_does_not_answer_sends_nmt_stop() {
     let served = &state.gateway.buses["demo"];
     let mut frames = served.bus.monitor();
     served
-        .rack
-        .as_ref()
+        .rack()
         .unwrap()
         .unplug(NodeId::new(UMC).unwrap())
         .unwrap();

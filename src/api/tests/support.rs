@@ -15,7 +15,7 @@ use crate::gateway::registry::RegistryConfig;
 
 /// `spec` opened as bus `name` with the built-in EDS catalog.
 pub(crate) async fn open(name: &str, spec: &str) -> ServedBus {
-    ServedBus::open(
+    crate::emulator::open_bus(
         name,
         &spec.parse().unwrap(),
         Arc::new(EdsCatalog::builtin().unwrap()),

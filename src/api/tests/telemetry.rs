@@ -4,6 +4,7 @@
 //! during a velocity move, the TPDO and SDO sources, coalescing, the SDO
 //! traffic that stops when nobody reads.
 
+use crate::emulator::RackOf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -167,7 +168,7 @@ async fn an_axis_without_tpdos_is_polled_at_the_rate_asked_and_not_at_all_when_n
 
 #[tokio::test(start_paused = true)]
 async fn the_poll_rate_is_capped_by_the_configured_maximum() {
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "demo",
         &"virtual:demo".parse().unwrap(),
         Arc::new(crate::gateway::profile::EdsCatalog::builtin().unwrap()),
@@ -257,7 +258,7 @@ async fn a_failed_poll_says_why_and_keeps_the_last_status() {
     let first = reader.changed().await.unwrap();
     assert!(first.data.get("error").is_none(), "{}", first.data);
     let statusword = first.data["statusword"].clone();
-    served.rack.as_ref().unwrap().unplug(node(2)).unwrap();
+    served.rack().unwrap().unplug(node(2)).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(4)).await;
     let failed = samples
         .iter()
@@ -271,7 +272,7 @@ async fn a_failed_poll_says_why_and_keeps_the_last_status() {
         failed.data
     );
     // Back: samples without error again.
-    served.rack.as_ref().unwrap().plug(node(2)).unwrap();
+    served.rack().unwrap().plug(node(2)).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(4)).await;
     assert!(
         samples

@@ -7,7 +7,6 @@ use std::sync::Arc;
 use crate::api::AppState;
 use crate::can::socketcand::{ServerConfig, SocketcandServer};
 use crate::cli::{CliError, shutdown_signal};
-use crate::gateway::ServedBus;
 use crate::gateway::history::History;
 use crate::gateway::producers::TelemetryConfig;
 use crate::gateway::profile::EdsCatalog;
@@ -63,7 +62,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             },
             ..RegistryConfig::default()
         };
-        let mut opened = ServedBus::open_with_data_dir(
+        let mut opened = crate::emulator::open_bus_with_data_dir(
             &bus.name,
             &bus.spec,
             catalog.clone(),

@@ -7,7 +7,6 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::*;
-use crate::gateway::ServedBus;
 use crate::gateway::history::{EventKind, Query};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
@@ -22,7 +21,7 @@ use crate::sparkplug::topic::{MessageType, Topic};
 const PERIOD: Duration = Duration::from_millis(1000);
 
 async fn demo() -> Gateway {
-    let served = ServedBus::open(
+    let served = crate::emulator::open_bus(
         "demo",
         &"virtual:demo".parse().unwrap(),
         Arc::new(EdsCatalog::builtin().unwrap()),

@@ -1,0 +1,108 @@
+//! The CANopen master: what candeck does on a bus with the protocol of
+//! [`candeck_canopen`], as one service ([`Gateway`]) that every door
+//! (REST, CiA 309-3 and 309-5, Sparkplug B, the command line: the
+//! `candeck` package) holds. This crate builds on `candeck-can`,
+//! `candeck-canopen` and `candeck-profiles` only: it knows no door, no
+//! HTTP and no virtual device (the workspace's manifests, checked by
+//! `tests/layering.rs`).
+//!
+//! # Layout
+//!
+//! - [`service`]: the [`Gateway`] service and each [`ServedBus`] (its
+//!   registry, telemetry, SYNC producer, recorder, virtual devices); the
+//!   rules every adapter obeys ([`check_sdo_allowed`], a drive's checks),
+//!   NMT.
+//! - [`error`]: [`GatewayError`], the service's one error type.
+//! - [`access`]: tokens and roles, and the write rate limit, for every
+//!   adapter.
+//! - [`files`]: the data directory's modes (0700 directories, 0600 files).
+//! - [`io`]: the I/O of a CiA 401 module: every channel with its value
+//!   and age, outputs set and read back.
+//! - [`leases`]: the motion leases granted and the supervisor that stops
+//!   the axis of a lapsed one ([`motion_lease`] is their table).
+//! - [`safe_stop`]: STOP ALL and the stop on shutdown.
+//! - [`load`]: the measured load of a bus.
+//! - [`logger`]: the data logger: objects of any nodes sampled at a
+//!   period (TPDO or SDO), kept in memory and in the data directory.
+//! - [`lss`]: LSS (CiA 305) on a bus: Fastscan for unconfigured devices,
+//!   node-ID assignment, and the UniSwarm node-ID change by 0x2040.
+//! - [`machine`]: the network manager of a bus (CiA 302-2) at work: the
+//!   [`crate::canopen::manager`] driven by a task per bus, its heartbeat,
+//!   the machine's status.
+//! - [`sdo`]: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
+//!   a time, with a fair queue; each node's transfers counted by outcome,
+//!   with a latency histogram (for `/metrics`).
+//! - [`drive`]: the CiA 402 master of one axis of a drive node (state walk,
+//!   fault reset, halt, moves in each mode of UMC, JMC and generic drives).
+//! - [`step_test`]: the step test of a UMC axis's control loop and its
+//!   metrics (rise time, overshoot, settling, steady-state error).
+//! - [`frames`]: the recent frames of a bus, in a bounded ring.
+//! - [`eds_files`]: EDS files uploaded and deleted, and assigned to nodes
+//!   by hand, as operations of the [`Gateway`].
+//! - [`history`]: the persisted audit log and EMCY/NMT history (SQLite).
+//! - [`profile`]: the [`Profile`](profile::Profile) of a node and the EDS
+//!   catalog (built-in and `--eds-dir` files) its identity is matched to.
+//! - [`recording`]: a bus recorded to a candump `-L` log file (by the record
+//!   loop of [`crate::can::candump::LogRecorder`]), started and
+//!   stopped at will.
+//! - [`registry`]: the node registry of one bus: nodes found by boot-up,
+//!   heartbeat and scan, identified, supervised, with their EMCY history.
+//! - [`uioled`]: a UIO1LED's segments over SDO.
+//! - [`dcf`]: configuration backup and restore as a CiA 306 DCF.
+//! - [`program`]: program download (CiA 302-3): stop, clear, block
+//!   download to 0x1F50, verify 0x1F56 against the image's CRC-32, start.
+//! - [`pdo`]: a node's PDO configuration over SDO, the re-mapping
+//!   procedure, TPDO decoding and RPDO encoding.
+//! - [`sync`]: the gateway's SYNC producer on a bus.
+//! - [`values`]: the nodes' TPDO values, decoded by the mappings read from
+//!   them.
+//! - [`telemetry`]: value topics (newest sample wins) for the stream, and
+//!   the stream's counters.
+//! - [`producers`]: what the producers of value topics share: a task per
+//!   topic while someone reads, publishes paced to the readers' rate, the
+//!   [`TelemetryConfig`](producers::TelemetryConfig).
+//! - [`axis_telemetry`]: each drive axis's status for the stream, from
+//!   TPDOs or SDO polling.
+//! - [`led_preview`]: each LED controller's preview for the stream.
+//! - [`edge_node`]: the counters of the Sparkplug B edge node, for
+//!   `/metrics`.
+
+use candeck_can as can;
+use candeck_canopen as canopen;
+use candeck_profiles as profiles;
+
+pub mod access;
+pub mod axis_telemetry;
+pub mod dcf;
+pub mod drive;
+pub mod edge_node;
+pub mod eds_files;
+pub mod error;
+pub mod files;
+pub mod frames;
+pub mod history;
+pub mod io;
+pub mod leases;
+pub mod led_preview;
+pub mod load;
+pub mod logger;
+pub mod lss;
+pub mod machine;
+pub mod motion_lease;
+pub mod pdo;
+pub mod producers;
+pub mod profile;
+pub mod program;
+pub mod recording;
+pub mod registry;
+pub mod safe_stop;
+pub mod sdo;
+pub mod service;
+pub mod step_test;
+pub mod sync;
+pub mod telemetry;
+pub mod uioled;
+pub mod values;
+
+pub use error::GatewayError;
+pub use service::{Gateway, ServedBus, check_sdo_allowed};

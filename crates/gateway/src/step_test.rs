@@ -1,0 +1,404 @@
+//! The step test of a UMC axis's control loop (UMC manual chapter 1 §3.5;
+//! what UniSwarm's UDTStudio PID widget does): the loop's target is held at
+//! `from`, then stepped to `to` and held, while its actual value is
+//! recorded; the answer is the response with its rise time, overshoot,
+//! settling time and steady-state error.
+//!
+//! Each loop is exercised through the CiA 402 mode whose target is its
+//! input (UMC manual chapter 2): the torque loop in TQ (0x6071 → 0x6077,
+//! per mille of the rated torque), the velocity loop in VL (0x6042 →
+//! 0x6044, velocity units), the position loop in PP with change
+//! immediately (0x607A → 0x6064, increments); each step passes the mode's
+//! own ramp (0x6087, 0x6048, the profile's velocity and acceleration) as
+//! the drive does. The actual value is taken from the TPDO that carries
+//! it when one runs (the node sent the axis's actual value in a TPDO within
+//! the last [`TPDO_FRESH`] when the step is made: node operational, the
+//! TPDO on an event timer or on SYNC): one sample per frame, timed by its
+//! arrival, at whatever rate the TPDO comes, and no SDO transfer. If that
+//! TPDO then falls silent for [`TPDO_FRESH`], the rest of the hold is read
+//! by SDO. Without such a TPDO the actual value is read by SDO every
+//! millisecond (the board's control cycle), or as fast as the node answers
+//! when that is slower; each read queues on the node's channel with
+//! everyone else's. The answer's `source` says which.
+//!
+//! Only a UMC-class drive (one with the PID objects) and only an axis in
+//! operation enabled are tested. Whatever happens, the axis is stopped at
+//! the end (halt, or quick stop if the halt cannot be written).
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::axis_telemetry::TPDO_FRESH;
+use crate::drive::{Drive, DriveError, DriveKind, MoveRequest};
+use crate::profiles::cia402::State;
+use crate::profiles::cia402::objects as obj;
+use crate::values::TpdoValues;
+
+#[cfg(test)]
+mod tests;
+
+/// The shortest and longest hold of each level, ms.
+pub const HOLD_MS: (u32, u32) = (20, 10_000);
+/// The sampling period: the board's control cycle (UMC: 1 ms).
+pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+/// At most this many samples are kept per test.
+pub const MAX_SAMPLES: usize = 20_000;
+
+/// Which loop a step test exercises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StepLoop {
+    Torque,
+    Velocity,
+    Position,
+}
+
+/// `POST .../axes/{axis}/step-test`.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"loop": "velocity", "from": 0, "to": 500, "hold_ms": 300, "settle_band_pct": 2}))]
+pub struct StepTestRequest {
+    /// The loop: `torque` (TQ, per mille of rated torque), `velocity` (VL,
+    /// velocity units) or `position` (PP, increments).
+    #[serde(rename = "loop")]
+    pub loop_: StepLoop,
+    /// The level held first, in the mode's target units.
+    pub from: i32,
+    /// The level stepped to.
+    pub to: i32,
+    /// How long each level is held, ms (20 to 10,000).
+    pub hold_ms: u32,
+    /// The settling band, per cent of the step (default 2).
+    #[serde(default = "default_band")]
+    pub settle_band_pct: f64,
+}
+
+fn default_band() -> f64 {
+    2.0
+}
+
+/// Where a step test's actual values came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleSource {
+    /// Every sample from a TPDO frame that carried the actual value.
+    Tpdo,
+    /// Every sample read by SDO.
+    Sdo,
+    /// From the TPDO until it fell silent, then by SDO.
+    TpdoThenSdo,
+}
+
+/// What a step test measured.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+pub struct StepTestResult {
+    /// Where the actual values came from: `tpdo` (the frames of a running
+    /// TPDO that carries the loop's actual value, at its rate), `sdo`
+    /// (read every millisecond, or as fast as the node answers), or
+    /// `tpdo_then_sdo` (the TPDO fell silent during the hold).
+    pub source: SampleSource,
+    /// 10 % to 90 % of the step, ms; null if the actual never got to 90 %.
+    pub rise_time_ms: Option<f64>,
+    /// How far past the target the actual went, per cent of the step.
+    pub overshoot_pct: f64,
+    /// From the step until the actual stayed within the band, ms; null if
+    /// it was outside at the end.
+    pub settling_time_ms: Option<f64>,
+    /// Target minus the mean actual over the last tenth of the hold, in
+    /// the target's units.
+    pub steady_state_error: f64,
+    /// `[t_ms, target, actual]` from the step on.
+    #[schema(value_type = Vec<Vec<f64>>)]
+    pub samples: Vec<[f64; 3]>,
+}
+
+impl StepTestRequest {
+    /// Checks the request before the bus.
+    pub fn validate(&self) -> Result<(), DriveError> {
+        if self.from == self.to {
+            return Err(DriveError::Invalid("from and to must differ".into()));
+        }
+        if !(HOLD_MS.0..=HOLD_MS.1).contains(&self.hold_ms) {
+            return Err(DriveError::Invalid(format!(
+                "hold_ms must be {} to {}",
+                HOLD_MS.0, HOLD_MS.1
+            )));
+        }
+        if !(self.settle_band_pct > 0.0 && self.settle_band_pct <= 50.0) {
+            return Err(DriveError::Invalid(
+                "settle_band_pct must be above 0 and at most 50".into(),
+            ));
+        }
+        match self.loop_ {
+            StepLoop::Torque => {
+                for value in [self.from, self.to] {
+                    if i16::try_from(value).is_err() {
+                        return Err(DriveError::OutOfRange(format!(
+                            "torque {value} does not fit 0x6071 (-32768 to 32767)"
+                        )));
+                    }
+                }
+            }
+            StepLoop::Velocity => {
+                for value in [self.from, self.to] {
+                    if i16::try_from(value).is_err() {
+                        return Err(DriveError::OutOfRange(format!(
+                            "velocity {value} does not fit 0x6042 (-32768 to 32767)"
+                        )));
+                    }
+                }
+            }
+            StepLoop::Position => {}
+        }
+        Ok(())
+    }
+
+    /// The move that sets the loop's target to `level`.
+    fn level(&self, level: i32) -> MoveRequest {
+        match self.loop_ {
+            StepLoop::Torque => MoveRequest::Torque {
+                torque: level as i16,
+                slope: None,
+            },
+            StepLoop::Velocity => MoveRequest::Velocity {
+                velocity: level,
+                acceleration: None,
+                deceleration: None,
+            },
+            StepLoop::Position => MoveRequest::ProfilePosition {
+                target: level,
+                relative: false,
+                immediate: true,
+                velocity: None,
+                acceleration: None,
+                deceleration: None,
+            },
+        }
+    }
+
+    /// The axis-1 object that reads the loop's actual value.
+    fn actual(&self) -> u16 {
+        match self.loop_ {
+            StepLoop::Torque => obj::TQ_ACTUAL,
+            StepLoop::Velocity => obj::VL_ACTUAL,
+            StepLoop::Position => obj::POSITION_ACTUAL,
+        }
+    }
+}
+
+/// Runs a step test on `drive`; the axis is stopped at the end whatever
+/// happened.
+/// `values`: the TPDO values of the drive's bus, which feed the samples
+/// when they carry the loop's actual value (see the module documentation).
+pub async fn run(
+    drive: &Drive,
+    values: &TpdoValues,
+    request: &StepTestRequest,
+) -> Result<StepTestResult, DriveError> {
+    request.validate()?;
+    if drive.kind() != DriveKind::Umc {
+        return Err(DriveError::NotTunable(format!(
+            "node {} is a {:?} drive: the step test needs a UMC-class drive, whose control loops \
+             are 0x4020-0x4061 (UMC manual §3.5)",
+            drive.node(),
+            drive.kind()
+        )));
+    }
+    let statusword = drive.statusword().await?;
+    match statusword.state() {
+        Some(State::OperationEnabled) => {}
+        state => {
+            return Err(DriveError::NotEnabled {
+                axis: drive.axis(),
+                state,
+            });
+        }
+    }
+    let result = steps(drive, values, request).await;
+    // The stop always goes out: after a result, and after a failure.
+    drive.stop_after_failure().await;
+    result
+}
+
+async fn steps(
+    drive: &Drive,
+    values: &TpdoValues,
+    request: &StepTestRequest,
+) -> Result<StepTestResult, DriveError> {
+    let hold = Duration::from_millis(u64::from(request.hold_ms));
+    drive.run_move(&request.level(request.from)).await?;
+    tokio::time::sleep(hold).await;
+    let actual = request.actual();
+    let start = tokio::time::Instant::now();
+    drive.run_move(&request.level(request.to)).await?;
+    let mut samples = Vec::new();
+    let sample = |t: Duration, value: i64| {
+        [
+            t.as_secs_f64() * 1000.0,
+            f64::from(request.to),
+            value as f64,
+        ]
+    };
+    let tpdo = Tpdo {
+        values,
+        node: drive.node_id(),
+        index: drive.object(actual),
+    };
+    let mut source = SampleSource::Sdo;
+    if tpdo.running(tokio::time::Instant::now()).is_some() {
+        source = SampleSource::Tpdo;
+        if !tpdo.record(start, hold, &mut samples, sample).await {
+            source = SampleSource::TpdoThenSdo;
+        }
+    }
+    let done = |samples: &Vec<[f64; 3]>| {
+        samples.len() >= MAX_SAMPLES
+            || samples
+                .last()
+                .is_some_and(|s| s[0] >= hold.as_secs_f64() * 1000.0)
+    };
+    if source != SampleSource::Tpdo && !done(&samples) {
+        // At the loop's 1 ms rate, or as fast as the node answers if slower.
+        let mut tick = tokio::time::interval(SAMPLE_PERIOD);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            tick.tick().await;
+            let value = drive.read_int(actual, 0, true).await?;
+            samples.push(sample(start.elapsed(), value));
+            if done(&samples) {
+                break;
+            }
+        }
+    }
+    let statusword = drive.statusword().await?;
+    if statusword.state() != Some(State::OperationEnabled) {
+        return Err(DriveError::NotEnabled {
+            axis: drive.axis(),
+            state: statusword.state(),
+        });
+    }
+    let mut result = metrics(
+        f64::from(request.from),
+        f64::from(request.to),
+        request.settle_band_pct,
+        samples,
+    );
+    result.source = source;
+    Ok(result)
+}
+
+/// The TPDO value of the loop's actual value.
+struct Tpdo<'a> {
+    values: &'a TpdoValues,
+    node: crate::canopen::NodeId,
+    index: u16,
+}
+
+impl Tpdo<'_> {
+    /// The newest value if a TPDO carries it and sent it within
+    /// [`TPDO_FRESH`] of `now`.
+    fn running(&self, now: tokio::time::Instant) -> Option<super::values::TpdoValue> {
+        self.values
+            .value(self.node, self.index, 0)
+            .filter(|value| now.saturating_duration_since(value.at) <= TPDO_FRESH)
+    }
+
+    /// One sample per frame that carries the value, from `start` until the
+    /// first frame at or after the hold's end (true: as the SDO path ends
+    /// with its first read at or after it), or until the TPDO has been
+    /// silent for [`TPDO_FRESH`] (false: the rest is for SDO).
+    async fn record(
+        &self,
+        start: tokio::time::Instant,
+        hold: Duration,
+        samples: &mut Vec<[f64; 3]>,
+        sample: impl Fn(Duration, i64) -> [f64; 3],
+    ) -> bool {
+        let mut frames = self.values.watch_frames(self.node);
+        let mut counted = None;
+        let end = start + hold;
+        loop {
+            // Seen before reading: a frame from here on wakes the wait.
+            frames.borrow_and_update();
+            let Some(value) = self.values.value(self.node, self.index, 0) else {
+                // No longer mapped (the TPDOs were read again).
+                return false;
+            };
+            // A new frame, and not one from before the step (the newest
+            // of those sent while the step was being written counts).
+            if counted != Some(value.count) {
+                counted = Some(value.count);
+                if value.at >= start {
+                    samples.push(sample(value.at - start, value.as_i64(true)));
+                    if value.at >= end || samples.len() >= MAX_SAMPLES {
+                        return true;
+                    }
+                }
+            }
+            tokio::select! {
+                changed = frames.changed() => {
+                    if changed.is_err() {
+                        return false;
+                    }
+                }
+                () = tokio::time::sleep(TPDO_FRESH) => return false,
+            }
+        }
+    }
+}
+
+/// The metrics of a step from `from` to `to` recorded as `samples`
+/// (`[t_ms, target, actual]`, time from the step).
+pub fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>) -> StepTestResult {
+    let step = to - from;
+    // The response as a fraction of the step: 0 at `from`, 1 at `to`.
+    let fraction = |actual: f64| (actual - from) / step;
+    let first = |level: f64| {
+        samples
+            .iter()
+            .find(|s| fraction(s[2]) >= level)
+            .map(|s| s[0])
+    };
+    let rise_time_ms = match (first(0.1), first(0.9)) {
+        (Some(low), Some(high)) => Some(high - low),
+        _ => None,
+    };
+    let peak = samples
+        .iter()
+        .map(|s| fraction(s[2]))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let overshoot_pct = if peak.is_finite() {
+        ((peak - 1.0) * 100.0).max(0.0)
+    } else {
+        0.0
+    };
+    let band = band_pct / 100.0;
+    let outside = samples
+        .iter()
+        .rposition(|s| (fraction(s[2]) - 1.0).abs() > band);
+    let settling_time_ms = match outside {
+        None => samples.first().map(|s| s[0]),
+        Some(last) => samples.get(last + 1).map(|s| s[0]),
+    };
+    let tail = (samples.len() / 10).max(1).min(samples.len());
+    let steady_state_error = if samples.is_empty() {
+        step
+    } else {
+        let mean = samples[samples.len() - tail..]
+            .iter()
+            .map(|s| s[2])
+            .sum::<f64>()
+            / tail as f64;
+        to - mean
+    };
+    StepTestResult {
+        source: SampleSource::Sdo,
+        rise_time_ms,
+        overshoot_pct,
+        settling_time_ms,
+        steady_state_error,
+        samples,
+    }
+}

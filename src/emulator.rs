@@ -1,0 +1,72 @@
+//! The emulator's wiring: the virtual devices of a `virtual:` bus (the
+//! `sim` crate's [`Rack`]), put on the bus when the gateway opens it. The
+//! gateway drives them as it drives real devices and does not know them
+//! (`gateway` never depends on `sim`); the `/sim` routes and the tests find
+//! a bus's rack again through [`RackOf`].
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use crate::can::VirtualHub;
+use crate::can::spec::BusSpec;
+use crate::gateway::profile::EdsCatalog;
+use crate::gateway::registry::RegistryConfig;
+use crate::gateway::service::{BusDevices, ServedBus};
+use crate::sim::products::parse_devices;
+use crate::sim::rack::Rack;
+
+/// Opens `spec` as the bus `name`: a `virtual:demo` bus gets the demo
+/// devices, `virtual:empty` none, `virtual:LIST` the products it lists.
+pub async fn open_bus(
+    name: &str,
+    spec: &BusSpec,
+    catalog: Arc<EdsCatalog>,
+    config: RegistryConfig,
+    bitrate: u32,
+) -> Result<ServedBus, String> {
+    open_bus_with_data_dir(name, spec, catalog, config, bitrate, None).await
+}
+
+/// [`open_bus`], and the virtual devices keep what they save (0x1010)
+/// under `data_dir` (see [`Rack::with_data_dir`]).
+pub async fn open_bus_with_data_dir(
+    name: &str,
+    spec: &BusSpec,
+    catalog: Arc<EdsCatalog>,
+    config: RegistryConfig,
+    bitrate: u32,
+    data_dir: Option<PathBuf>,
+) -> Result<ServedBus, String> {
+    let attach = |name: &str, preset: &str, hub: &VirtualHub| {
+        rack_for(name, preset, hub, data_dir.clone()).map(|rack| Some(Arc::new(rack) as BusDevices))
+    };
+    ServedBus::open_with_devices(name, spec, catalog, config, bitrate, &attach).await
+}
+
+/// The rack of the virtual bus `name` with the devices its preset names.
+fn rack_for(
+    name: &str,
+    preset: &str,
+    hub: &VirtualHub,
+    data_dir: Option<PathBuf>,
+) -> Result<Rack, String> {
+    let rack = Rack::with_data_dir(hub.clone(), data_dir);
+    let devices = match preset {
+        "empty" => Vec::new(),
+        preset => parse_devices(preset).map_err(|err| format!("bus '{name}': {err}"))?,
+    };
+    rack.add_all(&devices).map_err(|err| err.to_string())?;
+    Ok(rack)
+}
+
+/// The virtual devices of a served bus.
+pub trait RackOf {
+    /// The bus's rack; `None` for a bus that is not virtual.
+    fn rack(&self) -> Option<&Rack>;
+}
+
+impl RackOf for ServedBus {
+    fn rack(&self) -> Option<&Rack> {
+        self.devices.as_ref()?.downcast_ref::<Rack>()
+    }
+}
