@@ -16,7 +16,8 @@ use crate::sim::products::parse_devices;
 use crate::sim::rack::Rack;
 
 /// Opens `spec` as the bus `name`: a `virtual:demo` bus gets the demo
-/// devices, `virtual:empty` none, `virtual:LIST` the products it lists.
+/// devices, `virtual:empty` none, `virtual:LIST` the products it lists
+/// ([`parse_devices`]).
 pub async fn open_bus(
     name: &str,
     spec: &BusSpec,
@@ -43,6 +44,18 @@ pub async fn open_bus_with_data_dir(
     ServedBus::open_with_devices(name, spec, catalog, config, bitrate, &attach).await
 }
 
+/// What puts the demo rack on each virtual bus the gateway opens
+/// ([`Gateway::start`](crate::gateway::Gateway::start)): each bus's
+/// devices keep what they save under `DATA_DIR/sim/BUS`.
+pub fn racks(
+    data_dir: Option<PathBuf>,
+) -> impl Fn(&str, &str, &VirtualHub) -> Result<Option<BusDevices>, String> + Sync {
+    move |name: &str, preset: &str, hub: &VirtualHub| {
+        let dir = data_dir.as_ref().map(|dir| dir.join("sim").join(name));
+        rack_for(name, preset, hub, dir).map(|rack| Some(Arc::new(rack) as BusDevices))
+    }
+}
+
 /// The rack of the virtual bus `name` with the devices its preset names.
 fn rack_for(
     name: &str,
@@ -51,10 +64,7 @@ fn rack_for(
     data_dir: Option<PathBuf>,
 ) -> Result<Rack, String> {
     let rack = Rack::with_data_dir(hub.clone(), data_dir);
-    let devices = match preset {
-        "empty" => Vec::new(),
-        preset => parse_devices(preset).map_err(|err| format!("bus '{name}': {err}"))?,
-    };
+    let devices = parse_devices(preset).map_err(|err| format!("bus '{name}': {err}"))?;
     rack.add_all(&devices).map_err(|err| err.to_string())?;
     Ok(rack)
 }

@@ -162,6 +162,13 @@ impl AppState {
             .gateway
             .with_tokens(config.tokens.clone())
             .with_write_limit(config.rate_limit);
+        self.with_guard(config)
+    }
+
+    /// The same state with the REST door's own access settings (tokens,
+    /// CORS, limits): for a gateway started with the same tokens and
+    /// write limit ([`Gateway::start`]).
+    pub fn with_guard(mut self, config: auth::AuthConfig) -> Self {
         self.guard = Arc::new(auth::Guard::new(config));
         self
     }

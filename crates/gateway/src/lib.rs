@@ -12,6 +12,9 @@
 //!   registry, telemetry, SYNC producer, recorder, virtual devices); the
 //!   rules every adapter obeys ([`check_sdo_allowed`], a drive's checks),
 //!   NMT.
+//! - [`start`]: [`Gateway::start`] from a [`GatewayConfig`] (history,
+//!   catalog, buses, network managers, pruners, first scans) and
+//!   [`Gateway::shutdown`] (the safe stop, the recordings flushed).
 //! - [`error`]: [`GatewayError`], the service's one error type.
 //! - [`access`]: tokens and roles, and the write rate limit, for every
 //!   adapter.
@@ -98,6 +101,7 @@ pub mod registry;
 pub mod safe_stop;
 pub mod sdo;
 pub mod service;
+pub mod start;
 pub mod step_test;
 pub mod sync;
 pub mod telemetry;
@@ -106,3 +110,4 @@ pub mod values;
 
 pub use error::GatewayError;
 pub use service::{Gateway, ServedBus, check_sdo_allowed};
+pub use start::{GatewayConfig, StartError};

@@ -261,6 +261,9 @@ pub struct Gateway {
     pub edge_node: Arc<super::edge_node::EdgeNodeStats>,
     /// The data loggers (`/loggers`).
     pub loggers: super::logger::Loggers,
+    /// The tasks [`Gateway::start`] started beside the doors (pruners,
+    /// first scans), ended by [`Gateway::shutdown`].
+    pub(crate) background: Arc<super::start::BackgroundTasks>,
 }
 
 impl Gateway {
@@ -300,6 +303,7 @@ impl Gateway {
             writes: Arc::new(WriteLimiter::default()),
             recordings_quota: None,
             edge_node: Arc::default(),
+            background: Arc::default(),
             loggers: super::logger::Loggers::default(),
         }
     }

@@ -181,11 +181,12 @@ impl fmt::Display for DeviceList {
     }
 }
 
-/// Reads `demo`, `none` or `product@id,product@lss,product@lss/serial,...`.
+/// Reads `demo`, `none` (or `empty`, the bus spec's `virtual:empty`) or
+/// `product@id,product@lss,product@lss/serial,...`.
 pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     match text.trim() {
         "demo" => return Ok(demo()),
-        "none" | "" => return Ok(Vec::new()),
+        "none" | "empty" | "" => return Ok(Vec::new()),
         _ => {}
     }
     let names: Vec<&str> = Product::ALL.iter().map(|p| p.name()).collect();
@@ -309,6 +310,7 @@ mod tests {
             ])
         );
         assert_eq!(parse_devices("none"), Ok(vec![]));
+        assert_eq!(parse_devices("empty"), Ok(vec![]));
         assert_eq!(
             parse_devices("umc1bd90@10, UIO1LED@0x7F"),
             Ok(vec![

@@ -331,6 +331,35 @@ pub(super) struct Settings {
     pub(super) machine_nodes: std::collections::BTreeMap<String, Vec<NodeDescription>>,
 }
 
+impl Settings {
+    /// What the gateway is started with ([`Gateway::start`](crate::gateway::Gateway::start)).
+    pub(super) fn gateway_config(&self) -> crate::gateway::GatewayConfig {
+        crate::gateway::GatewayConfig {
+            buses: self
+                .buses
+                .iter()
+                .map(|bus| (bus.name.clone(), bus.spec.clone()))
+                .collect(),
+            data_dir: self.data_dir.clone(),
+            eds_dir: self.eds_dir.clone(),
+            bitrate: self.bitrate,
+            telemetry: crate::gateway::producers::TelemetryConfig {
+                axis_poll_hz: self.axis_poll_hz,
+                ..Default::default()
+            },
+            retention: self.retention,
+            recordings_quota: self.recordings_quota,
+            logger_max_values: self.logger_max_values,
+            lease_period: self.lease_period,
+            tokens: self.auth.tokens.clone(),
+            write_limit: self.auth.rate_limit,
+            sync_period: self.sync_period,
+            machine: self.machine.clone(),
+            machine_nodes: self.machine_nodes.clone(),
+        }
+    }
+}
+
 impl ServeArgs {
     /// The settings: each option from the command line, else from the
     /// config file, else its default (the demo bus when no bus is given);
@@ -655,7 +684,7 @@ impl Settings {
     /// buses it shares, as (channel, hub).
     pub(super) fn shared(
         &self,
-        served: &[ServedBus],
+        served: &[std::sync::Arc<ServedBus>],
     ) -> std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> {
         let mut servers: std::collections::BTreeMap<SocketAddr, Vec<(String, VirtualHub)>> =
             std::collections::BTreeMap::new();

@@ -1,0 +1,126 @@
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use candeck_sim::products::parse_devices;
+use candeck_sim::rack::Rack;
+
+use super::*;
+use crate::can::VirtualHub;
+use crate::canopen::NodeId;
+use crate::service::BusDevices;
+
+fn config(buses: &[(&str, &str)]) -> GatewayConfig {
+    GatewayConfig {
+        buses: buses
+            .iter()
+            .map(|(name, spec)| (name.to_string(), spec.parse().unwrap()))
+            .collect(),
+        data_dir: None,
+        eds_dir: None,
+        bitrate: 500_000,
+        telemetry: TelemetryConfig::default(),
+        retention: Retention::default(),
+        recordings_quota: None,
+        logger_max_values: 1000,
+        lease_period: Duration::from_secs(1),
+        tokens: Tokens::default(),
+        write_limit: None,
+        sync_period: Duration::ZERO,
+        machine: MachineSettings::default(),
+        machine_nodes: BTreeMap::new(),
+    }
+}
+
+/// The error of a start that must fail (a gateway has no `Debug`).
+async fn start_error(config: GatewayConfig, attach: AttachDevices<'_>) -> StartError {
+    match Gateway::start(config, attach).await {
+        Ok(_) => panic!("the gateway started"),
+        Err(error) => error,
+    }
+}
+
+/// The demo rack on each virtual bus, as the binary wires it.
+fn demo_rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
+    let rack = Rack::new(hub.clone());
+    rack.add_all(&parse_devices(preset)?)
+        .map_err(|err| err.to_string())?;
+    Ok(Some(Arc::new(rack) as BusDevices))
+}
+
+fn no_devices(_: &str, _: &str, _: &VirtualHub) -> Result<Option<BusDevices>, String> {
+    Ok(None)
+}
+
+fn running(gateway: &Gateway) -> usize {
+    let tasks = gateway.background.0.lock().unwrap();
+    tasks.iter().filter(|task| !task.is_finished()).count()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_started_gateway_serves_its_buses_in_order_and_scans_them_once_up() {
+    let gateway = Gateway::start(
+        config(&[("line", "virtual:demo"), ("spare", "virtual:empty")]),
+        &demo_rack,
+    )
+    .await
+    .unwrap();
+    let order: Vec<String> = gateway
+        .buses_in_order()
+        .iter()
+        .map(|bus| bus.name.clone())
+        .collect();
+    assert_eq!(order, ["line", "spare"]);
+    // Every bus has its network manager from the start.
+    assert!(gateway.buses.values().all(|bus| bus.machine.is_some()));
+    // Two pruners and a first scan per bus.
+    assert_eq!(running(&gateway), 4);
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let found: Vec<u8> = gateway.buses["line"]
+        .registry
+        .nodes()
+        .iter()
+        .map(|node| node.id.get())
+        .collect();
+    assert!(
+        [1, 2, 3].iter().all(|id| found.contains(id)),
+        "the demo's nodes are found: {found:?}"
+    );
+    // The scans are over; the pruners run until the end.
+    assert_eq!(running(&gateway), 2);
+    let report = gateway.shutdown().await;
+    assert!(report.failed.is_empty());
+    tokio::task::yield_now().await;
+    assert_eq!(running(&gateway), 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_start_that_cannot_be_made_names_the_setting() {
+    let mut described = config(&[("demo", "virtual:empty")]);
+    let mut node = crate::canopen::manager::NodeDescription::new(NodeId::new(4).unwrap());
+    node.eds = Some("nope.eds".to_string());
+    described
+        .machine_nodes
+        .insert("demo".to_string(), vec![node]);
+    let error = start_error(described, &no_devices).await;
+    assert!(
+        error
+            .0
+            .contains("[[nodes]] bus demo id 4: eds \"nope.eds\" is no file"),
+        "{error}"
+    );
+
+    let error = start_error(config(&[("demo", "virtual:demo")]), &|_, _, _| {
+        Err("no such preset".to_string())
+    })
+    .await;
+    assert_eq!(error.0, "bus demo: no such preset");
+
+    let file = std::env::temp_dir().join(format!("candeck-start-{}", std::process::id()));
+    std::fs::write(&file, "not a directory").unwrap();
+    let mut in_a_file = config(&[]);
+    in_a_file.data_dir = Some(file.join("data"));
+    let error = start_error(in_a_file, &no_devices).await;
+    std::fs::remove_file(&file).unwrap();
+    assert!(error.0.starts_with("--data-dir "), "{error}");
+}
