@@ -434,15 +434,13 @@ async fn put_segment(
     let writes = plan(&update)?;
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
-    let (previews, node) = (served.previews.clone(), info.id);
+    // The preview follows every write the node confirms (even of a
+    // sequence that stops half way) by itself.
     let read_back = tokio::spawn(async move {
         // The writes and the read-back, not interleaved with another
         // request's.
         let _procedure = channel.procedure().await;
-        let written = uioled::write_fields(&channel, segment, &writes).await;
-        // Even a write that stopped half way may have changed the strip.
-        previews.segments_written(node);
-        written?;
+        uioled::write_fields(&channel, segment, &writes).await?;
         uioled::read_segment(&channel, segment).await
     })
     .await
@@ -506,19 +504,13 @@ async fn put_scene(
     }
     check_sdo_allowed(&served, &info)?;
     let channel = served.registry.sdo(info.id)?;
-    let (previews, node) = (served.previews.clone(), info.id);
+    // The preview follows every write the node confirms (even of a scene
+    // that stops half way) by itself.
     let segments = tokio::spawn(async move {
         let _procedure = channel.procedure().await;
-        let mut written = Ok(());
         for (segment, fields) in &writes {
-            written = uioled::write_fields(&channel, *segment, fields).await;
-            if written.is_err() {
-                break;
-            }
+            uioled::write_fields(&channel, *segment, fields).await?;
         }
-        // Even a scene that stopped half way may have changed the strip.
-        previews.segments_written(node);
-        written?;
         uioled::read_segments(&channel).await
     })
     .await

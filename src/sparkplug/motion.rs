@@ -290,20 +290,13 @@ pub async fn run(
             }
             check_sdo_allowed(&served, &info)?;
             let channel = served.registry.sdo(info.id)?;
-            let (previews, node_id) = (served.previews.clone(), info.id);
+            // The preview follows every write the node confirms by itself.
             tokio::spawn(async move {
                 let _procedure = channel.procedure().await;
-                let mut result = Ok(());
                 for (index, sub, bytes) in checked {
-                    if let Err(err) = channel.download(index, sub, &bytes).await {
-                        result = Err(err);
-                        break;
-                    }
+                    channel.download(index, sub, &bytes).await?;
                 }
-                // Even a write that stopped half way may have changed the
-                // strip.
-                previews.segments_written(node_id);
-                result
+                Ok::<(), crate::gateway::sdo::SdoRequestError>(())
             })
             .await
             .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?

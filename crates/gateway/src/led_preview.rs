@@ -5,7 +5,8 @@
 //!
 //! While someone reads, the segment parameters are read over the node's SDO
 //! channel every [`TelemetryConfig::segments_read_period`] (and at once
-//! after a REST write to the segments, [`LedPreviews::segments_written`]);
+//! after the node confirms a write, whichever door or task sent it:
+//! [`NodeRegistry::subscribe_writes`]);
 //! between reads the pixels are drawn from them at the rate the readers
 //! want, each segment as far on from its read as the time since (Speed
 //! moves Value every millisecond on the device, and the renderer is that
@@ -13,11 +14,10 @@
 //! SDO transfer per frame. A read that fails leaves the last parameters in
 //! use, and the samples say why in `"error"`. Nobody reading, no task.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::Notify;
+use tokio::sync::broadcast::error::RecvError;
 use tokio::time::Instant;
 
 use super::producers::{IDLE_CHECK, Lease, TelemetryConfig, TopicSet, idle, period, unreachable};
@@ -47,19 +47,6 @@ struct Inner {
     registry: NodeRegistry,
     read_period: Duration,
     topics: TopicSet<NodeId>,
-    /// Told when a node's segments were written, by node.
-    written: Mutex<HashMap<NodeId, Arc<Notify>>>,
-}
-
-impl Inner {
-    fn written(&self, node: NodeId) -> Arc<Notify> {
-        self.written
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .entry(node)
-            .or_default()
-            .clone()
-    }
 }
 
 impl LedPreviews {
@@ -70,7 +57,6 @@ impl LedPreviews {
                 // Never a busy loop of reads, whatever the configuration.
                 read_period: config.segments_read_period.max(Duration::from_millis(10)),
                 topics: TopicSet::new(),
-                written: Mutex::new(HashMap::new()),
             }),
         }
     }
@@ -96,21 +82,12 @@ impl LedPreviews {
         let task = PreviewTask {
             registry: registry.clone(),
             read_period: self.inner.read_period,
-            written: self.inner.written(node),
             node,
         };
         Ok(self
             .inner
             .topics
             .subscribe(node, rate_hz, move |topic, lease| task.run(topic, lease)))
-    }
-
-    /// The segments of `node` were written: its preview reads them again at
-    /// once (if anyone reads it).
-    pub fn segments_written(&self, node: NodeId) {
-        if self.inner.topics.is_running(&node) {
-            self.inner.written(node).notify_one();
-        }
     }
 
     /// The preview topic of `node`, if anyone ever subscribed to it.
@@ -128,7 +105,6 @@ impl LedPreviews {
 struct PreviewTask {
     registry: NodeRegistry,
     read_period: Duration,
-    written: Arc<Notify>,
     node: NodeId,
 }
 
@@ -137,6 +113,8 @@ impl PreviewTask {
         let mut segments: Option<Vec<ReadSegment>> = None;
         let mut error: Option<String> = None;
         let mut last_read: Option<Instant> = None;
+        // Subscribed before the first read: no write is missed after it.
+        let mut writes = self.registry.subscribe_writes();
         let mut written = false;
         while lease.keep_going() {
             let now = Instant::now();
@@ -186,7 +164,13 @@ impl PreviewTask {
             let next = (now + period(wanted)).min(next_read);
             tokio::select! {
                 () = tokio::time::sleep_until(next) => {}
-                () = self.written.notified() => written = true,
+                write = writes.recv() => match write {
+                    Ok(write) => written |= write.node == self.node,
+                    // Writes were missed: this node's may be among them.
+                    Err(RecvError::Lagged(_)) => written = true,
+                    // The registry lives as long as this task's handle of it.
+                    Err(RecvError::Closed) => return,
+                },
                 () = topic.readers_changed() => {}
             }
         }

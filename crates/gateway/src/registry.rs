@@ -561,7 +561,24 @@ struct Shared {
     identified: watch::Sender<u64>,
     /// Wakes the bus task when a heartbeat deadline changed elsewhere.
     rearm: Notify,
+    /// Every download a node confirmed, through any of its channels.
+    writes: broadcast::Sender<ObjectWritten>,
 }
+
+/// A download a node confirmed (CiA 301 §7.2.4.3: the server's response),
+/// whichever door or task asked for it: what follows a write (the TPDO
+/// decoders, an LED preview, the heartbeat supervision) follows it here,
+/// once, instead of in each door.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ObjectWritten {
+    pub node: NodeId,
+    pub index: u16,
+    pub sub: u8,
+}
+
+/// Confirmed writes kept for a slow follower before it lags (a lagging
+/// follower refreshes what it follows as if every object were written).
+const WRITES_CAPACITY: usize = 256;
 
 /// Stops the bus task when the last handle goes.
 struct TaskGuard(tokio::task::AbortHandle);
@@ -651,6 +668,7 @@ impl NodeRegistry {
             probing: watch::Sender::new(BTreeSet::new()),
             identified: watch::Sender::new(0),
             rearm: Notify::new(),
+            writes: broadcast::channel(WRITES_CAPACITY).0,
             config,
             bus,
         });
@@ -817,6 +835,12 @@ impl NodeRegistry {
         self.shared.events.subscribe()
     }
 
+    /// Every download a node confirms from now on, through any of the
+    /// gateway's channels ([`ObjectWritten`]).
+    pub fn subscribe_writes(&self) -> broadcast::Receiver<ObjectWritten> {
+        self.shared.writes.subscribe()
+    }
+
     /// Probes node ids 1–127 with an SDO read of 0x1000,
     /// [`RegistryConfig::scan_concurrency`] at a time: known nodes through
     /// their own channel, unknown ids with
@@ -874,11 +898,15 @@ impl Shared {
             .await;
     }
 
-    /// A new SDO channel to node `id`, whose confirmed writes of the
-    /// producer heartbeat time reach [`Shared::heartbeat_written`].
+    /// A new SDO channel to node `id`, whose confirmed writes reach the
+    /// followers of [`NodeRegistry::subscribe_writes`], and those of the
+    /// producer heartbeat time [`Shared::heartbeat_written`].
     fn new_channel(self: &Arc<Self>, id: NodeId) -> SdoChannel {
         let shared = Arc::downgrade(self);
+        let writes = self.writes.clone();
         let observer: super::sdo::WriteObserver = Arc::new(move |node, index, sub, data| {
+            // Nobody following is fine.
+            let _ = writes.send(ObjectWritten { node, index, sub });
             if index != PRODUCER_HEARTBEAT_TIME || sub != 0 {
                 return;
             }

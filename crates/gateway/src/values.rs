@@ -220,10 +220,11 @@ impl TpdoValues {
         });
         let frames = tokio::spawn(decode_frames(bus, shared.clone()));
         let events = tokio::spawn(follow_nodes(shared.clone()));
+        let writes = tokio::spawn(follow_writes(shared.clone()));
         Self {
             shared,
             topics: Arc::new(TopicSet::new()),
-            _tasks: Arc::new(TaskGuard(vec![frames, events])),
+            _tasks: Arc::new(TaskGuard(vec![frames, events, writes])),
         }
     }
 
@@ -529,6 +530,73 @@ async fn follow_nodes(values: Arc<Shared>) {
             Err(EventRecvError::Lagged(_)) => {}
             Err(EventRecvError::Closed) => return,
         }
+    }
+}
+
+/// How long the TPDO parameters of a node stay unwritten before the
+/// decoders follow what was written: a re-mapping (CiA 301 §7.3.4) is a
+/// burst of writes, read once when it is over.
+pub const WRITES_SETTLE: Duration = Duration::from_millis(100);
+
+/// Whether `index` is a TPDO's communication or mapping parameter (CiA 301
+/// §7.5.2.35 to §7.5.2.38: 0x1800-0x19FF, 0x1A00-0x1BFF).
+fn is_tpdo_parameter(index: u16) -> bool {
+    (0x1800..=0x1BFF).contains(&index)
+}
+
+/// Reads a node's TPDOs again once a write to their parameters settled,
+/// whichever door or task wrote them (a CiA 309 write of 0x1A00 as much as
+/// the PDO editor's), unless they were read since (the PDO editor reads
+/// them itself at the end of its procedure).
+async fn follow_writes(values: Arc<Shared>) {
+    let mut writes = values.registry.subscribe_writes();
+    // The last write to each node's TPDO parameters not followed yet.
+    let mut written: BTreeMap<NodeId, Instant> = BTreeMap::new();
+    loop {
+        let settled = written.values().min().map(|last| *last + WRITES_SETTLE);
+        tokio::select! {
+            write = writes.recv() => match write {
+                Ok(write) if is_tpdo_parameter(write.index) => {
+                    written.insert(write.node, Instant::now());
+                }
+                Ok(_) => {}
+                // Writes were missed: every node with TPDOs is read again.
+                Err(EventRecvError::Lagged(_)) => {
+                    let now = Instant::now();
+                    for node in values.lock().nodes.keys() {
+                        written.insert(*node, now);
+                    }
+                }
+                Err(EventRecvError::Closed) => return,
+            },
+            () = sleep_until_some(settled) => {
+                let now = Instant::now();
+                let due: Vec<(NodeId, Instant)> = written
+                    .iter()
+                    .filter(|(_, last)| **last + WRITES_SETTLE <= now)
+                    .map(|(node, last)| (*node, *last))
+                    .collect();
+                for (node, last) in due {
+                    written.remove(&node);
+                    let read_since = values
+                        .lock()
+                        .nodes
+                        .get(&node)
+                        .is_some_and(|tpdos| tpdos.read_at > last);
+                    if !read_since {
+                        spawn_refresh(&values, node);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Sleeps until `deadline`; forever without one.
+async fn sleep_until_some(deadline: Option<Instant>) {
+    match deadline {
+        Some(deadline) => tokio::time::sleep_until(deadline).await,
+        None => std::future::pending().await,
     }
 }
 

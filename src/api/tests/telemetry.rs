@@ -606,3 +606,82 @@ async fn a_producer_takes_any_rate_and_goes_on() {
         assert!(!served.previews.is_running(node(3)), "{rate} Hz");
     }
 }
+
+/// What follows a write follows it whichever door wrote: a CiA 309 write
+/// of TPDO1's COB-ID with bit 31 set (CiA 301 §7.5.2.35: not valid) drops
+/// its decoder, as the PDO editor's write does, and a CiA 309 write of a
+/// segment's colour reaches the LED preview at once.
+#[tokio::test(start_paused = true)]
+async fn a_cia_309_write_is_followed_like_a_rest_one() {
+    use crate::cia309::gateway::{Cia309Gateway, Identity, Origin, TransferOptions};
+
+    let (_, state) = demo().await;
+    let served = demo_bus(&state);
+    tpdos_read(&served).await;
+    let tpdo_numbers = |served: &ServedBus| -> Vec<u16> {
+        let tpdos = served.values.tpdos(node(1)).unwrap();
+        tpdos.decoders.iter().map(|(number, _)| *number).collect()
+    };
+    assert!(tpdo_numbers(&served).contains(&1));
+    let gateway = Cia309Gateway::new(&state.gateway);
+    let identity = Identity::anonymous("ascii", None);
+    let write = |index: u16, sub: u8, bytes: Vec<u8>| {
+        let (gateway, identity) = (&gateway, &identity);
+        async move {
+            let origin = Origin {
+                identity,
+                method: "ASCII",
+                path: "[1] w",
+            };
+            gateway
+                .write(
+                    origin,
+                    1,
+                    node_of(index),
+                    index,
+                    sub,
+                    bytes,
+                    "".into(),
+                    TransferOptions::default(),
+                )
+                .await
+                .unwrap();
+        }
+    };
+    // The UMC's TPDOs at node 1, the UIO1LED's segments at node 3.
+    fn node_of(index: u16) -> u8 {
+        if index == 0x1800 { 1 } else { 3 }
+    }
+    write(0x1800, 1, 0x8000_0181u32.to_le_bytes().to_vec()).await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert!(
+        !tpdo_numbers(&served).contains(&1),
+        "TPDO1 is not valid any more: {:?}",
+        tpdo_numbers(&served)
+    );
+
+    // The LED preview of node 3, read again at once after a write.
+    let mut preview = served.previews.subscribe(node(3), 50.0).unwrap();
+    let first = tokio::time::timeout(Duration::from_secs(5), preview.changed())
+        .await
+        .unwrap()
+        .unwrap();
+    let mut sdo = served.bus.monitor();
+    write(0x6025, 0, vec![0x12]).await;
+    // The preview's next read of the segments comes well before its
+    // period: it follows the write.
+    let read_after = tokio::time::timeout(Duration::from_millis(200), async {
+        loop {
+            let frame = sdo.recv().await.unwrap().frame;
+            if frame.id() == CanId::Standard(0x603) && frame.data()[0] == 0x40 {
+                return;
+            }
+        }
+    })
+    .await;
+    assert!(
+        read_after.is_ok(),
+        "no read of the segments after the write"
+    );
+    drop(first);
+}
