@@ -27,9 +27,11 @@ const CHECK_NODE: u8 = 1;
 /// The name CiA 306 gives sub-index 0 of a `CompactSubObj` array.
 const COMPACT_SUB0_NAME: &str = "NrOfObjects";
 
-/// The access type of an entry whose `AccessType` is missing, empty or
-/// unknown: the device decides with an SDO abort what it does not allow,
-/// whereas a guessed `ro` would forbid writes the device takes.
+/// The access type of an entry whose `AccessType` is missing or empty:
+/// the device decides with an SDO abort what it does not allow, whereas a
+/// guessed `ro` would forbid writes the device takes. (A token that is
+/// written but means nothing refuses the entry instead: it may stand for
+/// a restriction, and `rw` would lift it.)
 const DEFAULT_ACCESS: AccessType = AccessType::Rw;
 
 pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
@@ -1095,23 +1097,49 @@ impl<'a> Reader<'a> {
             None => self.name(section, format!("Sub-index {sub_index}")),
         };
         let access = match section.get("AccessType") {
-            Some(entry) => match entry.value.parse::<AccessType>() {
-                Ok(access) => access,
-                Err(error) => {
-                    let what = if entry.value.trim().is_empty() {
-                        "AccessType is empty".to_string()
-                    } else {
-                        error.to_string()
-                    };
-                    self.warn(
-                        entry.line,
-                        key_of(section, &entry.key),
-                        Action::Defaulted,
-                        format!("{what}; read as {DEFAULT_ACCESS}"),
-                    );
-                    DEFAULT_ACCESS
+            Some(entry) => {
+                let text = entry.value.as_str();
+                match access_token(text) {
+                    Some((access, true)) => access,
+                    Some((access, false)) => {
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Corrected,
+                            format!(
+                                "AccessType={} is no access type of CiA 306; read as {access}",
+                                snippet(text)
+                            ),
+                        );
+                        access
+                    }
+                    None if text.trim().is_empty() => {
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Defaulted,
+                            format!("AccessType is empty; read as {DEFAULT_ACCESS}"),
+                        );
+                        DEFAULT_ACCESS
+                    }
+                    None => {
+                        // `rw` could make writable what the device's maker
+                        // meant to be read-only.
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Dropped,
+                            format!(
+                                "AccessType={} is no access type (ro, wo, rw, rwr, rww, const): \
+                                 what the entry allows is not known; [{}] dropped",
+                                snippet(text),
+                                section.name
+                            ),
+                        );
+                        return None;
+                    }
                 }
-            },
+            }
             None if data_type == DataType::Domain => AccessType::Rw,
             None => {
                 self.warn(
@@ -1199,6 +1227,19 @@ impl<'a> Reader<'a> {
                 format!("[{}]: DefaultValue {error}", section.name),
             );
         }
+    }
+}
+
+/// An `AccessType` token: a CiA 306 one (any case), with `true`; or `R` or
+/// `W`, which some tools write for `ro` and `wo`, with `false`.
+fn access_token(text: &str) -> Option<(AccessType, bool)> {
+    if let Ok(access) = text.parse::<AccessType>() {
+        return Some((access, true));
+    }
+    match text.trim() {
+        "R" | "r" => Some((AccessType::Ro, false)),
+        "W" | "w" => Some((AccessType::Wo, false)),
+        _ => None,
     }
 }
 

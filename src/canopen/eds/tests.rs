@@ -832,7 +832,7 @@ fn with_2000(keys: &str) -> String {
 }
 
 #[test]
-fn an_empty_or_unknown_access_type_is_read_as_rw() {
+fn an_empty_access_type_is_read_as_rw() {
     // UniSwarm's umckin1.eds, umc1bds32.eds (old) and uio8ad.eds.
     let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=\nDefaultValue=5\n");
     let warning = warning_at(&text, "AccessType=\n", Action::Defaulted);
@@ -845,8 +845,6 @@ fn an_empty_or_unknown_access_type_is_read_as_rw() {
         (AccessType::Rw, Some("5"))
     );
 
-    let unknown = text.replace("AccessType=\n", "AccessType=readable\n");
-    warning_at(&unknown, "readable", Action::Defaulted);
     let missing = text.replace("AccessType=\n", "");
     let warning = warning_at(&missing, "[2000]", Action::Defaulted);
     assert_eq!(warning.message, "[2000] has no AccessType; read as rw");
@@ -854,6 +852,67 @@ fn an_empty_or_unknown_access_type_is_read_as_rw() {
         load_odd(&missing).dictionary.sub(0x2000, 0).unwrap().access,
         AccessType::Rw
     );
+}
+
+#[test]
+fn access_types_r_and_w_are_read_as_ro_and_wo() {
+    // 658 entries of 16 files of the second set of real files.
+    for (token, access) in [
+        ("R", AccessType::Ro),
+        ("r", AccessType::Ro),
+        ("W", AccessType::Wo),
+    ] {
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType={token}\nDefaultValue=5\n"
+        ));
+        let warning = warning_at(&text, &format!("AccessType={token}\n"), Action::Corrected);
+        assert_eq!(warning.key, "[2000] AccessType");
+        assert_eq!(
+            warning.message,
+            format!("AccessType={token} is no access type of CiA 306; read as {access}")
+        );
+        let eds = load_odd(&text);
+        let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+        assert_eq!(entry.access, access, "{token}");
+        assert!(!(access == AccessType::Ro && entry.access.is_writable()));
+    }
+    // The tokens of CiA 306 in any case are no warning.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=RO\n");
+    let eds = load_odd(&text);
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().access,
+        AccessType::Ro
+    );
+    assert!(!eds.warnings.iter().any(|w| w.key.starts_with("[2000]")));
+}
+
+#[test]
+fn an_access_token_that_means_nothing_refuses_the_entry() {
+    for token in ["UNKNOWN", "readable", "RX"] {
+        // A VAR: the object is the entry.
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType={token}\nDefaultValue=5\n"
+        ));
+        let warning = warning_at(&text, &format!("AccessType={token}\n"), Action::Dropped);
+        assert_eq!(
+            warning.message,
+            format!(
+                "AccessType={token} is no access type (ro, wo, rw, rwr, rww, const): what the \
+                 entry allows is not known; [2000] dropped"
+            )
+        );
+        let eds = load_odd(&text);
+        assert!(eds.dictionary.get(0x2000).is_none(), "{token}");
+    }
+    // A sub-object of a record: that sub only.
+    let text = MINI.replace(
+        "[1018sub1]\nParameterName=Vendor Id\nObjectType=0x7\nDataType=0x0007\nAccessType=ro",
+        "[1018sub1]\nParameterName=Vendor Id\nObjectType=0x7\nDataType=0x0007\nAccessType=UNKNOWN",
+    );
+    warning_at(&text, "AccessType=UNKNOWN", Action::Dropped);
+    let eds = load_odd(&text);
+    assert!(eds.dictionary.sub(0x1018, 0).is_some());
+    assert!(eds.dictionary.sub(0x1018, 1).is_none());
 }
 
 #[test]
