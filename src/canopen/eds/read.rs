@@ -48,6 +48,7 @@ pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
         file,
         ini: &ini,
         warnings: Vec::new(),
+        empty_obj_flags: Vec::new(),
     };
     for warning in ini_warnings {
         let action = if warning.dropped {
@@ -150,6 +151,9 @@ struct Reader<'a> {
     file: &'a str,
     ini: &'a Ini,
     warnings: Vec<EdsWarning>,
+    /// The `ObjFlags=` lines with no value, as (line, `[section] ObjFlags`):
+    /// one warning says them all.
+    empty_obj_flags: Vec<(usize, String)>,
 }
 
 /// `[section] key`, the key of a warning.
@@ -216,6 +220,31 @@ impl<'a> Reader<'a> {
         }
     }
 
+    /// The `ObjFlags` of a section; an empty `ObjFlags=` is no flags, said
+    /// once for the whole file (it is as if the key were not there).
+    fn obj_flags(&mut self, section: &Section) -> Option<u32> {
+        let entry = section.get("ObjFlags")?;
+        if entry.value.is_empty() {
+            let key = key_of(section, &entry.key);
+            if !self
+                .empty_obj_flags
+                .iter()
+                .any(|(line, _)| *line == entry.line)
+            {
+                self.empty_obj_flags.push((entry.line, key));
+            }
+            return None;
+        }
+        self.number(
+            section,
+            entry,
+            DataType::Unsigned32,
+            Action::Dropped,
+            "dropped",
+        )
+        .map(|v| v as u32)
+    }
+
     /// True when the file has a section CiA 306 defines.
     fn has_cia306_section(&self) -> bool {
         self.ini.sections.iter().any(|section| {
@@ -250,6 +279,17 @@ impl<'a> Reader<'a> {
         let commissioning = self.commissioning();
         let dictionary = self.dictionary();
         self.identity(&mut device_info, &dictionary);
+        if let Some((line, key)) = self.empty_obj_flags.first().cloned() {
+            let count = self.empty_obj_flags.len();
+            let message = match count {
+                1 => "ObjFlags= is empty; read as no flags".to_string(),
+                _ => format!(
+                    "ObjFlags= is empty here and in {} more sections; each is read as no flags",
+                    count - 1
+                ),
+            };
+            self.warn(line, key, Action::Kept, message);
+        }
         Ok(Eds {
             file_info,
             device_info,
@@ -858,17 +898,7 @@ impl<'a> Reader<'a> {
             }
             return Some(object);
         }
-        if let Some(entry) = section.get("ObjFlags") {
-            object.obj_flags = self
-                .number(
-                    section,
-                    entry,
-                    DataType::Unsigned32,
-                    Action::Dropped,
-                    "dropped",
-                )
-                .map(|v| v as u32);
-        }
+        object.obj_flags = self.obj_flags(section);
         let compact = match section.get("CompactSubObj") {
             Some(entry) => self
                 .number(
@@ -1166,17 +1196,7 @@ impl<'a> Reader<'a> {
                 )
                 .is_some_and(|v| v != 0);
         }
-        if let Some(entry) = section.get("ObjFlags") {
-            sub.obj_flags = self
-                .number(
-                    section,
-                    entry,
-                    DataType::Unsigned32,
-                    Action::Dropped,
-                    "dropped",
-                )
-                .map(|v| v as u32);
-        }
+        sub.obj_flags = self.obj_flags(section);
         let mut text = |key: &str| {
             section
                 .get(key)

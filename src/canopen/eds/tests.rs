@@ -916,6 +916,33 @@ fn an_access_token_that_means_nothing_refuses_the_entry() {
 }
 
 #[test]
+fn empty_obj_flags_are_one_warning_for_the_file() {
+    // 106 lines in 29 files of the second set of real files.
+    let text = MINI
+        .replace("DefaultValue=0x191\n", "DefaultValue=0x191\nObjFlags=\n")
+        .replace("SubNumber=2\n", "SubNumber=2\nObjFlags=\n")
+        .replace("DefaultValue=1\n", "DefaultValue=1\nObjFlags=\n");
+    // At the first, [1000]'s.
+    let warning = warning_at(&text, "ObjFlags=", Action::Kept);
+    assert_eq!(warning.key, "[1000] ObjFlags");
+    assert_eq!(
+        warning.message,
+        "ObjFlags= is empty here and in 2 more sections; each is read as no flags"
+    );
+    let eds = load_odd(&text);
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds.warnings.len(), reference.warnings.len() + 1);
+    assert_eq!(eds, reference);
+    // One alone.
+    let text = MINI.replace("SubNumber=2\n", "SubNumber=2\nObjFlags=\n");
+    let warning = warning_at(&text, "ObjFlags=", Action::Kept);
+    assert_eq!(warning.message, "ObjFlags= is empty; read as no flags");
+    // A value that is no number is still dropped, with a warning of its own.
+    let text = MINI.replace("SubNumber=2\n", "SubNumber=2\nObjFlags=x\n");
+    warning_at(&text, "ObjFlags=x", Action::Dropped);
+}
+
+#[test]
 fn a_domain_default_that_is_no_hex_bytes_is_dropped() {
     // CANopenNode's editor writes DefaultValue=0 for every DOMAIN.
     for default in ["0", "not hex", "0x123"] {
