@@ -20,6 +20,23 @@ use crate::canopen::od::{
 /// The three object lists of CiA 306; together they name every object.
 const LISTS: [&str; 3] = ["MandatoryObjects", "OptionalObjects", "ManufacturerObjects"];
 
+/// The keys of `[DeviceInfo]` (lower case) whose values are numbers, and
+/// the `BaudRate_<kbit>` flags besides.
+const DEVICE_INFO_NUMBERS: [&str; 12] = [
+    "vendornumber",
+    "productnumber",
+    "revisionnumber",
+    "simplebootupmaster",
+    "simplebootupslave",
+    "groupmessaging",
+    "lss_supported",
+    "granularity",
+    "dynamicchannelssupported",
+    "compactpdo",
+    "nrofrxpdo",
+    "nroftxpdo",
+];
+
 /// What `$NODEID` stands for while an EDS, which has no node, is checked:
 /// the smallest node id, so `$NODEID+0x180` is checked as 0x181.
 const CHECK_NODE: u8 = 1;
@@ -196,8 +213,42 @@ impl<'a> Reader<'a> {
         self.ini.lines.max(1)
     }
 
-    /// A number of `data_type` (an unsigned type) from an entry, or a
-    /// warning naming the key and `then` (what is done instead).
+    /// The value of an entry whose value is a number or a token (not a
+    /// name or a string): as written, unless it does not `read` as written
+    /// but does without a `#` comment after white space
+    /// (`ObjectType=0x07 # VAR`); then without it, with a warning. A value
+    /// that reads as written keeps its `#`, and so does every name and
+    /// string (`ParameterName=Heartbeat #1`, `DefaultValue=Vendor #1`).
+    fn uncommented<'e>(
+        &mut self,
+        section: &Section,
+        entry: &'e Entry,
+        reads: impl Fn(&str) -> bool,
+    ) -> &'e str {
+        let value = entry.value.as_str();
+        if let Some((before, comment)) = hash_comment(value)
+            && !reads(value)
+            && reads(before)
+        {
+            self.warn(
+                entry.line,
+                key_of(section, &entry.key),
+                Action::Corrected,
+                format!(
+                    "{}={}: '{}' after the value is read as a comment",
+                    entry.key,
+                    snippet(value),
+                    snippet(comment)
+                ),
+            );
+            return before;
+        }
+        value
+    }
+
+    /// A number of `data_type` (an unsigned type) from an entry (see
+    /// [`Reader::uncommented`] for a comment after it), or a warning naming
+    /// the key and `then` (what is done instead).
     fn number(
         &mut self,
         section: &Section,
@@ -206,7 +257,23 @@ impl<'a> Reader<'a> {
         action: Action,
         then: &str,
     ) -> Option<u64> {
-        match parse_unsigned(&entry.value, data_type) {
+        let text = self.uncommented(section, entry, |text| {
+            parse_unsigned(text, data_type).is_ok()
+        });
+        self.number_of(section, entry, text, data_type, action, then)
+    }
+
+    /// [`Reader::number`] of `text`, the value of `entry`.
+    fn number_of(
+        &mut self,
+        section: &Section,
+        entry: &Entry,
+        text: &str,
+        data_type: DataType,
+        action: Action,
+        then: &str,
+    ) -> Option<u64> {
+        match parse_unsigned(text, data_type) {
             Ok(value) => Some(value),
             Err(message) => {
                 self.warn(
@@ -339,8 +406,16 @@ impl<'a> Reader<'a> {
         };
         for entry in &section.entries {
             let key = entry.key.to_ascii_lowercase();
-            let unsigned = |data_type| parse_unsigned(&entry.value, data_type).ok();
-            let flag = || parse_flag(&entry.value);
+            let text =
+                if DEVICE_INFO_NUMBERS.contains(&key.as_str()) || key.starts_with("baudrate_") {
+                    self.uncommented(section, entry, |text| {
+                        parse_unsigned(text, DataType::Unsigned32).is_ok()
+                    })
+                } else {
+                    entry.value.as_str()
+                };
+            let unsigned = |data_type| parse_unsigned(text, data_type).ok();
+            let flag = || parse_flag(text);
             // Each arm says whether the value could be read.
             let read = match key.as_str() {
                 "vendorname" => {
@@ -533,7 +608,8 @@ impl<'a> Reader<'a> {
                 Some(Hex::Value(index)) => Some(index),
                 _ => None,
             };
-            match (index, parse_flag(&entry.value)) {
+            let text = self.uncommented(section, entry, |text| parse_flag(text).is_some());
+            match (index, parse_flag(text)) {
                 (Some(index), Some(used)) => {
                     if used {
                         usage.insert(index as u16);
@@ -558,9 +634,11 @@ impl<'a> Reader<'a> {
         let Some(section) = self.ini.section("Comments") else {
             return Vec::new();
         };
+        let reads = |text: &str| parse_unsigned(text, DataType::Unsigned16).is_ok();
         let count = section
             .get("Lines")
-            .and_then(|entry| parse_unsigned(&entry.value, DataType::Unsigned16).ok())
+            .map(|entry| self.uncommented(section, entry, reads))
+            .and_then(|text| parse_unsigned(text, DataType::Unsigned16).ok())
             // A count beyond the entries there are is a lie; never loop on it.
             .filter(|&count| count as usize <= section.entries.len());
         let Some(count) = count else {
@@ -1045,13 +1123,17 @@ impl<'a> Reader<'a> {
         if entry.value.is_empty() {
             return None;
         }
-        let error = match Value::parse_text_with_node(data_type, &entry.value, Some(CHECK_NODE)) {
-            Ok(_) => return Some(entry.value.clone()),
+        let text = self.uncommented(section, entry, |text| {
+            Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)).is_ok()
+                || corrected_number(data_type, text).is_some()
+        });
+        let error = match Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)) {
+            Ok(_) => return Some(text.to_string()),
             Err(error) => error,
         };
         let key = key_of(section, &entry.key);
-        let shown = snippet(&entry.value);
-        if let Some(corrected) = corrected_number(data_type, &entry.value) {
+        let shown = snippet(text);
+        if let Some(corrected) = corrected_number(data_type, text) {
             self.warn(
                 entry.line,
                 key,
@@ -1128,7 +1210,7 @@ impl<'a> Reader<'a> {
         };
         let access = match section.get("AccessType") {
             Some(entry) => {
-                let text = entry.value.as_str();
+                let text = self.uncommented(section, entry, |text| access_token(text).is_some());
                 match access_token(text) {
                     Some((access, true)) => access,
                     Some((access, false)) => {
@@ -1248,6 +1330,15 @@ impl<'a> Reader<'a> {
             );
         }
     }
+}
+
+/// A value's text before a `#` comment (a `#` after white space, not at
+/// the start), trimmed, and the comment; `None` when there is none.
+fn hash_comment(value: &str) -> Option<(&str, &str)> {
+    let bytes = value.as_bytes();
+    let at =
+        (1..bytes.len()).find(|&i| bytes[i] == b'#' && matches!(bytes[i - 1], b' ' | b'\t'))?;
+    Some((value[..at].trim(), value[at..].trim()))
 }
 
 /// An `AccessType` token: a CiA 306 one (any case), with `true`; or `R` or

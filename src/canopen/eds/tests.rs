@@ -916,6 +916,97 @@ fn an_access_token_that_means_nothing_refuses_the_entry() {
 }
 
 #[test]
+fn a_comment_after_a_number_or_token_is_cut_and_said() {
+    // A CiA profile file shipped by a master library.
+    let text = with_2000(
+        "ObjectType=0x07 # VAR\nDataType=0x0007 # UNSIGNED32\nAccessType=ro # read only\n\
+         DefaultValue=0x10 # sixteen\nLowLimit=1 # at least\nPDOMapping=1 # mappable\n",
+    )
+    .replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=1 # one\n1=0x2000 # extra",
+    );
+    for (at, key, comment) in [
+        ("ObjectType=0x07", "ObjectType", "# VAR"),
+        ("DataType=0x0007 #", "DataType", "# UNSIGNED32"),
+        ("AccessType=ro #", "AccessType", "# read only"),
+        ("DefaultValue=0x10", "DefaultValue", "# sixteen"),
+        ("LowLimit=1", "LowLimit", "# at least"),
+        ("PDOMapping=1", "PDOMapping", "# mappable"),
+    ] {
+        let warning = warning_at(&text, at, Action::Corrected);
+        assert_eq!(warning.key, format!("[2000] {key}"));
+        assert!(
+            warning
+                .message
+                .ends_with(&format!("'{comment}' after the value is read as a comment")),
+            "{warning}"
+        );
+    }
+    warning_at(&text, "SupportedObjects=1 #", Action::Corrected);
+    warning_at(&text, "1=0x2000 #", Action::Corrected);
+    let eds = load_odd(&text);
+    let reference = load_odd(&with_2000(
+        "ObjectType=0x07\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x10\nLowLimit=1\n\
+         PDOMapping=1\n",
+    ));
+    assert_eq!(eds.dictionary, reference.dictionary);
+    // The identity of [DeviceInfo] too.
+    let text = MINI.replace("VendorNumber=0x4A2", "VendorNumber=0x4A2 # the maker");
+    warning_at(&text, "VendorNumber", Action::Corrected);
+    assert_eq!(load_odd(&text).device_info.vendor_number, Some(0x4A2));
+}
+
+#[test]
+fn a_hash_in_a_name_or_a_string_is_kept() {
+    // As a Systec file's "Consumer Heartbeat Time #1": names and strings
+    // read as written, so their `#` is no comment.
+    let text =
+        with_2000("ObjectType=0x7\nDataType=0x0009\nAccessType=ro\nDefaultValue=Vendor #1\n")
+            .replace("ParameterName=Extra", "ParameterName=Extra #1");
+    let eds = load_odd(&text);
+    let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+    assert_eq!(entry.name, "Extra #1");
+    assert_eq!(entry.default.as_deref(), Some("Vendor #1"));
+    assert!(
+        !eds.warnings.iter().any(|w| w.key.starts_with("[2000]")),
+        "{:#?}",
+        eds.warnings
+    );
+    // A `#` with no white space before it is no comment: the value is
+    // dropped as before.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=5#x\n");
+    warning_at(&text, "DefaultValue=5#x", Action::Dropped);
+    // Nor is the text before a `#` that does not read: the value is not
+    // cut to something else that does not read either.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=x # 5\n");
+    let warning = warning_at(&text, "DefaultValue=x # 5", Action::Dropped);
+    assert!(warning.message.contains("x # 5"), "{warning}");
+}
+
+#[test]
+fn comment_lines_that_start_with_a_hash_are_read_as_comments() {
+    let text = MINI
+        .replace("[1000]\n", "# Category: Mandatory\n[1000]\n")
+        .replace("[1018]\n", "# Category: Mandatory\n[1018]\n")
+        .replace(
+            "DefaultValue=0x191\n",
+            "DefaultValue=0x191\n#DefaultValue=0x192\n",
+        );
+    let warning = warning_at(&text, "# Category", Action::Kept);
+    assert_eq!(
+        warning.message,
+        "a line that starts with '#' is read as a comment (CiA 306 comments start with ';'), \
+         and so are the 2 more below"
+    );
+    let eds = load_odd(&text);
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds, reference);
+    // One warning for the file.
+    assert_eq!(eds.warnings.len(), reference.warnings.len() + 1);
+}
+
+#[test]
 fn empty_obj_flags_are_one_warning_for_the_file() {
     // 106 lines in 29 files of the second set of real files.
     let text = MINI
