@@ -51,6 +51,18 @@ const COMPACT_SUB0_NAME: &str = "NrOfObjects";
 /// a restriction, and `rw` would lift it.)
 const DEFAULT_ACCESS: AccessType = AccessType::Rw;
 
+/// The object types whose names some files write where CiA 306 writes the
+/// number (`ObjectType=VAR`).
+const NAMED_OBJECT_TYPES: [ObjectType; 7] = [
+    ObjectType::Null,
+    ObjectType::Domain,
+    ObjectType::DefType,
+    ObjectType::DefStruct,
+    ObjectType::Var,
+    ObjectType::Array,
+    ObjectType::Record,
+];
+
 pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
     if let Some(at) = text.find('\0') {
         let line = text[..at].matches('\n').count() + 1;
@@ -905,9 +917,26 @@ impl<'a> Reader<'a> {
             // CiA 306 §4.6.3.2: a missing ObjectType means VAR.
             return Some(ObjectType::Var);
         };
-        let raw = self.number(
+        let text = self.uncommented(section, entry, |text| {
+            parse_unsigned(text, DataType::Unsigned8).is_ok() || object_type_named(text).is_some()
+        });
+        if let Some(object_type) = object_type_named(text) {
+            self.warn(
+                entry.line,
+                key_of(section, &entry.key),
+                Action::Corrected,
+                format!(
+                    "ObjectType={} is a name where CiA 306 writes a number; read as 0x{:X}",
+                    snippet(text),
+                    object_type.raw()
+                ),
+            );
+            return Some(object_type);
+        }
+        let raw = self.number_of(
             section,
             entry,
+            text,
             DataType::Unsigned8,
             Action::Dropped,
             "section dropped",
@@ -1339,6 +1368,14 @@ fn hash_comment(value: &str) -> Option<(&str, &str)> {
     let at =
         (1..bytes.len()).find(|&i| bytes[i] == b'#' && matches!(bytes[i - 1], b' ' | b'\t'))?;
     Some((value[..at].trim(), value[at..].trim()))
+}
+
+/// The object type an `ObjectType` names (`VAR`, `record`, ...), if it
+/// names one.
+fn object_type_named(text: &str) -> Option<ObjectType> {
+    NAMED_OBJECT_TYPES
+        .into_iter()
+        .find(|object_type| object_type.name().eq_ignore_ascii_case(text.trim()))
 }
 
 /// An `AccessType` token: a CiA 306 one (any case), with `true`; or `R` or

@@ -1007,6 +1007,65 @@ fn comment_lines_that_start_with_a_hash_are_read_as_comments() {
 }
 
 #[test]
+fn spelled_out_object_types_are_read_as_their_numbers() {
+    for (name, object_type) in [
+        ("VAR", ObjectType::Var),
+        ("var", ObjectType::Var),
+        ("DOMAIN", ObjectType::Domain),
+    ] {
+        let text = with_2000(&format!(
+            "ObjectType={name}\nDataType=0x0007\nAccessType=ro\n"
+        ));
+        let warning = warning_at(&text, &format!("ObjectType={name}"), Action::Corrected);
+        assert_eq!(
+            warning.message,
+            format!(
+                "ObjectType={name} is a name where CiA 306 writes a number; read as 0x{:X}",
+                object_type.raw()
+            )
+        );
+        let eds = load_odd(&text);
+        assert_eq!(eds.dictionary.get(0x2000).unwrap().object_type, object_type);
+    }
+    for (name, object_type) in [
+        ("ARRAY", ObjectType::Array),
+        ("RECORD", ObjectType::Record),
+        ("DEFSTRUCT", ObjectType::DefStruct),
+    ] {
+        let text = MINI.replace("ObjectType=0x9", &format!("ObjectType={name}"));
+        warning_at(&text, &format!("ObjectType={name}"), Action::Corrected);
+        let eds = load_odd(&text);
+        let object = eds.dictionary.get(0x1018).unwrap();
+        assert_eq!((object.object_type, object.subs.len()), (object_type, 2));
+    }
+    let text = MINI.replace(
+        "ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+        "ObjectType=DEFTYPE\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+    );
+    warning_at(&text, "ObjectType=DEFTYPE", Action::Corrected);
+    assert_eq!(
+        load_odd(&text).dictionary.get(0x1000).unwrap().object_type,
+        ObjectType::DefType
+    );
+    // A name that is no object type is dropped as before, and a comment
+    // after a name is cut.
+    let text = MINI.replace("ObjectType=0x9", "ObjectType=STRUCT");
+    warning_at(&text, "ObjectType=STRUCT", Action::Dropped);
+    let text = MINI.replace("ObjectType=0x9", "ObjectType=RECORD # identity");
+    let eds = Eds::parse(&text, "odd.eds").unwrap();
+    let here = eds
+        .warnings
+        .iter()
+        .filter(|w| w.line == line_of(&text, "RECORD"))
+        .count();
+    assert_eq!(here, 2, "{:#?}", eds.warnings);
+    assert_eq!(
+        eds.dictionary.get(0x1018).unwrap().object_type,
+        ObjectType::Record
+    );
+}
+
+#[test]
 fn empty_obj_flags_are_one_warning_for_the_file() {
     // 106 lines in 29 files of the second set of real files.
     let text = MINI
