@@ -1391,6 +1391,23 @@ fn access_token(text: &str) -> Option<(AccessType, bool)> {
     }
 }
 
+/// The warning that says why a file that read yields no object: the first
+/// that dropped an object, a sub-object or an entry of an object list.
+pub(super) fn no_object_reason(warnings: &[EdsWarning]) -> Option<&EdsWarning> {
+    warnings.iter().find(|warning| {
+        let section = warning
+            .key
+            .strip_prefix('[')
+            .and_then(|key| key.split_once(']'))
+            .map(|(section, _)| section);
+        warning.action == Action::Dropped
+            && section.is_some_and(|section| {
+                LISTS.iter().any(|list| list.eq_ignore_ascii_case(section))
+                    || matches!(classify(section), Ok(Kind::Object(_) | Kind::Sub(..)))
+            })
+    })
+}
+
 /// A number's value text as its writer meant it, as text that reads: a C
 /// literal suffix dropped (`0x1234567890ABCDEFLL`, `100U`, `1.5f`), a negative
 /// number in an unsigned type as its two's complement (`-1` in an UNSIGNED32

@@ -1093,6 +1093,58 @@ fn empty_obj_flags_are_one_warning_for_the_file() {
 }
 
 #[test]
+fn a_file_that_yields_no_object_is_not_usable() {
+    // Its lists name objects no section defines.
+    let text = MINI.split("[1000]").next().unwrap().to_string();
+    let eds = Eds::parse(&text, "lists.eds").unwrap();
+    assert!(eds.dictionary.is_empty());
+    let error = eds.why_unusable("lists.eds").unwrap();
+    assert_eq!(error.line, line_of(&text, "1=0x1000"));
+    assert_eq!(
+        error.to_string(),
+        format!(
+            "lists.eds:{}: no object could be read: object 0x1000 is listed but there is no \
+             [1000] section; dropped from the list",
+            error.line
+        )
+    );
+    // Every object dropped: the first reason is the first object's.
+    let text = MINI
+        .replace(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+            "ObjectType=0x7\nDataType=bad\nAccessType=ro\nDefaultValue=0x191",
+        )
+        .replace("ObjectType=0x9", "ObjectType=0x3");
+    let eds = Eds::parse(&text, "dropped.eds").unwrap();
+    let error = eds.why_unusable("dropped.eds").unwrap();
+    assert_eq!(error.line, line_of(&text, "DataType=bad"));
+    assert!(
+        error
+            .message
+            .starts_with("no object could be read: DataType: "),
+        "{error}"
+    );
+    // No object section at all.
+    let eds = Eds::parse(
+        "[DeviceInfo]\nVendorNumber=1\n[FileInfo]\nFileName=x\n",
+        "bare.eds",
+    )
+    .unwrap();
+    let error = eds.why_unusable("bare.eds").unwrap();
+    assert_eq!(
+        error.to_string(),
+        "bare.eds: no object could be read: the file has no object section ([1000], [1018], ...)"
+    );
+    // A file with objects is usable, warnings or not.
+    assert!(
+        Eds::parse(MINI, "mini.eds")
+            .unwrap()
+            .why_unusable("mini.eds")
+            .is_none()
+    );
+}
+
+#[test]
 fn a_domain_default_that_is_no_hex_bytes_is_dropped() {
     // CANopenNode's editor writes DefaultValue=0 for every DOMAIN.
     for default in ["0", "not hex", "0x123"] {
