@@ -55,9 +55,14 @@ struct Checked {
 impl Checked {
     fn usable(&self, strict: bool) -> bool {
         match &self.result {
-            Ok(eds) => !strict || eds.warnings.is_empty(),
+            Ok(eds) => self.unusable(eds).is_none() && (!strict || eds.warnings.is_empty()),
             Err(_) => false,
         }
+    }
+
+    /// Why a file that read is not usable (it yields no object).
+    fn unusable(&self, eds: &Eds) -> Option<EdsError> {
+        eds.why_unusable(&self.file)
     }
 }
 
@@ -137,6 +142,20 @@ fn report(checked: &Checked) -> String {
             for warning in &eds.warnings {
                 let _ = writeln!(out, "{warning} [{}]", warning.action);
             }
+            if let Some(error) = checked.unusable(eds) {
+                let at = match error.line {
+                    0 => String::new(),
+                    line => format!(" (line {line})"),
+                };
+                let _ = writeln!(
+                    out,
+                    "{}: not usable, {} warnings: {}{at}",
+                    checked.file,
+                    eds.warnings.len(),
+                    error.message
+                );
+                return out;
+            }
             let info = &eds.device_info;
             let name = |name: &Option<String>| {
                 name.as_deref()
@@ -185,6 +204,11 @@ fn file_json(checked: &Checked, strict: bool, dictionary: bool) -> Json {
                     json!({"line": w.line, "key": w.key, "action": w.action, "message": w.message})
                 })
                 .collect();
+            let errors: Vec<Json> = checked
+                .unusable(eds)
+                .map(|error| json!({"line": error.line, "message": error.message}))
+                .into_iter()
+                .collect();
             let mut file = json!({
                 "file": checked.file,
                 "usable": usable,
@@ -197,7 +221,7 @@ fn file_json(checked: &Checked, strict: bool, dictionary: bool) -> Json {
                 "product_name": info.product_name,
                 "revision_number": info.revision_number,
                 "device_type": device_type(&eds.dictionary),
-                "errors": [],
+                "errors": errors,
                 "warnings": warnings,
             });
             if dictionary {

@@ -233,7 +233,8 @@ pub struct EdsCatalog {
     uploads: Option<PathBuf>,
 }
 
-/// A file of the EDS directory the catalog left out, and why (it is no EDS).
+/// A file of the EDS directory the catalog left out, and why (it is no EDS,
+/// or no object could be read from it).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SkippedFile {
     pub path: PathBuf,
@@ -248,7 +249,8 @@ pub enum CatalogError {
     /// The name is no plain file name ending in `.eds` or `.dcf`.
     #[error("{0}")]
     InvalidName(String),
-    /// The file is no EDS (the reader's error, with its line).
+    /// The file is no EDS, or no object could be read from it (the
+    /// reader's error, with its line).
     #[error(transparent)]
     NotEds(#[from] EdsError),
     /// Another file of the catalog has the name.
@@ -324,11 +326,11 @@ impl EdsCatalog {
 
     /// The built-in files and every `*.eds` and `*.dcf` file of `dir` (not
     /// its subdirectories). A bad file never stops the gateway: a file that
-    /// is no EDS is left out, logged with its reason and listed in
-    /// [`EdsCatalog::skipped`]; a file that names no vendor or product
-    /// joins the catalog to be assigned to nodes by hand (it matches no
-    /// device by identity); a file's warnings are logged. Only a directory
-    /// that cannot be read is an error.
+    /// is no EDS, or yields no object, is left out, logged with its reason
+    /// and listed in [`EdsCatalog::skipped`]; a file that names no vendor
+    /// or product joins the catalog to be assigned to nodes by hand (it
+    /// matches no device by identity); a file's warnings are logged. Only
+    /// a directory that cannot be read is an error.
     pub fn with_dir(dir: impl AsRef<Path>) -> Result<Self, RegistryError> {
         let mut catalog = Self::builtin()?;
         let dir = dir.as_ref();
@@ -400,6 +402,10 @@ impl EdsCatalog {
 
     fn add(&mut self, path: &Path, source: EdsSource) -> Result<Arc<EdsEntry>, RegistryError> {
         let eds = read_eds_file(path)?;
+        // A file that yields no object would describe a node as empty.
+        if let Some(error) = eds.why_unusable(&path.display().to_string()) {
+            return Err(error.into());
+        }
         let name = path
             .file_name()
             .map(|name| name.to_string_lossy().into_owned())
@@ -448,14 +454,18 @@ impl EdsCatalog {
     }
 
     /// Takes an uploaded file: `name` must be a plain file name ending in
-    /// `.eds` or `.dcf` and no other file's; a file that is no EDS is
-    /// refused with the reader's error; one with warnings is kept (they
+    /// `.eds` or `.dcf` and no other file's; a file that is no EDS, or
+    /// that yields no object, is refused with the reader's error; one with
+    /// warnings is kept (they
     /// are in its entry). With a data directory it is written there
     /// (`0600`, to a temporary name first, then renamed: a crash leaves the
     /// old state or the new, never half a file).
     pub fn upload(&self, name: &str, bytes: &[u8]) -> Result<Arc<EdsEntry>, CatalogError> {
         check_name(name)?;
         let eds = Eds::parse_bytes(bytes, name)?;
+        if let Some(error) = eds.why_unusable(name) {
+            return Err(error.into());
+        }
         let mut entry = self.user_entry(name.to_string(), EdsSource::Uploaded(None), eds);
         // Held from the check to the insertion: two uploads of one name
         // cannot both pass.

@@ -1,6 +1,12 @@
 //! The INI dialect of CiA 306, as vendors really write it: `[section]`
 //! headers and `key=value` lines, names compared without case, `;` comment
 //! lines, CR LF or LF or CR line ends, an optional UTF-8 byte order mark.
+//! What CiA 306 does not define but INI readers take is read the same way,
+//! with a warning: a line that starts with `#` is a comment (one warning
+//! for all of them), and so is `;` after white space at the end of a value
+//! (a warning each: the value is read without it). A `#` after a value is
+//! for `read` to judge: it is part of names and strings as often as a
+//! comment.
 //!
 //! Nothing here refuses a file: what is ambiguous or malformed becomes a
 //! warning with its line, and the sensible reading goes on. A section that
@@ -89,23 +95,27 @@ fn lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
 }
 
 /// The value of a `key=value` line: trimmed, a quoted string kept whole with
-/// its quotes, and a comment (`;` after white space) cut off.
-fn clean_value(raw: &str) -> &str {
+/// its quotes, and a comment (`;` after white space) cut off; the comment,
+/// trimmed, beside it.
+fn clean_value(raw: &str) -> (&str, Option<&str>) {
     let value = raw.trim();
     if value.starts_with('"')
         && let Some(close) = value.rfind('"').filter(|&close| close > 0)
     {
         let after = value[close + 1..].trim_start();
-        if after.is_empty() || after.starts_with(';') {
-            return &value[..=close];
+        if after.is_empty() {
+            return (&value[..=close], None);
+        }
+        if after.starts_with(';') {
+            return (&value[..=close], Some(after.trim_end()));
         }
     }
     let bytes = raw.as_bytes();
     let comment =
         (1..bytes.len()).find(|&i| bytes[i] == b';' && matches!(bytes[i - 1], b' ' | b'\t'));
     match comment {
-        Some(start) => raw[..start].trim(),
-        None => value,
+        Some(start) => (raw[..start].trim(), Some(raw[start..].trim())),
+        None => (value, None),
     }
 }
 
@@ -130,6 +140,9 @@ pub(super) fn parse(text: &str) -> (Ini, Vec<IniWarning>) {
     // or unnamed one), or before the first section.
     let mut in_section = false;
     let mut seen_header = false;
+    // The first line that starts with `#`, and how many do: one warning
+    // says them all, as a comment changes nothing that is read.
+    let mut hash_lines: Option<(usize, usize)> = None;
     for (number, line) in lines(text) {
         ini.lines = number;
         let mut warn = |key: &str, message: String, dropped: bool| {
@@ -150,6 +163,10 @@ pub(super) fn parse(text: &str) -> (Ini, Vec<IniWarning>) {
         }
         let line = line.trim();
         if line.is_empty() || line.starts_with(';') {
+            continue;
+        }
+        if line.starts_with('#') {
+            hash_lines.get_or_insert((number, 0)).1 += 1;
             continue;
         }
         if let Some(header) = line.strip_prefix('[') {
@@ -253,10 +270,38 @@ pub(super) fn parse(text: &str) -> (Ini, Vec<IniWarning>) {
             continue;
         }
         keys.insert(key.to_ascii_lowercase(), number);
+        let (value, comment) = clean_value(value);
+        if let Some(comment) = comment {
+            warn(
+                &format!("[{}] {key}", section.name),
+                format!(
+                    "{}={}: '{}' after the value is read as a comment",
+                    snippet(key),
+                    snippet(value),
+                    snippet(comment)
+                ),
+                false,
+            );
+        }
         section.entries.push(Entry {
             key: key.to_string(),
-            value: clean_value(value).to_string(),
+            value: value.to_string(),
             line: number,
+        });
+    }
+    if let Some((line, count)) = hash_lines {
+        let more = match count {
+            1 => String::new(),
+            n => format!(", and so are the {} more below", n - 1),
+        };
+        warnings.push(IniWarning {
+            line,
+            key: String::new(),
+            message: format!(
+                "a line that starts with '#' is read as a comment (CiA 306 comments start with \
+                 ';'){more}"
+            ),
+            dropped: false,
         });
     }
     (ini, warnings)
@@ -273,7 +318,19 @@ mod tests {
              [1000]\nParameterName=Device Type ; the device profile\nDefaultValue=\"a ; b\"\n\
              Odd=\"quoted\" trailing\nNoComment=a;b\n  ;indented comment\n[Empty]\rKey=\r",
         );
-        assert_eq!(warnings, []);
+        // The comment after a value (`;` after white space) is cut off and
+        // said; the `;` of a quoted string or with no space before is kept.
+        assert_eq!(
+            warnings,
+            [IniWarning {
+                line: 6,
+                key: "[1000] ParameterName".into(),
+                message: "ParameterName=Device Type: '; the device profile' after the value \
+                          is read as a comment"
+                    .into(),
+                dropped: false,
+            }]
+        );
         assert_eq!(ini.lines, 12);
         let names: Vec<_> = ini
             .sections
@@ -297,6 +354,48 @@ mod tests {
         assert_eq!(object.get("NoComment").unwrap().value, "a;b");
         assert_eq!(ini.section("EMPTY").unwrap().get("key").unwrap().value, "");
         assert!(ini.section("missing").is_none());
+    }
+
+    #[test]
+    fn hash_lines_are_comments_said_once_and_a_hash_after_a_value_is_kept() {
+        let (ini, warnings) = parse(
+            "[A]\n# Category: Mandatory\nk=1\n  #k=2\nName=Heartbeat #1\n\
+             Quoted=\"x ; y\" ; a comment\n# last\n",
+        );
+        assert_eq!(
+            warnings,
+            [
+                IniWarning {
+                    line: 6,
+                    key: "[A] Quoted".into(),
+                    message: "Quoted=\"x ; y\": '; a comment' after the value is read as a \
+                              comment"
+                        .into(),
+                    dropped: false,
+                },
+                IniWarning {
+                    line: 2,
+                    key: String::new(),
+                    message: "a line that starts with '#' is read as a comment (CiA 306 \
+                              comments start with ';'), and so are the 2 more below"
+                        .into(),
+                    dropped: false,
+                },
+            ]
+        );
+        let section = ini.section("A").unwrap();
+        // `#k=2` is a comment, not a second `k`.
+        assert_eq!(section.get("k").unwrap().value, "1");
+        assert_eq!(section.entries.len(), 3);
+        // A `#` after a value is for the reader to judge.
+        assert_eq!(section.get("Name").unwrap().value, "Heartbeat #1");
+        assert_eq!(section.get("Quoted").unwrap().value, "\"x ; y\"");
+        // One line: no count.
+        let (_, warnings) = parse("[A]\n#x\n");
+        assert_eq!(
+            warnings[0].message,
+            "a line that starts with '#' is read as a comment (CiA 306 comments start with ';')"
+        );
     }
 
     #[test]

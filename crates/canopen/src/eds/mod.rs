@@ -406,6 +406,26 @@ impl Eds {
         write::write(self)
     }
 
+    /// Why a file that read is still not usable, `None` when it is: it
+    /// yields no object (every object section, or every object its lists
+    /// name, was dropped, or it has none), so a node described by it would
+    /// show nothing. The error names `file` and the line of the first
+    /// reason, the first warning that dropped an object or a listed one.
+    pub fn why_unusable(&self, file: &str) -> Option<EdsError> {
+        if !self.dictionary.is_empty() {
+            return None;
+        }
+        let (line, reason) = match read::no_object_reason(&self.warnings) {
+            Some(warning) => (warning.line, warning.message.as_str()),
+            None => (0, "the file has no object section ([1000], [1018], ...)"),
+        };
+        Some(EdsError {
+            file: file.to_string(),
+            line,
+            message: format!("no object could be read: {reason}"),
+        })
+    }
+
     /// True when this is a DCF: a configured device rather than a type.
     pub fn is_dcf(&self) -> bool {
         self.commissioning.is_some()

@@ -20,6 +20,23 @@ use crate::od::{
 /// The three object lists of CiA 306; together they name every object.
 const LISTS: [&str; 3] = ["MandatoryObjects", "OptionalObjects", "ManufacturerObjects"];
 
+/// The keys of `[DeviceInfo]` (lower case) whose values are numbers, and
+/// the `BaudRate_<kbit>` flags besides.
+const DEVICE_INFO_NUMBERS: [&str; 12] = [
+    "vendornumber",
+    "productnumber",
+    "revisionnumber",
+    "simplebootupmaster",
+    "simplebootupslave",
+    "groupmessaging",
+    "lss_supported",
+    "granularity",
+    "dynamicchannelssupported",
+    "compactpdo",
+    "nrofrxpdo",
+    "nroftxpdo",
+];
+
 /// What `$NODEID` stands for while an EDS, which has no node, is checked:
 /// the smallest node id, so `$NODEID+0x180` is checked as 0x181.
 const CHECK_NODE: u8 = 1;
@@ -27,10 +44,24 @@ const CHECK_NODE: u8 = 1;
 /// The name CiA 306 gives sub-index 0 of a `CompactSubObj` array.
 const COMPACT_SUB0_NAME: &str = "NrOfObjects";
 
-/// The access type of an entry whose `AccessType` is missing, empty or
-/// unknown: the device decides with an SDO abort what it does not allow,
-/// whereas a guessed `ro` would forbid writes the device takes.
+/// The access type of an entry whose `AccessType` is missing or empty:
+/// the device decides with an SDO abort what it does not allow, whereas a
+/// guessed `ro` would forbid writes the device takes. (A token that is
+/// written but means nothing refuses the entry instead: it may stand for
+/// a restriction, and `rw` would lift it.)
 const DEFAULT_ACCESS: AccessType = AccessType::Rw;
+
+/// The object types whose names some files write where CiA 306 writes the
+/// number (`ObjectType=VAR`).
+const NAMED_OBJECT_TYPES: [ObjectType; 7] = [
+    ObjectType::Null,
+    ObjectType::Domain,
+    ObjectType::DefType,
+    ObjectType::DefStruct,
+    ObjectType::Var,
+    ObjectType::Array,
+    ObjectType::Record,
+];
 
 pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
     if let Some(at) = text.find('\0') {
@@ -46,6 +77,7 @@ pub(super) fn read(text: &str, file: &str) -> Result<Eds, EdsError> {
         file,
         ini: &ini,
         warnings: Vec::new(),
+        empty_obj_flags: Vec::new(),
     };
     for warning in ini_warnings {
         let action = if warning.dropped {
@@ -148,6 +180,9 @@ struct Reader<'a> {
     file: &'a str,
     ini: &'a Ini,
     warnings: Vec<EdsWarning>,
+    /// The `ObjFlags=` lines with no value, as (line, `[section] ObjFlags`):
+    /// one warning says them all.
+    empty_obj_flags: Vec<(usize, String)>,
 }
 
 /// `[section] key`, the key of a warning.
@@ -190,8 +225,42 @@ impl<'a> Reader<'a> {
         self.ini.lines.max(1)
     }
 
-    /// A number of `data_type` (an unsigned type) from an entry, or a
-    /// warning naming the key and `then` (what is done instead).
+    /// The value of an entry whose value is a number or a token (not a
+    /// name or a string): as written, unless it does not `read` as written
+    /// but does without a `#` comment after white space
+    /// (`ObjectType=0x07 # VAR`); then without it, with a warning. A value
+    /// that reads as written keeps its `#`, and so does every name and
+    /// string (`ParameterName=Heartbeat #1`, `DefaultValue=Vendor #1`).
+    fn uncommented<'e>(
+        &mut self,
+        section: &Section,
+        entry: &'e Entry,
+        reads: impl Fn(&str) -> bool,
+    ) -> &'e str {
+        let value = entry.value.as_str();
+        if let Some((before, comment)) = hash_comment(value)
+            && !reads(value)
+            && reads(before)
+        {
+            self.warn(
+                entry.line,
+                key_of(section, &entry.key),
+                Action::Corrected,
+                format!(
+                    "{}={}: '{}' after the value is read as a comment",
+                    entry.key,
+                    snippet(value),
+                    snippet(comment)
+                ),
+            );
+            return before;
+        }
+        value
+    }
+
+    /// A number of `data_type` (an unsigned type) from an entry (see
+    /// [`Reader::uncommented`] for a comment after it), or a warning naming
+    /// the key and `then` (what is done instead).
     fn number(
         &mut self,
         section: &Section,
@@ -200,7 +269,23 @@ impl<'a> Reader<'a> {
         action: Action,
         then: &str,
     ) -> Option<u64> {
-        match parse_unsigned(&entry.value, data_type) {
+        let text = self.uncommented(section, entry, |text| {
+            parse_unsigned(text, data_type).is_ok()
+        });
+        self.number_of(section, entry, text, data_type, action, then)
+    }
+
+    /// [`Reader::number`] of `text`, the value of `entry`.
+    fn number_of(
+        &mut self,
+        section: &Section,
+        entry: &Entry,
+        text: &str,
+        data_type: DataType,
+        action: Action,
+        then: &str,
+    ) -> Option<u64> {
+        match parse_unsigned(text, data_type) {
             Ok(value) => Some(value),
             Err(message) => {
                 self.warn(
@@ -212,6 +297,31 @@ impl<'a> Reader<'a> {
                 None
             }
         }
+    }
+
+    /// The `ObjFlags` of a section; an empty `ObjFlags=` is no flags, said
+    /// once for the whole file (it is as if the key were not there).
+    fn obj_flags(&mut self, section: &Section) -> Option<u32> {
+        let entry = section.get("ObjFlags")?;
+        if entry.value.is_empty() {
+            let key = key_of(section, &entry.key);
+            if !self
+                .empty_obj_flags
+                .iter()
+                .any(|(line, _)| *line == entry.line)
+            {
+                self.empty_obj_flags.push((entry.line, key));
+            }
+            return None;
+        }
+        self.number(
+            section,
+            entry,
+            DataType::Unsigned32,
+            Action::Dropped,
+            "dropped",
+        )
+        .map(|v| v as u32)
     }
 
     /// True when the file has a section CiA 306 defines.
@@ -248,6 +358,17 @@ impl<'a> Reader<'a> {
         let commissioning = self.commissioning();
         let dictionary = self.dictionary();
         self.identity(&mut device_info, &dictionary);
+        if let Some((line, key)) = self.empty_obj_flags.first().cloned() {
+            let count = self.empty_obj_flags.len();
+            let message = match count {
+                1 => "ObjFlags= is empty; read as no flags".to_string(),
+                _ => format!(
+                    "ObjFlags= is empty here and in {} more sections; each is read as no flags",
+                    count - 1
+                ),
+            };
+            self.warn(line, key, Action::Kept, message);
+        }
         Ok(Eds {
             file_info,
             device_info,
@@ -297,8 +418,16 @@ impl<'a> Reader<'a> {
         };
         for entry in &section.entries {
             let key = entry.key.to_ascii_lowercase();
-            let unsigned = |data_type| parse_unsigned(&entry.value, data_type).ok();
-            let flag = || parse_flag(&entry.value);
+            let text =
+                if DEVICE_INFO_NUMBERS.contains(&key.as_str()) || key.starts_with("baudrate_") {
+                    self.uncommented(section, entry, |text| {
+                        parse_unsigned(text, DataType::Unsigned32).is_ok()
+                    })
+                } else {
+                    entry.value.as_str()
+                };
+            let unsigned = |data_type| parse_unsigned(text, data_type).ok();
+            let flag = || parse_flag(text);
             // Each arm says whether the value could be read.
             let read = match key.as_str() {
                 "vendorname" => {
@@ -491,7 +620,8 @@ impl<'a> Reader<'a> {
                 Some(Hex::Value(index)) => Some(index),
                 _ => None,
             };
-            match (index, parse_flag(&entry.value)) {
+            let text = self.uncommented(section, entry, |text| parse_flag(text).is_some());
+            match (index, parse_flag(text)) {
                 (Some(index), Some(used)) => {
                     if used {
                         usage.insert(index as u16);
@@ -516,9 +646,11 @@ impl<'a> Reader<'a> {
         let Some(section) = self.ini.section("Comments") else {
             return Vec::new();
         };
+        let reads = |text: &str| parse_unsigned(text, DataType::Unsigned16).is_ok();
         let count = section
             .get("Lines")
-            .and_then(|entry| parse_unsigned(&entry.value, DataType::Unsigned16).ok())
+            .map(|entry| self.uncommented(section, entry, reads))
+            .and_then(|text| parse_unsigned(text, DataType::Unsigned16).ok())
             // A count beyond the entries there are is a lie; never loop on it.
             .filter(|&count| count as usize <= section.entries.len());
         let Some(count) = count else {
@@ -785,9 +917,26 @@ impl<'a> Reader<'a> {
             // CiA 306 §4.6.3.2: a missing ObjectType means VAR.
             return Some(ObjectType::Var);
         };
-        let raw = self.number(
+        let text = self.uncommented(section, entry, |text| {
+            parse_unsigned(text, DataType::Unsigned8).is_ok() || object_type_named(text).is_some()
+        });
+        if let Some(object_type) = object_type_named(text) {
+            self.warn(
+                entry.line,
+                key_of(section, &entry.key),
+                Action::Corrected,
+                format!(
+                    "ObjectType={} is a name where CiA 306 writes a number; read as 0x{:X}",
+                    snippet(text),
+                    object_type.raw()
+                ),
+            );
+            return Some(object_type);
+        }
+        let raw = self.number_of(
             section,
             entry,
+            text,
             DataType::Unsigned8,
             Action::Dropped,
             "section dropped",
@@ -856,17 +1005,7 @@ impl<'a> Reader<'a> {
             }
             return Some(object);
         }
-        if let Some(entry) = section.get("ObjFlags") {
-            object.obj_flags = self
-                .number(
-                    section,
-                    entry,
-                    DataType::Unsigned32,
-                    Action::Dropped,
-                    "dropped",
-                )
-                .map(|v| v as u32);
-        }
+        object.obj_flags = self.obj_flags(section);
         let compact = match section.get("CompactSubObj") {
             Some(entry) => self
                 .number(
@@ -1013,13 +1152,17 @@ impl<'a> Reader<'a> {
         if entry.value.is_empty() {
             return None;
         }
-        let error = match Value::parse_text_with_node(data_type, &entry.value, Some(CHECK_NODE)) {
-            Ok(_) => return Some(entry.value.clone()),
+        let text = self.uncommented(section, entry, |text| {
+            Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)).is_ok()
+                || corrected_number(data_type, text).is_some()
+        });
+        let error = match Value::parse_text_with_node(data_type, text, Some(CHECK_NODE)) {
+            Ok(_) => return Some(text.to_string()),
             Err(error) => error,
         };
         let key = key_of(section, &entry.key);
-        let shown = snippet(&entry.value);
-        if let Some(corrected) = corrected_number(data_type, &entry.value) {
+        let shown = snippet(text);
+        if let Some(corrected) = corrected_number(data_type, text) {
             self.warn(
                 entry.line,
                 key,
@@ -1095,23 +1238,49 @@ impl<'a> Reader<'a> {
             None => self.name(section, format!("Sub-index {sub_index}")),
         };
         let access = match section.get("AccessType") {
-            Some(entry) => match entry.value.parse::<AccessType>() {
-                Ok(access) => access,
-                Err(error) => {
-                    let what = if entry.value.trim().is_empty() {
-                        "AccessType is empty".to_string()
-                    } else {
-                        error.to_string()
-                    };
-                    self.warn(
-                        entry.line,
-                        key_of(section, &entry.key),
-                        Action::Defaulted,
-                        format!("{what}; read as {DEFAULT_ACCESS}"),
-                    );
-                    DEFAULT_ACCESS
+            Some(entry) => {
+                let text = self.uncommented(section, entry, |text| access_token(text).is_some());
+                match access_token(text) {
+                    Some((access, true)) => access,
+                    Some((access, false)) => {
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Corrected,
+                            format!(
+                                "AccessType={} is no access type of CiA 306; read as {access}",
+                                snippet(text)
+                            ),
+                        );
+                        access
+                    }
+                    None if text.trim().is_empty() => {
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Defaulted,
+                            format!("AccessType is empty; read as {DEFAULT_ACCESS}"),
+                        );
+                        DEFAULT_ACCESS
+                    }
+                    None => {
+                        // `rw` could make writable what the device's maker
+                        // meant to be read-only.
+                        self.warn(
+                            entry.line,
+                            key_of(section, &entry.key),
+                            Action::Dropped,
+                            format!(
+                                "AccessType={} is no access type (ro, wo, rw, rwr, rww, const): \
+                                 what the entry allows is not known; [{}] dropped",
+                                snippet(text),
+                                section.name
+                            ),
+                        );
+                        return None;
+                    }
                 }
-            },
+            }
             None if data_type == DataType::Domain => AccessType::Rw,
             None => {
                 self.warn(
@@ -1138,17 +1307,7 @@ impl<'a> Reader<'a> {
                 )
                 .is_some_and(|v| v != 0);
         }
-        if let Some(entry) = section.get("ObjFlags") {
-            sub.obj_flags = self
-                .number(
-                    section,
-                    entry,
-                    DataType::Unsigned32,
-                    Action::Dropped,
-                    "dropped",
-                )
-                .map(|v| v as u32);
-        }
+        sub.obj_flags = self.obj_flags(section);
         let mut text = |key: &str| {
             section
                 .get(key)
@@ -1200,6 +1359,53 @@ impl<'a> Reader<'a> {
             );
         }
     }
+}
+
+/// A value's text before a `#` comment (a `#` after white space, not at
+/// the start), trimmed, and the comment; `None` when there is none.
+fn hash_comment(value: &str) -> Option<(&str, &str)> {
+    let bytes = value.as_bytes();
+    let at =
+        (1..bytes.len()).find(|&i| bytes[i] == b'#' && matches!(bytes[i - 1], b' ' | b'\t'))?;
+    Some((value[..at].trim(), value[at..].trim()))
+}
+
+/// The object type an `ObjectType` names (`VAR`, `record`, ...), if it
+/// names one.
+fn object_type_named(text: &str) -> Option<ObjectType> {
+    NAMED_OBJECT_TYPES
+        .into_iter()
+        .find(|object_type| object_type.name().eq_ignore_ascii_case(text.trim()))
+}
+
+/// An `AccessType` token: a CiA 306 one (any case), with `true`; or `R` or
+/// `W`, which some tools write for `ro` and `wo`, with `false`.
+fn access_token(text: &str) -> Option<(AccessType, bool)> {
+    if let Ok(access) = text.parse::<AccessType>() {
+        return Some((access, true));
+    }
+    match text.trim() {
+        "R" | "r" => Some((AccessType::Ro, false)),
+        "W" | "w" => Some((AccessType::Wo, false)),
+        _ => None,
+    }
+}
+
+/// The warning that says why a file that read yields no object: the first
+/// that dropped an object, a sub-object or an entry of an object list.
+pub(super) fn no_object_reason(warnings: &[EdsWarning]) -> Option<&EdsWarning> {
+    warnings.iter().find(|warning| {
+        let section = warning
+            .key
+            .strip_prefix('[')
+            .and_then(|key| key.split_once(']'))
+            .map(|(section, _)| section);
+        warning.action == Action::Dropped
+            && section.is_some_and(|section| {
+                LISTS.iter().any(|list| list.eq_ignore_ascii_case(section))
+                    || matches!(classify(section), Ok(Kind::Object(_) | Kind::Sub(..)))
+            })
+    })
 }
 
 /// A number's value text as its writer meant it, as text that reads: a C

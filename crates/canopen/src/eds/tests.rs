@@ -832,7 +832,7 @@ fn with_2000(keys: &str) -> String {
 }
 
 #[test]
-fn an_empty_or_unknown_access_type_is_read_as_rw() {
+fn an_empty_access_type_is_read_as_rw() {
     // UniSwarm's umckin1.eds, umc1bds32.eds (old) and uio8ad.eds.
     let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=\nDefaultValue=5\n");
     let warning = warning_at(&text, "AccessType=\n", Action::Defaulted);
@@ -845,14 +845,302 @@ fn an_empty_or_unknown_access_type_is_read_as_rw() {
         (AccessType::Rw, Some("5"))
     );
 
-    let unknown = text.replace("AccessType=\n", "AccessType=readable\n");
-    warning_at(&unknown, "readable", Action::Defaulted);
     let missing = text.replace("AccessType=\n", "");
     let warning = warning_at(&missing, "[2000]", Action::Defaulted);
     assert_eq!(warning.message, "[2000] has no AccessType; read as rw");
     assert_eq!(
         load_odd(&missing).dictionary.sub(0x2000, 0).unwrap().access,
         AccessType::Rw
+    );
+}
+
+#[test]
+fn access_types_r_and_w_are_read_as_ro_and_wo() {
+    // 658 entries of 16 files of the second set of real files.
+    for (token, access) in [
+        ("R", AccessType::Ro),
+        ("r", AccessType::Ro),
+        ("W", AccessType::Wo),
+    ] {
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType={token}\nDefaultValue=5\n"
+        ));
+        let warning = warning_at(&text, &format!("AccessType={token}\n"), Action::Corrected);
+        assert_eq!(warning.key, "[2000] AccessType");
+        assert_eq!(
+            warning.message,
+            format!("AccessType={token} is no access type of CiA 306; read as {access}")
+        );
+        let eds = load_odd(&text);
+        let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+        assert_eq!(entry.access, access, "{token}");
+        assert!(!(access == AccessType::Ro && entry.access.is_writable()));
+    }
+    // The tokens of CiA 306 in any case are no warning.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=RO\n");
+    let eds = load_odd(&text);
+    assert_eq!(
+        eds.dictionary.sub(0x2000, 0).unwrap().access,
+        AccessType::Ro
+    );
+    assert!(!eds.warnings.iter().any(|w| w.key.starts_with("[2000]")));
+}
+
+#[test]
+fn an_access_token_that_means_nothing_refuses_the_entry() {
+    for token in ["UNKNOWN", "readable", "RX"] {
+        // A VAR: the object is the entry.
+        let text = with_2000(&format!(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType={token}\nDefaultValue=5\n"
+        ));
+        let warning = warning_at(&text, &format!("AccessType={token}\n"), Action::Dropped);
+        assert_eq!(
+            warning.message,
+            format!(
+                "AccessType={token} is no access type (ro, wo, rw, rwr, rww, const): what the \
+                 entry allows is not known; [2000] dropped"
+            )
+        );
+        let eds = load_odd(&text);
+        assert!(eds.dictionary.get(0x2000).is_none(), "{token}");
+    }
+    // A sub-object of a record: that sub only.
+    let text = MINI.replace(
+        "[1018sub1]\nParameterName=Vendor Id\nObjectType=0x7\nDataType=0x0007\nAccessType=ro",
+        "[1018sub1]\nParameterName=Vendor Id\nObjectType=0x7\nDataType=0x0007\nAccessType=UNKNOWN",
+    );
+    warning_at(&text, "AccessType=UNKNOWN", Action::Dropped);
+    let eds = load_odd(&text);
+    assert!(eds.dictionary.sub(0x1018, 0).is_some());
+    assert!(eds.dictionary.sub(0x1018, 1).is_none());
+}
+
+#[test]
+fn a_comment_after_a_number_or_token_is_cut_and_said() {
+    // A CiA profile file shipped by a master library.
+    let text = with_2000(
+        "ObjectType=0x07 # VAR\nDataType=0x0007 # UNSIGNED32\nAccessType=ro # read only\n\
+         DefaultValue=0x10 # sixteen\nLowLimit=1 # at least\nPDOMapping=1 # mappable\n",
+    )
+    .replace(
+        "SupportedObjects=1\n1=0x2000",
+        "SupportedObjects=1 # one\n1=0x2000 # extra",
+    );
+    for (at, key, comment) in [
+        ("ObjectType=0x07", "ObjectType", "# VAR"),
+        ("DataType=0x0007 #", "DataType", "# UNSIGNED32"),
+        ("AccessType=ro #", "AccessType", "# read only"),
+        ("DefaultValue=0x10", "DefaultValue", "# sixteen"),
+        ("LowLimit=1", "LowLimit", "# at least"),
+        ("PDOMapping=1", "PDOMapping", "# mappable"),
+    ] {
+        let warning = warning_at(&text, at, Action::Corrected);
+        assert_eq!(warning.key, format!("[2000] {key}"));
+        assert!(
+            warning
+                .message
+                .ends_with(&format!("'{comment}' after the value is read as a comment")),
+            "{warning}"
+        );
+    }
+    warning_at(&text, "SupportedObjects=1 #", Action::Corrected);
+    warning_at(&text, "1=0x2000 #", Action::Corrected);
+    let eds = load_odd(&text);
+    let reference = load_odd(&with_2000(
+        "ObjectType=0x07\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x10\nLowLimit=1\n\
+         PDOMapping=1\n",
+    ));
+    assert_eq!(eds.dictionary, reference.dictionary);
+    // The identity of [DeviceInfo] too.
+    let text = MINI.replace("VendorNumber=0x4A2", "VendorNumber=0x4A2 # the maker");
+    warning_at(&text, "VendorNumber", Action::Corrected);
+    assert_eq!(load_odd(&text).device_info.vendor_number, Some(0x4A2));
+}
+
+#[test]
+fn a_hash_in_a_name_or_a_string_is_kept() {
+    // As a Systec file's "Consumer Heartbeat Time #1": names and strings
+    // read as written, so their `#` is no comment.
+    let text =
+        with_2000("ObjectType=0x7\nDataType=0x0009\nAccessType=ro\nDefaultValue=Vendor #1\n")
+            .replace("ParameterName=Extra", "ParameterName=Extra #1");
+    let eds = load_odd(&text);
+    let entry = eds.dictionary.sub(0x2000, 0).unwrap();
+    assert_eq!(entry.name, "Extra #1");
+    assert_eq!(entry.default.as_deref(), Some("Vendor #1"));
+    assert!(
+        !eds.warnings.iter().any(|w| w.key.starts_with("[2000]")),
+        "{:#?}",
+        eds.warnings
+    );
+    // A `#` with no white space before it is no comment: the value is
+    // dropped as before.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=5#x\n");
+    warning_at(&text, "DefaultValue=5#x", Action::Dropped);
+    // Nor is the text before a `#` that does not read: the value is not
+    // cut to something else that does not read either.
+    let text = with_2000("ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=x # 5\n");
+    let warning = warning_at(&text, "DefaultValue=x # 5", Action::Dropped);
+    assert!(warning.message.contains("x # 5"), "{warning}");
+}
+
+#[test]
+fn comment_lines_that_start_with_a_hash_are_read_as_comments() {
+    let text = MINI
+        .replace("[1000]\n", "# Category: Mandatory\n[1000]\n")
+        .replace("[1018]\n", "# Category: Mandatory\n[1018]\n")
+        .replace(
+            "DefaultValue=0x191\n",
+            "DefaultValue=0x191\n#DefaultValue=0x192\n",
+        );
+    let warning = warning_at(&text, "# Category", Action::Kept);
+    assert_eq!(
+        warning.message,
+        "a line that starts with '#' is read as a comment (CiA 306 comments start with ';'), \
+         and so are the 2 more below"
+    );
+    let eds = load_odd(&text);
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds, reference);
+    // One warning for the file.
+    assert_eq!(eds.warnings.len(), reference.warnings.len() + 1);
+}
+
+#[test]
+fn spelled_out_object_types_are_read_as_their_numbers() {
+    for (name, object_type) in [
+        ("VAR", ObjectType::Var),
+        ("var", ObjectType::Var),
+        ("DOMAIN", ObjectType::Domain),
+    ] {
+        let text = with_2000(&format!(
+            "ObjectType={name}\nDataType=0x0007\nAccessType=ro\n"
+        ));
+        let warning = warning_at(&text, &format!("ObjectType={name}"), Action::Corrected);
+        assert_eq!(
+            warning.message,
+            format!(
+                "ObjectType={name} is a name where CiA 306 writes a number; read as 0x{:X}",
+                object_type.raw()
+            )
+        );
+        let eds = load_odd(&text);
+        assert_eq!(eds.dictionary.get(0x2000).unwrap().object_type, object_type);
+    }
+    for (name, object_type) in [
+        ("ARRAY", ObjectType::Array),
+        ("RECORD", ObjectType::Record),
+        ("DEFSTRUCT", ObjectType::DefStruct),
+    ] {
+        let text = MINI.replace("ObjectType=0x9", &format!("ObjectType={name}"));
+        warning_at(&text, &format!("ObjectType={name}"), Action::Corrected);
+        let eds = load_odd(&text);
+        let object = eds.dictionary.get(0x1018).unwrap();
+        assert_eq!((object.object_type, object.subs.len()), (object_type, 2));
+    }
+    let text = MINI.replace(
+        "ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+        "ObjectType=DEFTYPE\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+    );
+    warning_at(&text, "ObjectType=DEFTYPE", Action::Corrected);
+    assert_eq!(
+        load_odd(&text).dictionary.get(0x1000).unwrap().object_type,
+        ObjectType::DefType
+    );
+    // A name that is no object type is dropped as before, and a comment
+    // after a name is cut.
+    let text = MINI.replace("ObjectType=0x9", "ObjectType=STRUCT");
+    warning_at(&text, "ObjectType=STRUCT", Action::Dropped);
+    let text = MINI.replace("ObjectType=0x9", "ObjectType=RECORD # identity");
+    let eds = Eds::parse(&text, "odd.eds").unwrap();
+    let here = eds
+        .warnings
+        .iter()
+        .filter(|w| w.line == line_of(&text, "RECORD"))
+        .count();
+    assert_eq!(here, 2, "{:#?}", eds.warnings);
+    assert_eq!(
+        eds.dictionary.get(0x1018).unwrap().object_type,
+        ObjectType::Record
+    );
+}
+
+#[test]
+fn empty_obj_flags_are_one_warning_for_the_file() {
+    // 106 lines in 29 files of the second set of real files.
+    let text = MINI
+        .replace("DefaultValue=0x191\n", "DefaultValue=0x191\nObjFlags=\n")
+        .replace("SubNumber=2\n", "SubNumber=2\nObjFlags=\n")
+        .replace("DefaultValue=1\n", "DefaultValue=1\nObjFlags=\n");
+    // At the first, [1000]'s.
+    let warning = warning_at(&text, "ObjFlags=", Action::Kept);
+    assert_eq!(warning.key, "[1000] ObjFlags");
+    assert_eq!(
+        warning.message,
+        "ObjFlags= is empty here and in 2 more sections; each is read as no flags"
+    );
+    let eds = load_odd(&text);
+    let reference = Eds::parse(MINI, "mini.eds").unwrap();
+    assert_eq!(eds.warnings.len(), reference.warnings.len() + 1);
+    assert_eq!(eds, reference);
+    // One alone.
+    let text = MINI.replace("SubNumber=2\n", "SubNumber=2\nObjFlags=\n");
+    let warning = warning_at(&text, "ObjFlags=", Action::Kept);
+    assert_eq!(warning.message, "ObjFlags= is empty; read as no flags");
+    // A value that is no number is still dropped, with a warning of its own.
+    let text = MINI.replace("SubNumber=2\n", "SubNumber=2\nObjFlags=x\n");
+    warning_at(&text, "ObjFlags=x", Action::Dropped);
+}
+
+#[test]
+fn a_file_that_yields_no_object_is_not_usable() {
+    // Its lists name objects no section defines.
+    let text = MINI.split("[1000]").next().unwrap().to_string();
+    let eds = Eds::parse(&text, "lists.eds").unwrap();
+    assert!(eds.dictionary.is_empty());
+    let error = eds.why_unusable("lists.eds").unwrap();
+    assert_eq!(error.line, line_of(&text, "1=0x1000"));
+    assert_eq!(
+        error.to_string(),
+        format!(
+            "lists.eds:{}: no object could be read: object 0x1000 is listed but there is no \
+             [1000] section; dropped from the list",
+            error.line
+        )
+    );
+    // Every object dropped: the first reason is the first object's.
+    let text = MINI
+        .replace(
+            "ObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191",
+            "ObjectType=0x7\nDataType=bad\nAccessType=ro\nDefaultValue=0x191",
+        )
+        .replace("ObjectType=0x9", "ObjectType=0x3");
+    let eds = Eds::parse(&text, "dropped.eds").unwrap();
+    let error = eds.why_unusable("dropped.eds").unwrap();
+    assert_eq!(error.line, line_of(&text, "DataType=bad"));
+    assert!(
+        error
+            .message
+            .starts_with("no object could be read: DataType: "),
+        "{error}"
+    );
+    // No object section at all.
+    let eds = Eds::parse(
+        "[DeviceInfo]\nVendorNumber=1\n[FileInfo]\nFileName=x\n",
+        "bare.eds",
+    )
+    .unwrap();
+    let error = eds.why_unusable("bare.eds").unwrap();
+    assert_eq!(
+        error.to_string(),
+        "bare.eds: no object could be read: the file has no object section ([1000], [1018], ...)"
+    );
+    // A file with objects is usable, warnings or not.
+    assert!(
+        Eds::parse(MINI, "mini.eds")
+            .unwrap()
+            .why_unusable("mini.eds")
+            .is_none()
     );
 }
 

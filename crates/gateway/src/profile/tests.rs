@@ -259,3 +259,40 @@ fn uploads_are_kept_in_the_data_dir_and_read_again_at_the_next_start() {
     assert!(!dir.join("kept.eds").exists());
     std::fs::remove_dir_all(dir.parent().unwrap()).unwrap();
 }
+
+#[test]
+fn a_file_that_yields_no_object_is_left_out_with_its_reason_and_never_matched() {
+    let dir = temp_dir("no-object");
+    // An identity, and lists that name objects no section defines.
+    let text = eds_text(0x77, 0x40, 1, 402);
+    let lists_only = text.split("[1000]").next().unwrap();
+    std::fs::write(dir.join("empty.eds"), lists_only).unwrap();
+    let catalog = EdsCatalog::with_dir(&dir).unwrap();
+    assert!(catalog.find("empty.eds").is_none());
+    assert!(catalog.lookup(&identity(0x77, 0x40, Some(1))).is_none());
+    assert_eq!(catalog.entries().len(), BUILT_IN.len());
+    let skipped = catalog.skipped();
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    assert!(
+        skipped[0]
+            .message
+            .ends_with("no object could be read: object 0x1000 is listed but there is no [1000] section; dropped from the list"),
+        "{}",
+        skipped[0].message
+    );
+    assert_eq!(skipped[0].warnings.len(), 2, "{:?}", skipped[0].warnings);
+    // An upload of it is refused with the same reason and its line.
+    let error = catalog
+        .upload("uploaded.eds", lists_only.as_bytes())
+        .unwrap_err();
+    let CatalogError::NotEds(error) = error else {
+        panic!("{error:?}");
+    };
+    assert!(
+        error.message.starts_with("no object could be read"),
+        "{error}"
+    );
+    assert_eq!(error.line, 13);
+    assert!(catalog.find("uploaded.eds").is_none());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
