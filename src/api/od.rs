@@ -19,8 +19,10 @@
 //! touched (400). SDO in the stopped state is refused with 409
 //! `wrong_nmt_state` from the state the node last reported (CiA 301 §7.3.2.2:
 //! a stopped node does not answer SDO, so asking would only end in a
-//! timeout). Access rights are the device's to enforce: a write to a
-//! read-only object reaches it, and its abort 0x06010002 comes back as 422.
+//! timeout). A write to an object the EDS describes as read-only (`ro`,
+//! `const`) is refused before the bus with the abort the device would give
+//! (0x06010002, 422); the access of an object the EDS does not describe is
+//! the device's to enforce.
 
 use std::str::FromStr;
 
@@ -36,8 +38,8 @@ use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
-use crate::gateway::check_sdo_allowed;
 use crate::gateway::registry::NodeInfo;
+use crate::gateway::{check_sdo_allowed, check_writable};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -435,6 +437,7 @@ async fn write_one(
     let mut entry = resolve(dictionary(&info), &Json::String(index), &Json::String(sub))?;
     let value = value_to_write(&entry, &info, &request)?;
     check_sdo_allowed(&served, &info)?;
+    check_writable(&info, entry.index, entry.sub)?;
     let channel = served.registry.sdo(info.id)?;
     let bytes = value.to_bytes();
     let (index, sub) = (entry.index, entry.sub);

@@ -18,7 +18,8 @@ use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::{AbortCode, ClientConfig};
 use crate::gateway::access::{Role, Tokens, WriteLimiter};
 use crate::gateway::history::{AuditEntry, History};
-use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed};
+use crate::gateway::registry::NodeInfo;
+use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed, check_writable};
 
 use super::command::Nmt;
 use super::reply::ErrorCode;
@@ -207,7 +208,7 @@ impl Cia309Gateway {
         sub: u8,
         options: TransferOptions,
     ) -> Result<Vec<u8>, GatewayError> {
-        let (_, channel) = self.channel(net, node)?;
+        let (_, _, channel) = self.channel(net, node)?;
         let config = options.apply(channel.config());
         // In a task of its own, as REST does: a client that goes away
         // mid-transfer does not cut it halfway.
@@ -253,7 +254,8 @@ impl Cia309Gateway {
         data: Vec<u8>,
         options: TransferOptions,
     ) -> Result<(), GatewayError> {
-        let (_, channel) = self.channel(net, node)?;
+        let (_, info, channel) = self.channel(net, node)?;
+        check_writable(&info, index, sub)?;
         let config = options.apply(channel.config());
         tokio::spawn(async move {
             channel
@@ -313,12 +315,12 @@ impl Cia309Gateway {
         served.send_nmt(command, target).await
     }
 
-    /// The node's shared SDO channel, after the gateway's checks.
+    /// The node and its shared SDO channel, after the gateway's checks.
     fn channel(
         &self,
         net: u16,
         node: u8,
-    ) -> Result<(Arc<ServedBus>, crate::gateway::sdo::SdoChannel), GatewayError> {
+    ) -> Result<(Arc<ServedBus>, NodeInfo, crate::gateway::sdo::SdoChannel), GatewayError> {
         let served = self
             .bus(net)
             .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?
@@ -333,7 +335,7 @@ impl Cia309Gateway {
             })?;
         check_sdo_allowed(&served, &info)?;
         let channel = served.registry.sdo(id)?;
-        Ok((served, channel))
+        Ok((served, info, channel))
     }
 
     /// Records a command refused for the connection's role (or for want

@@ -33,7 +33,7 @@ use crate::gateway::history::AuditEntry;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
 use crate::gateway::telemetry::unix_ms;
 use crate::gateway::values::TpdoFrame;
-use crate::gateway::{Gateway, GatewayError, check_sdo_allowed};
+use crate::gateway::{Gateway, GatewayError, check_sdo_allowed, check_writable};
 
 /// How long to wait before connecting again after a connection failed or
 /// was lost.
@@ -1159,6 +1159,7 @@ pub(super) async fn run_command(
                     }
                 };
                 check_sdo_allowed(&served, &info)?;
+                check_writable(&info, *index, *sub)?;
                 let channel = served.registry.sdo(info.id)?;
                 let (index, sub) = (*index, *sub);
                 tokio::spawn(async move { channel.download(index, sub, &bytes).await })

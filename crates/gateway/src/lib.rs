@@ -109,5 +109,5 @@ pub mod uioled;
 pub mod values;
 
 pub use error::GatewayError;
-pub use service::{Gateway, ServedBus, check_sdo_allowed};
+pub use service::{Gateway, ServedBus, check_sdo_allowed, check_writable};
 pub use start::{GatewayConfig, StartError};

@@ -236,6 +236,26 @@ pub fn check_sdo_allowed(served: &ServedBus, info: &NodeInfo) -> Result<(), Gate
     }
 }
 
+/// Refuses before the bus a write the node's EDS rules out: an entry it
+/// describes as `ro` or `const` is answered with the abort the device
+/// would give (CiA 301 §7.2.4.3.17, 0x06010002 "Attempt to write a read
+/// only object"), whichever door asks, so that what the dictionary shows
+/// as read-only stays so without a transfer. An entry the EDS does not
+/// describe is the device's to judge.
+pub fn check_writable(info: &NodeInfo, index: u16, sub: u8) -> Result<(), GatewayError> {
+    let described = info
+        .eds_entry
+        .as_ref()
+        .and_then(|entry| entry.eds.dictionary.sub(index, sub));
+    match described {
+        Some(described) if !described.access.is_writable() => Err(GatewayError::SdoAbort {
+            node: info.id.get(),
+            code: crate::canopen::sdo::AbortCode::ReadOnlyObject,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// The gateway service every adapter holds: the buses by name, and what
 /// they share. A `Clone` of `Arc`s.
 #[derive(Clone)]

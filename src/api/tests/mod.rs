@@ -432,8 +432,9 @@ async fn od_write_values_are_checked_before_the_bus() {
 }
 
 #[tokio::test(start_paused = true)]
-async fn od_write_to_a_read_only_object_is_the_devices_abort() {
-    let (app, _) = demo().await;
+async fn od_write_to_a_read_only_object_is_refused_before_the_bus_as_the_device_would() {
+    let (app, state) = demo().await;
+    let mut monitor = state.bus("demo").unwrap().bus.monitor();
     let response = call(
         &app,
         Method::PUT,
@@ -447,6 +448,15 @@ async fn od_write_to_a_read_only_object_is_the_devices_abort() {
         response.1["error"]["abort_text"],
         "Attempt to write a read only object"
     );
+    // The EDS says 0x1000 is ro: no transfer was started.
+    while let Ok(Some(frame)) = monitor.try_recv() {
+        assert_ne!(
+            frame.frame.id(),
+            crate::can::CanId::Standard(0x601),
+            "an SDO request reached node 1: {:?}",
+            frame.frame
+        );
+    }
 }
 
 #[tokio::test(start_paused = true)]
