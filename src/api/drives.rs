@@ -30,8 +30,11 @@
 //! names both holders); halting, quick stop, a walk out of operation
 //! enabled and STOP ALL are never refused, and end the lease.
 //!
-//! Every sequence runs in a task of its own and the handler awaits it: a
-//! client that hangs up never cuts a walk or a move half way. A move that
+//! The policy is the gateway's ([`crate::gateway::motion`], which the
+//! Sparkplug edge node calls too): the handlers read the request and its
+//! headers, call one operation and map its outcome. Every sequence runs in
+//! a task of its own and the handler awaits it: a client that hangs up
+//! never cuts a walk or a move half way. A move that
 //! fails after its first write halts the axis (quick stop if halting fails)
 //! before the error is answered.
 
@@ -293,8 +296,8 @@ async fn set_state(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
 ) -> Result<ApiJson<StateResponse>, AppError> {
-    // The take-over header counts with operation_enabled only (the other
-    // targets stop motion, and are never refused).
+    // The take-over header is read only where it can count: a stop is
+    // never refused, not even for a malformed header.
     let takeover = request.target == TargetState::OperationEnabled && takeover_asked(&headers)?;
     let claim = LeaseClaim::presented(presented(&headers), takeover);
     let outcome = state
