@@ -332,7 +332,7 @@ fn noted(note: Option<&Extension<AuditNote>>, took_over: Option<&MotionLease>) {
 /// A motion operation that failed; a stop the drive did not confirm, with
 /// what was tried.
 fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppError {
-    noted(note, failed.took_over.as_ref());
+    noted(note, failed.took_over.as_deref());
     let source = Box::new(AppError::from(failed.error));
     if failed.attempts.is_empty() {
         return *source;

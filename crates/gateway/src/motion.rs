@@ -174,7 +174,8 @@ pub struct MotionOutcome<T = AxisStatus> {
 pub struct MotionFailed {
     pub error: GatewayError,
     pub attempts: Vec<StopAttempt>,
-    pub took_over: Option<MotionLease>,
+    /// Boxed: seldom there, and it would make every error large.
+    pub took_over: Option<Box<MotionLease>>,
 }
 
 impl From<GatewayError> for MotionFailed {
@@ -260,7 +261,7 @@ fn finish<T>(
         Err(error) => Err(MotionFailed {
             error,
             attempts: Vec::new(),
-            took_over,
+            took_over: took_over.map(Box::new),
         }),
     }
 }
