@@ -30,8 +30,11 @@
 //! names both holders); halting, quick stop, a walk out of operation
 //! enabled and STOP ALL are never refused, and end the lease.
 //!
-//! Every sequence runs in a task of its own and the handler awaits it: a
-//! client that hangs up never cuts a walk or a move half way. A move that
+//! The policy is the gateway's ([`crate::gateway::motion`], which the
+//! Sparkplug edge node calls too): the handlers read the request and its
+//! headers, call one operation and map its outcome. Every sequence runs in
+//! a task of its own and the handler awaits it: a client that hangs up
+//! never cuts a walk or a move half way. A move that
 //! fails after its first write halts the axis (quick stop if halting fails)
 //! before the error is answered.
 
@@ -46,19 +49,19 @@ use utoipa_axum::routes;
 
 use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
-use super::leases::{AuditNote, LeaseInfo, holder, presented, take_over_if_asked};
+use super::leases::{AuditNote, LeaseInfo, caller, presented, takeover_asked};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::drive::{
-    AxisLimits, AxisStatus, AxisUnits, Drive, DriveError, DriveKind, MoveMode, MoveRequest,
-    TargetState, axis_count,
+    AxisLimits, AxisStatus, AxisUnits, Drive, DriveError, DriveKind, MoveRequest, TargetState,
+    axis_count,
 };
-use crate::gateway::leases::InFlight;
-use crate::gateway::motion_lease::AxisKey;
-use crate::gateway::safe_stop::{AxisStopFailed, StopAttempt, StopReport};
-use crate::gateway::step_test::{self, StepTestRequest, StepTestResult};
+use crate::gateway::motion::{LeaseClaim, MotionFailed, MotionOutcome, spawned};
+use crate::gateway::motion_lease::{MotionLease, mask};
+use crate::gateway::safe_stop::{StopAttempt, StopReport};
+use crate::gateway::step_test::{StepTestRequest, StepTestResult};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -187,52 +190,8 @@ pub struct MotionResponse {
     pub attempts: Option<Vec<StopAttempt>>,
 }
 
-/// Whether a motion in this mode runs until told otherwise, and so needs a
-/// lease.
-fn endless(mode: MoveMode) -> bool {
-    matches!(
-        mode,
-        MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
-    )
-}
-
-/// The same for the mode an axis displays (its `mode` name).
-fn endless_displayed(mode: Option<&str>) -> Option<&'static str> {
-    match mode? {
-        "velocity" | "profile_velocity" => Some("velocity"),
-        "torque" | "profile_torque" => Some("torque"),
-        "duty_cycle" => Some("duty_cycle"),
-        _ => None,
-    }
-}
-
-fn key(bus: &str, drive: &Drive) -> AxisKey {
-    AxisKey {
-        bus: bus.to_string(),
-        node: drive.node(),
-        axis: drive.axis(),
-    }
-}
-
-/// The node's axis from the path, after the checks that need no bus (see
-/// [`crate::gateway::Gateway::drive`]).
-fn drive(state: &AppState, bus: &str, id: &str, axis: &str) -> Result<Drive, AppError> {
-    Ok(state.gateway.drive(bus, id, axis)?)
-}
-
 fn task_failed(err: tokio::task::JoinError) -> AppError {
     AppError::Internal(format!("drive task: {err}"))
-}
-
-/// Runs `sequence` on the drive in a task of its own.
-async fn spawned<T, F, Fut>(drive: Drive, sequence: F) -> Result<ApiJson<T>, AppError>
-where
-    T: Send + 'static,
-    F: FnOnce(Drive) -> Fut + Send + 'static,
-    Fut: Future<Output = Result<T, DriveError>> + Send + 'static,
-{
-    let status = tokio::spawn(sequence(drive)).await.map_err(task_failed)??;
-    Ok(ApiJson(status))
 }
 
 /// The axes of a drive node, read now.
@@ -291,15 +250,16 @@ async fn one_axis(
     State(state): State<AppState>,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
 ) -> Result<ApiJson<AxisDetail>, AppError> {
-    let drive = drive(&state, &bus, &id, &axis)?;
-    spawned(drive, |drive| async move {
+    let drive = state.gateway.drive(&bus, &id, &axis)?;
+    let detail = spawned(drive, |drive| async move {
         Ok(AxisDetail {
             status: drive.status().await?,
             units: drive.units(),
             limits: drive.limits().await?,
         })
     })
-    .await
+    .await?;
+    Ok(ApiJson(detail))
 }
 
 /// Walks the CiA 402 state machine to a state.
@@ -336,63 +296,43 @@ async fn set_state(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
 ) -> Result<ApiJson<StateResponse>, AppError> {
-    if request.target == TargetState::QuickStopActive {
-        // Sent whatever the gateway believes of the node.
-        let stopped = state.gateway.quick_stop_axis(&bus, &id, &axis).await;
-        release_stopped(&state, &bus, &id, &axis);
-        let stopped = stopped.map_err(not_confirmed)?;
-        return Ok(ApiJson(StateResponse {
-            status: stopped.status,
-            attempts: Some(stopped.attempts),
-        }));
-    }
-    let drive = drive(&state, &bus, &id, &axis)?;
-    let target = request.target.state();
-    let axis_key = key(&bus, &drive);
-    if request.target == TargetState::OperationEnabled {
-        take_over_if_asked(
-            &state,
-            &headers,
-            &axis_key,
-            identity.as_ref(),
-            note.as_ref(),
-        )?;
-        state
-            .gateway
-            .leases
-            .check(&axis_key, presented(&headers), &holder(identity.as_ref()))?;
-        // Before the walk, not after it: a walk that fails half way may
-        // have powered the axis already.
-        state.gateway.enabled_axes.insert(&bus, &drive);
-    }
-    let ApiJson(status) = spawned(
-        drive,
-        move |drive| async move { drive.set_state(target).await },
-    )
-    .await?;
-    if request.target != TargetState::OperationEnabled {
-        // Out of operation enabled nothing moves: the motion is over.
-        state.gateway.leases.release(&axis_key);
-    }
+    // The take-over header is read only where it can count: a stop is
+    // never refused, not even for a malformed header.
+    let takeover = request.target == TargetState::OperationEnabled && takeover_asked(&headers)?;
+    let claim = LeaseClaim::presented(presented(&headers), takeover);
+    let outcome = state
+        .gateway
+        .set_axis_state(
+            &caller(identity.as_ref()),
+            (&bus, &id, &axis),
+            request.target,
+            &claim,
+        )
+        .await
+        .map_err(|failed| failure(failed, note.as_ref()))?;
+    noted(note.as_ref(), outcome.took_over.as_ref());
     Ok(ApiJson(StateResponse {
-        status,
-        attempts: None,
+        status: outcome.status,
+        attempts: outcome.attempts,
     }))
 }
 
-/// A stop was asked for (confirmed or not): the axis's lease is over.
-fn release_stopped(state: &AppState, bus: &str, id: &str, axis: &str) {
-    if let (Ok(node), Ok(axis)) = (id.parse::<u8>(), axis.parse::<u8>()) {
-        state.gateway.leases.release(&AxisKey {
-            bus: bus.to_string(),
-            node,
-            axis,
-        });
+/// The lease a take-over ended, named in the request's audit entry.
+fn noted(note: Option<&Extension<AuditNote>>, took_over: Option<&MotionLease>) {
+    if let (Some(Extension(note)), Some(previous)) = (note, took_over) {
+        note.set(format!(
+            "took over the {} lease {} of {}",
+            previous.mode,
+            mask(&previous.id),
+            previous.holder
+        ));
     }
 }
 
-/// A stop the drive did not confirm, with what was tried.
-fn not_confirmed(failed: AxisStopFailed) -> AppError {
+/// A motion operation that failed; a stop the drive did not confirm, with
+/// what was tried.
+fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppError {
+    noted(note, failed.took_over.as_deref());
     let source = Box::new(AppError::from(failed.error));
     if failed.attempts.is_empty() {
         return *source;
@@ -420,10 +360,14 @@ fn not_confirmed(failed: AxisStopFailed) -> AppError {
     ))]
 async fn fault_reset(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
 ) -> Result<ApiJson<AxisStatus>, AppError> {
-    let drive = drive(&state, &bus, &id, &axis)?;
-    spawned(drive, |drive| async move { drive.fault_reset().await }).await
+    let status = state
+        .gateway
+        .reset_axis_fault(&caller(identity.as_ref()), (&bus, &id, &axis))
+        .await?;
+    Ok(ApiJson(status))
 }
 
 /// Sets or clears halt (controlword bit 8).
@@ -457,59 +401,33 @@ async fn halt(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
 ) -> Result<ApiJson<MotionResponse>, AppError> {
-    if request.halt {
-        // Sent whatever the gateway believes of the node; quick stop, then
-        // NMT stop, if it cannot be given.
-        let halted = state.gateway.halt_axis(&bus, &id, &axis).await;
-        release_stopped(&state, &bus, &id, &axis);
-        let halted = halted.map_err(not_confirmed)?;
-        return Ok(ApiJson(MotionResponse {
-            status: halted.status,
-            lease: None,
-            attempts: Some(halted.attempts),
-        }));
-    }
-    let drive = drive(&state, &bus, &id, &axis)?;
-    let axis_key = key(&bus, &drive);
-    // Releasing halt resumes the set-point the axis has: in a mode without
-    // an end, that is a motion like any other, and it is leased.
-    let lease_header = presented(&headers).map(str::to_string);
-    take_over_if_asked(
-        &state,
-        &headers,
-        &axis_key,
-        identity.as_ref(),
-        note.as_ref(),
-    )?;
-    state.gateway.leases.check(
-        &axis_key,
-        lease_header.as_deref(),
-        &holder(identity.as_ref()),
-    )?;
-    // Motion the gateway resumes is motion it stops on shutdown.
-    state.gateway.enabled_axes.insert(&bus, &drive);
-    let ApiJson(status) = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
-    let lease = match endless_displayed(status.mode.as_deref()) {
-        Some(mode) if status.state == "operation_enabled" => {
-            let lease = state.gateway.leases.grant(
-                &state.gateway,
-                axis_key,
-                lease_header.as_deref(),
-                &holder(identity.as_ref()),
-                mode,
-            )?;
-            Some(LeaseInfo::of(&lease, tokio::time::Instant::now()))
-        }
-        _ => {
-            state.gateway.leases.release(&axis_key);
-            None
-        }
+    let claim = if request.halt {
+        // A stop: no lease to present, nothing to take over.
+        LeaseClaim::default()
+    } else {
+        LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?)
     };
-    Ok(ApiJson(MotionResponse {
-        status,
-        lease,
-        attempts: None,
-    }))
+    let outcome = state
+        .gateway
+        .set_axis_halt(
+            &caller(identity.as_ref()),
+            (&bus, &id, &axis),
+            request.halt,
+            &claim,
+        )
+        .await
+        .map_err(|failed| failure(failed, note.as_ref()))?;
+    Ok(ApiJson(motion_response(outcome, note.as_ref())))
+}
+
+fn motion_response(outcome: MotionOutcome, note: Option<&Extension<AuditNote>>) -> MotionResponse {
+    noted(note, outcome.took_over.as_ref());
+    let now = tokio::time::Instant::now();
+    MotionResponse {
+        status: outcome.status,
+        lease: outcome.lease.map(|lease| LeaseInfo::of(&lease, now)),
+        attempts: outcome.attempts,
+    }
 }
 
 /// Starts a motion in one of the drive's modes.
@@ -543,77 +461,18 @@ async fn run_move(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<MoveRequest>,
 ) -> Result<ApiJson<MotionResponse>, AppError> {
-    let drive = drive(&state, &bus, &id, &axis)?;
-    drive.validate(&request)?;
-    let axis_key = key(&bus, &drive);
-    let lease_header = presented(&headers);
-    take_over_if_asked(
-        &state,
-        &headers,
-        &axis_key,
-        identity.as_ref(),
-        note.as_ref(),
-    )?;
-    let mode = request.mode();
-    if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
-        // A move with an end of its own: the holder may give it (and its
-        // lease ends), nobody else.
-        state
-            .gateway
-            .leases
-            .check(&axis_key, lease_header, &holder(identity.as_ref()))?;
-        state.gateway.enabled_axes.insert(&bus, &drive);
-        let ApiJson(status) = spawned(
-            drive,
-            move |drive| async move { drive.run_move(&request).await },
+    let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
+    let outcome = state
+        .gateway
+        .move_axis(
+            &caller(identity.as_ref()),
+            (&bus, &id, &axis),
+            &request,
+            &claim,
         )
-        .await?;
-        state.gateway.leases.release(&axis_key);
-        return Ok(ApiJson(MotionResponse {
-            status,
-            lease: None,
-            attempts: None,
-        }));
-    }
-    let lease = state.gateway.leases.grant(
-        &state.gateway,
-        axis_key.clone(),
-        lease_header,
-        &holder(identity.as_ref()),
-        mode.name(),
-    )?;
-    state.gateway.enabled_axes.insert(&bus, &drive);
-    // While this request runs it keeps the lease alive; if its client hangs
-    // up, the lease lapses at once.
-    let result = InFlight::new(&state.gateway.leases, &lease)
-        .run(spawned(drive, move |drive| async move {
-            drive.run_move(&request).await
-        }))
-        .await;
-    let status = match result {
-        Ok(ApiJson(status)) => status,
-        Err(error) => {
-            // A failed move halted the axis: nothing is left to lease.
-            state.gateway.leases.release(&axis_key);
-            return Err(error);
-        }
-    };
-    if !endless(mode) {
-        // The interpolated points are all in the buffer: the drive stops
-        // at the last one by itself.
-        state.gateway.leases.release(&axis_key);
-        return Ok(ApiJson(MotionResponse {
-            status,
-            lease: None,
-            attempts: None,
-        }));
-    }
-    let lease = state.gateway.leases.renew(&lease.id, None, None)?;
-    Ok(ApiJson(MotionResponse {
-        status,
-        lease: Some(LeaseInfo::of(&lease, tokio::time::Instant::now())),
-        attempts: None,
-    }))
+        .await
+        .map_err(|failed| failure(failed, note.as_ref()))?;
+    Ok(ApiJson(motion_response(outcome, note.as_ref())))
 }
 
 /// Step test of a UMC axis's control loop.
@@ -648,35 +507,19 @@ async fn step_test(
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StepTestRequest>,
 ) -> Result<ApiJson<StepTestResult>, AppError> {
-    let drive = drive(&state, &bus, &id, &axis)?;
-    request.validate()?;
-    let values = state.bus(&bus)?.values.clone();
-    let axis_key = key(&bus, &drive);
-    let lease_header = presented(&headers);
-    take_over_if_asked(
-        &state,
-        &headers,
-        &axis_key,
-        identity.as_ref(),
-        note.as_ref(),
-    )?;
-    let lease = state.gateway.leases.grant(
-        &state.gateway,
-        axis_key.clone(),
-        lease_header,
-        &holder(identity.as_ref()),
-        "step_test",
-    )?;
-    state.gateway.enabled_axes.insert(&bus, &drive);
-    // The test runs in a task of its own (a client that hangs up does not
-    // cut it, and its stop goes out); the request keeps the lease alive.
-    let result = InFlight::new(&state.gateway.leases, &lease)
-        .run(spawned(drive, move |drive| async move {
-            step_test::run(&drive, &values, &request).await
-        }))
-        .await;
-    state.gateway.leases.release(&axis_key);
-    result
+    let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
+    let outcome = state
+        .gateway
+        .step_test_axis(
+            &caller(identity.as_ref()),
+            (&bus, &id, &axis),
+            &request,
+            &claim,
+        )
+        .await
+        .map_err(|failed| failure(failed, note.as_ref()))?;
+    noted(note.as_ref(), outcome.took_over.as_ref());
+    Ok(ApiJson(outcome.status))
 }
 
 /// Quick stop of every enabled axis on every bus.

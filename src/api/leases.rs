@@ -32,13 +32,14 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::{Identity, Role};
+use super::auth::Identity;
 use super::doc::ErrorBody;
 use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease, mask};
+use crate::gateway::caller::{Caller, Channel};
+use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
 
 /// The request header that presents a lease to a command on a held axis.
 pub const LEASE_HEADER: &str = "candeck-lease";
@@ -84,41 +85,13 @@ pub fn holder(identity: Option<&Extension<Identity>>) -> String {
     identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
 }
 
-/// An explicit take-over, when the request asks for one: the lease held on
-/// `axis` ends (the axis is not stopped: the request's own command follows)
-/// and the request's audit entry names its holder and mode. Operators and
-/// admins only (the routes that take the header ask for an operator
-/// already; this says it again where the rule lives).
-pub fn take_over_if_asked(
-    state: &AppState,
-    headers: &HeaderMap,
-    axis: &AxisKey,
-    identity: Option<&Extension<Identity>>,
-    note: Option<&Extension<AuditNote>>,
-) -> Result<(), AppError> {
-    if !takeover_asked(headers)? {
-        return Ok(());
-    }
-    if state.guard.config.required()
-        && identity
-            .and_then(|Extension(id)| id.role)
-            .is_none_or(|role| role < Role::Operator)
-    {
-        return Err(AppError::Forbidden(
-            "a take-over of a held axis needs the operator role".to_string(),
-        ));
-    }
-    if let Some(previous) = state.gateway.leases.take_over(axis)
-        && let Some(Extension(note)) = note
-    {
-        note.set(format!(
-            "took over the {} lease {} of {}",
-            previous.mode,
-            mask(&previous.id),
-            previous.holder
-        ));
-    }
-    Ok(())
+/// Who a request acts for, as the gateway's operations take it.
+pub fn caller(identity: Option<&Extension<Identity>>) -> Caller {
+    Caller::new(
+        Channel::Rest,
+        holder(identity),
+        identity.and_then(|Extension(id)| id.role),
+    )
 }
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -220,7 +193,6 @@ async fn renew(
     };
     let lease = state
         .gateway
-        .leases
-        .renew_on(&key, &request.lease, &holder(identity.as_ref()))?;
+        .renew_axis_lease(&caller(identity.as_ref()), &key, &request.lease)?;
     Ok(ApiJson(LeaseInfo::of(&lease, Instant::now())))
 }

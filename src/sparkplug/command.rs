@@ -11,7 +11,9 @@
 //!   `Axis {n}/Halt` (Boolean), `Axis {n}/Fault Reset` (Boolean true),
 //!   `Axis {n}/Move` (String: the JSON body of `POST .../axes/{n}/move`),
 //!   `Axis {n}/Lease` (Boolean: true renews the axis's motion lease, false
-//!   gives it up and the axis is halted).
+//!   gives it up and the axis is halted), `Axis {n}/Lease Id` (String: the
+//!   id of the axis's lease, chosen by the host; it goes with the other
+//!   commands of the axis in the same DCMD).
 //! - DCMD `Segment {n}/{field}` of an LED controller: `Effect` (a name or
 //!   its wire value), `Color 1`..`Color 3` (String `#rrggbb[ww]`), `Led
 //!   Count`, `Dimmer`, `Value`, `Min Value`, `Max Value`, `Speed`, `Smooth`
@@ -20,12 +22,16 @@
 //! A move without an end of its own (velocity, torque, duty cycle), and
 //! releasing halt, is taken only with `Axis {n}/Lease` = true in the same
 //! DCMD: the host says it will renew the lease, or the move is refused.
+//! MQTT carries no sender identity, so the lease id is the capability: the
+//! host chooses it (`Axis {n}/Lease Id`), the first grant binds the lease
+//! to it, and every later motion command on the leased axis presents it
+//! (`crate::gateway::motion`).
 
 use super::edge::REBIRTH;
 use super::metric::MetricValue;
 use super::proto::Payload;
 use crate::canopen::nmt::NmtCommand;
-use crate::gateway::drive::{MoveMode, MoveRequest, TargetState};
+use crate::gateway::drive::{MoveRequest, TargetState};
 use crate::profiles::uioled::{Effect, Field, SEGMENTS, address};
 
 /// One command of a message.
@@ -38,10 +44,12 @@ pub enum Command {
         sub: u8,
         value: MetricValue,
     },
-    /// A CiA 402 state to walk an axis to.
+    /// A CiA 402 state to walk an axis to; `lease_id`: the `Axis {n}/Lease
+    /// Id` of the same DCMD, if any (likewise below).
     AxisState {
         axis: u8,
         target: TargetState,
+        lease_id: Option<String>,
     },
     /// Halt set (a stop) or released (motion resumed: `lease` says the host
     /// renews the lease it needs).
@@ -49,6 +57,7 @@ pub enum Command {
         axis: u8,
         halt: bool,
         lease: bool,
+        lease_id: Option<String>,
     },
     FaultReset {
         axis: u8,
@@ -60,11 +69,19 @@ pub enum Command {
         /// The request as the host gave it (for the audit log).
         body: String,
         lease: bool,
+        lease_id: Option<String>,
     },
     /// `Axis {n}/Lease` alone: true renews, false gives the lease up.
     Lease {
         axis: u8,
         keep: bool,
+        lease_id: Option<String>,
+    },
+    /// `Axis {n}/Lease Id`, before [`parse`] gives it to the axis's other
+    /// commands of the DCMD.
+    LeaseId {
+        axis: u8,
+        id: String,
     },
     /// Writes to one segment of an LED controller: objects and values, in
     /// order.
@@ -90,6 +107,7 @@ impl Command {
             Self::Move { .. } => "move",
             Self::Lease { keep: true, .. } => "renew motion lease",
             Self::Lease { keep: false, .. } => "end motion lease",
+            Self::LeaseId { .. } => "motion lease id",
             Self::Segment { .. } => "set segment",
             Self::Unsupported(_) => "unsupported command",
         }
@@ -102,7 +120,8 @@ impl Command {
             | Self::Halt { axis, .. }
             | Self::FaultReset { axis }
             | Self::Move { axis, .. }
-            | Self::Lease { axis, .. } => Some(*axis),
+            | Self::Lease { axis, .. }
+            | Self::LeaseId { axis, .. } => Some(*axis),
             _ => None,
         }
     }
@@ -117,15 +136,6 @@ impl Command {
             _ => false,
         }
     }
-}
-
-/// Whether a move in this mode runs until told otherwise, and so holds a
-/// lease its client renews (as REST's moves: velocity, torque, duty cycle).
-pub fn endless(mode: MoveMode) -> bool {
-    matches!(
-        mode,
-        MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
-    )
 }
 
 /// The commands of an NCMD (`device` false) or a DCMD payload, in order.
@@ -156,7 +166,7 @@ pub fn parse(payload: &Payload, device: bool) -> Vec<Command> {
             }
         })
         .collect();
-    fold_leases(commands)
+    fold_lease_ids(fold_leases(commands))
 }
 
 /// `Axis {n}/Lease` = true beside a move or a halt release of the same axis
@@ -165,7 +175,9 @@ fn fold_leases(mut commands: Vec<Command>) -> Vec<Command> {
     let promised: Vec<u8> = commands
         .iter()
         .filter_map(|command| match command {
-            Command::Lease { axis, keep: true } => Some(*axis),
+            Command::Lease {
+                axis, keep: true, ..
+            } => Some(*axis),
             _ => None,
         })
         .collect();
@@ -177,6 +189,7 @@ fn fold_leases(mut commands: Vec<Command>) -> Vec<Command> {
                 axis,
                 lease,
                 halt: false,
+                ..
             } if promised.contains(axis) => {
                 *lease = true;
                 folded.push(*axis);
@@ -185,9 +198,47 @@ fn fold_leases(mut commands: Vec<Command>) -> Vec<Command> {
         }
     }
     commands.retain(
-        |command| !matches!(command, Command::Lease { axis, keep: true } if folded.contains(axis)),
+        |command| !matches!(command, Command::Lease { axis, keep: true, .. } if folded.contains(axis)),
     );
     commands
+}
+
+/// `Axis {n}/Lease Id` is presented by every other command of axis n in
+/// the same DCMD (the last one given, if several); alone, it commands
+/// nothing.
+fn fold_lease_ids(commands: Vec<Command>) -> Vec<Command> {
+    let mut ids = std::collections::BTreeMap::new();
+    for command in &commands {
+        if let Command::LeaseId { axis, id } = command {
+            ids.insert(*axis, id.clone());
+        }
+    }
+    let mut presented = std::collections::BTreeSet::new();
+    let mut folded: Vec<Command> = commands
+        .into_iter()
+        .filter(|command| !matches!(command, Command::LeaseId { .. }))
+        .map(|mut command| {
+            match &mut command {
+                Command::AxisState { axis, lease_id, .. }
+                | Command::Halt { axis, lease_id, .. }
+                | Command::Move { axis, lease_id, .. }
+                | Command::Lease { axis, lease_id, .. } => {
+                    if let Some(id) = ids.get(axis) {
+                        *lease_id = Some(id.clone());
+                        presented.insert(*axis);
+                    }
+                }
+                _ => {}
+            }
+            command
+        })
+        .collect();
+    for axis in ids.keys().filter(|axis| !presented.contains(*axis)) {
+        folded.push(Command::Unsupported(format!(
+            "Axis {axis}/Lease Id: no command of axis {axis} in the same DCMD presents it"
+        )));
+    }
+    folded
 }
 
 /// `Axis {n}/{what}`.
@@ -203,7 +254,11 @@ fn axis_command(name: &str, value: MetricValue) -> Command {
     match (what, value) {
         ("State", MetricValue::String(text)) => {
             match serde_json::from_value::<TargetState>(serde_json::Value::String(text.clone())) {
-                Ok(target) => Command::AxisState { axis, target },
+                Ok(target) => Command::AxisState {
+                    axis,
+                    target,
+                    lease_id: None,
+                },
                 Err(_) => unsupported(&format!("no target state '{text}'")),
             }
         }
@@ -211,6 +266,7 @@ fn axis_command(name: &str, value: MetricValue) -> Command {
             axis,
             halt,
             lease: false,
+            lease_id: None,
         },
         ("Fault Reset", MetricValue::Boolean(true)) => Command::FaultReset { axis },
         ("Move", MetricValue::String(text)) => match serde_json::from_str::<MoveRequest>(&text) {
@@ -219,10 +275,16 @@ fn axis_command(name: &str, value: MetricValue) -> Command {
                 request: Box::new(request),
                 body: text,
                 lease: false,
+                lease_id: None,
             },
             Err(err) => unsupported(&format!("not a move: {err}")),
         },
-        ("Lease", MetricValue::Boolean(keep)) => Command::Lease { axis, keep },
+        ("Lease", MetricValue::Boolean(keep)) => Command::Lease {
+            axis,
+            keep,
+            lease_id: None,
+        },
+        ("Lease Id", MetricValue::String(id)) => Command::LeaseId { axis, id },
         _ => unsupported("no such metric, or not of its type"),
     }
 }

@@ -1,30 +1,39 @@
 //! The DCMD commands that move things: an axis's state, halt, fault reset,
-//! moves and their motion leases, and an LED controller's segments. Each
-//! runs the gateway's operations as REST's drive and segment routes do,
-//! with the same checks (`crate::gateway::leases`, `safe_stop`, `drive`).
+//! moves and their motion leases, and an LED controller's segments. The
+//! axis commands are parsed here and run by the gateway's motion
+//! operations ([`crate::gateway::motion`]), which REST's drive routes call
+//! too: the lease policy is theirs.
 //!
-//! The motion lease rule, as MQTT gives it: a move without an end of its
-//! own (velocity, torque, duty cycle), or halt released in such a mode, is
-//! taken only with `Axis {n}/Lease` = true in the same DCMD, the host's
-//! word that it will renew the lease; it holds a lease of the gateway's
-//! period (`--lease-ms`) whose holder is the MQTT identity, renewed by each
-//! DCMD `Axis {n}/Lease` = true. When it lapses the gateway's supervisor
-//! halts the axis (quick stop if it does not come to rest), as for REST.
-//! The edge node keeps the ids of the leases it holds ([`HeldLeases`]):
-//! when its connection to the broker is lost (or the primary host goes
-//! offline, or the edge node stops) they lapse at once, so that no drive is
-//! left moving for a host that can no longer renew.
+//! The motion lease as MQTT gives it: a move without an end of its own
+//! (velocity, torque, duty cycle), or halt released in such a mode, is
+//! taken only with `Axis {n}/Lease` = true (the host's word that it will
+//! renew the lease) and `Axis {n}/Lease Id` (the lease's id, of the host's
+//! choosing) in the same DCMD. MQTT carries no sender identity and no
+//! answer, so the id is the capability: the first grant binds the lease to
+//! it, and every later move, halt release, state change, renewal (`Axis
+//! {n}/Lease` = true) or give-up (false) on the leased axis must present it,
+//! whoever sends it. A halt and a quick stop never need it. When the lease
+//! lapses the gateway's supervisor halts the axis (quick stop if it does
+//! not come to rest), as for REST.
+//!
+//! The edge node keeps the ids of the leases granted over MQTT
+//! ([`HeldLeases`]) for one purpose: when its connection to the broker is
+//! lost (or the primary host goes offline, or the edge node stops) they
+//! lapse at once, so that no drive is left moving for a host that can no
+//! longer renew. It never presents them for anyone.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
-use super::command::{Command, endless};
+use super::command::Command;
 use super::config::SparkplugConfig;
-use crate::gateway::leases::InFlight;
-use crate::gateway::motion_lease::AxisKey;
+use crate::gateway::caller::{Caller, Channel};
+use crate::gateway::motion::LeaseClaim;
+use crate::gateway::motion_lease::{AxisKey, MotionLease};
 use crate::gateway::{Gateway, GatewayError, check_sdo_allowed};
 
-/// The motion leases the edge node holds, by axis.
+/// The ids of the motion leases granted over MQTT, by axis: what lapses
+/// when the host can renew nothing any more.
 #[derive(Debug, Default)]
 pub struct HeldLeases {
     ids: Mutex<BTreeMap<AxisKey, String>>,
@@ -35,20 +44,23 @@ impl HeldLeases {
         self.ids.lock().unwrap_or_else(|poison| poison.into_inner())
     }
 
-    /// The id of the lease held on `axis`, if any.
-    pub fn get(&self, axis: &AxisKey) -> Option<String> {
-        self.ids().get(axis).cloned()
+    fn granted(&self, lease: Option<&MotionLease>) {
+        if let Some(lease) = lease {
+            self.ids().insert(lease.axis.clone(), lease.id.clone());
+        }
     }
 
-    fn insert(&self, axis: AxisKey, id: String) {
-        self.ids().insert(axis, id);
+    /// The lease `id` on `axis` is over; another id (a sender that
+    /// presented the wrong one) leaves the one kept.
+    fn ended(&self, axis: &AxisKey, id: &str) {
+        let mut ids = self.ids();
+        if ids.get(axis).is_some_and(|held| held == id) {
+            ids.remove(axis);
+        }
     }
 
-    fn remove(&self, axis: &AxisKey) -> Option<String> {
-        self.ids().remove(axis)
-    }
-
-    /// How many are held.
+    /// How many are kept (some may have ended since: a stop, a bounded
+    /// move; lapsing those again is nothing).
     pub fn len(&self) -> usize {
         self.ids().len()
     }
@@ -57,8 +69,8 @@ impl HeldLeases {
         self.len() == 0
     }
 
-    /// The host can renew nothing any more: every lease held lapses now,
-    /// and the gateway stops its axis. Returns how many.
+    /// The host can renew nothing any more: every lease granted over MQTT
+    /// lapses now, and the gateway stops its axis. Returns how many.
     pub fn lapse_all(&self, gateway: &Gateway, why: &str) -> usize {
         let held: Vec<(AxisKey, String)> = std::mem::take(&mut *self.ids()).into_iter().collect();
         for (axis, id) in &held {
@@ -80,6 +92,15 @@ pub struct Outcome {
     pub audit: bool,
 }
 
+/// How a host takes a lease, in its words, for a refusal to say.
+fn how_to_lease(axis: u8) -> String {
+    format!(
+        "send Axis {axis}/Lease = true and Axis {axis}/Lease Id (an id of the host's choosing, \
+         16 to 128 characters of A-Z, a-z, 0-9, '-', '_', '.', '~') in the same DCMD, and renew \
+         it with both within the lease period"
+    )
+}
+
 /// Runs an axis or segment command on `bus` node `node`, the role and the
 /// write rate checked already.
 pub async fn run(
@@ -92,84 +113,62 @@ pub async fn run(
     outcome: &mut Outcome,
 ) -> Result<(), GatewayError> {
     let id = node.to_string();
-    let who = config.who();
+    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role));
     let key = |axis: u8| AxisKey {
         bus: bus.to_string(),
         node,
         axis,
     };
+    let claim = |axis: u8, lease_id: &Option<String>, promised: bool| {
+        LeaseClaim::chosen(lease_id.clone(), promised, how_to_lease(axis))
+    };
     outcome.audit = true;
     match command {
-        Command::AxisState { axis, target } => {
+        Command::AxisState {
+            axis,
+            target,
+            lease_id,
+        } => {
             let target_name = serde_json::to_value(target)
                 .ok()
                 .and_then(|v| v.as_str().map(str::to_string))
                 .unwrap_or_default();
             outcome.request = Some(format!("{{\"target\":\"{target_name}\"}}"));
-            let axis_key = key(*axis);
-            if *target == crate::gateway::drive::TargetState::QuickStopActive {
-                let stopped = gateway.quick_stop_axis(bus, &id, &axis.to_string()).await;
-                release(gateway, held, &axis_key);
-                return stopped.map(|_| ()).map_err(|failed| failed.error);
-            }
-            let drive = gateway.drive(bus, &id, &axis.to_string())?;
-            let enable = *target == crate::gateway::drive::TargetState::OperationEnabled;
-            if enable {
-                gateway
-                    .leases
-                    .check(&axis_key, held.get(&axis_key).as_deref(), &who)?;
-                gateway.enabled_axes.insert(bus, &drive);
-            }
-            let state = target.state();
-            spawned(async move { drive.set_state(state).await }).await?;
-            if !enable {
-                release(gateway, held, &axis_key);
-            }
+            let done = gateway
+                .set_axis_state(
+                    &caller,
+                    (bus, &id, &axis.to_string()),
+                    *target,
+                    &claim(*axis, lease_id, false),
+                )
+                .await
+                .map_err(|failed| failed.error)?;
+            held.granted(done.lease.as_ref());
             Ok(())
         }
-        Command::Halt { axis, halt, lease } => {
+        Command::Halt {
+            axis,
+            halt,
+            lease,
+            lease_id,
+        } => {
             outcome.request = Some(format!("{{\"halt\":{halt}}}"));
-            let axis_key = key(*axis);
-            if *halt {
-                let halted = gateway.halt_axis(bus, &id, &axis.to_string()).await;
-                release(gateway, held, &axis_key);
-                return halted.map(|_| ()).map_err(|failed| failed.error);
-            }
-            let drive = gateway.drive(bus, &id, &axis.to_string())?;
-            let presented = held.get(&axis_key);
-            gateway
-                .leases
-                .check(&axis_key, presented.as_deref(), &who)?;
-            // Releasing halt resumes the set-point the axis has: in a mode
-            // without an end, that needs the host's lease promise first.
-            let reading = drive.clone();
-            let before = spawned(async move { reading.status().await }).await?;
-            let mode = endless_displayed(before.mode.as_deref());
-            if let Some(mode) = mode
-                && !lease
-            {
-                return Err(lease_needed(*axis, mode));
-            }
-            gateway.enabled_axes.insert(bus, &drive);
-            let status = spawned(async move { drive.halt(false).await }).await?;
-            match endless_displayed(status.mode.as_deref()) {
-                Some(mode) if status.state == "operation_enabled" => {
-                    let granted = gateway.leases.grant(
-                        gateway,
-                        axis_key.clone(),
-                        presented.as_deref(),
-                        &who,
-                        mode,
-                    )?;
-                    held.insert(axis_key, granted.id);
-                }
-                _ => release(gateway, held, &axis_key),
-            }
+            let done = gateway
+                .set_axis_halt(
+                    &caller,
+                    (bus, &id, &axis.to_string()),
+                    *halt,
+                    &claim(*axis, lease_id, *lease),
+                )
+                .await
+                .map_err(|failed| failed.error)?;
+            held.granted(done.lease.as_ref());
             Ok(())
         }
         Command::FaultReset { axis } => {
-            let drive = gateway.drive(bus, &id, &axis.to_string())?;
-            spawned(async move { drive.fault_reset().await }).await?;
+            gateway
+                .reset_axis_fault(&caller, (bus, &id, &axis.to_string()))
+                .await?;
             Ok(())
         }
         Command::Move {
@@ -177,80 +176,49 @@ pub async fn run(
             request,
             body,
             lease,
+            lease_id,
         } => {
             outcome.request = Some(body.clone());
-            let axis_key = key(*axis);
-            let drive = gateway.drive(bus, &id, &axis.to_string())?;
-            drive.validate(request)?;
-            let mode = request.mode();
-            let presented = held.get(&axis_key);
-            let leased =
-                endless(mode) || mode == crate::gateway::drive::MoveMode::InterpolatedPosition;
-            if !leased {
-                // A move with an end of its own: the holder may give it
-                // (and its lease ends), nobody else.
-                gateway
-                    .leases
-                    .check(&axis_key, presented.as_deref(), &who)?;
-                gateway.enabled_axes.insert(bus, &drive);
-                let request = request.clone();
-                spawned(async move { drive.run_move(&request).await }).await?;
-                release(gateway, held, &axis_key);
-                return Ok(());
-            }
-            if endless(mode) && !lease {
-                return Err(lease_needed(*axis, mode.name()));
-            }
-            let granted = gateway.leases.grant(
-                gateway,
-                axis_key.clone(),
-                presented.as_deref(),
-                &who,
-                mode.name(),
-            )?;
-            held.insert(axis_key.clone(), granted.id.clone());
-            gateway.enabled_axes.insert(bus, &drive);
-            let request = request.clone();
-            let result = InFlight::new(&gateway.leases, &granted)
-                .run(spawned(async move { drive.run_move(&request).await }))
-                .await;
-            if let Err(error) = result {
-                // A failed move halted the axis: nothing is left to lease.
-                release(gateway, held, &axis_key);
-                return Err(error);
-            }
-            if !endless(mode) {
-                // The interpolated points are all in the buffer.
-                release(gateway, held, &axis_key);
-                return Ok(());
-            }
-            gateway.leases.renew(&granted.id, None, None)?;
+            let done = gateway
+                .move_axis(
+                    &caller,
+                    (bus, &id, &axis.to_string()),
+                    request,
+                    &claim(*axis, lease_id, *lease),
+                )
+                .await
+                .map_err(|failed| failed.error)?;
+            held.granted(done.lease.as_ref());
             Ok(())
         }
-        Command::Lease { axis, keep } => {
+        Command::Lease {
+            axis,
+            keep,
+            lease_id,
+        } => {
             let axis_key = key(*axis);
-            let Some(lease) = held.get(&axis_key) else {
-                return Err(crate::gateway::motion_lease::LeaseError::Unknown(format!(
-                    "(none held by {who} on axis {axis})"
-                ))
-                .into());
+            let Some(lease_id) = lease_id else {
+                return Err(GatewayError::InvalidRequest(format!(
+                    "Axis {axis}/Lease presents no lease: send Axis {axis}/Lease Id, the id of \
+                     the axis's lease, in the same DCMD"
+                )));
             };
             if *keep {
-                match gateway.leases.renew_on(&axis_key, &lease, &who) {
+                match gateway.renew_axis_lease(&caller, &axis_key, lease_id) {
                     Ok(_) => {
-                        outcome.audit = gateway.leases.renewal_audit_due(&lease);
+                        outcome.audit = gateway.leases.renewal_audit_due(lease_id);
                         Ok(())
                     }
                     Err(error) => {
                         // Lapsed (its axis stopped) or ended by a stop:
                         // nothing of it is held any more.
-                        held.remove(&axis_key);
+                        held.ended(&axis_key, lease_id);
                         Err(error)
                     }
                 }
             } else {
-                held.remove(&axis_key);
-                gateway.leases.lapse_now(&lease);
+                gateway.give_up_axis_lease(&caller, &axis_key, lease_id)?;
+                held.ended(&axis_key, lease_id);
                 Ok(())
             }
         }
@@ -307,39 +275,6 @@ pub async fn run(
             command.operation()
         ))),
     }
-}
-
-/// The axis's lease is over (a stop, a bounded move).
-fn release(gateway: &Gateway, held: &HeldLeases, axis: &AxisKey) {
-    held.remove(axis);
-    gateway.leases.release(axis);
-}
-
-fn lease_needed(axis: u8, mode: &str) -> GatewayError {
-    GatewayError::InvalidRequest(format!(
-        "a {mode} motion has no end of its own: send Axis {axis}/Lease = true in the same DCMD \
-         and renew it with Axis {axis}/Lease = true within the lease period"
-    ))
-}
-
-/// The mode an axis displays, when a motion in it needs a lease.
-fn endless_displayed(mode: Option<&str>) -> Option<&'static str> {
-    match mode? {
-        "velocity" | "profile_velocity" => Some("velocity"),
-        "torque" | "profile_torque" => Some("torque"),
-        "duty_cycle" => Some("duty_cycle"),
-        _ => None,
-    }
-}
-
-/// A drive sequence in a task of its own: nothing cancels it half way.
-async fn spawned<T: Send + 'static>(
-    work: impl Future<Output = Result<T, crate::gateway::drive::DriveError>> + Send + 'static,
-) -> Result<T, GatewayError> {
-    tokio::spawn(work)
-        .await
-        .map_err(|err| GatewayError::Internal(format!("drive task: {err}")))?
-        .map_err(GatewayError::from)
 }
 
 #[cfg(test)]

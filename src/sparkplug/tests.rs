@@ -555,7 +555,8 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
         commands[0],
         Command::AxisState {
             axis: 1,
-            target: crate::gateway::drive::TargetState::OperationEnabled
+            target: crate::gateway::drive::TargetState::OperationEnabled,
+            lease_id: None,
         }
     );
     // The promise is folded into the move of its axis; axis 2's, beside
@@ -569,7 +570,8 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
         commands[2],
         Command::Lease {
             axis: 2,
-            keep: true
+            keep: true,
+            lease_id: None,
         }
     );
     assert_eq!(
@@ -577,7 +579,8 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
         Command::Halt {
             axis: 2,
             halt: true,
-            lease: false
+            lease: false,
+            lease_id: None,
         }
     );
     assert!(commands[3].is_stop());
@@ -606,6 +609,52 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
     );
     assert!(matches!(commands[9], Command::Unsupported(_)));
     assert!(matches!(commands[10], Command::Unsupported(_)));
+}
+
+#[test]
+fn a_lease_id_goes_with_every_command_of_its_axis_in_the_dcmd() {
+    let m = |name: &str, value: MetricValue| {
+        let mut metric = Metric {
+            name: Some(name.into()),
+            ..Metric::default()
+        };
+        value.fill(&mut metric);
+        metric
+    };
+    let id = "host-a-lease-0001";
+    let dcmd = Payload {
+        metrics: vec![
+            m(
+                "Axis 1/Move",
+                MetricValue::String(r#"{"mode":"velocity","velocity":5}"#.into()),
+            ),
+            m("Axis 1/Lease", MetricValue::Boolean(true)),
+            m("Axis 1/Lease Id", MetricValue::String(id.into())),
+            m("Axis 1/Halt", MetricValue::Boolean(false)),
+            m("Axis 2/Fault Reset", MetricValue::Boolean(true)),
+            m("Axis 2/Lease Id", MetricValue::String(id.into())),
+        ],
+        ..Payload::default()
+    };
+    let commands = command::parse(&dcmd, true);
+    assert_eq!(commands.len(), 4, "{commands:#?}");
+    assert!(
+        matches!(&commands[0], Command::Move { axis: 1, lease: true, lease_id: Some(given), .. } if given == id),
+        "{:?}",
+        commands[0]
+    );
+    assert!(
+        matches!(&commands[1], Command::Halt { axis: 1, halt: false, lease: true, lease_id: Some(given) } if given == id),
+        "{:?}",
+        commands[1]
+    );
+    assert_eq!(commands[2], Command::FaultReset { axis: 2 });
+    // An id no command of its axis presents is said, not dropped silently.
+    assert!(
+        matches!(&commands[3], Command::Unsupported(what) if what.starts_with("Axis 2/Lease Id")),
+        "{:?}",
+        commands[3]
+    );
 }
 
 #[test]

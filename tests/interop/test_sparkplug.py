@@ -9,6 +9,7 @@ STATE, so the edge node publishes only while the host listens.
 
 import json
 import os
+import secrets
 import shutil
 import signal
 import socket
@@ -551,6 +552,9 @@ def wait_until(predicate, timeout=15, what="the condition"):
 ENABLE = ("Axis 1/State", DT.String, "string_value", "operation_enabled")
 VELOCITY = ("Axis 1/Move", DT.String, "string_value", json.dumps({"mode": "velocity", "velocity": 100}))
 RENEW = ("Axis 1/Lease", DT.Boolean, "boolean_value", True)
+# The host's lease id, of its choosing: MQTT carries no sender identity, so
+# the id is what the gateway knows the lease's holder by.
+LEASE_ID = ("Axis 1/Lease Id", DT.String, "string_value", secrets.token_hex(16))
 
 
 def test_a_dcmd_move_runs_while_its_lease_is_renewed_by_metric_and_stops_when_not(broker, host):
@@ -571,13 +575,24 @@ def test_a_dcmd_move_runs_while_its_lease_is_renewed_by_metric_and_stops_when_no
         assert refused()[-1]["axis"] == 1
         assert axis_velocity(gateway) == 0
         # With it, the axis turns, as long as the host renews.
-        host.send_dcmd("demo-1", [VELOCITY, RENEW])
+        host.send_dcmd("demo-1", [VELOCITY, RENEW, LEASE_ID])
         wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
+        # Another client of the broker, without the host's lease id, is
+        # refused the axis (it would reverse it).
+        reverse = ("Axis 1/Move", DT.String, "string_value", json.dumps({"mode": "velocity", "velocity": -300}))
+        other_id = ("Axis 1/Lease Id", DT.String, "string_value", secrets.token_hex(16))
+        host.send_dcmd("demo-1", [reverse, RENEW, other_id])
+
+        def conflicts():
+            events = gateway.request("GET", "/events?kind=audit&limit=50")
+            return [e for e in events if e.get("operation") == "move" and e.get("error_code") == "lease_conflict"]
+
+        wait_until(lambda: conflicts(), what="the other client's move refused in the audit log")
         until = time.monotonic() + 3
         while time.monotonic() < until:
-            host.send_dcmd("demo-1", [RENEW])
+            host.send_dcmd("demo-1", [RENEW, LEASE_ID])
             time.sleep(0.25)
-        assert axis_velocity(gateway) > 0, "halted while the host renewed"
+        assert axis_velocity(gateway) > 0, "halted or reversed while the host renewed"
         # The host stops renewing: the gateway halts the axis.
         wait_until(lambda: axis_velocity(gateway) == 0, what="the axis halted after its lease lapsed")
 
@@ -601,7 +616,7 @@ def test_a_broker_outage_does_not_leave_a_dcmd_move_running(broker, host):
     gateway = Gateway(broker.port, ["--lease-ms", "60000"])
     try:
         host.wait_for(lambda m: m["kind"] == "DBIRTH" and m["device"] == "demo-1")
-        host.send_dcmd("demo-1", [ENABLE, VELOCITY, RENEW])
+        host.send_dcmd("demo-1", [ENABLE, VELOCITY, RENEW, LEASE_ID])
         wait_until(lambda: axis_velocity(gateway) > 0, what="the axis turning")
         broker.stop()
         wait_until(lambda: axis_velocity(gateway) == 0, timeout=20, what="the axis stopped after the broker went away")

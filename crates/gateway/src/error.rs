@@ -276,9 +276,9 @@ impl From<DriveError> for GatewayError {
 impl From<LeaseError> for GatewayError {
     fn from(error: LeaseError) -> Self {
         match error {
-            LeaseError::Conflict { .. } | LeaseError::NotHolder { .. } => {
-                Self::LeaseConflict(error.to_string())
-            }
+            LeaseError::Conflict { .. }
+            | LeaseError::NotHolder { .. }
+            | LeaseError::IdInUse { .. } => Self::LeaseConflict(error.to_string()),
             LeaseError::Unknown(_) => Self::UnknownLease(error.to_string()),
         }
     }

@@ -93,19 +93,22 @@ impl MotionLeases {
     }
 
     /// Grants (or, presented, renews) the lease for a move on `axis`, and
-    /// starts the supervisor on the first one.
+    /// starts the supervisor on the first one. A new lease's id is
+    /// `chosen` (a caller that gets no answer names it: MQTT), else made
+    /// here.
     pub fn grant(
         &self,
         gateway: &Gateway,
         axis: AxisKey,
         presented: Option<&str>,
+        chosen: Option<&str>,
         holder: &str,
         mode: &str,
     ) -> Result<MotionLease, GatewayError> {
         let lease = self.table().grant(
             axis,
             presented,
-            fresh_id(),
+            chosen.map_or_else(fresh_id, str::to_string),
             holder,
             mode,
             self.period,
@@ -142,6 +145,26 @@ impl MotionLeases {
             return Err(LeaseError::Unknown(id.to_string()).into());
         }
         self.renew(id, Some(by), None)
+    }
+
+    /// Lapses the lease `id` held on `axis` now, for `by`, its holder: its
+    /// client gives it up, and the supervisor stops the axis.
+    pub fn lapse_on(&self, axis: &AxisKey, id: &str, by: &str) -> Result<(), GatewayError> {
+        let held = self.table().get(axis, Instant::now()).cloned();
+        match held {
+            Some(lease) if lease.id == id && lease.holder != by => Err(LeaseError::NotHolder {
+                id: id.to_string(),
+                axis: axis.clone(),
+                holder: lease.holder,
+                by: by.to_string(),
+            }
+            .into()),
+            Some(lease) if lease.id == id => {
+                self.lapse_now(id);
+                Ok(())
+            }
+            _ => Err(LeaseError::Unknown(id.to_string()).into()),
+        }
     }
 
     /// The lease on `axis` is over: its motion was stopped (or is bounded).

@@ -23,6 +23,9 @@
 //!   and age, outputs set and read back.
 //! - [`leases`]: the motion leases granted and the supervisor that stops
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
+//! - [`motion`]: the motion operations every door calls (state, halt,
+//!   moves, step test, lease renewal), with the lease policy whole.
+//! - [`caller`]: who asks, through which door ([`caller::Caller`]).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
 //! - [`logger`]: the data logger: objects of any nodes sampled at a
@@ -76,6 +79,7 @@ use candeck_profiles as profiles;
 
 pub mod access;
 pub mod axis_telemetry;
+pub mod caller;
 pub mod dcf;
 pub mod drive;
 pub mod edge_node;
@@ -91,6 +95,7 @@ pub mod load;
 pub mod logger;
 pub mod lss;
 pub mod machine;
+pub mod motion;
 pub mod motion_lease;
 pub mod pdo;
 pub mod producers;

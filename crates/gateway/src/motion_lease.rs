@@ -128,6 +128,13 @@ pub enum LeaseError {
         masked = mask(.0)
     )]
     Unknown(String),
+    /// A lease id its caller chose (MQTT, where the id is the capability)
+    /// names the lease held on another axis: the id must name one lease.
+    #[error(
+        "motion lease id '{masked}' is held on {axis}: choose one id per axis",
+        masked = mask(.id)
+    )]
+    IdInUse { id: String, axis: AxisKey },
 }
 
 /// Every lease held, by axis.
@@ -184,7 +191,9 @@ impl LeaseTable {
     /// Grants a lease on `axis` for a motion that needs one: the one held,
     /// renewed, when the request presents it (the holder changing its
     /// set-point), else a new one with `fresh_id` for `holder`. Refused when
-    /// another lease is held and not presented by its holder.
+    /// another lease is held and not presented by its holder, or when
+    /// `fresh_id` (chosen by the caller) is the id of a lease held on
+    /// another axis: ids are looked up alone when renewed or lapsed.
     #[allow(clippy::too_many_arguments)]
     pub fn grant(
         &mut self,
@@ -199,7 +208,15 @@ impl LeaseTable {
         self.check(&axis, presented, holder, now)?;
         let (id, session, audited) = match self.get(&axis, now) {
             Some(held) => (held.id.clone(), held.session, held.audited),
-            None => (fresh_id, None, None),
+            None => {
+                if let Some(other) = self.by_axis.values().find(|lease| lease.id == fresh_id) {
+                    return Err(LeaseError::IdInUse {
+                        id: fresh_id,
+                        axis: other.axis.clone(),
+                    });
+                }
+                (fresh_id, None, None)
+            }
         };
         let lease = MotionLease {
             id,

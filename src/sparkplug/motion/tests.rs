@@ -1,7 +1,9 @@
 //! DCMD motion commands against the demo UMC on `virtual:demo`, on a
-//! paused clock: the lease promise, a lapse that halts the axis, renewals
-//! through `Axis 1/Lease`, the edge node's leases lapsing when its broker
-//! connection is gone, the role, and an LED segment write.
+//! paused clock: the lease promise and its id, a lapse that halts the
+//! axis, renewals through `Axis 1/Lease`, a second sender without the
+//! lease id refused, REST and MQTT leases side by side, the edge node's
+//! leases lapsing when its broker connection is gone, the role, and an LED
+//! segment write.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -95,6 +97,15 @@ fn renew() -> Metric {
     metric("Axis 1/Lease", MetricValue::Boolean(true))
 }
 
+/// The lease id the SCADA host chose for axis 1.
+const HOST_ID: &str = "scada-host-axis1-0001";
+/// Another MQTT client's, of its own choosing.
+const OTHER_ID: &str = "other-client-axis1-02";
+
+fn lease_id(id: &str) -> Metric {
+    metric("Axis 1/Lease Id", MetricValue::String(id.into()))
+}
+
 async fn audit(gateway: &Gateway) -> Vec<serde_json::Map<String, serde_json::Value>> {
     gateway
         .history
@@ -121,7 +132,7 @@ async fn turning() -> (Gateway, SparkplugConfig, HeldLeases) {
         &config,
         &held,
         1,
-        vec![enable(), run_at(100), renew()],
+        vec![enable(), run_at(100), renew(), lease_id(HOST_ID)],
     )
     .await;
     assert!(results.iter().all(Result::is_ok), "{results:?}");
@@ -190,7 +201,14 @@ async fn lease_renewals_keep_the_axis_moving_and_a_lapsed_one_is_refused() {
     let (gateway, config, held) = turning().await;
     for _ in 0..6 {
         tokio::time::sleep(PERIOD / 2).await;
-        let results = dcmd(&gateway, &config, &held, 1, vec![renew()]).await;
+        let results = dcmd(
+            &gateway,
+            &config,
+            &held,
+            1,
+            vec![renew(), lease_id(HOST_ID)],
+        )
+        .await;
         assert!(results[0].is_ok(), "{results:?}");
     }
     assert!(velocity(&gateway).await > 0, "halted while renewed");
@@ -204,7 +222,14 @@ async fn lease_renewals_keep_the_axis_moving_and_a_lapsed_one_is_refused() {
     // Not renewed: it lapses, and a late renewal is refused in words.
     tokio::time::sleep(PERIOD * 3).await;
     assert_eq!(velocity(&gateway).await, 0);
-    let results = dcmd(&gateway, &config, &held, 1, vec![renew()]).await;
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![renew(), lease_id(HOST_ID)],
+    )
+    .await;
     assert_eq!(results[0].as_ref().unwrap_err().code(), "unknown_lease");
     assert!(held.is_empty());
 }
@@ -236,12 +261,249 @@ async fn giving_the_lease_up_halts_and_another_client_is_refused_meanwhile() {
         &config,
         &held,
         1,
-        vec![metric("Axis 1/Lease", MetricValue::Boolean(false))],
+        vec![
+            metric("Axis 1/Lease", MetricValue::Boolean(false)),
+            lease_id(HOST_ID),
+        ],
     )
     .await;
     assert!(results[0].is_ok(), "{results:?}");
+    assert!(held.is_empty());
     tokio::time::sleep(PERIOD / 2).await;
     assert_eq!(velocity(&gateway).await, 0);
+}
+
+/// The refused commands' audit entries: (operation, status, error code).
+async fn refusals(gateway: &Gateway) -> Vec<(String, i64, String)> {
+    audit(gateway)
+        .await
+        .into_iter()
+        .filter(|e| e["status"] != 200 && e["who"] == "mqtt:scada")
+        .map(|e| {
+            (
+                e["operation"].as_str().unwrap_or_default().to_string(),
+                e["status"].as_i64().unwrap_or_default(),
+                e["error_code"].as_str().unwrap_or_default().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_second_sender_without_the_lease_id_cannot_move_reverse_or_release_halt() {
+    // The host turns axis 1 under its lease; another MQTT client (the same
+    // MQTT identity: MQTT carries none of the sender) sends DCMDs to it.
+    let (gateway, config, held) = turning().await;
+    let attempts = [
+        vec![run_at(-300)],
+        vec![run_at(-300), renew()],
+        vec![run_at(-300), renew(), lease_id(OTHER_ID)],
+        vec![metric("Axis 1/Halt", MetricValue::Boolean(false))],
+        vec![
+            metric("Axis 1/Halt", MetricValue::Boolean(false)),
+            renew(),
+            lease_id(OTHER_ID),
+        ],
+        vec![enable(), lease_id(OTHER_ID)],
+        vec![metric(
+            "Axis 1/Move",
+            MetricValue::String(r#"{"mode":"profile_position","target":0}"#.into()),
+        )],
+        vec![renew(), lease_id(OTHER_ID)],
+        vec![
+            metric("Axis 1/Lease", MetricValue::Boolean(false)),
+            lease_id(OTHER_ID),
+        ],
+    ];
+    for metrics in attempts {
+        let results = dcmd(&gateway, &config, &held, 1, metrics.clone()).await;
+        let refused = results[0]
+            .as_ref()
+            .expect_err("the other sender was obeyed");
+        assert!(
+            ["lease_conflict", "unknown_lease"].contains(&refused.code()),
+            "{metrics:?}: {refused}"
+        );
+        tokio::time::sleep(PERIOD / 4).await;
+        assert!(
+            velocity(&gateway).await > 0,
+            "{metrics:?} disturbed the axis"
+        );
+        // The host's renewals go on.
+        let renewed = dcmd(
+            &gateway,
+            &config,
+            &held,
+            1,
+            vec![renew(), lease_id(HOST_ID)],
+        )
+        .await;
+        assert!(renewed[0].is_ok(), "{renewed:?}");
+    }
+    // Never reversed: the other sender's -300 did not reach the drive.
+    assert!(velocity(&gateway).await > 0);
+    assert_eq!(held.len(), 1);
+    // Each refusal is audited, as any refused DCMD is.
+    let refused = refusals(&gateway).await;
+    let count = |operation: &str| refused.iter().filter(|r| r.0 == operation).count();
+    assert_eq!(count("move"), 4, "{refused:?}");
+    assert_eq!(count("halt"), 2, "{refused:?}");
+    assert_eq!(count("drive state change"), 1, "{refused:?}");
+    assert_eq!(count("renew motion lease"), 1, "{refused:?}");
+    assert_eq!(count("end motion lease"), 1, "{refused:?}");
+    assert!(
+        refused
+            .iter()
+            .any(|r| r.1 == 409 && r.2 == "lease_conflict")
+    );
+    // The host itself, presenting its id, changes its set-point.
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![run_at(-300), renew(), lease_id(HOST_ID)],
+    )
+    .await;
+    assert!(results[0].is_ok(), "{results:?}");
+    tokio::time::sleep(PERIOD / 4).await;
+    assert!(
+        velocity(&gateway).await < 0,
+        "the holder's reverse not obeyed"
+    );
+    // A stop needs no lease: whoever sends it, it reaches the drive.
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![metric("Axis 1/Halt", MetricValue::Boolean(true))],
+    )
+    .await;
+    assert!(results[0].is_ok(), "{results:?}");
+    assert_eq!(gateway.leases.held(), 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lease_id_is_needed_to_take_a_lease_and_a_short_one_is_refused() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    // The promise without an id: the host could never present the lease.
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![enable(), run_at(100), renew()],
+    )
+    .await;
+    assert!(results[0].is_ok(), "{results:?}");
+    let refused = results[1].as_ref().unwrap_err();
+    assert_eq!(refused.code(), "invalid_request", "{refused}");
+    assert!(refused.to_string().contains("Axis 1/Lease Id"), "{refused}");
+    for bad in ["too-short-id", "sixteen+chars/!!"] {
+        let results = dcmd(
+            &gateway,
+            &config,
+            &held,
+            1,
+            vec![run_at(100), renew(), lease_id(bad)],
+        )
+        .await;
+        let refused = results[0].as_ref().unwrap_err();
+        assert_eq!(refused.code(), "invalid_request", "{refused}");
+        assert!(refused.to_string().contains("16 to 128"), "{refused}");
+    }
+    tokio::time::sleep(PERIOD / 2).await;
+    assert_eq!(velocity(&gateway).await, 0, "moving without a lease");
+    assert!(held.is_empty());
+    assert_eq!(gateway.leases.held(), 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_rest_client_and_a_sparkplug_host_lease_different_axes_undisturbed() {
+    use crate::gateway::caller::{Caller, Channel};
+    use crate::gateway::drive::{MoveRequest, TargetState};
+    use crate::gateway::motion::LeaseClaim;
+    let (gateway, config, held) = turning().await;
+    // A REST client (its operations are the ones REST's routes call) on
+    // axis 2 of the same drive.
+    let rest = Caller::new(Channel::Rest, "anonymous", None);
+    let axis2 = ("demo", "1", "2");
+    gateway
+        .set_axis_state(
+            &rest,
+            axis2,
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap();
+    let request: MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":200}"#).unwrap();
+    let moved = gateway
+        .move_axis(&rest, axis2, &request, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let rest_lease = moved.lease.expect("a velocity move is leased");
+    let axis2_key = AxisKey {
+        bus: "demo".into(),
+        node: 1,
+        axis: 2,
+    };
+    let speed2 = || async {
+        let drive = gateway.drive("demo", "1", "2").unwrap();
+        i64::from(drive.status().await.unwrap().velocity.unwrap())
+    };
+    for _ in 0..4 {
+        tokio::time::sleep(PERIOD / 2).await;
+        // Each renews its own, through its own door.
+        gateway
+            .renew_axis_lease(&rest, &axis2_key, &rest_lease.id)
+            .unwrap();
+        let results = dcmd(
+            &gateway,
+            &config,
+            &held,
+            1,
+            vec![renew(), lease_id(HOST_ID)],
+        )
+        .await;
+        assert!(results[0].is_ok(), "{results:?}");
+    }
+    assert!(velocity(&gateway).await > 0);
+    assert!(speed2().await > 0);
+    // Neither commands the other's axis without its lease.
+    let refused = gateway
+        .move_axis(&rest, ("demo", "1", "1"), &request, &LeaseClaim::default())
+        .await
+        .unwrap_err();
+    assert_eq!(refused.error.code(), "lease_conflict");
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![
+            metric(
+                "Axis 2/Move",
+                MetricValue::String(r#"{"mode":"velocity","velocity":-300}"#.into()),
+            ),
+            metric("Axis 2/Lease", MetricValue::Boolean(true)),
+            metric("Axis 2/Lease Id", MetricValue::String(HOST_ID.into())),
+        ],
+    )
+    .await;
+    assert_eq!(results[0].as_ref().unwrap_err().code(), "lease_conflict");
+    // The edge node losing its broker lapses the host's lease only.
+    assert_eq!(held.lapse_all(&gateway, "test"), 1);
+    tokio::time::sleep(PERIOD / 2).await;
+    gateway
+        .renew_axis_lease(&rest, &axis2_key, &rest_lease.id)
+        .unwrap();
+    assert_eq!(velocity(&gateway).await, 0, "axis 1 still moving");
+    assert!(speed2().await > 0, "the REST client's axis was stopped");
 }
 
 #[tokio::test(start_paused = true)]

@@ -1,0 +1,563 @@
+//! The motion operations every door runs (REST's drive routes, the
+//! Sparkplug edge node's DCMDs): an axis's state, halt, fault reset, moves,
+//! the step test, and their motion leases. Each operation does the whole
+//! job — the checks, the lease check or grant ([`super::leases`]), the
+//! axis remembered as enabled (stopped on shutdown), the drive sequence in
+//! a task of its own, the in-flight guard, the release or renewal — so that
+//! a door only parses its request, calls one operation and maps its
+//! outcome.
+//!
+//! The lease rule: a velocity, torque or duty-cycle move, and halt released
+//! in such a mode, holds a lease its caller renews; an interpolated move
+//! (and a step test) holds one while it runs. While a lease is held, a
+//! move, halt released or the target operation enabled from a caller who
+//! does not present it (or presents it but is not its holder) is refused
+//! (`lease_conflict`), unless the caller takes the axis over explicitly
+//! (operators and admins). Halt, quick stop and a walk out of operation
+//! enabled are never refused, and end the lease.
+//!
+//! How a caller presents its lease ([`LeaseClaim`]): REST presents the id
+//! the gateway made and answered; MQTT has no answer to carry an id back,
+//! so its host chooses the id (at least [`MIN_CHOSEN_ID`] characters of a
+//! safe set) and the first grant on the axis binds the lease to it. As MQTT
+//! carries no sender identity either, the id is the capability: whoever
+//! does not present it is refused.
+
+use std::future::Future;
+
+use super::GatewayError;
+use super::access::Role;
+use super::caller::Caller;
+use super::drive::{AxisStatus, Drive, DriveError, MoveMode, MoveRequest, TargetState};
+use super::leases::InFlight;
+use super::motion_lease::{AxisKey, MotionLease};
+use super::safe_stop::{AxisStopFailed, AxisStopped, StopAttempt};
+use super::service::Gateway;
+use super::step_test::{self, StepTestRequest, StepTestResult};
+
+/// The shortest lease id a caller may choose: guessing it must be out of
+/// reach, as it is the only credential an MQTT command carries.
+pub const MIN_CHOSEN_ID: usize = 16;
+/// The longest (an id is kept, compared and logged masked).
+pub const MAX_CHOSEN_ID: usize = 128;
+
+/// The lease a caller presents with a motion command, and how a lease
+/// granted to it is named and renewed.
+#[derive(Debug, Clone, Default)]
+pub struct LeaseClaim {
+    /// The lease id presented (REST's `Candeck-Lease`, Sparkplug's `Axis
+    /// {n}/Lease Id`), if any.
+    pub id: Option<String>,
+    /// The caller chose `id` (checked against the safe set), and a lease
+    /// granted to it takes that id; else the gateway makes new ids.
+    pub chosen: bool,
+    /// An explicit take-over of the axis from the lease held on it.
+    pub takeover: bool,
+    pub promise: Promise,
+}
+
+/// Whether the caller will renew a lease it is granted.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub enum Promise {
+    /// It is answered the lease and renews it (REST).
+    #[default]
+    Answered,
+    /// It says so in its command, or the motion is refused (MQTT, where no
+    /// answer tells the caller a lease was granted); `how` says, in the
+    /// door's words, how to give the promise and the id.
+    Asked { given: bool, how: String },
+}
+
+impl LeaseClaim {
+    /// A gateway-made lease id presented (or none), as REST does.
+    pub fn presented(id: Option<&str>, takeover: bool) -> Self {
+        Self {
+            id: id.map(str::to_string),
+            chosen: false,
+            takeover,
+            promise: Promise::Answered,
+        }
+    }
+
+    /// A lease id the caller chose (or none), with its promise to renew.
+    pub fn chosen(id: Option<String>, promised: bool, how: String) -> Self {
+        Self {
+            id,
+            chosen: true,
+            takeover: false,
+            promise: Promise::Asked {
+                given: promised,
+                how,
+            },
+        }
+    }
+
+    /// The id presented, a chosen one checked first.
+    fn id(&self) -> Result<Option<&str>, GatewayError> {
+        match self.id.as_deref() {
+            Some(id) if self.chosen => {
+                check_chosen_id(id)?;
+                Ok(Some(id))
+            }
+            id => Ok(id),
+        }
+    }
+
+    /// The id a lease granted now takes: the caller's, when it chooses.
+    fn new_id(&self) -> Option<&str> {
+        if self.chosen {
+            self.id.as_deref()
+        } else {
+            None
+        }
+    }
+
+    /// Refuses a motion that needs a lease (in `mode`) the caller cannot
+    /// hold: no promise to renew it, or no id of its choosing to present
+    /// later.
+    fn terms(&self, mode: &str) -> Result<(), GatewayError> {
+        let Promise::Asked { given, how } = &self.promise else {
+            return Ok(());
+        };
+        if !given || (self.chosen && self.id.is_none()) {
+            return Err(GatewayError::InvalidRequest(format!(
+                "a {mode} motion has no end of its own and holds a motion lease: {how}"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Whether halt released needs the axis's mode before it is sent (for
+    /// [`Self::terms`]).
+    fn needs_terms(&self) -> bool {
+        matches!(&self.promise, Promise::Asked { given, .. }
+            if !given || (self.chosen && self.id.is_none()))
+    }
+}
+
+/// A lease id a caller chose: long enough not to be guessed, and of
+/// characters that travel and log safely.
+pub fn check_chosen_id(id: &str) -> Result<(), GatewayError> {
+    let safe = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.' | '~');
+    if (MIN_CHOSEN_ID..=MAX_CHOSEN_ID).contains(&id.len()) && id.chars().all(safe) {
+        return Ok(());
+    }
+    Err(GatewayError::InvalidRequest(format!(
+        "a lease id chosen by the caller is {MIN_CHOSEN_ID} to {MAX_CHOSEN_ID} characters of \
+         A-Z, a-z, 0-9, '-', '_', '.' and '~' (this one has {} characters{})",
+        id.chars().count(),
+        if id.chars().all(safe) {
+            ""
+        } else {
+            ", some outside that set"
+        }
+    )))
+}
+
+/// What a motion operation did.
+#[derive(Debug)]
+pub struct MotionOutcome<T = AxisStatus> {
+    /// The axis after it (or the step test's result).
+    pub status: T,
+    /// The lease the caller holds now and renews, if the motion has no end
+    /// of its own.
+    pub lease: Option<MotionLease>,
+    /// A stop's steps and their outcome.
+    pub attempts: Option<Vec<StopAttempt>>,
+    /// The lease an explicit take-over ended, for the audit log.
+    pub took_over: Option<MotionLease>,
+}
+
+/// Why a motion operation failed: the error, what a stop tried, and the
+/// lease a take-over ended before it failed (it stays ended).
+#[derive(Debug)]
+pub struct MotionFailed {
+    pub error: GatewayError,
+    pub attempts: Vec<StopAttempt>,
+    /// Boxed: seldom there, and it would make every error large.
+    pub took_over: Option<Box<MotionLease>>,
+}
+
+impl From<GatewayError> for MotionFailed {
+    fn from(error: GatewayError) -> Self {
+        Self {
+            error,
+            attempts: Vec::new(),
+            took_over: None,
+        }
+    }
+}
+
+impl From<DriveError> for MotionFailed {
+    fn from(error: DriveError) -> Self {
+        GatewayError::from(error).into()
+    }
+}
+
+impl From<AxisStopFailed> for MotionFailed {
+    fn from(failed: AxisStopFailed) -> Self {
+        Self {
+            error: failed.error,
+            attempts: failed.attempts,
+            took_over: None,
+        }
+    }
+}
+
+/// Whether a motion in this mode runs until told otherwise, and so needs a
+/// lease its caller renews.
+pub fn endless(mode: MoveMode) -> bool {
+    matches!(
+        mode,
+        MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
+    )
+}
+
+/// The same for the mode an axis displays (its `mode` name).
+fn endless_displayed(mode: Option<&str>) -> Option<&'static str> {
+    match mode? {
+        "velocity" | "profile_velocity" => Some("velocity"),
+        "torque" | "profile_torque" => Some("torque"),
+        "duty_cycle" => Some("duty_cycle"),
+        _ => None,
+    }
+}
+
+/// Runs `sequence` on the drive in a task of its own: a caller that goes
+/// away (a client hanging up drops its request) never cuts a walk or a move
+/// half way.
+pub async fn spawned<T, F, Fut>(drive: Drive, sequence: F) -> Result<T, GatewayError>
+where
+    T: Send + 'static,
+    F: FnOnce(Drive) -> Fut + Send + 'static,
+    Fut: Future<Output = Result<T, DriveError>> + Send + 'static,
+{
+    tokio::spawn(sequence(drive))
+        .await
+        .map_err(|err| GatewayError::Internal(format!("drive task: {err}")))?
+        .map_err(GatewayError::from)
+}
+
+fn key(bus: &str, drive: &Drive) -> AxisKey {
+    AxisKey {
+        bus: bus.to_string(),
+        node: drive.node(),
+        axis: drive.axis(),
+    }
+}
+
+/// An operation's result with the take-over that came before it.
+fn finish<T>(
+    result: Result<(T, Option<MotionLease>), GatewayError>,
+    took_over: Option<MotionLease>,
+) -> Result<MotionOutcome<T>, MotionFailed> {
+    match result {
+        Ok((status, lease)) => Ok(MotionOutcome {
+            status,
+            lease,
+            attempts: None,
+            took_over,
+        }),
+        Err(error) => Err(MotionFailed {
+            error,
+            attempts: Vec::new(),
+            took_over: took_over.map(Box::new),
+        }),
+    }
+}
+
+fn stopped(stopped: AxisStopped) -> MotionOutcome {
+    MotionOutcome {
+        status: stopped.status,
+        lease: None,
+        attempts: Some(stopped.attempts),
+        took_over: None,
+    }
+}
+
+impl Gateway {
+    /// An explicit take-over, when the claim asks for one: the lease held
+    /// on `axis` ends (the axis is not stopped: the caller's own command
+    /// follows). Operators and admins only, on a gateway with tokens.
+    fn take_over_claimed(
+        &self,
+        caller: &Caller,
+        axis: &AxisKey,
+        claim: &LeaseClaim,
+    ) -> Result<Option<MotionLease>, GatewayError> {
+        if !claim.takeover {
+            return Ok(None);
+        }
+        if self.tokens.required() && caller.role.is_none_or(|role| role < Role::Operator) {
+            return Err(GatewayError::Forbidden(
+                "a take-over of a held axis needs the operator role".to_string(),
+            ));
+        }
+        Ok(self.leases.take_over(axis))
+    }
+
+    /// A stop was asked for (confirmed or not): the axis's lease is over.
+    fn release_stopped(&self, bus: &str, node: &str, axis: &str) {
+        if let (Ok(node), Ok(axis)) = (node.parse::<u8>(), axis.parse::<u8>()) {
+            self.leases.release(&AxisKey {
+                bus: bus.to_string(),
+                node,
+                axis,
+            });
+        }
+    }
+
+    /// Walks an axis's CiA 402 state machine to `target`. Quick stop active
+    /// is sent whatever the gateway believes of the node, never refused,
+    /// and ends the lease, as does any walk out of operation enabled;
+    /// operation enabled is a motion command, checked against the lease.
+    pub async fn set_axis_state(
+        &self,
+        caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+        target: TargetState,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        if target == TargetState::QuickStopActive {
+            let result = self.quick_stop_axis(bus, node, axis).await;
+            self.release_stopped(bus, node, axis);
+            return Ok(stopped(result?));
+        }
+        let drive = self.drive(bus, node, axis)?;
+        let axis_key = key(bus, &drive);
+        let enable = target == TargetState::OperationEnabled;
+        let took_over = if enable {
+            self.take_over_claimed(caller, &axis_key, claim)?
+        } else {
+            None
+        };
+        let result = async {
+            if enable {
+                self.leases.check(&axis_key, claim.id()?, &caller.who)?;
+                // Before the walk, not after it: a walk that fails half way
+                // may have powered the axis already.
+                self.enabled_axes.insert(bus, &drive);
+            }
+            let state = target.state();
+            let status = spawned(
+                drive,
+                move |drive| async move { drive.set_state(state).await },
+            )
+            .await?;
+            if !enable {
+                // Out of operation enabled nothing moves: the motion is over.
+                self.leases.release(&axis_key);
+            }
+            Ok((status, None))
+        }
+        .await;
+        finish(result, took_over)
+    }
+
+    /// Sets (a stop: never refused, sent whatever the gateway believes of
+    /// the node, quick stop then NMT stop if it cannot be given; it ends the
+    /// lease) or releases halt. Releasing it resumes the set-point the axis
+    /// has: in a mode without an end, that is a motion like any other, and
+    /// it is leased.
+    pub async fn set_axis_halt(
+        &self,
+        caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+        halt: bool,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        if halt {
+            let result = self.halt_axis(bus, node, axis).await;
+            self.release_stopped(bus, node, axis);
+            return Ok(stopped(result?));
+        }
+        let drive = self.drive(bus, node, axis)?;
+        let axis_key = key(bus, &drive);
+        let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
+        let result = async {
+            let presented = claim.id()?;
+            self.leases.check(&axis_key, presented, &caller.who)?;
+            if claim.needs_terms() {
+                let before =
+                    spawned(drive.clone(), |drive| async move { drive.status().await }).await?;
+                if let Some(mode) = endless_displayed(before.mode.as_deref()) {
+                    claim.terms(mode)?;
+                }
+            }
+            // Motion the gateway resumes is motion it stops on shutdown.
+            self.enabled_axes.insert(bus, &drive);
+            let status = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
+            let lease = match endless_displayed(status.mode.as_deref()) {
+                Some(mode) if status.state == "operation_enabled" => Some(self.leases.grant(
+                    self,
+                    axis_key.clone(),
+                    presented,
+                    claim.new_id(),
+                    &caller.who,
+                    mode,
+                )?),
+                _ => {
+                    self.leases.release(&axis_key);
+                    None
+                }
+            };
+            Ok((status, lease))
+        }
+        .await;
+        finish(result, took_over)
+    }
+
+    /// Resets an axis's fault (not a motion: no lease is involved).
+    pub async fn reset_axis_fault(
+        &self,
+        _caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+    ) -> Result<AxisStatus, GatewayError> {
+        let drive = self.drive(bus, node, axis)?;
+        spawned(drive, |drive| async move { drive.fault_reset().await }).await
+    }
+
+    /// Starts a motion. A move with an end of its own (profile position,
+    /// homing, ...) is given by the lease's holder or on a free axis, and
+    /// ends the lease; a move without one is granted (or, presented, keeps)
+    /// the lease its caller renews; an interpolated move holds one while
+    /// its points are fed, and lapses it at once if its caller goes away.
+    pub async fn move_axis(
+        &self,
+        caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+        request: &MoveRequest,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        let drive = self.drive(bus, node, axis)?;
+        drive.validate(request)?;
+        let axis_key = key(bus, &drive);
+        let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
+        let result = async {
+            let presented = claim.id()?;
+            let mode = request.mode();
+            let request = request.clone();
+            if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
+                self.leases.check(&axis_key, presented, &caller.who)?;
+                self.enabled_axes.insert(bus, &drive);
+                let status = spawned(
+                    drive,
+                    move |drive| async move { drive.run_move(&request).await },
+                )
+                .await?;
+                self.leases.release(&axis_key);
+                return Ok((status, None));
+            }
+            if endless(mode) {
+                // A caller the lease refuses hears that first.
+                self.leases.check(&axis_key, presented, &caller.who)?;
+                claim.terms(mode.name())?;
+            }
+            let lease = self.leases.grant(
+                self,
+                axis_key.clone(),
+                presented,
+                claim.new_id(),
+                &caller.who,
+                mode.name(),
+            )?;
+            self.enabled_axes.insert(bus, &drive);
+            // While the caller waits it keeps the lease alive; if it goes
+            // away, the lease lapses at once.
+            let status = InFlight::new(&self.leases, &lease)
+                .run(spawned(drive, move |drive| async move {
+                    drive.run_move(&request).await
+                }))
+                .await
+                .inspect_err(|_| {
+                    // A failed move halted the axis: nothing is left to lease.
+                    self.leases.release(&axis_key);
+                })?;
+            if !endless(mode) {
+                // The interpolated points are all in the buffer: the drive
+                // stops at the last one by itself.
+                self.leases.release(&axis_key);
+                return Ok((status, None));
+            }
+            let lease = self.leases.renew(&lease.id, None, None)?;
+            Ok((status, Some(lease)))
+        }
+        .await;
+        finish(result, took_over)
+    }
+
+    /// A step test of an axis's control loop: the axis holds a lease while
+    /// it runs (lapsed at once if the caller goes away) and is halted at
+    /// the end.
+    pub async fn step_test_axis(
+        &self,
+        caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+        request: &StepTestRequest,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome<StepTestResult>, MotionFailed> {
+        let drive = self.drive(bus, node, axis)?;
+        request.validate()?;
+        let values = self.bus(bus)?.values.clone();
+        let axis_key = key(bus, &drive);
+        let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
+        let result = async {
+            let lease = self.leases.grant(
+                self,
+                axis_key.clone(),
+                claim.id()?,
+                claim.new_id(),
+                &caller.who,
+                "step_test",
+            )?;
+            self.enabled_axes.insert(bus, &drive);
+            let request = request.clone();
+            let result = InFlight::new(&self.leases, &lease)
+                .run(spawned(drive, move |drive| async move {
+                    step_test::run(&drive, &values, &request).await
+                }))
+                .await;
+            self.leases.release(&axis_key);
+            Ok((result?, None))
+        }
+        .await;
+        finish(result, took_over)
+    }
+
+    /// Renews the lease `id` held on `axis`, for its holder.
+    pub fn renew_axis_lease(
+        &self,
+        caller: &Caller,
+        axis: &AxisKey,
+        id: &str,
+    ) -> Result<MotionLease, GatewayError> {
+        self.leases.renew_on(axis, id, &caller.who)
+    }
+
+    /// Gives up the lease `id` held on `axis`: it lapses now, and the
+    /// supervisor halts the axis. Only its holder, presenting it.
+    pub fn give_up_axis_lease(
+        &self,
+        caller: &Caller,
+        axis: &AxisKey,
+        id: &str,
+    ) -> Result<(), GatewayError> {
+        self.leases.lapse_on(axis, id, &caller.who)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_chosen_lease_id_is_long_and_of_the_safe_set() {
+        assert!(check_chosen_id("host-7f3a9c0e.axis_1~").is_ok());
+        for bad in ["short-id", "sixteen chars!!!", "ÿ".repeat(16).as_str()] {
+            let refused = check_chosen_id(bad).unwrap_err();
+            assert_eq!(refused.code(), "invalid_request");
+            assert!(refused.to_string().contains("16 to 128"), "{refused}");
+        }
+        assert!(check_chosen_id(&"a".repeat(129)).is_err());
+    }
+}
