@@ -646,6 +646,7 @@ pub struct WhoAmI {
     pub name: String,
     /// What the token may do; `admin` when the gateway asks for no token
     /// (anyone may do anything).
+    #[schema(value_type = super::schema::Role)]
     pub role: Role,
     /// Whether the gateway asks for tokens.
     pub auth_required: bool,

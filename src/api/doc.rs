@@ -113,6 +113,7 @@ pub struct ErrorDetail {
     /// When a stop (halt, quick stop) was not confirmed by the drive: every
     /// step tried, the fallbacks included (quick stop, NMT stop of the
     /// node), with its outcome.
+    #[schema(value_type = Option<Vec<super::schema::StopAttempt>>)]
     pub attempts: Option<Vec<crate::gateway::safe_stop::StopAttempt>>,
 }
 

@@ -51,6 +51,7 @@ use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::leases::{AuditNote, LeaseInfo, caller, presented, takeover_asked};
 use super::nodes::known_node;
+use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
@@ -101,6 +102,7 @@ pub struct AxisPath {
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StateRequest {
+    #[schema(value_type = schema::TargetState)]
     pub target: TargetState,
 }
 
@@ -122,6 +124,7 @@ pub struct StoppedAxis {
     #[schema(example = 1)]
     pub axis: u8,
     /// What was tried and what the drive confirmed.
+    #[schema(value_type = Vec<schema::StopAttempt>)]
     pub attempts: Vec<StopAttempt>,
 }
 
@@ -141,6 +144,7 @@ pub struct StopFailure {
     pub error: Json,
     /// What was tried, in order, with its outcome: the quick stop, then NMT
     /// stop of the node.
+    #[schema(value_type = Vec<schema::StopAttempt>)]
     pub attempts: Vec<StopAttempt>,
 }
 
@@ -160,8 +164,11 @@ pub struct StopAllReport {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct AxisDetail {
     #[serde(flatten)]
+    #[schema(value_type = schema::AxisStatus)]
     pub status: AxisStatus,
+    #[schema(value_type = schema::AxisUnits)]
     pub units: AxisUnits,
+    #[schema(value_type = schema::AxisLimits)]
     pub limits: AxisLimits,
 }
 
@@ -169,11 +176,13 @@ pub struct AxisDetail {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct StateResponse {
     #[serde(flatten)]
+    #[schema(value_type = schema::AxisStatus)]
     pub status: AxisStatus,
     /// With the target `quick_stop_active`: the steps of the stop and their
     /// outcome (`[{"method":"quick_stop","outcome":"confirmed",...}]`;
     /// empty when the axis was in quick stop active already).
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Vec<schema::StopAttempt>>)]
     pub attempts: Option<Vec<StopAttempt>>,
 }
 
@@ -183,10 +192,12 @@ pub struct StateResponse {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct MotionResponse {
     #[serde(flatten)]
+    #[schema(value_type = schema::AxisStatus)]
     pub status: AxisStatus,
     pub lease: Option<LeaseInfo>,
     /// With a halt: the steps of the stop and their outcome.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Vec<schema::StopAttempt>>)]
     pub attempts: Option<Vec<StopAttempt>>,
 }
 
@@ -197,7 +208,7 @@ fn task_failed(err: tokio::task::JoinError) -> AppError {
 /// The axes of a drive node, read now.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/axes", tag = "drives", params(NodePath),
     responses(
-        (status = 200, description = "Every axis of the node", body = [AxisStatus]),
+        (status = 200, description = "Every axis of the node", body = [schema::AxisStatus]),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`", body = ErrorBody),
         (status = 409, description = "`wrong_nmt_state`", body = ErrorBody),
@@ -349,7 +360,7 @@ fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppErro
 /// drive in fault: 409 `drive_fault`.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", tag = "drives", params(AxisPath),
     responses(
-        (status = 200, description = "The axis, out of fault (switch_on_disabled)", body = AxisStatus),
+        (status = 200, description = "The axis, out of fault (switch_on_disabled)", body = schema::AxisStatus),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
         (status = 409, description = "`drive_fault`: the fault is still present; `wrong_nmt_state`; `node_offline`: its heartbeat is lost", body = ErrorBody),
@@ -442,7 +453,7 @@ fn motion_response(outcome: MotionOutcome, note: Option<&Extension<AuditNote>>) 
 /// quick-stopped) before the error is answered.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/move", tag = "drives",
     params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
-    request_body = MoveRequest,
+    request_body = schema::MoveRequest,
     responses(
         (status = 200, description = "The motion is under way; the axis as it is now, and for velocity, torque and duty cycle the lease to renew", body = MotionResponse),
         (status = 400, description = "`invalid_request`, `invalid_value`, `value_out_of_range`: before the bus", body = ErrorBody),
@@ -488,9 +499,9 @@ async fn run_move(
 /// runs and is halted at the end, and on any failure.
 #[utoipa::path(post, path = "/buses/{bus}/nodes/{id}/axes/{axis}/step-test", tag = "drives",
     params(AxisPath, ("Candeck-Lease" = Option<String>, Header, description = "The motion lease held on the axis, to command it while the lease is held (its holder only)"), ("Candeck-Lease-Takeover" = Option<bool>, Header, description = "`true`: take the axis over from the lease held on it (operator or admin; audited, naming both holders)")),
-    request_body = StepTestRequest,
+    request_body = schema::StepTestRequest,
     responses(
-        (status = 200, description = "The response and its metrics; the axis is halted", body = StepTestResult),
+        (status = 200, description = "The response and its metrics; the axis is halted", body = schema::StepTestResult),
         (status = 400, description = "`invalid_request`, `invalid_value` (from = to, hold_ms outside 20 to 10,000, settle_band_pct outside 0 to 50), `value_out_of_range`: before the bus", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_a_drive`, `unknown_axis`", body = ErrorBody),
         (status = 409, description = "`drive_not_enabled`: the axis is not in operation_enabled (or left it during the test); `drive_fault`; `wrong_nmt_state`, `node_offline`; `lease_conflict`", body = ErrorBody),

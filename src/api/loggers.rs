@@ -19,6 +19,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
+use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::logger::{LoggerRequest, LoggerStatus};
 
@@ -48,9 +49,9 @@ pub struct LoggerPath {
 /// every other transfer to the node (`source: "sdo"`). At most 16 channels
 /// and 16 loggers (a new one replaces the oldest finished one).
 #[utoipa::path(post, path = "/loggers", tag = "loggers",
-    request_body = LoggerRequest,
+    request_body = schema::LoggerRequest,
     responses(
-        (status = 201, description = "Started: its status", body = LoggerStatus),
+        (status = 201, description = "Started: its status", body = schema::LoggerStatus),
         (status = 400, description = "`invalid_request` (malformed body, unknown field), `too_many_entries` (no channel, or more than 16), `value_out_of_range` (period_ms or duration_s), `invalid_index`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_object`, `unknown_sub_object`", body = ErrorBody),
         (status = 409, description = "`too_many_loggers`: 16 loggers run; `wrong_nmt_state`", body = ErrorBody),
@@ -74,7 +75,7 @@ async fn create_logger(
 /// the data directory.
 #[utoipa::path(get, path = "/loggers", tag = "loggers",
     responses(
-        (status = 200, description = "Oldest first", body = [LoggerStatus]),
+        (status = 200, description = "Oldest first", body = [schema::LoggerStatus]),
     ))]
 async fn list_loggers(State(state): State<AppState>) -> ApiJson<Vec<LoggerStatus>> {
     ApiJson(state.gateway.loggers.list())
@@ -83,7 +84,7 @@ async fn list_loggers(State(state): State<AppState>) -> ApiJson<Vec<LoggerStatus
 /// A logger's status and statistics.
 #[utoipa::path(get, path = "/loggers/{id}", tag = "loggers", params(LoggerPath),
     responses(
-        (status = 200, description = "Its status", body = LoggerStatus),
+        (status = 200, description = "Its status", body = schema::LoggerStatus),
         (status = 404, description = "`unknown_logger`", body = ErrorBody),
     ))]
 async fn logger_status(
@@ -99,7 +100,7 @@ async fn logger_status(
 /// last status.
 #[utoipa::path(delete, path = "/loggers/{id}", tag = "loggers", params(LoggerPath),
     responses(
-        (status = 200, description = "Its last status", body = LoggerStatus),
+        (status = 200, description = "Its last status", body = schema::LoggerStatus),
         (status = 404, description = "`unknown_logger`", body = ErrorBody),
     ))]
 async fn delete_logger(

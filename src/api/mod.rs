@@ -86,6 +86,7 @@ pub mod od;
 pub mod pdos;
 pub mod program;
 pub mod recording;
+pub mod schema;
 pub mod segments;
 pub mod serve;
 pub mod sim;

@@ -144,6 +144,7 @@ pub struct NodeDetail {
     pub emcy: Vec<Emergency>,
     /// A drive's axes, read now (profiles umc, jmc_stepper, cia402).
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Vec<super::schema::AxisStatus>>)]
     pub axes: Option<Vec<crate::gateway::drive::AxisStatus>>,
     /// An LED controller's segments, read now (profile uioled).
     #[serde(skip_serializing_if = "Option::is_none")]

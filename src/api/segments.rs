@@ -47,6 +47,7 @@ pub struct SegmentState {
     /// `0xNNNN` for a value the manual does not define (drawn dark).
     pub effect: String,
     /// `Color_01` to `Color_03`.
+    #[schema(value_type = Vec<super::schema::Color>)]
     pub colors: Vec<Color>,
     /// 0 (0 %) to 255 (100 %).
     pub dimmer: u8,
@@ -523,7 +524,7 @@ async fn put_scene(
 /// device by the renderer the virtual UIO1LED uses.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/segments/preview", tag = "leds", params(NodePath),
     responses(
-        (status = 200, description = "Every LED of the strip", body = Preview),
+        (status = 200, description = "Every LED of the strip", body = super::schema::Preview),
         (status = 400, description = "`invalid_request`", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `not_an_led_controller`", body = ErrorBody),
         (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),

@@ -10,10 +10,9 @@ use std::time::Duration;
 
 use serde::Serialize;
 use tokio::time::Instant;
-use utoipa::ToSchema;
 
 /// What a token may do; each role may do what the ones before it may.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Role {
     /// Reads and the stream.

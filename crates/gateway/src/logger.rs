@@ -102,36 +102,27 @@ pub enum LoggerError {
 /// One channel as a request names it: the object by number
 /// (`"0x6064"`, `24676`) or by EDS name, the sub-index by number or name
 /// (0 when not given).
-#[derive(Debug, Clone, PartialEq, Deserialize, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-#[schema(as = LoggerChannelRequest)]
 pub struct ChannelRequest {
-    #[schema(example = "demo")]
     pub bus: String,
-    #[schema(minimum = 1, maximum = 127, example = 1)]
     pub node: u8,
     /// `0x6064`, `6064h`, a decimal number, or the EDS name.
-    #[schema(value_type = String, example = "0x6064")]
     pub index: Json,
     /// A number or the sub-object's EDS name; 0 when not given.
     #[serde(default)]
-    #[schema(value_type = Option<String>, example = "0")]
     pub sub: Option<Json>,
 }
 
 /// What a logger is asked for.
-#[derive(Debug, Clone, PartialEq, Deserialize, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-#[schema(example = json!({"channels": [{"bus": "demo", "node": 1, "index": "0x6064", "sub": 0},
-    {"bus": "demo", "node": 1, "index": "0x606C", "sub": 0}], "period_ms": 10, "duration_s": 2}))]
 pub struct LoggerRequest {
     /// 1 to 16 channels.
     pub channels: Vec<ChannelRequest>,
     /// 1 to 60000.
-    #[schema(minimum = 1, maximum = 60000, example = 10)]
     pub period_ms: u64,
     /// 1 to 86400.
-    #[schema(minimum = 1, maximum = 86400, example = 2)]
     pub duration_s: u64,
 }
 
@@ -152,17 +143,15 @@ impl LoggerRequest {
 }
 
 /// Where a channel's samples came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-#[schema(as = LoggerSource)]
 pub enum Source {
     Sdo,
     Tpdo,
 }
 
 /// A channel, resolved against its node's dictionary.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[schema(as = LoggerChannel)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelInfo {
     pub bus: String,
     pub node: u8,
@@ -185,7 +174,7 @@ pub struct ChannelInfo {
 }
 
 /// A logger's state.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LoggerState {
     Running,
@@ -196,7 +185,7 @@ pub enum LoggerState {
 }
 
 /// A logger's status and statistics.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LoggerStatus {
     pub id: u64,
     pub state: LoggerState,

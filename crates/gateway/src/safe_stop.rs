@@ -24,7 +24,6 @@ use std::time::Duration;
 
 use serde::Serialize;
 use tokio::task::JoinSet;
-use utoipa::ToSchema;
 
 use super::GatewayError;
 use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
@@ -52,7 +51,7 @@ const CONFIRM_POLL: Duration = Duration::from_millis(10);
 pub const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// How a stop was tried.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopMethod {
     /// Controlword bit 8 (halt), the rest of the controlword kept.
@@ -64,7 +63,7 @@ pub enum StopMethod {
 }
 
 /// What came of one [`StopMethod`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopOutcome {
     /// The drive showed it: the statusword out of operation enabled after a
@@ -90,15 +89,12 @@ pub enum StopOutcome {
 }
 
 /// One step of a stop.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct StopAttempt {
-    #[schema(example = "quick_stop")]
     pub method: StopMethod,
-    #[schema(example = "confirmed")]
     pub outcome: StopOutcome,
     /// What the drive showed or why the step failed.
     #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(example = "statusword 0x0007: quick_stop_active")]
     pub detail: Option<String>,
 }
 

@@ -28,7 +28,6 @@
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
-use utoipa::ToSchema;
 
 use crate::axis_telemetry::TPDO_FRESH;
 use crate::drive::{Drive, DriveError, DriveKind, MoveRequest};
@@ -47,7 +46,7 @@ pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 pub const MAX_SAMPLES: usize = 20_000;
 
 /// Which loop a step test exercises.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StepLoop {
     Torque,
@@ -56,9 +55,8 @@ pub enum StepLoop {
 }
 
 /// `POST .../axes/{axis}/step-test`.
-#[derive(Debug, Clone, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-#[schema(example = json!({"loop": "velocity", "from": 0, "to": 500, "hold_ms": 300, "settle_band_pct": 2}))]
 pub struct StepTestRequest {
     /// The loop: `torque` (TQ, per mille of rated torque), `velocity` (VL,
     /// velocity units) or `position` (PP, increments).
@@ -80,7 +78,7 @@ fn default_band() -> f64 {
 }
 
 /// Where a step test's actual values came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SampleSource {
     /// Every sample from a TPDO frame that carried the actual value.
@@ -92,7 +90,7 @@ pub enum SampleSource {
 }
 
 /// What a step test measured.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StepTestResult {
     /// Where the actual values came from: `tpdo` (the frames of a running
     /// TPDO that carries the loop's actual value, at its rate), `sdo`
@@ -110,7 +108,6 @@ pub struct StepTestResult {
     /// the target's units.
     pub steady_state_error: f64,
     /// `[t_ms, target, actual]` from the step on.
-    #[schema(value_type = Vec<Vec<f64>>)]
     pub samples: Vec<[f64; 3]>,
 }
 

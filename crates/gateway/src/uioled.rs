@@ -10,7 +10,6 @@
 
 use serde::{Deserialize, Serialize};
 use tokio::time::Instant;
-use utoipa::ToSchema;
 
 use crate::canopen::od::{DataType, Value};
 use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, address};
@@ -81,8 +80,7 @@ pub async fn write_fields(
 }
 
 /// One colour: red, green, blue and white, 0 to 255 each.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
-#[schema(example = json!({"r": 255, "g": 80, "b": 0, "w": 0}))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Color {
     pub r: u8,
     pub g: u8,
@@ -110,9 +108,7 @@ pub fn effect_name(effect: Effect) -> String {
 }
 
 /// What the strip shows now.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
-#[schema(example = json!({"led_count": 3, "segments": [{"segment": 1, "start": 0, "led_count": 3, "effect": "fix"}],
-    "pixels": [{"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}, {"r": 255, "g": 0, "b": 0, "w": 0}]}))]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Preview {
     /// LEDs on the strip: the sum of every segment's.
     pub led_count: usize,
@@ -123,7 +119,7 @@ pub struct Preview {
 }
 
 /// One segment's place on the strip.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PreviewSegment {
     pub segment: u8,
     /// Its first LED in `pixels`.
