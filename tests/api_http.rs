@@ -61,6 +61,17 @@ async fn serve_answers_http_and_stops_on_sigterm() {
     .await;
     assert_eq!(status, 422, "{body}");
     assert!(body.contains(r#""abort_code":"0x06010002""#), "{body}");
+    // That one the gateway refused before the bus (the EDS says ro); an
+    // object the EDS does not describe is the device's to refuse.
+    let (status, body) = http(
+        &address,
+        "PUT",
+        "/api/v1/buses/demo/nodes/1/od/0x5FF0/0",
+        Some(r#"{"value":1,"data_type":"u8"}"#),
+    )
+    .await;
+    assert_eq!(status, 422, "{body}");
+    assert!(body.contains(r#""abort_code":"0x06020000""#), "{body}");
 
     let (status, body) = http(
         &address,
@@ -72,7 +83,7 @@ async fn serve_answers_http_and_stops_on_sigterm() {
     assert_eq!(status, 400, "{body}");
     assert!(body.starts_with(r#"{"error":{"#), "{body}");
 
-    // Prometheus finds the metrics at the root; the write above was refused.
+    // Prometheus finds the metrics at the root; the device refused a write.
     let (status, body) = http(&address, "GET", "/metrics", None).await;
     assert_eq!(status, 200, "{body}");
     let abort_line = body

@@ -254,7 +254,8 @@ def test_writes_the_node_refuses_are_422_with_its_abort_code(gateway, local_node
     assert body["error"]["abort_code"] == "0x06090030"
     assert local_node.sdo[0x2001].raw == 7
 
-    # A read-only object: the device enforces its access rights.
+    # A read-only object: refused with the abort the device would give
+    # (before the bus, since the EDS says ro), and left as it was.
     status, body = gateway.write_od("0x2006", 0, 1)
     assert status == 422, body
     assert body["error"]["abort_code"] == "0x06010002"
