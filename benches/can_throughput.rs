@@ -2,13 +2,18 @@
 //! server on loopback (one sender; one and ten receivers), and the same
 //! traffic between two python-can clients through the same server, in one run.
 //!
-//! Run: `scripts/bench` (or `cargo bench --bench can_throughput`, with
-//! `CANDECK_PYTHON=.venv/bin/python` for the python-can comparison).
+//! Run: `scripts/bench` (or `cargo bench --bench can_throughput`; the
+//! python-can comparison uses `.venv` or `CANDECK_PYTHON`, and is skipped
+//! without them unless `CANDECK_REQUIRE_PEERS` is set). A smoke run
+//! (`CANDECK_BENCH_SMOKE`) sends a few thousand frames a row. A failed
+//! python-can pair ends the run with status 1.
 //! Frames: standard id 0x181, 8 data bytes (a TPDO), a counter in the data.
 //!
 //! The sender keeps at most `WINDOW` frames ahead of the slowest receiver,
 //! so the figure is the rate every receiver sustains without loss, not how
 //! fast frames can be dropped.
+
+mod common;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -162,10 +167,12 @@ async fn stalled_case(total: u64) -> (Result, u64, u64) {
     let (before, _) = rss_kib();
     let seconds = run(sender, vec![receiver], total).await;
     let (after, _) = rss_kib();
-    // Its writer notices when the blocked write times out (5 s) at the latest.
+    // Its writer notices when the blocked write times out (5 s) at the
+    // latest; a smoke run sends too few frames to fill its buffers.
     let wait_start = Instant::now();
+    let wait = common::pick(Duration::from_secs(10), Duration::ZERO);
     while server.stats().slow_clients_dropped.load(Ordering::Relaxed) == 0
-        && wait_start.elapsed() < Duration::from_secs(10)
+        && wait_start.elapsed() < wait
     {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
@@ -202,8 +209,9 @@ async fn socketcand_case(receivers: usize, total: u64) -> Result {
     }
 }
 
-/// python-can sender → candeck socketcand server → python-can receiver.
-async fn python_case(python: &str, total: u64) -> Option<Result> {
+/// python-can sender → candeck socketcand server → python-can receiver;
+/// why it failed, if it did.
+async fn python_case(python: &std::path::Path, total: u64) -> std::result::Result<Result, String> {
     let server = serve_empty_bus().await;
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/python_can_pair.py");
     let output = tokio::process::Command::new(python)
@@ -212,17 +220,20 @@ async fn python_case(python: &str, total: u64) -> Option<Result> {
         .arg(total.to_string())
         .output()
         .await
-        .ok()?;
+        .map_err(|err| format!("{}: {err}", python.display()))?;
     if !output.status.success() {
-        eprintln!(
-            "python-can pair failed: {}",
+        return Err(format!(
+            "python-can pair failed ({}): {}",
+            output.status,
             String::from_utf8_lossy(&output.stderr)
-        );
-        return None;
+        ));
     }
     let text = String::from_utf8_lossy(&output.stdout);
-    let seconds: f64 = text.trim().parse().ok()?;
-    Some(Result {
+    let seconds: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("python-can pair printed no seconds: {text}"))?;
+    Ok(Result {
         label: "socketcand, loopback (python-can clients)".into(),
         frames: total,
         receivers: 1,
@@ -231,6 +242,8 @@ async fn python_case(python: &str, total: u64) -> Option<Result> {
 }
 
 fn main() {
+    common::announce_smoke("can_throughput");
+    let size = |frames: u64| common::pick(frames, 5_000);
     // The runtime of the candeck binary; BENCH_MULTI_THREAD=1 for tokio's
     // multi-thread scheduler instead.
     let runtime = if std::env::var_os("BENCH_MULTI_THREAD").is_some() {
@@ -245,18 +258,22 @@ fn main() {
         let (rss_start, _) = rss_kib();
         println!("| path | receivers | frames | frames/s per receiver | frames/s delivered |");
         println!("|---|---|---|---|---|");
-        hub_case(1, 2_000_000).await.print();
-        hub_case(10, 1_000_000).await.print();
-        socketcand_case(1, 1_000_000).await.print();
-        socketcand_case(10, 300_000).await.print();
-        let (stalled, growth, dropped) = stalled_case(1_000_000).await;
+        hub_case(1, size(2_000_000)).await.print();
+        hub_case(10, size(1_000_000)).await.print();
+        socketcand_case(1, size(1_000_000)).await.print();
+        socketcand_case(10, size(300_000)).await.print();
+        let (stalled, growth, dropped) = stalled_case(size(1_000_000)).await;
         stalled.print();
-        match std::env::var("CANDECK_PYTHON") {
-            Ok(python) => match python_case(&python, 50_000).await {
-                Some(result) => result.print(),
-                None => println!("| python-can clients | - | - | failed | - |"),
+        let mut failures = Vec::new();
+        match common::peers::python("can_throughput, python-can row") {
+            Some(python) => match python_case(&python, common::pick(50_000, 2_000)).await {
+                Ok(result) => result.print(),
+                Err(err) => {
+                    println!("| python-can clients | - | - | failed | - |");
+                    failures.push(err);
+                }
             },
-            Err(_) => println!("| python-can clients | - | - | skipped: set CANDECK_PYTHON | - |"),
+            None => println!("| python-can clients | - | - | skipped: no Python peers | - |"),
         }
         let (rss_end, hwm) = rss_kib();
         println!();
@@ -264,5 +281,6 @@ fn main() {
         println!(
             "stalled client: dropped {dropped} time(s); resident memory grew {growth} KiB during the run"
         );
+        common::exit_on_failures("can_throughput", &failures);
     });
 }

@@ -16,7 +16,10 @@
 //! missed, and it is deleted.
 //!
 //! Run: `cargo bench --bench logger` (`-- --seconds N --warmup N`,
-//! defaults 3 and 1).
+//! defaults 3 and 1; a smoke run, `CANDECK_BENCH_SMOKE`, has 0.2 and 0.05,
+//! and three of the seven logger levels). A
+//! level with a failed REST read, none answered, or a logger read error
+//! ends the run with status 1 after its row.
 
 mod common;
 
@@ -162,13 +165,20 @@ fn spawn_gateway() -> SocketAddr {
     ready_rx.recv().expect("gateway thread")
 }
 
-/// The REST reads' latencies (ns, sorted) and errors over the window.
-async fn rest_load(
-    address: SocketAddr,
-    clients: usize,
-    from: Instant,
-    until: Instant,
-) -> (Vec<u64>, u64) {
+/// What the REST clients saw.
+struct Rest {
+    /// Latencies (ns, sorted) of the reads in the window.
+    latencies: Vec<u64>,
+    /// Reads failed in the window.
+    errors: u64,
+    /// Reads answered 200 and failed, the last one that ended after the
+    /// window included.
+    answered: u64,
+    failed: u64,
+}
+
+/// The REST reads over the window, one client on each of `connections`.
+async fn rest_load(connections: Vec<Connection>, from: Instant, until: Instant) -> Rest {
     let requests: Arc<Vec<Vec<u8>>> = Arc::new(
         MIX.iter()
             .map(|(node, index, sub)| {
@@ -178,12 +188,12 @@ async fn rest_load(
             .collect(),
     );
     let mut workers = tokio::task::JoinSet::new();
-    for client in 0..clients {
+    for (client, mut connection) in connections.into_iter().enumerate() {
         let requests = requests.clone();
-        let mut connection = Connection::open(address).await;
         workers.spawn(async move {
             let mut latencies = Vec::new();
             let mut errors = 0u64;
+            let mut answered_and_failed = [0u64; 2];
             let mut n = client;
             loop {
                 let began = Instant::now();
@@ -193,6 +203,7 @@ async fn rest_load(
                 let (status, _) = connection.send(&requests[n % requests.len()]).await;
                 n += 1;
                 let ended = Instant::now();
+                answered_and_failed[usize::from(status != 200)] += 1;
                 if began >= from && ended <= until {
                     if status == 200 {
                         latencies.push((ended - began).as_nanos() as u64);
@@ -201,18 +212,24 @@ async fn rest_load(
                     }
                 }
             }
-            (latencies, errors)
+            (latencies, errors, answered_and_failed)
         });
     }
-    let mut latencies = Vec::new();
-    let mut errors = 0;
+    let mut rest = Rest {
+        latencies: Vec::new(),
+        errors: 0,
+        answered: 0,
+        failed: 0,
+    };
     while let Some(joined) = workers.join_next().await {
-        let (mut some, failed) = joined.expect("client");
-        latencies.append(&mut some);
-        errors += failed;
+        let (mut some, errors, [answered, failed]) = joined.expect("client");
+        rest.latencies.append(&mut some);
+        rest.errors += errors;
+        rest.answered += answered;
+        rest.failed += failed;
     }
-    latencies.sort_unstable();
-    (latencies, errors)
+    rest.latencies.sort_unstable();
+    rest
 }
 
 fn percentile_us(latencies: &[u64], p: f64) -> f64 {
@@ -236,13 +253,19 @@ fn logger_body(channels: usize, period_ms: u64, duration_s: u64) -> String {
     )
 }
 
+/// Runs and prints one level; why it failed, if it did.
 async fn level(
     address: SocketAddr,
     logger: Option<(usize, u64)>,
     clients: usize,
     options: Options,
-) {
+) -> Option<String> {
     let mut control = Connection::open(address).await;
+    // The REST clients' connections, open before the window.
+    let mut connections = Vec::new();
+    for _ in 0..clients {
+        connections.push(Connection::open(address).await);
+    }
     let total = options.warmup + options.measure;
     let id = match logger {
         Some((channels, period_ms)) => {
@@ -266,7 +289,8 @@ async fn level(
         ),
         None => None,
     };
-    let (latencies, errors) = rest_load(address, clients, from, until).await;
+    let rest = rest_load(connections, from, until).await;
+    let (latencies, errors) = (&rest.latencies, rest.errors);
     let seconds = options.measure.as_secs_f64();
     let (sampled, missed, channel_errors) = match (id, before) {
         (Some(id), Some(before)) => {
@@ -301,14 +325,24 @@ async fn level(
             n as f64 / seconds * logger.map_or(0.0, |(c, _)| c as f64)
         )),
         latencies.len() as f64 / seconds,
-        percentile_us(&latencies, 50.0),
-        percentile_us(&latencies, 99.0),
+        percentile_us(latencies, 50.0),
+        percentile_us(latencies, 99.0),
         errors,
     );
+    (rest.failed > 0 || rest.answered == 0 || channel_errors > 0).then(|| {
+        format!(
+            "{what}, {clients} REST clients: {} REST reads failed, {} answered; {channel_errors} logger read errors",
+            rest.failed, rest.answered
+        )
+    })
 }
 
 fn main() {
-    let options = Options::from_args(Duration::from_secs(1), Duration::from_secs(3));
+    common::announce_smoke("logger");
+    let options = Options::from_args(
+        common::pick(Duration::from_secs(1), Duration::from_millis(50)),
+        common::pick(Duration::from_secs(3), Duration::from_millis(200)),
+    );
     let address = spawn_gateway();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -333,9 +367,14 @@ fn main() {
         Some((4, 1)),
         Some((16, 1)),
     ];
+    // A smoke run: no logger, the most channels at each rate.
+    let smoke_levels = [levels[0], levels[3], levels[6]];
+    let levels = common::pick(&levels[..], &smoke_levels[..]);
+    let mut failures = Vec::new();
     for clients in CLIENTS {
-        for logger in levels {
-            runtime.block_on(level(address, logger, clients, options));
+        for &logger in levels {
+            failures.extend(runtime.block_on(level(address, logger, clients, options)));
         }
     }
+    common::exit_on_failures("logger", &failures);
 }

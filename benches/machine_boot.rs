@@ -8,7 +8,11 @@
 //! manager's, and the registry's identification reads beside them).
 //!
 //! Run: `cargo bench --bench machine_boot` (both bit rates: the virtual
-//! bus without a bit rate, software time only, and at 500 kbit/s).
+//! bus without a bit rate, software time only, and at 500 kbit/s). A smoke
+//! run (`CANDECK_BENCH_SMOKE`) has 4 nodes. A machine not ready within 60 s
+//! ends the run in a panic.
+
+mod common;
 
 use candeck::emulator::RackOf;
 use std::sync::Arc;
@@ -22,12 +26,12 @@ use candeck::gateway::profile::EdsCatalog;
 use candeck::gateway::registry::RegistryConfig;
 use candeck::sim::products::Product;
 
-/// Node ids 1 to this (`CANDECK_BENCH_NODES` for fewer).
+/// Node ids 1 to this (`CANDECK_BENCH_NODES` for fewer; 4 in a smoke run).
 fn nodes() -> u8 {
     std::env::var("CANDECK_BENCH_NODES")
         .ok()
         .and_then(|n| n.parse().ok())
-        .unwrap_or(126)
+        .unwrap_or(common::pick(126, 4))
 }
 const HEARTBEAT_MS: u16 = 200;
 
@@ -134,6 +138,7 @@ async fn run(spec: &str, dcf_path: &std::path::Path) -> Figures {
 }
 
 fn main() {
+    common::announce_smoke("machine_boot");
     // The runtime of the candeck binary: one thread.
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()

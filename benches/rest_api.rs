@@ -18,8 +18,18 @@
 //!   registry, on the server's runtime, without HTTP.
 //!
 //! Each level runs `--warmup` seconds unmeasured, then `--seconds` measured
-//! (defaults 1 and 3). Run: `cargo bench --bench rest_api` (or
-//! `scripts/bench`).
+//! (defaults 1 and 3; a smoke run, `CANDECK_BENCH_SMOKE`, has 0.05 and 0.1,
+//! and 1 and 16 clients only).
+//! Every answer must be 200: a level with a failed request, or none
+//! answered at all, ends the run with status 1 after its row. The requests are
+//! sent to the gateway's bound address (`Host: 127.0.0.1:PORT`), as a client
+//! of it does: the gateway answers other names 421 (`api::host`).
+//!
+//! The server thread's CPU per read is its CPU time over the window divided
+//! by the reads completed in it (`/proc/<pid>/task/<tid>/stat`, 10 ms
+//! ticks): the gateway's cost of one read, whatever the load.
+//!
+//! Run: `cargo bench --bench rest_api` (or `scripts/bench`).
 
 mod common;
 
@@ -37,7 +47,9 @@ use candeck::gateway::sdo::SdoChannel;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
+/// Clients per level; a smoke run leaves out 64 (the same code as 16).
 const LEVELS: [usize; 3] = [1, 16, 64];
+const SMOKE_LEVELS: [usize; 2] = [1, 16];
 
 /// The objects of the mix: (node, index, sub), read through REST as
 /// `/api/v1/buses/demo/nodes/{node}/od/0x{index:04X}/{sub}`.
@@ -55,6 +67,10 @@ const SINGLE: [(u8, u16, u8); 1] = [(1, 0x6041, 0)];
 struct Figures {
     completed: u64,
     errors: u64,
+    /// Requests answered 200 and requests failed in the whole level,
+    /// warm-up and requests across the window's edges included.
+    answered_in_level: u64,
+    failed_in_level: u64,
     seconds: f64,
     /// Every measured request's latency, in ns, sorted.
     latencies: Vec<u64>,
@@ -77,9 +93,15 @@ impl Figures {
         self.latencies[rank.clamp(1, self.latencies.len()) - 1] as f64 / 1_000.0
     }
 
-    fn row(&self, label: &str, clients: usize) {
+    /// CPU time of the server's thread per request completed, µs.
+    fn server_cpu_per_request_us(&self) -> f64 {
+        self.server_cpu * self.seconds / self.completed as f64 * 1e6
+    }
+
+    /// Prints the row; why the level failed, if it did.
+    fn row(&self, label: &str, clients: usize) -> Option<String> {
         println!(
-            "| {label} | {clients} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} % | {:.0} % | {} |",
+            "| {label} | {clients} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} % | {:.1} | {:.0} % | {} |",
             self.per_second(),
             self.percentile_us(50.0),
             self.percentile_us(90.0),
@@ -88,9 +110,18 @@ impl Figures {
                 .last()
                 .map_or(f64::NAN, |&ns| ns as f64 / 1_000.0),
             self.server_cpu * 100.0,
+            self.server_cpu_per_request_us(),
             self.client_cpu * 100.0,
             self.errors,
         );
+        if self.failed_in_level > 0 || self.answered_in_level == 0 {
+            Some(format!(
+                "{label}, {clients} clients: {} requests failed, {} answered (warm-up included)",
+                self.failed_in_level, self.answered_in_level
+            ))
+        } else {
+            None
+        }
     }
 }
 
@@ -140,6 +171,7 @@ where
         workers.spawn_local(async move {
             let mut latencies = Vec::new();
             let mut errors = 0u64;
+            let mut answered_and_failed = [0u64; 2];
             let mut n = client;
             loop {
                 let began = Instant::now();
@@ -149,6 +181,7 @@ where
                 let ok = op(client, n).await;
                 n += 1;
                 let ended = Instant::now();
+                answered_and_failed[usize::from(!ok)] += 1;
                 // Requests that began after the warm-up and ended within
                 // the window.
                 if began >= from && ended <= until {
@@ -159,7 +192,7 @@ where
                     }
                 }
             }
-            (latencies, errors)
+            (latencies, errors, answered_and_failed)
         });
     }
     tokio::time::sleep_until(from.into()).await;
@@ -168,16 +201,21 @@ where
     let cpu_until = (thread_cpu(server_task), thread_cpu(&client_task));
     let mut latencies = Vec::new();
     let mut errors = 0;
+    let mut in_level = [0u64; 2];
     while let Some(joined) = workers.join_next().await {
-        let (mut some, failed) = joined.expect("client task");
+        let (mut some, failed, [answered, failed_in_level]) = joined.expect("client task");
         latencies.append(&mut some);
         errors += failed;
+        in_level[0] += answered;
+        in_level[1] += failed_in_level;
     }
     latencies.sort_unstable();
     let seconds = options.measure.as_secs_f64();
     Figures {
         completed: latencies.len() as u64,
         errors,
+        answered_in_level: in_level[0],
+        failed_in_level: in_level[1],
         seconds,
         latencies,
         server_cpu: (cpu_until.0 - cpu_from.0).as_secs_f64() / seconds,
@@ -238,8 +276,9 @@ fn complete_response(buffer: &[u8]) -> Option<(u16, usize)> {
     (buffer.len() >= head_end + body).then_some((status, head_end + body))
 }
 
-fn get_request(path: &str) -> Vec<u8> {
-    format!("GET {path} HTTP/1.1\r\nHost: bench\r\n\r\n").into_bytes()
+/// A GET of `path` sent to `address`, named in `Host` as a client names it.
+fn get_request(address: SocketAddr, path: &str) -> Vec<u8> {
+    format!("GET {path} HTTP/1.1\r\nHost: {address}\r\n\r\n").into_bytes()
 }
 
 fn od_path(&(node, index, sub): &(u8, u16, u8)) -> String {
@@ -255,7 +294,8 @@ async fn http_level(
     options: Options,
     server_task: &str,
 ) -> Figures {
-    let requests: Arc<Vec<Vec<u8>>> = Arc::new(paths.iter().map(|p| get_request(p)).collect());
+    let requests: Arc<Vec<Vec<u8>>> =
+        Arc::new(paths.iter().map(|p| get_request(address, p)).collect());
     let mut connections = Vec::new();
     for _ in 0..clients {
         connections.push(Arc::new(tokio::sync::Mutex::new(
@@ -366,7 +406,12 @@ fn bare_sdo(
 }
 
 fn main() {
-    let options = Options::from_args(Duration::from_secs(1), Duration::from_secs(3));
+    common::announce_smoke("rest_api");
+    let options = Options::from_args(
+        common::pick(Duration::from_secs(1), Duration::from_millis(50)),
+        common::pick(Duration::from_secs(3), Duration::from_millis(100)),
+    );
+    let levels = common::pick(&LEVELS[..], &SMOKE_LEVELS[..]);
     // `--only TEXT`: the rows whose "what clients" contains TEXT (to
     // profile one of them).
     let only = std::env::args().skip_while(|arg| arg != "--only").nth(1);
@@ -389,15 +434,18 @@ fn main() {
     local.block_on(&runtime, async {
         let mut connection = Connection::open(address).await;
         for object in &MIX {
-            let status = connection.get(&get_request(&od_path(object))).await;
+            let status = connection
+                .get(&get_request(address, &od_path(object)))
+                .await;
             assert_eq!(status, 200, "{}", od_path(object));
         }
     });
     println!();
     println!(
-        "| what | clients | reads/s | p50 µs | p90 µs | p99 µs | max µs | server thread CPU | client thread CPU | errors |"
+        "| what | clients | reads/s | p50 µs | p90 µs | p99 µs | max µs | server thread CPU | server thread CPU µs per read | client thread CPU | errors |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut failures = Vec::new();
     let mut rest_p50 = [f64::NAN; 2];
     let mut bare_p50 = [f64::NAN; 2];
     for (k, (label, objects)) in [
@@ -408,19 +456,19 @@ fn main() {
     .enumerate()
     {
         let paths: Vec<String> = objects.iter().map(od_path).collect();
-        for clients in LEVELS.into_iter().filter(|&c| wanted(label, c)) {
+        for clients in levels.iter().copied().filter(|&c| wanted(label, c)) {
             let figures = local.block_on(
                 &runtime,
                 http_level(address, &paths, clients, options, &server_task),
             );
-            figures.row(label, clients);
+            failures.extend(figures.row(label, clients));
             if clients == 1 {
                 rest_p50[k] = figures.percentile_us(50.0);
             }
         }
     }
     let health = "REST GET /health (no SDO)";
-    for clients in LEVELS.into_iter().filter(|&c| wanted(health, c)) {
+    for clients in levels.iter().copied().filter(|&c| wanted(health, c)) {
         let figures = local.block_on(
             &runtime,
             http_level(
@@ -431,7 +479,7 @@ fn main() {
                 &server_task,
             ),
         );
-        figures.row(health, clients);
+        failures.extend(figures.row(health, clients));
     }
     for (k, (label, objects)) in [
         ("bare SDO node 1 0x6041/0", &SINGLE[..]),
@@ -440,9 +488,9 @@ fn main() {
     .into_iter()
     .enumerate()
     {
-        for clients in LEVELS.into_iter().filter(|&c| wanted(label, c)) {
+        for clients in levels.iter().copied().filter(|&c| wanted(label, c)) {
             let figures = bare_sdo(&gateway, objects, clients, options);
-            figures.row(label, clients);
+            failures.extend(figures.row(label, clients));
             if clients == 1 {
                 bare_p50[k] = figures.percentile_us(50.0);
             }
@@ -457,4 +505,5 @@ fn main() {
             rest_p50[k] - bare_p50[k]
         );
     }
+    common::exit_on_failures("rest_api", &failures);
 }

@@ -5,8 +5,13 @@
 //! - over candeck's socketcand server on loopback (candeck's SdoChannel);
 //! - over the same socketcand server, python-canopen's RemoteNode.
 //!
-//! Run: `scripts/bench` (or `cargo bench --bench sdo` with
-//! `CANDECK_PYTHON=.venv/bin/python` for python-canopen).
+//! Run: `scripts/bench` (or `cargo bench --bench sdo`; python-canopen's
+//! row uses `.venv` or `CANDECK_PYTHON`, and is skipped without them unless
+//! `CANDECK_REQUIRE_PEERS` is set). A smoke run (`CANDECK_BENCH_SMOKE`) does
+//! a few hundred uploads a row. A failed python-canopen run ends the run
+//! with status 1.
+
+mod common;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -168,8 +173,8 @@ fn bus_rows(runtime: &tokio::runtime::Runtime, flavour: &str, port: u16) {
         over_channel(
             &format!("candeck, in-process virtual bus, {flavour}"),
             hub.attach(),
-            100_000,
-            1_000,
+            common::pick(100_000, 500),
+            common::pick(1_000, 10),
         )
         .await
         .print();
@@ -180,29 +185,31 @@ fn bus_rows(runtime: &tokio::runtime::Runtime, flavour: &str, port: u16) {
         over_channel(
             &format!("candeck, socketcand on loopback, {flavour}"),
             remote,
-            20_000,
-            300,
+            common::pick(20_000, 200),
+            common::pick(300, 5),
         )
         .await
         .print();
     });
 }
 
-async fn python_row(port: u16) {
-    let Ok(python) = std::env::var("CANDECK_PYTHON") else {
-        println!("| python-canopen | skipped: set CANDECK_PYTHON | |");
-        return;
+/// python-canopen's row; why it failed, if it did.
+async fn python_row(port: u16) -> Result<(), String> {
+    let Some(python) = common::peers::python("sdo, python-canopen row") else {
+        println!("| python-canopen | skipped: no Python peers | |");
+        return Ok(());
     };
     let eds = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/testnode.eds");
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/python_sdo_reader.py");
-    let output = tokio::process::Command::new(python)
+    let counts = common::pick(["2000", "50"], ["100", "5"]);
+    let output = tokio::process::Command::new(&python)
         .arg(script)
         .args(["127.0.0.1", &port.to_string(), "can0", "5"])
         .arg(eds)
-        .args(["2000", "50"])
+        .args(counts)
         .output()
         .await
-        .expect("python runs");
+        .map_err(|err| format!("{}: {err}", python.display()))?;
     let text = String::from_utf8_lossy(&output.stdout);
     let numbers: Vec<f64> = text
         .split_whitespace()
@@ -215,14 +222,15 @@ async fn python_row(port: u16) {
             segmented_bytes_per_s: *segmented,
         }
         .print();
+        Ok(())
     } else {
-        println!(
-            "| python-canopen | failed: {} | |",
+        println!("| python-canopen | failed | |");
+        Err(format!(
+            "python-canopen ({}): {}{}",
+            output.status,
+            text,
             String::from_utf8_lossy(&output.stderr)
-                .lines()
-                .last()
-                .unwrap_or("")
-        );
+        ))
     }
 }
 
@@ -261,22 +269,24 @@ fn tcp_round_trips(count: u32) -> f64 {
 }
 
 fn main() {
+    common::announce_smoke("sdo");
     println!(
         "TCP round trips between two threads on loopback (the floor of one SDO exchange): {:.0}/s",
-        tcp_round_trips(20_000)
+        tcp_round_trips(common::pick(20_000, 500))
     );
     println!();
     println!("| client and path | expedited uploads/s | segmented upload, bytes/s |");
     println!("|---|---|---|");
-    state_machines(200_000, 2_000).print();
+    state_machines(common::pick(200_000, 1_000), common::pick(2_000, 10)).print();
     let (port, stop) = spawn_server_thread();
     let current = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .expect("runtime");
     bus_rows(&current, "current-thread runtime (the binary's)", port);
-    current.block_on(python_row(port));
+    let python = current.block_on(python_row(port));
     let multi = tokio::runtime::Runtime::new().expect("runtime");
     bus_rows(&multi, "tokio multi-thread runtime", port);
     let _ = stop.send(());
+    common::exit_on_failures("sdo", &python.err().into_iter().collect::<Vec<_>>());
 }

@@ -41,7 +41,16 @@
 //! `GET /health` round trip around it (sampled every 500 ms: seconds there
 //! mean the gateway was starved of CPU, not that the drive hung).
 //!
+//! Also non-zero: a request with no answer (transport error), a WebSocket
+//! that failed or that the server ended, a load task that panicked, or no
+//! request at all.
+//!
 //! Run: `cargo bench --bench soak -- --minutes 30` (not in CI: it is long).
+//! A smoke run (`CANDECK_BENCH_SMOKE`, as `scripts/test` runs every
+//! benchmark) lasts 2 s, and asks of each value topic one message instead of
+//! half the rate.
+
+mod common;
 
 use std::collections::{BTreeMap, HashSet};
 use std::fmt::Write as _;
@@ -323,6 +332,14 @@ fn pause(ms: u64) -> tokio::time::Sleep {
     tokio::time::sleep(Duration::from_millis(ms))
 }
 
+/// [`pause`], ended at `until` at the latest: a task's cycle that runs past
+/// the end of the run finishes without its waits.
+fn pause_until(ms: u64, until: Instant) -> tokio::time::Sleep {
+    tokio::time::sleep(
+        Duration::from_millis(ms).min(until.saturating_duration_since(Instant::now())),
+    )
+}
+
 /// Reads of every kind, as a dashboard and a supervisor would make them.
 async fn reader(client: Client, seed: u64, until: Instant) {
     let mut rng = Rng(seed);
@@ -362,7 +379,7 @@ async fn reader(client: Client, seed: u64, until: Instant) {
                 )
                 .await;
         }
-        pause(20 + rng.below(60)).await;
+        pause_until(20 + rng.below(60), until).await;
     }
 }
 
@@ -391,7 +408,7 @@ async fn od_writer(client: Client, seed: u64, until: Instant) {
         client
             .get(&format!("/buses/demo/nodes/{node}/od/{index}/0"))
             .await;
-        pause(100 + rng.below(200)).await;
+        pause_until(100 + rng.below(200), until).await;
     }
 }
 
@@ -411,7 +428,7 @@ async fn leds(client: Client, seed: u64, until: Instant) {
                        "colors": [color, "#000010", null], "speed": rng.below(5)}),
             )
             .await;
-        pause(150 + rng.below(300)).await;
+        pause_until(150 + rng.below(300), until).await;
     }
 }
 
@@ -438,7 +455,7 @@ async fn drive(client: Client, node: u8, axis: u8, seed: u64, until: Instant) {
             .await;
         for _ in 0..3 {
             client.get(&base).await;
-            pause(300).await;
+            pause_until(300, until).await;
         }
         let answer = client
             .post(
@@ -457,10 +474,10 @@ async fn drive(client: Client, node: u8, axis: u8, seed: u64, until: Instant) {
                     .stats
                     .leases_lapsed_on_purpose
                     .fetch_add(1, Ordering::Relaxed);
-                pause(3 * LEASE_MS).await;
+                pause_until(3 * LEASE_MS, until).await;
             } else {
                 for _ in 0..(3 + rng.below(5)) {
-                    pause(LEASE_MS / 3).await;
+                    pause_until(LEASE_MS / 3, until).await;
                     if let Some((200, _)) = client
                         .post(&format!("{base}/lease"), json!({ "lease": lease }))
                         .await
@@ -481,7 +498,7 @@ async fn drive(client: Client, node: u8, axis: u8, seed: u64, until: Instant) {
                 )
                 .await;
         }
-        pause(200 + rng.below(500)).await;
+        pause_until(200 + rng.below(500), until).await;
     }
 }
 
@@ -498,7 +515,7 @@ async fn health(client: Client, until: Instant) {
                 .unwrap()
                 .push((sent, sent.elapsed()));
         }
-        pause(500).await;
+        pause_until(500, until).await;
     }
 }
 
@@ -506,7 +523,11 @@ async fn health(client: Client, until: Instant) {
 async fn supervisor(client: Client, seed: u64, until: Instant) {
     let mut rng = Rng(seed);
     while Instant::now() < until {
-        pause(5_000 + rng.below(10_000)).await;
+        // Its wait ends with the run: a short run does not wait for it.
+        pause_until(5_000 + rng.below(10_000), until).await;
+        if Instant::now() >= until {
+            break;
+        }
         match rng.below(3) {
             0 => {
                 client.post("/stop-all", json!({})).await;
@@ -518,7 +539,7 @@ async fn supervisor(client: Client, seed: u64, until: Instant) {
                         json!({"command": "pre_operational"}),
                     )
                     .await;
-                pause(1_000).await;
+                pause_until(1_000, until).await;
                 client
                     .post("/buses/demo/nodes/2/nmt", json!({"command": "start"}))
                     .await;
@@ -539,7 +560,7 @@ async fn faults(client: Client, seed: u64, until: Instant) {
     let stats = client.stats.clone();
     let mut round = 0;
     while Instant::now() + Duration::from_secs(30) < until {
-        pause(4_000 + rng.below(8_000)).await;
+        pause_until(4_000 + rng.below(8_000), until).await;
         // In turn, so that a short run has each of them.
         round += 1;
         match round % 4 {
@@ -551,7 +572,7 @@ async fn faults(client: Client, seed: u64, until: Instant) {
                     .send("DELETE", "/buses/demo/sim/nodes/3", None, "")
                     .await;
                 stats.unplugs.fetch_add(1, Ordering::Relaxed);
-                pause(4_000 + rng.below(6_000)).await;
+                pause_until(4_000 + rng.below(6_000), until).await;
                 client
                     .post(
                         "/buses/demo/sim/nodes",
@@ -571,7 +592,7 @@ async fn faults(client: Client, seed: u64, until: Instant) {
                 if let Some((204, _)) = client.post(&path, json!({ "kind": kind })).await {
                     stats.faults_injected.fetch_add(1, Ordering::Relaxed);
                 }
-                pause(2_000 + rng.below(4_000)).await;
+                pause_until(2_000 + rng.below(4_000), until).await;
                 client
                     .send(
                         "DELETE",
@@ -647,7 +668,7 @@ async fn malformed(client: Client, seed: u64, until: Instant) {
                     .await
             }
         }
-        pause(500 + rng.below(1_000)).await;
+        pause_until(500 + rng.below(1_000), until).await;
     }
 }
 
@@ -686,7 +707,7 @@ async fn ws_reader(address: String, stats: Arc<Stats>, until: Instant) {
             Err(err) => {
                 eprintln!("soak: stream: {err}");
                 stats.ws_errors.fetch_add(1, Ordering::Relaxed);
-                pause(1_000).await;
+                pause_until(1_000, until).await;
                 continue;
             }
         };
@@ -735,7 +756,8 @@ async fn ws_churn(address: String, stats: Arc<Stats>, seed: u64, until: Instant)
         let topic = TOPICS[rng.below(TOPICS.len() as u64) as usize];
         match subscribe(&address, &[topic, "nodes"]).await {
             Ok(mut socket) => {
-                let read_for = Duration::from_millis(100 + rng.below(2_000));
+                let read_for = Duration::from_millis(100 + rng.below(2_000))
+                    .min(until.saturating_duration_since(Instant::now()));
                 let _ = tokio::time::timeout(read_for, async {
                     while let Some(Ok(_)) = socket.next().await {
                         stats.ws_messages.fetch_add(1, Ordering::Relaxed);
@@ -751,7 +773,7 @@ async fn ws_churn(address: String, stats: Arc<Stats>, seed: u64, until: Instant)
                 stats.ws_errors.fetch_add(1, Ordering::Relaxed);
             }
         }
-        pause(50 + rng.below(300)).await;
+        pause_until(50 + rng.below(300), until).await;
     }
 }
 
@@ -819,11 +841,12 @@ fn minutes_arg() -> f64 {
         .position(|arg| arg == "--minutes")
         .and_then(|i| args.get(i + 1))
         .and_then(|value| value.parse().ok())
-        .unwrap_or(30.0)
+        .unwrap_or(common::pick(30.0, 2.0 / 60.0))
 }
 
 #[tokio::main]
 async fn main() {
+    common::announce_smoke("soak");
     let minutes = minutes_arg();
     let duration = Duration::from_secs_f64(minutes * 60.0);
     let dir = std::env::temp_dir().join(format!("candeck-soak-{}", std::process::id()));
@@ -934,7 +957,7 @@ async fn main() {
             let mut samples = Vec::new();
             let mut minute = 0;
             while !done.load(Ordering::Relaxed) {
-                tokio::time::sleep(Duration::from_secs(1)).await;
+                tokio::time::sleep(Duration::from_millis(100)).await;
                 if start.elapsed().as_secs() >= (minute + 1) * 60 {
                     minute += 1;
                     let rss = rss_kb(pid).unwrap_or(0);
@@ -949,9 +972,11 @@ async fn main() {
             samples
         })
     };
+    let mut tasks_failed = 0;
     for task in tasks {
         if let Err(err) = task.await {
             eprintln!("soak: a load task failed: {err}");
+            tasks_failed += 1;
         }
     }
     done.store(true, Ordering::Relaxed);
@@ -967,7 +992,14 @@ async fn main() {
     drop(gateway);
     let gateway_log = std::fs::read_to_string(&log_path).unwrap_or_default();
 
-    let ok = report(&stats, elapsed, &rss_samples, audit, &gateway_log);
+    let ok = report(
+        &stats,
+        elapsed,
+        &rss_samples,
+        audit,
+        &gateway_log,
+        tasks_failed,
+    );
     if ok {
         let _ = std::fs::remove_dir_all(&dir);
     } else {
@@ -986,6 +1018,7 @@ fn report(
     rss: &[(u64, u64)],
     audit: Result<Vec<Json>, String>,
     gateway_log: &str,
+    tasks_failed: usize,
 ) -> bool {
     let mut ok = true;
     let mut out = String::new();
@@ -1268,14 +1301,43 @@ fn report(
             let _ = writeln!(out, "  {line}");
         }
     }
+    if total == 0 {
+        ok = false;
+        let _ = writeln!(out, "\nFAIL: no request was answered");
+    }
+    let transport = count(Outcome::Transport);
+    if transport > 0 {
+        ok = false;
+        let _ = writeln!(
+            out,
+            "\nFAIL: {transport} requests got no answer (transport errors, on stderr)"
+        );
+    }
+    let ws_errors = stats.ws_errors.load(Ordering::Relaxed);
+    if ws_errors > 0 {
+        ok = false;
+        let _ = writeln!(
+            out,
+            "\nFAIL: {ws_errors} WebSocket connections failed or were ended by the server (on stderr)"
+        );
+    }
+    if tasks_failed > 0 {
+        ok = false;
+        let _ = writeln!(
+            out,
+            "\nFAIL: {tasks_failed} load tasks panicked (on stderr)"
+        );
+    }
     // Each steady reader asked 20 Hz of every value topic: a topic far
     // below that stalled (or was refused). The LED preview gets less while
-    // its node is unplugged; half the rate is still far above a stall.
+    // its node is unplugged; half the rate is still far above a stall. A
+    // smoke run is too short for a rate: one message shows the topic works.
     let expected = (20.0 * elapsed.as_secs_f64() * 3.0) as u64;
+    let least = common::pick(expected / 2, 1);
     let topics = stats.ws_topics.lock().unwrap();
     for topic in TOPICS.iter().filter(|topic| topic.contains("/nodes/")) {
         let n = topics.get(*topic).copied().unwrap_or(0);
-        if n < expected / 2 {
+        if n < least {
             ok = false;
             let _ = writeln!(
                 out,

@@ -17,7 +17,11 @@
 //! edge node (messages, metrics, drops) are printed.
 //!
 //! Run: `cargo bench --bench sparkplug -- --nodes 127 --gateways 1 --tick-ms 10 --seconds 20 --warmup 5`
-//! (`--tick-ms`: the gateways' `sparkplug_publish_tick_ms`).
+//! (`--tick-ms`: the gateways' `sparkplug_publish_tick_ms`). A smoke run
+//! (`CANDECK_BENCH_SMOKE`) has 2 drives, 0.5 s of warm-up and 1 s measured.
+//! Without `mosquitto` it is skipped (said on stderr), unless
+//! `CANDECK_REQUIRE_PEERS` is set; no DDATA metric received in the window
+//! ends the run with status 1.
 
 mod common;
 
@@ -215,12 +219,13 @@ impl Line {
             );
             std::thread::sleep(Duration::from_millis(200));
         }
-        http(
+        let (status, body) = http(
             addr,
             "POST",
             "/buses/bench/nmt",
             Some("{\"command\":\"pre_operational\"}"),
         );
+        assert!(status < 300, "NMT pre_operational: {status} {body}");
         for id in 1..=nodes {
             for (tpdo, axis) in [(3, "0x60"), (4, "0x68")] {
                 let body = format!(
@@ -242,12 +247,13 @@ impl Line {
                 );
             }
         }
-        http(
+        let (status, body) = http(
             addr,
             "POST",
             "/buses/bench/nmt",
             Some("{\"command\":\"start\"}"),
         );
+        assert!(status < 300, "NMT start: {status} {body}");
         for id in 1..=nodes {
             for axis in 1..=2 {
                 let base = format!("/buses/bench/nodes/{id}/axes/{axis}");
@@ -289,15 +295,15 @@ impl Line {
 }
 
 fn main() {
-    let options = common::Options::from_args(Duration::from_secs(5), Duration::from_secs(20));
-    let nodes: u8 = arg("--nodes", 127);
+    common::announce_smoke("sparkplug");
+    let options = common::Options::from_args(
+        common::pick(Duration::from_secs(5), Duration::from_millis(500)),
+        common::pick(Duration::from_secs(20), Duration::from_secs(1)),
+    );
+    let nodes: u8 = arg("--nodes", common::pick(127, 2));
     let lines_wanted: usize = arg("--gateways", 1);
     let tick_ms: u64 = arg("--tick-ms", 10);
-    let mosquitto = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
-        .into_iter()
-        .find(|path| std::path::Path::new(path).exists());
-    let Some(mosquitto) = mosquitto else {
-        eprintln!("sparkplug bench: no mosquitto (Debian: apt-get install mosquitto): skipped");
+    let Some(mosquitto) = common::peers::mosquitto("sparkplug bench") else {
         return;
     };
     let dir = std::env::temp_dir().join(format!("candeck-spb-bench-{}", std::process::id()));
@@ -439,5 +445,9 @@ fn main() {
     drop(broker);
     drop(subscriber);
     std::fs::remove_dir_all(&dir).ok();
+    if counts.metrics == 0 {
+        eprintln!("sparkplug: FAIL: no DDATA metric reached the subscriber in the window");
+        std::process::exit(1);
+    }
     std::process::exit(0);
 }

@@ -26,7 +26,11 @@
 //! `lagged` notices: none expected); the gateway process's CPU (utime +
 //! stime from `/proc/<pid>/stat`) and resident memory.
 //!
-//! Run: `cargo bench --bench stream_fanout` (or `scripts/bench`).
+//! Run: `cargo bench --bench stream_fanout` (or `scripts/bench`). A smoke
+//! run (`CANDECK_BENCH_SMOKE`) has 8 clients, 0.3 s of warm-up and 0.5 s
+//! measured. The run ends with status 1 when the nodes are not identified,
+//! a remap fails, a client got an error reply or no values message, or no
+//! frame was sent or seen on the frames topic.
 
 mod common;
 // The HTTP helpers of the tests against the binary.
@@ -48,7 +52,6 @@ use serde_json::{Value as Json, json};
 use tokio_tungstenite::tungstenite::Message;
 
 const NODES: u8 = 8;
-const CLIENTS: usize = 100;
 const FRAMES_PER_SECOND: u64 = 8_000;
 const EMCY_PER_SECOND: u64 = 10;
 const RATE_HZ: f64 = 50.0;
@@ -288,7 +291,12 @@ fn percentile(sorted: &[u64], p: f64) -> u64 {
 }
 
 fn main() {
-    let options = Options::from_args(Duration::from_secs(2), Duration::from_secs(10));
+    common::announce_smoke("stream_fanout");
+    let options = Options::from_args(
+        common::pick(Duration::from_secs(2), Duration::from_millis(300)),
+        common::pick(Duration::from_secs(10), Duration::from_millis(500)),
+    );
+    let client_count: usize = common::pick(100, usize::from(NODES));
     let devices: Vec<String> = (1..=NODES).map(|n| format!("umc1bds32@{n}")).collect();
     let devices = devices.join(",");
     let (_vbus, line) = spawn(&[
@@ -321,9 +329,10 @@ fn main() {
         .unwrap();
     runtime.block_on(async move {
         // The eight nodes, identified.
+        let mut identified = 0;
         for _ in 0..300 {
             let (_, nodes) = json(&address, "POST", "/api/v1/buses/bench/scan", None).await;
-            let identified = nodes
+            identified = nodes
                 .as_array()
                 .map_or(0, |nodes| nodes.iter().filter(|n| n["profile"] == "umc").count());
             if identified == usize::from(NODES) {
@@ -331,6 +340,7 @@ fn main() {
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
+        assert_eq!(identified, usize::from(NODES), "nodes identified as UMC within 30 s");
         for node in 1..=NODES {
             let (status, body) = json(
                 &address,
@@ -348,7 +358,7 @@ fn main() {
         let frames_sent = Arc::new(AtomicU64::new(0));
         // The first and last EMCY sent in the window.
         let emcy_window = Arc::new((AtomicU64::new(u64::MAX), AtomicU64::new(0)));
-        let clients: Vec<_> = (0..CLIENTS)
+        let clients: Vec<_> = (0..client_count)
             .map(|i| {
                 tokio::spawn(client(
                     address.clone(),
@@ -390,7 +400,7 @@ fn main() {
         let cpu = (process_cpu(pid) - cpu_start).as_secs_f64() / seconds;
         let rss_end = rss_kib(pid);
         // EMCYs sent at the end of the window are still on their way.
-        tokio::time::sleep(Duration::from_millis(500)).await;
+        tokio::time::sleep(common::pick(Duration::from_millis(500), Duration::from_millis(200))).await;
         done.store(true, Ordering::Relaxed);
         let mut figures = Vec::new();
         for client in clients {
@@ -416,7 +426,7 @@ fn main() {
         let lagged: u64 = figures.iter().map(|f| f.lagged).sum();
         let errors: u64 = figures.iter().map(|f| f.errors).sum();
         println!(
-            "{CLIENTS} clients, {NODES} nodes, {:.1} s measured after {:.1} s warm-up\n",
+            "{client_count} clients, {NODES} nodes, {:.1} s measured after {:.1} s warm-up\n",
             seconds,
             options.warmup.as_secs_f64()
         );
@@ -448,5 +458,20 @@ fn main() {
         );
         println!("| gateway CPU (process) | {:.0} % of one core |", cpu * 100.0);
         println!("| gateway resident memory | {} KiB at start, {} KiB at end of window |", rss_start, rss_end);
+        let mut failures = Vec::new();
+        if frames == 0 {
+            failures.push("the generator sent no frame in the window".to_string());
+        }
+        if errors > 0 {
+            failures.push(format!("{errors} error replies to the clients"));
+        }
+        let silent = figures.iter().filter(|f| f.values == 0).count();
+        if silent > 0 {
+            failures.push(format!("{silent} of {client_count} clients got no values message"));
+        }
+        if probe.is_empty() {
+            failures.push("the frames topic delivered no frame".to_string());
+        }
+        common::exit_on_failures("stream_fanout", &failures);
     });
 }

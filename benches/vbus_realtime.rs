@@ -12,7 +12,11 @@
 //! late (the process logs it when it stops).
 //!
 //! Run: `cargo bench --bench vbus_realtime` (or `scripts/bench`);
-//! `-- --seconds 60` for a longer run.
+//! `-- --seconds 60` for a longer run. A smoke run (`CANDECK_BENCH_SMOKE`)
+//! has one device of each product and measures 0.5 s. A device that sent no
+//! heartbeat or no TPDO1 in the window ends the run with status 1.
+
+mod common;
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read};
@@ -116,12 +120,15 @@ async fn configure(bus: &Bus, node: NodeId) -> Result<(), String> {
 }
 
 fn main() {
-    let seconds: u64 = std::env::args()
+    common::announce_smoke("vbus_realtime");
+    let seconds: f64 = std::env::args()
         .skip_while(|arg| arg != "--seconds")
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .unwrap_or(20);
-    let devices: Vec<String> = (1..=127u8)
+        .unwrap_or(common::pick(20.0, 0.5));
+    // Node ids 1 to this, the products in turn.
+    let count: u8 = common::pick(127, PRODUCTS.len() as u8);
+    let devices: Vec<String> = (1..=count)
         .map(|node| format!("{}@{node}", product_of(node)))
         .collect();
     let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
@@ -154,7 +161,7 @@ fn main() {
     let (counts, elapsed, cpu, rss, hwm) = runtime.block_on(async {
         let bus = open_socketcand("can0", ClientConfig::new("127.0.0.1", port, "can0"));
         bus.wait_up(Duration::from_secs(5)).await.expect("bus up");
-        for node in 1..=127u8 {
+        for node in 1..=count {
             let node = NodeId::new(node).expect("node id");
             if let Err(err) = configure(&bus, node).await {
                 panic!("configuring {node}: {err}");
@@ -168,7 +175,7 @@ fn main() {
         while let Ok(Some(_)) = frames.try_recv() {}
         let (cpu_start, _, _) = process_usage(pid);
         let started = Instant::now();
-        let until = tokio::time::Instant::now() + Duration::from_secs(seconds);
+        let until = tokio::time::Instant::now() + Duration::from_secs_f64(seconds);
         let mut counts: BTreeMap<(u8, &'static str), u64> = BTreeMap::new();
         loop {
             match tokio::time::timeout_at(until, frames.recv()).await {
@@ -210,13 +217,13 @@ fn main() {
         .find(|line| line.contains("simulation:"))
         .unwrap_or("(no simulation figures in the log)");
 
-    println!("## vbus: 127 devices, {seconds} s measured\n");
+    println!("## vbus: {count} devices, {seconds} s measured\n");
     println!(
         "| product | devices | heartbeats/s per device (min · mean · max) | TPDO1/s per device (min · mean · max) |"
     );
     println!("|---|---|---|---|");
     for product in PRODUCTS {
-        let nodes: Vec<u8> = (1..=127u8).filter(|n| product_of(*n) == product).collect();
+        let nodes: Vec<u8> = (1..=count).filter(|n| product_of(*n) == product).collect();
         let rate = |kind: &'static str| {
             let rates: Vec<f64> = nodes
                 .iter()
@@ -254,4 +261,10 @@ fn main() {
     {
         println!("- vbus log: {}", line.trim());
     }
+    let silent: Vec<String> = (1..=count)
+        .flat_map(|node| ["heartbeat", "tpdo1"].map(|kind| (node, kind)))
+        .filter(|key| !counts.contains_key(key))
+        .map(|(node, kind)| format!("node {node} ({}) sent no {kind}", product_of(node)))
+        .collect();
+    common::exit_on_failures("vbus_realtime", &silent);
 }

@@ -5,9 +5,13 @@
 //! and the process's CPU while a timed hub is saturated, against an
 //! unlimited hub carrying the same frames.
 //!
-//! Run: `cargo bench --bench vbus_wire` (`-- --seconds N` for longer runs).
-//! One tokio current-thread runtime, one sender that keeps its transmit
-//! queue full, one receiver; real time, not a paused clock.
+//! Run: `cargo bench --bench vbus_wire` (`-- --seconds N` for longer runs;
+//! 0.1 s a row and 10,000 frames for the `Wire` in a smoke run,
+//! `CANDECK_BENCH_SMOKE`). One tokio current-thread runtime, one sender that
+//! keeps its transmit queue full, one receiver; real time, not a paused
+//! clock. A row whose receiver got no frame ends the run with status 1.
+
+mod common;
 
 use std::time::{Duration, Instant};
 
@@ -74,11 +78,13 @@ async fn saturate(hub: VirtualHub, seconds: f64) -> Run {
 }
 
 fn main() {
+    common::announce_smoke("vbus_wire");
     let seconds = std::env::args()
         .skip_while(|a| a != "--seconds")
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .unwrap_or(2.0);
+        .unwrap_or(common::pick(2.0, 0.1));
+    let mut failures = Vec::new();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -96,6 +102,9 @@ fn main() {
             )
             .await
         });
+        if run.frames == 0 {
+            failures.push(format!("{} kbit/s: no frame received", rate / 1000));
+        }
         let measured = run.frames as f64 / run.wall.as_secs_f64();
         let arithmetic = f64::from(rate) / f64::from(bits);
         println!(
@@ -112,6 +121,9 @@ fn main() {
         )
         .await
     });
+    if unlimited.frames == 0 {
+        failures.push("unlimited: no frame received".to_string());
+    }
     println!(
         "| unlimited | - | {:.0} | - | {:.1} % |",
         unlimited.frames as f64 / unlimited.wall.as_secs_f64(),
@@ -119,7 +131,7 @@ fn main() {
     );
 
     // The model alone: queue and carry 1,000,000 frames from 4 senders.
-    let n = 1_000_000u64;
+    let n: u64 = common::pick(1_000_000, 10_000);
     let mut wire = Wire::new(Bitrate::bits_per_second(1_000_000));
     let t0 = Instant::now();
     let start = Instant::now();
@@ -141,4 +153,5 @@ fn main() {
         elapsed.as_secs_f64(),
         elapsed.as_nanos() as f64 / n as f64
     );
+    common::exit_on_failures("vbus_wire", &failures);
 }

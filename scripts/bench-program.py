@@ -4,16 +4,19 @@ virtual UIO1LED by the gateway (virtual bus, then socketcand) and by
 python-canopen on the same device. Run from the repository root:
 `scripts/bench-program.py target/release/candeck [BITRATE]` with
 python-canopen installed; BITRATE (default the virtual bus's 500000, or
-`unlimited`: frames cross at once) is the wire timing of both virtual buses."""
-import json, re, socket, subprocess, sys, time, urllib.request, zlib, struct
+`unlimited`: frames cross at once) is the wire timing of both virtual buses.
+CANDECK_BENCH_SMOKE=1 (scripts/bench's smoke run): a 4 KiB image. Any failed
+request or download ends it with an exception, status 1."""
+import json, os, re, socket, subprocess, sys, time, urllib.request, zlib, struct
 import canopen
 BIN = sys.argv[1]
 BITRATE = sys.argv[2] if len(sys.argv) > 2 else None
+SMOKE = os.environ.get("CANDECK_BENCH_SMOKE", "") not in ("", "0")
 def free():
     s = socket.socket(); s.bind(("127.0.0.1", 0)); p = s.getsockname()[1]; s.close(); return p
 version = b"1.0"
 image = b"CDKI" + bytes([len(version)]) + version
-image += bytes((i * 2654435761 >> 24) & 0xFF for i in range(64 * 1024 - len(image)))
+image += bytes((i * 2654435761 >> 24) & 0xFF for i in range((4 if SMOKE else 64) * 1024 - len(image)))
 def post(port, node):
     req = urllib.request.Request(f"http://127.0.0.1:{port}/api/v1/buses/demo/nodes/{node}/program", data=image, method="POST",
                                  headers={"content-type": "application/octet-stream"})
