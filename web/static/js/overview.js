@@ -244,6 +244,9 @@ function renderNodes() {
 const machineBody = $('#machine tbody');
 const machineStates = $('#machine-states');
 const machines = new Map(); // bus -> the machine as GET /buses/{bus}/machine gives it
+// Machine events seen by bus: a GET answered after an event of the stream
+// is older than it, and must not put an old state back.
+const machineEvents = new Map();
 
 const MACHINE_BADGE = { ready: 'ok', booting: 'warn', degraded: 'bad', down: 'bad' };
 const NODE_BADGE = {
@@ -254,7 +257,9 @@ const NODE_BADGE = {
 async function loadMachines(list) {
   await Promise.all(list.map(async ({ name }) => {
     try {
-      machines.set(name, await api(`/buses/${encodeURIComponent(name)}/machine`));
+      const seen = machineEvents.get(name) || 0;
+      const machine = await api(`/buses/${encodeURIComponent(name)}/machine`);
+      if ((machineEvents.get(name) || 0) === seen) machines.set(name, machine);
       problem(`machine ${name}`, null);
     } catch (error) {
       // A bus without a network manager has no machine to show.
@@ -310,6 +315,7 @@ function renderMachines() {
 stream.subscribe(['machine'], (data, message) => {
   if (message.lagged) return lagged(message);
   const { bus, ...machine } = data;
+  machineEvents.set(bus, (machineEvents.get(bus) || 0) + 1);
   const old = machines.get(bus);
   if (old && old.state !== machine.state) addEvent(message.ts, `${bus}: machine ${old.state} → ${machine.state}`, machine.state === 'ready' ? 'info' : 'warn');
   machines.set(bus, machine);
