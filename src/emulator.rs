@@ -25,23 +25,7 @@ pub async fn open_bus(
     config: RegistryConfig,
     bitrate: u32,
 ) -> Result<ServedBus, String> {
-    open_bus_with_data_dir(name, spec, catalog, config, bitrate, None).await
-}
-
-/// [`open_bus`], and the virtual devices keep what they save (0x1010)
-/// under `data_dir` (see [`Rack::with_data_dir`]).
-pub async fn open_bus_with_data_dir(
-    name: &str,
-    spec: &BusSpec,
-    catalog: Arc<EdsCatalog>,
-    config: RegistryConfig,
-    bitrate: u32,
-    data_dir: Option<PathBuf>,
-) -> Result<ServedBus, String> {
-    let attach = |name: &str, preset: &str, hub: &VirtualHub| {
-        rack_for(name, preset, hub, data_dir.clone()).map(|rack| Some(Arc::new(rack) as BusDevices))
-    };
-    ServedBus::open_with_devices(name, spec, catalog, config, bitrate, &attach).await
+    ServedBus::open_with_devices(name, spec, catalog, config, bitrate, &racks(None)).await
 }
 
 /// What puts the demo rack on each virtual bus the gateway opens

@@ -92,19 +92,8 @@ pub struct ServedBus {
 
 impl ServedBus {
     /// Opens `spec` as the bus `name` and starts its registry; a virtual
-    /// bus starts with no device on it.
-    pub async fn open(
-        name: &str,
-        spec: &BusSpec,
-        catalog: Arc<EdsCatalog>,
-        config: RegistryConfig,
-        bitrate: u32,
-    ) -> Result<Self, String> {
-        Self::open_with_devices(name, spec, catalog, config, bitrate, &|_, _, _| Ok(None)).await
-    }
-
-    /// [`ServedBus::open`], and a virtual bus gets the devices `attach`
-    /// puts on its hub, after the registry listens so that it hears their
+    /// bus gets the devices `attach` puts on its hub (none: `|_, _, _|
+    /// Ok(None)`), after the registry listens so that it hears their
     /// boot-up messages.
     pub async fn open_with_devices(
         name: &str,
