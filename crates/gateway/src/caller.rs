@@ -53,6 +53,9 @@ pub struct Caller {
     pub channel: Channel,
     pub who: String,
     pub role: Option<Role>,
+    /// Where the request came from (`127.0.0.1:51234`), where the door
+    /// can know it (not over MQTT).
+    pub peer: Option<String>,
 }
 
 impl Caller {
@@ -61,7 +64,14 @@ impl Caller {
             channel,
             who: who.into(),
             role,
+            peer: None,
         }
+    }
+
+    /// The same caller, seen from `peer`.
+    pub fn with_peer(mut self, peer: impl Into<String>) -> Self {
+        self.peer = Some(peer.into());
+        self
     }
 
     /// The gateway acting on its own.

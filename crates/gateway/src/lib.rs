@@ -25,6 +25,8 @@
 //!   the axis of a lapsed one ([`motion_lease`] is their table).
 //! - [`motion`]: the motion operations every door calls (state, halt,
 //!   moves, step test, lease renewal), with the lease policy whole.
+//! - [`node`]: one node of a bus as a handle ([`NodeHandle`]) whose
+//!   operations every door calls.
 //! - [`caller`]: who asks, through which door ([`caller::Caller`]).
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
@@ -97,6 +99,7 @@ pub mod lss;
 pub mod machine;
 pub mod motion;
 pub mod motion_lease;
+pub mod node;
 pub mod pdo;
 pub mod producers;
 pub mod profile;
@@ -114,5 +117,6 @@ pub mod uioled;
 pub mod values;
 
 pub use error::GatewayError;
+pub use node::NodeHandle;
 pub use service::{Gateway, ServedBus, check_sdo_allowed, check_writable};
 pub use start::{GatewayConfig, StartError};
