@@ -13,7 +13,11 @@
 //! - `GET .../nodes/1/od/0x6041/0`: every client reads node 1's statusword;
 //! - mix: client i reads nodes 1–3 (UMC1BDS32, JMC, UIO1LED) in turn, six
 //!   objects, starting at the i-th;
-//! - `GET /api/v1/health`: no SDO at all, the HTTP stack's own ceiling;
+//! - `GET /api/v1/health`: no SDO at all, the gateway's HTTP door alone;
+//! - bare axum `GET /api/v1/health`: the same request answered by a router
+//!   of one route and no layer, served the same way on the same thread: the
+//!   HTTP stack's (and this machine's) own floor, so that the door's cost is
+//!   the difference and a slower machine is told from a slower door;
 //! - bare SDO: the same reads through the same `SdoChannel`s of the
 //!   registry, on the server's runtime, without HTTP.
 //!
@@ -327,6 +331,7 @@ struct BareSdo {
 /// way to run bare SDO loads on its runtime.
 fn spawn_gateway() -> (
     SocketAddr,
+    SocketAddr,
     String,
     tokio::sync::mpsc::UnboundedSender<BareSdo>,
 ) {
@@ -366,9 +371,18 @@ fn spawn_gateway() -> (
             let address = listener.local_addr().expect("address");
             let router = app(AppState::new([served]));
             tokio::spawn(async move { axum::serve(listener, router).await.expect("serve") });
+            let floor_listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+                .await
+                .expect("bind");
+            let floor_address = floor_listener.local_addr().expect("address");
+            let floor = axum::Router::new().route(
+                "/api/v1/health",
+                axum::routing::get(|| async { axum::Json(serde_json::json!({"status": "ok"})) }),
+            );
+            tokio::spawn(async move { axum::serve(floor_listener, floor).await.expect("serve") });
             let (bare_tx, mut bare_rx) = tokio::sync::mpsc::unbounded_channel::<BareSdo>();
             ready_tx
-                .send((address, this_task(), bare_tx))
+                .send((address, floor_address, this_task(), bare_tx))
                 .expect("ready");
             let task = this_task();
             while let Some(request) = bare_rx.recv().await {
@@ -419,7 +433,7 @@ fn main() {
         only.as_deref()
             .is_none_or(|only| format!("{label} {clients}").contains(only))
     };
-    let (address, server_task, gateway) = spawn_gateway();
+    let (address, floor_address, server_task, gateway) = spawn_gateway();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -480,6 +494,20 @@ fn main() {
             ),
         );
         failures.extend(figures.row(health, clients));
+    }
+    let floor = "bare axum GET /health (one route, no layer)";
+    for clients in levels.iter().copied().filter(|&c| wanted(floor, c)) {
+        let figures = local.block_on(
+            &runtime,
+            http_level(
+                floor_address,
+                &["/api/v1/health".to_string()],
+                clients,
+                options,
+                &server_task,
+            ),
+        );
+        failures.extend(figures.row(floor, clients));
     }
     for (k, (label, objects)) in [
         ("bare SDO node 1 0x6041/0", &SINGLE[..]),
