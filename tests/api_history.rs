@@ -73,6 +73,18 @@ fn check_entries(entries: &[Json], statuses: [u16; 3]) {
         );
     }
     assert_eq!(writes[0]["item"], "0x1017:0");
+    let outcomes: Vec<(&Json, &Json)> = writes
+        .iter()
+        .map(|entry| (&entry["channel"], &entry["outcome"]))
+        .collect();
+    assert_eq!(
+        outcomes,
+        [
+            (&Json::from("rest"), &Json::from("ok")),
+            (&Json::from("rest"), &Json::from("value_out_of_range")),
+            (&Json::from("rest"), &Json::from("sdo_abort")),
+        ]
+    );
     assert_eq!(writes[1]["error_code"], "value_out_of_range");
     assert_eq!(writes[2]["abort_code"], "0x06020000");
 }

@@ -510,14 +510,14 @@ async fn with_tokens_a_connection_needs_auth_and_the_role_of_the_rest_api() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|e| e["method"] == "ASCII" && e["status"] == 200)
+        .find(|e| e["channel"] == "cia309_3" && e["outcome"] == "ok")
         .unwrap_or_else(|| panic!("no ASCII entry in {audit}"));
     // The viewer's refused write and NMT command are in the log too.
     let refused: Vec<_> = audit
         .as_array()
         .unwrap()
         .iter()
-        .filter(|e| e["method"] == "ASCII" && e["status"] == 403)
+        .filter(|e| e["channel"] == "cia309_3" && e["outcome"] == "forbidden")
         .collect();
     assert_eq!(refused.len(), 2, "{audit}");
     assert!(refused.iter().all(|e| e["who"] == "scada"), "{audit}");
@@ -559,19 +559,22 @@ async fn with_tokens_a_connection_needs_auth_and_the_role_of_the_rest_api() {
         .unwrap()
         .iter()
         .find(|e| {
-            e["path"].as_str().is_some_and(|p| p.contains("/cia309-5/")) && e["status"] == 200
+            e["path"].as_str().is_some_and(|p| p.contains("/cia309-5/")) && e["outcome"] == "ok"
         })
         .unwrap_or_else(|| panic!("no 309-5 entry in {audit}"));
     assert_eq!(entry["who"], "plc", "{entry}");
+    assert_eq!(entry["channel"], "cia309_5", "{entry}");
     // The viewer's refused write is in the log too.
     let refused = audit
         .as_array()
         .unwrap()
         .iter()
-        .find(|e| e["path"] == path && e["status"] == 403)
+        .find(|e| e["path"] == path && e["outcome"] == "forbidden")
         .unwrap_or_else(|| panic!("no refused 309-5 entry in {audit}"));
     assert_eq!(refused["who"], "scada", "{refused}");
     assert_eq!(refused["error_code"], "forbidden", "{refused}");
+    // Refused by the guard before its handler, it is still 309-5's.
+    assert_eq!(refused["channel"], "cia309_5", "{refused}");
 }
 
 /// The UMC's vendor id (0x1018:1) as the u32 reply writes it.
@@ -713,7 +716,7 @@ async fn writes_share_the_token_write_rate_with_rest() {
         .as_array()
         .unwrap()
         .iter()
-        .filter(|e| e["method"] == "ASCII" && e["status"] == 429)
+        .filter(|e| e["channel"] == "cia309_3" && e["outcome"] == "rate_limited")
         .collect();
     assert_eq!(limited.len(), 2, "{audit}");
     assert!(
@@ -752,20 +755,26 @@ async fn write_lines_the_parser_refuses_are_audited() {
     );
     let (status, audit) = common::json(&http, "GET", "/api/v1/events?kind=audit", None).await;
     assert_eq!(status, 200, "{audit}");
-    let seen: Vec<(String, String, u64)> = audit
+    let seen: Vec<(String, String, String)> = audit
         .as_array()
         .unwrap()
         .iter()
-        .filter(|e| e["method"] == "ASCII")
+        .filter(|e| e["channel"] == "cia309_3")
         .map(|e| {
             (
                 e["path"].as_str().unwrap().to_string(),
                 e["operation"].as_str().unwrap().to_string(),
-                e["status"].as_u64().unwrap(),
+                e["outcome"].as_str().unwrap().to_string(),
             )
         })
         .collect();
-    let refused = |path: &str, operation: &str| (path.to_string(), operation.to_string(), 400);
+    let refused = |path: &str, operation: &str| {
+        (
+            path.to_string(),
+            operation.to_string(),
+            "invalid_request".to_string(),
+        )
+    };
     let mut expected = vec![
         refused("[1] 3 w 0x1017 0 u16 70000", "SDO write (refused)"),
         refused("[2] 200 w 0x1017 0 u16 1", "SDO write (refused)"),
@@ -780,8 +789,10 @@ async fn write_lines_the_parser_refuses_are_audited() {
             .as_array()
             .unwrap()
             .iter()
-            .all(|e| e["method"] != "ASCII"
+            .all(|e| e["channel"] != "cia309_3"
                 || (e["who"].as_str().unwrap().starts_with("ascii:")
+                    && e["method"] == "ASCII"
+                    && e.get("status").is_none()
                     && e["error_code"] == "invalid_request")),
         "{audit:#}"
     );

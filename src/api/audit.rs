@@ -1,7 +1,9 @@
 //! The audit layer: every request under `/api/v1` that changes, or tries to
 //! change, a device or the gateway is written to the history
 //! ([`History::audit`](crate::gateway::history::History::audit)) before
-//! its response leaves.
+//! its response leaves, as a row of channel `rest` built from the caller
+//! ([`AuditEntry::new`]) whose outcome is the error body's `code` (`ok`
+//! for a 2xx), with the method, path and status as REST's detail.
 //!
 //! State-changing means a `POST`, `PUT`, `PATCH` or `DELETE` under
 //! `/api/v1`, whatever its outcome: refused ones (400, 404, 405, 409, 413,
@@ -43,7 +45,8 @@ use super::auth::Identity;
 use super::error::ErrorSummary;
 use super::leases::AuditNote;
 use crate::can::Timestamp;
-use crate::gateway::history::AuditEntry;
+use crate::gateway::caller::{Caller, Channel};
+use crate::gateway::history::{AuditEntry, OK};
 
 /// The request body as the audit log keeps it, at most (bytes of JSON).
 pub const MAX_SUMMARY: usize = 1024;
@@ -125,28 +128,37 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     // The guard names who it let in or turned away (a body refused for its
     // size here is named above).
     let identity = response.extensions().get::<Identity>();
-    let entry = AuditEntry {
-        time,
-        who: identity.map_or_else(|| "anonymous".to_string(), |id| id.name.clone()),
-        peer,
-        role: identity
-            .and_then(|id| id.role)
-            .map_or_else(|| "none".to_string(), |role| role.name().to_string()),
-        method: method.to_string(),
-        path,
-        operation: match note.take() {
-            Some(note) => format!("{}; {note}", target.operation),
-            None => target.operation,
-        },
-        bus: target.bus,
-        node: target.node,
-        axis: target.axis,
-        item: target.item,
-        request: summary,
-        status: response.status().as_u16(),
-        error_code: error.map(|error| error.code.clone()),
-        abort_code: error.and_then(|error| error.abort_code.clone()),
+    // A CiA 309-5 command refused here is 309-5's, not REST's.
+    let channel = if cia309 {
+        Channel::Cia309_5
+    } else {
+        Channel::Rest
     };
+    let mut caller = Caller::new(
+        channel,
+        identity.map_or("anonymous", |id| id.name.as_str()),
+        identity.and_then(|id| id.role),
+    );
+    caller.peer = peer;
+    let status = response.status().as_u16();
+    let operation = match note.take() {
+        Some(note) => format!("{}; {note}", target.operation),
+        None => target.operation,
+    };
+    let (outcome, abort_code) = match error {
+        _ if response.status().is_success() => (OK.to_string(), None),
+        Some(error) => (error.code.clone(), error.abort_code.clone()),
+        // Every error of the API carries its summary; anything else is
+        // named by its status, as migrated rows without a code are.
+        None => (format!("http_{status}"), None),
+    };
+    let entry = AuditEntry::new(&caller, operation)
+        .at(time)
+        .target(target.bus, target.node, target.axis, target.item)
+        .request(summary)
+        .failed(outcome, abort_code)
+        .detail(method.as_str(), path)
+        .http_status(status);
     if let Err(err) = state.gateway.history.audit(entry).await {
         tracing::error!("audit: {method} {}: not recorded: {err}", response.status());
     }

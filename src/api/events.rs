@@ -21,6 +21,7 @@ use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
 use super::{ApiJson, AppError, AppState};
+use crate::gateway::caller::Channel;
 use crate::gateway::history::{self, EventKind, StoredEvent};
 use crate::gateway::recording::civil_from_days;
 
@@ -39,6 +40,11 @@ struct EventsQuery {
     /// `audit`, `emcy` or `nmt`; every kind when left out.
     #[param(example = "audit")]
     kind: Option<String>,
+    /// Only audit entries of this channel: `rest`, `websocket`,
+    /// `cia309_3`, `cia309_5`, `sparkplug`, `opcua` or `system` (the
+    /// gateway's own). No EMCY or NMT entry has a channel.
+    #[param(example = "rest")]
+    channel: Option<String>,
     /// Entries at or after this time: RFC 3339 (`2026-11-23T18:00:00Z`,
     /// `2026-11-23T19:00:00.5+01:00`) or Unix milliseconds. Without it,
     /// the newest entries.
@@ -72,17 +78,32 @@ pub struct HistoryEvent {
     pub bus: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub node: Option<i64>,
-    /// audit: the token's name, or `anonymous`.
+    /// audit: the door the operation came through: `rest`, `websocket`,
+    /// `cia309_3`, `cia309_5`, `sparkplug`, `opcua`, or `system` (the
+    /// gateway's own: a lapsed lease's stop, the network manager, the
+    /// recordings' pruning).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(example = "rest")]
+    pub channel: Option<String>,
+    /// audit: the token's name, `anonymous`, `mqtt:{user}`, `ascii:{peer}`,
+    /// or `gateway`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub who: Option<String>,
     /// audit: the client's address.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub peer: Option<String>,
-    /// audit: `none` until the API has roles.
+    /// audit: the caller's role (`viewer`, `operator`, `admin`), `none`
+    /// without one, `system` for the gateway.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub role: Option<String>,
+    /// audit: the door's own words for the request, where it has them:
+    /// the HTTP method (REST, CiA 309-5), `ASCII` (CiA 309-3), the
+    /// Sparkplug message type (`DCMD`). Left out for the gateway's own
+    /// entries and the stream's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub method: Option<String>,
+    /// audit: the HTTP path, the CiA 309-3 command line or the Sparkplug
+    /// topic, with `method`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub path: Option<String>,
     /// audit: what the request does, in words (`write object`, `move`).
@@ -97,10 +118,17 @@ pub struct HistoryEvent {
     /// audit: the body, summarised (at most 1 KiB of JSON, secrets masked).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub request: Option<String>,
-    /// audit: the HTTP status answered.
+    /// audit: the HTTP status REST answered (REST entries only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub status: Option<i64>,
-    /// audit: the error's `code` when the request failed.
+    /// audit: `ok`, or the error's `code` (as a REST error body names it:
+    /// `sdo_abort`, `forbidden`, `rate_limited`; the network manager's
+    /// `boot_failed`, `node_lost`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(example = "ok")]
+    pub outcome: Option<String>,
+    /// audit: the error's `code` when the operation failed (the
+    /// `outcome` of a failure).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error_code: Option<String>,
     /// audit: the SDO abort code when the device refused.
@@ -148,6 +176,7 @@ impl From<StoredEvent> for HistoryEvent {
                 .map(str::to_string)
         };
         let int = |name: &str| stored.fields.get(name).and_then(Json::as_i64);
+        let outcome = text("outcome");
         let kind = match stored.kind {
             EventKind::Audit => "audit",
             EventKind::Emcy => "emcy",
@@ -160,6 +189,7 @@ impl From<StoredEvent> for HistoryEvent {
             time_us: stored.time_us,
             bus: text("bus"),
             node: int("node"),
+            channel: text("channel"),
             who: text("who"),
             peer: text("peer"),
             role: text("role"),
@@ -170,7 +200,8 @@ impl From<StoredEvent> for HistoryEvent {
             item: text("item"),
             request: text("request"),
             status: int("status"),
-            error_code: text("error_code"),
+            outcome: outcome.clone(),
+            error_code: outcome.filter(|outcome| outcome != history::OK),
             abort_code: text("abort_code"),
             code: int("code").map(|code| format!("0x{code:04X}")),
             text: text("text"),
@@ -189,13 +220,14 @@ impl From<StoredEvent> for HistoryEvent {
 /// Oldest first. With `since`, the first `limit` entries at or after it
 /// (page on by asking from the last `time_us` again, dropping entries
 /// already seen by `kind` and `id`); without it, the newest `limit`. The
-/// audit log has every request that changed or tried to change a device or
-/// the gateway (`POST`, `PUT`, `PATCH`, `DELETE` under `/api/v1` except
-/// `.../od/read`), refused ones included.
+/// audit log has every operation that changed or tried to change a device
+/// or the gateway, whichever door it came through (its `channel`; over
+/// REST: `POST`, `PUT`, `PATCH`, `DELETE` under `/api/v1` except
+/// `.../od/read`), refused ones included, and the gateway's own.
 #[utoipa::path(get, path = "/events", tag = "events", params(EventsQuery),
     responses(
         (status = 200, description = "The entries, oldest first", body = [HistoryEvent]),
-        (status = 400, description = "`invalid_request`: `kind`, `since` or `limit` unreadable or out of range", body = ErrorBody),
+        (status = 400, description = "`invalid_request`: `kind`, `channel`, `since`, `until` or `limit` unreadable or out of range", body = ErrorBody),
         (status = 500, description = "`history_failed`: the history database failed", body = ErrorBody),
     ))]
 async fn events(
@@ -213,6 +245,13 @@ async fn events(
                 "kind '{other}': one of audit, emcy, nmt"
             )));
         }
+    };
+    let channel = match query.channel.as_deref() {
+        None | Some("") => None,
+        Some(name) => Some(Channel::from_name(name).ok_or_else(|| {
+            let names: Vec<&str> = Channel::ALL.iter().map(|c| c.name()).collect();
+            AppError::InvalidRequest(format!("channel '{name}': one of {}", names.join(", ")))
+        })?),
     };
     let since_us = query.since.as_deref().map(parse_since).transpose()?;
     let until_us = query
@@ -233,6 +272,7 @@ async fn events(
             kind,
             since_us,
             until_us,
+            channel,
             limit,
         })
         .await

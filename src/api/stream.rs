@@ -69,7 +69,8 @@ use super::doc::ErrorBody;
 use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
-use crate::can::{CanId, RecvError, TimedFrame, Timestamp};
+use crate::can::{CanId, RecvError, TimedFrame};
+use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::AuditEntry;
 use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
 use crate::gateway::motion_lease::{MotionLease, mask};
@@ -548,32 +549,24 @@ impl Session {
         {
             let _ = write!(item, "; {left_out} more refused renewals not logged");
         }
-        let (status, error_code) = match refused {
-            Some((error, _)) => (
-                error.status().as_u16(),
-                error.to_json()["code"].as_str().map(str::to_string),
-            ),
-            None => (200, None),
-        };
-        let entry = AuditEntry {
-            time: Timestamp::now(),
-            who: identity.name.clone(),
-            peer: self.client.peer.clone(),
-            role: identity
-                .role
-                .map_or_else(|| "none".to_string(), |role| role.name().to_string()),
-            method: "WS".to_string(),
-            path: "/api/v1/stream".to_string(),
-            operation: "renew motion lease (stream)".to_string(),
-            bus: lease.map(|lease| lease.axis.bus.clone()),
-            node: lease.map(|lease| lease.axis.node),
-            axis: lease.map(|lease| lease.axis.axis),
-            item: Some(item),
-            request: Some(json!({"op": "renew", "leases": [mask(id)]}).to_string()),
-            status,
-            error_code,
-            abort_code: None,
-        };
+        let mut caller = Caller::new(Channel::Websocket, identity.name.clone(), identity.role);
+        caller.peer = self.client.peer.clone();
+        let mut entry = AuditEntry::new(&caller, "renew motion lease (stream)")
+            .target(
+                lease.map(|lease| lease.axis.bus.clone()),
+                lease.map(|lease| lease.axis.node),
+                lease.map(|lease| lease.axis.axis),
+                Some(item),
+            )
+            .request(Some(
+                json!({"op": "renew", "leases": [mask(id)]}).to_string(),
+            ));
+        if let Some((error, _)) = refused {
+            let body = error.to_json();
+            let code = body["code"].as_str().unwrap_or("internal_error");
+            let abort = body["abort_code"].as_str().map(str::to_string);
+            entry = entry.failed(code, abort);
+        }
         let history = self.state.gateway.history.clone();
         tokio::spawn(async move {
             if let Err(err) = history.audit(entry).await {

@@ -12,11 +12,11 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::can::Timestamp;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::{AbortCode, ClientConfig};
 use crate::gateway::access::{Role, Tokens, WriteLimiter};
+use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{AuditEntry, History};
 use crate::gateway::registry::NodeInfo;
 use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed, check_writable};
@@ -381,38 +381,25 @@ impl Cia309Gateway {
         request: Option<String>,
         error: Option<&GatewayError>,
     ) {
-        let (status, error_code, abort_code) = match error {
-            None => (200, None, None),
-            Some(error) => {
-                if let GatewayError::Internal(detail) = error {
-                    tracing::error!("cia309: {detail}");
-                }
-                (
-                    error.audit_status(),
-                    Some(error.code().to_string()),
-                    error
-                        .abort_code()
-                        .map(|code| format!("0x{:08X}", code.raw())),
-                )
-            }
+        if let Some(GatewayError::Internal(detail)) = error {
+            tracing::error!("cia309: {detail}");
+        }
+        // 309-3 sends command lines; 309-5 is HTTP.
+        let channel = if origin.method == "ASCII" {
+            Channel::Cia309_3
+        } else {
+            Channel::Cia309_5
         };
-        let entry = AuditEntry {
-            time: Timestamp::now(),
-            who: origin.identity.who.clone(),
-            peer: origin.identity.peer.clone(),
-            role: origin.identity.role.clone(),
-            method: origin.method.to_string(),
-            path: origin.path.to_string(),
-            operation: operation.to_string(),
-            bus: self.bus(net).map(|bus| bus.name.clone()),
-            node,
-            axis: None,
-            item,
-            request,
-            status,
-            error_code,
-            abort_code,
-        };
+        let identity = origin.identity;
+        let mut caller = Caller::new(channel, identity.who.clone(), identity.access);
+        caller.peer = identity.peer.clone();
+        let mut entry = AuditEntry::new(&caller, operation)
+            .target(self.bus(net).map(|bus| bus.name.clone()), node, None, item)
+            .request(request)
+            .detail(origin.method, origin.path);
+        if let Some(error) = error {
+            entry = entry.error(error);
+        }
         if let Err(err) = self.history.audit(entry).await {
             tracing::error!(
                 "audit: {} {}: not recorded: {err}",

@@ -28,6 +28,7 @@ use super::motion::{HeldLeases, Outcome};
 use super::spool::Spool;
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
+use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::edge_node::EdgeNodeStats;
 use crate::gateway::history::AuditEntry;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
@@ -1187,33 +1188,13 @@ pub(super) async fn run_command(
     }
     item = item.or(outcome.item);
     request = request.or(outcome.request);
-    let (status, error_code, abort_code) = match &result {
-        Ok(()) => (200, None, None),
-        Err(error) => (
-            error.audit_status(),
-            Some(error.code().to_string()),
-            error
-                .abort_code()
-                .map(|code| format!("0x{:08X}", code.raw())),
-        ),
-    };
-    let entry = AuditEntry {
-        time: crate::can::Timestamp::now(),
-        who: config.who(),
-        peer: Some(format!("{}:{}", config.broker.host, config.broker.port)),
-        role: config.role.name().to_string(),
-        method: topic.kind.as_str().to_string(),
-        path: topic.to_string(),
-        operation: command.operation().to_string(),
-        bus,
-        node,
-        axis: command.axis(),
-        item,
-        request,
-        status,
-        error_code,
-        abort_code,
-    };
+    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
+        .with_peer(format!("{}:{}", config.broker.host, config.broker.port));
+    let entry = AuditEntry::new(&caller, command.operation())
+        .target(bus, node, command.axis(), item)
+        .request(request)
+        .outcome(&result)
+        .detail(topic.kind.as_str(), topic.to_string());
     if let Err(err) = gateway.history.audit(entry).await {
         tracing::error!("audit: {topic}: not recorded: {err}");
     }

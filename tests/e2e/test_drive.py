@@ -429,7 +429,7 @@ def test_a_velocity_move_holds_a_lease_and_stops_when_the_page_goes_away(server,
         while True:
             audit = server.get("/api/v1/events?kind=audit&limit=50")
             # The gateway's own entries also hold its network manager's
-            # boot-ups (method NMT): only the lease's stop counts here.
+            # boot-ups (channel system too): only the lease's stop counts here.
             lapses = [
                 e for e in audit
                 if e.get("who") == "gateway" and e.get("operation", "").startswith("motion lease lapsed")

@@ -58,7 +58,7 @@ def test_a_write_from_the_node_page_is_in_the_audit_log(server, browser):
     top = rows(browser)[0]
     assert (top["kind"], top["id"]) == ("audit", entry["id"]), top
     assert top["Where"] == "demo · node 1"
-    assert top["What"].startswith("write object 0x2041:1\nPUT /api/v1/buses/demo/nodes/1/od/0x2041/1"), top
+    assert top["What"].startswith("write object 0x2041:1\nREST · PUT /api/v1/buses/demo/nodes/1/od/0x2041/1"), top
     assert f'{{"value":{before - 5}}}' in top["What"], top
     assert top["Who"] == f"anonymous\nrole none · {entry['peer']}", top
     assert top["Result"] == "200", top

@@ -26,6 +26,22 @@ pub enum Channel {
 }
 
 impl Channel {
+    /// Every channel, in the order of the enum.
+    pub const ALL: [Self; 7] = [
+        Self::Rest,
+        Self::Websocket,
+        Self::Cia309_3,
+        Self::Cia309_5,
+        Self::Sparkplug,
+        Self::Opcua,
+        Self::System,
+    ];
+
+    /// The channel of a wire name ([`Channel::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|channel| channel.name() == name)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Self::Rest => "rest",
@@ -111,5 +127,9 @@ mod tests {
             ]
         );
         assert_eq!(Channel::Cia309_5.to_string(), "cia309_5");
+        for channel in Channel::ALL {
+            assert_eq!(Channel::from_name(channel.name()), Some(channel));
+        }
+        assert_eq!(Channel::from_name("REST"), None);
     }
 }

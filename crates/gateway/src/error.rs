@@ -137,56 +137,46 @@ pub enum GatewayError {
 
 impl GatewayError {
     /// The error's code, as the REST API and the audit log name it
-    /// (`sdo_abort`, `bus_down`, ...).
+    /// (`sdo_abort`, `bus_down`, ...): an audit row's outcome when the
+    /// operation failed. The HTTP status that goes with it is REST's
+    /// business (`crate::api::error`).
     pub fn code(&self) -> &'static str {
-        self.audit_outcome().1
-    }
-
-    /// The status the audit log records for this error: the REST API's
-    /// status of the same error, so that an entry reads alike whichever
-    /// adapter took the request (the REST mapping in `crate::api::error`
-    /// is the one that answers; a test there checks that they agree).
-    pub fn audit_status(&self) -> u16 {
-        self.audit_outcome().0
-    }
-
-    fn audit_outcome(&self) -> (u16, &'static str) {
         match self {
-            Self::InvalidRequest(_) => (400, "invalid_request"),
-            Self::InvalidValue(_) => (400, "invalid_value"),
-            Self::ValueOutOfRange(_) => (400, "value_out_of_range"),
-            Self::UnknownBus(_) => (404, "unknown_bus"),
-            Self::UnknownNode { .. } => (404, "unknown_node"),
-            Self::WrongNmtState { .. } => (409, "wrong_nmt_state"),
-            Self::SdoAbort { .. } => (422, "sdo_abort"),
-            Self::SdoProtocol { .. } => (502, "sdo_protocol_error"),
-            Self::SdoTimeout { .. } => (504, "sdo_timeout"),
-            Self::BusDown(_) => (503, "bus_down"),
-            Self::NodeOffline(_) => (409, "node_offline"),
-            Self::NotADrive(_) => (404, "not_a_drive"),
-            Self::UnknownAxis(_) => (404, "unknown_axis"),
-            Self::DriveFault { .. } => (409, "drive_fault"),
-            Self::DriveNotEnabled { .. } => (409, "drive_not_enabled"),
-            Self::ModeNotSupported(_) => (422, "mode_not_supported"),
-            Self::StateChangeTimeout { .. } => (504, "state_change_timeout"),
-            Self::LeaseConflict(_) => (409, "lease_conflict"),
-            Self::UnknownLease(_) => (404, "unknown_lease"),
-            Self::Unauthenticated(_) => (401, "unauthenticated"),
-            Self::Forbidden(_) => (403, "forbidden"),
-            Self::RateLimited { .. } => (429, "rate_limited"),
-            Self::LssBusy(_) => (409, "lss_busy"),
-            Self::LssNotFound(_) => (404, "lss_not_found"),
-            Self::LssTimeout(_) => (504, "lss_timeout"),
-            Self::LssRefused(_) => (422, "lss_refused"),
-            Self::NodeIdInUse(_) => (409, "node_id_in_use"),
-            Self::NodeIdNotSupported(_) => (422, "node_id_change_not_supported"),
-            Self::UnknownEds(_) => (404, "unknown_eds"),
-            Self::InvalidEds { .. } => (400, "invalid_eds"),
-            Self::EdsConflict(_) => (409, "eds_conflict"),
-            Self::NotAnIoModule(_) => (404, "not_an_io_module"),
-            Self::UnknownChannel(_) => (404, "unknown_channel"),
-            Self::ProgramNotVerified(_) => (502, "program_not_verified"),
-            Self::Internal(_) => (500, "internal_error"),
+            Self::InvalidRequest(_) => "invalid_request",
+            Self::InvalidValue(_) => "invalid_value",
+            Self::ValueOutOfRange(_) => "value_out_of_range",
+            Self::UnknownBus(_) => "unknown_bus",
+            Self::UnknownNode { .. } => "unknown_node",
+            Self::WrongNmtState { .. } => "wrong_nmt_state",
+            Self::SdoAbort { .. } => "sdo_abort",
+            Self::SdoProtocol { .. } => "sdo_protocol_error",
+            Self::SdoTimeout { .. } => "sdo_timeout",
+            Self::BusDown(_) => "bus_down",
+            Self::NodeOffline(_) => "node_offline",
+            Self::NotADrive(_) => "not_a_drive",
+            Self::UnknownAxis(_) => "unknown_axis",
+            Self::DriveFault { .. } => "drive_fault",
+            Self::DriveNotEnabled { .. } => "drive_not_enabled",
+            Self::ModeNotSupported(_) => "mode_not_supported",
+            Self::StateChangeTimeout { .. } => "state_change_timeout",
+            Self::LeaseConflict(_) => "lease_conflict",
+            Self::UnknownLease(_) => "unknown_lease",
+            Self::Unauthenticated(_) => "unauthenticated",
+            Self::Forbidden(_) => "forbidden",
+            Self::RateLimited { .. } => "rate_limited",
+            Self::LssBusy(_) => "lss_busy",
+            Self::LssNotFound(_) => "lss_not_found",
+            Self::LssTimeout(_) => "lss_timeout",
+            Self::LssRefused(_) => "lss_refused",
+            Self::NodeIdInUse(_) => "node_id_in_use",
+            Self::NodeIdNotSupported(_) => "node_id_change_not_supported",
+            Self::UnknownEds(_) => "unknown_eds",
+            Self::InvalidEds { .. } => "invalid_eds",
+            Self::EdsConflict(_) => "eds_conflict",
+            Self::NotAnIoModule(_) => "not_an_io_module",
+            Self::UnknownChannel(_) => "unknown_channel",
+            Self::ProgramNotVerified(_) => "program_not_verified",
+            Self::Internal(_) => "internal_error",
         }
     }
 

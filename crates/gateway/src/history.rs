@@ -1,6 +1,15 @@
-//! The persisted history of the gateway: the audit log of the requests that
-//! change a device or the gateway, and each bus's EMCY (CiA 301 §7.2.7) and
-//! NMT/supervision events (CiA 301 §7.2.8), in SQLite.
+//! The persisted history of the gateway: the audit log of the operations
+//! that change (or tried to change) a device or the gateway, and each bus's
+//! EMCY (CiA 301 §7.2.7) and NMT/supervision events (CiA 301 §7.2.8), in
+//! SQLite.
+//!
+//! An audit row says what was done, not which request did it: the door it
+//! came through ([`Channel`]), who (name, role, peer), the operation in
+//! words, its target (bus, node, axis, item), the request summarised, and
+//! the outcome (`ok`, or the error's code as [`GatewayError::code`] names
+//! it) with the SDO abort code. A door may add its own words for the
+//! request (REST's method, path and status) as detail; the gateway's own
+//! rows ([`Caller::system`]) have none.
 //!
 //! With a data directory the database is `DIR/history.sqlite3` in WAL mode
 //! with `synchronous=FULL`: a commit returns once its WAL frame is on the
@@ -17,7 +26,9 @@
 //! arrived while the last batch was written, one transaction).
 //!
 //! The schema carries its version in `schema_version`; `MIGRATIONS` is the
-//! list of steps from an empty file, each applied once, in order.
+//! list of steps from an empty file, each applied once, in order. A file
+//! written by a newer candeck (a higher version) is refused, never
+//! touched.
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -27,7 +38,10 @@ use rusqlite::{Connection, OptionalExtension, params};
 use serde::Serialize;
 use tokio::sync::broadcast;
 
+use crate::access::Role;
+use crate::caller::{Caller, Channel};
 use crate::can::Timestamp;
+use crate::error::GatewayError;
 use crate::registry::NodeEvent;
 
 /// The file under `--data-dir`.
@@ -77,7 +91,60 @@ const MIGRATIONS: &[&str] = &[
         reason TEXT
     );
     CREATE INDEX nmt_time ON nmt(time_us);",
+    // 2: audit rows name their channel and outcome; method, path and
+    // status become a door's optional detail (SQLite cannot drop NOT NULL,
+    // so the table is copied). Older rows get both from what they were:
+    // the gateway's own rows (`gateway`, role `system`), the stream's
+    // (`WS`), CiA 309-3's (`ASCII`), CiA 309-5's and Sparkplug's by their
+    // path's or topic's shape, REST's the rest; a 2xx is `ok`, a failure
+    // its error code (`http_<status>` when it had none). `error_code` is
+    // the outcome of a failure now: it goes.
+    "CREATE TABLE audit_v2 (
+        id INTEGER PRIMARY KEY,
+        time_us INTEGER NOT NULL,
+        channel TEXT NOT NULL,
+        who TEXT NOT NULL,
+        peer TEXT,
+        role TEXT NOT NULL,
+        operation TEXT NOT NULL,
+        bus TEXT,
+        node INTEGER,
+        axis INTEGER,
+        item TEXT,
+        request TEXT,
+        outcome TEXT NOT NULL,
+        abort_code TEXT,
+        method TEXT,
+        path TEXT,
+        status INTEGER
+    );
+    INSERT INTO audit_v2 (id, time_us, channel, who, peer, role, operation, bus, node, axis,
+        item, request, outcome, abort_code, method, path, status)
+    SELECT id, time_us,
+        CASE
+            WHEN who = 'gateway' AND role = 'system' THEN 'system'
+            WHEN method = 'WS' THEN 'websocket'
+            WHEN method = 'ASCII' THEN 'cia309_3'
+            WHEN path GLOB '/cia309-5/*' THEN 'cia309_5'
+            WHEN path GLOB 'spBv1.0/*' THEN 'sparkplug'
+            ELSE 'rest'
+        END,
+        who, peer, role, operation, bus, node, axis, item, request,
+        CASE
+            WHEN status BETWEEN 200 AND 299 THEN 'ok'
+            WHEN error_code IS NOT NULL THEN error_code
+            ELSE 'http_' || status
+        END,
+        abort_code, method, path, status
+    FROM audit;
+    DROP TABLE audit;
+    ALTER TABLE audit_v2 RENAME TO audit;
+    CREATE INDEX audit_time ON audit(time_us);
+    CREATE INDEX audit_channel ON audit(channel, time_us);",
 ];
+
+/// The outcome of an operation that succeeded.
+pub const OK: &str = "ok";
 
 /// Why the history failed: the database, not the request.
 #[derive(Debug, thiserror::Error)]
@@ -96,7 +163,10 @@ pub enum HistoryError {
         source: std::io::Error,
     },
     /// The database was written by a newer candeck.
-    #[error("history database is at schema version {0}, newer than this candeck knows ({1})")]
+    #[error(
+        "history database is at schema version {0}, newer than this candeck knows ({1}): \
+         a newer candeck wrote it; run that one, or move the file away to start a new history"
+    )]
     TooNew(i64, usize),
     #[error("history database: the worker stopped ({0})")]
     Worker(String),
@@ -126,32 +196,148 @@ pub const DEFAULT_RETENTION_ROWS: u64 = 1_000_000;
 /// How often the history is pruned (and once at start).
 pub const PRUNE_PERIOD: Duration = Duration::from_secs(600);
 
-/// One audit entry: a request that changes (or tried to change) a device
-/// or the gateway.
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+/// One audit entry: an operation that changed (or tried to change) a
+/// device or the gateway, whichever door asked for it.
+///
+/// Built from its caller: `AuditEntry::new(&caller, "write object")
+/// .target(bus, node, None, item).request(summary).outcome(&result)`.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct AuditEntry {
     pub time: Timestamp,
-    /// The token's name, or `anonymous`.
+    /// The door it came through.
+    pub channel: Channel,
+    /// The token's name, `anonymous`, `mqtt:{user}`, `gateway`.
     pub who: String,
-    /// The client's address, when the server knows it.
+    /// The client's address, when the door knows it.
     pub peer: Option<String>,
-    /// `none` until the API has roles.
+    /// The caller's role, `none` without one, `system` for the gateway.
     pub role: String,
-    pub method: String,
-    pub path: String,
-    /// What the request does, in words (`write object`, `nmt command`).
+    /// What was done, in words (`write object`, `nmt command`).
     pub operation: String,
     pub bus: Option<String>,
     pub node: Option<u8>,
     pub axis: Option<u8>,
     /// The object (`0x6040:0`), PDO (`tpdo 1`), segment or fault named.
     pub item: Option<String>,
-    /// The body, summarised (bounded, secrets masked).
+    /// The request, summarised (bounded, secrets masked).
     pub request: Option<String>,
-    pub status: u16,
-    pub error_code: Option<String>,
+    /// [`OK`], or the error's code (`sdo_abort`, `forbidden`).
+    pub outcome: String,
     /// `0x06090030`, when the device refused.
     pub abort_code: Option<String>,
+    /// The door's own words for the request, where it has them: REST's
+    /// and CiA 309-5's HTTP method, CiA 309-3's `ASCII`, Sparkplug's
+    /// message type (`DCMD`).
+    pub method: Option<String>,
+    /// The HTTP path, the CiA 309-3 command line, the Sparkplug topic.
+    pub path: Option<String>,
+    /// The HTTP status REST answered.
+    pub status: Option<u16>,
+}
+
+impl AuditEntry {
+    /// An entry of `caller`'s `operation`, now, succeeded until
+    /// [`outcome`](Self::outcome) says otherwise.
+    pub fn new(caller: &Caller, operation: impl Into<String>) -> Self {
+        Self {
+            time: Timestamp::now(),
+            channel: caller.channel,
+            who: caller.who.clone(),
+            peer: caller.peer.clone(),
+            role: role_name(caller).to_string(),
+            operation: operation.into(),
+            bus: None,
+            node: None,
+            axis: None,
+            item: None,
+            request: None,
+            outcome: OK.to_string(),
+            abort_code: None,
+            method: None,
+            path: None,
+            status: None,
+        }
+    }
+
+    /// At `time` rather than now (when the operation started).
+    pub fn at(mut self, time: Timestamp) -> Self {
+        self.time = time;
+        self
+    }
+
+    /// What it acted on.
+    pub fn target(
+        mut self,
+        bus: Option<String>,
+        node: Option<u8>,
+        axis: Option<u8>,
+        item: Option<String>,
+    ) -> Self {
+        self.bus = bus;
+        self.node = node;
+        self.axis = axis;
+        self.item = item;
+        self
+    }
+
+    /// The request, summarised.
+    pub fn request(mut self, summary: Option<String>) -> Self {
+        self.request = summary;
+        self
+    }
+
+    /// The outcome of `result`: `ok`, or the error's code and, for an SDO
+    /// abort, its abort code.
+    pub fn outcome<T>(self, result: &Result<T, GatewayError>) -> Self {
+        match result {
+            Ok(_) => Self {
+                outcome: OK.to_string(),
+                abort_code: None,
+                ..self
+            },
+            Err(error) => self.error(error),
+        }
+    }
+
+    /// The outcome of an operation that failed with `error`.
+    pub fn error(self, error: &GatewayError) -> Self {
+        let abort = error
+            .abort_code()
+            .map(|code| format!("0x{:08X}", code.raw()));
+        self.failed(error.code(), abort)
+    }
+
+    /// The outcome named by its code (`ok`, `boot_failed`), for the
+    /// outcomes that are no [`GatewayError`] (a door's own refusals, the
+    /// network manager's events).
+    pub fn failed(mut self, code: impl Into<String>, abort_code: Option<String>) -> Self {
+        self.outcome = code.into();
+        self.abort_code = abort_code;
+        self
+    }
+
+    /// The door's own words for the request (method, path or topic).
+    pub fn detail(mut self, method: impl Into<String>, path: impl Into<String>) -> Self {
+        self.method = Some(method.into());
+        self.path = Some(path.into());
+        self
+    }
+
+    /// The HTTP status REST answered.
+    pub fn http_status(mut self, status: u16) -> Self {
+        self.status = Some(status);
+        self
+    }
+}
+
+/// How the audit log names a caller's role: the role, `system` for the
+/// gateway itself, `none` without one.
+fn role_name(caller: &Caller) -> &'static str {
+    match (caller.role, caller.channel) {
+        (Some(role), _) => Role::name(role),
+        (None, Channel::System) => "system",
+        (None, _) => "none",
+    }
 }
 
 /// Which table.
@@ -196,6 +382,8 @@ pub struct Query {
     /// it bounds the range; alone, the newest entries up to it, which is
     /// how a client pages back through older entries.
     pub until_us: Option<i64>,
+    /// Only audit rows of this channel (no EMCY or NMT rows).
+    pub channel: Option<Channel>,
     pub limit: usize,
 }
 
@@ -333,19 +521,16 @@ impl History {
     /// without `since_us`, the newest `limit`.
     pub async fn query(&self, query: Query) -> Result<Vec<StoredEvent>, HistoryError> {
         self.with_conn(move |conn| {
-            let kinds: Vec<EventKind> = match query.kind {
-                Some(kind) => vec![kind],
-                None => EventKind::ALL.to_vec(),
+            let kinds: Vec<EventKind> = match (query.kind, query.channel) {
+                // A channel is an audit row's: no EMCY or NMT has one.
+                (Some(EventKind::Audit) | None, Some(_)) => vec![EventKind::Audit],
+                (Some(_), Some(_)) => Vec::new(),
+                (Some(kind), None) => vec![kind],
+                (None, None) => EventKind::ALL.to_vec(),
             };
             let mut all = Vec::new();
             for kind in kinds {
-                all.extend(select(
-                    conn,
-                    kind,
-                    query.since_us,
-                    query.until_us,
-                    query.limit,
-                )?);
+                all.extend(select(conn, kind, &query)?);
             }
             all.sort_by_key(|event| (event.time_us, event.kind.table(), event.id));
             if query.since_us.is_some() {
@@ -483,26 +668,27 @@ fn micros(time: Timestamp) -> i64 {
 
 fn insert_audit(conn: &Connection, entry: &AuditEntry) -> Result<(), HistoryError> {
     conn.prepare_cached(
-        "INSERT INTO audit (time_us, who, peer, role, method, path, operation, bus, node, axis, \
-         item, request, status, error_code, abort_code) \
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
+        "INSERT INTO audit (time_us, channel, who, peer, role, operation, bus, node, axis, \
+         item, request, outcome, abort_code, method, path, status) \
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)",
     )?
     .execute(params![
         micros(entry.time),
+        entry.channel.name(),
         entry.who,
         entry.peer,
         entry.role,
-        entry.method,
-        entry.path,
         entry.operation,
         entry.bus,
         entry.node,
         entry.axis,
         entry.item,
         entry.request,
-        entry.status,
-        entry.error_code,
+        entry.outcome,
         entry.abort_code,
+        entry.method,
+        entry.path,
+        entry.status,
     ])?;
     Ok(())
 }
@@ -579,24 +765,34 @@ fn insert_event(
 fn select(
     conn: &Connection,
     kind: EventKind,
-    since_us: Option<i64>,
-    until_us: Option<i64>,
-    limit: usize,
+    query: &Query,
 ) -> Result<Vec<StoredEvent>, HistoryError> {
     let table = kind.table();
-    let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+    let Query {
+        since_us, until_us, ..
+    } = *query;
+    let limit = i64::try_from(query.limit).unwrap_or(i64::MAX);
+    // Only the audit table has channels (`query` asks no other for one).
+    let channel = match kind {
+        EventKind::Audit => query.channel.map(Channel::name),
+        _ => None,
+    };
+    let by_channel = match kind {
+        EventKind::Audit => "(?4 IS NULL OR channel = ?4)",
+        _ => "?4 IS NULL",
+    };
     // Oldest first from `since`; newest first without it (reversed by the
     // caller's sort).
     let sql = match since_us {
         Some(_) => {
             format!(
                 "SELECT * FROM {table} WHERE time_us >= ?1 AND (?3 IS NULL OR time_us <= ?3) \
-                 ORDER BY time_us, id LIMIT ?2"
+                 AND {by_channel} ORDER BY time_us, id LIMIT ?2"
             )
         }
         None => format!(
             "SELECT * FROM {table} WHERE ?1 IS NULL AND (?3 IS NULL OR time_us <= ?3) \
-             ORDER BY time_us DESC, id DESC LIMIT ?2"
+             AND {by_channel} ORDER BY time_us DESC, id DESC LIMIT ?2"
         ),
     };
     let mut statement = conn.prepare_cached(&sql)?;
@@ -604,7 +800,7 @@ fn select(
         .column_names()
         .map(|name| name.to_string())
         .collect();
-    let rows = statement.query_map(params![since_us, limit, until_us], |row| {
+    let rows = statement.query_map(params![since_us, limit, until_us, channel], |row| {
         let mut fields = serde_json::Map::new();
         let mut id = 0;
         let mut time_us = 0;

@@ -13,11 +13,11 @@ use tokio::sync::Notify;
 use tokio::time::Instant;
 
 use super::GatewayError;
+use super::caller::Caller;
 use super::history::AuditEntry;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
-use crate::can::Timestamp;
 
 /// How often the status of a lapsed lease's axis is read while it slows
 /// down under halt.
@@ -288,24 +288,14 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
         lease.mode
     );
     let result = halt_then_quick_stop(&gateway, &lease).await;
-    let failure = |error: &GatewayError| {
-        (
-            error.audit_status(),
-            Some(error.code().to_string()),
-            error
-                .abort_code()
-                .map(|code| format!("0x{:08X}", code.raw())),
-        )
-    };
-    let (status, error_code, abort_code, outcome) = match &result {
-        Ok(LapseStop::Halted) => (200, None, None, "halted".to_string()),
-        Ok(LapseStop::QuickStopped) => (200, None, None, "quick-stopped".to_string()),
+    let (error, outcome) = match &result {
+        Ok(LapseStop::Halted) => (None, "halted"),
+        Ok(LapseStop::QuickStopped) => (None, "quick-stopped"),
         Ok(LapseStop::NotConfirmed { error, attempts }) => {
             tracing::error!(
                 "lapsed lease on {}: the quick stop was not confirmed ({error}); attempts: {attempts:?}",
                 lease.axis
             );
-            let (status, code, abort) = failure(error);
             let nmt = attempts
                 .iter()
                 .any(|a| a.method == StopMethod::NmtStop && a.outcome == StopOutcome::Sent);
@@ -314,40 +304,31 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
             } else {
                 "not stopped"
             };
-            (status, code, abort, outcome.to_string())
+            (Some(error), outcome)
         }
         Err(error) => {
             tracing::error!(
                 "lapsed lease on {}: the axis could not be stopped: {error}",
                 lease.axis
             );
-            let (status, code, abort) = failure(error);
-            (status, code, abort, "not stopped".to_string())
+            (Some(error), "not stopped")
         }
     };
     let AxisKey { bus, node, axis } = lease.axis.clone();
-    let entry = AuditEntry {
-        time: Timestamp::now(),
-        who: "gateway".to_string(),
-        peer: None,
-        role: "system".to_string(),
-        method: "POST".to_string(),
-        path: format!("/api/v1/buses/{bus}/nodes/{node}/axes/{axis}/halt"),
-        operation: format!("motion lease lapsed: axis {outcome}"),
-        bus: Some(bus),
-        node: Some(node),
-        axis: Some(axis),
-        item: Some(format!(
-            "{} lease of {} ({} ms)",
-            lease.mode,
-            lease.holder,
-            lease.period.as_millis()
-        )),
-        request: None,
-        status,
-        error_code,
-        abort_code,
-    };
+    let item = format!(
+        "{} lease of {} ({} ms)",
+        lease.mode,
+        lease.holder,
+        lease.period.as_millis()
+    );
+    let mut entry = AuditEntry::new(
+        &Caller::system(),
+        format!("motion lease lapsed: axis {outcome}"),
+    )
+    .target(Some(bus), Some(node), Some(axis), Some(item));
+    if let Some(error) = error {
+        entry = entry.error(error);
+    }
     if let Err(err) = gateway.history.audit(entry).await {
         tracing::error!("audit: lapsed lease on {}: not recorded: {err}", lease.axis);
     }

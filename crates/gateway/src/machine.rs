@@ -22,7 +22,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use crate::can::{Bus, RecvError, Timestamp};
+use crate::can::{Bus, RecvError};
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::canopen::manager::{
@@ -30,7 +30,8 @@ use crate::canopen::manager::{
     SdoOutcome,
 };
 
-use super::history::{AuditEntry, History};
+use super::caller::Caller;
+use super::history::{AuditEntry, History, OK};
 use super::registry::{NodeEvent, NodeRegistry, OfflineReason};
 use super::sdo::SdoRequestError;
 
@@ -355,14 +356,13 @@ impl Driver {
     /// tells the registry of a node lost.
     fn report(&self, event: ManagerEvent) {
         let bus = &self.bus_name;
-        let (node, operation, status, error) = match &event {
+        let (node, operation, outcome) = match &event {
             ManagerEvent::BootStarted { node, why } => {
                 tracing::info!("bus {bus}: node {node}: boot-up started ({why})");
                 (
                     Some(*node),
                     format!("network manager: boot-up started ({why})"),
-                    200,
-                    None,
+                    OK,
                 )
             }
             ManagerEvent::Step { node, step } => {
@@ -371,12 +371,7 @@ impl Driver {
             }
             ManagerEvent::Booted { node } => {
                 tracing::info!("bus {bus}: node {node}: booted");
-                (
-                    Some(*node),
-                    "network manager: node booted".to_string(),
-                    200,
-                    None,
-                )
+                (Some(*node), "network manager: node booted".to_string(), OK)
             }
             ManagerEvent::Failed {
                 node,
@@ -398,8 +393,7 @@ impl Driver {
                         "network manager: boot-up failed at {}: {reason}; {retry}",
                         step.name()
                     ),
-                    502,
-                    Some("boot_failed".to_string()),
+                    "boot_failed",
                 )
             }
             ManagerEvent::Lost { node, reason } => {
@@ -413,43 +407,20 @@ impl Driver {
                 (
                     Some(*node),
                     format!("network manager: node lost: {reason}"),
-                    503,
-                    Some("node_lost".to_string()),
+                    "node_lost",
                 )
             }
             ManagerEvent::Machine { from, to } => {
                 tracing::info!("bus {bus}: machine {from} -> {to}");
-                (
-                    None,
-                    format!("network manager: machine {from} -> {to}"),
-                    200,
-                    None,
-                )
+                (None, format!("network manager: machine {from} -> {to}"), OK)
             }
         };
         let Some(history) = self.history.clone() else {
             return;
         };
-        let entry = AuditEntry {
-            time: Timestamp::now(),
-            who: "gateway".to_string(),
-            peer: None,
-            role: "system".to_string(),
-            method: "NMT".to_string(),
-            path: match node {
-                Some(node) => format!("buses/{bus}/machine/nodes/{node}"),
-                None => format!("buses/{bus}/machine"),
-            },
-            operation,
-            bus: Some(bus.clone()),
-            node: node.map(NodeId::get),
-            axis: None,
-            item: None,
-            request: None,
-            status,
-            error_code: error,
-            abort_code: None,
-        };
+        let entry = AuditEntry::new(&Caller::system(), operation)
+            .target(Some(bus.clone()), node.map(NodeId::get), None, None)
+            .failed(outcome, None);
         tokio::spawn(async move {
             if let Err(err) = history.audit(entry).await {
                 tracing::error!("audit: network manager event not recorded: {err}");

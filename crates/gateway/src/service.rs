@@ -12,7 +12,6 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use crate::can::Timestamp;
 use crate::can::spec::BusSpec;
 use crate::can::{Bus, VirtualHub};
 use crate::canopen::NodeId;
@@ -21,6 +20,7 @@ use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarge
 use super::GatewayError;
 use super::access::{RateLimit, Tokens, WriteLimiter};
 use super::axis_telemetry::AxisTelemetry;
+use super::caller::Caller;
 use super::drive::Drive;
 use super::frames::FrameLog;
 use super::history::AuditEntry;
@@ -378,23 +378,9 @@ impl Gateway {
                 removed.file_name,
                 removed.bytes
             );
-            let entry = AuditEntry {
-                time: Timestamp::now(),
-                who: "gateway".to_string(),
-                peer: None,
-                role: "system".to_string(),
-                method: "DELETE".to_string(),
-                path: format!("recordings/{}", removed.file_name),
-                operation: "prune recording (over quota)".to_string(),
-                bus: None,
-                node: None,
-                axis: None,
-                item: Some(removed.file_name.clone()),
-                request: Some(format!("{{\"bytes\":{}}}", removed.bytes)),
-                status: 200,
-                error_code: None,
-                abort_code: None,
-            };
+            let entry = AuditEntry::new(&Caller::system(), "prune recording (over quota)")
+                .target(None, None, None, Some(removed.file_name.clone()))
+                .request(Some(format!("{{\"bytes\":{}}}", removed.bytes)));
             if let Err(err) = self.history.audit(entry).await {
                 tracing::error!(
                     "audit: pruned recording {}: not recorded: {err}",

@@ -405,6 +405,13 @@ async fn every_state_changing_request_is_audited_with_its_target_and_result() {
         assert_eq!(entry["axis"].as_u64(), case.axis.map(u64::from), "{what}");
         assert_eq!(entry["item"].as_str(), case.item, "{what}");
         assert_eq!(entry["status"], status.as_u16(), "{what}");
+        assert_eq!(entry["channel"], "rest", "{what}");
+        let outcome = if status.is_success() {
+            json!("ok")
+        } else {
+            body["error"]["code"].clone()
+        };
+        assert_eq!(entry["outcome"], outcome, "{what}");
         assert_eq!(entry["error_code"], body["error"]["code"], "{what}");
         assert_eq!(entry["abort_code"], body["error"]["abort_code"], "{what}");
         match case.body {
@@ -558,6 +565,8 @@ async fn bad_queries_are_400() {
     let (app, _) = demo().await;
     for query in [
         "kind=everything",
+        "channel=http",
+        "channel=REST",
         "since=yesterday",
         "since=2026-11-23",
         "until=tomorrow",
@@ -569,5 +578,76 @@ async fn bad_queries_are_400() {
         assert_error(&answer, StatusCode::BAD_REQUEST, "invalid_request");
     }
     let (status, none) = get(&app, "/api/v1/events?kind=audit&since=2999-01-01T00:00:00Z").await;
+    assert_eq!((status, none), (StatusCode::OK, json!([])));
+}
+
+/// Every audit entry names its channel and outcome; `channel=` keeps to
+/// one door's, and an entry without REST's words leaves them out.
+#[tokio::test(start_paused = true)]
+async fn entries_name_their_channel_and_can_be_filtered_by_it() {
+    use crate::gateway::caller::Caller;
+    use crate::gateway::history::AuditEntry;
+    let (app, state) = demo().await;
+    let (status, _) = call_text(
+        &app,
+        Method::PUT,
+        "/api/v1/buses/demo/sync",
+        Some(r#"{"period_ms":0}"#),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    state
+        .gateway
+        .history
+        .audit(
+            AuditEntry::new(&Caller::system(), "prune recording (over quota)").target(
+                None,
+                None,
+                None,
+                Some("old.log".into()),
+            ),
+        )
+        .await
+        .unwrap();
+    let (_, all) = get(&app, "/api/v1/events?kind=audit&limit=1000").await;
+    let all = all.as_array().unwrap();
+    assert!(
+        all.iter()
+            .all(|e| e["channel"].is_string() && e["outcome"].is_string()),
+        "{all:#?}"
+    );
+    let (status, system) = get(&app, "/api/v1/events?channel=system&limit=1000").await;
+    assert_eq!(status, StatusCode::OK, "{system}");
+    let pruned: Vec<&Json> = system
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["item"] == "old.log")
+        .collect();
+    assert_eq!(pruned.len(), 1, "{system:#}");
+    let pruned = pruned[0];
+    assert_eq!(pruned["who"], "gateway", "{pruned}");
+    assert_eq!(pruned["role"], "system", "{pruned}");
+    assert_eq!(pruned["outcome"], "ok", "{pruned}");
+    for detail in ["method", "path", "status", "error_code"] {
+        assert!(pruned.get(detail).is_none(), "{detail} in {pruned}");
+    }
+    // Only audit entries of that channel: no EMCY, NMT or REST entry.
+    assert!(
+        system
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|e| e["kind"] == "audit" && e["channel"] == "system"),
+        "{system:#}"
+    );
+    let (_, rest) = get(&app, "/api/v1/events?channel=rest&limit=1000").await;
+    let rest = rest.as_array().unwrap();
+    assert!(
+        rest.iter().any(|e| e["path"] == "/api/v1/buses/demo/sync"),
+        "{rest:#?}"
+    );
+    assert!(rest.iter().all(|e| e["channel"] == "rest"), "{rest:#?}");
+    let (status, none) = get(&app, "/api/v1/events?channel=system&kind=emcy").await;
     assert_eq!((status, none), (StatusCode::OK, json!([])));
 }

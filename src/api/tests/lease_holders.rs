@@ -408,12 +408,13 @@ async fn stream_renewals_are_audited_once_per_interval_masked() {
         .filter(|e| e["operation"] == "renew motion lease (stream)")
         .collect();
     let (granted, refused): (Vec<&Json>, Vec<&Json>) =
-        stream.iter().partition(|e| e["status"] == 200);
+        stream.iter().partition(|e| e["outcome"] == "ok");
     // The first renewal, then one a minute: at 0 s and 60 s.
     assert_eq!(granted.len(), 2, "{stream:#?}");
     for entry in &granted {
         assert_eq!(entry["who"], "line-plc", "{entry}");
-        assert_eq!(entry["method"], "WS", "{entry}");
+        assert_eq!(entry["channel"], "websocket", "{entry}");
+        assert!(entry.get("method").is_none(), "{entry}");
         assert_eq!(entry["axis"], 1, "{entry}");
         assert_eq!(entry["peer"], "192.0.2.7:40000", "{entry}");
         assert_eq!(
@@ -424,7 +425,8 @@ async fn stream_renewals_are_audited_once_per_interval_masked() {
     }
     assert_eq!(refused.len(), 1, "{stream:#?}");
     assert_eq!(refused[0]["who"], "hmi", "{}", refused[0]);
-    assert_eq!(refused[0]["status"], 403, "{}", refused[0]);
+    assert_eq!(refused[0]["channel"], "websocket", "{}", refused[0]);
+    assert_eq!(refused[0]["outcome"], "forbidden", "{}", refused[0]);
     assert_eq!(refused[0]["error_code"], "forbidden", "{}", refused[0]);
     let all = Json::Array(entries).to_string();
     assert!(!all.contains(&id), "the lease id in clear in {all}");

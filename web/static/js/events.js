@@ -1,6 +1,7 @@
 // The events page: the gateway's persisted history (GET /events: EMCYs,
-// NMT and supervision events, the audit log of every state-changing
-// request), newest first, filtered by kind, paged back with "Load older".
+// NMT and supervision events, the audit log of every operation that
+// changed or tried to change something, whichever door it came through),
+// newest first, filtered by kind, paged back with "Load older".
 // The stream's `emcy` and `nodes` events make the page read what the
 // history has recorded since its newest entry, so new entries appear
 // without a reload and are always the stored ones, with their ids.
@@ -88,12 +89,22 @@ function what(e) {
         e.manufacturer ? ` · manufacturer ${e.manufacturer}` : '')];
   }
   if (e.kind === 'nmt') return nmtText(e);
-  return [h('strong', { class: 'operation' }, e.operation || e.method),
+  // The door it came through; its own words for the request (REST's
+  // method and path, a CiA 309-3 command line, a Sparkplug topic) when it
+  // has them: the gateway's own entries and the stream's have none.
+  const detail = e.method || e.path ? h('code', {}, [e.method, e.path].filter(Boolean).join(' ')) : null;
+  return [h('strong', { class: 'operation' }, e.operation || e.method || '—'),
     e.item ? ' ' : null,
     e.item ? h('code', { class: 'item' }, e.item) : null,
-    h('div', { class: 'sub' }, h('code', {}, `${e.method} ${e.path}`)),
+    h('div', { class: 'sub' }, h('span', { class: 'channel' }, channelName(e.channel)), detail ? ' · ' : null, detail),
     e.request ? h('div', { class: 'request' }, h('code', {}, e.request)) : null];
 }
+
+const CHANNELS = {
+  rest: 'REST', websocket: 'stream', cia309_3: 'CiA 309-3', cia309_5: 'CiA 309-5',
+  sparkplug: 'Sparkplug', opcua: 'OPC UA', system: 'gateway',
+};
+const channelName = (c) => CHANNELS[c] || c || '—';
 
 function who(e) {
   if (e.kind !== 'audit') return h('span', { class: 'sub' }, 'device');
@@ -102,10 +113,14 @@ function who(e) {
 
 function outcome(e) {
   if (e.kind !== 'audit') return '';
-  const ok = e.status >= 200 && e.status < 300;
-  return [h('span', { class: `badge ${ok ? 'ok' : 'bad'}` }, String(e.status)),
-    e.error_code ? ' ' : null,
-    e.error_code ? h('code', { class: 'error-code' }, e.error_code) : null,
+  // `outcome` is `ok` or the error's code; the HTTP status REST answered
+  // leads where there is one.
+  const ok = e.outcome === 'ok';
+  const code = ok ? null : (e.outcome || e.error_code || '—');
+  const badge = e.status !== undefined ? String(e.status) : ok ? 'ok' : 'failed';
+  return [h('span', { class: `badge ${ok ? 'ok' : 'bad'}` }, badge),
+    code ? ' ' : null,
+    code ? h('code', { class: 'error-code' }, code) : null,
     e.abort_code ? h('div', { class: 'abort' }, 'SDO abort ', h('code', {}, e.abort_code)) : null];
 }
 

@@ -561,6 +561,7 @@ async fn the_gateway_audits_each_pruned_recording_as_its_own() {
             kind: Some(EventKind::Audit),
             since_us: None,
             until_us: None,
+            channel: None,
             limit: 10,
         })
         .await
@@ -569,6 +570,14 @@ async fn the_gateway_audits_each_pruned_recording_as_its_own() {
         .iter()
         .map(|event| {
             assert_eq!(event.fields["who"], "gateway", "{:?}", event.fields);
+            // The gateway's own row: its channel, no HTTP words.
+            assert_eq!(event.fields["channel"], "system", "{:?}", event.fields);
+            assert_eq!(event.fields["outcome"], "ok", "{:?}", event.fields);
+            assert!(
+                !event.fields.contains_key("method") && !event.fields.contains_key("path"),
+                "{:?}",
+                event.fields
+            );
             assert_eq!(
                 event.fields["operation"], "prune recording (over quota)",
                 "{:?}",
