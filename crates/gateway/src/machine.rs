@@ -245,6 +245,19 @@ impl Driver {
                     Err(RecvError::Closed) => return,
                 },
                 Some((node, outcome)) = results.recv() => {
+                    // What the supervisor decided before the transfer ended
+                    // (a loss, the write of 0x1017 this answer confirms)
+                    // goes first: the manager sees them in the order they
+                    // happened.
+                    loop {
+                        match supervision.try_recv() {
+                            Ok(event) => self.manager.on_supervision(&event),
+                            Err(tokio::sync::broadcast::error::TryRecvError::Lagged(lost)) => {
+                                self.lagged(lost);
+                            }
+                            Err(_) => break,
+                        }
+                    }
                     self.manager.on_sdo(node, outcome, Instant::now().into_std());
                 }
                 command = commands.recv() => match command {

@@ -933,8 +933,10 @@ impl Manager {
                     node.ops.push_front(Op::SetLifeFactor);
                 }
                 if op == Op::SetLifeFactor {
-                    // The supervisor guards it from now on, for the manager.
+                    // The supervisor guards it from now on, for the manager,
+                    // afresh: what it lost before is past.
                     node.guarded = true;
+                    node.lost = false;
                     self.outbox.push(Action::Guard {
                         node: id,
                         guard_time_ms: node.description.heartbeat_ms,

@@ -942,3 +942,37 @@ fn a_producer_heartbeat_time_written_during_a_boot_up_is_the_one_it_writes() {
     assert_first_writes_heartbeat_of_2(&actions, 750);
     assert_eq!(manager.status().nodes[0].heartbeat_ms, 750);
 }
+
+#[test]
+fn a_guarded_node_booted_again_after_its_loss_is_ready_not_lost_again() {
+    let t0 = Instant::now();
+    let ms = Duration::from_millis;
+    let mut description = NodeDescription::new(id(5));
+    description.heartbeat_ms = 100;
+    description.consume_manager_heartbeat = Some(false);
+    description.start = false;
+    let no_1017 = |action: &Action| match action {
+        Action::Write { index: 0x1017, .. } => {
+            SdoOutcome::Aborted(AbortCode::from_raw(0x0601_0002))
+        }
+        _ => SdoOutcome::Done(Vec::new()),
+    };
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(5));
+    run_boot(&mut manager, t0, no_1017);
+    for at in [100, 200, 300] {
+        manager.poll(t0 + ms(at));
+    }
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    // The bus was down: booted again, guarded afresh, ready.
+    manager.bus_up(false);
+    manager.bus_up(true);
+    let t1 = t0 + ms(1000);
+    run_boot(&mut manager, t1, no_1017);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.supervision),
+        (NodeState::Ready, Supervision::Guarding),
+        "{node:?}"
+    );
+}
