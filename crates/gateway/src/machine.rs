@@ -1,19 +1,20 @@
 //! The network manager of a bus at work: the sans-I/O
 //! [`Manager`] of CiA 302-2 driven by one
-//! task per bus, which feeds it the bus's frames, the registry's news
-//! (nodes found) and the answers of its SDO requests, and carries out what
-//! it asks: SDO transfers through each node's [`SdoChannel`](super::sdo::SdoChannel)
-//! (queued fairly with everyone else's), NMT commands, the gateway's own
-//! heartbeat (0x700 + `manager_node_id`), node-guarding requests. A write
-//! of a node's 0x1017 through the gateway reaches it as the registry's
-//! [`NodeEvent::HeartbeatWritten`], so that the node is supervised with
-//! the written period rather than lost and booted back to the old one.
+//! task per bus, which feeds it what the bus's one supervisor decided (the
+//! registry's [`NodeRegistry::subscribe_supervision`]: boot-ups, nodes
+//! heard, lost and heard again, NMT states, written 0x1017s), the
+//! registry's news (nodes found, gone) and the answers of its SDO
+//! requests, and carries out what it asks: SDO transfers through each
+//! node's [`SdoChannel`](super::sdo::SdoChannel) (queued fairly with
+//! everyone else's), NMT commands, the gateway's own heartbeat (0x700 +
+//! `manager_node_id`), node guarding (handed to the supervisor). It keeps
+//! no supervision timer of its own: the node list, the machine view and
+//! the stream say what the one supervisor decided, and cannot disagree.
 //!
 //! Every step is visible: the machine's status ([`Machine::status`], for
-//! `GET /buses/{bus}/machine` and the `machine` topic of the stream), the
-//! audit log (as the gateway: boot-ups begun, ended, failed; nodes lost;
-//! the machine's state), and the registry's `offline` events, with the
-//! reason, for a node the manager lost.
+//! `GET /buses/{bus}/machine` and the `machine` topic of the stream) and
+//! the audit log (as the gateway: boot-ups begun, ended, failed; nodes
+//! lost; the machine's state).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -22,7 +23,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use crate::can::{Bus, RecvError};
+use crate::can::Bus;
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::canopen::manager::{
@@ -34,6 +35,7 @@ use super::caller::Caller;
 use super::history::{AuditEntry, History, OK};
 use super::registry::{NodeEvent, NodeRegistry, OfflineReason};
 use super::sdo::SdoRequestError;
+use tokio::sync::broadcast::error::RecvError;
 
 /// How long an SDO request of the manager waits for the registry to list
 /// a node it has just heard (both read the same frame, in two tasks).
@@ -179,9 +181,9 @@ impl Machine {
     }
 }
 
-/// Frames a driver takes in one turn of its loop beyond the one it waited
-/// for, before it looks at its other inputs again.
-const FRAME_BATCH: usize = 256;
+/// Supervision events a driver takes in one turn of its loop beyond the
+/// one it waited for, before it looks at its other inputs again.
+const EVENT_BATCH: usize = 256;
 
 struct Driver {
     bus_name: String,
@@ -194,7 +196,7 @@ struct Driver {
 
 impl Driver {
     async fn run(mut self, mut commands: mpsc::UnboundedReceiver<Command>) {
-        let mut frames = self.bus.subscribe();
+        let mut supervision = self.registry.subscribe_supervision();
         let mut nodes = self.registry.subscribe();
         let mut bus_status = self.bus.watch_status();
         let (results_tx, mut results) = mpsc::unbounded_channel::<(NodeId, SdoOutcome)>();
@@ -212,31 +214,22 @@ impl Driver {
         tokio::pin!(timer);
         loop {
             tokio::select! {
-                received = frames.recv() => {
-                    let mut heard = match received {
-                        Ok(frame) => self.take(&frame.frame),
-                        Err(RecvError::Lagged(lost)) => {
-                            tracing::warn!(bus = self.bus_name, lost, "network manager fell behind the bus");
-                            false
-                        }
+                received = supervision.recv() => {
+                    match received {
+                        Ok(event) => self.manager.on_supervision(&event),
+                        Err(RecvError::Lagged(lost)) => self.lagged(lost),
                         Err(RecvError::Closed) => return,
-                    };
-                    // What else is queued goes in the same turn.
-                    for _ in 0..FRAME_BATCH {
-                        match frames.try_recv() {
-                            Ok(Some(frame)) => heard |= self.take(&frame.frame),
-                            Ok(None) => break,
-                            Err(RecvError::Lagged(lost)) => {
-                                tracing::warn!(bus = self.bus_name, lost, "network manager fell behind the bus");
-                            }
-                            Err(RecvError::Closed) => return,
-                        }
                     }
-                    // Nothing the manager listens to: no poll, no status.
-                    // Its timers still run: the timer's branch is ready
-                    // as soon as a deadline passes.
-                    if !heard {
-                        continue;
+                    // What else is queued goes in the same turn.
+                    for _ in 0..EVENT_BATCH {
+                        match supervision.try_recv() {
+                            Ok(event) => self.manager.on_supervision(&event),
+                            Err(tokio::sync::broadcast::error::TryRecvError::Empty) => break,
+                            Err(tokio::sync::broadcast::error::TryRecvError::Lagged(lost)) => {
+                                self.lagged(lost);
+                            }
+                            Err(tokio::sync::broadcast::error::TryRecvError::Closed) => return,
+                        }
                     }
                 },
                 event = nodes.recv() => match event {
@@ -244,18 +237,28 @@ impl Driver {
                     Ok(NodeEvent::Offline { node, reason: OfflineReason::NodeIdChanged }) => {
                         self.manager.node_left(node, "its device moved to another node-ID");
                     }
-                    Ok(NodeEvent::HeartbeatWritten { node, heartbeat_ms }) => {
-                        self.manager.producer_heartbeat_written(node, heartbeat_ms, Instant::now().into_std());
-                    }
                     Ok(_) => {}
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                    Err(RecvError::Lagged(_)) => {
                         for node in self.registry.nodes() {
                             self.manager.node_found(node.id);
                         }
                     }
-                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                    Err(RecvError::Closed) => return,
                 },
                 Some((node, outcome)) = results.recv() => {
+                    // What the supervisor decided before the transfer ended
+                    // (a loss, the write of 0x1017 this answer confirms)
+                    // goes first: the manager sees them in the order they
+                    // happened.
+                    loop {
+                        match supervision.try_recv() {
+                            Ok(event) => self.manager.on_supervision(&event),
+                            Err(tokio::sync::broadcast::error::TryRecvError::Lagged(lost)) => {
+                                self.lagged(lost);
+                            }
+                            Err(_) => break,
+                        }
+                    }
                     self.manager.on_sdo(node, outcome, Instant::now().into_std());
                 }
                 command = commands.recv() => match command {
@@ -297,13 +300,17 @@ impl Driver {
         }
     }
 
-    /// Hands `frame` to the manager if it listens to it; whether it did.
-    fn take(&mut self, frame: &crate::can::Frame) -> bool {
-        if !Manager::hears(frame) {
-            return false;
+    /// The manager missed `lost` of the supervisor's events: every node
+    /// the registry knows is found again (booted if it is not already).
+    fn lagged(&mut self, lost: u64) {
+        tracing::warn!(
+            bus = self.bus_name,
+            lost,
+            "network manager fell behind the supervisor"
+        );
+        for node in self.registry.nodes() {
+            self.manager.node_found(node.id);
         }
-        self.manager.on_frame(frame, Instant::now().into_std());
-        true
     }
 
     async fn carry_out(
@@ -317,6 +324,12 @@ impl Driver {
                 // sees it through the bus status.
                 let _ = self.bus.send(frame).await;
             }
+            Action::Guard {
+                node,
+                guard_time_ms,
+                life_time_factor,
+            } => self.registry.guard(node, guard_time_ms, life_time_factor),
+            Action::Unguard { node } => self.registry.unguard(node),
             Action::Read { node, index, sub } => {
                 let registry = self.registry.clone();
                 let results = results.clone();
@@ -352,8 +365,7 @@ impl Driver {
         }
     }
 
-    /// Logs an event, writes it to the audit log as the gateway's, and
-    /// tells the registry of a node lost.
+    /// Logs an event and writes it to the audit log as the gateway's.
     fn report(&self, event: ManagerEvent) {
         let bus = &self.bus_name;
         let (node, operation, outcome) = match &event {
@@ -398,12 +410,6 @@ impl Driver {
             }
             ManagerEvent::Lost { node, reason } => {
                 tracing::warn!("bus {bus}: node {node} lost: {reason}");
-                let offline = if reason.contains("guarding") {
-                    OfflineReason::GuardingLost
-                } else {
-                    OfflineReason::HeartbeatLost
-                };
-                self.registry.report_offline(*node, offline);
                 (
                     Some(*node),
                     format!("network manager: node lost: {reason}"),

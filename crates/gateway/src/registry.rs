@@ -15,17 +15,22 @@
 //! - A boot-up message resets what is known of the node (identity, profile,
 //!   heartbeat period) and identifies it again: a node that boots may be
 //!   another device. Its EMCY history is kept.
-//! - Heartbeat supervision: the producer period of a node is its 0x1017 as
+//! - Supervision: the bus's one [`Supervisor`] (online, NMT state,
+//!   heartbeat period and deadline, node guarding) lives here, fed by the
+//!   registry's bus task: the producer period of a node is its 0x1017 as
 //!   read during identification, and is learnt from its heartbeats (the
 //!   shortest of the last few intervals, so that a changed 0x1017 is followed
 //!   and one lost heartbeat does not double it); a write of its 0x1017
 //!   through the gateway (any node's [`SdoChannel`] made here reports it)
 //!   sets the period at once and is published as
 //!   [`NodeEvent::HeartbeatWritten`]. The node goes offline when
-//!   no heartbeat comes within 1.5 periods
-//!   ([`HeartbeatConsumer::monitor_producer`]), and online again with its
-//!   next heartbeat. A node without heartbeat is online from any frame it
-//!   sends, and offline when it does not answer a scan.
+//!   no heartbeat comes within 1.5 periods (a node the network manager
+//!   guards: no valid reply within its life time), and online again with
+//!   its next heartbeat. A node without heartbeat is online from any frame
+//!   it sends, and offline when it does not answer a scan. The network
+//!   manager follows the same decisions
+//!   ([`NodeRegistry::subscribe_supervision`]) rather than timing the nodes
+//!   itself, so the node list and the machine view cannot disagree.
 //! - Bus down: nodes are kept (they are most likely still there, and the
 //!   operator wants to see what was on the bus) but marked offline, since
 //!   nothing can reach them. When the bus is up again, nodes with a
@@ -52,7 +57,7 @@ use crate::canopen::NodeId;
 use crate::canopen::cob::Function;
 use crate::canopen::eds::EdsError;
 use crate::canopen::emcy::{Emcy, emcy_text};
-use crate::canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
+use crate::canopen::manager::{LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::sdo::{ClientConfig, SdoError};
 
@@ -71,15 +76,6 @@ const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
 /// Identity object: sub 1 vendor, 2 product code, 3 revision, 4 serial.
 const IDENTITY: u16 = 0x1018;
 
-/// Heartbeat intervals the period is learnt from.
-const HEARTBEAT_WINDOW: usize = 8;
-/// This many intervals in a row all longer than the supervision timeout
-/// (1.5 periods) say that the producer slowed down (its 0x1017 was
-/// written): the period follows at once, rather than after the window,
-/// while the node flapped offline and online at every heartbeat.
-const SLOWER_AFTER: usize = 3;
-/// Intervals shorter than this are two frames of one burst, not a period.
-const MIN_HEARTBEAT_INTERVAL: Duration = Duration::from_millis(1);
 /// The longest device name kept (0x1008 is a VISIBLE_STRING of any length).
 const MAX_NAME_LEN: usize = 256;
 
@@ -325,8 +321,9 @@ pub enum NodeEvent {
     },
     /// Its producer heartbeat time (0x1017 sub 0) was written through the
     /// gateway (by anyone: a client, the network manager's boot-up) and
-    /// the node confirmed it: the registry supervises it with this period
-    /// from now on (0: no heartbeat), and so does the network manager.
+    /// the node confirmed it: the supervisor times it with this period
+    /// from now on (0: no heartbeat), for the registry and the network
+    /// manager alike.
     HeartbeatWritten {
         node: NodeId,
         heartbeat_ms: u16,
@@ -375,85 +372,9 @@ impl fmt::Display for NodeEvent {
     }
 }
 
-/// The producer period of a node, learnt from its heartbeats.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub(crate) struct HeartbeatLearner {
-    last: Option<Instant>,
-    intervals: VecDeque<Duration>,
-    period: Option<Duration>,
-}
-
-impl HeartbeatLearner {
-    /// Takes a heartbeat at `now`; the new period if it changed.
-    pub(crate) fn on_heartbeat(&mut self, now: Instant) -> Option<Duration> {
-        let last = self.last.replace(now);
-        let interval = now.saturating_duration_since(last?);
-        if interval < MIN_HEARTBEAT_INTERVAL {
-            return None;
-        }
-        if self.intervals.len() == HEARTBEAT_WINDOW {
-            self.intervals.pop_front();
-        }
-        self.intervals.push_back(interval);
-        if let Some(period) = self.period
-            && self.intervals.len() >= SLOWER_AFTER
-            && self
-                .intervals
-                .iter()
-                .rev()
-                .take(SLOWER_AFTER)
-                .all(|&recent| recent > period * 3 / 2)
-        {
-            let keep = self.intervals.len() - SLOWER_AFTER;
-            self.intervals.drain(..keep);
-        }
-        let shortest = self.intervals.iter().min().copied();
-        if shortest == self.period {
-            return None;
-        }
-        self.period = shortest;
-        shortest
-    }
-
-    /// The node's 0x1017 says `period`: it replaces what was learnt.
-    pub(crate) fn set_period(&mut self, period: Duration) {
-        self.intervals.clear();
-        self.period = Some(period);
-    }
-
-    /// The node's 0x1017 was written `period` (0: off, `None`): it
-    /// replaces what was learnt, and the interval that spans the change
-    /// (half old period, half new) does not count.
-    pub(crate) fn written(&mut self, period: Option<Duration>) {
-        self.last = None;
-        self.intervals.clear();
-        self.period = period;
-    }
-
-    /// The next interval does not count (the bus was down): what was
-    /// learnt of the period stays. A heartbeat that is merely late is no
-    /// reason: its interval is the producer's, maybe a new one.
-    pub(crate) fn restart(&mut self) {
-        self.last = None;
-        self.intervals.clear();
-    }
-
-    /// Forgets everything (the node booted: its 0x1017 is reloaded).
-    pub(crate) fn reset(&mut self) {
-        *self = Self::default();
-    }
-
-    pub(crate) fn period(&self) -> Option<Duration> {
-        self.period
-    }
-}
-
 struct Node {
     id: NodeId,
     channel: SdoChannel,
-    nmt: Option<NmtState>,
-    online: bool,
-    last_seen: Instant,
     identity: Option<Identity>,
     device_type: Option<u32>,
     name: Option<String>,
@@ -466,17 +387,20 @@ struct Node {
     generation: u64,
     /// An identification task is running for the node.
     identifying: bool,
-    heartbeat: HeartbeatLearner,
     emcy: VecDeque<EmcyRecord>,
 }
 
 impl Node {
-    fn info(&self, now: Instant) -> NodeInfo {
+    /// The node as known now; its supervision is the supervisor's.
+    fn info(&self, supervisor: &Supervisor, now: Instant) -> NodeInfo {
+        let supervision = supervisor.node(self.id);
+        let last_seen =
+            supervision.map_or(now, |supervision| Instant::from_std(supervision.last_seen));
         NodeInfo {
             id: self.id,
-            nmt: self.nmt,
-            online: self.online,
-            last_seen_ms: u64::try_from(now.saturating_duration_since(self.last_seen).as_millis())
+            nmt: supervision.and_then(|supervision| supervision.nmt),
+            online: supervision.is_some_and(|supervision| supervision.online),
+            last_seen_ms: u64::try_from(now.saturating_duration_since(last_seen).as_millis())
                 .unwrap_or(u64::MAX),
             identity: self.identity,
             device_type: self.device_type,
@@ -485,16 +409,11 @@ impl Node {
             eds: self.eds.as_ref().map(|entry| entry.name.clone()),
             eds_assigned: self.eds_assigned,
             eds_entry: self.eds.clone(),
-            heartbeat_ms: self
-                .heartbeat
-                .period()
+            heartbeat_ms: supervision
+                .and_then(|supervision| supervision.heartbeat)
                 .map(|period| u64::try_from(period.as_millis()).unwrap_or(u64::MAX)),
             identification: self.identification.clone(),
         }
-    }
-
-    fn supervised(&self) -> bool {
-        self.heartbeat.period().is_some()
     }
 
     /// What an identification found goes; what the node is stays.
@@ -541,8 +460,9 @@ struct State {
     /// everyone's transfers queue behind the probe: two SDO clients talking
     /// to one server at once see each other's answers.
     probe_channels: BTreeMap<NodeId, SdoChannel>,
-    consumer: HeartbeatConsumer,
-    bus_up: bool,
+    /// The one supervision of the bus's nodes: online, NMT state,
+    /// heartbeat period and deadline, guarding.
+    supervisor: Supervisor,
     /// The EDS files assigned to node ids by hand, whether or not the node
     /// has been heard yet.
     assigned: BTreeMap<NodeId, Arc<EdsEntry>>,
@@ -563,6 +483,8 @@ struct Shared {
     rearm: Notify,
     /// Every download a node confirmed, through any of its channels.
     writes: broadcast::Sender<ObjectWritten>,
+    /// What the supervisor decided, for the network manager.
+    supervision: broadcast::Sender<SupervisorEvent>,
 }
 
 /// A download a node confirmed (CiA 301 §7.2.4.3: the server's response),
@@ -579,6 +501,10 @@ pub struct ObjectWritten {
 /// Confirmed writes kept for a slow follower before it lags (a lagging
 /// follower refreshes what it follows as if every object were written).
 const WRITES_CAPACITY: usize = 256;
+
+/// Supervision events kept for a slow follower: one per heartbeat heard,
+/// so room for a few seconds of a full bus.
+const SUPERVISION_CAPACITY: usize = 4096;
 
 /// Stops the bus task when the last handle goes.
 struct TaskGuard(tokio::task::AbortHandle);
@@ -660,8 +586,7 @@ impl NodeRegistry {
             state: Mutex::new(State {
                 nodes: BTreeMap::new(),
                 probe_channels: BTreeMap::new(),
-                consumer: HeartbeatConsumer::new(),
-                bus_up,
+                supervisor: Supervisor::new(bus_up),
                 assigned: BTreeMap::new(),
             }),
             events,
@@ -669,6 +594,7 @@ impl NodeRegistry {
             identified: watch::Sender::new(0),
             rearm: Notify::new(),
             writes: broadcast::channel(WRITES_CAPACITY).0,
+            supervision: broadcast::channel(SUPERVISION_CAPACITY).0,
             config,
             bus,
         });
@@ -691,33 +617,41 @@ impl NodeRegistry {
     /// Every node known, by id.
     pub fn nodes(&self) -> Vec<NodeInfo> {
         let now = Instant::now();
-        self.shared
-            .lock()
+        let state = self.shared.lock();
+        state
             .nodes
             .values()
-            .map(|node| node.info(now))
+            .map(|node| node.info(&state.supervisor, now))
             .collect()
     }
 
     pub fn node(&self, id: NodeId) -> Option<NodeInfo> {
-        self.shared
-            .lock()
+        let state = self.shared.lock();
+        state
             .nodes
             .get(&id)
-            .map(|node| node.info(Instant::now()))
+            .map(|node| node.info(&state.supervisor, Instant::now()))
+    }
+
+    /// The node's supervision as the bus's one supervisor sees it now.
+    pub fn supervision(&self, id: NodeId) -> Option<NodeSupervision> {
+        self.shared.lock().supervisor.node(id)
     }
 
     /// Every node known, by id: whether it is online and the counts of its
     /// SDO channel. One short lock, nothing cloned but numbers (for
     /// `/metrics`).
     pub fn metrics(&self) -> Vec<NodeMetrics> {
-        self.shared
-            .lock()
+        let state = self.shared.lock();
+        state
             .nodes
             .values()
             .map(|node| NodeMetrics {
                 id: node.id,
-                online: node.online,
+                online: state
+                    .supervisor
+                    .node(node.id)
+                    .is_some_and(|supervision| supervision.online),
                 sdo: node.channel.stats(),
             })
             .collect()
@@ -760,7 +694,10 @@ impl NodeRegistry {
             None => state.assigned.remove(&id),
         };
         let State {
-            nodes, assigned, ..
+            nodes,
+            assigned,
+            supervisor,
+            ..
         } = &mut *state;
         let node = nodes.get_mut(&id)?;
         if node.describe(&self.shared.catalog, assigned.get(&id)) {
@@ -770,7 +707,7 @@ impl NodeRegistry {
                 eds: node.eds.as_ref().map(|entry| entry.name.clone()),
             });
         }
-        Some(node.info(Instant::now()))
+        Some(node.info(supervisor, Instant::now()))
     }
 
     /// The EDS files assigned by hand, by node id.
@@ -802,17 +739,24 @@ impl NodeRegistry {
         }
     }
 
-    /// Someone supervising the node (the network manager) lost it: it
-    /// goes offline with `reason`, unless it already is. It is online
-    /// again with its next heartbeat (or, unsupervised, any frame).
-    pub fn report_offline(&self, id: NodeId, reason: OfflineReason) {
-        let mut state = self.shared.lock();
-        if let Some(node) = state.nodes.get_mut(&id)
-            && node.online
-        {
-            node.online = false;
-            self.shared.emit(NodeEvent::Offline { node: id, reason });
-        }
+    /// The network manager guards node `id` from now on, with the guard
+    /// time (ms) and life time factor it wrote: the supervisor sends the
+    /// requests and loses the node when no valid reply comes within the
+    /// life time.
+    pub fn guard(&self, id: NodeId, guard_time_ms: u16, life_time_factor: u8) {
+        let now = Instant::now().into_std();
+        self.shared
+            .lock()
+            .supervisor
+            .guard(id, guard_time_ms, life_time_factor, now);
+        self.shared.rearm.notify_one();
+    }
+
+    /// The network manager stopped guarding node `id`.
+    pub fn unguard(&self, id: NodeId) {
+        let now = Instant::now().into_std();
+        self.shared.lock().supervisor.unguard(id, now);
+        self.shared.rearm.notify_one();
     }
 
     /// The device at `id` moved to another node-ID for good: the old ID
@@ -824,7 +768,7 @@ impl NodeRegistry {
         if state.nodes.remove(&id).is_none() {
             return;
         }
-        state.consumer.unmonitor(id);
+        state.supervisor.forget(id);
         // Sent even when it was offline already: those who follow the node
         // (the network manager, the stream) learn that it left for good.
         self.shared.emit(NodeEvent::Offline { node: id, reason });
@@ -833,6 +777,14 @@ impl NodeRegistry {
     /// What happens to the nodes from now on.
     pub fn subscribe(&self) -> broadcast::Receiver<NodeEvent> {
         self.shared.events.subscribe()
+    }
+
+    /// What the bus's supervisor decides from now on, in order: every
+    /// heartbeat heard, boot-up, loss and recovery (the network manager
+    /// follows these instead of supervising on its own). The node events
+    /// of [`subscribe`](Self::subscribe) are made from the same decisions.
+    pub fn subscribe_supervision(&self) -> broadcast::Receiver<SupervisorEvent> {
+        self.shared.supervision.subscribe()
     }
 
     /// Every download a node confirms from now on, through any of the
@@ -926,30 +878,70 @@ impl Shared {
     /// every heartbeat until the slower period is learnt; 0 (no heartbeat):
     /// unsupervised, online from any frame it sends. Published as
     /// [`NodeEvent::HeartbeatWritten`], which the network manager follows.
-    fn heartbeat_written(&self, id: NodeId, ms: u16) {
+    fn heartbeat_written(self: &Arc<Self>, id: NodeId, ms: u16) {
         {
             let mut state = self.lock();
-            let State {
-                nodes, consumer, ..
-            } = &mut *state;
-            let Some(node) = nodes.get_mut(&id) else {
+            if !state.nodes.contains_key(&id) {
                 return;
-            };
-            if ms == 0 {
-                node.heartbeat.written(None);
-                consumer.monitor(id, Duration::ZERO);
-            } else {
-                let period = Duration::from_millis(u64::from(ms));
-                node.heartbeat.written(Some(period));
-                consumer.monitor_producer(id, period);
-                consumer.arm(id, Instant::now().into_std());
             }
-            self.emit(NodeEvent::HeartbeatWritten {
-                node: id,
-                heartbeat_ms: ms,
-            });
+            state
+                .supervisor
+                .heartbeat_written(id, ms, Instant::now().into_std());
+            self.flush(&mut state);
         }
         self.rearm.notify_one();
+    }
+
+    /// Publishes what the supervisor decided, in order: as it is to the
+    /// network manager, and as node events; and what follows for the
+    /// registry (a node that booted is identified again, as is one whose
+    /// identification failed while it was stopped).
+    fn flush(self: &Arc<Self>, state: &mut State) {
+        for event in state.supervisor.take_events() {
+            // Nobody following is fine.
+            let _ = self.supervision.send(event);
+            match event {
+                SupervisorEvent::Nmt { node, from, to } => {
+                    self.emit(NodeEvent::NmtChanged { node, from, to });
+                    let Some(known) = state.nodes.get_mut(&node) else {
+                        continue;
+                    };
+                    // A node identified while stopped could not answer.
+                    if from == Some(NmtState::Stopped)
+                        && matches!(known.identification, Identification::Failed { .. })
+                        && matches!(to, NmtState::PreOperational | NmtState::Operational)
+                    {
+                        self.start_identification(known);
+                    }
+                }
+                SupervisorEvent::BootUp { node } => {
+                    let assigned = state.assigned.get(&node).cloned();
+                    if let Some(known) = state.nodes.get_mut(&node) {
+                        known.forget_identity();
+                        known.describe(&self.catalog, assigned.as_ref());
+                        self.start_identification(known);
+                    }
+                }
+                SupervisorEvent::Online { node } => self.emit(NodeEvent::Online { node }),
+                SupervisorEvent::Offline { node, cause } => {
+                    let reason = match cause {
+                        OfflineCause::Lost(LostBy::Heartbeat { .. }) => {
+                            OfflineReason::HeartbeatLost
+                        }
+                        OfflineCause::Lost(LostBy::Guarding { .. }) => OfflineReason::GuardingLost,
+                        OfflineCause::BusDown => OfflineReason::BusDown,
+                        OfflineCause::NoAnswer => OfflineReason::NoAnswer,
+                    };
+                    self.emit(NodeEvent::Offline { node, reason });
+                }
+                SupervisorEvent::HeartbeatWritten { node, heartbeat_ms } => {
+                    self.emit(NodeEvent::HeartbeatWritten { node, heartbeat_ms });
+                }
+                SupervisorEvent::Heard { .. }
+                | SupervisorEvent::Lost { .. }
+                | SupervisorEvent::Recovered { .. } => {}
+            }
+        }
     }
 
     /// The node, added if it is new (the flag), with its [`NodeEvent::Appeared`].
@@ -961,14 +953,12 @@ impl Shared {
     ) -> (&'a mut Node, bool) {
         let mut new = false;
         let probing = state.probe_channels.get(&id).cloned();
+        state.supervisor.watch(id, now.into_std());
         let node = state.nodes.entry(id).or_insert_with(|| {
             new = true;
             Node {
                 id,
                 channel: probing.unwrap_or_else(|| self.new_channel(id)),
-                nmt: None,
-                online: true,
-                last_seen: now,
                 identity: None,
                 device_type: None,
                 name: None,
@@ -978,7 +968,6 @@ impl Shared {
                 identification: Identification::Pending,
                 generation: 0,
                 identifying: false,
-                heartbeat: HeartbeatLearner::default(),
                 emcy: VecDeque::new(),
             }
         });
@@ -998,30 +987,8 @@ impl Shared {
         }
     }
 
-    /// A frame from `node` that says it is alive.
-    fn heard(&self, node: &mut Node, now: Instant, heartbeat: bool, bus_up: bool) {
-        node.last_seen = now;
-        // A supervised node is online by its heartbeat only: a node whose
-        // heartbeat stopped is not well, whatever else it sends.
-        if !node.online && bus_up && (heartbeat || !node.supervised()) {
-            node.online = true;
-            self.emit(NodeEvent::Online { node: node.id });
-        }
-    }
-
-    fn set_nmt(&self, node: &mut Node, to: NmtState) {
-        let from = node.nmt.replace(to);
-        if from != Some(to) {
-            self.emit(NodeEvent::NmtChanged {
-                node: node.id,
-                from,
-                to,
-            });
-        }
-    }
-
     /// Takes a frame of the bus; whether it may have moved the next
-    /// heartbeat timeout (a heartbeat or an EMCY: a new node is watched).
+    /// supervision deadline (a heartbeat or an EMCY: a new node is watched).
     fn on_frame(self: &Arc<Self>, frame: &TimedFrame) -> bool {
         let Some((function, Some(id))) = Function::classify(frame.frame.id()) else {
             return false;
@@ -1038,9 +1005,9 @@ impl Shared {
                 true
             }
             Function::Tpdo(_) | Function::SdoTx => {
-                let bus_up = state.bus_up;
-                if let Some(node) = state.nodes.get_mut(&id) {
-                    self.heard(node, now, false, bus_up);
+                if state.nodes.contains_key(&id) {
+                    state.supervisor.heard(id, now.into_std());
+                    self.flush(&mut state);
                 }
                 false
             }
@@ -1055,53 +1022,15 @@ impl Shared {
         frame: &TimedFrame,
         now: Instant,
     ) {
-        let events = match state.consumer.on_frame(&frame.frame, now.into_std()) {
-            Ok(events) => events,
-            Err(error) => {
-                tracing::debug!(bus = self.bus.name(), %error, "malformed heartbeat");
-                return;
-            }
-        };
-        let bus_up = state.bus_up;
-        let assigned = state.assigned.get(&id).cloned();
+        if let Err(error) = state.supervisor.on_frame(&frame.frame, now.into_std()) {
+            tracing::debug!(bus = self.bus.name(), %error, "malformed heartbeat");
+            return;
+        }
         let (node, new) = self.ensure_node(state, id, now);
-        let mut boot_up = false;
-        for event in events {
-            match event {
-                HeartbeatEvent::BootUp { .. } => boot_up = true,
-                HeartbeatEvent::StateChanged { to, .. } => {
-                    let was_stopped = node.nmt == Some(NmtState::Stopped);
-                    self.set_nmt(node, to);
-                    // A node identified while stopped could not answer.
-                    if was_stopped
-                        && matches!(node.identification, Identification::Failed { .. })
-                        && matches!(to, NmtState::PreOperational | NmtState::Operational)
-                    {
-                        self.start_identification(node);
-                    }
-                }
-                HeartbeatEvent::Lost { .. } | HeartbeatEvent::Recovered { .. } => {}
-            }
-        }
-        let mut period = None;
-        if boot_up {
-            self.set_nmt(node, NmtState::BootUp);
-            node.forget_identity();
-            node.describe(&self.catalog, assigned.as_ref());
-            node.heartbeat.reset();
-        } else {
-            period = node.heartbeat.on_heartbeat(now);
-        }
-        if boot_up || new {
+        if new {
             self.start_identification(node);
         }
-        self.heard(node, now, true, bus_up);
-        if boot_up {
-            // Not timed until it sends heartbeats again, with a period to learn.
-            state.consumer.monitor(id, Duration::ZERO);
-        } else if let Some(period) = period {
-            state.consumer.monitor_producer(id, period);
-        }
+        self.flush(state);
     }
 
     fn on_emcy(self: &Arc<Self>, state: &mut State, id: NodeId, frame: &TimedFrame, now: Instant) {
@@ -1113,74 +1042,58 @@ impl Shared {
             }
         };
         let mut record = EmcyRecord::new(&emcy, frame.timestamp);
-        let bus_up = state.bus_up;
         let capacity = self.config.emcy_history;
         let (node, new) = self.ensure_node(state, id, now);
         record.axis = node.profile.emcy_axis(&emcy.manufacturer);
         if new {
             self.start_identification(node);
         }
-        self.heard(node, now, false, bus_up);
         if capacity > 0 {
             if node.emcy.len() >= capacity {
                 node.emcy.pop_front();
             }
             node.emcy.push_back(record.clone());
         }
+        state.supervisor.heard(id, now.into_std());
+        self.flush(state);
         self.emit(NodeEvent::Emcy {
             node: id,
             emcy: record,
         });
     }
 
-    fn poll_heartbeats(&self) {
+    /// The supervision deadlines due: nodes lost; the guarding requests to
+    /// send.
+    fn poll_supervision(self: &Arc<Self>) -> Vec<crate::can::Frame> {
         let mut state = self.lock();
-        let State {
-            nodes, consumer, ..
-        } = &mut *state;
-        for event in consumer.poll(Instant::now().into_std()) {
-            let HeartbeatEvent::Lost { node: id } = event else {
-                continue;
-            };
-            if let Some(node) = nodes.get_mut(&id)
-                && node.online
-            {
-                node.online = false;
-                self.emit(NodeEvent::Offline {
-                    node: id,
-                    reason: OfflineReason::HeartbeatLost,
-                });
-            }
-        }
+        let requests = state.supervisor.poll(Instant::now().into_std());
+        self.flush(&mut state);
+        requests
     }
 
     fn on_bus_status(self: &Arc<Self>, up: bool) {
         let recheck: Vec<NodeId> = {
             let mut state = self.lock();
-            if state.bus_up == up {
+            if state.supervisor.is_bus_up() == up {
                 return;
             }
-            state.bus_up = up;
-            if up {
-                state
-                    .nodes
-                    .values()
-                    .filter(|node| !node.supervised())
-                    .map(|node| node.id)
-                    .collect()
-            } else {
-                for node in state.nodes.values_mut() {
-                    node.heartbeat.restart();
-                    if node.online {
-                        node.online = false;
-                        self.emit(NodeEvent::Offline {
-                            node: node.id,
-                            reason: OfflineReason::BusDown,
-                        });
-                    }
-                }
-                Vec::new()
+            state.supervisor.bus_up(up);
+            self.flush(&mut state);
+            if !up {
+                return;
             }
+            // Nodes with a heartbeat come back with it; the others are
+            // asked.
+            state
+                .nodes
+                .keys()
+                .copied()
+                .filter(|&id| {
+                    !state.supervisor.node(id).is_some_and(|supervision| {
+                        supervision.heartbeat.is_some() || supervision.guarded
+                    })
+                })
+                .collect()
         };
         if !recheck.is_empty() {
             let shared = self.clone();
@@ -1255,29 +1168,18 @@ impl Shared {
         let probe = Probe::of(&result);
         let now = Instant::now();
         let mut state = self.lock();
-        let bus_up = state.bus_up;
         match probe {
             Probe::Answered => {
                 let (node, new) = self.ensure_node(&mut state, id, now);
-                self.heard(node, now, false, bus_up);
                 if new || matches!(node.identification, Identification::Failed { .. }) {
                     self.start_identification(node);
                 }
+                state.supervisor.heard(id, now.into_std());
             }
-            Probe::Silent => {
-                if let Some(node) = state.nodes.get_mut(&id) {
-                    // A stopped node does no SDO: its silence says nothing.
-                    if node.online && !node.supervised() && node.nmt != Some(NmtState::Stopped) {
-                        node.online = false;
-                        self.emit(NodeEvent::Offline {
-                            node: id,
-                            reason: OfflineReason::NoAnswer,
-                        });
-                    }
-                }
-            }
+            Probe::Silent => state.supervisor.no_answer(id),
             Probe::BusFailed(_) => {}
         }
+        self.flush(&mut state);
         if known.is_none() {
             state.probe_channels.remove(&id);
             self.probing.send_modify(|probing| {
@@ -1362,14 +1264,14 @@ impl Shared {
     }
 
     fn apply_identity(
-        &self,
+        self: &Arc<Self>,
         state: &mut State,
         id: NodeId,
         outcome: Result<Identified, SdoRequestError>,
     ) {
         let State {
             nodes,
-            consumer,
+            supervisor,
             assigned,
             ..
         } = state;
@@ -1385,20 +1287,17 @@ impl Shared {
                 node.describe(&self.catalog, assigned.get(&id));
                 // The boot-up message is sent on entering pre-operational,
                 // and the node answered SDO, which it does not when stopped.
-                if node.nmt == Some(NmtState::BootUp) {
-                    self.set_nmt(node, NmtState::PreOperational);
+                supervisor.answered(id);
+                if let Some(ms) = found.heartbeat_ms {
+                    supervisor.heartbeat_read(id, ms, Instant::now().into_std());
                 }
-                if let Some(ms) = found.heartbeat_ms.filter(|&ms| ms > 0) {
-                    let period = Duration::from_millis(u64::from(ms));
-                    node.heartbeat.set_period(period);
-                    consumer.monitor_producer(id, period);
-                    consumer.arm(id, Instant::now().into_std());
-                }
-                self.emit(NodeEvent::Identified {
+                let identified = NodeEvent::Identified {
                     node: id,
                     profile: node.profile,
                     eds: node.eds.as_ref().map(|entry| entry.name.clone()),
-                });
+                };
+                self.flush(state);
+                self.emit(identified);
             }
             Err(error) => {
                 node.forget_identity();
@@ -1477,7 +1376,7 @@ async fn run(
     // One timer for the loop, moved when the next heartbeat timeout moves,
     // which only heartbeats, timeouts and rearming do: PDOs and SDOs (most
     // of a busy bus) neither make a timer nor scan the watched nodes.
-    let mut deadline = shared.lock().consumer.deadline().map(Instant::from_std);
+    let mut deadline = shared.lock().supervisor.deadline().map(Instant::from_std);
     let timer = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now));
     tokio::pin!(timer);
     loop {
@@ -1520,11 +1419,14 @@ async fn run(
                 Err(_) => status_open = false,
             },
             () = &mut timer, if deadline.is_some() => {
-                shared.poll_heartbeats();
+                for request in shared.poll_supervision() {
+                    // A bus that is down is reported by the bus.
+                    let _ = shared.bus.send(request).await;
+                }
             }
             () = shared.rearm.notified() => {}
         }
-        deadline = shared.lock().consumer.deadline().map(Instant::from_std);
+        deadline = shared.lock().supervisor.deadline().map(Instant::from_std);
         if let Some(at) = deadline {
             timer.as_mut().reset(at);
         }

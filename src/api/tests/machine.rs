@@ -241,3 +241,39 @@ async fn a_cia_309_write_of_0x1017_is_followed_as_well() {
         "{after}"
     );
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_node_list_and_the_machine_view_lose_a_node_together() {
+    // Before one supervisor, the registry learnt a faster heartbeat (set
+    // past the gateway) and lost the node at 1.5 × 100 ms, while the
+    // manager still waited 1.5 × 500 ms: offline in the node list, ready
+    // in the machine view, for 600 ms.
+    use crate::can::{CanId, Frame};
+    let (app, state) = demo_with_machine().await;
+    let served = state.bus("demo").unwrap();
+    let node_1 = NodeId::new(1).unwrap();
+    // Another master writes 100 ms into node 1's 0x1017 (an expedited SDO
+    // download, not through the gateway's channel).
+    let download = [0x2B, 0x17, 0x10, 0x00, 100, 0, 0, 0];
+    served
+        .bus
+        .send(Frame::new(CanId::Standard(0x601), &download).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(
+        served.registry.node(node_1).unwrap().heartbeat_ms,
+        Some(100)
+    );
+    assert_eq!(machine_node(&app, 1).await["state"], "ready");
+    served.rack().unwrap().unplug(node_1).unwrap();
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let info = served.registry.node(node_1).unwrap();
+    let machine = machine_node(&app, 1).await;
+    assert!(!info.online, "{info:?}");
+    assert_eq!(machine["state"], "offline", "{machine}");
+    assert_eq!(
+        machine["reason"], "no heartbeat within 150 ms (1.5 × 100 ms)",
+        "{machine}"
+    );
+}

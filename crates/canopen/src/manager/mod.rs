@@ -21,13 +21,17 @@
 //!   step and the reason; a node with the wrong identity is not retried
 //!   until it boots again or someone asks.
 //! - **Error control** (CiA 301 §7.2.8.3.2, CiA 302-2 §7): every booted
-//!   node is supervised by its heartbeat (a consumer with a timeout of 1.5
-//!   periods) or by node guarding; where neither could be set up the node
-//!   says `supervision: none` and why. A lost node is `offline`; a node
-//!   heard again after it was lost is booted again by itself. A producer
-//!   heartbeat time written into a node's 0x1017 by someone else
-//!   ([`Manager::producer_heartbeat_written`]) becomes the node's: its
-//!   supervision follows at once, and its next boot-up writes it.
+//!   node is supervised by its heartbeat or by node guarding; where
+//!   neither could be set up the node says `supervision: none` and why.
+//!   The timing is the bus's one [`Supervisor`]'s, not the manager's: it
+//!   hears the frames, times the heartbeats (1.5 periods) and does the
+//!   guarding the manager hands it ([`Action::Guard`]), and the manager
+//!   follows its events ([`Manager::on_supervision`]). A ready node lost is
+//!   `offline`; a node heard again after it was lost is booted again by
+//!   itself. A producer heartbeat time written into a node's 0x1017 by
+//!   someone else ([`SupervisorEvent::HeartbeatWritten`]) becomes the
+//!   node's: its supervision follows at once, and its next boot-up writes
+//!   it.
 //! - **Machine state**: `ready` when every mandatory node is booted,
 //!   supervised and in the NMT state it should have; `booting` while a
 //!   mandatory node is on its way there (or the first scan is under way);
@@ -41,24 +45,29 @@
 //! and left alone.
 //!
 //! Like the SDO client, the manager takes the current time and what
-//! happened in ([`Manager::on_frame`], [`Manager::on_sdo`],
+//! happened in ([`Manager::on_supervision`], [`Manager::on_sdo`],
 //! [`Manager::node_found`], ...) and gives [`Action`]s out
 //! ([`Manager::poll`]) with a deadline: SDO requests (one at a time per
-//! node), NMT commands and frames (its heartbeat, guarding requests). The
-//! gateway carries them out.
+//! node), NMT commands and frames (its heartbeat), guarding to hand to the
+//! supervisor. The gateway carries them out.
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::time::{Duration, Instant};
 
 use super::cob::NodeId;
-use super::heartbeat::{HeartbeatConsumer, HeartbeatEvent, HeartbeatProducer, NodeGuardMaster};
+use super::heartbeat::HeartbeatProducer;
 use super::nmt::{NmtCommand, NmtState};
 use super::sdo::AbortCode;
 use crate::can::Frame;
 
+pub mod supervisor;
 #[cfg(test)]
 mod tests;
+
+pub use supervisor::{
+    LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent, heartbeat_timeout,
+};
 
 /// Guard time object (ms).
 pub const GUARD_TIME: u16 = 0x100C;
@@ -351,9 +360,17 @@ pub enum Action {
         sub: u8,
         data: Vec<u8>,
     },
-    /// Send this frame (an NMT command, the manager's heartbeat, a
-    /// guarding request).
+    /// Send this frame (an NMT command, the manager's heartbeat).
     Send(Frame),
+    /// Guard `node` from now on ([`Supervisor::guard`]): the 0x100C and
+    /// 0x100D it was written.
+    Guard {
+        node: NodeId,
+        guard_time_ms: u16,
+        life_time_factor: u8,
+    },
+    /// Stop guarding `node` ([`Supervisor::unguard`]).
+    Unguard { node: NodeId },
 }
 
 /// What happened, for the audit log, the stream and the log.
@@ -480,7 +497,12 @@ struct Node {
     /// The node answered an SDO request in this boot (to tell `missing`
     /// from a failure halfway).
     answered: bool,
-    guard: Option<NodeGuardMaster>,
+    /// The supervisor guards the node for the manager.
+    guarded: bool,
+    /// The last NMT state the supervisor reported.
+    nmt: Option<NmtState>,
+    /// The supervisor reported it lost, and not heard since.
+    lost: bool,
     /// Heard at least once (boot-up, heartbeat, found).
     present: bool,
     /// 0x1017 could be written: heartbeat supervision.
@@ -509,7 +531,9 @@ impl Node {
             retry_at: None,
             backoff: Duration::ZERO,
             answered: false,
-            guard: None,
+            guarded: false,
+            nmt: None,
+            lost: false,
             present: false,
             heartbeat_set: false,
             boots: 0,
@@ -539,7 +563,6 @@ pub struct Manager {
     /// Some nodes are described: the others are unexpected.
     described: bool,
     nodes: BTreeMap<NodeId, Node>,
-    consumer: HeartbeatConsumer,
     producer: HeartbeatProducer,
     /// The first scan is over: expected nodes not found are missing.
     scanned: bool,
@@ -565,7 +588,6 @@ impl Manager {
             config,
             described,
             nodes,
-            consumer: HeartbeatConsumer::new(),
             producer,
             scanned: false,
             bus_up: true,
@@ -625,7 +647,9 @@ impl Manager {
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
-        self.consumer.unmonitor(id);
+        if std::mem::take(&mut node.guarded) {
+            self.outbox.push(Action::Unguard { node: id });
+        }
         if !node.description.expected {
             self.nodes.remove(&id);
             return;
@@ -635,7 +659,6 @@ impl Manager {
         node.step = Step::Waiting;
         node.reason = Some(why.to_string());
         node.ops.clear();
-        node.guard = None;
         node.heartbeat_set = false;
         node.supervision = Supervision::None;
         node.supervision_reason = None;
@@ -704,7 +727,9 @@ impl Manager {
         node.reason = None;
         node.answered = false;
         node.heartbeat_set = false;
-        node.guard = None;
+        if std::mem::take(&mut node.guarded) {
+            self.outbox.push(Action::Unguard { node: id });
+        }
         node.supervision = Supervision::None;
         node.supervision_reason = Some("booting".into());
         // A request in flight is answered to the old boot: dropped.
@@ -729,74 +754,108 @@ impl Manager {
         }
         node.ops = ops;
         node.step = node.ops.front().map_or(Step::Supervised, Op::step);
-        // Not timed while it boots (its state is still followed): its
-        // heartbeat starts again once set.
-        self.consumer.monitor(id, Duration::ZERO);
         self.events.push(ManagerEvent::BootStarted {
             node: id,
             why: why.to_string(),
         });
     }
 
-    /// Whether [`Manager::on_frame`] does anything with `frame`: only the
-    /// NMT error control frames (boot-up, heartbeat, node guarding) count.
-    /// A driver skips the rest (PDOs, SDOs, SYNC: nearly all of a busy
-    /// bus) without polling, so its work grows with the nodes' heartbeats,
-    /// not with the bus load.
-    pub fn hears(frame: &Frame) -> bool {
-        super::heartbeat::heartbeat_node(frame.id()).is_some()
+    /// Takes what the bus's [`Supervisor`] decided (the one supervision of
+    /// the nodes: the manager keeps no timer of its own): a boot-up message
+    /// or a node heard for the first time (or heard again after it was
+    /// lost, or while missing) boots it; a ready node lost goes offline;
+    /// a written 0x1017 becomes the node's.
+    pub fn on_supervision(&mut self, event: &SupervisorEvent) {
+        let id = event.node();
+        match *event {
+            SupervisorEvent::HeartbeatWritten { heartbeat_ms, .. } => {
+                // The supervisor times it anew from the write.
+                if let Some(node) = self.nodes.get_mut(&id) {
+                    node.lost = false;
+                }
+                self.producer_heartbeat_written(id, heartbeat_ms);
+            }
+            SupervisorEvent::Lost { by, .. } => self.lost(id, by),
+            // A node it does not know yet is added by what follows.
+            SupervisorEvent::Nmt { to, .. } => {
+                if let Some(node) = self.nodes.get_mut(&id) {
+                    node.nmt = Some(to);
+                }
+            }
+            SupervisorEvent::BootUp { .. } => {
+                let Some(node) = self.node_mut(id) else {
+                    return;
+                };
+                node.nmt = Some(NmtState::BootUp);
+                node.present = true;
+                node.lost = false;
+                if node.managed {
+                    self.begin_boot(id, "boot-up message");
+                }
+            }
+            SupervisorEvent::Recovered { .. } => {
+                let Some(node) = self.node_mut(id) else {
+                    return;
+                };
+                node.present = true;
+                node.lost = false;
+                // Only a node the manager had lost is booted again: one on
+                // its way goes on.
+                if node.managed && node.state == NodeState::Offline {
+                    self.begin_boot(id, "heard again after it was lost");
+                }
+            }
+            SupervisorEvent::Heard { nmt, .. } => {
+                let new = !self.nodes.contains_key(&id);
+                let Some(node) = self.node_mut(id) else {
+                    return;
+                };
+                node.nmt = Some(nmt);
+                node.present = true;
+                node.lost = false;
+                let why = if new {
+                    Some("heard for the first time")
+                } else if node.state == NodeState::Missing
+                    && node.ops.is_empty()
+                    && node.in_flight.is_none()
+                {
+                    Some("heard")
+                } else {
+                    None
+                };
+                if let Some(why) = why
+                    && node.managed
+                {
+                    self.begin_boot(id, why);
+                }
+            }
+            SupervisorEvent::Online { .. } | SupervisorEvent::Offline { .. } => {}
+        }
     }
 
-    /// Takes a frame received on the bus: boot-up messages, heartbeats and
-    /// node-guarding replies.
-    pub fn on_frame(&mut self, frame: &Frame, now: Instant) {
-        let Some(id) = super::heartbeat::heartbeat_node(frame.id()) else {
+    /// The supervisor lost the node: a ready node goes offline (one on its
+    /// way is not lost for the manager until its boot-up ends).
+    fn lost(&mut self, id: NodeId, by: LostBy) {
+        let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
-        if id == self.config.node_id || frame.is_remote() {
+        node.lost = true;
+        if node.state != NodeState::Ready {
             return;
         }
-        let events = self.consumer.on_frame(frame, now).unwrap_or_default();
-        let mut guard_events = Vec::new();
-        if let Some(node) = self.nodes.get_mut(&id)
-            && let Some(guard) = node.guard.as_mut()
-        {
-            guard_events = guard.on_frame(frame, now).unwrap_or_default();
-        }
-        let mut boot = None;
-        let mut new = false;
-        if !self.nodes.contains_key(&id) {
-            new = true;
-        }
-        let Some(node) = self.node_mut(id) else {
-            return;
-        };
-        node.present = true;
-        for event in events.iter().chain(&guard_events) {
-            match event {
-                HeartbeatEvent::BootUp { .. } => boot = Some("boot-up message"),
-                HeartbeatEvent::Recovered { .. } if boot.is_none() => {
-                    boot = Some("heard again after it was lost");
-                }
-                _ => {}
+        let reason = match by {
+            LostBy::Heartbeat { period } => format!(
+                "no heartbeat within {} ms (1.5 × {} ms)",
+                heartbeat_timeout(period).as_millis(),
+                period.as_millis()
+            ),
+            LostBy::Guarding { life_time } => {
+                format!("no node-guarding reply within {} ms", life_time.as_millis())
             }
-        }
-        if boot.is_none() && new {
-            boot = Some("heard for the first time");
-        }
-        if boot.is_none()
-            && node.managed
-            && node.state == NodeState::Missing
-            && node.ops.is_empty()
-            && node.in_flight.is_none()
-        {
-            boot = Some("heard");
-        }
-        if let Some(why) = boot
-            && node.managed
-        {
-            self.begin_boot(id, why);
-        }
+        };
+        node.state = NodeState::Offline;
+        node.reason = Some(reason.clone());
+        self.events.push(ManagerEvent::Lost { node: id, reason });
     }
 
     /// The answer to the SDO request of `node` the manager asked for.
@@ -874,15 +933,17 @@ impl Manager {
                     node.ops.push_front(Op::SetLifeFactor);
                 }
                 if op == Op::SetLifeFactor {
-                    let mut guard = NodeGuardMaster::new(
-                        id,
-                        node.description.heartbeat_ms,
-                        LIFE_TIME_FACTOR_DEFAULT,
-                    );
-                    guard.start(now);
-                    node.guard = Some(guard);
+                    // The supervisor guards it from now on, for the manager,
+                    // afresh: what it lost before is past.
+                    node.guarded = true;
+                    node.lost = false;
+                    self.outbox.push(Action::Guard {
+                        node: id,
+                        guard_time_ms: node.description.heartbeat_ms,
+                        life_time_factor: LIFE_TIME_FACTOR_DEFAULT,
+                    });
                 }
-                self.next(id, now);
+                self.next(id);
             }
             SdoOutcome::Aborted(code) => {
                 node.answered = true;
@@ -907,7 +968,7 @@ impl Manager {
                         node.ops.push_front(Op::SetGuardTime);
                         node.supervision_reason =
                             Some(format!("0x1017 not writable (abort {code})"));
-                        self.next(id, now);
+                        self.next(id);
                     }
                     Op::SetGuardTime | Op::SetLifeFactor => {
                         node.supervision_reason = Some(format!(
@@ -918,7 +979,7 @@ impl Manager {
                                 LIFE_TIME_FACTOR
                             }
                         ));
-                        self.next(id, now);
+                        self.next(id);
                     }
                     Op::CountConsumers | Op::FindConsumer { .. } | Op::ConsumeManager(_) => {
                         if node.description.consume_manager_heartbeat == Some(true) {
@@ -936,10 +997,10 @@ impl Manager {
                             self.events.push(event);
                         } else {
                             // Where 0x1016 exists: this node has none.
-                            self.next(id, now);
+                            self.next(id);
                         }
                     }
-                    Op::Start => self.next(id, now),
+                    Op::Start => self.next(id),
                 }
             }
             SdoOutcome::Failed(reason) => {
@@ -955,7 +1016,7 @@ impl Manager {
     }
 
     /// After an operation succeeded: the next one, or the end of the boot.
-    fn next(&mut self, id: NodeId, now: Instant) {
+    fn next(&mut self, id: NodeId) {
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
@@ -967,11 +1028,11 @@ impl Manager {
                     self.events.push(ManagerEvent::Step { node: id, step });
                 }
             }
-            None => self.booted(id, now),
+            None => self.booted(id),
         }
     }
 
-    fn booted(&mut self, id: NodeId, now: Instant) {
+    fn booted(&mut self, id: NodeId) {
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
@@ -980,30 +1041,37 @@ impl Manager {
         node.reason = None;
         node.backoff = Duration::ZERO;
         node.boots_ok += 1;
-        Self::supervise(&mut self.consumer, node, "heartbeat_ms is 0", now);
+        Self::supervise(node, "heartbeat_ms is 0");
         self.events.push(ManagerEvent::Booted { node: id });
+        if node.lost && node.supervision != Supervision::None {
+            // The supervisor lost it while it booted: it is not ready.
+            let by = if node.supervision == Supervision::Guarding {
+                "no node-guarding reply"
+            } else {
+                "no heartbeat"
+            };
+            let reason = format!("{by} since before its boot-up ended");
+            node.state = NodeState::Offline;
+            node.reason = Some(reason.clone());
+            self.events.push(ManagerEvent::Lost { node: id, reason });
+        }
     }
 
     /// How a booted node is supervised, from what its boot-up (or a later
-    /// write of its 0x1017) set up: its heartbeat (a consumer timeout of
-    /// 1.5 periods from `now`), else node guarding, else nothing, and why
-    /// (`off`: the reason when its heartbeat time is 0).
-    fn supervise(consumer: &mut HeartbeatConsumer, node: &mut Node, off: &str, now: Instant) {
-        let id = node.description.id;
-        let period = Duration::from_millis(u64::from(node.description.heartbeat_ms));
-        if node.heartbeat_set && !period.is_zero() {
+    /// write of its 0x1017) set up: its heartbeat (timed by the
+    /// supervisor from the write), else node guarding, else nothing, and
+    /// why (`off`: the reason when its heartbeat time is 0).
+    fn supervise(node: &mut Node, off: &str) {
+        let period = node.description.heartbeat_ms;
+        if node.heartbeat_set && period > 0 {
             node.supervision = Supervision::Heartbeat;
             node.supervision_reason = None;
-            consumer.monitor_producer(id, period);
-            consumer.arm(id, now);
-        } else if node.guard.is_some() {
+        } else if node.guarded {
             node.supervision = Supervision::Guarding;
             node.supervision_reason = None;
         } else {
-            // Its state is still followed, without a timeout.
-            consumer.monitor(id, Duration::ZERO);
             node.supervision = Supervision::None;
-            if node.supervision_reason.is_none() || period.is_zero() {
+            if node.supervision_reason.is_none() || period == 0 {
                 node.supervision_reason = Some(off.into());
             }
         }
@@ -1011,16 +1079,16 @@ impl Manager {
 
     /// Someone (an operator, a client of the gateway, the manager itself)
     /// wrote `ms` into the node's producer heartbeat time (0x1017 sub 0)
-    /// and the node confirmed it at `now`. The node's description follows
-    /// (a later boot-up writes `ms`, not the old value, until the gateway
-    /// restarts), and so does its supervision at once: a consumer timeout
-    /// of 1.5 × `ms` from `now` (the node's next heartbeat is one new
-    /// period away), or, for 0 (heartbeat off), node guarding where it is
-    /// set up, else `supervision: none` with the reason, as at a boot-up.
-    /// The node is neither lost nor booted again for it. Writing the value
-    /// the description already has (the manager's own boot-up write) does
+    /// and the node confirmed it ([`SupervisorEvent::HeartbeatWritten`]).
+    /// The node's description follows (a later boot-up writes `ms`, not
+    /// the old value, until the gateway restarts), and so does its
+    /// supervision at once: by heartbeat (the supervisor times it from the
+    /// write), or, for 0 (heartbeat off), node guarding where it is set
+    /// up, else `supervision: none` with the reason, as at a boot-up. The
+    /// node is neither lost nor booted again for it. Writing the value the
+    /// description already has (the manager's own boot-up write) does
     /// nothing.
-    pub fn producer_heartbeat_written(&mut self, id: NodeId, ms: u16, now: Instant) {
+    fn producer_heartbeat_written(&mut self, id: NodeId, ms: u16) {
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
@@ -1028,7 +1096,7 @@ impl Manager {
             return;
         }
         node.description.heartbeat_ms = ms;
-        if ms > 0 && node.guard.is_none() {
+        if ms > 0 && !node.guarded {
             node.heartbeat_set = true;
         } else if ms == 0 {
             node.heartbeat_set = false;
@@ -1037,18 +1105,13 @@ impl Manager {
         // supervision is decided when its boot-up ends); a lost one is
         // booted again when it is heard, with the new value.
         if node.state == NodeState::Ready {
-            Self::supervise(
-                &mut self.consumer,
-                node,
-                "0x1017 was written 0: the node sends no heartbeat",
-                now,
-            );
+            Self::supervise(node, "0x1017 was written 0: the node sends no heartbeat");
         }
     }
 
     /// Due work at `now`: the next SDO request of each node that waits for
-    /// none, retries, NMT commands, the manager's heartbeat, guarding
-    /// requests; and supervision timeouts (as events).
+    /// none, retries, NMT commands, the manager's heartbeat, what the
+    /// supervisor is to guard.
     pub fn poll(&mut self, now: Instant) -> Vec<Action> {
         let mut actions = std::mem::take(&mut self.outbox);
         if let Some(frame) = self.producer.poll(now, NmtState::Operational) {
@@ -1072,21 +1135,6 @@ impl Manager {
             let Some(node) = self.nodes.get_mut(&id) else {
                 continue;
             };
-            if let Some(guard) = node.guard.as_mut() {
-                let polled = guard.poll(now);
-                if let Some(request) = polled.request {
-                    actions.push(Action::Send(request));
-                }
-                if polled.event.is_some() && node.state == NodeState::Ready {
-                    let reason = format!(
-                        "no node-guarding reply within {} ms",
-                        guard.life_time().unwrap_or_default().as_millis()
-                    );
-                    node.state = NodeState::Offline;
-                    node.reason = Some(reason.clone());
-                    self.events.push(ManagerEvent::Lost { node: id, reason });
-                }
-            }
             if node.in_flight.is_some() || !self.bus_up {
                 continue;
             }
@@ -1171,22 +1219,7 @@ impl Manager {
             }
             if node.in_flight.is_none() && node.ops.is_empty() && node.state == NodeState::Booting {
                 // The last operation was the NMT start (or there was none).
-                self.booted(id, now);
-            }
-        }
-        for event in self.consumer.poll(now) {
-            if let HeartbeatEvent::Lost { node: id } = event
-                && let Some(node) = self.nodes.get_mut(&id)
-                && node.state == NodeState::Ready
-            {
-                let reason = format!(
-                    "no heartbeat within {} ms (1.5 × {} ms)",
-                    u64::from(node.description.heartbeat_ms) * 3 / 2,
-                    node.description.heartbeat_ms
-                );
-                node.state = NodeState::Offline;
-                node.reason = Some(reason.clone());
-                self.events.push(ManagerEvent::Lost { node: id, reason });
+                self.booted(id);
             }
         }
         let (machine, _) = self.compute_state();
@@ -1204,15 +1237,10 @@ impl Manager {
     pub fn deadline(&self) -> Option<Instant> {
         // Work that is ready (the next request of a boot-up) is handed out
         // by the poll that follows every input, so only timers count here.
-        let nodes = self.nodes.values().flat_map(|node| {
-            [
-                node.retry_at,
-                node.guard.as_ref().and_then(NodeGuardMaster::deadline),
-            ]
-        });
-        nodes
-            .chain([self.producer.deadline(), self.consumer.deadline()])
-            .flatten()
+        self.nodes
+            .values()
+            .filter_map(|node| node.retry_at)
+            .chain(self.producer.deadline())
             .min()
     }
 
@@ -1237,7 +1265,7 @@ impl Manager {
         {
             mandatory += 1;
             let id = node.description.id;
-            let nmt = self.consumer.state(id);
+            let nmt = node.nmt;
             let want = if node.description.start {
                 NmtState::Operational
             } else {
@@ -1309,11 +1337,7 @@ impl Manager {
                     reason: node.shown_reason(),
                     supervision: node.supervision,
                     heartbeat_ms: node.description.heartbeat_ms,
-                    nmt: self
-                        .consumer
-                        .state(id)
-                        .map_or("unknown", NmtState::name)
-                        .to_string(),
+                    nmt: node.nmt.map_or("unknown", NmtState::name).to_string(),
                     eds: node.description.eds.clone(),
                     dcf: node.description.dcf.clone(),
                     boots: node.boots,

@@ -1,8 +1,112 @@
 use std::time::{Duration, Instant};
 
+use std::collections::BTreeMap;
+
 use super::*;
 use crate::can::{CanId, Frame};
 use crate::heartbeat::Heartbeat;
+
+/// The manager with the supervisor of its bus, joined as the gateway
+/// joins them: frames go to the supervisor, whose events drive the
+/// manager; the manager's guarding goes to the supervisor, whose requests
+/// go out; a confirmed write of 0x1017 is the supervisor's to follow.
+struct Rig {
+    manager: Manager,
+    supervisor: Supervisor,
+    /// The write in flight per node.
+    writes: BTreeMap<NodeId, (u16, u8, Vec<u8>)>,
+    started: Instant,
+}
+
+impl std::ops::Deref for Rig {
+    type Target = Manager;
+    fn deref(&self) -> &Manager {
+        &self.manager
+    }
+}
+
+impl std::ops::DerefMut for Rig {
+    fn deref_mut(&mut self) -> &mut Manager {
+        &mut self.manager
+    }
+}
+
+impl Rig {
+    fn new(config: ManagerConfig, descriptions: Vec<NodeDescription>, now: Instant) -> Self {
+        Self {
+            manager: Manager::new(config, descriptions, now),
+            supervisor: Supervisor::new(true),
+            writes: BTreeMap::new(),
+            started: now,
+        }
+    }
+
+    fn pump(&mut self) {
+        for event in self.supervisor.take_events() {
+            self.manager.on_supervision(&event);
+        }
+    }
+
+    fn node_found(&mut self, node: NodeId) {
+        self.supervisor.watch(node, self.started);
+        self.manager.node_found(node);
+    }
+
+    fn on_frame(&mut self, frame: &Frame, now: Instant) {
+        self.supervisor.on_frame(frame, now).unwrap();
+        self.pump();
+    }
+
+    fn poll(&mut self, now: Instant) -> Vec<Action> {
+        let requests = self.supervisor.poll(now);
+        self.pump();
+        let mut actions = self.manager.poll(now);
+        for action in &actions {
+            match action {
+                Action::Guard {
+                    node,
+                    guard_time_ms,
+                    life_time_factor,
+                } => self
+                    .supervisor
+                    .guard(*node, *guard_time_ms, *life_time_factor, now),
+                Action::Unguard { node } => self.supervisor.unguard(*node, now),
+                Action::Write {
+                    node,
+                    index,
+                    sub,
+                    data,
+                } => {
+                    self.writes.insert(*node, (*index, *sub, data.clone()));
+                }
+                _ => {}
+            }
+        }
+        actions.retain(|action| !matches!(action, Action::Guard { .. } | Action::Unguard { .. }));
+        actions.extend(requests.into_iter().map(Action::Send));
+        // Guarding set up by this poll sends its first request at once.
+        actions.extend(self.supervisor.poll(now).into_iter().map(Action::Send));
+        self.pump();
+        actions
+    }
+
+    fn on_sdo(&mut self, node: NodeId, outcome: SdoOutcome, now: Instant) {
+        if let (Some((0x1017, 0, data)), SdoOutcome::Done(_)) =
+            (self.writes.remove(&node), &outcome)
+        {
+            let ms = u16::from_le_bytes([data[0], data[1]]);
+            self.producer_heartbeat_written(node, ms, now);
+        }
+        self.manager.on_sdo(node, outcome, now);
+    }
+
+    /// Someone wrote `ms` into the node's 0x1017 at `now`, and the node
+    /// confirmed it.
+    fn producer_heartbeat_written(&mut self, node: NodeId, ms: u16, now: Instant) {
+        self.supervisor.heartbeat_written(node, ms, now);
+        self.pump();
+    }
+}
 
 fn id(n: u8) -> NodeId {
     NodeId::new(n).unwrap()
@@ -35,7 +139,7 @@ fn sdo_actions(actions: &[Action]) -> Vec<Action> {
 /// Answers every request of `node` with `answer` until the boot-up ends;
 /// every action seen, in order.
 fn run_boot(
-    manager: &mut Manager,
+    manager: &mut Rig,
     now: Instant,
     answer: impl Fn(&Action) -> SdoOutcome,
 ) -> Vec<Action> {
@@ -58,7 +162,7 @@ fn run_boot(
 #[test]
 fn the_manager_heartbeat_is_byte_exact_and_periodic() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     assert_eq!(
         manager.heartbeat_now().unwrap(),
         Frame::new(CanId::Standard(0x77F), &[0x05]).unwrap()
@@ -75,7 +179,7 @@ fn the_manager_heartbeat_is_byte_exact_and_periodic() {
         heartbeat_ms: 0,
         ..config()
     };
-    let mut manager = Manager::new(silent, Vec::new(), t0);
+    let mut manager = Rig::new(silent, Vec::new(), t0);
     assert!(manager.heartbeat_now().is_none());
     assert!(manager.poll(t0 + Duration::from_secs(5)).is_empty());
 }
@@ -123,7 +227,7 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
             label: "a.dcf: 0x1800 sub 5".into(),
         },
     ];
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     assert_eq!(manager.status().state, MachineState::Booting);
     manager.on_frame(&heartbeat(3, NmtState::BootUp), t0);
     let actions = run_boot(&mut manager, t0, answer_node_3);
@@ -236,7 +340,7 @@ fn a_wrong_identity_is_neither_configured_nor_started_nor_retried() {
         data: vec![1],
         label: "x".into(),
     }];
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(2));
     let actions = run_boot(&mut manager, t0, |_| {
         SdoOutcome::Done(0x9999u32.to_le_bytes().to_vec())
@@ -270,7 +374,7 @@ fn a_configuration_abort_names_the_entry_and_is_retried_with_backoff() {
         data: vec![9],
         label: "lift.dcf: 0x6060 sub 0 (Modes of operation)".into(),
     }];
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(4));
     let abort = AbortCode::from_raw(0x0609_0030);
     run_boot(&mut manager, t0, |_| SdoOutcome::Aborted(abort));
@@ -312,7 +416,7 @@ fn without_writable_1017_the_manager_guards_the_node() {
     description.heartbeat_ms = 100;
     description.consume_manager_heartbeat = Some(false);
     description.start = false;
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(5));
     let actions = run_boot(&mut manager, t0, |action| match action {
         Action::Write { index: 0x1017, .. } => {
@@ -361,7 +465,7 @@ fn a_node_that_cannot_be_supervised_says_why() {
     let t0 = Instant::now();
     let mut description = NodeDescription::new(id(6));
     description.consume_manager_heartbeat = Some(false);
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(6));
     run_boot(&mut manager, t0, |_| {
         SdoOutcome::Aborted(AbortCode::from_raw(0x0602_0000))
@@ -382,7 +486,7 @@ fn a_node_that_cannot_be_supervised_says_why() {
 #[test]
 fn a_missing_mandatory_node_degrades_the_machine_once_the_scan_is_done() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(
+    let mut manager = Rig::new(
         config(),
         vec![NodeDescription::new(id(1)), NodeDescription::new(id(5))],
         t0,
@@ -415,7 +519,7 @@ fn a_missing_mandatory_node_degrades_the_machine_once_the_scan_is_done() {
 #[test]
 fn without_descriptions_every_node_found_is_booted_with_the_defaults() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(2));
     let actions = run_boot(&mut manager, t0, |action| match action {
         Action::Write { index: 0x1016, .. } => {
@@ -472,7 +576,7 @@ fn without_descriptions_every_node_found_is_booted_with_the_defaults() {
 #[test]
 fn a_boot_up_during_a_boot_waits_for_the_answer_in_flight() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(1));
     let first = sdo_actions(&manager.poll(t0));
     assert_eq!(first.len(), 1);
@@ -487,7 +591,7 @@ fn a_boot_up_during_a_boot_waits_for_the_answer_in_flight() {
 #[test]
 fn no_answer_is_missing_and_retried() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(7))], t0);
+    let mut manager = Rig::new(config(), vec![NodeDescription::new(id(7))], t0);
     manager.node_found(id(7));
     run_boot(&mut manager, t0, |_| {
         SdoOutcome::Failed("SDO timeout".into())
@@ -507,7 +611,7 @@ fn no_answer_is_missing_and_retried() {
 #[test]
 fn every_present_node_is_booted_again_when_the_bus_comes_back() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(1));
     manager.node_found(id(3));
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
@@ -542,7 +646,7 @@ fn boot_up_requests_in_flight_are_bounded_across_the_bus() {
         max_requests: 2,
         ..config()
     };
-    let mut manager = Manager::new(limited, Vec::new(), t0);
+    let mut manager = Rig::new(limited, Vec::new(), t0);
     for n in 1..=5 {
         manager.node_found(id(n));
     }
@@ -584,7 +688,7 @@ fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
             .count()
     };
     // Found only (no description): forgotten.
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(2));
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
     manager.on_frame(&heartbeat(2, NmtState::Operational), t0);
@@ -599,7 +703,7 @@ fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
 
     // Expected: missing again, with the reason, and booted when a device
     // answers there once more.
-    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(1))], t0);
+    let mut manager = Rig::new(config(), vec![NodeDescription::new(id(1))], t0);
     manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
     manager.on_frame(&heartbeat(1, NmtState::Operational), t0);
@@ -643,7 +747,7 @@ fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
             .count()
     };
     // Where it can: booted all the same, the table left alone.
-    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(4))], t0);
+    let mut manager = Rig::new(config(), vec![NodeDescription::new(id(4))], t0);
     manager.node_found(id(4));
     let actions = run_boot(&mut manager, t0, answer);
     assert_eq!(writes_1016(&actions), 0, "{actions:?}");
@@ -651,7 +755,7 @@ fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
     // Required: the boot-up fails and says why.
     let mut description = NodeDescription::new(id(4));
     description.consume_manager_heartbeat = Some(true);
-    let mut manager = Manager::new(config(), vec![description], t0);
+    let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(4));
     let actions = run_boot(&mut manager, t0, answer);
     assert_eq!(writes_1016(&actions), 0, "{actions:?}");
@@ -666,21 +770,25 @@ fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
 }
 
 #[test]
-fn the_manager_hears_error_control_frames_only_and_nothing_else_changes_it() {
+fn the_supervisor_hears_error_control_frames_only_and_nothing_else_changes_the_manager() {
     // A driver skips every frame `hears` refuses, without a poll: such a
-    // frame must leave the manager exactly as it was.
+    // frame must leave the supervisor and the manager exactly as they were.
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), vec![NodeDescription::new(id(1))], t0);
+    let mut manager = Rig::new(config(), vec![NodeDescription::new(id(1))], t0);
     manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
     let actions = sdo_actions(&manager.poll(t0));
     assert!(!actions.is_empty());
     manager.take_events();
     let (status, deadline) = (manager.status(), manager.deadline());
+    let supervised = (
+        manager.supervisor.deadline(),
+        manager.supervisor.node(id(1)),
+    );
     let mut heard = Vec::new();
     for raw in 0..0x800u16 {
         for data in [&[][..], &[0x05][..], &[0x7F, 0, 0, 0, 0, 0, 0, 0][..]] {
             let frame = Frame::new(CanId::Standard(raw), data).unwrap();
-            if Manager::hears(&frame) {
+            if Supervisor::hears(&frame) {
                 heard.push(raw);
                 continue;
             }
@@ -691,6 +799,13 @@ fn the_manager_hears_error_control_frames_only_and_nothing_else_changes_it() {
     assert_eq!(heard, (0x701..=0x77F).collect::<Vec<u16>>());
     assert_eq!(manager.status(), status);
     assert_eq!(manager.deadline(), deadline);
+    assert_eq!(
+        (
+            manager.supervisor.deadline(),
+            manager.supervisor.node(id(1))
+        ),
+        supervised
+    );
     assert!(manager.take_events().is_empty());
     // Nothing new to do either: the request in flight is still the one.
     assert!(sdo_actions(&manager.poll(t0)).is_empty());
@@ -698,8 +813,8 @@ fn the_manager_hears_error_control_frames_only_and_nothing_else_changes_it() {
 
 /// Boots node 2 with the defaults (heartbeat 500 ms), its 0x1016 taking
 /// the manager's heartbeat, and hears it operational at `now`.
-fn booted_default_node(now: Instant) -> Manager {
-    let mut manager = Manager::new(config(), Vec::new(), now);
+fn booted_default_node(now: Instant) -> Rig {
+    let mut manager = Rig::new(config(), Vec::new(), now);
     manager.node_found(id(2));
     run_boot(&mut manager, now, |action| match action {
         Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
@@ -726,7 +841,7 @@ fn a_written_producer_heartbeat_time_is_followed_not_undone() {
     manager.producer_heartbeat_written(id(2), 1000, t1);
     assert_eq!(manager.status().nodes[0].heartbeat_ms, 1000);
     assert_eq!(manager.description(id(2)).unwrap().heartbeat_ms, 1000);
-    assert_eq!(manager.consumer.deadline(), Some(t1 + ms(1500)));
+    assert_eq!(manager.supervisor.deadline(), Some(t1 + ms(1500)));
     // The node's heartbeats one second apart: never lost, never booted again.
     for beat in 1..=5u64 {
         let at = t1 + ms(1000 * beat);
@@ -737,10 +852,12 @@ fn a_written_producer_heartbeat_time_is_followed_not_undone() {
     assert_eq!(manager.take_events(), Vec::new());
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
     assert_eq!(manager.status().nodes[0].boots, 1);
-    // The manager's own write of the same value changes nothing.
-    let deadline = manager.consumer.deadline();
+    // The manager's own write of the same value changes nothing in the
+    // machine; the node answered it, so its one deadline runs from it.
+    let status = manager.status();
     manager.producer_heartbeat_written(id(2), 1000, t1 + ms(6400));
-    assert_eq!(manager.consumer.deadline(), deadline);
+    assert_eq!(manager.status(), status);
+    assert_eq!(manager.supervisor.deadline(), Some(t1 + ms(6400 + 1500)));
     // 200 ms written: a silence of 300 ms is a loss.
     let t2 = t1 + ms(5200);
     manager.producer_heartbeat_written(id(2), 200, t2);
@@ -818,10 +935,44 @@ fn a_producer_heartbeat_time_written_0_leaves_the_node_unsupervised_and_says_why
 #[test]
 fn a_producer_heartbeat_time_written_during_a_boot_up_is_the_one_it_writes() {
     let t0 = Instant::now();
-    let mut manager = Manager::new(config(), Vec::new(), t0);
+    let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(2));
     manager.producer_heartbeat_written(id(2), 750, t0);
     let actions = run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
     assert_first_writes_heartbeat_of_2(&actions, 750);
     assert_eq!(manager.status().nodes[0].heartbeat_ms, 750);
+}
+
+#[test]
+fn a_guarded_node_booted_again_after_its_loss_is_ready_not_lost_again() {
+    let t0 = Instant::now();
+    let ms = Duration::from_millis;
+    let mut description = NodeDescription::new(id(5));
+    description.heartbeat_ms = 100;
+    description.consume_manager_heartbeat = Some(false);
+    description.start = false;
+    let no_1017 = |action: &Action| match action {
+        Action::Write { index: 0x1017, .. } => {
+            SdoOutcome::Aborted(AbortCode::from_raw(0x0601_0002))
+        }
+        _ => SdoOutcome::Done(Vec::new()),
+    };
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(5));
+    run_boot(&mut manager, t0, no_1017);
+    for at in [100, 200, 300] {
+        manager.poll(t0 + ms(at));
+    }
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    // The bus was down: booted again, guarded afresh, ready.
+    manager.bus_up(false);
+    manager.bus_up(true);
+    let t1 = t0 + ms(1000);
+    run_boot(&mut manager, t1, no_1017);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.supervision),
+        (NodeState::Ready, Supervision::Guarding),
+        "{node:?}"
+    );
 }
