@@ -65,6 +65,7 @@
 pub mod audit;
 pub mod auth;
 pub mod buses;
+pub mod caller;
 pub mod cia309_5;
 pub mod config;
 pub mod doc;

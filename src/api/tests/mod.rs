@@ -5,6 +5,7 @@
 mod audit;
 mod audit_and_limits;
 mod auth;
+mod door_parity;
 mod drives;
 mod edge;
 mod eds;
