@@ -5,7 +5,6 @@
 mod audit;
 mod audit_and_limits;
 mod auth;
-mod door_parity;
 mod drives;
 mod edge;
 mod eds;
@@ -22,7 +21,7 @@ mod recording;
 mod step_test;
 mod stops;
 mod stream;
-pub(super) mod support;
+pub(crate) mod support;
 mod telemetry;
 
 use crate::emulator::RackOf;

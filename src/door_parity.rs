@@ -9,8 +9,8 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Map, Value as Json};
 
-use super::support::{open, send_with_headers};
 use crate::api::auth::{AuthConfig, RateLimit, Role, Token};
+use crate::api::tests::support::{self, open, send_with_headers};
 use crate::api::{AppState, app};
 use crate::ascii::Session;
 use crate::cia309::reply::Reply;
@@ -676,7 +676,7 @@ async fn the_gateway_refuses_a_viewer_by_itself() {
 #[tokio::test(start_paused = true)]
 async fn a_cia_309_3_write_of_0x1a00_refreshes_the_pdo_decoder_as_rest_does() {
     use std::time::Duration;
-    let (app, state) = super::support::demo().await;
+    let (app, state) = support::demo().await;
     let served = state.gateway.buses["demo"].clone();
     let node1 = crate::canopen::NodeId::new(1).unwrap();
     let read_at = || served.values.tpdos(node1).map(|tpdos| tpdos.read_at);
@@ -714,7 +714,7 @@ async fn a_cia_309_3_write_of_0x1a00_refreshes_the_pdo_decoder_as_rest_does() {
 
     // Through REST: the same.
     let written = tokio::time::Instant::now();
-    let (status, json) = super::support::put(
+    let (status, json) = support::put(
         &app,
         "/api/v1/buses/demo/nodes/1/od/0x1A00/0",
         serde_json::json!({"value": 1}),
