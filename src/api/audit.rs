@@ -42,6 +42,7 @@ use serde_json::Value as Json;
 
 use super::AppState;
 use super::auth::Identity;
+use super::caller::{AuditItem, AuditedByHandler};
 use super::error::ErrorSummary;
 use super::leases::AuditNote;
 use crate::can::Timestamp;
@@ -90,6 +91,8 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     let (mut parts, body) = request.into_parts();
     let note = AuditNote::default();
     parts.extensions.insert(note.clone());
+    let resolved = AuditItem::default();
+    parts.extensions.insert(resolved.clone());
     let content_type = parts
         .headers
         .get(header::CONTENT_TYPE)
@@ -116,13 +119,21 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             (response, Some(format!("more than {limit} bytes")))
         }
     };
-    let refused_before_handler = matches!(response.status().as_u16(), 401 | 403 | 413 | 429);
+    let refused_before_handler = matches!(response.status().as_u16(), 401 | 403 | 413 | 429)
+        && response.extensions().get::<AuditedByHandler>().is_none();
     if cia309 && !refused_before_handler {
         return response;
     }
-    let mut target = Target::of(&method, &path);
+    let mut target = if cia309 {
+        super::cia309_5::audit_target(&state.gateway, &path)
+    } else {
+        Target::of(&method, &path)
+    };
     if target.operation == "upload eds" {
         target.item = upload_name(&uri);
+    }
+    if let Some(item) = resolved.take() {
+        target.item = Some(item);
     }
     let error = response.extensions().get::<ErrorSummary>();
     // The guard names who it let in or turned away (a body refused for its

@@ -441,6 +441,24 @@ pub fn is_rate_limited(method: &Method, path: &str) -> bool {
     (super::audit::is_state_changing(method, path) || cia309_command) && path != "/api/v1/stop-all"
 }
 
+/// Whether the request's operation draws on the write rate in the gateway
+/// (an object write, an NMT command: [`crate::gateway::NodeHandle`]), so
+/// that the guard does not take a second write for it: REST's and CiA
+/// 309-5's.
+pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
+    let rest = match *method {
+        Method::PUT => matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path),
+        Method::POST => {
+            matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
+                || matches("/api/v1/buses/{bus}/nmt", path)
+        }
+        _ => false,
+    };
+    let cia309_command =
+        *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
+    rest || cia309_command
+}
+
 /// Whether the request may be a stop of an axis, told by its body
 /// ([`is_stop`]).
 fn may_be_stop(method: &Method, path: &str) -> bool {
@@ -571,10 +589,17 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
         }
     }
     // Writes of a token (a safety stop never waits), from the bucket CiA
-    // 309-3 draws on too.
+    // 309-3 draws on too; the gateway's object writes and NMT commands
+    // take theirs themselves.
+    let caller = crate::gateway::caller::Caller::new(
+        crate::gateway::caller::Channel::Rest,
+        identity.name.clone(),
+        identity.role,
+    );
     if is_rate_limited(&method, &path)
         && !stop
-        && let Err(refused) = state.gateway.take_write(&identity.name)
+        && !limited_by_the_gateway(&method, &path)
+        && let Err(refused) = state.gateway.take_write(&caller)
     {
         return with_identity(AppError::from(refused).into_response(), identity);
     }

@@ -23,14 +23,18 @@ use std::net::SocketAddr;
 use axum::Router;
 use axum::extract::{ConnectInfo, Path, State};
 use axum::http::{Extensions, Uri};
+use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value as Json, json};
 
-use super::AppState;
+use super::caller::AuditedByHandler;
+use super::{AppError, AppState};
 use crate::cia309::command::Nmt;
 use crate::cia309::datatype::{Datatype, unsigned};
 use crate::cia309::reply::ErrorCode;
 use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
+use crate::gateway::GatewayError;
+use crate::gateway::node::objects::object_item;
 
 /// The routes, at the root (not under `/api/v1`).
 pub fn router() -> Router<AppState> {
@@ -62,12 +66,30 @@ fn answer(sequence: &str, response: String) -> axum::Json<Json> {
     axum::Json(json!({ "sequence": sequence, "response": response }))
 }
 
-fn error(sequence: &str, failure: Failure) -> axum::Json<Json> {
+fn error(sequence: &str, failure: Failure) -> Response {
     let response = match failure {
         Failure::Abort(code) => format!("ERROR:0x{:08X}", code.raw()),
         Failure::Error(code) => format!("ERROR:{}", code.number()),
     };
-    answer(sequence, response)
+    answer(sequence, response).into_response()
+}
+
+/// The answer to a request the gateway refused: in the body, as CiA 309-5
+/// answers, except a refusal of the caller (no token, a role too low, over
+/// its write rate), answered as REST answers it (401, 403, 429 with
+/// `Retry-After`), as the guard does; the command's own audit entry
+/// stands for it.
+fn failed(sequence: &str, refused: GatewayError) -> Response {
+    match refused {
+        GatewayError::Unauthenticated(_)
+        | GatewayError::Forbidden(_)
+        | GatewayError::RateLimited { .. } => {
+            let mut response = AppError::from(refused).into_response();
+            response.extensions_mut().insert(AuditedByHandler);
+            response
+        }
+        other => error(sequence, Failure::of(&other)),
+    }
 }
 
 /// The request's sequence, net and node, or the error to answer with.
@@ -146,7 +168,9 @@ fn object(index: &str, sub: &str) -> Option<(u16, u8)> {
 async fn read_object(
     State(state): State<AppState>,
     Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
-) -> axum::Json<Json> {
+    uri: Uri,
+    extensions: Extensions,
+) -> Response {
     let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, &sequence, &net, &node, 1) {
         Ok(target) => target,
@@ -155,9 +179,15 @@ async fn read_object(
     let Some((index, sub)) = object(&index, &sub) else {
         return error(&target.sequence, Failure::Error(ErrorCode::Syntax));
     };
+    let identity = identity(&extensions);
+    let origin = Origin {
+        identity: &identity,
+        method: "GET",
+        path: uri.path(),
+    };
     let options = TransferOptions::default();
     match gateway
-        .read(target.net, target.node, index, sub, options)
+        .read(origin, target.net, target.node, index, sub, options)
         .await
     {
         Ok(bytes) => {
@@ -168,8 +198,9 @@ async fn read_object(
                 "data": format!("0x{data}"),
                 "length": bytes.len(),
             }))
+            .into_response()
         }
-        Err(failure) => error(&target.sequence, failure),
+        Err(refused) => failed(&target.sequence, refused),
     }
 }
 
@@ -179,7 +210,7 @@ async fn write_object(
     uri: Uri,
     extensions: Extensions,
     body: axum::body::Bytes,
-) -> axum::Json<Json> {
+) -> Response {
     let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, &sequence, &net, &node, 1) {
         Ok(target) => target,
@@ -232,8 +263,8 @@ async fn write_object(
         )
         .await
     {
-        Ok(()) => answer(&target.sequence, "OK".into()),
-        Err(failure) => error(&target.sequence, failure),
+        Ok(()) => answer(&target.sequence, "OK".into()).into_response(),
+        Err(refused) => failed(&target.sequence, refused),
     }
 }
 
@@ -243,7 +274,7 @@ async fn nmt(
     method: axum::http::Method,
     uri: Uri,
     extensions: Extensions,
-) -> axum::Json<Json> {
+) -> Response {
     let command = match uri.path().rsplit('/').next().unwrap_or_default() {
         "start" => Nmt::Start,
         "stop" => Nmt::Stop,
@@ -268,7 +299,7 @@ async fn nmt_reset(
     method: axum::http::Method,
     uri: Uri,
     extensions: Extensions,
-) -> axum::Json<Json> {
+) -> Response {
     let command = match what.to_ascii_lowercase().as_str() {
         "node" => Nmt::ResetNode,
         "comm" | "communication" => Nmt::ResetCommunication,
@@ -302,7 +333,7 @@ async fn run_nmt(
     method: &axum::http::Method,
     uri: &Uri,
     extensions: &Extensions,
-) -> axum::Json<Json> {
+) -> Response {
     let gateway = Cia309Gateway::new(&state.gateway);
     let target = match target(&gateway, sequence, net, node, 0) {
         Ok(target) => target,
@@ -315,7 +346,49 @@ async fn run_nmt(
         path: uri.path(),
     };
     match gateway.nmt(origin, target.net, target.node, command).await {
-        Ok(()) => answer(&target.sequence, "OK".into()),
-        Err(failure) => error(&target.sequence, failure),
+        Ok(()) => answer(&target.sequence, "OK".into()).into_response(),
+        Err(refused) => failed(&target.sequence, refused),
     }
+}
+
+/// What a CiA 309-5 command acts on, for the audit entry of one refused
+/// before its handler (no token, a role too low): named as the handler's
+/// own entries, and as the other doors name the same operation (`write
+/// object` with its `0x1017:0`, `nmt command`), the bus found by its net.
+pub fn audit_target(gateway: &crate::gateway::Gateway, path: &str) -> super::audit::Target {
+    let mut target = super::audit::Target {
+        operation: "unknown request".to_string(),
+        ..Default::default()
+    };
+    let Some(rest) = path.strip_prefix("/cia309-5/1.0/") else {
+        return target;
+    };
+    let segments: Vec<&str> = rest.split('/').collect();
+    let [_sequence, net, node, command @ ..] = segments.as_slice() else {
+        return target;
+    };
+    let net = match net.to_ascii_lowercase().as_str() {
+        "default" | "none" => Some(1),
+        text => unsigned(text, 0xFFFF).ok().map(|net| net as usize),
+    };
+    target.bus = net
+        .and_then(|net| net.checked_sub(1))
+        .and_then(|at| gateway.buses_in_order().get(at).map(|bus| bus.name.clone()));
+    let all = node.eq_ignore_ascii_case("all") || *node == "0";
+    if !all {
+        target.node = unsigned(node, 127).ok().map(|node| node as u8);
+    }
+    let operation = match command {
+        ["w" | "write", index, sub] => {
+            target.item = object(index, sub).map(|(index, sub)| object_item(index, sub));
+            "write object"
+        }
+        ["start" | "stop" | "preop" | "preoperational"] | ["reset", _] if all => {
+            "nmt command to all nodes"
+        }
+        ["start" | "stop" | "preop" | "preoperational"] | ["reset", _] => "nmt command",
+        _ => "unknown request",
+    };
+    target.operation = operation.to_string();
+    target
 }

@@ -65,6 +65,7 @@
 pub mod audit;
 pub mod auth;
 pub mod buses;
+pub mod caller;
 pub mod cia309_5;
 pub mod config;
 pub mod doc;
@@ -94,7 +95,7 @@ pub mod stream;
 pub mod values;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use std::sync::Arc;
 

@@ -10,9 +10,10 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
-use crate::canopen::nmt::{NmtCommand, NmtTarget};
+use crate::canopen::nmt::NmtCommand;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
@@ -293,15 +294,16 @@ fn nmt_command(request: &NmtRequest) -> Result<NmtCommand, AppError> {
     ))]
 async fn nmt_node(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<NmtRequest>,
 ) -> Result<ApiJson<NmtSent>, AppError> {
     let command = nmt_command(&request)?;
-    let (served, info) = known_node(&state, &bus, &id)?;
-    served.send_nmt(command, NmtTarget::Node(info.id)).await?;
+    let node = state.gateway.node_handle(&bus, &id)?;
+    node.nmt(&caller, command).await?;
     Ok(ApiJson(NmtSent {
         command: command.name(),
-        node: info.id.get().to_string(),
+        node: node.id().to_string(),
         sent: true,
     }))
 }
@@ -317,12 +319,12 @@ async fn nmt_node(
     ))]
 async fn nmt_all(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<NmtRequest>,
 ) -> Result<ApiJson<NmtSent>, AppError> {
     let command = nmt_command(&request)?;
-    let served = state.bus(&bus)?;
-    served.send_nmt(command, NmtTarget::All).await?;
+    state.gateway.bus_nmt(&caller, &bus, command).await?;
     Ok(ApiJson(NmtSent {
         command: command.name(),
         node: "all".to_string(),

@@ -34,12 +34,15 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::{AuditItem, RestCaller};
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
-use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
+use crate::gateway::NodeHandle;
+use crate::gateway::caller::Caller;
+use crate::gateway::node::objects::object_item;
 use crate::gateway::registry::NodeInfo;
-use crate::gateway::{check_sdo_allowed, check_writable};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -277,16 +280,9 @@ pub(super) fn task_failed(err: tokio::task::JoinError) -> AppError {
     AppError::Internal(format!("SDO task: {err}"))
 }
 
-/// Reads an entry. The transfer runs in a task of its own (see the module
-/// docs of [`crate::api`]).
-async fn read_entry(served: &ServedBus, info: &NodeInfo, entry: &Entry) -> Result<Json, AppError> {
-    check_sdo_allowed(served, info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let (index, sub) = (entry.index, entry.sub);
-    let raw = tokio::spawn(async move { channel.upload(index, sub).await })
-        .await
-        .map_err(task_failed)?
-        .map_err(AppError::from_sdo)?;
+/// Reads an entry, as the gateway's object read does it for `caller`.
+async fn read_entry(node: &NodeHandle, caller: &Caller, entry: &Entry) -> Result<Json, AppError> {
+    let raw = node.read_object(caller, entry.index, entry.sub).await?;
     Ok(entry.to_json(&raw))
 }
 
@@ -363,11 +359,16 @@ async fn list_dictionary(
     ))]
 async fn read_one(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
 ) -> Result<ApiJson<Json>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let entry = resolve(dictionary(&info), &Json::String(index), &Json::String(sub))?;
-    Ok(ApiJson(read_entry(&served, &info, &entry).await?))
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let entry = resolve(
+        dictionary(node.info()),
+        &Json::String(index),
+        &Json::String(sub),
+    )?;
+    Ok(ApiJson(read_entry(&node, &caller, &entry).await?))
 }
 
 /// A value to write.
@@ -430,41 +431,30 @@ fn value_to_write(
     ))]
 async fn write_one(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
+    item: Option<axum::Extension<AuditItem>>,
     ApiPath((bus, id, index, sub)): ApiPath<(String, String, String, String)>,
     ApiJson(request): ApiJson<WriteRequest>,
 ) -> Result<ApiJson<Json>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let mut entry = resolve(dictionary(&info), &Json::String(index), &Json::String(sub))?;
-    let value = value_to_write(&entry, &info, &request)?;
-    check_sdo_allowed(&served, &info)?;
-    check_writable(&info, entry.index, entry.sub)?;
-    let channel = served.registry.sdo(info.id)?;
-    let bytes = value.to_bytes();
-    let (index, sub) = (entry.index, entry.sub);
-    let readable = entry
-        .described
-        .as_ref()
-        .is_none_or(|(_, sub)| sub.access.is_readable());
-    // Write and read back in one task: both finish even if the client goes.
-    let written = bytes.clone();
-    let read_back = tokio::spawn(async move {
-        channel.download(index, sub, &written).await?;
-        if readable {
-            channel.upload(index, sub).await.map(Some)
-        } else {
-            Ok(None)
-        }
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let mut entry = resolve(
+        dictionary(node.info()),
+        &Json::String(index),
+        &Json::String(sub),
+    )?;
+    // The audit entry names the object as the other doors do.
+    if let Some(axum::Extension(item)) = item {
+        item.set(object_item(entry.index, entry.sub));
+    }
+    let value = value_to_write(&entry, node.info(), &request)?;
+    let read_back = node
+        .write_object_read_back(&caller, entry.index, entry.sub, value.to_bytes())
+        .await?;
     // The request typed the value of an object the EDS does not know:
     // answer in its type. A write-only object cannot be read back: the
     // answer is what was written.
     entry.requested_type = Some(value.data_type());
-    Ok(ApiJson(
-        entry.to_json(read_back.as_deref().unwrap_or(&bytes)),
-    ))
+    Ok(ApiJson(entry.to_json(&read_back)))
 }
 
 /// The most entries one batch read may carry: each is an SDO transfer on
@@ -514,6 +504,7 @@ pub struct BatchValue {
     ))]
 async fn read_batch(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<BatchRequest>,
 ) -> Result<ApiJson<Json>, AppError> {
@@ -523,8 +514,8 @@ async fn read_batch(
             request.entries.len()
         )));
     }
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let dict = dictionary(&info);
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let dict = dictionary(node.info());
     let mut results = Vec::with_capacity(request.entries.len());
     for requested in &request.entries {
         let pair = match requested {
@@ -536,7 +527,7 @@ async fn read_batch(
                 "{requested} is not an [index, sub] pair"
             ))),
             Some((index, sub)) => match resolve(dict, index, sub) {
-                Ok(entry) => read_entry(&served, &info, &entry).await,
+                Ok(entry) => read_entry(&node, &caller, &entry).await,
                 Err(err) => Err(err),
             },
         };

@@ -24,7 +24,6 @@ use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
 use crate::cia309::reply::{self, ErrorCode, Event, Reply};
 use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
 use crate::gateway::GatewayError;
-use crate::gateway::access::Role;
 use crate::gateway::registry::{NodeEvent, OfflineReason};
 
 /// The longest command line read; a longer one is a syntax error.
@@ -110,18 +109,6 @@ impl Session {
         }
     }
 
-    /// Whether the connection's role may run `command`, by the REST API's
-    /// roles: SDO reads for viewers, SDO writes and NMT for operators. An
-    /// open gateway (no tokens) allows all.
-    fn allowed(&self, command: &Command) -> bool {
-        let needed = match command {
-            Command::Read { .. } => Role::Viewer,
-            Command::Write { .. } | Command::Nmt(_) => Role::Operator,
-            _ => return true,
-        };
-        self.gateway.allows(self.identity.access, needed)
-    }
-
     pub fn new(gateway: Cia309Gateway, identity: Identity) -> Self {
         Self {
             gateway,
@@ -174,45 +161,10 @@ impl Session {
         let sequence = request.sequence;
         self.last_sequence = sequence;
         let net = request.net;
-        if !self.allowed(&request.command) {
-            let what = match request.command {
-                Command::Write { .. } => "SDO write",
-                Command::Nmt(_) => "NMT command",
-                _ => "SDO read",
-            };
-            if what != "SDO read" {
-                let origin = Origin {
-                    identity: &self.identity,
-                    method: "ASCII",
-                    path: line.trim_end_matches(['\r', '\n']),
-                };
-                self.gateway
-                    .audit_refused(origin, net, request.node, what)
-                    .await;
-            }
-            return Reply::Error(sequence, ErrorCode::InternalState);
-        }
-        // Writes and NMT commands draw on the token's write rate, the same
-        // bucket as its REST and CiA 309-5 writes; over it, 102 (CiA 309-3
-        // has no "too many requests": the request is not processed for the
-        // gateway's state, docs/cia309.md).
-        if let Some(what) = match request.command {
-            Command::Write { .. } => Some("SDO write"),
-            Command::Nmt(_) => Some("NMT command"),
-            _ => None,
-        } && let Err(refused) = self.gateway.take_write(&self.identity)
-        {
-            let path = audited_line(line);
-            let origin = Origin {
-                identity: &self.identity,
-                method: "ASCII",
-                path: &path,
-            };
-            self.gateway
-                .audit_rejected(origin, net, request.node, what, &refused)
-                .await;
-            return Reply::Error(sequence, ErrorCode::InternalState);
-        }
+        // The role and the write rate (the token's bucket, shared with its
+        // REST and CiA 309-5 writes) are the gateway's to apply: refused,
+        // 102 (CiA 309-3 has no "forbidden" or "too many requests": the
+        // request is not processed for the gateway's state, docs/cia309.md).
         let node = request.node.unwrap_or(0);
         let path = line.trim_end_matches(['\r', '\n']);
         let origin = Origin {
@@ -226,7 +178,11 @@ impl Session {
                 sub,
                 datatype,
             } => {
-                return match self.gateway.read(net, node, index, sub, self.options).await {
+                return match self
+                    .gateway
+                    .read(origin, net, node, index, sub, self.options)
+                    .await
+                {
                     Ok(bytes) => {
                         let text = match datatype {
                             Some(datatype) => datatype.format(&bytes),
@@ -234,7 +190,7 @@ impl Session {
                         };
                         Reply::Value(sequence, text)
                     }
-                    Err(failure) => failure_reply(sequence, failure),
+                    Err(error) => failure_reply(sequence, Failure::of(&error)),
                 };
             }
             Command::Write {
@@ -271,7 +227,7 @@ impl Session {
         };
         match result {
             Ok(()) => Reply::Ok(sequence),
-            Err(failure) => failure_reply(sequence, failure),
+            Err(error) => failure_reply(sequence, Failure::of(&error)),
         }
     }
 }

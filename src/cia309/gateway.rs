@@ -1,10 +1,10 @@
-//! What a CiA 309 request does, through the same gateway service as REST
-//! (CiA 309-1 §5, the services a gateway offers): SDO transfers on the
-//! node's shared channel ([`crate::gateway::sdo::SdoChannel`], the per-node
-//! queue REST uses), NMT through the service's sender, the same checks (a
-//! node the registry does not know, a stopped node, a bus that is down),
-//! and an audit entry in the history for every write and NMT command,
-//! whatever its outcome.
+//! What a CiA 309 request does, through the same gateway operations as
+//! REST (CiA 309-1 §5, the services a gateway offers): object reads and
+//! writes and NMT commands of a [`NodeHandle`], which apply the caller's
+//! role and write rate and the node's checks (a node the registry does not
+//! know, a stopped node, a bus that is down, a read-only object) and run
+//! the transfer on the node's shared SDO queue; and an audit entry in the
+//! history for every write and NMT command, whatever its outcome.
 //!
 //! Used by the CiA 309-3 connections (`candeck ascii`, `--ascii-listen`)
 //! and the CiA 309-5 routes of the HTTP server.
@@ -12,14 +12,13 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::canopen::NodeId;
-use crate::canopen::nmt::{NmtCommand, NmtTarget};
+use crate::canopen::nmt::NmtCommand;
 use crate::canopen::sdo::{AbortCode, ClientConfig};
-use crate::gateway::access::{Role, Tokens, WriteLimiter};
+use crate::gateway::access::{Role, Tokens};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{AuditEntry, History};
-use crate::gateway::registry::NodeInfo;
-use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed, check_writable};
+use crate::gateway::node::objects::object_item;
+use crate::gateway::{Gateway, GatewayError, NodeHandle, ServedBus};
 
 use super::command::Nmt;
 use super::reply::ErrorCode;
@@ -121,21 +120,39 @@ impl TransferOptions {
 #[derive(Debug, Clone)]
 pub struct Origin<'a> {
     pub identity: &'a Identity,
-    /// `ASCII`, or the HTTP method of a 309-5 request.
+    /// `ASCII` (CiA 309-3), or the HTTP method of a 309-5 request.
     pub method: &'a str,
     /// The command line, or the 309-5 path.
     pub path: &'a str,
 }
 
+impl Origin<'_> {
+    /// The door: `ASCII` lines are CiA 309-3's, HTTP requests 309-5's.
+    pub fn channel(&self) -> Channel {
+        if self.method == "ASCII" {
+            Channel::Cia309_3
+        } else {
+            Channel::Cia309_5
+        }
+    }
+
+    /// Who sends the request, as the gateway's operations take it.
+    pub fn caller(&self) -> Caller {
+        let identity = self.identity;
+        let caller = Caller::new(self.channel(), identity.who.clone(), identity.access);
+        match &identity.peer {
+            Some(peer) => caller.with_peer(peer.clone()),
+            None => caller,
+        }
+    }
+}
+
 /// The gateway service's buses by CiA 309 net number, and its history.
 #[derive(Clone)]
 pub struct Cia309Gateway {
+    gateway: Gateway,
     buses: Arc<Vec<Arc<ServedBus>>>,
     history: History,
-    /// The gateway's tokens and roles: the same as REST's.
-    tokens: Arc<Tokens>,
-    /// The write rate limit per token: the same buckets as REST's.
-    writes: Arc<WriteLimiter>,
 }
 
 impl Cia309Gateway {
@@ -143,30 +160,13 @@ impl Cia309Gateway {
         Self {
             buses: Arc::new(gateway.buses_in_order()),
             history: gateway.history.clone(),
-            tokens: gateway.tokens.clone(),
-            writes: gateway.writes.clone(),
+            gateway: gateway.clone(),
         }
     }
 
     /// The gateway's tokens and roles.
     pub fn tokens(&self) -> &Tokens {
-        &self.tokens
-    }
-
-    /// Whether a client holding `held` may send a command that needs
-    /// `needed` (anyone may on an open gateway).
-    pub fn allows(&self, held: Option<Role>, needed: Role) -> bool {
-        self.tokens.allows(held, needed)
-    }
-
-    /// Takes one write (an SDO write, an NMT command) of `identity` from
-    /// the write rate limit REST applies to the same token; an open gateway
-    /// (no tokens) has none.
-    pub fn take_write(&self, identity: &Identity) -> Result<(), GatewayError> {
-        if !self.tokens.required() {
-            return Ok(());
-        }
-        self.writes.take_or_refuse(&identity.who)
+        &self.gateway.tokens
     }
 
     /// How many nets there are (1 to this).
@@ -186,39 +186,31 @@ impl Cia309Gateway {
             .and_then(|at| self.buses.get(at))
     }
 
-    /// Reads an object: the value's bytes.
-    pub async fn read(
-        &self,
-        net: u16,
-        node: u8,
-        index: u16,
-        sub: u8,
-        options: TransferOptions,
-    ) -> Result<Vec<u8>, Failure> {
-        self.upload(net, node, index, sub, options)
-            .await
-            .map_err(|error| Failure::of(&error))
+    /// The node `node` of net `net`, as a handle for its operations.
+    fn node(&self, net: u16, node: u8) -> Result<NodeHandle, GatewayError> {
+        let served = self
+            .bus(net)
+            .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?;
+        self.gateway.node_handle(&served.name, &node.to_string())
     }
 
-    async fn upload(
+    /// Reads an object for `origin`'s caller: the value's bytes.
+    pub async fn read(
         &self,
+        origin: Origin<'_>,
         net: u16,
         node: u8,
         index: u16,
         sub: u8,
         options: TransferOptions,
     ) -> Result<Vec<u8>, GatewayError> {
-        let (_, _, channel) = self.channel(net, node)?;
-        let config = options.apply(channel.config());
-        // In a task of its own, as REST does: a client that goes away
-        // mid-transfer does not cut it halfway.
-        tokio::spawn(async move { channel.upload_with(index, sub, config.as_ref()).await })
+        let settings = move |base: &ClientConfig| options.apply(base);
+        self.node(net, node)?
+            .read_object_with(&origin.caller(), index, sub, &settings)
             .await
-            .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
-            .map_err(GatewayError::from)
     }
 
-    /// Writes an object, and audits it.
+    /// Writes an object for `origin`'s caller, and audits it.
     #[allow(clippy::too_many_arguments)]
     pub async fn write(
         &self,
@@ -230,51 +222,38 @@ impl Cia309Gateway {
         data: Vec<u8>,
         summary: String,
         options: TransferOptions,
-    ) -> Result<(), Failure> {
-        let result = self.download(net, node, index, sub, data, options).await;
+    ) -> Result<(), GatewayError> {
+        let settings = move |base: &ClientConfig| options.apply(base);
+        let result = match self.node(net, node) {
+            Ok(handle) => {
+                handle
+                    .write_object_with(&origin.caller(), index, sub, data, &settings)
+                    .await
+            }
+            Err(error) => Err(error),
+        };
         self.audit(
             &origin,
             net,
             Some(node),
             "write object",
-            Some(format!("0x{index:04X}:{sub}")),
+            Some(object_item(index, sub)),
             Some(summary),
             result.as_ref().err(),
         )
         .await;
-        result.map_err(|error| Failure::of(&error))
+        result
     }
 
-    async fn download(
-        &self,
-        net: u16,
-        node: u8,
-        index: u16,
-        sub: u8,
-        data: Vec<u8>,
-        options: TransferOptions,
-    ) -> Result<(), GatewayError> {
-        let (_, info, channel) = self.channel(net, node)?;
-        check_writable(&info, index, sub)?;
-        let config = options.apply(channel.config());
-        tokio::spawn(async move {
-            channel
-                .download_with(index, sub, &data, config.as_ref())
-                .await
-        })
-        .await
-        .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
-        .map_err(GatewayError::from)
-    }
-
-    /// Sends an NMT command (node 0: every node), and audits it.
+    /// Sends an NMT command for `origin`'s caller (node 0: every node),
+    /// and audits it.
     pub async fn nmt(
         &self,
         origin: Origin<'_>,
         net: u16,
         node: u8,
         nmt: Nmt,
-    ) -> Result<(), Failure> {
+    ) -> Result<(), GatewayError> {
         let command = match nmt {
             Nmt::Start => NmtCommand::Start,
             Nmt::Stop => NmtCommand::Stop,
@@ -282,7 +261,18 @@ impl Cia309Gateway {
             Nmt::ResetNode => NmtCommand::ResetNode,
             Nmt::ResetCommunication => NmtCommand::ResetCommunication,
         };
-        let result = self.send_nmt(net, node, command).await;
+        let caller = origin.caller();
+        let result = if node == 0 {
+            match self.bus(net) {
+                Some(served) => self.gateway.bus_nmt(&caller, &served.name, command).await,
+                None => Err(GatewayError::UnknownBus(net.to_string())),
+            }
+        } else {
+            match self.node(net, node) {
+                Ok(handle) => handle.nmt(&caller, command).await,
+                Err(error) => Err(error),
+            }
+        };
         let operation = if node == 0 {
             "nmt command to all nodes"
         } else {
@@ -298,60 +288,7 @@ impl Cia309Gateway {
             result.as_ref().err(),
         )
         .await;
-        result.map_err(|error| Failure::of(&error))
-    }
-
-    async fn send_nmt(&self, net: u16, node: u8, command: NmtCommand) -> Result<(), GatewayError> {
-        let served = self
-            .bus(net)
-            .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?;
-        let target = if node == 0 {
-            NmtTarget::All
-        } else {
-            NmtTarget::Node(
-                NodeId::new(node).map_err(|err| GatewayError::InvalidRequest(err.to_string()))?,
-            )
-        };
-        served.send_nmt(command, target).await
-    }
-
-    /// The node and its shared SDO channel, after the gateway's checks.
-    fn channel(
-        &self,
-        net: u16,
-        node: u8,
-    ) -> Result<(Arc<ServedBus>, NodeInfo, crate::gateway::sdo::SdoChannel), GatewayError> {
-        let served = self
-            .bus(net)
-            .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?
-            .clone();
-        let id = NodeId::new(node).map_err(|err| GatewayError::InvalidRequest(err.to_string()))?;
-        let info = served
-            .registry
-            .node(id)
-            .ok_or_else(|| GatewayError::UnknownNode {
-                bus: served.name.clone(),
-                node: node.to_string(),
-            })?;
-        check_sdo_allowed(&served, &info)?;
-        let channel = served.registry.sdo(id)?;
-        Ok((served, info, channel))
-    }
-
-    /// Records a command refused for the connection's role (or for want
-    /// of a token), as the REST API's guard records its 401 and 403.
-    pub async fn audit_refused(&self, origin: Origin<'_>, net: u16, node: Option<u8>, what: &str) {
-        let error = if origin.identity.access.is_some() {
-            GatewayError::Forbidden(format!(
-                "{what} needs a higher role than {}",
-                origin.identity.role
-            ))
-        } else {
-            GatewayError::Unauthenticated(format!("{what} needs a token: send 'auth TOKEN' first"))
-        };
-        let operation = format!("{what} (refused)");
-        self.audit(&origin, net, node, &operation, None, None, Some(&error))
-            .await;
+        result
     }
 
     /// Records a command refused before it ran for `error` (a line the

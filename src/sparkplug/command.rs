@@ -126,6 +126,17 @@ impl Command {
         }
     }
 
+    /// The motion lease id it presents (`Axis {n}/Lease Id` of its DCMD).
+    pub fn lease_id(&self) -> Option<&str> {
+        match self {
+            Self::AxisState { lease_id, .. }
+            | Self::Halt { lease_id, .. }
+            | Self::Move { lease_id, .. }
+            | Self::Lease { lease_id, .. } => lease_id.as_deref(),
+            _ => None,
+        }
+    }
+
     /// Whether it stops motion (never refused by the write rate, as REST's
     /// halts and walks out of operation enabled are not).
     pub fn is_stop(&self) -> bool {

@@ -31,10 +31,12 @@ use crate::canopen::NodeId;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::edge_node::EdgeNodeStats;
 use crate::gateway::history::AuditEntry;
+use crate::gateway::motion_lease::AxisKey;
+use crate::gateway::node::objects::object_item;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
 use crate::gateway::telemetry::unix_ms;
 use crate::gateway::values::TpdoFrame;
-use crate::gateway::{Gateway, GatewayError, check_sdo_allowed, check_writable};
+use crate::gateway::{Gateway, GatewayError};
 
 /// How long to wait before connecting again after a connection failed or
 /// was lost.
@@ -1102,7 +1104,7 @@ async fn sleep_until(at: Option<Instant>) {
 /// One command from MQTT, through the gateway's operations and checks as
 /// REST runs them: the role, the write rate limit, the node's checks, the
 /// EDS's; audited whatever its outcome, `who` the MQTT identity.
-pub(super) async fn run_command(
+pub(crate) async fn run_command(
     gateway: &Gateway,
     config: &SparkplugConfig,
     held: &HeldLeases,
@@ -1114,7 +1116,12 @@ pub(super) async fn run_command(
         Some((bus, node)) => (Some(bus.to_string()), Some(node)),
         None => (None, None),
     };
-    let mut item = None;
+    // What the command acts on, known before any check: a refused write
+    // is logged with its object, as every door logs it.
+    let mut item = match command {
+        Command::Write { index, sub, .. } => Some(object_item(*index, *sub)),
+        _ => None,
+    };
     let mut request = None;
     let mut outcome = Outcome {
         audit: true,
@@ -1133,17 +1140,36 @@ pub(super) async fn run_command(
                 "{topic}: not a device of this edge node"
             )));
         };
-        // A stop is never refused by the write rate (as REST's halts and
-        // walks out of operation enabled), nor is a lease renewal (a
-        // heartbeat refused would stop the axis).
-        if !(command.is_stop() || matches!(command, Command::Lease { keep: true, .. })) {
-            gateway.writes.take_or_refuse(&config.who())?;
+        let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role));
+        // An object write or NMT command takes its write in the gateway's
+        // operation. A stop is never refused by the write rate (as REST's
+        // halts and walks out of operation enabled), nor is a lease renewal
+        // (a heartbeat refused would stop the axis); another command draws
+        // on the lease it presents, if it is the one held on its axis, so
+        // that commands presenting none cannot starve the lease's holder
+        // (`crate::gateway::policy`).
+        let object_operation = matches!(command, Command::Write { .. } | Command::Nmt(_));
+        if !(object_operation
+            || command.is_stop()
+            || matches!(command, Command::Lease { keep: true, .. }))
+        {
+            match command.axis() {
+                Some(axis) => {
+                    let key = AxisKey {
+                        bus: bus.clone(),
+                        node,
+                        axis,
+                    };
+                    gateway.take_write_presenting(&caller, &key, command.lease_id())?
+                }
+                None => gateway.take_write(&caller)?,
+            }
         }
         match command {
             Command::Write { index, sub, value } => {
-                item = Some(format!("0x{index:04X}:{sub}"));
                 request = Some(value.to_json().to_string());
-                let (served, info) = gateway.node(bus, &node.to_string())?;
+                let handle = gateway.node_handle(bus, &node.to_string())?;
+                let info = handle.info();
                 let bytes = match info
                     .eds_entry
                     .as_ref()
@@ -1159,20 +1185,13 @@ pub(super) async fn run_command(
                         )));
                     }
                 };
-                check_sdo_allowed(&served, &info)?;
-                check_writable(&info, *index, *sub)?;
-                let channel = served.registry.sdo(info.id)?;
-                let (index, sub) = (*index, *sub);
-                tokio::spawn(async move { channel.download(index, sub, &bytes).await })
-                    .await
-                    .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
-                    .map_err(GatewayError::from)
+                handle.write_object(&caller, *index, *sub, bytes).await
             }
             Command::Nmt(nmt) => {
                 request = Some(format!("{{\"command\":\"{}\"}}", nmt.name()));
-                let (served, info) = gateway.node(bus, &node.to_string())?;
-                served
-                    .send_nmt(*nmt, crate::canopen::nmt::NmtTarget::Node(info.id))
+                gateway
+                    .node_handle(bus, &node.to_string())?
+                    .nmt(&caller, *nmt)
                     .await
             }
             Command::Unsupported(what) => Err(GatewayError::InvalidRequest(format!(

@@ -211,6 +211,13 @@ impl MotionLeases {
         }
     }
 
+    /// Whether `id` is the lease held on `axis` now.
+    pub fn holds(&self, axis: &AxisKey, id: &str) -> bool {
+        self.table()
+            .get(axis, Instant::now())
+            .is_some_and(|lease| lease.id == id)
+    }
+
     /// How many leases are held.
     pub fn held(&self) -> usize {
         self.table().len()

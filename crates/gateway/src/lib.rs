@@ -28,6 +28,8 @@
 //! - [`node`]: one node of a bus as a handle ([`NodeHandle`]) whose
 //!   operations every door calls.
 //! - [`caller`]: who asks, through which door ([`caller::Caller`]).
+//! - [`policy`]: what the gateway asks of a caller before it acts: its
+//!   role, and a write from its write rate limit.
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
 //! - [`load`]: the measured load of a bus.
 //! - [`logger`]: the data logger: objects of any nodes sampled at a
@@ -101,6 +103,7 @@ pub mod motion;
 pub mod motion_lease;
 pub mod node;
 pub mod pdo;
+pub mod policy;
 pub mod producers;
 pub mod profile;
 pub mod program;

@@ -10,6 +10,8 @@
 
 use std::sync::Arc;
 
+pub mod objects;
+
 use super::GatewayError;
 use super::registry::NodeInfo;
 use super::service::{Gateway, ServedBus};
@@ -17,7 +19,6 @@ use super::service::{Gateway, ServedBus};
 /// A node of a bus, found: what its operations act on.
 #[derive(Clone)]
 pub struct NodeHandle {
-    #[expect(dead_code, reason = "the operations of the area files use it")]
     pub(crate) gateway: Gateway,
     pub(crate) served: Arc<ServedBus>,
     pub(crate) info: NodeInfo,

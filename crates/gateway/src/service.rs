@@ -407,16 +407,6 @@ impl Gateway {
         })
     }
 
-    /// Takes one write of `who` (a token's name) from the shared write
-    /// rate limit, when the gateway has tokens (an open gateway has no
-    /// names to count by); `rate_limited` when `who` is over its rate.
-    pub fn take_write(&self, who: &str) -> Result<(), GatewayError> {
-        if !self.tokens.required() {
-            return Ok(());
-        }
-        self.writes.take_or_refuse(who)
-    }
-
     /// The buses in the order they were given: CiA 309 net `n` is the
     /// `n`-th (1-based).
     pub fn buses_in_order(&self) -> Vec<Arc<ServedBus>> {

@@ -77,21 +77,26 @@ async fn audit(app: &Router) -> Vec<Json> {
 /// used to pass, however many: 100 of 100).
 #[tokio::test(start_paused = true)]
 async fn cia309_5_commands_share_the_rest_write_rate() {
-    let app = gateway(
+    // The gateway's object operations take the writes (issue 29): on the
+    // demo bus, so that they run.
+    let served = support::open("demo", "virtual:demo").await;
+    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
+    let config = config(
         Some(RateLimit {
             per_second: 1.0,
             burst: 3,
         }),
         crate::api::auth::DEFAULT_BODY_LIMIT,
     );
+    let app = app(AppState::new([served]).with_auth(config));
     let write = "/cia309-5/1.0/7/1/1/w/0x1017/0";
-    let body = Some(r#"{"value":"0","datatype":"u16"}"#);
-    // Two through 309-5 (answered in its body: there is no net 1), one
-    // through REST: the bucket of 3 is empty.
+    let body = Some(r#"{"value":"1000","datatype":"u16"}"#);
+    // Two through 309-5, one through REST: the bucket of 3 is empty.
     for _ in 0..2 {
         let (status, json) = send(&app, Method::PUT, write, Some(OPERATOR), &[], body).await;
         assert_eq!(status, StatusCode::OK, "{json}");
         assert_eq!(json["sequence"], "7", "{json}");
+        assert_eq!(json["response"], "OK", "{json}");
     }
     let scan = "/api/v1/buses/nobus/scan";
     let (status, _) = send(&app, Method::POST, scan, Some(OPERATOR), &[], Some("{}")).await;

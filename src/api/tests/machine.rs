@@ -231,7 +231,15 @@ async fn a_cia_309_write_of_0x1017_is_followed_as_well() {
         .await
         .unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
-    let read = gateway.read(1, 1, 0x1017, 0, options).await.unwrap();
+    let origin = Origin {
+        identity: &identity,
+        method: "ASCII",
+        path: "[2] 1 r 0x1017 0 u16",
+    };
+    let read = gateway
+        .read(origin, 1, 1, 0x1017, 0, options)
+        .await
+        .unwrap();
     assert_eq!(read, 1000u16.to_le_bytes().to_vec());
     let after = machine_node(&app, 1).await;
     assert_eq!(after["boots"], before["boots"], "{after}");

@@ -21,7 +21,7 @@ mod recording;
 mod step_test;
 mod stops;
 mod stream;
-pub(super) mod support;
+pub(crate) mod support;
 mod telemetry;
 
 use crate::emulator::RackOf;

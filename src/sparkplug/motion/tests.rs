@@ -571,3 +571,86 @@ async fn a_segment_write_reaches_the_led_controller() {
     assert_eq!(segment.color_1().r, 0xff);
     assert_eq!(segment.color_1().g, 0x50);
 }
+
+/// Issue 29: every MQTT client shares the edge node's identity, so an
+/// unleased flood from one client used to spend the bucket the lease's
+/// holder draws on (7 of 8 of the host's writes refused with 429). A
+/// command presenting the lease held on its axis draws on that lease's
+/// bucket; the flood is refused, and audited, on its own.
+#[tokio::test(start_paused = true)]
+async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
+    use crate::gateway::access::RateLimit;
+    let gateway = demo().await.with_write_limit(Some(RateLimit::default()));
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![enable(), run_at(100), renew(), lease_id(HOST_ID)],
+    )
+    .await;
+    assert!(results.iter().all(Result::is_ok), "{results:?}");
+    // Another client floods at 120 writes a second (object writes and
+    // moves that present no lease) while the host changes its set-point
+    // 8 times, presenting its lease.
+    let mut host_refused = 0;
+    let mut flood_refused = 0;
+    for round in 0..8 {
+        for _ in 0..30 {
+            let flood = dcmd(
+                &gateway,
+                &config,
+                &held,
+                1,
+                vec![metric("OD/0x1017:0", MetricValue::UInt16(1000))],
+            )
+            .await;
+            if flood[0].as_ref().is_err_and(|e| e.code() == "rate_limited") {
+                flood_refused += 1;
+            }
+        }
+        let host = dcmd(
+            &gateway,
+            &config,
+            &held,
+            1,
+            vec![run_at(100 + round), renew(), lease_id(HOST_ID)],
+        )
+        .await;
+        if host[0].is_err() {
+            host_refused += 1;
+        }
+        // Within the lease period (the move renews the lease).
+        tokio::time::sleep(PERIOD / 4).await;
+    }
+    assert_eq!(host_refused, 0, "the host was starved");
+    assert!(
+        flood_refused > 100,
+        "the flood was not limited: {flood_refused}"
+    );
+    assert!(
+        velocity(&gateway).await > 100,
+        "the last set-point not obeyed"
+    );
+    // Each refusal of the flood is audited.
+    let audited = gateway
+        .history
+        .query(Query {
+            kind: Some(EventKind::Audit),
+            since_us: None,
+            until_us: None,
+            channel: None,
+            limit: 10_000,
+        })
+        .await
+        .unwrap()
+        .into_iter()
+        .filter(|event| {
+            event.fields.get("operation") == Some(&"write object".into())
+                && event.fields.get("error_code") == Some(&"rate_limited".into())
+        })
+        .count();
+    assert_eq!(audited, flood_refused);
+}

@@ -1,0 +1,195 @@
+//! A node's objects and its NMT state, as every door reaches them: reads
+//! and writes over SDO ([`NodeHandle::read_object`],
+//! [`NodeHandle::write_object`]) and NMT commands ([`NodeHandle::nmt`],
+//! [`Gateway::bus_nmt`]). Each does the whole job for its [`Caller`]: the
+//! role (a viewer's to read, an operator's to write or command NMT, as the
+//! REST route table has it), a write from the caller's write rate limit
+//! ([`crate::policy`]), the node's checks ([`check_sdo_allowed`],
+//! [`check_writable`]), and the transfer in a task of its own, so that a
+//! client that goes away cannot cut it half way. What follows a write
+//! (the TPDO decoder read again after a write to 0x1A00, the producer
+//! heartbeat time followed) hangs on the node's SDO channel
+//! ([`crate::registry::NodeRegistry::subscribe_writes`]), whoever wrote.
+//!
+//! The doors parse and type their requests (REST against the EDS, CiA 309
+//! by its datatypes, Sparkplug from its metrics) and write each outcome to
+//! the audit log; the item they log for an object is [`object_item`].
+
+use crate::canopen::nmt::{NmtCommand, NmtTarget};
+use crate::canopen::sdo::ClientConfig;
+
+use super::NodeHandle;
+use crate::GatewayError;
+use crate::access::Role;
+use crate::caller::Caller;
+use crate::service::{Gateway, check_sdo_allowed, check_writable};
+
+/// An object as the audit log names it, whichever door wrote it:
+/// `0x1A00:0`.
+pub fn object_item(index: u16, sub: u8) -> String {
+    format!("0x{index:04X}:{sub}")
+}
+
+/// A caller's own settings for one transfer (CiA 309-3's `set
+/// sdo_timeout`, `set sdo_block`): the channel's configuration as it
+/// should be changed, or `None` to keep it.
+pub type TransferSettings<'a> = &'a (dyn Fn(&ClientConfig) -> Option<ClientConfig> + Sync);
+
+/// The channel's own settings.
+fn channel_settings(_: &ClientConfig) -> Option<ClientConfig> {
+    None
+}
+
+fn task_failed(err: tokio::task::JoinError) -> GatewayError {
+    GatewayError::Internal(format!("SDO task: {err}"))
+}
+
+impl NodeHandle {
+    /// Reads an object's value bytes (the viewer's).
+    pub async fn read_object(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+    ) -> Result<Vec<u8>, GatewayError> {
+        self.read_object_with(caller, index, sub, &channel_settings)
+            .await
+    }
+
+    /// [`NodeHandle::read_object`] with the caller's own settings.
+    pub async fn read_object_with(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+        settings: TransferSettings<'_>,
+    ) -> Result<Vec<u8>, GatewayError> {
+        self.gateway.require_role(caller, Role::Viewer)?;
+        check_sdo_allowed(&self.served, &self.info)?;
+        let channel = self.served.registry.sdo(self.info.id)?;
+        let config = settings(channel.config());
+        tokio::spawn(async move { channel.upload_with(index, sub, config.as_ref()).await })
+            .await
+            .map_err(task_failed)?
+            .map_err(GatewayError::from)
+    }
+
+    /// Writes an object's value bytes (the operator's; one write of the
+    /// caller's rate).
+    pub async fn write_object(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+        bytes: Vec<u8>,
+    ) -> Result<(), GatewayError> {
+        self.write_object_with(caller, index, sub, bytes, &channel_settings)
+            .await
+    }
+
+    /// [`NodeHandle::write_object`] with the caller's own settings.
+    pub async fn write_object_with(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+        bytes: Vec<u8>,
+        settings: TransferSettings<'_>,
+    ) -> Result<(), GatewayError> {
+        self.write(caller, index, sub, bytes, false, settings)
+            .await
+            .map(|_| ())
+    }
+
+    /// [`NodeHandle::write_object`], then the value read back in the same
+    /// task (what the device made of it); the bytes written for an object
+    /// the EDS describes as write-only.
+    pub async fn write_object_read_back(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+        bytes: Vec<u8>,
+    ) -> Result<Vec<u8>, GatewayError> {
+        let readable = self
+            .info
+            .eds_entry
+            .as_ref()
+            .and_then(|entry| entry.eds.dictionary.sub(index, sub))
+            .is_none_or(|described| described.access.is_readable());
+        let read_back = self
+            .write(
+                caller,
+                index,
+                sub,
+                bytes.clone(),
+                readable,
+                &channel_settings,
+            )
+            .await?;
+        Ok(read_back.unwrap_or(bytes))
+    }
+
+    async fn write(
+        &self,
+        caller: &Caller,
+        index: u16,
+        sub: u8,
+        bytes: Vec<u8>,
+        read_back: bool,
+        settings: TransferSettings<'_>,
+    ) -> Result<Option<Vec<u8>>, GatewayError> {
+        self.gateway.require_role(caller, Role::Operator)?;
+        self.gateway.take_write(caller)?;
+        check_sdo_allowed(&self.served, &self.info)?;
+        check_writable(&self.info, index, sub)?;
+        let channel = self.served.registry.sdo(self.info.id)?;
+        let config = settings(channel.config());
+        // Write and read back in one task: both finish even if the caller
+        // goes away.
+        tokio::spawn(async move {
+            channel
+                .download_with(index, sub, &bytes, config.as_ref())
+                .await?;
+            if read_back {
+                channel
+                    .upload_with(index, sub, config.as_ref())
+                    .await
+                    .map(Some)
+            } else {
+                Ok(None)
+            }
+        })
+        .await
+        .map_err(task_failed)?
+        .map_err(GatewayError::from)
+    }
+
+    /// Sends an NMT command to the node (the operator's; one write of the
+    /// caller's rate). NMT is unconfirmed (CiA 301 §7.2.8.2.1): this says
+    /// the command was sent; the node's new state shows in the registry
+    /// once it reports it.
+    pub async fn nmt(&self, caller: &Caller, command: NmtCommand) -> Result<(), GatewayError> {
+        self.gateway.require_role(caller, Role::Operator)?;
+        self.gateway.take_write(caller)?;
+        self.served
+            .send_nmt(command, NmtTarget::Node(self.info.id))
+            .await
+    }
+}
+
+impl Gateway {
+    /// Sends an NMT command to every node of `bus`, as [`NodeHandle::nmt`]
+    /// does to one.
+    pub async fn bus_nmt(
+        &self,
+        caller: &Caller,
+        bus: &str,
+        command: NmtCommand,
+    ) -> Result<(), GatewayError> {
+        let served = self.bus(bus)?;
+        self.require_role(caller, Role::Operator)?;
+        self.take_write(caller)?;
+        served.send_nmt(command, NmtTarget::All).await
+    }
+}
