@@ -19,6 +19,7 @@ use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::eds::{Action, Eds};
 use crate::canopen::od::format_index;
+use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::dcf;
 use crate::gateway::registry::NodeInfo;
@@ -108,8 +109,8 @@ pub struct CommandDone {
     pub signature: String,
 }
 
-fn task_failed(err: tokio::task::JoinError) -> AppError {
-    AppError::Internal(format!("SDO task: {err}"))
+fn task_failed(err: tokio::task::JoinError) -> GatewayError {
+    GatewayError::Internal(format!("SDO task: {err}"))
 }
 
 /// Writes a signature to `index`/`sub` after checking that the node's EDS
@@ -128,11 +129,12 @@ async fn command(
         Some(dictionary) => match dictionary.sub(index, sub) {
             Some(described) => Some(described.name.clone()),
             None => {
-                return Err(AppError::InvalidValue(format!(
+                return Err(GatewayError::InvalidValue(format!(
                     "node {} cannot {what}: its EDS has no {} sub {sub}",
                     info.id,
                     format_index(index)
-                )));
+                ))
+                .into());
             }
         },
         None => None,
@@ -244,12 +246,12 @@ async fn restore(
 }
 
 /// The node's EDS, which a DCF needs.
-fn node_eds(info: &NodeInfo) -> Result<std::sync::Arc<Eds>, AppError> {
+fn node_eds(info: &NodeInfo) -> Result<std::sync::Arc<Eds>, GatewayError> {
     info.eds_entry
         .as_ref()
         .map(|entry| entry.eds.clone())
         .ok_or_else(|| {
-            AppError::UnknownObject(format!(
+            GatewayError::UnknownObject(format!(
                 "node {} has no EDS: its parameters are not known",
                 info.id
             ))
@@ -358,10 +360,11 @@ async fn put_dcf(
 ) -> Result<ApiJson<RestoreReport>, AppError> {
     let (served, info) = known_node(&state, &bus, &id)?;
     let eds = node_eds(&info)?;
-    let parsed = Eds::parse_bytes(&body, "config.dcf").map_err(|error| AppError::InvalidDcf {
-        message: error.to_string(),
-        line: Some(error.line).filter(|line| *line > 0),
-    })?;
+    let parsed =
+        Eds::parse_bytes(&body, "config.dcf").map_err(|error| GatewayError::InvalidDcf {
+            message: error.to_string(),
+            line: Some(error.line).filter(|line| *line > 0),
+        })?;
     // A restore writes the device: what the tolerant reader had to drop or
     // correct is refused rather than guessed.
     if let Some(warning) = parsed
@@ -369,12 +372,13 @@ async fn put_dcf(
         .iter()
         .find(|warning| matches!(warning.action, Action::Dropped | Action::Corrected))
     {
-        return Err(AppError::InvalidDcf {
+        return Err(GatewayError::InvalidDcf {
             message: warning.to_string(),
             line: Some(warning.line),
-        });
+        }
+        .into());
     }
-    let invalid = |message: String| AppError::InvalidDcf {
+    let invalid = |message: String| GatewayError::InvalidDcf {
         message,
         line: None,
     };
@@ -386,7 +390,8 @@ async fn put_dcf(
         return Err(invalid(format!(
             "the DCF is of vendor 0x{a:X} product 0x{c:X}, node {} is vendor 0x{b:X} product 0x{d:X}",
             info.id
-        )));
+        ))
+        .into());
     }
     let dcf::Plan { entries, writes } =
         dcf::plan(&parsed, &eds.dictionary, info.id).map_err(|error| invalid(error.0))?;

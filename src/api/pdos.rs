@@ -31,7 +31,9 @@ use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::nmt::NmtService;
 use crate::canopen::od::{ObjectDictionary, format_index};
 use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
+use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
+use crate::gateway::error::PdoError;
 use crate::gateway::pdo::{
     self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
     RpdoValueError,
@@ -163,31 +165,33 @@ pub struct RpdoPath {
     pub n: u16,
 }
 
-fn pdo_kind(kind: &str) -> Result<PdoKind, AppError> {
+fn pdo_kind(kind: &str) -> Result<PdoKind, GatewayError> {
     PdoKind::from_name(kind).ok_or_else(|| {
-        AppError::UnknownPdo(format!("'{kind}' is no kind of PDO: give tpdo or rpdo"))
+        GatewayError::Pdo(PdoError::UnknownPdo(format!(
+            "'{kind}' is no kind of PDO: give tpdo or rpdo"
+        )))
     })
 }
 
-fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, AppError> {
+fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, GatewayError> {
     n.parse::<u16>()
         .ok()
         .filter(|n| (1..=PdoKind::MAX_NUMBER).contains(n))
         .ok_or_else(|| {
-            AppError::UnknownPdo(format!(
+            GatewayError::Pdo(PdoError::UnknownPdo(format!(
                 "{} '{n}': PDOs are numbered 1 to 512",
                 kind.name().to_uppercase()
-            ))
+            )))
         })
 }
 
-fn plan_error(err: PdoPlanError) -> AppError {
+fn plan_error(err: PdoPlanError) -> GatewayError {
     if err.is_unknown_pdo() {
-        AppError::UnknownPdo(err.to_string())
+        GatewayError::Pdo(PdoError::UnknownPdo(err.to_string()))
     } else if err.is_out_of_range() {
-        AppError::ValueOutOfRange(err.to_string())
+        GatewayError::ValueOutOfRange(err.to_string())
     } else {
-        AppError::InvalidMapping(err.to_string())
+        GatewayError::Pdo(PdoError::InvalidMapping(err.to_string()))
     }
 }
 
@@ -273,14 +277,17 @@ pub struct PdoUpdate {
     pub mapping: Option<Vec<MappingEntryRequest>>,
 }
 
-fn entry_request(position: usize, entry: MappingEntryRequest) -> Result<EntryRequest, AppError> {
+fn entry_request(
+    position: usize,
+    entry: MappingEntryRequest,
+) -> Result<EntryRequest, GatewayError> {
     let index = entry
         .index
         .or(entry.name.map(Json::String))
         .ok_or_else(|| {
-            AppError::InvalidMapping(format!(
+            GatewayError::Pdo(PdoError::InvalidMapping(format!(
                 "mapping entry {position}: give its \"index\" (or \"name\")"
-            ))
+            )))
         })?;
     Ok(EntryRequest {
         index,
@@ -323,10 +330,10 @@ async fn put_pdo(
         )));
     }
     let eds = info.eds_entry.clone().ok_or_else(|| {
-        AppError::InvalidMapping(format!(
+        GatewayError::Pdo(PdoError::InvalidMapping(format!(
             "node {} has no EDS: a mapping cannot be checked before the bus",
             info.id
-        ))
+        )))
     })?;
     let mapping = update
         .mapping
@@ -369,9 +376,9 @@ async fn put_pdo(
     })
     .await
     .map_err(task_failed)?
-    .map_err(|RemapError { step, error }| AppError::FailedAt {
+    .map_err(|RemapError { step, error }| GatewayError::FailedAt {
         step: step.to_string(),
-        source: Box::new(AppError::from_sdo(error)),
+        source: Box::new(error.into()),
     })?;
     Ok(ApiJson(pdo_json(&config, Some(&eds.eds.dictionary))))
 }
@@ -421,11 +428,11 @@ fn value_json(value: DecodedValue) -> PdoValue {
     }
 }
 
-fn rpdo_value_error(err: RpdoValueError) -> AppError {
+fn rpdo_value_error(err: RpdoValueError) -> GatewayError {
     match err {
-        RpdoValueError::OutOfRange { .. } => AppError::ValueOutOfRange(err.to_string()),
-        RpdoValueError::Untyped(_) => AppError::InvalidMapping(err.to_string()),
-        _ => AppError::InvalidValue(err.to_string()),
+        RpdoValueError::OutOfRange { .. } => GatewayError::ValueOutOfRange(err.to_string()),
+        RpdoValueError::Untyped(_) => GatewayError::Pdo(PdoError::InvalidMapping(err.to_string())),
+        _ => GatewayError::InvalidValue(err.to_string()),
     }
 }
 
@@ -456,16 +463,14 @@ async fn send_rpdo(
     let (served, info) = known_node(&state, &bus, &id)?;
     let number = pdo_number(PdoKind::Rpdo, &n)?;
     let eds = info.eds_entry.clone().ok_or_else(|| {
-        AppError::InvalidMapping(format!(
+        GatewayError::Pdo(PdoError::InvalidMapping(format!(
             "node {} has no EDS: the mapped objects' types are unknown",
             info.id
-        ))
+        )))
     })?;
     let dict = &eds.eds.dictionary;
     if !pdo::has_pdo(Some(dict), PdoKind::Rpdo, number) {
-        return Err(AppError::UnknownPdo(format!(
-            "the node has no RPDO {number}"
-        )));
+        return Err(PdoError::UnknownPdo(format!("the node has no RPDO {number}")).into());
     }
     check_sdo_allowed(&served, &info)?;
     // The state is current only for a node that sends heartbeats; without
@@ -474,10 +479,11 @@ async fn send_rpdo(
         .nmt
         .filter(|state| info.heartbeat_ms.is_some() && !state.allows(NmtService::Pdo))
     {
-        return Err(AppError::WrongNmtState {
+        return Err(GatewayError::WrongNmtState {
             node: info.id.get(),
             state,
-        });
+        }
+        .into());
     }
     let channel = served.registry.sdo(info.id)?;
     let task_eds = eds.clone();
@@ -496,14 +502,16 @@ async fn send_rpdo(
     let cob_id = match config.cob_id() {
         Some(cob_id) if cob_id.valid => cob_id,
         _ => {
-            return Err(AppError::PdoDisabled(format!(
+            return Err(PdoError::PdoDisabled(format!(
                 "RPDO {number} of node {} is not valid (COB-ID 0x{:08X}): enable it with PUT .../pdos/rpdo/{number}",
                 info.id, config.cob_id_raw
-            )));
+            )).into());
         }
     };
     let mapping = PdoMapping::new(config.mapping.clone()).map_err(|err| {
-        AppError::PdoDisabled(format!("RPDO {number} has no usable mapping: {err}"))
+        GatewayError::Pdo(PdoError::PdoDisabled(format!(
+            "RPDO {number} has no usable mapping: {err}"
+        )))
     })?;
     let encoder = RpdoEncoder::new(cob_id.id, mapping, Some(dict), Some(info.id));
     let (frame, values) = encoder
@@ -581,10 +589,11 @@ async fn put_sync(
 ) -> Result<ApiJson<SyncState>, AppError> {
     let served = state.bus(&bus)?;
     if setting.period_ms > MAX_PERIOD_MS {
-        return Err(AppError::ValueOutOfRange(format!(
+        return Err(GatewayError::ValueOutOfRange(format!(
             "a SYNC period of {} ms is beyond 0x1006's range (at most {MAX_PERIOD_MS} ms)",
             setting.period_ms
-        )));
+        ))
+        .into());
     }
     served
         .sync

@@ -15,14 +15,14 @@ use std::time::Duration;
 use crate::can::Timestamp;
 use crate::canopen::NodeId;
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
-use crate::canopen::sdo::{AbortCode, ClientConfig};
+use crate::canopen::sdo::ClientConfig;
 use crate::gateway::access::{Role, Tokens, WriteLimiter};
 use crate::gateway::history::{AuditEntry, History};
 use crate::gateway::registry::NodeInfo;
 use crate::gateway::{Gateway, GatewayError, ServedBus, check_sdo_allowed, check_writable};
 
 use super::command::Nmt;
-use super::reply::ErrorCode;
+use super::failure::Failure;
 
 /// Who sends a connection's (or a request's) commands, for the audit log.
 /// Authentication fills it in from a token; until then it names the peer.
@@ -51,33 +51,6 @@ impl Identity {
             role: "none".to_string(),
             peer,
             access: None,
-        }
-    }
-}
-
-/// Why a request failed, as CiA 309 answers it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Failure {
-    /// `ERROR:0x<abort code>`: the device's abort, or the client's
-    /// (0x05040000 on a timeout).
-    Abort(AbortCode),
-    /// `ERROR:<number>`.
-    Error(ErrorCode),
-}
-
-impl Failure {
-    /// A gateway error as CiA 309 says it.
-    pub fn of(error: &GatewayError) -> Self {
-        match error {
-            GatewayError::SdoAbort { code, .. } => Self::Abort(*code),
-            GatewayError::SdoProtocol { code, .. } => Self::Abort(*code),
-            GatewayError::SdoTimeout { .. } => Self::Abort(AbortCode::from_raw(0x0504_0000)),
-            GatewayError::WrongNmtState { .. } => Self::Error(ErrorCode::WrongNmtState),
-            GatewayError::UnknownNode { .. } | GatewayError::InvalidRequest(_) => {
-                Self::Error(ErrorCode::UnsupportedNode)
-            }
-            GatewayError::UnknownBus(_) => Self::Error(ErrorCode::UnsupportedNet),
-            _ => Self::Error(ErrorCode::InternalState),
         }
     }
 }
