@@ -17,6 +17,7 @@
 
 use std::time::Duration;
 
+use axum::Extension;
 use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use serde_json::Value as Json;
@@ -24,20 +25,16 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::Identity;
 use super::doc::{BusPath, ErrorBody, NodePath};
-use super::nodes::known_node;
-use super::od::{AnyValue, dictionary, hex, task_failed};
+use super::leases::caller;
+use super::od::{AnyValue, dictionary, hex};
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::nmt::NmtService;
 use crate::canopen::od::{ObjectDictionary, format_index};
-use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
+use crate::canopen::pdo::{MappingEntry, PdoKind};
 use crate::gateway::GatewayError;
-use crate::gateway::check_sdo_allowed;
 use crate::gateway::error::PdoError;
-use crate::gateway::pdo::{
-    self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
-    RpdoValueError,
-};
+use crate::gateway::pdo::{self, DecodedValue, EntryRequest, PdoConfig, PdoRequest};
 use crate::gateway::sync::MAX_PERIOD_MS;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -185,16 +182,6 @@ fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, GatewayError> {
         })
 }
 
-fn plan_error(err: PdoPlanError) -> GatewayError {
-    if err.is_unknown_pdo() {
-        GatewayError::Pdo(PdoError::UnknownPdo(err.to_string()))
-    } else if err.is_out_of_range() {
-        GatewayError::ValueOutOfRange(err.to_string())
-    } else {
-        GatewayError::Pdo(PdoError::InvalidMapping(err.to_string()))
-    }
-}
-
 /// Reads every PDO of the node over SDO.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/pdos", tag = "pdo", params(NodePath),
     responses(
@@ -211,20 +198,9 @@ async fn list_pdos(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<PdoList>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let eds = info.eds_entry.clone();
-    let configs = tokio::spawn(async move {
-        let dict = eds.as_ref().map(|entry| &entry.eds.dictionary);
-        let mut configs = pdo::read_all(&channel, dict, PdoKind::Rpdo).await?;
-        configs.extend(pdo::read_all(&channel, dict, PdoKind::Tpdo).await?);
-        Ok(configs)
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    let dict = dictionary(&info);
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let configs = node.read_pdos().await?;
+    let dict = dictionary(node.info());
     let of = |kind| {
         configs
             .iter()
@@ -317,10 +293,11 @@ fn entry_request(
     ))]
 async fn put_pdo(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, kind, n)): ApiPath<(String, String, String, String)>,
     ApiJson(update): ApiJson<PdoUpdate>,
 ) -> Result<ApiJson<Pdo>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
     let kind = pdo_kind(&kind)?;
     let number = pdo_number(kind, &n)?;
     if update.number.is_some_and(|given| given != number) {
@@ -329,12 +306,6 @@ async fn put_pdo(
             update.number.unwrap_or_default()
         )));
     }
-    let eds = info.eds_entry.clone().ok_or_else(|| {
-        GatewayError::Pdo(PdoError::InvalidMapping(format!(
-            "node {} has no EDS: a mapping cannot be checked before the bus",
-            info.id
-        )))
-    })?;
     let mapping = update
         .mapping
         .map(|entries| {
@@ -354,33 +325,9 @@ async fn put_pdo(
         sync_start: update.sync_start,
         mapping,
     };
-    let plan = pdo::plan(&eds.eds, kind, number, &request).map_err(plan_error)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let task_eds = eds.clone();
-    let values = served.values.clone();
-    let node = info.id;
-    let config = tokio::spawn(async move {
-        // Another re-mapping of this node must not interleave its steps.
-        let _procedure = channel.procedure().await;
-        let config = pdo::configure(&channel, Some(&task_eds.eds.dictionary), &plan).await?;
-        // The gateway decodes the node's TPDOs by the new mapping from now
-        // on; if reading it fails, the values keep the old one until the
-        // node's next identification, and the PDO answer stands.
-        if kind == PdoKind::Tpdo
-            && let Err(err) = values.refresh(node).await
-        {
-            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
-        }
-        Ok(config)
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(|RemapError { step, error }| GatewayError::FailedAt {
-        step: step.to_string(),
-        source: Box::new(error.into()),
-    })?;
-    Ok(ApiJson(pdo_json(&config, Some(&eds.eds.dictionary))))
+    let caller = caller(identity.as_ref());
+    let config = node.configure_pdo(&caller, kind, number, &request).await?;
+    Ok(ApiJson(pdo_json(&config, dictionary(node.info()))))
 }
 
 /// Values to send, by the EDS name of each mapped object (or `"0x6040"`,
@@ -428,14 +375,6 @@ fn value_json(value: DecodedValue) -> PdoValue {
     }
 }
 
-fn rpdo_value_error(err: RpdoValueError) -> GatewayError {
-    match err {
-        RpdoValueError::OutOfRange { .. } => GatewayError::ValueOutOfRange(err.to_string()),
-        RpdoValueError::Untyped(_) => GatewayError::Pdo(PdoError::InvalidMapping(err.to_string())),
-        _ => GatewayError::InvalidValue(err.to_string()),
-    }
-}
-
 /// Sends an RPDO with the given values.
 ///
 /// The RPDO's current mapping and COB-ID are read from the node; every
@@ -457,71 +396,19 @@ fn rpdo_value_error(err: RpdoValueError) -> GatewayError {
     ))]
 async fn send_rpdo(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<RpdoSend>,
 ) -> Result<ApiJson<RpdoSent>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
     let number = pdo_number(PdoKind::Rpdo, &n)?;
-    let eds = info.eds_entry.clone().ok_or_else(|| {
-        GatewayError::Pdo(PdoError::InvalidMapping(format!(
-            "node {} has no EDS: the mapped objects' types are unknown",
-            info.id
-        )))
-    })?;
-    let dict = &eds.eds.dictionary;
-    if !pdo::has_pdo(Some(dict), PdoKind::Rpdo, number) {
-        return Err(PdoError::UnknownPdo(format!("the node has no RPDO {number}")).into());
-    }
-    check_sdo_allowed(&served, &info)?;
-    // The state is current only for a node that sends heartbeats; without
-    // them, the last one heard may predate an NMT start.
-    if let Some(state) = info
-        .nmt
-        .filter(|state| info.heartbeat_ms.is_some() && !state.allows(NmtService::Pdo))
-    {
-        return Err(GatewayError::WrongNmtState {
-            node: info.id.get(),
-            state,
-        }
-        .into());
-    }
-    let channel = served.registry.sdo(info.id)?;
-    let task_eds = eds.clone();
-    let config = tokio::spawn(async move {
-        pdo::read_config(
-            &channel,
-            Some(&task_eds.eds.dictionary),
-            PdoKind::Rpdo,
-            number,
-        )
-        .await
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    let cob_id = match config.cob_id() {
-        Some(cob_id) if cob_id.valid => cob_id,
-        _ => {
-            return Err(PdoError::PdoDisabled(format!(
-                "RPDO {number} of node {} is not valid (COB-ID 0x{:08X}): enable it with PUT .../pdos/rpdo/{number}",
-                info.id, config.cob_id_raw
-            )).into());
-        }
-    };
-    let mapping = PdoMapping::new(config.mapping.clone()).map_err(|err| {
-        GatewayError::Pdo(PdoError::PdoDisabled(format!(
-            "RPDO {number} has no usable mapping: {err}"
-        )))
-    })?;
-    let encoder = RpdoEncoder::new(cob_id.id, mapping, Some(dict), Some(info.id));
-    let (frame, values) = encoder
-        .encode(&request.values, Some(dict))
-        .map_err(rpdo_value_error)?;
-    served.bus.send(frame).await?;
+    let sent = node
+        .send_rpdo(&caller(identity.as_ref()), number, &request.values)
+        .await?;
     Ok(ApiJson(RpdoSent {
-        cob_id: cob_id.id.raw(),
-        data: hex(frame.data()),
-        values: values.into_iter().map(value_json).collect(),
+        cob_id: sent.cob_id,
+        data: hex(&sent.data),
+        values: sent.values.into_iter().map(value_json).collect(),
     }))
 }
 

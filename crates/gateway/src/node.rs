@@ -8,6 +8,9 @@
 //! The operations live in files by area beside this one; this file holds
 //! the handle.
 
+pub mod pdo;
+mod transfer;
+
 use std::sync::Arc;
 
 use super::GatewayError;
