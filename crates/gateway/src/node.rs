@@ -8,6 +8,7 @@
 //! The operations live in files by area beside this one; this file holds
 //! the handle.
 
+pub mod config;
 pub mod pdo;
 mod transfer;
 
