@@ -26,6 +26,7 @@ use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
 use super::{AppError, AppState};
+use crate::gateway::GatewayError;
 use crate::gateway::access::Tokens;
 pub use crate::gateway::access::{RateLimit, Role, Token};
 
@@ -510,10 +511,10 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
         return match (&origin, listed) {
             (_, Some(origin)) => preflight(origin),
             (origin, None) => with_identity(
-                AppError::Forbidden(format!(
+                AppError::from(GatewayError::Forbidden(format!(
                     "cross-origin requests from {} are not allowed (cors_origins lists the origins that are)",
                     origin.as_deref().unwrap_or("an unnamed origin")
-                ))
+                )))
                 .into_response(),
                 identity,
             ),
@@ -528,9 +529,9 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
         let upgrade = headers.contains_key(header::UPGRADE);
         if is_write(&method) || upgrade {
             return with_identity(
-                AppError::Forbidden(format!(
+                AppError::from(GatewayError::Forbidden(format!(
                     "{method} {path} from the web page of {origin}: cross-origin writes and streams are not allowed (cors_origins lists the origins that are)"
-                ))
+                )))
                 .into_response(),
                 identity,
             );
@@ -548,16 +549,17 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
                     "this gateway asks for a token: send Authorization: Bearer TOKEN"
                 };
                 return with_identity(
-                    AppError::Unauthenticated(message.to_string()).into_response(),
+                    AppError::from(GatewayError::Unauthenticated(message.to_string()))
+                        .into_response(),
                     identity,
                 );
             }
             Some(role) if role < needed => {
                 return with_identity(
-                    AppError::Forbidden(format!(
+                    AppError::from(GatewayError::Forbidden(format!(
                         "token {} has the role {role}; {method} {path} needs {needed}",
                         identity.name
-                    ))
+                    )))
                     .into_response(),
                     identity,
                 );

@@ -4,6 +4,7 @@
 //! every parameter as a DCF (CiA 306 §4.6.5) that can be written back to
 //! the same or a replacement device (see [`crate::gateway::dcf`]).
 
+use axum::Extension;
 use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::header;
@@ -14,14 +15,13 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
-use super::nodes::known_node;
+use super::error::body_of;
+use super::leases::caller;
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::eds::{Action, Eds};
 use crate::canopen::od::format_index;
-use crate::gateway::check_sdo_allowed;
-use crate::gateway::dcf;
-use crate::gateway::registry::NodeInfo;
+use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -29,15 +29,6 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(restore))
         .routes(routes!(get_dcf, put_dcf))
 }
-
-/// 0x1010: store parameters.
-const STORE_PARAMETERS: u16 = 0x1010;
-/// 0x1011: restore default parameters.
-const RESTORE_PARAMETERS: u16 = 0x1011;
-/// The signatures CiA 301 asks for: "save" and "load", as little-endian
-/// UNSIGNED32 (0x65766173, 0x64616F6C).
-const SAVE: [u8; 4] = *b"save";
-const LOAD: [u8; 4] = *b"load";
 
 /// Which parameters: every one, or one area.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, ToSchema)]
@@ -53,13 +44,13 @@ pub enum Area {
     Manufacturer,
 }
 
-impl Area {
-    fn sub(self) -> u8 {
-        match self {
-            Area::All => 1,
-            Area::Communication => 2,
-            Area::Application => 3,
-            Area::Manufacturer => 4,
+impl From<Area> for ParameterArea {
+    fn from(area: Area) -> Self {
+        match area {
+            Area::All => Self::All,
+            Area::Communication => Self::Communication,
+            Area::Application => Self::Application,
+            Area::Manufacturer => Self::Manufacturer,
         }
     }
 }
@@ -108,60 +99,14 @@ pub struct CommandDone {
     pub signature: String,
 }
 
-fn task_failed(err: tokio::task::JoinError) -> AppError {
-    AppError::Internal(format!("SDO task: {err}"))
-}
-
-/// Writes a signature to `index`/`sub` after checking that the node's EDS
-/// has the sub-object (a node without EDS is asked all the same).
-async fn command(
-    state: &AppState,
-    bus: &str,
-    id: &str,
-    (index, sub): (u16, u8),
-    signature: [u8; 4],
-    what: &str,
-    refresh_tpdos: bool,
-) -> Result<Option<String>, AppError> {
-    let (served, info) = known_node(state, bus, id)?;
-    let name = match info.eds_entry.as_ref().map(|entry| &entry.eds.dictionary) {
-        Some(dictionary) => match dictionary.sub(index, sub) {
-            Some(described) => Some(described.name.clone()),
-            None => {
-                return Err(AppError::InvalidValue(format!(
-                    "node {} cannot {what}: its EDS has no {} sub {sub}",
-                    info.id,
-                    format_index(index)
-                )));
-            }
-        },
-        None => None,
-    };
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let values = served.values.clone();
-    let node = info.id;
-    tokio::spawn(async move {
-        channel.download(index, sub, &signature).await?;
-        // Devices that restore at once (UniSwarm's) may have other TPDO
-        // mappings now: decode by what they have.
-        if refresh_tpdos && let Err(err) = values.refresh(node).await {
-            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
-        }
-        Ok(())
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    Ok(name)
-}
-
-fn area_name(area: Area) -> &'static str {
-    match area {
-        Area::All => "all parameters",
-        Area::Communication => "communication parameters",
-        Area::Application => "application parameters",
-        Area::Manufacturer => "manufacturer parameters",
+fn command_done(what: Area, source: Option<Source>, done: ParameterCommand) -> CommandDone {
+    CommandDone {
+        what,
+        source,
+        index: format_index(done.index),
+        sub: done.sub,
+        name: done.name,
+        signature: done.signature.to_string(),
     }
 }
 
@@ -181,20 +126,16 @@ fn area_name(area: Area) -> &'static str {
     ))]
 async fn store(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<StoreRequest>,
 ) -> Result<ApiJson<CommandDone>, AppError> {
-    let target = (STORE_PARAMETERS, request.what.sub());
-    let what = format!("store {}", area_name(request.what));
-    let name = command(&state, &bus, &id, target, SAVE, &what, false).await?;
-    Ok(ApiJson(CommandDone {
-        what: request.what,
-        source: None,
-        index: format_index(target.0),
-        sub: target.1,
-        name,
-        signature: "save".into(),
-    }))
+    let done = state
+        .gateway
+        .node_handle(&bus, &id)?
+        .store_parameters(&caller(identity.as_ref()), request.what.into())
+        .await?;
+    Ok(ApiJson(command_done(request.what, None, done)))
 }
 
 /// Restores parameters (writes `load` to 0x1011): the factory defaults, or
@@ -214,46 +155,21 @@ async fn store(
     ))]
 async fn restore(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<RestoreRequest>,
 ) -> Result<ApiJson<CommandDone>, AppError> {
     let source = request.source.unwrap_or_default();
-    let sub = match source {
-        Source::Factory => request.what.sub(),
-        Source::Saved => request.what.sub() + 4,
+    let from = match source {
+        Source::Factory => RestoreSource::Factory,
+        Source::Saved => RestoreSource::Saved,
     };
-    let what = format!(
-        "restore the {} {}",
-        match source {
-            Source::Factory => "factory",
-            Source::Saved => "saved",
-        },
-        area_name(request.what)
-    );
-    let communication = matches!(request.what, Area::All | Area::Communication);
-    let target = (RESTORE_PARAMETERS, sub);
-    let name = command(&state, &bus, &id, target, LOAD, &what, communication).await?;
-    Ok(ApiJson(CommandDone {
-        what: request.what,
-        source: Some(source),
-        index: format_index(RESTORE_PARAMETERS),
-        sub,
-        name,
-        signature: "load".into(),
-    }))
-}
-
-/// The node's EDS, which a DCF needs.
-fn node_eds(info: &NodeInfo) -> Result<std::sync::Arc<Eds>, AppError> {
-    info.eds_entry
-        .as_ref()
-        .map(|entry| entry.eds.clone())
-        .ok_or_else(|| {
-            AppError::UnknownObject(format!(
-                "node {} has no EDS: its parameters are not known",
-                info.id
-            ))
-        })
+    let done = state
+        .gateway
+        .node_handle(&bus, &id)?
+        .restore_parameters(&caller(identity.as_ref()), request.what.into(), from)
+        .await?;
+    Ok(ApiJson(command_done(request.what, Some(source), done)))
 }
 
 /// A backup of the node's configuration: a DCF (CiA 306) with the current
@@ -276,26 +192,9 @@ async fn get_dcf(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<impl IntoResponse, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let eds = node_eds(&info)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let node = info.id;
-    let name = info.name.clone();
-    let (mut dcf, unread) =
-        tokio::spawn(async move { dcf::backup(&channel, &eds, node, name).await })
-            .await
-            .map_err(task_failed)?
-            .map_err(AppError::from_sdo)?;
-    for entry in &unread {
-        dcf.comments.push(format!(
-            "{}sub{:X} not read: {}",
-            format_index(entry.index),
-            entry.sub,
-            entry.abort.text()
-        ));
-    }
-    let file = format!("attachment; filename=\"node{}.dcf\"", node.get());
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let dcf = node.backup_dcf().await?;
+    let file = format!("attachment; filename=\"node{}.dcf\"", node.id());
     Ok((
         [
             (
@@ -353,98 +252,39 @@ pub struct RestoreReport {
     ))]
 async fn put_dcf(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     body: Bytes,
 ) -> Result<ApiJson<RestoreReport>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let eds = node_eds(&info)?;
-    let parsed = Eds::parse_bytes(&body, "config.dcf").map_err(|error| AppError::InvalidDcf {
-        message: error.to_string(),
-        line: Some(error.line).filter(|line| *line > 0),
-    })?;
-    // A restore writes the device: what the tolerant reader had to drop or
-    // correct is refused rather than guessed.
-    if let Some(warning) = parsed
-        .warnings
-        .iter()
-        .find(|warning| matches!(warning.action, Action::Dropped | Action::Corrected))
-    {
-        return Err(AppError::InvalidDcf {
-            message: warning.to_string(),
-            line: Some(warning.line),
-        });
-    }
-    let invalid = |message: String| AppError::InvalidDcf {
-        message,
-        line: None,
-    };
-    let (dcf_device, node_device) = (&parsed.device_info, &eds.device_info);
-    if let (Some(a), Some(b)) = (dcf_device.vendor_number, node_device.vendor_number)
-        && let (Some(c), Some(d)) = (dcf_device.product_number, node_device.product_number)
-        && (a, c) != (b, d)
-    {
-        return Err(invalid(format!(
-            "the DCF is of vendor 0x{a:X} product 0x{c:X}, node {} is vendor 0x{b:X} product 0x{d:X}",
-            info.id
-        )));
-    }
-    let dcf::Plan { entries, writes } =
-        dcf::plan(&parsed, &eds.dictionary, info.id).map_err(|error| invalid(error.0))?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let values = served.values.clone();
-    let node = info.id;
-    let results = tokio::spawn(async move {
-        let results = dcf::restore(&channel, &writes).await;
-        // The gateway decodes the node's TPDOs by the mappings restored; if
-        // reading them fails, the old ones stay until the next
-        // identification, and the restore's report stands.
-        let tpdo_written = writes
-            .iter()
-            .any(|write| (0x1800..=0x1BFF).contains(&write.index));
-        if tpdo_written && let Err(err) = values.refresh(node).await {
-            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
-        }
-        results
-    })
-    .await
-    .map_err(task_failed)?;
-    let mut report = RestoreReport {
-        written: 0,
-        failed: 0,
-        entries: Vec::with_capacity(entries.len()),
-    };
-    for (index, sub) in entries {
-        let name = parsed
-            .dictionary
-            .get(index)
-            .map(|object| match object.sub(sub) {
-                Some(described) if object.object_type.has_sub_objects() => {
-                    format!("{}/{}", object.name, described.name)
-                }
-                _ => object.name.clone(),
-            })
-            .unwrap_or_default();
-        let error = match results.get(&(index, sub)) {
-            Some(Some(Ok(()))) => None,
-            Some(Some(Err(error))) => Some(AppError::from_sdo(error.clone()).to_json()),
-            _ => Some(serde_json::json!({
-                "code": "not_written",
-                "message": "the restore stopped before this entry",
-            })),
-        };
-        if error.is_none() {
-            report.written += 1;
-        } else {
-            report.failed += 1;
-        }
-        report.entries.push(EntryResult {
-            index: format_index(index),
-            sub,
-            name,
-            ok: error.is_none(),
-            error,
-        });
-    }
-    Ok(ApiJson(report))
+    let restored = state
+        .gateway
+        .node_handle(&bus, &id)?
+        .restore_dcf(&caller(identity.as_ref()), &body)
+        .await?;
+    let entries: Vec<EntryResult> = restored
+        .into_iter()
+        .map(|entry| {
+            let error = match &entry.result {
+                Some(Ok(())) => None,
+                Some(Err(error)) => Some(body_of(error)),
+                None => Some(serde_json::json!({
+                    "code": "not_written",
+                    "message": "the restore stopped before this entry",
+                })),
+            };
+            EntryResult {
+                index: format_index(entry.index),
+                sub: entry.sub,
+                name: entry.name,
+                ok: error.is_none(),
+                error,
+            }
+        })
+        .collect();
+    let written = entries.iter().filter(|entry| entry.ok).count();
+    Ok(ApiJson(RestoreReport {
+        written,
+        failed: entries.len() - written,
+        entries,
+    }))
 }

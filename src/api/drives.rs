@@ -201,8 +201,8 @@ pub struct MotionResponse {
     pub attempts: Option<Vec<StopAttempt>>,
 }
 
-fn task_failed(err: tokio::task::JoinError) -> AppError {
-    AppError::Internal(format!("drive task: {err}"))
+fn task_failed(err: tokio::task::JoinError) -> GatewayError {
+    GatewayError::Internal(format!("drive task: {err}"))
 }
 
 /// The axes of a drive node, read now.
@@ -344,14 +344,14 @@ fn noted(note: Option<&Extension<AuditNote>>, took_over: Option<&MotionLease>) {
 /// what was tried.
 fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppError {
     noted(note, failed.took_over.as_deref());
-    let source = Box::new(AppError::from(failed.error));
     if failed.attempts.is_empty() {
-        return *source;
+        return failed.error.into();
     }
-    AppError::StopNotConfirmed {
-        source,
+    GatewayError::StopNotConfirmed {
+        source: Box::new(failed.error),
         attempts: failed.attempts,
     }
+    .into()
 }
 
 /// Resets a fault (controlword bit 7, 0→1).

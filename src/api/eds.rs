@@ -19,6 +19,7 @@ use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::NodeId;
 use crate::canopen::eds::EdsWarning;
+use crate::gateway::GatewayError;
 use crate::gateway::eds_files::EdsUser;
 use crate::gateway::profile::{EdsEntry, SkippedFile};
 
@@ -250,7 +251,7 @@ async fn upload_eds(
     // Parsing a large file and writing it to disk is blocking work.
     let entry = tokio::task::spawn_blocking(move || gateway.upload_eds(&name, &body, &who))
         .await
-        .map_err(|err| AppError::Internal(format!("EDS upload task: {err}")))??;
+        .map_err(|err| GatewayError::Internal(format!("EDS upload task: {err}")))??;
     let users = state.gateway.eds_users(&entry.name);
     Ok((
         axum::http::StatusCode::CREATED,
@@ -317,7 +318,7 @@ async fn assign_eds(
             .gateway
             .assign_eds(&bus, node, Some(&request.file), &who(identity.as_ref()))?;
     Ok(ApiJson(serde_json::to_value(info).map_err(|err| {
-        AppError::Internal(format!("node JSON: {err}"))
+        GatewayError::Internal(format!("node JSON: {err}"))
     })?))
 }
 
@@ -339,7 +340,7 @@ async fn unassign_eds(
         .gateway
         .assign_eds(&bus, node, None, &who(identity.as_ref()))?;
     Ok(ApiJson(serde_json::to_value(info).map_err(|err| {
-        AppError::Internal(format!("node JSON: {err}"))
+        GatewayError::Internal(format!("node JSON: {err}"))
     })?))
 }
 

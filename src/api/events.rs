@@ -21,6 +21,7 @@ use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
 use super::{ApiJson, AppError, AppState};
+use crate::gateway::GatewayError;
 use crate::gateway::caller::Channel;
 use crate::gateway::history::{self, EventKind, StoredEvent};
 use crate::gateway::recording::civil_from_days;
@@ -278,7 +279,7 @@ async fn events(
         .await
         .map_err(|err| {
             tracing::error!("events: {err}");
-            AppError::HistoryFailed("the history database failed; see the gateway's log".into())
+            GatewayError::HistoryFailed("the history database failed; see the gateway's log".into())
         })?;
     Ok(ApiJson(found.into_iter().map(HistoryEvent::from).collect()))
 }

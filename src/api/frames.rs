@@ -23,6 +23,7 @@ use utoipa_axum::routes;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::{CanId, Direction as CanDirection, Frame, TimedFrame, Timestamp};
+use crate::gateway::GatewayError;
 use crate::gateway::frames::CAPACITY;
 
 /// How many frames `GET .../frames` returns without `limit`.
@@ -164,7 +165,7 @@ pub struct SendFrame {
 
 impl SendFrame {
     /// The frame, or 400 before the bus is touched.
-    fn to_frame(&self) -> Result<Frame, AppError> {
+    fn to_frame(&self) -> Result<Frame, GatewayError> {
         let raw = match &self.id {
             IdInput::Number(raw) => *raw,
             IdInput::Text(text) => parse_id(text)?,
@@ -176,7 +177,7 @@ impl SendFrame {
             } else {
                 " (a 29-bit id needs \"extended\": true)"
             };
-            return Err(AppError::ValueOutOfRange(format!(
+            return Err(GatewayError::ValueOutOfRange(format!(
                 "id 0x{raw:X} is above 0x{max:X}{hint}"
             )));
         }
@@ -186,13 +187,13 @@ impl SendFrame {
         } else {
             CanId::standard(raw)
         }
-        .map_err(|err| AppError::ValueOutOfRange(err.to_string()))?;
+        .map_err(|err| GatewayError::ValueOutOfRange(err.to_string()))?;
         let data = parse_hex(&self.data)?;
-        Frame::new(id, &data).map_err(|err| AppError::InvalidValue(err.to_string()))
+        Frame::new(id, &data).map_err(|err| GatewayError::InvalidValue(err.to_string()))
     }
 }
 
-fn parse_id(text: &str) -> Result<u64, AppError> {
+fn parse_id(text: &str) -> Result<u64, GatewayError> {
     let text = text.trim();
     let parsed = if let Some(hex) = text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
         u64::from_str_radix(hex, 16)
@@ -202,18 +203,18 @@ fn parse_id(text: &str) -> Result<u64, AppError> {
         text.parse()
     };
     parsed.map_err(|_| {
-        AppError::InvalidValue(format!(
+        GatewayError::InvalidValue(format!(
             "id '{text}' is no CAN id (a number, \"0x181\" or \"181h\")"
         ))
     })
 }
 
-fn parse_hex(text: &str) -> Result<Vec<u8>, AppError> {
+fn parse_hex(text: &str) -> Result<Vec<u8>, GatewayError> {
     let digits: Vec<u8> = text
         .bytes()
         .filter(|byte| !byte.is_ascii_whitespace())
         .collect();
-    let invalid = || AppError::InvalidValue(format!("data '{text}' is no hex byte string"));
+    let invalid = || GatewayError::InvalidValue(format!("data '{text}' is no hex byte string"));
     if !digits.len().is_multiple_of(2) {
         return Err(invalid());
     }
@@ -225,9 +226,9 @@ fn parse_hex(text: &str) -> Result<Vec<u8>, AppError> {
                 .and_then(|pair| u8::from_str_radix(pair, 16).ok())
                 .ok_or_else(invalid)
         })
-        .collect::<Result<Vec<u8>, AppError>>()?;
+        .collect::<Result<Vec<u8>, GatewayError>>()?;
     if bytes.len() > 8 {
-        return Err(AppError::ValueOutOfRange(format!(
+        return Err(GatewayError::ValueOutOfRange(format!(
             "{} data bytes: a classic CAN frame has at most 8",
             bytes.len()
         )));

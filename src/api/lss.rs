@@ -16,6 +16,7 @@ use super::doc::{BusPath, ErrorBody, NodePath};
 use super::nodes::{Node, known_node};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::lss::LssAddress;
+use crate::gateway::GatewayError;
 use crate::gateway::lss;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -75,7 +76,7 @@ async fn scan(
     let served = state.bus(&bus)?;
     let found = tokio::spawn(async move { lss::scan(&served).await })
         .await
-        .map_err(|err| AppError::Internal(format!("LSS scan task: {err}")))??;
+        .map_err(|err| GatewayError::Internal(format!("LSS scan task: {err}")))??;
     Ok(ApiJson(LssScan {
         found: found.into_iter().map(LssIdentity::from).collect(),
     }))
@@ -136,9 +137,9 @@ async fn configure(
         lss::configure(&served, address, request.node_id, request.store).await
     })
     .await
-    .map_err(|err| AppError::Internal(format!("LSS configure task: {err}")))??;
+    .map_err(|err| GatewayError::Internal(format!("LSS configure task: {err}")))??;
     Ok(ApiJson(
-        serde_json::to_value(&info).map_err(|err| AppError::Internal(err.to_string()))?,
+        serde_json::to_value(&info).map_err(|err| GatewayError::Internal(err.to_string()))?,
     ))
 }
 
@@ -178,8 +179,8 @@ async fn change_node_id(
     let changed =
         tokio::spawn(async move { lss::change_node_id(&served, &info, request.node_id).await })
             .await
-            .map_err(|err| AppError::Internal(format!("node-ID change task: {err}")))??;
+            .map_err(|err| GatewayError::Internal(format!("node-ID change task: {err}")))??;
     Ok(ApiJson(
-        serde_json::to_value(&changed).map_err(|err| AppError::Internal(err.to_string()))?,
+        serde_json::to_value(&changed).map_err(|err| GatewayError::Internal(err.to_string()))?,
     ))
 }

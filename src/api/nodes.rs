@@ -14,6 +14,7 @@ use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::nmt::NmtCommand;
+use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
@@ -166,8 +167,8 @@ pub(super) fn known_node(
     Ok(state.gateway.node(bus, id)?)
 }
 
-fn to_json<T: serde::Serialize>(value: &T) -> Result<Json, AppError> {
-    serde_json::to_value(value).map_err(|err| AppError::Internal(err.to_string()))
+fn to_json<T: serde::Serialize>(value: &T) -> Result<Json, GatewayError> {
+    serde_json::to_value(value).map_err(|err| GatewayError::Internal(err.to_string()))
 }
 
 /// The nodes of a bus.
@@ -248,7 +249,7 @@ async fn scan(
     let registry = served.registry.clone();
     let nodes = tokio::spawn(async move { registry.scan().await })
         .await
-        .map_err(|err| AppError::Internal(format!("scan task: {err}")))??;
+        .map_err(|err| GatewayError::Internal(format!("scan task: {err}")))??;
     Ok(ApiJson(to_json(&nodes)?))
 }
 
@@ -274,9 +275,9 @@ pub struct NmtSent {
     pub sent: bool,
 }
 
-fn nmt_command(request: &NmtRequest) -> Result<NmtCommand, AppError> {
+fn nmt_command(request: &NmtRequest) -> Result<NmtCommand, GatewayError> {
     NmtCommand::from_name(&request.command).ok_or_else(|| {
-        AppError::InvalidValue(format!(
+        GatewayError::InvalidValue(format!(
             "NMT command '{}' is not one of start, stop, pre_operational, reset_node, reset_communication",
             request.command
         ))
@@ -342,6 +343,6 @@ async fn axes_summary(
     let info = info.clone();
     tokio::spawn(async move { crate::gateway::drive::axes_summary(&registry, &info).await })
         .await
-        .map_err(|err| AppError::Internal(format!("axes task: {err}")))?
+        .map_err(|err| GatewayError::Internal(format!("axes task: {err}")))?
         .map_err(AppError::from)
 }

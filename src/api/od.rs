@@ -39,6 +39,7 @@ use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
+use crate::gateway::GatewayError;
 use crate::gateway::NodeHandle;
 use crate::gateway::caller::Caller;
 use crate::gateway::node::objects::object_item;
@@ -212,12 +213,13 @@ fn resolve(dict: Option<&ObjectDictionary>, index: &Json, sub: &Json) -> Result<
         Json::Number(n) => Some(
             n.as_u64()
                 .and_then(|n| u16::try_from(n).ok())
-                .ok_or_else(|| AppError::InvalidIndex(format!("{n} is no object index")))?,
+                .ok_or_else(|| GatewayError::InvalidIndex(format!("{n} is no object index")))?,
         ),
         other => {
-            return Err(AppError::InvalidIndex(format!(
+            return Err(GatewayError::InvalidIndex(format!(
                 "{other} is no object index: give 0x6041, 6041h, a decimal number or an EDS name"
-            )));
+            ))
+            .into());
         }
     };
     let object = match (dict, numeric_index) {
@@ -225,9 +227,10 @@ fn resolve(dict: Option<&ObjectDictionary>, index: &Json, sub: &Json) -> Result<
         (Some(dict), None) => Some(dict.resolve_index_json(index)?),
         (None, Some(_)) => None,
         (None, None) => {
-            return Err(AppError::UnknownObject(format!(
+            return Err(GatewayError::UnknownObject(format!(
                 "the node has no EDS, so no object has a name: give {index} as a number"
-            )));
+            ))
+            .into());
         }
     };
     match object {
@@ -257,7 +260,7 @@ fn resolve(dict: Option<&ObjectDictionary>, index: &Json, sub: &Json) -> Result<
 }
 
 /// A sub-index given as a number, for an object without EDS description.
-fn numeric_sub(sub: &Json) -> Result<u8, AppError> {
+fn numeric_sub(sub: &Json) -> Result<u8, GatewayError> {
     let number = match sub {
         Json::Number(n) => n.as_u64().and_then(|n| u8::try_from(n).ok()),
         Json::String(text) => {
@@ -270,14 +273,10 @@ fn numeric_sub(sub: &Json) -> Result<u8, AppError> {
         _ => None,
     };
     number.ok_or_else(|| {
-        AppError::InvalidIndex(format!(
+        GatewayError::InvalidIndex(format!(
             "{sub} is no sub-index: give 0 to 255 (the EDS does not describe the object, so names are unknown)"
         ))
     })
-}
-
-pub(super) fn task_failed(err: tokio::task::JoinError) -> AppError {
-    AppError::Internal(format!("SDO task: {err}"))
 }
 
 /// Reads an entry, as the gateway's object read does it for `caller`.
@@ -326,7 +325,7 @@ async fn list_dictionary(
     let Query(query) = query.map_err(|err| AppError::InvalidRequest(err.body_text()))?;
     let (_, info) = known_node(&state, &bus, &id)?;
     let dict = dictionary(&info).ok_or_else(|| {
-        AppError::UnknownObject(format!(
+        GatewayError::UnknownObject(format!(
             "node {} has no EDS: its dictionary is not known",
             info.id
         ))
@@ -391,16 +390,18 @@ fn value_to_write(
     entry: &Entry,
     info: &NodeInfo,
     request: &WriteRequest,
-) -> Result<Value, AppError> {
+) -> Result<Value, GatewayError> {
     let given_type = request
         .data_type
         .as_deref()
-        .map(|text| DataType::from_str(text).map_err(|err| AppError::InvalidValue(err.to_string())))
+        .map(|text| {
+            DataType::from_str(text).map_err(|err| GatewayError::InvalidValue(err.to_string()))
+        })
         .transpose()?;
     match (&entry.described, given_type) {
         (Some((name, sub)), given) => {
             if let Some(given) = given.filter(|given| *given != sub.data_type) {
-                return Err(AppError::InvalidValue(format!(
+                return Err(GatewayError::InvalidValue(format!(
                     "{name} is a {} in the EDS, not a {given}",
                     sub.data_type
                 )));
@@ -408,7 +409,7 @@ fn value_to_write(
             Ok(sub.value_from_json(&request.value, Some(info.id))?)
         }
         (None, Some(data_type)) => Ok(Value::from_json(data_type, &request.value)?),
-        (None, None) => Err(AppError::InvalidValue(format!(
+        (None, None) => Err(GatewayError::InvalidValue(format!(
             "the EDS does not describe {} sub {}: give its \"data_type\" (u8, i16, u32, r32, vs, os, ...)",
             format_index(entry.index),
             entry.sub
@@ -509,10 +510,11 @@ async fn read_batch(
     ApiJson(request): ApiJson<BatchRequest>,
 ) -> Result<ApiJson<Json>, AppError> {
     if request.entries.len() > MAX_BATCH_ENTRIES {
-        return Err(AppError::TooManyEntries(format!(
+        return Err(GatewayError::TooManyEntries(format!(
             "{} entries: a batch read takes at most {MAX_BATCH_ENTRIES} (send several)",
             request.entries.len()
-        )));
+        ))
+        .into());
     }
     let node = state.gateway.node_handle(&bus, &id)?;
     let dict = dictionary(node.info());

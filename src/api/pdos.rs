@@ -17,6 +17,7 @@
 
 use std::time::Duration;
 
+use axum::Extension;
 use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use serde_json::Value as Json;
@@ -24,18 +25,16 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::auth::Identity;
 use super::doc::{BusPath, ErrorBody, NodePath};
-use super::nodes::known_node;
-use super::od::{AnyValue, dictionary, hex, task_failed};
+use super::leases::caller;
+use super::od::{AnyValue, dictionary, hex};
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::nmt::NmtService;
 use crate::canopen::od::{ObjectDictionary, format_index};
-use crate::canopen::pdo::{MappingEntry, PdoKind, PdoMapping};
-use crate::gateway::check_sdo_allowed;
-use crate::gateway::pdo::{
-    self, DecodedValue, EntryRequest, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
-    RpdoValueError,
-};
+use crate::canopen::pdo::{MappingEntry, PdoKind};
+use crate::gateway::GatewayError;
+use crate::gateway::error::PdoError;
+use crate::gateway::pdo::{self, DecodedValue, EntryRequest, PdoConfig, PdoRequest};
 use crate::gateway::sync::MAX_PERIOD_MS;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -163,32 +162,24 @@ pub struct RpdoPath {
     pub n: u16,
 }
 
-fn pdo_kind(kind: &str) -> Result<PdoKind, AppError> {
+fn pdo_kind(kind: &str) -> Result<PdoKind, GatewayError> {
     PdoKind::from_name(kind).ok_or_else(|| {
-        AppError::UnknownPdo(format!("'{kind}' is no kind of PDO: give tpdo or rpdo"))
+        GatewayError::Pdo(PdoError::UnknownPdo(format!(
+            "'{kind}' is no kind of PDO: give tpdo or rpdo"
+        )))
     })
 }
 
-fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, AppError> {
+fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, GatewayError> {
     n.parse::<u16>()
         .ok()
         .filter(|n| (1..=PdoKind::MAX_NUMBER).contains(n))
         .ok_or_else(|| {
-            AppError::UnknownPdo(format!(
+            GatewayError::Pdo(PdoError::UnknownPdo(format!(
                 "{} '{n}': PDOs are numbered 1 to 512",
                 kind.name().to_uppercase()
-            ))
+            )))
         })
-}
-
-fn plan_error(err: PdoPlanError) -> AppError {
-    if err.is_unknown_pdo() {
-        AppError::UnknownPdo(err.to_string())
-    } else if err.is_out_of_range() {
-        AppError::ValueOutOfRange(err.to_string())
-    } else {
-        AppError::InvalidMapping(err.to_string())
-    }
 }
 
 /// Reads every PDO of the node over SDO.
@@ -207,20 +198,9 @@ async fn list_pdos(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<PdoList>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let eds = info.eds_entry.clone();
-    let configs = tokio::spawn(async move {
-        let dict = eds.as_ref().map(|entry| &entry.eds.dictionary);
-        let mut configs = pdo::read_all(&channel, dict, PdoKind::Rpdo).await?;
-        configs.extend(pdo::read_all(&channel, dict, PdoKind::Tpdo).await?);
-        Ok(configs)
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    let dict = dictionary(&info);
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let configs = node.read_pdos().await?;
+    let dict = dictionary(node.info());
     let of = |kind| {
         configs
             .iter()
@@ -273,14 +253,17 @@ pub struct PdoUpdate {
     pub mapping: Option<Vec<MappingEntryRequest>>,
 }
 
-fn entry_request(position: usize, entry: MappingEntryRequest) -> Result<EntryRequest, AppError> {
+fn entry_request(
+    position: usize,
+    entry: MappingEntryRequest,
+) -> Result<EntryRequest, GatewayError> {
     let index = entry
         .index
         .or(entry.name.map(Json::String))
         .ok_or_else(|| {
-            AppError::InvalidMapping(format!(
+            GatewayError::Pdo(PdoError::InvalidMapping(format!(
                 "mapping entry {position}: give its \"index\" (or \"name\")"
-            ))
+            )))
         })?;
     Ok(EntryRequest {
         index,
@@ -310,10 +293,11 @@ fn entry_request(position: usize, entry: MappingEntryRequest) -> Result<EntryReq
     ))]
 async fn put_pdo(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, kind, n)): ApiPath<(String, String, String, String)>,
     ApiJson(update): ApiJson<PdoUpdate>,
 ) -> Result<ApiJson<Pdo>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
     let kind = pdo_kind(&kind)?;
     let number = pdo_number(kind, &n)?;
     if update.number.is_some_and(|given| given != number) {
@@ -322,12 +306,6 @@ async fn put_pdo(
             update.number.unwrap_or_default()
         )));
     }
-    let eds = info.eds_entry.clone().ok_or_else(|| {
-        AppError::InvalidMapping(format!(
-            "node {} has no EDS: a mapping cannot be checked before the bus",
-            info.id
-        ))
-    })?;
     let mapping = update
         .mapping
         .map(|entries| {
@@ -347,33 +325,9 @@ async fn put_pdo(
         sync_start: update.sync_start,
         mapping,
     };
-    let plan = pdo::plan(&eds.eds, kind, number, &request).map_err(plan_error)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let task_eds = eds.clone();
-    let values = served.values.clone();
-    let node = info.id;
-    let config = tokio::spawn(async move {
-        // Another re-mapping of this node must not interleave its steps.
-        let _procedure = channel.procedure().await;
-        let config = pdo::configure(&channel, Some(&task_eds.eds.dictionary), &plan).await?;
-        // The gateway decodes the node's TPDOs by the new mapping from now
-        // on; if reading it fails, the values keep the old one until the
-        // node's next identification, and the PDO answer stands.
-        if kind == PdoKind::Tpdo
-            && let Err(err) = values.refresh(node).await
-        {
-            tracing::warn!("node {node}: TPDO mappings not read again: {err}");
-        }
-        Ok(config)
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(|RemapError { step, error }| AppError::FailedAt {
-        step: step.to_string(),
-        source: Box::new(AppError::from_sdo(error)),
-    })?;
-    Ok(ApiJson(pdo_json(&config, Some(&eds.eds.dictionary))))
+    let caller = caller(identity.as_ref());
+    let config = node.configure_pdo(&caller, kind, number, &request).await?;
+    Ok(ApiJson(pdo_json(&config, dictionary(node.info()))))
 }
 
 /// Values to send, by the EDS name of each mapped object (or `"0x6040"`,
@@ -421,14 +375,6 @@ fn value_json(value: DecodedValue) -> PdoValue {
     }
 }
 
-fn rpdo_value_error(err: RpdoValueError) -> AppError {
-    match err {
-        RpdoValueError::OutOfRange { .. } => AppError::ValueOutOfRange(err.to_string()),
-        RpdoValueError::Untyped(_) => AppError::InvalidMapping(err.to_string()),
-        _ => AppError::InvalidValue(err.to_string()),
-    }
-}
-
 /// Sends an RPDO with the given values.
 ///
 /// The RPDO's current mapping and COB-ID are read from the node; every
@@ -450,70 +396,19 @@ fn rpdo_value_error(err: RpdoValueError) -> AppError {
     ))]
 async fn send_rpdo(
     State(state): State<AppState>,
+    identity: Option<Extension<Identity>>,
     ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<RpdoSend>,
 ) -> Result<ApiJson<RpdoSent>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
     let number = pdo_number(PdoKind::Rpdo, &n)?;
-    let eds = info.eds_entry.clone().ok_or_else(|| {
-        AppError::InvalidMapping(format!(
-            "node {} has no EDS: the mapped objects' types are unknown",
-            info.id
-        ))
-    })?;
-    let dict = &eds.eds.dictionary;
-    if !pdo::has_pdo(Some(dict), PdoKind::Rpdo, number) {
-        return Err(AppError::UnknownPdo(format!(
-            "the node has no RPDO {number}"
-        )));
-    }
-    check_sdo_allowed(&served, &info)?;
-    // The state is current only for a node that sends heartbeats; without
-    // them, the last one heard may predate an NMT start.
-    if let Some(state) = info
-        .nmt
-        .filter(|state| info.heartbeat_ms.is_some() && !state.allows(NmtService::Pdo))
-    {
-        return Err(AppError::WrongNmtState {
-            node: info.id.get(),
-            state,
-        });
-    }
-    let channel = served.registry.sdo(info.id)?;
-    let task_eds = eds.clone();
-    let config = tokio::spawn(async move {
-        pdo::read_config(
-            &channel,
-            Some(&task_eds.eds.dictionary),
-            PdoKind::Rpdo,
-            number,
-        )
-        .await
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    let cob_id = match config.cob_id() {
-        Some(cob_id) if cob_id.valid => cob_id,
-        _ => {
-            return Err(AppError::PdoDisabled(format!(
-                "RPDO {number} of node {} is not valid (COB-ID 0x{:08X}): enable it with PUT .../pdos/rpdo/{number}",
-                info.id, config.cob_id_raw
-            )));
-        }
-    };
-    let mapping = PdoMapping::new(config.mapping.clone()).map_err(|err| {
-        AppError::PdoDisabled(format!("RPDO {number} has no usable mapping: {err}"))
-    })?;
-    let encoder = RpdoEncoder::new(cob_id.id, mapping, Some(dict), Some(info.id));
-    let (frame, values) = encoder
-        .encode(&request.values, Some(dict))
-        .map_err(rpdo_value_error)?;
-    served.bus.send(frame).await?;
+    let sent = node
+        .send_rpdo(&caller(identity.as_ref()), number, &request.values)
+        .await?;
     Ok(ApiJson(RpdoSent {
-        cob_id: cob_id.id.raw(),
-        data: hex(frame.data()),
-        values: values.into_iter().map(value_json).collect(),
+        cob_id: sent.cob_id,
+        data: hex(&sent.data),
+        values: sent.values.into_iter().map(value_json).collect(),
     }))
 }
 
@@ -581,10 +476,11 @@ async fn put_sync(
 ) -> Result<ApiJson<SyncState>, AppError> {
     let served = state.bus(&bus)?;
     if setting.period_ms > MAX_PERIOD_MS {
-        return Err(AppError::ValueOutOfRange(format!(
+        return Err(GatewayError::ValueOutOfRange(format!(
             "a SYNC period of {} ms is beyond 0x1006's range (at most {MAX_PERIOD_MS} ms)",
             setting.period_ms
-        )));
+        ))
+        .into());
     }
     served
         .sync

@@ -12,6 +12,7 @@ use utoipa_axum::routes;
 use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::GatewayError;
 use crate::gateway::program::{ProgramError, download_program};
 use crate::gateway::service::check_sdo_allowed;
 
@@ -114,10 +115,10 @@ async fn post_program(
         download_program(&channel, &body, start, &|progress| run.publish(progress)).await
     })
     .await
-    .map_err(|err| AppError::Internal(format!("program download task: {err}")))?
-    .map_err(|ProgramError { step, error }| AppError::FailedAt {
+    .map_err(|err| GatewayError::Internal(format!("program download task: {err}")))?
+    .map_err(|ProgramError { step, error }| GatewayError::FailedAt {
         step: step.to_string(),
-        source: Box::new(error.into()),
+        source: Box::new(error),
     })?;
     let seconds = (report.download_ms.max(1)) as f64 / 1000.0;
     Ok(ApiJson(ProgramAnswer {

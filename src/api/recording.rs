@@ -23,6 +23,7 @@ use utoipa_axum::routes;
 
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::GatewayError;
 use crate::gateway::recording::{
     Limits, RecordingError, RecordingState, RecordingStatus, StopReason,
 };
@@ -235,12 +236,12 @@ async fn download_recording(
     let file = tokio::fs::File::open(&log.path).await.map_err(|err| {
         if err.kind() == std::io::ErrorKind::NotFound {
             // A new recording replaced it meanwhile.
-            AppError::NoRecording(format!(
+            GatewayError::NoRecording(format!(
                 "the log {} of bus {bus} is gone from the disk",
                 log.file_name
             ))
         } else {
-            AppError::from(RecordingError::Io {
+            GatewayError::from(RecordingError::Io {
                 bus: bus.clone(),
                 source: err,
             })

@@ -18,7 +18,9 @@ use utoipa_axum::routes;
 use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use crate::gateway::GatewayError;
 use crate::gateway::check_sdo_allowed;
+use crate::gateway::error::LedError;
 use crate::gateway::led_preview::PreviewError;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
@@ -188,11 +190,12 @@ fn led_node(
 ) -> Result<(std::sync::Arc<ServedBus>, NodeInfo), AppError> {
     let (served, info) = known_node(state, bus, id)?;
     if info.profile != Profile::Uioled {
-        return Err(AppError::NotAnLedController(format!(
+        return Err(LedError::NotAnLedController(format!(
             "node {} is a {} node, not an LED controller (profile uioled): it has no segments",
             info.id,
             info.profile.name()
-        )));
+        ))
+        .into());
     }
     Ok((served, info))
 }
@@ -203,25 +206,27 @@ impl From<PreviewError> for AppError {
     fn from(error: PreviewError) -> Self {
         match error {
             PreviewError::Registry(error) => Self::from(error),
-            PreviewError::NotAnLedController { .. } => Self::NotAnLedController(error.to_string()),
+            PreviewError::NotAnLedController { .. } => {
+                GatewayError::Led(LedError::NotAnLedController(error.to_string())).into()
+            }
         }
     }
 }
 
-fn task_failed(err: tokio::task::JoinError) -> AppError {
-    AppError::Internal(format!("SDO task: {err}"))
+fn task_failed(err: tokio::task::JoinError) -> GatewayError {
+    GatewayError::Internal(format!("SDO task: {err}"))
 }
 
 /// The segment number of a path or a scene entry: 1 to 10, else 404
 /// `unknown_segment`.
-fn segment_number(text: &str) -> Result<u8, AppError> {
+fn segment_number(text: &str) -> Result<u8, GatewayError> {
     let unknown = || {
-        AppError::UnknownSegment(format!(
+        GatewayError::Led(LedError::UnknownSegment(format!(
             "segment '{text}' does not exist: a UIO1LED has segments 1 to {SEGMENTS}"
-        ))
+        )))
     };
     let number: i64 = text.trim().parse().map_err(|_| {
-        AppError::InvalidRequest(format!("segment '{text}' is no number (1 to {SEGMENTS})"))
+        GatewayError::InvalidRequest(format!("segment '{text}' is no number (1 to {SEGMENTS})"))
     })?;
     u8::try_from(number)
         .ok()
@@ -229,7 +234,7 @@ fn segment_number(text: &str) -> Result<u8, AppError> {
         .ok_or_else(unknown)
 }
 
-fn parse_effect(effect: &Json) -> Result<i64, AppError> {
+fn parse_effect(effect: &Json) -> Result<i64, GatewayError> {
     let names = "off, fix, flash, breathing, flow, flow_reversed";
     match effect {
         Json::String(name) => {
@@ -245,26 +250,28 @@ fn parse_effect(effect: &Json) -> Result<i64, AppError> {
             .into_iter()
             .find(|effect| effect.name() == folded)
             .map(|effect| i64::from(effect.raw()))
-            .ok_or_else(|| AppError::InvalidValue(format!("effect '{name}' is not one of {names}")))
+            .ok_or_else(|| {
+                GatewayError::InvalidValue(format!("effect '{name}' is not one of {names}"))
+            })
         }
         Json::Number(number) => match number.as_i64() {
             Some(raw) if fits(Field::Effect, raw) => Ok(raw),
-            _ if number.is_i64() || number.is_u64() => Err(AppError::ValueOutOfRange(format!(
+            _ if number.is_i64() || number.is_u64() => Err(GatewayError::ValueOutOfRange(format!(
                 "effect {number} is no wire value (0 to 65535)"
             ))),
-            _ => Err(AppError::InvalidValue(format!(
+            _ => Err(GatewayError::InvalidValue(format!(
                 "effect {number} is no whole number"
             ))),
         },
-        other => Err(AppError::InvalidValue(format!(
+        other => Err(GatewayError::InvalidValue(format!(
             "effect {other} is neither a name ({names}) nor a number"
         ))),
     }
 }
 
 /// The channels (sub-index 1–4 and value) a colour of a request writes.
-fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, AppError> {
-    let invalid = |why: String| AppError::InvalidValue(format!("colors[{position}]: {why}"));
+fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, GatewayError> {
+    let invalid = |why: String| GatewayError::InvalidValue(format!("colors[{position}]: {why}"));
     match color {
         Json::Null => Ok(Vec::new()),
         Json::String(text) => {
@@ -300,7 +307,7 @@ fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, AppError
                     .as_i64()
                     .filter(|level| (0..=255).contains(level))
                     .ok_or_else(|| {
-                        AppError::ValueOutOfRange(format!(
+                        GatewayError::ValueOutOfRange(format!(
                             "colors[{position}].{key}: {value} is not 0 to 255"
                         ))
                     })?;
@@ -320,10 +327,11 @@ fn plan(update: &SegmentUpdate) -> Result<Vec<(Field, i64)>, AppError> {
     let mut scalar = |field: Field, name: &str, value: Option<i64>| -> Result<(), AppError> {
         if let Some(value) = value {
             if !fits(field, value) {
-                return Err(AppError::ValueOutOfRange(format!(
+                return Err(GatewayError::ValueOutOfRange(format!(
                     "{name} {value} does not fit its object ({})",
                     uioled::data_type(field)
-                )));
+                ))
+                .into());
             }
             writes.push((field, value));
         }
@@ -333,10 +341,11 @@ fn plan(update: &SegmentUpdate) -> Result<Vec<(Field, i64)>, AppError> {
     let mut colors = Vec::new();
     if let Some(given) = &update.colors {
         if given.len() > 3 {
-            return Err(AppError::InvalidValue(format!(
+            return Err(GatewayError::InvalidValue(format!(
                 "{} colours given: a segment has 3",
                 given.len()
-            )));
+            ))
+            .into());
         }
         for (position, color) in given.iter().enumerate() {
             for (channel, value) in parse_color(position, color)? {
@@ -428,9 +437,10 @@ async fn put_segment(
     if let Some(given) = update.segment
         && given != u32::from(segment)
     {
-        return Err(AppError::InvalidValue(format!(
+        return Err(GatewayError::InvalidValue(format!(
             "the body names segment {given}, the path segment {segment}"
-        )));
+        ))
+        .into());
     }
     let writes = plan(&update)?;
     check_sdo_allowed(&served, &info)?;
@@ -474,9 +484,9 @@ async fn put_scene(
         None | Some("keep") => false,
         Some("off") => true,
         Some(other) => {
-            return Err(AppError::InvalidValue(format!(
-                "others '{other}' is not keep or off"
-            )));
+            return Err(
+                GatewayError::InvalidValue(format!("others '{other}' is not keep or off")).into(),
+            );
         }
     };
     let mut writes: Vec<(u8, Vec<(Field, i64)>)> = Vec::new();
@@ -484,15 +494,16 @@ async fn put_scene(
         let segment = match update.segment {
             Some(n) => segment_number(&n.to_string())?,
             None => {
-                return Err(AppError::InvalidValue(format!(
+                return Err(GatewayError::InvalidValue(format!(
                     "segments[{position}] names no segment"
-                )));
+                ))
+                .into());
             }
         };
         if writes.iter().any(|(n, _)| *n == segment) {
-            return Err(AppError::InvalidValue(format!(
-                "segment {segment} is listed twice"
-            )));
+            return Err(
+                GatewayError::InvalidValue(format!("segment {segment} is listed twice")).into(),
+            );
         }
         writes.push((segment, plan(update)?));
     }

@@ -24,6 +24,8 @@ use super::doc::{BusPath, ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::ControllerFault;
 use crate::canopen::NodeId;
+use crate::gateway::GatewayError;
+use crate::gateway::error::SimError;
 use crate::sim::behaviour::Fault;
 use crate::sim::products::Product;
 use crate::sim::rack::{Rack, RackError};
@@ -48,13 +50,13 @@ pub struct GatewayFaultRequest {
 
 impl GatewayFaultRequest {
     /// The fault to inject, or to clear (`clear`).
-    fn fault(&self, clear: bool) -> Result<ControllerFault, AppError> {
+    fn fault(&self, clear: bool) -> Result<ControllerFault, GatewayError> {
         match (self.kind.trim(), clear) {
             ("bit_errors", false) => Ok(ControllerFault::BitErrors),
             ("bit_errors", true) => Ok(ControllerFault::NoBitErrors),
             ("bus_off", false) => Ok(ControllerFault::BusOff),
             ("bus_off", true) => Ok(ControllerFault::Recover),
-            _ => Err(AppError::InvalidValue(format!(
+            _ => Err(GatewayError::InvalidValue(format!(
                 "fault '{}' is none of bit_errors, bus_off",
                 self.kind
             ))),
@@ -120,7 +122,7 @@ fn gateway_fault(
         .bus(bus)?
         .bus
         .controller_fault(fault)
-        .map_err(|_| AppError::NotVirtual(bus.to_string()))?;
+        .map_err(|_| GatewayError::Sim(SimError::NotVirtual(bus.to_string())))?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -176,10 +178,10 @@ pub struct FaultRequest {
 }
 
 impl FaultRequest {
-    fn fault(&self) -> Result<Fault, AppError> {
+    fn fault(&self) -> Result<Fault, GatewayError> {
         Fault::from_name(self.kind.trim()).ok_or_else(|| {
             let known: Vec<&str> = Fault::ALL.iter().map(|fault| fault.name()).collect();
-            AppError::InvalidValue(format!(
+            GatewayError::InvalidValue(format!(
                 "fault '{}' is none of {}",
                 self.kind,
                 known.join(", ")
@@ -195,7 +197,7 @@ fn rack(state: &AppState, bus: &str) -> Result<Rack, AppError> {
         .bus(bus)?
         .rack()
         .cloned()
-        .ok_or_else(|| AppError::NotVirtual(bus.to_string()))
+        .ok_or_else(|| GatewayError::Sim(SimError::NotVirtual(bus.to_string())).into())
 }
 
 fn node_id(id: &str) -> Result<NodeId, AppError> {
@@ -203,15 +205,17 @@ fn node_id(id: &str) -> Result<NodeId, AppError> {
         .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))
 }
 
-fn rack_error(bus: &str, error: RackError) -> AppError {
+fn rack_error(bus: &str, error: RackError) -> GatewayError {
     match error {
-        RackError::UnknownNode(node) => AppError::UnknownDevice {
+        RackError::UnknownNode(node) => GatewayError::Sim(SimError::UnknownDevice {
             bus: bus.to_string(),
             node: node.get(),
-        },
-        RackError::NodeTaken(..) => AppError::NodeTaken(error.to_string()),
-        RackError::Fault(fault) => AppError::FaultNotApplicable(fault.to_string()),
-        RackError::Device(detail) => AppError::Internal(format!("virtual device: {detail}")),
+        }),
+        RackError::NodeTaken(..) => GatewayError::Sim(SimError::NodeTaken(error.to_string())),
+        RackError::Fault(fault) => {
+            GatewayError::Sim(SimError::FaultNotApplicable(fault.to_string()))
+        }
+        RackError::Device(detail) => GatewayError::Internal(format!("virtual device: {detail}")),
     }
 }
 
@@ -285,7 +289,7 @@ async fn add_device(
     let rack = rack(&state, &bus)?;
     let product = Product::from_name(&request.product).ok_or_else(|| {
         let known: Vec<&str> = Product::ALL.iter().map(|product| product.name()).collect();
-        AppError::InvalidValue(format!(
+        GatewayError::InvalidValue(format!(
             "product '{}' is none of {}",
             request.product,
             known.join(", ")
@@ -300,7 +304,7 @@ async fn add_device(
             };
             rack.add_spec(&spec).map_err(|err| rack_error(&bus, err))?;
             let added = rack.loose_devices().pop().map(loose_doc).ok_or_else(|| {
-                AppError::Internal("the LSS device added is not in the rack".to_string())
+                GatewayError::Internal("the LSS device added is not in the rack".to_string())
             })?;
             return Ok((StatusCode::CREATED, ApiJson(added)));
         }
@@ -319,7 +323,7 @@ async fn add_device(
     let node = u8::try_from(id)
         .ok()
         .and_then(|id| NodeId::new(id).ok())
-        .ok_or_else(|| AppError::ValueOutOfRange(format!("node id {id} is not 1 to 127")))?;
+        .ok_or_else(|| GatewayError::ValueOutOfRange(format!("node id {id} is not 1 to 127")))?;
     rack.add(product, node)
         .map_err(|err| rack_error(&bus, err))?;
     let added = device(&rack, node).unwrap_or_else(|| SimDevice {

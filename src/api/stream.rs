@@ -70,6 +70,7 @@ use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
+use crate::gateway::GatewayError;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::AuditEntry;
 use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
@@ -481,12 +482,12 @@ impl Session {
             && identity.role.is_none_or(|role| role < Role::Operator);
         for id in ids {
             let result = if viewer {
-                Err(AppError::Forbidden(format!(
+                Err(AppError::from(GatewayError::Forbidden(format!(
                     "token {} has the role {}; renewing a motion lease needs operator \
                      (and only its holder renews it)",
                     identity.name,
                     identity.role.map_or("none", Role::name)
-                )))
+                ))))
             } else {
                 self.state
                     .gateway
@@ -584,10 +585,11 @@ impl Session {
             Some(rate) => {
                 return vec![error_message(
                     None,
-                    &AppError::ValueOutOfRange(format!(
+                    &GatewayError::ValueOutOfRange(format!(
                         "max_rate_hz {rate} is out of range: from {MIN_RATE_HZ} \
                          (one update every 100 s) to {MAX_RATE_HZ} updates per second"
-                    )),
+                    ))
+                    .into(),
                 )];
             }
         };
@@ -719,7 +721,7 @@ impl Session {
             Topic::Axis { bus, node, axis } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
                 let axis: u8 = axis.parse().map_err(|_| {
-                    AppError::UnknownAxis(format!("'{axis}' is no axis number (1, 2, ...)"))
+                    GatewayError::UnknownAxis(format!("'{axis}' is no axis number (1, 2, ...)"))
                 })?;
                 let receiver = served.axes.subscribe(info.id, axis, rate_hz)?;
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]

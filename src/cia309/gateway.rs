@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crate::canopen::nmt::NmtCommand;
-use crate::canopen::sdo::{AbortCode, ClientConfig};
+use crate::canopen::sdo::ClientConfig;
 use crate::gateway::access::{Role, Tokens};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{AuditEntry, History};
@@ -21,7 +21,6 @@ use crate::gateway::node::objects::object_item;
 use crate::gateway::{Gateway, GatewayError, NodeHandle, ServedBus};
 
 use super::command::Nmt;
-use super::reply::ErrorCode;
 
 /// Who sends a connection's (or a request's) commands, for the audit log.
 /// Authentication fills it in from a token; until then it names the peer.
@@ -50,33 +49,6 @@ impl Identity {
             role: "none".to_string(),
             peer,
             access: None,
-        }
-    }
-}
-
-/// Why a request failed, as CiA 309 answers it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Failure {
-    /// `ERROR:0x<abort code>`: the device's abort, or the client's
-    /// (0x05040000 on a timeout).
-    Abort(AbortCode),
-    /// `ERROR:<number>`.
-    Error(ErrorCode),
-}
-
-impl Failure {
-    /// A gateway error as CiA 309 says it.
-    pub fn of(error: &GatewayError) -> Self {
-        match error {
-            GatewayError::SdoAbort { code, .. } => Self::Abort(*code),
-            GatewayError::SdoProtocol { code, .. } => Self::Abort(*code),
-            GatewayError::SdoTimeout { .. } => Self::Abort(AbortCode::from_raw(0x0504_0000)),
-            GatewayError::WrongNmtState { .. } => Self::Error(ErrorCode::WrongNmtState),
-            GatewayError::UnknownNode { .. } | GatewayError::InvalidRequest(_) => {
-                Self::Error(ErrorCode::UnsupportedNode)
-            }
-            GatewayError::UnknownBus(_) => Self::Error(ErrorCode::UnsupportedNet),
-            _ => Self::Error(ErrorCode::InternalState),
         }
     }
 }

@@ -12,12 +12,15 @@
 //! - [`datatype`]: values per CiA 309-3 data type, both ways (sans-I/O).
 //! - [`reply`]: replies, error numbers, help and event lines (sans-I/O).
 //! - [`gateway`]: what a request does: SDO on the node's shared queue, NMT,
-//!   the audit log, a [`GatewayError`](crate::gateway::GatewayError) said
-//!   as CiA 309 says it ([`Failure`]).
+//!   the audit log.
+//! - [`failure`]: a [`GatewayError`](crate::gateway::GatewayError) said as
+//!   CiA 309 says it ([`Failure`]), for both doors.
 
 pub mod command;
 pub mod datatype;
+pub mod failure;
 pub mod gateway;
 pub mod reply;
 
-pub use gateway::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
+pub use failure::Failure;
+pub use gateway::{Cia309Gateway, Identity, Origin, TransferOptions};

@@ -58,6 +58,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 
 use crate::api::AppError;
+use crate::gateway::GatewayError;
 use crate::profiles::umc;
 
 /// One embedded static file.
@@ -428,9 +429,10 @@ fn page(template: &impl Template) -> Response {
             html,
         )
             .into_response(),
-        Err(err) => {
-            AppError::Internal(format!("rendering a dashboard page: {err}")).into_response()
-        }
+        Err(err) => AppError::from(GatewayError::Internal(format!(
+            "rendering a dashboard page: {err}"
+        )))
+        .into_response(),
     }
 }
 

@@ -9,11 +9,15 @@
 
 use crate::can::BusError;
 use crate::canopen::nmt::NmtState;
+use crate::canopen::od::{DictionaryError, ValueError};
 use crate::canopen::sdo::{AbortCode, SdoError};
 
 use super::drive::DriveError;
+use super::logger::LoggerError;
 use super::motion_lease::LeaseError;
+use super::recording::RecordingError;
 use super::registry::RegistryError;
+use super::safe_stop::StopAttempt;
 use super::sdo::SdoRequestError;
 
 /// Why a request to the gateway failed.
@@ -130,16 +134,85 @@ pub enum GatewayError {
     /// the one sent (0x1F56 is not its CRC-32).
     #[error("{0}")]
     ProgramNotVerified(String),
+    /// An object index (or sub-index) that is no number or name.
+    #[error("{0}")]
+    InvalidIndex(String),
+    /// An object the node's dictionary does not have (or a node without
+    /// EDS, whose objects are not known).
+    #[error("{0}")]
+    UnknownObject(String),
+    #[error("{0}")]
+    UnknownSubObject(String),
+    /// A request with more entries (a batch, a logger's channels) than one
+    /// may carry.
+    #[error("{0}")]
+    TooManyEntries(String),
+    /// A node's PDOs.
+    #[error(transparent)]
+    Pdo(#[from] PdoError),
+    /// A node's LED segments.
+    #[error(transparent)]
+    Led(#[from] LedError),
+    /// The virtual devices of a bus.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// A DCF that cannot be read or does not fit the node; nothing was
+    /// written.
+    #[error("{message}")]
+    InvalidDcf {
+        message: String,
+        line: Option<usize>,
+    },
+    /// A sequence of transfers stopped at `step`: the error of that step,
+    /// with the step named (the steps before it took effect).
+    #[error("step {step} failed: {source}")]
+    FailedAt {
+        step: String,
+        source: Box<GatewayError>,
+    },
+    /// A stop the drive did not confirm: the error of the stop asked for,
+    /// with every step tried (the fallbacks included) and its outcome.
+    #[error("{source}")]
+    StopNotConfirmed {
+        source: Box<GatewayError>,
+        attempts: Vec<StopAttempt>,
+    },
+    /// A recording of the bus runs already.
+    #[error("{0}")]
+    RecordingRunning(String),
+    /// The bus's recording has stopped already.
+    #[error("{0}")]
+    RecordingNotRunning(String),
+    /// The bus has no recording (none since the gateway started, or its
+    /// file is gone).
+    #[error("{0}")]
+    NoRecording(String),
+    /// The recording's file could not be made or read (disk full, no
+    /// permission): the gateway's machine, not the request.
+    #[error("{0}")]
+    RecordingFailed(String),
+    /// No data logger has this id.
+    #[error("{0}")]
+    UnknownLogger(String),
+    /// Every data logger kept still runs.
+    #[error("{0}")]
+    TooManyLoggers(String),
+    /// An object a data logger cannot sample (write-only, no number).
+    #[error("{0}")]
+    NotLoggable(String),
+    /// The history database failed (disk full, file damaged): the
+    /// gateway's machine, not the request.
+    #[error("{0}")]
+    HistoryFailed(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
 }
 
 impl GatewayError {
-    /// The error's code, as the REST API and the audit log name it
-    /// (`sdo_abort`, `bus_down`, ...): an audit row's outcome when the
-    /// operation failed. The HTTP status that goes with it is REST's
-    /// business (`crate::api::error`).
+    /// The error's code, as every door names it (REST's `code`, the audit
+    /// log's): `sdo_abort`, `bus_down`, ... A failed step's and an
+    /// unconfirmed stop's are their cause's.
     pub fn code(&self) -> &'static str {
         match self {
             Self::InvalidRequest(_) => "invalid_request",
@@ -176,6 +249,30 @@ impl GatewayError {
             Self::NotAnIoModule(_) => "not_an_io_module",
             Self::UnknownChannel(_) => "unknown_channel",
             Self::ProgramNotVerified(_) => "program_not_verified",
+            Self::InvalidIndex(_) => "invalid_index",
+            Self::UnknownObject(_) => "unknown_object",
+            Self::UnknownSubObject(_) => "unknown_sub_object",
+            Self::TooManyEntries(_) => "too_many_entries",
+            Self::Pdo(PdoError::UnknownPdo(_)) => "unknown_pdo",
+            Self::Pdo(PdoError::InvalidMapping(_)) => "invalid_mapping",
+            Self::Pdo(PdoError::PdoDisabled(_)) => "pdo_disabled",
+            Self::Led(LedError::NotAnLedController(_)) => "not_an_led_controller",
+            Self::Led(LedError::UnknownSegment(_)) => "unknown_segment",
+            Self::Sim(SimError::NotVirtual(_)) => "not_virtual",
+            // A virtual device is a node of its bus.
+            Self::Sim(SimError::UnknownDevice { .. }) => "unknown_node",
+            Self::Sim(SimError::NodeTaken(_)) => "node_taken",
+            Self::Sim(SimError::FaultNotApplicable(_)) => "fault_not_applicable",
+            Self::InvalidDcf { .. } => "invalid_dcf",
+            Self::FailedAt { source, .. } | Self::StopNotConfirmed { source, .. } => source.code(),
+            Self::RecordingRunning(_) => "recording_running",
+            Self::RecordingNotRunning(_) => "recording_not_running",
+            Self::NoRecording(_) => "no_recording",
+            Self::RecordingFailed(_) => "recording_failed",
+            Self::UnknownLogger(_) => "unknown_logger",
+            Self::TooManyLoggers(_) => "too_many_loggers",
+            Self::NotLoggable(_) => "not_loggable",
+            Self::HistoryFailed(_) => "history_failed",
             Self::Internal(_) => "internal_error",
         }
     }
@@ -185,9 +282,54 @@ impl GatewayError {
     pub fn abort_code(&self) -> Option<AbortCode> {
         match self {
             Self::SdoAbort { code, .. } | Self::SdoProtocol { code, .. } => Some(*code),
+            Self::FailedAt { source, .. } | Self::StopNotConfirmed { source, .. } => {
+                source.abort_code()
+            }
             _ => None,
         }
     }
+}
+
+/// Why a request about a node's PDOs failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PdoError {
+    /// A PDO number (or kind) the node does not have.
+    #[error("{0}")]
+    UnknownPdo(String),
+    /// A PDO mapping or communication parameter the node's EDS rules out
+    /// (or a node without EDS, whose mapping cannot be checked).
+    #[error("{0}")]
+    InvalidMapping(String),
+    /// The PDO is not valid (COB-ID bit 31 set): the node ignores its frames.
+    #[error("{0}")]
+    PdoDisabled(String),
+}
+
+/// Why a request about a node's LED segments failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LedError {
+    /// The node has no segments (its profile is not uioled).
+    #[error("{0}")]
+    NotAnLedController(String),
+    #[error("{0}")]
+    UnknownSegment(String),
+}
+
+/// Why a request about the virtual devices of a bus failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SimError {
+    /// The bus has no virtual devices.
+    #[error("bus {0} is no virtual bus: it has no virtual devices to control")]
+    NotVirtual(String),
+    /// No virtual device at this node id of a virtual bus.
+    #[error("no virtual device is at node {node} of bus {bus}")]
+    UnknownDevice { bus: String, node: u8 },
+    /// A virtual device is added at a node id another one has.
+    #[error("{0}")]
+    NodeTaken(String),
+    /// The virtual device's product cannot have this fault.
+    #[error("{0}")]
+    FaultNotApplicable(String),
 }
 
 impl From<SdoRequestError> for GatewayError {
@@ -270,6 +412,79 @@ impl From<LeaseError> for GatewayError {
             | LeaseError::NotHolder { .. }
             | LeaseError::IdInUse { .. } => Self::LeaseConflict(error.to_string()),
             LeaseError::Unknown(_) => Self::UnknownLease(error.to_string()),
+        }
+    }
+}
+
+impl From<DictionaryError> for GatewayError {
+    fn from(error: DictionaryError) -> Self {
+        match error {
+            DictionaryError::UnknownObject(_) | DictionaryError::UnknownName(_) => {
+                Self::UnknownObject(error.to_string())
+            }
+            DictionaryError::UnknownSubObject { .. } | DictionaryError::UnknownSubName { .. } => {
+                Self::UnknownSubObject(error.to_string())
+            }
+            DictionaryError::InvalidIndex(_) | DictionaryError::InvalidSubIndex(_) => {
+                Self::InvalidIndex(error.to_string())
+            }
+            DictionaryError::WrongType { .. } => Self::InvalidValue(error.to_string()),
+        }
+    }
+}
+
+impl From<ValueError> for GatewayError {
+    fn from(error: ValueError) -> Self {
+        if error.is_out_of_range() {
+            Self::ValueOutOfRange(error.to_string())
+        } else {
+            Self::InvalidValue(error.to_string())
+        }
+    }
+}
+
+impl From<RecordingError> for GatewayError {
+    fn from(error: RecordingError) -> Self {
+        let message = error.to_string();
+        match error {
+            RecordingError::LimitOutOfRange { .. } => Self::ValueOutOfRange(message),
+            RecordingError::Running { .. } => Self::RecordingRunning(message),
+            RecordingError::NotRunning { .. } => Self::RecordingNotRunning(message),
+            RecordingError::NoRecording(_) => Self::NoRecording(message),
+            RecordingError::Io { .. } => {
+                tracing::error!("recording: {message}");
+                Self::RecordingFailed(message)
+            }
+        }
+    }
+}
+
+/// A logger's errors; a channel's say which channel (0-based).
+impl From<LoggerError> for GatewayError {
+    fn from(error: LoggerError) -> Self {
+        let message = error.to_string();
+        match error {
+            LoggerError::ChannelCount(_) => Self::TooManyEntries(message),
+            LoggerError::Period(_) | LoggerError::Duration(_) => Self::ValueOutOfRange(message),
+            LoggerError::Channel { .. } => Self::InvalidIndex(message),
+            LoggerError::NotLoggable { .. } => Self::NotLoggable(message),
+            LoggerError::Dictionary { source, .. } => match Self::from(source) {
+                Self::UnknownObject(_) => Self::UnknownObject(message),
+                Self::UnknownSubObject(_) => Self::UnknownSubObject(message),
+                Self::InvalidIndex(_) => Self::InvalidIndex(message),
+                other => other,
+            },
+            // The gateway's own words (unknown_bus, unknown_node, an SDO
+            // error of a trial read), with the channel's number.
+            LoggerError::Gateway { channel, source } => match source {
+                Self::FailedAt { .. } => Self::Internal(message),
+                other => Self::FailedAt {
+                    step: format!("channel {channel}"),
+                    source: Box::new(other),
+                },
+            },
+            LoggerError::TooMany => Self::TooManyLoggers(message),
+            LoggerError::Unknown(_) => Self::UnknownLogger(message),
         }
     }
 }

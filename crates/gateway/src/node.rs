@@ -8,6 +8,10 @@
 //! The operations live in files by area beside this one; this file holds
 //! the handle.
 
+pub mod config;
+pub mod pdo;
+mod transfer;
+
 use std::sync::Arc;
 
 pub mod objects;

@@ -1,5 +1,7 @@
 use super::*;
 use crate::canopen::nmt::NmtState;
+use crate::canopen::sdo::AbortCode;
+use crate::gateway::error::{LedError, PdoError, SimError};
 
 /// Every variant of [`GatewayError`], by number (no wildcard: a new
 /// variant does not compile until it is numbered here, and then the test
@@ -41,10 +43,34 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::NotAnIoModule(_) => 32,
         GatewayError::UnknownChannel(_) => 33,
         GatewayError::ProgramNotVerified(_) => 34,
+        GatewayError::InvalidIndex(_) => 35,
+        GatewayError::UnknownObject(_) => 36,
+        GatewayError::UnknownSubObject(_) => 37,
+        GatewayError::TooManyEntries(_) => 38,
+        GatewayError::Pdo(PdoError::UnknownPdo(_)) => 39,
+        GatewayError::Pdo(PdoError::InvalidMapping(_)) => 40,
+        GatewayError::Pdo(PdoError::PdoDisabled(_)) => 41,
+        GatewayError::Led(LedError::NotAnLedController(_)) => 42,
+        GatewayError::Led(LedError::UnknownSegment(_)) => 43,
+        GatewayError::Sim(SimError::NotVirtual(_)) => 44,
+        GatewayError::Sim(SimError::UnknownDevice { .. }) => 45,
+        GatewayError::Sim(SimError::NodeTaken(_)) => 46,
+        GatewayError::Sim(SimError::FaultNotApplicable(_)) => 47,
+        GatewayError::InvalidDcf { .. } => 48,
+        GatewayError::FailedAt { .. } => 49,
+        GatewayError::StopNotConfirmed { .. } => 50,
+        GatewayError::RecordingRunning(_) => 51,
+        GatewayError::RecordingNotRunning(_) => 52,
+        GatewayError::NoRecording(_) => 53,
+        GatewayError::RecordingFailed(_) => 54,
+        GatewayError::UnknownLogger(_) => 55,
+        GatewayError::TooManyLoggers(_) => 56,
+        GatewayError::NotLoggable(_) => 57,
+        GatewayError::HistoryFailed(_) => 58,
     }
 }
 
-const VARIANTS: usize = 35;
+const VARIANTS: usize = 59;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -113,6 +139,46 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::EdsConflict(text()),
         GatewayError::NotAnIoModule(text()),
         GatewayError::UnknownChannel(text()),
+        GatewayError::InvalidIndex(text()),
+        GatewayError::UnknownObject(text()),
+        GatewayError::UnknownSubObject(text()),
+        GatewayError::TooManyEntries(text()),
+        PdoError::UnknownPdo(text()).into(),
+        PdoError::InvalidMapping(text()).into(),
+        PdoError::PdoDisabled(text()).into(),
+        LedError::NotAnLedController(text()).into(),
+        LedError::UnknownSegment(text()).into(),
+        SimError::NotVirtual("demo".to_string()).into(),
+        SimError::UnknownDevice {
+            bus: "demo".to_string(),
+            node: 9,
+        }
+        .into(),
+        SimError::NodeTaken(text()).into(),
+        SimError::FaultNotApplicable(text()).into(),
+        GatewayError::InvalidDcf {
+            message: text(),
+            line: Some(12),
+        },
+        GatewayError::FailedAt {
+            step: "clear the mapping".to_string(),
+            source: Box::new(GatewayError::SdoAbort {
+                node: 3,
+                code: abort,
+            }),
+        },
+        GatewayError::StopNotConfirmed {
+            source: Box::new(GatewayError::SdoTimeout { node: 3 }),
+            attempts: Vec::new(),
+        },
+        GatewayError::RecordingRunning(text()),
+        GatewayError::RecordingNotRunning(text()),
+        GatewayError::NoRecording(text()),
+        GatewayError::RecordingFailed(text()),
+        GatewayError::UnknownLogger(text()),
+        GatewayError::TooManyLoggers(text()),
+        GatewayError::NotLoggable(text()),
+        GatewayError::HistoryFailed(text()),
     ]
 }
 
@@ -158,4 +224,26 @@ fn rest_keeps_the_gateway_s_message() {
             _ => assert_eq!(rest.to_string(), error.to_string()),
         }
     }
+}
+
+/// A failed step answers as its cause, with the step named, and keeps the
+/// REST hint of its cause (a logger's channel on an unknown node).
+#[test]
+fn a_failed_step_answers_as_its_cause() {
+    let error = AppError::from(GatewayError::FailedAt {
+        step: "channel 0".to_string(),
+        source: Box::new(GatewayError::UnknownNode {
+            bus: "demo".to_string(),
+            node: "9".to_string(),
+        }),
+    });
+    assert_eq!(error.status(), StatusCode::NOT_FOUND);
+    assert_eq!(
+        error.to_json(),
+        json!({
+            "code": "unknown_node",
+            "message": "step channel 0 failed: node 9 is not known on bus demo (try POST /api/v1/buses/demo/scan)",
+            "step": "channel 0",
+        })
+    );
 }

@@ -313,7 +313,12 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
     assert!(matches!(error, PreviewError::NotAnLedController { .. }));
     // The stream reports them as the REST API would.
     let error = crate::api::AppError::from(error);
-    assert!(matches!(error, crate::api::AppError::NotAnLedController(_)));
+    assert!(matches!(
+        error,
+        crate::api::AppError::Gateway(crate::gateway::GatewayError::Led(
+            crate::gateway::error::LedError::NotAnLedController(_)
+        ))
+    ));
     // Nothing runs for a refused subscription.
     assert!(!served.axes.is_running(node(1), 3));
     assert!(!served.previews.is_running(node(1)));
