@@ -120,11 +120,12 @@ async fn cia309_5_commands_share_the_rest_write_rate() {
     let refused: Vec<_> = audit(&app)
         .await
         .into_iter()
-        .filter(|entry| entry["status"] == 429)
+        .filter(|entry| entry["outcome"] == "rate_limited")
         .collect();
     assert_eq!(refused.len(), 2, "{refused:?}");
     for entry in refused {
         assert_eq!(entry["who"], "line-plc", "{entry}");
+        assert_eq!(entry["channel"], "cia309_5", "{entry}");
         assert_eq!(entry["error_code"], "rate_limited", "{entry}");
     }
 }

@@ -649,7 +649,8 @@ async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
         .into_iter()
         .filter(|event| {
             event.fields.get("operation") == Some(&"write object".into())
-                && event.fields.get("error_code") == Some(&"rate_limited".into())
+                && event.fields.get("outcome") == Some(&"rate_limited".into())
+                && event.fields.get("channel") == Some(&"sparkplug".into())
         })
         .count();
     assert_eq!(audited, flood_refused);
