@@ -40,10 +40,6 @@ fn channel_settings(_: &ClientConfig) -> Option<ClientConfig> {
     None
 }
 
-fn task_failed(err: tokio::task::JoinError) -> GatewayError {
-    GatewayError::Internal(format!("SDO task: {err}"))
-}
-
 impl NodeHandle {
     /// Reads an object's value bytes (the viewer's).
     pub async fn read_object(
@@ -68,10 +64,13 @@ impl NodeHandle {
         check_sdo_allowed(&self.served, &self.info)?;
         let channel = self.served.registry.sdo(self.info.id)?;
         let config = settings(channel.config());
-        tokio::spawn(async move { channel.upload_with(index, sub, config.as_ref()).await })
-            .await
-            .map_err(task_failed)?
-            .map_err(GatewayError::from)
+        super::transfer::spawned(async move {
+            channel
+                .upload_with(index, sub, config.as_ref())
+                .await
+                .map_err(GatewayError::from)
+        })
+        .await
     }
 
     /// Writes an object's value bytes (the operator's; one write of the
@@ -147,22 +146,19 @@ impl NodeHandle {
         let config = settings(channel.config());
         // Write and read back in one task: both finish even if the caller
         // goes away.
-        tokio::spawn(async move {
+        super::transfer::spawned(async move {
             channel
                 .download_with(index, sub, &bytes, config.as_ref())
                 .await?;
             if read_back {
-                channel
-                    .upload_with(index, sub, config.as_ref())
-                    .await
-                    .map(Some)
+                Ok(Some(
+                    channel.upload_with(index, sub, config.as_ref()).await?,
+                ))
             } else {
                 Ok(None)
             }
         })
         .await
-        .map_err(task_failed)?
-        .map_err(GatewayError::from)
     }
 
     /// Sends an NMT command to the node (the operator's; one write of the
