@@ -467,3 +467,62 @@ fn a_crate_that_builds_on_a_layer_above_it_is_named() {
     assert!(found["crates/sim d"].contains("candeck-gateway"));
     assert!(found["crates/gatew"].contains("axum: a door's dependency"));
 }
+
+/// Every place outside `crates/can` whose code depends on a cargo feature
+/// (`cfg(feature = ...)`, `cfg!(feature = ...)`), as `file:line`.
+fn feature_gates_outside_can(root: &Path) -> Vec<String> {
+    let mut files = Vec::new();
+    for dir in ["src", "tests", "benches", "crates"] {
+        rust_files(&root.join(dir), &mut files);
+    }
+    files.sort();
+    let mut found = Vec::new();
+    for file in files {
+        let relative = file.strip_prefix(root).unwrap();
+        if relative.starts_with("crates/can") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&file).unwrap();
+        for (n, line) in code(&text).lines().enumerate() {
+            let compact: String = line.chars().filter(|c| !c.is_whitespace()).collect();
+            if compact.contains("feature=") && compact.contains("cfg") {
+                found.push(format!("{}:{}", relative.display(), n + 1));
+            }
+        }
+    }
+    found
+}
+
+/// scripts/test checks the workspace with every feature and only
+/// candeck-can with its defaults: that is the whole default build as long
+/// as no other crate's code changes with a feature.
+#[test]
+fn only_the_can_crate_has_code_that_a_feature_changes() {
+    let found = feature_gates_outside_can(root());
+    assert!(
+        found.is_empty(),
+        "code outside crates/can depends on a feature (scripts/test's clippy checks only candeck-can with its defaults):\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn a_feature_gate_outside_the_can_crate_is_named() {
+    let root = std::env::temp_dir().join(format!("layering-features-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(root.join("crates/can/src")).unwrap();
+    std::fs::create_dir_all(root.join("src/api")).unwrap();
+    std::fs::write(
+        root.join("crates/can/src/lib.rs"),
+        "#[cfg(feature = \"socketcan\")]\nmod socketcan;\n",
+    )
+    .unwrap();
+    std::fs::write(
+        root.join("src/api/bus.rs"),
+        "// cfg(feature = \"x\") in a comment is not code\nfn a() {}\n#[cfg(not(feature= \"socketcan\"))]\nfn b() {}\n",
+    )
+    .unwrap();
+    let found = feature_gates_outside_can(&root);
+    std::fs::remove_dir_all(&root).unwrap();
+    assert_eq!(found, ["src/api/bus.rs:3"]);
+}
