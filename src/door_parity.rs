@@ -201,7 +201,7 @@ async fn rig() -> Rig {
         .with_auth(config);
     Rig {
         app: app(state.clone()),
-        gateway: state.gateway,
+        gateway: state.gateway.clone(),
         held: HeldLeases::default(),
         rest_lease: None,
     }

@@ -112,8 +112,17 @@ pub use error::{ApiJson, ApiPath, AppError};
 
 /// What every handler shares: the gateway service, and what only HTTP
 /// needs (the guard's tokens, CORS and limits; the stream's counters).
+///
+/// One `Arc`: every middleware layer and every handler takes the state by
+/// value, so a request clones it several times; cloning the fields
+/// themselves (the gateway's dozen `Arc`s among them) was among the door's
+/// largest costs of its own in a profile of `GET /health`.
 #[derive(Clone)]
-pub struct AppState {
+pub struct AppState(Arc<Shared>);
+
+/// The fields of [`AppState`] (read through `Deref`).
+#[derive(Clone)]
+pub struct Shared {
     /// The buses, the history, the leases: all the adapters share it.
     pub gateway: Gateway,
     /// The WebSocket stream's numbers, for `/metrics`.
@@ -130,13 +139,19 @@ pub struct AppState {
 impl AppState {
     /// The REST state over a gateway service, open (no tokens).
     pub fn from_gateway(gateway: Gateway) -> Self {
-        Self {
+        Self(Arc::new(Shared {
             gateway,
             stream_counters: Arc::new(StreamCounters::default()),
             connection_refusals: Arc::default(),
             guard: Arc::new(auth::Guard::default()),
             allowed_hosts: Arc::new(host::AllowedHosts::default()),
-        }
+        }))
+    }
+
+    /// The fields, to change while the state is being built (a copy of
+    /// them if a clone of this state is already out).
+    fn shared_mut(&mut self) -> &mut Shared {
+        Arc::make_mut(&mut self.0)
     }
 
     /// The buses, with a history in memory (lost on exit).
@@ -152,7 +167,8 @@ impl AppState {
 
     /// The same, granting motion leases of `period` (`--lease-ms`).
     pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
-        self.gateway = self.gateway.with_lease_period(period);
+        let shared = self.shared_mut();
+        shared.gateway = shared.gateway.clone().with_lease_period(period);
         self
     }
 
@@ -160,8 +176,10 @@ impl AppState {
     /// the gateway service gets the tokens and the write rate limit, for
     /// its other adapters.
     pub fn with_auth(mut self, config: auth::AuthConfig) -> Self {
-        self.gateway = self
+        let shared = self.shared_mut();
+        shared.gateway = shared
             .gateway
+            .clone()
             .with_tokens(config.tokens.clone())
             .with_write_limit(config.rate_limit);
         self.with_guard(config)
@@ -171,19 +189,27 @@ impl AppState {
     /// CORS, limits): for a gateway started with the same tokens and
     /// write limit ([`Gateway::start`]).
     pub fn with_guard(mut self, config: auth::AuthConfig) -> Self {
-        self.guard = Arc::new(auth::Guard::new(config));
+        self.shared_mut().guard = Arc::new(auth::Guard::new(config));
         self
     }
 
     /// The same state answering to these names too (`allowed_hosts`).
     pub fn with_allowed_hosts(mut self, hosts: host::AllowedHosts) -> Self {
-        self.allowed_hosts = Arc::new(hosts);
+        self.shared_mut().allowed_hosts = Arc::new(hosts);
         self
     }
 
     /// The bus named in a path, or 404 `unknown_bus`.
     pub fn bus(&self, name: &str) -> Result<Arc<ServedBus>, AppError> {
         Ok(self.gateway.bus(name)?)
+    }
+}
+
+impl std::ops::Deref for AppState {
+    type Target = Shared;
+
+    fn deref(&self) -> &Shared {
+        &self.0
     }
 }
 
