@@ -526,3 +526,64 @@ fn a_feature_gate_outside_the_can_crate_is_named() {
     std::fs::remove_dir_all(&root).unwrap();
     assert_eq!(found, ["src/api/bus.rs:3"]);
 }
+
+/// Words of HTTP that the crates below the doors never use in code, their
+/// strings or their documentation: the doors' frameworks, a status code
+/// type, a REST route.
+const DOOR_WORDS: &[&str] = &["axum", "utoipa", "StatusCode", "/api/v1", "/cia309-5/"];
+
+/// The one file and word allowed: the history's migration of version 1
+/// audit rows, which named their door only by the request's path.
+const DOOR_WORDS_ALLOWED: &[(&str, &str)] = &[("crates/gateway/src/history.rs", "/cia309-5/")];
+
+/// Every line of a crate under `crates/` (tests excepted: a test may
+/// quote a migrated row) that names one of [`DOOR_WORDS`], as
+/// `file:line: word`.
+fn door_words_below_the_doors(root: &Path) -> Vec<String> {
+    let mut files = Vec::new();
+    rust_files(&root.join("crates"), &mut files);
+    files.sort();
+    let mut found = Vec::new();
+    for file in files {
+        let relative = file.strip_prefix(root).unwrap();
+        let name = relative.to_string_lossy();
+        if name.ends_with("/tests.rs") || name.contains("/tests/") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&file).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            for word in DOOR_WORDS {
+                if line.contains(word) && !DOOR_WORDS_ALLOWED.contains(&(name.as_ref(), *word)) {
+                    found.push(format!("{}:{}: {word}", relative.display(), n + 1));
+                }
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn nothing_below_the_doors_names_http_a_status_type_or_a_route() {
+    let found = door_words_below_the_doors(root());
+    assert!(found.is_empty(), "{}", found.join("\n"));
+}
+
+#[test]
+fn a_route_named_below_the_doors_is_found() {
+    let root = std::env::temp_dir().join(format!("layering-words-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(root.join("crates/gateway/src/recording")).unwrap();
+    std::fs::write(
+        root.join("crates/gateway/src/recording.rs"),
+        "fn a() {}\n// see POST /api/v1/buses\n",
+    )
+    .unwrap();
+    std::fs::write(
+        root.join("crates/gateway/src/recording/tests.rs"),
+        "// '/api/v1/buses' in a migrated row\n",
+    )
+    .unwrap();
+    let found = door_words_below_the_doors(&root);
+    std::fs::remove_dir_all(&root).unwrap();
+    assert_eq!(found, ["crates/gateway/src/recording.rs:2: /api/v1"]);
+}

@@ -93,7 +93,7 @@ pub enum LoggerError {
         channel: usize,
         source: GatewayError,
     },
-    #[error("{MAX_LOGGERS} loggers run already: delete one (DELETE /api/v1/loggers/{{id}}) first")]
+    #[error("{MAX_LOGGERS} loggers run already: delete one first")]
     TooMany,
     #[error("no logger has the id '{0}'")]
     Unknown(String),

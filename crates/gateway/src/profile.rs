@@ -132,7 +132,7 @@ pub enum EdsSource {
     BuiltIn,
     /// A user's file from the EDS directory.
     File(PathBuf),
-    /// Uploaded (`POST /api/v1/eds`): kept in the data directory's `eds/`
+    /// Uploaded through a door: kept in the data directory's `eds/`
     /// (the path), or in memory only when the gateway has no data
     /// directory (`None`).
     Uploaded(Option<PathBuf>),

@@ -454,8 +454,7 @@ impl Recorder {
 
     fn no_recording(&self) -> RecordingError {
         RecordingError::NoRecording(format!(
-            "bus {} has not been recorded (POST /api/v1/buses/{}/recording starts a recording)",
-            self.bus.name(),
+            "bus {} has not been recorded: start a recording of it first",
             self.bus.name()
         ))
     }
