@@ -490,6 +490,13 @@ fn is_stop(path: &str, body: &[u8]) -> bool {
 /// did not) goes into the response's extensions for the audit log, also
 /// when it refuses the request for its origin or its size.
 pub async fn guard(State(state): State<AppState>, mut request: Request, next: Next) -> Response {
+    // Before anyone looks at the request: a foreign Host is a DNS
+    // rebinding page (refused before it is known who sent it). One layer
+    // with the guard: every layer costs each request a boxed future and a
+    // clone of the routes' service.
+    if let Some(refusal) = super::host::refusal(&state.allowed_hosts, &request) {
+        return refusal;
+    }
     let guard = state.guard.clone();
     let config = &guard.config;
     let method = request.method().clone();

@@ -25,12 +25,11 @@
 
 use std::net::IpAddr;
 
-use axum::extract::{Request, State};
+use axum::extract::Request;
 use axum::http::header;
-use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
-use super::{AppError, AppState};
+use super::AppError;
 
 /// The names the gateway answers to besides loopback names and addresses.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -115,24 +114,22 @@ fn is_port(text: &str) -> bool {
     !text.is_empty() && text.len() <= 5 && text.bytes().all(|b| b.is_ascii_digit())
 }
 
-/// The middleware (`axum::middleware::from_fn_with_state`): 421
-/// `host_not_allowed` for a request sent to a name the gateway is not
-/// served as, before anything else looks at it.
-pub async fn check(State(state): State<AppState>, request: Request, next: Next) -> Response {
-    let host = request
+/// 421 `host_not_allowed` for a request sent to a name the gateway is not
+/// served as: the first thing the guard ([`super::auth::guard`]) asks,
+/// before anything else looks at the request (and so before it knows who
+/// sent it).
+pub fn refusal(allowed: &AllowedHosts, request: &Request) -> Option<Response> {
+    let from_header = request
         .headers()
         .get(header::HOST)
-        .map(|value| value.to_str().unwrap_or("\u{fffd}").to_string())
-        .or_else(|| request.uri().authority().map(|a| a.as_str().to_string()));
-    if let Some(host) = host
-        && !state.allowed_hosts.allows(&host)
-    {
-        return AppError::HostNotAllowed(format!(
+        .map(|value| value.to_str().unwrap_or("\u{fffd}"));
+    let host = from_header.or_else(|| request.uri().authority().map(|a| a.as_str()))?;
+    (!allowed.allows(host)).then(|| {
+        AppError::HostNotAllowed(format!(
             "this gateway is not served as '{host}': a page under a foreign name may be a DNS rebinding attack; allowed_hosts (--allowed-host) lists the names it answers to besides localhost and IP addresses"
         ))
-        .into_response();
-    }
-    next.run(request).await
+        .into_response()
+    })
 }
 
 #[cfg(test)]

@@ -131,7 +131,7 @@ pub struct Shared {
     pub connection_refusals: Arc<serve::ConnectionRefusals>,
     /// Tokens, roles and limits ([`auth::guard`]); open by default.
     pub guard: Arc<auth::Guard>,
-    /// The names the gateway is served as ([`host::check`]); loopback
+    /// The names the gateway is served as ([`host::refusal`]); loopback
     /// names and addresses by default.
     pub allowed_hosts: Arc<host::AllowedHosts>,
 }
@@ -271,17 +271,11 @@ pub fn app(state: AppState) -> Router {
         // The extractors' own limit, above the guard's per-route limits
         // (a body without Content-Length is cut there).
         .layer(axum::extract::DefaultBodyLimit::max(largest_body))
-        // Who may do what, inside the audit: refused requests are audited
-        // with who tried.
+        // The Host check, then who may do what, inside the audit: refused
+        // requests are audited with who tried.
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             auth::guard,
-        ))
-        // Before anyone looks at the request: a foreign Host is a DNS
-        // rebinding page.
-        .layer(axum::middleware::from_fn_with_state(
-            state.clone(),
-            host::check,
         ))
         // Outside every route and fallback: refused and unknown requests
         // are audited too.
