@@ -149,7 +149,7 @@ fn spawn_gateway() -> SocketAddr {
             )
             .await
             .expect("demo bus");
-            let nodes = served.registry.scan().await.expect("scan");
+            let nodes = served.scan().await.expect("scan");
             assert_eq!(nodes.len(), 3, "the demo's three nodes");
             let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
                 .await

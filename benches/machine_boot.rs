@@ -107,7 +107,7 @@ async fn run(spec: &str, dcf_path: &std::path::Path) -> Figures {
         rack.add(Product::Uio1led, NodeId::new(id).expect("node id"))
             .expect("device");
     }
-    let machine = served.machine.clone().expect("manager");
+    let machine = served.machine().expect("manager").clone();
     // Every device boots after the gateway listens: no scan to wait for.
     machine.scan_done();
     let status = machine
@@ -121,17 +121,15 @@ async fn run(spec: &str, dcf_path: &std::path::Path) -> Figures {
         status
     );
     let sdo_transfers = served
-        .registry
-        .metrics()
+        .node_metrics()
         .iter()
         .map(|node| node.sdo.transactions)
         .sum();
     Figures {
         to_ready,
-        gateway_frames: served.bus.counters().tx_frames,
+        gateway_frames: served.counters().tx_frames,
         bus_frames: served
-            .hub
-            .as_ref()
+            .hub()
             .map_or(0, candeck::can::VirtualHub::frames_total),
         sdo_transfers,
     }

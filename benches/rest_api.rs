@@ -18,8 +18,9 @@
 //!   of one route and no layer, served the same way on the same thread: the
 //!   HTTP stack's (and this machine's) own floor, so that the door's cost is
 //!   the difference and a slower machine is told from a slower door;
-//! - bare SDO: the same reads through the same `SdoChannel`s of the
-//!   registry, on the server's runtime, without HTTP.
+//! - bare SDO: the same reads through `SdoChannel`s of the bench's own
+//!   (the gateway keeps its registry's to itself) on another attachment to
+//!   the bus's hub, the same SDO client, on the server's runtime, without HTTP.
 //!
 //! Each level runs `--warmup` seconds unmeasured, then `--seconds` measured
 //! (defaults 1 and 3; a smoke run, `CANDECK_BENCH_SMOKE`, has 0.05 and 0.1,
@@ -355,14 +356,15 @@ fn spawn_gateway() -> (
             )
             .await
             .expect("demo bus");
-            let nodes = served.registry.scan().await.expect("scan");
+            let nodes = served.scan().await.expect("scan");
             assert_eq!(nodes.len(), 3, "the demo's three nodes");
             let channels: Vec<SdoChannel> = (1..=3)
                 .map(|id| {
-                    served
-                        .registry
-                        .sdo(NodeId::new(id).expect("id"))
-                        .expect("channel")
+                    SdoChannel::new(
+                        served.hub().expect("a virtual bus").attach(),
+                        NodeId::new(id).expect("id"),
+                        candeck::canopen::sdo::ClientConfig::default(),
+                    )
                 })
                 .collect();
             let listener = tokio::net::TcpListener::bind("127.0.0.1:0")

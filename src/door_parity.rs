@@ -179,7 +179,7 @@ struct Rig {
 
 async fn rig() -> Rig {
     let served = open("demo", "virtual:demo").await;
-    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
+    assert_eq!(served.scan().await.unwrap().len(), 3);
     let tokens = [PLC, HMI, BUSY, OTHER]
         .into_iter()
         .map(|(name, role, secret)| Token::new(name, role, secret).unwrap())
@@ -226,7 +226,7 @@ fn metric(name: &str, value: MetricValue) -> Metric {
 
 async fn audit(gateway: &Gateway) -> Vec<Map<String, Json>> {
     let mut events = gateway
-        .history
+        .history()
         .query(Query {
             kind: Some(EventKind::Audit),
             since_us: None,
@@ -694,9 +694,9 @@ async fn the_gateway_refuses_a_viewer_by_itself() {
 async fn a_cia_309_3_write_of_0x1a00_refreshes_the_pdo_decoder_as_rest_does() {
     use std::time::Duration;
     let (app, state) = support::demo().await;
-    let served = state.gateway.buses["demo"].clone();
+    let served = state.gateway.bus("demo").unwrap().clone();
     let node1 = crate::canopen::NodeId::new(1).unwrap();
-    let read_at = || served.values.tpdos(node1).map(|tpdos| tpdos.read_at);
+    let read_at = || served.values().tpdos(node1).map(|tpdos| tpdos.read_at);
     for _ in 0..100 {
         if read_at().is_some() {
             break;
@@ -714,7 +714,7 @@ async fn a_cia_309_3_write_of_0x1a00_refreshes_the_pdo_decoder_as_rest_does() {
     tokio::time::sleep(Duration::from_secs(1)).await;
     let disabled = read_at().unwrap();
     let tpdo_numbers = || -> Vec<u16> {
-        let tpdos = served.values.tpdos(node1).unwrap();
+        let tpdos = served.values().tpdos(node1).unwrap();
         tpdos.decoders.iter().map(|(number, _)| *number).collect()
     };
     assert!(!tpdo_numbers().contains(&1));

@@ -61,6 +61,6 @@ pub trait RackOf {
 
 impl RackOf for ServedBus {
     fn rack(&self) -> Option<&Rack> {
-        self.devices.as_ref()?.downcast_ref::<Rack>()
+        self.devices().as_ref()?.downcast_ref::<Rack>()
     }
 }

@@ -232,8 +232,14 @@ async fn a_scan_finds_the_nodes_whose_boot_up_was_missed() {
 
 #[tokio::test(start_paused = true)]
 async fn a_node_whose_heartbeat_stops_goes_offline_within_two_periods() {
-    let (_hub, rack, registry) = demo_bus(builtin()).await;
-    let umc = registry.sdo(node(1)).unwrap();
+    let (hub, rack, registry) = demo_bus(builtin()).await;
+    // Written by another master: the gateway learns the period from the
+    // heartbeats alone.
+    let umc = candeck::gateway::sdo::SdoChannel::new(
+        hub.attach(),
+        node(1),
+        candeck::canopen::sdo::ClientConfig::default(),
+    );
     umc.download(0x1017, 0, &100u16.to_le_bytes())
         .await
         .unwrap();

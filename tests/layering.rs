@@ -373,6 +373,92 @@ fn the_doors_sit_on_the_gateway_and_never_on_each_other() {
     assert!(found.is_empty(), "{}", found.join("\n"));
 }
 
+/// Every place where a door's code (its tests left out) holds a node's SDO
+/// channel: a call of `.sdo(…)` or the name `SdoChannel`. The gateway's
+/// node operations do the transfers; `NodeRegistry::sdo` is the gateway's
+/// own (`pub(crate)`), so the compiler refuses the call already, and this
+/// catches a door that would build a channel of its own instead. The
+/// command line (`candeck od`, a master of its own on a bus) is no door.
+fn sdo_channel_breaches(root: &Path) -> Vec<String> {
+    let mut found = Vec::new();
+    for (door, _) in DOORS {
+        let mut files = Vec::new();
+        rust_files(&root.join("src").join(door), &mut files);
+        let file = root.join("src").join(format!("{door}.rs"));
+        if file.is_file() {
+            files.push(file);
+        }
+        files.sort();
+        for file in files {
+            let relative = file.strip_prefix(root.join("src")).unwrap().to_path_buf();
+            let is_test = relative.iter().any(|part| part == "tests")
+                || relative.file_name().is_some_and(|name| name == "tests.rs");
+            if is_test {
+                continue;
+            }
+            let code = code(&std::fs::read_to_string(&file).unwrap());
+            let code = code.split("#[cfg(test)]").next().unwrap_or_default();
+            for (n, line) in code.lines().enumerate() {
+                let named = line.match_indices("SdoChannel").any(|(at, _)| {
+                    !line[..at].ends_with(is_ident)
+                        && !line[at + "SdoChannel".len()..].starts_with(is_ident)
+                });
+                if named || line.contains(".sdo(") {
+                    found.push(format!(
+                        "src/{}:{}: the {door} door holds a node's SDO channel: \
+                         a node operation of the gateway does the transfers",
+                        relative.display(),
+                        n + 1
+                    ));
+                }
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn no_door_holds_a_nodes_sdo_channel() {
+    assert!(root().join("src/api").is_dir(), "no source tree");
+    let found = sdo_channel_breaches(root());
+    assert!(found.is_empty(), "{}", found.join("\n"));
+}
+
+#[test]
+fn an_sdo_channel_in_a_doors_code_is_found_and_in_its_tests_or_comments_is_not() {
+    let root = std::env::temp_dir().join(format!("candeck-layering-sdo-{}", std::process::id()));
+    let dir = root.join("src/api");
+    std::fs::create_dir_all(dir.join("tests")).unwrap();
+    std::fs::write(
+        dir.join("segments.rs"),
+        "//! served.registry.sdo(id) in a comment is fine\nfn f() {\n    let channel = served.registry.sdo(info.id)?;\n}\n#[cfg(test)]\nmod tests { fn g() { let _ = SdoChannel::new(bus, id, config); } }\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("program.rs"),
+        "use crate::gateway::sdo::SdoChannel;\nuse crate::gateway::sdo::SdoChannelStats;\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("tests/pdos.rs"),
+        "let channel = SdoChannel::new(bus, id, config);\n",
+    )
+    .unwrap();
+    let found = sdo_channel_breaches(&root);
+    std::fs::remove_dir_all(&root).unwrap();
+    assert_eq!(found.len(), 2, "{found:?}");
+    assert!(
+        found[0].starts_with("src/api/program.rs:1: "),
+        "{}",
+        found[0]
+    );
+    assert!(
+        found[1].starts_with("src/api/segments.rs:3: "),
+        "{}",
+        found[1]
+    );
+}
+
 #[test]
 fn a_module_is_found_in_every_spelling_and_comments_and_strings_are_not() {
     let names = |text: &str, module: &[&str]| -> Vec<String> {

@@ -142,7 +142,7 @@ pub fn run(data: &[u8]) {
         )
         .await
         .expect("the demo bus opens");
-        served.registry.scan().await.expect("the demo bus scans");
+        served.scan().await.expect("the demo bus scans");
         let router = app(AppState::new([served]));
         let response = tokio::time::timeout(Duration::from_secs(600), router.oneshot(request))
             .await

@@ -170,7 +170,7 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         .failed(outcome, abort_code)
         .detail(method.as_str(), path)
         .http_status(status);
-    if let Err(err) = state.gateway.history.audit(entry).await {
+    if let Err(err) = state.gateway.history().audit(entry).await {
         tracing::error!("audit: {method} {}: not recorded: {err}", response.status());
     }
     response

@@ -17,7 +17,6 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::{ApiJson, AppState};
-use crate::gateway::load::Traffic;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -105,27 +104,26 @@ pub struct BusInfo {
 async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
     let buses = state
         .gateway
-        .buses
-        .values()
+        .buses()
         .map(|served| {
-            let traffic = Traffic::new(&served.bus).sample();
-            let status = served.bus.status();
-            let counters = served.bus.counters();
+            let traffic = served.traffic();
+            let status = served.status();
+            let counters = served.counters();
             let state = if status.state.can_send() {
                 "up"
             } else {
                 "down"
             };
             BusInfo {
-                name: served.name.clone(),
-                spec: served.spec.clone(),
-                kind: served.bus.kind().as_str(),
+                name: served.name().to_string(),
+                spec: served.spec().to_string(),
+                kind: served.kind().as_str(),
                 state,
                 rx_frames: traffic.rx_frames,
                 tx_frames: traffic.tx_frames,
-                load: served.load.load(),
-                bits_per_second: served.load.bits_per_second(),
-                bitrate: served.load.bitrate(),
+                load: served.load().load(),
+                bits_per_second: served.load().bits_per_second(),
+                bitrate: served.load().bitrate(),
                 reason: status.reason,
                 reconnects: counters.reconnects,
                 error_state: status.state.error_state().map(|s| s.as_str()),

@@ -371,9 +371,12 @@ pub fn audit_target(gateway: &crate::gateway::Gateway, path: &str) -> super::aud
         "default" | "none" => Some(1),
         text => unsigned(text, 0xFFFF).ok().map(|net| net as usize),
     };
-    target.bus = net
-        .and_then(|net| net.checked_sub(1))
-        .and_then(|at| gateway.buses_in_order().get(at).map(|bus| bus.name.clone()));
+    target.bus = net.and_then(|net| net.checked_sub(1)).and_then(|at| {
+        gateway
+            .buses_in_order()
+            .get(at)
+            .map(|bus| bus.name().to_string())
+    });
     let all = node.eq_ignore_ascii_case("all") || *node == "0";
     if !all {
         target.node = unsigned(node, 127).ok().map(|node| node as u8);

@@ -50,14 +50,11 @@ use utoipa_axum::routes;
 use super::auth::Identity;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::leases::{AuditNote, LeaseInfo, caller, presented, takeover_asked};
-use super::nodes::known_node;
 use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::check_sdo_allowed;
 use crate::gateway::drive::{
-    AxisLimits, AxisStatus, AxisUnits, Drive, DriveError, DriveKind, MoveRequest, TargetState,
-    axis_count,
+    AxisLimits, AxisStatus, AxisUnits, DriveError, MoveRequest, TargetState,
 };
 use crate::gateway::motion::{LeaseClaim, MotionFailed, MotionOutcome, spawned};
 use crate::gateway::motion_lease::{MotionLease, mask};
@@ -201,10 +198,6 @@ pub struct MotionResponse {
     pub attempts: Option<Vec<StopAttempt>>,
 }
 
-fn task_failed(err: tokio::task::JoinError) -> GatewayError {
-    GatewayError::Internal(format!("drive task: {err}"))
-}
-
 /// The axes of a drive node, read now.
 #[utoipa::path(get, path = "/buses/{bus}/nodes/{id}/axes", tag = "drives", params(NodePath),
     responses(
@@ -221,28 +214,8 @@ async fn list_axes(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Vec<AxisStatus>>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let kind = DriveKind::from_profile(info.profile).ok_or_else(|| {
-        AppError::from(DriveError::NotADrive {
-            node: info.id.get(),
-            profile: info.profile,
-        })
-    })?;
-    check_sdo_allowed(&served, &info)?;
-    let count = axis_count(kind, info.eds_entry.as_deref());
-    let drives = (1..=count)
-        .map(|axis| Drive::new(&served.registry, &info, &axis.to_string()))
-        .collect::<Result<Vec<_>, _>>()?;
-    let axes = tokio::spawn(async move {
-        let mut axes = Vec::new();
-        for drive in drives {
-            axes.push(drive.status().await?);
-        }
-        Ok::<_, DriveError>(axes)
-    })
-    .await
-    .map_err(task_failed)??;
-    Ok(ApiJson(axes))
+    let node = state.gateway.node_handle(&bus, &id)?;
+    Ok(ApiJson(node.read_axes().await?))
 }
 
 /// One axis, read now.

@@ -268,7 +268,7 @@ async fn events(
     }
     let found = state
         .gateway
-        .history
+        .history()
         .query(history::Query {
             kind,
             since_us,

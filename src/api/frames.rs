@@ -133,7 +133,7 @@ async fn recent_frames(
             "limit {limit}: at most {CAPACITY} frames are kept"
         )));
     }
-    let frames = served.frames.recent(limit);
+    let frames = served.frames().recent(limit);
     Ok(ApiJson(frames.iter().map(BusFrame::from).collect()))
 }
 
@@ -255,7 +255,7 @@ async fn send_frame(
 ) -> Result<ApiJson<BusFrame>, AppError> {
     let served = state.bus(&bus)?;
     let frame = request.to_frame()?;
-    served.bus.send(frame).await?;
+    served.send_frame(frame).await?;
     Ok(ApiJson(BusFrame::from(&TimedFrame {
         frame,
         timestamp: Timestamp::now(),

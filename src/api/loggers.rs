@@ -65,7 +65,7 @@ async fn create_logger(
 ) -> Result<(StatusCode, ApiJson<LoggerStatus>), AppError> {
     let status = state
         .gateway
-        .loggers
+        .loggers()
         .create(&state.gateway, request)
         .await?;
     Ok((StatusCode::CREATED, ApiJson(status)))
@@ -78,7 +78,7 @@ async fn create_logger(
         (status = 200, description = "Oldest first", body = [schema::LoggerStatus]),
     ))]
 async fn list_loggers(State(state): State<AppState>) -> ApiJson<Vec<LoggerStatus>> {
-    ApiJson(state.gateway.loggers.list())
+    ApiJson(state.gateway.loggers().list())
 }
 
 /// A logger's status and statistics.
@@ -91,7 +91,7 @@ async fn logger_status(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<LoggerStatus>, AppError> {
-    Ok(ApiJson(state.gateway.loggers.status(&id)?))
+    Ok(ApiJson(state.gateway.loggers().status(&id)?))
 }
 
 /// Stops a logger and forgets it.
@@ -107,7 +107,7 @@ async fn delete_logger(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<LoggerStatus>, AppError> {
-    Ok(ApiJson(state.gateway.loggers.delete(&id)?))
+    Ok(ApiJson(state.gateway.loggers().delete(&id)?))
 }
 
 /// A logger's rows as CSV.
@@ -125,7 +125,7 @@ async fn logger_csv(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, AppError> {
-    let csv = state.gateway.loggers.csv(&id)?;
+    let csv = state.gateway.loggers().csv(&id)?;
     Ok((
         [
             (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),

@@ -27,7 +27,6 @@ use utoipa_axum::routes;
 
 use super::AppState;
 use crate::can::CounterSnapshot;
-use crate::gateway::load::Traffic;
 use crate::gateway::registry::NodeMetrics;
 use crate::gateway::sdo::{LATENCY_BUCKETS, SdoStatsSnapshot};
 
@@ -89,27 +88,26 @@ impl BusSnapshot {
 pub fn render(state: &AppState) -> String {
     let buses: Vec<BusSnapshot> = state
         .gateway
-        .buses
-        .values()
+        .buses()
         .map(|served| {
             // The same figures GET /buses shows.
-            let traffic = Traffic::new(&served.bus).sample();
+            let traffic = served.traffic();
             BusSnapshot {
-                name: served.name.clone(),
-                kind: served.bus.kind().as_str(),
-                spec: served.spec.clone(),
-                up: served.bus.status().state.can_send(),
-                error_state: served.bus.status().state.error_state(),
-                counters: served.bus.counters(),
+                name: served.name().to_string(),
+                kind: served.kind().as_str(),
+                spec: served.spec().to_string(),
+                up: served.status().state.can_send(),
+                error_state: served.status().state.error_state(),
+                counters: served.counters(),
                 rx_frames: traffic.rx_frames,
                 tx_frames: traffic.tx_frames,
                 bits: traffic.bits,
-                load: served.load.load(),
-                bitrate: served.load.bitrate(),
-                frame_log_lost: served.frames.lost(),
-                tpdo_malformed: served.values.malformed(),
-                nodes: served.registry.metrics(),
-                machine: served.machine.as_ref().map(|machine| machine.status()),
+                load: served.load().load(),
+                bitrate: served.load().bitrate(),
+                frame_log_lost: served.frames().lost(),
+                tpdo_malformed: served.values().malformed(),
+                nodes: served.node_metrics(),
+                machine: served.machine().ok().map(|machine| machine.status()),
             }
         })
         .collect();
@@ -477,7 +475,7 @@ fn render_stream(out: &mut Exposition, state: &AppState) {
 
 /// The Sparkplug B edge node's figures (docs/sparkplug.md), when it runs.
 fn render_sparkplug(out: &mut Exposition, state: &AppState) {
-    let stats = &state.gateway.edge_node;
+    let stats = &state.gateway.edge_node_stats();
     if !stats.enabled.load(Ordering::Relaxed) {
         return;
     }

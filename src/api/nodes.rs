@@ -15,7 +15,6 @@ use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::nmt::NmtCommand;
 use crate::gateway::GatewayError;
-use crate::gateway::check_sdo_allowed;
 use crate::gateway::profile::Profile;
 use crate::gateway::registry::NodeInfo;
 
@@ -185,7 +184,7 @@ async fn list_nodes(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<Json>, AppError> {
     let served = state.bus(&bus)?;
-    Ok(ApiJson(to_json(&served.registry.nodes())?))
+    Ok(ApiJson(to_json(&served.nodes())?))
 }
 
 /// One node, with its recent emergencies and its profile's summary.
@@ -205,16 +204,16 @@ async fn one_node(
 ) -> Result<ApiJson<Json>, AppError> {
     let (served, info) = known_node(&state, &bus, &id)?;
     let mut body = to_json(&info)?;
-    let emcy = served.registry.emcy(info.id).unwrap_or_default();
+    let emcy = served.emcy(info.id);
     body["emcy"] = to_json(&emcy)?;
     let summary = match info.profile {
         Profile::Umc | Profile::JmcStepper | Profile::Cia402 => Some(
-            axes_summary(&served, &info)
+            axes_summary(&state, &bus, &info)
                 .await
                 .and_then(|axes| Ok(("axes", to_json(&axes)?))),
         ),
         Profile::Uioled => Some(
-            super::segments::summary(&served, &info)
+            super::segments::summary(&state, &bus, &info)
                 .await
                 .and_then(|segments| Ok(("segments", to_json(&segments)?))),
         ),
@@ -246,10 +245,7 @@ async fn scan(
     let served = state.bus(&bus)?;
     // The scan runs in a task of its own: a client that hangs up must not
     // cut the probes under way.
-    let registry = served.registry.clone();
-    let nodes = tokio::spawn(async move { registry.scan().await })
-        .await
-        .map_err(|err| GatewayError::Internal(format!("scan task: {err}")))??;
+    let nodes = served.scan().await?;
     Ok(ApiJson(to_json(&nodes)?))
 }
 
@@ -335,14 +331,10 @@ async fn nmt_all(
 
 /// A drive's axes, read in a task of its own.
 async fn axes_summary(
-    served: &ServedBus,
+    state: &AppState,
+    bus: &str,
     info: &NodeInfo,
 ) -> Result<Vec<crate::gateway::drive::AxisStatus>, AppError> {
-    check_sdo_allowed(served, info)?;
-    let registry = served.registry.clone();
-    let info = info.clone();
-    tokio::spawn(async move { crate::gateway::drive::axes_summary(&registry, &info).await })
-        .await
-        .map_err(|err| GatewayError::Internal(format!("axes task: {err}")))?
-        .map_err(AppError::from)
+    let node = state.gateway.node_handle(bus, &info.id.to_string())?;
+    Ok(node.read_axes().await?)
 }

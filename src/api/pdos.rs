@@ -438,9 +438,9 @@ pub struct SyncSetting {
 
 fn sync_state(served: &super::ServedBus) -> SyncState {
     SyncState {
-        period_ms: served.sync.period().as_millis() as u32,
-        cob_id: served.sync.cob_id().raw(),
-        sent: served.sync.sent(),
+        period_ms: served.sync().period().as_millis() as u32,
+        cob_id: served.sync().cob_id().raw(),
+        sent: served.sync().sent(),
     }
 }
 
@@ -483,7 +483,7 @@ async fn put_sync(
         .into());
     }
     served
-        .sync
+        .sync()
         .set_period(Duration::from_millis(u64::from(setting.period_ms)));
     Ok(ApiJson(sync_state(&served)))
 }

@@ -10,11 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::doc::{ErrorBody, NodePath};
-use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::gateway::GatewayError;
-use crate::gateway::program::{ProgramError, download_program};
-use crate::gateway::service::check_sdo_allowed;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(post_program))
@@ -104,22 +100,13 @@ async fn post_program(
             "the body is the program image; it is empty".into(),
         ));
     }
-    let (served, info) = known_node(&state, &bus, &id)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let run = served.programs.begin(info.id);
-    let number = run.run;
     // Runs to its end even if the client goes away: a download cut half
     // way leaves the device without a program.
-    let report = tokio::spawn(async move {
-        download_program(&channel, &body, start, &|progress| run.publish(progress)).await
-    })
-    .await
-    .map_err(|err| GatewayError::Internal(format!("program download task: {err}")))?
-    .map_err(|ProgramError { step, error }| GatewayError::FailedAt {
-        step: step.to_string(),
-        source: Box::new(error),
-    })?;
+    let (number, report) = state
+        .gateway
+        .node_handle(&bus, &id)?
+        .download_program(body, start)
+        .await?;
     let seconds = (report.download_ms.max(1)) as f64 / 1000.0;
     Ok(ApiJson(ProgramAnswer {
         run: number,

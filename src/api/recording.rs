@@ -171,7 +171,7 @@ async fn start_recording(
     };
     let served = state.bus(&bus)?;
     let limits = Limits::new(request.max_frames, request.max_seconds)?;
-    let status = served.recorder.start(limits).await?;
+    let status = served.recorder().start(limits).await?;
     Ok((
         StatusCode::CREATED,
         ApiJson(RecordingInfo::new(&bus, status)),
@@ -192,7 +192,10 @@ async fn recording_status(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<RecordingInfo>, AppError> {
     let served = state.bus(&bus)?;
-    Ok(ApiJson(RecordingInfo::new(&bus, served.recorder.status())))
+    Ok(ApiJson(RecordingInfo::new(
+        &bus,
+        served.recorder().status(),
+    )))
 }
 
 /// Stops the bus's recording.
@@ -210,7 +213,7 @@ async fn stop_recording(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<RecordingInfo>, AppError> {
     let served = state.bus(&bus)?;
-    let status = served.recorder.stop().await?;
+    let status = served.recorder().stop().await?;
     Ok(ApiJson(RecordingInfo::new(&bus, status)))
 }
 
@@ -232,7 +235,7 @@ async fn download_recording(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<Response, AppError> {
     let served = state.bus(&bus)?;
-    let log = served.recorder.log().await?;
+    let log = served.recorder().log().await?;
     let file = tokio::fs::File::open(&log.path).await.map_err(|err| {
         if err.kind() == std::io::ErrorKind::NotFound {
             // A new recording replaced it meanwhile.

@@ -19,7 +19,6 @@ use super::doc::{ErrorBody, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::gateway::GatewayError;
-use crate::gateway::check_sdo_allowed;
 use crate::gateway::error::LedError;
 use crate::gateway::led_preview::PreviewError;
 use crate::gateway::profile::Profile;
@@ -213,10 +212,6 @@ impl From<PreviewError> for AppError {
     }
 }
 
-fn task_failed(err: tokio::task::JoinError) -> GatewayError {
-    GatewayError::Internal(format!("SDO task: {err}"))
-}
-
 /// The segment number of a path or a scene entry: 1 to 10, else 404
 /// `unknown_segment`.
 fn segment_number(text: &str) -> Result<u8, GatewayError> {
@@ -377,13 +372,13 @@ fn plan(update: &SegmentUpdate) -> Result<Vec<(Field, i64)>, AppError> {
 
 /// Reads every segment of an LED controller: the summary of `GET
 /// /nodes/{id}` for a `uioled` node.
-pub async fn summary(served: &ServedBus, info: &NodeInfo) -> Result<Vec<SegmentState>, AppError> {
-    check_sdo_allowed(served, info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let segments = tokio::spawn(async move { uioled::read_segments(&channel).await })
-        .await
-        .map_err(task_failed)?
-        .map_err(AppError::from_sdo)?;
+pub async fn summary(
+    state: &AppState,
+    bus: &str,
+    info: &NodeInfo,
+) -> Result<Vec<SegmentState>, AppError> {
+    let node = state.gateway.node_handle(bus, &info.id.to_string())?;
+    let segments = node.read_led_segments().await?;
     Ok(states(&segments))
 }
 
@@ -410,8 +405,8 @@ async fn list_segments(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
-    let (served, info) = led_node(&state, &bus, &id)?;
-    Ok(ApiJson(summary(&served, &info).await?))
+    let (_, info) = led_node(&state, &bus, &id)?;
+    Ok(ApiJson(summary(&state, &bus, &info).await?))
 }
 
 /// Writes the fields given of one segment and returns it read back.
@@ -432,7 +427,7 @@ async fn put_segment(
     ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
     ApiJson(update): ApiJson<SegmentUpdate>,
 ) -> Result<ApiJson<SegmentState>, AppError> {
-    let (served, info) = led_node(&state, &bus, &id)?;
+    led_node(&state, &bus, &id)?;
     let segment = segment_number(&n)?;
     if let Some(given) = update.segment
         && given != u32::from(segment)
@@ -443,21 +438,11 @@ async fn put_segment(
         .into());
     }
     let writes = plan(&update)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    // The preview follows every write the node confirms (even of a
-    // sequence that stops half way) by itself.
-    let read_back = tokio::spawn(async move {
-        // The writes and the read-back, not interleaved with another
-        // request's.
-        let _procedure = channel.procedure().await;
-        uioled::write_fields(&channel, segment, &writes).await?;
-        uioled::read_segment(&channel, segment).await
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
-    Ok(ApiJson(SegmentState::new(segment, &read_back)))
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let read_back = node
+        .write_led_segments(vec![(segment, writes)], Some(segment))
+        .await?;
+    Ok(ApiJson(SegmentState::new(segment, &read_back[0])))
 }
 
 /// Applies a scene: the segments listed, each as a partial update, and
@@ -479,7 +464,7 @@ async fn put_scene(
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(scene): ApiJson<SceneRequest>,
 ) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
-    let (served, info) = led_node(&state, &bus, &id)?;
+    led_node(&state, &bus, &id)?;
     let others_off = match scene.others.as_deref() {
         None | Some("keep") => false,
         Some("off") => true,
@@ -514,20 +499,8 @@ async fn put_scene(
             }
         }
     }
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    // The preview follows every write the node confirms (even of a scene
-    // that stops half way) by itself.
-    let segments = tokio::spawn(async move {
-        let _procedure = channel.procedure().await;
-        for (segment, fields) in &writes {
-            uioled::write_fields(&channel, *segment, fields).await?;
-        }
-        uioled::read_segments(&channel).await
-    })
-    .await
-    .map_err(task_failed)?
-    .map_err(AppError::from_sdo)?;
+    let node = state.gateway.node_handle(&bus, &id)?;
+    let segments = node.write_led_segments(writes, None).await?;
     Ok(ApiJson(states(&segments)))
 }
 
@@ -548,13 +521,12 @@ async fn preview(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Preview>, AppError> {
-    let (served, info) = led_node(&state, &bus, &id)?;
-    check_sdo_allowed(&served, &info)?;
-    let channel = served.registry.sdo(info.id)?;
-    let segments = tokio::spawn(async move { uioled::read_preview(&channel).await })
-        .await
-        .map_err(task_failed)?
-        .map_err(AppError::from_sdo)?;
+    led_node(&state, &bus, &id)?;
+    let segments = state
+        .gateway
+        .node_handle(&bus, &id)?
+        .read_led_preview()
+        .await?;
     // The Values read are taken for those of now (time 0 of the renderer).
     let now = tokio::time::Instant::now();
     let segments: Vec<_> = segments

@@ -118,11 +118,7 @@ fn gateway_fault(
     fault: ControllerFault,
 ) -> Result<StatusCode, AppError> {
     rack(state, bus)?;
-    state
-        .bus(bus)?
-        .bus
-        .controller_fault(fault)
-        .map_err(|_| GatewayError::Sim(SimError::NotVirtual(bus.to_string())))?;
+    state.bus(bus)?.controller_fault(fault)?;
     Ok(StatusCode::NO_CONTENT)
 }
 

@@ -70,7 +70,6 @@ use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
-use crate::gateway::GatewayError;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::AuditEntry;
 use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
@@ -78,6 +77,7 @@ use crate::gateway::motion_lease::{MotionLease, mask};
 use crate::gateway::producers::{self, period_at_most};
 use crate::gateway::registry::NodeEvent;
 use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
+use crate::gateway::{GatewayError, ServedBus};
 
 /// Updates per second of a value topic when the client asks no rate.
 pub const DEFAULT_RATE_HZ: f64 = 10.0;
@@ -204,8 +204,7 @@ where
 {
     let counters = state.stream_counters.clone();
     let _client = ClientGuard::new(counters.clone());
-    let _leases = LeaseGuard::new(state.gateway.leases.clone());
-    let lease_session = _leases.session;
+    let lease_session = state.gateway.lease_session();
     let mut session = Session {
         lease_session,
         client,
@@ -254,26 +253,6 @@ impl ClientGuard {
 impl Drop for ClientGuard {
     fn drop(&mut self) {
         self.0.clients.fetch_sub(1, Ordering::Relaxed);
-    }
-}
-
-/// The session's number for the leases it renews, which lapse when it ends
-/// (the client is gone, or its network).
-struct LeaseGuard {
-    leases: Arc<crate::gateway::leases::MotionLeases>,
-    session: u64,
-}
-
-impl LeaseGuard {
-    fn new(leases: Arc<crate::gateway::leases::MotionLeases>) -> Self {
-        let session = leases.new_session();
-        Self { leases, session }
-    }
-}
-
-impl Drop for LeaseGuard {
-    fn drop(&mut self) {
-        self.leases.session_ended(self.session);
     }
 }
 
@@ -426,7 +405,9 @@ struct Session {
     state: AppState,
     client: Client,
     refusals: RefusalAudit,
-    lease_session: u64,
+    /// The leases the client renews lapse when it ends (the client is
+    /// gone, or its network).
+    lease_session: crate::gateway::leases::LeaseSession,
     mailbox: Arc<Mailbox>,
     /// By the topic string as the client wrote it (the messages carry it
     /// back the same way).
@@ -491,15 +472,14 @@ impl Session {
             } else {
                 self.state
                     .gateway
-                    .leases
-                    .renew(&id, Some(&identity.name), Some(self.lease_session))
+                    .renew_lease_in_session(&id, &identity.name, &self.lease_session)
                     .map_err(AppError::from)
             };
             match result {
                 Ok(lease) => {
                     let left = lease.remaining(tokio::time::Instant::now()).as_millis();
                     renewed.push(json!({"id": id, "expires_in_ms": left as u64}));
-                    if self.state.gateway.leases.renewal_audit_due(&id) {
+                    if self.state.gateway.lease_renewal_audit_due(&id) {
                         self.audit_renewal(&id, Some(&lease), None);
                     }
                 }
@@ -568,7 +548,7 @@ impl Session {
             let abort = body["abort_code"].as_str().map(str::to_string);
             entry = entry.failed(code, abort);
         }
-        let history = self.state.gateway.history.clone();
+        let history = self.state.gateway.history().clone();
         tokio::spawn(async move {
             if let Err(err) = history.audit(entry).await {
                 tracing::error!("audit: a stream lease renewal: not recorded: {err}");
@@ -661,11 +641,10 @@ impl Session {
                 let mut tasks: Vec<JoinHandle<()>> = self
                     .state
                     .gateway
-                    .buses
-                    .values()
+                    .buses()
                     .map(|served| {
-                        let events = served.registry.subscribe();
-                        let bus: Arc<str> = Arc::from(served.name.as_str());
+                        let events = served.node_events();
+                        let bus: Arc<str> = Arc::from(served.name());
                         tokio::spawn(forward_events(
                             events,
                             bus,
@@ -676,10 +655,9 @@ impl Session {
                     })
                     .collect();
                 if topic == Topic::Nodes {
-                    tasks.extend(self.state.gateway.buses.values().map(|served| {
+                    tasks.extend(self.state.gateway.buses().map(|served| {
                         tokio::spawn(forward_bus_states(
-                            served.bus.clone(),
-                            Arc::from(served.name.as_str()),
+                            served.clone(),
                             key.clone(),
                             mailbox.clone(),
                         ))
@@ -690,11 +668,10 @@ impl Session {
             Topic::Machine => self
                 .state
                 .gateway
-                .buses
-                .values()
+                .buses()
                 .filter_map(|served| {
-                    let machine = served.machine.as_ref()?.watch();
-                    let bus: Arc<str> = Arc::from(served.name.as_str());
+                    let machine = served.machine().ok()?.watch();
+                    let bus: Arc<str> = Arc::from(served.name());
                     Some(tokio::spawn(forward_machine(
                         machine,
                         bus,
@@ -705,17 +682,16 @@ impl Session {
                 .collect(),
             Topic::Frames { bus, ids } => {
                 let served = self.state.bus(&bus)?;
-                let frames = served.bus.monitor();
-                let bus = served.bus.clone();
+                let frames = served.monitor();
                 vec![tokio::spawn(async move {
-                    // The attachment must outlive its receiver.
-                    let _bus = bus;
+                    // The bus's attachment must outlive its receiver.
+                    let _served = served;
                     forward_frames(frames, ids, rate_hz, key, mailbox).await;
                 })]
             }
             Topic::Values { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
-                let receiver = served.values.subscribe(info.id, rate_hz);
+                let receiver = served.values().subscribe(info.id, rate_hz);
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
             Topic::Axis { bus, node, axis } => {
@@ -723,21 +699,21 @@ impl Session {
                 let axis: u8 = axis.parse().map_err(|_| {
                     GatewayError::UnknownAxis(format!("'{axis}' is no axis number (1, 2, ...)"))
                 })?;
-                let receiver = served.axes.subscribe(info.id, axis, rate_hz)?;
+                let receiver = served.axes().subscribe(info.id, axis, rate_hz)?;
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
             Topic::Segments { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
-                let receiver = served.previews.subscribe(info.id, rate_hz)?;
+                let receiver = served.previews().subscribe(info.id, rate_hz)?;
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
             Topic::Program { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
-                let receiver = served.programs.topic(info.id).subscribe(rate_hz);
+                let receiver = served.programs().topic(info.id).subscribe(rate_hz);
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
             Topic::Logger { id } => {
-                let receiver = self.state.gateway.loggers.subscribe(&id, rate_hz)?;
+                let receiver = self.state.gateway.loggers().subscribe(&id, rate_hz)?;
                 vec![tokio::spawn(forward_values(receiver, key, mailbox))]
             }
         };
@@ -944,17 +920,13 @@ async fn forward_events(
 /// topic: up or down, and the CAN controller's error state and counters
 /// (`error_active`, `error_passive`, `bus_off`), as a real interface
 /// reports them.
-async fn forward_bus_states(
-    bus: crate::can::Bus,
-    name: Arc<str>,
-    topic: Arc<str>,
-    mailbox: Arc<Mailbox>,
-) {
-    let mut status = bus.watch_status();
+async fn forward_bus_states(served: Arc<ServedBus>, topic: Arc<str>, mailbox: Arc<Mailbox>) {
+    let name: Arc<str> = Arc::from(served.name());
+    let mut status = served.watch_status();
     status.mark_unchanged();
     while status.changed().await.is_ok() {
         let current = status.borrow_and_update().clone();
-        let counters = bus.counters();
+        let counters = served.counters();
         let data = json!({
             "bus": &*name,
             "event": "bus_state",

@@ -103,7 +103,7 @@ async fn node_values(
 ) -> Result<ApiJson<NodeValues>, AppError> {
     let (served, info) = known_node(&state, &bus, &id)?;
     let now = Instant::now();
-    let tpdos = served.values.tpdos(info.id).map(|tpdos| {
+    let tpdos = served.values().tpdos(info.id).map(|tpdos| {
         tpdos
             .decoders
             .iter()
@@ -120,7 +120,7 @@ async fn node_values(
             .collect()
     });
     let values = served
-        .values
+        .values()
         .values(info.id)
         .iter()
         .map(|value| value_json(value, now))

@@ -293,7 +293,7 @@ pub async fn serve_connection<R, W>(
     let mut forwarders = Vec::new();
     for (at, bus) in gateway.buses().iter().enumerate() {
         let net = (at + 1) as u16;
-        let mut events = bus.registry.subscribe();
+        let mut events = bus.node_events();
         let lines = lines.clone();
         forwarders.push(tokio::spawn(async move {
             loop {

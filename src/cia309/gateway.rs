@@ -131,14 +131,14 @@ impl Cia309Gateway {
     pub fn new(gateway: &Gateway) -> Self {
         Self {
             buses: Arc::new(gateway.buses_in_order()),
-            history: gateway.history.clone(),
+            history: gateway.history().clone(),
             gateway: gateway.clone(),
         }
     }
 
     /// The gateway's tokens and roles.
     pub fn tokens(&self) -> &Tokens {
-        &self.gateway.tokens
+        self.gateway.tokens()
     }
 
     /// How many nets there are (1 to this).
@@ -163,7 +163,7 @@ impl Cia309Gateway {
         let served = self
             .bus(net)
             .ok_or_else(|| GatewayError::UnknownBus(net.to_string()))?;
-        self.gateway.node_handle(&served.name, &node.to_string())
+        self.gateway.node_handle(served.name(), &node.to_string())
     }
 
     /// Reads an object for `origin`'s caller: the value's bytes.
@@ -236,7 +236,7 @@ impl Cia309Gateway {
         let caller = origin.caller();
         let result = if node == 0 {
             match self.bus(net) {
-                Some(served) => self.gateway.bus_nmt(&caller, &served.name, command).await,
+                Some(served) => self.gateway.bus_nmt(&caller, served.name(), command).await,
                 None => Err(GatewayError::UnknownBus(net.to_string())),
             }
         } else {
@@ -303,7 +303,12 @@ impl Cia309Gateway {
         let mut caller = Caller::new(channel, identity.who.clone(), identity.access);
         caller.peer = identity.peer.clone();
         let mut entry = AuditEntry::new(&caller, operation)
-            .target(self.bus(net).map(|bus| bus.name.clone()), node, None, item)
+            .target(
+                self.bus(net).map(|bus| bus.name().to_string()),
+                node,
+                None,
+                item,
+            )
             .request(request)
             .detail(origin.method, origin.path);
         if let Some(error) = error {

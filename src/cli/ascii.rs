@@ -54,10 +54,10 @@ pub async fn run(args: AsciiArgs) -> Result<(), CliError> {
     // Nodes that booted before the gateway listened are found by a scan,
     // before the first command is read: a script's first read finds them.
     for bus in &served {
-        if bus.bus.wait_up(Duration::from_secs(5)).await.is_ok()
-            && let Err(err) = bus.registry.scan().await
+        if bus.wait_up(Duration::from_secs(5)).await.is_ok()
+            && let Err(err) = bus.scan().await
         {
-            tracing::warn!("bus {}: scan failed: {err}", bus.name);
+            tracing::warn!("bus {}: scan failed: {err}", bus.name());
         }
     }
     let gateway = Cia309Gateway::new(&Gateway::new(served));

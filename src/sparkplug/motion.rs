@@ -30,7 +30,7 @@ use super::config::SparkplugConfig;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::motion::LeaseClaim;
 use crate::gateway::motion_lease::{AxisKey, MotionLease};
-use crate::gateway::{Gateway, GatewayError, check_sdo_allowed};
+use crate::gateway::{Gateway, GatewayError};
 
 /// The ids of the motion leases granted over MQTT, by axis: what lapses
 /// when the host can renew nothing any more.
@@ -75,7 +75,7 @@ impl HeldLeases {
         let held: Vec<(AxisKey, String)> = std::mem::take(&mut *self.ids()).into_iter().collect();
         for (axis, id) in &held {
             tracing::warn!("sparkplug: {why}: the motion lease on {axis} lapses now");
-            gateway.leases.lapse_now(id);
+            gateway.lapse_lease(id);
         }
         held.len()
     }
@@ -206,7 +206,7 @@ pub async fn run(
             if *keep {
                 match gateway.renew_axis_lease(&caller, &axis_key, lease_id) {
                     Ok(_) => {
-                        outcome.audit = gateway.leases.renewal_audit_due(lease_id);
+                        outcome.audit = gateway.lease_renewal_audit_due(lease_id);
                         Ok(())
                     }
                     Err(error) => {
@@ -231,7 +231,8 @@ pub async fn run(
                     .collect::<Vec<_>>()
                     .join(" "),
             );
-            let (served, info) = gateway.node(bus, &id)?;
+            let handle = gateway.node_handle(bus, &id)?;
+            let info = handle.info();
             if info.profile != crate::gateway::profile::Profile::Uioled {
                 return Err(GatewayError::InvalidRequest(format!(
                     "node {node} is no LED controller (profile {})",
@@ -256,19 +257,8 @@ pub async fn run(
                     .to_bytes();
                 checked.push((*index, *sub, bytes));
             }
-            check_sdo_allowed(&served, &info)?;
-            let channel = served.registry.sdo(info.id)?;
             // The preview follows every write the node confirms by itself.
-            tokio::spawn(async move {
-                let _procedure = channel.procedure().await;
-                for (index, sub, bytes) in checked {
-                    channel.download(index, sub, &bytes).await?;
-                }
-                Ok::<(), crate::gateway::sdo::SdoRequestError>(())
-            })
-            .await
-            .map_err(|err| GatewayError::Internal(format!("SDO task: {err}")))?
-            .map_err(GatewayError::from)
+            handle.download_objects(checked).await
         }
         _ => Err(GatewayError::Internal(format!(
             "{} is not an axis or segment command",

@@ -51,7 +51,7 @@ pub fn machine_state(gateway: &Gateway) -> Option<String> {
     gateway
         .buses_in_order()
         .iter()
-        .filter_map(|bus| bus.machine.as_ref().map(|machine| machine.status().state))
+        .filter_map(|bus| bus.machine().ok().map(|machine| machine.status().state))
         .min_by_key(|state| state.metric())
         .map(|state| state.name().to_string())
 }
@@ -83,7 +83,7 @@ impl EdgeNode {
             None => Spool::new(config.queue_messages),
         };
         let (stop, stopped) = oneshot::channel();
-        let stats = gateway.edge_node.clone();
+        let stats = gateway.edge_node_stats().clone();
         stats
             .enabled
             .store(true, std::sync::atomic::Ordering::Relaxed);
@@ -260,7 +260,7 @@ impl Runner {
             u8::MAX,
             config.policy.clone(),
         );
-        let stats = gateway.edge_node.clone();
+        let stats = gateway.edge_node_stats().clone();
         Self {
             host_online: config.primary_host.is_none(),
             gateway,
@@ -288,10 +288,10 @@ impl Runner {
 
     async fn run(mut self, mut stop: oneshot::Receiver<oneshot::Sender<()>>) {
         let (inputs, mut input) = mpsc::channel::<Input>(1024);
-        for bus in self.gateway.buses.values() {
-            let mut events = bus.registry.subscribe();
+        for bus in self.gateway.buses() {
+            let mut events = bus.node_events();
             let inputs = inputs.clone();
-            let name = bus.name.clone();
+            let name = bus.name().to_string();
             self.watchers.push(tokio::spawn(async move {
                 loop {
                     match events.recv().await {
@@ -315,8 +315,8 @@ impl Runner {
         }
         drop(inputs);
         for bus in self.gateway.buses_in_order() {
-            let frames = bus.values.follow(self.dirty.notify.clone());
-            self.frames.push((bus.name.clone(), frames));
+            let frames = bus.values().follow(self.dirty.notify.clone());
+            self.frames.push((bus.name().to_string(), frames));
         }
         let mut connection: Option<Connection> = None;
         let mut reconnect_at = Instant::now();
@@ -569,9 +569,9 @@ impl Runner {
             .store(true, std::sync::atomic::Ordering::Relaxed);
         self.publish(connection, birth);
         for bus in self.gateway.buses_in_order() {
-            for info in bus.registry.nodes() {
+            for info in bus.nodes() {
                 if born_device(&info) {
-                    let message = self.device_birth(&bus.name, &info);
+                    let message = self.device_birth(bus.name(), &info);
                     self.publish(connection, message);
                 }
             }
@@ -597,7 +597,7 @@ impl Runner {
         )];
         metrics.push(Sample::new(
             "Properties/Lease Period",
-            MetricValue::UInt32(self.gateway.leases.period().as_millis() as u32),
+            MetricValue::UInt32(self.gateway.lease_period().as_millis() as u32),
             now,
         ));
         if let Some(state) = machine_state(&self.gateway) {
@@ -608,18 +608,18 @@ impl Runner {
             ));
         }
         for bus in self.gateway.buses_in_order() {
-            let state = bus.bus.state().as_str().to_string();
+            let state = bus.status().state.as_str().to_string();
             metrics.push(Sample::new(
-                format!("Buses/{}/State", bus.name),
+                format!("Buses/{}/State", bus.name()),
                 MetricValue::String(state.clone()),
                 now,
             ));
             metrics.push(Sample::new(
-                format!("Buses/{}/Spec", bus.name),
-                MetricValue::String(bus.spec.clone()),
+                format!("Buses/{}/Spec", bus.name()),
+                MetricValue::String(bus.spec().to_string()),
                 now,
             ));
-            self.bus_states.insert(bus.name.clone(), state);
+            self.bus_states.insert(bus.name().to_string(), state);
         }
         metrics
     }
@@ -629,11 +629,12 @@ impl Runner {
         let now = unix_ms();
         let mut samples = Vec::new();
         for bus in self.gateway.buses_in_order() {
-            let state = bus.bus.state().as_str().to_string();
-            if self.bus_states.get(&bus.name) != Some(&state) {
-                self.bus_states.insert(bus.name.clone(), state.clone());
+            let state = bus.status().state.as_str().to_string();
+            if self.bus_states.get(bus.name()) != Some(&state) {
+                self.bus_states
+                    .insert(bus.name().to_string(), state.clone());
                 samples.push(Sample::new(
-                    format!("Buses/{}/State", bus.name),
+                    format!("Buses/{}/State", bus.name()),
                     MetricValue::String(state),
                     now,
                 ));
@@ -706,11 +707,11 @@ impl Runner {
         }
         self.follow_profile(bus, info);
         metrics.extend(self.dirty.extra(&(bus.to_string(), info.id)));
-        if let Some(served) = self.gateway.buses.get(bus) {
-            let values = tpdo_samples(&served.values.values(info.id));
+        if let Ok(served) = self.gateway.bus(bus) {
+            let values = tpdo_samples(&served.values().values(info.id));
             // Mapped values that have not come yet: null, typed by the
             // mapping (their first frame is a DDATA).
-            if let Some(tpdos) = served.values.tpdos(info.id) {
+            if let Some(tpdos) = served.values().tpdos(info.id) {
                 for (_, decoder) in &tpdos.decoders {
                     let Ok(fields) = decoder.decode(&[0; 8]) else {
                         continue;
@@ -749,9 +750,9 @@ impl Runner {
         let device = device_id(bus, node.get());
         let Some(info) = self
             .gateway
-            .buses
-            .get(bus)
-            .and_then(|served| served.registry.node(node))
+            .bus(bus)
+            .ok()
+            .and_then(|served| served.node(node))
         else {
             return;
         };
@@ -794,17 +795,12 @@ impl Runner {
         if !self.followed.insert(key.clone()) {
             return;
         }
-        let Some(served) = self.gateway.buses.get(bus).cloned() else {
+        let Ok(served) = self.gateway.bus(bus) else {
             return;
         };
-        if info.profile.is_drive() {
-            for axis in 1..=crate::profiles::umc::MAX_AXES {
-                if crate::gateway::drive::Drive::new(&served.registry, info, &axis.to_string())
-                    .is_err()
-                {
-                    break;
-                }
-                let Ok(mut topic) = served.axes.subscribe(info.id, axis, AXIS_RATE_HZ) else {
+        if let Some(kind) = crate::gateway::drive::DriveKind::from_profile(info.profile) {
+            for axis in 1..=crate::gateway::drive::axis_count(kind, info.eds_entry.as_deref()) {
+                let Ok(mut topic) = served.axes().subscribe(info.id, axis, AXIS_RATE_HZ) else {
                     break;
                 };
                 let dirty = self.dirty.clone();
@@ -821,7 +817,7 @@ impl Runner {
                 }));
             }
         } else if info.profile == crate::gateway::profile::Profile::Uioled {
-            let Ok(mut topic) = served.previews.subscribe(info.id, 1.0) else {
+            let Ok(mut topic) = served.previews().subscribe(info.id, 1.0) else {
                 return;
             };
             let dirty = self.dirty.clone();
@@ -877,8 +873,8 @@ impl Runner {
         marked.extend(changes.keys().copied());
         for &at in &behind {
             let bus = &self.frames[at].0;
-            if let Some(served) = self.gateway.buses.get(bus) {
-                marked.extend(served.registry.nodes().iter().map(|info| (at, info.id)));
+            if let Ok(served) = self.gateway.bus(bus) {
+                marked.extend(served.nodes().iter().map(|info| (at, info.id)));
             }
         }
         let names = !self.live;
@@ -888,11 +884,11 @@ impl Runner {
             if !self.session.is_born(&device) {
                 continue;
             }
-            let Some(served) = self.gateway.buses.get(&bus).cloned() else {
+            let Ok(served) = self.gateway.bus(&bus) else {
                 continue;
             };
             let mut batches: Vec<Vec<Sample>> = if behind.contains(&at) {
-                vec![tpdo_samples(&served.values.values(node))]
+                vec![tpdo_samples(&served.values().values(node))]
             } else {
                 let born_at = self.born_at.get(&device).copied();
                 changes
@@ -912,7 +908,7 @@ impl Runner {
                     .flatten()
                     .any(|sample| !self.session.knows(&device, &sample.name))
             {
-                if let Some(info) = served.registry.node(node) {
+                if let Some(info) = served.node(node) {
                     let message = self.device_birth(&bus, &info);
                     self.publish(connection, message);
                 }
@@ -1214,7 +1210,7 @@ pub(crate) async fn run_command(
         .request(request)
         .outcome(&result)
         .detail(topic.kind.as_str(), topic.to_string());
-    if let Err(err) = gateway.history.audit(entry).await {
+    if let Err(err) = gateway.history().audit(entry).await {
         tracing::error!("audit: {topic}: not recorded: {err}");
     }
     result

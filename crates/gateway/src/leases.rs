@@ -434,3 +434,65 @@ impl Drop for InFlight {
         }
     }
 }
+
+/// A stream session's hold on the leases it renews: they lapse when it
+/// is dropped (the client went away), so that their axes stop.
+#[derive(Debug)]
+pub struct LeaseSession {
+    leases: Arc<MotionLeases>,
+    session: u64,
+}
+
+impl Drop for LeaseSession {
+    fn drop(&mut self) {
+        self.leases.session_ended(self.session);
+    }
+}
+
+/// The leases as the doors see them: their period, how many are held, and
+/// what a door's own session of renewals needs; the grant and the check
+/// are [`crate::motion`]'s.
+impl Gateway {
+    /// The period a lease lasts without a renewal (`--lease-ms`).
+    pub fn lease_period(&self) -> Duration {
+        self.leases.period()
+    }
+
+    /// How many leases are held.
+    pub fn leases_held(&self) -> usize {
+        self.leases.held()
+    }
+
+    /// Lapses the lease `id` now (its client can renew it no more: a lost
+    /// broker), so that the supervisor stops its axis; an unknown id is
+    /// nothing to do.
+    pub fn lapse_lease(&self, id: &str) {
+        self.leases.lapse_now(id);
+    }
+
+    /// Whether a renewal of `id` is due an audit row (once, then at most
+    /// every [`RENEWAL_AUDIT_EVERY`]); asking counts as writing it.
+    pub fn lease_renewal_audit_due(&self, id: &str) -> bool {
+        self.leases.renewal_audit_due(id)
+    }
+
+    /// A new session of renewals (a stream client's): the leases it renews
+    /// lapse when it is dropped.
+    pub fn lease_session(&self) -> LeaseSession {
+        LeaseSession {
+            session: self.leases.new_session(),
+            leases: self.leases.clone(),
+        }
+    }
+
+    /// Renews the lease `id` for `holder` and binds it to `session`: only
+    /// its holder renews it.
+    pub fn renew_lease_in_session(
+        &self,
+        id: &str,
+        holder: &str,
+        session: &LeaseSession,
+    ) -> Result<MotionLease, GatewayError> {
+        self.leases.renew(id, Some(holder), Some(session.session))
+    }
+}

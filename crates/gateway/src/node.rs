@@ -8,8 +8,10 @@
 //! The operations live in files by area beside this one; this file holds
 //! the handle.
 
+mod axes;
 pub mod config;
 pub mod pdo;
+mod sequences;
 mod transfer;
 
 use std::sync::Arc;

@@ -668,7 +668,7 @@ impl NodeRegistry {
 
     /// The node's SDO channel, shared by everyone who talks to the node, so
     /// that its transfers queue fairly, one at a time.
-    pub fn sdo(&self, id: NodeId) -> Result<SdoChannel, RegistryError> {
+    pub(crate) fn sdo(&self, id: NodeId) -> Result<SdoChannel, RegistryError> {
         self.shared
             .lock()
             .nodes

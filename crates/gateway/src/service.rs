@@ -48,42 +48,42 @@ pub type AttachDevices<'a> =
 
 /// One bus the gateway serves.
 pub struct ServedBus {
-    pub name: String,
+    pub(crate) name: String,
     /// The spec it was opened from, as the user wrote it (`virtual:demo`).
-    pub spec: String,
-    pub bus: Bus,
-    pub registry: NodeRegistry,
+    spec: String,
+    pub(crate) bus: Bus,
+    pub(crate) registry: NodeRegistry,
     /// The hub of a virtual bus, which counts every frame on it (an
     /// attachment to a hub counts only what it sends).
-    pub hub: Option<VirtualHub>,
+    hub: Option<VirtualHub>,
     /// The virtual devices of a virtual bus, which the gateway drives like
     /// real ones and does not otherwise know: what [`AttachDevices`] put on
     /// the bus's hub (the binary wires its emulator there); `None`
     /// elsewhere.
-    pub devices: Option<BusDevices>,
-    pub load: LoadMeter,
+    devices: Option<BusDevices>,
+    load: LoadMeter,
     /// The gateway's SYNC producer on this bus (`PUT /buses/{bus}/sync`).
-    pub sync: SyncService,
+    pub(crate) sync: SyncService,
     /// The nodes' TPDO values, decoded by the mappings read from them; the
     /// `values` topics of the stream ([`TpdoValues::subscribe`]).
-    pub values: TpdoValues,
+    pub(crate) values: TpdoValues,
     /// The `axes/{axis}` topics of the stream
     /// ([`AxisTelemetry::subscribe`]).
-    pub axes: AxisTelemetry,
+    axes: AxisTelemetry,
     /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
-    pub previews: LedPreviews,
+    previews: LedPreviews,
     /// The `program` topics of the stream: each node's program download
     /// progress.
-    pub programs: super::program::ProgramTopics,
+    pub(crate) programs: super::program::ProgramTopics,
     /// The bus's recent frames.
-    pub frames: FrameLog,
+    frames: FrameLog,
     /// The bus's LSS master, one transaction at a time.
-    pub lss: super::lss::BusLss,
+    pub(crate) lss: super::lss::BusLss,
     /// Records the bus to a candump log on request (`/buses/{bus}/recording`).
-    pub recorder: Recorder,
+    pub(crate) recorder: Recorder,
     /// The network manager of the bus (CiA 302-2): `None` until
     /// [`ServedBus::with_machine`] starts it (`candeck serve` always does).
-    pub machine: Option<super::machine::Machine>,
+    pub(crate) machine: Option<super::machine::Machine>,
     /// The registry's events from the moment it started (the devices'
     /// boot-ups included), until [`Gateway::with_history`] takes it to
     /// write them to the history.
@@ -158,6 +158,15 @@ impl ServedBus {
 }
 
 impl ServedBus {
+    /// The same with these virtual devices instead (`None`: a bus that
+    /// has none, as a real one).
+    pub fn with_devices(mut self, devices: Option<BusDevices>) -> Self {
+        self.devices = devices;
+        self
+    }
+}
+
+impl ServedBus {
     /// Starts the bus's network manager with `settings` (its audit entries
     /// into `history`): the gateway's heartbeat, and the boot-up of every
     /// node.
@@ -195,6 +204,175 @@ impl ServedBus {
             .send(NmtMessage::new(command, target).encode())
             .await
             .map_err(GatewayError::from)
+    }
+}
+
+/// What a door may see of a bus and ask of it. The bus's parts stay
+/// the gateway's: a door reads their state and subscribes to their topics
+/// here, and asks for work by the gateway's operations (a node's by
+/// [`Gateway::node_handle`]); it never holds the bus's CAN attachment or a
+/// node's SDO channel.
+impl ServedBus {
+    /// The bus's name (`--bus NAME=SPEC`).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The spec it was opened from, as the user wrote it (`virtual:demo`).
+    pub fn spec(&self) -> &str {
+        &self.spec
+    }
+
+    /// What kind of bus it is (SocketCAN, virtual, socketcand).
+    pub fn kind(&self) -> crate::can::BusKind {
+        self.bus.kind()
+    }
+
+    /// Its state (up, down, error passive, …) and why.
+    pub fn status(&self) -> crate::can::BusStatus {
+        self.bus.status()
+    }
+
+    /// Its status from now on: changes as they happen.
+    pub fn watch_status(&self) -> tokio::sync::watch::Receiver<crate::can::BusStatus> {
+        self.bus.watch_status()
+    }
+
+    /// Its frame and error counters.
+    pub fn counters(&self) -> crate::can::CounterSnapshot {
+        self.bus.counters()
+    }
+
+    /// The traffic counted on it so far (frames and bits, by direction).
+    pub fn traffic(&self) -> super::load::TrafficSample {
+        Traffic::new(&self.bus).sample()
+    }
+
+    /// Every frame on the bus from now on, the gateway's own included.
+    pub fn monitor(&self) -> crate::can::FrameReceiver {
+        self.bus.monitor()
+    }
+
+    /// Waits until the bus can send, at most `timeout`.
+    pub async fn wait_up(&self, timeout: std::time::Duration) -> Result<(), GatewayError> {
+        self.bus.wait_up(timeout).await.map_err(GatewayError::from)
+    }
+
+    /// Sends a raw frame, as the gateway.
+    pub async fn send_frame(&self, frame: crate::can::Frame) -> Result<(), GatewayError> {
+        self.bus.send(frame).await.map_err(GatewayError::from)
+    }
+
+    /// Injects a fault into the gateway's own CAN controller on a virtual
+    /// bus; elsewhere, not virtual.
+    pub fn controller_fault(&self, fault: crate::can::ControllerFault) -> Result<(), GatewayError> {
+        self.bus
+            .controller_fault(fault)
+            .map_err(|_| GatewayError::Sim(super::error::SimError::NotVirtual(self.name.clone())))
+    }
+
+    /// The nodes the registry knows, by id.
+    pub fn nodes(&self) -> Vec<NodeInfo> {
+        self.registry.nodes()
+    }
+
+    /// The registry's view of node `id`; `None`: not known.
+    pub fn node(&self, id: NodeId) -> Option<NodeInfo> {
+        self.registry.node(id)
+    }
+
+    /// The EMCY history of node `id` (empty for a node not known).
+    pub fn emcy(&self, id: NodeId) -> Vec<super::registry::EmcyRecord> {
+        self.registry.emcy(id).unwrap_or_default()
+    }
+
+    /// Each node's SDO transfers counted by outcome, for `/metrics`.
+    pub fn node_metrics(&self) -> Vec<super::registry::NodeMetrics> {
+        self.registry.metrics()
+    }
+
+    /// The registry's node events (boot-up, online, offline, EMCY, …)
+    /// from now on.
+    pub fn node_events(&self) -> tokio::sync::broadcast::Receiver<NodeEvent> {
+        self.registry.subscribe()
+    }
+
+    /// Scans the bus for nodes (node-ID 1–127) and returns what the
+    /// registry then knows. The probes run in a task of their own: a
+    /// caller that goes away does not cut them half way.
+    pub async fn scan(&self) -> Result<Vec<NodeInfo>, GatewayError> {
+        let registry = self.registry.clone();
+        tokio::spawn(async move { registry.scan().await })
+            .await
+            .map_err(|err| GatewayError::Internal(format!("scan task: {err}")))?
+            .map_err(GatewayError::from)
+    }
+
+    /// Returns once the registry has handled every frame and event so far
+    /// (the identification of the nodes heard included).
+    pub async fn settle(&self) {
+        self.registry.settle().await
+    }
+
+    /// The bus's load, measured.
+    pub fn load(&self) -> &LoadMeter {
+        &self.load
+    }
+
+    /// The bus's recent frames.
+    pub fn frames(&self) -> &FrameLog {
+        &self.frames
+    }
+
+    /// The nodes' TPDO values, decoded by the mappings read from them; the
+    /// `values` topics of the stream ([`TpdoValues::subscribe`]).
+    pub fn values(&self) -> &TpdoValues {
+        &self.values
+    }
+
+    /// The `axes/{axis}` topics of the stream
+    /// ([`AxisTelemetry::subscribe`]).
+    pub fn axes(&self) -> &AxisTelemetry {
+        &self.axes
+    }
+
+    /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
+    pub fn previews(&self) -> &LedPreviews {
+        &self.previews
+    }
+
+    /// The `program` topics of the stream: each node's program download
+    /// progress.
+    pub fn programs(&self) -> &super::program::ProgramTopics {
+        &self.programs
+    }
+
+    /// The gateway's SYNC producer on this bus.
+    pub fn sync(&self) -> &SyncService {
+        &self.sync
+    }
+
+    /// The bus's recorder to a candump log.
+    pub fn recorder(&self) -> &Recorder {
+        &self.recorder
+    }
+
+    /// The bus's LSS master, one transaction at a time.
+    pub fn lss(&self) -> &super::lss::BusLss {
+        &self.lss
+    }
+
+    /// The hub of a virtual bus (`None` elsewhere), which counts every
+    /// frame on it and takes more attachments (another master, a
+    /// candump).
+    pub fn hub(&self) -> Option<&VirtualHub> {
+        self.hub.as_ref()
+    }
+
+    /// The virtual devices of a virtual bus, which the binary's emulator
+    /// put on its hub ([`AttachDevices`]); `None` elsewhere.
+    pub fn devices(&self) -> Option<&BusDevices> {
+        self.devices.as_ref()
     }
 }
 
@@ -249,27 +427,27 @@ pub fn check_writable(info: &NodeInfo, index: u16, sub: u8) -> Result<(), Gatewa
 /// they share. A `Clone` of `Arc`s.
 #[derive(Clone)]
 pub struct Gateway {
-    pub buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
+    pub(crate) buses: Arc<BTreeMap<String, Arc<ServedBus>>>,
     /// The bus names in the order they were given (`--bus`, the config
     /// file): CiA 309 net 1 is the first.
-    pub bus_order: Arc<Vec<String>>,
+    bus_order: Arc<Vec<String>>,
     /// The audit log and the EMCY/NMT history.
-    pub history: History,
+    pub(crate) history: History,
     /// The motion leases of velocity, torque and duty-cycle moves.
-    pub leases: Arc<MotionLeases>,
+    pub(crate) leases: Arc<MotionLeases>,
     /// The axes the gateway enabled, which it stops before it exits.
-    pub enabled_axes: Arc<EnabledAxes>,
+    pub(crate) enabled_axes: Arc<EnabledAxes>,
     /// The tokens and their roles; none: the gateway is open.
-    pub tokens: Arc<Tokens>,
+    pub(crate) tokens: Arc<Tokens>,
     /// The write rate limit of every token, whichever adapter its writes
     /// come through (REST, CiA 309-5, CiA 309-3).
-    pub writes: Arc<WriteLimiter>,
+    pub(crate) writes: Arc<WriteLimiter>,
     /// The quota of the kept recordings (`--data-dir`); `None`: none.
-    pub recordings_quota: Option<Arc<RecordingsQuota>>,
+    recordings_quota: Option<Arc<RecordingsQuota>>,
     /// The Sparkplug B edge node's counters (`mqtt_url`).
-    pub edge_node: Arc<super::edge_node::EdgeNodeStats>,
+    edge_node: Arc<super::edge_node::EdgeNodeStats>,
     /// The data loggers (`/loggers`).
-    pub loggers: super::logger::Loggers,
+    loggers: super::logger::Loggers,
     /// The tasks [`Gateway::start`] started beside the doors (pruners,
     /// first scans), ended by [`Gateway::shutdown`].
     pub(crate) background: Arc<super::start::BackgroundTasks>,
@@ -405,6 +583,32 @@ impl Gateway {
                 gateway.prune_recordings().await;
             }
         })
+    }
+
+    /// The buses, by name.
+    pub fn buses(&self) -> impl ExactSizeIterator<Item = &Arc<ServedBus>> {
+        self.buses.values()
+    }
+
+    /// The audit log and the EMCY/NMT history.
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// The tokens and their roles (none: the gateway is open).
+    pub fn tokens(&self) -> &Tokens {
+        &self.tokens
+    }
+
+    /// The data loggers.
+    pub fn loggers(&self) -> &super::logger::Loggers {
+        &self.loggers
+    }
+
+    /// The Sparkplug B edge node's counters, which the edge node counts
+    /// into and `/metrics` reads.
+    pub fn edge_node_stats(&self) -> &Arc<super::edge_node::EdgeNodeStats> {
+        &self.edge_node
     }
 
     /// The buses in the order they were given: CiA 309 net `n` is the

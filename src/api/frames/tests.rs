@@ -20,7 +20,7 @@ async fn demo() -> (Router, AppState) {
 #[tokio::test(start_paused = true)]
 async fn recent_frames_show_both_directions_newest_last() {
     let (app, state) = demo().await;
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     let (status, frames) = get(&app, "/api/v1/buses/demo/frames").await;
     assert_eq!(status, StatusCode::OK);
     let frames = frames.as_array().unwrap();
@@ -128,9 +128,9 @@ async fn frames_errors() {
     // The devices' identification done first: its SDO requests are the
     // gateway's own frames, which the requests below give time to run
     // (each audited one waits for its history write).
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     let uri = "/api/v1/buses/demo/frames";
-    let tx_before = state.gateway.buses["demo"].bus.counters().tx_frames;
+    let tx_before = state.gateway.bus("demo").unwrap().counters().tx_frames;
     for (body, code) in [
         (r#"{"id": "0x800", "data": ""}"#, "value_out_of_range"),
         (r#"{"id": 2048}"#, "value_out_of_range"),
@@ -154,7 +154,7 @@ async fn frames_errors() {
         assert_error(&response, StatusCode::BAD_REQUEST, code);
     }
     assert_eq!(
-        state.gateway.buses["demo"].bus.counters().tx_frames,
+        state.gateway.bus("demo").unwrap().counters().tx_frames,
         tx_before,
         "nothing invalid reached the bus"
     );
@@ -166,8 +166,11 @@ async fn frames_errors() {
     assert_error(&response, StatusCode::NOT_FOUND, "unknown_bus");
     let response = post(&app, "/api/v1/buses/nope/frames", r#"{"id": 1}"#).await;
     assert_error(&response, StatusCode::NOT_FOUND, "unknown_bus");
-    state.gateway.buses["demo"]
-        .hub
+    state
+        .gateway
+        .bus("demo")
+        .unwrap()
+        .hub()
         .as_ref()
         .unwrap()
         .set_status(BusStatus::new(BusState::Down, "cable pulled"));

@@ -455,9 +455,9 @@ async fn an_object_the_node_lacks_counts_an_abort() {
 #[tokio::test(start_paused = true)]
 async fn a_bus_that_goes_down_shows_as_down() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     served
-        .hub
+        .hub()
         .as_ref()
         .unwrap()
         .set_status(BusStatus::new(BusState::Down, "cable pulled"));

@@ -16,8 +16,7 @@ use crate::api::{AppState, app};
 /// `demo` (virtual:demo), `bench` (virtual:empty) and `remote`, a bus
 /// without virtual devices.
 async fn buses() -> (Router, AppState) {
-    let mut remote = open("remote", "virtual:empty").await;
-    remote.devices = None;
+    let remote = open("remote", "virtual:empty").await.with_devices(None);
     let state = AppState::new([
         open("demo", "virtual:demo").await,
         open("bench", "virtual:empty").await,
@@ -74,7 +73,7 @@ async fn a_device_added_to_an_empty_bus_boots_and_is_found() {
 #[tokio::test(start_paused = true)]
 async fn a_removed_device_falls_silent_and_its_id_is_free_again() {
     let (app, state) = buses().await;
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     let (status, body) = delete(&app, "/api/v1/buses/demo/sim/nodes/3", None).await;
     assert_eq!((status, body), (StatusCode::NO_CONTENT, Json::Null));
     let (_, list) = get(&app, "/api/v1/buses/demo/sim/nodes").await;
@@ -105,7 +104,7 @@ async fn a_removed_device_falls_silent_and_its_id_is_free_again() {
 #[tokio::test(start_paused = true)]
 async fn an_injected_fault_is_an_emcy_and_clears() {
     let (app, state) = buses().await;
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     let uri = "/api/v1/buses/demo/sim/nodes/1/faults";
     let (status, _) = post(&app, uri, r#"{"kind": "over_temperature"}"#).await;
     assert_eq!(status, StatusCode::NO_CONTENT);
@@ -231,7 +230,7 @@ async fn sim_errors() {
 #[tokio::test(start_paused = true)]
 async fn bit_errors_make_a_node_error_passive_then_bus_off_and_recovered_it_is_back() {
     let (app, state) = buses().await;
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     // The JMC (node 2) sends heartbeats: the gateway supervises it.
     let uri = "/api/v1/buses/demo/sim/nodes/2/faults";
     let (status, _) = post(&app, uri, r#"{"kind": "bit_errors"}"#).await;
@@ -255,7 +254,7 @@ async fn bit_errors_make_a_node_error_passive_then_bus_off_and_recovered_it_is_b
     // The others saw an error frame for each of its 37 errors.
     let (_, buses) = get(&app, "/api/v1/buses").await;
     assert_eq!(buses[0]["error_state"], "error_active", "{buses}");
-    let error_frames = state.gateway.buses["demo"].bus.counters().error_frames;
+    let error_frames = state.gateway.bus("demo").unwrap().counters().error_frames;
     assert_eq!(error_frames, 37);
 
     // Stop the errors, ask for the recovery: EMCY 0x8140 and online again.
@@ -324,10 +323,10 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
     // still sends.
     let (status, _) = post(&app, uri, r#"{"kind": "bit_errors"}"#).await;
     assert_eq!(status, StatusCode::NO_CONTENT);
-    let bus = state.gateway.buses["bench"].bus.clone();
+    let bus = state.gateway.bus("bench").unwrap();
     let frame = crate::can::Frame::new(crate::can::CanId::Standard(0x80), &[]).unwrap();
     for _ in 0..19 {
-        bus.send(frame).await.unwrap();
+        bus.send_frame(frame).await.unwrap();
     }
     let (_, buses) = get(&app, "/api/v1/buses").await;
     let info = bench(&buses);

@@ -598,7 +598,7 @@ async fn entries_name_their_channel_and_can_be_filtered_by_it() {
     assert_eq!(status, StatusCode::OK);
     state
         .gateway
-        .history
+        .history()
         .audit(
             AuditEntry::new(&Caller::system(), "prune recording (over quota)").target(
                 None,

@@ -80,7 +80,7 @@ async fn cia309_5_commands_share_the_rest_write_rate() {
     // The gateway's object operations take the writes (issue 29): on the
     // demo bus, so that they run.
     let served = support::open("demo", "virtual:demo").await;
-    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
+    assert_eq!(served.scan().await.unwrap().len(), 3);
     let config = config(
         Some(RateLimit {
             per_second: 1.0,

@@ -491,7 +491,7 @@ async fn errors_unknown_axis_unsupported_mode_invalid_body_not_enabled() {
 async fn a_drive_in_fault_is_409_until_reset() {
     let (app, state) = demo().await;
     enable(&app, UMC, 1).await;
-    let rack = state.gateway.buses["demo"].rack().unwrap();
+    let rack = state.gateway.bus("demo").unwrap().rack().cloned().unwrap();
     let umc = NodeId::new(UMC).unwrap();
     rack.inject_fault(umc, Fault::OverTemperature).unwrap();
     let status = wait_for(&app, UMC, 1, 2000, |s| s["state"] == "fault").await;
@@ -583,7 +583,7 @@ async fn a_fault_during_a_move_ends_it_with_the_error() {
         })
     };
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let rack = state.gateway.buses["demo"].rack().unwrap();
+    let rack = state.gateway.bus("demo").unwrap().rack().cloned().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -635,7 +635,7 @@ async fn pending_mode_change(app: &Router) -> tokio::task::JoinHandle<(StatusCod
 async fn a_fault_during_a_pending_mode_change_is_409_not_a_timeout() {
     let (app, state) = demo().await;
     let request = pending_mode_change(&app).await;
-    let rack = state.gateway.buses["demo"].rack().unwrap();
+    let rack = state.gateway.bus("demo").unwrap().rack().cloned().unwrap();
     rack.inject_fault(NodeId::new(UMC).unwrap(), Fault::OverTemperature)
         .unwrap();
     let response = request.await.unwrap();
@@ -685,10 +685,12 @@ async fn jmc_halt_keeps_the_rest_of_its_write_only_controlword() {
 #[tokio::test(start_paused = true)]
 async fn the_node_summary_lists_a_drives_axes() {
     let (_, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
-    for (node, axes) in [(UMC, 2), (JMC, 1), (LED, 0)] {
-        let info = served.registry.node(NodeId::new(node).unwrap()).unwrap();
-        let summary = crate::gateway::drive::axes_summary(&served.registry, &info)
+    for (node, axes) in [(UMC, 2), (JMC, 1)] {
+        let summary = state
+            .gateway
+            .node_handle("demo", &node.to_string())
+            .unwrap()
+            .read_axes()
             .await
             .unwrap();
         assert_eq!(summary.len(), axes, "node {node}: {summary:?}");
@@ -697,6 +699,14 @@ async fn the_node_summary_lists_a_drives_axes() {
             assert_eq!(axis.state, "switch_on_disabled");
         }
     }
+    let led = state
+        .gateway
+        .node_handle("demo", &LED.to_string())
+        .unwrap()
+        .read_axes()
+        .await
+        .unwrap_err();
+    assert_eq!(led.code(), "not_a_drive");
 }
 
 /// A CiA 402 device of no known product whose PDS never moves: its
@@ -782,14 +792,14 @@ fn stuck_cia402_drive(node: u8, statusword: &str, mode: &str) -> crate::sim::dev
 #[tokio::test(start_paused = true)]
 async fn a_generic_cia402_drive_that_does_not_follow_times_out_with_its_state() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     served
         .rack()
         .unwrap()
         .add_device(stuck_cia402_drive(9, "0x0040", "0"))
         .unwrap();
-    served.registry.scan().await.unwrap();
-    let info = served.registry.node(NodeId::new(9).unwrap()).unwrap();
+    served.scan().await.unwrap();
+    let info = served.node(NodeId::new(9).unwrap()).unwrap();
     assert_eq!(info.profile.name(), "cia402", "{info:?}");
 
     let (status, body) = call(&app, Method::GET, "/api/v1/buses/demo/nodes/9/axes", None).await;
@@ -876,7 +886,7 @@ async fn a_client_that_hangs_up_mid_interpolated_move_gets_its_axis_halted() {
 #[tokio::test(start_paused = true)]
 async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     // Operation enabled in profile position, but it never acknowledges a
     // set-point: the target is written, then the wait for bit 12 fails.
     served
@@ -884,7 +894,7 @@ async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
         .unwrap()
         .add_device(stuck_cia402_drive(9, "0x0027", "1"))
         .unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     let response = post(
         &app,
         "/api/v1/buses/demo/nodes/9/axes/1/move",
@@ -917,11 +927,11 @@ async fn a_move_that_fails_half_way_halts_the_axis_before_answering() {
 async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() {
     let (app, state) = demo().await;
     let jmc = NodeId::new(2).unwrap();
-    let served = &state.gateway.buses["demo"];
-    let period = served.registry.node(jmc).unwrap().heartbeat_ms.unwrap();
+    let served = &state.gateway.bus("demo").unwrap();
+    let period = served.node(jmc).unwrap().heartbeat_ms.unwrap();
     served.rack().unwrap().unplug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;
-    assert!(!served.registry.node(jmc).unwrap().online);
+    assert!(!served.node(jmc).unwrap().online);
 
     let started = tokio::time::Instant::now();
     let refused = post(
@@ -947,7 +957,7 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
 
     served.rack().unwrap().plug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;
-    assert!(served.registry.node(jmc).unwrap().online);
+    assert!(served.node(jmc).unwrap().online);
     enable(&app, 2, 1).await;
 }
 
@@ -962,12 +972,12 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
 #[tokio::test(start_paused = true)]
 async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     let rack = served.rack().unwrap();
     // Switched on: the walk to operation enabled is one step.
     rack.add_device(stuck_cia402_drive(9, "0x0023", "1"))
         .unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     let request = {
         let app = app.clone();
         tokio::spawn(async move {
@@ -1003,12 +1013,12 @@ async fn a_stop_during_an_enable_walk_is_409_not_a_timeout() {
 #[tokio::test(start_paused = true)]
 async fn a_stop_during_a_set_point_wait_is_409_not_a_timeout() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     let rack = served.rack().unwrap();
     // Operation enabled in profile position; it never acknowledges.
     rack.add_device(stuck_cia402_drive(9, "0x0027", "1"))
         .unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     let request = {
         let app = app.clone();
         tokio::spawn(async move {

@@ -295,7 +295,7 @@ async fn demo_with_anonymous_drive() -> (axum::Router, AppState) {
         crate::sim::device::DeviceCore::new(dictionary, crate::canopen::NodeId::new(6).unwrap())
             .unwrap();
     served.rack().unwrap().add_device(device).unwrap();
-    let nodes = served.registry.scan().await.unwrap();
+    let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), 4, "{nodes:?}");
     let state = AppState::new([served]);
     (app(state.clone()), state)
@@ -377,7 +377,7 @@ async fn a_node_whose_eds_names_no_product_is_assigned_then_read_and_written_by_
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
     tokio::time::sleep(std::time::Duration::from_secs(2)).await;
-    state.gateway.buses["demo"].registry.settle().await;
+    state.gateway.bus("demo").unwrap().settle().await;
     let (_, node) = get(&app, "/api/v1/buses/demo/nodes/6").await;
     assert_eq!(
         (
@@ -404,9 +404,9 @@ async fn a_node_whose_eds_names_no_product_is_assigned_then_read_and_written_by_
     let device =
         crate::sim::device::DeviceCore::new(dictionary, crate::canopen::NodeId::new(7).unwrap())
             .unwrap();
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     served.rack().unwrap().add_device(device).unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     let (_, node) = get(&app, "/api/v1/buses/demo/nodes/7").await;
     assert_eq!(
         (&node["eds"], &node["eds_assigned"]),
@@ -444,7 +444,7 @@ async fn a_drive_assigned_a_non_uniswarm_402_eds_lists_its_axis_and_is_enabled()
             crate::canopen::NodeId::new(1).unwrap(),
         )
         .unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     let app = app(AppState::new([served]));
     let (status, body) = upload(&app, "ipos.eds", IPOS_LIKE).await;
     assert_eq!(status, StatusCode::CREATED, "{body}");

@@ -18,7 +18,7 @@ async fn bench() -> axum::Router {
     let rack = served.rack().unwrap();
     rack.add(Product::Io401, NodeId::new(4).unwrap()).unwrap();
     rack.add(Product::Uio1led, NodeId::new(3).unwrap()).unwrap();
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     app(AppState::new([served]))
 }
 

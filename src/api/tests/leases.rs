@@ -192,10 +192,10 @@ async fn another_client_is_refused_while_the_holder_may_change_its_set_point() {
 #[tokio::test(start_paused = true)]
 async fn stop_all_and_leaving_operation_enabled_end_leases() {
     let (app, state, lease) = turning(PERIOD).await;
-    assert_eq!(state.gateway.leases.held(), 1);
+    assert_eq!(state.gateway.leases_held(), 1);
     let (status, body) = post(&app, "/api/v1/stop-all", json!({})).await;
     assert_eq!(status, StatusCode::OK, "{body}");
-    assert_eq!(state.gateway.leases.held(), 0);
+    assert_eq!(state.gateway.leases_held(), 0);
     let answer = post(
         &app,
         &uri(1, "/lease"),
@@ -208,7 +208,7 @@ async fn stop_all_and_leaving_operation_enabled_end_leases() {
     // (Quick stop ends in switch_on_disabled once the axis stands.)
     tokio::time::sleep(PERIOD).await;
     enable_and_run(&app, 80).await;
-    assert_eq!(state.gateway.leases.held(), 1);
+    assert_eq!(state.gateway.leases_held(), 1);
     let (status, body) = post(
         &app,
         &uri(1, "/state"),
@@ -216,7 +216,7 @@ async fn stop_all_and_leaving_operation_enabled_end_leases() {
     )
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
-    assert_eq!(state.gateway.leases.held(), 0);
+    assert_eq!(state.gateway.leases_held(), 0);
 }
 
 #[tokio::test(start_paused = true)]
@@ -287,5 +287,5 @@ async fn a_lease_renewed_on_the_stream_lapses_when_the_session_closes() {
         0,
         "still moving after its client left"
     );
-    assert_eq!(state.gateway.leases.held(), 0);
+    assert_eq!(state.gateway.leases_held(), 0);
 }

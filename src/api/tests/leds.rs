@@ -134,7 +134,7 @@ async fn a_partial_put_writes_only_the_fields_given() {
     assert_eq!(segment["effect"], "breathing");
     assert_eq!(segment["colors"][0], rgbw(0x10, 0x20, 0x30, 0x40));
 
-    let mut frames = state.gateway.buses["demo"].bus.monitor();
+    let mut frames = state.gateway.bus("demo").unwrap().monitor();
     let segment = ok(put(&app, &format!("{SEGMENTS}/3"), json!({"dimmer": 50})).await);
     assert_eq!(downloads(&mut frames), [(0x6225, 0)]);
     assert_eq!(segment["dimmer"], 50);
@@ -201,7 +201,7 @@ async fn segment_errors_are_found_before_anything_is_written() {
         "unknown_node",
     );
 
-    let mut frames = state.gateway.buses["demo"].bus.monitor();
+    let mut frames = state.gateway.bus("demo").unwrap().monitor();
     let uri = format!("{SEGMENTS}/1");
     let cases = [
         (
@@ -411,22 +411,25 @@ async fn a_dcf_backup_of_a_umc_restored_onto_a_second_umc_gives_identical_parame
     assert!(!values.contains_key(&(0x1010, 1)));
     assert!(!values.contains_key(&(0x6040, 0)));
 
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     served
         .rack()
         .unwrap()
         .add(Product::Umc1bds32, NodeId::new(4).unwrap())
         .unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
-    served.registry.settle().await;
+    served.settle().await;
     // Node 4 is known and answers.
     assert!(read(&app, 4, "0x1000", 0).await.is_number());
     assert_ne!(read(&app, 4, "0x6083", 0).await, 12345);
 
     // What the gateway decodes of node 4's TPDO2: the factory mapping.
     let tpdo2 = |state: &AppState| {
-        let tpdos = state.gateway.buses["demo"]
-            .values
+        let tpdos = state
+            .gateway
+            .bus("demo")
+            .unwrap()
+            .values()
             .tpdos(NodeId::new(4).unwrap());
         tpdos.and_then(|tpdos| {
             let (_, decoder) = tpdos.decoders.into_iter().find(|(n, _)| *n == 2)?;
@@ -471,7 +474,7 @@ async fn a_dcf_backup_of_a_umc_restored_onto_a_second_umc_gives_identical_parame
 async fn a_malformed_or_foreign_dcf_is_refused_and_nothing_written() {
     let (app, state) = demo().await;
     let dcf = backup(&app, 1).await;
-    let mut frames = state.gateway.buses["demo"].bus.monitor();
+    let mut frames = state.gateway.bus("demo").unwrap().monitor();
     let umc_downloads = |frames: &mut crate::can::FrameReceiver| {
         let mut count = 0;
         while let Ok(Some(frame)) = frames.try_recv() {

@@ -160,7 +160,7 @@ async fn an_object_a_tpdo_carries_is_taken_from_it_without_sdo() {
     assert_eq!(status, StatusCode::OK, "{body}");
     enable_and_run(&app).await;
 
-    let mut monitor = state.gateway.buses["demo"].bus.monitor();
+    let mut monitor = state.gateway.bus("demo").unwrap().monitor();
     let (status, created) = post(
         &app,
         LOGGERS,
@@ -330,7 +330,7 @@ async fn the_topic_carries_every_row_once_in_order() {
     let (status, created) = post(&app, LOGGERS, position_and_velocity(10, 1)).await;
     assert_eq!(status, StatusCode::CREATED, "{created}");
     let id = created["id"].to_string();
-    let mut reader = state.gateway.loggers.subscribe(&id, 20.0).unwrap();
+    let mut reader = state.gateway.loggers().subscribe(&id, 20.0).unwrap();
     let mut next = 0;
     let mut times = Vec::new();
     loop {
@@ -353,7 +353,7 @@ async fn the_topic_carries_every_row_once_in_order() {
     }
     assert!(times.len() >= 75, "{}", times.len());
     assert!(times.windows(2).all(|pair| pair[1] > pair[0]), "{times:?}");
-    assert!(state.gateway.loggers.subscribe("99", 1.0).is_err());
+    assert!(state.gateway.loggers().subscribe("99", 1.0).is_err());
 }
 
 /// The document describes a channel's `source` as what it is: the schema

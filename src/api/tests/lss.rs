@@ -14,7 +14,7 @@ fn ok(response: (StatusCode, Json)) -> Json {
 
 async fn line(spec: &str) -> axum::Router {
     let served = open("line", spec).await;
-    served.registry.scan().await.unwrap();
+    served.scan().await.unwrap();
     app(AppState::new([served]))
 }
 
@@ -169,7 +169,7 @@ async fn one_lss_transaction_per_bus_at_a_time() {
     let state = AppState::new([served]);
     let app = app(state.clone());
     let served = state.bus("line").unwrap();
-    let held = served.lss.begin().unwrap();
+    let held = served.lss().begin().unwrap();
     assert_error(
         &post(&app, "/api/v1/buses/line/lss/scan", json!({})).await,
         StatusCode::CONFLICT,

@@ -26,7 +26,7 @@ async fn demo_with_machine() -> (Router, AppState) {
     let served = open("demo", "virtual:demo")
         .await
         .with_machine(MachineSettings::default(), None);
-    let nodes = served.registry.scan().await.unwrap();
+    let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
     let machine = served.machine().unwrap().clone();
     machine.scan_done();
@@ -93,7 +93,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
         (&json!("ready"), &json!("heartbeat"), &json!(500)),
         "{before}"
     );
-    let mut events = served.registry.subscribe();
+    let mut events = served.node_events();
 
     // Twice the period the manager set, and more than its 750 ms timeout.
     write_heartbeat(&app, 1000).await;
@@ -128,7 +128,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
         (&json!("ready"), &json!("heartbeat"), &json!(1000)),
         "{after}"
     );
-    let info = served.registry.node(node_1).unwrap();
+    let info = served.node(node_1).unwrap();
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, Some(1000));
 
@@ -136,7 +136,7 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
     write_heartbeat(&app, 200).await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_eq!(machine_node(&app, 1).await["heartbeat_ms"], 200);
-    assert!(served.registry.node(node_1).unwrap().online);
+    assert!(served.node(node_1).unwrap().online);
     node_1_events(&mut events);
     served.rack().unwrap().unplug(node_1).unwrap();
     tokio::time::sleep(Duration::from_millis(310)).await;
@@ -157,7 +157,7 @@ async fn a_producer_heartbeat_time_written_0_is_no_loss_and_said() {
     let (app, state) = demo_with_machine().await;
     let served = state.bus("demo").unwrap();
     let node_1 = NodeId::new(1).unwrap();
-    let mut events = served.registry.subscribe();
+    let mut events = served.node_events();
     write_heartbeat(&app, 0).await;
     tokio::time::sleep(Duration::from_secs(5)).await;
     assert_node_1_never_offline(&mut events);
@@ -173,7 +173,7 @@ async fn a_producer_heartbeat_time_written_0_is_no_loss_and_said() {
             .is_some_and(|reason| reason.contains("0x1017 was written 0")),
         "{node}"
     );
-    let info = served.registry.node(node_1).unwrap();
+    let info = served.node(node_1).unwrap();
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, None);
     assert_eq!(get(&app, HEARTBEAT).await.1["value"], 0);
@@ -187,16 +187,13 @@ async fn without_a_manager_the_registry_follows_a_written_heartbeat_time_at_once
     // Its heartbeat on (the demo's devices start without) and learnt.
     write_heartbeat(&app, 500).await;
     tokio::time::sleep(Duration::from_secs(3)).await;
-    assert_eq!(
-        served.registry.node(node_1).unwrap().heartbeat_ms,
-        Some(500)
-    );
-    let mut events = served.registry.subscribe();
+    assert_eq!(served.node(node_1).unwrap().heartbeat_ms, Some(500));
+    let mut events = served.node_events();
     write_heartbeat(&app, 1000).await;
     tokio::time::sleep(Duration::from_secs(5)).await;
     // Not offline for a moment at every slower heartbeat until it is learnt.
     assert_node_1_never_offline(&mut events);
-    let info = served.registry.node(node_1).unwrap();
+    let info = served.node(node_1).unwrap();
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, Some(1000));
 }
@@ -263,20 +260,17 @@ async fn the_node_list_and_the_machine_view_lose_a_node_together() {
     // Another master writes 100 ms into node 1's 0x1017 (an expedited SDO
     // download, not through the gateway's channel).
     let download = [0x2B, 0x17, 0x10, 0x00, 100, 0, 0, 0];
-    served
-        .bus
+    let other_master = served.hub().expect("a virtual bus").attach();
+    other_master
         .send(Frame::new(CanId::Standard(0x601), &download).unwrap())
         .await
         .unwrap();
     tokio::time::sleep(Duration::from_secs(2)).await;
-    assert_eq!(
-        served.registry.node(node_1).unwrap().heartbeat_ms,
-        Some(100)
-    );
+    assert_eq!(served.node(node_1).unwrap().heartbeat_ms, Some(100));
     assert_eq!(machine_node(&app, 1).await["state"], "ready");
     served.rack().unwrap().unplug(node_1).unwrap();
     tokio::time::sleep(Duration::from_millis(400)).await;
-    let info = served.registry.node(node_1).unwrap();
+    let info = served.node(node_1).unwrap();
     let machine = machine_node(&app, 1).await;
     assert!(!info.online, "{info:?}");
     assert_eq!(machine["state"], "offline", "{machine}");

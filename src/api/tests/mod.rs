@@ -71,7 +71,7 @@ async fn served(testnode: bool) -> ServedBus {
         let device = DeviceCore::new(dictionary, NodeId::new(TESTNODE).unwrap()).unwrap();
         served.rack().unwrap().add_device(device).unwrap();
     }
-    let nodes = served.registry.scan().await.unwrap();
+    let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), if testnode { 4 } else { 3 }, "{nodes:?}");
     served
 }
@@ -117,7 +117,7 @@ fn assert_error(response: &(StatusCode, Json), status: StatusCode, code: &str) {
 }
 
 fn tx_frames(state: &AppState) -> u64 {
-    state.gateway.buses["demo"].bus.counters().tx_frames
+    state.gateway.bus("demo").unwrap().counters().tx_frames
 }
 
 #[tokio::test(start_paused = true)]
@@ -434,7 +434,7 @@ async fn od_write_values_are_checked_before_the_bus() {
 #[tokio::test(start_paused = true)]
 async fn od_write_to_a_read_only_object_is_refused_before_the_bus_as_the_device_would() {
     let (app, state) = demo().await;
-    let mut monitor = state.bus("demo").unwrap().bus.monitor();
+    let mut monitor = state.bus("demo").unwrap().monitor();
     let response = call(
         &app,
         Method::PUT,
@@ -534,7 +534,7 @@ async fn od_listing_comes_from_the_eds_and_filters() {
 #[tokio::test(start_paused = true)]
 async fn silent_device_is_504_and_bus_down_503() {
     let (app, state) = demo().await;
-    let served = &state.gateway.buses["demo"];
+    let served = &state.gateway.bus("demo").unwrap();
     served
         .rack()
         .unwrap()
@@ -544,7 +544,7 @@ async fn silent_device_is_504_and_bus_down_503() {
     assert_error(&response, StatusCode::GATEWAY_TIMEOUT, "sdo_timeout");
 
     served
-        .hub
+        .hub()
         .as_ref()
         .unwrap()
         .set_status(BusStatus::new(BusState::Down, "cable pulled"));
@@ -673,7 +673,7 @@ async fn one_node_has_its_profile_summary() {
 #[tokio::test(start_paused = true)]
 async fn a_node_heard_only_booting_takes_sdo() {
     let (app, state) = demo().await;
-    let rack = state.gateway.buses["demo"].rack().cloned().unwrap();
+    let rack = state.gateway.bus("demo").unwrap().rack().cloned().unwrap();
     rack.add(
         crate::sim::products::Product::Uio1led,
         NodeId::new(9).unwrap(),

@@ -47,7 +47,7 @@ async fn demo_with(stubborn: bool) -> (Router, AppState) {
         let device = DeviceCore::new(dictionary, NodeId::new(STUBBORN).unwrap()).unwrap();
         served.rack().unwrap().add_device(device).unwrap();
     }
-    let nodes = served.registry.scan().await.unwrap();
+    let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), if stubborn { 4 } else { 3 }, "{nodes:?}");
     let state = AppState::new([served]);
     (app(state.clone()), state)
@@ -58,7 +58,7 @@ async fn demo() -> (Router, AppState) {
 }
 
 fn tx_frames(state: &AppState) -> u64 {
-    state.gateway.buses["demo"].bus.counters().tx_frames
+    state.gateway.bus("demo").unwrap().counters().tx_frames
 }
 
 async fn od_value(app: &Router, node: u8, index: &str) -> Json {
@@ -175,8 +175,8 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
 
     // Operational, with SYNC every 10 ms: TPDO1 (type 1) goes at each.
     nmt(&app, 1, "start").await;
-    let served = state.gateway.buses["demo"].clone();
-    let mut monitor = served.bus.monitor();
+    let served = state.gateway.bus("demo").unwrap().clone();
+    let mut monitor = served.monitor();
     let (status, sync) = put(&app, "/api/v1/buses/demo/sync", json!({"period_ms": 10})).await;
     assert_eq!(status, StatusCode::OK, "{sync}");
     assert_eq!(sync["period_ms"], 10);
@@ -189,8 +189,13 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
     assert!((9..=11).contains(&syncs), "{syncs} SYNC in 100 ms");
     // The decoders telemetry builds from the node's configuration.
     let node = NodeId::new(1).unwrap();
-    let eds = served.registry.node(node).unwrap().eds_entry.unwrap();
-    let channel = served.registry.sdo(node).unwrap();
+    let eds = served.node(node).unwrap().eds_entry.unwrap();
+    // Read by another master on the bus, as the gateway reads them.
+    let channel = crate::gateway::sdo::SdoChannel::new(
+        served.hub().expect("a virtual bus").attach(),
+        node,
+        crate::canopen::sdo::ClientConfig::default(),
+    );
     let decoders = tokio::spawn(async move {
         crate::gateway::pdo::tpdo_decoders(&channel, Some(&eds.eds.dictionary)).await
     })
@@ -261,7 +266,7 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
     let (status, _) = put(&app, "/api/v1/buses/demo/sync", json!({"period_ms": 0})).await;
     assert_eq!(status, StatusCode::OK);
     tokio::time::sleep(Duration::from_millis(20)).await;
-    let mut monitor = served.bus.monitor();
+    let mut monitor = served.monitor();
     let frames = frames_within(&mut monitor, Duration::from_millis(100)).await;
     assert!(
         frames
@@ -474,9 +479,9 @@ async fn an_rpdo_sets_the_values_on_the_device() {
         assert_error(&response, StatusCode::BAD_REQUEST, code);
     }
     // The mapping was read (SDO), but no RPDO went out.
-    let sent_rpdo = state.gateway.buses["demo"].bus.counters().tx_frames - before;
+    let sent_rpdo = state.gateway.bus("demo").unwrap().counters().tx_frames - before;
     assert!(sent_rpdo > 0);
-    let mut monitor = state.gateway.buses["demo"].bus.monitor();
+    let mut monitor = state.gateway.bus("demo").unwrap().monitor();
     let (status, sent) = post(
         &app,
         uri,

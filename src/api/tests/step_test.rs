@@ -213,7 +213,7 @@ async fn a_step_on_an_axis_whose_tpdo_carries_the_actual_is_fed_by_it() {
     enable(&app, 1).await;
     tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     let served = state.bus("demo").unwrap();
-    let mut monitor = served.bus.monitor();
+    let mut monitor = served.monitor();
     let body = step(&app).await;
     assert_eq!(body["source"], "tpdo", "{}", body["source"]);
     assert_eq!(uploads_of(&mut monitor, 0x6044), 0, "0x6044 read by SDO");

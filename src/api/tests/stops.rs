@@ -83,7 +83,7 @@ async fn silence_heartbeat(app: &Router, state: &AppState) {
             assert_eq!(status, StatusCode::OK, "{body}");
         }
     };
-    let registry = &state.gateway.buses["demo"].registry;
+    let registry = state.gateway.bus("demo").unwrap();
     let node = NodeId::new(UMC).unwrap();
     // The demo UMC sends no heartbeat: it starts one, and the gateway
     // learns its period.
@@ -99,7 +99,7 @@ async fn silence_heartbeat(app: &Router, state: &AppState) {
     // write through the gateway is followed: the node would stay online,
     // unsupervised).
     let other_master = crate::gateway::sdo::SdoChannel::new(
-        state.gateway.buses["demo"].bus.clone(),
+        registry.hub().expect("a virtual bus").attach(),
         node,
         crate::canopen::sdo::ClientConfig::default(),
     );
@@ -228,8 +228,8 @@ async fn stop_all_sends_nmt_stop_to_a_drive_that_does_not_answer_sdo() {
     enable(&app, 1).await;
     start(&app, 1, json!({"mode": "velocity", "velocity": 300})).await;
     velocity_until(&app, 1, Duration::from_secs(3), |v| v > 0).await;
-    let served = &state.gateway.buses["demo"];
-    let mut frames = served.bus.monitor();
+    let served = &state.gateway.bus("demo").unwrap();
+    let mut frames = served.monitor();
     // The node hears nothing and answers nothing from now on.
     served
         .rack()
@@ -280,8 +280,8 @@ async fn a_halt_of_a_drive_that_does_not_answer_falls_back_to_nmt_stop() {
     let (app, state) = demo().await;
     enable(&app, 1).await;
     start(&app, 1, json!({"mode": "velocity", "velocity": 300})).await;
-    let served = &state.gateway.buses["demo"];
-    let mut frames = served.bus.monitor();
+    let served = &state.gateway.bus("demo").unwrap();
+    let mut frames = served.monitor();
     served
         .rack()
         .unwrap()
@@ -312,8 +312,8 @@ async fn a_lapsed_lease_on_a_drive_that_does_not_answer_sends_nmt_stop() {
     let app = crate::api::app(state.clone());
     enable(&app, 1).await;
     start(&app, 1, json!({"mode": "velocity", "velocity": 300})).await;
-    let served = &state.gateway.buses["demo"];
-    let mut frames = served.bus.monitor();
+    let served = &state.gateway.bus("demo").unwrap();
+    let mut frames = served.monitor();
     served
         .rack()
         .unwrap()

@@ -197,8 +197,10 @@ async fn requests_are_acknowledged_and_bad_ones_get_the_apis_error_codes() {
 async fn an_unplugged_node_goes_offline_within_two_heartbeat_periods_and_comes_back() {
     let (app, state) = demo().await;
     // The JMC is the demo device that sends heartbeats (its EDS's 0x1017).
-    let jmc = state.gateway.buses["demo"]
-        .registry
+    let jmc = state
+        .gateway
+        .bus("demo")
+        .unwrap()
         .node(2.try_into().unwrap())
         .unwrap();
     let period = Duration::from_millis(jmc.heartbeat_ms.expect("the JMC sends heartbeats"));
@@ -299,10 +301,10 @@ const UNLIMITED: &str = "virtual:demo?bitrate=unlimited";
 /// Sends `count` frames with id 0x555 in bursts, letting the gateway's
 /// tasks run between them.
 async fn traffic(state: &AppState, count: usize) {
-    let bus = &state.gateway.buses["demo"].bus;
+    let served = state.gateway.bus("demo").unwrap();
     for n in 0..count {
         let frame = Frame::new(CanId::standard(0x555).unwrap(), &(n as u32).to_le_bytes()).unwrap();
-        bus.send(frame).await.unwrap();
+        served.send_frame(frame).await.unwrap();
         if n % 100 == 99 {
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
@@ -575,8 +577,11 @@ async fn a_rate_that_is_no_sleepable_period_is_refused_and_the_session_goes_on()
     }
     // Nothing was subscribed, no producer was started by the refusals...
     assert!(
-        !state.gateway.buses["demo"]
-            .axes
+        !state
+            .gateway
+            .bus("demo")
+            .unwrap()
+            .axes()
             .is_running(crate::canopen::NodeId::new(1).unwrap(), 1)
     );
     tokio::time::sleep(Duration::from_secs(1)).await;
@@ -609,17 +614,16 @@ async fn a_rate_that_is_no_sleepable_period_is_refused_and_the_session_goes_on()
 #[tokio::test(start_paused = true)]
 async fn a_value_topic_of_a_node_still_being_identified_waits_for_it() {
     let (app, state) = demo().await;
-    let served = state.gateway.buses["demo"].clone();
+    let served = state.gateway.bus("demo").unwrap().clone();
     // Two nodes boot, as the demo's do when the gateway starts; their
     // identification is under way (and nothing answers it yet).
-    let peer = served.hub.as_ref().unwrap().attach();
+    let peer = served.hub().as_ref().unwrap().attach();
     for id in [20u32, 21] {
         let boot_up = Frame::new(CanId::standard(0x700 + id).unwrap(), &[0]).unwrap();
         peer.send(boot_up).await.unwrap();
     }
     let pending = |id: u8| {
         served
-            .registry
             .node(crate::canopen::NodeId::new(id).unwrap())
             .is_some_and(|info| info.identification == Identification::Pending)
     };
@@ -685,7 +689,7 @@ async fn a_value_topic_of_a_node_still_being_identified_waits_for_it() {
 #[tokio::test(start_paused = true)]
 async fn a_bus_off_node_goes_offline_and_the_gateways_controller_state_is_an_event() {
     let (app, state) = demo().await;
-    state.gateway.buses["demo"].registry.scan().await.unwrap();
+    state.gateway.bus("demo").unwrap().scan().await.unwrap();
     let mut client = Client::start(&state, 256);
     client.subscribe(&["nodes", "emcy"], None).await;
 

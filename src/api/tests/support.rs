@@ -38,7 +38,7 @@ pub(crate) async fn demo() -> (Router, AppState) {
 /// of the software that send more than a wire carries).
 pub(crate) async fn demo_at(spec: &str) -> (Router, AppState) {
     let served = open("demo", spec).await;
-    let nodes = served.registry.scan().await.unwrap();
+    let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
     let state = AppState::new([served]).with_lease_period(crate::gateway::motion_lease::MAX_PERIOD);
     (app(state.clone()), state)

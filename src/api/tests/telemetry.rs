@@ -28,7 +28,7 @@ fn node(id: u8) -> NodeId {
 }
 
 fn demo_bus(state: &AppState) -> Arc<ServedBus> {
-    state.gateway.buses["demo"].clone()
+    state.gateway.bus("demo").unwrap().clone()
 }
 
 async fn enable_and_run(app: &Router, body: Json) {
@@ -122,12 +122,12 @@ async fn an_axis_without_tpdos_is_polled_at_the_rate_asked_and_not_at_all_when_n
     enable_and_run(&app, json!({"mode": "velocity", "velocity": 100})).await;
 
     // Nobody reads: no polling.
-    let mut monitor = served.bus.monitor();
+    let mut monitor = served.monitor();
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_eq!(sdo_requests(&mut monitor, 1), 0);
 
-    let mut reader = served.axes.subscribe(node(1), 1, 20.0).unwrap();
-    assert!(served.axes.is_running(node(1), 1));
+    let mut reader = served.axes().subscribe(node(1), 1, 20.0).unwrap();
+    assert!(served.axes().is_running(node(1), 1));
     let samples = samples_within(&mut reader, Duration::from_secs(2)).await;
     assert_moving_at_20_hz(&samples, "sdo");
     // The SDO source reads everything the status has.
@@ -144,7 +144,7 @@ async fn an_axis_without_tpdos_is_polled_at_the_rate_asked_and_not_at_all_when_n
     );
 
     // A slower second reader changes nothing; the fastest rate counts.
-    let slow = served.axes.subscribe(node(1), 1, 2.0).unwrap();
+    let slow = served.axes().subscribe(node(1), 1, 2.0).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(1)).await;
     assert!((16..=24).contains(&samples.len()), "{}", samples.len());
     drop(reader);
@@ -155,13 +155,13 @@ async fn an_axis_without_tpdos_is_polled_at_the_rate_asked_and_not_at_all_when_n
 
     drop(slow);
     tokio::time::sleep(Duration::from_secs(2)).await;
-    assert!(!served.axes.is_running(node(1), 1));
+    assert!(!served.axes().is_running(node(1), 1));
     sdo_requests(&mut monitor, 1);
     tokio::time::sleep(Duration::from_secs(2)).await;
     assert_eq!(sdo_requests(&mut monitor, 1), 0, "polling without readers");
 
     // The next reader starts the polling again.
-    let mut reader = served.axes.subscribe(node(1), 1, 20.0).unwrap();
+    let mut reader = served.axes().subscribe(node(1), 1, 20.0).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(2)).await;
     assert_moving_at_20_hz(&samples, "sdo");
 }
@@ -183,8 +183,8 @@ async fn the_poll_rate_is_capped_by_the_configured_maximum() {
     )
     .await
     .unwrap();
-    served.registry.scan().await.unwrap();
-    let mut reader = served.axes.subscribe(node(2), 1, 50.0).unwrap();
+    served.scan().await.unwrap();
+    let mut reader = served.axes().subscribe(node(2), 1, 50.0).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(2)).await;
     assert!(
         (8..=12).contains(&samples.len()),
@@ -221,8 +221,8 @@ async fn an_axis_whose_tpdo_carries_statusword_and_position_is_fed_by_it() {
     assert_eq!(status, StatusCode::OK, "{body}");
     enable_and_run(&app, json!({"mode": "velocity", "velocity": 100})).await;
 
-    let mut monitor = served.bus.monitor();
-    let mut reader = served.axes.subscribe(node(1), 1, 20.0).unwrap();
+    let mut monitor = served.monitor();
+    let mut reader = served.axes().subscribe(node(1), 1, 20.0).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(2)).await;
     assert_moving_at_20_hz(&samples, "tpdo");
     // Only what the TPDO carries: no mode, velocity or torque.
@@ -254,7 +254,7 @@ async fn an_axis_whose_tpdo_carries_statusword_and_position_is_fed_by_it() {
 async fn a_failed_poll_says_why_and_keeps_the_last_status() {
     let (_, state) = demo().await;
     let served = demo_bus(&state);
-    let mut reader = served.axes.subscribe(node(2), 1, 10.0).unwrap();
+    let mut reader = served.axes().subscribe(node(2), 1, 10.0).unwrap();
     let first = reader.changed().await.unwrap();
     assert!(first.data.get("error").is_none(), "{}", first.data);
     let statusword = first.data["statusword"].clone();
@@ -287,7 +287,7 @@ async fn a_failed_poll_says_why_and_keeps_the_last_status() {
 async fn subscribing_to_what_is_not_there_is_an_error() {
     let (_, state) = demo().await;
     let served = demo_bus(&state);
-    let axes = &served.axes;
+    let axes = &served.axes();
     assert!(matches!(
         axes.subscribe(node(9), 1, 1.0),
         Err(DriveError::Registry(RegistryError::UnknownNode { .. }))
@@ -304,7 +304,7 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
         axes.subscribe(node(2), 2, 1.0),
         Err(DriveError::UnknownAxis { axes: 1, .. })
     ));
-    let previews = &served.previews;
+    let previews = &served.previews();
     assert!(matches!(
         previews.subscribe(node(9), 1.0),
         Err(PreviewError::Registry(RegistryError::UnknownNode { .. }))
@@ -320,8 +320,8 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
         ))
     ));
     // Nothing runs for a refused subscription.
-    assert!(!served.axes.is_running(node(1), 3));
-    assert!(!served.previews.is_running(node(1)));
+    assert!(!served.axes().is_running(node(1), 3));
+    assert!(!served.previews().is_running(node(1)));
 }
 
 /// A UMC's axis 2 is polled at its own objects (0x6841, not 0x6041).
@@ -329,8 +329,8 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
 async fn the_second_axis_of_a_umc_is_read_at_its_offset() {
     let (_, state) = demo().await;
     let served = demo_bus(&state);
-    let mut monitor = served.bus.monitor();
-    let mut reader = served.axes.subscribe(node(1), 2, 10.0).unwrap();
+    let mut monitor = served.monitor();
+    let mut reader = served.axes().subscribe(node(1), 2, 10.0).unwrap();
     let sample = reader.changed().await.unwrap();
     assert_eq!(sample.data["axis"], 2);
     assert_eq!(
@@ -354,7 +354,7 @@ async fn the_second_axis_of_a_umc_is_read_at_its_offset() {
 /// Waits until the gateway has read node 1's TPDO mappings.
 async fn tpdos_read(served: &ServedBus) {
     for _ in 0..100 {
-        if served.values.tpdos(node(1)).is_some() {
+        if served.values().tpdos(node(1)).is_some() {
             return;
         }
         tokio::time::sleep(Duration::from_millis(10)).await;
@@ -374,15 +374,15 @@ async fn the_values_topic_follows_tpdo_frames_at_the_rate_asked_the_newest_last(
     tpdos_read(&served).await;
     // Node 1 is pre-operational and sends no TPDO itself: this attachment
     // plays its TPDO1.
-    let device = served.hub.as_ref().unwrap().attach();
+    let device = served.hub().as_ref().unwrap().attach();
 
     // Nobody reads: frames are decoded, nothing is published.
     device.send(tpdo1(0x0250)).await.unwrap();
     tokio::time::sleep(Duration::from_millis(10)).await;
-    assert!(served.values.topic(node(1)).is_none());
+    assert!(served.values().topic(node(1)).is_none());
 
     // A reader gets what is known at once.
-    let mut reader = served.values.subscribe(node(1), 10.0);
+    let mut reader = served.values().subscribe(node(1), 10.0);
     let first = reader.changed().await.unwrap();
     assert_eq!(first.data, json!({"a1_Statusword": 0x0250}));
 
@@ -407,8 +407,8 @@ async fn the_values_topic_follows_tpdo_frames_at_the_rate_asked_the_newest_last(
 
     // 2,000 frames a second for a second (about half of what the 500 kbit/s
     // bus carries): 20 publishes at 20 Hz, not 2,000.
-    let mut fast = served.values.subscribe(node(1), 20.0);
-    let topic = served.values.topic(node(1)).unwrap();
+    let mut fast = served.values().subscribe(node(1), 20.0);
+    let topic = served.values().topic(node(1)).unwrap();
     let before = topic.latest().unwrap().seq;
     for ms in 0..1000u16 {
         for n in 0..2 {
@@ -455,8 +455,8 @@ async fn an_animated_led_preview_moves_at_the_rate_asked_with_few_sdo_reads() {
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
 
-    let mut monitor = served.bus.monitor();
-    let mut reader = served.previews.subscribe(node(3), 20.0).unwrap();
+    let mut monitor = served.monitor();
+    let mut reader = served.previews().subscribe(node(3), 20.0).unwrap();
     let samples = samples_within(&mut reader, Duration::from_secs(2)).await;
     assert!((32..=48).contains(&samples.len()), "{}", samples.len());
     let first = &samples[0].data;
@@ -525,7 +525,7 @@ async fn an_animated_led_preview_moves_at_the_rate_asked_with_few_sdo_reads() {
     // Nobody reads: no more reads.
     drop(reader);
     tokio::time::sleep(Duration::from_secs(2)).await;
-    assert!(!served.previews.is_running(node(3)));
+    assert!(!served.previews().is_running(node(3)));
     sdo_requests(&mut monitor, 3);
     tokio::time::sleep(Duration::from_secs(3)).await;
     assert_eq!(sdo_requests(&mut monitor, 3), 0);
@@ -536,17 +536,17 @@ async fn an_animated_led_preview_moves_at_the_rate_asked_with_few_sdo_reads() {
 #[tokio::test(start_paused = true)]
 async fn the_producers_stop_with_their_bus() {
     let served = crate::api::tests::support::open("demo", "virtual:demo").await;
-    served.registry.scan().await.unwrap();
-    let mut axis = served.axes.subscribe(node(1), 1, 20.0).unwrap();
-    let mut preview = served.previews.subscribe(node(3), 20.0).unwrap();
-    let values = served.values.subscribe(node(1), 20.0);
+    served.scan().await.unwrap();
+    let mut axis = served.axes().subscribe(node(1), 1, 20.0).unwrap();
+    let mut preview = served.previews().subscribe(node(3), 20.0).unwrap();
+    let values = served.values().subscribe(node(1), 20.0);
     assert!(axis.changed().await.is_some());
     assert!(preview.changed().await.is_some());
     let topics = [
-        served.axes.topic(node(1), 1).unwrap(),
-        served.previews.topic(node(3)).unwrap(),
+        served.axes().topic(node(1), 1).unwrap(),
+        served.previews().topic(node(3)).unwrap(),
     ];
-    let hub = served.hub.clone().unwrap();
+    let hub = served.hub().cloned().unwrap();
     drop(served);
     tokio::time::sleep(Duration::from_millis(100)).await;
     let seqs: Vec<u64> = topics.iter().map(|t| t.latest().unwrap().seq).collect();
@@ -586,8 +586,8 @@ async fn a_producer_takes_any_rate_and_goes_on() {
         f64::INFINITY,
         1e300,
     ] {
-        let mut axis = served.axes.subscribe(node(1), 1, rate).unwrap();
-        let mut preview = served.previews.subscribe(node(3), rate).unwrap();
+        let mut axis = served.axes().subscribe(node(1), 1, rate).unwrap();
+        let mut preview = served.previews().subscribe(node(3), rate).unwrap();
         for (what, reader) in [("axis", &mut axis), ("preview", &mut preview)] {
             let first = tokio::time::timeout(Duration::from_secs(5), reader.changed()).await;
             assert!(
@@ -597,18 +597,18 @@ async fn a_producer_takes_any_rate_and_goes_on() {
         }
         tokio::time::sleep(Duration::from_secs(3)).await;
         assert!(
-            served.axes.is_running(node(1), 1),
+            served.axes().is_running(node(1), 1),
             "{rate} Hz: the axis task ended"
         );
         assert!(
-            served.previews.is_running(node(3)),
+            served.previews().is_running(node(3)),
             "{rate} Hz: the preview task ended"
         );
         drop((axis, preview));
         // Its readers gone, each task ends (within its longest wait).
         tokio::time::sleep(Duration::from_secs(2)).await;
-        assert!(!served.axes.is_running(node(1), 1), "{rate} Hz");
-        assert!(!served.previews.is_running(node(3)), "{rate} Hz");
+        assert!(!served.axes().is_running(node(1), 1), "{rate} Hz");
+        assert!(!served.previews().is_running(node(3)), "{rate} Hz");
     }
 }
 
@@ -624,7 +624,7 @@ async fn a_cia_309_write_is_followed_like_a_rest_one() {
     let served = demo_bus(&state);
     tpdos_read(&served).await;
     let tpdo_numbers = |served: &ServedBus| -> Vec<u16> {
-        let tpdos = served.values.tpdos(node(1)).unwrap();
+        let tpdos = served.values().tpdos(node(1)).unwrap();
         tpdos.decoders.iter().map(|(number, _)| *number).collect()
     };
     assert!(tpdo_numbers(&served).contains(&1));
@@ -666,12 +666,12 @@ async fn a_cia_309_write_is_followed_like_a_rest_one() {
     );
 
     // The LED preview of node 3, read again at once after a write.
-    let mut preview = served.previews.subscribe(node(3), 50.0).unwrap();
+    let mut preview = served.previews().subscribe(node(3), 50.0).unwrap();
     let first = tokio::time::timeout(Duration::from_secs(5), preview.changed())
         .await
         .unwrap()
         .unwrap();
-    let mut sdo = served.bus.monitor();
+    let mut sdo = served.monitor();
     write(0x6025, 0, vec![0x12]).await;
     // The preview's next read of the segments comes well before its
     // period: it follows the write.

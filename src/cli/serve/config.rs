@@ -691,10 +691,10 @@ impl Settings {
         for share in &self.share {
             let channels = servers.entry(share.addr).or_default();
             for bus in served {
-                let Some(hub) = &bus.hub else { continue };
-                let wanted = share.bus.as_ref().is_none_or(|name| name == &bus.name);
-                if wanted && !channels.iter().any(|(name, _)| name == &bus.name) {
-                    channels.push((bus.name.clone(), hub.clone()));
+                let Some(hub) = bus.hub() else { continue };
+                let wanted = share.bus.as_ref().is_none_or(|name| name == bus.name());
+                if wanted && !channels.iter().any(|(name, _)| name == bus.name()) {
+                    channels.push((bus.name().to_string(), hub.clone()));
                 }
             }
         }

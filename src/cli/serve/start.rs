@@ -54,7 +54,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     };
     let described: Vec<String> = served
         .iter()
-        .map(|bus| format!("{}: {}", bus.name, bus.spec))
+        .map(|bus| format!("{}: {}", bus.name(), bus.spec()))
         .collect();
     let label = if described.len() == 1 { "bus" } else { "buses" };
     // One line on stdout that people and scripts read (the port, when 0 was asked).

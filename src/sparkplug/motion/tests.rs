@@ -32,7 +32,7 @@ async fn demo() -> Gateway {
     )
     .await
     .unwrap();
-    assert_eq!(served.registry.scan().await.unwrap().len(), 3);
+    assert_eq!(served.scan().await.unwrap().len(), 3);
     Gateway::new([served]).with_lease_period(PERIOD)
 }
 
@@ -108,7 +108,7 @@ fn lease_id(id: &str) -> Metric {
 
 async fn audit(gateway: &Gateway) -> Vec<serde_json::Map<String, serde_json::Value>> {
     gateway
-        .history
+        .history()
         .query(Query {
             kind: Some(EventKind::Audit),
             since_us: None,
@@ -251,13 +251,21 @@ async fn losing_the_broker_lapses_the_edge_nodes_leases_at_once() {
 async fn giving_the_lease_up_halts_and_another_client_is_refused_meanwhile() {
     let (gateway, config, held) = turning().await;
     // REST's anonymous client may not take the axis held by MQTT.
-    let axis = AxisKey {
-        bus: "demo".into(),
-        node: 1,
-        axis: 1,
-    };
-    let refused = gateway.leases.check(&axis, None, "anonymous").unwrap_err();
-    assert_eq!(refused.code(), "lease_conflict");
+    let anonymous = crate::gateway::caller::Caller::new(
+        crate::gateway::caller::Channel::Rest,
+        "anonymous",
+        None,
+    );
+    let refused = gateway
+        .set_axis_state(
+            &anonymous,
+            ("demo", "1", "1"),
+            crate::gateway::drive::TargetState::OperationEnabled,
+            &crate::gateway::motion::LeaseClaim::presented(None, false),
+        )
+        .await
+        .unwrap_err();
+    assert_eq!(refused.error.code(), "lease_conflict");
     let results = dcmd(
         &gateway,
         &config,
@@ -379,7 +387,7 @@ async fn a_second_sender_without_the_lease_id_cannot_move_reverse_or_release_hal
     )
     .await;
     assert!(results[0].is_ok(), "{results:?}");
-    assert_eq!(gateway.leases.held(), 0);
+    assert_eq!(gateway.leases_held(), 0);
 }
 
 #[tokio::test(start_paused = true)]
@@ -416,7 +424,7 @@ async fn a_lease_id_is_needed_to_take_a_lease_and_a_short_one_is_refused() {
     tokio::time::sleep(PERIOD / 2).await;
     assert_eq!(velocity(&gateway).await, 0, "moving without a lease");
     assert!(held.is_empty());
-    assert_eq!(gateway.leases.held(), 0);
+    assert_eq!(gateway.leases_held(), 0);
 }
 
 #[tokio::test(start_paused = true)]
@@ -531,10 +539,8 @@ async fn a_segment_write_reaches_the_led_controller() {
     let config = config(crate::gateway::access::Role::Operator);
     let held = HeldLeases::default();
     let led = gateway
-        .buses
-        .get("demo")
+        .bus("demo")
         .unwrap()
-        .registry
         .nodes()
         .into_iter()
         .find(|info| info.profile == crate::gateway::profile::Profile::Uioled)
@@ -558,8 +564,13 @@ async fn a_segment_write_reaches_the_led_controller() {
         results[3].as_ref().unwrap_err().code(),
         "value_out_of_range"
     );
+    // Read back by another master on the bus.
     let (served, info) = gateway.node("demo", &node.to_string()).unwrap();
-    let channel = served.registry.sdo(info.id).unwrap();
+    let channel = crate::gateway::sdo::SdoChannel::new(
+        served.hub().expect("a virtual bus").attach(),
+        info.id,
+        crate::canopen::sdo::ClientConfig::default(),
+    );
     let segment = crate::gateway::uioled::read_segment(&channel, 2)
         .await
         .unwrap();
@@ -636,7 +647,7 @@ async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
     );
     // Each refusal of the flood is audited.
     let audited = gateway
-        .history
+        .history()
         .query(Query {
             kind: Some(EventKind::Audit),
             since_us: None,
