@@ -9,7 +9,9 @@
 //! the handle.
 
 pub mod config;
+pub mod led;
 pub mod pdo;
+pub mod program;
 mod transfer;
 
 use std::sync::Arc;
@@ -58,3 +60,5 @@ impl Gateway {
         })
     }
 }
+#[cfg(test)]
+mod tests;
