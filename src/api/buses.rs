@@ -16,7 +16,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{ApiJson, AppState};
+use super::{ApiJson, AppState, ServedBus};
 use crate::gateway::load::Traffic;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -107,32 +107,36 @@ async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
         .gateway
         .buses
         .values()
-        .map(|served| {
-            let traffic = Traffic::new(&served.bus).sample();
-            let status = served.bus.status();
-            let counters = served.bus.counters();
-            let state = if status.state.can_send() {
-                "up"
-            } else {
-                "down"
-            };
-            BusInfo {
-                name: served.name.clone(),
-                spec: served.spec.clone(),
-                kind: served.bus.kind().as_str(),
-                state,
-                rx_frames: traffic.rx_frames,
-                tx_frames: traffic.tx_frames,
-                load: served.load.load(),
-                bits_per_second: served.load.bits_per_second(),
-                bitrate: served.load.bitrate(),
-                reason: status.reason,
-                reconnects: counters.reconnects,
-                error_state: status.state.error_state().map(|s| s.as_str()),
-                tx_error_counter: counters.tec,
-                rx_error_counter: counters.rec,
-            }
-        })
-        .collect();
-    ApiJson(buses)
+        .map(|served| BusInfo::of(served));
+    ApiJson(buses.collect())
+}
+
+impl BusInfo {
+    /// A served bus as the list gives it: its traffic, state and load now.
+    fn of(served: &ServedBus) -> Self {
+        let traffic = Traffic::new(&served.bus).sample();
+        let status = served.bus.status();
+        let counters = served.bus.counters();
+        let state = if status.state.can_send() {
+            "up"
+        } else {
+            "down"
+        };
+        BusInfo {
+            name: served.name.clone(),
+            spec: served.spec.clone(),
+            kind: served.bus.kind().as_str(),
+            state,
+            rx_frames: traffic.rx_frames,
+            tx_frames: traffic.tx_frames,
+            load: served.load.load(),
+            bits_per_second: served.load.bits_per_second(),
+            bitrate: served.load.bitrate(),
+            reason: status.reason,
+            reconnects: counters.reconnects,
+            error_state: status.state.error_state().map(|s| s.as_str()),
+            tx_error_counter: counters.tec,
+            rx_error_counter: counters.rec,
+        }
+    }
 }
