@@ -443,15 +443,21 @@ pub fn is_rate_limited(method: &Method, path: &str) -> bool {
 }
 
 /// Whether the request's operation draws on the write rate in the gateway
-/// (an object write, an NMT command: [`crate::gateway::NodeHandle`]), so
+/// (an object write, an NMT command, LED segments, a program download:
+/// [`crate::gateway::NodeHandle`]), so
 /// that the guard does not take a second write for it: REST's and CiA
 /// 309-5's.
 pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
     let rest = match *method {
-        Method::PUT => matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path),
+        Method::PUT => {
+            matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/segments", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/segments/{n}", path)
+        }
         Method::POST => {
             matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nmt", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/program", path)
         }
         _ => false,
     };

@@ -16,7 +16,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{ApiJson, AppState};
+use super::{ApiJson, AppState, ServedBus};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -102,35 +102,36 @@ pub struct BusInfo {
 #[utoipa::path(get, path = "/buses", tag = "buses",
     responses((status = 200, description = "Every bus", body = [BusInfo])))]
 async fn list_buses(State(state): State<AppState>) -> ApiJson<Vec<BusInfo>> {
-    let buses = state
-        .gateway
-        .buses()
-        .map(|served| {
-            let traffic = served.traffic();
-            let status = served.status();
-            let counters = served.counters();
-            let state = if status.state.can_send() {
-                "up"
-            } else {
-                "down"
-            };
-            BusInfo {
-                name: served.name().to_string(),
-                spec: served.spec().to_string(),
-                kind: served.kind().as_str(),
-                state,
-                rx_frames: traffic.rx_frames,
-                tx_frames: traffic.tx_frames,
-                load: served.load().load(),
-                bits_per_second: served.load().bits_per_second(),
-                bitrate: served.load().bitrate(),
-                reason: status.reason,
-                reconnects: counters.reconnects,
-                error_state: status.state.error_state().map(|s| s.as_str()),
-                tx_error_counter: counters.tec,
-                rx_error_counter: counters.rec,
-            }
-        })
-        .collect();
-    ApiJson(buses)
+    let buses = state.gateway.buses().map(|served| BusInfo::of(served));
+    ApiJson(buses.collect())
+}
+
+impl BusInfo {
+    /// A served bus as the list gives it: its traffic, state and load now.
+    fn of(served: &ServedBus) -> Self {
+        let traffic = served.traffic();
+        let status = served.status();
+        let counters = served.counters();
+        let state = if status.state.can_send() {
+            "up"
+        } else {
+            "down"
+        };
+        BusInfo {
+            name: served.name().to_string(),
+            spec: served.spec().to_string(),
+            kind: served.kind().as_str(),
+            state,
+            rx_frames: traffic.rx_frames,
+            tx_frames: traffic.tx_frames,
+            load: served.load().load(),
+            bits_per_second: served.load().bits_per_second(),
+            bitrate: served.load().bitrate(),
+            reason: status.reason,
+            reconnects: counters.reconnects,
+            error_state: status.state.error_state().map(|s| s.as_str()),
+            tx_error_counter: counters.tec,
+            rx_error_counter: counters.rec,
+        }
+    }
 }

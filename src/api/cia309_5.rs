@@ -165,19 +165,117 @@ fn object(index: &str, sub: &str) -> Option<(u16, u8)> {
     Some((index, sub))
 }
 
+/// The path of a read or write: sequence, net, node, index, sub.
+type ObjectPath = (String, String, String, String, String);
+
+/// The target and object of a read or write, or the sequence and error to
+/// answer a path that names none with.
+fn object_target(
+    gateway: &Cia309Gateway,
+    (sequence, net, node, index, sub): &ObjectPath,
+) -> Result<(Target, u16, u8), (String, Failure)> {
+    let target = target(gateway, sequence, net, node, 1)?;
+    match object(index, sub) {
+        Some((index, sub)) => Ok((target, index, sub)),
+        None => Err((target.sequence, Failure::Error(ErrorCode::Syntax))),
+    }
+}
+
+/// A write, parsed: its target and object, the request as the audit log
+/// names it (`u16 1000`), and the bytes to write.
+struct WriteRequest {
+    target: Target,
+    index: u16,
+    sub: u8,
+    summary: String,
+    data: Vec<u8>,
+}
+
+impl WriteRequest {
+    /// Writes through the gateway and answers as CiA 309-5 does.
+    async fn run(self, gateway: &Cia309Gateway, origin: Origin<'_>) -> Response {
+        let Self {
+            target,
+            index,
+            sub,
+            summary,
+            data,
+        } = self;
+        let options = TransferOptions::default();
+        let (net, node) = (target.net, target.node);
+        match gateway
+            .write(origin, net, node, index, sub, data, summary, options)
+            .await
+        {
+            Ok(()) => answer(&target.sequence, "OK".into()).into_response(),
+            Err(refused) => failed(&target.sequence, refused),
+        }
+    }
+}
+
+fn write_request(
+    gateway: &Cia309Gateway,
+    path: &ObjectPath,
+    body: &[u8],
+) -> Result<WriteRequest, (String, Failure)> {
+    let (target, index, sub) = object_target(gateway, path)?;
+    let (value, datatype, data) =
+        write_value(body).map_err(|failure| (target.sequence.clone(), failure))?;
+    Ok(WriteRequest {
+        summary: format!("{} {value}", datatype.mnemonic()),
+        target,
+        index,
+        sub,
+        data,
+    })
+}
+
+/// The answer to a read: the value most significant byte first.
+fn data_answer(sequence: &str, bytes: &[u8]) -> Response {
+    let data: String = bytes.iter().rev().map(|b| format!("{b:02x}")).collect();
+    axum::Json(json!({
+        "sequence": sequence,
+        "response": "OK",
+        "data": format!("0x{data}"),
+        "length": bytes.len(),
+    }))
+    .into_response()
+}
+
+/// The value of a write's body (`{"value": "1000", "datatype": "u16"}`):
+/// its text, its datatype and its bytes.
+fn write_value(body: &[u8]) -> Result<(String, Datatype, Vec<u8>), Failure> {
+    let syntax = Failure::Error(ErrorCode::Syntax);
+    let Ok(Json::Object(request)) = serde_json::from_slice::<Json>(body) else {
+        return Err(syntax);
+    };
+    // The value is a string in CiA 309-5; a JSON number is taken as well.
+    let value = match request.get("value") {
+        Some(Json::String(text)) => text.clone(),
+        Some(Json::Number(number)) => number.to_string(),
+        _ => return Err(syntax),
+    };
+    let datatype = request
+        .get("datatype")
+        .and_then(Json::as_str)
+        .and_then(Datatype::from_mnemonic)
+        .ok_or(Failure::Error(ErrorCode::RequestNotSupported))?;
+    match datatype.encode(&value) {
+        Ok(data) if !data.is_empty() => Ok((value, datatype, data)),
+        _ => Err(syntax),
+    }
+}
+
 async fn read_object(
     State(state): State<AppState>,
-    Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
+    Path(path): Path<ObjectPath>,
     uri: Uri,
     extensions: Extensions,
 ) -> Response {
     let gateway = Cia309Gateway::new(&state.gateway);
-    let target = match target(&gateway, &sequence, &net, &node, 1) {
-        Ok(target) => target,
+    let (target, index, sub) = match object_target(&gateway, &path) {
+        Ok(found) => found,
         Err((sequence, failure)) => return error(&sequence, failure),
-    };
-    let Some((index, sub)) = object(&index, &sub) else {
-        return error(&target.sequence, Failure::Error(ErrorCode::Syntax));
     };
     let identity = identity(&extensions);
     let origin = Origin {
@@ -190,58 +288,22 @@ async fn read_object(
         .read(origin, target.net, target.node, index, sub, options)
         .await
     {
-        Ok(bytes) => {
-            let data: String = bytes.iter().rev().map(|b| format!("{b:02x}")).collect();
-            axum::Json(json!({
-                "sequence": target.sequence,
-                "response": "OK",
-                "data": format!("0x{data}"),
-                "length": bytes.len(),
-            }))
-            .into_response()
-        }
+        Ok(bytes) => data_answer(&target.sequence, &bytes),
         Err(refused) => failed(&target.sequence, refused),
     }
 }
 
 async fn write_object(
     State(state): State<AppState>,
-    Path((sequence, net, node, index, sub)): Path<(String, String, String, String, String)>,
+    Path(path): Path<ObjectPath>,
     uri: Uri,
     extensions: Extensions,
     body: axum::body::Bytes,
 ) -> Response {
     let gateway = Cia309Gateway::new(&state.gateway);
-    let target = match target(&gateway, &sequence, &net, &node, 1) {
-        Ok(target) => target,
+    let request = match write_request(&gateway, &path, &body) {
+        Ok(request) => request,
         Err((sequence, failure)) => return error(&sequence, failure),
-    };
-    let syntax = Failure::Error(ErrorCode::Syntax);
-    let Some((index, sub)) = object(&index, &sub) else {
-        return error(&target.sequence, syntax);
-    };
-    let Ok(Json::Object(request)) = serde_json::from_slice::<Json>(&body) else {
-        return error(&target.sequence, syntax);
-    };
-    // The value is a string in CiA 309-5; a JSON number is taken as well.
-    let value = match request.get("value") {
-        Some(Json::String(text)) => text.clone(),
-        Some(Json::Number(number)) => number.to_string(),
-        _ => return error(&target.sequence, syntax),
-    };
-    let Some(datatype) = request
-        .get("datatype")
-        .and_then(Json::as_str)
-        .and_then(Datatype::from_mnemonic)
-    else {
-        return error(
-            &target.sequence,
-            Failure::Error(ErrorCode::RequestNotSupported),
-        );
-    };
-    let data = match datatype.encode(&value) {
-        Ok(data) if !data.is_empty() => data,
-        _ => return error(&target.sequence, syntax),
     };
     let identity = identity(&extensions);
     let origin = Origin {
@@ -249,23 +311,7 @@ async fn write_object(
         method: "PUT",
         path: uri.path(),
     };
-    let summary = format!("{} {value}", datatype.mnemonic());
-    match gateway
-        .write(
-            origin,
-            target.net,
-            target.node,
-            index,
-            sub,
-            data,
-            summary,
-            TransferOptions::default(),
-        )
-        .await
-    {
-        Ok(()) => answer(&target.sequence, "OK".into()).into_response(),
-        Err(refused) => failed(&target.sequence, refused),
-    }
+    request.run(&gateway, origin).await
 }
 
 async fn nmt(

@@ -21,7 +21,7 @@ use super::error::body_of;
 use super::leases::caller;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::format_index;
-use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource};
+use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource, RestoredEntry};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -261,30 +261,37 @@ async fn put_dcf(
         .node_handle(&bus, &id)?
         .restore_dcf(&caller(identity.as_ref()), &body)
         .await?;
-    let entries: Vec<EntryResult> = restored
-        .into_iter()
-        .map(|entry| {
-            let error = match &entry.result {
-                Some(Ok(())) => None,
-                Some(Err(error)) => Some(body_of(error)),
-                None => Some(serde_json::json!({
-                    "code": "not_written",
-                    "message": "the restore stopped before this entry",
-                })),
-            };
-            EntryResult {
-                index: format_index(entry.index),
-                sub: entry.sub,
-                name: entry.name,
-                ok: error.is_none(),
-                error,
-            }
-        })
-        .collect();
-    let written = entries.iter().filter(|entry| entry.ok).count();
-    Ok(ApiJson(RestoreReport {
-        written,
-        failed: entries.len() - written,
-        entries,
-    }))
+    Ok(ApiJson(RestoreReport::from(restored)))
+}
+
+impl From<Vec<RestoredEntry>> for RestoreReport {
+    fn from(restored: Vec<RestoredEntry>) -> Self {
+        let entries: Vec<EntryResult> = restored.into_iter().map(EntryResult::from).collect();
+        let written = entries.iter().filter(|entry| entry.ok).count();
+        RestoreReport {
+            written,
+            failed: entries.len() - written,
+            entries,
+        }
+    }
+}
+
+impl From<RestoredEntry> for EntryResult {
+    fn from(entry: RestoredEntry) -> Self {
+        let error = match &entry.result {
+            Some(Ok(())) => None,
+            Some(Err(error)) => Some(body_of(error)),
+            None => Some(serde_json::json!({
+                "code": "not_written",
+                "message": "the restore stopped before this entry",
+            })),
+        };
+        EntryResult {
+            index: format_index(entry.index),
+            sub: entry.sub,
+            name: entry.name,
+            ok: error.is_none(),
+            error,
+        }
+    }
 }

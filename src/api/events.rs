@@ -236,52 +236,60 @@ async fn events(
     query: Result<Query<EventsQuery>, QueryRejection>,
 ) -> Result<ApiJson<Vec<HistoryEvent>>, AppError> {
     let Query(query) = query.map_err(|err| AppError::InvalidRequest(err.body_text()))?;
-    let kind = match query.kind.as_deref() {
-        None | Some("") => None,
-        Some("audit") => Some(EventKind::Audit),
-        Some("emcy") => Some(EventKind::Emcy),
-        Some("nmt") => Some(EventKind::Nmt),
-        Some(other) => {
-            return Err(AppError::InvalidRequest(format!(
-                "kind '{other}': one of audit, emcy, nmt"
-            )));
-        }
-    };
-    let channel = match query.channel.as_deref() {
-        None | Some("") => None,
-        Some(name) => Some(Channel::from_name(name).ok_or_else(|| {
-            let names: Vec<&str> = Channel::ALL.iter().map(|c| c.name()).collect();
-            AppError::InvalidRequest(format!("channel '{name}': one of {}", names.join(", ")))
-        })?),
-    };
-    let since_us = query.since.as_deref().map(parse_since).transpose()?;
-    let until_us = query
-        .until
-        .as_deref()
-        .map(|text| parse_time("until", text))
-        .transpose()?;
-    let limit = query.limit.unwrap_or(DEFAULT_LIMIT);
-    if !(1..=MAX_LIMIT).contains(&limit) {
-        return Err(AppError::InvalidRequest(format!(
-            "limit {limit}: from 1 to {MAX_LIMIT}"
-        )));
-    }
     let found = state
         .gateway
         .history()
-        .query(history::Query {
-            kind,
-            since_us,
-            until_us,
-            channel,
-            limit,
-        })
+        .query(history::Query::try_from(query)?)
         .await
         .map_err(|err| {
             tracing::error!("events: {err}");
             GatewayError::HistoryFailed("the history database failed; see the gateway's log".into())
         })?;
     Ok(ApiJson(found.into_iter().map(HistoryEvent::from).collect()))
+}
+
+impl TryFrom<EventsQuery> for history::Query {
+    type Error = AppError;
+
+    fn try_from(query: EventsQuery) -> Result<Self, AppError> {
+        let kind = match query.kind.as_deref() {
+            None | Some("") => None,
+            Some("audit") => Some(EventKind::Audit),
+            Some("emcy") => Some(EventKind::Emcy),
+            Some("nmt") => Some(EventKind::Nmt),
+            Some(other) => {
+                return Err(AppError::InvalidRequest(format!(
+                    "kind '{other}': one of audit, emcy, nmt"
+                )));
+            }
+        };
+        let channel = match query.channel.as_deref() {
+            None | Some("") => None,
+            Some(name) => Some(Channel::from_name(name).ok_or_else(|| {
+                let names: Vec<&str> = Channel::ALL.iter().map(|c| c.name()).collect();
+                AppError::InvalidRequest(format!("channel '{name}': one of {}", names.join(", ")))
+            })?),
+        };
+        let since_us = query.since.as_deref().map(parse_since).transpose()?;
+        let until_us = query
+            .until
+            .as_deref()
+            .map(|text| parse_time("until", text))
+            .transpose()?;
+        let limit = query.limit.unwrap_or(DEFAULT_LIMIT);
+        if !(1..=MAX_LIMIT).contains(&limit) {
+            return Err(AppError::InvalidRequest(format!(
+                "limit {limit}: from 1 to {MAX_LIMIT}"
+            )));
+        }
+        Ok(history::Query {
+            kind,
+            since_us,
+            until_us,
+            channel,
+            limit,
+        })
+    }
 }
 
 /// `since` as µs since the Unix epoch: Unix milliseconds, or RFC 3339.

@@ -200,6 +200,7 @@ async fn list_nodes(
     ))]
 async fn one_node(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Json>, AppError> {
     let (served, info) = known_node(&state, &bus, &id)?;
@@ -213,7 +214,7 @@ async fn one_node(
                 .and_then(|axes| Ok(("axes", to_json(&axes)?))),
         ),
         Profile::Uioled => Some(
-            super::segments::summary(&state, &bus, &info)
+            super::segments::summary(&state, &caller, &bus, &id)
                 .await
                 .and_then(|segments| Ok(("segments", to_json(&segments)?))),
         ),

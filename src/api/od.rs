@@ -517,27 +517,31 @@ async fn read_batch(
         .into());
     }
     let node = state.gateway.node_handle(&bus, &id)?;
-    let dict = dictionary(node.info());
     let mut results = Vec::with_capacity(request.entries.len());
     for requested in &request.entries {
-        let pair = match requested {
-            Json::Array(pair) if pair.len() == 2 => Some((&pair[0], &pair[1])),
-            _ => None,
-        };
-        let result = match pair {
-            None => Err(AppError::InvalidRequest(format!(
-                "{requested} is not an [index, sub] pair"
-            ))),
-            Some((index, sub)) => match resolve(dict, index, sub) {
-                Ok(entry) => read_entry(&node, &caller, &entry).await,
-                Err(err) => Err(err),
-            },
-        };
-        results.push(result.unwrap_or_else(|err| {
-            let (index, sub) =
-                pair.map_or((Json::Null, Json::Null), |(i, s)| (i.clone(), s.clone()));
-            json!({ "index": index, "sub": sub, "error": err.to_json() })
-        }));
+        results.push(read_batch_entry(&node, &caller, requested).await);
     }
     Ok(ApiJson(Json::Array(results)))
+}
+
+/// One entry of a batch read: its value, or its error with the index and
+/// sub asked for.
+async fn read_batch_entry(node: &NodeHandle, caller: &Caller, requested: &Json) -> Json {
+    let pair = match requested {
+        Json::Array(pair) if pair.len() == 2 => Some((&pair[0], &pair[1])),
+        _ => None,
+    };
+    let result = match pair {
+        None => Err(AppError::InvalidRequest(format!(
+            "{requested} is not an [index, sub] pair"
+        ))),
+        Some((index, sub)) => match resolve(dictionary(node.info()), index, sub) {
+            Ok(entry) => read_entry(node, caller, &entry).await,
+            Err(err) => Err(err),
+        },
+    };
+    result.unwrap_or_else(|err| {
+        let (index, sub) = pair.map_or((Json::Null, Json::Null), |(i, s)| (i.clone(), s.clone()));
+        json!({ "index": index, "sub": sub, "error": err.to_json() })
+    })
 }

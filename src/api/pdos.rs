@@ -300,34 +300,40 @@ async fn put_pdo(
     let node = state.gateway.node_handle(&bus, &id)?;
     let kind = pdo_kind(&kind)?;
     let number = pdo_number(kind, &n)?;
-    if update.number.is_some_and(|given| given != number) {
-        return Err(AppError::InvalidRequest(format!(
-            "the body is for PDO {}, the path for PDO {number}",
-            update.number.unwrap_or_default()
-        )));
-    }
-    let mapping = update
-        .mapping
-        .map(|entries| {
-            entries
-                .into_iter()
-                .enumerate()
-                .map(|(i, entry)| entry_request(i + 1, entry))
-                .collect::<Result<Vec<_>, _>>()
-        })
-        .transpose()?;
-    let request = PdoRequest {
-        cob_id: update.cob_id,
-        enabled: update.enabled,
-        transmission_type: update.transmission_type,
-        inhibit_time_100us: update.inhibit_time_100us,
-        event_timer_ms: update.event_timer_ms,
-        sync_start: update.sync_start,
-        mapping,
-    };
+    let request = update.into_request(number)?;
     let caller = caller(identity.as_ref());
     let config = node.configure_pdo(&caller, kind, number, &request).await?;
     Ok(ApiJson(pdo_json(&config, dictionary(node.info()))))
+}
+
+impl PdoUpdate {
+    /// The request for PDO `number`, whose body names no other PDO.
+    fn into_request(self, number: u16) -> Result<PdoRequest, AppError> {
+        if let Some(given) = self.number.filter(|given| *given != number) {
+            return Err(AppError::InvalidRequest(format!(
+                "the body is for PDO {given}, the path for PDO {number}"
+            )));
+        }
+        let mapping = self
+            .mapping
+            .map(|entries| {
+                entries
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, entry)| entry_request(i + 1, entry))
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .transpose()?;
+        Ok(PdoRequest {
+            cob_id: self.cob_id,
+            enabled: self.enabled,
+            transmission_type: self.transmission_type,
+            inhibit_time_100us: self.inhibit_time_100us,
+            event_timer_ms: self.event_timer_ms,
+            sync_start: self.sync_start,
+            mapping,
+        })
+    }
 }
 
 /// Values to send, by the EDS name of each mapped object (or `"0x6040"`,

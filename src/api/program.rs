@@ -9,8 +9,10 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::node::program::ProgramDownload;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(post_program))
@@ -87,6 +89,7 @@ pub struct ProgramAnswer {
     ))]
 async fn post_program(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     query: Result<Query<ProgramQuery>, axum::extract::rejection::QueryRejection>,
     body: Bytes,
@@ -95,28 +98,28 @@ async fn post_program(
         Ok(Query(query)) => query.start.unwrap_or(true),
         Err(rejection) => return Err(AppError::InvalidRequest(rejection.body_text())),
     };
-    if body.is_empty() {
-        return Err(AppError::InvalidRequest(
-            "the body is the program image; it is empty".into(),
-        ));
-    }
-    // Runs to its end even if the client goes away: a download cut half
-    // way leaves the device without a program.
-    let (number, report) = state
+    let download = state
         .gateway
         .node_handle(&bus, &id)?
-        .download_program(body, start)
+        .download_program(&caller, body.into(), start)
         .await?;
-    let seconds = (report.download_ms.max(1)) as f64 / 1000.0;
-    Ok(ApiJson(ProgramAnswer {
-        run: number,
-        bytes: report.bytes,
-        crc32: report.crc32,
-        crc32_hex: format!("0x{:08X}", report.crc32),
-        verified: true,
-        started: report.started,
-        elapsed_ms: report.elapsed_ms,
-        download_ms: report.download_ms,
-        bytes_per_s: (report.bytes as f64 / seconds) as u64,
-    }))
+    Ok(ApiJson(ProgramAnswer::from(download)))
+}
+
+impl From<ProgramDownload> for ProgramAnswer {
+    fn from(download: ProgramDownload) -> Self {
+        let bytes_per_s = download.bytes_per_s();
+        let ProgramDownload { run, report } = download;
+        ProgramAnswer {
+            run,
+            bytes: report.bytes,
+            crc32: report.crc32,
+            crc32_hex: format!("0x{:08X}", report.crc32),
+            verified: true,
+            started: report.started,
+            elapsed_ms: report.elapsed_ms,
+            download_ms: report.download_ms,
+            bytes_per_s,
+        }
+    }
 }

@@ -16,7 +16,7 @@ use axum::extract::State;
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
-use tokio::io::AsyncReadExt;
+use tokio::io::{AsyncRead, AsyncReadExt};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -24,9 +24,7 @@ use utoipa_axum::routes;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::recording::{
-    Limits, RecordingError, RecordingState, RecordingStatus, StopReason,
-};
+use crate::gateway::recording::{Limits, RecordingState, RecordingStatus, StopReason};
 
 /// The chunks a download is streamed in.
 const CHUNK: usize = 64 * 1024;
@@ -234,25 +232,31 @@ async fn download_recording(
     State(state): State<AppState>,
     ApiPath(bus): ApiPath<String>,
 ) -> Result<Response, AppError> {
-    let served = state.bus(&bus)?;
-    let log = served.recorder().log().await?;
-    let file = tokio::fs::File::open(&log.path).await.map_err(|err| {
-        if err.kind() == std::io::ErrorKind::NotFound {
-            // A new recording replaced it meanwhile.
-            GatewayError::NoRecording(format!(
-                "the log {} of bus {bus} is gone from the disk",
-                log.file_name
-            ))
-        } else {
-            GatewayError::from(RecordingError::Io {
-                bus: bus.clone(),
-                source: err,
-            })
-        }
-    })?;
-    // Only what was flushed: whole lines, even while the recording goes on.
-    let reader = file.take(log.len);
-    let chunks = futures_util::stream::unfold(Some(reader), |reader| async move {
+    let log = state
+        .bus(&bus)?
+        .recorder()
+        .open_log()
+        .await
+        .map_err(GatewayError::from)?;
+    let headers = [
+        (
+            header::CONTENT_TYPE,
+            "text/plain; charset=utf-8".to_string(),
+        ),
+        (
+            header::CONTENT_DISPOSITION,
+            format!("attachment; filename=\"{}\"", log.file_name),
+        ),
+        (header::CONTENT_LENGTH, log.len.to_string()),
+    ];
+    Ok((headers, Body::from_stream(chunks(log.reader))).into_response())
+}
+
+/// A reader as the chunks of a response body.
+fn chunks(
+    reader: impl AsyncRead + Unpin + Send + 'static,
+) -> impl futures_util::Stream<Item = std::io::Result<Bytes>> + Send + 'static {
+    futures_util::stream::unfold(Some(reader), |reader| async move {
         let mut reader = reader?;
         let mut buf = vec![0; CHUNK];
         match reader.read(&mut buf).await {
@@ -263,20 +267,5 @@ async fn download_recording(
             }
             Err(err) => Some((Err(err), None)),
         }
-    });
-    Ok((
-        [
-            (
-                header::CONTENT_TYPE,
-                "text/plain; charset=utf-8".to_string(),
-            ),
-            (
-                header::CONTENT_DISPOSITION,
-                format!("attachment; filename=\"{}\"", log.file_name),
-            ),
-            (header::CONTENT_LENGTH, log.len.to_string()),
-        ],
-        Body::from_stream(chunks),
-    )
-        .into_response())
+    })
 }

@@ -15,17 +15,17 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
-use super::nodes::known_node;
-use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
+use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
+use crate::gateway::caller::Caller;
 use crate::gateway::error::LedError;
 use crate::gateway::led_preview::PreviewError;
-use crate::gateway::profile::Profile;
-use crate::gateway::registry::NodeInfo;
-use crate::gateway::uioled::{self, fits, is_segment};
+use crate::gateway::node::led::{self, ColorChannels, LedController, Others, Scene};
 pub use crate::gateway::uioled::{Color, Preview, PreviewSegment, effect_name};
-use crate::profiles::uioled::{Effect, Field, SEGMENTS, Segment};
+use crate::gateway::uioled::{fits, is_segment};
+use crate::profiles::uioled::{Field, SEGMENTS, Segment};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -182,21 +182,8 @@ pub struct SegmentPath {
 }
 
 /// The bus and node of a path, which must be an LED controller.
-fn led_node(
-    state: &AppState,
-    bus: &str,
-    id: &str,
-) -> Result<(std::sync::Arc<ServedBus>, NodeInfo), AppError> {
-    let (served, info) = known_node(state, bus, id)?;
-    if info.profile != Profile::Uioled {
-        return Err(LedError::NotAnLedController(format!(
-            "node {} is a {} node, not an LED controller (profile uioled): it has no segments",
-            info.id,
-            info.profile.name()
-        ))
-        .into());
-    }
-    Ok((served, info))
+fn led_controller(state: &AppState, bus: &str, id: &str) -> Result<LedController, GatewayError> {
+    state.gateway.node_handle(bus, id)?.led_controller()
 }
 
 impl From<PreviewError> for AppError {
@@ -232,23 +219,11 @@ fn segment_number(text: &str) -> Result<u8, GatewayError> {
 fn parse_effect(effect: &Json) -> Result<i64, GatewayError> {
     let names = "off, fix, flash, breathing, flow, flow_reversed";
     match effect {
-        Json::String(name) => {
-            let folded = name.trim().to_ascii_uppercase().replace([' ', '-'], "_");
-            [
-                Effect::Off,
-                Effect::Fix,
-                Effect::Flash,
-                Effect::Breathing,
-                Effect::Flow,
-                Effect::FlowReversed,
-            ]
-            .into_iter()
-            .find(|effect| effect.name() == folded)
+        Json::String(name) => led::effect_by_name(name)
             .map(|effect| i64::from(effect.raw()))
             .ok_or_else(|| {
                 GatewayError::InvalidValue(format!("effect '{name}' is not one of {names}"))
-            })
-        }
+            }),
         Json::Number(number) => match number.as_i64() {
             Some(raw) if fits(Field::Effect, raw) => Ok(raw),
             _ if number.is_i64() || number.is_u64() => Err(GatewayError::ValueOutOfRange(format!(
@@ -264,11 +239,12 @@ fn parse_effect(effect: &Json) -> Result<i64, GatewayError> {
     }
 }
 
-/// The channels (sub-index 1–4 and value) a colour of a request writes.
-fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, GatewayError> {
+/// The channels a colour of a request writes (red, green, blue, white).
+fn parse_color(position: usize, color: &Json) -> Result<ColorChannels, GatewayError> {
     let invalid = |why: String| GatewayError::InvalidValue(format!("colors[{position}]: {why}"));
+    let mut channels: ColorChannels = [None; 4];
     match color {
-        Json::Null => Ok(Vec::new()),
+        Json::Null => {}
         Json::String(text) => {
             let digits = text.trim().trim_start_matches('#');
             if !(digits.len() == 6 || digits.len() == 8)
@@ -278,107 +254,123 @@ fn parse_color(position: usize, color: &Json) -> Result<Vec<(u8, i64)>, GatewayE
                     "'{text}' is not #rrggbb or #rrggbbww (hex digits)"
                 )));
             }
-            let channel = |n: usize| {
-                digits
-                    .get(2 * n..2 * n + 2)
-                    .and_then(|pair| u8::from_str_radix(pair, 16).ok())
-                    .map_or(0, i64::from)
-            };
-            Ok((0..4u8).map(|n| (n + 1, channel(usize::from(n)))).collect())
+            for (n, channel) in channels.iter_mut().enumerate() {
+                *channel = Some(
+                    digits
+                        .get(2 * n..2 * n + 2)
+                        .and_then(|pair| u8::from_str_radix(pair, 16).ok())
+                        .unwrap_or(0),
+                );
+            }
         }
-        Json::Object(channels) => {
-            let mut written = Vec::new();
-            for (key, value) in channels {
-                let sub = match key.as_str() {
-                    "r" => 1,
-                    "g" => 2,
-                    "b" => 3,
-                    "w" => 4,
+        Json::Object(given) => {
+            for (key, value) in given {
+                let channel = match key.as_str() {
+                    "r" => 0,
+                    "g" => 1,
+                    "b" => 2,
+                    "w" => 3,
                     other => {
                         return Err(invalid(format!("'{other}' is no channel (r, g, b, w)")));
                     }
                 };
                 let level = value
-                    .as_i64()
-                    .filter(|level| (0..=255).contains(level))
+                    .as_u64()
+                    .and_then(|level| u8::try_from(level).ok())
                     .ok_or_else(|| {
                         GatewayError::ValueOutOfRange(format!(
                             "colors[{position}].{key}: {value} is not 0 to 255"
                         ))
                     })?;
-                written.push((sub, level));
+                channels[channel] = Some(level);
             }
-            Ok(written)
         }
-        other => Err(invalid(format!(
-            "{other} is neither {{\"r\",\"g\",\"b\",\"w\"}} nor \"#rrggbb\""
-        ))),
+        other => {
+            return Err(invalid(format!(
+                "{other} is neither {{\"r\",\"g\",\"b\",\"w\"}} nor \"#rrggbb\""
+            )));
+        }
+    }
+    Ok(channels)
+}
+
+impl SegmentUpdate {
+    /// The update as the gateway takes it: colours and effect read, at
+    /// most three colours.
+    fn parse(&self) -> Result<led::SegmentUpdate, GatewayError> {
+        let mut colors = [[None; 4]; 3];
+        if let Some(given) = &self.colors {
+            if given.len() > 3 {
+                return Err(GatewayError::InvalidValue(format!(
+                    "{} colours given: a segment has 3",
+                    given.len()
+                )));
+            }
+            for (position, color) in given.iter().enumerate() {
+                colors[position] = parse_color(position, color)?;
+            }
+        }
+        Ok(led::SegmentUpdate {
+            led_count: self.led_count,
+            colors,
+            dimmer: self.dimmer,
+            smooth: self.smooth,
+            min_value: self.min_value,
+            max_value: self.max_value,
+            value: self.value,
+            speed: self.speed,
+            effect: self.effect.as_ref().map(parse_effect).transpose()?,
+        })
+    }
+
+    /// The update of `PUT .../segments/{segment}`, whose body names no
+    /// other segment.
+    fn for_segment(&self, segment: u8) -> Result<led::SegmentUpdate, GatewayError> {
+        if let Some(given) = self.segment
+            && given != u32::from(segment)
+        {
+            return Err(GatewayError::InvalidValue(format!(
+                "the body names segment {given}, the path segment {segment}"
+            )));
+        }
+        self.parse()
     }
 }
 
-/// The writes of an update, in the order they go out, all checked.
-fn plan(update: &SegmentUpdate) -> Result<Vec<(Field, i64)>, AppError> {
-    let mut writes = Vec::new();
-    let mut scalar = |field: Field, name: &str, value: Option<i64>| -> Result<(), AppError> {
-        if let Some(value) = value {
-            if !fits(field, value) {
-                return Err(GatewayError::ValueOutOfRange(format!(
-                    "{name} {value} does not fit its object ({})",
-                    uioled::data_type(field)
-                ))
-                .into());
-            }
-            writes.push((field, value));
-        }
-        Ok(())
-    };
-    scalar(Field::LedCount, "led_count", update.led_count)?;
-    let mut colors = Vec::new();
-    if let Some(given) = &update.colors {
-        if given.len() > 3 {
-            return Err(GatewayError::InvalidValue(format!(
-                "{} colours given: a segment has 3",
-                given.len()
-            ))
-            .into());
-        }
-        for (position, color) in given.iter().enumerate() {
-            for (channel, value) in parse_color(position, color)? {
-                colors.push((
-                    Field::Color {
-                        color: position as u8 + 1,
-                        channel,
-                    },
-                    value,
-                ));
-            }
-        }
+impl TryFrom<SceneRequest> for Scene {
+    type Error = GatewayError;
+
+    fn try_from(scene: SceneRequest) -> Result<Self, GatewayError> {
+        let others = scene
+            .others
+            .as_deref()
+            .map_or(Ok(Others::Keep), Others::from_name)?;
+        let segments = scene
+            .segments
+            .iter()
+            .enumerate()
+            .map(|(position, update)| {
+                let segment = update.segment.ok_or_else(|| {
+                    GatewayError::InvalidValue(format!("segments[{position}] names no segment"))
+                })?;
+                Ok((segment_number(&segment.to_string())?, update.parse()?))
+            })
+            .collect::<Result<_, GatewayError>>()?;
+        Ok(Scene { segments, others })
     }
-    scalar(Field::Dimmer, "dimmer", update.dimmer)?;
-    scalar(Field::Smooth, "smooth", update.smooth)?;
-    scalar(Field::MinValue, "min_value", update.min_value)?;
-    scalar(Field::MaxValue, "max_value", update.max_value)?;
-    scalar(Field::Value, "value", update.value)?;
-    scalar(Field::Speed, "speed", update.speed)?;
-    let effect = update.effect.as_ref().map(parse_effect).transpose()?;
-    // Colours after the layout, the effect last.
-    let split = usize::from(update.led_count.is_some());
-    writes.splice(split..split, colors);
-    if let Some(effect) = effect {
-        writes.push((Field::Effect, effect));
-    }
-    Ok(writes)
 }
 
 /// Reads every segment of an LED controller: the summary of `GET
 /// /nodes/{id}` for a `uioled` node.
 pub async fn summary(
     state: &AppState,
+    caller: &Caller,
     bus: &str,
-    info: &NodeInfo,
+    id: &str,
 ) -> Result<Vec<SegmentState>, AppError> {
-    let node = state.gateway.node_handle(bus, &info.id.to_string())?;
-    let segments = node.read_led_segments().await?;
+    let segments = led_controller(state, bus, id)?
+        .read_segments(caller)
+        .await?;
     Ok(states(&segments))
 }
 
@@ -403,10 +395,13 @@ fn states(segments: &[Segment]) -> Vec<SegmentState> {
     ))]
 async fn list_segments(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
-    let (_, info) = led_node(&state, &bus, &id)?;
-    Ok(ApiJson(summary(&state, &bus, &info).await?))
+    let segments = led_controller(&state, &bus, &id)?
+        .read_segments(&caller)
+        .await?;
+    Ok(ApiJson(states(&segments)))
 }
 
 /// Writes the fields given of one segment and returns it read back.
@@ -424,25 +419,17 @@ async fn list_segments(
     ))]
 async fn put_segment(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
     ApiJson(update): ApiJson<SegmentUpdate>,
 ) -> Result<ApiJson<SegmentState>, AppError> {
-    led_node(&state, &bus, &id)?;
+    let leds = led_controller(&state, &bus, &id)?;
     let segment = segment_number(&n)?;
-    if let Some(given) = update.segment
-        && given != u32::from(segment)
-    {
-        return Err(GatewayError::InvalidValue(format!(
-            "the body names segment {given}, the path segment {segment}"
-        ))
-        .into());
-    }
-    let writes = plan(&update)?;
-    let node = state.gateway.node_handle(&bus, &id)?;
-    let read_back = node
-        .write_led_segments(vec![(segment, writes)], Some(segment))
+    let update = update.for_segment(segment)?;
+    let read_back = leds
+        .write_segment_read_back(&caller, segment, &update)
         .await?;
-    Ok(ApiJson(SegmentState::new(segment, &read_back[0])))
+    Ok(ApiJson(SegmentState::new(segment, &read_back)))
 }
 
 /// Applies a scene: the segments listed, each as a partial update, and
@@ -461,46 +448,13 @@ async fn put_segment(
     ))]
 async fn put_scene(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(scene): ApiJson<SceneRequest>,
 ) -> Result<ApiJson<Vec<SegmentState>>, AppError> {
-    led_node(&state, &bus, &id)?;
-    let others_off = match scene.others.as_deref() {
-        None | Some("keep") => false,
-        Some("off") => true,
-        Some(other) => {
-            return Err(
-                GatewayError::InvalidValue(format!("others '{other}' is not keep or off")).into(),
-            );
-        }
-    };
-    let mut writes: Vec<(u8, Vec<(Field, i64)>)> = Vec::new();
-    for (position, update) in scene.segments.iter().enumerate() {
-        let segment = match update.segment {
-            Some(n) => segment_number(&n.to_string())?,
-            None => {
-                return Err(GatewayError::InvalidValue(format!(
-                    "segments[{position}] names no segment"
-                ))
-                .into());
-            }
-        };
-        if writes.iter().any(|(n, _)| *n == segment) {
-            return Err(
-                GatewayError::InvalidValue(format!("segment {segment} is listed twice")).into(),
-            );
-        }
-        writes.push((segment, plan(update)?));
-    }
-    if others_off {
-        for segment in 1..=SEGMENTS {
-            if !writes.iter().any(|(n, _)| *n == segment) {
-                writes.push((segment, vec![(Field::Effect, i64::from(Effect::Off.raw()))]));
-            }
-        }
-    }
-    let node = state.gateway.node_handle(&bus, &id)?;
-    let segments = node.write_led_segments(writes, None).await?;
+    let leds = led_controller(&state, &bus, &id)?;
+    let scene = Scene::try_from(scene)?;
+    let segments = leds.apply_scene(&caller, &scene).await?;
     Ok(ApiJson(states(&segments)))
 }
 
@@ -519,22 +473,9 @@ async fn put_scene(
     ))]
 async fn preview(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Preview>, AppError> {
-    led_node(&state, &bus, &id)?;
-    let segments = state
-        .gateway
-        .node_handle(&bus, &id)?
-        .read_led_preview()
-        .await?;
-    // The Values read are taken for those of now (time 0 of the renderer).
-    let now = tokio::time::Instant::now();
-    let segments: Vec<_> = segments
-        .into_iter()
-        .map(|read| uioled::ReadSegment {
-            read_at: now,
-            ..read
-        })
-        .collect();
-    Ok(ApiJson(uioled::preview(&segments, now)))
+    let preview = led_controller(&state, &bus, &id)?.preview(&caller).await?;
+    Ok(ApiJson(preview))
 }

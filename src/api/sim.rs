@@ -27,7 +27,7 @@ use crate::canopen::NodeId;
 use crate::gateway::GatewayError;
 use crate::gateway::error::SimError;
 use crate::sim::behaviour::Fault;
-use crate::sim::products::Product;
+use crate::sim::products::{DeviceSpec, Product};
 use crate::sim::rack::{Rack, RackError};
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -283,52 +283,66 @@ async fn add_device(
     ApiJson(request): ApiJson<AddDevice>,
 ) -> Result<(StatusCode, ApiJson<SimDevice>), AppError> {
     let rack = rack(&state, &bus)?;
-    let product = Product::from_name(&request.product).ok_or_else(|| {
-        let known: Vec<&str> = Product::ALL.iter().map(|product| product.name()).collect();
-        GatewayError::InvalidValue(format!(
-            "product '{}' is none of {}",
-            request.product,
-            known.join(", ")
-        ))
-    })?;
-    let id = match (request.id, request.lss) {
-        (None, true) => {
-            let spec = crate::sim::products::DeviceSpec {
-                product,
-                node: None,
-                serial: request.serial,
-            };
-            rack.add_spec(&spec).map_err(|err| rack_error(&bus, err))?;
-            let added = rack.loose_devices().pop().map(loose_doc).ok_or_else(|| {
-                GatewayError::Internal("the LSS device added is not in the rack".to_string())
+    let spec = request.spec()?;
+    rack.add_spec(&spec).map_err(|err| rack_error(&bus, err))?;
+    Ok((StatusCode::CREATED, ApiJson(added(&rack, &spec)?)))
+}
+
+impl AddDevice {
+    /// The device to add: a product at a node id, or without one, waiting
+    /// for LSS.
+    fn spec(&self) -> Result<DeviceSpec, AppError> {
+        let product = Product::from_name(&self.product).ok_or_else(|| {
+            let known: Vec<&str> = Product::ALL.iter().map(|product| product.name()).collect();
+            GatewayError::InvalidValue(format!(
+                "product '{}' is none of {}",
+                self.product,
+                known.join(", ")
+            ))
+        })?;
+        let id = match (self.id, self.lss) {
+            (None, true) => {
+                return Ok(DeviceSpec {
+                    product,
+                    node: None,
+                    serial: self.serial,
+                });
+            }
+            (Some(_), true) => {
+                return Err(AppError::InvalidRequest(
+                    "a device with \"lss\": true has no \"id\": LSS gives it one".to_string(),
+                ));
+            }
+            (None, false) => {
+                return Err(AppError::InvalidRequest(
+                    "\"id\" is missing (or \"lss\": true for a device without one)".to_string(),
+                ));
+            }
+            (Some(id), false) => id,
+        };
+        let node = u8::try_from(id)
+            .ok()
+            .and_then(|id| NodeId::new(id).ok())
+            .ok_or_else(|| {
+                GatewayError::ValueOutOfRange(format!("node id {id} is not 1 to 127"))
             })?;
-            return Ok((StatusCode::CREATED, ApiJson(added)));
-        }
-        (Some(_), true) => {
-            return Err(AppError::InvalidRequest(
-                "a device with \"lss\": true has no \"id\": LSS gives it one".to_string(),
-            ));
-        }
-        (None, false) => {
-            return Err(AppError::InvalidRequest(
-                "\"id\" is missing (or \"lss\": true for a device without one)".to_string(),
-            ));
-        }
-        (Some(id), false) => id,
-    };
-    let node = u8::try_from(id)
-        .ok()
-        .and_then(|id| NodeId::new(id).ok())
-        .ok_or_else(|| GatewayError::ValueOutOfRange(format!("node id {id} is not 1 to 127")))?;
-    rack.add(product, node)
-        .map_err(|err| rack_error(&bus, err))?;
-    let added = device(&rack, node).unwrap_or_else(|| SimDevice {
-        id: Some(node.get()),
-        product: Some(product.name().to_string()),
-        plugged: true,
-        serial: None,
-    });
-    Ok((StatusCode::CREATED, ApiJson(added)))
+        Ok(DeviceSpec::at(product, node))
+    }
+}
+
+/// The device `spec` added to `rack`, as the rack lists it now.
+fn added(rack: &Rack, spec: &DeviceSpec) -> Result<SimDevice, GatewayError> {
+    match spec.node {
+        None => rack.loose_devices().pop().map(loose_doc).ok_or_else(|| {
+            GatewayError::Internal("the LSS device added is not in the rack".to_string())
+        }),
+        Some(node) => Ok(device(rack, node).unwrap_or_else(|| SimDevice {
+            id: Some(node.get()),
+            product: Some(spec.product.name().to_string()),
+            plugged: true,
+            serial: None,
+        })),
+    }
 }
 
 /// Takes a virtual device off the bus for good (its id is free again).

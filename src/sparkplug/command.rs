@@ -32,7 +32,8 @@ use super::metric::MetricValue;
 use super::proto::Payload;
 use crate::canopen::nmt::NmtCommand;
 use crate::gateway::drive::{MoveRequest, TargetState};
-use crate::profiles::uioled::{Effect, Field, SEGMENTS, address};
+use crate::gateway::node::led::{SegmentUpdate, effect_by_name};
+use crate::profiles::uioled::{SEGMENTS, address};
 
 /// One command of a message.
 #[derive(Debug, Clone, PartialEq)]
@@ -83,11 +84,10 @@ pub enum Command {
         axis: u8,
         id: String,
     },
-    /// Writes to one segment of an LED controller: objects and values, in
-    /// order.
+    /// Writes to one segment of an LED controller.
     Segment {
         segment: u8,
-        writes: Vec<(u16, u8, i64)>,
+        update: SegmentUpdate,
     },
     /// A metric candeck does not take, or a value it cannot take (named,
     /// for the log and the audit).
@@ -300,7 +300,8 @@ fn axis_command(name: &str, value: MetricValue) -> Command {
     }
 }
 
-/// `Segment {n}/{field}` of an LED controller, as its objects' writes.
+/// `Segment {n}/{field}` of an LED controller, as an update of the
+/// segment.
 fn segment_command(name: &str, value: MetricValue) -> Command {
     let unsupported = |why: &str| Command::Unsupported(format!("{name}: {why}"));
     let Some((segment, what)) = name["Segment ".len()..].split_once('/') else {
@@ -314,70 +315,54 @@ fn segment_command(name: &str, value: MetricValue) -> Command {
         .as_f64()
         .filter(|n| n.fract() == 0.0)
         .map(|n| n as i64);
-    let fields: Vec<(Field, i64)> = match (what, &value) {
-        ("Effect", MetricValue::String(text)) => {
-            let folded = text.trim().to_ascii_uppercase().replace([' ', '-'], "_");
-            match [
-                Effect::Off,
-                Effect::Fix,
-                Effect::Flash,
-                Effect::Breathing,
-                Effect::Flow,
-                Effect::FlowReversed,
-            ]
-            .into_iter()
-            .find(|effect| effect.name() == folded)
-            {
-                Some(effect) => vec![(Field::Effect, i64::from(effect.raw()))],
-                None => return unsupported(&format!("no effect '{text}'")),
-            }
-        }
+    let mut update = SegmentUpdate::default();
+    match (what, &value) {
+        ("Effect", MetricValue::String(text)) => match effect_by_name(text) {
+            Some(effect) => update.effect = Some(i64::from(effect.raw())),
+            None => return unsupported(&format!("no effect '{text}'")),
+        },
         (color, MetricValue::String(text)) if color.starts_with("Color ") => {
-            let Ok(n @ 1..=3) = color["Color ".len()..].parse::<u8>() else {
+            let Ok(n @ 1..=3) = color["Color ".len()..].parse::<usize>() else {
                 return unsupported("a segment has colours 1 to 3");
             };
             let Some(channels) = hex_color(text) else {
                 return unsupported(&format!("'{text}' is not #rrggbb or #rrggbbww"));
             };
-            channels
-                .into_iter()
-                .enumerate()
-                .map(|(i, level)| {
-                    (
-                        Field::Color {
-                            color: n,
-                            channel: i as u8 + 1,
-                        },
-                        i64::from(level),
-                    )
-                })
-                .collect()
+            update.colors[n - 1] = channels.map(Some);
         }
         (field, _) => {
-            let field = match field {
-                "Effect" => Field::Effect,
-                "Led Count" => Field::LedCount,
-                "Dimmer" => Field::Dimmer,
-                "Value" => Field::Value,
-                "Min Value" => Field::MinValue,
-                "Max Value" => Field::MaxValue,
-                "Speed" => Field::Speed,
-                "Smooth" => Field::Smooth,
+            let given = match field {
+                "Effect" => &mut update.effect,
+                "Led Count" => &mut update.led_count,
+                "Dimmer" => &mut update.dimmer,
+                "Value" => &mut update.value,
+                "Min Value" => &mut update.min_value,
+                "Max Value" => &mut update.max_value,
+                "Speed" => &mut update.speed,
+                "Smooth" => &mut update.smooth,
                 _ => return unsupported("no such field"),
             };
             match number {
-                Some(number) => vec![(field, number)],
+                Some(number) => *given = Some(number),
                 None => return unsupported("a whole number is wanted"),
             }
         }
-    };
-    let writes = fields
+    }
+    Command::Segment { segment, update }
+}
+
+/// What a segment command writes, as its audit entry's request says it:
+/// `0x6231:1=10 0x6231:2=11`.
+pub fn segment_request(segment: u8, update: &SegmentUpdate) -> String {
+    update
+        .fields()
         .into_iter()
         .filter_map(|(field, value)| {
-            address(segment, field).map(|(index, sub)| (index, sub, value))
+            let (index, sub) = address(segment, field)?;
+            Some(format!("0x{index:04X}:{sub}={value}"))
         })
-        .collect();
-    Command::Segment { segment, writes }
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// `#rrggbb` (white 0) or `#rrggbbww` as its four channels.

@@ -2,7 +2,8 @@
 //! moves and their motion leases, and an LED controller's segments. The
 //! axis commands are parsed here and run by the gateway's motion
 //! operations ([`crate::gateway::motion`]), which REST's drive routes call
-//! too: the lease policy is theirs.
+//! too: the lease policy is theirs; a segment's by the LED operations
+//! ([`crate::gateway::node::led`]) that REST's segment routes call.
 //!
 //! The motion lease as MQTT gives it: a move without an end of its own
 //! (velocity, torque, duty cycle), or halt released in such a mode, is
@@ -25,7 +26,7 @@
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
-use super::command::Command;
+use super::command::{Command, segment_request};
 use super::config::SparkplugConfig;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::motion::LeaseClaim;
@@ -101,8 +102,9 @@ fn how_to_lease(axis: u8) -> String {
     )
 }
 
-/// Runs an axis or segment command on `bus` node `node`, the role and the
-/// write rate checked already.
+/// Runs an axis or segment command on `bus` node `node`, the role checked
+/// already, and the write rate too for an axis command (a segment's is the
+/// LED operation's, as REST's is).
 pub async fn run(
     gateway: &Gateway,
     config: &SparkplugConfig,
@@ -222,43 +224,14 @@ pub async fn run(
                 Ok(())
             }
         }
-        Command::Segment { segment, writes } => {
+        Command::Segment { segment, update } => {
             outcome.item = Some(format!("segment {segment}"));
-            outcome.request = Some(
-                writes
-                    .iter()
-                    .map(|(index, sub, value)| format!("0x{index:04X}:{sub}={value}"))
-                    .collect::<Vec<_>>()
-                    .join(" "),
-            );
-            let handle = gateway.node_handle(bus, &id)?;
-            let info = handle.info();
-            if info.profile != crate::gateway::profile::Profile::Uioled {
-                return Err(GatewayError::InvalidRequest(format!(
-                    "node {node} is no LED controller (profile {})",
-                    info.profile.name()
-                )));
-            }
-            // Every value checked against the EDS before the first write.
-            let mut checked = Vec::with_capacity(writes.len());
-            for (index, sub, value) in writes {
-                let described = info
-                    .eds_entry
-                    .as_ref()
-                    .and_then(|entry| entry.eds.dictionary.sub(*index, *sub))
-                    .ok_or_else(|| {
-                        GatewayError::InvalidRequest(format!(
-                            "the EDS of node {node} does not describe 0x{index:04X} sub {sub}"
-                        ))
-                    })?;
-                let bytes = described
-                    .value_from_json(&serde_json::json!(value), Some(info.id))
-                    .map_err(|err| GatewayError::ValueOutOfRange(err.to_string()))?
-                    .to_bytes();
-                checked.push((*index, *sub, bytes));
-            }
-            // The preview follows every write the node confirms by itself.
-            handle.download_objects(checked).await
+            outcome.request = Some(segment_request(*segment, update));
+            gateway
+                .node_handle(bus, &id)?
+                .led_controller()?
+                .write_segment(&caller, *segment, update)
+                .await
         }
         _ => Err(GatewayError::Internal(format!(
             "{} is not an axis or segment command",

@@ -1137,14 +1137,17 @@ pub(crate) async fn run_command(
             )));
         };
         let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role));
-        // An object write or NMT command takes its write in the gateway's
-        // operation. A stop is never refused by the write rate (as REST's
-        // halts and walks out of operation enabled), nor is a lease renewal
-        // (a heartbeat refused would stop the axis); another command draws
-        // on the lease it presents, if it is the one held on its axis, so
-        // that commands presenting none cannot starve the lease's holder
-        // (`crate::gateway::policy`).
-        let object_operation = matches!(command, Command::Write { .. } | Command::Nmt(_));
+        // An object write, NMT command or segment write takes its write in
+        // the gateway's operation. A stop is never refused by the write
+        // rate (as REST's halts and walks out of operation enabled), nor is
+        // a lease renewal (a heartbeat refused would stop the axis);
+        // another command draws on the lease it presents, if it is the one
+        // held on its axis, so that commands presenting none cannot starve
+        // the lease's holder (`crate::gateway::policy`).
+        let object_operation = matches!(
+            command,
+            Command::Write { .. } | Command::Nmt(_) | Command::Segment { .. }
+        );
         if !(object_operation
             || command.is_stop()
             || matches!(command, Command::Lease { keep: true, .. }))

@@ -10,6 +10,7 @@ use super::spool::{Spool, read_records};
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::od::Value;
+use crate::gateway::node::led::SegmentUpdate;
 
 fn session() -> EdgeSession {
     EdgeSession::new("plant", "line1", 0, Policy::default())
@@ -588,25 +589,37 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
         assert!(matches!(bad, Command::Unsupported(_)), "{bad:?}");
     }
     // Segment 3's Color_02 is 0x6231, sub-indexes 1-4 R, G, B, W.
+    let color_2 = SegmentUpdate {
+        colors: [
+            [None; 4],
+            [Some(10), Some(11), Some(12), Some(0)],
+            [None; 4],
+        ],
+        ..SegmentUpdate::default()
+    };
     assert_eq!(
         commands[7],
         Command::Segment {
             segment: 3,
-            writes: vec![
-                (0x6231, 1, 10),
-                (0x6231, 2, 11),
-                (0x6231, 3, 12),
-                (0x6231, 4, 0)
-            ]
+            update: color_2.clone()
         }
     );
+    assert_eq!(
+        command::segment_request(3, &color_2),
+        "0x6231:1=10 0x6231:2=11 0x6231:3=12 0x6231:4=0"
+    );
+    let flow = SegmentUpdate {
+        effect: Some(0x0300),
+        ..SegmentUpdate::default()
+    };
     assert_eq!(
         commands[8],
         Command::Segment {
             segment: 3,
-            writes: vec![(0x6220, 0, 0x0300)]
+            update: flow.clone()
         }
     );
+    assert_eq!(command::segment_request(3, &flow), "0x6220:0=768");
     assert!(matches!(commands[9], Command::Unsupported(_)));
     assert!(matches!(commands[10], Command::Unsupported(_)));
 }

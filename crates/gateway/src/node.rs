@@ -10,8 +10,9 @@
 
 mod axes;
 pub mod config;
+pub mod led;
 pub mod pdo;
-mod sequences;
+pub mod program;
 mod transfer;
 
 use std::sync::Arc;
@@ -60,3 +61,5 @@ impl Gateway {
         })
     }
 }
+#[cfg(test)]
+mod tests;

@@ -207,6 +207,14 @@ pub struct RecordingLog {
     pub len: u64,
 }
 
+/// A recording's log opened to be read: `len` bytes of `reader`.
+#[derive(Debug)]
+pub struct OpenedLog {
+    pub file_name: String,
+    pub len: u64,
+    pub reader: tokio::io::Take<tokio::fs::File>,
+}
+
 /// The end of a recording, as its task saw it.
 #[derive(Debug, Default)]
 struct End {
@@ -450,6 +458,33 @@ impl Recorder {
                 source,
             }),
         }
+    }
+
+    /// The last recording's log opened to be read, as far as it is
+    /// flushed ([`Recorder::log`]): whole lines, even while the recording
+    /// goes on.
+    pub async fn open_log(&self) -> Result<OpenedLog, RecordingError> {
+        let log = self.log().await?;
+        let file = tokio::fs::File::open(&log.path).await.map_err(|source| {
+            if source.kind() == io::ErrorKind::NotFound {
+                // A new recording replaced it meanwhile.
+                RecordingError::NoRecording(format!(
+                    "the log {} of bus {} is gone from the disk",
+                    log.file_name,
+                    self.bus.name()
+                ))
+            } else {
+                RecordingError::Io {
+                    bus: self.bus.name().to_string(),
+                    source,
+                }
+            }
+        })?;
+        Ok(OpenedLog {
+            reader: tokio::io::AsyncReadExt::take(file, log.len),
+            file_name: log.file_name,
+            len: log.len,
+        })
     }
 
     fn no_recording(&self) -> RecordingError {

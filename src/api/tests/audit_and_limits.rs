@@ -341,3 +341,50 @@ async fn the_docs_ui_and_the_openapi_document_need_no_token() {
     let (status, _) = send(&app, Method::GET, "/api/v1/buses", None, &[], None).await;
     assert_eq!(status, StatusCode::UNAUTHORIZED);
 }
+
+/// LED segments and program downloads take their write in the gateway's
+/// operation (issue 29), so the guard takes none: a bucket of 3 gives 3
+/// segment writes, not 1 or 2, and a viewer is refused as before.
+#[tokio::test(start_paused = true)]
+async fn a_segment_write_or_program_download_is_one_write_of_the_rate() {
+    let served = support::open("demo", "virtual:demo").await;
+    assert_eq!(served.scan().await.unwrap().len(), 3);
+    let config = config(
+        Some(RateLimit {
+            per_second: 0.001,
+            burst: 3,
+        }),
+        crate::api::auth::DEFAULT_BODY_LIMIT,
+    );
+    let app = app(AppState::new([served]).with_auth(config));
+    let segment = "/api/v1/buses/demo/nodes/3/segments/1";
+    let scene = "/api/v1/buses/demo/nodes/3/segments";
+    let dim = Some(r#"{"dimmer": 9}"#);
+    let off = Some(r#"{"segments": [], "others": "off"}"#);
+    let refused = send(&app, Method::PUT, segment, Some(VIEWER), &[], dim).await;
+    assert_error(&refused, StatusCode::FORBIDDEN, "forbidden");
+    for (path, body) in [(segment, dim), (scene, off), (segment, dim)] {
+        let (status, json) = send(&app, Method::PUT, path, Some(OPERATOR), &[], body).await;
+        assert_eq!(status, StatusCode::OK, "{path}: {json}");
+    }
+    let refused = send(&app, Method::PUT, scene, Some(OPERATOR), &[], off).await;
+    assert_error(&refused, StatusCode::TOO_MANY_REQUESTS, "rate_limited");
+
+    let program = "/api/v1/buses/demo/nodes/3/program?start=false";
+    for _ in 0..3 {
+        let (status, _, json) = send_with_headers(
+            &app,
+            Method::POST,
+            program,
+            &[
+                ("authorization", &format!("Bearer {ADMIN}")),
+                ("content-type", "application/octet-stream"),
+            ],
+            Some("CDKI\u{5}4.5.6 an image"),
+        )
+        .await;
+        assert_eq!(status, StatusCode::OK, "{json}");
+    }
+    let refused = send(&app, Method::POST, program, Some(ADMIN), &[], Some("image")).await;
+    assert_error(&refused, StatusCode::TOO_MANY_REQUESTS, "rate_limited");
+}

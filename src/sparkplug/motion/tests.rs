@@ -666,3 +666,36 @@ async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
         .count();
     assert_eq!(audited, flood_refused);
 }
+
+/// A segment command runs REST's LED operation: one write of the edge
+/// node's rate each (not one by the edge node and another by the
+/// operation), and a node that is no LED controller is refused as REST
+/// refuses it.
+#[tokio::test(start_paused = true)]
+async fn a_segment_command_is_one_write_and_refused_as_rest_refuses_it() {
+    use crate::gateway::access::RateLimit;
+    let gateway = demo().await.with_write_limit(Some(RateLimit {
+        per_second: 0.001,
+        burst: 3,
+    }));
+    let config = config(crate::gateway::access::Role::Operator);
+    let held = HeldLeases::default();
+    let dim = |level: u8| metric("Segment 1/Dimmer", MetricValue::UInt8(level));
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        3,
+        vec![dim(1), dim(2), dim(3), dim(4)],
+    )
+    .await;
+    assert!(results[..3].iter().all(Result::is_ok), "{results:?}");
+    assert_eq!(results[3].as_ref().unwrap_err().code(), "rate_limited");
+
+    let gateway = demo().await;
+    let results = dcmd(&gateway, &config, &held, 1, vec![dim(1)]).await;
+    assert_eq!(
+        results[0].as_ref().unwrap_err().code(),
+        "not_an_led_controller"
+    );
+}

@@ -1,0 +1,321 @@
+//! The node operations through the gateway alone, no door in front: the
+//! LED segments and the program download, on the demo rack.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use candeck_sim::products::parse_devices;
+use candeck_sim::rack::Rack;
+
+use super::led::{LedController, Others, Scene, SegmentUpdate};
+use crate::access::{RateLimit, Role, Tokens};
+use crate::caller::{Caller, Channel};
+use crate::can::{FrameReceiver, VirtualHub};
+use crate::canopen::crc32::crc32;
+use crate::history::Retention;
+use crate::machine::MachineSettings;
+use crate::producers::TelemetryConfig;
+use crate::profiles::uioled::Effect;
+use crate::service::BusDevices;
+use crate::{Gateway, GatewayConfig};
+
+/// The demo's UIO1LED.
+const LED: &str = "3";
+
+/// The gateway on the demo rack, its nodes identified. The LED preview is
+/// read again only once a minute by its own period, so that what moves it
+/// sooner is a write's follow-up.
+async fn demo() -> Gateway {
+    let config = GatewayConfig {
+        buses: [("demo".to_string(), "virtual:demo".parse().unwrap())].into(),
+        data_dir: None,
+        eds_dir: None,
+        bitrate: 500_000,
+        telemetry: TelemetryConfig {
+            segments_read_period: Duration::from_secs(60),
+            ..TelemetryConfig::default()
+        },
+        retention: Retention::default(),
+        recordings_quota: None,
+        logger_max_values: 1000,
+        lease_period: Duration::from_secs(1),
+        tokens: Tokens::default(),
+        write_limit: None,
+        sync_period: Duration::ZERO,
+        machine: MachineSettings::default(),
+        machine_nodes: BTreeMap::new(),
+    };
+    let gateway = Gateway::start(config, &demo_rack).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    gateway
+}
+
+fn demo_rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
+    let rack = Rack::new(hub.clone());
+    rack.add_all(&parse_devices(preset)?)
+        .map_err(|err| err.to_string())?;
+    Ok(Some(Arc::new(rack) as BusDevices))
+}
+
+fn leds(gateway: &Gateway) -> LedController {
+    gateway
+        .node_handle("demo", LED)
+        .unwrap()
+        .led_controller()
+        .unwrap()
+}
+
+fn operator(channel: Channel) -> Caller {
+    Caller::new(channel, "someone", Some(Role::Operator))
+}
+
+/// The SDO requests sent to `node` since the last call.
+fn sdo_requests(frames: &mut FrameReceiver, node: u32) -> usize {
+    let mut requests = 0;
+    while let Ok(Some(frame)) = frames.try_recv() {
+        if frame.frame.id().raw() == 0x600 + node {
+            requests += 1;
+        }
+    }
+    requests
+}
+
+fn breathing_red() -> SegmentUpdate {
+    SegmentUpdate {
+        led_count: Some(6),
+        colors: [[Some(255), Some(0), Some(0), Some(0)], [None; 4], [None; 4]],
+        dimmer: Some(200),
+        effect: Some(i64::from(Effect::Breathing.raw())),
+        ..SegmentUpdate::default()
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_scene_is_refused_by_the_gateway_itself_before_anything_is_written() {
+    let gateway = demo().await;
+    let leds = leds(&gateway);
+    let mut frames = gateway.buses["demo"].bus.monitor();
+    let scene = Scene {
+        segments: vec![(1, breathing_red())],
+        others: Others::Off,
+    };
+
+    // A viewer may look, not write, whichever door it came through.
+    for channel in [Channel::Rest, Channel::Sparkplug, Channel::Cia309_3] {
+        let viewer = Caller::new(channel, "hmi", Some(Role::Viewer));
+        let refused = leds.apply_scene(&viewer, &scene).await.unwrap_err();
+        assert_eq!(refused.code(), "forbidden", "{refused}");
+        let refused = leds
+            .write_segment(&viewer, 1, &breathing_red())
+            .await
+            .unwrap_err();
+        assert_eq!(refused.code(), "forbidden", "{refused}");
+    }
+    // Every value is checked before the first write.
+    let twice = Scene {
+        segments: vec![(1, breathing_red()), (1, SegmentUpdate::default())],
+        others: Others::Keep,
+    };
+    let too_dim = Scene {
+        segments: vec![(
+            2,
+            SegmentUpdate {
+                dimmer: Some(256),
+                ..SegmentUpdate::default()
+            },
+        )],
+        others: Others::Keep,
+    };
+    let no_such_segment = Scene {
+        segments: vec![(11, breathing_red())],
+        others: Others::Keep,
+    };
+    let caller = operator(Channel::Rest);
+    for (scene, code) in [
+        (&twice, "invalid_value"),
+        (&too_dim, "value_out_of_range"),
+        (&no_such_segment, "unknown_segment"),
+    ] {
+        let refused = leds.apply_scene(&caller, scene).await.unwrap_err();
+        assert_eq!(refused.code(), code, "{refused}");
+    }
+    assert_eq!(
+        Others::from_name("dark").unwrap_err().code(),
+        "invalid_value"
+    );
+    assert_eq!(sdo_requests(&mut frames, 3), 0);
+
+    // A node that is no LED controller has no segments.
+    let drive = gateway.node_handle("demo", "1").unwrap();
+    let refused = drive.led_controller().err().unwrap();
+    assert_eq!(refused.code(), "not_an_led_controller", "{refused}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_segment_write_takes_one_write_of_the_callers_rate() {
+    let gateway = demo().await.with_write_limit(Some(RateLimit {
+        per_second: 0.001,
+        burst: 2,
+    }));
+    let leds = leds(&gateway);
+    // The edge node is counted always (MQTT names no sender).
+    let mqtt = operator(Channel::Sparkplug);
+    let dim = SegmentUpdate {
+        dimmer: Some(9),
+        ..SegmentUpdate::default()
+    };
+    leds.write_segment(&mqtt, 1, &dim).await.unwrap();
+    leds.write_segment(&mqtt, 1, &dim).await.unwrap();
+    let refused = leds.write_segment(&mqtt, 1, &dim).await.unwrap_err();
+    assert_eq!(refused.code(), "rate_limited", "{refused}");
+}
+
+/// The same update through a Sparkplug caller (its `Segment {n}/{field}`
+/// commands) and a REST caller (`PUT .../segments/{n}`) leaves the two
+/// controllers alike, and each one's preview follows the write at once,
+/// not at its next period.
+#[tokio::test(start_paused = true)]
+async fn a_segment_write_is_the_same_from_every_door_and_the_preview_follows_it() {
+    let mut states = Vec::new();
+    for channel in [Channel::Sparkplug, Channel::Rest] {
+        let gateway = demo().await;
+        let leds = leds(&gateway);
+        let node = leds.node().info().id;
+        let mut preview = gateway.buses["demo"]
+            .previews()
+            .subscribe(node, 20.0)
+            .unwrap();
+        let before = preview.changed().await.unwrap();
+        assert_eq!(
+            before.data["segments"][1]["effect"], "off",
+            "{}",
+            before.data
+        );
+
+        leds.write_segment(&operator(channel), 2, &breathing_red())
+            .await
+            .unwrap();
+        let followed = tokio::time::timeout(Duration::from_secs(2), async {
+            loop {
+                let sample = preview.changed().await.unwrap();
+                if sample.data["segments"][1]["effect"] == "breathing" {
+                    return sample;
+                }
+            }
+        })
+        .await
+        .expect("the preview follows the write");
+        assert_eq!(followed.data["segments"][1]["led_count"], 6);
+
+        let viewer = Caller::new(channel, "hmi", Some(Role::Viewer));
+        let segments = leds.read_segments(&viewer).await.unwrap();
+        let pixels = leds.preview(&viewer).await.unwrap();
+        states.push((segments, pixels));
+    }
+    assert_eq!(states[0], states[1]);
+    assert_eq!(states[0].0[1].led_count, 6);
+    assert_eq!(states[0].0[1].effect, Effect::Breathing);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_segment_read_back_is_what_the_device_made_of_the_write() {
+    let gateway = demo().await;
+    let leds = leds(&gateway);
+    let read_back = leds
+        .write_segment_read_back(&operator(Channel::Rest), 4, &breathing_red())
+        .await
+        .unwrap();
+    assert_eq!(read_back.effect, Effect::Breathing);
+    assert_eq!(read_back.dimmer, 200);
+    assert_eq!(read_back.color_1().r, 255);
+    let segments = leds
+        .apply_scene(
+            &operator(Channel::Sparkplug),
+            &Scene {
+                segments: vec![],
+                others: Others::Off,
+            },
+        )
+        .await
+        .unwrap();
+    assert_eq!(segments.len(), 10);
+    assert!(segments.iter().all(|segment| segment.effect == Effect::Off));
+}
+
+/// A program image, as the virtual devices take it.
+fn image(len: usize) -> Vec<u8> {
+    let mut image = b"CDKI\x061.2.3x".to_vec();
+    image.extend((0..len.saturating_sub(image.len())).map(|i| (i * 7) as u8));
+    image
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_program_download_runs_to_its_end_though_its_caller_goes_away() {
+    let gateway = demo().await;
+    let node = gateway.node_handle("demo", LED).unwrap();
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    let topic = gateway.buses["demo"].programs.topic(node.info().id);
+    let image = image(64 * 1024);
+    // The caller gives up while the image is on its way.
+    let cut = tokio::time::timeout(
+        Duration::from_millis(20),
+        node.download_program(&admin, image.clone(), true),
+    )
+    .await;
+    assert!(cut.is_err(), "the download ended within 20 ms");
+    let running = topic.latest().expect("a report");
+    assert_eq!(running.data["state"], "running", "{}", running.data);
+
+    tokio::time::sleep(Duration::from_secs(30)).await;
+    let last = topic.latest().unwrap();
+    assert_eq!(
+        (&last.data["state"], &last.data["percent"]),
+        (&serde_json::json!("done"), &serde_json::json!(100)),
+        "{}",
+        last.data
+    );
+    let crc = node
+        .read_object(&admin, 0x1F56, 1)
+        .await
+        .map(|bytes| u32::from_le_bytes(bytes.try_into().unwrap()))
+        .unwrap();
+    assert_eq!(crc, crc32(&image));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_program_download_is_the_administrators_and_names_its_failed_step() {
+    let gateway = demo().await;
+    let led = gateway.node_handle("demo", LED).unwrap();
+    let operator = operator(Channel::Cia309_3);
+    let refused = led
+        .download_program(&operator, image(100), true)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "forbidden", "{refused}");
+
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    let empty = led.download_program(&admin, Vec::new(), true).await;
+    assert_eq!(empty.unwrap_err().code(), "invalid_request");
+
+    let done = led
+        .download_program(&admin, image(100), false)
+        .await
+        .unwrap();
+    assert_eq!((done.run, done.report.started), (1, false));
+    assert_eq!(done.report.crc32, crc32(&image(100)));
+
+    // The JMC has no 0x1F51: the first step fails, named.
+    let jmc = gateway.node_handle("demo", "2").unwrap();
+    let failed = jmc
+        .download_program(&admin, image(100), true)
+        .await
+        .unwrap_err();
+    assert_eq!(failed.code(), "sdo_abort", "{failed}");
+    match failed {
+        crate::GatewayError::FailedAt { step, .. } => {
+            assert_eq!(step, "stop program (0x1F51 = 0)");
+        }
+        other => panic!("not named by its step: {other:?}"),
+    }
+}
