@@ -4,6 +4,7 @@
 
 mod audit;
 mod audit_and_limits;
+mod audit_rows;
 mod auth;
 mod drives;
 mod edge;
