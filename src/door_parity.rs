@@ -580,14 +580,7 @@ fn expected(op: Op) -> (Outcome, Option<Row>) {
         Op::MoveWithoutLease => (
             Outcome::Refused,
             Some(asking(
-                row(
-                    "move",
-                    Some(1),
-                    None,
-                    409,
-                    Some("lease_conflict"),
-                    None,
-                ),
+                row("move", Some(1), None, 409, Some("lease_conflict"), None),
                 r#"{"mode":"velocity","velocity":-300}"#,
             )),
         ),

@@ -51,8 +51,8 @@ use super::auth::Identity;
 use super::caller::{AuditItem, AuditedByHandler};
 use super::error::ErrorSummary;
 use crate::can::Timestamp;
-use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::audit::{DoorDetail, DoorRequest};
+use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{AuditEntry, OK};
 
 /// The request body as the audit log keeps it, at most (bytes of JSON).

@@ -14,9 +14,9 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::error::body_of;
-use super::caller::RestCaller;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::format_index;
 use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource};

@@ -46,8 +46,8 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::caller::RestCaller;
+use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::leases::{LeaseInfo, presented, takeover_asked};
 use super::nodes::known_node;
 use super::schema;
@@ -310,12 +310,7 @@ async fn set_state(
     let claim = LeaseClaim::presented(presented(&headers), takeover);
     let outcome = state
         .gateway
-        .set_axis_state(
-            &caller,
-            (&bus, &id, &axis),
-            request.target,
-            &claim,
-        )
+        .set_axis_state(&caller, (&bus, &id, &axis), request.target, &claim)
         .await
         .map_err(failure)?;
     Ok(ApiJson(StateResponse {
@@ -402,12 +397,7 @@ async fn halt(
     };
     let outcome = state
         .gateway
-        .set_axis_halt(
-            &caller,
-            (&bus, &id, &axis),
-            request.halt,
-            &claim,
-        )
+        .set_axis_halt(&caller, (&bus, &id, &axis), request.halt, &claim)
         .await
         .map_err(failure)?;
     Ok(ApiJson(motion_response(outcome)))
@@ -455,12 +445,7 @@ async fn run_move(
     let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
     let outcome = state
         .gateway
-        .move_axis(
-            &caller,
-            (&bus, &id, &axis),
-            &request,
-            &claim,
-        )
+        .move_axis(&caller, (&bus, &id, &axis), &request, &claim)
         .await
         .map_err(failure)?;
     Ok(ApiJson(motion_response(outcome)))
@@ -500,12 +485,7 @@ async fn step_test(
     let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
     let outcome = state
         .gateway
-        .step_test_axis(
-            &caller,
-            (&bus, &id, &axis),
-            &request,
-            &claim,
-        )
+        .step_test_axis(&caller, (&bus, &id, &axis), &request, &claim)
         .await
         .map_err(failure)?;
     Ok(ApiJson(outcome.status))

@@ -21,7 +21,6 @@
 
 use std::time::Duration;
 
-
 use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
@@ -32,12 +31,12 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::ErrorBody;
 use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use super::caller::RestCaller;
 use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
 
 /// The request header that presents a lease to a command on a held axis.

@@ -24,8 +24,8 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::doc::{BusPath, ErrorBody, NodePath};
 use super::caller::RestCaller;
+use super::doc::{BusPath, ErrorBody, NodePath};
 use super::od::{AnyValue, dictionary, hex};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{ObjectDictionary, format_index};
@@ -399,9 +399,7 @@ async fn send_rpdo(
 ) -> Result<ApiJson<RpdoSent>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
     let number = pdo_number(PdoKind::Rpdo, &n)?;
-    let sent = node
-        .send_rpdo(&caller, number, &request.values)
-        .await?;
+    let sent = node.send_rpdo(&caller, number, &request.values).await?;
     Ok(ApiJson(RpdoSent {
         cob_id: sent.cob_id,
         data: hex(&sent.data),

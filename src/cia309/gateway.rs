@@ -18,8 +18,8 @@ use std::time::Duration;
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::sdo::ClientConfig;
 use crate::gateway::access::{Role, Tokens};
-use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::audit::{AuditTarget, DoorDetail};
+use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::node::objects::{nmt_summary, object_item};
 use crate::gateway::{Gateway, GatewayError, NodeHandle, ServedBus};
 
@@ -123,8 +123,8 @@ impl Origin<'_> {
     pub fn caller_with(&self, summary: Option<String>) -> Caller {
         let identity = self.identity;
         let detail = DoorDetail::new(self.method, self.path).summary(summary);
-        let caller = Caller::new(self.channel(), identity.who.clone(), identity.access)
-            .with_detail(detail);
+        let caller =
+            Caller::new(self.channel(), identity.who.clone(), identity.access).with_detail(detail);
         match &identity.peer {
             Some(peer) => caller.with_peer(peer.clone()),
             None => caller,

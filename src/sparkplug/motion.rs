@@ -194,7 +194,9 @@ pub async fn run(
                     }
                 }
             } else {
-                gateway.give_up_axis_lease(caller, &axis_key, lease_id).await?;
+                gateway
+                    .give_up_axis_lease(caller, &axis_key, lease_id)
+                    .await?;
                 held.ended(&axis_key, lease_id);
                 Ok(())
             }

@@ -1206,9 +1206,7 @@ pub(crate) async fn run_command(
             _ => super::motion::run(gateway, &caller, held, bus, node, command).await,
         }
     };
-    gateway
-        .audited_by_door(&caller, target, None, work)
-        .await
+    gateway.audited_by_door(&caller, target, None, work).await
 }
 
 /// The request of a command as the edge node summarises it, where it has

@@ -13,8 +13,8 @@ use tokio::sync::Notify;
 use tokio::time::Instant;
 
 use super::GatewayError;
-use super::caller::Caller;
 use super::audit::AuditTarget;
+use super::caller::Caller;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;

@@ -31,8 +31,8 @@ use crate::canopen::manager::{
     SdoOutcome,
 };
 
-use super::caller::Caller;
 use super::audit::{AuditRow, AuditTarget};
+use super::caller::Caller;
 use super::history::{History, OK};
 use super::registry::{NodeEvent, NodeRegistry, OfflineReason};
 use super::sdo::SdoRequestError;

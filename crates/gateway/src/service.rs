@@ -19,11 +19,11 @@ use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarge
 
 use super::GatewayError;
 use super::access::{RateLimit, Tokens, WriteLimiter};
+use super::audit::AuditTarget;
 use super::axis_telemetry::AxisTelemetry;
 use super::caller::Caller;
 use super::drive::Drive;
 use super::frames::FrameLog;
-use super::audit::AuditTarget;
 use super::history::History;
 use super::leases::MotionLeases;
 use super::led_preview::LedPreviews;
@@ -378,8 +378,8 @@ impl Gateway {
                 removed.file_name,
                 removed.bytes
             );
-            let target = AuditTarget::new("prune recording (over quota)")
-                .item(removed.file_name.clone());
+            let target =
+                AuditTarget::new("prune recording (over quota)").item(removed.file_name.clone());
             let request = format!("{{\"bytes\":{}}}", removed.bytes);
             self.audit_row(&Caller::system(), target, Some(request))
                 .finish_ok()

@@ -117,7 +117,15 @@ async fn every_rest_request_leaves_exactly_one_row() {
     use Method as M;
     let velocity = r#"{"mode":"velocity","velocity":100}"#;
     let cases = [
-        case("an operation that succeeds", M::PUT, od, Some(PLC.2), Some(r#"{"value":1000}"#), 200, "ok"),
+        case(
+            "an operation that succeeds",
+            M::PUT,
+            od,
+            Some(PLC.2),
+            Some(r#"{"value":1000}"#),
+            200,
+            "ok",
+        ),
         case(
             "an operation the device refuses",
             M::PUT,
@@ -145,7 +153,15 @@ async fn every_rest_request_leaves_exactly_one_row() {
             200,
             "ok",
         ),
-        case("a move that takes a lease", M::POST, "/api/v1/buses/demo/nodes/1/axes/1/move", Some(PLC.2), Some(velocity), 200, "ok"),
+        case(
+            "a move that takes a lease",
+            M::POST,
+            "/api/v1/buses/demo/nodes/1/axes/1/move",
+            Some(PLC.2),
+            Some(velocity),
+            200,
+            "ok",
+        ),
         case(
             "a move the gateway's lease refuses",
             M::POST,
@@ -155,12 +171,60 @@ async fn every_rest_request_leaves_exactly_one_row() {
             409,
             "lease_conflict",
         ),
-        case("a halt", M::POST, "/api/v1/buses/demo/nodes/1/axes/1/halt", Some(PLC.2), Some(r#"{"halt":true}"#), 200, "ok"),
-        case("no token (the guard's 401)", M::PUT, od, None, Some(r#"{"value":1000}"#), 401, "unauthenticated"),
-        case("a body too large (413)", M::PUT, od, Some(PLC.2), Some(&too_large), 413, "payload_too_large"),
-        case("a body that is no JSON", M::PUT, od, Some(PLC.2), Some("{"), 400, "invalid_request"),
-        case("a role the guard refuses (403)", M::POST, "/api/v1/nowhere", Some(PLC.2), None, 403, "forbidden"),
-        case("a path no route has", M::POST, "/api/v1/nowhere", Some(ADMIN.2), None, 404, "not_found"),
+        case(
+            "a halt",
+            M::POST,
+            "/api/v1/buses/demo/nodes/1/axes/1/halt",
+            Some(PLC.2),
+            Some(r#"{"halt":true}"#),
+            200,
+            "ok",
+        ),
+        case(
+            "no token (the guard's 401)",
+            M::PUT,
+            od,
+            None,
+            Some(r#"{"value":1000}"#),
+            401,
+            "unauthenticated",
+        ),
+        case(
+            "a body too large (413)",
+            M::PUT,
+            od,
+            Some(PLC.2),
+            Some(&too_large),
+            413,
+            "payload_too_large",
+        ),
+        case(
+            "a body that is no JSON",
+            M::PUT,
+            od,
+            Some(PLC.2),
+            Some("{"),
+            400,
+            "invalid_request",
+        ),
+        case(
+            "a role the guard refuses (403)",
+            M::POST,
+            "/api/v1/nowhere",
+            Some(PLC.2),
+            None,
+            403,
+            "forbidden",
+        ),
+        case(
+            "a path no route has",
+            M::POST,
+            "/api/v1/nowhere",
+            Some(ADMIN.2),
+            None,
+            404,
+            "not_found",
+        ),
         case(
             "a node not known, before the operation",
             M::PUT,
@@ -190,14 +254,24 @@ async fn every_rest_request_leaves_exactly_one_row() {
         .await;
         let new = rows(&gateway).await.split_off(before);
         if status.as_u16() != case.status {
-            failures.push(format!("{}: answered {status}, not {}: {body}", case.what, case.status));
+            failures.push(format!(
+                "{}: answered {status}, not {}: {body}",
+                case.what, case.status
+            ));
         }
         if new.len() != 1 {
-            failures.push(format!("{}: {} rows, not 1: {new:#?}", case.what, new.len()));
+            failures.push(format!(
+                "{}: {} rows, not 1: {new:#?}",
+                case.what,
+                new.len()
+            ));
             continue;
         }
         let row = &new[0];
-        if row["channel"] != "rest" || row["outcome"] != case.outcome || row["status"] != status.as_u16() {
+        if row["channel"] != "rest"
+            || row["outcome"] != case.outcome
+            || row["status"] != status.as_u16()
+        {
             failures.push(format!(
                 "{}: row {row:?}, not rest/{}/{status}",
                 case.what, case.outcome
@@ -222,13 +296,18 @@ async fn a_take_over_is_named_in_the_moves_row() {
             if takeover {
                 headers.push(("candeck-lease-takeover", "true"));
             }
-            send_with_headers(&app, Method::POST, path, &headers, Some(body)).await.0
+            send_with_headers(&app, Method::POST, path, &headers, Some(body))
+                .await
+                .0
         }
     };
     let state = "/api/v1/buses/demo/nodes/1/axes/1/state";
     let moving = "/api/v1/buses/demo/nodes/1/axes/1/move";
     let velocity = r#"{"mode":"velocity","velocity":100}"#;
-    assert_eq!(send(PLC.2, state, r#"{"target":"operation_enabled"}"#, false).await, StatusCode::OK);
+    assert_eq!(
+        send(PLC.2, state, r#"{"target":"operation_enabled"}"#, false).await,
+        StatusCode::OK
+    );
     assert_eq!(send(PLC.2, moving, velocity, false).await, StatusCode::OK);
     let before = rows(&gateway).await.len();
     assert_eq!(send(OTHER.2, moving, velocity, true).await, StatusCode::OK);
@@ -236,7 +315,8 @@ async fn a_take_over_is_named_in_the_moves_row() {
     assert_eq!(new.len(), 1, "{new:#?}");
     let operation = new[0]["operation"].as_str().unwrap();
     assert!(
-        operation.starts_with("move; took over the velocity lease ") && operation.ends_with(" of plc"),
+        operation.starts_with("move; took over the velocity lease ")
+            && operation.ends_with(" of plc"),
         "{operation}"
     );
     assert_eq!(new[0]["who"], "other");
@@ -248,7 +328,10 @@ async fn every_cia_309_3_command_leaves_exactly_one_row() {
     let (_, gateway) = rig().await;
     let identity = Identity::anonymous("ascii", Some("127.0.0.1:50000".into()));
     let mut session = Session::new(Cia309Gateway::new(&gateway), identity);
-    assert_eq!(session.handle(&format!("[1] auth {}", PLC.2)).await, Reply::Ok(1));
+    assert_eq!(
+        session.handle(&format!("[1] auth {}", PLC.2)).await,
+        Reply::Ok(1)
+    );
     let lines = [
         ("[2] 1 w 0x1017 0 u16 1000", "write object", "ok"),
         ("[3] 1 w 0x1A00 0 u8 0", "write object", "sdo_abort"),
@@ -269,6 +352,9 @@ async fn every_cia_309_3_command_leaves_exactly_one_row() {
     }
 }
 
+/// The rows a command must leave: (operation, outcome), in order.
+type Rows = &'static [(&'static str, &'static str)];
+
 fn metric(name: &str, value: MetricValue) -> Metric {
     let mut metric = Metric {
         name: Some(name.into()),
@@ -288,7 +374,7 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
     let held = HeldLeases::default();
     let topic = Topic::device("plant", MessageType::DCmd, "line1", "demo-1");
     let lease = "scada-host-axis1-0001";
-    let commands: Vec<(Vec<Metric>, &[(&str, &str)])> = vec![
+    let commands: Vec<(Vec<Metric>, Rows)> = vec![
         (
             vec![metric("OD/0x1017:0", MetricValue::UInt16(1000))],
             &[("write object", "ok")],
@@ -302,12 +388,18 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
             &[("nmt command", "ok")],
         ),
         (
-            vec![metric("Axis 1/State", MetricValue::String("operation_enabled".into()))],
+            vec![metric(
+                "Axis 1/State",
+                MetricValue::String("operation_enabled".into()),
+            )],
             &[("drive state change", "ok")],
         ),
         (
             vec![
-                metric("Axis 1/Move", MetricValue::String(r#"{"mode":"velocity","velocity":100}"#.into())),
+                metric(
+                    "Axis 1/Move",
+                    MetricValue::String(r#"{"mode":"velocity","velocity":100}"#.into()),
+                ),
                 metric("Axis 1/Lease", MetricValue::Boolean(true)),
                 metric("Axis 1/Lease Id", MetricValue::String(lease.into())),
             ],
@@ -329,7 +421,10 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
             &[],
         ),
         (
-            vec![metric("Axis 1/Move", MetricValue::String(r#"{"mode":"velocity","velocity":-300}"#.into()))],
+            vec![metric(
+                "Axis 1/Move",
+                MetricValue::String(r#"{"mode":"velocity","velocity":-300}"#.into()),
+            )],
             &[("move", "lease_conflict")],
         ),
         (

@@ -9,10 +9,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::*;
-use crate::sparkplug::SparkplugConfig;
 use crate::gateway::history::{EventKind, Query};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
+use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::config::BrokerUrl;
 use crate::sparkplug::metric::MetricValue;

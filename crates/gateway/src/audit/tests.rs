@@ -52,9 +52,12 @@ async fn rows_when(gateway: &Gateway, count: usize) -> Vec<serde_json::Map<Strin
 async fn an_operation_writes_one_row_with_its_outcome() {
     let gateway = Gateway::new([]);
     let done = gateway
-        .audited(&operator(), target(), Some("{\"raw\":\"e803\"}".into()), async {
-            Ok::<_, GatewayError>(7)
-        })
+        .audited(
+            &operator(),
+            target(),
+            Some("{\"raw\":\"e803\"}".into()),
+            async { Ok::<_, GatewayError>(7) },
+        )
         .await;
     assert_eq!(done.unwrap(), 7);
     let refused = gateway
@@ -85,12 +88,16 @@ async fn an_operation_writes_one_row_with_its_outcome() {
 #[tokio::test(start_paused = true)]
 async fn the_doors_words_and_summary_go_into_the_row() {
     let gateway = Gateway::new([]);
-    let detail = DoorDetail::new("ASCII", "[1] 1 w 0x1017 0 u16 1000").summary(Some("u16 1000".into()));
+    let detail =
+        DoorDetail::new("ASCII", "[1] 1 w 0x1017 0 u16 1000").summary(Some("u16 1000".into()));
     let caller = operator().with_detail(detail);
     gateway
-        .audited(&caller, target(), Some("{\"raw\":\"e803\"}".into()), async {
-            Ok::<_, GatewayError>(())
-        })
+        .audited(
+            &caller,
+            target(),
+            Some("{\"raw\":\"e803\"}".into()),
+            async { Ok::<_, GatewayError>(()) },
+        )
         .await
         .unwrap();
     let rows = rows(&gateway).await;
@@ -206,7 +213,10 @@ async fn a_door_dropped_while_its_operation_runs_leaves_one_row() {
 #[tokio::test(start_paused = true)]
 async fn rows_handed_over_are_the_doors_to_write() {
     let gateway = Gateway::new([]);
-    let door = DoorRequest::handed_over(DoorDetail::new("PUT", "/api/v1/buses/demo/nodes/1/od/0x1017/0"));
+    let door = DoorRequest::handed_over(DoorDetail::new(
+        "PUT",
+        "/api/v1/buses/demo/nodes/1/od/0x1017/0",
+    ));
     let caller = Caller::new(Channel::Rest, "plc", Some(Role::Operator)).with_door(door.clone());
     gateway
         .audited(&caller, target(), None, async { Ok::<_, GatewayError>(()) })
@@ -242,9 +252,12 @@ async fn a_skipped_row_counts_as_audited_and_writes_nothing() {
     let row = gateway.audit_row(&caller, AuditTarget::new("renew motion lease"), None);
     row.skip();
     gateway
-        .audited_by_door(&caller, AuditTarget::new("renew motion lease"), None, async {
-            Ok::<_, GatewayError>(())
-        })
+        .audited_by_door(
+            &caller,
+            AuditTarget::new("renew motion lease"),
+            None,
+            async { Ok::<_, GatewayError>(()) },
+        )
         .await
         .unwrap();
     assert!(rows(&gateway).await.is_empty());

@@ -23,8 +23,8 @@ use crate::canopen::sdo::ClientConfig;
 use super::NodeHandle;
 use super::transfer::{audited, refused};
 use crate::GatewayError;
-use crate::audit::AuditTarget;
 use crate::access::Role;
+use crate::audit::AuditTarget;
 use crate::caller::Caller;
 use crate::service::{Gateway, check_sdo_allowed, check_writable};
 
@@ -231,6 +231,9 @@ impl Gateway {
             Ok(served) => served,
             Err(error) => return refused(row, error).await,
         };
-        audited(row, async move { served.send_nmt(command, NmtTarget::All).await }).await
+        audited(row, async move {
+            served.send_nmt(command, NmtTarget::All).await
+        })
+        .await
     }
 }

@@ -129,7 +129,11 @@ impl NodeHandle {
             Some(request),
         );
         let (this, caller, values) = (self.clone(), caller.clone(), values.clone());
-        audited(row, async move { this.send(&caller, number, &values).await }).await
+        audited(
+            row,
+            async move { this.send(&caller, number, &values).await },
+        )
+        .await
     }
 
     async fn send(
