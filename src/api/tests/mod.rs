@@ -4,7 +4,6 @@
 
 mod audit;
 mod audit_and_limits;
-mod audit_rows;
 mod auth;
 mod drives;
 mod edge;

@@ -1,4 +1,4 @@
-//! Exactly one audit row per request, whoever writes it: the gateway's
+//! Issue 29: exactly one audit row per request, whoever writes it: the gateway's
 //! operation (a success, a refusal by the device, a refusal by the
 //! gateway's policy) or the door, for what no operation audited (REST's
 //! 401, 413, a body that is no JSON, a path no route has, a node not known
