@@ -45,6 +45,8 @@ pub use candeck_canopen as canopen;
 pub mod cia309;
 pub mod cli;
 #[cfg(test)]
+mod door_audit;
+#[cfg(test)]
 mod door_parity;
 pub mod emulator;
 pub use candeck_gateway as gateway;

@@ -1,9 +1,17 @@
 //! The audit layer: every request under `/api/v1` that changes, or tries to
-//! change, a device or the gateway is written to the history
-//! ([`History::audit`](crate::gateway::history::History::audit)) before
-//! its response leaves, as a row of channel `rest` built from the caller
-//! ([`AuditEntry::new`]) whose outcome is the error body's `code` (`ok`
-//! for a 2xx), with the method, path and status as REST's detail.
+//! change, a device or the gateway is written to the history before its
+//! response leaves, once, with the method, path and status as REST's
+//! detail and the JSON body summarised as its request.
+//!
+//! The gateway's operations write their own rows ([`crate::gateway::audit`]):
+//! this layer hands each request a [`DoorRequest`] (its method, path and
+//! summary), which the [`super::caller::RestCaller`] carries to the
+//! operations; they hand their rows back, and this layer writes them with
+//! the status answered. Only a request no operation audited gets a row of
+//! this layer's own ([`AuditEntry::new`], outcome the error body's `code`,
+//! `ok` for a 2xx): a refusal of REST's own (the guard's 401, 403, 413,
+//! 429, a body that is no JSON, a path no route has) or a route not yet
+//! backed by an audited operation.
 //!
 //! State-changing means a `POST`, `PUT`, `PATCH` or `DELETE` under
 //! `/api/v1`, whatever its outcome: refused ones (400, 404, 405, 409, 413,
@@ -23,9 +31,7 @@
 //!
 //! Lease ids (`lease`, `leases` in a body) are masked to their first 4
 //! characters: the log is shown to viewers (`GET /events`), and a lease is
-//! the right to move an axis. A handler adds to its entry through the
-//! [`AuditNote`] in the request's extensions (a take-over names the holder
-//! it took the axis from).
+//! the right to move an axis.
 //!
 //! If the entry cannot be written (disk full), the request has happened
 //! already: its response is sent unchanged, and the failure is logged as
@@ -44,8 +50,8 @@ use super::AppState;
 use super::auth::Identity;
 use super::caller::{AuditItem, AuditedByHandler};
 use super::error::ErrorSummary;
-use super::leases::AuditNote;
 use crate::can::Timestamp;
+use crate::gateway::audit::{DoorDetail, DoorRequest};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{AuditEntry, OK};
 
@@ -89,8 +95,6 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         .get::<ConnectInfo<SocketAddr>>()
         .map(|ConnectInfo(addr)| addr.to_string());
     let (mut parts, body) = request.into_parts();
-    let note = AuditNote::default();
-    parts.extensions.insert(note.clone());
     let resolved = AuditItem::default();
     parts.extensions.insert(resolved.clone());
     let content_type = parts
@@ -104,11 +108,16 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     // The route's limit (`body_limit`, `dcf_body_limit`): a larger body is
     // refused with 413, and audited.
     let limit = state.guard.config.body_limit(&method, &path);
-    let (response, summary) = match axum::body::to_bytes(body, limit).await {
+    let (response, summary, door) = match axum::body::to_bytes(body, limit).await {
         Ok(bytes) => {
             let summary = summarise(&bytes, &content_type);
+            // The request as REST knows it, for the rows of the operations
+            // its handler calls: handed back here to add the status.
+            let detail = DoorDetail::new(method.as_str(), path.clone()).summary(summary.clone());
+            let door = DoorRequest::handed_over(detail);
+            parts.extensions.insert(door.clone());
             let request = Request::from_parts(parts, Body::from(bytes));
-            (next.run(request).await, summary)
+            (next.run(request).await, summary, Some(door))
         }
         Err(_) => {
             // Refused before the guard saw it: who sent it is found here,
@@ -116,10 +125,18 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             let (identity, _) = super::auth::identify(&state.guard.config, &parts.headers);
             let mut response = super::auth::too_large(limit).into_response();
             response.extensions_mut().insert(identity);
-            (response, Some(format!("more than {limit} bytes")))
+            (response, Some(format!("more than {limit} bytes")), None)
         }
     };
-    let refused_before_handler = matches!(response.status().as_u16(), 401 | 403 | 413 | 429)
+    let status = response.status().as_u16();
+    if let Some(door) = door.filter(DoorRequest::audited) {
+        // The operations wrote their rows: REST adds the status answered.
+        for entry in door.take_rows() {
+            state.gateway.write_audit(entry.http_status(status)).await;
+        }
+        return response;
+    }
+    let refused_before_handler = matches!(status, 401 | 403 | 413 | 429)
         && response.extensions().get::<AuditedByHandler>().is_none();
     if cia309 && !refused_before_handler {
         return response;
@@ -151,11 +168,6 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         identity.and_then(|id| id.role),
     );
     caller.peer = peer;
-    let status = response.status().as_u16();
-    let operation = match note.take() {
-        Some(note) => format!("{}; {note}", target.operation),
-        None => target.operation,
-    };
     let (outcome, abort_code) = match error {
         _ if response.status().is_success() => (OK.to_string(), None),
         Some(error) => (error.code.clone(), error.abort_code.clone()),
@@ -163,16 +175,17 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         // named by its status, as migrated rows without a code are.
         None => (format!("http_{status}"), None),
     };
-    let entry = AuditEntry::new(&caller, operation)
+    // What no operation audited: a refusal of the door's own (the guard's,
+    // a body that is no JSON, a path no route has) or a route not yet
+    // backed by an audited operation.
+    let entry = AuditEntry::new(&caller, target.operation)
         .at(time)
         .target(target.bus, target.node, target.axis, target.item)
         .request(summary)
         .failed(outcome, abort_code)
         .detail(method.as_str(), path)
         .http_status(status);
-    if let Err(err) = state.gateway.history().audit(entry).await {
-        tracing::error!("audit: {method} {}: not recorded: {err}", response.status());
-    }
+    state.gateway.write_audit(entry).await;
     response
 }
 

@@ -11,6 +11,7 @@ use axum::extract::{ConnectInfo, FromRequestParts};
 use axum::http::request::Parts;
 
 use super::auth::Identity;
+use crate::gateway::audit::DoorRequest;
 use crate::gateway::caller::{Caller, Channel};
 
 /// The request's caller: the token the guard found (`anonymous` without
@@ -31,6 +32,11 @@ impl<S: Send + Sync> FromRequestParts<S> for RestCaller {
         );
         if let Some(ConnectInfo(peer)) = parts.extensions.get::<ConnectInfo<SocketAddr>>() {
             caller = caller.with_peer(peer.to_string());
+        }
+        // The request as the audit layer knows it: the operations' rows
+        // carry its words and come back to it for the status.
+        if let Some(door) = parts.extensions.get::<DoorRequest>() {
+            caller = caller.with_door(door.clone());
         }
         Ok(Self(caller))
     }

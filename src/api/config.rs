@@ -4,7 +4,6 @@
 //! every parameter as a DCF (CiA 306 §4.6.5) that can be written back to
 //! the same or a replacement device (see [`crate::gateway::dcf`]).
 
-use axum::Extension;
 use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::header;
@@ -15,10 +14,9 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::error::body_of;
-use super::leases::caller;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::format_index;
 use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource, RestoredEntry};
@@ -126,14 +124,14 @@ fn command_done(what: Area, source: Option<Source>, done: ParameterCommand) -> C
     ))]
 async fn store(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<StoreRequest>,
 ) -> Result<ApiJson<CommandDone>, AppError> {
     let done = state
         .gateway
         .node_handle(&bus, &id)?
-        .store_parameters(&caller(identity.as_ref()), request.what.into())
+        .store_parameters(&caller, request.what.into())
         .await?;
     Ok(ApiJson(command_done(request.what, None, done)))
 }
@@ -155,7 +153,7 @@ async fn store(
     ))]
 async fn restore(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<RestoreRequest>,
 ) -> Result<ApiJson<CommandDone>, AppError> {
@@ -167,7 +165,7 @@ async fn restore(
     let done = state
         .gateway
         .node_handle(&bus, &id)?
-        .restore_parameters(&caller(identity.as_ref()), request.what.into(), from)
+        .restore_parameters(&caller, request.what.into(), from)
         .await?;
     Ok(ApiJson(command_done(request.what, Some(source), done)))
 }
@@ -252,14 +250,14 @@ pub struct RestoreReport {
     ))]
 async fn put_dcf(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     body: Bytes,
 ) -> Result<ApiJson<RestoreReport>, AppError> {
     let restored = state
         .gateway
         .node_handle(&bus, &id)?
-        .restore_dcf(&caller(identity.as_ref()), &body)
+        .restore_dcf(&caller, &body)
         .await?;
     Ok(ApiJson(RestoreReport::from(restored)))
 }

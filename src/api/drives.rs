@@ -38,7 +38,6 @@
 //! fails after its first write halts the axis (quick stop if halting fails)
 //! before the error is answered.
 
-use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
 use serde::{Deserialize, Serialize};
@@ -47,9 +46,9 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, ErrorDetail, NodePath};
-use super::leases::{AuditNote, LeaseInfo, caller, presented, takeover_asked};
+use super::leases::{LeaseInfo, presented, takeover_asked};
 use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
@@ -57,7 +56,6 @@ use crate::gateway::drive::{
     AxisLimits, AxisStatus, AxisUnits, DriveError, MoveRequest, TargetState,
 };
 use crate::gateway::motion::{LeaseClaim, MotionFailed, MotionOutcome, spawned};
-use crate::gateway::motion_lease::{MotionLease, mask};
 use crate::gateway::safe_stop::{StopAttempt, StopReport};
 use crate::gateway::step_test::{StepTestRequest, StepTestResult};
 
@@ -274,8 +272,7 @@ async fn one_axis(
     ))]
 async fn set_state(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
-    note: Option<Extension<AuditNote>>,
+    RestCaller(caller): RestCaller,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StateRequest>,
@@ -286,37 +283,18 @@ async fn set_state(
     let claim = LeaseClaim::presented(presented(&headers), takeover);
     let outcome = state
         .gateway
-        .set_axis_state(
-            &caller(identity.as_ref()),
-            (&bus, &id, &axis),
-            request.target,
-            &claim,
-        )
+        .set_axis_state(&caller, (&bus, &id, &axis), request.target, &claim)
         .await
-        .map_err(|failed| failure(failed, note.as_ref()))?;
-    noted(note.as_ref(), outcome.took_over.as_ref());
+        .map_err(failure)?;
     Ok(ApiJson(StateResponse {
         status: outcome.status,
         attempts: outcome.attempts,
     }))
 }
 
-/// The lease a take-over ended, named in the request's audit entry.
-fn noted(note: Option<&Extension<AuditNote>>, took_over: Option<&MotionLease>) {
-    if let (Some(Extension(note)), Some(previous)) = (note, took_over) {
-        note.set(format!(
-            "took over the {} lease {} of {}",
-            previous.mode,
-            mask(&previous.id),
-            previous.holder
-        ));
-    }
-}
-
 /// A motion operation that failed; a stop the drive did not confirm, with
 /// what was tried.
-fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppError {
-    noted(note, failed.took_over.as_deref());
+fn failure(failed: MotionFailed) -> AppError {
     if failed.attempts.is_empty() {
         return failed.error.into();
     }
@@ -344,12 +322,12 @@ fn failure(failed: MotionFailed, note: Option<&Extension<AuditNote>>) -> AppErro
     ))]
 async fn fault_reset(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
 ) -> Result<ApiJson<AxisStatus>, AppError> {
     let status = state
         .gateway
-        .reset_axis_fault(&caller(identity.as_ref()), (&bus, &id, &axis))
+        .reset_axis_fault(&caller, (&bus, &id, &axis))
         .await?;
     Ok(ApiJson(status))
 }
@@ -379,8 +357,7 @@ async fn fault_reset(
     ))]
 async fn halt(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
-    note: Option<Extension<AuditNote>>,
+    RestCaller(caller): RestCaller,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<HaltRequest>,
@@ -393,19 +370,13 @@ async fn halt(
     };
     let outcome = state
         .gateway
-        .set_axis_halt(
-            &caller(identity.as_ref()),
-            (&bus, &id, &axis),
-            request.halt,
-            &claim,
-        )
+        .set_axis_halt(&caller, (&bus, &id, &axis), request.halt, &claim)
         .await
-        .map_err(|failed| failure(failed, note.as_ref()))?;
-    Ok(ApiJson(motion_response(outcome, note.as_ref())))
+        .map_err(failure)?;
+    Ok(ApiJson(motion_response(outcome)))
 }
 
-fn motion_response(outcome: MotionOutcome, note: Option<&Extension<AuditNote>>) -> MotionResponse {
-    noted(note, outcome.took_over.as_ref());
+fn motion_response(outcome: MotionOutcome) -> MotionResponse {
     let now = tokio::time::Instant::now();
     MotionResponse {
         status: outcome.status,
@@ -439,8 +410,7 @@ fn motion_response(outcome: MotionOutcome, note: Option<&Extension<AuditNote>>) 
     ))]
 async fn run_move(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
-    note: Option<Extension<AuditNote>>,
+    RestCaller(caller): RestCaller,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<MoveRequest>,
@@ -448,15 +418,10 @@ async fn run_move(
     let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
     let outcome = state
         .gateway
-        .move_axis(
-            &caller(identity.as_ref()),
-            (&bus, &id, &axis),
-            &request,
-            &claim,
-        )
+        .move_axis(&caller, (&bus, &id, &axis), &request, &claim)
         .await
-        .map_err(|failed| failure(failed, note.as_ref()))?;
-    Ok(ApiJson(motion_response(outcome, note.as_ref())))
+        .map_err(failure)?;
+    Ok(ApiJson(motion_response(outcome)))
 }
 
 /// Step test of a UMC axis's control loop.
@@ -485,8 +450,7 @@ async fn run_move(
     ))]
 async fn step_test(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
-    note: Option<Extension<AuditNote>>,
+    RestCaller(caller): RestCaller,
     headers: HeaderMap,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<StepTestRequest>,
@@ -494,15 +458,9 @@ async fn step_test(
     let claim = LeaseClaim::presented(presented(&headers), takeover_asked(&headers)?);
     let outcome = state
         .gateway
-        .step_test_axis(
-            &caller(identity.as_ref()),
-            (&bus, &id, &axis),
-            &request,
-            &claim,
-        )
+        .step_test_axis(&caller, (&bus, &id, &axis), &request, &claim)
         .await
-        .map_err(|failed| failure(failed, note.as_ref()))?;
-    noted(note.as_ref(), outcome.took_over.as_ref());
+        .map_err(failure)?;
     Ok(ApiJson(outcome.status))
 }
 
@@ -519,8 +477,11 @@ async fn step_test(
     responses(
         (status = 200, description = "What was stopped, and what failed", body = StopAllReport),
     ))]
-async fn stop_all(State(state): State<AppState>) -> Result<ApiJson<StopAllReport>, AppError> {
-    let report = state.gateway.stop_all().await?;
+async fn stop_all(
+    State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
+) -> Result<ApiJson<StopAllReport>, AppError> {
+    let report = state.gateway.stop_all(&caller).await?;
     Ok(ApiJson(StopAllReport::from(report)))
 }
 

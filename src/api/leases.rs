@@ -21,8 +21,6 @@
 
 use std::time::Duration;
 
-use std::sync::{Arc, Mutex};
-
 use axum::Extension;
 use axum::extract::State;
 use axum::http::HeaderMap;
@@ -33,36 +31,18 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::ErrorBody;
 use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
 
 /// The request header that presents a lease to a command on a held axis.
 pub const LEASE_HEADER: &str = "candeck-lease";
 /// The request header (`true`) that takes a held axis over explicitly.
 pub const TAKEOVER_HEADER: &str = "candeck-lease-takeover";
-
-/// A note a handler adds to its request's audit entry (the audit layer puts
-/// one in every audited request's extensions and reads it back).
-#[derive(Debug, Clone, Default)]
-pub struct AuditNote(Arc<Mutex<Option<String>>>);
-
-impl AuditNote {
-    pub fn set(&self, note: String) {
-        *self.0.lock().unwrap_or_else(|poison| poison.into_inner()) = Some(note);
-    }
-
-    pub fn take(&self) -> Option<String> {
-        self.0
-            .lock()
-            .unwrap_or_else(|poison| poison.into_inner())
-            .take()
-    }
-}
 
 /// Whether the request asks for a take-over (`Candeck-Lease-Takeover`:
 /// `true` or `false`; anything else is a mistake worth saying).
@@ -83,15 +63,6 @@ pub fn takeover_asked(headers: &HeaderMap) -> Result<bool, AppError> {
 /// (`anonymous` on a gateway without tokens).
 pub fn holder(identity: Option<&Extension<Identity>>) -> String {
     identity.map_or_else(|| "anonymous".to_string(), |Extension(id)| id.name.clone())
-}
-
-/// Who a request acts for, as the gateway's operations take it.
-pub fn caller(identity: Option<&Extension<Identity>>) -> Caller {
-    Caller::new(
-        Channel::Rest,
-        holder(identity),
-        identity.and_then(|Extension(id)| id.role),
-    )
 }
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -179,7 +150,7 @@ pub fn presented(headers: &HeaderMap) -> Option<&str> {
     ))]
 async fn renew(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, axis)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<RenewRequest>,
 ) -> Result<ApiJson<LeaseInfo>, AppError> {
@@ -193,6 +164,7 @@ async fn renew(
     };
     let lease = state
         .gateway
-        .renew_axis_lease(&caller(identity.as_ref()), &key, &request.lease)?;
+        .renew_axis_lease(&caller, &key, &request.lease)
+        .await?;
     Ok(ApiJson(LeaseInfo::of(&lease, Instant::now())))
 }

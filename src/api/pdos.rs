@@ -17,7 +17,6 @@
 
 use std::time::Duration;
 
-use axum::Extension;
 use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use serde_json::Value as Json;
@@ -25,9 +24,8 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, NodePath};
-use super::leases::caller;
 use super::od::{AnyValue, dictionary, hex};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{ObjectDictionary, format_index};
@@ -293,7 +291,7 @@ fn entry_request(
     ))]
 async fn put_pdo(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, kind, n)): ApiPath<(String, String, String, String)>,
     ApiJson(update): ApiJson<PdoUpdate>,
 ) -> Result<ApiJson<Pdo>, AppError> {
@@ -301,7 +299,6 @@ async fn put_pdo(
     let kind = pdo_kind(&kind)?;
     let number = pdo_number(kind, &n)?;
     let request = update.into_request(number)?;
-    let caller = caller(identity.as_ref());
     let config = node.configure_pdo(&caller, kind, number, &request).await?;
     Ok(ApiJson(pdo_json(&config, dictionary(node.info()))))
 }
@@ -402,15 +399,13 @@ fn value_json(value: DecodedValue) -> PdoValue {
     ))]
 async fn send_rpdo(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id, n)): ApiPath<(String, String, String)>,
     ApiJson(request): ApiJson<RpdoSend>,
 ) -> Result<ApiJson<RpdoSent>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
     let number = pdo_number(PdoKind::Rpdo, &n)?;
-    let sent = node
-        .send_rpdo(&caller(identity.as_ref()), number, &request.values)
-        .await?;
+    let sent = node.send_rpdo(&caller, number, &request.values).await?;
     Ok(ApiJson(RpdoSent {
         cob_id: sent.cob_id,
         data: hex(&sent.data),

@@ -70,8 +70,8 @@ use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
+use crate::gateway::audit::AuditTarget;
 use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::AuditEntry;
 use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
 use crate::gateway::motion_lease::{MotionLease, mask};
 use crate::gateway::producers::{self, period_at_most};
@@ -532,28 +532,22 @@ impl Session {
         }
         let mut caller = Caller::new(Channel::Websocket, identity.name.clone(), identity.role);
         caller.peer = self.client.peer.clone();
-        let mut entry = AuditEntry::new(&caller, "renew motion lease (stream)")
-            .target(
-                lease.map(|lease| lease.axis.bus.clone()),
-                lease.map(|lease| lease.axis.node),
-                lease.map(|lease| lease.axis.axis),
-                Some(item),
-            )
-            .request(Some(
-                json!({"op": "renew", "leases": [mask(id)]}).to_string(),
-            ));
-        if let Some((error, _)) = refused {
-            let body = error.to_json();
-            let code = body["code"].as_str().unwrap_or("internal_error");
-            let abort = body["abort_code"].as_str().map(str::to_string);
-            entry = entry.failed(code, abort);
+        let mut target = AuditTarget::new("renew motion lease (stream)").item(item);
+        if let Some(lease) = lease {
+            target = target
+                .bus(lease.axis.bus.clone())
+                .node(lease.axis.node)
+                .axis(lease.axis.axis);
         }
-        let history = self.state.gateway.history().clone();
-        tokio::spawn(async move {
-            if let Err(err) = history.audit(entry).await {
-                tracing::error!("audit: a stream lease renewal: not recorded: {err}");
-            }
-        });
+        let request = json!({"op": "renew", "leases": [mask(id)]}).to_string();
+        let row = self.state.gateway.audit_row(&caller, target, Some(request));
+        let result = match refused {
+            Some((AppError::Gateway(error), _)) => Err(error.clone()),
+            Some((error, _)) => Err(GatewayError::InvalidRequest(error.to_string())),
+            None => Ok(()),
+        };
+        // In a task: the session never waits for the disk.
+        tokio::spawn(row.finish(&result));
     }
 
     fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {

@@ -3,8 +3,11 @@
 //! writes and NMT commands of a [`NodeHandle`], which apply the caller's
 //! role and write rate and the node's checks (a node the registry does not
 //! know, a stopped node, a bus that is down, a read-only object) and run
-//! the transfer on the node's shared SDO queue; and an audit entry in the
-//! history for every write and NMT command, whatever its outcome.
+//! the transfer on the node's shared SDO queue, and write their audit row
+//! for every write and NMT command, whatever its outcome (the door adds its
+//! method and command line or path, and a value's summary); what no
+//! operation audited (a net or node not known, a line refused) is audited
+//! here, once.
 //!
 //! Used by the CiA 309-3 connections (`candeck ascii`, `--ascii-listen`)
 //! and the CiA 309-5 routes of the HTTP server.
@@ -15,9 +18,9 @@ use std::time::Duration;
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::sdo::ClientConfig;
 use crate::gateway::access::{Role, Tokens};
+use crate::gateway::audit::{AuditTarget, DoorDetail};
 use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::{AuditEntry, History};
-use crate::gateway::node::objects::object_item;
+use crate::gateway::node::objects::{nmt_summary, object_item};
 use crate::gateway::{Gateway, GatewayError, NodeHandle, ServedBus};
 
 use super::command::Nmt;
@@ -108,10 +111,20 @@ impl Origin<'_> {
         }
     }
 
-    /// Who sends the request, as the gateway's operations take it.
+    /// Who sends the request, as the gateway's operations take it, with
+    /// the method and command line (or path) as the door's words for its
+    /// audit row.
     pub fn caller(&self) -> Caller {
+        self.caller_with(None)
+    }
+
+    /// [`Origin::caller`], with the door's own summary of the request (a
+    /// value as `u16 1000`).
+    pub fn caller_with(&self, summary: Option<String>) -> Caller {
         let identity = self.identity;
-        let caller = Caller::new(self.channel(), identity.who.clone(), identity.access);
+        let detail = DoorDetail::new(self.method, self.path).summary(summary);
+        let caller =
+            Caller::new(self.channel(), identity.who.clone(), identity.access).with_detail(detail);
         match &identity.peer {
             Some(peer) => caller.with_peer(peer.clone()),
             None => caller,
@@ -119,19 +132,17 @@ impl Origin<'_> {
     }
 }
 
-/// The gateway service's buses by CiA 309 net number, and its history.
+/// The gateway service's buses by CiA 309 net number.
 #[derive(Clone)]
 pub struct Cia309Gateway {
     gateway: Gateway,
     buses: Arc<Vec<Arc<ServedBus>>>,
-    history: History,
 }
 
 impl Cia309Gateway {
     pub fn new(gateway: &Gateway) -> Self {
         Self {
             buses: Arc::new(gateway.buses_in_order()),
-            history: gateway.history().clone(),
             gateway: gateway.clone(),
         }
     }
@@ -182,7 +193,9 @@ impl Cia309Gateway {
             .await
     }
 
-    /// Writes an object for `origin`'s caller, and audits it.
+    /// Writes an object for `origin`'s caller. The gateway's write audits
+    /// it, with `summary` (the value as the command gave it) as the
+    /// request; a net or node not known is audited here.
     #[allow(clippy::too_many_arguments)]
     pub async fn write(
         &self,
@@ -196,29 +209,26 @@ impl Cia309Gateway {
         options: TransferOptions,
     ) -> Result<(), GatewayError> {
         let settings = move |base: &ClientConfig| options.apply(base);
-        let result = match self.node(net, node) {
-            Ok(handle) => {
-                handle
-                    .write_object_with(&origin.caller(), index, sub, data, &settings)
-                    .await
-            }
-            Err(error) => Err(error),
+        let caller = origin.caller_with(Some(summary));
+        let target = self
+            .target(net, Some(node), "write object")
+            .item(object_item(index, sub));
+        let work = async {
+            self.node(net, node)?
+                .write_object_with(&caller, index, sub, data, &settings)
+                .await
         };
-        self.audit(
-            &origin,
-            net,
-            Some(node),
-            "write object",
-            Some(object_item(index, sub)),
-            Some(summary),
-            result.as_ref().err(),
-        )
-        .await;
+        let result = self
+            .gateway
+            .audited_by_door(&caller, target, None, work)
+            .await;
+        log_internal(&result);
         result
     }
 
-    /// Sends an NMT command for `origin`'s caller (node 0: every node),
-    /// and audits it.
+    /// Sends an NMT command for `origin`'s caller (node 0: every node). The
+    /// gateway's NMT operation audits it; a net or node not known is
+    /// audited here.
     pub async fn nmt(
         &self,
         origin: Origin<'_>,
@@ -234,32 +244,24 @@ impl Cia309Gateway {
             Nmt::ResetCommunication => NmtCommand::ResetCommunication,
         };
         let caller = origin.caller();
-        let result = if node == 0 {
-            match self.bus(net) {
-                Some(served) => self.gateway.bus_nmt(&caller, served.name(), command).await,
-                None => Err(GatewayError::UnknownBus(net.to_string())),
-            }
+        let (operation, node) = if node == 0 {
+            ("nmt command to all nodes", None)
         } else {
-            match self.node(net, node) {
-                Ok(handle) => handle.nmt(&caller, command).await,
-                Err(error) => Err(error),
+            ("nmt command", Some(node))
+        };
+        let target = self.target(net, node, operation);
+        let work = async {
+            match (node, self.bus(net)) {
+                (_, None) => Err(GatewayError::UnknownBus(net.to_string())),
+                (None, Some(served)) => self.gateway.bus_nmt(&caller, served.name(), command).await,
+                (Some(node), Some(_)) => self.node(net, node)?.nmt(&caller, command).await,
             }
         };
-        let operation = if node == 0 {
-            "nmt command to all nodes"
-        } else {
-            "nmt command"
-        };
-        self.audit(
-            &origin,
-            net,
-            (node != 0).then_some(node),
-            operation,
-            None,
-            Some(format!("{{\"command\":\"{}\"}}", command.name())),
-            result.as_ref().err(),
-        )
-        .await;
+        let result = self
+            .gateway
+            .audited_by_door(&caller, target, Some(nmt_summary(command)), work)
+            .await;
+        log_internal(&result);
         result
     }
 
@@ -274,52 +276,27 @@ impl Cia309Gateway {
         what: &str,
         error: &GatewayError,
     ) {
-        let operation = format!("{what} (refused)");
-        self.audit(&origin, net, node, &operation, None, None, Some(error))
+        let target = self.target(net, node, &format!("{what} (refused)"));
+        let result = Err::<(), _>(error.clone());
+        log_internal(&result);
+        self.gateway
+            .door_audit_row(&origin.caller(), target, None)
+            .finish(&result)
             .await;
     }
 
-    #[allow(clippy::too_many_arguments)]
-    async fn audit(
-        &self,
-        origin: &Origin<'_>,
-        net: u16,
-        node: Option<u8>,
-        operation: &str,
-        item: Option<String>,
-        request: Option<String>,
-        error: Option<&GatewayError>,
-    ) {
-        if let Some(GatewayError::Internal(detail)) = error {
-            tracing::error!("cia309: {detail}");
-        }
-        // 309-3 sends command lines; 309-5 is HTTP.
-        let channel = if origin.method == "ASCII" {
-            Channel::Cia309_3
-        } else {
-            Channel::Cia309_5
-        };
-        let identity = origin.identity;
-        let mut caller = Caller::new(channel, identity.who.clone(), identity.access);
-        caller.peer = identity.peer.clone();
-        let mut entry = AuditEntry::new(&caller, operation)
-            .target(
-                self.bus(net).map(|bus| bus.name().to_string()),
-                node,
-                None,
-                item,
-            )
-            .request(request)
-            .detail(origin.method, origin.path);
-        if let Some(error) = error {
-            entry = entry.error(error);
-        }
-        if let Err(err) = self.history.audit(entry).await {
-            tracing::error!(
-                "audit: {} {}: not recorded: {err}",
-                origin.method,
-                origin.path
-            );
-        }
+    /// What a command acts on, for its audit row: the bus of `net` (none
+    /// when it is not known).
+    fn target(&self, net: u16, node: Option<u8>, operation: &str) -> AuditTarget {
+        let mut target = AuditTarget::new(operation).node(node);
+        target.bus = self.bus(net).map(|bus| bus.name().to_string());
+        target
+    }
+}
+
+/// An internal fault is for the log too (the client hears a generic error).
+fn log_internal<T>(result: &Result<T, GatewayError>) {
+    if let Err(GatewayError::Internal(detail)) = result {
+        tracing::error!("cia309: {detail}");
     }
 }

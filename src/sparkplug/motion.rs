@@ -26,9 +26,8 @@
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
-use super::command::{Command, segment_request};
-use super::config::SparkplugConfig;
-use crate::gateway::caller::{Caller, Channel};
+use super::command::Command;
+use crate::gateway::caller::Caller;
 use crate::gateway::motion::LeaseClaim;
 use crate::gateway::motion_lease::{AxisKey, MotionLease};
 use crate::gateway::{Gateway, GatewayError};
@@ -82,17 +81,6 @@ impl HeldLeases {
     }
 }
 
-/// What an axis or segment command did, for its audit entry.
-#[derive(Debug, Default)]
-pub struct Outcome {
-    /// The audit entry's `item` and `request`.
-    pub item: Option<String>,
-    pub request: Option<String>,
-    /// False: a renewal whose audit is not due (renewals are audited once,
-    /// then once a minute, as the stream's are).
-    pub audit: bool,
-}
-
 /// How a host takes a lease, in its words, for a refusal to say.
 fn how_to_lease(axis: u8) -> String {
     format!(
@@ -102,20 +90,19 @@ fn how_to_lease(axis: u8) -> String {
     )
 }
 
-/// Runs an axis or segment command on `bus` node `node`, the role checked
-/// already, and the write rate too for an axis command (a segment's is the
-/// LED operation's, as REST's is).
+/// Runs an axis or segment command on `bus` node `node` for `caller`, the
+/// role checked already, and the write rate too for an axis command (a
+/// segment's is the LED operation's, as REST's is). The motion operations
+/// audit themselves; a segment command is audited by the door.
 pub async fn run(
     gateway: &Gateway,
-    config: &SparkplugConfig,
+    caller: &Caller,
     held: &HeldLeases,
     bus: &str,
     node: u8,
     command: &Command,
-    outcome: &mut Outcome,
 ) -> Result<(), GatewayError> {
     let id = node.to_string();
-    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role));
     let key = |axis: u8| AxisKey {
         bus: bus.to_string(),
         node,
@@ -124,21 +111,15 @@ pub async fn run(
     let claim = |axis: u8, lease_id: &Option<String>, promised: bool| {
         LeaseClaim::chosen(lease_id.clone(), promised, how_to_lease(axis))
     };
-    outcome.audit = true;
     match command {
         Command::AxisState {
             axis,
             target,
             lease_id,
         } => {
-            let target_name = serde_json::to_value(target)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_string))
-                .unwrap_or_default();
-            outcome.request = Some(format!("{{\"target\":\"{target_name}\"}}"));
             let done = gateway
                 .set_axis_state(
-                    &caller,
+                    caller,
                     (bus, &id, &axis.to_string()),
                     *target,
                     &claim(*axis, lease_id, false),
@@ -154,10 +135,9 @@ pub async fn run(
             lease,
             lease_id,
         } => {
-            outcome.request = Some(format!("{{\"halt\":{halt}}}"));
             let done = gateway
                 .set_axis_halt(
-                    &caller,
+                    caller,
                     (bus, &id, &axis.to_string()),
                     *halt,
                     &claim(*axis, lease_id, *lease),
@@ -169,21 +149,20 @@ pub async fn run(
         }
         Command::FaultReset { axis } => {
             gateway
-                .reset_axis_fault(&caller, (bus, &id, &axis.to_string()))
+                .reset_axis_fault(caller, (bus, &id, &axis.to_string()))
                 .await?;
             Ok(())
         }
         Command::Move {
             axis,
             request,
-            body,
             lease,
             lease_id,
+            ..
         } => {
-            outcome.request = Some(body.clone());
             let done = gateway
                 .move_axis(
-                    &caller,
+                    caller,
                     (bus, &id, &axis.to_string()),
                     request,
                     &claim(*axis, lease_id, *lease),
@@ -206,11 +185,9 @@ pub async fn run(
                 )));
             };
             if *keep {
-                match gateway.renew_axis_lease(&caller, &axis_key, lease_id) {
-                    Ok(_) => {
-                        outcome.audit = gateway.lease_renewal_audit_due(lease_id);
-                        Ok(())
-                    }
+                // A heartbeat: audited the first time and once a minute.
+                match gateway.keep_axis_lease(caller, &axis_key, lease_id).await {
+                    Ok(_) => Ok(()),
                     Err(error) => {
                         // Lapsed (its axis stopped) or ended by a stop:
                         // nothing of it is held any more.
@@ -219,18 +196,18 @@ pub async fn run(
                     }
                 }
             } else {
-                gateway.give_up_axis_lease(&caller, &axis_key, lease_id)?;
+                gateway
+                    .give_up_axis_lease(caller, &axis_key, lease_id)
+                    .await?;
                 held.ended(&axis_key, lease_id);
                 Ok(())
             }
         }
         Command::Segment { segment, update } => {
-            outcome.item = Some(format!("segment {segment}"));
-            outcome.request = Some(segment_request(*segment, update));
             gateway
                 .node_handle(bus, &id)?
                 .led_controller()?
-                .write_segment(&caller, *segment, update)
+                .write_segment(caller, *segment, update)
                 .await
         }
         _ => Err(GatewayError::Internal(format!(

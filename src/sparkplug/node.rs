@@ -20,17 +20,17 @@ use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Packet, QoS}
 use tokio::sync::{Notify, broadcast, mpsc, oneshot};
 use tokio::time::Instant;
 
-use super::command::{self, Command, device_id, parse_device};
+use super::command::{self, Command, device_id, parse_device, segment_request};
 use super::config::SparkplugConfig;
 use super::edge::{EdgeSession, Outgoing};
 use super::metric::{MetricValue, Sample};
-use super::motion::{HeldLeases, Outcome};
+use super::motion::HeldLeases;
 use super::spool::Spool;
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
+use crate::gateway::audit::{AuditTarget, DoorDetail};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::edge_node::EdgeNodeStats;
-use crate::gateway::history::AuditEntry;
 use crate::gateway::motion_lease::AxisKey;
 use crate::gateway::node::objects::object_item;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
@@ -1099,7 +1099,10 @@ async fn sleep_until(at: Option<Instant>) {
 
 /// One command from MQTT, through the gateway's operations and checks as
 /// REST runs them: the role, the write rate limit, the node's checks, the
-/// EDS's; audited whatever its outcome, `who` the MQTT identity.
+/// EDS's. Each is audited once, whatever its outcome, `who` the MQTT
+/// identity, with the message type and topic as the door's words: by the
+/// gateway's operation it calls, or here when none audited it (a refusal of
+/// the door's own, a command the gateway does not audit yet).
 pub(crate) async fn run_command(
     gateway: &Gateway,
     config: &SparkplugConfig,
@@ -1114,16 +1117,21 @@ pub(crate) async fn run_command(
     };
     // What the command acts on, known before any check: a refused write
     // is logged with its object, as every door logs it.
-    let mut item = match command {
+    let item = match command {
         Command::Write { index, sub, .. } => Some(object_item(*index, *sub)),
+        Command::Segment { segment, .. } => Some(format!("segment {segment}")),
         _ => None,
     };
-    let mut request = None;
-    let mut outcome = Outcome {
-        audit: true,
-        ..Outcome::default()
-    };
-    let result = async {
+    let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string()).summary(summary(command));
+    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
+        .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
+        .with_detail(detail);
+    let mut target = AuditTarget::new(command.operation())
+        .node(node)
+        .axis(command.axis())
+        .item(item);
+    target.bus = bus.clone();
+    let work = async {
         if config.role < crate::gateway::access::Role::Operator {
             return Err(GatewayError::Forbidden(format!(
                 "{} from MQTT needs the operator role; sparkplug_role is {}",
@@ -1136,7 +1144,6 @@ pub(crate) async fn run_command(
                 "{topic}: not a device of this edge node"
             )));
         };
-        let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role));
         // An object write, NMT command or segment write takes its write in
         // the gateway's operation. A stop is never refused by the write
         // rate (as REST's halts and walks out of operation enabled), nor is
@@ -1166,7 +1173,6 @@ pub(crate) async fn run_command(
         }
         match command {
             Command::Write { index, sub, value } => {
-                request = Some(value.to_json().to_string());
                 let handle = gateway.node_handle(bus, &node.to_string())?;
                 let info = handle.info();
                 let bytes = match info
@@ -1187,7 +1193,6 @@ pub(crate) async fn run_command(
                 handle.write_object(&caller, *index, *sub, bytes).await
             }
             Command::Nmt(nmt) => {
-                request = Some(format!("{{\"command\":\"{}\"}}", nmt.name()));
                 gateway
                     .node_handle(bus, &node.to_string())?
                     .nmt(&caller, *nmt)
@@ -1197,24 +1202,19 @@ pub(crate) async fn run_command(
                 "unsupported command metric '{what}'"
             ))),
             Command::Rebirth => Ok(()),
-            _ => super::motion::run(gateway, config, held, bus, node, command, &mut outcome).await,
+            _ => super::motion::run(gateway, &caller, held, bus, node, command).await,
         }
+    };
+    gateway.audited_by_door(&caller, target, None, work).await
+}
+
+/// The request of a command as the edge node summarises it, where it has
+/// its own words (the value of a write as the metric gave it, a segment's
+/// writes); the gateway's operations summarise the others.
+fn summary(command: &Command) -> Option<String> {
+    match command {
+        Command::Write { value, .. } => Some(value.to_json().to_string()),
+        Command::Segment { segment, update } => Some(segment_request(*segment, update)),
+        _ => None,
     }
-    .await;
-    if result.is_ok() && !outcome.audit {
-        return result;
-    }
-    item = item.or(outcome.item);
-    request = request.or(outcome.request);
-    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
-        .with_peer(format!("{}:{}", config.broker.host, config.broker.port));
-    let entry = AuditEntry::new(&caller, command.operation())
-        .target(bus, node, command.axis(), item)
-        .request(request)
-        .outcome(&result)
-        .detail(topic.kind.as_str(), topic.to_string());
-    if let Err(err) = gateway.history().audit(entry).await {
-        tracing::error!("audit: {topic}: not recorded: {err}");
-    }
-    result
 }

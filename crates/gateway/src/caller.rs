@@ -1,9 +1,10 @@
 //! Who asks the gateway for something, and through which door: what an
 //! operation needs to know of its caller beside the request (a lease's
 //! holder, the role a take-over needs), typed, so that every door names it
-//! the same way and the audit log can later be written from it.
+//! the same way and the audit log is written from it ([`crate::audit`]).
 
 use super::access::Role;
+use super::audit::{DoorDetail, DoorRequest};
 
 /// The door a request came through. Its wire name ([`Channel::name`]) is
 /// how logs and the audit log spell it.
@@ -72,6 +73,11 @@ pub struct Caller {
     /// Where the request came from (`127.0.0.1:51234`), where the door
     /// can know it (not over MQTT).
     pub peer: Option<String>,
+    /// The request, as the door that made it knows it (shared by the
+    /// caller's clones): its words for the audit row, and whether an
+    /// operation audited it ([`crate::audit`]). `None`: the gateway's own,
+    /// or a door that adds nothing.
+    pub door: Option<DoorRequest>,
 }
 
 impl Caller {
@@ -81,6 +87,7 @@ impl Caller {
             who: who.into(),
             role,
             peer: None,
+            door: None,
         }
     }
 
@@ -88,6 +95,19 @@ impl Caller {
     pub fn with_peer(mut self, peer: impl Into<String>) -> Self {
         self.peer = Some(peer.into());
         self
+    }
+
+    /// The same caller, making one request of a door (see
+    /// [`DoorRequest`]).
+    pub fn with_door(mut self, door: DoorRequest) -> Self {
+        self.door = Some(door);
+        self
+    }
+
+    /// The same caller, making one request whose rows the operations
+    /// write, with the door's `detail`.
+    pub fn with_detail(self, detail: DoorDetail) -> Self {
+        self.with_door(DoorRequest::new(detail))
     }
 
     /// The gateway acting on its own.

@@ -13,8 +13,8 @@ use tokio::sync::Notify;
 use tokio::time::Instant;
 
 use super::GatewayError;
+use super::audit::AuditTarget;
 use super::caller::Caller;
-use super::history::AuditEntry;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
@@ -328,16 +328,15 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
         lease.holder,
         lease.period.as_millis()
     );
-    let mut entry = AuditEntry::new(
-        &Caller::system(),
-        format!("motion lease lapsed: axis {outcome}"),
-    )
-    .target(Some(bus), Some(node), Some(axis), Some(item));
-    if let Some(error) = error {
-        entry = entry.error(error);
-    }
-    if let Err(err) = gateway.history.audit(entry).await {
-        tracing::error!("audit: lapsed lease on {}: not recorded: {err}", lease.axis);
+    let target = AuditTarget::new(format!("motion lease lapsed: axis {outcome}"))
+        .bus(bus)
+        .node(node)
+        .axis(axis)
+        .item(item);
+    let row = gateway.audit_row(&Caller::system(), target, None);
+    match error {
+        Some(error) => row.finish(&Err::<(), _>(error.clone())).await,
+        None => row.finish_ok().await,
     }
 }
 

@@ -28,6 +28,9 @@
 //! - [`node`]: one node of a bus as a handle ([`NodeHandle`]) whose
 //!   operations every door calls.
 //! - [`caller`]: who asks, through which door ([`caller::Caller`]).
+//! - [`audit`]: the audit row every operation writes of itself, once
+//!   ([`Gateway::audited`]), and what a door adds to it
+//!   ([`DoorRequest`]).
 //! - [`policy`]: what the gateway asks of a caller before it acts: its
 //!   role, and a write from its write rate limit.
 //! - [`safe_stop`]: STOP ALL and the stop on shutdown.
@@ -82,6 +85,7 @@ use candeck_canopen as canopen;
 use candeck_profiles as profiles;
 
 pub mod access;
+pub mod audit;
 pub mod axis_telemetry;
 pub mod caller;
 pub mod dcf;
@@ -119,6 +123,7 @@ pub mod telemetry;
 pub mod uioled;
 pub mod values;
 
+pub use audit::{AuditRow, AuditTarget, DoorDetail, DoorRequest};
 pub use error::GatewayError;
 pub use node::NodeHandle;
 pub use service::{Gateway, ServedBus, check_sdo_allowed, check_writable};

@@ -31,8 +31,9 @@ use crate::canopen::manager::{
     SdoOutcome,
 };
 
+use super::audit::{AuditRow, AuditTarget};
 use super::caller::Caller;
-use super::history::{AuditEntry, History, OK};
+use super::history::{History, OK};
 use super::registry::{NodeEvent, NodeRegistry, OfflineReason};
 use super::sdo::SdoRequestError;
 use tokio::sync::broadcast::error::RecvError;
@@ -424,14 +425,11 @@ impl Driver {
         let Some(history) = self.history.clone() else {
             return;
         };
-        let entry = AuditEntry::new(&Caller::system(), operation)
-            .target(Some(bus.clone()), node.map(NodeId::get), None, None)
-            .failed(outcome, None);
-        tokio::spawn(async move {
-            if let Err(err) = history.audit(entry).await {
-                tracing::error!("audit: network manager event not recorded: {err}");
-            }
-        });
+        let target = AuditTarget::new(operation)
+            .bus(bus.clone())
+            .node(node.map(NodeId::get));
+        let row = AuditRow::new(&history, &Caller::system(), target, None);
+        tokio::spawn(row.finish_as(outcome));
     }
 }
 

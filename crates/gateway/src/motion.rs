@@ -27,10 +27,11 @@ use std::future::Future;
 
 use super::GatewayError;
 use super::access::Role;
+use super::audit::{AuditRow, AuditTarget, Finishing, spawn_audited};
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveError, MoveMode, MoveRequest, TargetState};
 use super::leases::InFlight;
-use super::motion_lease::{AxisKey, MotionLease};
+use super::motion_lease::{AxisKey, MotionLease, mask};
 use super::safe_stop::{AxisStopFailed, AxisStopped, StopAttempt};
 use super::service::Gateway;
 use super::step_test::{self, StepTestRequest, StepTestResult};
@@ -311,7 +312,27 @@ impl Gateway {
     /// is sent whatever the gateway believes of the node, never refused,
     /// and ends the lease, as does any walk out of operation enabled;
     /// operation enabled is a motion command, checked against the lease.
+    ///
+    /// Audited as `drive state change`, in a task of its own with its row.
     pub async fn set_axis_state(
+        &self,
+        caller: &Caller,
+        axis: (&str, &str, &str),
+        target: TargetState,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        let request = serde_json::json!({ "target": target }).to_string();
+        let row = self.motion_row(caller, "drive state change", axis, request);
+        let (gateway, caller, claim) = (self.clone(), caller.clone(), claim.clone());
+        let axis = owned(axis);
+        spawn_motion(row, async move {
+            let axis = (axis.0.as_str(), axis.1.as_str(), axis.2.as_str());
+            gateway.set_state(&caller, axis, target, &claim).await
+        })
+        .await
+    }
+
+    async fn set_state(
         &self,
         caller: &Caller,
         (bus, node, axis): (&str, &str, &str),
@@ -359,7 +380,27 @@ impl Gateway {
     /// lease) or releases halt. Releasing it resumes the set-point the axis
     /// has: in a mode without an end, that is a motion like any other, and
     /// it is leased.
+    ///
+    /// Audited as `halt`, in a task of its own with its row.
     pub async fn set_axis_halt(
+        &self,
+        caller: &Caller,
+        axis: (&str, &str, &str),
+        halt: bool,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        let request = serde_json::json!({ "halt": halt }).to_string();
+        let row = self.motion_row(caller, "halt", axis, request);
+        let (gateway, caller, claim) = (self.clone(), caller.clone(), claim.clone());
+        let axis = owned(axis);
+        spawn_motion(row, async move {
+            let axis = (axis.0.as_str(), axis.1.as_str(), axis.2.as_str());
+            gateway.set_halt(&caller, axis, halt, &claim).await
+        })
+        .await
+    }
+
+    async fn set_halt(
         &self,
         caller: &Caller,
         (bus, node, axis): (&str, &str, &str),
@@ -408,13 +449,25 @@ impl Gateway {
     }
 
     /// Resets an axis's fault (not a motion: no lease is involved).
+    /// Audited as `fault reset`, its row written in the drive's task.
     pub async fn reset_axis_fault(
         &self,
-        _caller: &Caller,
-        (bus, node, axis): (&str, &str, &str),
+        caller: &Caller,
+        axis: (&str, &str, &str),
     ) -> Result<AxisStatus, GatewayError> {
-        let drive = self.drive(bus, node, axis)?;
-        spawned(drive, |drive| async move { drive.fault_reset().await }).await
+        let row = self.axis_row(caller, "fault reset", axis, None);
+        let drive = match self.drive(axis.0, axis.1, axis.2) {
+            Ok(drive) => drive,
+            Err(error) => {
+                let result = Err(error);
+                row.finish(&result).await;
+                return result;
+            }
+        };
+        spawn_audited(row, async move {
+            drive.fault_reset().await.map_err(GatewayError::from)
+        })
+        .await
     }
 
     /// Starts a motion. A move with an end of its own (profile position,
@@ -422,7 +475,24 @@ impl Gateway {
     /// ends the lease; a move without one is granted (or, presented, keeps)
     /// the lease its caller renews; an interpolated move holds one while
     /// its points are fed, and lapses it at once if its caller goes away.
+    ///
+    /// Audited as `move`. The move runs in the caller's future, so that a
+    /// caller that goes away lapses the lease it holds: its row then says
+    /// [`INTERRUPTED`](crate::audit::INTERRUPTED).
     pub async fn move_axis(
+        &self,
+        caller: &Caller,
+        axis: (&str, &str, &str),
+        request: &MoveRequest,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome, MotionFailed> {
+        let row = self.motion_row(caller, "move", axis, move_summary(request));
+        let result = self.run_move(caller, axis, request, claim).await;
+        finish_motion(row, &result).await;
+        result
+    }
+
+    async fn run_move(
         &self,
         caller: &Caller,
         (bus, node, axis): (&str, &str, &str),
@@ -488,8 +558,22 @@ impl Gateway {
 
     /// A step test of an axis's control loop: the axis holds a lease while
     /// it runs (lapsed at once if the caller goes away) and is halted at
-    /// the end.
+    /// the end. Audited as `step test`, its row finished in the caller's
+    /// future as a move's.
     pub async fn step_test_axis(
+        &self,
+        caller: &Caller,
+        axis: (&str, &str, &str),
+        request: &StepTestRequest,
+        claim: &LeaseClaim,
+    ) -> Result<MotionOutcome<StepTestResult>, MotionFailed> {
+        let row = self.axis_row(caller, "step test", axis, None);
+        let result = self.run_step_test(caller, axis, request, claim).await;
+        finish_motion(row, &result).await;
+        result
+    }
+
+    async fn run_step_test(
         &self,
         caller: &Caller,
         (bus, node, axis): (&str, &str, &str),
@@ -524,26 +608,145 @@ impl Gateway {
         finish(result, took_over)
     }
 
-    /// Renews the lease `id` held on `axis`, for its holder.
-    pub fn renew_axis_lease(
+    /// Renews the lease `id` held on `axis`, for its holder. Audited as
+    /// `renew motion lease`, every time.
+    pub async fn renew_axis_lease(
         &self,
         caller: &Caller,
         axis: &AxisKey,
         id: &str,
     ) -> Result<MotionLease, GatewayError> {
-        self.leases.renew_on(axis, id, &caller.who)
+        let row = self.lease_row(caller, "renew motion lease", axis, id);
+        let result = self.leases.renew_on(axis, id, &caller.who);
+        row.finish(&result).await;
+        result
+    }
+
+    /// [`Gateway::renew_axis_lease`] sent as a heartbeat (a Sparkplug
+    /// host's `Axis {n}/Lease` = true): audited the first time and then
+    /// once a minute ([`super::leases::RENEWAL_AUDIT_EVERY`]), a refusal
+    /// always.
+    pub async fn keep_axis_lease(
+        &self,
+        caller: &Caller,
+        axis: &AxisKey,
+        id: &str,
+    ) -> Result<MotionLease, GatewayError> {
+        let row = self.lease_row(caller, "renew motion lease", axis, id);
+        let result = self.leases.renew_on(axis, id, &caller.who);
+        if result.is_ok() && !self.leases.renewal_audit_due(id) {
+            row.skip();
+        } else {
+            row.finish(&result).await;
+        }
+        result
     }
 
     /// Gives up the lease `id` held on `axis`: it lapses now, and the
-    /// supervisor halts the axis. Only its holder, presenting it.
-    pub fn give_up_axis_lease(
+    /// supervisor halts the axis. Only its holder, presenting it. Audited
+    /// as `end motion lease`.
+    pub async fn give_up_axis_lease(
         &self,
         caller: &Caller,
         axis: &AxisKey,
         id: &str,
     ) -> Result<(), GatewayError> {
-        self.leases.lapse_on(axis, id, &caller.who)
+        let row = self.lease_row(caller, "end motion lease", axis, id);
+        let result = self.leases.lapse_on(axis, id, &caller.who);
+        row.finish(&result).await;
+        result
     }
+
+    /// The audit row of a motion operation on an axis given by the door's
+    /// words (`bus`, `node`, `axis`).
+    fn axis_row(
+        &self,
+        caller: &Caller,
+        operation: &str,
+        (bus, node, axis): (&str, &str, &str),
+        request: Option<String>,
+    ) -> AuditRow {
+        let target = AuditTarget::new(operation)
+            .bus(bus)
+            .node(node.parse::<u8>().ok())
+            .axis(axis.parse::<u8>().ok());
+        self.audit_row(caller, target, request)
+    }
+
+    fn motion_row(
+        &self,
+        caller: &Caller,
+        operation: &str,
+        axis: (&str, &str, &str),
+        request: String,
+    ) -> AuditRow {
+        self.axis_row(caller, operation, axis, Some(request))
+    }
+
+    fn lease_row(&self, caller: &Caller, operation: &str, axis: &AxisKey, id: &str) -> AuditRow {
+        let target = AuditTarget::new(operation)
+            .bus(axis.bus.clone())
+            .node(axis.node)
+            .axis(axis.axis);
+        let request = serde_json::json!({ "lease": mask(id) }).to_string();
+        self.audit_row(caller, target, Some(request))
+    }
+}
+
+/// A move as its row summarises it: the request's fields that are set.
+fn move_summary(request: &MoveRequest) -> String {
+    match serde_json::to_value(request) {
+        Ok(serde_json::Value::Object(mut fields)) => {
+            fields.retain(|_, value| !value.is_null());
+            serde_json::Value::Object(fields).to_string()
+        }
+        _ => format!("{{\"mode\":\"{}\"}}", request.mode().name()),
+    }
+}
+
+fn owned((bus, node, axis): (&str, &str, &str)) -> (String, String, String) {
+    (bus.to_string(), node.to_string(), axis.to_string())
+}
+
+/// Finishes a motion operation's row: its outcome, and the lease a
+/// take-over ended, named.
+fn finish_motion<T>(
+    mut row: AuditRow,
+    result: &Result<MotionOutcome<T>, MotionFailed>,
+) -> Finishing {
+    let took_over = match result {
+        Ok(outcome) => outcome.took_over.as_ref(),
+        Err(failed) => failed.took_over.as_deref(),
+    };
+    if let Some(previous) = took_over {
+        row.note(&format!(
+            "took over the {} lease {} of {}",
+            previous.mode,
+            mask(&previous.id),
+            previous.holder
+        ));
+    }
+    let outcome = match result {
+        Ok(_) => Ok(()),
+        Err(failed) => Err(failed.error.clone()),
+    };
+    row.finish(&outcome)
+}
+
+/// Runs a motion operation that does not need its caller to stay (no lease
+/// held in flight) in a task of its own, and its row with it.
+async fn spawn_motion<T, Fut>(row: AuditRow, work: Fut) -> Result<MotionOutcome<T>, MotionFailed>
+where
+    T: Send + 'static,
+    Fut: Future<Output = Result<MotionOutcome<T>, MotionFailed>> + Send + 'static,
+{
+    tokio::spawn(async move {
+        let result = work.await;
+        finish_motion(row, &result).await;
+        result
+    })
+    .await
+    .map_err(|err| GatewayError::Internal(format!("motion task: {err}")))?
 }
 
 #[cfg(test)]

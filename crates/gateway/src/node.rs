@@ -20,6 +20,8 @@ use std::sync::Arc;
 pub mod objects;
 
 use super::GatewayError;
+use super::audit::{AuditRow, AuditTarget};
+use super::caller::Caller;
 use super::registry::NodeInfo;
 use super::service::{Gateway, ServedBus};
 
@@ -45,6 +47,21 @@ impl NodeHandle {
     /// The node's id (1–127).
     pub fn id(&self) -> u8 {
         self.info.id.get()
+    }
+
+    /// The audit row of `caller`'s `operation` on this node.
+    pub(crate) fn audit_row(
+        &self,
+        caller: &Caller,
+        operation: &str,
+        item: Option<String>,
+        request: Option<String>,
+    ) -> AuditRow {
+        let target = AuditTarget::new(operation)
+            .bus(self.served.name.clone())
+            .node(self.id())
+            .item(item);
+        self.gateway.audit_row(caller, target, request)
     }
 }
 

@@ -26,6 +26,8 @@ use serde::Serialize;
 use tokio::task::JoinSet;
 
 use super::GatewayError;
+use super::audit::AuditTarget;
+use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
 use super::motion_lease::AxisKey;
 use super::service::Gateway;
@@ -609,10 +611,17 @@ impl Gateway {
     /// enabled; an axis in operation enabled gets the quick stop, and its
     /// node an NMT stop if the drive does not confirm. Every lease ends.
     ///
-    /// In a task of its own: dropping a `JoinSet` aborts its tasks, so the
-    /// set must not live in the caller's future (a request handler's is
-    /// dropped when its client hangs up).
-    pub async fn stop_all(&self) -> Result<StopReport, GatewayError> {
+    /// In a task of its own, with its audit row (`stop all axes`):
+    /// dropping a `JoinSet` aborts its tasks, so the set must not live in
+    /// the caller's future (a request handler's is dropped when its client
+    /// hangs up).
+    pub async fn stop_all(&self, caller: &Caller) -> Result<StopReport, GatewayError> {
+        let row = self.audit_row(caller, AuditTarget::new("stop all axes"), None);
+        let gateway = self.clone();
+        crate::audit::spawn_audited(row, async move { gateway.stop_everything().await }).await
+    }
+
+    async fn stop_everything(&self) -> Result<StopReport, GatewayError> {
         let gateway = self.clone();
         let report = tokio::spawn(async move {
             let mut targets = Vec::new();

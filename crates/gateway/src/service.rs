@@ -19,11 +19,11 @@ use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtService, NmtState, NmtTarge
 
 use super::GatewayError;
 use super::access::{RateLimit, Tokens, WriteLimiter};
+use super::audit::AuditTarget;
 use super::axis_telemetry::AxisTelemetry;
 use super::caller::Caller;
 use super::drive::Drive;
 use super::frames::FrameLog;
-use super::history::AuditEntry;
 use super::history::History;
 use super::leases::MotionLeases;
 use super::led_preview::LedPreviews;
@@ -556,15 +556,12 @@ impl Gateway {
                 removed.file_name,
                 removed.bytes
             );
-            let entry = AuditEntry::new(&Caller::system(), "prune recording (over quota)")
-                .target(None, None, None, Some(removed.file_name.clone()))
-                .request(Some(format!("{{\"bytes\":{}}}", removed.bytes)));
-            if let Err(err) = self.history.audit(entry).await {
-                tracing::error!(
-                    "audit: pruned recording {}: not recorded: {err}",
-                    removed.file_name
-                );
-            }
+            let target =
+                AuditTarget::new("prune recording (over quota)").item(removed.file_name.clone());
+            let request = format!("{{\"bytes\":{}}}", removed.bytes);
+            self.audit_row(&Caller::system(), target, Some(request))
+                .finish_ok()
+                .await;
         }
         pruned
     }

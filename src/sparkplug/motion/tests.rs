@@ -12,6 +12,7 @@ use super::*;
 use crate::gateway::history::{EventKind, Query};
 use crate::gateway::profile::EdsCatalog;
 use crate::gateway::registry::RegistryConfig;
+use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::config::BrokerUrl;
 use crate::sparkplug::metric::MetricValue;
@@ -467,6 +468,7 @@ async fn a_rest_client_and_a_sparkplug_host_lease_different_axes_undisturbed() {
         // Each renews its own, through its own door.
         gateway
             .renew_axis_lease(&rest, &axis2_key, &rest_lease.id)
+            .await
             .unwrap();
         let results = dcmd(
             &gateway,
@@ -507,6 +509,7 @@ async fn a_rest_client_and_a_sparkplug_host_lease_different_axes_undisturbed() {
     tokio::time::sleep(PERIOD / 2).await;
     gateway
         .renew_axis_lease(&rest, &axis2_key, &rest_lease.id)
+        .await
         .unwrap();
     assert_eq!(velocity(&gateway).await, 0, "axis 1 still moving");
     assert!(speed2().await > 0, "the REST client's axis was stopped");

@@ -6,7 +6,7 @@
 //! is [`crate::dcf`]'s.
 
 use super::NodeHandle;
-use super::transfer::spawned;
+use super::transfer::{audited, spawned};
 use crate::GatewayError;
 use crate::caller::Caller;
 use crate::canopen::eds::{Action, Eds};
@@ -91,9 +91,15 @@ impl NodeHandle {
         caller: &Caller,
         area: ParameterArea,
     ) -> Result<ParameterCommand, GatewayError> {
-        let what = format!("store {}", area.name());
-        self.parameter_command(caller, (STORE_PARAMETERS, area.sub()), SAVE, &what, false)
-            .await
+        let row = self.audit_row(caller, "store parameters", None, None);
+        let (this, caller) = (self.clone(), caller.clone());
+        audited(row, async move {
+            let what = format!("store {}", area.name());
+            let entry = (STORE_PARAMETERS, area.sub());
+            this.parameter_command(&caller, entry, SAVE, &what, false)
+                .await
+        })
+        .await
     }
 
     /// Restores `area`'s parameters from `source` ("load" to 0x1011). A
@@ -111,13 +117,13 @@ impl NodeHandle {
         };
         let what = format!("restore the {from} {}", area.name());
         let communication = matches!(area, ParameterArea::All | ParameterArea::Communication);
-        self.parameter_command(
-            caller,
-            (RESTORE_PARAMETERS, sub),
-            LOAD,
-            &what,
-            communication,
-        )
+        let row = self.audit_row(caller, "restore parameters", None, None);
+        let (this, caller) = (self.clone(), caller.clone());
+        audited(row, async move {
+            let entry = (RESTORE_PARAMETERS, sub);
+            this.parameter_command(&caller, entry, LOAD, &what, communication)
+                .await
+        })
         .await
     }
 
@@ -195,7 +201,19 @@ impl NodeHandle {
     /// A DCF that cannot be read, that the tolerant reader had to correct,
     /// or that is of another product is refused before anything is
     /// written. The gateway decodes the TPDOs by the mappings restored.
+    /// Audited, in a task of its own with its row.
     pub async fn restore_dcf(
+        &self,
+        caller: &Caller,
+        file: &[u8],
+    ) -> Result<Vec<RestoredEntry>, GatewayError> {
+        let request = format!("{} bytes of DCF", file.len());
+        let row = self.audit_row(caller, "restore configuration (DCF)", None, Some(request));
+        let (this, caller, file) = (self.clone(), caller.clone(), file.to_vec());
+        audited(row, async move { this.restore(&caller, &file).await }).await
+    }
+
+    async fn restore(
         &self,
         caller: &Caller,
         file: &[u8],

@@ -11,16 +11,20 @@
 //! heartbeat time followed) hangs on the node's SDO channel
 //! ([`crate::registry::NodeRegistry::subscribe_writes`]), whoever wrote.
 //!
-//! The doors parse and type their requests (REST against the EDS, CiA 309
-//! by its datatypes, Sparkplug from its metrics) and write each outcome to
-//! the audit log; the item they log for an object is [`object_item`].
+//! Writes and NMT commands write their audit row ([`crate::audit`]),
+//! refusals included, in the task of their transfer. The doors parse and
+//! type their requests (REST against the EDS, CiA 309 by its datatypes,
+//! Sparkplug from its metrics); the item an object is logged as is
+//! [`object_item`].
 
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::ClientConfig;
 
 use super::NodeHandle;
+use super::transfer::{audited, refused};
 use crate::GatewayError;
 use crate::access::Role;
+use crate::audit::AuditTarget;
 use crate::caller::Caller;
 use crate::service::{Gateway, check_sdo_allowed, check_writable};
 
@@ -138,15 +142,27 @@ impl NodeHandle {
         read_back: bool,
         settings: TransferSettings<'_>,
     ) -> Result<Option<Vec<u8>>, GatewayError> {
-        self.gateway.require_role(caller, Role::Operator)?;
-        self.gateway.take_write(caller)?;
-        check_sdo_allowed(&self.served, &self.info)?;
-        check_writable(&self.info, index, sub)?;
-        let channel = self.served.registry.sdo(self.info.id)?;
+        let row = self.audit_row(
+            caller,
+            "write object",
+            Some(object_item(index, sub)),
+            Some(raw_summary(&bytes)),
+        );
+        let checked = (|| {
+            self.gateway.require_role(caller, Role::Operator)?;
+            self.gateway.take_write(caller)?;
+            check_sdo_allowed(&self.served, &self.info)?;
+            check_writable(&self.info, index, sub)?;
+            Ok::<_, GatewayError>(self.served.registry.sdo(self.info.id)?)
+        })();
+        let channel = match checked {
+            Ok(channel) => channel,
+            Err(error) => return refused(row, error).await,
+        };
         let config = settings(channel.config());
-        // Write and read back in one task: both finish even if the caller
-        // goes away.
-        super::transfer::spawned(async move {
+        // Write and read back in one task, and its audit row: all finish
+        // even if the caller goes away.
+        audited(row, async move {
             channel
                 .download_with(index, sub, &bytes, config.as_ref())
                 .await?;
@@ -166,12 +182,33 @@ impl NodeHandle {
     /// the command was sent; the node's new state shows in the registry
     /// once it reports it.
     pub async fn nmt(&self, caller: &Caller, command: NmtCommand) -> Result<(), GatewayError> {
-        self.gateway.require_role(caller, Role::Operator)?;
-        self.gateway.take_write(caller)?;
-        self.served
-            .send_nmt(command, NmtTarget::Node(self.info.id))
-            .await
+        let row = self.audit_row(caller, "nmt command", None, Some(nmt_summary(command)));
+        let checked = self
+            .gateway
+            .require_role(caller, Role::Operator)
+            .and_then(|()| self.gateway.take_write(caller));
+        if let Err(error) = checked {
+            return refused(row, error).await;
+        }
+        let served = self.served.clone();
+        let node = self.info.id;
+        audited(row, async move {
+            served.send_nmt(command, NmtTarget::Node(node)).await
+        })
+        .await
     }
+}
+
+/// A write's request as the operation knows it (a door may have its own
+/// summary): the bytes, in hex.
+fn raw_summary(bytes: &[u8]) -> String {
+    let hex: String = bytes.iter().map(|byte| format!("{byte:02x}")).collect();
+    format!("{{\"raw\":\"{hex}\"}}")
+}
+
+/// An NMT command's request, as every door gives it.
+pub fn nmt_summary(command: NmtCommand) -> String {
+    format!("{{\"command\":\"{}\"}}", command.name())
 }
 
 impl Gateway {
@@ -183,9 +220,20 @@ impl Gateway {
         bus: &str,
         command: NmtCommand,
     ) -> Result<(), GatewayError> {
-        let served = self.bus(bus)?;
-        self.require_role(caller, Role::Operator)?;
-        self.take_write(caller)?;
-        served.send_nmt(command, NmtTarget::All).await
+        let target = AuditTarget::new("nmt command to all nodes").bus(bus);
+        let row = self.audit_row(caller, target, Some(nmt_summary(command)));
+        let checked = self.bus(bus).and_then(|served| {
+            self.require_role(caller, Role::Operator)?;
+            self.take_write(caller)?;
+            Ok(served)
+        });
+        let served = match checked {
+            Ok(served) => served,
+            Err(error) => return refused(row, error).await,
+        };
+        audited(row, async move {
+            served.send_nmt(command, NmtTarget::All).await
+        })
+        .await
     }
 }

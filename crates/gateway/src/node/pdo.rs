@@ -6,7 +6,7 @@
 use serde_json::Value as Json;
 
 use super::NodeHandle;
-use super::transfer::spawned;
+use super::transfer::{audited, spawned};
 use crate::caller::Caller;
 use crate::canopen::nmt::NmtService;
 use crate::canopen::pdo::{PdoKind, PdoMapping};
@@ -45,8 +45,25 @@ impl NodeHandle {
     /// against the node's EDS before the bus is touched, and answers with
     /// the configuration read back. When the device refuses a step, the
     /// error names it ([`GatewayError::FailedAt`]). The gateway decodes a
-    /// TPDO by its new mapping from then on.
+    /// TPDO by its new mapping from then on. Audited, in a task of its own
+    /// with its row.
     pub async fn configure_pdo(
+        &self,
+        caller: &Caller,
+        kind: PdoKind,
+        number: u16,
+        request: &PdoRequest,
+    ) -> Result<PdoConfig, GatewayError> {
+        let item = format!("{} {number}", kind.name());
+        let row = self.audit_row(caller, "configure pdo", Some(item), None);
+        let (this, caller, request) = (self.clone(), caller.clone(), request.clone());
+        audited(row, async move {
+            this.configure(&caller, kind, number, &request).await
+        })
+        .await
+    }
+
+    async fn configure(
         &self,
         caller: &Caller,
         kind: PdoKind,
@@ -96,8 +113,30 @@ impl NodeHandle {
     /// object, or `"0x6040"`, `"0x6040:0"`): its mapping and COB-ID are
     /// read from the node, and every mapped object must be given a value,
     /// typed and checked by the EDS. A node whose heartbeat says it is not
-    /// operational would ignore the frame: refused.
+    /// operational would ignore the frame: refused. Audited, in a task of
+    /// its own with its row.
     pub async fn send_rpdo(
+        &self,
+        caller: &Caller,
+        number: u16,
+        values: &serde_json::Map<String, Json>,
+    ) -> Result<RpdoFrame, GatewayError> {
+        let request = serde_json::json!({ "values": values }).to_string();
+        let row = self.audit_row(
+            caller,
+            "send rpdo",
+            Some(format!("rpdo {number}")),
+            Some(request),
+        );
+        let (this, caller, values) = (self.clone(), caller.clone(), values.clone());
+        audited(
+            row,
+            async move { this.send(&caller, number, &values).await },
+        )
+        .await
+    }
+
+    async fn send(
         &self,
         caller: &Caller,
         number: u16,
