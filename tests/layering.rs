@@ -303,6 +303,29 @@ fn named_modules(code: &str, module: &[&str]) -> Vec<(usize, String)> {
     found
 }
 
+/// A scratch tree of `files` (path relative to its root, text) for a
+/// detector's own test; removed when dropped.
+struct ScratchTree(PathBuf);
+
+impl ScratchTree {
+    fn new(name: &str, files: &[(&str, &str)]) -> Self {
+        let root = std::env::temp_dir().join(format!("candeck-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        for (path, text) in files {
+            let path = root.join(path);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, text).unwrap();
+        }
+        Self(root)
+    }
+}
+
+impl Drop for ScratchTree {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
@@ -426,26 +449,24 @@ fn no_door_holds_a_nodes_sdo_channel() {
 
 #[test]
 fn an_sdo_channel_in_a_doors_code_is_found_and_in_its_tests_or_comments_is_not() {
-    let root = std::env::temp_dir().join(format!("candeck-layering-sdo-{}", std::process::id()));
-    let dir = root.join("src/api");
-    std::fs::create_dir_all(dir.join("tests")).unwrap();
-    std::fs::write(
-        dir.join("segments.rs"),
-        "//! served.registry.sdo(id) in a comment is fine\nfn f() {\n    let channel = served.registry.sdo(info.id)?;\n}\n#[cfg(test)]\nmod tests { fn g() { let _ = SdoChannel::new(bus, id, config); } }\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.join("program.rs"),
-        "use crate::gateway::sdo::SdoChannel;\nuse crate::gateway::sdo::SdoChannelStats;\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.join("tests/pdos.rs"),
-        "let channel = SdoChannel::new(bus, id, config);\n",
-    )
-    .unwrap();
-    let found = sdo_channel_breaches(&root);
-    std::fs::remove_dir_all(&root).unwrap();
+    let tree = ScratchTree::new(
+        "layering-sdo",
+        &[
+            (
+                "src/api/segments.rs",
+                "//! served.registry.sdo(id) in a comment is fine\nfn f() {\n    let channel = served.registry.sdo(info.id)?;\n}\n#[cfg(test)]\nmod tests { fn g() { let _ = SdoChannel::new(bus, id, config); } }\n",
+            ),
+            (
+                "src/api/program.rs",
+                "use crate::gateway::sdo::SdoChannel;\nuse crate::gateway::sdo::SdoChannelStats;\n",
+            ),
+            (
+                "src/api/tests/pdos.rs",
+                "let channel = SdoChannel::new(bus, id, config);\n",
+            ),
+        ],
+    );
+    let found = sdo_channel_breaches(&tree.0);
     assert_eq!(found.len(), 2, "{found:?}");
     assert!(
         found[0].starts_with("src/api/program.rs:1: "),
@@ -511,16 +532,14 @@ fn a_module_is_found_in_every_spelling_and_comments_and_strings_are_not() {
 
 #[test]
 fn a_breach_names_its_file_and_line() {
-    let root = std::env::temp_dir().join(format!("candeck-layering-{}", std::process::id()));
-    let dir = root.join("src/ascii");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(
-        dir.join("serve.rs"),
-        "//! crate::api in a comment is fine\nuse crate::cia309::Line;\nuse crate::{\n    gateway::Gateway,\n    api::AppError,\n};\n",
-    )
-    .unwrap();
-    let found = door_breaches(&root);
-    std::fs::remove_dir_all(&root).unwrap();
+    let tree = ScratchTree::new(
+        "layering-doors",
+        &[(
+            "src/ascii/serve.rs",
+            "//! crate::api in a comment is fine\nuse crate::cia309::Line;\nuse crate::{\n    gateway::Gateway,\n    api::AppError,\n};\n",
+        )],
+    );
+    let found = door_breaches(&tree.0);
     assert_eq!(found.len(), 1, "{found:?}");
     assert!(
         found[0].starts_with("src/ascii/serve.rs:3: the ascii door uses api"),
@@ -594,22 +613,20 @@ fn only_the_can_crate_has_code_that_a_feature_changes() {
 
 #[test]
 fn a_feature_gate_outside_the_can_crate_is_named() {
-    let root = std::env::temp_dir().join(format!("layering-features-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(root.join("crates/can/src")).unwrap();
-    std::fs::create_dir_all(root.join("src/api")).unwrap();
-    std::fs::write(
-        root.join("crates/can/src/lib.rs"),
-        "#[cfg(feature = \"socketcan\")]\nmod socketcan;\n",
-    )
-    .unwrap();
-    std::fs::write(
-        root.join("src/api/bus.rs"),
-        "// cfg(feature = \"x\") in a comment is not code\nfn a() {}\n#[cfg(not(feature= \"socketcan\"))]\nfn b() {}\n",
-    )
-    .unwrap();
-    let found = feature_gates_outside_can(&root);
-    std::fs::remove_dir_all(&root).unwrap();
+    let tree = ScratchTree::new(
+        "layering-features",
+        &[
+            (
+                "crates/can/src/lib.rs",
+                "#[cfg(feature = \"socketcan\")]\nmod socketcan;\n",
+            ),
+            (
+                "src/api/bus.rs",
+                "// cfg(feature = \"x\") in a comment is not code\nfn a() {}\n#[cfg(not(feature= \"socketcan\"))]\nfn b() {}\n",
+            ),
+        ],
+    );
+    let found = feature_gates_outside_can(&tree.0);
     assert_eq!(found, ["src/api/bus.rs:3"]);
 }
 
@@ -656,20 +673,19 @@ fn nothing_below_the_doors_names_http_a_status_type_or_a_route() {
 
 #[test]
 fn a_route_named_below_the_doors_is_found() {
-    let root = std::env::temp_dir().join(format!("layering-words-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(root.join("crates/gateway/src/recording")).unwrap();
-    std::fs::write(
-        root.join("crates/gateway/src/recording.rs"),
-        "fn a() {}\n// see POST /api/v1/buses\n",
-    )
-    .unwrap();
-    std::fs::write(
-        root.join("crates/gateway/src/recording/tests.rs"),
-        "// '/api/v1/buses' in a migrated row\n",
-    )
-    .unwrap();
-    let found = door_words_below_the_doors(&root);
-    std::fs::remove_dir_all(&root).unwrap();
+    let tree = ScratchTree::new(
+        "layering-words",
+        &[
+            (
+                "crates/gateway/src/recording.rs",
+                "fn a() {}\n// see POST /api/v1/buses\n",
+            ),
+            (
+                "crates/gateway/src/recording/tests.rs",
+                "// '/api/v1/buses' in a migrated row\n",
+            ),
+        ],
+    );
+    let found = door_words_below_the_doors(&tree.0);
     assert_eq!(found, ["crates/gateway/src/recording.rs:2: /api/v1"]);
 }
