@@ -2,7 +2,7 @@
 //! finds the node once (the bus, the registry's view of it) and its
 //! operations — object reads and writes, NMT, the configuration, PDOs,
 //! LEDs, I/O, program download — each do their whole job for a
-//! [`Caller`](super::caller::Caller): the checks, the transfer, the
+//! [`Caller`]: the checks, the transfer, the
 //! follow-up. A door holds a handle, never the node's SDO channel.
 //!
 //! The operations live in files by area beside this one; this file holds
