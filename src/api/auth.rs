@@ -442,9 +442,13 @@ pub fn is_rate_limited(method: &Method, path: &str) -> bool {
     (super::audit::is_state_changing(method, path) || cia309_command) && path != "/api/v1/stop-all"
 }
 
+/// The axis routes whose operations are the gateway's motion facade.
+const MOTION_ACTIONS: &[&str] = &["state", "fault-reset", "halt", "move", "step-test", "lease"];
+
 /// Whether the request's operation draws on the write rate in the gateway
 /// (an object write, an NMT command, LED segments, a program download:
-/// [`crate::gateway::NodeHandle`]), so
+/// [`crate::gateway::NodeHandle`]; a motion command on an axis, stops
+/// never), so
 /// that the guard does not take a second write for it: REST's and CiA
 /// 309-5's.
 pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
@@ -458,36 +462,17 @@ pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
             matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/program", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/{action}", path)
+                    && path
+                        .rsplit('/')
+                        .next()
+                        .is_some_and(|action| MOTION_ACTIONS.contains(&action))
         }
         _ => false,
     };
     let cia309_command =
         *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
     rest || cia309_command
-}
-
-/// Whether the request may be a stop of an axis, told by its body
-/// ([`is_stop`]).
-fn may_be_stop(method: &Method, path: &str) -> bool {
-    *method == Method::POST
-        && path.starts_with("/api/v1/buses/")
-        && (path.ends_with("/halt") || path.ends_with("/state"))
-}
-
-/// `POST .../halt` `{"halt": true}`, or `POST .../state` with a target
-/// other than `operation_enabled` (each leaves motion): a stop, which the
-/// write rate never refuses, as STOP ALL.
-fn is_stop(path: &str, body: &[u8]) -> bool {
-    let Ok(json) = serde_json::from_slice::<serde_json::Value>(body) else {
-        return false;
-    };
-    if path.ends_with("/halt") {
-        json["halt"] == serde_json::Value::Bool(true)
-    } else {
-        json["target"]
-            .as_str()
-            .is_some_and(|target| target != "operation_enabled")
-    }
 }
 
 /// The middleware (`axum::middleware::from_fn_with_state`): who the token
@@ -589,30 +574,16 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     if length.is_some_and(|length| length > limit as u64) {
         return with_identity(too_large(limit).into_response(), identity);
     }
-    // A halt or a walk out of operation enabled is a stop too, told by its
-    // body: read here (bounded, as below) so that it is never refused for
-    // the rate.
-    let mut stop = false;
-    if is_rate_limited(&method, &path) && may_be_stop(&method, &path) {
-        let (parts, body) = request.into_parts();
-        match axum::body::to_bytes(body, limit).await {
-            Ok(bytes) => {
-                stop = is_stop(&path, &bytes);
-                request = Request::from_parts(parts, axum::body::Body::from(bytes));
-            }
-            Err(_) => return with_identity(too_large(limit).into_response(), identity),
-        }
-    }
-    // Writes of a token (a safety stop never waits), from the bucket CiA
-    // 309-3 draws on too; the gateway's object writes and NMT commands
-    // take theirs themselves.
+    // Writes of a token, from the bucket CiA 309-3 draws on too; the
+    // gateway's operations (object writes, NMT, LEDs, programs, motion:
+    // `limited_by_the_gateway`) take theirs themselves, and never one for
+    // a stop.
     let caller = crate::gateway::caller::Caller::new(
         crate::gateway::caller::Channel::Rest,
         identity.name.clone(),
         identity.role,
     );
     if is_rate_limited(&method, &path)
-        && !stop
         && !limited_by_the_gateway(&method, &path)
         && let Err(refused) = state.gateway.take_write(&caller)
     {

@@ -31,7 +31,6 @@ use crate::canopen::NodeId;
 use crate::gateway::audit::{AuditTarget, DoorDetail};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::edge_node::EdgeNodeStats;
-use crate::gateway::motion_lease::AxisKey;
 use crate::gateway::node::objects::object_item;
 use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
 use crate::gateway::telemetry::unix_ms;
@@ -1144,32 +1143,17 @@ pub(crate) async fn run_command(
                 "{topic}: not a device of this edge node"
             )));
         };
-        // An object write, NMT command or segment write takes its write in
-        // the gateway's operation. A stop is never refused by the write
-        // rate (as REST's halts and walks out of operation enabled), nor is
-        // a lease renewal (a heartbeat refused would stop the axis);
-        // another command draws on the lease it presents, if it is the one
-        // held on its axis, so that commands presenting none cannot starve
-        // the lease's holder (`crate::gateway::policy`).
-        let object_operation = matches!(
+        // Object writes, NMT, segment and motion commands take their write
+        // in the gateway's operation (none for a stop or a lease renewal;
+        // one presenting the lease held on its axis from that lease's
+        // bucket: `crate::gateway::policy`); what runs no operation (a
+        // rebirth, an unsupported metric) takes one here.
+        let operation = matches!(
             command,
             Command::Write { .. } | Command::Nmt(_) | Command::Segment { .. }
-        );
-        if !(object_operation
-            || command.is_stop()
-            || matches!(command, Command::Lease { keep: true, .. }))
-        {
-            match command.axis() {
-                Some(axis) => {
-                    let key = AxisKey {
-                        bus: bus.clone(),
-                        node,
-                        axis,
-                    };
-                    gateway.take_write_presenting(&caller, &key, command.lease_id())?
-                }
-                None => gateway.take_write(&caller)?,
-            }
+        ) || command.axis().is_some();
+        if !operation {
+            gateway.take_write(&caller)?;
         }
         match command {
             Command::Write { index, sub, value } => {

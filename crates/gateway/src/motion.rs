@@ -308,6 +308,38 @@ impl Gateway {
         }
     }
 
+    /// The caller's policy for a motion command on an axis, the same from
+    /// every door: the operator's role and, unless the command is a stop,
+    /// one write of its rate, drawn from the bucket of the lease it presents
+    /// when that lease is the one held on the axis
+    /// ([`Gateway::take_write_presenting`]), so that commands presenting
+    /// none cannot starve the lease's holder. A stop is never refused for
+    /// the rate.
+    fn motion_policy(
+        &self,
+        caller: &Caller,
+        (bus, node, axis): (&str, &str, &str),
+        claim: Option<&LeaseClaim>,
+        stop: bool,
+    ) -> Result<(), GatewayError> {
+        self.require_role(caller, Role::Operator)?;
+        if stop {
+            return Ok(());
+        }
+        let presented = claim.and_then(|claim| claim.id.as_deref());
+        match (node.parse::<u8>(), axis.parse::<u8>()) {
+            (Ok(node), Ok(axis)) => {
+                let axis = AxisKey {
+                    bus: bus.to_string(),
+                    node,
+                    axis,
+                };
+                self.take_write_presenting(caller, &axis, presented)
+            }
+            _ => self.take_write(caller),
+        }
+    }
+
     /// Walks an axis's CiA 402 state machine to `target`. Quick stop active
     /// is sent whatever the gateway believes of the node, never refused,
     /// and ends the lease, as does any walk out of operation enabled;
@@ -339,6 +371,8 @@ impl Gateway {
         target: TargetState,
         claim: &LeaseClaim,
     ) -> Result<MotionOutcome, MotionFailed> {
+        let stop = target != TargetState::OperationEnabled;
+        self.motion_policy(caller, (bus, node, axis), Some(claim), stop)?;
         if target == TargetState::QuickStopActive {
             let result = self.quick_stop_axis(bus, node, axis).await;
             self.release_stopped(bus, node, axis);
@@ -407,6 +441,7 @@ impl Gateway {
         halt: bool,
         claim: &LeaseClaim,
     ) -> Result<MotionOutcome, MotionFailed> {
+        self.motion_policy(caller, (bus, node, axis), Some(claim), halt)?;
         if halt {
             let result = self.halt_axis(bus, node, axis).await;
             self.release_stopped(bus, node, axis);
@@ -456,7 +491,10 @@ impl Gateway {
         axis: (&str, &str, &str),
     ) -> Result<AxisStatus, GatewayError> {
         let row = self.axis_row(caller, "fault reset", axis, None);
-        let drive = match self.drive(axis.0, axis.1, axis.2) {
+        let drive = match self
+            .motion_policy(caller, axis, None, false)
+            .and_then(|()| self.drive(axis.0, axis.1, axis.2))
+        {
             Ok(drive) => drive,
             Err(error) => {
                 let result = Err(error);
@@ -499,6 +537,7 @@ impl Gateway {
         request: &MoveRequest,
         claim: &LeaseClaim,
     ) -> Result<MotionOutcome, MotionFailed> {
+        self.motion_policy(caller, (bus, node, axis), Some(claim), false)?;
         let drive = self.drive(bus, node, axis)?;
         drive.validate(request)?;
         let axis_key = key(bus, &drive);
@@ -580,6 +619,7 @@ impl Gateway {
         request: &StepTestRequest,
         claim: &LeaseClaim,
     ) -> Result<MotionOutcome<StepTestResult>, MotionFailed> {
+        self.motion_policy(caller, (bus, node, axis), Some(claim), false)?;
         let drive = self.drive(bus, node, axis)?;
         request.validate()?;
         let values = self.bus(bus)?.values.clone();
@@ -617,7 +657,9 @@ impl Gateway {
         id: &str,
     ) -> Result<MotionLease, GatewayError> {
         let row = self.lease_row(caller, "renew motion lease", axis, id);
-        let result = self.leases.renew_on(axis, id, &caller.who);
+        let result = self
+            .require_role(caller, Role::Operator)
+            .and_then(|()| self.leases.renew_on(axis, id, &caller.who));
         row.finish(&result).await;
         result
     }
@@ -633,7 +675,9 @@ impl Gateway {
         id: &str,
     ) -> Result<MotionLease, GatewayError> {
         let row = self.lease_row(caller, "renew motion lease", axis, id);
-        let result = self.leases.renew_on(axis, id, &caller.who);
+        let result = self
+            .require_role(caller, Role::Operator)
+            .and_then(|()| self.leases.renew_on(axis, id, &caller.who));
         if result.is_ok() && !self.leases.renewal_audit_due(id) {
             row.skip();
         } else {
@@ -652,7 +696,9 @@ impl Gateway {
         id: &str,
     ) -> Result<(), GatewayError> {
         let row = self.lease_row(caller, "end motion lease", axis, id);
-        let result = self.leases.lapse_on(axis, id, &caller.who);
+        let result = self
+            .require_role(caller, Role::Operator)
+            .and_then(|()| self.leases.lapse_on(axis, id, &caller.who));
         row.finish(&result).await;
         result
     }

@@ -26,6 +26,7 @@ use serde::Serialize;
 use tokio::task::JoinSet;
 
 use super::GatewayError;
+use super::access::Role;
 use super::audit::AuditTarget;
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
@@ -617,6 +618,13 @@ impl Gateway {
     /// hangs up).
     pub async fn stop_all(&self, caller: &Caller) -> Result<StopReport, GatewayError> {
         let row = self.audit_row(caller, AuditTarget::new("stop all axes"), None);
+        // Anyone the gateway knows may stop everything (a viewer too); it
+        // is never refused for the write rate.
+        if let Err(error) = self.require_role(caller, Role::Viewer) {
+            let result = Err(error);
+            row.finish(&result).await;
+            return result;
+        }
         let gateway = self.clone();
         crate::audit::spawn_audited(row, async move { gateway.stop_everything().await }).await
     }

@@ -17,7 +17,7 @@
 use tokio::time::Instant;
 
 use super::NodeHandle;
-use super::transfer::spawned;
+use super::transfer::{audited, spawned};
 use crate::GatewayError;
 use crate::access::Role;
 use crate::caller::Caller;
@@ -260,18 +260,26 @@ impl LedController {
 
     /// Applies `scene` (the operator's; one write of the caller's rate) and
     /// reads every segment back in the same sequence.
+    ///
+    /// Audited as `set scene`, in a task of its own with its row.
     pub async fn apply_scene(
         &self,
         caller: &Caller,
         scene: &Scene,
     ) -> Result<Vec<Segment>, GatewayError> {
-        let node = &self.node;
-        node.gateway.require_role(caller, Role::Operator)?;
-        node.gateway.take_write(caller)?;
-        let writes = scene.writes()?;
-        self.transfer(writes, Some(ReadBack::All)).await
+        let row = self.node.audit_row(caller, "set scene", None, None);
+        let (this, caller, scene) = (self.clone(), caller.clone(), scene.clone());
+        audited(row, async move {
+            let node = &this.node;
+            node.gateway.require_role(&caller, Role::Operator)?;
+            node.gateway.take_write(&caller)?;
+            let writes = scene.writes()?;
+            this.transfer(writes, Some(ReadBack::All)).await
+        })
+        .await
     }
 
+    /// Audited as `set segment`, in a task of its own with its row.
     async fn write(
         &self,
         caller: &Caller,
@@ -279,12 +287,18 @@ impl LedController {
         update: &SegmentUpdate,
         read_back: Option<ReadBack>,
     ) -> Result<Vec<Segment>, GatewayError> {
-        let node = &self.node;
-        node.gateway.require_role(caller, Role::Operator)?;
-        node.gateway.take_write(caller)?;
-        check_segment(segment)?;
-        let writes = vec![(segment, update.writes()?)];
-        self.transfer(writes, read_back).await
+        let item = Some(format!("segment {segment}"));
+        let row = self.node.audit_row(caller, "set segment", item, None);
+        let (this, caller, update) = (self.clone(), caller.clone(), update.clone());
+        audited(row, async move {
+            let node = &this.node;
+            node.gateway.require_role(&caller, Role::Operator)?;
+            node.gateway.take_write(&caller)?;
+            check_segment(segment)?;
+            let writes = vec![(segment, update.writes()?)];
+            this.transfer(writes, read_back).await
+        })
+        .await
     }
 
     /// The checked writes and the read-back, in one task, not interleaved

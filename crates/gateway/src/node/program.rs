@@ -8,7 +8,7 @@
 //! failed step named ([`GatewayError::FailedAt`]).
 
 use super::NodeHandle;
-use super::transfer::spawned;
+use super::transfer::{audited, spawned};
 use crate::GatewayError;
 use crate::access::Role;
 use crate::caller::Caller;
@@ -35,7 +35,25 @@ impl NodeHandle {
     /// Downloads `image` to the node, verifies it and, if `start`, starts
     /// it (the administrator's; one write of the caller's rate). An empty
     /// image is refused before the bus.
+    ///
+    /// Audited as `download program`, in a task of its own with its row.
     pub async fn download_program(
+        &self,
+        caller: &Caller,
+        image: Vec<u8>,
+        start: bool,
+    ) -> Result<ProgramDownload, GatewayError> {
+        let summary = format!("{} bytes, start {start}", image.len());
+        let row = self.audit_row(caller, "download program", None, Some(summary));
+        let (this, caller) = (self.clone(), caller.clone());
+        audited(
+            row,
+            async move { this.download(&caller, image, start).await },
+        )
+        .await
+    }
+
+    async fn download(
         &self,
         caller: &Caller,
         image: Vec<u8>,

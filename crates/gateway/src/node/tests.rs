@@ -1,5 +1,6 @@
 //! The node operations through the gateway alone, no door in front: the
-//! LED segments and the program download, on the demo rack.
+//! LED segments and the program download, and the motion facade's policy,
+//! on the demo rack.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -317,5 +318,135 @@ async fn a_program_download_is_the_administrators_and_names_its_failed_step() {
             assert_eq!(step, "stop program (0x1F51 = 0)");
         }
         other => panic!("not named by its step: {other:?}"),
+    }
+}
+
+/// The audit rows so far, oldest first: operation, item, outcome, who.
+async fn audit_rows(gateway: &Gateway) -> Vec<(String, Option<String>, String, String)> {
+    let mut events = gateway
+        .history
+        .query(crate::history::Query {
+            kind: Some(crate::history::EventKind::Audit),
+            since_us: None,
+            until_us: None,
+            channel: None,
+            limit: 1000,
+        })
+        .await
+        .unwrap();
+    events.sort_by_key(|event| event.id);
+    let text = |fields: &serde_json::Map<String, serde_json::Value>, key: &str| {
+        fields.get(key).and_then(|v| v.as_str()).map(str::to_string)
+    };
+    events
+        .iter()
+        .map(|event| {
+            let f = &event.fields;
+            (
+                text(f, "operation").unwrap_or_default(),
+                text(f, "item"),
+                text(f, "outcome").unwrap_or_default(),
+                text(f, "who").unwrap_or_default(),
+            )
+        })
+        .filter(|(_, _, _, who)| who != "gateway")
+        .collect()
+}
+
+/// The LED and program operations write their own audit rows, refusals
+/// included, with no door in front to write them.
+#[tokio::test(start_paused = true)]
+async fn led_and_program_operations_write_their_own_audit_rows() {
+    let gateway = demo().await;
+    let leds = leds(&gateway);
+    let operator = operator(Channel::Cia309_3);
+    let viewer = Caller::new(Channel::Rest, "watcher", Some(Role::Viewer));
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    leds.write_segment(&operator, 2, &breathing_red())
+        .await
+        .unwrap();
+    let refused = leds.write_segment(&viewer, 2, &breathing_red()).await;
+    assert_eq!(refused.unwrap_err().code(), "forbidden");
+    let scene = Scene {
+        segments: vec![(1, breathing_red())],
+        others: Others::Keep,
+    };
+    leds.apply_scene(&operator, &scene).await.unwrap();
+    leds.node()
+        .clone()
+        .download_program(&admin, image(100), false)
+        .await
+        .unwrap();
+    let row = |op: &str, item: Option<&str>, outcome: &str, who: &str| {
+        (
+            op.to_string(),
+            item.map(str::to_string),
+            outcome.to_string(),
+            who.to_string(),
+        )
+    };
+    assert_eq!(
+        audit_rows(&gateway).await,
+        [
+            row("set segment", Some("segment 2"), "ok", "someone"),
+            row("set segment", Some("segment 2"), "forbidden", "watcher"),
+            row("set scene", None, "ok", "someone"),
+            row("download program", None, "ok", "admin"),
+        ]
+    );
+}
+
+/// The motion facade holds its caller to the policy itself, whichever door
+/// it came through: the operator's role, and one write of the caller's
+/// rate for a command that is no stop; a stop is never refused for the
+/// rate.
+#[tokio::test(start_paused = true)]
+async fn the_motion_facade_holds_every_caller_to_its_role_and_write_rate() {
+    use crate::drive::TargetState;
+    use crate::motion::LeaseClaim;
+
+    let gateway = demo().await.with_write_limit(Some(RateLimit {
+        per_second: 0.001,
+        burst: 1,
+    }));
+    let axis = ("demo", "1", "1");
+    let viewer = Caller::new(Channel::Cia309_3, "watcher", Some(Role::Viewer));
+    let refused = gateway.reset_axis_fault(&viewer, axis).await.unwrap_err();
+    assert_eq!(refused.code(), "forbidden", "{refused}");
+    let claim = LeaseClaim::presented(None, false);
+    let refused = gateway
+        .set_axis_state(&viewer, axis, TargetState::QuickStopActive, &claim)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.error.code(), "forbidden", "{}", refused.error);
+
+    // The edge node is counted always (MQTT names no sender): one write.
+    let mqtt = operator(Channel::Sparkplug);
+    gateway.reset_axis_fault(&mqtt, axis).await.unwrap();
+    let over = gateway.reset_axis_fault(&mqtt, axis).await.unwrap_err();
+    assert_eq!(over.code(), "rate_limited", "{over}");
+    let over = gateway
+        .set_axis_state(&mqtt, axis, TargetState::OperationEnabled, &claim)
+        .await
+        .unwrap_err();
+    assert_eq!(over.error.code(), "rate_limited", "{}", over.error);
+    // Stops, over the rate all the same.
+    for stop in [TargetState::SwitchOnDisabled, TargetState::QuickStopActive] {
+        if let Err(failed) = gateway.set_axis_state(&mqtt, axis, stop, &claim).await {
+            assert_ne!(
+                failed.error.code(),
+                "rate_limited",
+                "{stop:?}: {}",
+                failed.error
+            );
+        }
+    }
+    if let Err(failed) = gateway.set_axis_halt(&mqtt, axis, true, &claim).await {
+        assert_ne!(
+            failed.error.code(),
+            "rate_limited",
+            "halt: {}",
+            failed.error
+        );
     }
 }
