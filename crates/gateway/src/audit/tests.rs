@@ -19,7 +19,9 @@ fn target() -> AuditTarget {
         .item("0x1017:0".to_string())
 }
 
-async fn rows(gateway: &Gateway) -> Vec<serde_json::Map<String, Json>> {
+/// Every audit row written so far, oldest first (the node operations'
+/// tests read them too).
+pub(crate) async fn rows(gateway: &Gateway) -> Vec<serde_json::Map<String, Json>> {
     let mut events = gateway
         .history
         .query(Query {

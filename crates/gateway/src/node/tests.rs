@@ -323,25 +323,13 @@ async fn a_program_download_is_the_administrators_and_names_its_failed_step() {
 
 /// The audit rows so far, oldest first: operation, item, outcome, who.
 async fn audit_rows(gateway: &Gateway) -> Vec<(String, Option<String>, String, String)> {
-    let mut events = gateway
-        .history
-        .query(crate::history::Query {
-            kind: Some(crate::history::EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 1000,
-        })
-        .await
-        .unwrap();
-    events.sort_by_key(|event| event.id);
     let text = |fields: &serde_json::Map<String, serde_json::Value>, key: &str| {
         fields.get(key).and_then(|v| v.as_str()).map(str::to_string)
     };
-    events
+    crate::audit::tests::rows(gateway)
+        .await
         .iter()
-        .map(|event| {
-            let f = &event.fields;
+        .map(|f| {
             (
                 text(f, "operation").unwrap_or_default(),
                 text(f, "item"),
