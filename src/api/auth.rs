@@ -29,112 +29,131 @@ use super::{AppError, AppState};
 use crate::gateway::GatewayError;
 use crate::gateway::access::Tokens;
 pub use crate::gateway::access::{RateLimit, Role, Token};
+use crate::gateway::policy::Operation;
 
 /// What a route asks of a request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Access {
     /// Anyone: it carries no data from the devices.
     Public,
-    /// A token of this role or above.
-    Needs(Role),
+    /// What the gateway's operation of that kind needs of its caller
+    /// ([`Operation::required_role`]): REST asks before it reads a body,
+    /// the operation asks again whichever door called it.
+    Operation(Operation),
+    /// A path no route has (404 after authentication): a token of this
+    /// role or above, so that only who could have asked learns it.
+    Unrouted(Role),
+}
+
+impl Access {
+    /// The least role it needs; none for a public route.
+    pub fn role(self) -> Option<Role> {
+        match self {
+            Self::Public => None,
+            Self::Operation(kind) => Some(kind.required_role()),
+            Self::Unrouted(role) => Some(role),
+        }
+    }
 }
 
 const PUBLIC: Access = Access::Public;
-const VIEWER: Access = Access::Needs(Role::Viewer);
-const OPERATOR: Access = Access::Needs(Role::Operator);
-const ADMIN: Access = Access::Needs(Role::Admin);
+const VIEW: Access = Access::Operation(Operation::View);
+const fn op(kind: Operation) -> Access {
+    Access::Operation(kind)
+}
 
-/// The least role of every route: method (`*` any), path pattern
-/// (`{name}` one segment, `{*name}` the rest), access. The first entry
+/// The operation of every route: method (`*` any), path pattern
+/// (`{name}` one segment, `{*name}` the rest), access (the roles are the
+/// gateway's, one per kind of operation). The first entry
 /// that matches decides; a test fails when a route of the router has no
 /// entry here, so a new route is one line here.
 #[rustfmt::skip]
 pub static ROUTES: &[(&str, &str, Access)] = &[
     // Container health checks ask without a token.
     ("GET",    "/api/v1/health", PUBLIC),
-    ("GET",    "/api/v1/auth/whoami", VIEWER),
-    ("GET",    "/api/v1/buses", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}", VIEWER),
+    ("GET",    "/api/v1/auth/whoami", VIEW),
+    ("GET",    "/api/v1/buses", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}", VIEW),
     // A scan reads identities only, but adds nodes and marks silent ones
     // offline: it changes the gateway.
-    ("POST",   "/api/v1/buses/{bus}/scan", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nmt", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/nmt", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/machine", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/scan", op(Operation::Scan)),
+    ("POST",   "/api/v1/buses/{bus}/nmt", op(Operation::Nmt)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/nmt", op(Operation::Nmt)),
+    ("GET",    "/api/v1/buses/{bus}/machine", VIEW),
     // Runs a node's boot-up again: configuration download and NMT start.
-    ("POST",   "/api/v1/buses/{bus}/machine/nodes/{id}/boot", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/machine/nodes/{id}/boot", op(Operation::BootNode)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", op(Operation::WriteObject)),
     // A batch of reads, a POST only because it has a body.
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/od/read", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments", OPERATOR),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments/{n}", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments/preview", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/store", ADMIN),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/restore", ADMIN),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", ADMIN),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/program", ADMIN),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/state", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/halt", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/move", OPERATOR),
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/step-test", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/od/read", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments", op(Operation::SetLeds)),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/segments/{n}", op(Operation::SetLeds)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/segments/preview", VIEW),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/store", op(Operation::StoreRestore)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/restore", op(Operation::StoreRestore)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/config.dcf", op(Operation::RestoreConfiguration)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/program", op(Operation::DownloadProgram)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}", VIEW),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/state", op(Operation::Motion)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/fault-reset", op(Operation::Motion)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/halt", op(Operation::Motion)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/move", op(Operation::Motion)),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/step-test", op(Operation::Motion)),
     // Renewing the motion lease of a move the operator started.
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/lease", OPERATOR),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/lease", op(Operation::RenewLease)),
     // A safety function: whoever watches a machine may stop it, as anyone
     // may press an emergency stop; it can only stop motion, and the log
     // names the token. Never rate limited.
-    ("POST",   "/api/v1/stop-all", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/values", VIEWER),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/io", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/io", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", ADMIN),
+    ("POST",   "/api/v1/stop-all", op(Operation::StopAll)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/values", VIEW),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/io", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/io", op(Operation::SetOutputs)),
+    ("GET",    "/api/v1/buses/{bus}/nodes/{id}/pdos", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/pdos/{kind}/{n}", op(Operation::ConfigurePdo)),
     // The bus tools of commissioning (issue 21): process data straight to a
     // device's mapped objects, the bus's SYNC and raw frames are the
     // operator's, as motion and NMT are, and audited as every write.
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/sync", VIEWER),
-    ("PUT",    "/api/v1/buses/{bus}/sync", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/frames", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/frames", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/recording", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/recording", ADMIN),
-    ("DELETE", "/api/v1/buses/{bus}/recording", ADMIN),
-    ("GET",    "/api/v1/buses/{bus}/recording.log", VIEWER),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/pdos/rpdo/{n}/send", op(Operation::SendRpdo)),
+    ("GET",    "/api/v1/buses/{bus}/sync", VIEW),
+    ("PUT",    "/api/v1/buses/{bus}/sync", op(Operation::SetSync)),
+    ("GET",    "/api/v1/buses/{bus}/frames", VIEW),
+    ("POST",   "/api/v1/buses/{bus}/frames", op(Operation::SendFrame)),
+    ("GET",    "/api/v1/buses/{bus}/recording", VIEW),
+    ("POST",   "/api/v1/buses/{bus}/recording", op(Operation::Record)),
+    ("DELETE", "/api/v1/buses/{bus}/recording", op(Operation::Record)),
+    ("GET",    "/api/v1/buses/{bus}/recording.log", VIEW),
     // LSS reconfigures the bus's node-IDs: the administrator's.
-    ("POST",   "/api/v1/buses/{bus}/lss/scan", ADMIN),
-    ("POST",   "/api/v1/buses/{bus}/lss/configure", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/lss/scan", op(Operation::Lss)),
+    ("POST",   "/api/v1/buses/{bus}/lss/configure", op(Operation::Lss)),
     // A node-ID change of one node, as its operator's NMT reset is.
-    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/node-id", OPERATOR),
-    ("GET",    "/api/v1/buses/{bus}/sim/nodes", VIEWER),
-    ("POST",   "/api/v1/buses/{bus}/sim/nodes", ADMIN),
-    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}", ADMIN),
-    ("POST",   "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
-    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", ADMIN),
-    ("POST",   "/api/v1/buses/{bus}/sim/faults", ADMIN),
-    ("DELETE", "/api/v1/buses/{bus}/sim/faults", ADMIN),
+    ("POST",   "/api/v1/buses/{bus}/nodes/{id}/node-id", op(Operation::ChangeNodeId)),
+    ("GET",    "/api/v1/buses/{bus}/sim/nodes", VIEW),
+    ("POST",   "/api/v1/buses/{bus}/sim/nodes", op(Operation::VirtualDevices)),
+    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}", op(Operation::VirtualDevices)),
+    ("POST",   "/api/v1/buses/{bus}/sim/nodes/{id}/faults", op(Operation::VirtualDevices)),
+    ("DELETE", "/api/v1/buses/{bus}/sim/nodes/{id}/faults", op(Operation::VirtualDevices)),
+    ("POST",   "/api/v1/buses/{bus}/sim/faults", op(Operation::VirtualDevices)),
+    ("DELETE", "/api/v1/buses/{bus}/sim/faults", op(Operation::VirtualDevices)),
     // Data loggers: sampling takes the nodes' SDO queues, as an operator's
     // reads would; reading what they sampled is a viewer's.
-    ("GET",    "/api/v1/loggers", VIEWER),
-    ("POST",   "/api/v1/loggers", OPERATOR),
-    ("GET",    "/api/v1/loggers/{id}", VIEWER),
-    ("DELETE", "/api/v1/loggers/{id}", OPERATOR),
-    ("GET",    "/api/v1/loggers/{id}/data.csv", VIEWER),
-    ("GET",    "/api/v1/stream", VIEWER),
-    ("GET",    "/api/v1/events", VIEWER),
-    ("GET",    "/api/v1/eds", VIEWER),
-    ("POST",   "/api/v1/eds", ADMIN),
-    ("DELETE", "/api/v1/eds/{name}", ADMIN),
-    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/eds", OPERATOR),
-    ("DELETE", "/api/v1/buses/{bus}/nodes/{id}/eds", OPERATOR),
-    ("GET",    "/metrics", VIEWER),
+    ("GET",    "/api/v1/loggers", VIEW),
+    ("POST",   "/api/v1/loggers", op(Operation::Logger)),
+    ("GET",    "/api/v1/loggers/{id}", VIEW),
+    ("DELETE", "/api/v1/loggers/{id}", op(Operation::Logger)),
+    ("GET",    "/api/v1/loggers/{id}/data.csv", VIEW),
+    ("GET",    "/api/v1/stream", VIEW),
+    ("GET",    "/api/v1/events", VIEW),
+    ("GET",    "/api/v1/eds", VIEW),
+    ("POST",   "/api/v1/eds", op(Operation::ManageEds)),
+    ("DELETE", "/api/v1/eds/{name}", op(Operation::ManageEds)),
+    ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/eds", op(Operation::AssignEds)),
+    ("DELETE", "/api/v1/buses/{bus}/nodes/{id}/eds", op(Operation::AssignEds)),
+    ("GET",    "/metrics", VIEW),
     // The interface's description: no data, and the docs UI is where one
     // enters a token to try the API ("Authorize"). `/api/docs` redirects
     // to `/api/docs/`, the UI's page.
@@ -145,13 +164,17 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     // CiA 309-5 (the gateway protocol): its SDO reads for viewers, its SDO
     // writes and NMT commands for operators, as the same requests through
     // /api/v1 (od PUT, nmt POST).
-    ("GET",    "/cia309-5/{*rest}", VIEWER),
-    ("*",      "/cia309-5/{*rest}", OPERATOR),
+    ("GET",    "/cia309-5/{*rest}", VIEW),
+    ("*",      "/cia309-5/{*rest}", op(Operation::WriteObject)),
     // The dashboard's pages and static files: layout only, the data comes
     // from the API (each page asks for a token when the API wants one).
     ("GET",    "/", PUBLIC),
     ("GET",    "/static/{version}/{*path}", PUBLIC),
 ];
+
+/// A write to a path no route has: as if it were the admin's (the safe
+/// side).
+const UNROUTED_WRITE: Access = Access::Unrouted(Role::Admin);
 
 /// What applies to requests no entry of [`ROUTES`] matches: unknown API
 /// paths (404 after authentication; writes to them as if they were
@@ -159,11 +182,11 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
 /// dashboard's pages, which hold no data.
 #[rustfmt::skip]
 pub static FALLBACK: &[(&str, &str, Access)] = &[
-    ("GET", "/api/{*rest}", VIEWER),
-    ("*",   "/api/{*rest}", ADMIN),
-    ("GET", "/metrics/{*rest}", VIEWER),
+    ("GET", "/api/{*rest}", VIEW),
+    ("*",   "/api/{*rest}", UNROUTED_WRITE),
+    ("GET", "/metrics/{*rest}", VIEW),
     ("GET", "/{*page}", PUBLIC),
-    ("*",   "/{*rest}", ADMIN),
+    ("*",   "/{*rest}", UNROUTED_WRITE),
 ];
 
 /// Whether `path` fits `pattern` (see [`ROUTES`]).
@@ -213,7 +236,7 @@ pub fn required(method: &Method, path: &str) -> Access {
                 .iter()
                 .find(|(m, pattern, _)| method_fits(m, method) && matches(pattern, path))
         })
-        .map_or(ADMIN, |(_, _, access)| *access)
+        .map_or(UNROUTED_WRITE, |(_, _, access)| *access)
 }
 
 /// The largest request body by default (JSON bodies are small).
@@ -432,14 +455,15 @@ pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
     (identity, given.is_some())
 }
 
-/// Whether a request draws on its token's write rate: a state-changing
-/// request under `/api/v1` ([`super::audit::is_state_changing`]) or a CiA
-/// 309-5 command (SDO write, NMT), but never a safety stop (STOP ALL here;
-/// a halt or a walk out of operation enabled by its body, in [`guard`]).
+/// Whether a request draws on its token's write rate: its operation does
+/// ([`Operation::draws_on_write_rate`]: what changes the machine, never a
+/// stop), and so does a write to a path no route has under `/api/v1`.
 pub fn is_rate_limited(method: &Method, path: &str) -> bool {
-    let cia309_command =
-        *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
-    (super::audit::is_state_changing(method, path) || cia309_command) && path != "/api/v1/stop-all"
+    match required(method, path) {
+        Access::Public => false,
+        Access::Operation(kind) => kind.draws_on_write_rate(),
+        Access::Unrouted(_) => super::audit::is_state_changing(method, path),
+    }
 }
 
 /// The axis routes whose operations are the gateway's motion facade.
@@ -536,8 +560,9 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
         }
     }
 
+    let access = required(&method, &path);
     if config.required()
-        && let Access::Needs(needed) = required(&method, &path)
+        && let Some(needed) = access.role()
     {
         match identity.role {
             None => {
@@ -709,20 +734,28 @@ mod tests {
 
     #[test]
     fn unlisted_paths_fall_back_to_the_safe_side() {
-        assert_eq!(required(&Method::GET, "/api/v1/nowhere"), VIEWER);
-        assert_eq!(required(&Method::POST, "/api/v1/nowhere"), ADMIN);
+        assert_eq!(required(&Method::GET, "/api/v1/nowhere"), VIEW);
+        assert_eq!(required(&Method::POST, "/api/v1/nowhere"), UNROUTED_WRITE);
         assert_eq!(required(&Method::GET, "/nodes/demo/1"), PUBLIC);
         assert_eq!(required(&Method::HEAD, "/"), PUBLIC);
-        assert_eq!(required(&Method::POST, "/"), ADMIN);
-        assert_eq!(required(&Method::GET, "/metrics"), VIEWER);
+        assert_eq!(required(&Method::POST, "/"), UNROUTED_WRITE);
+        assert_eq!(required(&Method::GET, "/metrics"), VIEW);
         assert_eq!(
             required(&Method::GET, "/cia309-5/1.0/1/1/1/r/0x1008/0"),
-            VIEWER
+            VIEW
         );
         assert_eq!(
             required(&Method::PUT, "/cia309-5/1.0/1/1/1/w/0x1008/0"),
-            OPERATOR
+            op(Operation::WriteObject)
         );
+        // Every route is public or one of the gateway's operations: REST
+        // has no role of its own for a route.
+        for (method, pattern, access) in ROUTES {
+            assert!(
+                matches!(access, Access::Public | Access::Operation(_)),
+                "{method} {pattern}: {access:?}"
+            );
+        }
     }
 
     #[test]

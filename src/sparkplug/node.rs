@@ -1097,8 +1097,8 @@ async fn sleep_until(at: Option<Instant>) {
 }
 
 /// One command from MQTT, through the gateway's operations and checks as
-/// REST runs them: the role, the write rate limit, the node's checks, the
-/// EDS's. Each is audited once, whatever its outcome, `who` the MQTT
+/// REST runs them: the role (the edge node's `sparkplug_role`, checked by
+/// each operation), the write rate limit, the node's checks, the EDS's. Each is audited once, whatever its outcome, `who` the MQTT
 /// identity, with the message type and topic as the door's words: by the
 /// gateway's operation it calls, or here when none audited it (a refusal of
 /// the door's own, a command the gateway does not audit yet).
@@ -1131,13 +1131,6 @@ pub(crate) async fn run_command(
         .item(item);
     target.bus = bus.clone();
     let work = async {
-        if config.role < crate::gateway::access::Role::Operator {
-            return Err(GatewayError::Forbidden(format!(
-                "{} from MQTT needs the operator role; sparkplug_role is {}",
-                command.operation(),
-                config.role
-            )));
-        }
         let (Some(bus), Some(node)) = (&bus, node) else {
             return Err(GatewayError::InvalidRequest(format!(
                 "{topic}: not a device of this edge node"

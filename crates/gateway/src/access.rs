@@ -1,6 +1,7 @@
 //! Tokens and roles: who may do what, the same for every adapter (the REST
 //! API's guard in `crate::api::auth`, the CiA 309-3 `auth` line). A token
-//! has a name, a role and a secret; `CANDECK_TOKENS` lists them as
+//! has a name, a role (what each operation needs of one:
+//! [`crate::policy::Operation::required_role`]) and a secret; `CANDECK_TOKENS` lists them as
 //! `NAME:ROLE:TOKEN`. And the one write rate limit ([`WriteLimiter`]) that
 //! REST, CiA 309-5 and CiA 309-3 take their writes from, per token name.
 
@@ -15,12 +16,12 @@ use tokio::time::Instant;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Role {
-    /// Reads and the stream.
+    /// Reads, the stream and STOP ALL.
     Viewer,
-    /// Motion, LEDs, NMT, object writes.
+    /// Motion, LEDs, NMT, object writes, SYNC, raw frames, loggers.
     Operator,
-    /// PDO configuration, store/restore, DCF restore, raw frames,
-    /// recording, `/sim`, SYNC.
+    /// PDO configuration, store/restore, DCF restore, program download,
+    /// recording, LSS, virtual devices, the EDS catalog.
     Admin,
 }
 

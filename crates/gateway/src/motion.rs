@@ -23,10 +23,10 @@
 //! carries no sender identity either, the id is the capability: whoever
 //! does not present it is refused.
 
+use crate::policy::Operation;
 use std::future::Future;
 
 use super::GatewayError;
-use super::access::Role;
 use super::audit::{AuditRow, AuditTarget, Finishing, spawn_audited};
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveError, MoveMode, MoveRequest, TargetState};
@@ -289,7 +289,7 @@ impl Gateway {
         if !claim.takeover {
             return Ok(None);
         }
-        if self.tokens.required() && caller.role.is_none_or(|role| role < Role::Operator) {
+        if self.tokens.required() && self.require(caller, Operation::Motion).is_err() {
             return Err(GatewayError::Forbidden(
                 "a take-over of a held axis needs the operator role".to_string(),
             ));
@@ -322,7 +322,7 @@ impl Gateway {
         claim: Option<&LeaseClaim>,
         stop: bool,
     ) -> Result<(), GatewayError> {
-        self.require_role(caller, Role::Operator)?;
+        self.require(caller, Operation::Motion)?;
         if stop {
             return Ok(());
         }
@@ -658,7 +658,7 @@ impl Gateway {
     ) -> Result<MotionLease, GatewayError> {
         let row = self.lease_row(caller, "renew motion lease", axis, id);
         let result = self
-            .require_role(caller, Role::Operator)
+            .require(caller, Operation::RenewLease)
             .and_then(|()| self.leases.renew_on(axis, id, &caller.who));
         row.finish(&result).await;
         result
@@ -676,7 +676,7 @@ impl Gateway {
     ) -> Result<MotionLease, GatewayError> {
         let row = self.lease_row(caller, "renew motion lease", axis, id);
         let result = self
-            .require_role(caller, Role::Operator)
+            .require(caller, Operation::RenewLease)
             .and_then(|()| self.leases.renew_on(axis, id, &caller.who));
         if result.is_ok() && !self.leases.renewal_audit_due(id) {
             row.skip();
@@ -697,7 +697,7 @@ impl Gateway {
     ) -> Result<(), GatewayError> {
         let row = self.lease_row(caller, "end motion lease", axis, id);
         let result = self
-            .require_role(caller, Role::Operator)
+            .require(caller, Operation::RenewLease)
             .and_then(|()| self.leases.lapse_on(axis, id, &caller.who));
         row.finish(&result).await;
         result

@@ -25,7 +25,116 @@ use super::caller::{Caller, Channel};
 use super::motion_lease::AxisKey;
 use super::service::Gateway;
 
+/// Every kind of operation a caller can ask of the gateway, by what the
+/// gateway asks of the caller for it: the one table of roles
+/// ([`Operation::required_role`]) and of what draws on the write rate
+/// ([`Operation::draws_on_write_rate`]). The operations check it
+/// themselves ([`Gateway::require`]); a door that refuses earlier (REST's
+/// guard, before it reads a body) looks its request up here too, so that
+/// no door has a role table of its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Operation {
+    /// Any read of the machine: buses, nodes, objects, axes, values, I/O,
+    /// PDOs, SYNC, frames, recordings, virtual devices, loggers, the
+    /// history, EDS files, metrics, the stream.
+    View,
+    /// STOP ALL: whoever watches a machine may stop it, as anyone may
+    /// press an emergency stop; it can only stop motion. Never limited.
+    StopAll,
+    /// A scan: it reads identities only, but adds nodes and marks silent
+    /// ones offline.
+    Scan,
+    /// An NMT command to a node or to the whole bus.
+    Nmt,
+    /// A node's boot-up run again by the network manager (configuration
+    /// download and NMT start).
+    BootNode,
+    /// An object write (SDO download).
+    WriteObject,
+    /// LED segments and scenes.
+    SetLeds,
+    /// A drive axis's state, fault reset, halt, moves and step tests.
+    Motion,
+    /// Renewing the motion lease of a move the caller started.
+    RenewLease,
+    /// The outputs of an I/O module.
+    SetOutputs,
+    /// Process data sent straight to a device's mapped objects (an RPDO).
+    SendRpdo,
+    /// The bus's SYNC period.
+    SetSync,
+    /// A raw CAN frame.
+    SendFrame,
+    /// A node-ID change of one node, as its operator's NMT reset is.
+    ChangeNodeId,
+    /// Data loggers started and deleted: sampling takes the nodes' SDO
+    /// queues, as an operator's reads would.
+    Logger,
+    /// An EDS file assigned to a node by hand, or unassigned.
+    AssignEds,
+    /// Parameters stored to, or restored from, a node's non-volatile
+    /// memory (0x1010, 0x1011).
+    StoreRestore,
+    /// A node's configuration restored from a DCF.
+    RestoreConfiguration,
+    /// A program downloaded to a node (CiA 302-3).
+    DownloadProgram,
+    /// A PDO's communication and mapping parameters.
+    ConfigurePdo,
+    /// A bus recorded to a log file, started or stopped.
+    Record,
+    /// LSS: Fastscan and node-ID assignment reconfigure the bus's nodes.
+    Lss,
+    /// Virtual devices added, removed, and their faults.
+    VirtualDevices,
+    /// EDS files uploaded to, or deleted from, the catalog.
+    ManageEds,
+}
+
+impl Operation {
+    /// The least role that may ask for it.
+    pub fn required_role(self) -> Role {
+        match self {
+            Self::View | Self::StopAll => Role::Viewer,
+            Self::Scan
+            | Self::Nmt
+            | Self::BootNode
+            | Self::WriteObject
+            | Self::SetLeds
+            | Self::Motion
+            | Self::RenewLease
+            | Self::SetOutputs
+            | Self::SendRpdo
+            | Self::SetSync
+            | Self::SendFrame
+            | Self::ChangeNodeId
+            | Self::Logger
+            | Self::AssignEds => Role::Operator,
+            Self::StoreRestore
+            | Self::RestoreConfiguration
+            | Self::DownloadProgram
+            | Self::ConfigurePdo
+            | Self::Record
+            | Self::Lss
+            | Self::VirtualDevices
+            | Self::ManageEds => Role::Admin,
+        }
+    }
+
+    /// Whether it takes a write from its caller's write rate limit: what
+    /// changes the machine, except a stop.
+    pub fn draws_on_write_rate(self) -> bool {
+        !matches!(self, Self::View | Self::StopAll)
+    }
+}
+
 impl Gateway {
+    /// Refuses `caller` an operation of `kind` its role does not allow
+    /// ([`Gateway::require_role`] with [`Operation::required_role`]).
+    pub fn require(&self, caller: &Caller, kind: Operation) -> Result<(), GatewayError> {
+        self.require_role(caller, kind.required_role())
+    }
+
     /// Refuses `caller` what needs `needed`: a caller with a role is held
     /// to it (the edge node's configured role, on an open gateway too); one
     /// without is refused when the gateway has tokens (`unauthenticated`),

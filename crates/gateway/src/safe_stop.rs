@@ -18,6 +18,7 @@
 //! What was tried and what the drive confirmed is reported axis by axis as
 //! [`StopAttempt`]s.
 
+use crate::policy::Operation;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
@@ -26,7 +27,6 @@ use serde::Serialize;
 use tokio::task::JoinSet;
 
 use super::GatewayError;
-use super::access::Role;
 use super::audit::AuditTarget;
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
@@ -620,7 +620,7 @@ impl Gateway {
         let row = self.audit_row(caller, AuditTarget::new("stop all axes"), None);
         // Anyone the gateway knows may stop everything (a viewer too); it
         // is never refused for the write rate.
-        if let Err(error) = self.require_role(caller, Role::Viewer) {
+        if let Err(error) = self.require(caller, Operation::StopAll) {
             let result = Err(error);
             row.finish(&result).await;
             return result;

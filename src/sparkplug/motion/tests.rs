@@ -536,6 +536,60 @@ async fn a_viewer_role_refuses_every_motion_command() {
     assert_ne!(drive.status().await.unwrap().state, "operation_enabled");
 }
 
+/// The edge node's door checks no role: each operation checks the role it
+/// needs (`crate::gateway::policy::Operation`), as for REST's callers, and
+/// its refusal is audited once, by the operation.
+#[tokio::test(start_paused = true)]
+async fn a_viewer_role_is_refused_by_the_operations_themselves() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::access::Role::Viewer);
+    let held = HeldLeases::default();
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![
+            metric("OD/0x1017:0", MetricValue::UInt16(1000)),
+            metric("NMT", MetricValue::String("stop".into())),
+        ],
+    )
+    .await;
+    assert_eq!(results.len(), 2);
+    for result in &results {
+        assert_eq!(result.as_ref().unwrap_err().code(), "forbidden");
+    }
+    let rows = gateway
+        .history()
+        .query(Query {
+            kind: Some(EventKind::Audit),
+            since_us: None,
+            until_us: None,
+            channel: None,
+            limit: 100,
+        })
+        .await
+        .unwrap();
+    let mut refused: Vec<_> = rows
+        .iter()
+        .map(|row| {
+            (
+                row.fields["operation"].as_str().unwrap().to_string(),
+                row.fields["outcome"].as_str().unwrap().to_string(),
+                row.fields["role"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    refused.sort();
+    assert_eq!(
+        refused,
+        [
+            ("nmt command".into(), "forbidden".into(), "viewer".into()),
+            ("write object".into(), "forbidden".into(), "viewer".into()),
+        ]
+    );
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_segment_write_reaches_the_led_controller() {
     let gateway = demo().await;

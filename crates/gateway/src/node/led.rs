@@ -14,12 +14,12 @@
 //! The SDO work is [`crate::uioled`]'s; parsing a request (names of
 //! effects, colours as text) is the door's.
 
+use crate::policy::Operation;
 use tokio::time::Instant;
 
 use super::NodeHandle;
 use super::transfer::{audited, spawned};
 use crate::GatewayError;
-use crate::access::Role;
 use crate::caller::Caller;
 use crate::check_sdo_allowed;
 use crate::error::LedError;
@@ -225,7 +225,7 @@ impl LedController {
     /// Every segment, segment 1 first (the viewer's).
     pub async fn read_segments(&self, caller: &Caller) -> Result<Vec<Segment>, GatewayError> {
         let node = &self.node;
-        node.gateway.require_role(caller, Role::Viewer)?;
+        node.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&node.served, &node.info)?;
         let channel = node.served.registry.sdo(node.info.id)?;
         spawned(async move { Ok(uioled::read_segments(&channel).await?) }).await
@@ -271,7 +271,7 @@ impl LedController {
         let (this, caller, scene) = (self.clone(), caller.clone(), scene.clone());
         audited(row, async move {
             let node = &this.node;
-            node.gateway.require_role(&caller, Role::Operator)?;
+            node.gateway.require(&caller, Operation::SetLeds)?;
             node.gateway.take_write(&caller)?;
             let writes = scene.writes()?;
             this.transfer(writes, Some(ReadBack::All)).await
@@ -292,7 +292,7 @@ impl LedController {
         let (this, caller, update) = (self.clone(), caller.clone(), update.clone());
         audited(row, async move {
             let node = &this.node;
-            node.gateway.require_role(&caller, Role::Operator)?;
+            node.gateway.require(&caller, Operation::SetLeds)?;
             node.gateway.take_write(&caller)?;
             check_segment(segment)?;
             let writes = vec![(segment, update.writes()?)];
@@ -331,7 +331,7 @@ impl LedController {
     /// read from the device by the renderer the virtual UIO1LED uses.
     pub async fn preview(&self, caller: &Caller) -> Result<Preview, GatewayError> {
         let node = &self.node;
-        node.gateway.require_role(caller, Role::Viewer)?;
+        node.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&node.served, &node.info)?;
         let channel = node.served.registry.sdo(node.info.id)?;
         let segments = spawned(async move { Ok(uioled::read_preview(&channel).await?) }).await?;

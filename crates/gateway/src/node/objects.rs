@@ -19,11 +19,11 @@
 
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 use crate::canopen::sdo::ClientConfig;
+use crate::policy::Operation;
 
 use super::NodeHandle;
 use super::transfer::{audited, refused};
 use crate::GatewayError;
-use crate::access::Role;
 use crate::audit::AuditTarget;
 use crate::caller::Caller;
 use crate::service::{Gateway, check_sdo_allowed, check_writable};
@@ -64,7 +64,7 @@ impl NodeHandle {
         sub: u8,
         settings: TransferSettings<'_>,
     ) -> Result<Vec<u8>, GatewayError> {
-        self.gateway.require_role(caller, Role::Viewer)?;
+        self.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&self.served, &self.info)?;
         let channel = self.served.registry.sdo(self.info.id)?;
         let config = settings(channel.config());
@@ -149,7 +149,7 @@ impl NodeHandle {
             Some(raw_summary(&bytes)),
         );
         let checked = (|| {
-            self.gateway.require_role(caller, Role::Operator)?;
+            self.gateway.require(caller, Operation::WriteObject)?;
             self.gateway.take_write(caller)?;
             check_sdo_allowed(&self.served, &self.info)?;
             check_writable(&self.info, index, sub)?;
@@ -185,7 +185,7 @@ impl NodeHandle {
         let row = self.audit_row(caller, "nmt command", None, Some(nmt_summary(command)));
         let checked = self
             .gateway
-            .require_role(caller, Role::Operator)
+            .require(caller, Operation::Nmt)
             .and_then(|()| self.gateway.take_write(caller));
         if let Err(error) = checked {
             return refused(row, error).await;
@@ -223,7 +223,7 @@ impl Gateway {
         let target = AuditTarget::new("nmt command to all nodes").bus(bus);
         let row = self.audit_row(caller, target, Some(nmt_summary(command)));
         let checked = self.bus(bus).and_then(|served| {
-            self.require_role(caller, Role::Operator)?;
+            self.require(caller, Operation::Nmt)?;
             self.take_write(caller)?;
             Ok(served)
         });

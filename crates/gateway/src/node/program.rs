@@ -10,9 +10,9 @@
 use super::NodeHandle;
 use super::transfer::{audited, spawned};
 use crate::GatewayError;
-use crate::access::Role;
 use crate::caller::Caller;
 use crate::check_sdo_allowed;
+use crate::policy::Operation;
 use crate::program::{ProgramError, ProgramReport, download_program};
 
 /// A program download that ended well: its run number on the node (as the
@@ -59,7 +59,7 @@ impl NodeHandle {
         image: Vec<u8>,
         start: bool,
     ) -> Result<ProgramDownload, GatewayError> {
-        self.gateway.require_role(caller, Role::Admin)?;
+        self.gateway.require(caller, Operation::DownloadProgram)?;
         self.gateway.take_write(caller)?;
         if image.is_empty() {
             return Err(GatewayError::InvalidRequest(
