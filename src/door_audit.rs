@@ -15,9 +15,10 @@ use crate::api::{AppState, app};
 use crate::ascii::Session;
 use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
-use crate::gateway::Gateway;
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{EventKind, Query};
+use crate::gateway::machine::MachineSettings;
+use crate::gateway::{Gateway, ServedBus};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::metric::MetricValue;
@@ -35,6 +36,11 @@ const ADMIN: (&str, Role, &str) = ("admin", Role::Admin, "admin-0123456789abcdef
 async fn rig() -> (Router, Gateway) {
     let served = open("demo", "virtual:demo").await;
     assert_eq!(served.scan().await.unwrap().len(), 3);
+    rig_on(served)
+}
+
+/// The router over `served`, with the tokens above.
+fn rig_on(served: ServedBus) -> (Router, Gateway) {
     let tokens = [PLC, BUSY, OTHER, ADMIN]
         .into_iter()
         .map(|(name, role, secret)| Token::new(name, role, secret).unwrap())
@@ -82,6 +88,15 @@ struct Case {
     body: Option<String>,
     status: u16,
     outcome: &'static str,
+    /// The operation's words the row must have; `None`: not checked.
+    operation: Option<&'static str>,
+}
+
+impl Case {
+    fn operation(mut self, words: &'static str) -> Self {
+        self.operation = Some(words);
+        self
+    }
 }
 
 fn case(
@@ -101,6 +116,7 @@ fn case(
         body: body.map(str::to_string),
         status,
         outcome,
+        operation: None,
     }
 }
 
@@ -235,9 +251,20 @@ async fn every_rest_request_leaves_exactly_one_row() {
             "unknown_node",
         ),
     ];
+    assert_one_row_each(&app, &gateway, cases).await;
+}
+
+/// Sends each case and checks it left exactly one row, REST's words and
+/// the status answered in it (and the case's operation, when it names
+/// one).
+async fn assert_one_row_each(
+    app: &Router,
+    gateway: &Gateway,
+    cases: impl IntoIterator<Item = Case>,
+) {
     let mut failures = Vec::new();
     for case in cases {
-        let before = rows(&gateway).await.len();
+        let before = rows(gateway).await.len();
         let bearer = case.token.map(|token| format!("Bearer {token}"));
         let headers: Vec<(&str, &str)> = bearer
             .as_deref()
@@ -245,14 +272,14 @@ async fn every_rest_request_leaves_exactly_one_row() {
             .into_iter()
             .collect();
         let (status, _, body) = send_with_headers(
-            &app,
+            app,
             case.method.clone(),
             case.path,
             &headers,
             case.body.as_deref(),
         )
         .await;
-        let new = rows(&gateway).await.split_off(before);
+        let new = rows(gateway).await.split_off(before);
         if status.as_u16() != case.status {
             failures.push(format!(
                 "{}: answered {status}, not {}: {body}",
@@ -280,8 +307,228 @@ async fn every_rest_request_leaves_exactly_one_row() {
         if row["method"] != case.method.as_str() || row["path"] != case.path {
             failures.push(format!("{}: row {row:?} lost REST's words", case.what));
         }
+        if let Some(words) = case.operation
+            && row["operation"] != words
+        {
+            failures.push(format!("{}: row {row:?}, not {words}", case.what));
+        }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The bus operations, LSS, the node-ID change and the I/O outputs over
+/// REST: each request leaves one row, written by the gateway's operation
+/// (its words, whatever the outcome) or, for what the guard or the body
+/// refused first, by the door.
+#[tokio::test(start_paused = true)]
+async fn every_bus_operation_over_rest_leaves_exactly_one_row() {
+    // A UMC at 1 (0x2040), an I/O module at 4, a UIO1LED waiting for LSS;
+    // the network manager boots them.
+    let served = open("line", "virtual:umc1bds32@1,io401@4,uio1led@lss")
+        .await
+        .with_machine(MachineSettings::default(), None);
+    assert_eq!(served.scan().await.unwrap().len(), 2);
+    served.machine().unwrap().scan_done();
+    tokio::time::sleep(std::time::Duration::from_secs(5)).await;
+    let (app, gateway) = rig_on(served);
+    let busy = Caller::new(Channel::Rest, BUSY.0, Some(Role::Operator));
+    while gateway.take_write(&busy).is_ok() {}
+    let led = r#"{"vendor_id":1186,"product_code":16641,"revision":1,"serial":257,"node_id":10}"#;
+    use Method as M;
+    let cases = [
+        case(
+            "a scan",
+            M::POST,
+            "/api/v1/buses/line/scan",
+            Some(PLC.2),
+            None,
+            200,
+            "ok",
+        )
+        .operation("scan"),
+        case(
+            "a SYNC period",
+            M::PUT,
+            "/api/v1/buses/line/sync",
+            Some(PLC.2),
+            Some(r#"{"period_ms":10}"#),
+            200,
+            "ok",
+        )
+        .operation("set sync period"),
+        case(
+            "a raw frame",
+            M::POST,
+            "/api/v1/buses/line/frames",
+            Some(PLC.2),
+            Some(r#"{"id":"0x123","data":"0102"}"#),
+            200,
+            "ok",
+        )
+        .operation("send frame"),
+        case(
+            "a recording started",
+            M::POST,
+            "/api/v1/buses/line/recording",
+            Some(ADMIN.2),
+            None,
+            201,
+            "ok",
+        )
+        .operation("start recording"),
+        case(
+            "a recording stopped",
+            M::DELETE,
+            "/api/v1/buses/line/recording",
+            Some(ADMIN.2),
+            None,
+            200,
+            "ok",
+        )
+        .operation("stop recording"),
+        case(
+            "an LSS scan",
+            M::POST,
+            "/api/v1/buses/line/lss/scan",
+            Some(ADMIN.2),
+            Some("{}"),
+            200,
+            "ok",
+        )
+        .operation("lss scan"),
+        case(
+            "an LSS configuration",
+            M::POST,
+            "/api/v1/buses/line/lss/configure",
+            Some(ADMIN.2),
+            Some(led),
+            200,
+            "ok",
+        )
+        .operation("lss configure"),
+        case(
+            "a node-ID change",
+            M::POST,
+            "/api/v1/buses/line/nodes/1/node-id",
+            Some(PLC.2),
+            Some(r#"{"node_id":9}"#),
+            200,
+            "ok",
+        )
+        .operation("change node-id"),
+        case(
+            "a boot-up again",
+            M::POST,
+            "/api/v1/buses/line/machine/nodes/4/boot",
+            Some(PLC.2),
+            None,
+            200,
+            "ok",
+        )
+        .operation("boot node again"),
+        case(
+            "outputs set",
+            M::PUT,
+            "/api/v1/buses/line/nodes/4/io",
+            Some(PLC.2),
+            Some(r#"{"outputs":{"do1":true}}"#),
+            200,
+            "ok",
+        )
+        .operation("set outputs"),
+        // Refused by the operation: its own row, its own words.
+        case(
+            "a SYNC period beyond 0x1006",
+            M::PUT,
+            "/api/v1/buses/line/sync",
+            Some(PLC.2),
+            Some(r#"{"period_ms":4294968}"#),
+            400,
+            "value_out_of_range",
+        )
+        .operation("set sync period"),
+        case(
+            "a recording stopped twice",
+            M::DELETE,
+            "/api/v1/buses/line/recording",
+            Some(ADMIN.2),
+            None,
+            409,
+            "recording_not_running",
+        )
+        .operation("stop recording"),
+        case(
+            "a scan of a bus not known",
+            M::POST,
+            "/api/v1/buses/nowhere/scan",
+            Some(PLC.2),
+            None,
+            404,
+            "unknown_bus",
+        )
+        .operation("scan"),
+        case(
+            "a node-ID change of a node not known",
+            M::POST,
+            "/api/v1/buses/line/nodes/1/node-id",
+            Some(PLC.2),
+            Some(r#"{"node_id":9}"#),
+            404,
+            "unknown_node",
+        )
+        .operation("change node-id"),
+        case(
+            "outputs over the caller's write rate",
+            M::PUT,
+            "/api/v1/buses/line/nodes/4/io",
+            Some(BUSY.2),
+            Some(r#"{"outputs":{"do1":false}}"#),
+            429,
+            "rate_limited",
+        )
+        .operation("set outputs"),
+        case(
+            "a frame over the caller's write rate",
+            M::POST,
+            "/api/v1/buses/line/frames",
+            Some(BUSY.2),
+            Some(r#"{"id":"0x123"}"#),
+            429,
+            "rate_limited",
+        )
+        .operation("send frame"),
+        // Refused by the door before any operation: the door's row.
+        case(
+            "LSS for an operator (the guard's 403)",
+            M::POST,
+            "/api/v1/buses/line/lss/scan",
+            Some(PLC.2),
+            Some("{}"),
+            403,
+            "forbidden",
+        ),
+        case(
+            "a frame that is no JSON",
+            M::POST,
+            "/api/v1/buses/line/frames",
+            Some(PLC.2),
+            Some("{"),
+            400,
+            "invalid_request",
+        )
+        .operation("send frame"),
+        case(
+            "a boot-up without a token (the guard's 401)",
+            M::POST,
+            "/api/v1/buses/line/machine/nodes/4/boot",
+            None,
+            None,
+            401,
+            "unauthenticated",
+        )
+        .operation("boot node again"),
+    ];
+    assert_one_row_each(&app, &gateway, cases).await;
 }
 
 /// A take-over names the lease it ended in the operation's row.

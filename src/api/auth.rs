@@ -472,7 +472,8 @@ const MOTION_ACTIONS: &[&str] = &["state", "fault-reset", "halt", "move", "step-
 /// Whether the request's operation draws on the write rate in the gateway
 /// (an object write, an NMT command, LED segments, a program download:
 /// [`crate::gateway::NodeHandle`]; a motion command on an axis, stops
-/// never), so
+/// never; the bus operations of [`crate::gateway::bus`], LSS and I/O
+/// outputs), so
 /// that the guard does not take a second write for it: REST's and CiA
 /// 309-5's.
 pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
@@ -481,17 +482,27 @@ pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
             matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/segments", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/segments/{n}", path)
+                || matches("/api/v1/buses/{bus}/sync", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/io", path)
         }
         Method::POST => {
             matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/program", path)
+                || matches("/api/v1/buses/{bus}/scan", path)
+                || matches("/api/v1/buses/{bus}/frames", path)
+                || matches("/api/v1/buses/{bus}/recording", path)
+                || matches("/api/v1/buses/{bus}/lss/scan", path)
+                || matches("/api/v1/buses/{bus}/lss/configure", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/node-id", path)
+                || matches("/api/v1/buses/{bus}/machine/nodes/{id}/boot", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/{action}", path)
                     && path
                         .rsplit('/')
                         .next()
                         .is_some_and(|action| MOTION_ACTIONS.contains(&action))
         }
+        Method::DELETE => matches("/api/v1/buses/{bus}/recording", path),
         _ => false,
     };
     let cia309_command =

@@ -20,6 +20,7 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::{CanId, Direction as CanDirection, Frame, TimedFrame, Timestamp};
@@ -250,12 +251,12 @@ fn parse_hex(text: &str) -> Result<Vec<u8>, GatewayError> {
     ))]
 async fn send_frame(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<SendFrame>,
 ) -> Result<ApiJson<BusFrame>, AppError> {
-    let served = state.bus(&bus)?;
     let frame = request.to_frame()?;
-    served.send_frame(frame).await?;
+    state.gateway.send_frame(&caller, &bus, frame).await?;
     Ok(ApiJson(BusFrame::from(&TimedFrame {
         frame,
         timestamp: Timestamp::now(),

@@ -14,6 +14,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
 use super::od::AnyValue;
 use super::{ApiJson, ApiPath, AppError, AppState};
@@ -128,9 +129,13 @@ async fn read_io(
     ))]
 async fn write_io(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<IoWrite>,
 ) -> Result<ApiJson<IoWritten>, AppError> {
-    let outputs = state.gateway.write_io(&bus, &id, &request.outputs).await?;
+    let outputs = state
+        .gateway
+        .write_io(&caller, &bus, &id, request.outputs)
+        .await?;
     Ok(ApiJson(IoWritten { outputs }))
 }

@@ -1,9 +1,11 @@
 //! LSS (CiA 305) on a bus: `POST /buses/{bus}/lss/scan` finds the
 //! unconfigured devices by Fastscan, `POST /buses/{bus}/lss/configure`
 //! gives one a node-ID; and the UniSwarm node-ID change of one node,
-//! `POST /buses/{bus}/nodes/{id}/node-id` (0x2040, save, reset). The work
-//! is [`crate::gateway::lss`]'s; each runs in a task of its own, so that a
-//! client that hangs up does not leave a device half configured.
+//! `POST /buses/{bus}/nodes/{id}/node-id` (0x2040, save, reset). Each is one
+//! operation of the gateway ([`crate::gateway::lss`]), which holds the
+//! caller to the policy, writes the audit row and runs in a task of its
+//! own, so that a client that hangs up does not leave a device half
+//! configured.
 
 use axum::extract::State;
 use serde::{Deserialize, Serialize};
@@ -12,12 +14,11 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, NodePath};
-use super::nodes::{Node, known_node};
+use super::nodes::{Node, to_json};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::lss::LssAddress;
-use crate::gateway::GatewayError;
-use crate::gateway::lss;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -71,12 +72,10 @@ pub struct LssScan {
     ))]
 async fn scan(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<LssScan>, AppError> {
-    let served = state.bus(&bus)?;
-    let found = tokio::spawn(async move { lss::scan(&served).await })
-        .await
-        .map_err(|err| GatewayError::Internal(format!("LSS scan task: {err}")))??;
+    let found = state.gateway.lss_scan(&caller, &bus).await?;
     Ok(ApiJson(LssScan {
         found: found.into_iter().map(LssIdentity::from).collect(),
     }))
@@ -123,24 +122,21 @@ pub struct LssConfigure {
     ))]
 async fn configure(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<LssConfigure>,
 ) -> Result<ApiJson<Json>, AppError> {
-    let served = state.bus(&bus)?;
     let address = LssAddress {
         vendor_id: request.vendor_id,
         product_code: request.product_code,
         revision: request.revision,
         serial: request.serial,
     };
-    let info = tokio::spawn(async move {
-        lss::configure(&served, address, request.node_id, request.store).await
-    })
-    .await
-    .map_err(|err| GatewayError::Internal(format!("LSS configure task: {err}")))??;
-    Ok(ApiJson(
-        serde_json::to_value(&info).map_err(|err| GatewayError::Internal(err.to_string()))?,
-    ))
+    let info = state
+        .gateway
+        .lss_configure(&caller, &bus, address, request.node_id, request.store)
+        .await?;
+    Ok(ApiJson(to_json(&info)?))
 }
 
 /// The new node-ID of a node.
@@ -172,15 +168,13 @@ pub struct NodeIdChange {
     ))]
 async fn change_node_id(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<NodeIdChange>,
 ) -> Result<ApiJson<Json>, AppError> {
-    let (served, info) = known_node(&state, &bus, &id)?;
-    let changed =
-        tokio::spawn(async move { lss::change_node_id(&served, &info, request.node_id).await })
-            .await
-            .map_err(|err| GatewayError::Internal(format!("node-ID change task: {err}")))??;
-    Ok(ApiJson(
-        serde_json::to_value(&changed).map_err(|err| GatewayError::Internal(err.to_string()))?,
-    ))
+    let changed = state
+        .gateway
+        .change_node_id(&caller, &bus, &id, request.node_id)
+        .await?;
+    Ok(ApiJson(to_json(&changed)?))
 }

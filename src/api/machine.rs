@@ -9,9 +9,9 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::NodeId;
 use crate::canopen::manager::MachineStatus;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -127,17 +127,10 @@ pub struct BootStarted {
     ))]
 async fn boot(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<BootStarted>, AppError> {
-    let served = state.bus(&bus)?;
-    let node: NodeId = id
-        .parse()
-        .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))?;
-    served
-        .machine()?
-        .boot(node)
-        .await
-        .map_err(AppError::InvalidRequest)?;
+    let node = state.gateway.boot_node(&caller, &bus, &id).await?;
     Ok(ApiJson(BootStarted {
         node: node.get(),
         started: true,

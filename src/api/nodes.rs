@@ -166,7 +166,7 @@ pub(super) fn known_node(
     Ok(state.gateway.node(bus, id)?)
 }
 
-fn to_json<T: serde::Serialize>(value: &T) -> Result<Json, GatewayError> {
+pub(super) fn to_json<T: serde::Serialize>(value: &T) -> Result<Json, GatewayError> {
     serde_json::to_value(value).map_err(|err| GatewayError::Internal(err.to_string()))
 }
 
@@ -241,12 +241,10 @@ async fn one_node(
     ))]
 async fn scan(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<Json>, AppError> {
-    let served = state.bus(&bus)?;
-    // The scan runs in a task of its own: a client that hangs up must not
-    // cut the probes under way.
-    let nodes = served.scan().await?;
+    let nodes = state.gateway.scan(&caller, &bus).await?;
     Ok(ApiJson(to_json(&nodes)?))
 }
 

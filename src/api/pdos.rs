@@ -33,7 +33,7 @@ use crate::canopen::pdo::{MappingEntry, PdoKind};
 use crate::gateway::GatewayError;
 use crate::gateway::error::PdoError;
 use crate::gateway::pdo::{self, DecodedValue, EntryRequest, PdoConfig, PdoRequest};
-use crate::gateway::sync::MAX_PERIOD_MS;
+use crate::gateway::sync::SyncStatus;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -437,11 +437,13 @@ pub struct SyncSetting {
     pub period_ms: u32,
 }
 
-fn sync_state(served: &super::ServedBus) -> SyncState {
-    SyncState {
-        period_ms: served.sync().period().as_millis() as u32,
-        cob_id: served.sync().cob_id().raw(),
-        sent: served.sync().sent(),
+impl From<SyncStatus> for SyncState {
+    fn from(status: SyncStatus) -> Self {
+        Self {
+            period_ms: status.period.as_millis() as u32,
+            cob_id: status.cob_id.raw(),
+            sent: status.sent,
+        }
     }
 }
 
@@ -456,7 +458,7 @@ async fn get_sync(
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<SyncState>, AppError> {
     let served = state.bus(&bus)?;
-    Ok(ApiJson(sync_state(&served)))
+    Ok(ApiJson(served.sync().status().into()))
 }
 
 /// Sets the period of the bus's SYNC producer (0 = off).
@@ -472,19 +474,11 @@ async fn get_sync(
     ))]
 async fn put_sync(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(setting): ApiJson<SyncSetting>,
 ) -> Result<ApiJson<SyncState>, AppError> {
-    let served = state.bus(&bus)?;
-    if setting.period_ms > MAX_PERIOD_MS {
-        return Err(GatewayError::ValueOutOfRange(format!(
-            "a SYNC period of {} ms is beyond 0x1006's range (at most {MAX_PERIOD_MS} ms)",
-            setting.period_ms
-        ))
-        .into());
-    }
-    served
-        .sync()
-        .set_period(Duration::from_millis(u64::from(setting.period_ms)));
-    Ok(ApiJson(sync_state(&served)))
+    let period = Duration::from_millis(u64::from(setting.period_ms));
+    let status = state.gateway.set_sync_period(&caller, &bus, period).await?;
+    Ok(ApiJson(status.into()))
 }

@@ -21,6 +21,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
@@ -154,6 +155,7 @@ impl RecordingInfo {
     ))]
 async fn start_recording(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     body: Bytes,
 ) -> Result<(StatusCode, ApiJson<RecordingInfo>), AppError> {
@@ -167,9 +169,9 @@ async fn start_recording(
             })?
             .unwrap_or_default()
     };
-    let served = state.bus(&bus)?;
-    let limits = Limits::new(request.max_frames, request.max_seconds)?;
-    let status = served.recorder().start(limits).await?;
+    let limits =
+        Limits::new(request.max_frames, request.max_seconds).map_err(GatewayError::from)?;
+    let status = state.gateway.start_recording(&caller, &bus, limits).await?;
     Ok((
         StatusCode::CREATED,
         ApiJson(RecordingInfo::new(&bus, status)),
@@ -208,10 +210,10 @@ async fn recording_status(
     ))]
 async fn stop_recording(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<RecordingInfo>, AppError> {
-    let served = state.bus(&bus)?;
-    let status = served.recorder().stop().await?;
+    let status = state.gateway.stop_recording(&caller, &bus).await?;
     Ok(ApiJson(RecordingInfo::new(&bus, status)))
 }
 

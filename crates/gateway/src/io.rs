@@ -1,6 +1,8 @@
 //! The I/O of a CiA 401 generic I/O module (profile `cia401`), as
 //! operations of the gateway service: every channel with its value and age,
-//! and outputs set with a read-back for confirmation. What the objects mean
+//! and outputs set with a read-back for confirmation ([`Gateway::write_io`],
+//! which holds its caller to the policy and writes its audit row, as every
+//! bus operation does: [`crate::bus`]). What the objects mean
 //! is [`crate::profiles::cia401`].
 //!
 //! Inputs come from the node's TPDOs where they are mapped (the newest
@@ -20,7 +22,10 @@ use tokio::time::Instant;
 use crate::canopen::od::format_index;
 use crate::profiles::cia401::{self, Channel, ChannelKind, Layout};
 
+use super::audit::AuditTarget;
+use super::caller::Caller;
 use super::error::GatewayError;
+use super::policy::Operation;
 use super::profile::Profile;
 use super::registry::NodeInfo;
 use super::sdo::SdoChannel;
@@ -244,11 +249,36 @@ impl Gateway {
         })
     }
 
-    /// Sets outputs (`do3` → a boolean, `ao1` → an INTEGER16), each read
-    /// back. Every name and value is checked before the first write: an
-    /// unknown channel (or an input) is `unknown_channel`, a value that is
-    /// no boolean or no INTEGER16 `invalid_value` / `value_out_of_range`.
+    /// Sets outputs of node `id` of `bus` (`do3` → a boolean, `ao1` → an
+    /// INTEGER16), each read back (the operator's; one write of the
+    /// caller's rate). Every name and value is checked before the first
+    /// write: an unknown channel (or an input) is `unknown_channel`, a
+    /// value that is no boolean or no INTEGER16 `invalid_value` /
+    /// `value_out_of_range`. Audited as `set outputs`; the checks and the
+    /// transfers run in a task of their own with the row, so that a client
+    /// that goes away cannot leave a group of outputs half set.
     pub async fn write_io(
+        &self,
+        caller: &Caller,
+        bus: &str,
+        id: &str,
+        outputs: BTreeMap<String, Json>,
+    ) -> Result<Vec<OutputSet>, GatewayError> {
+        let target = AuditTarget::new("set outputs").node(id.parse::<u8>().ok());
+        let summary = serde_json::json!({ "outputs": outputs }).to_string();
+        let (gateway, bus_name, id) = (self.clone(), bus.to_string(), id.to_string());
+        self.on_bus(
+            caller,
+            Operation::SetOutputs,
+            bus,
+            target,
+            Some(summary),
+            |_| async move { gateway.set_outputs(&bus_name, &id, &outputs).await },
+        )
+        .await
+    }
+
+    async fn set_outputs(
         &self,
         bus: &str,
         id: &str,

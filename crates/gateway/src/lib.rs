@@ -12,6 +12,10 @@
 //!   registry, telemetry, SYNC producer, recorder, virtual devices); the
 //!   rules every adapter obeys ([`check_sdo_allowed`], a drive's checks),
 //!   NMT.
+//! - [`bus`]: the operations on a bus as a whole, each holding its caller
+//!   to the policy and writing its audit row: scan, SYNC period, raw
+//!   frame, recording, a node's boot-up again ([`lss`] and [`io`] add
+//!   theirs on the same pattern).
 //! - [`start`]: [`Gateway::start`] from a [`GatewayConfig`] (history,
 //!   catalog, buses, network managers, pruners, first scans) and
 //!   [`Gateway::shutdown`] (the safe stop, the recordings flushed).
@@ -87,6 +91,7 @@ use candeck_profiles as profiles;
 pub mod access;
 pub mod audit;
 pub mod axis_telemetry;
+pub mod bus;
 pub mod caller;
 pub mod dcf;
 pub mod drive;

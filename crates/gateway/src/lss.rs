@@ -1,6 +1,11 @@
 //! LSS on a served bus (CiA 305), and the UniSwarm way of changing a node's
-//! node-ID (0x2040): what `POST /buses/{bus}/lss/scan`, `.../lss/configure`
-//! and `.../nodes/{id}/node-id` do, for any adapter.
+//! node-ID (0x2040), as operations of the gateway every door calls
+//! ([`Gateway::lss_scan`], [`Gateway::lss_configure`],
+//! [`Gateway::change_node_id`]): each writes its audit row, requires its
+//! caller's role (the administrator's for LSS, which reconfigures the
+//! bus's node-IDs; the operator's for one node's change, as its NMT reset
+//! is) and one write of its rate, and runs in a task of its own, so that a
+//! client that hangs up does not leave a device half configured.
 //!
 //! The protocol is [`crate::canopen::lss`]'s master, driven here over the
 //! bus with tokio's clock. One LSS transaction runs per bus at a time
@@ -22,9 +27,12 @@ use crate::canopen::lss::{
 use crate::canopen::nmt::{NmtCommand, NmtTarget};
 
 use super::GatewayError;
+use super::audit::AuditTarget;
+use super::caller::Caller;
+use super::policy::Operation;
 use super::profile::Profile;
 use super::registry::{Identification, NodeInfo};
-use super::service::ServedBus;
+use super::service::{Gateway, ServedBus};
 
 /// How long the master waits for each LSS answer. CANopenNode's master
 /// uses 10 ms on a wire; a bus bridged over TCP (socketcand) takes a few
@@ -106,9 +114,86 @@ impl LssTransaction<'_> {
     }
 }
 
+impl Gateway {
+    /// Every unconfigured device on `bus`, by Fastscan; they stay
+    /// unconfigured and waiting. Audited as `lss scan`.
+    pub async fn lss_scan(
+        &self,
+        caller: &Caller,
+        bus: &str,
+    ) -> Result<Vec<LssAddress>, GatewayError> {
+        let target = AuditTarget::new("lss scan");
+        self.on_bus(
+            caller,
+            Operation::Lss,
+            bus,
+            target,
+            None,
+            |served| async move { scan(&served).await },
+        )
+        .await
+    }
+
+    /// Gives the device of `bus` with `address` the node-ID `node_id` (1 to
+    /// 127), stores it if `store`, and switches it back to waiting: it
+    /// boots up under that ID (an unconfigured one at once, a configured
+    /// one at the NMT reset communication sent to its old ID). The node,
+    /// once the registry knows it. Audited as `lss configure`.
+    pub async fn lss_configure(
+        &self,
+        caller: &Caller,
+        bus: &str,
+        address: LssAddress,
+        node_id: i64,
+        store: bool,
+    ) -> Result<NodeInfo, GatewayError> {
+        let target = AuditTarget::new("lss configure");
+        let summary = format!(
+            "{{\"vendor_id\":{},\"product_code\":{},\"revision\":{},\"serial\":{},\"node_id\":{node_id},\"store\":{store}}}",
+            address.vendor_id, address.product_code, address.revision, address.serial
+        );
+        self.on_bus(
+            caller,
+            Operation::Lss,
+            bus,
+            target,
+            Some(summary),
+            |served| async move { configure(&served, address, node_id, store).await },
+        )
+        .await
+    }
+
+    /// Changes the node-ID of node `id` of `bus` to `node_id` the UniSwarm
+    /// way (0x2040, store, reset: only a UMC or UIO1LED has it); the node,
+    /// booted up under its new ID. Audited as `change node-id`.
+    pub async fn change_node_id(
+        &self,
+        caller: &Caller,
+        bus: &str,
+        id: &str,
+        node_id: i64,
+    ) -> Result<NodeInfo, GatewayError> {
+        let target = AuditTarget::new("change node-id").node(id.parse::<u8>().ok());
+        let summary = format!("{{\"node_id\":{node_id}}}");
+        let (gateway, bus_name, id) = (self.clone(), bus.to_string(), id.to_string());
+        self.on_bus(
+            caller,
+            Operation::ChangeNodeId,
+            bus,
+            target,
+            Some(summary),
+            |_| async move {
+                let (served, info) = gateway.node(&bus_name, &id)?;
+                change_node_id(&served, &info, node_id).await
+            },
+        )
+        .await
+    }
+}
+
 /// Every unconfigured device on the bus, by Fastscan; they stay
 /// unconfigured and waiting.
-pub async fn scan(served: &ServedBus) -> Result<Vec<LssAddress>, GatewayError> {
+async fn scan(served: &ServedBus) -> Result<Vec<LssAddress>, GatewayError> {
     let transaction = served.lss.begin()?;
     match transaction.run(LssService::FastscanAll).await? {
         Ok(LssOutcome::FoundAll(found)) => Ok(found),
@@ -141,7 +226,7 @@ fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
 /// `store`, and switches it back to waiting: it boots up under that ID
 /// (an unconfigured one at once, a configured one at the NMT reset
 /// communication sent to its old ID). Ends once the registry knows it.
-pub async fn configure(
+async fn configure(
     served: &ServedBus,
     address: LssAddress,
     node_id: i64,
@@ -270,7 +355,7 @@ pub fn has_node_id_object(info: &NodeInfo) -> bool {
 /// NMT pre-operational (where it may store), store the manufacturer
 /// parameters (0x1010 sub 4, `save`), reset node;
 /// the device boots up under the new ID. Ends once the registry knows it.
-pub async fn change_node_id(
+async fn change_node_id(
     served: &ServedBus,
     info: &NodeInfo,
     node_id: i64,

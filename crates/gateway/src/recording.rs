@@ -326,7 +326,9 @@ impl Recorder {
 
     /// Starts recording from now: every frame the bus carries after this
     /// returns is in the log (up to the limits).
-    pub async fn start(&self, limits: Limits) -> Result<RecordingStatus, RecordingError> {
+    ///
+    /// A door starts one by [`crate::Gateway::start_recording`].
+    pub(crate) async fn start(&self, limits: Limits) -> Result<RecordingStatus, RecordingError> {
         let mut place = self.control.lock().await;
         if let Some(session) = lock(&self.current).as_ref()
             && session.running()
@@ -391,7 +393,9 @@ impl Recorder {
 
     /// Stops the running recording, with everything it had received
     /// written and flushed; its final status.
-    pub async fn stop(&self) -> Result<RecordingStatus, RecordingError> {
+    ///
+    /// A door stops one by [`crate::Gateway::stop_recording`].
+    pub(crate) async fn stop(&self) -> Result<RecordingStatus, RecordingError> {
         let _serial = self.control.lock().await;
         let commands = {
             let current = lock(&self.current);

@@ -20,6 +20,16 @@ use crate::canopen::sync::SyncProducer;
 /// The longest period the API takes: 0x1006 is in µs in a u32.
 pub const MAX_PERIOD_MS: u32 = u32::MAX / 1000;
 
+/// A SYNC producer's setting and count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyncStatus {
+    /// Zero while off.
+    pub period: Duration,
+    pub cob_id: CanId,
+    /// SYNC frames sent since the producer started.
+    pub sent: u64,
+}
+
 /// The SYNC producer of one bus; dropping it stops the task.
 pub struct SyncService {
     period: watch::Sender<Duration>,
@@ -78,7 +88,9 @@ impl SyncService {
 
     /// Sets the period; zero turns SYNC off. The first SYNC goes one period
     /// from now.
-    pub fn set_period(&self, period: Duration) {
+    ///
+    /// A door sets it by [`crate::Gateway::set_sync_period`].
+    pub(crate) fn set_period(&self, period: Duration) {
         self.period.send_replace(period);
     }
 
@@ -94,6 +106,15 @@ impl SyncService {
     /// How many SYNC frames the producer has sent.
     pub fn sent(&self) -> u64 {
         self.sent.load(Ordering::Relaxed)
+    }
+
+    /// Its setting and count now.
+    pub fn status(&self) -> SyncStatus {
+        SyncStatus {
+            period: self.period(),
+            cob_id: self.cob_id,
+            sent: self.sent(),
+        }
     }
 }
 

@@ -388,3 +388,57 @@ async fn a_segment_write_or_program_download_is_one_write_of_the_rate() {
     let refused = send(&app, Method::POST, program, Some(ADMIN), &[], Some("image")).await;
     assert_error(&refused, StatusCode::TOO_MANY_REQUESTS, "rate_limited");
 }
+
+/// The bus operations, LSS, the node-ID change and the I/O outputs take
+/// their write in the gateway, one a request: REST's guard takes none of
+/// its own (with two, a bucket of 2 would refuse the second request).
+/// Asked of a bus not known, they still take it, as before.
+#[tokio::test(start_paused = true)]
+async fn each_bus_operation_takes_one_write_not_two() {
+    let led = r#"{"vendor_id":1186,"product_code":16641,"revision":1,"serial":257,"node_id":10}"#;
+    let requests = [
+        (Method::POST, "/api/v1/buses/nobus/scan", None),
+        (
+            Method::PUT,
+            "/api/v1/buses/nobus/sync",
+            Some(r#"{"period_ms":10}"#),
+        ),
+        (
+            Method::POST,
+            "/api/v1/buses/nobus/frames",
+            Some(r#"{"id":"0x123"}"#),
+        ),
+        (Method::POST, "/api/v1/buses/nobus/recording", None),
+        (Method::DELETE, "/api/v1/buses/nobus/recording", None),
+        (Method::POST, "/api/v1/buses/nobus/lss/scan", Some("{}")),
+        (Method::POST, "/api/v1/buses/nobus/lss/configure", Some(led)),
+        (
+            Method::POST,
+            "/api/v1/buses/nobus/nodes/1/node-id",
+            Some(r#"{"node_id":9}"#),
+        ),
+        (
+            Method::POST,
+            "/api/v1/buses/nobus/machine/nodes/4/boot",
+            None,
+        ),
+        (
+            Method::PUT,
+            "/api/v1/buses/nobus/nodes/4/io",
+            Some(r#"{"outputs":{"do1":true}}"#),
+        ),
+    ];
+    for (method, path, body) in requests {
+        let limit = RateLimit {
+            per_second: 0.0001,
+            burst: 2,
+        };
+        let app = gateway(Some(limit), crate::api::auth::DEFAULT_BODY_LIMIT);
+        let mut statuses = Vec::new();
+        for _ in 0..3 {
+            let (status, _) = send(&app, method.clone(), path, Some(ADMIN), &[], body).await;
+            statuses.push(status.as_u16());
+        }
+        assert_eq!(statuses, [404, 404, 429], "{method} {path}");
+    }
+}
