@@ -152,8 +152,9 @@ impl Machine {
         &self.manager
     }
 
-    /// Runs a node's boot-up again; an error names why it cannot.
-    pub async fn boot(&self, node: NodeId) -> Result<(), String> {
+    /// Runs a node's boot-up again; an error names why it cannot. A door
+    /// asks for it by [`crate::Gateway::boot_node`].
+    pub(crate) async fn boot(&self, node: NodeId) -> Result<(), String> {
         let (reply, answer) = tokio::sync::oneshot::channel();
         self.commands
             .send(Command::Boot(node, reply))

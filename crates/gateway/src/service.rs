@@ -258,7 +258,9 @@ impl ServedBus {
         self.bus.wait_up(timeout).await.map_err(GatewayError::from)
     }
 
-    /// Sends a raw frame, as the gateway.
+    /// Sends a raw frame, as the gateway itself (a test's rig); a door's
+    /// caller sends one by [`Gateway::send_frame`], which holds it to the
+    /// policy and audits it.
     pub async fn send_frame(&self, frame: crate::can::Frame) -> Result<(), GatewayError> {
         self.bus.send(frame).await.map_err(GatewayError::from)
     }
@@ -298,7 +300,9 @@ impl ServedBus {
     }
 
     /// Scans the bus for nodes (node-ID 1–127) and returns what the
-    /// registry then knows. The probes run in a task of their own: a
+    /// registry then knows, as the gateway itself (a first scan, a test's
+    /// rig); a door's caller scans by [`Gateway::scan`], which holds it to
+    /// the policy and audits it. The probes run in a task of their own: a
     /// caller that goes away does not cut them half way.
     pub async fn scan(&self) -> Result<Vec<NodeInfo>, GatewayError> {
         let registry = self.registry.clone();
