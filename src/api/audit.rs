@@ -293,6 +293,8 @@ impl Target {
                     }
                     (&Method::POST, ["recording"]) => ("start recording", None),
                     (&Method::DELETE, ["recording"]) => ("stop recording", None),
+                    (&Method::POST, ["lss", "scan"]) => ("lss scan", None),
+                    (&Method::POST, ["lss", "configure"]) => ("lss configure", None),
                     (&Method::POST, ["sim", "nodes"]) => ("add virtual device", None),
                     (&Method::DELETE, ["sim", "nodes", node]) => {
                         target.node = node.parse().ok();
@@ -340,6 +342,7 @@ fn node_operation(
         (&Method::PUT, ["eds"]) => ("assign eds", None),
         (&Method::DELETE, ["eds"]) => ("unassign eds", None),
         (&Method::PUT, ["io"]) => ("set outputs", None),
+        (&Method::POST, ["node-id"]) => ("change node-id", None),
         (&Method::POST, ["axes", axis, action]) => {
             target.axis = axis.parse().ok();
             let operation = match *action {
