@@ -472,7 +472,7 @@ const MOTION_ACTIONS: &[&str] = &["state", "fault-reset", "halt", "move", "step-
 /// Whether the request's operation draws on the write rate in the gateway
 /// (an object write, an NMT command, LED segments, a program download:
 /// [`crate::gateway::NodeHandle`]; a motion command on an axis, stops
-/// never), so
+/// never; the EDS catalog, data loggers, virtual devices), so
 /// that the guard does not take a second write for it: REST's and CiA
 /// 309-5's.
 pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
@@ -481,11 +481,25 @@ pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
             matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/segments", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/segments/{n}", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/eds", path)
+        }
+        Method::DELETE => {
+            matches("/api/v1/eds/{name}", path)
+                || matches("/api/v1/buses/{bus}/nodes/{id}/eds", path)
+                || matches("/api/v1/loggers/{id}", path)
+                || matches("/api/v1/buses/{bus}/sim/nodes/{id}", path)
+                || matches("/api/v1/buses/{bus}/sim/nodes/{id}/faults", path)
+                || matches("/api/v1/buses/{bus}/sim/faults", path)
         }
         Method::POST => {
             matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nmt", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/program", path)
+                || matches("/api/v1/eds", path)
+                || matches("/api/v1/loggers", path)
+                || matches("/api/v1/buses/{bus}/sim/nodes", path)
+                || matches("/api/v1/buses/{bus}/sim/nodes/{id}/faults", path)
+                || matches("/api/v1/buses/{bus}/sim/faults", path)
                 || matches("/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/{action}", path)
                     && path
                         .rsplit('/')
