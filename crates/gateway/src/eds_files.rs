@@ -262,3 +262,6 @@ impl Gateway {
         Ok(info)
     }
 }
+
+#[cfg(test)]
+pub(crate) mod tests;

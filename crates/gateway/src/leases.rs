@@ -16,8 +16,8 @@ use tokio::time::Instant;
 use super::GatewayError;
 use super::audit::AuditTarget;
 use super::caller::Caller;
-use super::policy::Operation;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
+use super::policy::Operation;
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
 
@@ -571,3 +571,6 @@ impl Gateway {
         tokio::spawn(row.finish(result));
     }
 }
+
+#[cfg(test)]
+mod tests;
