@@ -92,10 +92,16 @@ pub async fn add_device(
         "lss": spec.node.is_none(),
     });
     let target = AuditTarget::new("add virtual device").bus(bus);
-    on_rack(gateway, caller, target, Some(summary.to_string()), move |rack, bus| {
-        rack.add_spec(&spec).map_err(|err| rack_error(bus, err))?;
-        added(rack, &spec)
-    })
+    on_rack(
+        gateway,
+        caller,
+        target,
+        Some(summary.to_string()),
+        move |rack, bus| {
+            rack.add_spec(&spec).map_err(|err| rack_error(bus, err))?;
+            added(rack, &spec)
+        },
+    )
     .await
 }
 
@@ -127,10 +133,16 @@ pub async fn inject_fault(
     fault: Fault,
 ) -> Result<(), GatewayError> {
     let target = AuditTarget::new("inject fault").bus(bus).node(node.get());
-    on_rack(gateway, caller, target, Some(kind(fault.name())), move |rack, bus| {
-        rack.inject_fault(node, fault)
-            .map_err(|err| rack_error(bus, err))
-    })
+    on_rack(
+        gateway,
+        caller,
+        target,
+        Some(kind(fault.name())),
+        move |rack, bus| {
+            rack.inject_fault(node, fault)
+                .map_err(|err| rack_error(bus, err))
+        },
+    )
     .await
 }
 
@@ -145,10 +157,16 @@ pub async fn clear_fault(
     fault: Fault,
 ) -> Result<(), GatewayError> {
     let target = AuditTarget::new("clear fault").bus(bus).node(node.get());
-    on_rack(gateway, caller, target, Some(kind(fault.name())), move |rack, bus| {
-        rack.clear_fault(node, fault)
-            .map_err(|err| rack_error(bus, err))
-    })
+    on_rack(
+        gateway,
+        caller,
+        target,
+        Some(kind(fault.name())),
+        move |rack, bus| {
+            rack.clear_fault(node, fault)
+                .map_err(|err| rack_error(bus, err))
+        },
+    )
     .await
 }
 

@@ -91,7 +91,11 @@ async fn only_an_admin_changes_the_virtual_devices_and_each_request_is_one_row()
         }
     }
     let rack = rack_of(&gateway, "demo").unwrap();
-    assert_eq!(rack.devices().len(), 3, "a refused request changed the rack");
+    assert_eq!(
+        rack.devices().len(),
+        3,
+        "a refused request changed the rack"
+    );
     let refused = [
         row("add virtual device", None, "forbidden"),
         row("remove virtual device", Some(1), "forbidden"),
