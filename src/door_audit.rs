@@ -802,7 +802,9 @@ async fn each_catalog_request_is_one_write_of_the_tokens_rate() {
     use Method as M;
     let led = r#"{"product":"uio1led","id":10}"#;
     let file = r#"{"file":"umc1bds32.eds"}"#;
-    let pairs: [(&str, [(Method, &str, Option<&str>); 3]); 4] = [
+    // A token, and three requests it sends: (method, path, body).
+    type Sent<'a> = (Method, &'a str, Option<&'a str>);
+    let pairs: [(&str, [Sent; 3]); 4] = [
         (
             BUSY_ADMIN.2,
             [

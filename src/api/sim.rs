@@ -11,6 +11,10 @@
 //! A fault the product does not have (an LED controller has no following
 //! error) is 422 `fault_not_applicable`: the request is well formed, the
 //! device refuses it, as a device refuses an SDO write with an abort.
+//!
+//! The operations are the emulator's ([`crate::emulator::devices`]: the
+//! policy, the work and the audit row); a handler parses, calls one and
+//! maps its answer.
 
 use axum::extract::State;
 use axum::http::StatusCode;
