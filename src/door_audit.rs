@@ -15,6 +15,7 @@ use crate::api::{AppState, app};
 use crate::ascii::Session;
 use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
+use crate::gateway::audit::{DoorDetail, DoorRequest};
 use crate::gateway::caller::{Caller, Channel};
 use crate::gateway::history::{EventKind, Query};
 use crate::gateway::machine::MachineSettings;
@@ -32,26 +33,33 @@ const PLC: (&str, Role, &str) = ("plc", Role::Operator, "plc-0123456789abcdefgh"
 const BUSY: (&str, Role, &str) = ("busy", Role::Operator, "busy-0123456789abcdefgh");
 const OTHER: (&str, Role, &str) = ("other", Role::Operator, "other-0123456789abcdefg");
 const ADMIN: (&str, Role, &str) = ("admin", Role::Admin, "admin-0123456789abcdefg");
+const BUSY_ADMIN: (&str, Role, &str) = ("busy-admin", Role::Admin, "busy-admin-0123456789ab");
 
 async fn rig() -> (Router, Gateway) {
-    let served = open("demo", "virtual:demo").await;
-    assert_eq!(served.scan().await.unwrap().len(), 3);
-    rig_on(served)
+    rig_with_burst(1000).await
 }
 
-/// The router over `served`, with the tokens above.
-fn rig_on(served: ServedBus) -> (Router, Gateway) {
-    let tokens = [PLC, BUSY, OTHER, ADMIN]
+/// The demo bus behind REST, each token `burst` writes (never refilled
+/// within a test: a spent bucket stays spent).
+async fn rig_with_burst(burst: u32) -> (Router, Gateway) {
+    let served = open("demo", "virtual:demo").await;
+    assert_eq!(served.scan().await.unwrap().len(), 3);
+    rig_on(served, burst)
+}
+
+/// The router over `served`, with the tokens above, each `burst` writes
+/// (never refilled within a test: a spent bucket stays spent).
+fn rig_on(served: ServedBus, burst: u32) -> (Router, Gateway) {
+    let tokens = [PLC, BUSY, OTHER, ADMIN, BUSY_ADMIN]
         .into_iter()
         .map(|(name, role, secret)| Token::new(name, role, secret).unwrap())
         .collect();
     let config = AuthConfig::new(
         tokens,
         Vec::new(),
-        // Never refills within a test: a spent bucket stays spent.
         Some(RateLimit {
             per_second: 0.0001,
-            burst: 1000,
+            burst,
         }),
         crate::api::auth::DEFAULT_BODY_LIMIT,
         crate::api::auth::DEFAULT_BODY_LIMIT,
@@ -90,11 +98,32 @@ struct Case {
     outcome: &'static str,
     /// The operation's words the row must have; `None`: not checked.
     operation: Option<&'static str>,
+    /// The row's words, where the case checks them: operation, bus, node,
+    /// item.
+    words: Option<Words>,
 }
+
+type Words = (
+    &'static str,
+    Option<&'static str>,
+    Option<u8>,
+    Option<&'static str>,
+);
 
 impl Case {
     fn operation(mut self, words: &'static str) -> Self {
         self.operation = Some(words);
+        self
+    }
+
+    fn words(
+        mut self,
+        operation: &'static str,
+        bus: Option<&'static str>,
+        node: Option<u8>,
+        item: Option<&'static str>,
+    ) -> Self {
+        self.words = Some((operation, bus, node, item));
         self
     }
 }
@@ -117,22 +146,304 @@ fn case(
         status,
         outcome,
         operation: None,
+        words: None,
     }
+}
+
+/// A file the catalog takes.
+const GOOD_EDS: &str = "[DeviceInfo]\nVendorNumber=0x77\nProductNumber=0x10\nRevisionNumber=1\n\
+[MandatoryObjects]\nSupportedObjects=1\n1=0x1000\n\
+[1000]\nParameterName=Device type\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x00020192\n";
+
+/// A logger of node 1's position.
+const POSITION_LOGGER: &str =
+    r#"{"channels":[{"bus":"demo","node":1,"index":"0x6064"}],"period_ms":100,"duration_s":60}"#;
+
+/// The EDS catalog, data loggers and virtual devices: their successes,
+/// the operations' refusals and the guard's, each with its row's words.
+fn catalog_cases() -> Vec<Case> {
+    use Method as M;
+    let sim = Some("demo");
+    let upload = "/api/v1/eds?name=good.eds";
+    let assign = "/api/v1/buses/demo/nodes/2/eds";
+    let good_file = Some(r#"{"file":"good.eds"}"#);
+    let led = Some(r#"{"product":"uio1led","id":10}"#);
+    let fault = "/api/v1/buses/demo/sim/nodes/1/faults";
+    let hot = Some(r#"{"kind":"over_temperature"}"#);
+    let controller = "/api/v1/buses/demo/sim/faults";
+    let bit_errors = Some(r#"{"kind":"bit_errors"}"#);
+    let good = Some("good.eds");
+    vec![
+        case(
+            "an eds upload",
+            M::POST,
+            upload,
+            Some(ADMIN.2),
+            Some(GOOD_EDS),
+            201,
+            "ok",
+        )
+        .words("upload eds", None, None, good),
+        case(
+            "an eds upload by an operator (the guard's 403)",
+            M::POST,
+            upload,
+            Some(PLC.2),
+            Some(GOOD_EDS),
+            403,
+            "forbidden",
+        )
+        .words("upload eds", None, None, good),
+        case(
+            "an upload that is no eds",
+            M::POST,
+            "/api/v1/eds?name=notes.eds",
+            Some(ADMIN.2),
+            Some("just notes"),
+            400,
+            "invalid_eds",
+        )
+        .words("upload eds", None, None, Some("notes.eds")),
+        case(
+            "an eds upload over the rate",
+            M::POST,
+            upload,
+            Some(BUSY_ADMIN.2),
+            Some(GOOD_EDS),
+            429,
+            "rate_limited",
+        )
+        .words("upload eds", None, None, good),
+        case(
+            "an eds assigned",
+            M::PUT,
+            assign,
+            Some(PLC.2),
+            good_file,
+            200,
+            "ok",
+        )
+        .words("assign eds", sim, Some(2), None),
+        case(
+            "an assigned eds deleted",
+            M::DELETE,
+            "/api/v1/eds/good.eds",
+            Some(ADMIN.2),
+            None,
+            409,
+            "eds_conflict",
+        )
+        .words("delete eds", None, None, good),
+        case(
+            "an eds unassigned",
+            M::DELETE,
+            assign,
+            Some(PLC.2),
+            None,
+            200,
+            "ok",
+        )
+        .words("unassign eds", sim, Some(2), None),
+        case(
+            "an eds deleted",
+            M::DELETE,
+            "/api/v1/eds/good.eds",
+            Some(ADMIN.2),
+            None,
+            204,
+            "ok",
+        )
+        .words("delete eds", None, None, good),
+        case(
+            "an unknown eds assigned",
+            M::PUT,
+            assign,
+            Some(PLC.2),
+            good_file,
+            404,
+            "unknown_eds",
+        )
+        .words("assign eds", sim, Some(2), None),
+        case(
+            "an eds assigned over the rate",
+            M::PUT,
+            assign,
+            Some(BUSY.2),
+            good_file,
+            429,
+            "rate_limited",
+        )
+        .words("assign eds", sim, Some(2), None),
+        case(
+            "a logger started",
+            M::POST,
+            "/api/v1/loggers",
+            Some(PLC.2),
+            Some(POSITION_LOGGER),
+            201,
+            "ok",
+        )
+        .words("start data logger", None, None, None),
+        case(
+            "a logger of no period",
+            M::POST,
+            "/api/v1/loggers",
+            Some(PLC.2),
+            Some(&POSITION_LOGGER.replace("100", "0")),
+            400,
+            "value_out_of_range",
+        )
+        .words("start data logger", None, None, None),
+        case(
+            "a logger started over the rate",
+            M::POST,
+            "/api/v1/loggers",
+            Some(BUSY.2),
+            Some(POSITION_LOGGER),
+            429,
+            "rate_limited",
+        )
+        .words("start data logger", None, None, None),
+        case(
+            "a logger deleted",
+            M::DELETE,
+            "/api/v1/loggers/1",
+            Some(PLC.2),
+            None,
+            200,
+            "ok",
+        )
+        .words("delete data logger", None, None, Some("1")),
+        case(
+            "an unknown logger deleted",
+            M::DELETE,
+            "/api/v1/loggers/1",
+            Some(PLC.2),
+            None,
+            404,
+            "unknown_logger",
+        )
+        .words("delete data logger", None, None, Some("1")),
+        case(
+            "a virtual device added",
+            M::POST,
+            "/api/v1/buses/demo/sim/nodes",
+            Some(ADMIN.2),
+            led,
+            201,
+            "ok",
+        )
+        .words("add virtual device", sim, None, None),
+        case(
+            "a virtual device added at a taken id",
+            M::POST,
+            "/api/v1/buses/demo/sim/nodes",
+            Some(ADMIN.2),
+            led,
+            409,
+            "node_taken",
+        )
+        .words("add virtual device", sim, None, None),
+        case(
+            "a virtual device added by an operator (the guard's 403)",
+            M::POST,
+            "/api/v1/buses/demo/sim/nodes",
+            Some(PLC.2),
+            led,
+            403,
+            "forbidden",
+        )
+        .words("add virtual device", sim, None, None),
+        case(
+            "a virtual device added over the rate",
+            M::POST,
+            "/api/v1/buses/demo/sim/nodes",
+            Some(BUSY_ADMIN.2),
+            led,
+            429,
+            "rate_limited",
+        )
+        .words("add virtual device", sim, None, None),
+        case(
+            "a device's fault injected",
+            M::POST,
+            fault,
+            Some(ADMIN.2),
+            hot,
+            204,
+            "ok",
+        )
+        .words("inject fault", sim, Some(1), None),
+        case(
+            "a device's fault cleared",
+            M::DELETE,
+            fault,
+            Some(ADMIN.2),
+            hot,
+            204,
+            "ok",
+        )
+        .words("clear fault", sim, Some(1), None),
+        case(
+            "a virtual device removed",
+            M::DELETE,
+            "/api/v1/buses/demo/sim/nodes/10",
+            Some(ADMIN.2),
+            None,
+            204,
+            "ok",
+        )
+        .words("remove virtual device", sim, Some(10), None),
+        case(
+            "an unknown virtual device removed",
+            M::DELETE,
+            "/api/v1/buses/demo/sim/nodes/10",
+            Some(ADMIN.2),
+            None,
+            404,
+            "unknown_node",
+        )
+        .words("remove virtual device", sim, Some(10), None),
+        // Rows only the operation writes these words in: REST's own table
+        // has none for the gateway's controller.
+        case(
+            "the gateway's controller fault injected",
+            M::POST,
+            controller,
+            Some(ADMIN.2),
+            bit_errors,
+            204,
+            "ok",
+        )
+        .words("inject fault", sim, None, None),
+        case(
+            "the gateway's controller fault cleared",
+            M::DELETE,
+            controller,
+            Some(ADMIN.2),
+            bit_errors,
+            204,
+            "ok",
+        )
+        .words("clear fault", sim, None, None),
+    ]
 }
 
 #[tokio::test(start_paused = true)]
 async fn every_rest_request_leaves_exactly_one_row() {
     let (app, gateway) = rig().await;
     let od = "/api/v1/buses/demo/nodes/1/od/0x1017/0";
-    let busy = Caller::new(Channel::Rest, BUSY.0, Some(Role::Operator));
-    while gateway.take_write(&busy).is_ok() {}
+    for (name, role, _) in [BUSY, BUSY_ADMIN] {
+        let busy = Caller::new(Channel::Rest, name, Some(role));
+        while gateway.take_write(&busy).is_ok() {}
+    }
     let too_large = format!(
         "{{\"value\":\"{}\"}}",
         "x".repeat(crate::api::auth::DEFAULT_BODY_LIMIT)
     );
     use Method as M;
     let velocity = r#"{"mode":"velocity","velocity":100}"#;
-    let cases = [
+    let mut cases = vec![
         case(
             "an operation that succeeds",
             M::PUT,
@@ -251,6 +562,7 @@ async fn every_rest_request_leaves_exactly_one_row() {
             "unknown_node",
         ),
     ];
+    cases.extend(catalog_cases());
     assert_one_row_each(&app, &gateway, cases).await;
 }
 
@@ -304,13 +616,28 @@ async fn assert_one_row_each(
                 case.what, case.outcome
             ));
         }
-        if row["method"] != case.method.as_str() || row["path"] != case.path {
+        let path = case.path.split('?').next().unwrap_or_default();
+        if row["method"] != case.method.as_str() || row["path"] != path {
             failures.push(format!("{}: row {row:?} lost REST's words", case.what));
         }
         if let Some(words) = case.operation
             && row["operation"] != words
         {
             failures.push(format!("{}: row {row:?}, not {words}", case.what));
+        }
+        if let Some((operation, bus, node, item)) = case.words {
+            let words = (
+                row["operation"].as_str(),
+                row.get("bus").and_then(Json::as_str),
+                row.get("node").and_then(Json::as_u64),
+                row.get("item").and_then(Json::as_str),
+            );
+            if words != (Some(operation), bus, node.map(u64::from), item) {
+                failures.push(format!(
+                    "{}: row {row:?}, not {operation}/{bus:?}/{node:?}/{item:?}",
+                    case.what
+                ));
+            }
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
@@ -330,7 +657,7 @@ async fn every_bus_operation_over_rest_leaves_exactly_one_row() {
     assert_eq!(served.scan().await.unwrap().len(), 2);
     served.machine().unwrap().scan_done();
     tokio::time::sleep(std::time::Duration::from_secs(5)).await;
-    let (app, gateway) = rig_on(served);
+    let (app, gateway) = rig_on(served, 1000);
     let busy = Caller::new(Channel::Rest, BUSY.0, Some(Role::Operator));
     while gateway.take_write(&busy).is_ok() {}
     let led = r#"{"vendor_id":1186,"product_code":16641,"revision":1,"serial":257,"node_id":10}"#;
@@ -710,4 +1037,156 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
             .collect();
         assert_eq!(got, want, "{payload:?}");
     }
+}
+
+/// The catalog's routes take one write of the token's rate, the
+/// operation's: the guard takes none of its own (a second would refuse the
+/// second request of a bucket of two).
+#[tokio::test(start_paused = true)]
+async fn each_catalog_request_is_one_write_of_the_tokens_rate() {
+    let (app, _) = rig_with_burst(2).await;
+    use Method as M;
+    let led = r#"{"product":"uio1led","id":10}"#;
+    let file = r#"{"file":"umc1bds32.eds"}"#;
+    // A token, and three requests it sends: (method, path, body).
+    type Sent<'a> = (Method, &'a str, Option<&'a str>);
+    let pairs: [(&str, [Sent; 3]); 4] = [
+        (
+            BUSY_ADMIN.2,
+            [
+                (M::POST, "/api/v1/eds?name=good.eds", Some(GOOD_EDS)),
+                (M::DELETE, "/api/v1/eds/good.eds", None),
+                (M::POST, "/api/v1/eds?name=good.eds", Some(GOOD_EDS)),
+            ],
+        ),
+        (
+            OTHER.2,
+            [
+                (M::PUT, "/api/v1/buses/demo/nodes/2/eds", Some(file)),
+                (M::DELETE, "/api/v1/buses/demo/nodes/2/eds", None),
+                (M::PUT, "/api/v1/buses/demo/nodes/2/eds", Some(file)),
+            ],
+        ),
+        (
+            PLC.2,
+            [
+                (M::POST, "/api/v1/loggers", Some(POSITION_LOGGER)),
+                (M::DELETE, "/api/v1/loggers/1", None),
+                (M::POST, "/api/v1/loggers", Some(POSITION_LOGGER)),
+            ],
+        ),
+        (
+            ADMIN.2,
+            [
+                (M::POST, "/api/v1/buses/demo/sim/nodes", Some(led)),
+                (M::DELETE, "/api/v1/buses/demo/sim/nodes/10", None),
+                (M::POST, "/api/v1/buses/demo/sim/nodes", Some(led)),
+            ],
+        ),
+    ];
+    for (token, requests) in pairs {
+        let bearer = format!("Bearer {token}");
+        let headers = [("authorization", bearer.as_str())];
+        let mut statuses = Vec::new();
+        for (method, path, body) in requests {
+            let (status, _, answer) = send_with_headers(&app, method, path, &headers, body).await;
+            statuses.push((path, status.as_u16(), answer["error"]["code"].clone()));
+        }
+        let [first, second, third] = &statuses[..] else {
+            unreachable!()
+        };
+        assert!(first.1 < 300 && second.1 < 300, "{statuses:?}");
+        assert_eq!((third.1, third.2.as_str()), (429, Some("rate_limited")));
+    }
+}
+
+/// A request with REST's words, whose rows are handed to REST as the
+/// audit layer asks; whether an operation audited it.
+fn rest_request(method: &str, path: &str, who: (&str, Role, &str)) -> (Caller, DoorRequest) {
+    let door = DoorRequest::handed_over(DoorDetail::new(method, path));
+    let caller = Caller::new(Channel::Rest, who.0, Some(who.1)).with_door(door.clone());
+    (caller, door)
+}
+
+/// Every catalog operation audits its request itself, refused or not: the
+/// audit layer gets its one row back to add the status, and writes none of
+/// its own.
+#[tokio::test(start_paused = true)]
+async fn the_catalog_operations_audit_their_requests_so_rest_writes_no_row_of_its_own() {
+    use crate::canopen::NodeId;
+    use crate::emulator::devices;
+    use crate::sim::behaviour::Fault;
+    use crate::sim::products::{DeviceSpec, Product};
+    let (_, gateway) = rig().await;
+    let node = NodeId::new(2).unwrap();
+    let led = NodeId::new(10).unwrap();
+    let drive = NodeId::new(1).unwrap();
+    let logger = serde_json::from_str(POSITION_LOGGER).unwrap();
+    let mut audited = Vec::new();
+    macro_rules! check {
+        ($what:expr, $who:expr, |$caller:ident| $call:expr) => {{
+            let ($caller, door) = rest_request("POST", "/api/v1/...", $who);
+            let outcome = $call.await.map(|_| ()).map_err(|error| error.code());
+            let rows = door.take_rows();
+            audited.push(($what, outcome, door.audited(), rows.len()));
+        }};
+    }
+    check!("upload eds", ADMIN, |c| gateway
+        .upload_eds(&c, "good.eds", GOOD_EDS));
+    check!("upload eds, refused", PLC, |c| gateway
+        .upload_eds(&c, "good.eds", GOOD_EDS));
+    check!("assign eds", PLC, |c| gateway.assign_eds(
+        &c,
+        "demo",
+        node,
+        Some("good.eds")
+    ));
+    check!("unassign eds", PLC, |c| gateway
+        .assign_eds(&c, "demo", node, None));
+    check!("delete eds", ADMIN, |c| gateway.delete_eds(&c, "good.eds"));
+    check!("start data logger", PLC, |c| gateway
+        .start_logger(&c, logger));
+    check!("delete data logger", PLC, |c| gateway
+        .delete_logger(&c, "1"));
+    check!("add virtual device", ADMIN, |c| devices::add_device(
+        &gateway,
+        &c,
+        "demo",
+        DeviceSpec::at(Product::Uio1led, led)
+    ));
+    check!("inject fault", ADMIN, |c| devices::inject_fault(
+        &gateway,
+        &c,
+        "demo",
+        drive,
+        Fault::OverTemperature
+    ));
+    check!("clear fault", ADMIN, |c| devices::clear_fault(
+        &gateway,
+        &c,
+        "demo",
+        drive,
+        Fault::OverTemperature
+    ));
+    check!("controller fault", ADMIN, |c| devices::controller_fault(
+        &gateway,
+        &c,
+        "demo",
+        crate::can::ControllerFault::Recover
+    ));
+    check!("remove virtual device", ADMIN, |c| devices::remove_device(
+        &gateway, &c, "demo", led
+    ));
+    let want: Vec<_> = audited
+        .iter()
+        .map(|(what, ..)| {
+            let outcome = if what.ends_with("refused") {
+                Err("forbidden")
+            } else {
+                Ok(())
+            };
+            (*what, outcome, true, 1)
+        })
+        .collect();
+    assert_eq!(audited, want);
 }

@@ -2,7 +2,8 @@
 //! `sim` crate's [`Rack`]), put on the bus when the gateway opens it. The
 //! gateway drives them as it drives real devices and does not know them
 //! (`gateway` never depends on `sim`); the `/sim` routes and the tests find
-//! a bus's rack again through [`RackOf`].
+//! a bus's rack again through [`RackOf`], and [`devices`] holds the
+//! operations on a bus's virtual devices that every door calls.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -14,6 +15,8 @@ use crate::gateway::registry::RegistryConfig;
 use crate::gateway::service::{BusDevices, ServedBus};
 use crate::sim::products::parse_devices;
 use crate::sim::rack::Rack;
+
+pub mod devices;
 
 /// Opens `spec` as the bus `name`: a `virtual:demo` bus gets the demo
 /// devices, `virtual:empty` none, `virtual:LIST` the products it lists

@@ -300,6 +300,11 @@ impl Target {
                         target.node = node.parse().ok();
                         ("remove virtual device", None)
                     }
+                    (_, ["sim", "faults"]) => match *method {
+                        Method::POST => ("inject fault", None),
+                        Method::DELETE => ("clear fault", None),
+                        _ => ("unknown request", None),
+                    },
                     (_, ["sim", "nodes", node, "faults"]) => {
                         target.node = node.parse().ok();
                         match *method {

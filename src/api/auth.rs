@@ -455,64 +455,21 @@ pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
     (identity, given.is_some())
 }
 
-/// Whether a request draws on its token's write rate: its operation does
-/// ([`Operation::draws_on_write_rate`]: what changes the machine, never a
-/// stop), and so does a write to a path no route has under `/api/v1`.
-pub fn is_rate_limited(method: &Method, path: &str) -> bool {
-    match required(method, path) {
-        Access::Public => false,
-        Access::Operation(kind) => kind.draws_on_write_rate(),
-        Access::Unrouted(_) => super::audit::is_state_changing(method, path),
-    }
-}
-
-/// The axis routes whose operations are the gateway's motion facade.
-const MOTION_ACTIONS: &[&str] = &["state", "fault-reset", "halt", "move", "step-test", "lease"];
-
-/// Whether the request's operation draws on the write rate in the gateway
-/// (an object write, an NMT command, LED segments, a program download:
-/// [`crate::gateway::NodeHandle`]; a motion command on an axis, stops
-/// never; the bus operations of [`crate::gateway::bus`], LSS and I/O
-/// outputs), so
-/// that the guard does not take a second write for it: REST's and CiA
-/// 309-5's.
-pub fn limited_by_the_gateway(method: &Method, path: &str) -> bool {
-    let rest = match *method {
-        Method::PUT => {
-            matches("/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/segments", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/segments/{n}", path)
-                || matches("/api/v1/buses/{bus}/sync", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/io", path)
-        }
-        Method::POST => {
-            matches("/api/v1/buses/{bus}/nodes/{id}/nmt", path)
-                || matches("/api/v1/buses/{bus}/nmt", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/program", path)
-                || matches("/api/v1/buses/{bus}/scan", path)
-                || matches("/api/v1/buses/{bus}/frames", path)
-                || matches("/api/v1/buses/{bus}/recording", path)
-                || matches("/api/v1/buses/{bus}/lss/scan", path)
-                || matches("/api/v1/buses/{bus}/lss/configure", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/node-id", path)
-                || matches("/api/v1/buses/{bus}/machine/nodes/{id}/boot", path)
-                || matches("/api/v1/buses/{bus}/nodes/{id}/axes/{axis}/{action}", path)
-                    && path
-                        .rsplit('/')
-                        .next()
-                        .is_some_and(|action| MOTION_ACTIONS.contains(&action))
-        }
-        Method::DELETE => matches("/api/v1/buses/{bus}/recording", path),
-        _ => false,
-    };
-    let cia309_command =
-        *method != Method::GET && *method != Method::HEAD && path.starts_with("/cia309-5/");
-    rest || cia309_command
+/// Whether the guard takes a write of the token's rate for a request:
+/// only for a write to a path no route has under `/api/v1` (refused here,
+/// with no operation behind it, and audited). Every route's operation
+/// takes its own write in the gateway ([`Operation::draws_on_write_rate`]:
+/// never for a stop or a lease renewal), whichever door calls it, so the
+/// guard never takes a second one.
+pub fn takes_a_write_itself(method: &Method, path: &str) -> bool {
+    matches!(required(method, path), Access::Unrouted(_))
+        && super::audit::is_state_changing(method, path)
 }
 
 /// The middleware (`axum::middleware::from_fn_with_state`): who the token
-/// is, the origin check and CORS preflights, then the role against
-/// [`ROUTES`], then the body limit and the write rate. Who it found (or
+/// is, the origin check and CORS preflights, then the role of the route's
+/// operation ([`ROUTES`], [`Operation::required_role`]), then the body
+/// limit and, for a write no route has, the write rate. Who it found (or
 /// did not) goes into the response's extensions for the audit log, also
 /// when it refuses the request for its origin or its size.
 pub async fn guard(State(state): State<AppState>, mut request: Request, next: Next) -> Response {
@@ -610,17 +567,14 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     if length.is_some_and(|length| length > limit as u64) {
         return with_identity(too_large(limit).into_response(), identity);
     }
-    // Writes of a token, from the bucket CiA 309-3 draws on too; the
-    // gateway's operations (object writes, NMT, LEDs, programs, motion:
-    // `limited_by_the_gateway`) take theirs themselves, and never one for
-    // a stop.
+    // A write to no route has no operation to take it (see
+    // `takes_a_write_itself`): from the token's bucket, as every door's.
     let caller = crate::gateway::caller::Caller::new(
         crate::gateway::caller::Channel::Rest,
         identity.name.clone(),
         identity.role,
     );
-    if is_rate_limited(&method, &path)
-        && !limited_by_the_gateway(&method, &path)
+    if takes_a_write_itself(&method, &path)
         && let Err(refused) = state.gateway.take_write(&caller)
     {
         return with_identity(AppError::from(refused).into_response(), identity);

@@ -6,7 +6,6 @@
 //! (`PUT/DELETE /buses/{bus}/nodes/{id}/eds`). The operations are the
 //! gateway's ([`crate::gateway::eds_files`]).
 
-use axum::Extension;
 use axum::body::Bytes;
 use axum::extract::{Query, State};
 use serde::{Deserialize, Serialize};
@@ -14,7 +13,7 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::Identity;
+use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::NodeId;
@@ -22,6 +21,7 @@ use crate::canopen::eds::EdsWarning;
 use crate::gateway::GatewayError;
 use crate::gateway::eds_files::EdsUser;
 use crate::gateway::profile::{EdsEntry, SkippedFile};
+use crate::gateway::registry::NodeInfo;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -236,7 +236,7 @@ pub struct EdsPath {
     ))]
 async fn upload_eds(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     query: Result<Query<UploadQuery>, axum::extract::rejection::QueryRejection>,
     body: Bytes,
 ) -> Result<(axum::http::StatusCode, ApiJson<EdsFile>), AppError> {
@@ -246,12 +246,7 @@ async fn upload_eds(
         .ok_or_else(|| {
             AppError::InvalidRequest("give the file's name: POST /api/v1/eds?name=FILE.eds".into())
         })?;
-    let who = who(identity.as_ref());
-    let gateway = state.gateway.clone();
-    // Parsing a large file and writing it to disk is blocking work.
-    let entry = tokio::task::spawn_blocking(move || gateway.upload_eds(&name, &body, &who))
-        .await
-        .map_err(|err| GatewayError::Internal(format!("EDS upload task: {err}")))??;
+    let entry = state.gateway.upload_eds(&caller, &name, body).await?;
     let users = state.gateway.eds_users(&entry.name);
     Ok((
         axum::http::StatusCode::CREATED,
@@ -273,10 +268,10 @@ async fn upload_eds(
     ))]
 async fn delete_eds(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath(name): ApiPath<String>,
 ) -> Result<axum::http::StatusCode, AppError> {
-    state.gateway.delete_eds(&name, &who(identity.as_ref()))?;
+    state.gateway.delete_eds(&caller, &name).await?;
     Ok(axum::http::StatusCode::NO_CONTENT)
 }
 
@@ -308,18 +303,16 @@ pub struct AssignRequest {
     ))]
 async fn assign_eds(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<AssignRequest>,
 ) -> Result<ApiJson<serde_json::Value>, AppError> {
     let node = node_id(&id)?;
-    let info =
-        state
-            .gateway
-            .assign_eds(&bus, node, Some(&request.file), &who(identity.as_ref()))?;
-    Ok(ApiJson(serde_json::to_value(info).map_err(|err| {
-        GatewayError::Internal(format!("node JSON: {err}"))
-    })?))
+    let info = state
+        .gateway
+        .assign_eds(&caller, &bus, node, Some(&request.file))
+        .await?;
+    node_json(info)
 }
 
 /// Removes a node's EDS assignment: the node is matched by its identity
@@ -332,16 +325,12 @@ async fn assign_eds(
     ))]
 async fn unassign_eds(
     State(state): State<AppState>,
-    identity: Option<Extension<Identity>>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<serde_json::Value>, AppError> {
     let node = node_id(&id)?;
-    let info = state
-        .gateway
-        .assign_eds(&bus, node, None, &who(identity.as_ref()))?;
-    Ok(ApiJson(serde_json::to_value(info).map_err(|err| {
-        GatewayError::Internal(format!("node JSON: {err}"))
-    })?))
+    let info = state.gateway.assign_eds(&caller, &bus, node, None).await?;
+    node_json(info)
 }
 
 fn node_id(id: &str) -> Result<NodeId, AppError> {
@@ -349,10 +338,9 @@ fn node_id(id: &str) -> Result<NodeId, AppError> {
         .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))
 }
 
-/// Who asked, for the log: the token's name, `anonymous` without one.
-fn who(identity: Option<&Extension<Identity>>) -> String {
-    identity.map_or_else(
-        || "anonymous".to_string(),
-        |Extension(identity)| identity.name.clone(),
-    )
+/// The node as it is now (null when it is not known yet).
+fn node_json(info: Option<NodeInfo>) -> Result<ApiJson<serde_json::Value>, AppError> {
+    Ok(ApiJson(serde_json::to_value(info).map_err(|err| {
+        GatewayError::Internal(format!("node JSON: {err}"))
+    })?))
 }

@@ -18,6 +18,7 @@ use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::ErrorBody;
 use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
@@ -61,13 +62,10 @@ pub struct LoggerPath {
     ))]
 async fn create_logger(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiJson(request): ApiJson<LoggerRequest>,
 ) -> Result<(StatusCode, ApiJson<LoggerStatus>), AppError> {
-    let status = state
-        .gateway
-        .loggers()
-        .create(&state.gateway, request)
-        .await?;
+    let status = state.gateway.start_logger(&caller, request).await?;
     Ok((StatusCode::CREATED, ApiJson(status)))
 }
 
@@ -105,9 +103,10 @@ async fn logger_status(
     ))]
 async fn delete_logger(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<LoggerStatus>, AppError> {
-    Ok(ApiJson(state.gateway.loggers().delete(&id)?))
+    Ok(ApiJson(state.gateway.delete_logger(&caller, &id).await?))
 }
 
 /// A logger's rows as CSV.

@@ -11,8 +11,11 @@
 //! A fault the product does not have (an LED controller has no following
 //! error) is 422 `fault_not_applicable`: the request is well formed, the
 //! device refuses it, as a device refuses an SDO write with an abort.
+//!
+//! The operations are the emulator's ([`crate::emulator::devices`]: the
+//! policy, the work and the audit row); a handler parses, calls one and
+//! maps its answer.
 
-use crate::emulator::RackOf;
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
@@ -20,15 +23,15 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::ControllerFault;
 use crate::canopen::NodeId;
+use crate::emulator::devices::{self, VirtualDevice};
 use crate::gateway::GatewayError;
-use crate::gateway::error::SimError;
 use crate::sim::behaviour::Fault;
 use crate::sim::products::{DeviceSpec, Product};
-use crate::sim::rack::{Rack, RackError};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -85,10 +88,13 @@ impl GatewayFaultRequest {
     ))]
 async fn inject_gateway_fault(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<GatewayFaultRequest>,
 ) -> Result<StatusCode, AppError> {
-    gateway_fault(&state, &bus, request.fault(false)?)
+    let fault = request.fault(false)?;
+    devices::controller_fault(&state.gateway, &caller, &bus, fault).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// Ends a fault of the gateway's own CAN controller on a virtual bus.
@@ -106,19 +112,12 @@ async fn inject_gateway_fault(
     ))]
 async fn clear_gateway_fault(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<GatewayFaultRequest>,
 ) -> Result<StatusCode, AppError> {
-    gateway_fault(&state, &bus, request.fault(true)?)
-}
-
-fn gateway_fault(
-    state: &AppState,
-    bus: &str,
-    fault: ControllerFault,
-) -> Result<StatusCode, AppError> {
-    rack(state, bus)?;
-    state.bus(bus)?.controller_fault(fault)?;
+    let fault = request.fault(true)?;
+    devices::controller_fault(&state.gateway, &caller, &bus, fault).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -186,64 +185,17 @@ impl FaultRequest {
     }
 }
 
-/// The rack of a virtual bus: 404 for no such bus, 409 for a bus with no
-/// virtual devices.
-fn rack(state: &AppState, bus: &str) -> Result<Rack, AppError> {
-    state
-        .bus(bus)?
-        .rack()
-        .cloned()
-        .ok_or_else(|| GatewayError::Sim(SimError::NotVirtual(bus.to_string())).into())
-}
-
 fn node_id(id: &str) -> Result<NodeId, AppError> {
     id.parse()
         .map_err(|err| AppError::InvalidRequest(format!("node id '{id}': {err}")))
 }
 
-fn rack_error(bus: &str, error: RackError) -> GatewayError {
-    match error {
-        RackError::UnknownNode(node) => GatewayError::Sim(SimError::UnknownDevice {
-            bus: bus.to_string(),
-            node: node.get(),
-        }),
-        RackError::NodeTaken(..) => GatewayError::Sim(SimError::NodeTaken(error.to_string())),
-        RackError::Fault(fault) => {
-            GatewayError::Sim(SimError::FaultNotApplicable(fault.to_string()))
-        }
-        RackError::Device(detail) => GatewayError::Internal(format!("virtual device: {detail}")),
-    }
-}
-
-fn device(rack: &Rack, node: NodeId) -> Option<SimDevice> {
-    rack.devices()
-        .into_iter()
-        .find(|(id, _, _)| *id == node)
-        .map(to_doc)
-}
-
-fn to_doc((id, product, plugged): (NodeId, Option<Product>, bool)) -> SimDevice {
+fn to_doc(device: VirtualDevice) -> SimDevice {
     SimDevice {
-        id: Some(id.get()),
-        product: product.map(|product| product.name().to_string()),
-        plugged,
-        serial: None,
-    }
-}
-
-/// A device with no node id of its own (see [`Rack::loose_devices`]).
-fn loose_doc(
-    (id, product, address): (
-        Option<NodeId>,
-        Option<Product>,
-        crate::canopen::lss::LssAddress,
-    ),
-) -> SimDevice {
-    SimDevice {
-        id: id.map(NodeId::get),
-        product: product.map(|product| product.name().to_string()),
-        plugged: true,
-        serial: Some(address.serial),
+        id: device.id.map(NodeId::get),
+        product: device.product.map(|product| product.name().to_string()),
+        plugged: device.plugged,
+        serial: device.serial,
     }
 }
 
@@ -258,10 +210,8 @@ async fn list_devices(
     State(state): State<AppState>,
     ApiPath(bus): ApiPath<String>,
 ) -> Result<ApiJson<Vec<SimDevice>>, AppError> {
-    let rack = rack(&state, &bus)?;
-    let devices = rack.devices().into_iter().map(to_doc);
-    let loose = rack.loose_devices().into_iter().map(loose_doc);
-    Ok(ApiJson(devices.chain(loose).collect()))
+    let list = devices::devices(&state.gateway, &bus)?;
+    Ok(ApiJson(list.into_iter().map(to_doc).collect()))
 }
 
 /// Adds a virtual device; it boots at once.
@@ -279,13 +229,13 @@ async fn list_devices(
     ))]
 async fn add_device(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath(bus): ApiPath<String>,
     ApiJson(request): ApiJson<AddDevice>,
 ) -> Result<(StatusCode, ApiJson<SimDevice>), AppError> {
-    let rack = rack(&state, &bus)?;
     let spec = request.spec()?;
-    rack.add_spec(&spec).map_err(|err| rack_error(&bus, err))?;
-    Ok((StatusCode::CREATED, ApiJson(added(&rack, &spec)?)))
+    let added = devices::add_device(&state.gateway, &caller, &bus, spec).await?;
+    Ok((StatusCode::CREATED, ApiJson(to_doc(added))))
 }
 
 impl AddDevice {
@@ -330,21 +280,6 @@ impl AddDevice {
     }
 }
 
-/// The device `spec` added to `rack`, as the rack lists it now.
-fn added(rack: &Rack, spec: &DeviceSpec) -> Result<SimDevice, GatewayError> {
-    match spec.node {
-        None => rack.loose_devices().pop().map(loose_doc).ok_or_else(|| {
-            GatewayError::Internal("the LSS device added is not in the rack".to_string())
-        }),
-        Some(node) => Ok(device(rack, node).unwrap_or_else(|| SimDevice {
-            id: Some(node.get()),
-            product: Some(spec.product.name().to_string()),
-            plugged: true,
-            serial: None,
-        })),
-    }
-}
-
 /// Takes a virtual device off the bus for good (its id is free again).
 ///
 /// The gateway sees it as on a real bus: it falls silent, and the node goes
@@ -358,11 +293,11 @@ fn added(rack: &Rack, spec: &DeviceSpec) -> Result<SimDevice, GatewayError> {
     ))]
 async fn remove_device(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<StatusCode, AppError> {
-    let rack = rack(&state, &bus)?;
     let node = node_id(&id)?;
-    rack.remove(node).map_err(|err| rack_error(&bus, err))?;
+    devices::remove_device(&state.gateway, &caller, &bus, node).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -388,14 +323,13 @@ async fn remove_device(
     ))]
 async fn inject_fault(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<FaultRequest>,
 ) -> Result<StatusCode, AppError> {
-    let rack = rack(&state, &bus)?;
     let node = node_id(&id)?;
     let fault = request.fault()?;
-    rack.inject_fault(node, fault)
-        .map_err(|err| rack_error(&bus, err))?;
+    devices::inject_fault(&state.gateway, &caller, &bus, node, fault).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -419,14 +353,13 @@ async fn inject_fault(
     ))]
 async fn clear_fault(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
     ApiJson(request): ApiJson<FaultRequest>,
 ) -> Result<StatusCode, AppError> {
-    let rack = rack(&state, &bus)?;
     let node = node_id(&id)?;
     let fault = request.fault()?;
-    rack.clear_fault(node, fault)
-        .map_err(|err| rack_error(&bus, err))?;
+    devices::clear_fault(&state.gateway, &caller, &bus, node, fault).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 

@@ -64,16 +64,13 @@ use tokio::time::Instant;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::auth::{Identity, Role};
+use super::auth::Identity;
 use super::doc::ErrorBody;
 use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
-use crate::gateway::audit::AuditTarget;
 use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::leases::RENEWAL_AUDIT_EVERY;
-use crate::gateway::motion_lease::{MotionLease, mask};
 use crate::gateway::producers::{self, period_at_most};
 use crate::gateway::registry::NodeEvent;
 use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
@@ -205,10 +202,15 @@ where
     let counters = state.stream_counters.clone();
     let _client = ClientGuard::new(counters.clone());
     let lease_session = state.gateway.lease_session();
+    let mut caller = Caller::new(
+        Channel::Websocket,
+        client.identity.name.clone(),
+        client.identity.role,
+    );
+    caller.peer = client.peer;
     let mut session = Session {
         lease_session,
-        client,
-        refusals: RefusalAudit::default(),
+        caller,
         state,
         mailbox: Arc::new(Mailbox::default()),
         topics: BTreeMap::new(),
@@ -393,18 +395,10 @@ impl Drop for Subscription {
     }
 }
 
-/// Refused renewals of a session, audited one entry per
-/// [`RENEWAL_AUDIT_EVERY`] (a client may send a thousand a second).
-#[derive(Default)]
-struct RefusalAudit {
-    last: Option<Instant>,
-    left_out: u64,
-}
-
 struct Session {
     state: AppState,
-    client: Client,
-    refusals: RefusalAudit,
+    /// Who the session serves, as the gateway's operations take it.
+    caller: Caller,
     /// The leases the client renews lapse when it ends (the client is
     /// gone, or its network).
     lease_session: crate::gateway::leases::LeaseSession,
@@ -454,37 +448,23 @@ impl Session {
         }
     }
 
+    /// Renewals are the gateway's ([`crate::gateway::Gateway::renew_in_session`]:
+    /// the role, the holder, the audit rows); the stream answers them.
     fn renew(&mut self, ids: Vec<String>) -> Vec<String> {
         let mut renewed = Vec::new();
         let mut replies = Vec::new();
-        // A viewer watches: it never holds, renews or uses a lease.
-        let identity = self.client.identity.clone();
-        let viewer = self.state.guard.config.required()
-            && identity.role.is_none_or(|role| role < Role::Operator);
         for id in ids {
-            let result = if viewer {
-                Err(AppError::from(GatewayError::Forbidden(format!(
-                    "token {} has the role {}; renewing a motion lease needs operator \
-                     (and only its holder renews it)",
-                    identity.name,
-                    identity.role.map_or("none", Role::name)
-                ))))
-            } else {
+            let renewal =
                 self.state
                     .gateway
-                    .renew_lease_in_session(&id, &identity.name, &self.lease_session)
-                    .map_err(AppError::from)
-            };
-            match result {
+                    .renew_in_session(&self.caller, &mut self.lease_session, &id);
+            match renewal {
                 Ok(lease) => {
                     let left = lease.remaining(tokio::time::Instant::now()).as_millis();
                     renewed.push(json!({"id": id, "expires_in_ms": left as u64}));
-                    if self.state.gateway.lease_renewal_audit_due(&id) {
-                        self.audit_renewal(&id, Some(&lease), None);
-                    }
                 }
                 Err(error) => {
-                    self.audit_refusal(&id, &error);
+                    let error = AppError::from(error);
                     let mut message = json!({"op": "error", "error": error.to_json()});
                     message["lease"] = Json::from(id);
                     replies.push(message.to_string());
@@ -493,61 +473,6 @@ impl Session {
         }
         replies.insert(0, json!({"op": "renewed", "leases": renewed}).to_string());
         replies
-    }
-
-    /// A refused renewal: audited if none was for [`RENEWAL_AUDIT_EVERY`],
-    /// else counted into the next entry.
-    fn audit_refusal(&mut self, id: &str, error: &AppError) {
-        let now = Instant::now();
-        let due = self
-            .refusals
-            .last
-            .is_none_or(|last| now.saturating_duration_since(last) >= RENEWAL_AUDIT_EVERY);
-        if !due {
-            self.refusals.left_out += 1;
-            return;
-        }
-        self.refusals.last = Some(now);
-        let left_out = std::mem::take(&mut self.refusals.left_out);
-        self.audit_renewal(id, None, Some((error, left_out)));
-    }
-
-    /// One audit entry for a stream renewal (in a task: the session never
-    /// waits for the disk).
-    fn audit_renewal(
-        &self,
-        id: &str,
-        lease: Option<&MotionLease>,
-        refused: Option<(&AppError, u64)>,
-    ) {
-        let identity = &self.client.identity;
-        let mut item = format!("lease {}", mask(id));
-        if let Some(lease) = lease {
-            let _ = write!(item, " ({} lease of {})", lease.mode, lease.holder);
-        }
-        if let Some((_, left_out)) = refused
-            && left_out > 0
-        {
-            let _ = write!(item, "; {left_out} more refused renewals not logged");
-        }
-        let mut caller = Caller::new(Channel::Websocket, identity.name.clone(), identity.role);
-        caller.peer = self.client.peer.clone();
-        let mut target = AuditTarget::new("renew motion lease (stream)").item(item);
-        if let Some(lease) = lease {
-            target = target
-                .bus(lease.axis.bus.clone())
-                .node(lease.axis.node)
-                .axis(lease.axis.axis);
-        }
-        let request = json!({"op": "renew", "leases": [mask(id)]}).to_string();
-        let row = self.state.gateway.audit_row(&caller, target, Some(request));
-        let result = match refused {
-            Some((AppError::Gateway(error), _)) => Err(error.clone()),
-            Some((error, _)) => Err(GatewayError::InvalidRequest(error.to_string())),
-            None => Ok(()),
-        };
-        // In a task: the session never waits for the disk.
-        tokio::spawn(row.finish(&result));
     }
 
     fn subscribe(&mut self, topics: Vec<String>, max_rate_hz: Option<f64>) -> Vec<String> {

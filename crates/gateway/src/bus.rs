@@ -50,12 +50,7 @@ impl Gateway {
         Fut: Future<Output = Result<T, GatewayError>> + Send + 'static,
     {
         let row = self.audit_row(caller, target.bus(bus), request);
-        let checked = self.require(caller, kind).and_then(|()| {
-            if kind.draws_on_write_rate() {
-                self.take_write(caller)?;
-            }
-            self.bus(bus)
-        });
+        let checked = self.admit(caller, kind).and_then(|()| self.bus(bus));
         match checked {
             Ok(served) => spawn_audited(row, work(served)).await,
             Err(error) => refused(row, error).await,

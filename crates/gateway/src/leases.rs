@@ -5,6 +5,7 @@
 //! the axis of every lease that lapses, and quick-stops it if it is not
 //! stopped one period later; the audit log records what it did.
 
+use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
@@ -16,6 +17,7 @@ use super::GatewayError;
 use super::audit::AuditTarget;
 use super::caller::Caller;
 use super::motion_lease::{AxisKey, LeaseError, LeaseTable, MotionLease, mask};
+use super::policy::Operation;
 use super::safe_stop::{AxisStop, HALT_TIMEOUT, StopAttempt, StopMethod, StopOutcome};
 use super::service::Gateway;
 
@@ -23,7 +25,8 @@ use super::service::Gateway;
 /// down under halt.
 const STOPPING_POLL: Duration = Duration::from_millis(50);
 /// Stream renewals of one lease are audited once, then at most once per
-/// this interval (a client renews every second or so).
+/// this interval (a client renews every second or so); so are a stream
+/// session's refused renewals.
 pub const RENEWAL_AUDIT_EVERY: Duration = Duration::from_secs(60);
 
 /// The gateway's leases and the task that stops the lapsed ones.
@@ -435,11 +438,14 @@ impl Drop for InFlight {
 }
 
 /// A stream session's hold on the leases it renews: they lapse when it
-/// is dropped (the client went away), so that their axes stop.
+/// is dropped (the client went away), so that their axes stop. It keeps
+/// the session's refused renewals too, audited one row per
+/// [`RENEWAL_AUDIT_EVERY`] (a client may send a thousand a second).
 #[derive(Debug)]
 pub struct LeaseSession {
     leases: Arc<MotionLeases>,
     session: u64,
+    refusals: RefusalAudit,
 }
 
 impl Drop for LeaseSession {
@@ -448,9 +454,33 @@ impl Drop for LeaseSession {
     }
 }
 
+/// When a session's refused renewal was last audited, and how many were
+/// left out since.
+#[derive(Debug, Default)]
+struct RefusalAudit {
+    last: Option<Instant>,
+    left_out: u64,
+}
+
+impl RefusalAudit {
+    /// A refusal at `now`: `Some(left out since the last row)` when it is
+    /// due a row, else counted into the next.
+    fn due(&mut self, now: Instant) -> Option<u64> {
+        let due = self
+            .last
+            .is_none_or(|last| now.saturating_duration_since(last) >= RENEWAL_AUDIT_EVERY);
+        if !due {
+            self.left_out += 1;
+            return None;
+        }
+        self.last = Some(now);
+        Some(std::mem::take(&mut self.left_out))
+    }
+}
+
 /// The leases as the doors see them: their period, how many are held, and
-/// what a door's own session of renewals needs; the grant and the check
-/// are [`crate::motion`]'s.
+/// a door's own session of renewals (the stream's); the grant and the
+/// check are [`crate::motion`]'s.
 impl Gateway {
     /// The period a lease lasts without a renewal (`--lease-ms`).
     pub fn lease_period(&self) -> Duration {
@@ -469,29 +499,78 @@ impl Gateway {
         self.leases.lapse_now(id);
     }
 
-    /// Whether a renewal of `id` is due an audit row (once, then at most
-    /// every [`RENEWAL_AUDIT_EVERY`]); asking counts as writing it.
-    pub fn lease_renewal_audit_due(&self, id: &str) -> bool {
-        self.leases.renewal_audit_due(id)
-    }
-
     /// A new session of renewals (a stream client's): the leases it renews
     /// lapse when it is dropped.
     pub fn lease_session(&self) -> LeaseSession {
         LeaseSession {
             session: self.leases.new_session(),
             leases: self.leases.clone(),
+            refusals: RefusalAudit::default(),
         }
     }
 
-    /// Renews the lease `id` for `holder` and binds it to `session`: only
-    /// its holder renews it.
-    pub fn renew_lease_in_session(
+    /// Renews the lease `id` for `caller` (a stream client's, channel
+    /// `websocket`) and binds it to `session`, so that it lapses when the
+    /// session ends. An operator's ([`Operation::RenewLease`]), and only
+    /// the lease's holder renews it (another caller: `lease_conflict`; an
+    /// id not held: `unknown_lease`). It takes no write of the caller's
+    /// rate, as no renewal does: a renewal refused for the rate would
+    /// lapse the lease and halt the axis under a busy client.
+    ///
+    /// Audited as `renew motion lease (stream)`, in a task (the session
+    /// never waits for the disk): the first renewal of each lease, then
+    /// one a minute ([`RENEWAL_AUDIT_EVERY`]); refusals one a minute per
+    /// session, the row counting those left out.
+    pub fn renew_in_session(
         &self,
+        caller: &Caller,
+        session: &mut LeaseSession,
         id: &str,
-        holder: &str,
-        session: &LeaseSession,
     ) -> Result<MotionLease, GatewayError> {
-        self.leases.renew(id, Some(holder), Some(session.session))
+        let result = self.require(caller, Operation::RenewLease).and_then(|()| {
+            self.leases
+                .renew(id, Some(&caller.who), Some(session.session))
+        });
+        match &result {
+            Ok(lease) => {
+                if self.leases.renewal_audit_due(id) {
+                    self.audit_stream_renewal(caller, id, &Ok(lease.clone()), 0);
+                }
+            }
+            Err(error) => {
+                if let Some(left_out) = session.refusals.due(Instant::now()) {
+                    self.audit_stream_renewal(caller, id, &Err(error.clone()), left_out);
+                }
+            }
+        }
+        result
+    }
+
+    /// One audit row of a stream renewal, written in a task.
+    fn audit_stream_renewal(
+        &self,
+        caller: &Caller,
+        id: &str,
+        result: &Result<MotionLease, GatewayError>,
+        left_out: u64,
+    ) {
+        let mut item = format!("lease {}", mask(id));
+        let mut target = AuditTarget::new("renew motion lease (stream)");
+        if let Ok(lease) = result {
+            let _ = write!(item, " ({} lease of {})", lease.mode, lease.holder);
+            target = target
+                .bus(lease.axis.bus.clone())
+                .node(lease.axis.node)
+                .axis(lease.axis.axis);
+        }
+        if left_out > 0 {
+            let _ = write!(item, "; {left_out} more refused renewals not logged");
+        }
+        let request = serde_json::json!({"op": "renew", "leases": [mask(id)]}).to_string();
+        let row = self.audit_row(caller, target.item(item), Some(request));
+        tokio::spawn(row.finish(result));
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -41,7 +41,10 @@ use serde_json::{Value as Json, json};
 use tokio::sync::watch;
 use tokio::time::Instant;
 
+use super::audit::{AuditTarget, spawn_audited};
 use super::axis_telemetry::TPDO_FRESH;
+use super::caller::Caller;
+use super::policy::Operation;
 use super::producers::unreachable;
 use super::service::{Gateway, ServedBus};
 use super::telemetry::{TopicReceiver, ValueTopic, unix_ms};
@@ -414,7 +417,7 @@ impl Loggers {
 
     /// Resolves the channels, and starts the logger (its first sample at
     /// once).
-    pub async fn create(
+    pub(crate) async fn create(
         &self,
         gateway: &Gateway,
         request: LoggerRequest,
@@ -534,7 +537,7 @@ impl Loggers {
 
     /// Stops a logger (if it runs) and forgets it, its kept files too; its
     /// last status.
-    pub fn delete(&self, id: &str) -> Result<LoggerStatus, LoggerError> {
+    pub(crate) fn delete(&self, id: &str) -> Result<LoggerStatus, LoggerError> {
         let number: Option<u64> = id.parse().ok();
         let held = {
             let mut state = lock(&self.state);
@@ -566,6 +569,74 @@ impl Loggers {
                 }
             }
         }
+    }
+}
+
+/// The loggers as operations of the gateway: started and deleted by an
+/// operator ([`Operation::Logger`]: sampling takes the nodes' SDO queues),
+/// one write of the caller's rate each, in a task a caller that goes away
+/// cannot cut (the trial reads of a start, the files of a delete), each
+/// with its audit row.
+impl Gateway {
+    /// Resolves `request`'s channels and starts the logger for `caller`
+    /// (its first sample at once).
+    ///
+    /// Audited as `start data logger`.
+    pub async fn start_logger(
+        &self,
+        caller: &Caller,
+        request: LoggerRequest,
+    ) -> Result<LoggerStatus, GatewayError> {
+        let summary = serde_json::to_string(&request).ok();
+        let row = self.audit_row(caller, AuditTarget::new("start data logger"), summary);
+        let (gateway, caller) = (self.clone(), caller.clone());
+        spawn_audited(row, async move {
+            gateway.require(&caller, Operation::Logger)?;
+            gateway.take_write(&caller)?;
+            let status = gateway.loggers().create(&gateway, request).await?;
+            tracing::info!(
+                "logger {} started by {} ({}): {} channels every {} ms for {} s",
+                status.id,
+                caller.who,
+                caller.channel,
+                status.channels.len(),
+                status.period_ms,
+                status.duration_s
+            );
+            Ok(status)
+        })
+        .await
+    }
+
+    /// Stops the logger `id` (if it runs) and forgets it, its kept files
+    /// too, for `caller`; its last status.
+    ///
+    /// Audited as `delete data logger`, the id its item.
+    pub async fn delete_logger(
+        &self,
+        caller: &Caller,
+        id: &str,
+    ) -> Result<LoggerStatus, GatewayError> {
+        let target = AuditTarget::new("delete data logger").item(id.to_string());
+        let row = self.audit_row(caller, target, None);
+        let (gateway, caller, id) = (self.clone(), caller.clone(), id.to_string());
+        spawn_audited(row, async move {
+            gateway.require(&caller, Operation::Logger)?;
+            gateway.take_write(&caller)?;
+            let loggers = gateway.loggers().clone();
+            // Its files go from the disk: blocking work.
+            let status = tokio::task::spawn_blocking(move || loggers.delete(&id))
+                .await
+                .map_err(|err| GatewayError::Internal(format!("logger delete task: {err}")))??;
+            tracing::info!(
+                "logger {} deleted by {} ({})",
+                status.id,
+                caller.who,
+                caller.channel
+            );
+            Ok(status)
+        })
+        .await
     }
 }
 

@@ -135,6 +135,16 @@ impl Gateway {
         self.require_role(caller, kind.required_role())
     }
 
+    /// What an operation of `kind` asks of `caller` before it acts: its
+    /// role, then one write of its rate where the kind draws on it.
+    pub fn admit(&self, caller: &Caller, kind: Operation) -> Result<(), GatewayError> {
+        self.require(caller, kind)?;
+        if kind.draws_on_write_rate() {
+            self.take_write(caller)?;
+        }
+        Ok(())
+    }
+
     /// Refuses `caller` what needs `needed`: a caller with a role is held
     /// to it (the edge node's configured role, on an open gateway too); one
     /// without is refused when the gateway has tokens (`unauthenticated`),

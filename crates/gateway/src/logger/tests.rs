@@ -164,3 +164,96 @@ impl Drop for Scratch {
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
+
+/// The operations of the gateway: started and deleted by an operator, one
+/// write of the caller's rate and one audit row each.
+mod operations {
+    use super::*;
+    use crate::caller::Channel;
+    use crate::eds_files::tests::{caller, guarded_demo, row, rows_when};
+
+    fn position() -> LoggerRequest {
+        LoggerRequest {
+            channels: vec![ChannelRequest {
+                bus: "demo".into(),
+                node: 1,
+                index: json!("0x6064"),
+                sub: None,
+            }],
+            period_ms: 100,
+            duration_s: 60,
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn loggers_are_an_operators_and_each_request_is_one_row() {
+        let gateway = guarded_demo(100).await;
+        let hmi = caller(Channel::Cia309_5, "hmi");
+        let refused = gateway.start_logger(&hmi, position()).await.unwrap_err();
+        assert_eq!(refused.code(), "forbidden", "{refused}");
+        assert!(gateway.loggers().list().is_empty(), "a refused logger runs");
+
+        let plc = caller(Channel::Rest, "plc");
+        let started = gateway.start_logger(&plc, position()).await.unwrap();
+        assert_eq!(started.state, LoggerState::Running);
+        let id = started.id.to_string();
+        let refused = gateway.delete_logger(&hmi, &id).await.unwrap_err();
+        assert_eq!(refused.code(), "forbidden", "{refused}");
+        assert_eq!(gateway.loggers().list().len(), 1);
+        let last = gateway.delete_logger(&plc, &id).await.unwrap();
+        assert_eq!(last.state, LoggerState::Stopped);
+        let gone = gateway.delete_logger(&plc, &id).await.unwrap_err();
+        assert_eq!(gone.code(), "unknown_logger", "{gone}");
+        let bad = LoggerRequest {
+            period_ms: 0,
+            ..position()
+        };
+        let refused = gateway.start_logger(&plc, bad).await.unwrap_err();
+        assert_eq!(refused.code(), "value_out_of_range", "{refused}");
+
+        let want = [
+            row("start data logger", "", "", "", "forbidden"),
+            row("start data logger", "", "", "", "ok"),
+            row("delete data logger", "", "", &id, "forbidden"),
+            row("delete data logger", "", "", &id, "ok"),
+            row("delete data logger", "", "", &id, "unknown_logger"),
+            row("start data logger", "", "", "", "value_out_of_range"),
+        ];
+        assert_eq!(rows_when(&gateway, want.len()).await, want);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_flood_of_logger_requests_is_refused_for_the_rate() {
+        let gateway = guarded_demo(2).await;
+        let plc = caller(Channel::Rest, "plc");
+        let started = gateway.start_logger(&plc, position()).await.unwrap();
+        gateway
+            .delete_logger(&plc, &started.id.to_string())
+            .await
+            .unwrap();
+        let flood = gateway.start_logger(&plc, position()).await.unwrap_err();
+        assert_eq!(flood.code(), "rate_limited", "{flood}");
+        assert!(gateway.loggers().list().is_empty(), "a refused logger runs");
+        assert_eq!(
+            rows_when(&gateway, 3).await[2],
+            row("start data logger", "", "", "", "rate_limited")
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_logger_starts_for_a_caller_that_went_away() {
+        let gateway = guarded_demo(100).await;
+        let plc = caller(Channel::Rest, "plc");
+        // Polled once, then dropped: the caller is gone.
+        let dropped =
+            tokio::time::timeout(Duration::ZERO, gateway.start_logger(&plc, position())).await;
+        assert!(dropped.is_err(), "it ended within its first poll");
+        assert_eq!(
+            rows_when(&gateway, 1).await,
+            [row("start data logger", "", "", "", "ok")]
+        );
+        let list = gateway.loggers().list();
+        assert_eq!(list.len(), 1);
+        assert_eq!(list[0].state, LoggerState::Running);
+    }
+}

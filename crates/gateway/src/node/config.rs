@@ -6,13 +6,14 @@
 //! is [`crate::dcf`]'s.
 
 use super::NodeHandle;
-use super::transfer::{audited, spawned};
+use super::transfer::{audited, refused, spawned};
 use crate::GatewayError;
 use crate::caller::Caller;
 use crate::canopen::eds::{Action, Eds};
 use crate::canopen::od::format_index;
 use crate::check_sdo_allowed;
 use crate::dcf;
+use crate::policy::Operation;
 
 /// 0x1010: store parameters.
 const STORE_PARAMETERS: u16 = 0x1010;
@@ -92,6 +93,9 @@ impl NodeHandle {
         area: ParameterArea,
     ) -> Result<ParameterCommand, GatewayError> {
         let row = self.audit_row(caller, "store parameters", None, None);
+        if let Err(error) = self.gateway.admit(caller, Operation::StoreRestore) {
+            return refused(row, error).await;
+        }
         let (this, caller) = (self.clone(), caller.clone());
         audited(row, async move {
             let what = format!("store {}", area.name());
@@ -118,6 +122,9 @@ impl NodeHandle {
         let what = format!("restore the {from} {}", area.name());
         let communication = matches!(area, ParameterArea::All | ParameterArea::Communication);
         let row = self.audit_row(caller, "restore parameters", None, None);
+        if let Err(error) = self.gateway.admit(caller, Operation::StoreRestore) {
+            return refused(row, error).await;
+        }
         let (this, caller) = (self.clone(), caller.clone());
         audited(row, async move {
             let entry = (RESTORE_PARAMETERS, sub);
@@ -209,6 +216,9 @@ impl NodeHandle {
     ) -> Result<Vec<RestoredEntry>, GatewayError> {
         let request = format!("{} bytes of DCF", file.len());
         let row = self.audit_row(caller, "restore configuration (DCF)", None, Some(request));
+        if let Err(error) = self.gateway.admit(caller, Operation::RestoreConfiguration) {
+            return refused(row, error).await;
+        }
         let (this, caller, file) = (self.clone(), caller.clone(), file.to_vec());
         audited(row, async move { this.restore(&caller, &file).await }).await
     }

@@ -6,7 +6,7 @@
 use serde_json::Value as Json;
 
 use super::NodeHandle;
-use super::transfer::{audited, spawned};
+use super::transfer::{audited, refused, spawned};
 use crate::caller::Caller;
 use crate::canopen::nmt::NmtService;
 use crate::canopen::pdo::{PdoKind, PdoMapping};
@@ -15,6 +15,7 @@ use crate::pdo::{
     self, DecodedValue, PdoConfig, PdoPlanError, PdoRequest, RemapError, RpdoEncoder,
     RpdoValueError,
 };
+use crate::policy::Operation;
 use crate::{GatewayError, check_sdo_allowed};
 
 /// An RPDO frame sent: its identifier, data and the values it carried.
@@ -56,6 +57,9 @@ impl NodeHandle {
     ) -> Result<PdoConfig, GatewayError> {
         let item = format!("{} {number}", kind.name());
         let row = self.audit_row(caller, "configure pdo", Some(item), None);
+        if let Err(error) = self.gateway.admit(caller, Operation::ConfigurePdo) {
+            return refused(row, error).await;
+        }
         let (this, caller, request) = (self.clone(), caller.clone(), request.clone());
         audited(row, async move {
             this.configure(&caller, kind, number, &request).await
@@ -128,6 +132,9 @@ impl NodeHandle {
             Some(format!("rpdo {number}")),
             Some(request),
         );
+        if let Err(error) = self.gateway.admit(caller, Operation::SendRpdo) {
+            return refused(row, error).await;
+        }
         let (this, caller, values) = (self.clone(), caller.clone(), values.clone());
         audited(
             row,

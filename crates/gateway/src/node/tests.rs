@@ -438,3 +438,92 @@ async fn the_motion_facade_holds_every_caller_to_its_role_and_write_rate() {
         );
     }
 }
+
+/// PDO configuration, RPDO sends, store/restore and DCF restore ask the
+/// caller's role and take a write of its rate in the gateway, as every
+/// operation does, whichever door calls them (REST's guard used to be the
+/// only one asking). A refusal sends nothing to the node and is audited.
+#[tokio::test(start_paused = true)]
+async fn configuration_operations_hold_every_caller_to_its_role_and_write_rate() {
+    use crate::canopen::pdo::PdoKind;
+    use crate::node::config::{ParameterArea, RestoreSource};
+    use crate::pdo::PdoRequest;
+    // With tokens, writes are counted per caller's name.
+    let tokens = Tokens::new(vec![
+        crate::access::Token::new("commissioning", Role::Admin, "adm1n-0123456789abcdef").unwrap(),
+    ]);
+    let gateway = demo()
+        .await
+        .with_tokens(tokens)
+        .with_write_limit(Some(RateLimit {
+            per_second: 0.0001,
+            burst: 1,
+        }));
+    let umc = gateway.node_handle("demo", "1").unwrap();
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+    let viewer = Caller::new(Channel::Sparkplug, "mqtt:scada", Some(Role::Viewer));
+    let operator = operator(Channel::Cia309_3);
+    let codes = |result: Result<(), crate::GatewayError>| result.map_err(|error| error.code());
+    let request = PdoRequest::default();
+    // The admin's operations, refused to an operator; the RPDO send (an
+    // operator's), refused to a viewer.
+    let refused = [
+        codes(
+            umc.configure_pdo(&operator, PdoKind::Tpdo, 1, &request)
+                .await
+                .map(drop),
+        ),
+        codes(
+            umc.store_parameters(&operator, ParameterArea::All)
+                .await
+                .map(drop),
+        ),
+        codes(
+            umc.restore_parameters(&operator, ParameterArea::All, RestoreSource::Saved)
+                .await
+                .map(drop),
+        ),
+        codes(
+            umc.restore_dcf(&operator, b"[DeviceInfo]\n")
+                .await
+                .map(drop),
+        ),
+        codes(
+            umc.send_rpdo(&viewer, 1, &serde_json::Map::new())
+                .await
+                .map(drop),
+        ),
+    ];
+    assert_eq!(refused, [Err("forbidden"); 5]);
+    assert_eq!(
+        sdo_requests(&mut frames, 1),
+        0,
+        "a refused operation reached the node"
+    );
+    // One write of the rate each: the admin's second is refused for it.
+    let admin = Caller::new(Channel::Cia309_5, "commissioning", Some(Role::Admin));
+    assert!(
+        umc.configure_pdo(&admin, PdoKind::Tpdo, 1, &request)
+            .await
+            .is_ok()
+    );
+    let second = umc.store_parameters(&admin, ParameterArea::All).await;
+    assert_eq!(second.map(drop).unwrap_err().code(), "rate_limited");
+    let rows = audit_rows(&gateway).await;
+    let outcomes: Vec<_> = rows
+        .iter()
+        .map(|(operation, _, outcome, _)| (operation.as_str(), outcome.as_str()))
+        .collect();
+    assert_eq!(
+        outcomes,
+        [
+            ("configure pdo", "forbidden"),
+            ("store parameters", "forbidden"),
+            ("restore parameters", "forbidden"),
+            ("restore configuration (DCF)", "forbidden"),
+            ("send rpdo", "forbidden"),
+            ("configure pdo", "ok"),
+            ("store parameters", "rate_limited"),
+        ]
+    );
+}
