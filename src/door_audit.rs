@@ -16,8 +16,8 @@ use crate::ascii::Session;
 use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
 use crate::gateway::Gateway;
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::{EventKind, Query};
+use crate::gateway::{Caller, Channel};
+use crate::gateway::{EventKind, Query};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::metric::MetricValue;
@@ -52,7 +52,7 @@ async fn rig() -> (Router, Gateway) {
     )
     .unwrap();
     let state = AppState::new([served])
-        .with_lease_period(crate::gateway::motion_lease::MAX_PERIOD)
+        .with_lease_period(crate::gateway::MAX_PERIOD)
         .with_auth(config);
     (app(state.clone()), state.gateway.clone())
 }

@@ -27,9 +27,9 @@ use utoipa_axum::routes;
 use super::doc::ErrorBody;
 use super::{AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::access::Tokens;
-pub use crate::gateway::access::{RateLimit, Role, Token};
-use crate::gateway::policy::Operation;
+use crate::gateway::Operation;
+use crate::gateway::Tokens;
+pub use crate::gateway::{RateLimit, Role, Token};
 
 /// What a route asks of a request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -603,8 +603,8 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     // gateway's operations (object writes, NMT, LEDs, programs, motion:
     // `limited_by_the_gateway`) take theirs themselves, and never one for
     // a stop.
-    let caller = crate::gateway::caller::Caller::new(
-        crate::gateway::caller::Channel::Rest,
+    let caller = crate::gateway::Caller::new(
+        crate::gateway::Channel::Rest,
         identity.name.clone(),
         identity.role,
     );
@@ -716,7 +716,7 @@ async fn whoami(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::access::constant_time_eq;
+    use crate::gateway::constant_time_eq;
 
     #[test]
     fn patterns_match_segments_and_the_rest() {

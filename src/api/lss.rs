@@ -2,7 +2,7 @@
 //! unconfigured devices by Fastscan, `POST /buses/{bus}/lss/configure`
 //! gives one a node-ID; and the UniSwarm node-ID change of one node,
 //! `POST /buses/{bus}/nodes/{id}/node-id` (0x2040, save, reset). The work
-//! is [`crate::gateway::lss`]'s; each runs in a task of its own, so that a
+//! is `crate::gateway::lss`'s; each runs in a task of its own, so that a
 //! client that hangs up does not leave a device half configured.
 
 use axum::extract::State;
@@ -17,7 +17,7 @@ use super::nodes::{Node, known_node};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::lss::LssAddress;
 use crate::gateway::GatewayError;
-use crate::gateway::lss;
+use crate::gateway::{self as lss};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()

@@ -25,7 +25,7 @@ use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::ControllerFault;
 use crate::canopen::NodeId;
 use crate::gateway::GatewayError;
-use crate::gateway::error::SimError;
+use crate::gateway::SimError;
 use crate::sim::behaviour::Fault;
 use crate::sim::products::{DeviceSpec, Product};
 use crate::sim::rack::{Rack, RackError};
