@@ -57,7 +57,9 @@ async fn rig() -> (Router, Gateway) {
     (app(state.clone()), state.gateway.clone())
 }
 
-async fn rows(gateway: &Gateway) -> Vec<Map<String, Json>> {
+/// Every audit row of `gateway`, in the order they were written (the
+/// door tests' one reading of the log).
+pub(crate) async fn rows(gateway: &Gateway) -> Vec<Map<String, Json>> {
     let mut events = gateway
         .history()
         .query(Query {

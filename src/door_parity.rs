@@ -17,7 +17,6 @@ use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
 use crate::gateway::Gateway;
 use crate::gateway::{Caller, Channel};
-use crate::gateway::{EventKind, Query};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::metric::MetricValue;
@@ -229,23 +228,6 @@ fn metric(name: &str, value: MetricValue) -> Metric {
     };
     value.fill(&mut metric);
     metric
-}
-
-async fn audit(gateway: &Gateway) -> Vec<Map<String, Json>> {
-    let mut events = gateway
-        .history()
-        .query(Query {
-            kind: Some(EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 10_000,
-        })
-        .await
-        .unwrap();
-    // In the order they were written.
-    events.sort_by_key(|event| event.id);
-    events.into_iter().map(|event| event.fields).collect()
 }
 
 impl Rig {
@@ -628,9 +610,11 @@ async fn every_door_ends_each_operation_alike_and_audits_it_alike() {
             rig.enable_axis(door).await;
         }
         for op in TABLE.into_iter().filter(|op| op.offered_by(door)) {
-            let before = audit(&rig.gateway).await.len();
+            let before = crate::door_audit::rows(&rig.gateway).await.len();
             let outcome = rig.run(door, op).await;
-            let rows = audit(&rig.gateway).await.split_off(before);
+            let rows = crate::door_audit::rows(&rig.gateway)
+                .await
+                .split_off(before);
             let (want, want_row) = expected(op);
             if outcome != want {
                 failures.push(format!(

@@ -555,24 +555,14 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     for result in &results {
         assert_eq!(result.as_ref().unwrap_err().code(), "forbidden");
     }
-    let rows = gateway
-        .history()
-        .query(Query {
-            kind: Some(EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 100,
-        })
-        .await
-        .unwrap();
+    let rows = crate::door_audit::rows(&gateway).await;
     let mut refused: Vec<_> = rows
         .iter()
         .map(|row| {
             (
-                row.fields["operation"].as_str().unwrap().to_string(),
-                row.fields["outcome"].as_str().unwrap().to_string(),
-                row.fields["role"].as_str().unwrap().to_string(),
+                row["operation"].as_str().unwrap().to_string(),
+                row["outcome"].as_str().unwrap().to_string(),
+                row["role"].as_str().unwrap().to_string(),
             )
         })
         .collect();
