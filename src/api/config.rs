@@ -188,10 +188,11 @@ async fn restore(
     ))]
 async fn get_dcf(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<impl IntoResponse, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    let dcf = node.backup_dcf().await?;
+    let dcf = node.backup_dcf(&caller).await?;
     let file = format!("attachment; filename=\"node{}.dcf\"", node.id());
     Ok((
         [

@@ -208,10 +208,11 @@ pub struct MotionResponse {
     ))]
 async fn list_axes(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Vec<AxisStatus>>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    Ok(ApiJson(node.read_axes().await?))
+    Ok(ApiJson(node.read_axes(&caller).await?))
 }
 
 /// One axis, read now.

@@ -194,10 +194,11 @@ fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, GatewayError> {
     ))]
 async fn list_pdos(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<PdoList>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    let configs = node.read_pdos().await?;
+    let configs = node.read_pdos(&caller).await?;
     let dict = dictionary(node.info());
     let of = |kind| {
         configs

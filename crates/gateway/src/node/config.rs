@@ -13,6 +13,7 @@ use crate::canopen::eds::{Action, Eds};
 use crate::canopen::od::format_index;
 use crate::check_sdo_allowed;
 use crate::dcf;
+use crate::policy::Operation;
 
 /// 0x1010: store parameters.
 const STORE_PARAMETERS: u16 = 0x1010;
@@ -178,7 +179,8 @@ impl NodeHandle {
 
     /// Every parameter of the node's EDS read from the node, as a DCF; an
     /// entry the device would not give is named in a comment.
-    pub async fn backup_dcf(&self) -> Result<Eds, GatewayError> {
+    pub async fn backup_dcf(&self, caller: &Caller) -> Result<Eds, GatewayError> {
+        self.gateway.require(caller, Operation::View)?;
         let eds = self.eds()?;
         check_sdo_allowed(&self.served, &self.info)?;
         let channel = self.served.registry.sdo(self.info.id)?;
