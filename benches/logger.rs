@@ -29,8 +29,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use candeck::api::{AppState, app};
-use candeck::gateway::profile::EdsCatalog;
-use candeck::gateway::registry::RegistryConfig;
+use candeck::gateway::EdsCatalog;
+use candeck::gateway::RegistryConfig;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 

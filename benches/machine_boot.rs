@@ -21,9 +21,9 @@ use std::time::{Duration, Instant};
 use candeck::can::spec::BusSpec;
 use candeck::canopen::NodeId;
 use candeck::canopen::manager::{MachineState, ManagerConfig, NodeDescription};
-use candeck::gateway::machine::MachineSettings;
-use candeck::gateway::profile::EdsCatalog;
-use candeck::gateway::registry::RegistryConfig;
+use candeck::gateway::EdsCatalog;
+use candeck::gateway::MachineSettings;
+use candeck::gateway::RegistryConfig;
 use candeck::sim::products::Product;
 
 /// Node ids 1 to this (`CANDECK_BENCH_NODES` for fewer; 4 in a smoke run).
@@ -84,8 +84,7 @@ async fn run(spec: &str, dcf_path: &std::path::Path) -> Figures {
             let id = NodeId::new(id).expect("node id");
             let mut node = NodeDescription::new(id);
             node.heartbeat_ms = HEARTBEAT_MS;
-            node.config =
-                candeck::gateway::machine::load_dcf(dcf_path, id).expect("the bench's DCF");
+            node.config = candeck::gateway::load_dcf(dcf_path, id).expect("the bench's DCF");
             assert_eq!(node.config.len(), 20);
             node
         })

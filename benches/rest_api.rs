@@ -46,9 +46,9 @@ use std::time::{Duration, Instant};
 
 use candeck::api::{AppState, app};
 use candeck::canopen::NodeId;
-use candeck::gateway::profile::EdsCatalog;
-use candeck::gateway::registry::RegistryConfig;
-use candeck::gateway::sdo::SdoChannel;
+use candeck::gateway::EdsCatalog;
+use candeck::gateway::RegistryConfig;
+use candeck::gateway::SdoChannel;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 

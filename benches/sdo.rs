@@ -23,7 +23,7 @@ use candeck::canopen::NodeId;
 use candeck::canopen::eds::read_eds_file;
 use candeck::canopen::od::Value;
 use candeck::canopen::sdo::{self, ObjectAccess, SdoClient, SdoServer, Step, Transfer};
-use candeck::gateway::sdo::SdoChannel;
+use candeck::gateway::SdoChannel;
 use candeck::sim::device::{DeviceCore, run_device};
 
 const SEGMENTED_BYTES: usize = 1000;

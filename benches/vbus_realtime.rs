@@ -28,7 +28,7 @@ use candeck::can::{Bus, CanId, Frame};
 use candeck::canopen::NodeId;
 use candeck::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
 use candeck::canopen::sdo;
-use candeck::gateway::sdo::SdoChannel;
+use candeck::gateway::SdoChannel;
 
 const PRODUCTS: [&str; 4] = ["umc1bds32", "umc1bd90", "uio1led", "jmc"];
 const HEARTBEAT_MS: u16 = 100;

@@ -15,10 +15,10 @@ use crate::api::{AppState, app};
 use crate::ascii::Session;
 use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
-use crate::gateway::audit::{DoorDetail, DoorRequest};
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::{EventKind, Query};
-use crate::gateway::machine::MachineSettings;
+use crate::gateway::MachineSettings;
+use crate::gateway::{Caller, Channel};
+use crate::gateway::{DoorDetail, DoorRequest};
+use crate::gateway::{EventKind, Query};
 use crate::gateway::{Gateway, ServedBus};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
@@ -66,12 +66,14 @@ fn rig_on(served: ServedBus, burst: u32) -> (Router, Gateway) {
     )
     .unwrap();
     let state = AppState::new([served])
-        .with_lease_period(crate::gateway::motion_lease::MAX_PERIOD)
+        .with_lease_period(crate::gateway::MAX_PERIOD)
         .with_auth(config);
     (app(state.clone()), state.gateway.clone())
 }
 
-async fn rows(gateway: &Gateway) -> Vec<Map<String, Json>> {
+/// Every audit row of `gateway`, in the order they were written (the
+/// door tests' one reading of the log).
+pub(crate) async fn rows(gateway: &Gateway) -> Vec<Map<String, Json>> {
     let mut events = gateway
         .history()
         .query(Query {

@@ -16,8 +16,7 @@ use crate::ascii::Session;
 use crate::cia309::reply::Reply;
 use crate::cia309::{Cia309Gateway, Identity};
 use crate::gateway::Gateway;
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::{EventKind, Query};
+use crate::gateway::{Caller, Channel};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::metric::MetricValue;
@@ -204,7 +203,7 @@ async fn rig() -> Rig {
     )
     .unwrap();
     let state = AppState::new([served])
-        .with_lease_period(crate::gateway::motion_lease::MAX_PERIOD)
+        .with_lease_period(crate::gateway::MAX_PERIOD)
         .with_auth(config);
     Rig {
         app: app(state.clone()),
@@ -229,23 +228,6 @@ fn metric(name: &str, value: MetricValue) -> Metric {
     };
     value.fill(&mut metric);
     metric
-}
-
-async fn audit(gateway: &Gateway) -> Vec<Map<String, Json>> {
-    let mut events = gateway
-        .history()
-        .query(Query {
-            kind: Some(EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 10_000,
-        })
-        .await
-        .unwrap();
-    // In the order they were written.
-    events.sort_by_key(|event| event.id);
-    events.into_iter().map(|event| event.fields).collect()
 }
 
 impl Rig {
@@ -628,9 +610,11 @@ async fn every_door_ends_each_operation_alike_and_audits_it_alike() {
             rig.enable_axis(door).await;
         }
         for op in TABLE.into_iter().filter(|op| op.offered_by(door)) {
-            let before = audit(&rig.gateway).await.len();
+            let before = crate::door_audit::rows(&rig.gateway).await.len();
             let outcome = rig.run(door, op).await;
-            let rows = audit(&rig.gateway).await.split_off(before);
+            let rows = crate::door_audit::rows(&rig.gateway)
+                .await
+                .split_off(before);
             let (want, want_row) = expected(op);
             if outcome != want {
                 failures.push(format!(

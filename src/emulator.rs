@@ -10,9 +10,9 @@ use std::sync::Arc;
 
 use crate::can::VirtualHub;
 use crate::can::spec::BusSpec;
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
-use crate::gateway::service::{BusDevices, ServedBus};
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
+use crate::gateway::{BusDevices, ServedBus};
 use crate::sim::products::parse_devices;
 use crate::sim::rack::Rack;
 

@@ -14,8 +14,8 @@ use candeck::can::{BusState, BusStatus, CanId, Frame, VirtualHub};
 use candeck::canopen::NodeId;
 use candeck::canopen::emcy::emcy_text;
 use candeck::canopen::nmt::{NmtCommand, NmtMessage, NmtState, NmtTarget};
-use candeck::gateway::profile::{EdsCatalog, EdsSource, Identity, Profile};
-use candeck::gateway::registry::{
+use candeck::gateway::{EdsCatalog, EdsSource, Identity, Profile};
+use candeck::gateway::{
     Identification, NodeEvent, NodeInfo, NodeRegistry, OfflineReason, RegistryConfig, RegistryError,
 };
 use candeck::sim::behaviour::Fault;
@@ -235,7 +235,7 @@ async fn a_node_whose_heartbeat_stops_goes_offline_within_two_periods() {
     let (hub, rack, registry) = demo_bus(builtin()).await;
     // Written by another master: the gateway learns the period from the
     // heartbeats alone.
-    let umc = candeck::gateway::sdo::SdoChannel::new(
+    let umc = candeck::gateway::SdoChannel::new(
         hub.attach(),
         node(1),
         candeck::canopen::sdo::ClientConfig::default(),

@@ -689,3 +689,32 @@ fn a_route_named_below_the_doors_is_found() {
     let found = door_words_below_the_doors(&tree.0);
     assert_eq!(found, ["crates/gateway/src/recording.rs:2: /api/v1"]);
 }
+
+/// The `pub mod` lines of a crate root: a crate whose modules are public
+/// has every `pub` item of them in its API, and `unreachable_pub` never
+/// fires there.
+fn public_modules(lib_rs: &str) -> Vec<String> {
+    code(lib_rs)
+        .lines()
+        .filter_map(|line| line.trim().strip_prefix("pub mod "))
+        .map(|rest| ident(rest).to_string())
+        .collect()
+}
+
+/// The gateway's surface is the list its root re-exports
+/// (crates/gateway/src/lib.rs): its modules are private.
+#[test]
+fn the_gateway_crate_keeps_its_modules_private() {
+    let lib = std::fs::read_to_string(root().join("crates/gateway/src/lib.rs")).unwrap();
+    let public = public_modules(&lib);
+    assert!(
+        public.is_empty(),
+        "crates/gateway/src/lib.rs declares public modules: {public:?}; re-export what the doors use instead"
+    );
+}
+
+#[test]
+fn a_public_module_is_found_and_a_comment_naming_one_is_not() {
+    let lib = "//! pub mod in the docs\nmod node;\npub mod service;\n    pub mod inner {}\n";
+    assert_eq!(public_modules(lib), ["service", "inner"]);
+}

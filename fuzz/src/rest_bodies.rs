@@ -15,8 +15,8 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::http::{Method, Request};
 use candeck::api::{AppState, app};
-use candeck::gateway::profile::EdsCatalog;
-use candeck::gateway::registry::RegistryConfig;
+use candeck::gateway::EdsCatalog;
+use candeck::gateway::RegistryConfig;
 use serde_json::Value as Json;
 use tower::ServiceExt;
 

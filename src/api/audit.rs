@@ -3,7 +3,7 @@
 //! response leaves, once, with the method, path and status as REST's
 //! detail and the JSON body summarised as its request.
 //!
-//! The gateway's operations write their own rows ([`crate::gateway::audit`]):
+//! The gateway's operations write their own rows (`crate::gateway::audit`):
 //! this layer hands each request a [`DoorRequest`] (its method, path and
 //! summary), which the [`super::caller::RestCaller`] carries to the
 //! operations; they hand their rows back, and this layer writes them with
@@ -51,9 +51,9 @@ use super::auth::Identity;
 use super::caller::{AuditItem, AuditedByHandler};
 use super::error::ErrorSummary;
 use crate::can::Timestamp;
-use crate::gateway::audit::{DoorDetail, DoorRequest};
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::history::{AuditEntry, OK};
+use crate::gateway::{AuditEntry, OK};
+use crate::gateway::{Caller, Channel};
+use crate::gateway::{DoorDetail, DoorRequest};
 
 /// The request body as the audit log keeps it, at most (bytes of JSON).
 pub const MAX_SUMMARY: usize = 1024;
@@ -250,7 +250,7 @@ fn upload_name(uri: &axum::http::Uri) -> Option<String> {
 /// Lease ids, wherever they are in `json`, masked.
 fn mask_leases(json: &mut Json) {
     match json {
-        Json::String(id) => *id = crate::gateway::motion_lease::mask(id),
+        Json::String(id) => *id = crate::gateway::mask(id),
         Json::Array(items) => items.iter_mut().for_each(mask_leases),
         Json::Object(map) => map.values_mut().for_each(mask_leases),
         _ => {}

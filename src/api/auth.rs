@@ -27,9 +27,9 @@ use utoipa_axum::routes;
 use super::doc::ErrorBody;
 use super::{AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::access::Tokens;
-pub use crate::gateway::access::{RateLimit, Role, Token};
-use crate::gateway::policy::Operation;
+use crate::gateway::Operation;
+use crate::gateway::Tokens;
+pub use crate::gateway::{RateLimit, Role, Token};
 
 /// What a route asks of a request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -569,8 +569,8 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     }
     // A write to no route has no operation to take it (see
     // `takes_a_write_itself`): from the token's bucket, as every door's.
-    let caller = crate::gateway::caller::Caller::new(
-        crate::gateway::caller::Channel::Rest,
+    let caller = crate::gateway::Caller::new(
+        crate::gateway::Channel::Rest,
         identity.name.clone(),
         identity.role,
     );
@@ -681,7 +681,7 @@ async fn whoami(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::access::constant_time_eq;
+    use crate::gateway::constant_time_eq;
 
     #[test]
     fn patterns_match_segments_and_the_rest() {

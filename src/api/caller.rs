@@ -11,8 +11,8 @@ use axum::extract::{ConnectInfo, FromRequestParts};
 use axum::http::request::Parts;
 
 use super::auth::Identity;
-use crate::gateway::audit::DoorRequest;
-use crate::gateway::caller::{Caller, Channel};
+use crate::gateway::DoorRequest;
+use crate::gateway::{Caller, Channel};
 
 /// The request's caller: the token the guard found (`anonymous` without
 /// one, or on a gateway without tokens), from the client's address when

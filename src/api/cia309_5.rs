@@ -34,7 +34,7 @@ use crate::cia309::datatype::{Datatype, unsigned};
 use crate::cia309::reply::ErrorCode;
 use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
 use crate::gateway::GatewayError;
-use crate::gateway::node::objects::object_item;
+use crate::gateway::object_item;
 
 /// The routes, at the root (not under `/api/v1`).
 pub fn router() -> Router<AppState> {

@@ -2,7 +2,7 @@
 //! §7.5.2.13 0x1010 and §7.5.2.14 0x1011, with the UniSwarm subs 5–8 that
 //! restore the saved rather than the factory values), and a backup of
 //! every parameter as a DCF (CiA 306 §4.6.5) that can be written back to
-//! the same or a replacement device (see [`crate::gateway::dcf`]).
+//! the same or a replacement device (see `crate::gateway::dcf`).
 
 use axum::body::Bytes;
 use axum::extract::State;
@@ -19,7 +19,7 @@ use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::error::body_of;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::format_index;
-use crate::gateway::node::config::{ParameterArea, ParameterCommand, RestoreSource, RestoredEntry};
+use crate::gateway::{ParameterArea, ParameterCommand, RestoreSource, RestoredEntry};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -188,10 +188,11 @@ async fn restore(
     ))]
 async fn get_dcf(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<impl IntoResponse, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    let dcf = node.backup_dcf().await?;
+    let dcf = node.backup_dcf(&caller).await?;
     let file = format!("attachment; filename=\"node{}.dcf\"", node.id());
     Ok((
         [

@@ -114,7 +114,7 @@ pub struct ErrorDetail {
     /// step tried, the fallbacks included (quick stop, NMT stop of the
     /// node), with its outcome.
     #[schema(value_type = Option<Vec<super::schema::StopAttempt>>)]
-    pub attempts: Option<Vec<crate::gateway::safe_stop::StopAttempt>>,
+    pub attempts: Option<Vec<crate::gateway::StopAttempt>>,
 }
 
 /// A bus named in a path.

@@ -1,7 +1,7 @@
 //! CiA 402 drives (`docs/rest-api.md`, "Routes"): the axes of nodes whose
 //! profile is `umc`, `jmc_stepper` or `cia402`, their state machine, fault
 //! reset, halt and moves, and `POST /stop-all`. The CiA 402 master itself is
-//! [`crate::gateway::drive`].
+//! `crate::gateway::drive`.
 //!
 //! Errors beside the SDO ones (see [`super::od`]):
 //! - 404 `not_a_drive`: the node's profile has no axes (`uioled`,
@@ -30,7 +30,7 @@
 //! names both holders); halting, quick stop, a walk out of operation
 //! enabled and STOP ALL are never refused, and end the lease.
 //!
-//! The policy is the gateway's ([`crate::gateway::motion`], which the
+//! The policy is the gateway's (`crate::gateway::motion`, which the
 //! Sparkplug edge node calls too): the handlers read the request and its
 //! headers, call one operation and map its outcome. Every sequence runs in
 //! a task of its own and the handler awaits it: a client that hangs up
@@ -52,12 +52,10 @@ use super::leases::{LeaseInfo, presented, takeover_asked};
 use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::drive::{
-    AxisLimits, AxisStatus, AxisUnits, DriveError, MoveRequest, TargetState,
-};
-use crate::gateway::motion::{LeaseClaim, MotionFailed, MotionOutcome, spawned};
-use crate::gateway::safe_stop::{StopAttempt, StopReport};
-use crate::gateway::step_test::{StepTestRequest, StepTestResult};
+use crate::gateway::{AxisLimits, AxisStatus, AxisUnits, DriveError, MoveRequest, TargetState};
+use crate::gateway::{LeaseClaim, MotionFailed, MotionOutcome, spawned};
+use crate::gateway::{StepTestRequest, StepTestResult};
+use crate::gateway::{StopAttempt, StopReport};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -210,10 +208,11 @@ pub struct MotionResponse {
     ))]
 async fn list_axes(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<Vec<AxisStatus>>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    Ok(ApiJson(node.read_axes().await?))
+    Ok(ApiJson(node.read_axes(&caller).await?))
 }
 
 /// One axis, read now.

@@ -4,7 +4,7 @@
 //! describes; admins upload (`POST /eds?name=FILE`) and delete
 //! (`DELETE /eds/{name}`) files; operators assign a file to a node by hand
 //! (`PUT/DELETE /buses/{bus}/nodes/{id}/eds`). The operations are the
-//! gateway's ([`crate::gateway::eds_files`]).
+//! gateway's (`crate::gateway::eds_files`).
 
 use axum::body::Bytes;
 use axum::extract::{Query, State};
@@ -18,10 +18,10 @@ use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::NodeId;
 use crate::canopen::eds::EdsWarning;
+use crate::gateway::EdsUser;
 use crate::gateway::GatewayError;
-use crate::gateway::eds_files::EdsUser;
-use crate::gateway::profile::{EdsEntry, SkippedFile};
-use crate::gateway::registry::NodeInfo;
+use crate::gateway::NodeInfo;
+use crate::gateway::{EdsEntry, SkippedFile};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()

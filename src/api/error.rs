@@ -18,11 +18,11 @@ use serde_json::{Value as Json, json};
 use crate::can::BusError;
 use crate::canopen::od::{DictionaryError, ValueError};
 use crate::gateway::GatewayError;
-use crate::gateway::error::{LedError, PdoError, SimError};
-use crate::gateway::logger::LoggerError;
-use crate::gateway::recording::RecordingError;
-use crate::gateway::registry::RegistryError;
-use crate::gateway::sdo::SdoRequestError;
+use crate::gateway::LoggerError;
+use crate::gateway::RecordingError;
+use crate::gateway::RegistryError;
+use crate::gateway::SdoRequestError;
+use crate::gateway::{LedError, PdoError, SimError};
 
 /// Why a request failed: the gateway's error, or one of HTTP's own.
 #[derive(Debug)]

@@ -1,7 +1,7 @@
 //! `GET /events`: the persisted history (`docs/rest-api.md`, "Audit
 //! log and history"): the audit log of state-changing requests, the
 //! EMCYs (CiA 301 §7.2.7) and the NMT/supervision events of every bus,
-//! from [`History`](crate::gateway::history::History).
+//! from [`History`](crate::gateway::History).
 //!
 //! Entries come oldest first. With `since` (RFC 3339 or Unix milliseconds)
 //! they are the first `limit` entries at or after that time, so a client
@@ -21,10 +21,10 @@ use utoipa_axum::routes;
 
 use super::doc::ErrorBody;
 use super::{ApiJson, AppError, AppState};
+use crate::gateway::Channel;
 use crate::gateway::GatewayError;
-use crate::gateway::caller::Channel;
-use crate::gateway::history::{self, EventKind, StoredEvent};
-use crate::gateway::recording::civil_from_days;
+use crate::gateway::civil_from_days;
+use crate::gateway::{self, EventKind, StoredEvent};
 
 /// Entries without `limit`.
 pub const DEFAULT_LIMIT: usize = 100;
@@ -202,7 +202,7 @@ impl From<StoredEvent> for HistoryEvent {
             request: text("request"),
             status: int("status"),
             outcome: outcome.clone(),
-            error_code: outcome.filter(|outcome| outcome != history::OK),
+            error_code: outcome.filter(|outcome| outcome != gateway::OK),
             abort_code: text("abort_code"),
             code: int("code").map(|code| format!("0x{code:04X}")),
             text: text("text"),
@@ -239,7 +239,7 @@ async fn events(
     let found = state
         .gateway
         .history()
-        .query(history::Query::try_from(query)?)
+        .query(gateway::Query::try_from(query)?)
         .await
         .map_err(|err| {
             tracing::error!("events: {err}");
@@ -248,7 +248,7 @@ async fn events(
     Ok(ApiJson(found.into_iter().map(HistoryEvent::from).collect()))
 }
 
-impl TryFrom<EventsQuery> for history::Query {
+impl TryFrom<EventsQuery> for gateway::Query {
     type Error = AppError;
 
     fn try_from(query: EventsQuery) -> Result<Self, AppError> {
@@ -282,7 +282,7 @@ impl TryFrom<EventsQuery> for history::Query {
                 "limit {limit}: from 1 to {MAX_LIMIT}"
             )));
         }
-        Ok(history::Query {
+        Ok(gateway::Query {
             kind,
             since_us,
             until_us,

@@ -1,5 +1,5 @@
 //! Raw CAN frames of a bus (ISO 11898-1): the recent ones, from the
-//! gateway's [`FrameLog`](crate::gateway::frames::FrameLog), and one sent
+//! gateway's [`FrameLog`](crate::gateway::FrameLog), and one sent
 //! as given.
 //!
 //! A frame in JSON:
@@ -24,8 +24,8 @@ use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::can::{CanId, Direction as CanDirection, Frame, TimedFrame, Timestamp};
+use crate::gateway::CAPACITY;
 use crate::gateway::GatewayError;
-use crate::gateway::frames::CAPACITY;
 
 /// How many frames `GET .../frames` returns without `limit`.
 pub const DEFAULT_LIMIT: usize = 100;

@@ -2,7 +2,7 @@
 //! I/O module (profile `cia401`): inputs live (TPDO-fed where mapped,
 //! read over SDO otherwise, each with its age), outputs set and read back
 //! for confirmation. The operations are the gateway's
-//! ([`crate::gateway::io`]); what the objects mean is
+//! (`crate::gateway::io`); what the objects mean is
 //! [`crate::profiles::cia401`].
 
 use std::collections::BTreeMap;
@@ -83,7 +83,7 @@ pub struct IoSet {
 #[derive(Debug, serde::Serialize, ToSchema)]
 pub struct IoWritten {
     #[schema(value_type = Vec<IoSet>)]
-    pub outputs: Vec<crate::gateway::io::OutputSet>,
+    pub outputs: Vec<crate::gateway::OutputSet>,
 }
 
 /// Every input and output of a CiA 401 module, with its value and age.
@@ -105,7 +105,7 @@ pub struct IoWritten {
 async fn read_io(
     State(state): State<AppState>,
     ApiPath((bus, id)): ApiPath<(String, String)>,
-) -> Result<ApiJson<crate::gateway::io::IoState>, AppError> {
+) -> Result<ApiJson<crate::gateway::IoState>, AppError> {
     Ok(ApiJson(state.gateway.read_io(&bus, &id).await?))
 }
 

@@ -1,10 +1,10 @@
 //! Motion leases over HTTP and the stream (the policy and its table are
-//! [`crate::gateway::motion_lease`]): a velocity, torque or duty-cycle move
+//! `crate::gateway::motion_lease`): a velocity, torque or duty-cycle move
 //! answers with a lease that its client renews with
 //! `POST .../axes/{axis}/lease` `{"lease": id}` or the stream's
 //! `{"op":"renew","leases":[id]}`; an interpolated move holds one while its
 //! request feeds points. The leases and the supervisor that stops the
-//! axis of every lease that lapses are [`crate::gateway::leases`].
+//! axis of every lease that lapses are `crate::gateway::leases`.
 //!
 //! A stream session that renewed a lease is its client's heartbeat: when
 //! the socket closes the lease lapses at once.
@@ -37,7 +37,7 @@ use super::drives::AxisPath;
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::motion_lease::{AxisKey, LeaseError, MotionLease};
+use crate::gateway::{AxisKey, LeaseError, MotionLease};
 
 /// The request header that presents a lease to a command on a held axis.
 pub const LEASE_HEADER: &str = "candeck-lease";

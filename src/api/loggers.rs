@@ -1,5 +1,5 @@
 //! The data logger through REST (`docs/data-logger.md`); the gateway side
-//! is [`crate::gateway::logger`].
+//! is `crate::gateway::logger`.
 //!
 //! - `POST /loggers` `{"channels":[{"bus","node","index","sub"}],"period_ms","duration_s"}`
 //!   starts one (201 with its status, `id` among it);
@@ -22,7 +22,7 @@ use super::caller::RestCaller;
 use super::doc::ErrorBody;
 use super::schema;
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::gateway::logger::{LoggerRequest, LoggerStatus};
+use crate::gateway::{LoggerRequest, LoggerStatus};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()

@@ -2,7 +2,7 @@
 //! unconfigured devices by Fastscan, `POST /buses/{bus}/lss/configure`
 //! gives one a node-ID; and the UniSwarm node-ID change of one node,
 //! `POST /buses/{bus}/nodes/{id}/node-id` (0x2040, save, reset). Each is one
-//! operation of the gateway ([`crate::gateway::lss`]), which holds the
+//! operation of the gateway (`crate::gateway::lss`), which holds the
 //! caller to the policy, writes the audit row and runs in a task of its
 //! own, so that a client that hangs up does not leave a device half
 //! configured.

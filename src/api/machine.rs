@@ -1,5 +1,5 @@
 //! The machine of a bus as its network manager (CiA 302-2,
-//! [`crate::gateway::machine`]) sees it: `GET /buses/{bus}/machine`, and
+//! `crate::gateway::machine`) sees it: `GET /buses/{bus}/machine`, and
 //! `POST /buses/{bus}/machine/nodes/{id}/boot` to run a node's boot-up
 //! again.
 

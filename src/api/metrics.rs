@@ -4,9 +4,9 @@
 //!
 //! Nothing here counts: every number is read when the page is asked for,
 //! from the counters the layers below keep anyway (the bus attachment's,
-//! the load meter's, each node's [`SdoChannel`](crate::gateway::sdo::SdoChannel)
+//! the load meter's, each node's [`SdoChannel`](crate::gateway::SdoChannel)
 //! statistics, the frame log's and the TPDO decoder's losses, the stream's
-//! [`StreamCounters`](crate::gateway::telemetry::StreamCounters)) and, on
+//! [`StreamCounters`](crate::gateway::StreamCounters)) and, on
 //! Linux, from `/proc/self`. A scrape takes each registry's lock once,
 //! briefly, and never waits on a device.
 //!
@@ -27,8 +27,8 @@ use utoipa_axum::routes;
 
 use super::AppState;
 use crate::can::CounterSnapshot;
-use crate::gateway::registry::NodeMetrics;
-use crate::gateway::sdo::{LATENCY_BUCKETS, SdoStatsSnapshot};
+use crate::gateway::NodeMetrics;
+use crate::gateway::{LATENCY_BUCKETS, SdoStatsSnapshot};
 
 /// The content type of the text format, version 0.0.4.
 pub const CONTENT_TYPE_TEXT: &str = "text/plain; version=0.0.4; charset=utf-8";

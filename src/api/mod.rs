@@ -24,11 +24,11 @@
 //! - [`config`]: store, restore, DCF backup and restore of a node.
 //! - [`drives`]: CiA 402 drives: axes, state walk, fault reset, halt,
 //!   moves, stop-all (the stops themselves are
-//!   [`crate::gateway::safe_stop`]).
+//!   `crate::gateway::safe_stop`).
 //! - [`io`]: a CiA 401 I/O module's channels: inputs live, outputs set
 //!   and read back.
 //! - [`leases`]: renewing a motion lease (the leases and their supervisor
-//!   are [`crate::gateway::leases`]).
+//!   are `crate::gateway::leases`).
 //! - [`program`]: program download (CiA 302-3) to a node.
 //! - [`pdos`]: a node's PDOs (read, re-map, RPDO send) and the bus's SYNC
 //!   producer.
@@ -41,7 +41,7 @@
 //! - [`lss`]: LSS (CiA 305): Fastscan for unconfigured devices, node-ID
 //!   assignment; the UniSwarm node-ID change (0x2040).
 //! - [`auth`]: the table of the least role of every route (tokens and
-//!   roles are [`crate::gateway::access`]), and the layer that applies it (origin check, CORS, body
+//!   roles are `crate::gateway::access`), and the layer that applies it (origin check, CORS, body
 //!   limits, rate limit); `/auth/whoami`.
 //! - [`host`]: the `Host` check against DNS rebinding, on every route.
 //! - [`headers`]: the anti-framing and content headers of every answer.
@@ -104,8 +104,8 @@ use utoipa::OpenApi;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_swagger_ui::{Config, SwaggerUi};
 
-use crate::gateway::history::History;
-use crate::gateway::telemetry::StreamCounters;
+use crate::gateway::History;
+use crate::gateway::StreamCounters;
 use crate::gateway::{Gateway, ServedBus};
 
 pub use error::{ApiJson, ApiPath, AppError};

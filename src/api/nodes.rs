@@ -15,8 +15,8 @@ use super::doc::{BusPath, ErrorBody, ErrorDetail, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState, ServedBus};
 use crate::canopen::nmt::NmtCommand;
 use crate::gateway::GatewayError;
-use crate::gateway::profile::Profile;
-use crate::gateway::registry::NodeInfo;
+use crate::gateway::Profile;
+use crate::gateway::{Caller, NodeInfo};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -146,7 +146,7 @@ pub struct NodeDetail {
     /// A drive's axes, read now (profiles umc, jmc_stepper, cia402).
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Vec<super::schema::AxisStatus>>)]
-    pub axes: Option<Vec<crate::gateway::drive::AxisStatus>>,
+    pub axes: Option<Vec<crate::gateway::AxisStatus>>,
     /// An LED controller's segments, read now (profile uioled).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub segments: Option<Vec<super::segments::SegmentState>>,
@@ -209,7 +209,7 @@ async fn one_node(
     body["emcy"] = to_json(&emcy)?;
     let summary = match info.profile {
         Profile::Umc | Profile::JmcStepper | Profile::Cia402 => Some(
-            axes_summary(&state, &bus, &info)
+            axes_summary(&state, &caller, &bus, &info)
                 .await
                 .and_then(|axes| Ok(("axes", to_json(&axes)?))),
         ),
@@ -331,9 +331,10 @@ async fn nmt_all(
 /// A drive's axes, read in a task of its own.
 async fn axes_summary(
     state: &AppState,
+    caller: &Caller,
     bus: &str,
     info: &NodeInfo,
-) -> Result<Vec<crate::gateway::drive::AxisStatus>, AppError> {
+) -> Result<Vec<crate::gateway::AxisStatus>, AppError> {
     let node = state.gateway.node_handle(bus, &info.id.to_string())?;
-    Ok(node.read_axes().await?)
+    Ok(node.read_axes(caller).await?)
 }

@@ -39,11 +39,11 @@ use super::doc::{ErrorBody, ErrorDetail, NodePath};
 use super::nodes::known_node;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{DataType, ObjectDictionary, SubObject, Value, format_index, parse_index};
+use crate::gateway::Caller;
 use crate::gateway::GatewayError;
 use crate::gateway::NodeHandle;
-use crate::gateway::caller::Caller;
-use crate::gateway::node::objects::object_item;
-use crate::gateway::registry::NodeInfo;
+use crate::gateway::NodeInfo;
+use crate::gateway::object_item;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()

@@ -11,7 +11,7 @@
 //! to the device's abort; the PDO then stays invalid, as the procedure left
 //! it.
 //!
-//! The protocol work is [`crate::gateway::pdo`]'s; every sequence of SDO
+//! The protocol work is `crate::gateway::pdo`'s; every sequence of SDO
 //! transfers runs in a task of its own, so that a client hanging up never
 //! cuts the procedure between invalidation and validation.
 
@@ -31,9 +31,9 @@ use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::{ObjectDictionary, format_index};
 use crate::canopen::pdo::{MappingEntry, PdoKind};
 use crate::gateway::GatewayError;
-use crate::gateway::error::PdoError;
-use crate::gateway::pdo::{self, DecodedValue, EntryRequest, PdoConfig, PdoRequest};
-use crate::gateway::sync::SyncStatus;
+use crate::gateway::PdoError;
+use crate::gateway::SyncStatus;
+use crate::gateway::{self, DecodedValue, EntryRequest, PdoConfig, PdoRequest};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -98,7 +98,7 @@ fn mapping_json(entries: &[MappingEntry], dict: Option<&ObjectDictionary>) -> Ve
             index: format_index(entry.index),
             sub: entry.sub,
             bits: entry.bits,
-            name: dict.and_then(|dict| pdo::entry_name(dict, entry.index, entry.sub)),
+            name: dict.and_then(|dict| gateway::entry_name(dict, entry.index, entry.sub)),
         })
         .collect()
 }
@@ -194,10 +194,11 @@ fn pdo_number(kind: PdoKind, n: &str) -> Result<u16, GatewayError> {
     ))]
 async fn list_pdos(
     State(state): State<AppState>,
+    RestCaller(caller): RestCaller,
     ApiPath((bus, id)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<PdoList>, AppError> {
     let node = state.gateway.node_handle(&bus, &id)?;
-    let configs = node.read_pdos().await?;
+    let configs = node.read_pdos(&caller).await?;
     let dict = dictionary(node.info());
     let of = |kind| {
         configs

@@ -1,6 +1,6 @@
 //! Program download (CiA 302-3): `POST /buses/{bus}/nodes/{id}/program`
 //! with the image as the body. The sequence is the gateway's
-//! ([`crate::gateway::program`]).
+//! (`crate::gateway::program`).
 
 use axum::body::Bytes;
 use axum::extract::{Query, State};
@@ -12,7 +12,7 @@ use utoipa_axum::routes;
 use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::gateway::node::program::ProgramDownload;
+use crate::gateway::ProgramDownload;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(post_program))

@@ -1,6 +1,6 @@
 //! Recording a bus as a candump `-L` log (linux-can/can-utils `candump -L`)
 //! through REST, and downloading it; the gateway side is
-//! [`crate::gateway::recording`]. `--bus replay:FILE` plays a downloaded
+//! `crate::gateway::recording`. `--bus replay:FILE` plays a downloaded
 //! log back.
 //!
 //! - `POST /buses/{bus}/recording` `{"max_frames"?, "max_seconds"?}` starts
@@ -25,7 +25,7 @@ use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody};
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::gateway::GatewayError;
-use crate::gateway::recording::{Limits, RecordingState, RecordingStatus, StopReason};
+use crate::gateway::{Limits, RecordingState, RecordingStatus, StopReason};
 
 /// The chunks a download is streamed in.
 const CHUNK: usize = 64 * 1024;

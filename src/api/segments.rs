@@ -18,13 +18,13 @@ use utoipa_axum::routes;
 use super::caller::RestCaller;
 use super::doc::{ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
+use crate::gateway::Caller;
 use crate::gateway::GatewayError;
-use crate::gateway::caller::Caller;
-use crate::gateway::error::LedError;
-use crate::gateway::led_preview::PreviewError;
-use crate::gateway::node::led::{self, ColorChannels, LedController, Others, Scene};
-pub use crate::gateway::uioled::{Color, Preview, PreviewSegment, effect_name};
-use crate::gateway::uioled::{fits, is_segment};
+use crate::gateway::LedError;
+use crate::gateway::PreviewError;
+use crate::gateway::{self, ColorChannels, LedController, Others, Scene};
+pub use crate::gateway::{Color, Preview, PreviewSegment, effect_name};
+use crate::gateway::{fits, is_segment};
 use crate::profiles::uioled::{Field, SEGMENTS, Segment};
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -219,7 +219,7 @@ fn segment_number(text: &str) -> Result<u8, GatewayError> {
 fn parse_effect(effect: &Json) -> Result<i64, GatewayError> {
     let names = "off, fix, flash, breathing, flow, flow_reversed";
     match effect {
-        Json::String(name) => led::effect_by_name(name)
+        Json::String(name) => gateway::effect_by_name(name)
             .map(|effect| i64::from(effect.raw()))
             .ok_or_else(|| {
                 GatewayError::InvalidValue(format!("effect '{name}' is not one of {names}"))
@@ -297,7 +297,7 @@ fn parse_color(position: usize, color: &Json) -> Result<ColorChannels, GatewayEr
 impl SegmentUpdate {
     /// The update as the gateway takes it: colours and effect read, at
     /// most three colours.
-    fn parse(&self) -> Result<led::SegmentUpdate, GatewayError> {
+    fn parse(&self) -> Result<gateway::SegmentUpdate, GatewayError> {
         let mut colors = [[None; 4]; 3];
         if let Some(given) = &self.colors {
             if given.len() > 3 {
@@ -310,7 +310,7 @@ impl SegmentUpdate {
                 colors[position] = parse_color(position, color)?;
             }
         }
-        Ok(led::SegmentUpdate {
+        Ok(gateway::SegmentUpdate {
             led_count: self.led_count,
             colors,
             dimmer: self.dimmer,
@@ -325,7 +325,7 @@ impl SegmentUpdate {
 
     /// The update of `PUT .../segments/{segment}`, whose body names no
     /// other segment.
-    fn for_segment(&self, segment: u8) -> Result<led::SegmentUpdate, GatewayError> {
+    fn for_segment(&self, segment: u8) -> Result<gateway::SegmentUpdate, GatewayError> {
         if let Some(given) = self.segment
             && given != u32::from(segment)
         {

@@ -70,18 +70,18 @@ use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
 use crate::can::{CanId, RecvError, TimedFrame};
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::producers::{self, period_at_most};
-use crate::gateway::registry::NodeEvent;
-use crate::gateway::telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
+use crate::gateway::NodeEvent;
+use crate::gateway::{self, period_at_most};
+use crate::gateway::{Caller, Channel};
 use crate::gateway::{GatewayError, ServedBus};
+use crate::gateway::{Sample, StreamCounters, TopicReceiver, unix_ms};
 
 /// Updates per second of a value topic when the client asks no rate.
 pub const DEFAULT_RATE_HZ: f64 = 10.0;
 /// The fastest rate a client may ask for.
-pub const MAX_RATE_HZ: f64 = producers::MAX_RATE_HZ;
+pub const MAX_RATE_HZ: f64 = gateway::MAX_RATE_HZ;
 /// The slowest rate a client may ask for: one update every 100 s.
-pub const MIN_RATE_HZ: f64 = producers::MIN_RATE_HZ;
+pub const MIN_RATE_HZ: f64 = gateway::MIN_RATE_HZ;
 /// Topics one client may hold.
 pub const MAX_TOPICS: usize = 256;
 /// Events (`nodes`, `emcy`) queued for one client before the oldest go.
@@ -401,7 +401,7 @@ struct Session {
     caller: Caller,
     /// The leases the client renews lapse when it ends (the client is
     /// gone, or its network).
-    lease_session: crate::gateway::leases::LeaseSession,
+    lease_session: crate::gateway::LeaseSession,
     mailbox: Arc<Mailbox>,
     /// By the topic string as the client wrote it (the messages carry it
     /// back the same way).

@@ -1,6 +1,6 @@
 //! `GET /buses/{bus}/nodes/{id}/values`: the newest value of every object a
 //! node sends in its TPDOs (CiA 301 §7.2.2), decoded by the mapping the
-//! gateway read from the node ([`crate::gateway::values`]). No SDO: this is
+//! gateway read from the node (`crate::gateway::values`). No SDO: this is
 //! what the bus carried.
 
 use axum::extract::State;
@@ -15,7 +15,7 @@ use super::nodes::known_node;
 use super::od::AnyValue;
 use super::{ApiJson, ApiPath, AppError, AppState};
 use crate::canopen::od::format_index;
-use crate::gateway::values::TpdoValue;
+use crate::gateway::TpdoValue;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(node_values))

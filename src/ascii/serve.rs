@@ -24,7 +24,7 @@ use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
 use crate::cia309::reply::{self, ErrorCode, Event, Reply};
 use crate::cia309::{Cia309Gateway, Failure, Identity, Origin, TransferOptions};
 use crate::gateway::GatewayError;
-use crate::gateway::registry::{NodeEvent, OfflineReason};
+use crate::gateway::{NodeEvent, OfflineReason};
 
 /// The longest command line read; a longer one is a syntax error.
 pub const MAX_LINE: usize = 64 * 1024;
@@ -501,7 +501,7 @@ pub async fn listen(listener: TcpListener, gateway: Cia309Gateway, limits: Limit
 mod tests {
     use super::*;
     use crate::canopen::NodeId;
-    use crate::gateway::registry::EmcyRecord;
+    use crate::gateway::EmcyRecord;
 
     async fn lines(input: &[u8]) -> Vec<Result<String, ()>> {
         let mut reader = BufReader::with_capacity(8, input);

@@ -18,7 +18,7 @@
 
 use crate::canopen::sdo::AbortCode;
 use crate::gateway::GatewayError;
-use crate::gateway::error::{LedError, PdoError, SimError};
+use crate::gateway::{LedError, PdoError, SimError};
 
 use super::reply::ErrorCode;
 

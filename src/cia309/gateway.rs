@@ -17,11 +17,11 @@ use std::time::Duration;
 
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::sdo::ClientConfig;
-use crate::gateway::access::{Role, Tokens};
-use crate::gateway::audit::{AuditTarget, DoorDetail};
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::node::objects::{nmt_summary, object_item};
+use crate::gateway::{AuditTarget, DoorDetail};
+use crate::gateway::{Caller, Channel};
 use crate::gateway::{Gateway, GatewayError, NodeHandle, ServedBus};
+use crate::gateway::{Role, Tokens};
+use crate::gateway::{nmt_summary, object_item};
 
 use super::command::Nmt;
 

@@ -11,9 +11,9 @@ use super::CliError;
 use super::serve::NamedBus;
 use crate::ascii::serve_connection;
 use crate::cia309::{Cia309Gateway, Identity};
+use crate::gateway::EdsCatalog;
 use crate::gateway::Gateway;
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::RegistryConfig;
 
 #[derive(Debug, Args)]
 pub struct AsciiArgs {

@@ -11,7 +11,7 @@ use crate::canopen::NodeId;
 use crate::canopen::eds::read_eds_file;
 use crate::canopen::od::{DataType, Value, parse_index};
 use crate::canopen::sdo::ClientConfig;
-use crate::gateway::sdo::SdoChannel;
+use crate::gateway::SdoChannel;
 
 #[derive(Debug, Args)]
 pub struct OdArgs {

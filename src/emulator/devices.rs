@@ -13,10 +13,10 @@
 use crate::can::ControllerFault;
 use crate::canopen::NodeId;
 use crate::canopen::lss::LssAddress;
-use crate::gateway::audit::AuditTarget;
-use crate::gateway::caller::Caller;
-use crate::gateway::error::SimError;
-use crate::gateway::policy::Operation;
+use crate::gateway::AuditTarget;
+use crate::gateway::Caller;
+use crate::gateway::Operation;
+use crate::gateway::SimError;
 use crate::gateway::{Gateway, GatewayError};
 use crate::sim::behaviour::Fault;
 use crate::sim::products::{DeviceSpec, Product};

@@ -31,8 +31,8 @@ use super::edge::REBIRTH;
 use super::metric::MetricValue;
 use super::proto::Payload;
 use crate::canopen::nmt::NmtCommand;
-use crate::gateway::drive::{MoveRequest, TargetState};
-use crate::gateway::node::led::{SegmentUpdate, effect_by_name};
+use crate::gateway::{MoveRequest, TargetState};
+use crate::gateway::{SegmentUpdate, effect_by_name};
 use crate::profiles::uioled::{SEGMENTS, address};
 
 /// One command of a message.

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use super::edge::Policy;
 use super::topic::valid_element;
-use crate::gateway::access::Role;
+use crate::gateway::Role;
 
 /// The default size of the store-and-forward queue, in messages.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 100_000;

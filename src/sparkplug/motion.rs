@@ -1,9 +1,9 @@
 //! The DCMD commands that move things: an axis's state, halt, fault reset,
 //! moves and their motion leases, and an LED controller's segments. The
 //! axis commands are parsed here and run by the gateway's motion
-//! operations ([`crate::gateway::motion`]), which REST's drive routes call
+//! operations (`crate::gateway::motion`), which REST's drive routes call
 //! too: the lease policy is theirs; a segment's by the LED operations
-//! ([`crate::gateway::node::led`]) that REST's segment routes call.
+//! (`crate::gateway::led`) that REST's segment routes call.
 //!
 //! The motion lease as MQTT gives it: a move without an end of its own
 //! (velocity, torque, duty cycle), or halt released in such a mode, is
@@ -27,9 +27,9 @@ use std::collections::BTreeMap;
 use std::sync::Mutex;
 
 use super::command::Command;
-use crate::gateway::caller::Caller;
-use crate::gateway::motion::LeaseClaim;
-use crate::gateway::motion_lease::{AxisKey, MotionLease};
+use crate::gateway::Caller;
+use crate::gateway::LeaseClaim;
+use crate::gateway::{AxisKey, MotionLease};
 use crate::gateway::{Gateway, GatewayError};
 
 /// The ids of the motion leases granted over MQTT, by axis: what lapses

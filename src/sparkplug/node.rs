@@ -28,14 +28,14 @@ use super::motion::HeldLeases;
 use super::spool::Spool;
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
-use crate::gateway::audit::{AuditTarget, DoorDetail};
-use crate::gateway::caller::{Caller, Channel};
-use crate::gateway::edge_node::EdgeNodeStats;
-use crate::gateway::node::objects::object_item;
-use crate::gateway::registry::{Identification, NodeEvent, NodeInfo};
-use crate::gateway::telemetry::unix_ms;
-use crate::gateway::values::TpdoFrame;
+use crate::gateway::EdgeNodeStats;
+use crate::gateway::TpdoFrame;
+use crate::gateway::object_item;
+use crate::gateway::unix_ms;
+use crate::gateway::{AuditTarget, DoorDetail};
+use crate::gateway::{Caller, Channel};
 use crate::gateway::{Gateway, GatewayError};
+use crate::gateway::{Identification, NodeEvent, NodeInfo};
 
 /// How long to wait before connecting again after a connection failed or
 /// was lost.
@@ -797,8 +797,8 @@ impl Runner {
         let Ok(served) = self.gateway.bus(bus) else {
             return;
         };
-        if let Some(kind) = crate::gateway::drive::DriveKind::from_profile(info.profile) {
-            for axis in 1..=crate::gateway::drive::axis_count(kind, info.eds_entry.as_deref()) {
+        if let Some(kind) = crate::gateway::DriveKind::from_profile(info.profile) {
+            for axis in 1..=crate::gateway::axis_count(kind, info.eds_entry.as_deref()) {
                 let Ok(mut topic) = served.axes().subscribe(info.id, axis, AXIS_RATE_HZ) else {
                     break;
                 };
@@ -815,7 +815,7 @@ impl Runner {
                     }
                 }));
             }
-        } else if info.profile == crate::gateway::profile::Profile::Uioled {
+        } else if info.profile == crate::gateway::Profile::Uioled {
             let Ok(mut topic) = served.previews().subscribe(info.id, 1.0) else {
                 return;
             };
@@ -1023,7 +1023,7 @@ fn born_device(info: &NodeInfo) -> bool {
 
 /// A node's TPDO values as metrics `TPDO/{EDS name}`, typed (an object the
 /// EDS does not describe: its raw bits as UInt64).
-fn tpdo_samples(values: &[crate::gateway::values::TpdoValue]) -> Vec<Sample> {
+fn tpdo_samples(values: &[crate::gateway::TpdoValue]) -> Vec<Sample> {
     let now = unix_ms();
     values
         .iter()

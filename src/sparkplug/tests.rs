@@ -10,7 +10,7 @@ use super::spool::{Spool, read_records};
 use super::topic::{MessageType, Topic, parse_host_state, state_topic};
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::od::Value;
-use crate::gateway::node::led::SegmentUpdate;
+use crate::gateway::SegmentUpdate;
 
 fn session() -> EdgeSession {
     EdgeSession::new("plant", "line1", 0, Policy::default())
@@ -556,7 +556,7 @@ fn axis_and_segment_commands_are_read_and_a_lease_promise_goes_with_its_move() {
         commands[0],
         Command::AxisState {
             axis: 1,
-            target: crate::gateway::drive::TargetState::OperationEnabled,
+            target: crate::gateway::TargetState::OperationEnabled,
             lease_id: None,
         }
     );

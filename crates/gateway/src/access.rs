@@ -61,7 +61,7 @@ impl std::fmt::Display for Role {
 /// it could be a secret (as long as one, of its alphabet), so that an entry
 /// with its fields swapped (`plc:TOKEN:operator`) never puts the secret in
 /// a terminal or a journal.
-pub fn shown(field: &str) -> String {
+pub(crate) fn shown(field: &str) -> String {
     let could_be_secret = field.len() >= MIN_TOKEN_LEN
         && field
             .chars()
@@ -93,11 +93,11 @@ impl std::fmt::Debug for Token {
 
 /// The shortest token accepted: 20 characters of a 64-letter alphabet are
 /// 120 bits (`openssl rand -hex 32` gives 64).
-pub const MIN_TOKEN_LEN: usize = 20;
+pub(crate) const MIN_TOKEN_LEN: usize = 20;
 
 impl Token {
     /// A token, checked: a name of letters, digits, `-_.@`; a secret of at
-    /// least [`MIN_TOKEN_LEN`] characters of `A-Za-z0-9-._~` (so that it
+    /// least `MIN_TOKEN_LEN` characters of `A-Za-z0-9-._~` (so that it
     /// fits a header and a WebSocket subprotocol unquoted), not one that
     /// repeats a few characters.
     pub fn new(name: &str, role: Role, secret: &str) -> Result<Self, String> {
@@ -262,7 +262,7 @@ impl Default for RateLimit {
 /// adapter: a token that sends its writes over REST, CiA 309-5 and CiA
 /// 309-3 at once draws on one bucket (issue 19, point 7).
 #[derive(Debug, Default)]
-pub struct WriteLimiter {
+pub(crate) struct WriteLimiter {
     /// `None`: writes are not rate limited.
     limit: Option<RateLimit>,
     buckets: Mutex<HashMap<String, Bucket>>,
@@ -275,21 +275,16 @@ struct Bucket {
 }
 
 impl WriteLimiter {
-    pub fn new(limit: Option<RateLimit>) -> Self {
+    pub(crate) fn new(limit: Option<RateLimit>) -> Self {
         Self {
             limit,
             buckets: Mutex::new(HashMap::new()),
         }
     }
 
-    /// The limit it applies (`None`: none).
-    pub fn limit(&self) -> Option<RateLimit> {
-        self.limit
-    }
-
     /// Takes one write from `who`'s bucket, or says how long until one is
     /// there.
-    pub fn take(&self, who: &str) -> Result<(), Duration> {
+    pub(crate) fn take(&self, who: &str) -> Result<(), Duration> {
         let Some(limit) = self.limit else {
             return Ok(());
         };
@@ -318,7 +313,7 @@ impl WriteLimiter {
 
     /// [`WriteLimiter::take`] as the gateway's error: `rate_limited`, with
     /// the whole seconds to wait.
-    pub fn take_or_refuse(&self, who: &str) -> Result<(), crate::GatewayError> {
+    pub(crate) fn take_or_refuse(&self, who: &str) -> Result<(), crate::GatewayError> {
         self.take(who).map_err(|wait| {
             let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
             crate::GatewayError::RateLimited {

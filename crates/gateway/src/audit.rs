@@ -33,7 +33,7 @@ use crate::service::Gateway;
 
 /// The outcome of an operation whose caller went away before it ended: its
 /// transfers run to their end, but what came after them did not.
-pub const INTERRUPTED: &str = "interrupted";
+pub(crate) const INTERRUPTED: &str = "interrupted";
 
 /// What an operation acts on, as its audit row names it.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -233,11 +233,11 @@ impl Eq for DoorRequest {}
 
 /// A row being written ([`AuditRow::finish`]): it holds nothing of the
 /// result it was finished with.
-pub type Finishing = std::pin::Pin<Box<dyn Future<Output = ()> + Send + 'static>>;
+pub(crate) type Finishing = std::pin::Pin<Box<dyn Future<Output = ()> + Send + 'static>>;
 
 /// The audit row of one operation under way: finished with its result,
 /// written once. Dropped unfinished, it is written with the outcome
-/// [`INTERRUPTED`].
+/// `INTERRUPTED`.
 #[must_use = "an audit row is written when it is finished"]
 pub struct AuditRow {
     entry: Option<AuditEntry>,
@@ -422,7 +422,7 @@ impl Gateway {
     }
 
     /// Runs `operation` and writes its row, once, with its outcome (also
-    /// if the caller goes away before it ends: [`INTERRUPTED`]).
+    /// if the caller goes away before it ends: `INTERRUPTED`).
     pub async fn audited<T>(
         &self,
         caller: &Caller,

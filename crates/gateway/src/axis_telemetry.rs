@@ -41,19 +41,19 @@ use crate::profiles::umc;
 /// How recent the TPDO values of an axis must be to be its source: a
 /// dashboard sees a TPDO that stopped within a second, and then the status
 /// is polled.
-pub const TPDO_FRESH: Duration = Duration::from_secs(1);
+pub(crate) const TPDO_FRESH: Duration = Duration::from_secs(1);
 
 /// Where a status came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Source {
+pub(crate) enum Source {
     Tpdo,
     Sdo,
 }
 
 /// One sample of the axis topic.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct AxisSample {
+pub(crate) struct AxisSample {
     pub axis: u8,
     pub source: Source,
     /// The PDS state by its API name (`operation_enabled`, ...), `unknown`

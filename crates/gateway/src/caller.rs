@@ -75,7 +75,7 @@ pub struct Caller {
     pub peer: Option<String>,
     /// The request, as the door that made it knows it (shared by the
     /// caller's clones): its words for the audit row, and whether an
-    /// operation audited it ([`crate::audit`]). `None`: the gateway's own,
+    /// operation audited it (`crate::audit`). `None`: the gateway's own,
     /// or a door that adds nothing.
     pub door: Option<DoorRequest>,
 }

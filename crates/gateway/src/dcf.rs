@@ -87,7 +87,7 @@ fn is_drive_command(index: u16) -> bool {
 }
 
 /// Whether an entry is a parameter a backup keeps (see the module docs).
-pub fn is_parameter(index: u16, sub: &SubObject) -> bool {
+pub(crate) fn is_parameter(index: u16, sub: &SubObject) -> bool {
     let flags = sub.obj_flags.unwrap_or(0);
     sub.access.is_readable()
         && sub.access.is_writable()
@@ -99,7 +99,7 @@ pub fn is_parameter(index: u16, sub: &SubObject) -> bool {
 }
 
 /// Every parameter entry of a dictionary, in index order.
-pub fn parameters(dictionary: &ObjectDictionary) -> Vec<(u16, u8)> {
+pub(crate) fn parameters(dictionary: &ObjectDictionary) -> Vec<(u16, u8)> {
     dictionary
         .objects
         .values()
@@ -115,7 +115,7 @@ pub fn parameters(dictionary: &ObjectDictionary) -> Vec<(u16, u8)> {
 
 /// A parameter the backup could not read (an abort): left out of the DCF.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Unread {
+pub(crate) struct Unread {
     pub index: u16,
     pub sub: u8,
     pub abort: AbortCode,
@@ -124,7 +124,7 @@ pub struct Unread {
 /// Reads every parameter of `eds` from the node and returns the DCF, with
 /// the entries the device refused to read (left without a value). A
 /// failure other than a device abort (timeout, bus) ends the backup.
-pub async fn backup(
+pub(crate) async fn backup(
     channel: &SdoChannel,
     eds: &Eds,
     node: NodeId,
@@ -198,7 +198,7 @@ pub async fn backup(
 
 /// One write of a restore.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Write {
+pub(crate) struct Write {
     pub index: u16,
     pub sub: u8,
     pub bytes: Vec<u8>,
@@ -213,7 +213,7 @@ pub struct Write {
 /// What a restore writes: the DCF entries with a value, in index order,
 /// and the writes that set them, in the order they are made.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Plan {
+pub(crate) struct Plan {
     pub entries: Vec<(u16, u8)>,
     pub writes: Vec<Write>,
 }
@@ -224,14 +224,18 @@ type PdoEntry = (PdoObject, u8, Vec<u8>);
 /// An entry of a DCF whose value cannot be written to this node: the DCF
 /// is refused as a whole before anything is written.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct PlanError(pub String);
+pub(crate) struct PlanError(pub String);
 
 /// The values of `dcf` for a node described by `dictionary` (its EDS), with
 /// `$NODEID` resolved for `node`, in the order they are written: every
 /// other parameter in index order, then each PDO by the CiA 301 procedure
 /// (COB-ID invalid, mapping count 0, mapping entries, mapping count, the
 /// other communication parameters, the COB-ID as given).
-pub fn plan(dcf: &Eds, dictionary: &ObjectDictionary, node: NodeId) -> Result<Plan, PlanError> {
+pub(crate) fn plan(
+    dcf: &Eds,
+    dictionary: &ObjectDictionary,
+    node: NodeId,
+) -> Result<Plan, PlanError> {
     let mut entries = Vec::new();
     let mut plain = Vec::new();
     // By direction and number: each entry's object, sub-index and bytes.
@@ -333,12 +337,12 @@ pub fn plan(dcf: &Eds, dictionary: &ObjectDictionary, node: NodeId) -> Result<Pl
 }
 
 /// The result of one write of a restore.
-pub type WriteResult = Result<(), SdoRequestError>;
+pub(crate) type WriteResult = Result<(), SdoRequestError>;
 
 /// Runs `writes` in order; the first failure of each DCF entry is its
 /// result. A failure other than a device abort (timeout, bus down) stops
 /// the restore: the writes not made are `None`.
-pub async fn restore(
+pub(crate) async fn restore(
     channel: &SdoChannel,
     writes: &[Write],
 ) -> BTreeMap<(u16, u8), Option<WriteResult>> {

@@ -90,7 +90,7 @@ pub enum GatewayError {
     #[error("{0}")]
     Forbidden(String),
     /// The token sends writes faster than its rate limit
-    /// ([`crate::access::WriteLimiter`]).
+    /// (`crate::access::WriteLimiter`).
     #[error("{message}")]
     RateLimited { message: String, retry_after_s: u64 },
     /// Another LSS transaction runs on the bus.

@@ -13,13 +13,13 @@ use std::io;
 use std::path::Path;
 
 /// The mode of the directories candeck makes.
-pub const DIR_MODE: u32 = 0o700;
+pub(crate) const DIR_MODE: u32 = 0o700;
 /// The mode of the files candeck makes.
-pub const FILE_MODE: u32 = 0o600;
+pub(crate) const FILE_MODE: u32 = 0o600;
 
 /// Makes `dir` and its missing parents `0700` (an existing directory is
 /// left alone); warns when `dir` is open to others.
-pub fn create_private_dir(dir: &Path) -> io::Result<()> {
+pub(crate) fn create_private_dir(dir: &Path) -> io::Result<()> {
     let mut builder = std::fs::DirBuilder::new();
     builder.recursive(true);
     #[cfg(unix)]
@@ -45,7 +45,7 @@ pub fn create_private_dir(dir: &Path) -> io::Result<()> {
 
 /// Options that create a file `0600` (the mode of a file that exists is
 /// not changed by opening it).
-pub fn private_file_options() -> std::fs::OpenOptions {
+pub(crate) fn private_file_options() -> std::fs::OpenOptions {
     let mut options = std::fs::OpenOptions::new();
     #[cfg(unix)]
     {
@@ -56,7 +56,7 @@ pub fn private_file_options() -> std::fs::OpenOptions {
 }
 
 /// Sets `path` to `0600` if it exists and is open to others.
-pub fn tighten(path: &Path) -> io::Result<()> {
+pub(crate) fn tighten(path: &Path) -> io::Result<()> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;

@@ -45,7 +45,7 @@ use crate::error::GatewayError;
 use crate::registry::NodeEvent;
 
 /// The file under `--data-dir`.
-pub const FILE_NAME: &str = "history.sqlite3";
+pub(crate) const FILE_NAME: &str = "history.sqlite3";
 
 /// Each step takes the schema from version `i` to `i + 1`.
 const MIGRATIONS: &[&str] = &[
@@ -194,7 +194,7 @@ impl Default for Retention {
 pub const DEFAULT_RETENTION_DAYS: u32 = 90;
 pub const DEFAULT_RETENTION_ROWS: u64 = 1_000_000;
 /// How often the history is pruned (and once at start).
-pub const PRUNE_PERIOD: Duration = Duration::from_secs(600);
+pub(crate) const PRUNE_PERIOD: Duration = Duration::from_secs(600);
 
 /// One audit entry: an operation that changed (or tried to change) a
 /// device or the gateway, whichever door asked for it.
@@ -576,7 +576,7 @@ impl History {
         .await
     }
 
-    /// Prunes now and every [`PRUNE_PERIOD`], while the returned task runs.
+    /// Prunes now and every `PRUNE_PERIOD`, while the returned task runs.
     pub fn spawn_pruner(&self, retention: Retention) -> tokio::task::JoinHandle<()> {
         let history = self.clone();
         tokio::spawn(async move {

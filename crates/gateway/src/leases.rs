@@ -31,7 +31,7 @@ pub const RENEWAL_AUDIT_EVERY: Duration = Duration::from_secs(60);
 
 /// The gateway's leases and the task that stops the lapsed ones.
 #[derive(Debug)]
-pub struct MotionLeases {
+pub(crate) struct MotionLeases {
     table: Mutex<LeaseTable>,
     period: Duration,
     /// Wakes the supervisor when the earliest expiry may have moved closer.
@@ -41,7 +41,7 @@ pub struct MotionLeases {
 }
 
 impl MotionLeases {
-    pub fn new(period: Duration) -> Self {
+    pub(crate) fn new(period: Duration) -> Self {
         Self {
             table: Mutex::new(LeaseTable::new()),
             period,
@@ -51,7 +51,7 @@ impl MotionLeases {
         }
     }
 
-    pub fn period(&self) -> Duration {
+    pub(crate) fn period(&self) -> Duration {
         self.period
     }
 
@@ -63,7 +63,7 @@ impl MotionLeases {
 
     /// Refuses a command on a held axis that does not present its lease,
     /// or that `by` presents who is not its holder.
-    pub fn check(
+    pub(crate) fn check(
         &self,
         axis: &AxisKey,
         presented: Option<&str>,
@@ -74,7 +74,7 @@ impl MotionLeases {
 
     /// An explicit take-over of `axis` (audited by the caller): the lease
     /// held on it ends and is returned; the axis is not stopped.
-    pub fn take_over(&self, axis: &AxisKey) -> Option<MotionLease> {
+    pub(crate) fn take_over(&self, axis: &AxisKey) -> Option<MotionLease> {
         let previous = self.table().take_over(axis, Instant::now());
         if let Some(lease) = &previous {
             tracing::warn!(
@@ -90,7 +90,7 @@ impl MotionLeases {
 
     /// Whether a stream renewal of `id` is to be audited now (the first,
     /// then one per [`RENEWAL_AUDIT_EVERY`]).
-    pub fn renewal_audit_due(&self, id: &str) -> bool {
+    pub(crate) fn renewal_audit_due(&self, id: &str) -> bool {
         self.table()
             .audit_due(id, RENEWAL_AUDIT_EVERY, Instant::now())
     }
@@ -99,7 +99,7 @@ impl MotionLeases {
     /// starts the supervisor on the first one. A new lease's id is
     /// `chosen` (a caller that gets no answer names it: MQTT), else made
     /// here.
-    pub fn grant(
+    pub(crate) fn grant(
         &self,
         gateway: &Gateway,
         axis: AxisKey,
@@ -126,7 +126,7 @@ impl MotionLeases {
 
     /// Renews the lease `id` for `by`, its holder (`None`: the gateway
     /// itself), binding it to a stream session when given.
-    pub fn renew(
+    pub(crate) fn renew(
         &self,
         id: &str,
         by: Option<&str>,
@@ -137,7 +137,7 @@ impl MotionLeases {
 
     /// Renews the lease `id` held on `axis` for `by`: a lease id is not
     /// renewed through a request that names another axis.
-    pub fn renew_on(
+    pub(crate) fn renew_on(
         &self,
         axis: &AxisKey,
         id: &str,
@@ -152,7 +152,7 @@ impl MotionLeases {
 
     /// Lapses the lease `id` held on `axis` now, for `by`, its holder: its
     /// client gives it up, and the supervisor stops the axis.
-    pub fn lapse_on(&self, axis: &AxisKey, id: &str, by: &str) -> Result<(), GatewayError> {
+    pub(crate) fn lapse_on(&self, axis: &AxisKey, id: &str, by: &str) -> Result<(), GatewayError> {
         let held = self.table().get(axis, Instant::now()).cloned();
         match held {
             Some(lease) if lease.id == id && lease.holder != by => Err(LeaseError::NotHolder {
@@ -171,18 +171,18 @@ impl MotionLeases {
     }
 
     /// The lease on `axis` is over: its motion was stopped (or is bounded).
-    pub fn release(&self, axis: &AxisKey) -> Option<MotionLease> {
+    pub(crate) fn release(&self, axis: &AxisKey) -> Option<MotionLease> {
         self.table().release(axis)
     }
 
     /// Ends every lease (STOP ALL, shutdown): their axes are being stopped.
-    pub fn release_all(&self) -> usize {
+    pub(crate) fn release_all(&self) -> usize {
         self.table().release_all().len()
     }
 
     /// Lapses the lease `id` now (its client went away), so that the
     /// supervisor stops its axis; an unknown id is nothing to do.
-    pub fn lapse_now(&self, id: &str) {
+    pub(crate) fn lapse_now(&self, id: &str) {
         let now = Instant::now();
         let mut table = self.table();
         if let Ok(lease) = table.release_id(id) {
@@ -203,26 +203,26 @@ impl MotionLeases {
     }
 
     /// A number for a new stream session.
-    pub fn new_session(&self) -> u64 {
+    pub(crate) fn new_session(&self) -> u64 {
         self.next_session.fetch_add(1, Ordering::Relaxed)
     }
 
     /// The stream session ended: the leases it renewed lapse now.
-    pub fn session_ended(&self, session: u64) {
+    pub(crate) fn session_ended(&self, session: u64) {
         if self.table().session_ended(session, Instant::now()) > 0 {
             self.wake.notify_one();
         }
     }
 
     /// Whether `id` is the lease held on `axis` now.
-    pub fn holds(&self, axis: &AxisKey, id: &str) -> bool {
+    pub(crate) fn holds(&self, axis: &AxisKey, id: &str) -> bool {
         self.table()
             .get(axis, Instant::now())
             .is_some_and(|lease| lease.id == id)
     }
 
     /// How many leases are held.
-    pub fn held(&self) -> usize {
+    pub(crate) fn held(&self) -> usize {
         self.table().len()
     }
 }
@@ -390,14 +390,14 @@ async fn halt_then_quick_stop(
 /// Keeps a lease alive while a request that holds it runs (an interpolated
 /// move feeding its points); if the request is dropped — its client hung
 /// up — the lease lapses at once and the axis is stopped.
-pub struct InFlight {
+pub(crate) struct InFlight {
     leases: Arc<MotionLeases>,
     id: String,
     done: bool,
 }
 
 impl InFlight {
-    pub fn new(leases: &Arc<MotionLeases>, lease: &MotionLease) -> Self {
+    pub(crate) fn new(leases: &Arc<MotionLeases>, lease: &MotionLease) -> Self {
         Self {
             leases: leases.clone(),
             id: lease.id.clone(),
@@ -406,7 +406,7 @@ impl InFlight {
     }
 
     /// Renews the lease every third of a period until `work` ends.
-    pub async fn run<T>(mut self, work: impl Future<Output = T>) -> T {
+    pub(crate) async fn run<T>(mut self, work: impl Future<Output = T>) -> T {
         let leases = self.leases.clone();
         let every = (leases.period() / 3).max(Duration::from_millis(10));
         let work = std::pin::pin!(work);
@@ -480,7 +480,7 @@ impl RefusalAudit {
 
 /// The leases as the doors see them: their period, how many are held, and
 /// a door's own session of renewals (the stream's); the grant and the
-/// check are [`crate::motion`]'s.
+/// check are `crate::motion`'s.
 impl Gateway {
     /// The period a lease lasts without a renewal (`--lease-ms`).
     pub fn lease_period(&self) -> Duration {

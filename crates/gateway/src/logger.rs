@@ -53,21 +53,21 @@ use crate::canopen::NodeId;
 use crate::canopen::od::{DataType, DictionaryError, Value, format_index, parse_index};
 
 /// The most channels one logger samples.
-pub const MAX_CHANNELS: usize = 16;
+pub(crate) const MAX_CHANNELS: usize = 16;
 /// The shortest period a logger may ask for, in milliseconds.
-pub const MIN_PERIOD_MS: u64 = 1;
+pub(crate) const MIN_PERIOD_MS: u64 = 1;
 /// The longest period, in milliseconds (a minute).
-pub const MAX_PERIOD_MS: u64 = 60_000;
+pub(crate) const MAX_PERIOD_MS: u64 = 60_000;
 /// The longest a logger runs, in seconds (a day).
-pub const MAX_DURATION_S: u64 = 86_400;
+pub(crate) const MAX_DURATION_S: u64 = 86_400;
 /// The loggers kept at once, running and finished.
-pub const MAX_LOGGERS: usize = 16;
+pub(crate) const MAX_LOGGERS: usize = 16;
 /// The default of `logger_max_values`: values (rows × channels) one logger
 /// keeps in memory; 16 channels at 1 kHz for a minute, about 8 MB of
 /// `f64`s.
 pub const DEFAULT_MAX_VALUES: usize = 1_000_000;
 /// How often a running logger publishes its new rows on its stream topic.
-pub const PUBLISH_EVERY: Duration = Duration::from_millis(100);
+pub(crate) const PUBLISH_EVERY: Duration = Duration::from_millis(100);
 
 /// Why a logger could not be made, read or removed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -37,9 +37,9 @@ use super::service::{Gateway, ServedBus};
 /// How long the master waits for each LSS answer. CANopenNode's master
 /// uses 10 ms on a wire; a bus bridged over TCP (socketcand) takes a few
 /// ms more per round trip.
-pub const LSS_TIMEOUT: Duration = Duration::from_millis(25);
+pub(crate) const LSS_TIMEOUT: Duration = Duration::from_millis(25);
 /// How long a configured device has to boot up under its new node-ID.
-pub const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(3);
+pub(crate) const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(3);
 /// How long the registry has to take a node that booted up and read its
 /// identity.
 const REGISTRY_TIMEOUT: Duration = Duration::from_secs(2);
@@ -347,7 +347,7 @@ async fn wait_for_boot_up(
 
 /// Whether a node's product changes its node-ID by 0x2040 (the UniSwarm
 /// products: UMC manual §2.3, UIO1LED manual §4.2).
-pub fn has_node_id_object(info: &NodeInfo) -> bool {
+pub(crate) fn has_node_id_object(info: &NodeInfo) -> bool {
     matches!(info.profile, Profile::Umc | Profile::Uioled)
 }
 

@@ -16,7 +16,7 @@
 //! the audit log (as the gateway: boot-ups begun, ended, failed; nodes
 //! lost; the machine's state).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -453,14 +453,5 @@ fn outcome(result: Result<Vec<u8>, SdoRequestError>) -> SdoOutcome {
             Some(code) => SdoOutcome::Aborted(code),
             None => SdoOutcome::Failed(error.to_string()),
         },
-    }
-}
-
-/// Where a `[[nodes]]` file path points: relative to the config file.
-pub fn resolve(base: &Path, file: &Path) -> PathBuf {
-    if file.is_relative() {
-        base.join(file)
-    } else {
-        file.to_path_buf()
     }
 }

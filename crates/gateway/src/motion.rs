@@ -38,9 +38,9 @@ use super::step_test::{self, StepTestRequest, StepTestResult};
 
 /// The shortest lease id a caller may choose: guessing it must be out of
 /// reach, as it is the only credential an MQTT command carries.
-pub const MIN_CHOSEN_ID: usize = 16;
+pub(crate) const MIN_CHOSEN_ID: usize = 16;
 /// The longest (an id is kept, compared and logged masked).
-pub const MAX_CHOSEN_ID: usize = 128;
+pub(crate) const MAX_CHOSEN_ID: usize = 128;
 
 /// The lease a caller presents with a motion command, and how a lease
 /// granted to it is named and renewed.
@@ -138,7 +138,7 @@ impl LeaseClaim {
 
 /// A lease id a caller chose: long enough not to be guessed, and of
 /// characters that travel and log safely.
-pub fn check_chosen_id(id: &str) -> Result<(), GatewayError> {
+pub(crate) fn check_chosen_id(id: &str) -> Result<(), GatewayError> {
     let safe = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.' | '~');
     if (MIN_CHOSEN_ID..=MAX_CHOSEN_ID).contains(&id.len()) && id.chars().all(safe) {
         return Ok(());
@@ -207,7 +207,7 @@ impl From<AxisStopFailed> for MotionFailed {
 
 /// Whether a motion in this mode runs until told otherwise, and so needs a
 /// lease its caller renews.
-pub fn endless(mode: MoveMode) -> bool {
+pub(crate) fn endless(mode: MoveMode) -> bool {
     matches!(
         mode,
         MoveMode::Velocity | MoveMode::Torque | MoveMode::DutyCycle
@@ -516,7 +516,7 @@ impl Gateway {
     ///
     /// Audited as `move`. The move runs in the caller's future, so that a
     /// caller that goes away lapses the lease it holds: its row then says
-    /// [`INTERRUPTED`](crate::audit::INTERRUPTED).
+    /// `INTERRUPTED`.
     pub async fn move_axis(
         &self,
         caller: &Caller,

@@ -139,32 +139,28 @@ pub enum LeaseError {
 
 /// Every lease held, by axis.
 #[derive(Debug, Default)]
-pub struct LeaseTable {
+pub(crate) struct LeaseTable {
     by_axis: BTreeMap<AxisKey, MotionLease>,
 }
 
 impl LeaseTable {
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
     /// The lease on `axis`, if one is held at `now`.
-    pub fn get(&self, axis: &AxisKey, now: Instant) -> Option<&MotionLease> {
+    pub(crate) fn get(&self, axis: &AxisKey, now: Instant) -> Option<&MotionLease> {
         self.by_axis.get(axis).filter(|lease| lease.expires > now)
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.by_axis.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.by_axis.is_empty()
     }
 
     /// Whether a request of `by` that presents `presented` (or nothing) may
     /// command motion on `axis` at `now`: yes when no lease is held, or its
     /// holder presents the one held.
-    pub fn check(
+    pub(crate) fn check(
         &self,
         axis: &AxisKey,
         presented: Option<&str>,
@@ -195,7 +191,7 @@ impl LeaseTable {
     /// `fresh_id` (chosen by the caller) is the id of a lease held on
     /// another axis: ids are looked up alone when renewed or lapsed.
     #[allow(clippy::too_many_arguments)]
-    pub fn grant(
+    pub(crate) fn grant(
         &mut self,
         axis: AxisKey,
         presented: Option<&str>,
@@ -236,7 +232,7 @@ impl LeaseTable {
     /// holder (`None`: the gateway itself, for a request that holds it
     /// while it runs); `session`, when given, binds it to that stream
     /// session.
-    pub fn renew(
+    pub(crate) fn renew(
         &mut self,
         id: &str,
         by: Option<&str>,
@@ -269,7 +265,7 @@ impl LeaseTable {
     /// and is returned, for the audit log to name its holder; its id is
     /// refused from then on. The axis keeps moving: the new holder's
     /// command takes it from here.
-    pub fn take_over(&mut self, axis: &AxisKey, now: Instant) -> Option<MotionLease> {
+    pub(crate) fn take_over(&mut self, axis: &AxisKey, now: Instant) -> Option<MotionLease> {
         self.get(axis, now)?;
         self.by_axis.remove(axis)
     }
@@ -278,7 +274,7 @@ impl LeaseTable {
     /// first one, then at most one per `every` (a client renews every
     /// second or so; the audit log must not fill with them). Marks it
     /// audited when it is.
-    pub fn audit_due(&mut self, id: &str, every: Duration, now: Instant) -> bool {
+    pub(crate) fn audit_due(&mut self, id: &str, every: Duration, now: Instant) -> bool {
         let Some(lease) = self.by_axis.values_mut().find(|lease| lease.id == id) else {
             return false;
         };
@@ -292,12 +288,12 @@ impl LeaseTable {
     }
 
     /// Ends the lease on `axis` (its motion was stopped), returning it.
-    pub fn release(&mut self, axis: &AxisKey) -> Option<MotionLease> {
+    pub(crate) fn release(&mut self, axis: &AxisKey) -> Option<MotionLease> {
         self.by_axis.remove(axis)
     }
 
     /// Ends the lease `id`, returning it (unknown: an error).
-    pub fn release_id(&mut self, id: &str) -> Result<MotionLease, LeaseError> {
+    pub(crate) fn release_id(&mut self, id: &str) -> Result<MotionLease, LeaseError> {
         let axis = self
             .by_axis
             .values()
@@ -308,13 +304,13 @@ impl LeaseTable {
     }
 
     /// Ends every lease (STOP ALL, shutdown), returning them.
-    pub fn release_all(&mut self) -> Vec<MotionLease> {
+    pub(crate) fn release_all(&mut self) -> Vec<MotionLease> {
         std::mem::take(&mut self.by_axis).into_values().collect()
     }
 
     /// Takes out every lease that expired by `now`: their axes must be
     /// stopped.
-    pub fn lapsed(&mut self, now: Instant) -> Vec<MotionLease> {
+    pub(crate) fn lapsed(&mut self, now: Instant) -> Vec<MotionLease> {
         let gone: Vec<AxisKey> = self
             .by_axis
             .values()
@@ -328,7 +324,7 @@ impl LeaseTable {
 
     /// The stream session `session` ended: its leases expire now (the next
     /// [`Self::lapsed`] takes them).
-    pub fn session_ended(&mut self, session: u64, now: Instant) -> usize {
+    pub(crate) fn session_ended(&mut self, session: u64, now: Instant) -> usize {
         let mut count = 0;
         for lease in self.by_axis.values_mut() {
             if lease.session == Some(session) {
@@ -340,7 +336,7 @@ impl LeaseTable {
     }
 
     /// When the next lease expires.
-    pub fn next_expiry(&self) -> Option<Instant> {
+    pub(crate) fn next_expiry(&self) -> Option<Instant> {
         self.by_axis.values().map(|lease| lease.expires).min()
     }
 }

@@ -9,15 +9,15 @@
 //! the handle.
 
 mod axes;
-pub mod config;
-pub mod led;
-pub mod pdo;
-pub mod program;
+pub(crate) mod config;
+pub(crate) mod led;
+pub(crate) mod pdo;
+pub(crate) mod program;
 mod transfer;
 
 use std::sync::Arc;
 
-pub mod objects;
+pub(crate) mod objects;
 
 use super::GatewayError;
 use super::audit::{AuditRow, AuditTarget};

@@ -94,7 +94,7 @@ impl PdoConfig {
 }
 
 /// The PDO numbers of `kind` the node has: from the EDS, 1–4 without one.
-pub fn pdo_numbers(dict: Option<&ObjectDictionary>, kind: PdoKind) -> Vec<u16> {
+pub(crate) fn pdo_numbers(dict: Option<&ObjectDictionary>, kind: PdoKind) -> Vec<u16> {
     let Some(dict) = dict else {
         return (1..=DEFAULT_PDO_COUNT).collect();
     };
@@ -109,7 +109,7 @@ pub fn pdo_numbers(dict: Option<&ObjectDictionary>, kind: PdoKind) -> Vec<u16> {
 }
 
 /// Whether the node has PDO `number` of `kind`.
-pub fn has_pdo(dict: Option<&ObjectDictionary>, kind: PdoKind, number: u16) -> bool {
+pub(crate) fn has_pdo(dict: Option<&ObjectDictionary>, kind: PdoKind, number: u16) -> bool {
     pdo_numbers(dict, kind).contains(&number)
 }
 
@@ -168,7 +168,7 @@ async fn read_optional(
 }
 
 /// Reads PDO `number`'s communication and mapping parameters.
-pub async fn read_config(
+pub(crate) async fn read_config(
     channel: &SdoChannel,
     dict: Option<&ObjectDictionary>,
     kind: PdoKind,
@@ -217,7 +217,7 @@ pub async fn read_config(
 
 /// Reads every PDO of `kind` the node has (see [`pdo_numbers`]). Without
 /// EDS, a PDO whose parameters the device does not have is left out.
-pub async fn read_all(
+pub(crate) async fn read_all(
     channel: &SdoChannel,
     dict: Option<&ObjectDictionary>,
     kind: PdoKind,
@@ -255,7 +255,7 @@ pub async fn tpdo_decoders(
 
 /// Why a PDO request cannot be carried out; found before the bus is touched.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum PdoPlanError {
+pub(crate) enum PdoPlanError {
     #[error("the node has no {} {number}{}", .kind.name().to_uppercase(), list_numbers(.available))]
     UnknownPdo {
         kind: PdoKind,
@@ -319,12 +319,12 @@ fn list_numbers(numbers: &[u16]) -> String {
 impl PdoPlanError {
     /// A PDO number the node does not have (404), rather than a request
     /// that is wrong in itself (400).
-    pub fn is_unknown_pdo(&self) -> bool {
+    pub(crate) fn is_unknown_pdo(&self) -> bool {
         matches!(self, Self::UnknownPdo { .. })
     }
 
     /// A value outside its range, rather than a malformed request.
-    pub fn is_out_of_range(&self) -> bool {
+    pub(crate) fn is_out_of_range(&self) -> bool {
         matches!(self, Self::TransmissionType(..) | Self::Value(_))
     }
 }
@@ -471,7 +471,7 @@ pub struct PdoRequest {
 
 /// A checked request: the SDO writes [`configure`] makes, in order.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RemapPlan {
+pub(crate) struct RemapPlan {
     pub kind: PdoKind,
     pub number: u16,
     comm_index: u16,
@@ -489,7 +489,7 @@ pub struct RemapPlan {
 }
 
 /// Checks `request` for PDO `number` of `kind` against the node's EDS.
-pub fn plan(
+pub(crate) fn plan(
     eds: &Eds,
     kind: PdoKind,
     number: u16,
@@ -632,7 +632,7 @@ fn check_cob_id(raw: u32) -> Result<(), PdoPlanError> {
 /// A step of the re-mapping procedure (CiA 301 §7.2.2.3), as the API names
 /// the one that failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RemapStep {
+pub(crate) enum RemapStep {
     /// Reading the current COB-ID.
     ReadCobId,
     /// Setting COB-ID bit 31: the PDO is not valid from here on.
@@ -668,7 +668,7 @@ impl std::fmt::Display for RemapStep {
 /// A procedure that stopped half way: at which step, and why.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("step {step}: {error}")]
-pub struct RemapError {
+pub(crate) struct RemapError {
     pub step: RemapStep,
     pub error: SdoRequestError,
 }
@@ -677,7 +677,7 @@ pub struct RemapError {
 /// count, write the entries, set the count, write the communication
 /// parameters, validate; then reads the configuration back. The PDO stays
 /// invalid when a step after the first fails (the error names the step).
-pub async fn configure(
+pub(crate) async fn configure(
     channel: &SdoChannel,
     dict: Option<&ObjectDictionary>,
     plan: &RemapPlan,
@@ -843,7 +843,7 @@ impl TpdoDecoder {
 
 /// Why values cannot be sent in an RPDO.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum RpdoValueError {
+pub(crate) enum RpdoValueError {
     #[error("no value for {0}: every object the RPDO maps must be given")]
     Missing(String),
     #[error("{0} is not mapped in this RPDO (it maps {1})")]
@@ -859,7 +859,7 @@ pub enum RpdoValueError {
 /// Encodes an RPDO's frame from named values, by its mapping and the
 /// node's EDS. Sans-I/O.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RpdoEncoder {
+pub(crate) struct RpdoEncoder {
     cob_id: CanId,
     mapping: PdoMapping,
     fields: Vec<Field>,
@@ -891,7 +891,7 @@ fn key_names(key: &str, field: &Field) -> bool {
 }
 
 impl RpdoEncoder {
-    pub fn new(
+    pub(crate) fn new(
         cob_id: CanId,
         mapping: PdoMapping,
         dict: Option<&ObjectDictionary>,
@@ -916,7 +916,7 @@ impl RpdoEncoder {
 
     /// The frame carrying `values` (keyed as `key_names` says), each
     /// checked against its EDS type and limits; dummy entries are 0.
-    pub fn encode(
+    pub(crate) fn encode(
         &self,
         values: &serde_json::Map<String, Json>,
         dict: Option<&ObjectDictionary>,

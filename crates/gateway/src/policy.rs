@@ -122,9 +122,12 @@ impl Operation {
     }
 
     /// Whether it takes a write from its caller's write rate limit: what
-    /// changes the machine, except a stop.
+    /// changes the machine, except what keeps it safe: a stop (STOP ALL
+    /// here; a halt or a walk out of operation enabled is a [`Self::Motion`]
+    /// the motion facade never limits) and a lease renewal (refused, it
+    /// would stop the axis its holder is moving).
     pub fn draws_on_write_rate(self) -> bool {
-        !matches!(self, Self::View | Self::StopAll)
+        !matches!(self, Self::View | Self::StopAll | Self::RenewLease)
     }
 }
 

@@ -29,16 +29,16 @@ pub const MAX_PUBLISH_HZ: f64 = 100.0;
 /// How long a producer waiting for something that may never come (a TPDO
 /// frame, a node that is gone) sleeps at most before it looks again whether
 /// anyone still reads.
-pub const IDLE_CHECK: Duration = Duration::from_secs(1);
+pub(crate) const IDLE_CHECK: Duration = Duration::from_secs(1);
 
 /// The slowest rate anything is paced at: one update every
-/// [`LONGEST_PERIOD`]. The stream refuses slower rates at its edge; here
+/// `LONGEST_PERIOD`. The stream refuses slower rates at its edge; here
 /// it bounds every period, so that no rate makes a duration that cannot be
 /// slept (or added to an instant).
 pub const MIN_RATE_HZ: f64 = 0.01;
 
 /// The period of [`MIN_RATE_HZ`].
-pub const LONGEST_PERIOD: Duration = Duration::from_secs(100);
+pub(crate) const LONGEST_PERIOD: Duration = Duration::from_secs(100);
 
 /// The fastest rate anything is paced at (the fastest a stream client may
 /// ask its values forwarded): one update every millisecond.
@@ -46,15 +46,15 @@ pub const MAX_RATE_HZ: f64 = 1000.0;
 
 /// The time between two publishes at `rate_hz`, at most
 /// [`MAX_PUBLISH_HZ`]; see [`period_at_most`].
-pub fn period(rate_hz: f64) -> Duration {
+pub(crate) fn period(rate_hz: f64) -> Duration {
     period_at_most(rate_hz, MAX_PUBLISH_HZ)
 }
 
 /// The time between two updates at `rate_hz` capped at `max_hz`, for any
 /// numbers: a rate that is no positive number counts as 1 Hz (as
-/// [`ValueTopic::subscribe`] counts it), and the rate is held between
+/// `ValueTopic::subscribe` counts it), and the rate is held between
 /// [`MIN_RATE_HZ`] and the lower of `max_hz` and [`MAX_RATE_HZ`]. So the
-/// period is 1 ms to [`LONGEST_PERIOD`] whatever comes in: a rate of
+/// period is 1 ms to `LONGEST_PERIOD` whatever comes in: a rate of
 /// 1e-300 Hz would be a period of 1e300 s, which no [`Duration`] holds.
 pub fn period_at_most(rate_hz: f64, max_hz: f64) -> Duration {
     let rate = if rate_hz.is_finite() && rate_hz > 0.0 {
@@ -94,7 +94,7 @@ impl Default for TelemetryConfig {
 
 /// Why a producer does not ask a node over SDO: it could not answer (the
 /// registry knows it offline, or stopped, where CiA 301 allows no SDO).
-pub fn unreachable(info: &NodeInfo) -> Option<String> {
+pub(crate) fn unreachable(info: &NodeInfo) -> Option<String> {
     if !info.online {
         Some(format!("node {} is offline", info.id))
     } else if info.nmt == Some(NmtState::Stopped) {
@@ -108,7 +108,7 @@ pub fn unreachable(info: &NodeInfo) -> Option<String> {
 }
 
 /// Waits `duration`, or less if a reader of `topic` comes or goes.
-pub async fn idle(topic: &ValueTopic, duration: Duration) {
+pub(crate) async fn idle(topic: &ValueTopic, duration: Duration) {
     tokio::select! {
         () = tokio::time::sleep(duration) => {}
         () = topic.readers_changed() => {}
@@ -131,7 +131,7 @@ fn lock<K>(entries: &Entries<K>) -> MutexGuard<'_, HashMap<K, Entry>> {
 }
 
 /// Topics by key, each with at most one producer task.
-pub struct TopicSet<K> {
+pub(crate) struct TopicSet<K> {
     entries: Arc<Entries<K>>,
 }
 
@@ -144,14 +144,14 @@ impl<K> Default for TopicSet<K> {
 }
 
 impl<K: Hash + Eq + Clone + Send + 'static> TopicSet<K> {
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
     /// A reader of topic `key` wanting `rate_hz`; the topic is made on its
     /// first reader, and `start(topic, lease)` is spawned as its producer
     /// unless one runs.
-    pub fn subscribe<F, Fut>(&self, key: K, rate_hz: f64, start: F) -> TopicReceiver
+    pub(crate) fn subscribe<F, Fut>(&self, key: K, rate_hz: f64, start: F) -> TopicReceiver
     where
         F: FnOnce(ValueTopic, Lease<K>) -> Fut,
         Fut: Future<Output = ()> + Send + 'static,
@@ -173,14 +173,14 @@ impl<K: Hash + Eq + Clone + Send + 'static> TopicSet<K> {
     }
 
     /// The topic of `key`, if it was ever subscribed to.
-    pub fn topic(&self, key: &K) -> Option<ValueTopic> {
+    pub(crate) fn topic(&self, key: &K) -> Option<ValueTopic> {
         lock(&self.entries)
             .get(key)
             .map(|entry| entry.topic.clone())
     }
 
     /// Whether the producer of `key` runs.
-    pub fn is_running(&self, key: &K) -> bool {
+    pub(crate) fn is_running(&self, key: &K) -> bool {
         lock(&self.entries)
             .get(key)
             .and_then(|entry| entry.task.as_ref())
@@ -199,7 +199,7 @@ impl<K> Drop for TopicSet<K> {
 }
 
 /// A producer task's hold on its topic.
-pub struct Lease<K> {
+pub(crate) struct Lease<K> {
     entries: Weak<Entries<K>>,
     key: K,
 }
@@ -208,7 +208,7 @@ impl<K: Hash + Eq> Lease<K> {
     /// Whether the producer has readers to work for. When it has none (or
     /// its set is gone) the answer is no, the task is forgotten, and the
     /// next reader starts a new one: the caller returns at once.
-    pub fn keep_going(&self) -> bool {
+    pub(crate) fn keep_going(&self) -> bool {
         let Some(entries) = self.entries.upgrade() else {
             return false;
         };

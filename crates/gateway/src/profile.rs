@@ -628,7 +628,7 @@ fn identity_of(eds: &Eds) -> (Option<u32>, Option<u32>, Option<u32>) {
 }
 
 /// The device type (0x1000) an EDS gives as default.
-pub fn device_type_of(eds: &Eds) -> Option<u32> {
+pub(crate) fn device_type_of(eds: &Eds) -> Option<u32> {
     let value = eds.dictionary.sub(0x1000, 0)?.default_value(None).ok()??;
     u32::try_from(value.as_i128()?).ok()
 }

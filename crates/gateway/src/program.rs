@@ -77,7 +77,7 @@ impl std::fmt::Display for ProgramStep {
 /// A program download that stopped at a step.
 #[derive(Debug, thiserror::Error)]
 #[error("step {step}: {error}")]
-pub struct ProgramError {
+pub(crate) struct ProgramError {
     pub step: ProgramStep,
     pub error: GatewayError,
 }
@@ -202,7 +202,7 @@ impl ProgramRun {
 /// documentation); `start`: start the program at the end. `progress` is
 /// told each step as it begins, the bytes of the image as the device
 /// confirms them, and the end: done, or failed with the step.
-pub async fn download_program(
+pub(crate) async fn download_program(
     channel: &SdoChannel,
     image: &[u8],
     start: bool,

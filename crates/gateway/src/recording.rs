@@ -49,11 +49,11 @@ use crate::can::candump::{Ended, FlushPolicy, LogRecorder, RecordEnd, RecordProg
 use crate::can::{Bus, FrameReceiver, Timestamp};
 
 /// The most frames one recording may be asked for, and its default limit.
-pub const MAX_FRAMES: u64 = 1_000_000;
+pub(crate) const MAX_FRAMES: u64 = 1_000_000;
 /// The longest a recording may be asked to run, and its default limit.
-pub const MAX_SECONDS: u64 = 3600;
+pub(crate) const MAX_SECONDS: u64 = 3600;
 /// How often a running recording flushes its buffer to the file.
-pub const FLUSH_EVERY: Duration = Duration::from_secs(1);
+pub(crate) const FLUSH_EVERY: Duration = Duration::from_secs(1);
 /// The write buffer: a few thousand lines between flushes at most.
 const BUFFER: usize = 64 * 1024;
 /// Linux interface names are at most this long (`IFNAMSIZ` - 1), and
@@ -105,7 +105,7 @@ impl Default for Limits {
 }
 
 impl Limits {
-    /// The limits asked for, the defaults ([`MAX_FRAMES`], [`MAX_SECONDS`])
+    /// The limits asked for, the defaults (`MAX_FRAMES`, `MAX_SECONDS`)
     /// for those not given; 0 or above the maximum is an error.
     pub fn new(max_frames: Option<u64>, max_seconds: Option<u64>) -> Result<Self, RecordingError> {
         let check = |what, value: Option<u64>, max| match value {
@@ -522,7 +522,7 @@ pub struct Pruned {
 /// `quota.dir` until together they take at most `quota.bytes`; never one
 /// of `keep` (the running and the last recording of each bus), so that
 /// the quota may be exceeded by those. What it removed, oldest first.
-pub fn prune(quota: &RecordingsQuota, keep: &[PathBuf]) -> io::Result<Vec<Pruned>> {
+pub(crate) fn prune(quota: &RecordingsQuota, keep: &[PathBuf]) -> io::Result<Vec<Pruned>> {
     let entries = match std::fs::read_dir(&quota.dir) {
         Ok(entries) => entries,
         // No recording yet.
@@ -712,7 +712,7 @@ async fn create_log(
 
 /// The interface name of a bus's log lines: the bus name when Linux would
 /// take it as an interface name, `can0` otherwise.
-pub fn iface_name(bus: &str) -> String {
+pub(crate) fn iface_name(bus: &str) -> String {
     let valid = !bus.is_empty()
         && bus.len() <= IFACE_MAX
         && bus

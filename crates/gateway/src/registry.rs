@@ -788,7 +788,7 @@ impl NodeRegistry {
     }
 
     /// Every download a node confirms from now on, through any of the
-    /// gateway's channels ([`ObjectWritten`]).
+    /// gateway's channels (`ObjectWritten`).
     pub fn subscribe_writes(&self) -> broadcast::Receiver<ObjectWritten> {
         self.shared.writes.subscribe()
     }

@@ -41,17 +41,17 @@ use crate::profiles::cia402::{Command, State, Statusword};
 
 /// How long one SDO transfer of a stop may take, its wait in the node's
 /// queue included.
-pub const STOP_STEP_TIMEOUT: Duration = Duration::from_millis(500);
+pub(crate) const STOP_STEP_TIMEOUT: Duration = Duration::from_millis(500);
 /// How long the statusword is read back for the drive to show a quick
 /// stop (it enters quick stop active at once and ramps down there).
-pub const STOP_CONFIRM_TIMEOUT: Duration = Duration::from_millis(500);
+pub(crate) const STOP_CONFIRM_TIMEOUT: Duration = Duration::from_millis(500);
 /// How long a halt (statusword, controlword read back, controlword
 /// written, status) may take before the quick stop takes over.
-pub const HALT_TIMEOUT: Duration = Duration::from_secs(1);
+pub(crate) const HALT_TIMEOUT: Duration = Duration::from_secs(1);
 /// The statusword is read this often while a quick stop is confirmed.
 const CONFIRM_POLL: Duration = Duration::from_millis(10);
 /// How long the gateway's shutdown waits for its axes to be stopped.
-pub const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// How a stop was tried.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -124,7 +124,7 @@ impl StopAttempt {
 
 /// How the stop of one axis ended.
 #[derive(Debug, Clone, PartialEq)]
-pub enum AxisStop {
+pub(crate) enum AxisStop {
     /// The drive said the axis was not in operation enabled: nothing
     /// moved under power to be stopped. Its state, if the statusword names
     /// one.
@@ -195,7 +195,7 @@ impl StopReport {
 /// and in every STOP ALL, even when the registry no longer knows the node
 /// as a drive (a node rebooting is not identified yet).
 #[derive(Default)]
-pub struct EnabledAxes(Mutex<BTreeMap<(String, u8, u8), Drive>>);
+pub(crate) struct EnabledAxes(Mutex<BTreeMap<(String, u8, u8), Drive>>);
 
 impl std::fmt::Debug for EnabledAxes {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -210,18 +210,13 @@ impl EnabledAxes {
     }
 
     /// Records the axis of `drive` on `bus`.
-    pub fn insert(&self, bus: &str, drive: &Drive) {
+    pub(crate) fn insert(&self, bus: &str, drive: &Drive) {
         self.lock()
             .insert((bus.to_string(), drive.node(), drive.axis()), drive.clone());
     }
 
-    /// Every axis recorded, in order.
-    pub fn list(&self) -> Vec<(String, u8, u8)> {
-        self.lock().keys().cloned().collect()
-    }
-
     /// The drive recorded for an axis.
-    pub fn get(&self, bus: &str, node: u8, axis: u8) -> Option<Drive> {
+    pub(crate) fn get(&self, bus: &str, node: u8, axis: u8) -> Option<Drive> {
         self.lock().get(&(bus.to_string(), node, axis)).cloned()
     }
 
@@ -556,7 +551,7 @@ impl Gateway {
         .map_err(|err| AxisStopFailed::from(task_failed(err)))?
     }
 
-    /// Halt of one axis (controlword bit 8), bounded by [`HALT_TIMEOUT`];
+    /// Halt of one axis (controlword bit 8), bounded by `HALT_TIMEOUT`;
     /// if it cannot be given, quick stop, then NMT stop of the node.
     pub async fn halt_axis(
         &self,
@@ -681,7 +676,7 @@ impl Gateway {
     /// Quick stop of every axis the gateway enabled that is still in
     /// operation enabled, all nodes at once, NMT stop where the drive does
     /// not confirm (for SIGTERM and Ctrl-C). Bounded by
-    /// [`SHUTDOWN_STOP_TIMEOUT`]; what could not be stopped is in the
+    /// `SHUTDOWN_STOP_TIMEOUT`; what could not be stopped is in the
     /// report.
     pub async fn stop_enabled_axes(&self) -> StopReport {
         let task = tokio::spawn(stop_axes(self.recorded_targets()));

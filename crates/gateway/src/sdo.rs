@@ -108,7 +108,7 @@ impl Outcome {
 /// end of the transfer: the time on the bus and in the device, not the
 /// wait behind other callers). Lock-free.
 #[derive(Debug, Default)]
-pub struct SdoStats {
+pub(crate) struct SdoStats {
     aborts: AtomicU64,
     timeouts: AtomicU64,
     protocol_errors: AtomicU64,
@@ -145,7 +145,7 @@ impl SdoStats {
     /// The counts now. Each is read on its own while transfers go on, so
     /// two counts may be one transfer apart; the histogram's total is the
     /// sum of its buckets, so it always agrees with them.
-    pub fn snapshot(&self) -> SdoStatsSnapshot {
+    pub(crate) fn snapshot(&self) -> SdoStatsSnapshot {
         let get = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
         let mut cumulative = [0u64; LATENCY_BUCKETS.len() + 1];
         let mut total = 0u64;
@@ -169,7 +169,7 @@ impl SdoStats {
     }
 }
 
-/// [`SdoStats`] at one moment.
+/// `SdoStats` at one moment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SdoStatsSnapshot {
     /// Transfers that ended, whatever the outcome (abandoned ones included).
@@ -234,7 +234,7 @@ impl Drop for Pending<'_> {
 /// follows what the gateway writes (the registry, for a node's producer
 /// heartbeat time) hears every path alike: REST, CiA 309, Sparkplug, the
 /// network manager.
-pub type WriteObserver = Arc<dyn Fn(NodeId, u16, u8, &[u8]) + Send + Sync>;
+pub(crate) type WriteObserver = Arc<dyn Fn(NodeId, u16, u8, &[u8]) + Send + Sync>;
 
 /// The SDO client side of one node on one bus.
 #[derive(Clone)]

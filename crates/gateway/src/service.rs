@@ -43,7 +43,7 @@ pub type BusDevices = Arc<dyn std::any::Any + Send + Sync>;
 /// Puts the devices of the virtual bus `name` (`virtual:PRESET`) on its
 /// hub: `(name, preset, hub)`, the devices or an error for a preset it
 /// does not know.
-pub type AttachDevices<'a> =
+pub(crate) type AttachDevices<'a> =
     &'a (dyn Fn(&str, &str, &VirtualHub) -> Result<Option<BusDevices>, String> + Sync);
 
 /// One bus the gateway serves.
@@ -329,18 +329,18 @@ impl ServedBus {
     }
 
     /// The nodes' TPDO values, decoded by the mappings read from them; the
-    /// `values` topics of the stream ([`TpdoValues::subscribe`]).
+    /// `values` topics of the stream (`TpdoValues::subscribe`).
     pub fn values(&self) -> &TpdoValues {
         &self.values
     }
 
     /// The `axes/{axis}` topics of the stream
-    /// ([`AxisTelemetry::subscribe`]).
+    /// (`AxisTelemetry::subscribe`).
     pub fn axes(&self) -> &AxisTelemetry {
         &self.axes
     }
 
-    /// The `segments` topics of the stream ([`LedPreviews::subscribe`]).
+    /// The `segments` topics of the stream (`LedPreviews::subscribe`).
     pub fn previews(&self) -> &LedPreviews {
         &self.previews
     }
@@ -374,7 +374,7 @@ impl ServedBus {
     }
 
     /// The virtual devices of a virtual bus, which the binary's emulator
-    /// put on its hub ([`AttachDevices`]); `None` elsewhere.
+    /// put on its hub (`AttachDevices`); `None` elsewhere.
     pub fn devices(&self) -> Option<&BusDevices> {
         self.devices.as_ref()
     }
@@ -500,7 +500,7 @@ impl Gateway {
     }
 
     /// The same with these loggers (`logger_max_values`, and those kept in
-    /// the data directory: [`Loggers::load`](super::logger::Loggers::load)).
+    /// the data directory: `Loggers::load`).
     pub fn with_loggers(mut self, loggers: super::logger::Loggers) -> Self {
         self.loggers = loggers;
         self

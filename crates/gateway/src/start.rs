@@ -27,7 +27,7 @@ use super::service::{AttachDevices, Gateway, ServedBus};
 
 /// How long the first scan of a bus waits for the bus to come up (a
 /// socketcand bus is still connecting when the gateway starts).
-pub const FIRST_SCAN_WAIT: Duration = Duration::from_secs(30);
+pub(crate) const FIRST_SCAN_WAIT: Duration = Duration::from_secs(30);
 
 /// How often the kept recordings are checked against their quota.
 const RECORDINGS_PRUNE_PERIOD: Duration = Duration::from_secs(60);

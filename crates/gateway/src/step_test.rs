@@ -39,11 +39,11 @@ use crate::values::TpdoValues;
 mod tests;
 
 /// The shortest and longest hold of each level, ms.
-pub const HOLD_MS: (u32, u32) = (20, 10_000);
+pub(crate) const HOLD_MS: (u32, u32) = (20, 10_000);
 /// The sampling period: the board's control cycle (UMC: 1 ms).
-pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+pub(crate) const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// At most this many samples are kept per test.
-pub const MAX_SAMPLES: usize = 20_000;
+pub(crate) const MAX_SAMPLES: usize = 20_000;
 
 /// Which loop a step test exercises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
@@ -189,7 +189,7 @@ impl StepTestRequest {
 /// happened.
 /// `values`: the TPDO values of the drive's bus, which feed the samples
 /// when they carry the loop's actual value (see the module documentation).
-pub async fn run(
+pub(crate) async fn run(
     drive: &Drive,
     values: &TpdoValues,
     request: &StepTestRequest,
@@ -348,7 +348,7 @@ impl Tpdo<'_> {
 
 /// The metrics of a step from `from` to `to` recorded as `samples`
 /// (`[t_ms, target, actual]`, time from the step).
-pub fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>) -> StepTestResult {
+pub(crate) fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>) -> StepTestResult {
     let step = to - from;
     // The response as a fraction of the step: 0 at `from`, 1 at `to`.
     let fraction = |actual: f64| (actual - from) / step;

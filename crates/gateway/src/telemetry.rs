@@ -156,7 +156,7 @@ impl TopicShared {
     }
 }
 
-/// One reader of a [`ValueTopic`]; dropping it withdraws its rate.
+/// One reader of a `ValueTopic`; dropping it withdraws its rate.
 pub struct TopicReceiver {
     latest: watch::Receiver<Option<Arc<Sample>>>,
     id: u64,

@@ -17,7 +17,7 @@ use crate::sdo::{SdoChannel, SdoRequestError};
 
 /// The type of each field's object (manual §1.3, our EDS): what its value is
 /// encoded as on the wire.
-pub fn data_type(field: Field) -> DataType {
+pub(crate) fn data_type(field: Field) -> DataType {
     match field {
         Field::LedType | Field::Dimmer | Field::Color { .. } => DataType::Unsigned8,
         Field::LedCount | Field::Effect | Field::Smooth => DataType::Unsigned16,
@@ -52,7 +52,7 @@ pub async fn read_segment(channel: &SdoChannel, segment: u8) -> Result<Segment, 
 }
 
 /// Reads every segment, segment 1 first: the summary of a UIO1LED node.
-pub async fn read_segments(channel: &SdoChannel) -> Result<Vec<Segment>, SdoRequestError> {
+pub(crate) async fn read_segments(channel: &SdoChannel) -> Result<Vec<Segment>, SdoRequestError> {
     let mut segments = Vec::with_capacity(usize::from(SEGMENTS));
     for segment in 1..=SEGMENTS {
         segments.push(read_segment(channel, segment).await?);
@@ -62,7 +62,7 @@ pub async fn read_segments(channel: &SdoChannel) -> Result<Vec<Segment>, SdoRequ
 
 /// Writes `fields` of segment `segment` in the order given; values are
 /// checked by the caller ([`fits`]). Stops at the first failure.
-pub async fn write_fields(
+pub(crate) async fn write_fields(
     channel: &SdoChannel,
     segment: u8,
     fields: &[(Field, i64)],
@@ -131,7 +131,7 @@ pub struct PreviewSegment {
 /// A segment's parameters as read for the preview, with when its Value
 /// was read: Speed moves Value on from there.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ReadSegment {
+pub(crate) struct ReadSegment {
     pub segment: Segment,
     pub read_at: Instant,
 }
@@ -140,7 +140,9 @@ pub struct ReadSegment {
 /// whole segment when it has LEDs, else only its LED count and effect (the
 /// rest draws nothing), which spares most transfers on a strip that uses a
 /// few segments.
-pub async fn read_preview(channel: &SdoChannel) -> Result<Vec<ReadSegment>, SdoRequestError> {
+pub(crate) async fn read_preview(
+    channel: &SdoChannel,
+) -> Result<Vec<ReadSegment>, SdoRequestError> {
     let mut segments = Vec::with_capacity(usize::from(SEGMENTS));
     for segment in 1..=SEGMENTS {
         let mut state = Segment::default();
@@ -190,7 +192,7 @@ async fn read_field(
 /// The strip at `now`: every LED, segment 1's first, each segment drawn by
 /// the renderer of [`crate::profiles::uioled`] as far past its read as
 /// `now` is (a segment read just now shows the Values read).
-pub fn preview(segments: &[ReadSegment], now: Instant) -> Preview {
+pub(crate) fn preview(segments: &[ReadSegment], now: Instant) -> Preview {
     let mut pixels = Vec::new();
     let mut places = Vec::with_capacity(segments.len());
     for (number, read) in (1..=SEGMENTS).zip(segments) {

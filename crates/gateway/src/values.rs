@@ -120,19 +120,19 @@ impl TpdoValue {
 }
 
 /// The values of one TPDO frame as decoded, for a follower that wants every
-/// change rather than the newest value ([`TpdoValues::follow`]).
+/// change rather than the newest value (`TpdoValues::follow`).
 #[derive(Debug, Clone)]
 pub struct TpdoFrame {
     pub node: NodeId,
     /// The frame's mapped values, dummies left out, as
-    /// [`TpdoValues::values`] keeps them.
+    /// `TpdoValues::values` keeps them.
     pub values: Vec<TpdoValue>,
 }
 
 /// How many decoded frames a follower may fall behind before it loses the
 /// oldest: a third of a second of 127 nodes each sending four TPDOs every
 /// 10 ms.
-pub const FOLLOW_QUEUE: usize = 16_384;
+pub(crate) const FOLLOW_QUEUE: usize = 16_384;
 
 /// One node's TPDOs as the gateway decodes them.
 #[derive(Debug, Clone, PartialEq)]
@@ -536,7 +536,7 @@ async fn follow_nodes(values: Arc<Shared>) {
 /// How long the TPDO parameters of a node stay unwritten before the
 /// decoders follow what was written: a re-mapping (CiA 301 §7.3.4) is a
 /// burst of writes, read once when it is over.
-pub const WRITES_SETTLE: Duration = Duration::from_millis(100);
+pub(crate) const WRITES_SETTLE: Duration = Duration::from_millis(100);
 
 /// Whether `index` is a TPDO's communication or mapping parameter (CiA 301
 /// §7.5.2.35 to §7.5.2.38: 0x1800-0x19FF, 0x1A00-0x1BFF).

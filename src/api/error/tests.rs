@@ -1,7 +1,7 @@
 use super::*;
 use crate::canopen::nmt::NmtState;
 use crate::canopen::sdo::AbortCode;
-use crate::gateway::error::{LedError, PdoError, SimError};
+use crate::gateway::{LedError, PdoError, SimError};
 
 /// Every variant of [`GatewayError`], by number (no wildcard: a new
 /// variant does not compile until it is numbered here, and then the test

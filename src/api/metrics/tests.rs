@@ -11,7 +11,7 @@ use super::{CONTENT_TYPE_TEXT, Exposition, Kind, ProcessStats, Value};
 use super::{parse_boot_time, parse_stat, status_kb};
 use crate::api::tests::support::{assert_error, demo, get, raw_call};
 use crate::can::{BusState, BusStatus};
-use crate::gateway::sdo::LATENCY_BUCKETS;
+use crate::gateway::LATENCY_BUCKETS;
 
 /// A page read by [`parse`]: each family's type, and each sample's value by
 /// its series (`name{a="1",b="2"}`, labels sorted, values unescaped).
@@ -476,8 +476,8 @@ async fn the_stream_counters_are_shown() {
     counters
         .clients
         .store(2, std::sync::atomic::Ordering::Relaxed);
-    crate::gateway::telemetry::StreamCounters::add(&counters.coalesced, 7);
-    crate::gateway::telemetry::StreamCounters::add(&counters.lagged, 3);
+    crate::gateway::StreamCounters::add(&counters.coalesced, 7);
+    crate::gateway::StreamCounters::add(&counters.lagged, 3);
     let page = scrape(&app).await;
     assert_eq!(page.value("candeck_stream_clients", &[]), Some(2.0));
     assert_eq!(page.value("candeck_stream_coalesced_total", &[]), Some(7.0));

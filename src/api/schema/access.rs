@@ -1,4 +1,4 @@
-//! The schema of [`crate::gateway::access`]'s roles.
+//! The schema of `crate::gateway::access`'s roles.
 
 use utoipa::ToSchema;
 

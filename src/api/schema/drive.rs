@@ -1,4 +1,4 @@
-//! The schemas of [`crate::gateway::drive`]'s requests and answers.
+//! The schemas of `crate::gateway::drive`'s requests and answers.
 
 use utoipa::ToSchema;
 

@@ -1,4 +1,4 @@
-//! The schemas of [`crate::gateway::logger`]'s request and status.
+//! The schemas of `crate::gateway::logger`'s request and status.
 
 use serde_json::Value as Json;
 use utoipa::ToSchema;

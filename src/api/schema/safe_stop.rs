@@ -1,4 +1,4 @@
-//! The schemas of [`crate::gateway::safe_stop`]'s report of a stop.
+//! The schemas of `crate::gateway::safe_stop`'s report of a stop.
 
 use utoipa::ToSchema;
 

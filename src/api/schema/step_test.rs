@@ -1,4 +1,4 @@
-//! The schemas of [`crate::gateway::step_test`]'s request and answer.
+//! The schemas of `crate::gateway::step_test`'s request and answer.
 
 use utoipa::ToSchema;
 

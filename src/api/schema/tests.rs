@@ -14,16 +14,14 @@ use crate::api::drives::{
     AxisDetail, MotionResponse, StateResponse, StopAllReport, StopFailure, StoppedAxis,
 };
 use crate::api::segments::SegmentState;
-use crate::gateway::access::Role;
-use crate::gateway::drive::{
-    AxisLimits, AxisStatus, AxisUnits, MoveMode, MoveRequest, TargetState,
-};
-use crate::gateway::logger::{
+use crate::gateway::Role;
+use crate::gateway::{AxisLimits, AxisStatus, AxisUnits, MoveMode, MoveRequest, TargetState};
+use crate::gateway::{
     ChannelInfo, ChannelRequest, LoggerRequest, LoggerState, LoggerStatus, Source,
 };
-use crate::gateway::safe_stop::{StopAttempt, StopMethod, StopOutcome};
-use crate::gateway::step_test::{SampleSource, StepLoop, StepTestRequest, StepTestResult};
-use crate::gateway::uioled::{Color, Preview, PreviewSegment};
+use crate::gateway::{Color, Preview, PreviewSegment};
+use crate::gateway::{SampleSource, StepLoop, StepTestRequest, StepTestResult};
+use crate::gateway::{StopAttempt, StopMethod, StopOutcome};
 
 /// Every variant of a gateway enum of unit variants. Fails to compile when
 /// the enum gains one, so that its mirror is checked for it too.

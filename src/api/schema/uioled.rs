@@ -1,4 +1,4 @@
-//! The schemas of [`crate::gateway::uioled`]'s colours and strip preview.
+//! The schemas of `crate::gateway::uioled`'s colours and strip preview.
 
 use utoipa::ToSchema;
 

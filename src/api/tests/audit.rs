@@ -603,8 +603,8 @@ async fn bad_queries_are_400() {
 /// one door's, and an entry without REST's words leaves them out.
 #[tokio::test(start_paused = true)]
 async fn entries_name_their_channel_and_can_be_filtered_by_it() {
-    use crate::gateway::caller::Caller;
-    use crate::gateway::history::AuditEntry;
+    use crate::gateway::AuditEntry;
+    use crate::gateway::Caller;
     let (app, state) = demo().await;
     let (status, _) = call_text(
         &app,

@@ -690,7 +690,7 @@ async fn the_node_summary_lists_a_drives_axes() {
             .gateway
             .node_handle("demo", &node.to_string())
             .unwrap()
-            .read_axes()
+            .read_axes(&crate::gateway::Caller::system())
             .await
             .unwrap();
         assert_eq!(summary.len(), axes, "node {node}: {summary:?}");
@@ -703,7 +703,7 @@ async fn the_node_summary_lists_a_drives_axes() {
         .gateway
         .node_handle("demo", &LED.to_string())
         .unwrap()
-        .read_axes()
+        .read_axes(&crate::gateway::Caller::system())
         .await
         .unwrap_err();
     assert_eq!(led.code(), "not_a_drive");

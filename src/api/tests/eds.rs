@@ -10,8 +10,8 @@ use serde_json::Value as Json;
 
 use super::get;
 use crate::api::{AppState, app};
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
 
 const GOOD: &str = "[DeviceInfo]\nVendorNumber=0x77\nProductNumber=0x10\nRevisionNumber=1\n\
 [MandatoryObjects]\nSupportedObjects=1\n1=0x1000\n\

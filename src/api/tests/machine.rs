@@ -15,8 +15,8 @@ use super::support::{get, open, put};
 use crate::api::{AppState, app};
 use crate::canopen::NodeId;
 use crate::canopen::manager::MachineState;
-use crate::gateway::machine::MachineSettings;
-use crate::gateway::registry::{NodeEvent, OfflineReason};
+use crate::gateway::MachineSettings;
+use crate::gateway::{NodeEvent, OfflineReason};
 
 const HEARTBEAT: &str = "/api/v1/buses/demo/nodes/1/od/0x1017/0";
 

@@ -38,8 +38,8 @@ use super::{AppState, ServedBus, app};
 use crate::can::{BusState, BusStatus};
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
 use crate::sim::device::DeviceCore;
 
 const TESTNODE: u8 = 5;

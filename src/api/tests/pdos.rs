@@ -18,8 +18,8 @@ use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::canopen::od::{AccessType, Value};
 use crate::canopen::pdo::{MappingEntry, PdoMapping};
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
 use crate::sim::device::DeviceCore;
 
 /// A UMC1BDS32 whose firmware refuses writes to TPDO1's mapping entries,
@@ -191,13 +191,13 @@ async fn a_remapped_tpdo_answers_sync_with_the_right_values() {
     let node = NodeId::new(1).unwrap();
     let eds = served.node(node).unwrap().eds_entry.unwrap();
     // Read by another master on the bus, as the gateway reads them.
-    let channel = crate::gateway::sdo::SdoChannel::new(
+    let channel = crate::gateway::SdoChannel::new(
         served.hub().expect("a virtual bus").attach(),
         node,
         crate::canopen::sdo::ClientConfig::default(),
     );
     let decoders = tokio::spawn(async move {
-        crate::gateway::pdo::tpdo_decoders(&channel, Some(&eds.eds.dictionary)).await
+        crate::gateway::tpdo_decoders(&channel, Some(&eds.eds.dictionary)).await
     })
     .await
     .unwrap()

@@ -98,7 +98,7 @@ async fn silence_heartbeat(app: &Router, state: &AppState) {
     // Stopped by another master on the bus, not through the gateway (a
     // write through the gateway is followed: the node would stay online,
     // unsupervised).
-    let other_master = crate::gateway::sdo::SdoChannel::new(
+    let other_master = crate::gateway::SdoChannel::new(
         registry.hub().expect("a virtual bus").attach(),
         node,
         crate::canopen::sdo::ClientConfig::default(),

@@ -15,7 +15,7 @@ use crate::api::AppState;
 use crate::api::stream::{EVENT_QUEUE, FRAME_QUEUE, Inbound, MAX_TOPICS, run_session};
 use crate::api::tests::support::{delete_text, demo, demo_at, get, post_text};
 use crate::can::{CanId, Frame};
-use crate::gateway::registry::Identification;
+use crate::gateway::Identification;
 
 /// A client of a session: what it sends, what it gets.
 pub(super) struct Client {

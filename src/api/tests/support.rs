@@ -10,8 +10,8 @@ use serde_json::Value as Json;
 use tower::ServiceExt;
 
 use super::{AppState, ServedBus, app};
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
 
 /// `spec` opened as bus `name` with the built-in EDS catalog.
 pub(crate) async fn open(name: &str, spec: &str) -> ServedBus {
@@ -40,7 +40,7 @@ pub(crate) async fn demo_at(spec: &str) -> (Router, AppState) {
     let served = open("demo", spec).await;
     let nodes = served.scan().await.unwrap();
     assert_eq!(nodes.len(), 3, "{nodes:?}");
-    let state = AppState::new([served]).with_lease_period(crate::gateway::motion_lease::MAX_PERIOD);
+    let state = AppState::new([served]).with_lease_period(crate::gateway::MAX_PERIOD);
     (app(state.clone()), state)
 }
 

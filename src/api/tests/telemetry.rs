@@ -18,10 +18,10 @@ use crate::api::ServedBus;
 use crate::api::tests::support::{call, demo, post, put};
 use crate::can::{CanId, Frame, FrameReceiver};
 use crate::canopen::NodeId;
-use crate::gateway::drive::DriveError;
-use crate::gateway::led_preview::PreviewError;
-use crate::gateway::registry::RegistryError;
-use crate::gateway::telemetry::{Sample, TopicReceiver};
+use crate::gateway::DriveError;
+use crate::gateway::PreviewError;
+use crate::gateway::RegistryError;
+use crate::gateway::{Sample, TopicReceiver};
 
 fn node(id: u8) -> NodeId {
     NodeId::new(id).unwrap()
@@ -171,9 +171,9 @@ async fn the_poll_rate_is_capped_by_the_configured_maximum() {
     let served = crate::emulator::open_bus(
         "demo",
         &"virtual:demo".parse().unwrap(),
-        Arc::new(crate::gateway::profile::EdsCatalog::builtin().unwrap()),
-        crate::gateway::registry::RegistryConfig {
-            telemetry: crate::gateway::producers::TelemetryConfig {
+        Arc::new(crate::gateway::EdsCatalog::builtin().unwrap()),
+        crate::gateway::RegistryConfig {
+            telemetry: crate::gateway::TelemetryConfig {
                 axis_poll_hz: 5.0,
                 ..Default::default()
             },
@@ -316,7 +316,7 @@ async fn subscribing_to_what_is_not_there_is_an_error() {
     assert!(matches!(
         error,
         crate::api::AppError::Gateway(crate::gateway::GatewayError::Led(
-            crate::gateway::error::LedError::NotAnLedController(_)
+            crate::gateway::LedError::NotAnLedController(_)
         ))
     ));
     // Nothing runs for a refused subscription.

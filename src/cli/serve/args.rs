@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::can::spec::BusSpec;
-use crate::gateway::producers::MAX_PUBLISH_HZ;
-use crate::gateway::sync::MAX_PERIOD_MS;
+use crate::gateway::MAX_PERIOD_MS;
+use crate::gateway::MAX_PUBLISH_HZ;
 
 /// The bit rate of a bus when none is given: the most common CANopen rate,
 /// used only to express the measured bits per second as a load.
@@ -295,8 +295,8 @@ pub(super) fn parse_lease_ms(text: &str) -> Result<u64, String> {
 
 pub(super) fn check_lease_ms(ms: u64) -> Result<u64, String> {
     let (min, max) = (
-        crate::gateway::motion_lease::MIN_PERIOD.as_millis(),
-        crate::gateway::motion_lease::MAX_PERIOD.as_millis(),
+        crate::gateway::MIN_PERIOD.as_millis(),
+        crate::gateway::MAX_PERIOD.as_millis(),
     );
     if (min..=max).contains(&u128::from(ms)) {
         Ok(ms)

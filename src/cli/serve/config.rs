@@ -18,11 +18,11 @@ use crate::canopen::manager::{
     DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID, IdentityCheck,
     ManagerConfig, NodeDescription,
 };
+use crate::gateway::DEFAULT_AXIS_POLL_HZ;
 use crate::gateway::ServedBus;
-use crate::gateway::access::Token;
-use crate::gateway::history::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Retention};
-use crate::gateway::machine::{MachineSettings, load_dcf};
-use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
+use crate::gateway::Token;
+use crate::gateway::{DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, Retention};
+use crate::gateway::{MachineSettings, load_dcf};
 
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::config::{BrokerUrl, TlsFiles};
@@ -343,7 +343,7 @@ impl Settings {
             data_dir: self.data_dir.clone(),
             eds_dir: self.eds_dir.clone(),
             bitrate: self.bitrate,
-            telemetry: crate::gateway::producers::TelemetryConfig {
+            telemetry: crate::gateway::TelemetryConfig {
                 axis_poll_hz: self.axis_poll_hz,
                 ..Default::default()
             },
@@ -426,7 +426,7 @@ impl ServeArgs {
             lease_period: std::time::Duration::from_millis(
                 self.lease_ms
                     .or(file.lease_ms)
-                    .unwrap_or(crate::gateway::motion_lease::DEFAULT_PERIOD.as_millis() as u64),
+                    .unwrap_or(crate::gateway::DEFAULT_PERIOD.as_millis() as u64),
             ),
             shutdown_grace: std::time::Duration::from_millis(
                 self.shutdown_grace_ms
@@ -451,13 +451,13 @@ impl ServeArgs {
             logger_max_values: self
                 .logger_max_values
                 .or(file.logger_max_values)
-                .map_or(crate::gateway::logger::DEFAULT_MAX_VALUES, |n| {
+                .map_or(crate::gateway::DEFAULT_MAX_VALUES, |n| {
                     usize::try_from(n).unwrap_or(usize::MAX)
                 }),
             recordings_quota: Some(
                 self.recordings_quota_mb
                     .or(file.recordings_quota_mb)
-                    .unwrap_or(crate::gateway::recording::DEFAULT_QUOTA_MB),
+                    .unwrap_or(crate::gateway::DEFAULT_QUOTA_MB),
             )
             .filter(|mb| *mb > 0)
             .map(|mb| mb.saturating_mul(1024 * 1024)),

@@ -191,7 +191,7 @@ async fn stop_axes(state: &AppState) {
 }
 
 /// A stop report, logged axis by axis.
-fn log_stops(report: &crate::gateway::safe_stop::StopReport) {
+fn log_stops(report: &crate::gateway::StopReport) {
     for stopped in &report.stopped {
         tracing::info!(
             "shutdown: quick stop of bus {} node {} axis {}",

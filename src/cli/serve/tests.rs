@@ -4,9 +4,9 @@ use clap::Parser;
 
 use super::args::*;
 use crate::cli::{Cli, Command};
-use crate::gateway::access::Role;
-use crate::gateway::history::Retention;
-use crate::gateway::producers::DEFAULT_AXIS_POLL_HZ;
+use crate::gateway::DEFAULT_AXIS_POLL_HZ;
+use crate::gateway::Retention;
+use crate::gateway::Role;
 
 fn serve_args(args: &[&str]) -> Result<ServeArgs, String> {
     let cli = Cli::try_parse_from(["candeck", "serve"].iter().chain(args))

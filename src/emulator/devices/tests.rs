@@ -8,9 +8,9 @@ use serde_json::{Map, Value as Json};
 
 use super::*;
 use crate::api::tests::support::open;
-use crate::gateway::access::{RateLimit, Role, Token, Tokens};
-use crate::gateway::caller::Channel;
-use crate::gateway::history::{EventKind, Query};
+use crate::gateway::Channel;
+use crate::gateway::{EventKind, Query};
+use crate::gateway::{RateLimit, Role, Token, Tokens};
 
 /// The demo bus, with a viewer, an operator and an admin token, each
 /// `burst` writes in its bucket (never refilled within a test).

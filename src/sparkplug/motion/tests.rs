@@ -9,9 +9,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::*;
-use crate::gateway::history::{EventKind, Query};
-use crate::gateway::profile::EdsCatalog;
-use crate::gateway::registry::RegistryConfig;
+use crate::gateway::EdsCatalog;
+use crate::gateway::RegistryConfig;
+use crate::gateway::{EventKind, Query};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
 use crate::sparkplug::config::BrokerUrl;
@@ -37,7 +37,7 @@ async fn demo() -> Gateway {
     Gateway::new([served]).with_lease_period(PERIOD)
 }
 
-fn config(role: crate::gateway::access::Role) -> SparkplugConfig {
+fn config(role: crate::gateway::Role) -> SparkplugConfig {
     let broker: BrokerUrl = "mqtt://127.0.0.1:1883".parse().unwrap();
     let mut config = SparkplugConfig::new(broker, "plant", "line1");
     config.username = Some("scada".into());
@@ -127,7 +127,7 @@ async fn audit(gateway: &Gateway) -> Vec<serde_json::Map<String, serde_json::Val
 /// Axis 1 enabled and turning at 100 under the edge node's lease.
 async fn turning() -> (Gateway, SparkplugConfig, HeldLeases) {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     let results = dcmd(
         &gateway,
@@ -147,7 +147,7 @@ async fn turning() -> (Gateway, SparkplugConfig, HeldLeases) {
 #[tokio::test(start_paused = true)]
 async fn a_move_without_an_end_is_refused_without_the_lease_promise() {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     let results = dcmd(&gateway, &config, &held, 1, vec![enable(), run_at(100)]).await;
     assert!(results[0].is_ok(), "{results:?}");
@@ -252,17 +252,13 @@ async fn losing_the_broker_lapses_the_edge_nodes_leases_at_once() {
 async fn giving_the_lease_up_halts_and_another_client_is_refused_meanwhile() {
     let (gateway, config, held) = turning().await;
     // REST's anonymous client may not take the axis held by MQTT.
-    let anonymous = crate::gateway::caller::Caller::new(
-        crate::gateway::caller::Channel::Rest,
-        "anonymous",
-        None,
-    );
+    let anonymous = crate::gateway::Caller::new(crate::gateway::Channel::Rest, "anonymous", None);
     let refused = gateway
         .set_axis_state(
             &anonymous,
             ("demo", "1", "1"),
-            crate::gateway::drive::TargetState::OperationEnabled,
-            &crate::gateway::motion::LeaseClaim::presented(None, false),
+            crate::gateway::TargetState::OperationEnabled,
+            &crate::gateway::LeaseClaim::presented(None, false),
         )
         .await
         .unwrap_err();
@@ -394,7 +390,7 @@ async fn a_second_sender_without_the_lease_id_cannot_move_reverse_or_release_hal
 #[tokio::test(start_paused = true)]
 async fn a_lease_id_is_needed_to_take_a_lease_and_a_short_one_is_refused() {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     // The promise without an id: the host could never present the lease.
     let results = dcmd(
@@ -430,9 +426,9 @@ async fn a_lease_id_is_needed_to_take_a_lease_and_a_short_one_is_refused() {
 
 #[tokio::test(start_paused = true)]
 async fn a_rest_client_and_a_sparkplug_host_lease_different_axes_undisturbed() {
-    use crate::gateway::caller::{Caller, Channel};
-    use crate::gateway::drive::{MoveRequest, TargetState};
-    use crate::gateway::motion::LeaseClaim;
+    use crate::gateway::LeaseClaim;
+    use crate::gateway::{Caller, Channel};
+    use crate::gateway::{MoveRequest, TargetState};
     let (gateway, config, held) = turning().await;
     // A REST client (its operations are the ones REST's routes call) on
     // axis 2 of the same drive.
@@ -518,7 +514,7 @@ async fn a_rest_client_and_a_sparkplug_host_lease_different_axes_undisturbed() {
 #[tokio::test(start_paused = true)]
 async fn a_viewer_role_refuses_every_motion_command() {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Viewer);
+    let config = config(crate::gateway::Role::Viewer);
     let held = HeldLeases::default();
     let results = dcmd(
         &gateway,
@@ -537,12 +533,12 @@ async fn a_viewer_role_refuses_every_motion_command() {
 }
 
 /// The edge node's door checks no role: each operation checks the role it
-/// needs (`crate::gateway::policy::Operation`), as for REST's callers, and
+/// needs (`crate::gateway::Operation`), as for REST's callers, and
 /// its refusal is audited once, by the operation.
 #[tokio::test(start_paused = true)]
 async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Viewer);
+    let config = config(crate::gateway::Role::Viewer);
     let held = HeldLeases::default();
     let results = dcmd(
         &gateway,
@@ -559,24 +555,14 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     for result in &results {
         assert_eq!(result.as_ref().unwrap_err().code(), "forbidden");
     }
-    let rows = gateway
-        .history()
-        .query(Query {
-            kind: Some(EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 100,
-        })
-        .await
-        .unwrap();
+    let rows = crate::door_audit::rows(&gateway).await;
     let mut refused: Vec<_> = rows
         .iter()
         .map(|row| {
             (
-                row.fields["operation"].as_str().unwrap().to_string(),
-                row.fields["outcome"].as_str().unwrap().to_string(),
-                row.fields["role"].as_str().unwrap().to_string(),
+                row["operation"].as_str().unwrap().to_string(),
+                row["outcome"].as_str().unwrap().to_string(),
+                row["role"].as_str().unwrap().to_string(),
             )
         })
         .collect();
@@ -593,14 +579,14 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
 #[tokio::test(start_paused = true)]
 async fn a_segment_write_reaches_the_led_controller() {
     let gateway = demo().await;
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     let led = gateway
         .bus("demo")
         .unwrap()
         .nodes()
         .into_iter()
-        .find(|info| info.profile == crate::gateway::profile::Profile::Uioled)
+        .find(|info| info.profile == crate::gateway::Profile::Uioled)
         .expect("the demo has a UIO1LED");
     let node = led.id.get();
     let results = dcmd(
@@ -623,14 +609,12 @@ async fn a_segment_write_reaches_the_led_controller() {
     );
     // Read back by another master on the bus.
     let (served, info) = gateway.node("demo", &node.to_string()).unwrap();
-    let channel = crate::gateway::sdo::SdoChannel::new(
+    let channel = crate::gateway::SdoChannel::new(
         served.hub().expect("a virtual bus").attach(),
         info.id,
         crate::canopen::sdo::ClientConfig::default(),
     );
-    let segment = crate::gateway::uioled::read_segment(&channel, 2)
-        .await
-        .unwrap();
+    let segment = crate::gateway::read_segment(&channel, 2).await.unwrap();
     assert_eq!(segment.get(crate::profiles::uioled::Field::Dimmer), 99);
     assert_eq!(
         segment.get(crate::profiles::uioled::Field::Effect),
@@ -647,9 +631,9 @@ async fn a_segment_write_reaches_the_led_controller() {
 /// bucket; the flood is refused, and audited, on its own.
 #[tokio::test(start_paused = true)]
 async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
-    use crate::gateway::access::RateLimit;
+    use crate::gateway::RateLimit;
     let gateway = demo().await.with_write_limit(Some(RateLimit::default()));
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     let results = dcmd(
         &gateway,
@@ -730,12 +714,12 @@ async fn a_flood_without_the_lease_does_not_starve_the_lease_holder() {
 /// refuses it.
 #[tokio::test(start_paused = true)]
 async fn a_segment_command_is_one_write_and_refused_as_rest_refuses_it() {
-    use crate::gateway::access::RateLimit;
+    use crate::gateway::RateLimit;
     let gateway = demo().await.with_write_limit(Some(RateLimit {
         per_second: 0.001,
         burst: 3,
     }));
-    let config = config(crate::gateway::access::Role::Operator);
+    let config = config(crate::gateway::Role::Operator);
     let held = HeldLeases::default();
     let dim = |level: u8| metric("Segment 1/Dimmer", MetricValue::UInt8(level));
     let results = dcmd(

@@ -40,10 +40,8 @@ mod types;
 
 pub use error::DriveError;
 pub use kind::DriveKind;
-pub use types::{
-    AxisLimits, AxisReading, AxisStatus, AxisUnits, MAX_IP_DURATION_MS, MAX_IP_POINTS, MoveMode,
-    MoveRequest, TargetState,
-};
+pub use types::{AxisLimits, AxisStatus, AxisUnits, MoveMode, MoveRequest, TargetState};
+pub(crate) use types::{AxisReading, MAX_IP_DURATION_MS, MAX_IP_POINTS};
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -58,11 +56,11 @@ use crate::sdo::SdoChannel;
 
 /// How long one step of the state walk may take to show in the
 /// statusword: a quick stop or a disable may run a deceleration ramp first.
-pub const STEP_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const STEP_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a mode change may take (a UMC stops on its halt ramp first).
-pub const MODE_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const MODE_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a drive may take to acknowledge a set-point or start homing.
-pub const ACK_TIMEOUT: Duration = Duration::from_secs(1);
+pub(crate) const ACK_TIMEOUT: Duration = Duration::from_secs(1);
 /// The statusword is read this often while waiting.
 pub(super) const POLL: Duration = Duration::from_millis(5);
 
@@ -103,7 +101,7 @@ pub fn axis_count(kind: DriveKind, eds: Option<&EdsEntry>) -> u8 {
 
 /// Every axis of a drive node, read now: the profile summary of
 /// `GET /buses/{bus}/nodes/{id}`. A node that is no drive has none.
-pub async fn axes_summary(
+pub(crate) async fn axes_summary(
     registry: &NodeRegistry,
     info: &NodeInfo,
 ) -> Result<Vec<AxisStatus>, DriveError> {

@@ -118,10 +118,10 @@ pub(super) fn yes() -> bool {
 }
 
 /// The most points one interpolated move takes.
-pub const MAX_IP_POINTS: usize = 100_000;
+pub(crate) const MAX_IP_POINTS: usize = 100_000;
 /// The longest interpolated move one request feeds (the request lasts as
 /// long as the feeding): 10 minutes.
-pub const MAX_IP_DURATION_MS: u64 = 600_000;
+pub(crate) const MAX_IP_DURATION_MS: u64 = 600_000;
 
 impl MoveRequest {
     pub fn mode(&self) -> MoveMode {

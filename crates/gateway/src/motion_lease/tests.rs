@@ -162,7 +162,7 @@ fn releasing_ends_leases_by_axis_by_id_and_all() {
     grant(&mut table, 3, None, "cccc", now);
     assert_eq!(table.release_id("cccc").unwrap().axis, axis(3));
     assert_eq!(table.release_all().len(), 1);
-    assert!(table.is_empty());
+    assert_eq!(table.len(), 0);
     assert_eq!(table.next_expiry(), None);
 }
 
@@ -218,7 +218,7 @@ fn a_take_over_ends_the_held_lease_and_its_id() {
         (previous.id.as_str(), previous.holder.as_str()),
         ("aaaa", "plc")
     );
-    assert!(table.is_empty());
+    assert_eq!(table.len(), 0);
     assert_eq!(
         table.renew("aaaa", Some("plc"), None, now),
         Err(LeaseError::Unknown("aaaa".into()))

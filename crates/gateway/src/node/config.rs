@@ -185,7 +185,8 @@ impl NodeHandle {
 
     /// Every parameter of the node's EDS read from the node, as a DCF; an
     /// entry the device would not give is named in a comment.
-    pub async fn backup_dcf(&self) -> Result<Eds, GatewayError> {
+    pub async fn backup_dcf(&self, caller: &Caller) -> Result<Eds, GatewayError> {
+        self.gateway.require(caller, Operation::View)?;
         let eds = self.eds()?;
         check_sdo_allowed(&self.served, &self.info)?;
         let channel = self.served.registry.sdo(self.info.id)?;

@@ -37,7 +37,7 @@ pub fn object_item(index: u16, sub: u8) -> String {
 /// A caller's own settings for one transfer (CiA 309-3's `set
 /// sdo_timeout`, `set sdo_block`): the channel's configuration as it
 /// should be changed, or `None` to keep it.
-pub type TransferSettings<'a> = &'a (dyn Fn(&ClientConfig) -> Option<ClientConfig> + Sync);
+pub(crate) type TransferSettings<'a> = &'a (dyn Fn(&ClientConfig) -> Option<ClientConfig> + Sync);
 
 /// The channel's own settings.
 fn channel_settings(_: &ClientConfig) -> Option<ClientConfig> {

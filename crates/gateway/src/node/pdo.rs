@@ -29,7 +29,8 @@ pub struct RpdoFrame {
 impl NodeHandle {
     /// Every PDO of the node, RPDOs then TPDOs, as configured now (those
     /// its EDS describes; 1–4 of each without EDS).
-    pub async fn read_pdos(&self) -> Result<Vec<PdoConfig>, GatewayError> {
+    pub async fn read_pdos(&self, caller: &Caller) -> Result<Vec<PdoConfig>, GatewayError> {
+        self.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&self.served, &self.info)?;
         let channel = self.served.registry.sdo(self.info.id)?;
         let eds = self.info.eds_entry.clone();

@@ -527,3 +527,28 @@ async fn configuration_operations_hold_every_caller_to_its_role_and_write_rate()
         ]
     );
 }
+
+/// The reads that go to a device (axes, PDOs, a DCF backup) ask the
+/// caller's role as every operation does: on a gateway with tokens, a
+/// caller without one gets nothing, and nothing is sent to the node.
+#[tokio::test(start_paused = true)]
+async fn device_reads_ask_the_callers_role_before_the_bus() {
+    let gateway = demo().await.with_tokens(Tokens::new(vec![
+        crate::access::Token::new("hmi", Role::Viewer, "v1ewer-0123456789abcdef").unwrap(),
+    ]));
+    let nobody = Caller::new(Channel::Rest, "anonymous", None);
+    let viewer = Caller::new(Channel::Rest, "hmi", Some(Role::Viewer));
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+    let umc = gateway.node_handle("demo", "1").unwrap();
+    let refused = [
+        umc.read_axes(&nobody).await.map(drop).unwrap_err(),
+        umc.read_pdos(&nobody).await.map(drop).unwrap_err(),
+        umc.backup_dcf(&nobody).await.map(drop).unwrap_err(),
+    ];
+    for error in &refused {
+        assert_eq!(error.code(), "unauthenticated", "{error}");
+    }
+    assert_eq!(sdo_requests(&mut frames, 1), 0);
+    assert_eq!(umc.read_axes(&viewer).await.unwrap().len(), 2);
+    assert!(sdo_requests(&mut frames, 1) > 0);
+}

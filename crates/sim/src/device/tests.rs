@@ -5,7 +5,7 @@ use crate::can::VirtualHub;
 use crate::canopen::eds::Eds;
 use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
 use crate::canopen::sdo::{ClientConfig, SdoError};
-use candeck_gateway::sdo::{SdoChannel, SdoRequestError};
+use candeck_gateway::{SdoChannel, SdoRequestError};
 
 fn node() -> NodeId {
     NodeId::new(5).unwrap()

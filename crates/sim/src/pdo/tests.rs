@@ -9,7 +9,7 @@ use crate::canopen::od::{AccessType, DataType, ObjectDictionary, SubObject};
 use crate::canopen::sdo::ClientConfig;
 use crate::device::{DeviceCore, run_device};
 use crate::profiles::builtin::JMC_STEPPER;
-use candeck_gateway::sdo::SdoChannel;
+use candeck_gateway::SdoChannel;
 
 const SYNC: CanId = CanId::Standard(0x080);
 const TPDO1: CanId = CanId::Standard(0x185);

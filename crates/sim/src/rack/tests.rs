@@ -5,7 +5,7 @@ use crate::canopen::eds::Eds;
 use crate::canopen::emcy::ErrorBit;
 use crate::canopen::sdo::{AbortCode, ClientConfig};
 use crate::profiles::builtin::UIO1LED;
-use candeck_gateway::sdo::SdoChannel;
+use candeck_gateway::SdoChannel;
 
 /// An application that counts its ticks and has an over-temperature
 /// fault with EMCY 0x4210.
@@ -609,7 +609,7 @@ async fn lss(
     master: &Bus,
     service: crate::canopen::lss::LssService,
 ) -> crate::canopen::lss::LssOutcome {
-    let lss = candeck_gateway::lss::BusLss::new(master.clone());
+    let lss = candeck_gateway::BusLss::new(master.clone());
     lss.begin()
         .unwrap()
         .run(service)
