@@ -132,6 +132,8 @@ mod start;
 mod step_test;
 mod sync;
 mod telemetry;
+#[cfg(test)]
+mod test_rig;
 mod uioled;
 mod values;
 

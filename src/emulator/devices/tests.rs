@@ -9,7 +9,6 @@ use serde_json::{Map, Value as Json};
 use super::*;
 use crate::api::tests::support::open;
 use crate::gateway::Channel;
-use crate::gateway::{EventKind, Query};
 use crate::gateway::{RateLimit, Role, Token, Tokens};
 
 /// The demo bus, with a viewer, an operator and an admin token, each
@@ -36,22 +35,10 @@ fn caller(who: &str, role: Role) -> Caller {
 
 /// (operation, node, outcome) of every audit row so far, oldest first.
 async fn rows(gateway: &Gateway) -> Vec<(String, Option<u64>, String)> {
-    let mut events = gateway
-        .history()
-        .query(Query {
-            kind: Some(EventKind::Audit),
-            since_us: None,
-            until_us: None,
-            channel: None,
-            limit: 1000,
-        })
+    crate::door_audit::rows(gateway)
         .await
-        .unwrap();
-    events.sort_by_key(|event| event.id);
-    events
         .into_iter()
-        .map(|event| {
-            let fields: Map<String, Json> = event.fields;
+        .map(|fields: Map<String, Json>| {
             assert_eq!(fields["bus"], "demo", "{fields:?}");
             (
                 fields["operation"].as_str().unwrap().to_string(),

@@ -4,25 +4,17 @@
 //! one audit row with the words the audit log has for it, and cannot be
 //! cut by a caller that goes away.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
 
-use candeck_sim::products::parse_devices;
-use candeck_sim::rack::Rack;
 use serde_json::{Map, Value as Json};
 
 use crate::access::{RateLimit, Role, Token, Tokens};
 use crate::audit::{DoorDetail, DoorRequest};
 use crate::caller::{Caller, Channel};
-use crate::can::{CanId, Frame, VirtualHub};
+use crate::can::{CanId, Frame};
 use crate::canopen::lss::LssAddress;
-use crate::history::Retention;
-use crate::machine::MachineSettings;
-use crate::producers::TelemetryConfig;
 use crate::recording::Limits;
-use crate::service::BusDevices;
-use crate::{Gateway, GatewayConfig, GatewayError};
+use crate::{Gateway, GatewayConfig, GatewayError, test_rig};
 
 /// A UMC at 1 (0x2040), an I/O module at 4, a UIO1LED waiting for LSS.
 const LINE: &str = "virtual:umc1bds32@1,io401@4,uio1led@lss";
@@ -31,34 +23,16 @@ const LINE: &str = "virtual:umc1bds32@1,io401@4,uio1led@lss";
 /// boot-ups; with `tokens`, writes are counted by token name, 2 a caller.
 async fn line(tokens: Tokens) -> Gateway {
     let config = GatewayConfig {
-        buses: [("line".to_string(), LINE.parse().unwrap())].into(),
-        data_dir: None,
-        eds_dir: None,
-        bitrate: 500_000,
-        telemetry: TelemetryConfig::default(),
-        retention: Retention::default(),
-        recordings_quota: None,
-        logger_max_values: 1000,
-        lease_period: Duration::from_secs(1),
         tokens,
         write_limit: Some(RateLimit {
             per_second: 0.0001,
             burst: 2,
         }),
-        sync_period: Duration::ZERO,
-        machine: MachineSettings::default(),
-        machine_nodes: BTreeMap::new(),
+        ..test_rig::config(&[("line", LINE)])
     };
-    let gateway = Gateway::start(config, &rack).await.unwrap();
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
     gateway
-}
-
-fn rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
-    let rack = Rack::new(hub.clone());
-    rack.add_all(&parse_devices(preset)?)
-        .map_err(|err| err.to_string())?;
-    Ok(Some(Arc::new(rack) as BusDevices))
 }
 
 /// The UIO1LED of [`LINE`], as Fastscan finds it.

@@ -4,22 +4,12 @@
 //! done for a caller that went away. The rig is shared with the loggers'
 //! and the stream renewals' tests.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
-
-use candeck_sim::products::parse_devices;
-use candeck_sim::rack::Rack;
 
 use crate::access::{RateLimit, Role, Token, Tokens};
 use crate::caller::{Caller, Channel};
-use crate::can::VirtualHub;
 use crate::canopen::NodeId;
-use crate::history::Retention;
-use crate::machine::MachineSettings;
-use crate::producers::TelemetryConfig;
-use crate::service::BusDevices;
-use crate::{Gateway, GatewayConfig};
+use crate::{Gateway, GatewayConfig, test_rig};
 
 /// The demo rack with a viewer (`hmi`), an operator (`plc`) and an admin
 /// (`admin`) token, each with `burst` writes (never refilled within a
@@ -31,34 +21,16 @@ pub(crate) async fn guarded_demo(burst: u32) -> Gateway {
         Token::new("admin", Role::Admin, "admin-0123456789abcdefg").unwrap(),
     ]);
     let config = GatewayConfig {
-        buses: [("demo".to_string(), "virtual:demo".parse().unwrap())].into(),
-        data_dir: None,
-        eds_dir: None,
-        bitrate: 500_000,
-        telemetry: TelemetryConfig::default(),
-        retention: Retention::default(),
-        recordings_quota: None,
-        logger_max_values: 1000,
-        lease_period: Duration::from_secs(1),
         tokens,
         write_limit: Some(RateLimit {
             per_second: 0.0001,
             burst,
         }),
-        sync_period: Duration::ZERO,
-        machine: MachineSettings::default(),
-        machine_nodes: BTreeMap::new(),
+        ..test_rig::config(&[("demo", "virtual:demo")])
     };
-    let gateway = Gateway::start(config, &demo_rack).await.unwrap();
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
     gateway
-}
-
-fn demo_rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
-    let rack = Rack::new(hub.clone());
-    rack.add_all(&parse_devices(preset)?)
-        .map_err(|err| err.to_string())?;
-    Ok(Some(Arc::new(rack) as BusDevices))
 }
 
 /// The token `who` of [`guarded_demo`] with its role, through `channel`.

@@ -2,24 +2,16 @@
 //! LED segments and the program download, and the motion facade's policy,
 //! on the demo rack.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
-
-use candeck_sim::products::parse_devices;
-use candeck_sim::rack::Rack;
 
 use super::led::{LedController, Others, Scene, SegmentUpdate};
 use crate::access::{RateLimit, Role, Tokens};
 use crate::caller::{Caller, Channel};
-use crate::can::{FrameReceiver, VirtualHub};
+use crate::can::FrameReceiver;
 use crate::canopen::crc32::crc32;
-use crate::history::Retention;
-use crate::machine::MachineSettings;
 use crate::producers::TelemetryConfig;
 use crate::profiles::uioled::Effect;
-use crate::service::BusDevices;
-use crate::{Gateway, GatewayConfig};
+use crate::{Gateway, GatewayConfig, test_rig};
 
 /// The demo's UIO1LED.
 const LED: &str = "3";
@@ -29,34 +21,15 @@ const LED: &str = "3";
 /// sooner is a write's follow-up.
 async fn demo() -> Gateway {
     let config = GatewayConfig {
-        buses: [("demo".to_string(), "virtual:demo".parse().unwrap())].into(),
-        data_dir: None,
-        eds_dir: None,
-        bitrate: 500_000,
         telemetry: TelemetryConfig {
             segments_read_period: Duration::from_secs(60),
             ..TelemetryConfig::default()
         },
-        retention: Retention::default(),
-        recordings_quota: None,
-        logger_max_values: 1000,
-        lease_period: Duration::from_secs(1),
-        tokens: Tokens::default(),
-        write_limit: None,
-        sync_period: Duration::ZERO,
-        machine: MachineSettings::default(),
-        machine_nodes: BTreeMap::new(),
+        ..test_rig::config(&[("demo", "virtual:demo")])
     };
-    let gateway = Gateway::start(config, &demo_rack).await.unwrap();
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
     gateway
-}
-
-fn demo_rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
-    let rack = Rack::new(hub.clone());
-    rack.add_all(&parse_devices(preset)?)
-        .map_err(|err| err.to_string())?;
-    Ok(Some(Arc::new(rack) as BusDevices))
 }
 
 fn leds(gateway: &Gateway) -> LedController {

@@ -1,36 +1,10 @@
-use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
-
-use candeck_sim::products::parse_devices;
-use candeck_sim::rack::Rack;
 
 use super::*;
 use crate::can::VirtualHub;
 use crate::canopen::NodeId;
 use crate::service::BusDevices;
-
-fn config(buses: &[(&str, &str)]) -> GatewayConfig {
-    GatewayConfig {
-        buses: buses
-            .iter()
-            .map(|(name, spec)| (name.to_string(), spec.parse().unwrap()))
-            .collect(),
-        data_dir: None,
-        eds_dir: None,
-        bitrate: 500_000,
-        telemetry: TelemetryConfig::default(),
-        retention: Retention::default(),
-        recordings_quota: None,
-        logger_max_values: 1000,
-        lease_period: Duration::from_secs(1),
-        tokens: Tokens::default(),
-        write_limit: None,
-        sync_period: Duration::ZERO,
-        machine: MachineSettings::default(),
-        machine_nodes: BTreeMap::new(),
-    }
-}
+use crate::test_rig::{self, config};
 
 /// The error of a start that must fail (a gateway has no `Debug`).
 async fn start_error(config: GatewayConfig, attach: AttachDevices<'_>) -> StartError {
@@ -38,14 +12,6 @@ async fn start_error(config: GatewayConfig, attach: AttachDevices<'_>) -> StartE
         Ok(_) => panic!("the gateway started"),
         Err(error) => error,
     }
-}
-
-/// The demo rack on each virtual bus, as the binary wires it.
-fn demo_rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<BusDevices>, String> {
-    let rack = Rack::new(hub.clone());
-    rack.add_all(&parse_devices(preset)?)
-        .map_err(|err| err.to_string())?;
-    Ok(Some(Arc::new(rack) as BusDevices))
 }
 
 fn no_devices(_: &str, _: &str, _: &VirtualHub) -> Result<Option<BusDevices>, String> {
@@ -61,7 +27,7 @@ fn running(gateway: &Gateway) -> usize {
 async fn a_started_gateway_serves_its_buses_in_order_and_scans_them_once_up() {
     let gateway = Gateway::start(
         config(&[("line", "virtual:demo"), ("spare", "virtual:empty")]),
-        &demo_rack,
+        &test_rig::rack,
     )
     .await
     .unwrap();
