@@ -132,18 +132,7 @@ pub async fn inject_fault(
     node: NodeId,
     fault: Fault,
 ) -> Result<(), GatewayError> {
-    let target = AuditTarget::new("inject fault").bus(bus).node(node.get());
-    on_rack(
-        gateway,
-        caller,
-        target,
-        Some(kind(fault.name())),
-        move |rack, bus| {
-            rack.inject_fault(node, fault)
-                .map_err(|err| rack_error(bus, err))
-        },
-    )
-    .await
+    device_fault(gateway, caller, bus, node, fault, false).await
 }
 
 /// Ends the fault condition `fault` of the device `node` of `bus` (a drive
@@ -156,15 +145,33 @@ pub async fn clear_fault(
     node: NodeId,
     fault: Fault,
 ) -> Result<(), GatewayError> {
-    let target = AuditTarget::new("clear fault").bus(bus).node(node.get());
+    device_fault(gateway, caller, bus, node, fault, true).await
+}
+
+/// A device's fault injected, or cleared (`clear`), as one audited
+/// operation on the rack.
+async fn device_fault(
+    gateway: &Gateway,
+    caller: &Caller,
+    bus: &str,
+    node: NodeId,
+    fault: Fault,
+    clear: bool,
+) -> Result<(), GatewayError> {
+    let words = if clear { "clear fault" } else { "inject fault" };
+    let target = AuditTarget::new(words).bus(bus).node(node.get());
     on_rack(
         gateway,
         caller,
         target,
         Some(kind(fault.name())),
         move |rack, bus| {
-            rack.clear_fault(node, fault)
-                .map_err(|err| rack_error(bus, err))
+            let done = if clear {
+                rack.clear_fault(node, fault)
+            } else {
+                rack.inject_fault(node, fault)
+            };
+            done.map_err(|err| rack_error(bus, err))
         },
     )
     .await
