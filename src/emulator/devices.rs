@@ -17,7 +17,7 @@ use crate::gateway::AuditTarget;
 use crate::gateway::Caller;
 use crate::gateway::Operation;
 use crate::gateway::SimError;
-use crate::gateway::{Gateway, GatewayError};
+use crate::gateway::{Gateway, GatewayError, spawn_audited};
 use crate::sim::behaviour::Fault;
 use crate::sim::products::{DeviceSpec, Product};
 use crate::sim::rack::{Rack, RackError};
@@ -222,18 +222,12 @@ where
     let bus = target.bus.clone().unwrap_or_default();
     let row = gateway.audit_row(caller, target, summary);
     let (gateway, caller) = (gateway.clone(), caller.clone());
-    tokio::spawn(async move {
-        let result = (|| {
-            gateway.require(&caller, Operation::VirtualDevices)?;
-            gateway.take_write(&caller)?;
-            let rack = rack_of(&gateway, &bus)?;
-            work(&rack, &bus)
-        })();
-        row.finish(&result).await;
-        result
+    spawn_audited(row, async move {
+        gateway.admit(&caller, Operation::VirtualDevices)?;
+        let rack = rack_of(&gateway, &bus)?;
+        work(&rack, &bus)
     })
     .await
-    .map_err(|err| GatewayError::Internal(format!("virtual device task: {err}")))?
 }
 
 fn rack_error(bus: &str, error: RackError) -> GatewayError {

@@ -367,7 +367,7 @@ impl Drop for AuditRow {
 
 /// Runs `work` and finishes `row` with its outcome, both in a task of their
 /// own: a caller that goes away cuts neither.
-pub(crate) async fn spawn_audited<T, Fut>(row: AuditRow, work: Fut) -> Result<T, GatewayError>
+pub async fn spawn_audited<T, Fut>(row: AuditRow, work: Fut) -> Result<T, GatewayError>
 where
     T: Send + 'static,
     Fut: Future<Output = Result<T, GatewayError>> + Send + 'static,

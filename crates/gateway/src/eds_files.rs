@@ -122,8 +122,7 @@ impl Gateway {
         let row = self.audit_row(caller, target, Some(summary));
         let (gateway, caller, name) = (self.clone(), caller.clone(), name.to_string());
         spawn_audited(row, async move {
-            gateway.require(&caller, Operation::ManageEds)?;
-            gateway.take_write(&caller)?;
+            gateway.admit(&caller, Operation::ManageEds)?;
             // Reading a large file and writing it to disk is blocking work.
             tokio::task::spawn_blocking(move || gateway.keep_upload(&name, bytes.as_ref(), &caller))
                 .await
@@ -167,8 +166,7 @@ impl Gateway {
         let row = self.audit_row(caller, target, None);
         let (gateway, caller, name) = (self.clone(), caller.clone(), name.to_string());
         spawn_audited(row, async move {
-            gateway.require(&caller, Operation::ManageEds)?;
-            gateway.take_write(&caller)?;
+            gateway.admit(&caller, Operation::ManageEds)?;
             gateway.remove_upload(&name, &caller)
         })
         .await
@@ -228,8 +226,7 @@ impl Gateway {
         let (gateway, caller) = (self.clone(), caller.clone());
         let (bus, file) = (bus.to_string(), file.map(str::to_string));
         spawn_audited(row, async move {
-            gateway.require(&caller, Operation::AssignEds)?;
-            gateway.take_write(&caller)?;
+            gateway.admit(&caller, Operation::AssignEds)?;
             gateway.assign(&bus, node, file.as_deref(), &caller)
         })
         .await

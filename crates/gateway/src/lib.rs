@@ -144,7 +144,7 @@ pub use start::{GatewayConfig, StartError};
 
 // Who asks, what the gateway asks of them, and what it records.
 pub use access::{RateLimit, Role, Token, Tokens, constant_time_eq};
-pub use audit::{AuditRow, AuditTarget, DoorDetail, DoorRequest};
+pub use audit::{AuditRow, AuditTarget, DoorDetail, DoorRequest, spawn_audited};
 pub use caller::{Caller, Channel};
 pub use history::{
     AuditEntry, DEFAULT_RETENTION_DAYS, DEFAULT_RETENTION_ROWS, EventKind, History, OK, Query,

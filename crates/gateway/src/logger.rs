@@ -591,8 +591,7 @@ impl Gateway {
         let row = self.audit_row(caller, AuditTarget::new("start data logger"), summary);
         let (gateway, caller) = (self.clone(), caller.clone());
         spawn_audited(row, async move {
-            gateway.require(&caller, Operation::Logger)?;
-            gateway.take_write(&caller)?;
+            gateway.admit(&caller, Operation::Logger)?;
             let status = gateway.loggers().create(&gateway, request).await?;
             tracing::info!(
                 "logger {} started by {} ({}): {} channels every {} ms for {} s",
@@ -621,8 +620,7 @@ impl Gateway {
         let row = self.audit_row(caller, target, None);
         let (gateway, caller, id) = (self.clone(), caller.clone(), id.to_string());
         spawn_audited(row, async move {
-            gateway.require(&caller, Operation::Logger)?;
-            gateway.take_write(&caller)?;
+            gateway.admit(&caller, Operation::Logger)?;
             let loggers = gateway.loggers().clone();
             // Its files go from the disk: blocking work.
             let status = tokio::task::spawn_blocking(move || loggers.delete(&id))

@@ -271,8 +271,7 @@ impl LedController {
         let (this, caller, scene) = (self.clone(), caller.clone(), scene.clone());
         audited(row, async move {
             let node = &this.node;
-            node.gateway.require(&caller, Operation::SetLeds)?;
-            node.gateway.take_write(&caller)?;
+            node.gateway.admit(&caller, Operation::SetLeds)?;
             let writes = scene.writes()?;
             this.transfer(writes, Some(ReadBack::All)).await
         })
@@ -292,8 +291,7 @@ impl LedController {
         let (this, caller, update) = (self.clone(), caller.clone(), update.clone());
         audited(row, async move {
             let node = &this.node;
-            node.gateway.require(&caller, Operation::SetLeds)?;
-            node.gateway.take_write(&caller)?;
+            node.gateway.admit(&caller, Operation::SetLeds)?;
             check_segment(segment)?;
             let writes = vec![(segment, update.writes()?)];
             this.transfer(writes, read_back).await

@@ -149,8 +149,7 @@ impl NodeHandle {
             Some(raw_summary(&bytes)),
         );
         let checked = (|| {
-            self.gateway.require(caller, Operation::WriteObject)?;
-            self.gateway.take_write(caller)?;
+            self.gateway.admit(caller, Operation::WriteObject)?;
             check_sdo_allowed(&self.served, &self.info)?;
             check_writable(&self.info, index, sub)?;
             Ok::<_, GatewayError>(self.served.registry.sdo(self.info.id)?)
@@ -183,10 +182,7 @@ impl NodeHandle {
     /// once it reports it.
     pub async fn nmt(&self, caller: &Caller, command: NmtCommand) -> Result<(), GatewayError> {
         let row = self.audit_row(caller, "nmt command", None, Some(nmt_summary(command)));
-        let checked = self
-            .gateway
-            .require(caller, Operation::Nmt)
-            .and_then(|()| self.gateway.take_write(caller));
+        let checked = self.gateway.admit(caller, Operation::Nmt);
         if let Err(error) = checked {
             return refused(row, error).await;
         }
@@ -223,8 +219,7 @@ impl Gateway {
         let target = AuditTarget::new("nmt command to all nodes").bus(bus);
         let row = self.audit_row(caller, target, Some(nmt_summary(command)));
         let checked = self.bus(bus).and_then(|served| {
-            self.require(caller, Operation::Nmt)?;
-            self.take_write(caller)?;
+            self.admit(caller, Operation::Nmt)?;
             Ok(served)
         });
         let served = match checked {

@@ -59,8 +59,7 @@ impl NodeHandle {
         image: Vec<u8>,
         start: bool,
     ) -> Result<ProgramDownload, GatewayError> {
-        self.gateway.require(caller, Operation::DownloadProgram)?;
-        self.gateway.take_write(caller)?;
+        self.gateway.admit(caller, Operation::DownloadProgram)?;
         if image.is_empty() {
             return Err(GatewayError::InvalidRequest(
                 "the body is the program image; it is empty".into(),
