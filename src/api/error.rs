@@ -85,6 +85,9 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::DriveFault { .. }
         | GatewayError::DriveNotEnabled { .. }
         | GatewayError::LeaseConflict(_)
+        | GatewayError::MotionStopped(_)
+        | GatewayError::NodeBusy(_)
+        | GatewayError::AxisEnabled(_)
         | GatewayError::LssBusy(_)
         | GatewayError::NodeIdInUse(_)
         | GatewayError::EdsConflict(_)

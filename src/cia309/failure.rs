@@ -101,6 +101,9 @@ impl Failure {
             | GatewayError::DriveFault { .. }
             | GatewayError::DriveNotEnabled { .. }
             | GatewayError::LeaseConflict(_)
+            | GatewayError::MotionStopped(_)
+            | GatewayError::NodeBusy(_)
+            | GatewayError::AxisEnabled(_)
             | GatewayError::Unauthenticated(_)
             | GatewayError::Forbidden(_)
             | GatewayError::RateLimited { .. }

@@ -83,6 +83,18 @@ pub enum GatewayError {
     /// A lease that is not held (lapsed, ended, or never granted).
     #[error("{0}")]
     UnknownLease(String),
+    /// A motion command admitted before a stop of its axis: not sent
+    /// (`crate::authority`).
+    #[error("{0}")]
+    MotionStopped(String),
+    /// The node runs something that excludes the request (a program
+    /// download): motion commands and a second download wait for its end.
+    #[error("{0}")]
+    NodeBusy(String),
+    /// An axis of the node is enabled or moving: a program download (or a
+    /// write that would change its motion) is refused until it is stopped.
+    #[error("{0}")]
+    AxisEnabled(String),
     /// No token, or one the gateway does not know, where it asks for one.
     #[error("{0}")]
     Unauthenticated(String),
@@ -234,6 +246,9 @@ impl GatewayError {
             Self::StateChangeTimeout { .. } => "state_change_timeout",
             Self::LeaseConflict(_) => "lease_conflict",
             Self::UnknownLease(_) => "unknown_lease",
+            Self::MotionStopped(_) => "motion_stopped",
+            Self::NodeBusy(_) => "node_busy",
+            Self::AxisEnabled(_) => "axis_enabled",
             Self::Unauthenticated(_) => "unauthenticated",
             Self::Forbidden(_) => "forbidden",
             Self::RateLimited { .. } => "rate_limited",

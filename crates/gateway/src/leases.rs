@@ -352,11 +352,16 @@ async fn halt_then_quick_stop(
     lease: &MotionLease,
 ) -> Result<LapseStop, GatewayError> {
     let AxisKey { bus, node, axis } = &lease.axis;
+    let gates = gateway.gates(bus);
     let (bus, drive) = gateway.stop_target(bus, &node.to_string(), &axis.to_string())?;
+    // A lapse is a stop: whatever runs on the axis (a step test whose
+    // client went away) sends nothing more.
+    gates.cancel(&drive);
     // In a task of its own, like every drive sequence: nothing cancels it
     // half way.
     let period = lease.period;
     let task = tokio::spawn(async move {
+        let _gate = gates.gate(&drive).await;
         match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
             Ok(Ok(_)) => {
                 let deadline = Instant::now() + period;
@@ -378,7 +383,8 @@ async fn halt_then_quick_stop(
             Ok(Err(error)) => tracing::error!("halt failed ({error}); quick stop instead"),
             Err(_) => tracing::error!("halt not given in time; quick stop instead"),
         }
-        match Gateway::quick_stop_or_nmt(bus, drive).await {
+        // The gate is held already.
+        match Gateway::quick_stop_or_nmt(bus, drive, None).await {
             AxisStop::Stopped(_) | AxisStop::NotEnabled(_) => LapseStop::QuickStopped,
             AxisStop::Failed { error, attempts } => LapseStop::NotConfirmed { error, attempts },
         }

@@ -97,6 +97,7 @@ use candeck_profiles as profiles;
 
 mod access;
 mod audit;
+mod authority;
 mod axis_telemetry;
 mod bus;
 mod caller;

@@ -381,6 +381,15 @@ impl Gateway {
         let drive = self.drive(bus, node, axis)?;
         let axis_key = key(bus, &drive);
         let enable = target == TargetState::OperationEnabled;
+        // A walk out of operation enabled is a stop: whatever was admitted
+        // on the axis before it sends nothing after it.
+        let gates = self.gates(bus);
+        let ticket = if enable {
+            Some(self.authority.ticket(&axis_key)?)
+        } else {
+            gates.cancel(&drive);
+            None
+        };
         let took_over = if enable {
             self.take_over_claimed(caller, &axis_key, claim)?
         } else {
@@ -394,11 +403,16 @@ impl Gateway {
                 self.enabled_axes.insert(bus, &drive);
             }
             let state = target.state();
-            let status = spawned(
-                drive,
-                move |drive| async move { drive.set_state(state).await },
-            )
-            .await?;
+            let walk = spawned(drive.clone(), move |drive| async move {
+                drive.set_state(state).await
+            });
+            let status = match &ticket {
+                Some(ticket) => ticket.send(walk).await?,
+                None => {
+                    let _gate = gates.authority.stop_gate(&axis_key).await;
+                    walk.await?
+                }
+            };
             if !enable {
                 // Out of operation enabled nothing moves: the motion is over.
                 self.leases.release(&axis_key);
@@ -449,6 +463,7 @@ impl Gateway {
         }
         let drive = self.drive(bus, node, axis)?;
         let axis_key = key(bus, &drive);
+        let ticket = self.authority.ticket(&axis_key)?;
         let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
         let result = async {
             let presented = claim.id()?;
@@ -462,7 +477,12 @@ impl Gateway {
             }
             // Motion the gateway resumes is motion it stops on shutdown.
             self.enabled_axes.insert(bus, &drive);
-            let status = spawned(drive, |drive| async move { drive.halt(false).await }).await?;
+            let status = ticket
+                .send(spawned(
+                    drive,
+                    |drive| async move { drive.halt(false).await },
+                ))
+                .await?;
             let lease = match endless_displayed(status.mode.as_deref()) {
                 Some(mode) if status.state == "operation_enabled" => Some(self.leases.grant(
                     self,
@@ -491,21 +511,22 @@ impl Gateway {
         axis: (&str, &str, &str),
     ) -> Result<AxisStatus, GatewayError> {
         let row = self.axis_row(caller, "fault reset", axis, None);
-        let drive = match self
+        let admitted = self
             .motion_policy(caller, axis, None, false)
             .and_then(|()| self.drive(axis.0, axis.1, axis.2))
-        {
-            Ok(drive) => drive,
+            .and_then(|drive| {
+                let ticket = self.authority.ticket(&key(axis.0, &drive))?;
+                Ok((drive, ticket))
+            });
+        let (drive, ticket) = match admitted {
+            Ok(admitted) => admitted,
             Err(error) => {
                 let result = Err(error);
                 row.finish(&result).await;
                 return result;
             }
         };
-        spawn_audited(row, async move {
-            drive.fault_reset().await.map_err(GatewayError::from)
-        })
-        .await
+        spawn_audited(row, async move { ticket.send(drive.fault_reset()).await }).await
     }
 
     /// Starts a motion. A move with an end of its own (profile position,
@@ -541,6 +562,7 @@ impl Gateway {
         let drive = self.drive(bus, node, axis)?;
         drive.validate(request)?;
         let axis_key = key(bus, &drive);
+        let ticket = self.authority.ticket(&axis_key)?;
         let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
         let result = async {
             let presented = claim.id()?;
@@ -549,11 +571,11 @@ impl Gateway {
             if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
                 self.leases.check(&axis_key, presented, &caller.who)?;
                 self.enabled_axes.insert(bus, &drive);
-                let status = spawned(
-                    drive,
-                    move |drive| async move { drive.run_move(&request).await },
-                )
-                .await?;
+                let status = ticket
+                    .send(spawned(drive, move |drive| async move {
+                        drive.run_move(&request).await
+                    }))
+                    .await?;
                 self.leases.release(&axis_key);
                 return Ok((status, None));
             }
@@ -573,10 +595,25 @@ impl Gateway {
             self.enabled_axes.insert(bus, &drive);
             // While the caller waits it keeps the lease alive; if it goes
             // away, the lease lapses at once.
+            let run = spawned(
+                drive,
+                move |drive| async move { drive.run_move(&request).await },
+            );
+            let sent = async {
+                if endless(mode) {
+                    ticket.send(run).await
+                } else {
+                    // An interpolated move feeds its points for as long as
+                    // they last: it is checked under the gate, and not
+                    // sent after a stop, but does not hold the gate (a stop
+                    // would wait for it); feeding points after a halt
+                    // sets no motion going again.
+                    ticket.send(async { Ok::<_, GatewayError>(()) }).await?;
+                    run.await
+                }
+            };
             let status = InFlight::new(&self.leases, &lease)
-                .run(spawned(drive, move |drive| async move {
-                    drive.run_move(&request).await
-                }))
+                .run(sent)
                 .await
                 .inspect_err(|_| {
                     // A failed move halted the axis: nothing is left to lease.
@@ -624,6 +661,7 @@ impl Gateway {
         request.validate()?;
         let values = self.bus(bus)?.values.clone();
         let axis_key = key(bus, &drive);
+        let ticket = self.authority.ticket(&axis_key)?;
         let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
         let result = async {
             let lease = self.leases.grant(
@@ -636,10 +674,18 @@ impl Gateway {
             )?;
             self.enabled_axes.insert(bus, &drive);
             let request = request.clone();
+            // Each step is sent through the ticket: a stop of the axis (a
+            // halt, the lapse when this caller goes away) ends the test,
+            // and no later step is sent.
+            let test =
+                tokio::spawn(
+                    async move { step_test::run(&drive, &values, &request, &ticket).await },
+                );
             let result = InFlight::new(&self.leases, &lease)
-                .run(spawned(drive, move |drive| async move {
-                    step_test::run(&drive, &values, &request).await
-                }))
+                .run(async {
+                    test.await
+                        .map_err(|err| GatewayError::Internal(format!("step test task: {err}")))?
+                })
                 .await;
             self.leases.release(&axis_key);
             Ok((result?, None))
@@ -796,17 +842,4 @@ where
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_chosen_lease_id_is_long_and_of_the_safe_set() {
-        assert!(check_chosen_id("host-7f3a9c0e.axis_1~").is_ok());
-        for bad in ["short-id", "sixteen chars!!!", "ÿ".repeat(16).as_str()] {
-            let refused = check_chosen_id(bad).unwrap_err();
-            assert_eq!(refused.code(), "invalid_request");
-            assert!(refused.to_string().contains("16 to 128"), "{refused}");
-        }
-        assert!(check_chosen_id(&"a".repeat(129)).is_err());
-    }
-}
+mod tests;

@@ -20,7 +20,7 @@
 
 use crate::policy::Operation;
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
 use serde::Serialize;
@@ -28,6 +28,7 @@ use tokio::task::JoinSet;
 
 use super::GatewayError;
 use super::audit::AuditTarget;
+use super::authority::MotionAuthority;
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveKind, axis_count};
 use super::motion_lease::AxisKey;
@@ -381,10 +382,41 @@ async fn nmt_stop(bus: &Bus, node: NodeId) -> StopAttempt {
     }
 }
 
+/// The motion authority a stop takes each axis's gate from, and the name of
+/// the bus its axes are on (see [`crate::authority`]): every ticket of the
+/// axes was voided before the stop began; the gate makes the step on the
+/// wire, if any, finish before the stop goes out.
+#[derive(Clone)]
+pub(crate) struct Gates {
+    pub(crate) authority: Arc<MotionAuthority>,
+    pub(crate) bus: String,
+}
+
+impl Gates {
+    fn key(&self, drive: &Drive) -> AxisKey {
+        AxisKey {
+            bus: self.bus.clone(),
+            node: drive.node(),
+            axis: drive.axis(),
+        }
+    }
+
+    /// Voids every ticket of `drive`'s axis (before the stop awaits).
+    pub(crate) fn cancel(&self, drive: &Drive) {
+        self.authority.cancel(&self.key(drive));
+    }
+
+    pub(crate) async fn gate(&self, drive: &Drive) -> Option<tokio::sync::OwnedMutexGuard<()>> {
+        self.authority.stop_gate(&self.key(drive)).await
+    }
+}
+
 /// Quick stop of the axes of one node, one after another (they share its
 /// SDO channel); then, if any of them did not confirm, one NMT stop of the
 /// node. Once the node is not heard, its remaining axes are not asked.
-async fn stop_node(bus: Bus, drives: Vec<Drive>) -> Vec<(u8, AxisStop)> {
+/// Each axis's quick stop is sent under its gate (`gates`), unless the
+/// caller holds it already (`None`).
+async fn stop_node(bus: Bus, drives: Vec<Drive>, gates: Option<Gates>) -> Vec<(u8, AxisStop)> {
     let Some(node) = drives.first().map(|drive| drive.channel().node()) else {
         return Vec::new();
     };
@@ -406,6 +438,10 @@ async fn stop_node(bus: Bus, drives: Vec<Drive>) -> Vec<(u8, AxisStop)> {
             ));
             continue;
         }
+        let _gate = match &gates {
+            Some(gates) => gates.gate(&drive).await,
+            None => None,
+        };
         let stop = Stopper::new(drive).quick_stop().await;
         silent = unanswered(&stop);
         results.push((axis, stop));
@@ -426,14 +462,22 @@ async fn stop_node(bus: Bus, drives: Vec<Drive>) -> Vec<(u8, AxisStop)> {
 }
 
 /// Stops every axis of `targets` (bus name, bus, drive), each node in a
-/// task of its own, all at once.
-async fn stop_axes(targets: Vec<(String, Bus, Drive)>) -> Result<StopReport, GatewayError> {
+/// task of its own, all at once; every ticket of theirs voided first.
+async fn stop_axes(
+    authority: Arc<MotionAuthority>,
+    targets: Vec<(String, Bus, Drive)>,
+) -> Result<StopReport, GatewayError> {
     let mut by_node: BTreeMap<(String, u8), (Bus, Vec<Drive>)> = BTreeMap::new();
     let mut seen = BTreeSet::new();
     for (name, bus, drive) in targets {
         if !seen.insert((name.clone(), drive.node(), drive.axis())) {
             continue;
         }
+        authority.cancel(&AxisKey {
+            bus: name.clone(),
+            node: drive.node(),
+            axis: drive.axis(),
+        });
         by_node
             .entry((name, drive.node()))
             .or_insert_with(|| (bus, Vec::new()))
@@ -443,7 +487,11 @@ async fn stop_axes(targets: Vec<(String, Bus, Drive)>) -> Result<StopReport, Gat
     let mut tasks = JoinSet::new();
     for ((name, node), (bus, mut drives)) in by_node {
         drives.sort_by_key(Drive::axis);
-        tasks.spawn(async move { (name, node, stop_node(bus, drives).await) });
+        let gates = Gates {
+            authority: authority.clone(),
+            bus: name.clone(),
+        };
+        tasks.spawn(async move { (name, node, stop_node(bus, drives, Some(gates)).await) });
     }
     let mut report = StopReport::default();
     while let Some(joined) = tasks.join_next().await {
@@ -518,10 +566,14 @@ impl Gateway {
         id: &str,
         axis: &str,
     ) -> Result<AxisStopped, AxisStopFailed> {
+        let gates = self.gates(bus);
         let (bus, drive) = self.stop_target(bus, id, axis)?;
+        // Before anything is awaited: whatever was admitted on the axis
+        // before this stop sends nothing after it.
+        gates.cancel(&drive);
         tokio::spawn(async move {
             let number = drive.axis();
-            let stop = stop_node(bus, vec![drive.clone()]).await;
+            let stop = stop_node(bus, vec![drive.clone()], Some(gates)).await;
             let stop = stop.into_iter().next().map(|(_, stop)| stop);
             let attempts = match stop {
                 Some(AxisStop::Stopped(attempts)) => attempts,
@@ -559,8 +611,11 @@ impl Gateway {
         id: &str,
         axis: &str,
     ) -> Result<AxisStopped, AxisStopFailed> {
+        let gates = self.gates(bus);
         let (bus, drive) = self.stop_target(bus, id, axis)?;
+        gates.cancel(&drive);
         tokio::spawn(async move {
+            let gate = gates.gate(&drive).await;
             let error = match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
                 Ok(Ok(status)) => {
                     return Ok(AxisStopped {
@@ -581,7 +636,10 @@ impl Gateway {
                 drive.axis()
             );
             let mut attempts = vec![StopAttempt::failed(StopMethod::Halt, &error, "")];
-            match stop_node(bus, vec![drive]).await.into_iter().next() {
+            // The gate is held already.
+            let stop = stop_node(bus, vec![drive], None).await;
+            drop(gate);
+            match stop.into_iter().next() {
                 Some((_, AxisStop::Stopped(more) | AxisStop::Failed { attempts: more, .. })) => {
                     attempts.extend(more);
                 }
@@ -625,6 +683,8 @@ impl Gateway {
     }
 
     async fn stop_everything(&self) -> Result<StopReport, GatewayError> {
+        // Every sequence on any axis ends before anything is awaited.
+        self.authority.cancel_all();
         let gateway = self.clone();
         let report = tokio::spawn(async move {
             let mut targets = Vec::new();
@@ -650,7 +710,7 @@ impl Gateway {
                 }
             }
             targets.extend(gateway.recorded_targets());
-            let mut report = stop_axes(targets).await?;
+            let mut report = stop_axes(gateway.authority.clone(), targets).await?;
             report.failed.extend(failed);
             Ok::<_, GatewayError>(report)
         })
@@ -679,7 +739,8 @@ impl Gateway {
     /// `SHUTDOWN_STOP_TIMEOUT`; what could not be stopped is in the
     /// report.
     pub async fn stop_enabled_axes(&self) -> StopReport {
-        let task = tokio::spawn(stop_axes(self.recorded_targets()));
+        self.authority.cancel_all();
+        let task = tokio::spawn(stop_axes(self.authority.clone(), self.recorded_targets()));
         let report = match tokio::time::timeout(SHUTDOWN_STOP_TIMEOUT, task).await {
             Ok(Ok(Ok(report))) => report,
             Ok(Ok(Err(error))) => {
@@ -701,10 +762,23 @@ impl Gateway {
         report
     }
 
+    /// The gates of the axes of bus `bus` for a stop.
+    pub(crate) fn gates(&self, bus: &str) -> Gates {
+        Gates {
+            authority: self.authority.clone(),
+            bus: bus.to_string(),
+        }
+    }
+
     /// Stops one axis after a lapsed lease or a failed halt: quick stop,
-    /// then NMT stop of its node.
-    pub(super) async fn quick_stop_or_nmt(bus: Bus, drive: Drive) -> AxisStop {
-        stop_node(bus, vec![drive])
+    /// then NMT stop of its node (under the axis's gate, unless the caller
+    /// holds it: `gates` `None`).
+    pub(super) async fn quick_stop_or_nmt(
+        bus: Bus,
+        drive: Drive,
+        gates: Option<Gates>,
+    ) -> AxisStop {
+        stop_node(bus, vec![drive], gates)
             .await
             .into_iter()
             .next()

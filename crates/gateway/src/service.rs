@@ -441,6 +441,8 @@ pub struct Gateway {
     pub(crate) leases: Arc<MotionLeases>,
     /// The axes the gateway enabled, which it stops before it exits.
     pub(crate) enabled_axes: Arc<EnabledAxes>,
+    /// Every axis's motion authority: the order of stops and commands.
+    pub(crate) authority: Arc<super::authority::MotionAuthority>,
     /// The tokens and their roles; none: the gateway is open.
     pub(crate) tokens: Arc<Tokens>,
     /// The write rate limit of every token, whichever adapter its writes
@@ -490,6 +492,7 @@ impl Gateway {
             history,
             leases: Arc::new(MotionLeases::default()),
             enabled_axes: Arc::new(EnabledAxes::default()),
+            authority: Arc::default(),
             tokens: Arc::new(Tokens::default()),
             writes: Arc::new(WriteLimiter::default()),
             recordings_quota: None,

@@ -29,6 +29,8 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use crate::GatewayError;
+use crate::authority::AxisTicket;
 use crate::axis_telemetry::TPDO_FRESH;
 use crate::drive::{Drive, DriveError, DriveKind, MoveRequest};
 use crate::profiles::cia402::State;
@@ -189,11 +191,16 @@ impl StepTestRequest {
 /// happened.
 /// `values`: the TPDO values of the drive's bus, which feed the samples
 /// when they carry the loop's actual value (see the module documentation).
+/// `ticket`: the test's right to the axis. Each step is sent through it and
+/// each hold waits on it, so a stop of the axis (halt, quick stop, STOP
+/// ALL, a lapsed lease) ends the test at once with `motion_stopped`, and
+/// no step is sent after the stop (which has stopped the axis itself).
 pub(crate) async fn run(
     drive: &Drive,
     values: &TpdoValues,
     request: &StepTestRequest,
-) -> Result<StepTestResult, DriveError> {
+    ticket: &AxisTicket,
+) -> Result<StepTestResult, GatewayError> {
     request.validate()?;
     if drive.kind() != DriveKind::Umc {
         return Err(DriveError::NotTunable(format!(
@@ -201,7 +208,8 @@ pub(crate) async fn run(
              are 0x4020-0x4061 (UMC manual §3.5)",
             drive.node(),
             drive.kind()
-        )));
+        ))
+        .into());
     }
     let statusword = drive.statusword().await?;
     match statusword.state() {
@@ -210,12 +218,18 @@ pub(crate) async fn run(
             return Err(DriveError::NotEnabled {
                 axis: drive.axis(),
                 state,
-            });
+            }
+            .into());
         }
     }
-    let result = steps(drive, values, request).await;
-    // The stop always goes out: after a result, and after a failure.
-    drive.stop_after_failure().await;
+    let result = steps(drive, values, request, ticket).await;
+    // The stop always goes out: after a result, and after a failure; but
+    // not after a stop of the axis, which stopped it already (and a halt's
+    // enable-operation bits would take a quick-stopped axis out of quick
+    // stop active again).
+    if !ticket.stopped() {
+        drive.stop_after_failure().await;
+    }
     result
 }
 
@@ -223,13 +237,18 @@ async fn steps(
     drive: &Drive,
     values: &TpdoValues,
     request: &StepTestRequest,
-) -> Result<StepTestResult, DriveError> {
+    ticket: &AxisTicket,
+) -> Result<StepTestResult, GatewayError> {
     let hold = Duration::from_millis(u64::from(request.hold_ms));
-    drive.run_move(&request.level(request.from)).await?;
-    tokio::time::sleep(hold).await;
+    ticket
+        .send(drive.run_move(&request.level(request.from)))
+        .await?;
+    ticket.hold(hold).await?;
     let actual = request.actual();
     let start = tokio::time::Instant::now();
-    drive.run_move(&request.level(request.to)).await?;
+    ticket
+        .send(drive.run_move(&request.level(request.to)))
+        .await?;
     let mut samples = Vec::new();
     let sample = |t: Duration, value: i64| {
         [
@@ -246,10 +265,11 @@ async fn steps(
     let mut source = SampleSource::Sdo;
     if tpdo.running(tokio::time::Instant::now()).is_some() {
         source = SampleSource::Tpdo;
-        if !tpdo.record(start, hold, &mut samples, sample).await {
+        if !tpdo.record(start, hold, &mut samples, sample, ticket).await {
             source = SampleSource::TpdoThenSdo;
         }
     }
+    ticket.check()?;
     let done = |samples: &Vec<[f64; 3]>| {
         samples.len() >= MAX_SAMPLES
             || samples
@@ -262,6 +282,7 @@ async fn steps(
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             tick.tick().await;
+            ticket.check()?;
             let value = drive.read_int(actual, 0, true).await?;
             samples.push(sample(start.elapsed(), value));
             if done(&samples) {
@@ -274,7 +295,8 @@ async fn steps(
         return Err(DriveError::NotEnabled {
             axis: drive.axis(),
             state: statusword.state(),
-        });
+        }
+        .into());
     }
     let mut result = metrics(
         f64::from(request.from),
@@ -312,6 +334,7 @@ impl Tpdo<'_> {
         hold: Duration,
         samples: &mut Vec<[f64; 3]>,
         sample: impl Fn(Duration, i64) -> [f64; 3],
+        ticket: &AxisTicket,
     ) -> bool {
         let mut frames = self.values.watch_frames(self.node);
         let mut counted = None;
@@ -333,6 +356,9 @@ impl Tpdo<'_> {
                         return true;
                     }
                 }
+            }
+            if ticket.stopped() {
+                return false;
             }
             tokio::select! {
                 changed = frames.changed() => {

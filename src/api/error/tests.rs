@@ -67,10 +67,13 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::TooManyLoggers(_) => 56,
         GatewayError::NotLoggable(_) => 57,
         GatewayError::HistoryFailed(_) => 58,
+        GatewayError::MotionStopped(_) => 59,
+        GatewayError::NodeBusy(_) => 60,
+        GatewayError::AxisEnabled(_) => 61,
     }
 }
 
-const VARIANTS: usize = 59;
+const VARIANTS: usize = 62;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -116,6 +119,9 @@ fn samples() -> Vec<GatewayError> {
             state: "ready_to_switch_on".to_string(),
         },
         GatewayError::LeaseConflict(text()),
+        GatewayError::MotionStopped(text()),
+        GatewayError::NodeBusy(text()),
+        GatewayError::AxisEnabled(text()),
         GatewayError::LssBusy(text()),
         GatewayError::LssNotFound(text()),
         GatewayError::LssTimeout(text()),

@@ -1,0 +1,167 @@
+//! The motion facade on the demo rack, no door in front: the chosen lease
+//! ids, and the one motion authority per axis (a stop always wins over a
+//! sequence running on the axis).
+
+use std::time::Duration;
+
+use super::*;
+use crate::caller::Channel;
+use crate::can::FrameReceiver;
+use crate::drive::TargetState;
+use crate::safe_stop::StopOutcome;
+use crate::{GatewayConfig, test_rig};
+
+#[test]
+fn a_chosen_lease_id_is_long_and_of_the_safe_set() {
+    assert!(check_chosen_id("host-7f3a9c0e.axis_1~").is_ok());
+    for bad in ["short-id", "sixteen chars!!!", "ÿ".repeat(16).as_str()] {
+        let refused = check_chosen_id(bad).unwrap_err();
+        assert_eq!(refused.code(), "invalid_request");
+        assert!(refused.to_string().contains("16 to 128"), "{refused}");
+    }
+    assert!(check_chosen_id(&"a".repeat(129)).is_err());
+}
+
+const AXIS: (&str, &str, &str) = ("demo", "1", "1");
+
+/// The gateway on the demo rack (no tokens, leases of 1 s), its nodes
+/// identified, and axis 1 of the UMC (node 1) in operation enabled.
+async fn enabled_demo() -> (Gateway, Caller) {
+    let config: GatewayConfig = test_rig::config(&[("demo", "virtual:demo")]);
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let caller = Caller::new(Channel::Rest, "anonymous", None);
+    gateway
+        .set_axis_state(
+            &caller,
+            AXIS,
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap();
+    (gateway, caller)
+}
+
+fn step_request() -> StepTestRequest {
+    serde_json::from_str(r#"{"loop":"velocity","from":0,"to":3000,"hold_ms":3000}"#).unwrap()
+}
+
+/// The axis's velocity as the drive reports it.
+async fn velocity(gateway: &Gateway) -> i64 {
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    i64::from(drive.status().await.unwrap().velocity.unwrap())
+}
+
+/// The SDO downloads to node 1's axis-1 controlword (0x6040) or VL target
+/// (0x6042) seen since the last call: what sets the axis moving.
+fn motion_writes(frames: &mut FrameReceiver) -> Vec<String> {
+    let mut writes = Vec::new();
+    while let Ok(Some(frame)) = frames.try_recv() {
+        let data = frame.frame.data();
+        if frame.frame.id().raw() != 0x601 || data.len() < 4 {
+            continue;
+        }
+        let download = data[0] & 0xE0 == 0x20;
+        let index = u16::from_le_bytes([data[1], data[2]]);
+        if download && matches!(index, 0x6040 | 0x6042) {
+            writes.push(format!("0x{index:04X} {data:02X?}"));
+        }
+    }
+    writes
+}
+
+/// Issue 30, finding 1: a halt answered "confirmed" while a step test held
+/// its first level was undone when the test sent its step 2 s later (the
+/// axis ran for the rest of the hold). The halt ends the test now, and no
+/// step is sent after it.
+#[tokio::test(start_paused = true)]
+async fn a_confirmed_halt_ends_a_running_step_test_and_no_later_step_is_sent() {
+    let (gateway, caller) = enabled_demo().await;
+    let test = {
+        let (gateway, caller) = (gateway.clone(), caller.clone());
+        tokio::spawn(async move {
+            gateway
+                .step_test_axis(&caller, AXIS, &step_request(), &LeaseClaim::default())
+                .await
+        })
+    };
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let halted = gateway
+        .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let attempts = halted.attempts.unwrap();
+    assert_eq!(attempts[0].outcome, StopOutcome::Confirmed, "{attempts:?}");
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+
+    // Where the step would have come (t = 3 s) and after it, the axis
+    // stays halted, and nothing set it moving again.
+    for _ in 0..6 {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(velocity(&gateway).await, 0, "moving after a confirmed halt");
+    }
+    assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
+    // The test ended with the stop (not at the end of its hold).
+    assert!(test.is_finished(), "the step test still runs");
+    let failed = test.await.unwrap().unwrap_err();
+    assert_eq!(failed.error.code(), "motion_stopped", "{}", failed.error);
+    assert_eq!(gateway.leases_held(), 0);
+}
+
+/// Issue 30, finding 5 (the step test part): a step test whose client goes
+/// away (its request dropped) went on to send its step and ran the axis
+/// for the rest of the hold. Its lease lapses at once, which stops the
+/// axis and ends the test: no later step is sent.
+#[tokio::test(start_paused = true)]
+async fn a_step_test_whose_client_goes_away_stops_and_sends_no_later_step() {
+    let (gateway, caller) = enabled_demo().await;
+    let test = {
+        let (gateway, caller) = (gateway.clone(), caller.clone());
+        tokio::spawn(async move {
+            gateway
+                .step_test_axis(&caller, AXIS, &step_request(), &LeaseClaim::default())
+                .await
+        })
+    };
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    // The client hangs up: its request future is dropped.
+    test.abort();
+    let _ = test.await;
+    // The lapse's halt goes out at once.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+    for _ in 0..8 {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(velocity(&gateway).await, 0, "moving without its client");
+    }
+    assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
+    let rows = crate::audit::tests::rows(&gateway).await;
+    assert!(
+        rows.iter()
+            .any(|row| row["operation"] == "motion lease lapsed: axis halted"),
+        "{rows:?}"
+    );
+}
+
+/// A move admitted before a stop of its axis, whose transfers had not
+/// begun when the stop came, is not sent after it: `motion_stopped`.
+#[tokio::test(start_paused = true)]
+async fn a_command_admitted_before_a_stop_is_not_sent_after_it() {
+    let (gateway, _caller) = enabled_demo().await;
+    let axis = AxisKey {
+        bus: "demo".into(),
+        node: 1,
+        axis: 1,
+    };
+    let ticket = gateway.authority.ticket(&axis).unwrap();
+    gateway.halt_axis("demo", "1", "1").await.unwrap();
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    let request: MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":500}"#).unwrap();
+    let refused = ticket.send(drive.run_move(&request)).await.unwrap_err();
+    assert_eq!(refused.code(), "motion_stopped", "{refused}");
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
+}
