@@ -903,6 +903,17 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
         NodeEvent::HeartbeatWritten { heartbeat_ms, .. } => json!({
             "bus": bus, "node": node, "event": "heartbeat_written", "heartbeat_ms": heartbeat_ms,
         }),
+        // issue 30 (motion authority): an axis stopped and its lease ended
+        // by the gateway (a renumbering).
+        NodeEvent::MotionEnded {
+            axis,
+            reason,
+            detail,
+            ..
+        } => json!({
+            "bus": bus, "node": node, "event": "motion_ended", "axis": axis,
+            "reason": reason, "detail": detail,
+        }),
         NodeEvent::Emcy { emcy, .. } => json!({
             "bus": bus,
             "node": node,

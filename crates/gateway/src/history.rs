@@ -758,6 +758,19 @@ fn insert_event(
                 Some(format!("{heartbeat_ms} ms")),
             )?;
         }
+        NodeEvent::MotionEnded {
+            axis,
+            reason,
+            detail,
+            ..
+        } => {
+            nmt(
+                "motion_ended",
+                None,
+                None,
+                Some(format!("axis {axis}, {reason}: {detail}")),
+            )?;
+        }
     }
     Ok(())
 }

@@ -175,6 +175,12 @@ impl MotionLeases {
         self.table().release(axis)
     }
 
+    /// The leases held on the axes of `node` of `bus`, lapsed ones too
+    /// (their stop may not have begun).
+    pub(crate) fn on_node(&self, bus: &str, node: u8) -> Vec<MotionLease> {
+        self.table().on_node(bus, node)
+    }
+
     /// Ends every lease (STOP ALL, shutdown): their axes are being stopped.
     pub(crate) fn release_all(&self) -> usize {
         self.table().release_all().len()

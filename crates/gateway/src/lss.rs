@@ -13,6 +13,19 @@
 //! masters' selections would mix on the wire. A configured device boots up
 //! under its new node-ID, which the registry hears like any boot-up; these
 //! operations end once the registry knows it.
+//!
+//! Leases and enabled axes follow the device, not its number: before a
+//! device that has an axis leased or enabled through the gateway is given
+//! another node-ID, that axis is stopped (quick stop, NMT stop if the drive
+//! does not confirm) and its lease and its record as enabled are ended,
+//! with an audit row and a `motion_ended` event on the `nodes` topic. If
+//! the stop is not confirmed, the node-ID is not changed (the gateway can
+//! still reach the device at the number it knows). While it is renumbered,
+//! the node takes no motion command (`node_busy`). Its old node-ID is
+//! forgotten once it has booted under the new one, so that no supervisor
+//! or STOP ALL addresses a number where the device no longer is. (Moving
+//! the lease to the new ID instead would keep a motion running through a
+//! reset communication whose effect on the drive the gateway cannot know.)
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -28,10 +41,14 @@ use crate::canopen::nmt::{NmtCommand, NmtTarget};
 
 use super::GatewayError;
 use super::audit::AuditTarget;
+use super::authority::NodeClosed;
 use super::caller::Caller;
+use super::drive::Drive;
+use super::motion_lease::{AxisKey, mask};
 use super::policy::Operation;
 use super::profile::Profile;
 use super::registry::{Identification, NodeInfo};
+use super::safe_stop::{StopOutcome, stop_axes};
 use super::service::{Gateway, ServedBus};
 
 /// How long the master waits for each LSS answer. CANopenNode's master
@@ -152,13 +169,14 @@ impl Gateway {
             "{{\"vendor_id\":{},\"product_code\":{},\"revision\":{},\"serial\":{},\"node_id\":{node_id},\"store\":{store}}}",
             address.vendor_id, address.product_code, address.revision, address.serial
         );
+        let gateway = self.clone();
         self.on_bus(
             caller,
             Operation::Lss,
             bus,
             target,
             Some(summary),
-            |served| async move { configure(&served, address, node_id, store).await },
+            |served| async move { configure(&gateway, &served, address, node_id, store).await },
         )
         .await
     }
@@ -184,7 +202,7 @@ impl Gateway {
             Some(summary),
             |_| async move {
                 let (served, info) = gateway.node(&bus_name, &id)?;
-                change_node_id(&served, &info, node_id).await
+                change_node_id(&gateway, &served, &info, node_id).await
             },
         )
         .await
@@ -222,11 +240,118 @@ fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
     }
 }
 
+impl Gateway {
+    /// Before the device at `old` on `served` is given the node-ID `new`:
+    /// closes the node to motion commands (until the guard is dropped),
+    /// stops every axis of it that is leased or that the gateway enabled,
+    /// and ends their leases and records, each with an audit row and a
+    /// `motion_ended` event. An axis whose stop is not confirmed refuses the
+    /// renumbering (the error of its stop).
+    async fn stop_for_renumbering(
+        &self,
+        served: &ServedBus,
+        old: NodeId,
+        new: NodeId,
+    ) -> Result<NodeClosed, GatewayError> {
+        let bus = served.name.as_str();
+        let closed = self
+            .authority
+            .close_node(
+                bus,
+                old.get(),
+                format!("node {old} is being given the node-ID {new}"),
+            )
+            .map_err(|why| GatewayError::NodeBusy(format!("node {old}: {why}")))?;
+        let leases = self.leases.on_node(bus, old.get());
+        let mut drives = self.enabled_axes.on_node(bus, old.get());
+        for lease in &leases {
+            if drives.contains_key(&lease.axis.axis) {
+                continue;
+            }
+            let drive = served.registry.node(old).and_then(|info| {
+                Drive::new(&served.registry, &info, &lease.axis.axis.to_string()).ok()
+            });
+            if let Some(drive) = drive {
+                drives.insert(lease.axis.axis, drive);
+            }
+        }
+        if drives.is_empty() && leases.is_empty() {
+            return Ok(closed);
+        }
+        self.authority.cancel_node(bus, old.get());
+        let targets = drives
+            .values()
+            .map(|drive| (bus.to_string(), served.bus.clone(), drive.clone()))
+            .collect();
+        let report = stop_axes(self.authority.clone(), targets).await?;
+        if let Some(failed) = report.failed.first() {
+            return Err(GatewayError::StopNotConfirmed {
+                source: Box::new(failed.error.clone()),
+                attempts: failed.attempts.clone(),
+            });
+        }
+        let axes: std::collections::BTreeSet<u8> = drives
+            .keys()
+            .copied()
+            .chain(leases.iter().map(|lease| lease.axis.axis))
+            .collect();
+        for axis in axes {
+            let key = AxisKey {
+                bus: bus.to_string(),
+                node: old.get(),
+                axis,
+            };
+            let lease = self.leases.release(&key);
+            let stopped = report.stopped.iter().any(|stopped| {
+                stopped.axis == key
+                    && stopped
+                        .attempts
+                        .iter()
+                        .any(|a| a.outcome == StopOutcome::Confirmed)
+            });
+            let what = match &lease {
+                Some(lease) => format!(
+                    "the {} lease {} of {} ended",
+                    lease.mode,
+                    mask(&lease.id),
+                    lease.holder
+                ),
+                None => "its record as enabled ended".to_string(),
+            };
+            let detail = format!(
+                "{} before node {old} was given the node-ID {new}; {what}",
+                if stopped {
+                    "quick-stopped"
+                } else {
+                    "not enabled"
+                }
+            );
+            tracing::warn!("{key}: {detail}");
+            let target = AuditTarget::new("motion ended: node renumbered")
+                .bus(bus)
+                .node(old.get())
+                .axis(axis)
+                .item(detail.clone());
+            self.audit_row(&Caller::system(), target, None)
+                .finish_ok()
+                .await;
+            served
+                .registry
+                .motion_ended(old, axis, "node_id_changed", detail);
+        }
+        self.enabled_axes.forget_node(bus, old.get());
+        Ok(closed)
+    }
+}
+
 /// Gives the device with `address` the node-ID `node_id`, stores it if
 /// `store`, and switches it back to waiting: it boots up under that ID
 /// (an unconfigured one at once, a configured one at the NMT reset
-/// communication sent to its old ID). Ends once the registry knows it.
+/// communication sent to its old ID). Ends once the registry knows it. A
+/// device that had a node-ID has its leased or enabled axes stopped first
+/// ([`Gateway::stop_for_renumbering`]), and its old node-ID forgotten.
 async fn configure(
+    gateway: &Gateway,
     served: &ServedBus,
     address: LssAddress,
     node_id: i64,
@@ -244,12 +369,12 @@ async fn configure(
             served.name
         )));
     }
-    let result = configure_selected(served, &transaction, node, store).await;
+    let result = configure_selected(gateway, served, &transaction, node, store).await;
     // Whatever happened, nobody is left in the configuration state.
     let waiting = transaction
         .run(LssService::SwitchGlobal(LssState::Waiting))
         .await;
-    let (old, mut boot_up) = result?;
+    let (old, mut boot_up, _closed) = result?;
     // Switch state global has no answer: only the bus can fail it.
     let _ = waiting?;
     if let Some(old) = old
@@ -261,17 +386,29 @@ async fn configure(
             .send_nmt(NmtCommand::ResetCommunication, NmtTarget::Node(old))
             .await?;
     }
-    wait_for_boot_up(served, &mut boot_up, node).await
+    let moved = wait_for_boot_up(served, &mut boot_up, node).await?;
+    if let Some(old) = old
+        && old != node
+    {
+        // Nothing answers at the old ID any more (as after a change by
+        // 0x2040).
+        served
+            .registry
+            .retire(old, super::registry::OfflineReason::NodeIdChanged);
+    }
+    Ok(moved)
 }
 
 /// The configuration services on the selected device: its old node-ID
-/// (`None`: unconfigured), and a receiver that hears its boot-up.
+/// (`None`: unconfigured), a receiver that hears its boot-up, and its old
+/// node closed to motion until the end.
 async fn configure_selected(
+    gateway: &Gateway,
     served: &ServedBus,
     transaction: &LssTransaction<'_>,
     node: NodeId,
     store: bool,
-) -> Result<(Option<NodeId>, FrameReceiver), GatewayError> {
+) -> Result<(Option<NodeId>, FrameReceiver, Option<NodeClosed>), GatewayError> {
     let lss_error = |step: &str, error: LssError| match error {
         LssError::Refused { .. } => GatewayError::LssRefused(format!("{step}: {error}")),
         other => GatewayError::LssTimeout(format!("{step}: {other}")),
@@ -286,6 +423,11 @@ async fn configure_selected(
         Ok(_) => None,
         Err(error) => return Err(lss_error("inquire node-ID", error)),
     };
+    // Before the device takes another number: what moves on it is stopped.
+    let closed = match old {
+        Some(old) if old != node => Some(gateway.stop_for_renumbering(served, old, node).await?),
+        _ => None,
+    };
     transaction
         .run(LssService::ConfigureNodeId(node.get()))
         .await?
@@ -297,7 +439,7 @@ async fn configure_selected(
             .map_err(|error| lss_error("store configuration", error))?;
     }
     // Listening before the switch to waiting that makes it boot.
-    Ok((old, served.bus.subscribe()))
+    Ok((old, served.bus.subscribe(), closed))
 }
 
 /// Waits for the boot-up message of `node`, then for the registry to know
@@ -356,6 +498,7 @@ pub(crate) fn has_node_id_object(info: &NodeInfo) -> bool {
 /// parameters (0x1010 sub 4, `save`), reset node;
 /// the device boots up under the new ID. Ends once the registry knows it.
 async fn change_node_id(
+    gateway: &Gateway,
     served: &ServedBus,
     info: &NodeInfo,
     node_id: i64,
@@ -373,6 +516,7 @@ async fn change_node_id(
     }
     check_free(served, node)?;
     super::check_sdo_allowed(served, info)?;
+    let _closed = gateway.stop_for_renumbering(served, info.id, node).await?;
     let sdo = served.registry.sdo(info.id)?;
     // UniSwarm devices store their parameters in pre-operational only
     // (abort 0x08000021 otherwise), and the reset below ends whatever it

@@ -292,6 +292,15 @@ impl LeaseTable {
         self.by_axis.remove(axis)
     }
 
+    /// The leases held on the axes of `node` of `bus` (lapsed or not).
+    pub(crate) fn on_node(&self, bus: &str, node: u8) -> Vec<MotionLease> {
+        self.by_axis
+            .values()
+            .filter(|lease| lease.axis.bus == bus && lease.axis.node == node)
+            .cloned()
+            .collect()
+    }
+
     /// Ends the lease `id`, returning it (unknown: an error).
     pub(crate) fn release_id(&mut self, id: &str) -> Result<MotionLease, LeaseError> {
         let axis = self

@@ -328,6 +328,15 @@ pub enum NodeEvent {
         node: NodeId,
         heartbeat_ms: u16,
     },
+    /// The gateway stopped an axis of the node and ended what moved it (its
+    /// lease, its record as enabled), for `reason` (`node_id_changed`: the
+    /// device is being given another node-ID); `detail` says what ended.
+    MotionEnded {
+        node: NodeId,
+        axis: u8,
+        reason: &'static str,
+        detail: String,
+    },
 }
 
 impl NodeEvent {
@@ -340,7 +349,8 @@ impl NodeEvent {
             | Self::Offline { node, .. }
             | Self::Online { node }
             | Self::Emcy { node, .. }
-            | Self::HeartbeatWritten { node, .. } => *node,
+            | Self::HeartbeatWritten { node, .. }
+            | Self::MotionEnded { node, .. } => *node,
         }
     }
 }
@@ -368,6 +378,15 @@ impl fmt::Display for NodeEvent {
             Self::HeartbeatWritten { node, heartbeat_ms } => {
                 write!(f, "node {node} heartbeat time written: {heartbeat_ms} ms")
             }
+            Self::MotionEnded {
+                node,
+                axis,
+                reason,
+                detail,
+            } => write!(
+                f,
+                "node {node} axis {axis}: motion ended ({reason}): {detail}"
+            ),
         }
     }
 }
@@ -772,6 +791,23 @@ impl NodeRegistry {
         // Sent even when it was offline already: those who follow the node
         // (the network manager, the stream) learn that it left for good.
         self.shared.emit(NodeEvent::Offline { node: id, reason });
+    }
+
+    /// Tells whoever follows the nodes that the gateway ended the motion
+    /// of an axis of `node` ([`NodeEvent::MotionEnded`]).
+    pub(crate) fn motion_ended(
+        &self,
+        node: NodeId,
+        axis: u8,
+        reason: &'static str,
+        detail: String,
+    ) {
+        self.shared.emit(NodeEvent::MotionEnded {
+            node,
+            axis,
+            reason,
+            detail,
+        });
     }
 
     /// What happens to the nodes from now on.

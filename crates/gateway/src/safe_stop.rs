@@ -221,6 +221,21 @@ impl EnabledAxes {
         self.lock().get(&(bus.to_string(), node, axis)).cloned()
     }
 
+    /// The axes of `node` of `bus` recorded, by number.
+    pub(crate) fn on_node(&self, bus: &str, node: u8) -> BTreeMap<u8, Drive> {
+        self.lock()
+            .iter()
+            .filter(|((b, n, _), _)| b == bus && *n == node)
+            .map(|((_, _, axis), drive)| (*axis, drive.clone()))
+            .collect()
+    }
+
+    /// Forgets the axes of `node` of `bus` (the device no longer has that
+    /// node-ID: nothing is to be stopped there).
+    pub(crate) fn forget_node(&self, bus: &str, node: u8) {
+        self.lock().retain(|(b, n, _), _| !(b == bus && *n == node));
+    }
+
     fn drives(&self) -> Vec<(String, Drive)> {
         self.lock()
             .iter()
@@ -463,7 +478,7 @@ async fn stop_node(bus: Bus, drives: Vec<Drive>, gates: Option<Gates>) -> Vec<(u
 
 /// Stops every axis of `targets` (bus name, bus, drive), each node in a
 /// task of its own, all at once; every ticket of theirs voided first.
-async fn stop_axes(
+pub(crate) async fn stop_axes(
     authority: Arc<MotionAuthority>,
     targets: Vec<(String, Bus, Drive)>,
 ) -> Result<StopReport, GatewayError> {

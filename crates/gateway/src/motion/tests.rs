@@ -165,3 +165,75 @@ async fn a_command_admitted_before_a_stop_is_not_sent_after_it() {
     tokio::time::sleep(Duration::from_millis(200)).await;
     assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
 }
+
+/// The LSS address of node `id` of the demo bus, from its identity.
+fn lss_address(gateway: &Gateway, id: &str) -> crate::canopen::lss::LssAddress {
+    let (_, info) = gateway.node("demo", id).unwrap();
+    let identity = info.identity.unwrap();
+    crate::canopen::lss::LssAddress {
+        vendor_id: identity.vendor_id,
+        product_code: identity.product_code.unwrap(),
+        revision: identity.revision.unwrap(),
+        serial: identity.serial.unwrap(),
+    }
+}
+
+/// Issue 30, finding 2: an admin renumbered by LSS a drive in a leased
+/// velocity move; when the lease lapsed, the supervisor halted the old
+/// node-ID, where nothing answered, and the drive kept turning. Now the
+/// axis is stopped and its lease ended before the device takes its new
+/// number (an audit row and a `motion_ended` event say so), and nothing
+/// is left to address the old one.
+#[tokio::test(start_paused = true)]
+async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
+    let (gateway, caller) = enabled_demo().await;
+    let request: MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
+    let moved = gateway
+        .move_axis(&caller, AXIS, &request, &LeaseClaim::default())
+        .await
+        .unwrap();
+    assert!(moved.lease.is_some());
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(velocity(&gateway).await > 0, "not turning");
+    let mut events = gateway.bus("demo").unwrap().registry.subscribe();
+
+    let admin = Caller::new(Channel::Rest, "admin", Some(crate::access::Role::Admin));
+    let address = lss_address(&gateway, "1");
+    let moved = gateway
+        .lss_configure(&admin, "demo", address, 9, false)
+        .await
+        .unwrap();
+    assert_eq!(moved.id.get(), 9);
+
+    // Well past the lease's lapse (1 s), the drive, at its new ID, is at
+    // rest.
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let drive = gateway.drive("demo", "9", "1").unwrap();
+    let status = drive.status().await.unwrap();
+    assert_eq!(status.velocity, Some(0), "{status:?}");
+    assert_ne!(status.state, "operation_enabled", "{status:?}");
+    assert_eq!(gateway.leases_held(), 0);
+    // The old number is forgotten: no stop is addressed there.
+    assert!(gateway.node("demo", "1").is_err());
+    assert!(gateway.enabled_axes.on_node("demo", 1).is_empty());
+
+    let mut told = None;
+    while let Ok(event) = events.try_recv() {
+        if let crate::registry::NodeEvent::MotionEnded { axis, reason, .. } = event {
+            told = Some((event.node().get(), axis, reason));
+        }
+    }
+    assert_eq!(told, Some((1, 1, "node_id_changed")));
+    let rows = crate::audit::tests::rows(&gateway).await;
+    let row = rows
+        .iter()
+        .find(|row| row["operation"] == "motion ended: node renumbered")
+        .unwrap_or_else(|| panic!("{rows:#?}"));
+    assert_eq!(row["node"], 1);
+    assert_eq!(row["axis"], 1);
+    assert!(
+        row["item"].as_str().unwrap().contains("velocity lease"),
+        "{row:?}"
+    );
+}
