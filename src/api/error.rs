@@ -88,6 +88,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::MotionStopped(_)
         | GatewayError::NodeBusy(_)
         | GatewayError::AxisEnabled(_)
+        | GatewayError::ClientGone(_)
         | GatewayError::LssBusy(_)
         | GatewayError::NodeIdInUse(_)
         | GatewayError::EdsConflict(_)

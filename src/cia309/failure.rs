@@ -104,6 +104,7 @@ impl Failure {
             | GatewayError::MotionStopped(_)
             | GatewayError::NodeBusy(_)
             | GatewayError::AxisEnabled(_)
+            | GatewayError::ClientGone(_)
             | GatewayError::Unauthenticated(_)
             | GatewayError::Forbidden(_)
             | GatewayError::RateLimited { .. }

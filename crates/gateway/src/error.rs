@@ -95,6 +95,10 @@ pub enum GatewayError {
     /// write that would change its motion) is refused until it is stopped.
     #[error("{0}")]
     AxisEnabled(String),
+    /// The client of a sequence went away before a step that needs it
+    /// there (a program's start): the step was not sent.
+    #[error("{0}")]
+    ClientGone(String),
     /// No token, or one the gateway does not know, where it asks for one.
     #[error("{0}")]
     Unauthenticated(String),
@@ -249,6 +253,7 @@ impl GatewayError {
             Self::MotionStopped(_) => "motion_stopped",
             Self::NodeBusy(_) => "node_busy",
             Self::AxisEnabled(_) => "axis_enabled",
+            Self::ClientGone(_) => "client_gone",
             Self::Unauthenticated(_) => "unauthenticated",
             Self::Forbidden(_) => "forbidden",
             Self::RateLimited { .. } => "rate_limited",

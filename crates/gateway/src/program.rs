@@ -202,10 +202,25 @@ impl ProgramRun {
 /// documentation); `start`: start the program at the end. `progress` is
 /// told each step as it begins, the bytes of the image as the device
 /// confirms them, and the end: done, or failed with the step.
+#[cfg(test)]
 pub(crate) async fn download_program(
     channel: &SdoChannel,
     image: &[u8],
     start: bool,
+    progress: &(dyn Fn(&ProgramProgress) + Sync),
+) -> Result<ProgramReport, ProgramError> {
+    download_program_for(channel, image, start, &|| true, progress).await
+}
+
+/// [`download_program`] for a client that may go away: `client_waits` is
+/// asked before the start (0x1F51 = 1), which is not sent once it says no
+/// (the program is left stopped, and the download fails at the start step
+/// with `client_gone`).
+pub(crate) async fn download_program_for(
+    channel: &SdoChannel,
+    image: &[u8],
+    start: bool,
+    client_waits: &(dyn Fn() -> bool + Sync),
     progress: &(dyn Fn(&ProgramProgress) + Sync),
 ) -> Result<ProgramReport, ProgramError> {
     let sent = AtomicUsize::new(0);
@@ -215,7 +230,7 @@ pub(crate) async fn download_program(
         bytes_sent: sent.load(Ordering::Relaxed),
         bytes_total: image.len(),
     };
-    let result = run_steps(channel, image, start, &|step, confirmed| {
+    let result = run_steps(channel, image, start, client_waits, &|step, confirmed| {
         if let Some(confirmed) = confirmed {
             sent.store(confirmed, Ordering::Relaxed);
         }
@@ -246,6 +261,7 @@ async fn run_steps(
     channel: &SdoChannel,
     image: &[u8],
     start: bool,
+    client_waits: &(dyn Fn() -> bool + Sync),
     report: &(dyn Fn(ProgramStep, Option<usize>) + Sync),
 ) -> Result<ProgramReport, ProgramError> {
     let began = Instant::now();
@@ -301,6 +317,13 @@ async fn run_steps(
         )));
     }
     if start {
+        if !client_waits() {
+            // Nobody is there to see a program started, or to stop it.
+            return Err(at(ProgramStep::Start)(GatewayError::ClientGone(
+                "the client went away during the download: the program was verified and left stopped"
+                    .to_string(),
+            )));
+        }
         control(ProgramStep::Start, 1).await?;
     }
     Ok(ProgramReport {

@@ -70,10 +70,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::MotionStopped(_) => 59,
         GatewayError::NodeBusy(_) => 60,
         GatewayError::AxisEnabled(_) => 61,
+        GatewayError::ClientGone(_) => 62,
     }
 }
 
-const VARIANTS: usize = 62;
+const VARIANTS: usize = 63;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -122,6 +123,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::MotionStopped(text()),
         GatewayError::NodeBusy(text()),
         GatewayError::AxisEnabled(text()),
+        GatewayError::ClientGone(text()),
         GatewayError::LssBusy(text()),
         GatewayError::LssNotFound(text()),
         GatewayError::LssTimeout(text()),
