@@ -28,6 +28,7 @@ use std::future::Future;
 
 use super::GatewayError;
 use super::audit::{AuditRow, AuditTarget, Finishing, spawn_audited};
+use super::authority::AxisTicket;
 use super::caller::Caller;
 use super::drive::{AxisStatus, Drive, DriveError, MoveMode, MoveRequest, TargetState};
 use super::leases::InFlight;
@@ -782,6 +783,121 @@ impl Gateway {
             .axis(axis.axis);
         let request = serde_json::json!({ "lease": mask(id) }).to_string();
         self.audit_row(caller, target, Some(request))
+    }
+}
+
+/// What a write of an object (an OD write through REST or CiA 309) is to
+/// an axis's motion, by the one authority of the axis.
+pub(crate) enum MotionWrite {
+    /// No object that commands an axis's motion.
+    Free,
+    /// A stop in an axis's controlword (halt set, or a command out of
+    /// operation enabled): never refused; every ticket of the axis was
+    /// voided when it was admitted, it is sent under the axis's gate, and
+    /// once written it ends the axis's lease as a halt does.
+    Stop { axis: AxisKey },
+    /// A command that may set an axis moving (a controlword that enables
+    /// operation, resets a fault or releases halt; the mode; a target):
+    /// held to the lease rule (none can be presented in an OD write: while
+    /// a lease is held, use the drive routes) and sent with its ticket.
+    Command { ticket: AxisTicket },
+}
+
+impl MotionWrite {
+    /// Sends `work` (the write's transfers) as the authority says.
+    pub(crate) async fn send<T>(
+        self,
+        gateway: &Gateway,
+        work: impl Future<Output = Result<T, GatewayError>>,
+    ) -> Result<T, GatewayError> {
+        match self {
+            MotionWrite::Free => work.await,
+            MotionWrite::Stop { axis } => {
+                let gate = gateway.authority.stop_gate(&axis).await;
+                let result = work.await;
+                drop(gate);
+                if result.is_ok() {
+                    gateway.leases.release(&axis);
+                }
+                result
+            }
+            MotionWrite::Command { ticket } => ticket.send(work).await,
+        }
+    }
+}
+
+/// Whether a controlword stops an axis: halt set, or any command but
+/// enable operation (and fault reset, which moves nothing but is no stop
+/// either) — shutdown, switch on, disable voltage, quick stop all take the
+/// axis out of operation enabled.
+fn controlword_stops(word: u16) -> bool {
+    const HALT: u16 = 0x0100;
+    const FAULT_RESET: u16 = 0x0080;
+    const ENABLE_OPERATION: u16 = 0x000F;
+    if word & FAULT_RESET != 0 {
+        return false;
+    }
+    word & HALT != 0 || word & ENABLE_OPERATION != ENABLE_OPERATION
+}
+
+impl Gateway {
+    /// What writing `bytes` to `index`:`sub` of the node `info` of `served`
+    /// is to its axes' motion ([`MotionWrite`]): a stop in a controlword is
+    /// never refused (and voids every ticket of its axis now); a command
+    /// in a controlword, the mode or a target of a leased axis is refused
+    /// (`lease_conflict`), and on a node closed to motion (`node_busy`).
+    pub(crate) fn motion_write(
+        &self,
+        caller: &Caller,
+        served: &super::service::ServedBus,
+        info: &super::registry::NodeInfo,
+        (index, sub): (u16, u8),
+        bytes: &[u8],
+    ) -> Result<MotionWrite, GatewayError> {
+        use crate::profiles::cia402::objects as obj;
+        let Some(kind) = super::drive::DriveKind::from_profile(info.profile) else {
+            return Ok(MotionWrite::Free);
+        };
+        if sub != 0 {
+            return Ok(MotionWrite::Free);
+        }
+        for number in 1..=super::drive::axis_count(kind, info.eds_entry.as_deref()) {
+            let Ok(drive) = Drive::new(&served.registry, info, &number.to_string()) else {
+                continue;
+            };
+            let axis = key(&served.name, &drive);
+            let command = || {
+                self.leases.check(&axis, None, &caller.who)?;
+                Ok::<_, GatewayError>(MotionWrite::Command {
+                    ticket: self.authority.ticket(&axis)?,
+                })
+            };
+            if index == drive.object(obj::CONTROLWORD) {
+                let word = <[u8; 2]>::try_from(bytes).map(u16::from_le_bytes);
+                if let Ok(word) = word
+                    && controlword_stops(word)
+                {
+                    self.authority.cancel(&axis);
+                    return Ok(MotionWrite::Stop { axis });
+                }
+                let write = command()?;
+                // Motion the gateway let through is motion it stops on
+                // shutdown.
+                self.enabled_axes.insert(&served.name, &drive);
+                return Ok(write);
+            }
+            let targets = [
+                obj::MODES_OF_OPERATION,
+                obj::VL_TARGET,
+                obj::TARGET_VELOCITY,
+                obj::TARGET_POSITION,
+                obj::TQ_TARGET,
+            ];
+            if targets.iter().any(|&object| index == drive.object(object)) {
+                return command();
+            }
+        }
+        Ok(MotionWrite::Free)
     }
 }
 

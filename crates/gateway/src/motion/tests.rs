@@ -237,3 +237,64 @@ async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
         "{row:?}"
     );
 }
+
+/// An OD write (CiA 309-3 and -5, REST's object route: one operation)
+/// to a leased axis's controlword or target went past the lease. Now a
+/// command from a caller who does not hold the lease is refused, and a
+/// stop in the controlword (halt) is taken from anyone and ends the lease,
+/// as a halt does.
+#[tokio::test(start_paused = true)]
+async fn an_od_write_to_a_leased_axis_is_held_to_the_lease_but_a_stop_always_goes() {
+    let (gateway, _) = enabled_demo().await;
+    let plc = Caller::new(Channel::Rest, "plc", Some(crate::access::Role::Operator));
+    let request: MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
+    let moved = gateway
+        .move_axis(&plc, AXIS, &request, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let lease = moved.lease.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    gateway
+        .renew_axis_lease(&plc, &lease.axis, &lease.id)
+        .await
+        .unwrap();
+
+    let other = Caller::new(
+        Channel::Cia309_3,
+        "other",
+        Some(crate::access::Role::Operator),
+    );
+    let umc = gateway.node_handle("demo", "1").unwrap();
+    let mut frames = gateway.bus("demo").unwrap().monitor();
+    for (index, bytes) in [
+        // Enable operation with a new set-point, a faster target, another
+        // mode.
+        (0x6040, 0x001Fu16.to_le_bytes().to_vec()),
+        (0x6042, 3000i16.to_le_bytes().to_vec()),
+        (0x6060, vec![1]),
+    ] {
+        let refused = umc.write_object(&other, index, 0, bytes).await.unwrap_err();
+        assert_eq!(refused.code(), "lease_conflict", "0x{index:04X}: {refused}");
+    }
+    assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
+    assert!(velocity(&gateway).await > 0);
+
+    // A halt in the controlword is a stop: anyone's, and the lease ends.
+    umc.write_object(&other, 0x6040, 0, 0x010Fu16.to_le_bytes().to_vec())
+        .await
+        .unwrap();
+    assert_eq!(gateway.leases_held(), 0);
+    let refused = gateway
+        .renew_axis_lease(&plc, &lease.axis, &lease.id)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "unknown_lease");
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(velocity(&gateway).await, 0);
+    // On a free axis the controlword is anyone's (with the operator's
+    // role): halt released.
+    umc.write_object(&other, 0x6040, 0, 0x000Fu16.to_le_bytes().to_vec())
+        .await
+        .unwrap();
+}

@@ -152,26 +152,39 @@ impl NodeHandle {
             self.gateway.admit(caller, Operation::WriteObject)?;
             check_sdo_allowed(&self.served, &self.info)?;
             check_writable(&self.info, index, sub)?;
-            Ok::<_, GatewayError>(self.served.registry.sdo(self.info.id)?)
+            // Issue 30 (motion authority): an axis's controlword, mode or
+            // target goes through the axis's authority and lease rule.
+            let motion = self.gateway.motion_write(
+                caller,
+                &self.served,
+                &self.info,
+                (index, sub),
+                &bytes,
+            )?;
+            Ok::<_, GatewayError>((self.served.registry.sdo(self.info.id)?, motion))
         })();
-        let channel = match checked {
-            Ok(channel) => channel,
+        let (channel, motion) = match checked {
+            Ok(checked) => checked,
             Err(error) => return refused(row, error).await,
         };
         let config = settings(channel.config());
+        let gateway = self.gateway.clone();
         // Write and read back in one task, and its audit row: all finish
         // even if the caller goes away.
         audited(row, async move {
-            channel
-                .download_with(index, sub, &bytes, config.as_ref())
-                .await?;
-            if read_back {
-                Ok(Some(
-                    channel.upload_with(index, sub, config.as_ref()).await?,
-                ))
-            } else {
-                Ok(None)
-            }
+            let transfers = async {
+                channel
+                    .download_with(index, sub, &bytes, config.as_ref())
+                    .await?;
+                if read_back {
+                    Ok(Some(
+                        channel.upload_with(index, sub, config.as_ref()).await?,
+                    ))
+                } else {
+                    Ok(None)
+                }
+            };
+            motion.send(&gateway, transfers).await
         })
         .await
     }
