@@ -80,7 +80,7 @@ pub struct ProgramAnswer {
         (status = 200, description = "Downloaded and verified", body = ProgramAnswer),
         (status = 400, description = "`invalid_request`: an empty image", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`", body = ErrorBody),
-        (status = 409, description = "`wrong_nmt_state`: the node is stopped", body = ErrorBody),
+        (status = 409, description = "`wrong_nmt_state`: the node is stopped; `axis_enabled`: an axis of the node is in operation_enabled (or quick_stop_active) or leased; `node_busy`: another program download (or a renumbering) runs on the node (one at a time, never queued)", body = ErrorBody),
         (status = 413, description = "`payload_too_large`", body = ErrorBody),
         (status = 422, description = "`sdo_abort` with `step` and `abort_code`: the device refused a step", body = ErrorBody),
         (status = 502, description = "`program_not_verified` (step `verify (0x1F56)`): 0x1F56 is not the image's CRC-32; `sdo_protocol_error`", body = ErrorBody),
