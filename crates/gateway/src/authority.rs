@@ -3,24 +3,27 @@
 //!
 //! Each axis (bus, node, axis) has an epoch and a gate. A stop (halt,
 //! quick stop, a walk out of operation enabled, STOP ALL, a lapsed lease,
-//! a renumbering, shutdown) first moves the epoch on — at once, before it
-//! awaits anything — and then takes the gate for its own transfers. A
-//! command or a sequence (a move, a state walk, halt released, fault
-//! reset, each step of a step test) holds an [`AxisTicket`] taken when it
-//! was admitted, and sends its transfers only under the gate and only if
-//! the epoch is still the ticket's ([`AxisTicket::send`]). So a step that
-//! lost the race to a stop is not sent, a step already on the wire when the
-//! stop came is finished before the stop goes out (the stop overrides it),
-//! and a sequence's waits ([`AxisTicket::hold`]) end as soon as a stop
-//! comes.
+//! a renumbering, shutdown, a stop written to the controlword) first moves
+//! the epoch on — at once, before it awaits anything — and then waits for
+//! the gate, so that a command's write already on the wire is done before
+//! the stop goes out (which then overrides it). A command (a move, a state
+//! walk, halt released, fault reset, each step of a step test, an OD write
+//! of an axis's controlword, mode or target) holds an [`AxisTicket`] taken
+//! when it was admitted, and sends each of its writes under the gate and
+//! only while the epoch is still the ticket's ([`AxisTicket::gated`]; a
+//! drive holding the ticket does so for every write:
+//! `crate::drive::Drive::with_ticket`). So a write that lost the race to a
+//! stop is not sent (`motion_stopped`), and a sequence's waits
+//! ([`AxisTicket::hold`]) end as soon as a stop comes.
 //!
-//! A stop waits for the gate at most [`STOP_GATE_WAIT`]: a step holding it
-//! is a few bounded transfers; past that the stop goes out anyway (a stop
-//! is never held back by what it stops).
+//! The gate is held for one write at a time, never for a whole sequence:
+//! a stop waits for at most that write (bounded again by
+//! [`STOP_GATE_WAIT`], after which it goes out anyway: a stop is never held
+//! back by what it stops), and reads (a sequence's polling) are not gated.
 //!
-//! A node can be closed to motion as a whole ([`MotionAuthority::close_node`],
-//! a program download): while it is, no ticket is issued for its axes
-//! (stops are not tickets and are never refused).
+//! A node can be closed to motion as a whole ([`MotionAuthority::close_node`]:
+//! a program download, a renumbering): while it is, no ticket is issued for
+//! its axes (`node_busy`; stops are no tickets and are never refused).
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -191,11 +194,29 @@ impl AxisTicket {
         *self.control.epoch.borrow() != self.epoch
     }
 
-    fn refusal(&self) -> GatewayError {
-        GatewayError::MotionStopped(format!(
+    /// Why a transfer of a voided ticket was not sent.
+    pub(crate) fn refusal_text(&self) -> String {
+        format!(
             "{}: a stop came after this command was taken; it was not sent (a stop always wins)",
             self.axis
-        ))
+        )
+    }
+
+    fn refusal(&self) -> GatewayError {
+        GatewayError::MotionStopped(self.refusal_text())
+    }
+
+    /// Runs `work` (one transfer of the command) under the axis's gate if
+    /// no stop came since the ticket was taken; `None`, sending nothing,
+    /// if one did. A drive holding the ticket sends each of its writes so
+    /// (`crate::drive::Drive::with_ticket`): a stop waits for at most the
+    /// one write on the wire, and the sequence's next write finds it.
+    pub(crate) async fn gated<T>(&self, work: impl Future<Output = T>) -> Option<T> {
+        let _gate = self.control.gate.clone().lock_owned().await;
+        if self.stopped() {
+            return None;
+        }
+        Some(work.await)
     }
 
     /// Runs `work` (the command's transfers) under the axis's gate if no

@@ -421,6 +421,7 @@ impl From<DriveError> for GatewayError {
             }
             DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
             DriveError::Invalid(message) => Self::InvalidValue(message),
+            DriveError::Stopped(message) => Self::MotionStopped(message),
         }
     }
 }

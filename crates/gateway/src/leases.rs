@@ -367,7 +367,10 @@ async fn halt_then_quick_stop(
     // half way.
     let period = lease.period;
     let task = tokio::spawn(async move {
-        let _gate = gates.gate(&drive).await;
+        // A command's write on the wire goes first; the halt then (not
+        // under the gate: the halt waits for the node's procedure, which a
+        // command holds until its next write finds the stop).
+        drop(gates.gate(&drive).await);
         match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
             Ok(Ok(_)) => {
                 let deadline = Instant::now() + period;
@@ -389,8 +392,7 @@ async fn halt_then_quick_stop(
             Ok(Err(error)) => tracing::error!("halt failed ({error}); quick stop instead"),
             Err(_) => tracing::error!("halt not given in time; quick stop instead"),
         }
-        // The gate is held already.
-        match Gateway::quick_stop_or_nmt(bus, drive, None).await {
+        match Gateway::quick_stop_or_nmt(bus, drive, Some(gates)).await {
             AxisStop::Stopped(_) | AxisStop::NotEnabled(_) => LapseStop::QuickStopped,
             AxisStop::Failed { error, attempts } => LapseStop::NotConfirmed { error, attempts },
         }

@@ -404,16 +404,21 @@ impl Gateway {
                 self.enabled_axes.insert(bus, &drive);
             }
             let state = target.state();
-            let walk = spawned(drive.clone(), move |drive| async move {
-                drive.set_state(state).await
-            });
-            let status = match &ticket {
-                Some(ticket) => ticket.send(walk).await?,
+            let drive = match ticket {
+                // Each write of the walk under the axis's gate, none after
+                // a stop.
+                Some(ticket) => drive.with_ticket(ticket),
                 None => {
-                    let _gate = gates.authority.stop_gate(&axis_key).await;
-                    walk.await?
+                    // A command's write on the wire goes first.
+                    drop(gates.authority.stop_gate(&axis_key).await);
+                    drive
                 }
             };
+            let status = spawned(
+                drive,
+                move |drive| async move { drive.set_state(state).await },
+            )
+            .await?;
             if !enable {
                 // Out of operation enabled nothing moves: the motion is over.
                 self.leases.release(&axis_key);
@@ -478,12 +483,10 @@ impl Gateway {
             }
             // Motion the gateway resumes is motion it stops on shutdown.
             self.enabled_axes.insert(bus, &drive);
-            let status = ticket
-                .send(spawned(
-                    drive,
-                    |drive| async move { drive.halt(false).await },
-                ))
-                .await?;
+            let status = spawned(drive.with_ticket(ticket), |drive| async move {
+                drive.halt(false).await
+            })
+            .await?;
             let lease = match endless_displayed(status.mode.as_deref()) {
                 Some(mode) if status.state == "operation_enabled" => Some(self.leases.grant(
                     self,
@@ -527,7 +530,11 @@ impl Gateway {
                 return result;
             }
         };
-        spawn_audited(row, async move { ticket.send(drive.fault_reset()).await }).await
+        let drive = drive.with_ticket(ticket);
+        spawn_audited(row, async move {
+            drive.fault_reset().await.map_err(GatewayError::from)
+        })
+        .await
     }
 
     /// Starts a motion. A move with an end of its own (profile position,
@@ -563,7 +570,9 @@ impl Gateway {
         let drive = self.drive(bus, node, axis)?;
         drive.validate(request)?;
         let axis_key = key(bus, &drive);
-        let ticket = self.authority.ticket(&axis_key)?;
+        // Each write of the move goes under the axis's gate, none after a
+        // stop.
+        let drive = drive.with_ticket(self.authority.ticket(&axis_key)?);
         let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
         let result = async {
             let presented = claim.id()?;
@@ -572,11 +581,11 @@ impl Gateway {
             if !(endless(mode) || mode == MoveMode::InterpolatedPosition) {
                 self.leases.check(&axis_key, presented, &caller.who)?;
                 self.enabled_axes.insert(bus, &drive);
-                let status = ticket
-                    .send(spawned(drive, move |drive| async move {
-                        drive.run_move(&request).await
-                    }))
-                    .await?;
+                let status = spawned(
+                    drive,
+                    move |drive| async move { drive.run_move(&request).await },
+                )
+                .await?;
                 self.leases.release(&axis_key);
                 return Ok((status, None));
             }
@@ -596,25 +605,10 @@ impl Gateway {
             self.enabled_axes.insert(bus, &drive);
             // While the caller waits it keeps the lease alive; if it goes
             // away, the lease lapses at once.
-            let run = spawned(
-                drive,
-                move |drive| async move { drive.run_move(&request).await },
-            );
-            let sent = async {
-                if endless(mode) {
-                    ticket.send(run).await
-                } else {
-                    // An interpolated move feeds its points for as long as
-                    // they last: it is checked under the gate, and not
-                    // sent after a stop, but does not hold the gate (a stop
-                    // would wait for it); feeding points after a halt
-                    // sets no motion going again.
-                    ticket.send(async { Ok::<_, GatewayError>(()) }).await?;
-                    run.await
-                }
-            };
             let status = InFlight::new(&self.leases, &lease)
-                .run(sent)
+                .run(spawned(drive, move |drive| async move {
+                    drive.run_move(&request).await
+                }))
                 .await
                 .inspect_err(|_| {
                     // A failed move halted the axis: nothing is left to lease.
@@ -678,10 +672,10 @@ impl Gateway {
             // Each step is sent through the ticket: a stop of the axis (a
             // halt, the lapse when this caller goes away) ends the test,
             // and no later step is sent.
-            let test =
-                tokio::spawn(
-                    async move { step_test::run(&drive, &values, &request, &ticket).await },
-                );
+            let test = tokio::spawn(async move {
+                let drive = drive.with_ticket(ticket.clone());
+                step_test::run(&drive, &values, &request, &ticket).await
+            });
             let result = InFlight::new(&self.leases, &lease)
                 .run(async {
                     test.await

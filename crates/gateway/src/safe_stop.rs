@@ -630,7 +630,10 @@ impl Gateway {
         let (bus, drive) = self.stop_target(bus, id, axis)?;
         gates.cancel(&drive);
         tokio::spawn(async move {
-            let gate = gates.gate(&drive).await;
+            // A command's write on the wire goes first; the halt then (not
+            // under the gate: the halt waits for the node's procedure,
+            // which a command holds until its next write finds the stop).
+            drop(gates.gate(&drive).await);
             let error = match tokio::time::timeout(HALT_TIMEOUT, drive.halt(true)).await {
                 Ok(Ok(status)) => {
                     return Ok(AxisStopped {
@@ -651,10 +654,11 @@ impl Gateway {
                 drive.axis()
             );
             let mut attempts = vec![StopAttempt::failed(StopMethod::Halt, &error, "")];
-            // The gate is held already.
-            let stop = stop_node(bus, vec![drive], None).await;
-            drop(gate);
-            match stop.into_iter().next() {
+            match stop_node(bus, vec![drive], Some(gates))
+                .await
+                .into_iter()
+                .next()
+            {
                 Some((_, AxisStop::Stopped(more) | AxisStop::Failed { attempts: more, .. })) => {
                     attempts.extend(more);
                 }

@@ -191,10 +191,11 @@ impl StepTestRequest {
 /// happened.
 /// `values`: the TPDO values of the drive's bus, which feed the samples
 /// when they carry the loop's actual value (see the module documentation).
-/// `ticket`: the test's right to the axis. Each step is sent through it and
-/// each hold waits on it, so a stop of the axis (halt, quick stop, STOP
-/// ALL, a lapsed lease) ends the test at once with `motion_stopped`, and
-/// no step is sent after the stop (which has stopped the axis itself).
+/// `ticket`: the test's right to the axis, which `drive` holds too (its
+/// writes go under the axis's gate, none after a stop); each hold waits on
+/// it, so a stop of the axis (halt, quick stop, STOP ALL, a lapsed lease)
+/// ends the test at once with `motion_stopped`, and no step is sent after
+/// the stop (which has stopped the axis itself).
 pub(crate) async fn run(
     drive: &Drive,
     values: &TpdoValues,
@@ -240,15 +241,11 @@ async fn steps(
     ticket: &AxisTicket,
 ) -> Result<StepTestResult, GatewayError> {
     let hold = Duration::from_millis(u64::from(request.hold_ms));
-    ticket
-        .send(drive.run_move(&request.level(request.from)))
-        .await?;
+    drive.run_move(&request.level(request.from)).await?;
     ticket.hold(hold).await?;
     let actual = request.actual();
     let start = tokio::time::Instant::now();
-    ticket
-        .send(drive.run_move(&request.level(request.to)))
-        .await?;
+    drive.run_move(&request.level(request.to)).await?;
     let mut samples = Vec::new();
     let sample = |t: Duration, value: i64| {
         [

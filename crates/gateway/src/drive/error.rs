@@ -60,6 +60,10 @@ pub enum DriveError {
     /// A request only a UMC-class drive's control loops can take.
     #[error("{0}")]
     NotTunable(String),
+    /// A stop of the axis came after the command was admitted: its
+    /// remaining writes were not sent (`crate::authority`).
+    #[error("{0}")]
+    Stopped(String),
 }
 
 pub(super) fn state_name(state: &Option<State>) -> &'static str {

@@ -117,6 +117,7 @@ pub(crate) async fn axes_summary(
             kind,
             eds: info.eds_entry.clone(),
             axis,
+            ticket: None,
         };
         axes.push(drive.status().await?);
     }
@@ -130,6 +131,10 @@ pub struct Drive {
     kind: DriveKind,
     eds: Option<Arc<EdsEntry>>,
     axis: u8,
+    /// The command's right to the axis, when it runs for one: each write
+    /// goes under the axis's gate, and none after a stop
+    /// (`crate::authority`). A stop's drive has none.
+    ticket: Option<crate::authority::AxisTicket>,
 }
 
 impl Drive {
@@ -155,7 +160,33 @@ impl Drive {
             kind,
             eds: info.eds_entry.clone(),
             axis: number,
+            ticket: None,
         })
+    }
+
+    /// The same axis for a command holding `ticket`: every write it sends
+    /// goes under the axis's gate, and none once a stop voided the ticket
+    /// (`DriveError::Stopped`).
+    pub(crate) fn with_ticket(mut self, ticket: crate::authority::AxisTicket) -> Self {
+        self.ticket = Some(ticket);
+        self
+    }
+
+    /// One download to the node, through the ticket when there is one.
+    pub(super) async fn download(
+        &self,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+    ) -> Result<(), DriveError> {
+        let transfer = self.channel.download(index, sub, data);
+        match &self.ticket {
+            None => Ok(transfer.await?),
+            Some(ticket) => match ticket.gated(transfer).await {
+                Some(result) => Ok(result?),
+                None => Err(DriveError::Stopped(ticket.refusal_text())),
+            },
+        }
     }
 
     /// The node's id.
@@ -240,10 +271,7 @@ impl Drive {
     }
 
     pub(super) async fn write(&self, write: &Write) -> Result<(), DriveError> {
-        Ok(self
-            .channel
-            .download(write.index, write.sub, &write.data)
-            .await?)
+        self.download(write.index, write.sub, &write.data).await
     }
 
     pub(super) async fn read_int(
@@ -289,10 +317,8 @@ impl Drive {
     }
 
     pub(super) async fn controlword(&self, value: u16) -> Result<(), DriveError> {
-        self.channel
-            .download(self.index(obj::CONTROLWORD), 0, &value.to_le_bytes())
-            .await?;
-        Ok(())
+        self.download(self.index(obj::CONTROLWORD), 0, &value.to_le_bytes())
+            .await
     }
 
     /// The CiA 402 modes the drive says it supports (0x6502); the JMC's

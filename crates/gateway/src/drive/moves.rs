@@ -355,13 +355,12 @@ impl Drive {
         if display().await? == mode.raw() {
             return Ok(());
         }
-        self.channel
-            .download(
-                self.index(obj::MODES_OF_OPERATION),
-                0,
-                &mode.raw().to_le_bytes(),
-            )
-            .await?;
+        self.download(
+            self.index(obj::MODES_OF_OPERATION),
+            0,
+            &mode.raw().to_le_bytes(),
+        )
+        .await?;
         let deadline = tokio::time::Instant::now() + MODE_TIMEOUT;
         while display().await? != mode.raw() {
             // A drive changing mode while it moves stops first (CiA 402
@@ -426,8 +425,7 @@ impl Drive {
             let free = capacity.saturating_sub(in_buffer);
             let batch = free.min(points.len() - queued);
             for point in &points[queued..queued + batch] {
-                self.channel
-                    .download(self.index(obj::IP_DATA_RECORD), 1, &point.to_le_bytes())
+                self.download(self.index(obj::IP_DATA_RECORD), 1, &point.to_le_bytes())
                     .await?;
             }
             queued += batch;
