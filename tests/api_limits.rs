@@ -19,7 +19,23 @@ use common::Server;
 /// default, under systemd too); its HTTP address and its other stdout
 /// lines up to the one that starts with `until`.
 fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Vec<String>) {
-    let mut child = Command::new("sh")
+    start_limited_with_tokens(nofile, args, until, None)
+}
+
+/// [`start_limited`] with `CANDECK_TOKENS` set when given.
+fn start_limited_with_tokens(
+    nofile: u32,
+    args: &[&str],
+    until: &str,
+    tokens: Option<&str>,
+) -> (Server, String, Vec<String>) {
+    let mut command = Command::new("sh");
+    if let Some(tokens) = tokens {
+        command.env("CANDECK_TOKENS", tokens);
+    } else {
+        command.env_remove("CANDECK_TOKENS");
+    }
+    let mut child = command
         .arg("-c")
         .arg(format!("ulimit -n {nofile} && exec \"$0\" \"$@\""))
         .arg(env!("CARGO_BIN_EXE_candeck"))
@@ -27,7 +43,6 @@ fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Ve
         .args(args)
         .args(["--listen", "127.0.0.1:0"])
         .env_remove("CANDECK_LOG")
-        .env_remove("CANDECK_TOKENS")
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -194,4 +209,89 @@ async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
     // And clients that send nothing are closed after the idle timeout.
     closed_by_server(&mut first, bound).await;
     closed_by_server(&mut second, bound).await;
+}
+
+const ADMIN_TOKEN: &str = "admin-token-0123456789abcdef";
+
+/// `Authorization: Bearer` of [`ADMIN_TOKEN`], as a header line.
+fn admin() -> String {
+    format!("Authorization: Bearer {ADMIN_TOKEN}\r\n")
+}
+
+/// Issue 30, finding 6: clients without a token that send a request head
+/// announcing a large body and then stall are answered 401 at once, their
+/// bodies never read; they hold no connection, and `/health`, STOP ALL and
+/// a token holder's read go on being answered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stalled_bodies_without_a_token_do_not_hold_connections() {
+    const STALLED: usize = 500;
+    raise_nofile(STALLED as u64 + 200);
+    let tokens = format!("ops:admin:{ADMIN_TOKEN}");
+    let (server, _, _) = start_limited_with_tokens(1024, &[], "", Some(&tokens));
+    let head = format!(
+        "PUT /api/v1/buses/demo/nodes/1/od/0x2000/0 HTTP/1.1\r\nHost: {}\r\n\
+         Content-Type: application/json\r\nContent-Length: 1000000\r\n\r\n{{",
+        server.address
+    );
+    let mut stalled = Vec::with_capacity(STALLED);
+    for _ in 0..STALLED {
+        let mut stream =
+            tokio::time::timeout(Duration::from_secs(10), TcpStream::connect(&server.address))
+                .await
+                .expect("connected within 10 s")
+                .unwrap();
+        stream.write_all(head.as_bytes()).await.unwrap();
+        stalled.push(stream);
+    }
+    // Each answered 401 without its body, and closed.
+    for stream in stalled.iter_mut().step_by(50) {
+        let answer = closed_by_server(stream, Duration::from_secs(10)).await;
+        assert!(
+            answer.starts_with(b"HTTP/1.1 401"),
+            "{:?}",
+            String::from_utf8_lossy(&answer)
+        );
+    }
+    for (method, path, body) in [
+        ("GET", "/api/v1/health", None),
+        ("POST", "/api/v1/stop-all", Some("{}")),
+        ("GET", "/api/v1/buses", None),
+    ] {
+        let answer = tokio::time::timeout(
+            Duration::from_secs(10),
+            common::request_with_headers(
+                &server.address,
+                method,
+                path,
+                "application/json",
+                body,
+                Duration::from_secs(10),
+                &admin(),
+            ),
+        )
+        .await
+        .unwrap_or_else(|_| panic!("{method} {path}: no answer within 10 s"));
+        assert_eq!(answer.status, 200, "{method} {path}: {}", answer.body);
+    }
+    drop(stalled);
+}
+
+/// Issue 30, finding 6: a token holder's request whose body stalls is
+/// closed after the idle timeout, as an idle connection is.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_request_body_is_closed_after_the_idle_timeout() {
+    let tokens = format!("ops:admin:{ADMIN_TOKEN}");
+    let (server, _, _) =
+        start_limited_with_tokens(1024, &["--idle-timeout-ms", "300"], "", Some(&tokens));
+    let mut stream = TcpStream::connect(&server.address).await.unwrap();
+    let head = format!(
+        "PUT /api/v1/buses/demo/nodes/1/od/0x2000/0 HTTP/1.1\r\nHost: {}\r\n{}\
+         Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{{\"value\"",
+        server.address,
+        admin()
+    );
+    stream.write_all(head.as_bytes()).await.unwrap();
+    closed_by_server(&mut stream, Duration::from_secs(30)).await;
+    let (status, _) = common::http(&server.address, "GET", "/api/v1/health", None).await;
+    assert_eq!(status, 200);
 }

@@ -455,6 +455,28 @@ pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
     (identity, given.is_some())
 }
 
+/// Whether the guard refuses a request for its credentials (401 without a
+/// valid token, 403 for a role too low): such a request's body is never
+/// read (issue 30, finding 6), so that clients without a token cannot hold
+/// connections by sending a body slowly, or never.
+pub fn refused_for_credentials(
+    config: &AuthConfig,
+    method: &Method,
+    path: &str,
+    headers: &HeaderMap,
+) -> bool {
+    if !config.required() {
+        return false;
+    }
+    let Some(needed) = required(method, path).role() else {
+        return false;
+    };
+    identify(config, headers)
+        .0
+        .role
+        .is_none_or(|role| role < needed)
+}
+
 /// Whether the guard takes a write of the token's rate for a request:
 /// only for a write to a path no route has under `/api/v1` (refused here,
 /// with no operation behind it, and audited). Every route's operation
