@@ -197,10 +197,20 @@ async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
         .unwrap();
     assert!(reply[..n].starts_with(b"[1] "), "{:?}", &reply[..n]);
     let mut second = TcpStream::connect(&ascii).await.unwrap();
+    // A third one takes the place of the second, which sent nothing yet
+    // (issue 30): the second is closed, the third answered.
     let mut third = TcpStream::connect(&ascii).await.unwrap();
-    // Closed at once, without an answer, while the first got one.
-    third.write_all(b"[2] 1 r 0x1000 0 u32\n").await.ok();
-    let refused = closed_by_server(&mut third, bound).await;
+    third.write_all(b"[2] 1 r 0x1000 0 u32\n").await.unwrap();
+    let n = tokio::time::timeout(bound, third.read(&mut reply))
+        .await
+        .expect("a reply")
+        .unwrap();
+    assert!(reply[..n].starts_with(b"[2] "), "{:?}", &reply[..n]);
+    assert!(closed_by_server(&mut second, bound).await.is_empty());
+    // Both places in use: a fourth is closed at once, without an answer.
+    let mut fourth = TcpStream::connect(&ascii).await.unwrap();
+    fourth.write_all(b"[3] 1 r 0x1000 0 u32\n").await.ok();
+    let refused = closed_by_server(&mut fourth, bound).await;
     assert!(
         refused.is_empty(),
         "{:?}",
@@ -208,7 +218,7 @@ async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
     );
     // And clients that send nothing are closed after the idle timeout.
     closed_by_server(&mut first, bound).await;
-    closed_by_server(&mut second, bound).await;
+    closed_by_server(&mut third, bound).await;
 }
 
 const ADMIN_TOKEN: &str = "admin-token-0123456789abcdef";

@@ -113,6 +113,7 @@ pub struct ServeArgs {
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
     /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
     /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
+    /// ascii_unauthenticated_timeout_ms,
     /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
@@ -237,6 +238,12 @@ pub struct ServeArgs {
     /// CiA 309-3 connections at once (--ascii-listen). Default: 32.
     #[arg(long, value_name = "N")]
     pub ascii_max_connections: Option<usize>,
+    /// How long a CiA 309-3 client may go without a valid `auth` line (on
+    /// a gateway without tokens: without a command) before it is closed,
+    /// in milliseconds; when every place is taken, a new connection takes
+    /// the place of the oldest such client. Default: 10000.
+    #[arg(long, value_name = "MS")]
+    pub ascii_unauthenticated_timeout_ms: Option<u64>,
     /// socketcand clients at once, per --share address; one more is
     /// refused. Default: 32.
     #[arg(long, value_name = "N")]

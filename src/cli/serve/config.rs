@@ -97,6 +97,7 @@ pub(super) struct ConfigFile {
     pub(super) max_connections: Option<usize>,
     pub(super) ascii_idle_timeout_ms: Option<u64>,
     pub(super) ascii_max_connections: Option<usize>,
+    pub(super) ascii_unauthenticated_timeout_ms: Option<u64>,
     // The Sparkplug B edge node (docs/sparkplug.md); off without mqtt_url.
     pub(super) mqtt_url: Option<String>,
     pub(super) mqtt_username: Option<String>,
@@ -511,6 +512,9 @@ impl ServeArgs {
                     self.ascii_max_connections
                         .or(file.ascii_max_connections)
                         .unwrap_or(defaults.max_connections),
+                    self.ascii_unauthenticated_timeout_ms
+                        .or(file.ascii_unauthenticated_timeout_ms)
+                        .map_or(defaults.unauthenticated_timeout, Duration::from_millis),
                 )?
             },
             share_max_connections: match self.share_max_connections.or(file.share_max_connections) {
