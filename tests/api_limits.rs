@@ -305,3 +305,53 @@ async fn a_stalled_request_body_is_closed_after_the_idle_timeout() {
     let (status, _) = common::http(&server.address, "GET", "/api/v1/health", None).await;
     assert_eq!(status, 200);
 }
+
+/// Issue 30, finding 6: `--max-connections 5000` under a limit of 256 open
+/// files is lowered to what the limit leaves (with a warning), so that the
+/// reserve still answers `/health` and STOP ALL with more idle clients
+/// than the process may open files; too little room is refused at start.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn max_connections_is_lowered_to_what_the_open_file_limit_leaves() {
+    const IDLE: usize = 300;
+    raise_nofile(IDLE as u64 + 200);
+    let (server, _, _) = start_limited(256, &["--max-connections", "5000"], "");
+    let mut idle = Vec::with_capacity(IDLE);
+    for _ in 0..IDLE {
+        let stream =
+            tokio::time::timeout(Duration::from_secs(10), TcpStream::connect(&server.address))
+                .await
+                .expect("connected within 10 s")
+                .unwrap();
+        idle.push(stream);
+    }
+    for (method, path) in [("GET", "/api/v1/health"), ("POST", "/api/v1/stop-all")] {
+        let answer = tokio::time::timeout(
+            Duration::from_secs(10),
+            common::request(
+                &server.address,
+                method,
+                path,
+                "application/json",
+                Some("{}").filter(|_| method == "POST"),
+                Duration::from_secs(10),
+            ),
+        )
+        .await
+        .unwrap_or_else(|_| panic!("{method} {path}: no answer within 10 s"));
+        assert_eq!(answer.status, 200, "{method} {path}: {}", answer.body);
+    }
+    drop(idle);
+
+    // Under 70 open files, fewer than the reserve and one more are left.
+    let refused = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -n 70 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_candeck"))
+        .args(["serve", "--listen", "127.0.0.1:0"])
+        .env_remove("CANDECK_TOKENS")
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("raise the limit of open files"), "{stderr}");
+}

@@ -686,6 +686,13 @@ impl Settings {
 
     /// The socketcand servers to start: each address with the virtual
     /// buses it shares, as (channel, hub).
+    /// How many socketcand share addresses the gateway listens on.
+    pub(super) fn shared_addresses(&self) -> usize {
+        let addresses: std::collections::BTreeSet<SocketAddr> =
+            self.share.iter().map(|share| share.addr).collect();
+        addresses.len()
+    }
+
     pub(super) fn shared(
         &self,
         served: &[std::sync::Arc<ServedBus>],
