@@ -132,7 +132,7 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
         Ok(Err(_)) => {
             // Refused before the guard saw it: who sent it is found here,
             // so that a token's oversized request is logged as the token's.
-            let (identity, _) = super::auth::identify(&state.guard.config, &parts.headers);
+            let (identity, _) = super::auth::identify(&state.guard.config, &method, &parts.headers);
             let mut response = super::auth::too_large(limit).into_response();
             response.extensions_mut().insert(identity);
             (response, Some(format!("more than {limit} bytes")), None)

@@ -614,3 +614,40 @@ async fn the_stream_needs_a_token_as_a_header_or_a_subprotocol() {
     }
     server.abort();
 }
+
+/// Issue 30, finding 8: the `bearer.` subprotocol is a token for a
+/// WebSocket upgrade only: a plain request naming it is unauthenticated.
+#[tokio::test(start_paused = true)]
+async fn the_bearer_subprotocol_authenticates_websocket_upgrades_only() {
+    let app = gateway(None);
+    let protocols = format!("candeck.v1, bearer.{ADMIN}");
+    for (method, path) in [
+        (Method::POST, "/api/v1/stop-all"),
+        (Method::GET, "/api/v1/auth/whoami"),
+        (Method::GET, "/api/v1/buses"),
+    ] {
+        let (status, _, json) = send(
+            &app,
+            method.clone(),
+            path,
+            &[("sec-websocket-protocol", &protocols)],
+            None,
+        )
+        .await;
+        assert_eq!(status, StatusCode::UNAUTHORIZED, "{method} {path}: {json}");
+    }
+    // Nor a POST that says it upgrades: a WebSocket opens with a GET.
+    let (status, _, json) = send(
+        &app,
+        Method::POST,
+        "/api/v1/stop-all",
+        &[
+            ("sec-websocket-protocol", &protocols),
+            ("upgrade", "websocket"),
+            ("connection", "upgrade"),
+        ],
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED, "{json}");
+}
