@@ -713,6 +713,41 @@ impl Settings {
     }
 }
 
+/// The shortest heartbeat period a `[[nodes]]` entry may ask (0 turns
+/// supervision off): shorter ones load the bus for nothing and, with a
+/// consumer time of 1.5 periods, report a node lost whenever the host is
+/// briefly busy.
+pub(super) const MIN_NODE_HEARTBEAT_MS: u16 = 50;
+
+/// The ranges and the consistency of one `[[nodes]]` entry's values
+/// (issue 30, finding 8).
+pub(super) fn check_node_entry(entry: &NodeEntry) -> Result<(), String> {
+    if let Some(ms) = entry.heartbeat_ms
+        && ms != 0
+        && ms < MIN_NODE_HEARTBEAT_MS
+    {
+        return Err(format!(
+            "heartbeat_ms {ms}: give 0 (not supervised) or {MIN_NODE_HEARTBEAT_MS} to {} ms",
+            u16::MAX
+        ));
+    }
+    if let (Some(min), Some(max)) = (entry.revision_min, entry.revision_max)
+        && min > max
+    {
+        return Err(format!(
+            "revision_min {min:#010x} is above revision_max {max:#010x}: the range matches no revision"
+        ));
+    }
+    if entry
+        .name
+        .as_deref()
+        .is_some_and(|name| name.trim().is_empty())
+    {
+        return Err("name: empty; leave the key out for none".to_string());
+    }
+    Ok(())
+}
+
 /// The `[[nodes]]` of the config file by bus (the first bus when a node
 /// names none), each checked and its DCF read for its node id.
 fn machine_nodes(
@@ -733,6 +768,7 @@ fn machine_nodes(
         };
         let id = NodeId::new(entry.id)
             .map_err(|err| format!("config [[nodes]] id {}: {err}", entry.id))?;
+        check_node_entry(entry).map_err(|err| format!("config [[nodes]] id {id}: {err}"))?;
         if id == manager {
             return Err(format!(
                 "config [[nodes]] id {id}: that is the gateway's own node id (manager_node_id)"
