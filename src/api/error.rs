@@ -88,6 +88,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::LssBusy(_)
         | GatewayError::NodeIdInUse(_)
         | GatewayError::EdsConflict(_)
+        | GatewayError::EdsQuota(_)
         | GatewayError::Pdo(PdoError::PdoDisabled(_))
         | GatewayError::Sim(SimError::NotVirtual(_) | SimError::NodeTaken(_))
         | GatewayError::RecordingRunning(_)

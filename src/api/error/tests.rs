@@ -67,10 +67,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::TooManyLoggers(_) => 56,
         GatewayError::NotLoggable(_) => 57,
         GatewayError::HistoryFailed(_) => 58,
+        GatewayError::EdsQuota(_) => 59,
     }
 }
 
-const VARIANTS: usize = 59;
+const VARIANTS: usize = 60;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -137,6 +138,7 @@ fn samples() -> Vec<GatewayError> {
             line: Some(3),
         },
         GatewayError::EdsConflict(text()),
+        GatewayError::EdsQuota(text()),
         GatewayError::NotAnIoModule(text()),
         GatewayError::UnknownChannel(text()),
         GatewayError::InvalidIndex(text()),

@@ -113,7 +113,7 @@ pub struct ServeArgs {
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
     /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
     /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
-    /// ascii_unauthenticated_timeout_ms,
+    /// ascii_unauthenticated_timeout_ms, eds_max_files, eds_max_mb,
     /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
@@ -244,6 +244,14 @@ pub struct ServeArgs {
     /// the place of the oldest such client. Default: 10000.
     #[arg(long, value_name = "MS")]
     pub ascii_unauthenticated_timeout_ms: Option<u64>,
+    /// Uploaded EDS files (POST /api/v1/eds) the catalog takes at most;
+    /// one more is refused (409 eds_quota). Default: 256.
+    #[arg(long, value_name = "N")]
+    pub eds_max_files: Option<usize>,
+    /// How much the uploaded EDS files may take together, in MiB; an
+    /// upload beyond is refused (409 eds_quota). Default: 64.
+    #[arg(long, value_name = "MIB")]
+    pub eds_max_mb: Option<u64>,
     /// socketcand clients at once, per --share address; one more is
     /// refused. Default: 32.
     #[arg(long, value_name = "N")]

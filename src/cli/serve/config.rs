@@ -98,6 +98,8 @@ pub(super) struct ConfigFile {
     pub(super) ascii_idle_timeout_ms: Option<u64>,
     pub(super) ascii_max_connections: Option<usize>,
     pub(super) ascii_unauthenticated_timeout_ms: Option<u64>,
+    pub(super) eds_max_files: Option<usize>,
+    pub(super) eds_max_mb: Option<u64>,
     // The Sparkplug B edge node (docs/sparkplug.md); off without mqtt_url.
     pub(super) mqtt_url: Option<String>,
     pub(super) mqtt_username: Option<String>,
@@ -326,6 +328,8 @@ pub(super) struct Settings {
     pub(super) sparkplug: Option<SparkplugConfig>,
     /// socketcand clients at once per share.
     pub(super) share_max_connections: usize,
+    /// The uploaded EDS files the catalog takes.
+    pub(super) eds_quota: crate::gateway::EdsQuota,
     /// The network manager of every bus, and the nodes described for each
     /// (by bus name).
     pub(super) machine: MachineSettings,
@@ -516,6 +520,25 @@ impl ServeArgs {
                         .or(file.ascii_unauthenticated_timeout_ms)
                         .map_or(defaults.unauthenticated_timeout, Duration::from_millis),
                 )?
+            },
+            eds_quota: {
+                let defaults = crate::gateway::EdsQuota::default();
+                let max_files = self
+                    .eds_max_files
+                    .or(file.eds_max_files)
+                    .unwrap_or(defaults.max_files);
+                let max_mb = self.eds_max_mb.or(file.eds_max_mb);
+                if max_files == 0 || max_mb == Some(0) {
+                    return Err(
+                        "eds_max_files, eds_max_mb: at least 1 (refuse uploads with tokens: only admins upload)"
+                            .to_string(),
+                    );
+                }
+                crate::gateway::EdsQuota {
+                    max_files,
+                    max_bytes: max_mb
+                        .map_or(defaults.max_bytes, |mb| mb.saturating_mul(1024 * 1024)),
+                }
             },
             share_max_connections: match self.share_max_connections.or(file.share_max_connections) {
                 Some(0) => return Err("share_max_connections: at least 1".to_string()),

@@ -38,6 +38,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     )
     .await
     .map_err(|err| CliError::new(err.to_string()))?;
+    if let Some(catalog) = gateway.eds_catalog() {
+        catalog.set_quota(args.eds_quota);
+    }
     let served = gateway.buses_in_order();
     let mut shares = Vec::new();
     for (addr, channels) in args.shared(&served) {
