@@ -806,6 +806,10 @@ fn machine_nodes(
         }
         let config = match &entry.dcf {
             Some(path) => {
+                // Bounded before it is read (issue 30: `/dev/zero`).
+                crate::canopen::eds::check_file(path).map_err(|err| {
+                    format!("config [[nodes]] id {id}: DCF {}: {err}", path.display())
+                })?;
                 load_dcf(path, id).map_err(|err| format!("config [[nodes]] id {id}: {err}"))?
             }
             None => Vec::new(),

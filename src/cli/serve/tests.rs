@@ -616,3 +616,40 @@ fn node_entries_with_values_out_of_range_or_inconsistent_are_refused() {
     assert_eq!(settings.machine_nodes["demo"].len(), 2);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 30, finding 7: a DCF of a `[[nodes]]` entry is read within a
+/// bound: `/dev/zero` (not a regular file) and a file larger than an EDS
+/// or DCF may be are refused at start with a clear error, unread.
+#[test]
+fn a_dcf_that_is_no_regular_file_or_too_large_is_refused_unread() {
+    let dir = std::env::temp_dir().join(format!("candeck-dcf-bound-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("nodes.toml");
+    let large = dir.join("large.dcf");
+    // Sparse: its size without its bytes on disk.
+    std::fs::File::create(&large)
+        .unwrap()
+        .set_len(crate::canopen::eds::MAX_FILE_BYTES + 1)
+        .unwrap();
+    for (dcf, expected) in [
+        ("/dev/zero", "not a regular file"),
+        (
+            large.to_str().unwrap(),
+            "more than the 16777216 an EDS or DCF may have",
+        ),
+    ] {
+        std::fs::write(&file, format!("[[nodes]]\nid = 5\ndcf = \"{dcf}\"\n")).unwrap();
+        let err = serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("config [[nodes]] id 5: DCF"), "{dcf}: {err}");
+        assert!(err.contains(expected), "{dcf}: {err}");
+    }
+    // An EDS of the EDS directory too.
+    let err = crate::canopen::eds::read_eds_file(&large).unwrap_err();
+    assert!(err.to_string().contains("more than the"), "{err}");
+    let err = crate::canopen::eds::read_eds_file("/dev/zero").unwrap_err();
+    assert!(err.to_string().contains("not a regular file"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
