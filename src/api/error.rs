@@ -48,6 +48,9 @@ pub enum AppError {
     /// Every connection the HTTP server takes is in use; the reserve
     /// answers `/health` and `stop-all` only.
     TooManyConnections(String),
+    /// The token or the peer holds as many WebSocket streams as it may
+    /// (`stream_max_per_token`, `stream_max_per_peer`): answered 429.
+    TooManyStreams(String),
 }
 
 /// The HTTP status of each of the gateway's errors, in one place (a failed
@@ -184,7 +187,8 @@ impl std::fmt::Display for AppError {
             Self::InvalidRequest(message)
             | Self::PayloadTooLarge(message)
             | Self::HostNotAllowed(message)
-            | Self::TooManyConnections(message) => f.write_str(message),
+            | Self::TooManyConnections(message)
+            | Self::TooManyStreams(message) => f.write_str(message),
             Self::NoRoute(path) => write!(f, "no such endpoint: {path}"),
             Self::MethodNotAllowed { method, path } => {
                 write!(f, "method {method} is not allowed on {path}")
@@ -209,6 +213,7 @@ impl AppError {
             Self::UpgradeRequired(_) => StatusCode::UPGRADE_REQUIRED,
             Self::HostNotAllowed(_) => StatusCode::MISDIRECTED_REQUEST,
             Self::TooManyConnections(_) => StatusCode::SERVICE_UNAVAILABLE,
+            Self::TooManyStreams(_) => StatusCode::TOO_MANY_REQUESTS,
         }
     }
 
@@ -224,6 +229,7 @@ impl AppError {
             Self::UpgradeRequired(_) => "upgrade_required",
             Self::HostNotAllowed(_) => "host_not_allowed",
             Self::TooManyConnections(_) => "too_many_connections",
+            Self::TooManyStreams(_) => "too_many_streams",
         };
         json!({ "code": code, "message": self.to_string() })
     }

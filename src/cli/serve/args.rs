@@ -114,6 +114,7 @@ pub struct ServeArgs {
     /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
     /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
     /// ascii_unauthenticated_timeout_ms, eds_max_files, eds_max_mb,
+    /// stream_max_per_token, stream_max_per_peer,
     /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
@@ -252,6 +253,14 @@ pub struct ServeArgs {
     /// upload beyond is refused (409 eds_quota). Default: 64.
     #[arg(long, value_name = "MIB")]
     pub eds_max_mb: Option<u64>,
+    /// WebSocket streams (GET /api/v1/stream) one token may hold at once;
+    /// one more is answered 429 too_many_streams. Default: 32.
+    #[arg(long, value_name = "N")]
+    pub stream_max_per_token: Option<usize>,
+    /// WebSocket streams one client address may hold at once (behind a
+    /// reverse proxy every client has the proxy's address). Default: 64.
+    #[arg(long, value_name = "N")]
+    pub stream_max_per_peer: Option<usize>,
     /// socketcand clients at once, per --share address; one more is
     /// refused. Default: 32.
     #[arg(long, value_name = "N")]

@@ -100,6 +100,8 @@ pub(super) struct ConfigFile {
     pub(super) ascii_unauthenticated_timeout_ms: Option<u64>,
     pub(super) eds_max_files: Option<usize>,
     pub(super) eds_max_mb: Option<u64>,
+    pub(super) stream_max_per_token: Option<usize>,
+    pub(super) stream_max_per_peer: Option<usize>,
     // The Sparkplug B edge node (docs/sparkplug.md); off without mqtt_url.
     pub(super) mqtt_url: Option<String>,
     pub(super) mqtt_username: Option<String>,
@@ -330,6 +332,8 @@ pub(super) struct Settings {
     pub(super) share_max_connections: usize,
     /// The uploaded EDS files the catalog takes.
     pub(super) eds_quota: crate::gateway::EdsQuota,
+    /// WebSocket streams per token and per peer.
+    pub(super) stream_limits: crate::api::stream::StreamLimits,
     /// The network manager of every bus, and the nodes described for each
     /// (by bus name).
     pub(super) machine: MachineSettings,
@@ -519,6 +523,17 @@ impl ServeArgs {
                     self.ascii_unauthenticated_timeout_ms
                         .or(file.ascii_unauthenticated_timeout_ms)
                         .map_or(defaults.unauthenticated_timeout, Duration::from_millis),
+                )?
+            },
+            stream_limits: {
+                let defaults = crate::api::stream::StreamLimits::default();
+                crate::api::stream::StreamLimits::new(
+                    self.stream_max_per_token
+                        .or(file.stream_max_per_token)
+                        .unwrap_or(defaults.per_token),
+                    self.stream_max_per_peer
+                        .or(file.stream_max_per_peer)
+                        .unwrap_or(defaults.per_peer),
                 )?
             },
             eds_quota: {

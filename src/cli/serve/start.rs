@@ -112,6 +112,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     }
     let state = AppState::from_gateway(gateway)
         .with_guard(args.auth.clone())
+        .with_stream_limits(args.stream_limits)
         .with_allowed_hosts(args.allowed_hosts.clone());
     // The Sparkplug B edge node (mqtt_url), on the same gateway service.
     let edge_node = match args.sparkplug.clone() {
