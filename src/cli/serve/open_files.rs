@@ -55,6 +55,7 @@ pub(super) fn fit(limit: u64, http: usize, others: usize) -> Result<Fit, String>
 /// it cannot be read.
 #[cfg(unix)]
 #[allow(unsafe_code)] // two calls into the C library, on a local struct
+#[allow(clippy::unnecessary_cast)] // rlim_t is u64 here, not on every Unix
 pub(super) fn raised_limit(wanted: u64) -> Option<u64> {
     let mut limit = libc::rlimit {
         rlim_cur: 0,
