@@ -421,7 +421,7 @@ fn credentials(method: &Method, headers: &HeaderMap) -> Option<String> {
 /// Whether a request asks for a WebSocket (RFC 6455, 4.1: a `GET` with
 /// `Upgrade: websocket`).
 fn is_websocket_upgrade(method: &Method, headers: &HeaderMap) -> bool {
-    (*method == Method::GET || *method == Method::HEAD)
+    *method == Method::GET
         && headers
             .get_all(header::UPGRADE)
             .iter()
