@@ -19,7 +19,23 @@ use common::Server;
 /// default, under systemd too); its HTTP address and its other stdout
 /// lines up to the one that starts with `until`.
 fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Vec<String>) {
-    let mut child = Command::new("sh")
+    start_limited_with_tokens(nofile, args, until, None)
+}
+
+/// [`start_limited`] with `CANDECK_TOKENS` set when given.
+fn start_limited_with_tokens(
+    nofile: u32,
+    args: &[&str],
+    until: &str,
+    tokens: Option<&str>,
+) -> (Server, String, Vec<String>) {
+    let mut command = Command::new("sh");
+    if let Some(tokens) = tokens {
+        command.env("CANDECK_TOKENS", tokens);
+    } else {
+        command.env_remove("CANDECK_TOKENS");
+    }
+    let mut child = command
         .arg("-c")
         .arg(format!("ulimit -n {nofile} && exec \"$0\" \"$@\""))
         .arg(env!("CARGO_BIN_EXE_candeck"))
@@ -27,7 +43,6 @@ fn start_limited(nofile: u32, args: &[&str], until: &str) -> (Server, String, Ve
         .args(args)
         .args(["--listen", "127.0.0.1:0"])
         .env_remove("CANDECK_LOG")
-        .env_remove("CANDECK_TOKENS")
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -182,10 +197,20 @@ async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
         .unwrap();
     assert!(reply[..n].starts_with(b"[1] "), "{:?}", &reply[..n]);
     let mut second = TcpStream::connect(&ascii).await.unwrap();
+    // A third one takes the place of the second, which sent nothing yet
+    // (issue 30): the second is closed, the third answered.
     let mut third = TcpStream::connect(&ascii).await.unwrap();
-    // Closed at once, without an answer, while the first got one.
-    third.write_all(b"[2] 1 r 0x1000 0 u32\n").await.ok();
-    let refused = closed_by_server(&mut third, bound).await;
+    third.write_all(b"[2] 1 r 0x1000 0 u32\n").await.unwrap();
+    let n = tokio::time::timeout(bound, third.read(&mut reply))
+        .await
+        .expect("a reply")
+        .unwrap();
+    assert!(reply[..n].starts_with(b"[2] "), "{:?}", &reply[..n]);
+    assert!(closed_by_server(&mut second, bound).await.is_empty());
+    // Both places in use: a fourth is closed at once, without an answer.
+    let mut fourth = TcpStream::connect(&ascii).await.unwrap();
+    fourth.write_all(b"[3] 1 r 0x1000 0 u32\n").await.ok();
+    let refused = closed_by_server(&mut fourth, bound).await;
     assert!(
         refused.is_empty(),
         "{:?}",
@@ -193,5 +218,140 @@ async fn half_sent_requests_and_idle_clients_are_closed_after_their_timeouts() {
     );
     // And clients that send nothing are closed after the idle timeout.
     closed_by_server(&mut first, bound).await;
-    closed_by_server(&mut second, bound).await;
+    closed_by_server(&mut third, bound).await;
+}
+
+const ADMIN_TOKEN: &str = "admin-token-0123456789abcdef";
+
+/// `Authorization: Bearer` of [`ADMIN_TOKEN`], as a header line.
+fn admin() -> String {
+    format!("Authorization: Bearer {ADMIN_TOKEN}\r\n")
+}
+
+/// Issue 30, finding 6: clients without a token that send a request head
+/// announcing a large body and then stall are answered 401 at once, their
+/// bodies never read; they hold no connection, and `/health`, STOP ALL and
+/// a token holder's read go on being answered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stalled_bodies_without_a_token_do_not_hold_connections() {
+    const STALLED: usize = 500;
+    raise_nofile(STALLED as u64 + 200);
+    let tokens = format!("ops:admin:{ADMIN_TOKEN}");
+    let (server, _, _) = start_limited_with_tokens(1024, &[], "", Some(&tokens));
+    let head = format!(
+        "PUT /api/v1/buses/demo/nodes/1/od/0x2000/0 HTTP/1.1\r\nHost: {}\r\n\
+         Content-Type: application/json\r\nContent-Length: 1000000\r\n\r\n{{",
+        server.address
+    );
+    let mut stalled = Vec::with_capacity(STALLED);
+    for _ in 0..STALLED {
+        let mut stream =
+            tokio::time::timeout(Duration::from_secs(10), TcpStream::connect(&server.address))
+                .await
+                .expect("connected within 10 s")
+                .unwrap();
+        stream.write_all(head.as_bytes()).await.unwrap();
+        stalled.push(stream);
+    }
+    // Each answered 401 without its body, and closed.
+    for stream in stalled.iter_mut().step_by(50) {
+        let answer = closed_by_server(stream, Duration::from_secs(10)).await;
+        assert!(
+            answer.starts_with(b"HTTP/1.1 401"),
+            "{:?}",
+            String::from_utf8_lossy(&answer)
+        );
+    }
+    for (method, path, body) in [
+        ("GET", "/api/v1/health", None),
+        ("POST", "/api/v1/stop-all", Some("{}")),
+        ("GET", "/api/v1/buses", None),
+    ] {
+        let answer = tokio::time::timeout(
+            Duration::from_secs(10),
+            common::request_with_headers(
+                &server.address,
+                method,
+                path,
+                "application/json",
+                body,
+                Duration::from_secs(10),
+                &admin(),
+            ),
+        )
+        .await
+        .unwrap_or_else(|_| panic!("{method} {path}: no answer within 10 s"));
+        assert_eq!(answer.status, 200, "{method} {path}: {}", answer.body);
+    }
+    drop(stalled);
+}
+
+/// Issue 30, finding 6: a token holder's request whose body stalls is
+/// closed after the idle timeout, as an idle connection is.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_request_body_is_closed_after_the_idle_timeout() {
+    let tokens = format!("ops:admin:{ADMIN_TOKEN}");
+    let (server, _, _) =
+        start_limited_with_tokens(1024, &["--idle-timeout-ms", "300"], "", Some(&tokens));
+    let mut stream = TcpStream::connect(&server.address).await.unwrap();
+    let head = format!(
+        "PUT /api/v1/buses/demo/nodes/1/od/0x2000/0 HTTP/1.1\r\nHost: {}\r\n{}\
+         Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{{\"value\"",
+        server.address,
+        admin()
+    );
+    stream.write_all(head.as_bytes()).await.unwrap();
+    closed_by_server(&mut stream, Duration::from_secs(30)).await;
+    let (status, _) = common::http(&server.address, "GET", "/api/v1/health", None).await;
+    assert_eq!(status, 200);
+}
+
+/// Issue 30, finding 6: `--max-connections 5000` under a limit of 256 open
+/// files is lowered to what the limit leaves (with a warning), so that the
+/// reserve still answers `/health` and STOP ALL with more idle clients
+/// than the process may open files; too little room is refused at start.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn max_connections_is_lowered_to_what_the_open_file_limit_leaves() {
+    const IDLE: usize = 300;
+    raise_nofile(IDLE as u64 + 200);
+    let (server, _, _) = start_limited(256, &["--max-connections", "5000"], "");
+    let mut idle = Vec::with_capacity(IDLE);
+    for _ in 0..IDLE {
+        let stream =
+            tokio::time::timeout(Duration::from_secs(10), TcpStream::connect(&server.address))
+                .await
+                .expect("connected within 10 s")
+                .unwrap();
+        idle.push(stream);
+    }
+    for (method, path) in [("GET", "/api/v1/health"), ("POST", "/api/v1/stop-all")] {
+        let answer = tokio::time::timeout(
+            Duration::from_secs(10),
+            common::request(
+                &server.address,
+                method,
+                path,
+                "application/json",
+                Some("{}").filter(|_| method == "POST"),
+                Duration::from_secs(10),
+            ),
+        )
+        .await
+        .unwrap_or_else(|_| panic!("{method} {path}: no answer within 10 s"));
+        assert_eq!(answer.status, 200, "{method} {path}: {}", answer.body);
+    }
+    drop(idle);
+
+    // Under 70 open files, fewer than the reserve and one more are left.
+    let refused = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -n 70 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_candeck"))
+        .args(["serve", "--listen", "127.0.0.1:0"])
+        .env_remove("CANDECK_TOKENS")
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("raise the limit of open files"), "{stderr}");
 }

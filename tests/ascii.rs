@@ -797,3 +797,48 @@ async fn write_lines_the_parser_refuses_are_audited() {
         "{audit:#}"
     );
 }
+
+/// Issue 30, finding 6: 32 idle connections without a token (as many as
+/// the listener takes) do not lock out a client with one: it takes the
+/// place of the oldest of them, authenticates and is answered; and a
+/// connection without a token is closed after the short
+/// `ascii_unauthenticated_timeout_ms` while one with a token stays.
+#[tokio::test]
+async fn idle_connections_without_a_token_do_not_lock_out_one_with_a_token() {
+    let tokens = format!("scada:viewer:{VIEWER_TOKEN}");
+    let (_server, http, ascii) = start_with(
+        Some(&tokens),
+        &["--ascii-unauthenticated-timeout-ms", "2000"],
+    );
+    let mut idle = Vec::new();
+    for _ in 0..32 {
+        idle.push(TcpStream::connect(&ascii).await.unwrap());
+    }
+    let mut client = Client::connect(&ascii).await;
+    // Today's main closed it at once: the reply is read without `send`,
+    // which would read past the end of the input.
+    client
+        .writer
+        .write_all(format!("[1] auth {VIEWER_TOKEN}\r\n").as_bytes())
+        .await
+        .unwrap();
+    assert_eq!(client.line().await, "[1] OK\r\n");
+    assert_eq!(
+        client.send("[2] 1 r 0x1018 1 u32").await,
+        format!("[2] {}\r\n", client_vendor(&http).await)
+    );
+    // The oldest idle connection gave its place; the others are closed
+    // after the short timeout, the authenticated client is not.
+    use tokio::io::AsyncReadExt;
+    let mut byte = [0u8; 1];
+    for stream in &mut idle {
+        let read = tokio::time::timeout(Duration::from_secs(20), stream.read(&mut byte))
+            .await
+            .expect("closed within 20 s");
+        assert!(matches!(read, Ok(0) | Err(_)), "{read:?}");
+    }
+    assert_eq!(
+        client.send("[3] 1 r 0x1018 1 u32").await.get(..4),
+        Some("[3] ")
+    );
+}

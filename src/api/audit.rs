@@ -108,8 +108,18 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
     // The route's limit (`body_limit`, `dcf_body_limit`): a larger body is
     // refused with 413, and audited.
     let limit = state.guard.config.body_limit(&method, &path);
-    let (response, summary, door) = match axum::body::to_bytes(body, limit).await {
-        Ok(bytes) => {
+    // A request the guard refuses for its credentials: its body is not
+    // read (it may never come); the guard answers at once.
+    let refused =
+        super::auth::refused_for_credentials(&state.guard.config, &method, &path, &parts.headers);
+    let read = if refused {
+        Err(body)
+    } else {
+        Ok(axum::body::to_bytes(body, limit).await)
+    };
+    let (response, summary, door) = match read {
+        Err(body) => (next.run(Request::from_parts(parts, body)).await, None, None),
+        Ok(Ok(bytes)) => {
             let summary = summarise(&bytes, &content_type);
             // The request as REST knows it, for the rows of the operations
             // its handler calls: handed back here to add the status.
@@ -119,10 +129,10 @@ pub async fn record(State(state): State<AppState>, request: Request, next: Next)
             let request = Request::from_parts(parts, Body::from(bytes));
             (next.run(request).await, summary, Some(door))
         }
-        Err(_) => {
+        Ok(Err(_)) => {
             // Refused before the guard saw it: who sent it is found here,
             // so that a token's oversized request is logged as the token's.
-            let (identity, _) = super::auth::identify(&state.guard.config, &parts.headers);
+            let (identity, _) = super::auth::identify(&state.guard.config, &method, &parts.headers);
             let mut response = super::auth::too_large(limit).into_response();
             response.extensions_mut().insert(identity);
             (response, Some(format!("more than {limit} bytes")), None)

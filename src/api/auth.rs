@@ -394,15 +394,20 @@ impl Guard {
 pub const STREAM_PROTOCOL: &str = "candeck.v1";
 const BEARER_PROTOCOL: &str = "bearer.";
 
-/// The token a request carries: `Authorization: Bearer`, else a
-/// `bearer.` WebSocket subprotocol.
-fn credentials(headers: &HeaderMap) -> Option<String> {
+/// The token a request carries: `Authorization: Bearer`, else, on a
+/// WebSocket upgrade only (a `GET` with `Upgrade: websocket`), a `bearer.`
+/// subprotocol: a plain request naming one has no token (issue 30,
+/// finding 8).
+fn credentials(method: &Method, headers: &HeaderMap) -> Option<String> {
     if let Some(value) = headers.get(header::AUTHORIZATION) {
         let value = value.to_str().ok()?;
         let (scheme, token) = value.trim().split_once(' ')?;
         return scheme
             .eq_ignore_ascii_case("bearer")
             .then(|| token.trim().to_string());
+    }
+    if !is_websocket_upgrade(method, headers) {
+        return None;
     }
     headers
         .get_all(header::SEC_WEBSOCKET_PROTOCOL)
@@ -411,6 +416,18 @@ fn credentials(headers: &HeaderMap) -> Option<String> {
         .flat_map(|value| value.split(','))
         .find_map(|protocol| protocol.trim().strip_prefix(BEARER_PROTOCOL))
         .map(str::to_string)
+}
+
+/// Whether a request asks for a WebSocket (RFC 6455, 4.1: a `GET` with
+/// `Upgrade: websocket`).
+fn is_websocket_upgrade(method: &Method, headers: &HeaderMap) -> bool {
+    *method == Method::GET
+        && headers
+            .get_all(header::UPGRADE)
+            .iter()
+            .filter_map(|value| value.to_str().ok())
+            .flat_map(|value| value.split(','))
+            .any(|protocol| protocol.trim().eq_ignore_ascii_case("websocket"))
 }
 
 /// Whether `origin` is the page's own: the origin of the address the
@@ -435,11 +452,11 @@ fn is_write(method: &Method) -> bool {
 /// has tokens and the request carries one it knows, `invalid-token` for
 /// one it does not, `anonymous` without one (or on an open gateway); and
 /// whether it carried a token at all.
-pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
+pub fn identify(config: &AuthConfig, method: &Method, headers: &HeaderMap) -> (Identity, bool) {
     if !config.required() {
         return (Identity::anonymous(), false);
     }
-    let given = credentials(headers);
+    let given = credentials(method, headers);
     let found = given.as_deref().and_then(|given| config.token(given));
     let identity = match (found, &given) {
         (Some(token), _) => Identity {
@@ -453,6 +470,28 @@ pub fn identify(config: &AuthConfig, headers: &HeaderMap) -> (Identity, bool) {
         (None, None) => Identity::anonymous(),
     };
     (identity, given.is_some())
+}
+
+/// Whether the guard refuses a request for its credentials (401 without a
+/// valid token, 403 for a role too low): such a request's body is never
+/// read (issue 30, finding 6), so that clients without a token cannot hold
+/// connections by sending a body slowly, or never.
+pub fn refused_for_credentials(
+    config: &AuthConfig,
+    method: &Method,
+    path: &str,
+    headers: &HeaderMap,
+) -> bool {
+    if !config.required() {
+        return false;
+    }
+    let Some(needed) = required(method, path).role() else {
+        return false;
+    };
+    identify(config, method, headers)
+        .0
+        .role
+        .is_none_or(|role| role < needed)
 }
 
 /// Whether the guard takes a write of the token's rate for a request:
@@ -486,7 +525,7 @@ pub async fn guard(State(state): State<AppState>, mut request: Request, next: Ne
     let path = request.uri().path().to_string();
     let headers = request.headers();
     // First, so that every refusal below is logged with who was refused.
-    let (identity, given) = identify(config, headers);
+    let (identity, given) = identify(config, &method, headers);
 
     // Other web pages: a browser sends Origin with every cross-origin
     // request, and with every same-origin one that is not a GET.

@@ -231,7 +231,7 @@ pub struct EdsPath {
     responses(
         (status = 201, description = "Kept; its warnings are listed", body = EdsFile),
         (status = 400, description = "`invalid_eds` (with `line`): not an EDS; `invalid_request`: a name that is no EDS file name", body = ErrorBody),
-        (status = 409, description = "`eds_conflict`: a file of the catalog has the name", body = ErrorBody),
+        (status = 409, description = "`eds_conflict`: a file of the catalog has the name; `eds_quota`: the uploaded files are at their quota of files or bytes (eds_max_files, eds_max_mb)", body = ErrorBody),
         (status = 413, description = "`payload_too_large`", body = ErrorBody),
     ))]
 async fn upload_eds(

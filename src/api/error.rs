@@ -48,6 +48,9 @@ pub enum AppError {
     /// Every connection the HTTP server takes is in use; the reserve
     /// answers `/health` and `stop-all` only.
     TooManyConnections(String),
+    /// The token or the peer holds as many WebSocket streams as it may
+    /// (`stream_max_per_token`, `stream_max_per_peer`): answered 429.
+    TooManyStreams(String),
 }
 
 /// The HTTP status of each of the gateway's errors, in one place (a failed
@@ -92,6 +95,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::LssBusy(_)
         | GatewayError::NodeIdInUse(_)
         | GatewayError::EdsConflict(_)
+        | GatewayError::EdsQuota(_)
         | GatewayError::Pdo(PdoError::PdoDisabled(_))
         | GatewayError::Sim(SimError::NotVirtual(_) | SimError::NodeTaken(_))
         | GatewayError::RecordingRunning(_)
@@ -187,7 +191,8 @@ impl std::fmt::Display for AppError {
             Self::InvalidRequest(message)
             | Self::PayloadTooLarge(message)
             | Self::HostNotAllowed(message)
-            | Self::TooManyConnections(message) => f.write_str(message),
+            | Self::TooManyConnections(message)
+            | Self::TooManyStreams(message) => f.write_str(message),
             Self::NoRoute(path) => write!(f, "no such endpoint: {path}"),
             Self::MethodNotAllowed { method, path } => {
                 write!(f, "method {method} is not allowed on {path}")
@@ -212,6 +217,7 @@ impl AppError {
             Self::UpgradeRequired(_) => StatusCode::UPGRADE_REQUIRED,
             Self::HostNotAllowed(_) => StatusCode::MISDIRECTED_REQUEST,
             Self::TooManyConnections(_) => StatusCode::SERVICE_UNAVAILABLE,
+            Self::TooManyStreams(_) => StatusCode::TOO_MANY_REQUESTS,
         }
     }
 
@@ -227,6 +233,7 @@ impl AppError {
             Self::UpgradeRequired(_) => "upgrade_required",
             Self::HostNotAllowed(_) => "host_not_allowed",
             Self::TooManyConnections(_) => "too_many_connections",
+            Self::TooManyStreams(_) => "too_many_streams",
         };
         json!({ "code": code, "message": self.to_string() })
     }

@@ -129,6 +129,9 @@ pub struct Shared {
     pub stream_counters: Arc<StreamCounters>,
     /// The connections the HTTP server's limit turned away, for `/metrics`.
     pub connection_refusals: Arc<serve::ConnectionRefusals>,
+    /// The WebSocket streams open, by token and by peer, within their
+    /// limits.
+    pub open_streams: Arc<stream::OpenStreams>,
     /// Tokens, roles and limits ([`auth::guard`]); open by default.
     pub guard: Arc<auth::Guard>,
     /// The names the gateway is served as ([`host::refusal`]); loopback
@@ -143,6 +146,7 @@ impl AppState {
             gateway,
             stream_counters: Arc::new(StreamCounters::default()),
             connection_refusals: Arc::default(),
+            open_streams: Arc::default(),
             guard: Arc::new(auth::Guard::default()),
             allowed_hosts: Arc::new(host::AllowedHosts::default()),
         }))
@@ -190,6 +194,13 @@ impl AppState {
     /// write limit ([`Gateway::start`]).
     pub fn with_guard(mut self, config: auth::AuthConfig) -> Self {
         self.shared_mut().guard = Arc::new(auth::Guard::new(config));
+        self
+    }
+
+    /// The same state with these limits of WebSocket streams per token and
+    /// per peer.
+    pub fn with_stream_limits(mut self, limits: stream::StreamLimits) -> Self {
+        self.shared_mut().open_streams = Arc::new(stream::OpenStreams::new(limits));
         self
     }
 

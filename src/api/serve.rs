@@ -8,7 +8,11 @@
 //! - **Idle timeout** (`idle_timeout_ms`): a connection on which nothing is
 //!   in flight and nothing arrives (a fresh one, or one kept alive after an
 //!   answer) is closed after this time. An answer still being written (a
-//!   download) counts as activity while bytes go out.
+//!   download) counts as activity while bytes go out. So is one whose
+//!   handler waits for a request body of which nothing arrives (a stalled
+//!   upload, issue 30): the request is dropped with its connection. A
+//!   request without the credentials its route needs is answered 401 or
+//!   403 without its body being read ([`super::auth::refused_for_credentials`]).
 //! - **Connection limit** (`max_connections`): at most this many
 //!   connections at once, so that the gateway never runs out of file
 //!   descriptors. The last [`RESERVED_CONNECTIONS`] of them are a reserve
@@ -317,6 +321,9 @@ enum Phase {
 /// service (requests begun and answered) and its task (the deadlines).
 struct Activity {
     phase: Mutex<Phase>,
+    /// While a handler waits for request body bytes that do not come: since
+    /// when (the last bytes, or the wait's start).
+    body_stalled: Mutex<Option<Instant>>,
     changed: Notify,
 }
 
@@ -335,6 +342,38 @@ impl Activity {
         drop(phase);
         if changed {
             self.changed.notify_one();
+        }
+    }
+
+    /// A handler waits for body bytes since `since`, or (`None`) no longer.
+    fn body_waiting(&self, since: Option<Instant>) {
+        let mut stalled = self
+            .body_stalled
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner());
+        let began = stalled.is_none() && since.is_some();
+        *stalled = since;
+        drop(stalled);
+        if began {
+            self.changed.notify_one();
+        }
+    }
+
+    /// When the connection's current wait expires: `None` while a handler
+    /// works (it has its body, or needs none).
+    fn deadline(&self, limits: &Limits) -> Option<Instant> {
+        let phase = *self
+            .phase
+            .lock()
+            .unwrap_or_else(|poison| poison.into_inner());
+        match phase {
+            Phase::Waiting(since) => Some(since + limits.idle_timeout),
+            Phase::Reading(since) => Some(since + limits.header_timeout),
+            Phase::Busy(_) => self
+                .body_stalled
+                .lock()
+                .unwrap_or_else(|poison| poison.into_inner())
+                .map(|since| since + limits.idle_timeout),
         }
     }
 
@@ -428,6 +467,53 @@ impl AsyncWrite for Watched {
     }
 }
 
+/// A request's body, telling the connection's [`Activity`] while its
+/// handler waits for bytes that have not come.
+struct WatchedBody {
+    inner: Incoming,
+    activity: Arc<Activity>,
+    waiting: bool,
+}
+
+impl WatchedBody {
+    fn waiting(&mut self, waiting: bool) {
+        if self.waiting != waiting {
+            self.waiting = waiting;
+            self.activity.body_waiting(waiting.then(Instant::now));
+        }
+    }
+}
+
+impl hyper::body::Body for WatchedBody {
+    type Data = axum::body::Bytes;
+    type Error = hyper::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<hyper::body::Frame<Self::Data>, Self::Error>>> {
+        let polled = Pin::new(&mut self.inner).poll_frame(cx);
+        // Each frame restarts the wait: the timeout is for a body of which
+        // nothing arrives, not for a slow upload.
+        self.waiting(polled.is_pending());
+        polled
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> hyper::body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+impl Drop for WatchedBody {
+    fn drop(&mut self) {
+        self.waiting(false);
+    }
+}
+
 /// One connection, until it closes, times out, is pushed out of the
 /// reserve, or the server stops.
 async fn connection(
@@ -441,6 +527,7 @@ async fn connection(
 ) {
     let activity = Arc::new(Activity {
         phase: Mutex::new(Phase::Waiting(Instant::now())),
+        body_stalled: Mutex::new(None),
         changed: Notify::new(),
     });
     let (counted, place) = match class {
@@ -458,9 +545,14 @@ async fn connection(
     };
     let service_activity = activity.clone();
     let service_refusals = refusals.clone();
-    let service = hyper::service::service_fn(move |mut request: Request<Incoming>| {
+    let service = hyper::service::service_fn(move |request: Request<Incoming>| {
         let mut app = app.clone();
         let activity = service_activity.clone();
+        let mut request = request.map(|inner| WatchedBody {
+            inner,
+            activity: activity.clone(),
+            waiting: false,
+        });
         let refusals = service_refusals.clone();
         if let Some(started) = &started {
             started.store(true, Ordering::Release);
@@ -494,15 +586,7 @@ async fn connection(
     tokio::pin!(conn);
     let mut closing = false;
     loop {
-        let phase = *activity
-            .phase
-            .lock()
-            .unwrap_or_else(|poison| poison.into_inner());
-        let deadline = match phase {
-            Phase::Waiting(since) => Some(since + limits.idle_timeout),
-            Phase::Reading(since) => Some(since + limits.header_timeout),
-            Phase::Busy(_) => None,
-        };
+        let deadline = activity.deadline(&limits);
         let timeout = async {
             match deadline {
                 Some(deadline) => tokio::time::sleep_until(deadline).await,
@@ -528,15 +612,14 @@ async fn connection(
             () = timeout => {
                 // Checked again: bytes may have come meanwhile.
                 let now = *activity.phase.lock().unwrap_or_else(|poison| poison.into_inner());
-                let expired = match now {
-                    Phase::Waiting(since) => since + limits.idle_timeout <= Instant::now(),
-                    Phase::Reading(since) => since + limits.header_timeout <= Instant::now(),
-                    Phase::Busy(_) => false,
-                };
+                let expired = activity
+                    .deadline(&limits)
+                    .is_some_and(|deadline| deadline <= Instant::now());
                 if expired {
                     tracing::debug!("http: {peer}: closed, {}", match now {
                         Phase::Reading(_) => "no complete request head within header_timeout_ms",
-                        _ => "idle for idle_timeout_ms",
+                        Phase::Busy(_) => "no request body bytes for idle_timeout_ms",
+                        Phase::Waiting(_) => "idle for idle_timeout_ms",
                     });
                     return;
                 }

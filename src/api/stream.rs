@@ -92,6 +92,131 @@ pub const FRAME_QUEUE: usize = 4096;
 pub const SEND_TIMEOUT: Duration = Duration::from_secs(10);
 /// The largest message a client may send.
 pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+/// Frames queued for one client across all its frames topics before the
+/// oldest go (issue 30, finding 7: 20 clients that did not read took
+/// 750 MB with [`FRAME_QUEUE`] per topic and 256 topics each).
+pub const CLIENT_FRAME_QUEUE: usize = 8192;
+/// WebSocket streams one token may hold at once, by default.
+pub const DEFAULT_MAX_STREAMS_PER_TOKEN: usize = 32;
+/// WebSocket streams one peer address may hold at once, by default.
+pub const DEFAULT_MAX_STREAMS_PER_PEER: usize = 64;
+
+/// How many WebSocket streams one token and one peer address may hold at
+/// once (config keys `stream_max_per_token`, `stream_max_per_peer`): one
+/// more is answered 429 `too_many_streams` before the upgrade.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamLimits {
+    pub per_token: usize,
+    pub per_peer: usize,
+}
+
+impl Default for StreamLimits {
+    fn default() -> Self {
+        Self {
+            per_token: DEFAULT_MAX_STREAMS_PER_TOKEN,
+            per_peer: DEFAULT_MAX_STREAMS_PER_PEER,
+        }
+    }
+}
+
+impl StreamLimits {
+    /// The limits, checked: at least one stream each.
+    pub fn new(per_token: usize, per_peer: usize) -> Result<Self, String> {
+        if per_token == 0 || per_peer == 0 {
+            return Err("stream_max_per_token, stream_max_per_peer: at least 1".to_string());
+        }
+        Ok(Self {
+            per_token,
+            per_peer,
+        })
+    }
+}
+
+/// The streams open now, by token name and by peer address.
+#[derive(Debug, Default)]
+pub struct OpenStreams {
+    limits: StreamLimits,
+    open: Mutex<(BTreeMap<String, usize>, BTreeMap<std::net::IpAddr, usize>)>,
+}
+
+/// One stream's place in [`OpenStreams`]; given back when dropped (the
+/// session's end).
+#[derive(Debug)]
+pub struct StreamPlace {
+    streams: Arc<OpenStreams>,
+    token: Option<String>,
+    peer: Option<std::net::IpAddr>,
+}
+
+impl OpenStreams {
+    pub fn new(limits: StreamLimits) -> Self {
+        Self {
+            limits,
+            open: Mutex::default(),
+        }
+    }
+
+    /// A place for one more stream of `token` (a valid token's name; none
+    /// on a gateway without tokens) from `peer`, or why not.
+    pub fn admit(
+        self: &Arc<Self>,
+        token: Option<&str>,
+        peer: Option<std::net::IpAddr>,
+    ) -> Result<StreamPlace, String> {
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        let (by_token, by_peer) = &mut *open;
+        if let Some(token) = token
+            && by_token.get(token).copied().unwrap_or(0) >= self.limits.per_token
+        {
+            return Err(format!(
+                "token {token} holds {} streams already, as many as one token may (stream_max_per_token): close one first",
+                self.limits.per_token
+            ));
+        }
+        if let Some(peer) = peer
+            && by_peer.get(&peer).copied().unwrap_or(0) >= self.limits.per_peer
+        {
+            return Err(format!(
+                "{peer} holds {} streams already, as many as one address may (stream_max_per_peer): close one first",
+                self.limits.per_peer
+            ));
+        }
+        if let Some(token) = token {
+            *by_token.entry(token.to_string()).or_default() += 1;
+        }
+        if let Some(peer) = peer {
+            *by_peer.entry(peer).or_default() += 1;
+        }
+        Ok(StreamPlace {
+            streams: self.clone(),
+            token: token.map(str::to_string),
+            peer,
+        })
+    }
+}
+
+impl Drop for StreamPlace {
+    fn drop(&mut self) {
+        let mut open = self.streams.open.lock().unwrap_or_else(|p| p.into_inner());
+        let (by_token, by_peer) = &mut *open;
+        if let Some(token) = &self.token
+            && let Some(n) = by_token.get_mut(token)
+        {
+            *n -= 1;
+            if *n == 0 {
+                by_token.remove(token);
+            }
+        }
+        if let Some(peer) = &self.peer
+            && let Some(n) = by_peer.get_mut(peer)
+        {
+            *n -= 1;
+            if *n == 0 {
+                by_peer.remove(peer);
+            }
+        }
+    }
+}
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(stream))
@@ -111,6 +236,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 #[utoipa::path(get, path = "/stream", tag = "stream",
     responses(
         (status = 101, description = "Switching to the WebSocket protocol"),
+        (status = 429, description = "`too_many_streams`: the token or the address holds as many streams as it may (stream_max_per_token, stream_max_per_peer)", body = ErrorBody),
         (status = 426, description = "`upgrade_required`: a plain HTTP request; this endpoint speaks WebSocket only", body = ErrorBody),
     ))]
 async fn stream(
@@ -119,17 +245,32 @@ async fn stream(
     peer: Option<Extension<ConnectInfo<SocketAddr>>>,
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, AppError> {
+    let peer_address = peer.map(|Extension(ConnectInfo(addr))| addr);
     let client = Client {
         identity: identity.map_or_else(Identity::anonymous, |Extension(id)| id),
-        peer: peer.map(|Extension(ConnectInfo(addr))| addr.to_string()),
+        peer: peer_address.map(|addr| addr.to_string()),
     };
     let upgrade = upgrade.map_err(|rejection| AppError::UpgradeRequired(rejection.body_text()))?;
+    // Per token and per peer, before the upgrade (issue 30, finding 7).
+    let token = client
+        .identity
+        .role
+        .is_some()
+        .then_some(client.identity.name.as_str());
+    let peer_ip = peer_address.map(|addr| addr.ip());
+    let place = state
+        .open_streams
+        .admit(token, peer_ip)
+        .map_err(AppError::TooManyStreams)?;
     // A browser sends its token as a second subprotocol (`bearer.TOKEN`,
     // checked by the access layer); the answer names ours only.
     Ok(upgrade
         .protocols([super::auth::STREAM_PROTOCOL])
         .max_message_size(MAX_CLIENT_MESSAGE)
-        .on_upgrade(move |socket| serve_socket(state, client, socket)))
+        .on_upgrade(move |socket| async move {
+            serve_socket(state, client, socket).await;
+            drop(place);
+        }))
 }
 
 /// Who a session serves, as the access layer found it: leases are renewed
@@ -716,6 +857,8 @@ struct Pending {
     lagged: BTreeMap<Arc<str>, u64>,
     values: BTreeMap<Arc<str>, Arc<Sample>>,
     frames: BTreeMap<Arc<str>, VecDeque<TimedFrame>>,
+    /// The frames of every topic together.
+    frame_count: usize,
 }
 
 impl Mailbox {
@@ -739,7 +882,9 @@ impl Mailbox {
         pending.events.retain(|(t, _)| &**t != topic);
         pending.lagged.remove(topic);
         pending.values.remove(topic);
-        pending.frames.remove(topic);
+        if let Some(queue) = pending.frames.remove(topic) {
+            pending.frame_count -= queue.len();
+        }
     }
 
     fn push_event(&self, topic: &Arc<str>, message: String) {
@@ -765,18 +910,38 @@ impl Mailbox {
         self.ready.notify_one();
     }
 
-    /// Queues a frame; when the queue is full the oldest goes, counted.
+    /// Queues a frame; when the topic's queue ([`FRAME_QUEUE`]) or the
+    /// client's ([`CLIENT_FRAME_QUEUE`]) is full, the oldest frame of the
+    /// topic goes (of the longest queue, when this topic has none), counted
+    /// as lagged for its topic.
     fn push_frame(&self, topic: &Arc<str>, frame: TimedFrame) {
-        let mut pending = self.lock();
-        let queue = pending.frames.entry(topic.clone()).or_default();
-        let overflow = queue.len() >= FRAME_QUEUE;
-        if overflow {
-            queue.pop_front();
+        let mut guard = self.lock();
+        let pending = &mut *guard;
+        let own = pending.frames.get(topic).map_or(0, VecDeque::len);
+        if own >= FRAME_QUEUE || pending.frame_count >= CLIENT_FRAME_QUEUE {
+            let victim = if own > 0 {
+                Some(topic.clone())
+            } else {
+                pending
+                    .frames
+                    .iter()
+                    .max_by_key(|(_, queue)| queue.len())
+                    .map(|(topic, _)| topic.clone())
+            };
+            if let Some(victim) = victim
+                && let Some(queue) = pending.frames.get_mut(&victim)
+                && queue.pop_front().is_some()
+            {
+                pending.frame_count -= 1;
+                *pending.lagged.entry(victim).or_default() += 1;
+            }
         }
-        queue.push_back(frame);
-        if overflow {
-            *pending.lagged.entry(topic.clone()).or_default() += 1;
-        }
+        pending
+            .frames
+            .entry(topic.clone())
+            .or_default()
+            .push_back(frame);
+        pending.frame_count += 1;
     }
 
     fn wake(&self) {
@@ -970,5 +1135,48 @@ async fn forward_frames(
             queued = false;
             next_wake = now + period;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::{Direction, Frame, Timestamp};
+
+    fn frame() -> TimedFrame {
+        TimedFrame {
+            frame: Frame::new(CanId::standard(0x181).unwrap(), &[1, 2]).unwrap(),
+            timestamp: Timestamp(0),
+            direction: Direction::Rx,
+        }
+    }
+
+    /// Issue 30, finding 7: a client that does not read holds at most
+    /// [`CLIENT_FRAME_QUEUE`] frames, however many frames topics it has;
+    /// what goes is counted as lagged, per topic.
+    #[test]
+    fn a_client_that_does_not_read_holds_a_bounded_number_of_frames() {
+        let mailbox = Mailbox::default();
+        let topics: Vec<Arc<str>> = (0..MAX_TOPICS)
+            .map(|n| Arc::from(format!("buses/demo/frames?ids={n:#x}")))
+            .collect();
+        let per_topic = 200;
+        for _ in 0..per_topic {
+            for topic in &topics {
+                mailbox.push_frame(topic, frame());
+            }
+        }
+        let pending = mailbox.take();
+        let queued: usize = pending.frames.values().map(VecDeque::len).sum();
+        assert_eq!(queued, CLIENT_FRAME_QUEUE);
+        let lagged: u64 = pending.lagged.values().sum();
+        assert_eq!(lagged as usize, MAX_TOPICS * per_topic - CLIENT_FRAME_QUEUE);
+        // One topic alone still keeps its own bound.
+        for _ in 0..FRAME_QUEUE + 10 {
+            mailbox.push_frame(&topics[0], frame());
+        }
+        let pending = mailbox.take();
+        assert_eq!(pending.frames[&topics[0]].len(), FRAME_QUEUE);
+        assert_eq!(pending.lagged[&topics[0]], 10);
     }
 }

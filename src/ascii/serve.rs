@@ -7,9 +7,11 @@
 //! gateway (a reply is written before the next line is read); connections
 //! run side by side, their SDO transfers queued per node with REST's.
 
+use std::collections::VecDeque;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::task::Poll;
 use std::time::Duration;
 
@@ -17,7 +19,8 @@ use tokio::io::{
     AsyncBufRead, AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadBuf,
 };
 use tokio::net::TcpListener;
-use tokio::sync::{Semaphore, broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::time::Instant;
 
 use crate::canopen::nmt::NmtState;
 use crate::cia309::command::{self, Command, Context, HelpTopic, Line};
@@ -46,6 +49,8 @@ pub struct Session {
     default_node: Option<u8>,
     options: TransferOptions,
     last_sequence: u32,
+    /// Whether a line other than an empty one came.
+    last_sequence_seen: bool,
 }
 
 /// The longest part of a refused line the audit log keeps (a line may be
@@ -109,6 +114,15 @@ impl Session {
         }
     }
 
+    /// Whether the connection has shown it is a client of the gateway: it
+    /// gave a valid token, or (on a gateway without tokens) it sent a
+    /// command. Until then it has the short idle timeout and its place may
+    /// go to a newer connection ([`listen`]).
+    pub fn established(&self) -> bool {
+        self.identity.access.is_some()
+            || !self.gateway.tokens().required() && self.last_sequence_seen
+    }
+
     pub fn new(gateway: Cia309Gateway, identity: Identity) -> Self {
         Self {
             gateway,
@@ -118,11 +132,15 @@ impl Session {
             default_node: None,
             options: TransferOptions::default(),
             last_sequence: 0,
+            last_sequence_seen: false,
         }
     }
 
     /// The reply to one line.
     pub async fn handle(&mut self, line: &str) -> Reply {
+        if !line.trim().is_empty() {
+            self.last_sequence_seen = true;
+        }
         if let Some((sequence, token)) = auth_line(line) {
             return self.authenticate(sequence, token);
         }
@@ -279,11 +297,22 @@ pub fn event_of(net: u16, event: &NodeEvent) -> Option<Event> {
 
 /// Serves one connection until its input ends: a line in, a reply out,
 /// events in between.
-pub async fn serve_connection<R, W>(
+pub async fn serve_connection<R, W>(gateway: Cia309Gateway, identity: Identity, input: R, output: W)
+where
+    R: AsyncRead + Unpin,
+    W: AsyncWrite + Unpin + Send + 'static,
+{
+    serve_session(gateway, identity, input, output, &AtomicBool::new(false)).await;
+}
+
+/// [`serve_connection`], telling `established` when the session is
+/// ([`Session::established`]).
+async fn serve_session<R, W>(
     gateway: Cia309Gateway,
     identity: Identity,
     input: R,
     mut output: W,
+    established: &AtomicBool,
 ) where
     R: AsyncRead + Unpin,
     W: AsyncWrite + Unpin + Send + 'static,
@@ -326,6 +355,7 @@ pub async fn serve_connection<R, W>(
             Ok(line) => session.handle(&line).await,
             Err(TooLong) => Reply::Error(session.last_sequence, ErrorCode::Syntax),
         };
+        established.store(session.established(), Ordering::Release);
         if lines.send(reply.to_wire()).await.is_err() {
             break;
         }
@@ -382,34 +412,52 @@ async fn read_line<R: AsyncBufRead + Unpin>(input: &mut R) -> Option<Result<Stri
 }
 
 /// The limits of the TCP listener (config keys `ascii_idle_timeout_ms`,
-/// `ascii_max_connections`): a client that sends no line for
-/// `idle_timeout` is closed (the events it would get do not keep it open),
-/// and a connection beyond `max_connections` is closed at once.
+/// `ascii_max_connections`, `ascii_unauthenticated_timeout_ms`): a client
+/// that sends no line for `idle_timeout` is closed (the events it would get
+/// do not keep it open), and so is one not yet established
+/// ([`Session::established`]: no valid token yet, or on a gateway without
+/// tokens no command yet) after `unauthenticated_timeout`. When all
+/// `max_connections` places are taken, a new connection takes the place of
+/// the oldest one not established (issue 30: idle clients without a token
+/// cannot lock out those with one); when every place is established, it is
+/// closed at once.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
     pub idle_timeout: Duration,
     pub max_connections: usize,
+    pub unauthenticated_timeout: Duration,
 }
 
 /// How long a CiA 309-3 client may send nothing, by default.
 pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(300);
 /// CiA 309-3 connections at once, by default.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+/// How long a CiA 309-3 client may go without a valid token (or, on a
+/// gateway without tokens, without a command), by default.
+pub const DEFAULT_UNAUTHENTICATED_TIMEOUT: Duration = Duration::from_secs(10);
 
 impl Default for Limits {
     fn default() -> Self {
         Self {
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            unauthenticated_timeout: DEFAULT_UNAUTHENTICATED_TIMEOUT,
         }
     }
 }
 
 impl Limits {
-    /// The limits, checked: a timeout above 0, at least one connection.
-    pub fn new(idle_timeout: Duration, max_connections: usize) -> Result<Self, String> {
-        if idle_timeout.is_zero() {
-            return Err("ascii_idle_timeout_ms: a timeout is at least 1 ms".to_string());
+    /// The limits, checked: timeouts above 0, at least one connection.
+    pub fn new(
+        idle_timeout: Duration,
+        max_connections: usize,
+        unauthenticated_timeout: Duration,
+    ) -> Result<Self, String> {
+        if idle_timeout.is_zero() || unauthenticated_timeout.is_zero() {
+            return Err(
+                "ascii_idle_timeout_ms, ascii_unauthenticated_timeout_ms: a timeout is at least 1 ms"
+                    .to_string(),
+            );
         }
         if max_connections == 0 {
             return Err("ascii_max_connections: at least 1".to_string());
@@ -417,24 +465,56 @@ impl Limits {
         Ok(Self {
             idle_timeout,
             max_connections,
+            unauthenticated_timeout,
         })
     }
 }
 
-/// Reads what comes from `input` until it has sent nothing for `idle`.
+/// Reads what comes from `input` until it has sent nothing for the idle
+/// timeout: `limits.idle_timeout` once the session is established, else
+/// the shorter `limits.unauthenticated_timeout`.
 struct IdleLimited<R> {
     input: R,
-    idle: Duration,
+    limits: Limits,
+    established: Arc<AtomicBool>,
+    /// Fires when a newer connection took this one's place: the input
+    /// ends there.
+    evicted: Option<oneshot::Receiver<()>>,
+    last: Instant,
     deadline: Pin<Box<tokio::time::Sleep>>,
 }
 
 impl<R> IdleLimited<R> {
-    fn new(input: R, idle: Duration) -> Self {
-        Self {
+    fn new(
+        input: R,
+        limits: Limits,
+        established: Arc<AtomicBool>,
+        evicted: oneshot::Receiver<()>,
+    ) -> Self {
+        let last = Instant::now();
+        let mut this = Self {
             input,
-            idle,
-            deadline: Box::pin(tokio::time::sleep(idle)),
-        }
+            limits,
+            established,
+            evicted: Some(evicted),
+            last,
+            deadline: Box::pin(tokio::time::sleep_until(last)),
+        };
+        let first = this.expiry();
+        this.deadline.as_mut().reset(first);
+        this
+    }
+
+    /// When the client, silent since `last`, is closed.
+    fn expiry(&self) -> Instant {
+        let idle = if self.established.load(Ordering::Acquire) {
+            self.limits.idle_timeout
+        } else {
+            self.limits
+                .unauthenticated_timeout
+                .min(self.limits.idle_timeout)
+        };
+        self.last + idle
     }
 }
 
@@ -445,27 +525,103 @@ impl<R: AsyncRead + Unpin> AsyncRead for IdleLimited<R> {
         buf: &mut ReadBuf<'_>,
     ) -> Poll<std::io::Result<()>> {
         let before = buf.filled().len();
+        if let Some(evicted) = &mut self.evicted
+            && let Poll::Ready(sent) = Pin::new(evicted).poll(cx)
+        {
+            self.evicted = None;
+            if sent.is_ok() {
+                // The end of the input, as if the client had closed.
+                return Poll::Ready(Ok(()));
+            }
+        }
         match Pin::new(&mut self.input).poll_read(cx, buf) {
             Poll::Ready(result) => {
                 if buf.filled().len() > before {
-                    let next = tokio::time::Instant::now() + self.idle;
+                    self.last = Instant::now();
+                    let next = self.expiry();
                     self.deadline.as_mut().reset(next);
                 }
                 Poll::Ready(result)
             }
-            Poll::Pending => match self.deadline.as_mut().poll(cx) {
-                // The end of the input, as if the client had closed.
-                Poll::Ready(()) => Poll::Ready(Ok(())),
-                Poll::Pending => Poll::Pending,
+            Poll::Pending => loop {
+                match self.deadline.as_mut().poll(cx) {
+                    Poll::Ready(()) => {
+                        // The session may have become established since
+                        // the deadline was set (its `auth` line).
+                        let expiry = self.expiry();
+                        if expiry > Instant::now() {
+                            self.deadline.as_mut().reset(expiry);
+                            continue;
+                        }
+                        // The end of the input, as if the client had closed.
+                        return Poll::Ready(Ok(()));
+                    }
+                    Poll::Pending => return Poll::Pending,
+                }
             },
         }
+    }
+}
+
+/// The listener's connections, oldest first: whether each is established,
+/// and the signal that pushes it out.
+#[derive(Default)]
+struct Places {
+    next_id: u64,
+    taken: VecDeque<(u64, Arc<AtomicBool>, Option<oneshot::Sender<()>>)>,
+}
+
+/// A connection's place; given back when dropped.
+struct Place {
+    id: u64,
+    places: Arc<Mutex<Places>>,
+}
+
+impl Drop for Place {
+    fn drop(&mut self) {
+        let mut places = self.places.lock().unwrap_or_else(|p| p.into_inner());
+        places.taken.retain(|(id, _, _)| *id != self.id);
+    }
+}
+
+impl Places {
+    /// A place for a new connection: a free one, else the one of the oldest
+    /// connection not established (pushed out); `None` when every
+    /// connection is established.
+    fn enter(
+        places: &Arc<Mutex<Places>>,
+        max: usize,
+    ) -> Option<(Place, Arc<AtomicBool>, oneshot::Receiver<()>)> {
+        let mut this = places.lock().unwrap_or_else(|p| p.into_inner());
+        if this.taken.len() >= max {
+            let oldest = this
+                .taken
+                .iter()
+                .position(|(_, established, _)| !established.load(Ordering::Acquire))?;
+            if let Some((_, _, Some(evict))) = this.taken.remove(oldest) {
+                tracing::debug!(
+                    "ascii: a connection without a token gave its place to a newer one (ascii_max_connections)"
+                );
+                let _ = evict.send(());
+            }
+        }
+        let id = this.next_id;
+        this.next_id += 1;
+        let established = Arc::new(AtomicBool::new(false));
+        let (evict, evicted) = oneshot::channel();
+        this.taken.push_back((id, established.clone(), Some(evict)));
+        let place = Place {
+            id,
+            places: places.clone(),
+        };
+        Some((place, established, evicted))
     }
 }
 
 /// Accepts CiA 309-3 clients on `listener` until the task is dropped, each
 /// served by [`serve_connection`] within `limits`.
 pub async fn listen(listener: TcpListener, gateway: Cia309Gateway, limits: Limits) {
-    let connections = Arc::new(Semaphore::new(limits.max_connections));
+    let places = Arc::new(Mutex::new(Places::default()));
     loop {
         let (stream, peer) = match listener.accept().await {
             Ok(accepted) => accepted,
@@ -476,9 +632,10 @@ pub async fn listen(listener: TcpListener, gateway: Cia309Gateway, limits: Limit
                 continue;
             }
         };
-        let Ok(permit) = connections.clone().try_acquire_owned() else {
+        let Some((place, established, evicted)) = Places::enter(&places, limits.max_connections)
+        else {
             tracing::warn!(
-                "ascii: {peer} refused: {} connections already (ascii_max_connections)",
+                "ascii: {peer} refused: {} connections already, each with a token or in use (ascii_max_connections)",
                 limits.max_connections
             );
             continue;
@@ -489,9 +646,11 @@ pub async fn listen(listener: TcpListener, gateway: Cia309Gateway, limits: Limit
         tokio::spawn(async move {
             tracing::debug!("ascii: {peer} connected");
             let (input, output) = stream.into_split();
-            let input = IdleLimited::new(input, limits.idle_timeout);
-            serve_connection(gateway, identity, input, output).await;
-            drop(permit);
+            // Pushed out, the input ends: the session closes as if the
+            // client had.
+            let input = IdleLimited::new(input, limits, established.clone(), evicted);
+            serve_session(gateway, identity, input, output, &established).await;
+            drop(place);
             tracing::debug!("ascii: {peer} disconnected");
         });
     }

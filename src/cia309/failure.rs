@@ -112,6 +112,7 @@ impl Failure {
             | GatewayError::LssRefused(_)
             | GatewayError::NodeIdInUse(_)
             | GatewayError::EdsConflict(_)
+            | GatewayError::EdsQuota(_)
             | GatewayError::Sim(SimError::NodeTaken(_))
             | GatewayError::RecordingRunning(_)
             | GatewayError::RecordingNotRunning(_)

@@ -54,6 +54,7 @@ impl From<CatalogError> for GatewayError {
                 Self::EdsConflict(message)
             }
             CatalogError::Unknown(name) => Self::UnknownEds(name),
+            CatalogError::Quota(message) => Self::EdsQuota(message),
             CatalogError::Io(message) => Self::Internal(message),
         }
     }

@@ -140,6 +140,10 @@ pub enum GatewayError {
     /// it is not an uploaded one, or a node is assigned to it.
     #[error("{0}")]
     EdsConflict(String),
+    /// An upload that would take the uploaded EDS files over their quota
+    /// (count or bytes, `crate::profile::EdsQuota`).
+    #[error("{0}")]
+    EdsQuota(String),
     /// The node is no CiA 401 I/O module (its profile is not cia401).
     #[error("{0}")]
     NotAnIoModule(String),
@@ -266,6 +270,7 @@ impl GatewayError {
             Self::UnknownEds(_) => "unknown_eds",
             Self::InvalidEds { .. } => "invalid_eds",
             Self::EdsConflict(_) => "eds_conflict",
+            Self::EdsQuota(_) => "eds_quota",
             Self::NotAnIoModule(_) => "not_an_io_module",
             Self::UnknownChannel(_) => "unknown_channel",
             Self::ProgramNotVerified(_) => "program_not_verified",

@@ -293,6 +293,13 @@ impl Gateway {
         let layout = module.layout().await?;
         let mut checked: Vec<(Channel, OutputValue)> = Vec::new();
         for (name, value) in outputs {
+            if Channel::parse(name).is_none()
+                && let Some(meant) = Channel::read_loosely(name)
+            {
+                return Err(GatewayError::InvalidRequest(format!(
+                    "'{name}' is not how a channel is named; write '{meant}' (di, do, ai or ao in lowercase, then the number from 1, without leading zeros or spaces)"
+                )));
+            }
             let channel = Channel::parse(name)
                 .filter(|channel| channel.kind.is_output() && layout.contains(*channel))
                 .ok_or_else(|| {

@@ -163,7 +163,10 @@ pub use node::led::{ColorChannels, LedController, Others, Scene, SegmentUpdate, 
 pub use node::objects::{nmt_summary, object_item};
 pub use node::program::ProgramDownload;
 pub use pdo::{DecodedValue, EntryRequest, PdoConfig, PdoRequest, entry_name, tpdo_decoders};
-pub use profile::{EdsCatalog, EdsEntry, EdsSource, Identity, Profile, SkippedFile};
+pub use profile::{
+    DEFAULT_EDS_MAX_BYTES, DEFAULT_EDS_MAX_FILES, EdsCatalog, EdsEntry, EdsQuota, EdsSource,
+    Identity, Profile, SkippedFile,
+};
 pub use registry::{
     EmcyRecord, Identification, NodeEvent, NodeInfo, NodeMetrics, NodeRegistry, OfflineReason,
     RegistryConfig, RegistryError,

@@ -21,9 +21,10 @@
 //! as a generic CiA 402 drive, one of CiA 401 is a generic I/O module;
 //! everything else is generic.
 
+use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 use crate::canopen::eds::{Eds, EdsError, EdsWarning, read_eds_file};
 use crate::profiles::builtin;
@@ -231,6 +232,35 @@ pub struct EdsCatalog {
     skipped: Vec<SkippedFile>,
     /// Where uploaded files are kept (`DATA/eds`); `None`: in memory only.
     uploads: Option<PathBuf>,
+    /// How many uploaded files, and how many bytes of them, the catalog
+    /// takes.
+    quota: Mutex<EdsQuota>,
+    /// The size of every uploaded file in the catalog, by name.
+    upload_bytes: Mutex<BTreeMap<String, u64>>,
+}
+
+/// Uploaded EDS files the catalog takes at most (issue 30, finding 7:
+/// 2,044 uploads took 850 MB and made `GET /eds` 60 MB): their count and
+/// their bytes together (config keys `eds_max_files`, `eds_max_mb`). Files
+/// of the EDS directory and the built-in ones do not count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EdsQuota {
+    pub max_files: usize,
+    pub max_bytes: u64,
+}
+
+/// Uploaded EDS files at most, by default.
+pub const DEFAULT_EDS_MAX_FILES: usize = 256;
+/// Bytes of uploaded EDS files at most, by default (64 MiB).
+pub const DEFAULT_EDS_MAX_BYTES: u64 = 64 * 1024 * 1024;
+
+impl Default for EdsQuota {
+    fn default() -> Self {
+        Self {
+            max_files: DEFAULT_EDS_MAX_FILES,
+            max_bytes: DEFAULT_EDS_MAX_BYTES,
+        }
+    }
 }
 
 /// A file of the EDS directory the catalog left out, and why (it is no EDS,
@@ -262,6 +292,9 @@ pub enum CatalogError {
     /// Only uploaded files can be removed.
     #[error("{0}")]
     NotUploaded(String),
+    /// The upload would take the uploaded files over [`EdsQuota`].
+    #[error("{0}")]
+    Quota(String),
     /// The file could not be kept or removed (disk full, permissions).
     #[error("{0}")]
     Io(String),
@@ -321,6 +354,8 @@ impl EdsCatalog {
             entries: RwLock::new(entries),
             skipped: Vec::new(),
             uploads: None,
+            quota: Mutex::new(EdsQuota::default()),
+            upload_bytes: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -357,6 +392,11 @@ impl EdsCatalog {
             })?;
             for path in paths {
                 self.load(&path, EdsSource::Uploaded(Some(path.clone())));
+                let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+                if let Some(name) = name.filter(|name| self.find(name).is_some()) {
+                    let size = std::fs::metadata(&path).map_or(0, |meta| meta.len());
+                    self.sizes().insert(name, size);
+                }
             }
         }
         self.uploads = Some(dir);
@@ -453,6 +493,54 @@ impl EdsCatalog {
         self.uploads.as_deref()
     }
 
+    fn sizes(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, u64>> {
+        self.upload_bytes
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// The quota of uploaded files.
+    pub fn quota(&self) -> EdsQuota {
+        *self
+            .quota
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// Sets the quota of uploaded files from now on (the files already in
+    /// the catalog stay, even beyond it).
+    pub fn set_quota(&self, quota: EdsQuota) {
+        *self
+            .quota
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner()) = quota;
+    }
+
+    /// The uploaded files in the catalog: how many, and their bytes.
+    pub fn uploaded(&self) -> (usize, u64) {
+        let sizes = self.sizes();
+        (sizes.len(), sizes.values().sum())
+    }
+
+    /// Whether one more upload of `size` bytes fits the quota.
+    fn check_quota(&self, name: &str, size: u64) -> Result<(), CatalogError> {
+        let quota = self.quota();
+        let (files, bytes) = self.uploaded();
+        if files >= quota.max_files {
+            return Err(CatalogError::Quota(format!(
+                "{name}: the catalog holds {files} uploaded files, its quota (eds_max_files {}): delete one first",
+                quota.max_files
+            )));
+        }
+        if bytes.saturating_add(size) > quota.max_bytes {
+            return Err(CatalogError::Quota(format!(
+                "{name}: {size} bytes more than the {} the uploaded files may take together (eds_max_mb), {bytes} taken: delete files first",
+                quota.max_bytes
+            )));
+        }
+        Ok(())
+    }
+
     /// Takes an uploaded file: `name` must be a plain file name ending in
     /// `.eds` or `.dcf` and no other file's; a file that is no EDS, or
     /// that yields no object, is refused with the reader's error; one with
@@ -462,6 +550,8 @@ impl EdsCatalog {
     /// old state or the new, never half a file).
     pub fn upload(&self, name: &str, bytes: &[u8]) -> Result<Arc<EdsEntry>, CatalogError> {
         check_name(name)?;
+        // Before the file is read, and again under the lock below.
+        self.check_quota(name, bytes.len() as u64)?;
         let eds = Eds::parse_bytes(bytes, name)?;
         if let Some(error) = eds.why_unusable(name) {
             return Err(error.into());
@@ -475,6 +565,7 @@ impl EdsCatalog {
                 "an EDS file named '{name}' is in the catalog already (delete it first)"
             )));
         }
+        self.check_quota(name, bytes.len() as u64)?;
         if let Some(dir) = &self.uploads {
             let path = write_private(dir, name, bytes).map_err(|error| {
                 CatalogError::Io(format!("cannot keep {name} in {}: {error}", dir.display()))
@@ -483,6 +574,7 @@ impl EdsCatalog {
         }
         let entry = Arc::new(entry);
         entries.push(entry.clone());
+        self.sizes().insert(name.to_string(), bytes.len() as u64);
         Ok(entry)
     }
 
@@ -525,6 +617,7 @@ impl EdsCatalog {
                 }
             }
         }
+        self.sizes().remove(name);
         Ok(entries.remove(position))
     }
 

@@ -71,10 +71,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::NodeBusy(_) => 60,
         GatewayError::AxisEnabled(_) => 61,
         GatewayError::ClientGone(_) => 62,
+        GatewayError::EdsQuota(_) => 63,
     }
 }
 
-const VARIANTS: usize = 63;
+const VARIANTS: usize = 64;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -145,6 +146,7 @@ fn samples() -> Vec<GatewayError> {
             line: Some(3),
         },
         GatewayError::EdsConflict(text()),
+        GatewayError::EdsQuota(text()),
         GatewayError::NotAnIoModule(text()),
         GatewayError::UnknownChannel(text()),
         GatewayError::InvalidIndex(text()),

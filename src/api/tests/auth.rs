@@ -614,3 +614,119 @@ async fn the_stream_needs_a_token_as_a_header_or_a_subprotocol() {
     }
     server.abort();
 }
+
+/// Issue 30, finding 8: the `bearer.` subprotocol is a token for a
+/// WebSocket upgrade only: a plain request naming it is unauthenticated.
+#[tokio::test(start_paused = true)]
+async fn the_bearer_subprotocol_authenticates_websocket_upgrades_only() {
+    let app = gateway(None);
+    let protocols = format!("candeck.v1, bearer.{ADMIN}");
+    for (method, path) in [
+        (Method::POST, "/api/v1/stop-all"),
+        (Method::GET, "/api/v1/auth/whoami"),
+        (Method::GET, "/api/v1/buses"),
+    ] {
+        let (status, _, json) = send(
+            &app,
+            method.clone(),
+            path,
+            &[("sec-websocket-protocol", &protocols)],
+            None,
+        )
+        .await;
+        assert_eq!(status, StatusCode::UNAUTHORIZED, "{method} {path}: {json}");
+    }
+    // Nor a POST that says it upgrades: a WebSocket opens with a GET.
+    let (status, _, json) = send(
+        &app,
+        Method::POST,
+        "/api/v1/stop-all",
+        &[
+            ("sec-websocket-protocol", &protocols),
+            ("upgrade", "websocket"),
+            ("connection", "upgrade"),
+        ],
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED, "{json}");
+}
+
+/// Issue 30, finding 7: a token, and a peer address, hold at most their
+/// number of streams; one more is answered 429 `too_many_streams` before
+/// the upgrade, a closed stream gives its place back, and REST answers
+/// throughout.
+#[tokio::test]
+async fn streams_are_limited_per_token_and_per_peer() {
+    use crate::api::stream::StreamLimits;
+    use tokio_tungstenite::tungstenite::Error as WsError;
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+
+    let state = AppState::new([])
+        .with_auth(config(None))
+        .with_stream_limits(StreamLimits::new(2, 3).unwrap());
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    let server = tokio::spawn(
+        axum::serve(
+            listener,
+            app(state).into_make_service_with_connect_info::<std::net::SocketAddr>(),
+        )
+        .into_future(),
+    );
+    let url = format!("ws://{address}/api/v1/stream");
+    let open = |token: &'static str| {
+        let mut request = url.as_str().into_client_request().unwrap();
+        request
+            .headers_mut()
+            .insert("authorization", bearer(token).parse().unwrap());
+        tokio_tungstenite::connect_async(request)
+    };
+    let refused = |result: Result<_, WsError>| match result {
+        Ok(_) => panic!("a stream beyond the limit was opened"),
+        Err(WsError::Http(response)) => {
+            assert_eq!(response.status(), 429);
+            let body = response.body().as_deref().unwrap_or_default();
+            let body: Json = serde_json::from_slice(body).unwrap();
+            assert_eq!(body["error"]["code"], "too_many_streams", "{body}");
+            body["error"]["message"].as_str().unwrap().to_string()
+        }
+        Err(other) => panic!("{other:?}"),
+    };
+    let (first, _) = open(VIEWER).await.unwrap();
+    let (_second, _) = open(VIEWER).await.unwrap();
+    let message = refused(open(VIEWER).await);
+    assert!(message.contains("stream_max_per_token"), "{message}");
+    // Another token from the same address: the address's limit (3).
+    let (_third, _) = open(OPERATOR).await.unwrap();
+    let message = refused(open(OPERATOR).await);
+    assert!(message.contains("stream_max_per_peer"), "{message}");
+    // REST still answers.
+    {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut rest = tokio::net::TcpStream::connect(address).await.unwrap();
+        let request = format!(
+            "GET /api/v1/buses HTTP/1.1\r\nHost: {address}\r\nAuthorization: {}\r\nConnection: close\r\n\r\n",
+            bearer(VIEWER)
+        );
+        rest.write_all(request.as_bytes()).await.unwrap();
+        let mut answer = String::new();
+        tokio::time::timeout(Duration::from_secs(10), rest.read_to_string(&mut answer))
+            .await
+            .expect("REST answers within 10 s")
+            .unwrap();
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    }
+    // A closed stream gives its place back.
+    drop(first);
+    let mut reopened = None;
+    for _ in 0..100 {
+        if let Ok(stream) = open(VIEWER).await {
+            reopened = Some(stream);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(reopened.is_some(), "no place after a stream closed");
+    server.abort();
+}

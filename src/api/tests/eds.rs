@@ -475,3 +475,54 @@ async fn a_drive_assigned_a_non_uniswarm_402_eds_lists_its_axis_and_is_enabled()
         "operation enabled: {statusword}"
     );
 }
+
+/// Issue 30, finding 7: the uploaded files are held to a quota of files
+/// and of bytes; an upload beyond is refused (409 `eds_quota`, naming the
+/// key), nothing kept, and a delete makes room again.
+#[tokio::test(start_paused = true)]
+async fn uploads_beyond_the_quota_of_files_or_bytes_are_refused() {
+    let (app, state) = super::support::demo().await;
+    let catalog = state.gateway.eds_catalog().unwrap();
+    let size = IPOS_LIKE.len() as u64;
+    catalog.set_quota(crate::gateway::EdsQuota {
+        max_files: 2,
+        max_bytes: 10 * size,
+    });
+    for name in ["a.eds", "b.eds"] {
+        let (status, body) = upload(&app, name, IPOS_LIKE).await;
+        assert_eq!(status, StatusCode::CREATED, "{name}: {body}");
+    }
+    let (status, body) = upload(&app, "c.eds", IPOS_LIKE).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{body}");
+    assert_eq!(body["error"]["code"], "eds_quota", "{body}");
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("eds_max_files 2"),
+        "{body}"
+    );
+    let (_, list) = get(&app, "/api/v1/eds").await;
+    assert!(listed(&list, "c.eds").is_none(), "{list}");
+    let (status, body) = send(&app, axum::http::Method::DELETE, "/api/v1/eds/a.eds", None).await;
+    assert_eq!(status, StatusCode::NO_CONTENT, "{body}");
+    let (status, body) = upload(&app, "c.eds", IPOS_LIKE).await;
+    assert_eq!(status, StatusCode::CREATED, "{body}");
+    assert_eq!(catalog.uploaded(), (2, 2 * size));
+
+    // The bytes: room for two and a half files.
+    catalog.set_quota(crate::gateway::EdsQuota {
+        max_files: 100,
+        max_bytes: 2 * size + size / 2,
+    });
+    let (status, body) = upload(&app, "d.eds", IPOS_LIKE).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{body}");
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("eds_max_mb"),
+        "{body}"
+    );
+    assert_eq!(catalog.uploaded(), (2, 2 * size));
+}

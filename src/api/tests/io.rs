@@ -201,6 +201,23 @@ async fn bad_channels_and_values_are_refused_before_any_write() {
             StatusCode::NOT_FOUND,
             "unknown_channel",
         ),
+        // Issue 30, finding 8: one spelling of a name; another is refused
+        // (naming the accepted one), not taken for it, and nothing written.
+        (
+            json!({"outputs": {"DO1": true}}),
+            StatusCode::BAD_REQUEST,
+            "invalid_request",
+        ),
+        (
+            json!({"outputs": {"do01": true}}),
+            StatusCode::BAD_REQUEST,
+            "invalid_request",
+        ),
+        (
+            json!({"outputs": {"do1 ": true}}),
+            StatusCode::BAD_REQUEST,
+            "invalid_request",
+        ),
     ] {
         let (got, answer) = put(body.clone()).await;
         assert_eq!(
@@ -208,6 +225,10 @@ async fn bad_channels_and_values_are_refused_before_any_write() {
             (status, Some(code)),
             "{body}: {answer}"
         );
+        if code == "invalid_request" && body["outputs"].as_object().is_some_and(|o| !o.is_empty()) {
+            let message = answer["error"]["message"].as_str().unwrap_or_default();
+            assert!(message.contains("write 'do1'"), "{body}: {answer}");
+        }
     }
     let (_, sdo) = call(
         &app,

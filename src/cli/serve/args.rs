@@ -113,6 +113,8 @@ pub struct ServeArgs {
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
     /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
     /// max_connections, ascii_idle_timeout_ms, ascii_max_connections,
+    /// ascii_unauthenticated_timeout_ms, eds_max_files, eds_max_mb,
+    /// stream_max_per_token, stream_max_per_peer,
     /// share_max_connections (candeck.example.toml is an annotated example of every key).
     /// Options given on the command line override it; relative paths in it
     /// are relative to the file. Tokens also come from the environment:
@@ -237,6 +239,28 @@ pub struct ServeArgs {
     /// CiA 309-3 connections at once (--ascii-listen). Default: 32.
     #[arg(long, value_name = "N")]
     pub ascii_max_connections: Option<usize>,
+    /// How long a CiA 309-3 client may go without a valid `auth` line (on
+    /// a gateway without tokens: without a command) before it is closed,
+    /// in milliseconds; when every place is taken, a new connection takes
+    /// the place of the oldest such client. Default: 10000.
+    #[arg(long, value_name = "MS")]
+    pub ascii_unauthenticated_timeout_ms: Option<u64>,
+    /// Uploaded EDS files (POST /api/v1/eds) the catalog takes at most;
+    /// one more is refused (409 eds_quota). Default: 256.
+    #[arg(long, value_name = "N")]
+    pub eds_max_files: Option<usize>,
+    /// How much the uploaded EDS files may take together, in MiB; an
+    /// upload beyond is refused (409 eds_quota). Default: 64.
+    #[arg(long, value_name = "MIB")]
+    pub eds_max_mb: Option<u64>,
+    /// WebSocket streams (GET /api/v1/stream) one token may hold at once;
+    /// one more is answered 429 too_many_streams. Default: 32.
+    #[arg(long, value_name = "N")]
+    pub stream_max_per_token: Option<usize>,
+    /// WebSocket streams one client address may hold at once (behind a
+    /// reverse proxy every client has the proxy's address). Default: 64.
+    #[arg(long, value_name = "N")]
+    pub stream_max_per_peer: Option<usize>,
     /// socketcand clients at once, per --share address; one more is
     /// refused. Default: 32.
     #[arg(long, value_name = "N")]

@@ -97,6 +97,11 @@ pub(super) struct ConfigFile {
     pub(super) max_connections: Option<usize>,
     pub(super) ascii_idle_timeout_ms: Option<u64>,
     pub(super) ascii_max_connections: Option<usize>,
+    pub(super) ascii_unauthenticated_timeout_ms: Option<u64>,
+    pub(super) eds_max_files: Option<usize>,
+    pub(super) eds_max_mb: Option<u64>,
+    pub(super) stream_max_per_token: Option<usize>,
+    pub(super) stream_max_per_peer: Option<usize>,
     // The Sparkplug B edge node (docs/sparkplug.md); off without mqtt_url.
     pub(super) mqtt_url: Option<String>,
     pub(super) mqtt_username: Option<String>,
@@ -325,6 +330,10 @@ pub(super) struct Settings {
     pub(super) sparkplug: Option<SparkplugConfig>,
     /// socketcand clients at once per share.
     pub(super) share_max_connections: usize,
+    /// The uploaded EDS files the catalog takes.
+    pub(super) eds_quota: crate::gateway::EdsQuota,
+    /// WebSocket streams per token and per peer.
+    pub(super) stream_limits: crate::api::stream::StreamLimits,
     /// The network manager of every bus, and the nodes described for each
     /// (by bus name).
     pub(super) machine: MachineSettings,
@@ -511,7 +520,40 @@ impl ServeArgs {
                     self.ascii_max_connections
                         .or(file.ascii_max_connections)
                         .unwrap_or(defaults.max_connections),
+                    self.ascii_unauthenticated_timeout_ms
+                        .or(file.ascii_unauthenticated_timeout_ms)
+                        .map_or(defaults.unauthenticated_timeout, Duration::from_millis),
                 )?
+            },
+            stream_limits: {
+                let defaults = crate::api::stream::StreamLimits::default();
+                crate::api::stream::StreamLimits::new(
+                    self.stream_max_per_token
+                        .or(file.stream_max_per_token)
+                        .unwrap_or(defaults.per_token),
+                    self.stream_max_per_peer
+                        .or(file.stream_max_per_peer)
+                        .unwrap_or(defaults.per_peer),
+                )?
+            },
+            eds_quota: {
+                let defaults = crate::gateway::EdsQuota::default();
+                let max_files = self
+                    .eds_max_files
+                    .or(file.eds_max_files)
+                    .unwrap_or(defaults.max_files);
+                let max_mb = self.eds_max_mb.or(file.eds_max_mb);
+                if max_files == 0 || max_mb == Some(0) {
+                    return Err(
+                        "eds_max_files, eds_max_mb: at least 1 (refuse uploads with tokens: only admins upload)"
+                            .to_string(),
+                    );
+                }
+                crate::gateway::EdsQuota {
+                    max_files,
+                    max_bytes: max_mb
+                        .map_or(defaults.max_bytes, |mb| mb.saturating_mul(1024 * 1024)),
+                }
             },
             share_max_connections: match self.share_max_connections.or(file.share_max_connections) {
                 Some(0) => return Err("share_max_connections: at least 1".to_string()),
@@ -682,6 +724,13 @@ impl Settings {
 
     /// The socketcand servers to start: each address with the virtual
     /// buses it shares, as (channel, hub).
+    /// How many socketcand share addresses the gateway listens on.
+    pub(super) fn shared_addresses(&self) -> usize {
+        let addresses: std::collections::BTreeSet<SocketAddr> =
+            self.share.iter().map(|share| share.addr).collect();
+        addresses.len()
+    }
+
     pub(super) fn shared(
         &self,
         served: &[std::sync::Arc<ServedBus>],
@@ -700,6 +749,41 @@ impl Settings {
         }
         servers
     }
+}
+
+/// The shortest heartbeat period a `[[nodes]]` entry may ask (0 turns
+/// supervision off): shorter ones load the bus for nothing and, with a
+/// consumer time of 1.5 periods, report a node lost whenever the host is
+/// briefly busy.
+pub(super) const MIN_NODE_HEARTBEAT_MS: u16 = 50;
+
+/// The ranges and the consistency of one `[[nodes]]` entry's values
+/// (issue 30, finding 8).
+pub(super) fn check_node_entry(entry: &NodeEntry) -> Result<(), String> {
+    if let Some(ms) = entry.heartbeat_ms
+        && ms != 0
+        && ms < MIN_NODE_HEARTBEAT_MS
+    {
+        return Err(format!(
+            "heartbeat_ms {ms}: give 0 (not supervised) or {MIN_NODE_HEARTBEAT_MS} to {} ms",
+            u16::MAX
+        ));
+    }
+    if let (Some(min), Some(max)) = (entry.revision_min, entry.revision_max)
+        && min > max
+    {
+        return Err(format!(
+            "revision_min {min:#010x} is above revision_max {max:#010x}: the range matches no revision"
+        ));
+    }
+    if entry
+        .name
+        .as_deref()
+        .is_some_and(|name| name.trim().is_empty())
+    {
+        return Err("name: empty; leave the key out for none".to_string());
+    }
+    Ok(())
 }
 
 /// The `[[nodes]]` of the config file by bus (the first bus when a node
@@ -722,6 +806,7 @@ fn machine_nodes(
         };
         let id = NodeId::new(entry.id)
             .map_err(|err| format!("config [[nodes]] id {}: {err}", entry.id))?;
+        check_node_entry(entry).map_err(|err| format!("config [[nodes]] id {id}: {err}"))?;
         if id == manager {
             return Err(format!(
                 "config [[nodes]] id {id}: that is the gateway's own node id (manager_node_id)"
@@ -736,6 +821,10 @@ fn machine_nodes(
         }
         let config = match &entry.dcf {
             Some(path) => {
+                // Bounded before it is read (issue 30: `/dev/zero`).
+                crate::canopen::eds::check_file(path).map_err(|err| {
+                    format!("config [[nodes]] id {id}: DCF {}: {err}", path.display())
+                })?;
                 load_dcf(path, id).map_err(|err| format!("config [[nodes]] id {id}: {err}"))?
             }
             None => Vec::new(),

@@ -9,7 +9,25 @@ use crate::cli::{CliError, shutdown_signal};
 use super::args::*;
 
 pub async fn run(args: ServeArgs) -> Result<(), CliError> {
-    let args = args.settings().map_err(CliError::new)?;
+    let mut args = args.settings().map_err(CliError::new)?;
+    // Every listener's connections within the limit of open files.
+    let others = args
+        .ascii_listen
+        .map_or(0, |_| args.ascii_limits.max_connections)
+        + args.shared_addresses() * args.share_max_connections;
+    let wanted = (args.http_limits.max_connections + others) as u64
+        + super::open_files::FILES_FOR_THE_GATEWAY;
+    if let Some(limit) = super::open_files::raised_limit(wanted) {
+        match super::open_files::fit(limit, args.http_limits.max_connections, others)
+            .map_err(CliError::new)?
+        {
+            super::open_files::Fit::Fits => {}
+            super::open_files::Fit::Lowered(room, warning) => {
+                tracing::warn!("{warning}");
+                args.http_limits.max_connections = room;
+            }
+        }
+    }
     // Refused by settings() already when it is an error; warned about once
     // the gateway listens (a start that fails says one line only).
     let exposure = args.exposure().map_err(CliError::new)?;
@@ -20,6 +38,9 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     )
     .await
     .map_err(|err| CliError::new(err.to_string()))?;
+    if let Some(catalog) = gateway.eds_catalog() {
+        catalog.set_quota(args.eds_quota);
+    }
     let served = gateway.buses_in_order();
     let mut shares = Vec::new();
     for (addr, channels) in args.shared(&served) {
@@ -91,6 +112,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     }
     let state = AppState::from_gateway(gateway)
         .with_guard(args.auth.clone())
+        .with_stream_limits(args.stream_limits)
         .with_allowed_hosts(args.allowed_hosts.clone());
     // The Sparkplug B edge node (mqtt_url), on the same gateway service.
     let edge_node = match args.sparkplug.clone() {

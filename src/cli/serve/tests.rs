@@ -464,7 +464,7 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
     let file = dir.join("limits.toml");
     std::fs::write(
         &file,
-        "header_timeout_ms = 2000\nidle_timeout_ms = 3000\nmax_connections = 100\nascii_idle_timeout_ms = 4000\nascii_max_connections = 5\nshare_max_connections = 7\nallowed_hosts = [\"gw.example\"]\n",
+        "header_timeout_ms = 2000\nidle_timeout_ms = 3000\nmax_connections = 100\nascii_idle_timeout_ms = 4000\nascii_max_connections = 5\nascii_unauthenticated_timeout_ms = 6000\nshare_max_connections = 7\nallowed_hosts = [\"gw.example\"]\n",
     )
     .unwrap();
     let file = file.to_str().unwrap();
@@ -477,6 +477,10 @@ fn the_connection_limits_come_from_the_command_line_over_the_file_over_the_defau
     assert_eq!(settings.http_limits.max_connections, 50);
     assert_eq!(settings.ascii_limits.idle_timeout, Duration::from_secs(4));
     assert_eq!(settings.ascii_limits.max_connections, 5);
+    assert_eq!(
+        settings.ascii_limits.unauthenticated_timeout,
+        Duration::from_secs(6)
+    );
     assert_eq!(settings.share_max_connections, 7);
     assert!(settings.allowed_hosts.allows("gw.example:8080"));
     for (args, expected) in [
@@ -570,4 +574,82 @@ fn the_compose_sparkplug_demo_configs_parse_as_two_edge_nodes_of_one_group() {
         edge_nodes.push(sparkplug.edge_node_id);
     }
     assert_eq!(edge_nodes, ["line-a", "line-b"]);
+}
+
+/// Issue 30, finding 8: the values of a `[[nodes]]` entry are checked for
+/// their range and consistency at start, the error naming the accepted
+/// range.
+#[test]
+fn node_entries_with_values_out_of_range_or_inconsistent_are_refused() {
+    let dir = std::env::temp_dir().join(format!("candeck-node-ranges-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("nodes.toml");
+    for (entry, expected) in [
+        (
+            "heartbeat_ms = 1",
+            "heartbeat_ms 1: give 0 (not supervised) or 50 to 65535 ms",
+        ),
+        (
+            "revision_min = 0x0200\nrevision_max = 0x0100",
+            "revision_min 0x00000200 is above revision_max 0x00000100",
+        ),
+        ("name = \" \"", "name: empty"),
+    ] {
+        std::fs::write(&file, format!("[[nodes]]\nid = 5\n{entry}\n")).unwrap();
+        let err = serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("config [[nodes]] id 5"), "{entry}: {err}");
+        assert!(err.contains(expected), "{entry}: {err}");
+    }
+    // The edges of the ranges stand.
+    std::fs::write(
+        &file,
+        "[[nodes]]\nid = 5\nheartbeat_ms = 0\nrevision_min = 1\nrevision_max = 1\n\n[[nodes]]\nid = 6\nheartbeat_ms = 50\n",
+    )
+    .unwrap();
+    let settings = serve_args(&["--config", file.to_str().unwrap()])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    assert_eq!(settings.machine_nodes["demo"].len(), 2);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Issue 30, finding 7: a DCF of a `[[nodes]]` entry is read within a
+/// bound: `/dev/zero` (not a regular file) and a file larger than an EDS
+/// or DCF may be are refused at start with a clear error, unread.
+#[test]
+fn a_dcf_that_is_no_regular_file_or_too_large_is_refused_unread() {
+    let dir = std::env::temp_dir().join(format!("candeck-dcf-bound-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("nodes.toml");
+    let large = dir.join("large.dcf");
+    // Sparse: its size without its bytes on disk.
+    std::fs::File::create(&large)
+        .unwrap()
+        .set_len(crate::canopen::eds::MAX_FILE_BYTES + 1)
+        .unwrap();
+    for (dcf, expected) in [
+        ("/dev/zero", "not a regular file"),
+        (
+            large.to_str().unwrap(),
+            "more than the 16777216 an EDS or DCF may have",
+        ),
+    ] {
+        std::fs::write(&file, format!("[[nodes]]\nid = 5\ndcf = \"{dcf}\"\n")).unwrap();
+        let err = serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+            .unwrap_err();
+        assert!(err.contains("config [[nodes]] id 5: DCF"), "{dcf}: {err}");
+        assert!(err.contains(expected), "{dcf}: {err}");
+    }
+    // An EDS of the EDS directory too.
+    let err = crate::canopen::eds::read_eds_file(&large).unwrap_err();
+    assert!(err.to_string().contains("more than the"), "{err}");
+    let err = crate::canopen::eds::read_eds_file("/dev/zero").unwrap_err();
+    assert!(err.to_string().contains("not a regular file"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -177,11 +177,58 @@ impl fmt::Display for EdsError {
 
 impl std::error::Error for EdsError {}
 
-/// Reads an EDS or DCF from disk; errors name the file by `path`.
+/// The largest EDS or DCF read from disk: CiA 306 files are kilobytes, the
+/// largest vendors ship a few MiB.
+pub const MAX_FILE_BYTES: u64 = 16 * 1024 * 1024;
+
+/// Whether `path` is a file an EDS or DCF may be read from: a regular file
+/// (not `/dev/zero`, not a FIFO that would block the reader) of at most
+/// [`MAX_FILE_BYTES`] (issue 30, finding 7: `dcf = "/dev/zero"` read 4 GB
+/// at start); its size.
+pub fn check_file(path: &Path) -> std::io::Result<u64> {
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (an EDS or DCF is one)",
+        ));
+    }
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!(
+                "{} bytes, more than the {MAX_FILE_BYTES} an EDS or DCF may have",
+                meta.len()
+            ),
+        ));
+    }
+    Ok(meta.len())
+}
+
+/// The bytes of an EDS or DCF file checked by [`check_file`], read up to
+/// [`MAX_FILE_BYTES`] whatever its size says (a file that grows meanwhile).
+pub fn read_bounded(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read as _;
+    check_file(path)?;
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)?
+        .take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("more than the {MAX_FILE_BYTES} bytes an EDS or DCF may have"),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// Reads an EDS or DCF from disk, within [`read_bounded`]'s bound; errors
+/// name the file by `path`.
 pub fn read_eds_file(path: impl AsRef<Path>) -> Result<Eds, EdsError> {
     let path = path.as_ref();
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|error| EdsError {
+    let bytes = read_bounded(path).map_err(|error| EdsError {
         file: file.clone(),
         line: 0,
         message: error.to_string(),

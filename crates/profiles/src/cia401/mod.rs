@@ -132,9 +132,19 @@ pub struct Channel {
 }
 
 impl Channel {
-    /// `di3`, `AO1`: a kind's prefix and a number from 1 (the count of the
-    /// module is checked by [`Layout::contains`]).
+    /// `di3`, `ao1`: a kind's prefix and a number from 1 (the count of the
+    /// module is checked by [`Layout::contains`]), in one spelling only:
+    /// lowercase, no leading zeros, no spaces (issue 30, finding 8: `DO1`,
+    /// `do01` and `"do1 "` are not `do1`; [`Self::read_loosely`] says what
+    /// such a name meant, for the error).
     pub fn parse(name: &str) -> Option<Self> {
+        Self::read_loosely(name).filter(|channel| channel.to_string() == name)
+    }
+
+    /// The channel a name not in the one spelling of [`Self::parse`]
+    /// stands for (`DO1`, `do01`, `" do1 "`): for the error that names the
+    /// accepted form, never to act on.
+    pub fn read_loosely(name: &str) -> Option<Self> {
         let name = name.trim();
         let kind = ChannelKind::ALL.into_iter().find(|kind| {
             name.get(..2)

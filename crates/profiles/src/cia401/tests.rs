@@ -5,20 +5,29 @@ use crate::canopen::eds::Eds;
 fn channel_names_read_both_ways_and_bad_ones_are_refused() {
     for (name, kind, number) in [
         ("di1", ChannelKind::DigitalInput, 1),
-        ("DO16", ChannelKind::DigitalOutput, 16),
+        ("do16", ChannelKind::DigitalOutput, 16),
         ("ai4", ChannelKind::AnalogInput, 4),
-        (" ao2 ", ChannelKind::AnalogOutput, 2),
+        ("ao2", ChannelKind::AnalogOutput, 2),
     ] {
         let channel = Channel::parse(name).unwrap();
         assert_eq!((channel.kind, channel.number), (kind, number), "{name}");
-        assert_eq!(
-            channel.to_string(),
-            name.trim().to_ascii_lowercase(),
-            "{name}"
-        );
+        assert_eq!(channel.to_string(), name, "{name}");
     }
     for bad in ["", "di", "di0", "dx1", "ai-1", "do1a", "d", "ao99999"] {
         assert_eq!(Channel::parse(bad), None, "{bad}");
+        assert_eq!(Channel::read_loosely(bad), None, "{bad}");
+    }
+    // One spelling: other spellings are refused, and read loosely only to
+    // name the accepted form.
+    for (other, meant) in [
+        ("DO1", "do1"),
+        ("do01", "do1"),
+        ("do1 ", "do1"),
+        (" Ai12", "ai12"),
+    ] {
+        assert_eq!(Channel::parse(other), None, "{other}");
+        let loose = Channel::read_loosely(other).unwrap();
+        assert_eq!(loose.to_string(), meant, "{other}");
     }
 }
 
