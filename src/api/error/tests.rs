@@ -67,10 +67,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::TooManyLoggers(_) => 56,
         GatewayError::NotLoggable(_) => 57,
         GatewayError::HistoryFailed(_) => 58,
+        GatewayError::UnknownAlarm(_) => 59,
     }
 }
 
-const VARIANTS: usize = 59;
+const VARIANTS: usize = 60;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -179,6 +180,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::TooManyLoggers(text()),
         GatewayError::NotLoggable(text()),
         GatewayError::HistoryFailed(text()),
+        GatewayError::UnknownAlarm(text()),
     ]
 }
 
