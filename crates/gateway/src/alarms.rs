@@ -85,7 +85,10 @@ impl AlarmState {
 
     /// Waits for an operator's acknowledgement.
     pub fn is_unacknowledged(self) -> bool {
-        matches!(self, Self::ActiveUnacknowledged | Self::ClearedUnacknowledged)
+        matches!(
+            self,
+            Self::ActiveUnacknowledged | Self::ClearedUnacknowledged
+        )
     }
 }
 
@@ -267,7 +270,9 @@ pub struct AlarmFilter {
 impl AlarmFilter {
     pub fn matches(&self, alarm: &Alarm) -> bool {
         self.state.is_none_or(|state| alarm.state == state)
-            && self.severity.is_none_or(|severity| alarm.severity == severity)
+            && self
+                .severity
+                .is_none_or(|severity| alarm.severity == severity)
             && self.bus.as_ref().is_none_or(|bus| &alarm.bus == bus)
             && self.node.is_none_or(|node| alarm.node == Some(node))
             && self
@@ -315,7 +320,12 @@ impl AlarmBook {
     /// The cause of `source` is present: a new alarm, or the one there is
     /// (counted again if its cause had gone). `None` when nothing changed
     /// (the alarm was active already).
-    pub(crate) fn raise(&mut self, source: AlarmSource, text: &AlarmText, now_us: i64) -> Option<Changed> {
+    pub(crate) fn raise(
+        &mut self,
+        source: AlarmSource,
+        text: &AlarmText,
+        now_us: i64,
+    ) -> Option<Changed> {
         let kind = kind_of(&source)?;
         if let Some(&id) = self.open.get(&source) {
             let alarm = self.alarms.get_mut(&id)?;
@@ -331,7 +341,11 @@ impl AlarmBook {
             }
             alarm.count = alarm.count.saturating_add(1);
             alarm.cleared_us = None;
-            let event = alarm.step(now_us, AlarmStep::Returned, AlarmState::ActiveUnacknowledged);
+            let event = alarm.step(
+                now_us,
+                AlarmStep::Returned,
+                AlarmState::ActiveUnacknowledged,
+            );
             return Some(Changed {
                 alarm: alarm.clone(),
                 event,

@@ -40,7 +40,9 @@ impl Severity {
     }
 
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|severity| severity.name() == name)
+        Self::ALL
+            .into_iter()
+            .find(|severity| severity.name() == name)
     }
 
     /// Whether an active alarm of this severity keeps the machine out of
@@ -398,7 +400,11 @@ mod tests {
             (Product::Other, 0x1000, Severity::Medium),
         ];
         for (product, code, severity) in cases {
-            assert_eq!(emcy_severity(product, code), severity, "{product:?} 0x{code:04X}");
+            assert_eq!(
+                emcy_severity(product, code),
+                severity,
+                "{product:?} 0x{code:04X}"
+            );
         }
     }
 
@@ -408,7 +414,12 @@ mod tests {
         assert_eq!(text.text, "Drive fault (axis 2)");
         assert!(text.help.contains("0x6841"), "{}", text.help);
         assert!(text.help.contains("0x683F"), "{}", text.help);
-        let text = describe(Product::Umc, AlarmKind::Emcy(0x8611), Some(2), "Following error");
+        let text = describe(
+            Product::Umc,
+            AlarmKind::Emcy(0x8611),
+            Some(2),
+            "Following error",
+        );
         assert_eq!(text.text, "EMCY 0x8611: Following error (axis 2)");
         assert!(text.help.contains("0x4200"), "{}", text.help);
         assert!(text.help.contains("0x683F"), "{}", text.help);

@@ -165,13 +165,16 @@ impl Alarms {
         let _ = restored.wait_for(|done| *done).await;
     }
 
-    fn book(&self) -> MutexGuard<'_, AlarmBook> {
+    pub(super) fn book(&self) -> MutexGuard<'_, AlarmBook> {
         self.0.book.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     /// Changes the book; what changed is persisted (in order) and
     /// published.
-    pub(crate) fn apply(&self, change: impl FnOnce(&mut AlarmBook) -> Vec<Changed>) -> Vec<Changed> {
+    pub(crate) fn apply(
+        &self,
+        change: impl FnOnce(&mut AlarmBook) -> Vec<Changed>,
+    ) -> Vec<Changed> {
         let mut book = self.book();
         let changed = change(&mut book);
         if changed.is_empty() {

@@ -14,12 +14,12 @@ use std::sync::Arc;
 
 use tokio::sync::{Notify, broadcast, watch};
 
-use super::service::Alarms;
 use super::AlarmSource;
-use crate::canopen::NodeId;
-use crate::canopen::manager::{MachineStatus, NodeState};
+use super::service::Alarms;
 use crate::caller::Channel;
 use crate::can::{BusState, BusStatus};
+use crate::canopen::NodeId;
+use crate::canopen::manager::{MachineStatus, NodeState};
 use crate::history::{AuditEntry, OK};
 use crate::profile::Profile;
 use crate::profiles::alarm::{AlarmKind, Product, describe};
@@ -165,7 +165,12 @@ impl BusSources {
                 });
             }
             NodeEvent::Emcy { node, emcy } => {
-                self.raise(Some(*node), emcy.axis, AlarmKind::Emcy(emcy.code), &emcy.text);
+                self.raise(
+                    Some(*node),
+                    emcy.axis,
+                    AlarmKind::Emcy(emcy.code),
+                    &emcy.text,
+                );
             }
             NodeEvent::Offline { node, reason } => {
                 let kind = match reason {
@@ -214,7 +219,9 @@ impl BusSources {
                 |source| {
                     source.bus == bus
                         && source.node.is_some_and(|node| !listed.contains(&node))
-                        && MACHINE_KINDS.iter().any(|kind| kind.name() == source.kind.0)
+                        && MACHINE_KINDS
+                            .iter()
+                            .any(|kind| kind.name() == source.kind.0)
                 },
                 super::service::now_us(),
             )
