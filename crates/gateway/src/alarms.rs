@@ -662,5 +662,7 @@ pub(crate) fn follow_audit(
                 sources::product(info.profile)
             })
     };
-    sources::spawn_audit_follower(alarms.clone(), products, history.follow_audit());
+    if tokio::runtime::Handle::try_current().is_ok() {
+        sources::spawn_audit_follower(alarms.clone(), products, history.follow_audit());
+    }
 }

@@ -122,7 +122,7 @@ impl std::fmt::Debug for Alarms {
 }
 
 impl Alarms {
-    /// The alarms persisted in `history`: read back (needs a tokio
+    /// The alarms persisted in `history`: read back (within a tokio
     /// runtime), the ones active before the restart kept active until
     /// [`RESTORE_SETTLE`] has passed without their cause.
     pub(crate) fn start(history: History) -> Self {
@@ -135,9 +135,18 @@ impl Alarms {
             machines: Mutex::default(),
             restored: watch::channel(false).0,
         }));
-        tokio::spawn(write_history(history.clone(), requests));
-        let restoring = alarms.clone();
-        tokio::spawn(async move { restoring.restore(history).await });
+        match tokio::runtime::Handle::try_current() {
+            Ok(runtime) => {
+                runtime.spawn(write_history(history.clone(), requests));
+                let restoring = alarms.clone();
+                runtime.spawn(async move { restoring.restore(history).await });
+            }
+            // A gateway made outside a runtime serves no bus (one made for
+            // its description only): nothing to follow, restore or write.
+            Err(_) => {
+                alarms.0.restored.send_replace(true);
+            }
+        }
         alarms
     }
 
