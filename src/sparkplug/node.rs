@@ -1054,7 +1054,7 @@ impl Runner {
 /// `Alarms/Active` and `Alarms/Unacknowledged` (counts), `Alarms/Highest
 /// Severity` (`critical`, `high`, `medium`, `low`, or `none`) of the
 /// alarms that are not `normal`, so that a SCADA host can alarm on them.
-fn alarm_samples(summary: &crate::gateway::AlarmSummary, now: u64) -> Vec<Sample> {
+pub(super) fn alarm_samples(summary: &crate::gateway::AlarmSummary, now: u64) -> Vec<Sample> {
     vec![
         Sample::new(
             "Alarms/Active",

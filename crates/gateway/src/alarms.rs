@@ -394,7 +394,7 @@ impl AlarmBook {
             event,
         };
         if next == AlarmState::Normal {
-            self.to_normal(id);
+            self.make_normal(id);
         }
         Some(changed)
     }
@@ -472,7 +472,7 @@ impl AlarmBook {
             event,
         };
         if next == AlarmState::Normal {
-            self.to_normal(id);
+            self.make_normal(id);
         }
         Some((changed.alarm.clone(), Some(changed)))
     }
@@ -551,7 +551,7 @@ impl AlarmBook {
         open
     }
 
-    fn to_normal(&mut self, id: u64) {
+    fn make_normal(&mut self, id: u64) {
         self.open.retain(|_, open| *open != id);
         self.unconfirmed.remove(&id);
         self.normal.push_back(id);
