@@ -320,10 +320,11 @@ impl AlarmBook {
     /// The cause of `source` is present: a new alarm, or the one there is
     /// (counted again if its cause had gone). `None` when nothing changed
     /// (the alarm was active already).
+    /// `text` is asked for only when a new alarm is raised.
     pub(crate) fn raise(
         &mut self,
         source: AlarmSource,
-        text: &AlarmText,
+        text: impl FnOnce() -> AlarmText,
         now_us: i64,
     ) -> Option<Changed> {
         let kind = kind_of(&source)?;
@@ -353,6 +354,7 @@ impl AlarmBook {
         }
         self.next_id += 1;
         let id = self.next_id;
+        let text = text();
         let mut alarm = Alarm {
             id,
             bus: source.bus.clone(),

@@ -204,7 +204,7 @@ impl Alarms {
     }
 
     /// Raises the alarm of `source` (see [`AlarmBook::raise`]).
-    pub(crate) fn raise(&self, source: AlarmSource, text: &AlarmText) {
+    pub(crate) fn raise(&self, source: AlarmSource, text: impl FnOnce() -> AlarmText) {
         self.apply(|book| book.raise(source, text, now_us()).into_iter().collect());
     }
 

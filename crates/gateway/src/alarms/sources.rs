@@ -81,13 +81,14 @@ impl BusSources {
     ) {
         use broadcast::error::{RecvError, TryRecvError};
         self.alarms.restored().await;
+        // As they are now, then at each change.
+        let bus_status = status.borrow_and_update().clone();
+        self.on_bus_status(&bus_status);
+        if let Some(machine) = &mut machine {
+            let machine_status = machine.borrow_and_update().clone();
+            self.on_machine(&machine_status);
+        }
         loop {
-            let bus_status = status.borrow_and_update().clone();
-            self.on_bus_status(&bus_status);
-            if let Some(machine) = &mut machine {
-                let machine_status = machine.borrow_and_update().clone();
-                self.on_machine(&machine_status);
-            }
             tokio::select! {
                 event = events.recv() => match event {
                     Ok(event) => self.on_event(&event),
@@ -96,13 +97,25 @@ impl BusSources {
                     }
                     Err(RecvError::Closed) => return,
                 },
-                changed = status.changed() => if changed.is_err() { return },
+                changed = status.changed() => {
+                    if changed.is_err() {
+                        return;
+                    }
+                    let bus_status = status.borrow_and_update().clone();
+                    self.on_bus_status(&bus_status);
+                }
                 changed = async {
                     match &mut machine {
                         Some(machine) => machine.changed().await,
                         None => std::future::pending().await,
                     }
-                } => if changed.is_err() { machine = None },
+                } => match (changed, &mut machine) {
+                    (Ok(()), Some(watch)) => {
+                        let machine_status = watch.borrow_and_update().clone();
+                        self.on_machine(&machine_status);
+                    }
+                    _ => machine = None,
+                },
                 () = wake.notified() => loop {
                     match frames.try_recv() {
                         Ok(frame) => self.on_frame(&frame),
@@ -121,10 +134,13 @@ impl BusSources {
     }
 
     fn raise(&self, node: Option<NodeId>, axis: Option<u8>, kind: AlarmKind, emcy_text: &str) {
-        let product = node.map_or(Product::Other, |node| self.product(node));
-        let text = describe(product, kind, axis, emcy_text);
         let source = AlarmSource::new(&self.bus, node.map(NodeId::get), axis, kind);
-        self.alarms.raise(source, &text);
+        // Described only for a new alarm: a statusword in fault comes in
+        // every TPDO of the axis.
+        self.alarms.raise(source, || {
+            let product = node.map_or(Product::Other, |node| self.product(node));
+            describe(product, kind, axis, emcy_text)
+        });
     }
 
     fn clear(&self, node: Option<NodeId>, axis: Option<u8>, kind: AlarmKind) {
@@ -306,7 +322,7 @@ pub(crate) fn on_audit(alarms: &Alarms, products: &impl Fn(&str, u8) -> Product,
         // operator to see it, its cause already gone.
         let kind = AlarmKind::LeaseHalted;
         let source = AlarmSource::new(bus, Some(node), row.axis, kind);
-        alarms.raise(source.clone(), &describe(product, kind, row.axis, ""));
+        alarms.raise(source.clone(), || describe(product, kind, row.axis, ""));
         alarms.clear(&source);
     } else if row.operation == "download program" {
         let kind = AlarmKind::ProgramFailed;
@@ -314,7 +330,7 @@ pub(crate) fn on_audit(alarms: &Alarms, products: &impl Fn(&str, u8) -> Product,
         if row.outcome == OK {
             alarms.clear(&source);
         } else {
-            alarms.raise(source, &describe(product, kind, None, ""));
+            alarms.raise(source, || describe(product, kind, None, ""));
         }
     }
 }

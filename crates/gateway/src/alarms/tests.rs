@@ -26,7 +26,7 @@ fn text(kind: AlarmKind) -> AlarmText {
 }
 
 fn raise(book: &mut AlarmBook, kind: AlarmKind, at: i64) -> Option<Changed> {
-    book.raise(source(kind), &text(kind), at)
+    book.raise(source(kind), || text(kind), at)
 }
 
 #[test]
@@ -108,7 +108,7 @@ fn acknowledging_by_filter_takes_only_the_unacknowledged_that_match() {
     let other = book
         .raise(
             AlarmSource::new("line", Some(4), None, AlarmKind::NodeOffline),
-            &describe(Product::Other, AlarmKind::NodeOffline, None, ""),
+            || describe(Product::Other, AlarmKind::NodeOffline, None, ""),
             3,
         )
         .unwrap()
@@ -142,7 +142,7 @@ fn a_list_is_paged_fifty_at_a_time_and_filtered() {
     let mut book = AlarmBook::default();
     for node in 1..=60u8 {
         let source = AlarmSource::new("line", Some(node), None, AlarmKind::NodeOffline);
-        book.raise(source, &text(AlarmKind::NodeOffline), i64::from(node));
+        book.raise(source, || text(AlarmKind::NodeOffline), i64::from(node));
     }
     let (first, total) = book.list(&AlarmFilter::default(), 1);
     assert_eq!((first.len(), total), (50, 60));
