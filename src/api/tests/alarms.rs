@@ -300,3 +300,94 @@ async fn the_stream_sends_the_open_alarms_then_each_change_and_the_machine_follo
     );
     assert!(page.contains("candeck_alarms_unacknowledged{bus=\"demo\",severity=\"critical\"} 0"));
 }
+
+#[tokio::test(start_paused = true)]
+async fn only_an_operator_acknowledges_and_each_request_is_audited_once_by_its_token() {
+    use crate::api::auth::{AuthConfig, DEFAULT_BODY_LIMIT, Role, Token};
+    use crate::api::tests::support::send_with_headers;
+    const VIEWER: &str = "v1ewer-0123456789abcdef";
+    const OPERATOR: &str = "0perator-0123456789abcdef";
+    let (_, state) = demo_with_state().await;
+    let config = AuthConfig::new(
+        vec![
+            Token::new("hmi", Role::Viewer, VIEWER).unwrap(),
+            Token::new("line-plc", Role::Operator, OPERATOR).unwrap(),
+        ],
+        Vec::new(),
+        None,
+        DEFAULT_BODY_LIMIT,
+        2 * DEFAULT_BODY_LIMIT,
+    )
+    .unwrap();
+    let app = app(state.clone().with_auth(config));
+    let as_token = |token: &'static str| format!("Bearer {token}");
+    let viewer = as_token(VIEWER);
+    let operator = as_token(OPERATOR);
+    // The fault straight on the rack: no admin token here.
+    state_rack_fault(&state);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let (status, _, list) = send_with_headers(
+        &app,
+        Method::GET,
+        "/api/v1/alarms",
+        &[("authorization", &viewer)],
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "a viewer reads them");
+    let id = list["alarms"][0]["id"].as_u64().unwrap();
+    let ack = format!("/api/v1/alarms/{id}/ack");
+    let (status, _, body) = send_with_headers(
+        &app,
+        Method::POST,
+        &ack,
+        &[("authorization", &viewer)],
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::FORBIDDEN, "{body}");
+    let (status, _, body) = send_with_headers(
+        &app,
+        Method::POST,
+        &ack,
+        &[("authorization", &operator)],
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    assert_eq!(body["acknowledged_by"], "line-plc");
+
+    let (_, _, events) = send_with_headers(
+        &app,
+        Method::GET,
+        "/api/v1/events?kind=audit",
+        &[("authorization", &viewer)],
+        None,
+    )
+    .await;
+    let rows: Vec<(&str, &str)> = events
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|row| row["operation"] == "acknowledge alarm")
+        .map(|row| {
+            (
+                row["who"].as_str().unwrap(),
+                row["outcome"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(rows, [("hmi", "forbidden"), ("line-plc", "ok")]);
+}
+
+/// Over-temperature on node 1 of the demo rack, straight on the rack.
+fn state_rack_fault(state: &AppState) {
+    use crate::emulator::RackOf;
+    let served = state.bus("demo").unwrap();
+    let rack = served.rack().unwrap();
+    rack.inject_fault(
+        crate::canopen::NodeId::new(1).unwrap(),
+        crate::sim::behaviour::Fault::OverTemperature,
+    )
+    .unwrap();
+}
