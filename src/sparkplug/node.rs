@@ -44,14 +44,15 @@ const RECONNECT_AFTER: Duration = Duration::from_secs(1);
 const CLIENT_QUEUE: usize = 10_000;
 
 /// The machine state of the NBIRTH metric `Machine State`: the worst of the
-/// buses' network managers (down, degraded, booting, ready), as
-/// `GET /api/v1/buses/{bus}/machine` gives each; `None` when no bus has one.
+/// buses' machines (down, degraded, alarm, booting, ready), as
+/// `GET /api/v1/buses/{bus}/machine` gives each, with its alarms; `None`
+/// when no bus has a network manager.
 pub fn machine_state(gateway: &Gateway) -> Option<String> {
     gateway
         .buses_in_order()
         .iter()
-        .filter_map(|bus| bus.machine().ok().map(|machine| machine.status().state))
-        .min_by_key(|state| state.metric())
+        .filter_map(|bus| gateway.machine_view(bus.name()).ok().map(|view| view.state))
+        .min_by_key(|state| state.rank())
         .map(|state| state.name().to_string())
 }
 

@@ -597,6 +597,19 @@ impl MachineCondition {
             Self::Alarm => "alarm",
         }
     }
+
+    /// From the worst (0) to the best: down, degraded, alarm, booting,
+    /// ready: the worst of several buses is the one a SCADA host sees.
+    /// An alarm needs someone; a machine booting is on its way.
+    pub fn rank(self) -> u8 {
+        match self {
+            Self::Down => 0,
+            Self::Degraded => 1,
+            Self::Alarm => 2,
+            Self::Booting => 3,
+            Self::Ready => 4,
+        }
+    }
 }
 
 impl serde::Serialize for MachineCondition {
