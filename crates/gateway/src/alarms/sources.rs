@@ -324,7 +324,7 @@ pub(crate) fn on_audit(alarms: &Alarms, products: &impl Fn(&str, u8) -> Product,
         let source = AlarmSource::new(bus, Some(node), row.axis, kind);
         alarms.raise(source.clone(), || describe(product, kind, row.axis, ""));
         alarms.clear(&source);
-    } else if row.operation == "download program" {
+    } else if row.operation == "download program" && !REFUSED.contains(&row.outcome.as_str()) {
         let kind = AlarmKind::ProgramFailed;
         let source = AlarmSource::new(bus, Some(node), None, kind);
         if row.outcome == OK {
@@ -333,4 +333,39 @@ pub(crate) fn on_audit(alarms: &Alarms, products: &impl Fn(&str, u8) -> Product,
             alarms.raise(source, || describe(product, kind, None, ""));
         }
     }
+}
+
+/// The outcomes of a request refused before it reached the device (its
+/// caller's role or rate, its input): no download failed.
+const REFUSED: &[&str] = &[
+    "forbidden",
+    "unauthenticated",
+    "rate_limited",
+    "invalid_request",
+    "unknown_bus",
+    "unknown_node",
+];
+
+#[cfg(test)]
+#[test]
+fn the_refusal_words_are_the_gateway_s_error_codes() {
+    use crate::error::GatewayError;
+    let text = || String::new();
+    let codes = [
+        GatewayError::Forbidden(text()).code(),
+        GatewayError::Unauthenticated(text()).code(),
+        GatewayError::RateLimited {
+            message: text(),
+            retry_after_s: 1,
+        }
+        .code(),
+        GatewayError::InvalidRequest(text()).code(),
+        GatewayError::UnknownBus(text()).code(),
+        GatewayError::UnknownNode {
+            bus: text(),
+            node: text(),
+        }
+        .code(),
+    ];
+    assert_eq!(REFUSED, codes);
 }

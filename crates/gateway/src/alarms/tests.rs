@@ -419,6 +419,13 @@ async fn a_halted_lease_and_a_failed_program_download_raise_alarms_from_their_au
         .finish_ok()
         .await;
     let failed = AuditTarget::new("download program").bus("line").node(3);
+    // Refused before it reached the device: no download failed.
+    gateway
+        .audit_row(&operator("vera"), failed.clone(), None)
+        .finish_as("forbidden")
+        .await;
+    tokio::time::sleep(Duration::from_millis(10)).await;
+    assert!(open_of(&gateway, "program_failed").is_empty());
     gateway
         .audit_row(&operator("alice"), failed.clone(), None)
         .finish_as("sdo_abort")
