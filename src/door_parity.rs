@@ -762,3 +762,45 @@ async fn a_cia_309_3_write_of_0x1a00_refreshes_the_pdo_decoder_as_rest_does() {
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert!(tpdo_numbers().contains(&1), "{:?}", tpdo_numbers());
 }
+
+/// Issue 31: the machine state REST gives (`GET .../machine`, with its
+/// alarms) is the one Sparkplug's `Machine State` gives.
+#[tokio::test(start_paused = true)]
+async fn rest_and_sparkplug_give_the_same_machine_state_with_its_alarms() {
+    use crate::emulator::RackOf;
+    let served = open("demo", "virtual:demo")
+        .await
+        .with_machine(crate::gateway::MachineSettings::default(), None);
+    served.scan().await.unwrap();
+    let machine = served.machine().unwrap().clone();
+    machine.scan_done();
+    machine
+        .wait_for(
+            crate::canopen::manager::MachineState::Ready,
+            std::time::Duration::from_secs(10),
+        )
+        .await;
+    let state = AppState::new([served]);
+    let router = app(state.clone());
+    let states = || async {
+        let (_, rest) = support::get(&router, "/api/v1/buses/demo/machine").await;
+        let sparkplug = crate::sparkplug::node::machine_state(&state.gateway);
+        (
+            rest["state"].as_str().unwrap().to_string(),
+            sparkplug.unwrap(),
+        )
+    };
+    assert_eq!(states().await, ("ready".to_string(), "ready".to_string()));
+    state
+        .bus("demo")
+        .unwrap()
+        .rack()
+        .unwrap()
+        .inject_fault(
+            crate::canopen::NodeId::new(1).unwrap(),
+            crate::sim::behaviour::Fault::OverTemperature,
+        )
+        .unwrap();
+    tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+    assert_eq!(states().await, ("alarm".to_string(), "alarm".to_string()));
+}

@@ -290,6 +290,10 @@ impl Target {
             (&Method::DELETE, ["eds", name]) => ("delete eds", word(name)),
             (&Method::POST, ["loggers"]) => ("start data logger", None),
             (&Method::DELETE, ["loggers", id]) => ("delete data logger", word(id)),
+            (&Method::POST, ["alarms", "ack"]) => ("acknowledge alarms", None),
+            (&Method::POST, ["alarms", id, "ack"]) => {
+                ("acknowledge alarm", Some(format!("alarm {id}")))
+            }
             (_, ["buses", bus, rest @ ..]) => {
                 target.bus = word(bus);
                 match (method, rest) {
@@ -297,6 +301,8 @@ impl Target {
                     (&Method::POST, ["nmt"]) => ("nmt command to all nodes", None),
                     (&Method::PUT, ["sync"]) => ("set sync period", None),
                     (&Method::POST, ["frames"]) => ("send frame", None),
+                    (&Method::POST, ["machine", "reset-faults"]) => ("machine reset faults", None),
+                    (&Method::POST, ["machine", "enable"]) => ("machine enable", None),
                     (&Method::POST, ["machine", "nodes", node, "boot"]) => {
                         target.node = node.parse().ok();
                         ("boot node again", None)

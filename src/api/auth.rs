@@ -83,6 +83,9 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("GET",    "/api/v1/buses/{bus}/machine", VIEW),
     // Runs a node's boot-up again: configuration download and NMT start.
     ("POST",   "/api/v1/buses/{bus}/machine/nodes/{id}/boot", op(Operation::BootNode)),
+    // The machine's recovery: each axis's own operation takes its write.
+    ("POST",   "/api/v1/buses/{bus}/machine/reset-faults", op(Operation::RecoverMachine)),
+    ("POST",   "/api/v1/buses/{bus}/machine/enable", op(Operation::RecoverMachine)),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od", VIEW),
     ("GET",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", VIEW),
     ("PUT",    "/api/v1/buses/{bus}/nodes/{id}/od/{index}/{sub}", op(Operation::WriteObject)),
@@ -146,6 +149,12 @@ pub static ROUTES: &[(&str, &str, Access)] = &[
     ("GET",    "/api/v1/loggers/{id}", VIEW),
     ("DELETE", "/api/v1/loggers/{id}", op(Operation::Logger)),
     ("GET",    "/api/v1/loggers/{id}/data.csv", VIEW),
+    // Alarms: acknowledging is an operator's word that they saw them; it
+    // changes no device.
+    ("GET",    "/api/v1/alarms", VIEW),
+    ("POST",   "/api/v1/alarms/ack", op(Operation::AcknowledgeAlarm)),
+    ("GET",    "/api/v1/alarms/{id}", VIEW),
+    ("POST",   "/api/v1/alarms/{id}/ack", op(Operation::AcknowledgeAlarm)),
     ("GET",    "/api/v1/stream", VIEW),
     ("GET",    "/api/v1/events", VIEW),
     ("GET",    "/api/v1/eds", VIEW),

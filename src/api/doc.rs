@@ -50,6 +50,7 @@ When the gateway is configured with tokens, every request but `/health` needs \
         (name = "auth", description = "Who the request's bearer token is (RFC 6750)"),
         (name = "eds", description = "The EDS catalog (CiA 306): built-in, --eds-dir and uploaded files, their warnings, the files left out, the nodes each describes; uploads, deletions, assignment to a node by hand"),
         (name = "io", description = "CiA 401 generic I/O modules: inputs live, outputs set and read back"),
+        (name = "alarms", description = "Alarms (ISA-18.2): active, cleared and acknowledged, by severity, from every source of the machine"),
         (name = "loggers", description = "Data loggers: objects of any nodes sampled at a period (from TPDOs or by SDO), as CSV"),
     ),
     modifiers(&BearerAuth),

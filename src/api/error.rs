@@ -82,7 +82,8 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::Led(LedError::NotAnLedController(_) | LedError::UnknownSegment(_))
         | GatewayError::Sim(SimError::UnknownDevice { .. })
         | GatewayError::NoRecording(_)
-        | GatewayError::UnknownLogger(_) => StatusCode::NOT_FOUND,
+        | GatewayError::UnknownLogger(_)
+        | GatewayError::UnknownAlarm(_) => StatusCode::NOT_FOUND,
         GatewayError::WrongNmtState { .. }
         | GatewayError::NodeOffline(_)
         | GatewayError::DriveFault { .. }

@@ -12,7 +12,7 @@ use utoipa_axum::routes;
 use super::caller::RestCaller;
 use super::doc::{BusPath, ErrorBody, NodePath};
 use super::{ApiJson, ApiPath, AppError, AppState};
-use crate::canopen::manager::MachineStatus;
+use crate::gateway::MachineView;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -35,6 +35,9 @@ pub enum MachineStateName {
     Degraded,
     /// No mandatory node is ready, or the bus is down.
     Down,
+    /// The network manager would say `ready`, but a `critical` or `high`
+    /// alarm is active (`reasons` names each: `GET /alarms`).
+    Alarm,
 }
 
 /// One node of the machine.
@@ -89,13 +92,15 @@ pub struct MachineNode {
 #[allow(dead_code)]
 pub struct Machine {
     pub state: MachineStateName,
-    /// Why it is not ready, one line per node.
+    /// Why it is not ready: one line per node, then one per active
+    /// `critical` or `high` alarm (`alarm 7 (high): node 1 axis 2: ...`).
     pub reasons: Vec<String>,
     pub nodes: Vec<MachineNode>,
 }
 
 /// The machine: the expected nodes and the ones found, each one's state,
-/// boot-up step, supervision and reason.
+/// boot-up step, supervision and reason; never `ready` while a `critical`
+/// or `high` alarm is active (`alarm`, with the alarms among the reasons).
 #[utoipa::path(get, path = "/buses/{bus}/machine", tag = "machine", params(BusPath),
     responses(
         (status = 200, description = "The machine", body = Machine),
@@ -104,9 +109,8 @@ pub struct Machine {
 async fn machine(
     State(state): State<AppState>,
     ApiPath(bus): ApiPath<String>,
-) -> Result<ApiJson<MachineStatus>, AppError> {
-    let served = state.bus(&bus)?;
-    Ok(ApiJson(served.machine()?.status()))
+) -> Result<ApiJson<MachineView>, AppError> {
+    Ok(ApiJson(state.gateway.machine_view(&bus)?))
 }
 
 /// What a boot request started.

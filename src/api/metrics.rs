@@ -127,6 +127,7 @@ pub fn render(state: &AppState) -> String {
     render_buses(&mut out, &buses);
     render_nodes(&mut out, &buses);
     render_machine(&mut out, &buses);
+    render_alarms(&mut out, state);
     render_stream(&mut out, state);
     render_sparkplug(&mut out, state);
     render_http(&mut out, state);
@@ -337,6 +338,43 @@ fn render_machine(out: &mut Exposition, buses: &[BusSnapshot]) {
             for node in bus.machine.iter().flat_map(|machine| &machine.nodes) {
                 let id = node.id.to_string();
                 out.sample(name, &[("bus", &bus.name), ("node", &id)], value(node));
+            }
+        }
+    }
+}
+
+/// The alarms: how many are active, and how many wait for an
+/// acknowledgement, by bus and severity (every severity, 0 included, so
+/// that a rule can compare).
+fn render_alarms(out: &mut Exposition, state: &AppState) {
+    let alarms = state.gateway.alarm_book();
+    let summaries: Vec<(&str, crate::gateway::AlarmSummary)> = state
+        .gateway
+        .buses()
+        .map(|served| (served.name(), alarms.summary(Some(served.name()), None)))
+        .collect();
+    type Counts = fn(&crate::gateway::AlarmSummary) -> [u32; 4];
+    let families: [(&str, &str, Counts); 2] = [
+        (
+            "candeck_alarms_active",
+            "Alarms whose cause is present (active_unacknowledged or active_acknowledged), by severity.",
+            |summary| summary.active,
+        ),
+        (
+            "candeck_alarms_unacknowledged",
+            "Alarms waiting for an acknowledgement (active_unacknowledged or cleared_unacknowledged), by severity.",
+            |summary| summary.unacknowledged,
+        ),
+    ];
+    for (name, help, counts) in families {
+        out.family(name, Kind::Gauge, help);
+        for (bus, summary) in &summaries {
+            for (severity, count) in crate::gateway::Severity::ALL.iter().zip(counts(summary)) {
+                out.sample(
+                    name,
+                    &[("bus", bus), ("severity", severity.name())],
+                    u64::from(count),
+                );
             }
         }
     }

@@ -37,6 +37,8 @@
 //! - [`recording`]: recording a bus to a candump `-L` log, and its
 //!   download.
 //! - [`sim`]: the virtual devices of a virtual bus: add, remove, faults.
+//! - [`alarms`]: the alarms (list, one, acknowledge) and the machine's
+//!   recovery (reset faults, enable all).
 //! - [`loggers`]: the data loggers: start, status, CSV, delete.
 //! - [`lss`]: LSS (CiA 305): Fastscan for unconfigured devices, node-ID
 //!   assignment; the UniSwarm node-ID change (0x2040).
@@ -62,6 +64,7 @@
 //! - [`doc`]: the OpenAPI document (`/api/openapi.json`, the docs UI at
 //!   `/api/docs`) and the schemas the routers share.
 
+pub mod alarms;
 pub mod audit;
 pub mod auth;
 pub mod buses;
@@ -245,6 +248,7 @@ pub fn routers(state: AppState) -> (Router, utoipa::openapi::OpenApi) {
         .merge(sim::router())
         .merge(lss::router())
         .merge(loggers::router())
+        .merge(alarms::router())
         .merge(stream::router())
         .merge(events::router())
         .merge(eds::router())

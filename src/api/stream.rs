@@ -421,6 +421,8 @@ enum Topic {
     Nodes,
     Emcy,
     Machine,
+    /// The alarms (issue 31): what is open, then every change.
+    Alarms,
     Frames {
         bus: String,
         /// Only these identifiers (raw, without the extended flag); all
@@ -460,6 +462,7 @@ impl Topic {
             ["nodes"] => Self::Nodes,
             ["emcy"] => Self::Emcy,
             ["machine"] => Self::Machine,
+            ["alarms"] => Self::Alarms,
             ["buses", bus, "frames"] => Self::Frames {
                 bus: bus.to_string(),
                 ids: query.map(parse_ids).transpose()?,
@@ -484,7 +487,7 @@ impl Topic {
             ["loggers", id] => Self::Logger { id: id.to_string() },
             _ => {
                 return Err(AppError::InvalidRequest(format!(
-                    "'{text}' is no topic: nodes, emcy, machine, buses/{{bus}}/frames, \
+                    "'{text}' is no topic: nodes, emcy, machine, alarms, buses/{{bus}}/frames, \
                      buses/{{bus}}/nodes/{{id}}/values, .../axes/{{axis}}, .../segments, .../program or loggers/{{id}}"
                 )));
             }
@@ -730,7 +733,8 @@ impl Session {
                 .gateway
                 .buses()
                 .filter_map(|served| {
-                    let machine = served.machine().ok()?.watch();
+                    // The machine with its alarms (issue 31).
+                    let machine = self.state.gateway.watch_machine(served.name())?;
                     let bus: Arc<str> = Arc::from(served.name());
                     Some(tokio::spawn(forward_machine(
                         machine,
@@ -740,6 +744,10 @@ impl Session {
                     )))
                 })
                 .collect(),
+            Topic::Alarms => {
+                let alarms = self.state.gateway.alarm_book().clone();
+                vec![tokio::spawn(forward_alarms(alarms, key, mailbox))]
+            }
             Topic::Frames { bus, ids } => {
                 let served = self.state.bus(&bus)?;
                 let frames = served.monitor();
@@ -1027,7 +1035,7 @@ async fn forward_bus_states(served: Arc<ServedBus>, topic: Arc<str>, mailbox: Ar
 /// Forwards one bus's machine (its network manager's status): as it is
 /// when subscribed, then every change.
 async fn forward_machine(
-    mut machine: tokio::sync::watch::Receiver<crate::canopen::manager::MachineStatus>,
+    mut machine: tokio::sync::watch::Receiver<crate::gateway::MachineView>,
     bus: Arc<str>,
     topic: Arc<str>,
     mailbox: Arc<Mailbox>,
@@ -1042,6 +1050,31 @@ async fn forward_machine(
         mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
         if machine.changed().await.is_err() {
             return;
+        }
+    }
+}
+
+/// Forwards the alarms (issue 31): the open ones as they are when
+/// subscribed, then every change; after a lag, the open ones again.
+async fn forward_alarms(alarms: gateway::Alarms, topic: Arc<str>, mailbox: Arc<Mailbox>) {
+    use tokio::sync::broadcast::error::RecvError as ChangeError;
+    let mut changes = alarms.subscribe();
+    let snapshot = |mailbox: &Mailbox| {
+        let data = super::alarms::stream_open(&alarms);
+        mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
+    };
+    snapshot(&mailbox);
+    loop {
+        match changes.recv().await {
+            Ok(change) => {
+                let data = super::alarms::stream_change(&alarms, &change);
+                mailbox.push_event(&topic, update_message(&topic, unix_ms(), &data.to_string()));
+            }
+            Err(ChangeError::Lagged(n)) => {
+                mailbox.lost(&topic, n);
+                snapshot(&mailbox);
+            }
+            Err(ChangeError::Closed) => return,
         }
     }
 }

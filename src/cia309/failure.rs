@@ -89,6 +89,7 @@ impl Failure {
             | GatewayError::UnknownEds(_)
             | GatewayError::NoRecording(_)
             | GatewayError::UnknownLogger(_)
+            | GatewayError::UnknownAlarm(_)
             | GatewayError::NotLoggable(_) => Self::Error(RequestNotSupported),
             // What cannot be read.
             GatewayError::InvalidIndex(_)

@@ -44,14 +44,15 @@ const RECONNECT_AFTER: Duration = Duration::from_secs(1);
 const CLIENT_QUEUE: usize = 10_000;
 
 /// The machine state of the NBIRTH metric `Machine State`: the worst of the
-/// buses' network managers (down, degraded, booting, ready), as
-/// `GET /api/v1/buses/{bus}/machine` gives each; `None` when no bus has one.
+/// buses' machines (down, degraded, alarm, booting, ready), as
+/// `GET /api/v1/buses/{bus}/machine` gives each, with its alarms; `None`
+/// when no bus has a network manager.
 pub fn machine_state(gateway: &Gateway) -> Option<String> {
     gateway
         .buses_in_order()
         .iter()
-        .filter_map(|bus| bus.machine().ok().map(|machine| machine.status().state))
-        .min_by_key(|state| state.metric())
+        .filter_map(|bus| gateway.machine_view(bus.name()).ok().map(|view| view.state))
+        .min_by_key(|state| state.rank())
         .map(|state| state.name().to_string())
 }
 
@@ -160,6 +161,16 @@ impl Dirty {
             .remove(key)
             .map(|metrics| metrics.into_values().collect())
             .unwrap_or_default()
+    }
+
+    /// Keeps `metrics` as the newest of node `key` without marking it
+    /// (what a birth names, with no DDATA due).
+    fn keep(&self, key: &(String, NodeId), metrics: Vec<Sample>) {
+        let mut extra = lock(&self.extra);
+        let node = extra.entry(key.clone()).or_default();
+        for metric in metrics {
+            node.insert(metric.name.clone(), metric);
+        }
     }
 
     fn extra(&self, key: &(String, NodeId)) -> Vec<Sample> {
@@ -313,6 +324,7 @@ impl Runner {
             }));
         }
         drop(inputs);
+        self.watchers.push(self.follow_alarms());
         for bus in self.gateway.buses_in_order() {
             let frames = bus.values().follow(self.dirty.notify.clone());
             self.frames.push((bus.name().to_string(), frames));
@@ -705,7 +717,13 @@ impl Runner {
             }
         }
         self.follow_profile(bus, info);
-        metrics.extend(self.dirty.extra(&(bus.to_string(), info.id)));
+        let key = (bus.to_string(), info.id);
+        let alarms = self
+            .gateway
+            .alarm_book()
+            .summary(Some(bus), Some(info.id.get()));
+        self.dirty.keep(&key, alarm_samples(&alarms, now));
+        metrics.extend(self.dirty.extra(&key));
         if let Ok(served) = self.gateway.bus(bus) {
             let values = tpdo_samples(&served.values().values(info.id));
             // Mapped values that have not come yet: null, typed by the
@@ -785,6 +803,46 @@ impl Runner {
             }
             _ => {}
         }
+    }
+
+    /// Follows the alarms: each change's node gets its `Alarms/...`
+    /// metrics again (a DDATA).
+    fn follow_alarms(&self) -> tokio::task::JoinHandle<()> {
+        let alarms = self.gateway.alarm_book().clone();
+        let mut changes = alarms.subscribe();
+        let dirty = self.dirty.clone();
+        let gateway = self.gateway.clone();
+        tokio::spawn(async move {
+            use tokio::sync::broadcast::error::RecvError;
+            loop {
+                let nodes: Vec<(String, u8)> = match changes.recv().await {
+                    Ok(change) => change
+                        .alarm
+                        .node
+                        .map(|node| (change.alarm.bus.clone(), node))
+                        .into_iter()
+                        .collect(),
+                    // Every node's metrics again.
+                    Err(RecvError::Lagged(_)) => gateway
+                        .buses()
+                        .flat_map(|bus| {
+                            let name = bus.name().to_string();
+                            bus.nodes()
+                                .into_iter()
+                                .map(move |info| (name.clone(), info.id.get()))
+                        })
+                        .collect(),
+                    Err(RecvError::Closed) => return,
+                };
+                for (bus, node) in nodes {
+                    let Ok(id) = NodeId::new(node) else {
+                        continue;
+                    };
+                    let summary = alarms.summary(Some(&bus), Some(node));
+                    dirty.update(&(bus, id), alarm_samples(&summary, unix_ms()));
+                }
+            }
+        })
     }
 
     /// Follows a drive's axes and an LED controller's segments (once per
@@ -991,6 +1049,35 @@ impl Runner {
         }
         self.disconnected();
     }
+}
+
+/// A device's alarm metrics (born in its DBIRTH, a DDATA on each change):
+/// `Alarms/Active` and `Alarms/Unacknowledged` (counts), `Alarms/Highest
+/// Severity` (`critical`, `high`, `medium`, `low`, or `none`) of the
+/// alarms that are not `normal`, so that a SCADA host can alarm on them.
+pub(super) fn alarm_samples(summary: &crate::gateway::AlarmSummary, now: u64) -> Vec<Sample> {
+    vec![
+        Sample::new(
+            "Alarms/Active",
+            MetricValue::UInt32(summary.active_total()),
+            now,
+        ),
+        Sample::new(
+            "Alarms/Unacknowledged",
+            MetricValue::UInt32(summary.unacknowledged_total()),
+            now,
+        ),
+        Sample::new(
+            "Alarms/Highest Severity",
+            MetricValue::String(
+                summary
+                    .highest
+                    .map_or("none", crate::gateway::Severity::name)
+                    .to_string(),
+            ),
+            now,
+        ),
+    ]
 }
 
 /// Whether a node gets a DBIRTH: identified and online.

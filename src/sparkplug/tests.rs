@@ -779,3 +779,43 @@ fn a_metric_changed_twice_starts_the_next_message_and_the_order_is_kept() {
     );
     assert!(super::node::one_change_each(vec![Vec::new()]).is_empty());
 }
+
+/// A device's alarm metrics: the counts and the highest severity of its
+/// alarms, `none` without one; born in its DBIRTH and sent again on each
+/// change.
+#[test]
+fn a_device_s_alarm_metrics_count_its_alarms_and_name_the_highest_severity() {
+    use crate::gateway::{AlarmSummary, Severity};
+    let value = |samples: &[Sample], name: &str| {
+        samples
+            .iter()
+            .find(|sample| sample.name == name)
+            .map(|sample| sample.value.clone())
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    let none = super::node::alarm_samples(&AlarmSummary::default(), 5);
+    assert_eq!(value(&none, "Alarms/Active"), MetricValue::UInt32(0));
+    assert_eq!(
+        value(&none, "Alarms/Unacknowledged"),
+        MetricValue::UInt32(0)
+    );
+    assert_eq!(
+        value(&none, "Alarms/Highest Severity"),
+        MetricValue::String("none".to_string())
+    );
+    let summary = AlarmSummary {
+        active: [1, 2, 0, 0],
+        unacknowledged: [1, 0, 0, 3],
+        highest: Some(Severity::Critical),
+    };
+    let some = super::node::alarm_samples(&summary, 5);
+    assert_eq!(value(&some, "Alarms/Active"), MetricValue::UInt32(3));
+    assert_eq!(
+        value(&some, "Alarms/Unacknowledged"),
+        MetricValue::UInt32(4)
+    );
+    assert_eq!(
+        value(&some, "Alarms/Highest Severity"),
+        MetricValue::String("critical".to_string())
+    );
+}

@@ -224,6 +224,10 @@ pub enum GatewayError {
     /// gateway's machine, not the request.
     #[error("{0}")]
     HistoryFailed(String),
+    /// No alarm has this id (or it went back to normal long ago and only
+    /// the history database keeps it).
+    #[error("{0}")]
+    UnknownAlarm(String),
     /// A fault of the gateway itself; the detail is for the log.
     #[error("{0}")]
     Internal(String),
@@ -295,6 +299,7 @@ impl GatewayError {
             Self::NoRecording(_) => "no_recording",
             Self::RecordingFailed(_) => "recording_failed",
             Self::UnknownLogger(_) => "unknown_logger",
+            Self::UnknownAlarm(_) => "unknown_alarm",
             Self::TooManyLoggers(_) => "too_many_loggers",
             Self::NotLoggable(_) => "not_loggable",
             Self::HistoryFailed(_) => "history_failed",

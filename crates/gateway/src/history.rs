@@ -141,7 +141,42 @@ const MIGRATIONS: &[&str] = &[
     ALTER TABLE audit_v2 RENAME TO audit;
     CREATE INDEX audit_time ON audit(time_us);
     CREATE INDEX audit_channel ON audit(channel, time_us);",
+    // 3: the alarms (`crate::alarms`): each alarm as it is now, and each
+    // step of its life.
+    "CREATE TABLE alarm (
+        id INTEGER PRIMARY KEY,
+        bus TEXT NOT NULL,
+        node INTEGER,
+        axis INTEGER,
+        kind TEXT NOT NULL,
+        code INTEGER,
+        severity TEXT NOT NULL,
+        state TEXT NOT NULL,
+        text TEXT NOT NULL,
+        help TEXT NOT NULL,
+        raised_us INTEGER NOT NULL,
+        cleared_us INTEGER,
+        acknowledged_by TEXT,
+        acknowledged_at_us INTEGER,
+        comment TEXT,
+        count INTEGER NOT NULL
+    );
+    CREATE INDEX alarm_state ON alarm(state, raised_us);
+    CREATE TABLE alarm_event (
+        id INTEGER PRIMARY KEY,
+        alarm INTEGER NOT NULL,
+        time_us INTEGER NOT NULL,
+        step TEXT NOT NULL,
+        state TEXT NOT NULL,
+        who TEXT,
+        comment TEXT
+    );
+    CREATE INDEX alarm_event_alarm ON alarm_event(alarm, id);",
 ];
+
+/// The audit entries a follower of [`History::follow_audit`] may fall
+/// behind by.
+const AUDIT_FOLLOWERS_QUEUE: usize = 1024;
 
 /// The outcome of an operation that succeeded.
 pub const OK: &str = "ok";
@@ -391,6 +426,9 @@ pub struct Query {
 #[derive(Clone)]
 pub struct History {
     conn: Arc<Mutex<Connection>>,
+    /// Every audit entry once committed (the alarms follow the gateway's
+    /// own rows: a lapsed lease's halt, a failed program download).
+    audits: broadcast::Sender<AuditEntry>,
     /// The file, or `None` in memory.
     path: Option<Arc<str>>,
 }
@@ -455,6 +493,7 @@ impl History {
         migrate(&mut conn)?;
         Ok(Self {
             conn: Arc::new(Mutex::new(conn)),
+            audits: broadcast::channel(AUDIT_FOLLOWERS_QUEUE).0,
             path: path.map(Arc::from),
         })
     }
@@ -483,7 +522,18 @@ impl History {
 
     /// Writes one audit entry; returns once it is committed.
     pub async fn audit(&self, entry: AuditEntry) -> Result<(), HistoryError> {
-        self.with_conn(move |conn| insert_audit(conn, &entry)).await
+        let followed = (self.audits.receiver_count() > 0).then(|| entry.clone());
+        self.with_conn(move |conn| insert_audit(conn, &entry))
+            .await?;
+        if let Some(entry) = followed {
+            let _ = self.audits.send(entry);
+        }
+        Ok(())
+    }
+
+    /// Every audit entry committed from now on.
+    pub(crate) fn follow_audit(&self) -> broadcast::Receiver<AuditEntry> {
+        self.audits.subscribe()
     }
 
     /// Writes a batch of one bus's registry events in one transaction.
@@ -570,6 +620,7 @@ impl History {
                     )?;
                 }
             }
+            deleted += alarms::prune(&tx, retention, micros(now))? as usize;
             tx.commit()?;
             Ok(deleted as u64)
         })
@@ -845,5 +896,6 @@ fn select(
     Ok(rows.collect::<Result<_, _>>()?)
 }
 
+mod alarms;
 #[cfg(test)]
 mod tests;

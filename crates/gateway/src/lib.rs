@@ -42,6 +42,10 @@
 //! - `audit`: the audit row every operation writes of itself, once
 //!   ([`Gateway::audited`]), and what a door adds to it
 //!   ([`DoorRequest`]).
+//! - `alarms`: the alarms of the machine (ISA-18.2): the model, its
+//!   sources (what the gateway publishes, followed), its persistence, the
+//!   machine's state with them, acknowledgement and the machine's
+//!   recovery.
 //! - `policy`: what the gateway asks of a caller before it acts: its
 //!   role, and a write from its write rate limit.
 //! - `safe_stop`: STOP ALL and the stop on shutdown.
@@ -96,6 +100,7 @@ use candeck_canopen as canopen;
 use candeck_profiles as profiles;
 
 mod access;
+mod alarms;
 mod audit;
 mod authority;
 mod axis_telemetry;
@@ -152,6 +157,14 @@ pub use history::{
     Retention, StoredEvent,
 };
 pub use policy::Operation;
+
+// The alarms: the model, the machine with them, its recovery.
+pub use alarms::{
+    AckFilter, Alarm, AlarmChange, AlarmEvent, AlarmFilter, AlarmPage, AlarmState, AlarmStep,
+    AlarmSummary, Alarms, AxisRecovery, MAX_COMMENT, MachineCondition, MachineView, PAGE_SIZE,
+    RecoveryOutcome, RecoveryReport,
+};
+pub use profiles::alarm::{AlarmKind, Severity};
 
 // A node and its operations: objects, NMT, configuration, LEDs, programs,
 // PDOs, I/O, its EDS.

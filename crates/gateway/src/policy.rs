@@ -89,6 +89,13 @@ pub enum Operation {
     VirtualDevices,
     /// EDS files uploaded to, or deleted from, the catalog.
     ManageEds,
+    /// Alarms acknowledged, one or all that match: an operator's word
+    /// that they saw them. It changes no device: it takes no write.
+    AcknowledgeAlarm,
+    /// A bus's machine recovered as a whole: every faulted axis reset,
+    /// every axis last enabled enabled again. Each axis's own operation
+    /// takes its write, so the whole takes none of its own.
+    RecoverMachine,
 }
 
 impl Operation {
@@ -109,7 +116,9 @@ impl Operation {
             | Self::SendFrame
             | Self::ChangeNodeId
             | Self::Logger
-            | Self::AssignEds => Role::Operator,
+            | Self::AssignEds
+            | Self::AcknowledgeAlarm
+            | Self::RecoverMachine => Role::Operator,
             Self::StoreRestore
             | Self::RestoreConfiguration
             | Self::DownloadProgram
@@ -127,7 +136,14 @@ impl Operation {
     /// the motion facade never limits) and a lease renewal (refused, it
     /// would stop the axis its holder is moving).
     pub fn draws_on_write_rate(self) -> bool {
-        !matches!(self, Self::View | Self::StopAll | Self::RenewLease)
+        !matches!(
+            self,
+            Self::View
+                | Self::StopAll
+                | Self::RenewLease
+                | Self::AcknowledgeAlarm
+                | Self::RecoverMachine
+        )
     }
 }
 

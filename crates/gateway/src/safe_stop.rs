@@ -236,6 +236,16 @@ impl EnabledAxes {
         self.lock().retain(|(b, n, _), _| !(b == bus && *n == node));
     }
 
+    /// The axes recorded on `bus`, as (node, axis): what "enable all" of
+    /// the machine's recovery enables again (issue 31, `alarms/recovery.rs`).
+    pub(crate) fn axes_on(&self, bus: &str) -> Vec<(u8, u8)> {
+        self.lock()
+            .keys()
+            .filter(|(on, _, _)| on == bus)
+            .map(|(_, node, axis)| (*node, *axis))
+            .collect()
+    }
+
     fn drives(&self) -> Vec<(String, Drive)> {
         self.lock()
             .iter()

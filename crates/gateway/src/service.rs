@@ -437,6 +437,8 @@ pub struct Gateway {
     bus_order: Arc<Vec<String>>,
     /// The audit log and the EMCY/NMT history.
     pub(crate) history: History,
+    /// The alarms of every bus (`crate::alarms`).
+    pub(crate) alarms: super::alarms::Alarms,
     /// The motion leases of velocity, torque and duty-cycle moves.
     pub(crate) leases: Arc<MotionLeases>,
     /// The axes the gateway enabled, which it stops before it exits.
@@ -486,10 +488,20 @@ impl Gateway {
             let events = taken.unwrap_or_else(|| bus.registry.subscribe());
             history.spawn_recorder(&bus.name, events);
         }
+        let alarms = super::alarms::Alarms::start(history.clone());
+        for bus in buses.values() {
+            super::alarms::follow_bus(&alarms, bus);
+        }
+        let registries: BTreeMap<String, NodeRegistry> = buses
+            .iter()
+            .map(|(name, bus)| (name.clone(), bus.registry.clone()))
+            .collect();
+        super::alarms::follow_audit(&alarms, &history, registries);
         Self {
             buses: Arc::new(buses),
             bus_order: Arc::new(bus_order),
             history,
+            alarms,
             leases: Arc::new(MotionLeases::default()),
             enabled_axes: Arc::new(EnabledAxes::default()),
             authority: Arc::default(),

@@ -3,6 +3,8 @@
 //!
 //! # Layout
 //!
+//! - [`alarm`]: what an alarm means on each product: severity, text and
+//!   help (the objects to look at), for the gateway's alarm model.
 //! - [`builtin`]: the EDS files candeck carries for its products, written from
 //!   their manuals (`eds/` in the repository).
 //! - [`cia401`]: CiA 401 generic I/O modules: the digital and analogue
@@ -17,6 +19,7 @@
 
 use candeck_canopen as canopen;
 
+pub mod alarm;
 pub mod cia401;
 pub mod cia402;
 pub mod jmc;

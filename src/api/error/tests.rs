@@ -72,10 +72,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::AxisEnabled(_) => 61,
         GatewayError::ClientGone(_) => 62,
         GatewayError::EdsQuota(_) => 63,
+        GatewayError::UnknownAlarm(_) => 64,
     }
 }
 
-const VARIANTS: usize = 64;
+const VARIANTS: usize = 65;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -189,6 +190,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::TooManyLoggers(text()),
         GatewayError::NotLoggable(text()),
         GatewayError::HistoryFailed(text()),
+        GatewayError::UnknownAlarm(text()),
     ]
 }
 

@@ -2,6 +2,7 @@
 //! test device from `tests/data/testnode.eds` for 64-bit values), called
 //! through the router without a socket, on a paused clock.
 
+mod alarms;
 mod audit;
 mod audit_and_limits;
 mod auth;

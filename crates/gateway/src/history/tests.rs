@@ -490,3 +490,50 @@ async fn a_row_says_what_was_done_whichever_door_asked() {
         .unwrap();
     assert!(none.is_empty());
 }
+
+/// Alarms are written as they change and read back with their history;
+/// retention prunes only those back to normal.
+#[tokio::test]
+async fn alarms_are_read_back_as_written_and_only_normal_ones_are_pruned() {
+    use crate::alarms::{AlarmBook, AlarmSource, AlarmState};
+    use crate::profiles::alarm::{AlarmKind, Product, describe};
+    let history = History::in_memory().unwrap();
+    let day = 86_400_000_000i64;
+    let now = 100 * day;
+    let mut book = AlarmBook::default();
+    let old = AlarmSource::new("line", Some(1), Some(2), AlarmKind::Emcy(0x8611));
+    let open = AlarmSource::new("line", None, None, AlarmKind::BusOff);
+    let text = |kind| move || describe(Product::Umc, kind, Some(2), "Following error");
+    let mut changes = Vec::new();
+    changes.extend(book.raise(old.clone(), text(AlarmKind::Emcy(0x8611)), now - 40 * day));
+    changes.extend(book.clear(&old, now - 40 * day + 1));
+    let id = changes[0].alarm.id;
+    changes.extend(
+        book.acknowledge(id, "alice", Some("seen"), now - 40 * day + 2)
+            .unwrap()
+            .1,
+    );
+    changes.extend(book.raise(open.clone(), text(AlarmKind::BusOff), now - 40 * day));
+    history.record_alarms(changes).await.unwrap();
+
+    let stored = history.load_alarms().await.unwrap();
+    assert_eq!(stored.len(), 2);
+    let normal = stored.iter().find(|alarm| alarm.id == id).unwrap();
+    assert_eq!(normal, book.get(id).unwrap(), "read back as written");
+    assert_eq!(normal.state, AlarmState::Normal);
+    assert_eq!(normal.history.len(), 3);
+    assert_eq!(normal.history[2].who.as_deref(), Some("alice"));
+
+    let by_age = Retention {
+        days: Some(30),
+        rows: None,
+    };
+    let deleted = history
+        .prune(by_age, Timestamp::from_micros(now as u64))
+        .await
+        .unwrap();
+    assert_eq!(deleted, 4, "the normal alarm and its three steps");
+    let stored = history.load_alarms().await.unwrap();
+    assert_eq!(stored.len(), 1, "an active alarm is kept however old");
+    assert_eq!(stored[0].state, AlarmState::ActiveUnacknowledged);
+}

@@ -1,0 +1,266 @@
+//! Machine-level recovery: every faulted axis of a bus reset, and every
+//! axis the gateway last put in operation enabled again, in one
+//! operation each (`POST /buses/{bus}/machine/reset-faults`, `/enable`).
+//!
+//! Each axis is taken on its own, by the axis operations a door would call
+//! ([`Gateway::reset_axis_fault`], [`Gateway::set_axis_state`]: their role,
+//! write, lease and audit rules, and their rows), and refused with its
+//! reason where its cause is still present: a node offline, missing, of the
+//! wrong identity, unconfigured, its heartbeat lost, the bus off; a fault
+//! that does not reset; an axis still in fault when it is to be enabled.
+//! One axis refused does not keep the others from recovering.
+
+use crate::audit::AuditTarget;
+use crate::caller::Caller;
+use crate::drive::{DriveKind, TargetState, axis_count};
+use crate::error::GatewayError;
+use crate::motion::{LeaseClaim, spawned};
+use crate::policy::Operation;
+use crate::service::Gateway;
+
+use super::Alarm;
+
+/// What happened to one axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RecoveryOutcome {
+    /// Reset, or enabled.
+    Done,
+    /// Nothing to do: not in fault (reset), already enabled (enable).
+    NotNeeded,
+    /// Not done: `reason` says why.
+    Refused,
+}
+
+impl RecoveryOutcome {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Done => "done",
+            Self::NotNeeded => "not_needed",
+            Self::Refused => "refused",
+        }
+    }
+}
+
+/// One axis of a recovery.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AxisRecovery {
+    pub node: u8,
+    pub axis: u8,
+    pub outcome: RecoveryOutcome,
+    /// Why it was refused: the cause still present, the error.
+    pub reason: Option<String>,
+    /// The error's code when an operation refused it (`drive_fault`,
+    /// `node_offline`, `lease_conflict`).
+    pub code: Option<String>,
+    /// Its PDS state after it, where read.
+    pub state: Option<String>,
+}
+
+/// What a recovery did, axis by axis.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecoveryReport {
+    pub bus: String,
+    pub axes: Vec<AxisRecovery>,
+}
+
+/// The alarm kinds whose cause keeps a node's axes from recovering.
+const BLOCKING: &[&str] = &[
+    "heartbeat_lost",
+    "guarding_lost",
+    "node_offline",
+    "node_missing",
+    "wrong_identity",
+    "config_failed",
+    "bus_off",
+];
+
+impl Gateway {
+    /// Resets the fault of every axis of `bus` that is in fault.
+    ///
+    /// Audited as `machine reset faults`; each axis reset writes its own
+    /// `fault reset` row and takes its own write.
+    pub async fn reset_machine_faults(
+        &self,
+        caller: &Caller,
+        bus: &str,
+    ) -> Result<RecoveryReport, GatewayError> {
+        let row = self.audit_row(
+            caller,
+            AuditTarget::new("machine reset faults").bus(bus),
+            None,
+        );
+        let result = async {
+            self.admit(caller, Operation::RecoverMachine)?;
+            let axes = self.drive_axes(bus)?;
+            let mut report = Vec::new();
+            for (node, axis) in axes {
+                report.push(self.reset_one(caller, bus, node, axis).await);
+            }
+            Ok(RecoveryReport {
+                bus: bus.to_string(),
+                axes: report,
+            })
+        }
+        .await;
+        row.finish(&result).await;
+        result
+    }
+
+    /// Puts every axis of `bus` the gateway last enabled back in operation
+    /// enabled.
+    ///
+    /// Audited as `machine enable`; each axis writes its own `drive state
+    /// change` row.
+    pub async fn enable_machine(
+        &self,
+        caller: &Caller,
+        bus: &str,
+    ) -> Result<RecoveryReport, GatewayError> {
+        let row = self.audit_row(caller, AuditTarget::new("machine enable").bus(bus), None);
+        let result = async {
+            self.admit(caller, Operation::RecoverMachine)?;
+            self.bus(bus)?;
+            let mut report = Vec::new();
+            for (node, axis) in self.enabled_axes.axes_on(bus) {
+                report.push(self.enable_one(caller, bus, node, axis).await);
+            }
+            Ok(RecoveryReport {
+                bus: bus.to_string(),
+                axes: report,
+            })
+        }
+        .await;
+        row.finish(&result).await;
+        result
+    }
+
+    /// Every axis of every drive node of `bus`, in node order.
+    fn drive_axes(&self, bus: &str) -> Result<Vec<(u8, u8)>, GatewayError> {
+        let served = self.bus(bus)?;
+        let mut axes = Vec::new();
+        for info in served.registry.nodes() {
+            if let Some(kind) = DriveKind::from_profile(info.profile) {
+                let count = axis_count(kind, info.eds_entry.as_deref());
+                axes.extend((1..=count).map(|axis| (info.id.get(), axis)));
+            }
+        }
+        Ok(axes)
+    }
+
+    /// The active alarms whose cause keeps `node` of `bus` from recovering.
+    fn blocking_causes(&self, bus: &str, node: u8) -> Vec<Alarm> {
+        self.alarms.active(|source| {
+            source.bus == bus
+                && (source.node == Some(node) || source.node.is_none())
+                && BLOCKING.contains(&source.kind.0)
+        })
+    }
+
+    async fn reset_one(&self, caller: &Caller, bus: &str, node: u8, axis: u8) -> AxisRecovery {
+        let refused = |reason: String, code: Option<&str>| AxisRecovery {
+            node,
+            axis,
+            outcome: RecoveryOutcome::Refused,
+            reason: Some(reason),
+            code: code.map(str::to_string),
+            state: None,
+        };
+        if let Some(reason) = self.cause_present(bus, node) {
+            return refused(reason, None);
+        }
+        let (node_text, axis_text) = (node.to_string(), axis.to_string());
+        let in_fault = match self.read_fault(bus, &node_text, &axis_text).await {
+            Ok(in_fault) => in_fault,
+            Err(error) => return refused(error.to_string(), Some(error.code())),
+        };
+        if !in_fault {
+            return AxisRecovery {
+                node,
+                axis,
+                outcome: RecoveryOutcome::NotNeeded,
+                reason: None,
+                code: None,
+                state: None,
+            };
+        }
+        match self
+            .reset_axis_fault(caller, (bus, &node_text, &axis_text))
+            .await
+        {
+            Ok(status) => AxisRecovery {
+                node,
+                axis,
+                outcome: RecoveryOutcome::Done,
+                reason: None,
+                code: None,
+                state: Some(status.state),
+            },
+            Err(error) => refused(
+                format!("the cause is still present: {error}"),
+                Some(error.code()),
+            ),
+        }
+    }
+
+    async fn enable_one(&self, caller: &Caller, bus: &str, node: u8, axis: u8) -> AxisRecovery {
+        let refused = |reason: String, code: Option<&str>| AxisRecovery {
+            node,
+            axis,
+            outcome: RecoveryOutcome::Refused,
+            reason: Some(reason),
+            code: code.map(str::to_string),
+            state: None,
+        };
+        if let Some(reason) = self.cause_present(bus, node) {
+            return refused(reason, None);
+        }
+        let (node_text, axis_text) = (node.to_string(), axis.to_string());
+        match self.read_fault(bus, &node_text, &axis_text).await {
+            Ok(true) => {
+                return refused(
+                    "the axis is in fault: reset the faults first".to_string(),
+                    Some("drive_fault"),
+                );
+            }
+            Ok(false) => {}
+            Err(error) => return refused(error.to_string(), Some(error.code())),
+        }
+        let claim = LeaseClaim::presented(None, false);
+        match self
+            .set_axis_state(
+                caller,
+                (bus, &node_text, &axis_text),
+                TargetState::OperationEnabled,
+                &claim,
+            )
+            .await
+        {
+            Ok(outcome) => AxisRecovery {
+                node,
+                axis,
+                outcome: RecoveryOutcome::Done,
+                reason: None,
+                code: None,
+                state: Some(outcome.status.state),
+            },
+            Err(failed) => refused(failed.error.to_string(), Some(failed.error.code())),
+        }
+    }
+
+    /// The reason a node's axes cannot recover now, if its cause is
+    /// present.
+    fn cause_present(&self, bus: &str, node: u8) -> Option<String> {
+        let causes = self.blocking_causes(bus, node);
+        (!causes.is_empty()).then(|| {
+            let texts: Vec<String> = causes.iter().map(Alarm::reason).collect();
+            format!("the cause is still present: {}", texts.join("; "))
+        })
+    }
+
+    /// Whether the axis is in fault (its statusword, read now).
+    async fn read_fault(&self, bus: &str, node: &str, axis: &str) -> Result<bool, GatewayError> {
+        let drive = self.drive(bus, node, axis)?;
+        let statusword = spawned(drive, |drive| async move { drive.statusword().await }).await?;
+        Ok(statusword.fault())
+    }
+}
