@@ -369,6 +369,8 @@ fn the_refusal_words_are_the_gateway_s_error_codes() {
             node: text(),
         }
         .code(),
+        GatewayError::AxisEnabled(text()).code(),
+        GatewayError::NodeBusy(text()).code(),
     ];
     assert_eq!(REFUSED, codes);
 }
