@@ -410,6 +410,25 @@ impl Driver {
                     "boot_failed",
                 )
             }
+            ManagerEvent::ResyncStarted { node, why } => {
+                tracing::info!("bus {bus}: node {node}: resynchronisation started ({why})");
+                (
+                    Some(*node),
+                    format!("network manager: resynchronisation started ({why})"),
+                    OK,
+                )
+            }
+            ManagerEvent::Resynchronised { node } => {
+                tracing::info!(
+                    "bus {bus}: node {node}: resynchronised, its configuration kept (nothing written)"
+                );
+                (
+                    Some(*node),
+                    "network manager: node resynchronised, its configuration kept (nothing written)"
+                        .to_string(),
+                    OK,
+                )
+            }
             ManagerEvent::Lost { node, reason } => {
                 tracing::warn!("bus {bus}: node {node} lost: {reason}");
                 (
@@ -455,3 +474,6 @@ fn outcome(result: Result<Vec<u8>, SdoRequestError>) -> SdoOutcome {
         },
     }
 }
+
+#[cfg(test)]
+mod tests;

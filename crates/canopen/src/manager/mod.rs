@@ -5,7 +5,8 @@
 //!
 //! - **Boot slave** (CiA 302-2 §5, "boot slave process"), run for a node at
 //!   every boot-up message, when it is found present, when it comes back
-//!   after being lost, and on request: identity check against 0x1018 sub
+//!   after being lost before it was ever configured, and on request:
+//!   identity check against 0x1018 sub
 //!   1–4 (each key the description gives must match; a mismatch or an
 //!   entry the node refuses is `wrong_identity`, and the node is neither
 //!   configured nor started) → configuration download (the DCF's
@@ -16,6 +17,15 @@
 //!   factor) driven by the manager; the manager's heartbeat into 0x1016 sub 1
 //!   (consumer time 3 × the manager's period) where the node has a 0x1016
 //!   → NMT start (§5, "start slave"), if the description says so.
+//! - **Resynchronisation**: a node heard again after a loss whose last
+//!   boot-up ended well (and that sent no boot-up message since) is not
+//!   configured again: its identity (0x1018), its producer heartbeat time
+//!   (0x1017) and the 0x1016 entry watching the manager are read and
+//!   compared with what its boot-up left; all as they were, it is ready
+//!   again with nothing written (an NMT start only if it is not
+//!   operational), so a drive moving through a heartbeat glitch keeps its
+//!   mode. Anything else (a value that differs or cannot be read) means it
+//!   restarted unheard: it is booted in full.
 //! - A step that fails is retried with a backoff (from [`ManagerConfig::retry_min`],
 //!   doubling up to [`ManagerConfig::retry_max`]) and reported with the
 //!   step and the reason; a node with the wrong identity is not retried
@@ -390,6 +400,12 @@ pub enum ManagerEvent {
         reason: String,
         retry: Option<Duration>,
     },
+    /// A node heard again after it was lost is checked, not configured
+    /// again (`why`: heard again, retry).
+    ResyncStarted { node: NodeId, why: String },
+    /// The resynchronisation found the node as its boot-up left it: ready
+    /// again, nothing written.
+    Resynchronised { node: NodeId },
     /// Supervision lost the node.
     Lost { node: NodeId, reason: String },
     /// The machine state changed.
@@ -454,20 +470,42 @@ enum Op {
     /// Writes the manager's heartbeat into 0x1016 sub `.0`.
     ConsumeManager(u8),
     Start,
+    /// Resynchronisation after a loss: reads 0x1018 sub `.0`, compared
+    /// with the description and with what the node said before.
+    VerifyIdentity(u8),
+    /// Resynchronisation: reads 0x1017, compared with what the boot-up
+    /// wrote (a node that restarted has its stored value back).
+    VerifyHeartbeat,
+    /// Resynchronisation: reads 0x1016 sub `.0`, where the boot-up wrote
+    /// the manager's heartbeat.
+    VerifyConsumer(u8),
+    /// Resynchronisation: NMT start, only if the node is not operational.
+    StartIfNeeded,
 }
 
 impl Op {
+    /// The object a resynchronisation reads (index, sub).
+    fn object(&self) -> (u16, u8) {
+        match *self {
+            Self::VerifyIdentity(sub) => (IDENTITY, sub),
+            Self::VerifyConsumer(sub) => (CONSUMER_HEARTBEAT_TIME, sub),
+            _ => (PRODUCER_HEARTBEAT_TIME, 0),
+        }
+    }
+
     fn step(&self) -> Step {
         match self {
-            Self::CheckIdentity(_) => Step::Identity,
+            Self::CheckIdentity(_) | Self::VerifyIdentity(_) => Step::Identity,
             Self::Configure(_) => Step::Configuration,
             Self::SetHeartbeat
             | Self::SetGuardTime
             | Self::SetLifeFactor
             | Self::CountConsumers
             | Self::FindConsumer { .. }
-            | Self::ConsumeManager(_) => Step::ErrorControl,
-            Self::Start => Step::Start,
+            | Self::ConsumeManager(_)
+            | Self::VerifyHeartbeat
+            | Self::VerifyConsumer(_) => Step::ErrorControl,
+            Self::Start | Self::StartIfNeeded => Step::Start,
         }
     }
 }
@@ -507,6 +545,18 @@ struct Node {
     present: bool,
     /// 0x1017 could be written: heartbeat supervision.
     heartbeat_set: bool,
+    /// Its last boot-up ended well and no boot-up message came since: its
+    /// configuration is in place, and a loss is followed by a
+    /// resynchronisation, not a new configuration download.
+    configured: bool,
+    /// The run under way (or retried) is a resynchronisation.
+    resync: bool,
+    /// What the node answered for 0x1018, by sub-index, since its last
+    /// boot-up message.
+    identity: BTreeMap<u8, u32>,
+    /// The 0x1016 entry that carries the manager's heartbeat: its sub and
+    /// the value written.
+    consumer: Option<(u8, u32)>,
     boots: u64,
     boots_ok: u64,
 }
@@ -536,6 +586,10 @@ impl Node {
             lost: false,
             present: false,
             heartbeat_set: false,
+            configured: false,
+            resync: false,
+            identity: BTreeMap::new(),
+            consumer: None,
             boots: 0,
             boots_ok: 0,
         }
@@ -660,6 +714,10 @@ impl Manager {
         node.reason = Some(why.to_string());
         node.ops.clear();
         node.heartbeat_set = false;
+        node.configured = false;
+        node.resync = false;
+        node.identity.clear();
+        node.consumer = None;
         node.supervision = Supervision::None;
         node.supervision_reason = None;
         node.retry_at = None;
@@ -727,6 +785,9 @@ impl Manager {
         node.reason = None;
         node.answered = false;
         node.heartbeat_set = false;
+        node.configured = false;
+        node.resync = false;
+        node.consumer = None;
         if std::mem::take(&mut node.guarded) {
             self.outbox.push(Action::Unguard { node: id });
         }
@@ -755,6 +816,51 @@ impl Manager {
         node.ops = ops;
         node.step = node.ops.front().map_or(Step::Supervised, Op::step);
         self.events.push(ManagerEvent::BootStarted {
+            node: id,
+            why: why.to_string(),
+        });
+    }
+
+    /// A configured node heard again after it was lost: resynchronised
+    /// rather than booted (CiA 302-2 boots a slave that restarted; one
+    /// whose heartbeat was only late keeps its configuration, and a drive
+    /// moving under it must not have its modes written back). Its identity
+    /// is read (0x1018: the description's keys and the vendor-ID,
+    /// compared with what it answered before), then what its boot-up set
+    /// up and a restart would have undone: its producer heartbeat time
+    /// (0x1017) and the entry of 0x1016 that watches the manager. Where
+    /// all match the node is ready again with nothing written (an NMT
+    /// start only if it is not operational); where one differs, or cannot
+    /// be read, it restarted meanwhile and is booted in full.
+    fn begin_resync(&mut self, id: NodeId, why: &str) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.state = NodeState::Booting;
+        node.reason = None;
+        node.resync = true;
+        node.stale = node.in_flight.is_some();
+        node.retry_at = None;
+        let description = &node.description;
+        let mut subs = description.identity.subs();
+        if !subs.contains(&1) {
+            // The vendor-ID: every node has it (CiA 301 0x1018).
+            subs.insert(0, 1);
+        }
+        let mut ops: std::collections::VecDeque<Op> =
+            subs.into_iter().map(Op::VerifyIdentity).collect();
+        if node.heartbeat_set {
+            ops.push_back(Op::VerifyHeartbeat);
+        }
+        if let Some((sub, _)) = node.consumer {
+            ops.push_back(Op::VerifyConsumer(sub));
+        }
+        if description.start {
+            ops.push_back(Op::StartIfNeeded);
+        }
+        node.ops = ops;
+        node.step = node.ops.front().map_or(Step::Supervised, Op::step);
+        self.events.push(ManagerEvent::ResyncStarted {
             node: id,
             why: why.to_string(),
         });
@@ -789,6 +895,9 @@ impl Manager {
                 node.nmt = Some(NmtState::BootUp);
                 node.present = true;
                 node.lost = false;
+                // It restarted: what it said of itself may have changed.
+                node.configured = false;
+                node.identity.clear();
                 if node.managed {
                     self.begin_boot(id, "boot-up message");
                 }
@@ -799,10 +908,15 @@ impl Manager {
                 };
                 node.present = true;
                 node.lost = false;
-                // Only a node the manager had lost is booted again: one on
-                // its way goes on.
+                // Only a node the manager had lost is taken up again: one
+                // on its way goes on. One whose configuration is in place
+                // is resynchronised, not configured again.
                 if node.managed && node.state == NodeState::Offline {
-                    self.begin_boot(id, "heard again after it was lost");
+                    if node.configured {
+                        self.begin_resync(id, "heard again after it was lost");
+                    } else {
+                        self.begin_boot(id, "heard again after it was lost");
+                    }
                 }
             }
             SupervisorEvent::Heard { nmt, .. } => {
@@ -907,6 +1021,14 @@ impl Manager {
                         self.events.push(event);
                         return;
                     }
+                    if let Some(value) = value {
+                        node.identity.insert(sub, value);
+                    }
+                }
+                let manager = (self.config.node_id, self.config.heartbeat_ms);
+                if let Some(what) = verify(node, &op, &data, manager) {
+                    self.restarted(id, &what);
+                    return;
                 }
                 match op {
                     Op::CountConsumers | Op::FindConsumer { .. } => {
@@ -926,6 +1048,9 @@ impl Manager {
                         }
                     }
                     Op::SetHeartbeat => node.heartbeat_set = true,
+                    Op::ConsumeManager(sub) => {
+                        node.consumer = Some((sub, consumer_entry(manager.0, manager.1)));
+                    }
                     _ => {}
                 }
                 if op == Op::SetGuardTime {
@@ -1001,10 +1126,22 @@ impl Manager {
                         }
                     }
                     Op::Start => self.next(id),
+                    Op::VerifyIdentity(_) | Op::VerifyHeartbeat | Op::VerifyConsumer(_) => {
+                        let (index, sub) = op.object();
+                        self.restarted(
+                            id,
+                            &format!("0x{index:04X} sub {sub} cannot be read (abort {code})"),
+                        );
+                    }
+                    Op::StartIfNeeded => self.next(id),
                 }
             }
             SdoOutcome::Failed(reason) => {
-                node.state = if node.answered {
+                node.state = if node.resync {
+                    // Retried as a resynchronisation: nothing says it
+                    // restarted.
+                    NodeState::Offline
+                } else if node.answered {
                     NodeState::ConfigFailed
                 } else {
                     NodeState::Missing
@@ -1028,8 +1165,61 @@ impl Manager {
                     self.events.push(ManagerEvent::Step { node: id, step });
                 }
             }
-            None => self.booted(id),
+            None => self.finished(id),
         }
+    }
+
+    /// The boot-up or the resynchronisation under way ended well.
+    fn finished(&mut self, id: NodeId) {
+        if self.nodes.get(&id).is_some_and(|node| node.resync) {
+            self.resynced(id);
+        } else {
+            self.booted(id);
+        }
+    }
+
+    /// The node was found as its boot-up left it: ready again, supervised
+    /// as before, nothing written.
+    fn resynced(&mut self, id: NodeId) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.resync = false;
+        node.step = Step::Supervised;
+        node.state = NodeState::Ready;
+        node.reason = None;
+        node.retry_at = None;
+        node.backoff = Duration::ZERO;
+        self.events.push(ManagerEvent::Resynchronised { node: id });
+        self.lost_meanwhile(id, "since before its resynchronisation ended");
+    }
+
+    /// A node that the supervisor lost while its boot-up or
+    /// resynchronisation ran is offline, not ready.
+    fn lost_meanwhile(&mut self, id: NodeId, since: &str) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        if node.lost && node.supervision != Supervision::None {
+            let by = if node.supervision == Supervision::Guarding {
+                "no node-guarding reply"
+            } else {
+                "no heartbeat"
+            };
+            let reason = format!("{by} {since}");
+            node.state = NodeState::Offline;
+            node.reason = Some(reason.clone());
+            self.events.push(ManagerEvent::Lost { node: id, reason });
+        }
+    }
+
+    /// A resynchronisation found the node not as its boot-up left it
+    /// (`what`): it restarted meanwhile, and is booted in full.
+    fn restarted(&mut self, id: NodeId, what: &str) {
+        self.begin_boot(
+            id,
+            &format!("heard again after it was lost, and {what}: it restarted"),
+        );
     }
 
     fn booted(&mut self, id: NodeId) {
@@ -1041,20 +1231,11 @@ impl Manager {
         node.reason = None;
         node.backoff = Duration::ZERO;
         node.boots_ok += 1;
+        node.configured = true;
         Self::supervise(node, "heartbeat_ms is 0");
         self.events.push(ManagerEvent::Booted { node: id });
-        if node.lost && node.supervision != Supervision::None {
-            // The supervisor lost it while it booted: it is not ready.
-            let by = if node.supervision == Supervision::Guarding {
-                "no node-guarding reply"
-            } else {
-                "no heartbeat"
-            };
-            let reason = format!("{by} since before its boot-up ended");
-            node.state = NodeState::Offline;
-            node.reason = Some(reason.clone());
-            self.events.push(ManagerEvent::Lost { node: id, reason });
-        }
+        // The supervisor lost it while it booted: it is not ready.
+        self.lost_meanwhile(id, "since before its boot-up ended");
     }
 
     /// How a booted node is supervised, from what its boot-up (or a later
@@ -1129,7 +1310,11 @@ impl Manager {
                 .get(&id)
                 .is_some_and(|node| node.retry_at.is_some_and(|at| at <= now))
             {
-                self.begin_boot(id, "retry");
+                if self.nodes.get(&id).is_some_and(|node| node.resync) {
+                    self.begin_resync(id, "retry");
+                } else {
+                    self.begin_boot(id, "retry");
+                }
             }
             let manager = (self.config.node_id, self.config.heartbeat_ms);
             let Some(node) = self.nodes.get_mut(&id) else {
@@ -1141,7 +1326,10 @@ impl Manager {
             // A node already on its way goes on; one that has not begun
             // waits for a free place (an NMT start needs none).
             let waits = in_flight >= self.config.max_requests.max(1)
-                && !matches!(node.ops.front(), Some(Op::Start) | None);
+                && !matches!(
+                    node.ops.front(),
+                    Some(Op::Start | Op::StartIfNeeded) | None
+                );
             if waits {
                 continue;
             }
@@ -1190,15 +1378,37 @@ impl Manager {
                         index: CONSUMER_HEARTBEAT_TIME,
                         sub: *sub,
                     },
-                    Op::ConsumeManager(sub) => {
-                        let time = u16::try_from(u32::from(manager.1) * 3).unwrap_or(u16::MAX);
-                        let raw = u32::from(manager.0.get()) << 16 | u32::from(time);
-                        Action::Write {
-                            node: id,
-                            index: CONSUMER_HEARTBEAT_TIME,
-                            sub: *sub,
-                            data: raw.to_le_bytes().to_vec(),
+                    Op::ConsumeManager(sub) => Action::Write {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: *sub,
+                        data: consumer_entry(manager.0, manager.1).to_le_bytes().to_vec(),
+                    },
+                    Op::VerifyIdentity(sub) => Action::Read {
+                        node: id,
+                        index: IDENTITY,
+                        sub: *sub,
+                    },
+                    Op::VerifyHeartbeat => Action::Read {
+                        node: id,
+                        index: PRODUCER_HEARTBEAT_TIME,
+                        sub: 0,
+                    },
+                    Op::VerifyConsumer(sub) => Action::Read {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: *sub,
+                    },
+                    Op::StartIfNeeded => {
+                        if node.nmt != Some(NmtState::Operational) {
+                            let frame = super::nmt::NmtMessage::new(
+                                NmtCommand::Start,
+                                super::nmt::NmtTarget::Node(id),
+                            )
+                            .encode();
+                            actions.push(Action::Send(frame));
                         }
+                        continue;
                     }
                     Op::Start => {
                         // Unconfirmed: sent, and the boot is done; the
@@ -1219,7 +1429,7 @@ impl Manager {
             }
             if node.in_flight.is_none() && node.ops.is_empty() && node.state == NodeState::Booting {
                 // The last operation was the NMT start (or there was none).
-                self.booted(id);
+                self.finished(id);
             }
         }
         let (machine, _) = self.compute_state();
@@ -1363,7 +1573,55 @@ impl fmt::Display for MachineState {
     }
 }
 
-/// An unsigned integer of 1 to 4 bytes, little-endian.
+/// What a resynchronisation's read `op` (answered `data`) found differs
+/// from what the node's boot-up left (`None`: as it was, or not such a
+/// read). An identity read the node never answered before is kept, to be
+/// compared the next time.
+fn verify(node: &mut Node, op: &Op, data: &[u8], manager: (NodeId, u16)) -> Option<String> {
+    let (index, sub) = op.object();
+    let value = match op {
+        Op::VerifyIdentity(_) | Op::VerifyHeartbeat | Op::VerifyConsumer(_) => unsigned(data),
+        _ => return None,
+    };
+    let Some(value) = value else {
+        return Some(format!(
+            "0x{index:04X} sub {sub}: {} bytes read where a number was expected",
+            data.len()
+        ));
+    };
+    match *op {
+        Op::VerifyIdentity(sub) => {
+            if let Some(reason) = node.description.identity.mismatch(sub, value) {
+                return Some(reason);
+            }
+            match node.identity.insert(sub, value) {
+                Some(before) if before != value => Some(format!(
+                    "0x1018 sub {sub} is 0x{value:08X}, was 0x{before:08X}"
+                )),
+                _ => None,
+            }
+        }
+        Op::VerifyHeartbeat => {
+            let written = node.description.heartbeat_ms;
+            (value != u32::from(written))
+                .then(|| format!("0x1017 is {value} ms, {written} ms was written"))
+        }
+        _ => {
+            let want = consumer_entry(manager.0, manager.1);
+            (value != want).then(|| {
+                format!("0x1016 sub {sub} is 0x{value:08X}, 0x{want:08X} (the manager's heartbeat) was written")
+            })
+        }
+    }
+}
+
+/// The 0x1016 entry that watches the manager (node-ID in bits 16–23, the
+/// consumer time in ms below): 3 × its heartbeat period.
+fn consumer_entry(manager: NodeId, heartbeat_ms: u16) -> u32 {
+    let time = u16::try_from(u32::from(heartbeat_ms) * 3).unwrap_or(u16::MAX);
+    u32::from(manager.get()) << 16 | u32::from(time)
+}
+
 /// What follows a read of 0x1016 (sub 0, or an entry) in the search for
 /// the entry the manager's heartbeat goes to: the next read, the write, or
 /// nothing more to do (`Ok(None)`: the node has no entries). An entry is
@@ -1413,6 +1671,7 @@ fn next_consumer_op(op: &Op, data: &[u8], manager: NodeId) -> Result<Option<Op>,
     }
 }
 
+/// An unsigned integer of 1 to 4 bytes, little-endian.
 fn unsigned(data: &[u8]) -> Option<u32> {
     if data.is_empty() || data.len() > 4 {
         return None;

@@ -976,3 +976,156 @@ fn a_guarded_node_booted_again_after_its_loss_is_ready_not_lost_again() {
         "{node:?}"
     );
 }
+
+/// Node 4, described with a DCF that writes 0x6060 = 1 (profile
+/// position), booted and heard operational at `t0`; its 0x1016 has one
+/// free entry.
+fn booted_drive(t0: Instant) -> Rig {
+    let mut description = NodeDescription::new(id(4));
+    description.identity.vendor_id = Some(0x4A2);
+    description.config = vec![ConfigWrite {
+        index: 0x6060,
+        sub: 0,
+        data: vec![1],
+        label: "drive.dcf [6060] Modes of operation".into(),
+    }];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0));
+    assert!(seen.iter().any(|action| matches!(action, Action::Write { index: 0x6060, .. })));
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t0);
+    manager.poll(t0);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    manager.take_events();
+    manager
+}
+
+/// Node 4's answers: vendor 0x4A2, its 0x1017 `heartbeat`, one 0x1016
+/// entry holding `consumer`.
+fn answer_drive(heartbeat: u16, consumer: u32) -> impl Fn(&Action) -> SdoOutcome {
+    move |action| match action {
+        Action::Read {
+            index: 0x1018,
+            sub: 1,
+            ..
+        } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
+        Action::Read {
+            index: 0x1017, ..
+        } => SdoOutcome::Done(heartbeat.to_le_bytes().to_vec()),
+        Action::Read {
+            index: 0x1016,
+            sub: 0,
+            ..
+        } => SdoOutcome::Done(vec![1]),
+        Action::Read { index: 0x1016, .. } => {
+            SdoOutcome::Done(consumer.to_le_bytes().to_vec())
+        }
+        _ => SdoOutcome::Done(Vec::new()),
+    }
+}
+
+/// Loses node 4 (no heartbeat for 1 s after `t0`) and hears it again,
+/// operational, at the returned time.
+fn lose_and_hear_again(manager: &mut Rig, t0: Instant) -> Instant {
+    let t1 = t0 + Duration::from_millis(1000);
+    manager.poll(t1);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t1);
+    t1
+}
+
+#[test]
+fn a_node_heard_again_after_a_short_loss_is_resynchronised_not_configured_again() {
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    // As its boot-up left it: 0x1017 = 500, 0x1016 sub 1 watches the
+    // manager (127, 3 × 100 ms).
+    let seen = run_boot(&mut manager, t1, answer_drive(500, 0x007F_012C));
+    assert_eq!(
+        sdo_actions(&seen),
+        vec![
+            Action::Read {
+                node: id(4),
+                index: 0x1018,
+                sub: 1
+            },
+            Action::Read {
+                node: id(4),
+                index: 0x1017,
+                sub: 0
+            },
+            Action::Read {
+                node: id(4),
+                index: 0x1016,
+                sub: 1
+            },
+        ],
+        "nothing written, no NMT start (it is operational)"
+    );
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.supervision, node.boots_ok),
+        (NodeState::Ready, Supervision::Heartbeat, 1),
+        "{node:?}"
+    );
+    let events = manager.take_events();
+    assert!(
+        events.contains(&ManagerEvent::Resynchronised { node: id(4) }),
+        "{events:?}"
+    );
+}
+
+#[test]
+fn a_node_that_restarted_unheard_or_sent_its_boot_up_is_configured_again() {
+    // Its 0x1017 is back to 0: it restarted while it was not heard.
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    let seen = run_boot(&mut manager, t1, answer_drive(0, 0));
+    assert!(
+        seen.iter().any(|action| matches!(
+            action,
+            Action::Write {
+                index: 0x6060,
+                data,
+                ..
+            } if data == &[1]
+        )),
+        "{seen:?}"
+    );
+    assert!(manager.take_events().iter().any(|event| matches!(
+        event,
+        ManagerEvent::BootStarted { why, .. } if why.contains("0x1017 is 0 ms, 500 ms was written")
+    )));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+
+    // A boot-up message: configured again, whatever was lost or not.
+    let mut manager = booted_drive(t0);
+    manager.on_frame(&heartbeat(4, NmtState::BootUp), t0);
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0x007F_012C));
+    assert!(
+        seen.iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. })),
+        "{seen:?}"
+    );
+}
+
+#[test]
+fn a_resynchronisation_without_answer_is_retried_as_one() {
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    run_boot(&mut manager, t1, |_| SdoOutcome::Failed("timeout".into()));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    let t2 = t1 + Duration::from_millis(200);
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t2);
+    let seen = run_boot(&mut manager, t2, answer_drive(500, 0x007F_012C));
+    assert!(
+        !seen
+            .iter()
+            .any(|action| matches!(action, Action::Write { .. })),
+        "{seen:?}"
+    );
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+}

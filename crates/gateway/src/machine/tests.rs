@@ -1,0 +1,155 @@
+//! The network manager at work on the demo rack: a heartbeat glitch
+//! during a move is resynchronised, not a new configuration download.
+
+use std::time::Duration;
+
+use candeck_sim::behaviour::Fault;
+use candeck_sim::rack::Rack;
+
+use crate::access::Role;
+use crate::canopen::NodeId;
+use crate::canopen::manager::{ConfigWrite, NodeDescription};
+use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+use crate::drive::{MoveRequest, TargetState};
+use crate::motion::LeaseClaim;
+use crate::motion_lease::AxisKey;
+use crate::test_rig::{self, config};
+use crate::{Caller, Channel, Gateway};
+
+fn node(id: u8) -> NodeId {
+    NodeId::new(id).unwrap()
+}
+
+/// The demo with its UMC (node 1) described by a DCF that sets profile
+/// position (0x6060 = 1), booted.
+async fn demo_with_dcf() -> Gateway {
+    let mut umc = NodeDescription::new(node(1));
+    umc.config = vec![ConfigWrite {
+        index: 0x6060,
+        sub: 0,
+        data: vec![1],
+        label: "umc.dcf [6060] Modes of operation".into(),
+    }];
+    let mut config = config(&[("demo", "virtual:demo")]);
+    config.machine_nodes.insert("demo".into(), vec![umc]);
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    gateway
+}
+
+fn rack(gateway: &Gateway) -> &Rack {
+    gateway.buses["demo"]
+        .devices()
+        .and_then(|devices| devices.downcast_ref::<Rack>())
+        .expect("the demo bus is a rack")
+}
+
+/// Renews the lease for `time`, every quarter second.
+async fn hold(gateway: &Gateway, caller: &Caller, lease: &str, time: Duration) {
+    let axis = AxisKey {
+        bus: "demo".into(),
+        node: 1,
+        axis: 1,
+    };
+    let until = tokio::time::Instant::now() + time;
+    while tokio::time::Instant::now() < until {
+        gateway.renew_axis_lease(caller, &axis, lease).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+}
+
+async fn modes_of_operation(gateway: &Gateway) -> i8 {
+    let data = gateway.buses["demo"]
+        .registry
+        .sdo(node(1))
+        .unwrap()
+        .upload(0x6060, 0)
+        .await
+        .unwrap();
+    data[0] as i8
+}
+
+/// Finding 3 of issue 30: a 1 s heartbeat loss during a velocity move at
+/// 400, the lease renewed throughout. The manager used to boot the node
+/// again on its recovery, its DCF written back (0x6060 = 1: profile
+/// position, the drive standing at velocity 0).
+#[tokio::test(start_paused = true)]
+async fn a_heartbeat_glitch_during_a_move_leaves_the_drive_moving_in_its_mode() {
+    let gateway = demo_with_dcf().await;
+    assert_eq!(modes_of_operation(&gateway).await, 1, "the DCF was written");
+    let plc = Caller::new(Channel::Rest, "plc", Some(Role::Operator));
+    let axis = ("demo", "1", "1");
+    let claim = LeaseClaim::presented(None, false);
+    gateway
+        .set_axis_state(&plc, axis, TargetState::OperationEnabled, &claim)
+        .await
+        .unwrap();
+    let moving = gateway
+        .move_axis(
+            &plc,
+            axis,
+            &MoveRequest::Velocity {
+                velocity: 400,
+                acceleration: None,
+                deceleration: None,
+            },
+            &claim,
+        )
+        .await
+        .unwrap();
+    let lease = moving.lease.expect("a velocity move holds a lease").id;
+    hold(&gateway, &plc, &lease, Duration::from_secs(1)).await;
+    assert_eq!(modes_of_operation(&gateway).await, 2, "velocity mode (vl)");
+
+    rack(&gateway)
+        .inject_fault(node(1), Fault::HeartbeatLoss)
+        .unwrap();
+    hold(&gateway, &plc, &lease, Duration::from_secs(1)).await;
+    let machine = gateway.buses["demo"].machine.clone().unwrap();
+    assert_eq!(
+        machine.status().nodes[0].state.name(),
+        "offline",
+        "{:?}",
+        machine.status()
+    );
+    rack(&gateway)
+        .clear_fault(node(1), Fault::HeartbeatLoss)
+        .unwrap();
+    hold(&gateway, &plc, &lease, Duration::from_secs(3)).await;
+
+    assert_eq!(modes_of_operation(&gateway).await, 2, "still velocity mode");
+    let status = machine.status();
+    assert_eq!(status.nodes[0].state.name(), "ready", "{status:?}");
+    assert_eq!(status.nodes[0].boots_ok, 1, "not booted again: {status:?}");
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    let axis_status = drive.status().await.unwrap();
+    assert_eq!(axis_status.state, "operation_enabled", "{axis_status:?}");
+    assert!(
+        axis_status.velocity.is_some_and(|velocity| velocity > 300),
+        "still running: {axis_status:?}"
+    );
+    let rows = crate::audit::tests::rows(&gateway).await;
+    assert!(
+        rows.iter().any(|row| row["operation"]
+            == "network manager: node resynchronised, its configuration kept (nothing written)"),
+        "{rows:#?}"
+    );
+}
+
+/// A real restart (its boot-up message) is configured again: the DCF is
+/// written back.
+#[tokio::test(start_paused = true)]
+async fn a_node_that_restarts_is_configured_again() {
+    let gateway = demo_with_dcf().await;
+    let sdo = gateway.buses["demo"].registry.sdo(node(1)).unwrap();
+    sdo.download(0x6060, 0, &[2]).await.unwrap();
+    assert_eq!(modes_of_operation(&gateway).await, 2);
+    let reset = NmtMessage::new(NmtCommand::ResetNode, NmtTarget::Node(node(1))).encode();
+    gateway.buses["demo"].bus.send(reset).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(modes_of_operation(&gateway).await, 1, "the DCF written again");
+    let machine = gateway.buses["demo"].machine.clone().unwrap();
+    let status = machine.status();
+    assert_eq!(status.nodes[0].state.name(), "ready", "{status:?}");
+    assert_eq!(status.nodes[0].boots_ok, 2, "{status:?}");
+}
