@@ -903,6 +903,9 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
         NodeEvent::HeartbeatWritten { heartbeat_ms, .. } => json!({
             "bus": bus, "node": node, "event": "heartbeat_written", "heartbeat_ms": heartbeat_ms,
         }),
+        NodeEvent::WatchdogOff { warning, .. } => json!({
+            "bus": bus, "node": node, "event": "watchdog_off", "warning": warning,
+        }),
         NodeEvent::Emcy { emcy, .. } => json!({
             "bus": bus,
             "node": node,

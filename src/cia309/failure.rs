@@ -103,6 +103,7 @@ impl Failure {
             | GatewayError::LeaseConflict(_)
             | GatewayError::Unauthenticated(_)
             | GatewayError::Forbidden(_)
+            | GatewayError::WatchdogProtected(_)
             | GatewayError::RateLimited { .. }
             | GatewayError::LssBusy(_)
             | GatewayError::LssRefused(_)

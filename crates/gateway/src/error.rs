@@ -89,6 +89,11 @@ pub enum GatewayError {
     /// The client's role is below what the request needs.
     #[error("{0}")]
     Forbidden(String),
+    /// A write that would switch off a device's protection against the
+    /// gateway's death (docs/security.md, "Watchdog policy"): an admin's
+    /// only.
+    #[error("{0}")]
+    WatchdogProtected(String),
     /// The token sends writes faster than its rate limit
     /// (`crate::access::WriteLimiter`).
     #[error("{message}")]
@@ -236,6 +241,7 @@ impl GatewayError {
             Self::UnknownLease(_) => "unknown_lease",
             Self::Unauthenticated(_) => "unauthenticated",
             Self::Forbidden(_) => "forbidden",
+            Self::WatchdogProtected(_) => "watchdog_protected",
             Self::RateLimited { .. } => "rate_limited",
             Self::LssBusy(_) => "lss_busy",
             Self::LssNotFound(_) => "lss_not_found",

@@ -328,6 +328,13 @@ pub enum NodeEvent {
         node: NodeId,
         heartbeat_ms: u16,
     },
+    /// An admin's write switched off the node's protection against the
+    /// gateway's death (docs/security.md, "Watchdog policy"): `warning`
+    /// says which object, what it no longer does, and who wrote it.
+    WatchdogOff {
+        node: NodeId,
+        warning: String,
+    },
 }
 
 impl NodeEvent {
@@ -340,7 +347,8 @@ impl NodeEvent {
             | Self::Offline { node, .. }
             | Self::Online { node }
             | Self::Emcy { node, .. }
-            | Self::HeartbeatWritten { node, .. } => *node,
+            | Self::HeartbeatWritten { node, .. }
+            | Self::WatchdogOff { node, .. } => *node,
         }
     }
 }
@@ -367,6 +375,9 @@ impl fmt::Display for NodeEvent {
             ),
             Self::HeartbeatWritten { node, heartbeat_ms } => {
                 write!(f, "node {node} heartbeat time written: {heartbeat_ms} ms")
+            }
+            Self::WatchdogOff { node, warning } => {
+                write!(f, "node {node} watchdog switched off: {warning}")
             }
         }
     }
@@ -743,6 +754,12 @@ impl NodeRegistry {
     /// time (ms) and life time factor it wrote: the supervisor sends the
     /// requests and loses the node when no valid reply comes within the
     /// life time.
+    /// Tells whoever streams the nodes that an admin switched off the
+    /// node's watchdog ([`NodeEvent::WatchdogOff`]).
+    pub(crate) fn watchdog_off(&self, node: NodeId, warning: String) {
+        self.shared.emit(NodeEvent::WatchdogOff { node, warning });
+    }
+
     pub fn guard(&self, id: NodeId, guard_time_ms: u16, life_time_factor: u8) {
         let now = Instant::now().into_std();
         self.shared

@@ -67,10 +67,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::TooManyLoggers(_) => 56,
         GatewayError::NotLoggable(_) => 57,
         GatewayError::HistoryFailed(_) => 58,
+        GatewayError::WatchdogProtected(_) => 59,
     }
 }
 
-const VARIANTS: usize = 59;
+const VARIANTS: usize = 60;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -125,6 +126,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::UnknownLease(text()),
         GatewayError::Unauthenticated(text()),
         GatewayError::Forbidden(text()),
+        GatewayError::WatchdogProtected(text()),
         GatewayError::Internal(text()),
         GatewayError::ProgramNotVerified(text()),
         GatewayError::RateLimited {
