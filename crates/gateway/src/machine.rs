@@ -52,6 +52,37 @@ pub struct MachineSettings {
     pub nodes: Vec<NodeDescription>,
 }
 
+/// Refuses `node` as a device's new node-ID when it is the network
+/// manager's own on `served` (`manager_node_id`): the device would be
+/// unsupervised, and its neighbours' 0x1016 would take its heartbeat for
+/// the gateway's. LSS and the node-ID change ask it first.
+pub(crate) fn check_not_manager_id(
+    served: &super::service::ServedBus,
+    node: NodeId,
+) -> Result<(), super::GatewayError> {
+    match &served.machine {
+        Some(machine) if machine.manager().node_id == node => {
+            Err(super::GatewayError::NodeIdInUse(format!(
+                "node {node} is the gateway's own node-ID on bus {} (manager_node_id): its network manager's heartbeat goes out under it",
+                served.name
+            )))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Refuses a machine description that expects a node at the network
+/// manager's own node-ID, at start.
+pub(crate) fn check_descriptions(bus: &str, settings: &MachineSettings) -> Result<(), String> {
+    let manager = settings.manager.node_id;
+    match settings.nodes.iter().find(|node| node.id == manager) {
+        Some(_) => Err(format!(
+            "config [[nodes]] bus {bus} id {manager}: that is the gateway's own node id (manager_node_id); give the network manager another one"
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Reads a DCF's `ParameterValue` entries for `node`, in file order, as
 /// the writes of a configuration download.
 pub fn load_dcf(path: &Path, node: NodeId) -> Result<Vec<ConfigWrite>, String> {

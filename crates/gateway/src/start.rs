@@ -183,6 +183,15 @@ async fn open_bus(
     history: &History,
     attach: AttachDevices<'_>,
 ) -> Result<ServedBus, StartError> {
+    // No expected node at the gateway's own node-ID, before the bus opens.
+    super::machine::check_descriptions(
+        name,
+        &MachineSettings {
+            nodes: config.machine_nodes.get(name).cloned().unwrap_or_default(),
+            ..config.machine.clone()
+        },
+    )
+    .map_err(StartError)?;
     let registry = RegistryConfig {
         telemetry: config.telemetry.clone(),
         ..RegistryConfig::default()

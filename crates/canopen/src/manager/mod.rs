@@ -625,6 +625,10 @@ pub struct Manager {
     events: Vec<ManagerEvent>,
     /// Frames to send at the next poll (NMT commands).
     outbox: Vec<Action>,
+    /// A device was heard or found at the manager's own node-ID: it is not
+    /// supervised, and whoever consumes the manager's heartbeat may take
+    /// its for the gateway's. The machine is not ready while it is there.
+    own_id_taken: bool,
 }
 
 impl Manager {
@@ -648,6 +652,7 @@ impl Manager {
             machine: MachineState::Booting,
             events: Vec::new(),
             outbox: Vec::new(),
+            own_id_taken: false,
         };
         manager.machine = manager.compute_state().0;
         manager
@@ -683,6 +688,9 @@ impl Manager {
     /// The node is there (found by a scan, or heard for the first time):
     /// booted unless it is already booting or booted.
     pub fn node_found(&mut self, id: NodeId) {
+        if id == self.config.node_id {
+            self.own_id_taken = true;
+        }
         let Some(node) = self.node_mut(id) else {
             return;
         };
@@ -873,6 +881,14 @@ impl Manager {
     /// a written 0x1017 becomes the node's.
     pub fn on_supervision(&mut self, event: &SupervisorEvent) {
         let id = event.node();
+        if id == self.config.node_id
+            && matches!(
+                event,
+                SupervisorEvent::BootUp { .. } | SupervisorEvent::Heard { .. }
+            )
+        {
+            self.own_id_taken = true;
+        }
         match *event {
             SupervisorEvent::HeartbeatWritten { heartbeat_ms, .. } => {
                 // The supervisor times it anew from the write.
@@ -1517,9 +1533,15 @@ impl Manager {
                 }
             }
         }
+        if self.own_id_taken {
+            reasons.push(format!(
+                "a device answers at the gateway's own node ID {} (manager_node_id): it is not supervised, and devices watching the gateway's heartbeat may take its for the gateway's",
+                self.config.node_id
+            ));
+        }
         let state = if mandatory > 0 && ready == 0 && bad == mandatory {
             MachineState::Down
-        } else if bad > 0 {
+        } else if bad > 0 || self.own_id_taken {
             MachineState::Degraded
         } else if booting {
             MachineState::Booting

@@ -16,6 +16,7 @@ use crate::motion_lease::AxisKey;
 use crate::test_rig::{self, config};
 use crate::{Caller, Channel, Gateway};
 
+
 fn node(id: u8) -> NodeId {
     NodeId::new(id).unwrap()
 }
@@ -152,4 +153,84 @@ async fn a_node_that_restarts_is_configured_again() {
     let status = machine.status();
     assert_eq!(status.nodes[0].state.name(), "ready", "{status:?}");
     assert_eq!(status.nodes[0].boots_ok, 2, "{status:?}");
+}
+
+/// Finding 4 of issue 30: `manager_node_id = 1` with a node 1 on the bus
+/// left node 1 unsupervised and the machine "ready".
+#[tokio::test(start_paused = true)]
+async fn a_device_at_the_gateways_own_node_id_keeps_the_machine_from_ready() {
+    let mut config = config(&[("demo", "virtual:demo")]);
+    config.machine.manager.node_id = node(1);
+    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let status = gateway.buses["demo"].machine.clone().unwrap().status();
+    assert_eq!(status.state.name(), "degraded", "{status:?}");
+    assert!(
+        status
+            .reasons
+            .iter()
+            .any(|reason| reason.contains("the gateway's own node ID 1 (manager_node_id)")),
+        "{status:?}"
+    );
+
+    // The default (127) on the same demo: ready, no such reason.
+    let gateway = Gateway::start(config_of_demo(), &test_rig::rack)
+        .await
+        .unwrap();
+    let machine = gateway.buses["demo"].machine.clone().unwrap();
+    let status = machine
+        .wait_for(
+            crate::canopen::manager::MachineState::Ready,
+            Duration::from_secs(10),
+        )
+        .await;
+    assert_eq!(status.state.name(), "ready", "{status:?}");
+}
+
+fn config_of_demo() -> crate::GatewayConfig {
+    config(&[("demo", "virtual:demo")])
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_expected_node_at_the_gateways_own_node_id_is_refused_at_start() {
+    let mut config = config_of_demo();
+    config
+        .machine_nodes
+        .insert("demo".into(), vec![NodeDescription::new(node(127))]);
+    let error = match Gateway::start(config, &test_rig::rack).await {
+        Ok(_) => panic!("started"),
+        Err(error) => error,
+    };
+    assert!(
+        error.0.contains("id 127: that is the gateway's own node id (manager_node_id)"),
+        "{error}"
+    );
+}
+
+/// LSS (and the UniSwarm node-ID change) to the gateway's own node-ID is
+/// refused: 409 `node_id_in_use`, naming it.
+#[tokio::test(start_paused = true)]
+async fn lss_to_the_gateways_own_node_id_is_refused() {
+    let gateway = Gateway::start(config_of_demo(), &test_rig::rack)
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    let address = crate::canopen::lss::LssAddress {
+        vendor_id: 1,
+        product_code: 2,
+        revision: 3,
+        serial: 4,
+    };
+    let refused = gateway
+        .lss_configure(&admin, "demo", address, 127, false)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "node_id_in_use", "{refused}");
+    assert!(refused.to_string().contains("gateway's own node-ID"), "{refused}");
+    let refused = gateway
+        .change_node_id(&admin, "demo", "1", 127)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "node_id_in_use", "{refused}");
 }
