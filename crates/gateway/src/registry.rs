@@ -126,6 +126,9 @@ pub struct RegistryConfig {
     /// nodes (axis polling rate, LED parameter reads); the registry itself
     /// does not use it.
     pub telemetry: super::producers::TelemetryConfig,
+    /// Heartbeat periods a node may be silent before its supervisor loses
+    /// it (`heartbeat_consumer_factor`).
+    pub consumer_factor: crate::canopen::manager::ConsumerFactor,
 }
 
 impl Default for RegistryConfig {
@@ -138,6 +141,7 @@ impl Default for RegistryConfig {
             emcy_history: 32,
             event_capacity: 256,
             telemetry: super::producers::TelemetryConfig::default(),
+            consumer_factor: crate::canopen::manager::ConsumerFactor::DEFAULT,
         }
     }
 }
@@ -597,7 +601,7 @@ impl NodeRegistry {
             state: Mutex::new(State {
                 nodes: BTreeMap::new(),
                 probe_channels: BTreeMap::new(),
-                supervisor: Supervisor::new(bus_up),
+                supervisor: Supervisor::new(bus_up).with_consumer_factor(config.consumer_factor),
                 assigned: BTreeMap::new(),
             }),
             events,

@@ -194,6 +194,9 @@ async fn open_bus(
     .map_err(StartError)?;
     let registry = RegistryConfig {
         telemetry: config.telemetry.clone(),
+        // The network manager's supervision, timed by the registry's one
+        // supervisor.
+        consumer_factor: config.machine.manager.consumer_factor,
         ..RegistryConfig::default()
     };
     let mut opened =

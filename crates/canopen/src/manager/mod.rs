@@ -34,7 +34,8 @@
 //!   node is supervised by its heartbeat or by node guarding; where
 //!   neither could be set up the node says `supervision: none` and why.
 //!   The timing is the bus's one [`Supervisor`]'s, not the manager's: it
-//!   hears the frames, times the heartbeats (1.5 periods) and does the
+//!   hears the frames, times the heartbeats ([`ConsumerFactor`] periods,
+//!   3 by default) and does the
 //!   guarding the manager hands it ([`Action::Guard`]), and the manager
 //!   follows its events ([`Manager::on_supervision`]). A ready node lost is
 //!   `offline`; a node heard again after it was lost is booted again by
@@ -76,7 +77,7 @@ pub mod supervisor;
 mod tests;
 
 pub use supervisor::{
-    LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent, heartbeat_timeout,
+    ConsumerFactor, LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent,
 };
 
 /// Guard time object (ms).
@@ -234,6 +235,10 @@ pub struct ManagerConfig {
     /// at most one): a whole bus booting at once does not flood it, and
     /// every transfer is answered well within its timeout.
     pub max_requests: usize,
+    /// Heartbeat periods a node may be silent before it is lost
+    /// (`heartbeat_consumer_factor`): the supervisor's, named in the
+    /// reason of a loss.
+    pub consumer_factor: ConsumerFactor,
 }
 
 impl Default for ManagerConfig {
@@ -244,6 +249,7 @@ impl Default for ManagerConfig {
             retry_min: Duration::from_millis(200),
             retry_max: Duration::from_secs(10),
             max_requests: 16,
+            consumer_factor: ConsumerFactor::DEFAULT,
         }
     }
 }
@@ -428,7 +434,8 @@ pub struct NodeStatus {
     pub supervision: Supervision,
     /// The node's producer heartbeat time, ms: its description's, or what
     /// was last written to its 0x1017 through the gateway (its heartbeat
-    /// consumer times out after 1.5 × this); 0: no heartbeat.
+    /// consumer times out after `heartbeat_consumer_factor` × this); 0: no
+    /// heartbeat.
     pub heartbeat_ms: u16,
     /// The last NMT state the node reported; `"unknown"` before any.
     pub nmt: String,
@@ -966,6 +973,7 @@ impl Manager {
     /// The supervisor lost the node: a ready node goes offline (one on its
     /// way is not lost for the manager until its boot-up ends).
     fn lost(&mut self, id: NodeId, by: LostBy) {
+        let factor = self.config.consumer_factor;
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
@@ -975,8 +983,9 @@ impl Manager {
         }
         let reason = match by {
             LostBy::Heartbeat { period } => format!(
-                "no heartbeat within {} ms (1.5 × {} ms)",
-                heartbeat_timeout(period).as_millis(),
+                "no heartbeat within {} ms ({} × {} ms)",
+                factor.timeout(period).as_millis(),
+                factor,
                 period.as_millis()
             ),
             LostBy::Guarding { life_time } => {

@@ -34,8 +34,8 @@ impl std::ops::DerefMut for Rig {
 impl Rig {
     fn new(config: ManagerConfig, descriptions: Vec<NodeDescription>, now: Instant) -> Self {
         Self {
+            supervisor: Supervisor::new(true).with_consumer_factor(config.consumer_factor),
             manager: Manager::new(config, descriptions, now),
-            supervisor: Supervisor::new(true),
             writes: BTreeMap::new(),
             started: now,
         }
@@ -119,6 +119,8 @@ fn config() -> ManagerConfig {
         retry_min: Duration::from_millis(200),
         retry_max: Duration::from_millis(800),
         max_requests: 16,
+        // The tests time losses at one and a half periods.
+        consumer_factor: ConsumerFactor::MIN,
     }
 }
 

@@ -33,6 +33,9 @@ async fn demo_with_dcf() -> Gateway {
     }];
     let mut config = config(&[("demo", "virtual:demo")]);
     config.machine_nodes.insert("demo".into(), vec![umc]);
+    // The margin of the finding (1.5 periods): a 1 s silence of a 500 ms
+    // heartbeat is a loss (with the default 3 it is none).
+    config.machine.manager.consumer_factor = crate::canopen::manager::ConsumerFactor::MIN;
     let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
     tokio::time::sleep(Duration::from_secs(5)).await;
     gateway
@@ -233,4 +236,94 @@ async fn lss_to_the_gateways_own_node_id_is_refused() {
         .await
         .unwrap_err();
     assert_eq!(refused.code(), "node_id_in_use", "{refused}");
+}
+
+/// A measurement, not a check (run by hand, real time): the false losses
+/// of the demo's three nodes, which never stop sending their heartbeat
+/// (500 ms), with `CANDECK_BENCH_HOGS` threads (default 4) spinning beside
+/// a 2-thread runtime for `CANDECK_BENCH_SECS` (default 60) per consumer
+/// factor (`CANDECK_BENCH_FACTORS`, default `1.5,3`):
+///
+/// `cargo test -p candeck-gateway --release --lib false_losses_under_load -- --ignored --nocapture`
+#[test]
+#[ignore = "a measurement of minutes under CPU load; run by hand"]
+fn false_losses_under_load() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let env = |name: &str, default: &str| std::env::var(name).unwrap_or_else(|_| default.into());
+    let secs: u64 = env("CANDECK_BENCH_SECS", "60").parse().unwrap();
+    let hogs: usize = env("CANDECK_BENCH_HOGS", "4").parse().unwrap();
+    let factors: Vec<f64> = env("CANDECK_BENCH_FACTORS", "1.5,3")
+        .split(',')
+        .map(|factor| factor.trim().parse().unwrap())
+        .collect();
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let spinning: Vec<_> = (0..hogs)
+        .map(|_| {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let mut x = 0u64;
+                while !stop.load(Ordering::Relaxed) {
+                    x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+                }
+            })
+        })
+        .collect();
+    for factor in factors {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap();
+        let (lost, late) = runtime.block_on(async {
+            let mut config = config(&[("demo", "virtual:demo")]);
+            config.machine.manager.consumer_factor =
+                crate::canopen::manager::ConsumerFactor::new(factor).unwrap();
+            let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
+            let machine = gateway.buses["demo"].machine.clone().unwrap();
+            machine
+                .wait_for(
+                    crate::canopen::manager::MachineState::Ready,
+                    Duration::from_secs(30),
+                )
+                .await;
+            let mut events = gateway.buses["demo"].registry.subscribe_supervision();
+            let until = tokio::time::Instant::now() + Duration::from_secs(secs);
+            let mut lost = 0;
+            let mut last: std::collections::BTreeMap<u8, tokio::time::Instant> = Default::default();
+            let mut late = Duration::ZERO;
+            let mut early = Duration::MAX;
+            while let Ok(event) = tokio::time::timeout_at(until, events.recv()).await {
+                let now = tokio::time::Instant::now();
+                match event {
+                    Ok(crate::canopen::manager::SupervisorEvent::Lost { .. }) => lost += 1,
+                    Ok(crate::canopen::manager::SupervisorEvent::Heard { node, .. }) => {
+                        if let Some(before) = last.insert(node.get(), now) {
+                            late = late.max(now - before);
+                            early = early.min(now - before);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            let learnt: Vec<u128> = (1..=3)
+                .filter_map(|id| {
+                    let node = crate::canopen::NodeId::new(id).ok()?;
+                    Some(gateway.buses["demo"].registry.supervision(node)?.heartbeat?.as_millis())
+                })
+                .collect();
+            println!("shortest gap {} ms; periods learnt at the end {learnt:?} ms", early.as_millis());
+            gateway.shutdown().await;
+            (lost, late)
+        });
+        runtime.shutdown_timeout(Duration::from_secs(1));
+        println!(
+            "heartbeat_consumer_factor {factor}: {lost} false losses in {secs} s \
+             (3 nodes, 500 ms heartbeats, {hogs} spinning threads); longest gap between two heartbeats {} ms",
+            late.as_millis()
+        );
+    }
+    stop.store(true, Ordering::Relaxed);
+    for hog in spinning {
+        hog.join().unwrap();
+    }
 }
