@@ -50,6 +50,9 @@ const SLOWER_AFTER: usize = 3;
 /// (Followed, a heartbeat 60 ms early on a loaded host shortened the
 /// period, and with it the timeout, until on-time heartbeats were lost.)
 const JITTER_PART: u32 = 4;
+/// This many intervals in a row all shorter than the period (by more than
+/// the jitter) say that the producer got faster (its 0x1017 was written).
+const FASTER_AFTER: usize = 3;
 /// Intervals shorter than this are two frames of one burst, not a period.
 const MIN_HEARTBEAT_INTERVAL: Duration = Duration::from_millis(1);
 
@@ -228,6 +231,29 @@ impl HeartbeatLearner {
         {
             let keep = self.intervals.len() - SLOWER_AFTER;
             self.intervals.drain(..keep);
+        }
+        if let Some(period) = self.period {
+            // Faster only when several intervals in a row say so: after a
+            // stall the late heartbeat and the next one on time come close
+            // together, and one short interval taken as the period lost
+            // the node at every heartbeat until it left the window.
+            let faster = period - period / JITTER_PART;
+            if self.intervals.iter().any(|&interval| interval < faster) {
+                if self.intervals.len() < FASTER_AFTER
+                    || self
+                        .intervals
+                        .iter()
+                        .rev()
+                        .take(FASTER_AFTER)
+                        .any(|&recent| recent >= faster)
+                {
+                    // Not (yet) a faster producer: a burst (it leaves
+                    // the window in time), or the start of a change.
+                    return None;
+                }
+                let keep = self.intervals.len() - FASTER_AFTER;
+                self.intervals.drain(..keep);
+            }
         }
         let shortest = self.intervals.iter().min().copied();
         if shortest == self.period {

@@ -242,9 +242,13 @@ async fn lss_to_the_gateways_own_node_id_is_refused() {
 /// of the demo's three nodes, which never stop sending their heartbeat
 /// (500 ms), with `CANDECK_BENCH_HOGS` threads (default 4) spinning beside
 /// a 2-thread runtime for `CANDECK_BENCH_SECS` (default 60) per consumer
-/// factor (`CANDECK_BENCH_FACTORS`, default `1.5,3`):
+/// factor (`CANDECK_BENCH_FACTORS`, default `1.5,3`). With
+/// `CANDECK_BENCH_STOP_MS` (default 0: none) the whole process is also
+/// stopped (SIGSTOP, then SIGCONT) that long about once a second, as a
+/// host that deschedules it does: the heartbeats' sender and the
+/// supervisor wake together, and which runs first decides a loss.
 ///
-/// `cargo test -p candeck-gateway --release --lib false_losses_under_load -- --ignored --nocapture`
+/// `CANDECK_BENCH_STOP_MS=400 cargo test -p candeck-gateway --lib false_losses_under_load -- --ignored --nocapture`
 #[test]
 #[ignore = "a measurement of minutes under CPU load; run by hand"]
 fn false_losses_under_load() {
@@ -256,7 +260,27 @@ fn false_losses_under_load() {
         .split(',')
         .map(|factor| factor.trim().parse().unwrap())
         .collect();
+    let stop_ms: u64 = env("CANDECK_BENCH_STOP_MS", "0").parse().unwrap();
     let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let stopper = (stop_ms > 0).then(|| {
+        let stop = stop.clone();
+        let pid = std::process::id();
+        std::thread::spawn(move || {
+            let mut seed = 0x2545_F491_4F6C_DD1Du64;
+            while !stop.load(Ordering::Relaxed) {
+                // 0.5 to 1.5 s apart, not in step with the heartbeats.
+                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                std::thread::sleep(Duration::from_millis(500 + (seed >> 33) % 1000));
+                let script = format!(
+                    "kill -STOP {pid}; sleep {}; kill -CONT {pid}",
+                    stop_ms as f64 / 1000.0
+                );
+                let _ = std::process::Command::new("sh")
+                    .args(["-c", &script])
+                    .status();
+            }
+        })
+    });
     let spinning: Vec<_> = (0..hogs)
         .map(|_| {
             let stop = stop.clone();
@@ -318,11 +342,14 @@ fn false_losses_under_load() {
         runtime.shutdown_timeout(Duration::from_secs(1));
         println!(
             "heartbeat_consumer_factor {factor}: {lost} false losses in {secs} s \
-             (3 nodes, 500 ms heartbeats, {hogs} spinning threads); longest gap between two heartbeats {} ms",
+             (3 nodes, 500 ms heartbeats, {hogs} spinning threads, stopped {stop_ms} ms about once a second); longest gap between two heartbeats {} ms",
             late.as_millis()
         );
     }
     stop.store(true, Ordering::Relaxed);
+    if let Some(stopper) = stopper {
+        stopper.join().unwrap();
+    }
     for hog in spinning {
         hog.join().unwrap();
     }

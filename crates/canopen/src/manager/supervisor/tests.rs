@@ -50,10 +50,13 @@ fn the_period_is_the_shortest_recent_interval() {
     // One heartbeat lost on the bus: the interval doubles, not the period.
     assert_eq!(learner.on_heartbeat(t0 + ms(300), ConsumerFactor::MIN), None);
     assert_eq!(learner.period, Some(ms(100)));
-    // The producer got faster: followed at once.
-    assert_eq!(learner.on_heartbeat(t0 + ms(350), ConsumerFactor::MIN), Some(ms(50)));
+    // The producer got faster: followed after three intervals in a row
+    // (one short one is a burst).
+    assert_eq!(learner.on_heartbeat(t0 + ms(350), ConsumerFactor::MIN), None);
+    assert_eq!(learner.on_heartbeat(t0 + ms(400), ConsumerFactor::MIN), None);
+    assert_eq!(learner.on_heartbeat(t0 + ms(450), ConsumerFactor::MIN), Some(ms(50)));
     // Slower again: followed once the short intervals left the window.
-    let mut t = t0 + ms(350);
+    let mut t = t0 + ms(450);
     let mut changed = None;
     for _ in 0..HEARTBEAT_WINDOW {
         t += ms(120);
@@ -332,7 +335,23 @@ fn a_jittered_heartbeat_keeps_its_period() {
         assert_eq!(learner.on_heartbeat(t, ConsumerFactor::DEFAULT), None);
     }
     assert_eq!(learner.period, Some(ms(500)));
-    // A real change (0x1017 written 200 by someone else) is followed.
+    // A stall: one heartbeat 400 ms late, the next on time 100 ms after
+    // it. A burst, not a faster producer.
+    t += ms(900);
+    assert_eq!(learner.on_heartbeat(t, ConsumerFactor::DEFAULT), None);
+    t += ms(100);
+    assert_eq!(learner.on_heartbeat(t, ConsumerFactor::DEFAULT), None);
+    for _ in 0..5 {
+        t += ms(500);
+        assert_eq!(learner.on_heartbeat(t, ConsumerFactor::DEFAULT), None);
+    }
+    assert_eq!(learner.period, Some(ms(500)));
+    // A real change (0x1017 written 200 by someone else) is followed, at
+    // its third interval.
+    for _ in 0..2 {
+        t += ms(200);
+        assert_eq!(learner.on_heartbeat(t, ConsumerFactor::DEFAULT), None);
+    }
     assert_eq!(
         learner.on_heartbeat(t + ms(200), ConsumerFactor::DEFAULT),
         Some(ms(200))
