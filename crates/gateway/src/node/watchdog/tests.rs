@@ -139,3 +139,21 @@ async fn an_admin_may_with_a_warning_on_the_stream_and_in_the_audit_log() {
         "{row:?}"
     );
 }
+
+/// The network manager sets the entry up again at the node's next
+/// boot-up, whoever cleared it.
+#[tokio::test(start_paused = true)]
+async fn the_manager_watches_again_after_the_nodes_boot_up() {
+    use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+    let gateway = demo().await;
+    let (sub, entry) = manager_entry(&gateway).await;
+    write(&gateway, Role::Admin, 0x1016, sub, &[0, 0, 0, 0])
+        .await
+        .unwrap();
+    assert_eq!(read(&gateway, 0x1016, sub).await, [0, 0, 0, 0]);
+    let node = crate::canopen::NodeId::new(1).unwrap();
+    let reset = NmtMessage::new(NmtCommand::ResetCommunication, NmtTarget::Node(node)).encode();
+    gateway.buses["demo"].bus.send(reset).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(manager_entry(&gateway).await.1, entry);
+}
