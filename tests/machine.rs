@@ -192,7 +192,10 @@ name = "the missing one"
         unplugged + Duration::from_millis(1500),
     )
     .await;
-    assert!(offline.is_some(), "no offline event for node 3 within 1.5 s");
+    assert!(
+        offline.is_some(),
+        "no offline event for node 3 within 1.5 s"
+    );
 
     // Plugged back: ready, operational, 0x1017 = 300 again within 2 s, no
     // client request but the plug.

@@ -906,6 +906,9 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
         NodeEvent::WatchdogOff { warning, .. } => json!({
             "bus": bus, "node": node, "event": "watchdog_off", "warning": warning,
         }),
+        NodeEvent::MotionStopped { axis, reason, .. } => json!({
+            "bus": bus, "node": node, "event": "motion_stopped", "axis": axis, "reason": reason,
+        }),
         NodeEvent::Emcy { emcy, .. } => json!({
             "bus": bus,
             "node": node,

@@ -761,6 +761,9 @@ fn insert_event(
         NodeEvent::WatchdogOff { warning, .. } => {
             nmt("watchdog_off", None, None, Some(warning.clone()))?;
         }
+        NodeEvent::MotionStopped { reason, .. } => {
+            nmt("motion_stopped", None, None, Some(reason.clone()))?;
+        }
     }
     Ok(())
 }

@@ -339,6 +339,15 @@ pub enum NodeEvent {
         node: NodeId,
         warning: String,
     },
+    /// The network manager stopped an enabled axis of the node before its
+    /// configuration writes the node's motion objects (a boot-up asked
+    /// for, the bus back up); `reason` says so, and names the lease it
+    /// ended.
+    MotionStopped {
+        node: NodeId,
+        axis: u8,
+        reason: String,
+    },
 }
 
 impl NodeEvent {
@@ -352,7 +361,8 @@ impl NodeEvent {
             | Self::Online { node }
             | Self::Emcy { node, .. }
             | Self::HeartbeatWritten { node, .. }
-            | Self::WatchdogOff { node, .. } => *node,
+            | Self::WatchdogOff { node, .. }
+            | Self::MotionStopped { node, .. } => *node,
         }
     }
 }
@@ -382,6 +392,9 @@ impl fmt::Display for NodeEvent {
             }
             Self::WatchdogOff { node, warning } => {
                 write!(f, "node {node} watchdog switched off: {warning}")
+            }
+            Self::MotionStopped { node, axis, reason } => {
+                write!(f, "node {node} axis {axis} stopped: {reason}")
             }
         }
     }
@@ -762,6 +775,14 @@ impl NodeRegistry {
     /// node's watchdog ([`NodeEvent::WatchdogOff`]).
     pub(crate) fn watchdog_off(&self, node: NodeId, warning: String) {
         self.shared.emit(NodeEvent::WatchdogOff { node, warning });
+    }
+
+    /// Tells whoever streams the nodes that the network manager stopped
+    /// an axis of the node before writing its configuration
+    /// ([`NodeEvent::MotionStopped`]).
+    pub(crate) fn motion_stopped(&self, node: NodeId, axis: u8, reason: String) {
+        self.shared
+            .emit(NodeEvent::MotionStopped { node, axis, reason });
     }
 
     pub fn guard(&self, id: NodeId, guard_time_ms: u16, life_time_factor: u8) {

@@ -143,6 +143,15 @@ impl Gateway {
                 bytes,
             });
         }
+        // The network manager stops an enabled axis before it writes the
+        // node's motion objects (machine.rs).
+        for (name, bus) in gateway.buses.iter() {
+            if let (Some(machine), Some(stopper)) =
+                (&bus.machine, super::machine::motion_stopper(&gateway, name))
+            {
+                machine.set_motion_stopper(stopper);
+            }
+        }
         gateway
             .background
             .push(history.spawn_pruner(config.retention));

@@ -107,11 +107,31 @@ mod tests {
         let manager_entry = 0x007F_012Cu32;
         // Taken from the manager: refused; kept watching it (a longer
         // time): fine; an entry of another node: fine.
-        assert!(entry.switched_off(&[0, 0, 0, 0], 127, Some(manager_entry)).is_some());
-        assert!(entry.switched_off(&0x0001_01F4u32.to_le_bytes(), 127, Some(manager_entry)).is_some());
-        assert!(entry.switched_off(&0x007F_0000u32.to_le_bytes(), 127, Some(manager_entry)).is_some());
-        assert!(entry.switched_off(&0x007F_03E8u32.to_le_bytes(), 127, Some(manager_entry)).is_none());
-        assert!(entry.switched_off(&[0, 0, 0, 0], 127, Some(0x0005_01F4)).is_none());
+        assert!(
+            entry
+                .switched_off(&[0, 0, 0, 0], 127, Some(manager_entry))
+                .is_some()
+        );
+        assert!(
+            entry
+                .switched_off(&0x0001_01F4u32.to_le_bytes(), 127, Some(manager_entry))
+                .is_some()
+        );
+        assert!(
+            entry
+                .switched_off(&0x007F_0000u32.to_le_bytes(), 127, Some(manager_entry))
+                .is_some()
+        );
+        assert!(
+            entry
+                .switched_off(&0x007F_03E8u32.to_le_bytes(), 127, Some(manager_entry))
+                .is_none()
+        );
+        assert!(
+            entry
+                .switched_off(&[0, 0, 0, 0], 127, Some(0x0005_01F4))
+                .is_none()
+        );
         assert!(entry.switched_off(&[0, 0, 0, 0], 127, None).is_none());
         assert_eq!(WatchdogObject::of(0x1016, 0, false), None);
 

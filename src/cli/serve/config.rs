@@ -15,8 +15,8 @@ use crate::can::VirtualHub;
 use crate::can::spec::BusSpec;
 use crate::canopen::NodeId;
 use crate::canopen::manager::{
-    ConsumerFactor, DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID, IdentityCheck,
-    ManagerConfig, NodeDescription,
+    ConsumerFactor, DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID,
+    IdentityCheck, ManagerConfig, NodeDescription,
 };
 use crate::gateway::DEFAULT_AXIS_POLL_HZ;
 use crate::gateway::ServedBus;

@@ -387,6 +387,13 @@ pub enum Action {
     },
     /// Stop guarding `node` ([`Supervisor::unguard`]).
     Unguard { node: NodeId },
+    /// The configuration download is about to write `node`'s motion
+    /// objects (a drive's profile area, 0x6000–0x9FFF: its modes, its
+    /// targets): stop every axis of it that is enabled first, and tell
+    /// whoever moved it. Answer with [`Manager::on_sdo`]: `Done` once
+    /// nothing of it moves, `Failed` with why not (the download waits and
+    /// is retried).
+    StopMotion { node: NodeId },
 }
 
 /// What happened, for the audit log, the stream and the log.
@@ -460,6 +467,9 @@ pub struct MachineStatus {
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Op {
     CheckIdentity(u8),
+    /// Before the first motion object of the configuration: the node's
+    /// enabled axes stopped ([`Action::StopMotion`]).
+    StopMotion,
     Configure(usize),
     SetHeartbeat,
     SetGuardTime,
@@ -503,7 +513,7 @@ impl Op {
     fn step(&self) -> Step {
         match self {
             Self::CheckIdentity(_) | Self::VerifyIdentity(_) => Step::Identity,
-            Self::Configure(_) => Step::Configuration,
+            Self::Configure(_) | Self::StopMotion => Step::Configuration,
             Self::SetHeartbeat
             | Self::SetGuardTime
             | Self::SetLifeFactor
@@ -818,7 +828,12 @@ impl Manager {
             .into_iter()
             .map(Op::CheckIdentity)
             .collect();
-        ops.extend((0..description.config.len()).map(Op::Configure));
+        for (at, write) in description.config.iter().enumerate() {
+            if is_motion_object(write.index) && !ops.contains(&Op::StopMotion) {
+                ops.push_back(Op::StopMotion);
+            }
+            ops.push_back(Op::Configure(at));
+        }
         if description.heartbeat_ms > 0 {
             ops.push_back(Op::SetHeartbeat);
         }
@@ -1159,6 +1174,11 @@ impl Manager {
                         );
                     }
                     Op::StartIfNeeded => self.next(id),
+                    Op::StopMotion => {
+                        node.state = NodeState::ConfigFailed;
+                        let event = fail(node, format!("abort {code}"), true);
+                        self.events.push(event);
+                    }
                 }
             }
             SdoOutcome::Failed(reason) => {
@@ -1166,6 +1186,10 @@ impl Manager {
                     // Retried as a resynchronisation: nothing says it
                     // restarted.
                     NodeState::Offline
+                } else if op == Op::StopMotion {
+                    // Its axes could not be stopped: its motion objects
+                    // are not written under a moving axis.
+                    NodeState::ConfigFailed
                 } else if node.answered {
                     NodeState::ConfigFailed
                 } else {
@@ -1351,10 +1375,7 @@ impl Manager {
             // A node already on its way goes on; one that has not begun
             // waits for a free place (an NMT start needs none).
             let waits = in_flight >= self.config.max_requests.max(1)
-                && !matches!(
-                    node.ops.front(),
-                    Some(Op::Start | Op::StartIfNeeded) | None
-                );
+                && !matches!(node.ops.front(), Some(Op::Start | Op::StartIfNeeded) | None);
             if waits {
                 continue;
             }
@@ -1366,6 +1387,7 @@ impl Manager {
                         index: IDENTITY,
                         sub: *sub,
                     },
+                    Op::StopMotion => Action::StopMotion { node: id },
                     Op::Configure(at) => {
                         let write = &description.config[*at];
                         Action::Write {
@@ -1644,6 +1666,13 @@ fn verify(node: &mut Node, op: &Op, data: &[u8], manager: (NodeId, u16)) -> Opti
             })
         }
     }
+}
+
+/// Whether a configuration write to `index` changes how a drive moves:
+/// the device profile area (CiA 402's modes, targets and limits, each axis
+/// at its offset).
+pub fn is_motion_object(index: u16) -> bool {
+    (0x6000..=0x9FFF).contains(&index)
 }
 
 /// The 0x1016 entry that watches the manager (node-ID in bits 16–23, the

@@ -153,7 +153,10 @@ fn run_boot(
         }
         for action in actions {
             seen.push(action.clone());
-            if let Action::Read { node, .. } | Action::Write { node, .. } = &action {
+            if let Action::Read { node, .. }
+            | Action::Write { node, .. }
+            | Action::StopMotion { node } = &action
+            {
                 manager.on_sdo(*node, answer(&action), now);
             }
         }
@@ -379,7 +382,12 @@ fn a_configuration_abort_names_the_entry_and_is_retried_with_backoff() {
     let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(4));
     let abort = AbortCode::from_raw(0x0609_0030);
-    run_boot(&mut manager, t0, |_| SdoOutcome::Aborted(abort));
+    let aborted = |action: &Action| match action {
+        // Its axes are at rest: the write is tried.
+        Action::StopMotion { .. } => SdoOutcome::Done(Vec::new()),
+        _ => SdoOutcome::Aborted(abort),
+    };
+    run_boot(&mut manager, t0, aborted);
     let node = manager.status().nodes[0].clone();
     assert_eq!(node.state, NodeState::ConfigFailed);
     assert_eq!(node.step, Step::Configuration);
@@ -400,7 +408,7 @@ fn a_configuration_abort_names_the_entry_and_is_retried_with_backoff() {
     // Not before the backoff; then again, twice as late after a second failure.
     assert!(sdo_actions(&manager.poll(t0 + Duration::from_millis(199))).is_empty());
     let t1 = t0 + Duration::from_millis(200);
-    run_boot(&mut manager, t1, |_| SdoOutcome::Aborted(abort));
+    run_boot(&mut manager, t1, aborted);
     let retry = manager
         .take_events()
         .into_iter()
@@ -994,7 +1002,10 @@ fn booted_drive(t0: Instant) -> Rig {
     let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(4));
     let seen = run_boot(&mut manager, t0, answer_drive(500, 0));
-    assert!(seen.iter().any(|action| matches!(action, Action::Write { index: 0x6060, .. })));
+    assert!(
+        seen.iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. }))
+    );
     manager.on_frame(&heartbeat(4, NmtState::Operational), t0);
     manager.poll(t0);
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
@@ -1011,17 +1022,13 @@ fn answer_drive(heartbeat: u16, consumer: u32) -> impl Fn(&Action) -> SdoOutcome
             sub: 1,
             ..
         } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
-        Action::Read {
-            index: 0x1017, ..
-        } => SdoOutcome::Done(heartbeat.to_le_bytes().to_vec()),
+        Action::Read { index: 0x1017, .. } => SdoOutcome::Done(heartbeat.to_le_bytes().to_vec()),
         Action::Read {
             index: 0x1016,
             sub: 0,
             ..
         } => SdoOutcome::Done(vec![1]),
-        Action::Read { index: 0x1016, .. } => {
-            SdoOutcome::Done(consumer.to_le_bytes().to_vec())
-        }
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(consumer.to_le_bytes().to_vec()),
         _ => SdoOutcome::Done(Vec::new()),
     }
 }
@@ -1130,4 +1137,73 @@ fn a_resynchronisation_without_answer_is_retried_as_one() {
         "{seen:?}"
     );
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+}
+
+#[test]
+fn the_axes_are_stopped_before_the_configuration_writes_motion_objects() {
+    let t0 = Instant::now();
+    let mut description = NodeDescription::new(id(4));
+    description.config = vec![
+        ConfigWrite {
+            index: 0x1800,
+            sub: 5,
+            data: vec![250, 0],
+            label: "drive.dcf [1800sub5]".into(),
+        },
+        ConfigWrite {
+            index: 0x6060,
+            sub: 0,
+            data: vec![1],
+            label: "drive.dcf [6060]".into(),
+        },
+        ConfigWrite {
+            index: 0x6860,
+            sub: 0,
+            data: vec![1],
+            label: "drive.dcf [6860]".into(),
+        },
+    ];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0));
+    let order: Vec<String> = seen
+        .iter()
+        .filter_map(|action| match action {
+            Action::StopMotion { .. } => Some("stop".to_string()),
+            Action::Write { index, .. } if *index == 0x1800 || *index >= 0x6000 => {
+                Some(format!("{index:04X}"))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(order, ["1800", "stop", "6060", "6860"]);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+
+    // Axes that cannot be stopped: nothing of the motion is written, and
+    // it is retried.
+    let mut description = NodeDescription::new(id(4));
+    description.config = vec![ConfigWrite {
+        index: 0x6060,
+        sub: 0,
+        data: vec![1],
+        label: "drive.dcf [6060]".into(),
+    }];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, |action| match action {
+        Action::StopMotion { .. } => SdoOutcome::Failed("axis 1 did not stop".into()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert!(
+        !seen
+            .iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. })),
+        "{seen:?}"
+    );
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.state, NodeState::ConfigFailed, "{node:?}");
+    assert_eq!(
+        node.reason.as_deref(),
+        Some("configuration: axis 1 did not stop")
+    );
 }

@@ -16,7 +16,6 @@ use crate::motion_lease::AxisKey;
 use crate::test_rig::{self, config};
 use crate::{Caller, Channel, Gateway};
 
-
 fn node(id: u8) -> NodeId {
     NodeId::new(id).unwrap()
 }
@@ -57,7 +56,10 @@ async fn hold(gateway: &Gateway, caller: &Caller, lease: &str, time: Duration) {
     };
     let until = tokio::time::Instant::now() + time;
     while tokio::time::Instant::now() < until {
-        gateway.renew_axis_lease(caller, &axis, lease).await.unwrap();
+        gateway
+            .renew_axis_lease(caller, &axis, lease)
+            .await
+            .unwrap();
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
 }
@@ -151,7 +153,11 @@ async fn a_node_that_restarts_is_configured_again() {
     let reset = NmtMessage::new(NmtCommand::ResetNode, NmtTarget::Node(node(1))).encode();
     gateway.buses["demo"].bus.send(reset).await.unwrap();
     tokio::time::sleep(Duration::from_secs(3)).await;
-    assert_eq!(modes_of_operation(&gateway).await, 1, "the DCF written again");
+    assert_eq!(
+        modes_of_operation(&gateway).await,
+        1,
+        "the DCF written again"
+    );
     let machine = gateway.buses["demo"].machine.clone().unwrap();
     let status = machine.status();
     assert_eq!(status.nodes[0].state.name(), "ready", "{status:?}");
@@ -205,7 +211,9 @@ async fn an_expected_node_at_the_gateways_own_node_id_is_refused_at_start() {
         Err(error) => error,
     };
     assert!(
-        error.0.contains("id 127: that is the gateway's own node id (manager_node_id)"),
+        error
+            .0
+            .contains("id 127: that is the gateway's own node id (manager_node_id)"),
         "{error}"
     );
 }
@@ -230,7 +238,10 @@ async fn lss_to_the_gateways_own_node_id_is_refused() {
         .await
         .unwrap_err();
     assert_eq!(refused.code(), "node_id_in_use", "{refused}");
-    assert!(refused.to_string().contains("gateway's own node-ID"), "{refused}");
+    assert!(
+        refused.to_string().contains("gateway's own node-ID"),
+        "{refused}"
+    );
     let refused = gateway
         .change_node_id(&admin, "demo", "1", 127)
         .await
@@ -269,7 +280,9 @@ fn false_losses_under_load() {
             let mut seed = 0x2545_F491_4F6C_DD1Du64;
             while !stop.load(Ordering::Relaxed) {
                 // 0.5 to 1.5 s apart, not in step with the heartbeats.
-                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 std::thread::sleep(Duration::from_millis(500 + (seed >> 33) % 1000));
                 let script = format!(
                     "kill -STOP {pid}; sleep {}; kill -CONT {pid}",
@@ -332,10 +345,19 @@ fn false_losses_under_load() {
             let learnt: Vec<u128> = (1..=3)
                 .filter_map(|id| {
                     let node = crate::canopen::NodeId::new(id).ok()?;
-                    Some(gateway.buses["demo"].registry.supervision(node)?.heartbeat?.as_millis())
+                    Some(
+                        gateway.buses["demo"]
+                            .registry
+                            .supervision(node)?
+                            .heartbeat?
+                            .as_millis(),
+                    )
                 })
                 .collect();
-            println!("shortest gap {} ms; periods learnt at the end {learnt:?} ms", early.as_millis());
+            println!(
+                "shortest gap {} ms; periods learnt at the end {learnt:?} ms",
+                early.as_millis()
+            );
             gateway.shutdown().await;
             (lost, late)
         });
@@ -353,4 +375,78 @@ fn false_losses_under_load() {
     for hog in spinning {
         hog.join().unwrap();
     }
+}
+
+/// A boot-up asked for while the UMC moves (its DCF writes 0x6060): the
+/// axis is stopped first, its lease ended, and the holder told on the
+/// `nodes` topic and in the audit log; then the configuration is written.
+#[tokio::test(start_paused = true)]
+async fn a_reconfiguration_stops_a_moving_axis_first_and_says_so() {
+    let gateway = demo_with_dcf().await;
+    let plc = Caller::new(Channel::Rest, "plc", Some(Role::Operator));
+    let axis = ("demo", "1", "1");
+    let claim = LeaseClaim::presented(None, false);
+    gateway
+        .set_axis_state(&plc, axis, TargetState::OperationEnabled, &claim)
+        .await
+        .unwrap();
+    let moving = gateway
+        .move_axis(
+            &plc,
+            axis,
+            &MoveRequest::Velocity {
+                velocity: 400,
+                acceleration: None,
+                deceleration: None,
+            },
+            &claim,
+        )
+        .await
+        .unwrap();
+    let lease = moving.lease.unwrap().id;
+    hold(&gateway, &plc, &lease, Duration::from_millis(500)).await;
+    let mut events = gateway.buses["demo"].registry.subscribe();
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    gateway.boot_node(&admin, "demo", "1").await.unwrap();
+    let reason = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            if let Ok(crate::registry::NodeEvent::MotionStopped { axis, reason, .. }) =
+                events.recv().await
+            {
+                assert_eq!(axis, 1);
+                break reason;
+            }
+        }
+    })
+    .await
+    .expect("a motion_stopped event");
+    assert!(
+        reason.contains("velocity lease") && reason.contains("of plc ended"),
+        "{reason}"
+    );
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    let status = drive.status().await.unwrap();
+    assert_ne!(status.state, "operation_enabled", "{status:?}");
+    assert_eq!(
+        modes_of_operation(&gateway).await,
+        1,
+        "then the DCF is written"
+    );
+    assert!(!gateway.leases.holds(
+        &AxisKey {
+            bus: "demo".into(),
+            node: 1,
+            axis: 1
+        },
+        &lease
+    ));
+    let rows = crate::audit::tests::rows(&gateway).await;
+    assert!(
+        rows.iter()
+            .any(|row| row["operation"].as_str().is_some_and(
+                |words| words.starts_with("network manager: axis 1 stopped: quick stop")
+            ) && row["axis"] == 1),
+        "{rows:#?}"
+    );
 }

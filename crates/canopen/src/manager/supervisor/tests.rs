@@ -46,15 +46,30 @@ fn the_period_is_the_shortest_recent_interval() {
     let t0 = Instant::now();
     let mut learner = HeartbeatLearner::default();
     assert_eq!(learner.on_heartbeat(t0, ConsumerFactor::MIN), None);
-    assert_eq!(learner.on_heartbeat(t0 + ms(100), ConsumerFactor::MIN), Some(ms(100)));
+    assert_eq!(
+        learner.on_heartbeat(t0 + ms(100), ConsumerFactor::MIN),
+        Some(ms(100))
+    );
     // One heartbeat lost on the bus: the interval doubles, not the period.
-    assert_eq!(learner.on_heartbeat(t0 + ms(300), ConsumerFactor::MIN), None);
+    assert_eq!(
+        learner.on_heartbeat(t0 + ms(300), ConsumerFactor::MIN),
+        None
+    );
     assert_eq!(learner.period, Some(ms(100)));
     // The producer got faster: followed after three intervals in a row
     // (one short one is a burst).
-    assert_eq!(learner.on_heartbeat(t0 + ms(350), ConsumerFactor::MIN), None);
-    assert_eq!(learner.on_heartbeat(t0 + ms(400), ConsumerFactor::MIN), None);
-    assert_eq!(learner.on_heartbeat(t0 + ms(450), ConsumerFactor::MIN), Some(ms(50)));
+    assert_eq!(
+        learner.on_heartbeat(t0 + ms(350), ConsumerFactor::MIN),
+        None
+    );
+    assert_eq!(
+        learner.on_heartbeat(t0 + ms(400), ConsumerFactor::MIN),
+        None
+    );
+    assert_eq!(
+        learner.on_heartbeat(t0 + ms(450), ConsumerFactor::MIN),
+        Some(ms(50))
+    );
     // Slower again: followed once the short intervals left the window.
     let mut t = t0 + ms(450);
     let mut changed = None;
@@ -69,7 +84,10 @@ fn the_period_is_the_shortest_recent_interval() {
     assert_eq!(learner.period, Some(ms(120)));
     // After a loss the gap does not count, the period stays.
     learner.restart();
-    assert_eq!(learner.on_heartbeat(t + ms(5000), ConsumerFactor::MIN), None);
+    assert_eq!(
+        learner.on_heartbeat(t + ms(5000), ConsumerFactor::MIN),
+        None
+    );
     assert_eq!(learner.period, Some(ms(120)));
     learner.set_period(ms(1000));
     assert_eq!(learner.period, Some(ms(1000)));

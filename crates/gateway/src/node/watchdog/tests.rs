@@ -117,7 +117,10 @@ async fn an_admin_may_with_a_warning_on_the_stream_and_in_the_audit_log() {
             _ => continue,
         }
     };
-    assert!(warning.contains("0x6007") && warning.contains("admin"), "{warning}");
+    assert!(
+        warning.contains("0x6007") && warning.contains("admin"),
+        "{warning}"
+    );
     let mut rows = Vec::new();
     for _ in 0..100 {
         rows = crate::audit::tests::rows(&gateway).await;
