@@ -231,7 +231,7 @@ async fn a_scan_finds_the_nodes_whose_boot_up_was_missed() {
 }
 
 #[tokio::test(start_paused = true)]
-async fn a_node_whose_heartbeat_stops_goes_offline_within_two_periods() {
+async fn a_node_whose_heartbeat_stops_goes_offline_within_three_periods() {
     let (hub, rack, registry) = demo_bus(builtin()).await;
     // Written by another master: the gateway learns the period from the
     // heartbeats alone.
@@ -259,7 +259,8 @@ async fn a_node_whose_heartbeat_stops_goes_offline_within_two_periods() {
     .await;
     assert_eq!(offline, Some((1, OfflineReason::HeartbeatLost)));
     let after = unplugged.elapsed();
-    assert!(after <= Duration::from_millis(200), "{after:?}");
+    // heartbeat_consumer_factor: 3 periods after its last heartbeat.
+    assert!(after <= Duration::from_millis(300), "{after:?}");
     let info = registry.node(node(1)).unwrap();
     assert!(!info.online);
     assert!(info.last_seen_ms >= 100, "{info:?}");

@@ -66,7 +66,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::Pdo(PdoError::InvalidMapping(_))
         | GatewayError::InvalidDcf { .. } => StatusCode::BAD_REQUEST,
         GatewayError::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
-        GatewayError::Forbidden(_) => StatusCode::FORBIDDEN,
+        GatewayError::Forbidden(_) | GatewayError::WatchdogProtected(_) => StatusCode::FORBIDDEN,
         GatewayError::UnknownBus(_)
         | GatewayError::UnknownNode { .. }
         | GatewayError::NotADrive(_)

@@ -151,8 +151,12 @@ pub struct HistoryEvent {
     pub manufacturer: Option<String>,
     /// nmt: `appeared`, `identified`, `identification_failed`,
     /// `nmt_changed`, `offline`, `online`, `heartbeat_written` (its 0x1017
-    /// written through the gateway, the time in `reason`), or `lost`
-    /// (events the history missed, counted in `reason`).
+    /// written through the gateway, the time in `reason`), `watchdog_off`
+    /// (an admin's write switched off its protection against the
+    /// gateway's death, the warning in `reason`), `motion_stopped` (the
+    /// network manager stopped an enabled axis before writing the node's
+    /// configuration, the axis and the lease it ended in `reason`), or
+    /// `lost` (events the history missed, counted in `reason`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub event: Option<String>,
     /// nmt: the state before an `nmt_changed`.

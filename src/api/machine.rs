@@ -70,8 +70,8 @@ pub struct MachineNode {
     pub supervision: String,
     /// Its producer heartbeat time, ms: its description's, or the one last
     /// written to its 0x1017 through the gateway (followed until the
-    /// gateway restarts); a heartbeat supervision times out after 1.5 ×
-    /// this. 0: no heartbeat.
+    /// gateway restarts); a heartbeat supervision times out after
+    /// `heartbeat_consumer_factor` (default 3) × this. 0: no heartbeat.
     #[schema(example = 500)]
     pub heartbeat_ms: u16,
     /// The NMT state it last reported (`unknown` before any).

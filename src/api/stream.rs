@@ -1101,6 +1101,9 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
         NodeEvent::HeartbeatWritten { heartbeat_ms, .. } => json!({
             "bus": bus, "node": node, "event": "heartbeat_written", "heartbeat_ms": heartbeat_ms,
         }),
+        NodeEvent::WatchdogOff { warning, .. } => json!({
+            "bus": bus, "node": node, "event": "watchdog_off", "warning": warning,
+        }),
         // issue 30 (motion authority): an axis stopped and its lease ended
         // by the gateway (a renumbering).
         NodeEvent::MotionEnded {

@@ -108,6 +108,7 @@ impl Failure {
             | GatewayError::ClientGone(_)
             | GatewayError::Unauthenticated(_)
             | GatewayError::Forbidden(_)
+            | GatewayError::WatchdogProtected(_)
             | GatewayError::RateLimited { .. }
             | GatewayError::LssBusy(_)
             | GatewayError::LssRefused(_)

@@ -105,6 +105,11 @@ pub enum GatewayError {
     /// The client's role is below what the request needs.
     #[error("{0}")]
     Forbidden(String),
+    /// A write that would switch off a device's protection against the
+    /// gateway's death (docs/security.md, "Watchdog policy"): an admin's
+    /// only.
+    #[error("{0}")]
+    WatchdogProtected(String),
     /// The token sends writes faster than its rate limit
     /// (`crate::access::WriteLimiter`).
     #[error("{message}")]
@@ -264,6 +269,7 @@ impl GatewayError {
             Self::ClientGone(_) => "client_gone",
             Self::Unauthenticated(_) => "unauthenticated",
             Self::Forbidden(_) => "forbidden",
+            Self::WatchdogProtected(_) => "watchdog_protected",
             Self::RateLimited { .. } => "rate_limited",
             Self::LssBusy(_) => "lss_busy",
             Self::LssNotFound(_) => "lss_not_found",

@@ -809,6 +809,9 @@ fn insert_event(
                 Some(format!("{heartbeat_ms} ms")),
             )?;
         }
+        NodeEvent::WatchdogOff { warning, .. } => {
+            nmt("watchdog_off", None, None, Some(warning.clone()))?;
+        }
         NodeEvent::MotionEnded {
             axis,
             reason,

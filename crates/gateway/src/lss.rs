@@ -231,6 +231,8 @@ fn new_node_id(raw: i64) -> Result<NodeId, GatewayError> {
 
 /// Refuses a node-ID a node on the bus has.
 fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
+    // Nor the gateway's own (manager_node_id; issue 30, finding 4).
+    super::machine::check_not_manager_id(served, node)?;
     match served.registry.node(node) {
         Some(info) if info.online => Err(GatewayError::NodeIdInUse(format!(
             "node {node} is in use on bus {}",

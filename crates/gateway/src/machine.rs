@@ -52,6 +52,113 @@ pub struct MachineSettings {
     pub nodes: Vec<NodeDescription>,
 }
 
+/// Refuses `node` as a device's new node-ID when it is the network
+/// manager's own on `served` (`manager_node_id`): the device would be
+/// unsupervised, and its neighbours' 0x1016 would take its heartbeat for
+/// the gateway's. LSS and the node-ID change ask it first.
+pub(crate) fn check_not_manager_id(
+    served: &super::service::ServedBus,
+    node: NodeId,
+) -> Result<(), super::GatewayError> {
+    match &served.machine {
+        Some(machine) if machine.manager().node_id == node => {
+            Err(super::GatewayError::NodeIdInUse(format!(
+                "node {node} is the gateway's own node-ID on bus {} (manager_node_id): its network manager's heartbeat goes out under it",
+                served.name
+            )))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The gateway's [`MotionStopper`] of bus `bus_name`: every axis of the
+/// node the gateway enabled that is still in operation enabled gets a
+/// quick stop (NMT stop if the drive does not confirm), its lease ends,
+/// and the `nodes` topic, the history and the audit log (as the gateway's)
+/// say so, naming the lease's holder. An axis that cannot be stopped
+/// keeps the configuration from being written (it is retried).
+pub(crate) fn motion_stopper(gateway: &super::Gateway, bus_name: &str) -> Option<MotionStopper> {
+    use super::motion_lease::{AxisKey, mask};
+    use super::safe_stop::AxisStop;
+    use crate::profiles::umc::MAX_AXES;
+    let served = gateway.buses.get(bus_name)?;
+    let (bus, registry) = (served.bus.clone(), served.registry.clone());
+    let (enabled, leases) = (gateway.enabled_axes.clone(), gateway.leases.clone());
+    let history = gateway.history.clone();
+    let (authority, gates) = (gateway.authority.clone(), gateway.gates(bus_name));
+    let name = bus_name.to_string();
+    Some(Arc::new(move |node: NodeId| {
+        let (bus, registry, enabled, leases) = (
+            bus.clone(),
+            registry.clone(),
+            enabled.clone(),
+            leases.clone(),
+        );
+        let (history, name) = (history.clone(), name.clone());
+        let (authority, gates) = (authority.clone(), gates.clone());
+        Box::pin(async move {
+            // A stop wins (the motion authority): nothing admitted before
+            // it is sent to the node's axes after it.
+            authority.cancel_node(&name, node.get());
+            for axis in 1..=MAX_AXES {
+                let Some(drive) = enabled.get(&name, node.get(), axis) else {
+                    continue;
+                };
+                match super::Gateway::quick_stop_or_nmt(bus.clone(), drive, Some(gates.clone()))
+                    .await
+                {
+                    AxisStop::NotEnabled(_) => continue,
+                    AxisStop::Stopped(_) => {}
+                    AxisStop::Failed { error, .. } => {
+                        return Err(format!(
+                            "axis {axis} is enabled and could not be stopped ({error}): its motion objects are not written under it"
+                        ));
+                    }
+                }
+                let key = AxisKey {
+                    bus: name.clone(),
+                    node: node.get(),
+                    axis,
+                };
+                let ended = leases.release(&key).map_or_else(String::new, |lease| {
+                    format!(
+                        "; the {} lease {} of {} ended",
+                        lease.mode,
+                        mask(&lease.id),
+                        lease.holder
+                    )
+                });
+                let reason = format!(
+                    "quick stop before the network manager writes the node's configuration (its motion objects){ended}"
+                );
+                tracing::warn!("bus {name}: node {node} axis {axis}: {reason}");
+                registry.motion_ended_for_reconfiguration(node, axis, reason.clone());
+                let target =
+                    AuditTarget::new(format!("network manager: axis {axis} stopped: {reason}"))
+                        .bus(name.clone())
+                        .node(Some(node.get()))
+                        .axis(axis);
+                AuditRow::new(&history, &Caller::system(), target, None)
+                    .finish_as(OK)
+                    .await;
+            }
+            Ok(())
+        }) as std::pin::Pin<Box<dyn Future<Output = Result<(), String>> + Send>>
+    }))
+}
+
+/// Refuses a machine description that expects a node at the network
+/// manager's own node-ID, at start.
+pub(crate) fn check_descriptions(bus: &str, settings: &MachineSettings) -> Result<(), String> {
+    let manager = settings.manager.node_id;
+    match settings.nodes.iter().find(|node| node.id == manager) {
+        Some(_) => Err(format!(
+            "config [[nodes]] bus {bus} id {manager}: that is the gateway's own node id (manager_node_id); give the network manager another one"
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Reads a DCF's `ParameterValue` entries for `node`, in file order, as
 /// the writes of a configuration download.
 pub fn load_dcf(path: &Path, node: NodeId) -> Result<Vec<ConfigWrite>, String> {
@@ -90,12 +197,22 @@ impl Drop for TaskGuard {
     }
 }
 
+/// What stops a node's enabled axes before the network manager writes its
+/// motion objects ([`Action::StopMotion`]): `Ok` once none moves, `Err`
+/// with why not. The gateway sets it ([`Machine::set_motion_stopper`]).
+pub(crate) type MotionStopper = Arc<
+    dyn Fn(NodeId) -> std::pin::Pin<Box<dyn Future<Output = Result<(), String>> + Send>>
+        + Send
+        + Sync,
+>;
+
 /// The network manager of one bus. Cheap to clone.
 #[derive(Clone)]
 pub struct Machine {
     status: watch::Receiver<MachineStatus>,
     commands: mpsc::UnboundedSender<Command>,
     manager: ManagerConfig,
+    stopper: Arc<std::sync::OnceLock<MotionStopper>>,
     _task: Arc<TaskGuard>,
 }
 
@@ -120,6 +237,7 @@ impl Machine {
         let manager = Manager::new(settings.manager.clone(), settings.nodes, now.into_std());
         let (status_tx, status) = watch::channel(manager.status());
         let (commands, commands_rx) = mpsc::unbounded_channel();
+        let stopper = Arc::new(std::sync::OnceLock::new());
         let driver = Driver {
             bus_name: bus_name.to_string(),
             bus,
@@ -127,14 +245,23 @@ impl Machine {
             manager,
             status: status_tx,
             history,
+            stopper: stopper.clone(),
         };
         let task = tokio::spawn(driver.run(commands_rx));
         Self {
             status,
             commands,
             manager: settings.manager,
+            stopper,
             _task: Arc::new(TaskGuard(task.abort_handle())),
         }
+    }
+
+    /// How the gateway stops a node's enabled axes before the manager
+    /// writes its motion objects; set once (without one, nothing is
+    /// stopped: a bus without drives the gateway moves).
+    pub(crate) fn set_motion_stopper(&self, stopper: MotionStopper) {
+        let _ = self.stopper.set(stopper);
     }
 
     /// The machine now.
@@ -194,6 +321,7 @@ struct Driver {
     manager: Manager,
     status: watch::Sender<MachineStatus>,
     history: Option<History>,
+    stopper: Arc<std::sync::OnceLock<MotionStopper>>,
 }
 
 impl Driver {
@@ -332,6 +460,20 @@ impl Driver {
                 life_time_factor,
             } => self.registry.guard(node, guard_time_ms, life_time_factor),
             Action::Unguard { node } => self.registry.unguard(node),
+            Action::StopMotion { node } => {
+                let stopper = self.stopper.get().cloned();
+                let results = results.clone();
+                tokio::spawn(async move {
+                    let outcome = match stopper {
+                        Some(stop) => match stop(node).await {
+                            Ok(()) => SdoOutcome::Done(Vec::new()),
+                            Err(why) => SdoOutcome::Failed(why),
+                        },
+                        None => SdoOutcome::Done(Vec::new()),
+                    };
+                    let _ = results.send((node, outcome));
+                });
+            }
             Action::Read { node, index, sub } => {
                 let registry = self.registry.clone();
                 let results = results.clone();
@@ -410,6 +552,25 @@ impl Driver {
                     "boot_failed",
                 )
             }
+            ManagerEvent::ResyncStarted { node, why } => {
+                tracing::info!("bus {bus}: node {node}: resynchronisation started ({why})");
+                (
+                    Some(*node),
+                    format!("network manager: resynchronisation started ({why})"),
+                    OK,
+                )
+            }
+            ManagerEvent::Resynchronised { node } => {
+                tracing::info!(
+                    "bus {bus}: node {node}: resynchronised, its configuration kept (nothing written)"
+                );
+                (
+                    Some(*node),
+                    "network manager: node resynchronised, its configuration kept (nothing written)"
+                        .to_string(),
+                    OK,
+                )
+            }
             ManagerEvent::Lost { node, reason } => {
                 tracing::warn!("bus {bus}: node {node} lost: {reason}");
                 (
@@ -455,3 +616,6 @@ fn outcome(result: Result<Vec<u8>, SdoRequestError>) -> SdoOutcome {
         },
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -14,6 +14,7 @@ pub(crate) mod led;
 pub(crate) mod pdo;
 pub(crate) mod program;
 mod transfer;
+mod watchdog;
 
 use std::sync::Arc;
 

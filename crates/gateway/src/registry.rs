@@ -126,6 +126,9 @@ pub struct RegistryConfig {
     /// nodes (axis polling rate, LED parameter reads); the registry itself
     /// does not use it.
     pub telemetry: super::producers::TelemetryConfig,
+    /// Heartbeat periods a node may be silent before its supervisor loses
+    /// it (`heartbeat_consumer_factor`).
+    pub consumer_factor: crate::canopen::manager::ConsumerFactor,
 }
 
 impl Default for RegistryConfig {
@@ -138,6 +141,7 @@ impl Default for RegistryConfig {
             emcy_history: 32,
             event_capacity: 256,
             telemetry: super::producers::TelemetryConfig::default(),
+            consumer_factor: crate::canopen::manager::ConsumerFactor::DEFAULT,
         }
     }
 }
@@ -328,9 +332,18 @@ pub enum NodeEvent {
         node: NodeId,
         heartbeat_ms: u16,
     },
+    /// An admin's write switched off the node's protection against the
+    /// gateway's death (docs/security.md, "Watchdog policy"): `warning`
+    /// says which object, what it no longer does, and who wrote it.
+    WatchdogOff {
+        node: NodeId,
+        warning: String,
+    },
     /// The gateway stopped an axis of the node and ended what moved it (its
     /// lease, its record as enabled), for `reason` (`node_id_changed`: the
-    /// device is being given another node-ID); `detail` says what ended.
+    /// device is being given another node-ID; `reconfiguration`: the network
+    /// manager's boot-up is about to write its motion objects); `detail`
+    /// says what ended.
     MotionEnded {
         node: NodeId,
         axis: u8,
@@ -350,6 +363,7 @@ impl NodeEvent {
             | Self::Online { node }
             | Self::Emcy { node, .. }
             | Self::HeartbeatWritten { node, .. }
+            | Self::WatchdogOff { node, .. }
             | Self::MotionEnded { node, .. } => *node,
         }
     }
@@ -377,6 +391,9 @@ impl fmt::Display for NodeEvent {
             ),
             Self::HeartbeatWritten { node, heartbeat_ms } => {
                 write!(f, "node {node} heartbeat time written: {heartbeat_ms} ms")
+            }
+            Self::WatchdogOff { node, warning } => {
+                write!(f, "node {node} watchdog switched off: {warning}")
             }
             Self::MotionEnded {
                 node,
@@ -605,7 +622,7 @@ impl NodeRegistry {
             state: Mutex::new(State {
                 nodes: BTreeMap::new(),
                 probe_channels: BTreeMap::new(),
-                supervisor: Supervisor::new(bus_up),
+                supervisor: Supervisor::new(bus_up).with_consumer_factor(config.consumer_factor),
                 assigned: BTreeMap::new(),
             }),
             events,
@@ -756,6 +773,25 @@ impl NodeRegistry {
                 });
             }
         }
+    }
+
+    /// Tells whoever streams the nodes that an admin switched off the
+    /// node's watchdog ([`NodeEvent::WatchdogOff`]).
+    pub(crate) fn watchdog_off(&self, node: NodeId, warning: String) {
+        self.shared.emit(NodeEvent::WatchdogOff { node, warning });
+    }
+
+    /// Tells whoever streams the nodes that the network manager stopped
+    /// an axis of the node before writing its configuration
+    /// ([`NodeEvent::MotionEnded`], reason `reconfiguration`); `detail`
+    /// names the lease it ended.
+    pub(crate) fn motion_ended_for_reconfiguration(&self, node: NodeId, axis: u8, detail: String) {
+        self.shared.emit(NodeEvent::MotionEnded {
+            node,
+            axis,
+            reason: "reconfiguration",
+            detail,
+        });
     }
 
     /// The network manager guards node `id` from now on, with the guard

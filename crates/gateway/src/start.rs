@@ -143,6 +143,15 @@ impl Gateway {
                 bytes,
             });
         }
+        // The network manager stops an enabled axis before it writes the
+        // node's motion objects (machine.rs).
+        for (name, bus) in gateway.buses.iter() {
+            if let (Some(machine), Some(stopper)) =
+                (&bus.machine, super::machine::motion_stopper(&gateway, name))
+            {
+                machine.set_motion_stopper(stopper);
+            }
+        }
         gateway
             .background
             .push(history.spawn_pruner(config.retention));
@@ -183,8 +192,20 @@ async fn open_bus(
     history: &History,
     attach: AttachDevices<'_>,
 ) -> Result<ServedBus, StartError> {
+    // No expected node at the gateway's own node-ID, before the bus opens.
+    super::machine::check_descriptions(
+        name,
+        &MachineSettings {
+            nodes: config.machine_nodes.get(name).cloned().unwrap_or_default(),
+            ..config.machine.clone()
+        },
+    )
+    .map_err(StartError)?;
     let registry = RegistryConfig {
         telemetry: config.telemetry.clone(),
+        // The network manager's supervision, timed by the registry's one
+        // supervisor.
+        consumer_factor: config.machine.manager.consumer_factor,
         ..RegistryConfig::default()
     };
     let mut opened =

@@ -14,6 +14,8 @@
 //!   and statusword bits, homing methods.
 //! - [`umc`]: UniSwarm UMC motion controllers: axis index offsets, board and
 //!   axis objects, Q15.16 and the other units of the manual.
+//! - [`watchdog`]: the objects that keep a device safe when its manager
+//!   dies, and the values that switch that off.
 //! - [`uioled`]: UniSwarm UIO1LED LED strip controllers: segments, effects and
 //!   the renderer of the strip's pixels.
 
@@ -25,6 +27,7 @@ pub mod cia402;
 pub mod jmc;
 pub mod uioled;
 pub mod umc;
+pub mod watchdog;
 
 /// The EDS files candeck carries, written for candeck from each product's
 /// manual (the vendors' manuals, which the repository does not carry),

@@ -73,10 +73,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::ClientGone(_) => 62,
         GatewayError::EdsQuota(_) => 63,
         GatewayError::UnknownAlarm(_) => 64,
+        GatewayError::WatchdogProtected(_) => 65,
     }
 }
 
-const VARIANTS: usize = 65;
+const VARIANTS: usize = 66;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -135,6 +136,7 @@ fn samples() -> Vec<GatewayError> {
         GatewayError::UnknownLease(text()),
         GatewayError::Unauthenticated(text()),
         GatewayError::Forbidden(text()),
+        GatewayError::WatchdogProtected(text()),
         GatewayError::Internal(text()),
         GatewayError::ProgramNotVerified(text()),
         GatewayError::RateLimited {

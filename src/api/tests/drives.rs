@@ -930,7 +930,8 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
     let served = &state.gateway.bus("demo").unwrap();
     let period = served.node(jmc).unwrap().heartbeat_ms.unwrap();
     served.rack().unwrap().unplug(jmc).unwrap();
-    tokio::time::sleep(Duration::from_millis(2 * period)).await;
+    // Lost after heartbeat_consumer_factor (3) periods of silence.
+    tokio::time::sleep(Duration::from_millis(4 * period)).await;
     assert!(!served.node(jmc).unwrap().online);
 
     let started = tokio::time::Instant::now();

@@ -132,18 +132,18 @@ async fn a_written_producer_heartbeat_time_stays_and_is_supervised_with_at_once(
     assert!(info.online);
     assert_eq!(info.heartbeat_ms, Some(1000));
 
-    // Faster: its silence of 300 ms (1.5 × 200) is a loss, for both.
+    // Faster: its silence of 600 ms (3 × 200) is a loss, for both.
     write_heartbeat(&app, 200).await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_eq!(machine_node(&app, 1).await["heartbeat_ms"], 200);
     assert!(served.node(node_1).unwrap().online);
     node_1_events(&mut events);
     served.rack().unwrap().unplug(node_1).unwrap();
-    tokio::time::sleep(Duration::from_millis(310)).await;
+    tokio::time::sleep(Duration::from_millis(610)).await;
     let lost = machine_node(&app, 1).await;
     assert_eq!(lost["state"], "offline", "{lost}");
     assert_eq!(
-        lost["reason"], "no heartbeat within 300 ms (1.5 × 200 ms)",
+        lost["reason"], "no heartbeat within 600 ms (3.0 × 200 ms)",
         "{lost}"
     );
     assert!(node_1_events(&mut events).contains(&NodeEvent::Offline {
@@ -275,7 +275,7 @@ async fn the_node_list_and_the_machine_view_lose_a_node_together() {
     assert!(!info.online, "{info:?}");
     assert_eq!(machine["state"], "offline", "{machine}");
     assert_eq!(
-        machine["reason"], "no heartbeat within 150 ms (1.5 × 100 ms)",
+        machine["reason"], "no heartbeat within 300 ms (3.0 × 100 ms)",
         "{machine}"
     );
 }

@@ -194,7 +194,7 @@ async fn requests_are_acknowledged_and_bad_ones_get_the_apis_error_codes() {
 }
 
 #[tokio::test(start_paused = true)]
-async fn an_unplugged_node_goes_offline_within_two_heartbeat_periods_and_comes_back() {
+async fn an_unplugged_node_goes_offline_within_three_heartbeat_periods_and_comes_back() {
     let (app, state) = demo().await;
     // The JMC is the demo device that sends heartbeats (its EDS's 0x1017).
     let jmc = state
@@ -212,8 +212,9 @@ async fn an_unplugged_node_goes_offline_within_two_heartbeat_periods_and_comes_b
     let unplugged = Instant::now();
     let offline = client.until(|m| m["data"]["event"] == "offline").await;
     let after = unplugged.elapsed();
+    // heartbeat_consumer_factor: 3 periods after its last heartbeat.
     assert!(
-        after <= 2 * period,
+        after <= 3 * period,
         "offline after {after:?}, period {period:?}"
     );
     assert_eq!(offline["topic"], "nodes");

@@ -15,8 +15,8 @@ use crate::can::VirtualHub;
 use crate::can::spec::BusSpec;
 use crate::canopen::NodeId;
 use crate::canopen::manager::{
-    DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID, IdentityCheck,
-    ManagerConfig, NodeDescription,
+    ConsumerFactor, DEFAULT_HEARTBEAT_MS, DEFAULT_MANAGER_HEARTBEAT_MS, DEFAULT_MANAGER_NODE_ID,
+    IdentityCheck, ManagerConfig, NodeDescription,
 };
 use crate::gateway::DEFAULT_AXIS_POLL_HZ;
 use crate::gateway::ServedBus;
@@ -122,6 +122,7 @@ pub(super) struct ConfigFile {
     pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
     pub(super) manager_node_id: Option<u8>,
     pub(super) manager_heartbeat_ms: Option<u16>,
+    pub(super) heartbeat_consumer_factor: Option<f64>,
     #[serde(default)]
     pub(super) nodes: Vec<NodeEntry>,
 }
@@ -405,6 +406,12 @@ impl ServeArgs {
                 heartbeat_ms: file
                     .manager_heartbeat_ms
                     .unwrap_or(DEFAULT_MANAGER_HEARTBEAT_MS),
+                consumer_factor: file
+                    .heartbeat_consumer_factor
+                    .map(ConsumerFactor::new)
+                    .transpose()
+                    .map_err(|err| format!("config {err}"))?
+                    .unwrap_or_default(),
                 ..ManagerConfig::default()
             },
             nodes: Vec::new(),

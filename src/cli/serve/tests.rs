@@ -67,6 +67,7 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
     assert_eq!(lift.config.len(), 1);
     assert_eq!(lift.identity.revision_max, Some(0x0100_FFFF));
     assert_eq!(settings.machine.manager.heartbeat_ms, 100);
+    assert_eq!(settings.machine.manager.consumer_factor.get(), 3.0);
     assert_eq!(
         settings.ascii_listen,
         Some("127.0.0.1:60000".parse().unwrap())
@@ -651,5 +652,30 @@ fn a_dcf_that_is_no_regular_file_or_too_large_is_refused_unread() {
     assert!(err.to_string().contains("more than the"), "{err}");
     let err = crate::canopen::eds::read_eds_file("/dev/zero").unwrap_err();
     assert!(err.to_string().contains("not a regular file"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_heartbeat_consumer_factor_is_checked_for_its_range() {
+    let dir = std::env::temp_dir().join(format!("candeck-factor-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let settings = |text: &str| {
+        let file = dir.join("factor.toml");
+        std::fs::write(&file, text).unwrap();
+        serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+    };
+    let default = settings("").unwrap();
+    assert_eq!(default.machine.manager.consumer_factor.get(), 3.0);
+    let two = settings("heartbeat_consumer_factor = 2.5\n").unwrap();
+    assert_eq!(two.machine.manager.consumer_factor.get(), 2.5);
+    for bad in ["1.0", "1.4", "10.5", "0", "-3"] {
+        let err = settings(&format!("heartbeat_consumer_factor = {bad}\n")).unwrap_err();
+        assert!(
+            err.contains("heartbeat_consumer_factor") && err.contains("must be 1.5 to 10.0"),
+            "{bad}: {err}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

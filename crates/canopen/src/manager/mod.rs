@@ -5,7 +5,8 @@
 //!
 //! - **Boot slave** (CiA 302-2 §5, "boot slave process"), run for a node at
 //!   every boot-up message, when it is found present, when it comes back
-//!   after being lost, and on request: identity check against 0x1018 sub
+//!   after being lost before it was ever configured, and on request:
+//!   identity check against 0x1018 sub
 //!   1–4 (each key the description gives must match; a mismatch or an
 //!   entry the node refuses is `wrong_identity`, and the node is neither
 //!   configured nor started) → configuration download (the DCF's
@@ -16,6 +17,15 @@
 //!   factor) driven by the manager; the manager's heartbeat into 0x1016 sub 1
 //!   (consumer time 3 × the manager's period) where the node has a 0x1016
 //!   → NMT start (§5, "start slave"), if the description says so.
+//! - **Resynchronisation**: a node heard again after a loss whose last
+//!   boot-up ended well (and that sent no boot-up message since) is not
+//!   configured again: its identity (0x1018), its producer heartbeat time
+//!   (0x1017) and the 0x1016 entry watching the manager are read and
+//!   compared with what its boot-up left; all as they were, it is ready
+//!   again with nothing written (an NMT start only if it is not
+//!   operational), so a drive moving through a heartbeat glitch keeps its
+//!   mode. Anything else (a value that differs or cannot be read) means it
+//!   restarted unheard: it is booted in full.
 //! - A step that fails is retried with a backoff (from [`ManagerConfig::retry_min`],
 //!   doubling up to [`ManagerConfig::retry_max`]) and reported with the
 //!   step and the reason; a node with the wrong identity is not retried
@@ -24,7 +34,8 @@
 //!   node is supervised by its heartbeat or by node guarding; where
 //!   neither could be set up the node says `supervision: none` and why.
 //!   The timing is the bus's one [`Supervisor`]'s, not the manager's: it
-//!   hears the frames, times the heartbeats (1.5 periods) and does the
+//!   hears the frames, times the heartbeats ([`ConsumerFactor`] periods,
+//!   3 by default) and does the
 //!   guarding the manager hands it ([`Action::Guard`]), and the manager
 //!   follows its events ([`Manager::on_supervision`]). A ready node lost is
 //!   `offline`; a node heard again after it was lost is booted again by
@@ -66,7 +77,7 @@ pub mod supervisor;
 mod tests;
 
 pub use supervisor::{
-    LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent, heartbeat_timeout,
+    ConsumerFactor, LostBy, NodeSupervision, OfflineCause, Supervisor, SupervisorEvent,
 };
 
 /// Guard time object (ms).
@@ -224,6 +235,10 @@ pub struct ManagerConfig {
     /// at most one): a whole bus booting at once does not flood it, and
     /// every transfer is answered well within its timeout.
     pub max_requests: usize,
+    /// Heartbeat periods a node may be silent before it is lost
+    /// (`heartbeat_consumer_factor`): the supervisor's, named in the
+    /// reason of a loss.
+    pub consumer_factor: ConsumerFactor,
 }
 
 impl Default for ManagerConfig {
@@ -234,6 +249,7 @@ impl Default for ManagerConfig {
             retry_min: Duration::from_millis(200),
             retry_max: Duration::from_secs(10),
             max_requests: 16,
+            consumer_factor: ConsumerFactor::DEFAULT,
         }
     }
 }
@@ -371,6 +387,13 @@ pub enum Action {
     },
     /// Stop guarding `node` ([`Supervisor::unguard`]).
     Unguard { node: NodeId },
+    /// The configuration download is about to write `node`'s motion
+    /// objects (a drive's profile area, 0x6000–0x9FFF: its modes, its
+    /// targets): stop every axis of it that is enabled first, and tell
+    /// whoever moved it. Answer with [`Manager::on_sdo`]: `Done` once
+    /// nothing of it moves, `Failed` with why not (the download waits and
+    /// is retried).
+    StopMotion { node: NodeId },
 }
 
 /// What happened, for the audit log, the stream and the log.
@@ -390,6 +413,12 @@ pub enum ManagerEvent {
         reason: String,
         retry: Option<Duration>,
     },
+    /// A node heard again after it was lost is checked, not configured
+    /// again (`why`: heard again, retry).
+    ResyncStarted { node: NodeId, why: String },
+    /// The resynchronisation found the node as its boot-up left it: ready
+    /// again, nothing written.
+    Resynchronised { node: NodeId },
     /// Supervision lost the node.
     Lost { node: NodeId, reason: String },
     /// The machine state changed.
@@ -412,7 +441,8 @@ pub struct NodeStatus {
     pub supervision: Supervision,
     /// The node's producer heartbeat time, ms: its description's, or what
     /// was last written to its 0x1017 through the gateway (its heartbeat
-    /// consumer times out after 1.5 × this); 0: no heartbeat.
+    /// consumer times out after `heartbeat_consumer_factor` × this); 0: no
+    /// heartbeat.
     pub heartbeat_ms: u16,
     /// The last NMT state the node reported; `"unknown"` before any.
     pub nmt: String,
@@ -437,6 +467,9 @@ pub struct MachineStatus {
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Op {
     CheckIdentity(u8),
+    /// Before the first motion object of the configuration: the node's
+    /// enabled axes stopped ([`Action::StopMotion`]).
+    StopMotion,
     Configure(usize),
     SetHeartbeat,
     SetGuardTime,
@@ -454,20 +487,42 @@ enum Op {
     /// Writes the manager's heartbeat into 0x1016 sub `.0`.
     ConsumeManager(u8),
     Start,
+    /// Resynchronisation after a loss: reads 0x1018 sub `.0`, compared
+    /// with the description and with what the node said before.
+    VerifyIdentity(u8),
+    /// Resynchronisation: reads 0x1017, compared with what the boot-up
+    /// wrote (a node that restarted has its stored value back).
+    VerifyHeartbeat,
+    /// Resynchronisation: reads 0x1016 sub `.0`, where the boot-up wrote
+    /// the manager's heartbeat.
+    VerifyConsumer(u8),
+    /// Resynchronisation: NMT start, only if the node is not operational.
+    StartIfNeeded,
 }
 
 impl Op {
+    /// The object a resynchronisation reads (index, sub).
+    fn object(&self) -> (u16, u8) {
+        match *self {
+            Self::VerifyIdentity(sub) => (IDENTITY, sub),
+            Self::VerifyConsumer(sub) => (CONSUMER_HEARTBEAT_TIME, sub),
+            _ => (PRODUCER_HEARTBEAT_TIME, 0),
+        }
+    }
+
     fn step(&self) -> Step {
         match self {
-            Self::CheckIdentity(_) => Step::Identity,
-            Self::Configure(_) => Step::Configuration,
+            Self::CheckIdentity(_) | Self::VerifyIdentity(_) => Step::Identity,
+            Self::Configure(_) | Self::StopMotion => Step::Configuration,
             Self::SetHeartbeat
             | Self::SetGuardTime
             | Self::SetLifeFactor
             | Self::CountConsumers
             | Self::FindConsumer { .. }
-            | Self::ConsumeManager(_) => Step::ErrorControl,
-            Self::Start => Step::Start,
+            | Self::ConsumeManager(_)
+            | Self::VerifyHeartbeat
+            | Self::VerifyConsumer(_) => Step::ErrorControl,
+            Self::Start | Self::StartIfNeeded => Step::Start,
         }
     }
 }
@@ -507,6 +562,18 @@ struct Node {
     present: bool,
     /// 0x1017 could be written: heartbeat supervision.
     heartbeat_set: bool,
+    /// Its last boot-up ended well and no boot-up message came since: its
+    /// configuration is in place, and a loss is followed by a
+    /// resynchronisation, not a new configuration download.
+    configured: bool,
+    /// The run under way (or retried) is a resynchronisation.
+    resync: bool,
+    /// What the node answered for 0x1018, by sub-index, since its last
+    /// boot-up message.
+    identity: BTreeMap<u8, u32>,
+    /// The 0x1016 entry that carries the manager's heartbeat: its sub and
+    /// the value written.
+    consumer: Option<(u8, u32)>,
     boots: u64,
     boots_ok: u64,
 }
@@ -536,6 +603,10 @@ impl Node {
             lost: false,
             present: false,
             heartbeat_set: false,
+            configured: false,
+            resync: false,
+            identity: BTreeMap::new(),
+            consumer: None,
             boots: 0,
             boots_ok: 0,
         }
@@ -571,6 +642,10 @@ pub struct Manager {
     events: Vec<ManagerEvent>,
     /// Frames to send at the next poll (NMT commands).
     outbox: Vec<Action>,
+    /// A device was heard or found at the manager's own node-ID: it is not
+    /// supervised, and whoever consumes the manager's heartbeat may take
+    /// its for the gateway's. The machine is not ready while it is there.
+    own_id_taken: bool,
 }
 
 impl Manager {
@@ -594,6 +669,7 @@ impl Manager {
             machine: MachineState::Booting,
             events: Vec::new(),
             outbox: Vec::new(),
+            own_id_taken: false,
         };
         manager.machine = manager.compute_state().0;
         manager
@@ -629,6 +705,9 @@ impl Manager {
     /// The node is there (found by a scan, or heard for the first time):
     /// booted unless it is already booting or booted.
     pub fn node_found(&mut self, id: NodeId) {
+        if id == self.config.node_id {
+            self.own_id_taken = true;
+        }
         let Some(node) = self.node_mut(id) else {
             return;
         };
@@ -660,6 +739,10 @@ impl Manager {
         node.reason = Some(why.to_string());
         node.ops.clear();
         node.heartbeat_set = false;
+        node.configured = false;
+        node.resync = false;
+        node.identity.clear();
+        node.consumer = None;
         node.supervision = Supervision::None;
         node.supervision_reason = None;
         node.retry_at = None;
@@ -727,6 +810,9 @@ impl Manager {
         node.reason = None;
         node.answered = false;
         node.heartbeat_set = false;
+        node.configured = false;
+        node.resync = false;
+        node.consumer = None;
         if std::mem::take(&mut node.guarded) {
             self.outbox.push(Action::Unguard { node: id });
         }
@@ -742,7 +828,12 @@ impl Manager {
             .into_iter()
             .map(Op::CheckIdentity)
             .collect();
-        ops.extend((0..description.config.len()).map(Op::Configure));
+        for (at, write) in description.config.iter().enumerate() {
+            if is_motion_object(write.index) && !ops.contains(&Op::StopMotion) {
+                ops.push_back(Op::StopMotion);
+            }
+            ops.push_back(Op::Configure(at));
+        }
         if description.heartbeat_ms > 0 {
             ops.push_back(Op::SetHeartbeat);
         }
@@ -760,6 +851,51 @@ impl Manager {
         });
     }
 
+    /// A configured node heard again after it was lost: resynchronised
+    /// rather than booted (CiA 302-2 boots a slave that restarted; one
+    /// whose heartbeat was only late keeps its configuration, and a drive
+    /// moving under it must not have its modes written back). Its identity
+    /// is read (0x1018: the description's keys and the vendor-ID,
+    /// compared with what it answered before), then what its boot-up set
+    /// up and a restart would have undone: its producer heartbeat time
+    /// (0x1017) and the entry of 0x1016 that watches the manager. Where
+    /// all match the node is ready again with nothing written (an NMT
+    /// start only if it is not operational); where one differs, or cannot
+    /// be read, it restarted meanwhile and is booted in full.
+    fn begin_resync(&mut self, id: NodeId, why: &str) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.state = NodeState::Booting;
+        node.reason = None;
+        node.resync = true;
+        node.stale = node.in_flight.is_some();
+        node.retry_at = None;
+        let description = &node.description;
+        let mut subs = description.identity.subs();
+        if !subs.contains(&1) {
+            // The vendor-ID: every node has it (CiA 301 0x1018).
+            subs.insert(0, 1);
+        }
+        let mut ops: std::collections::VecDeque<Op> =
+            subs.into_iter().map(Op::VerifyIdentity).collect();
+        if node.heartbeat_set {
+            ops.push_back(Op::VerifyHeartbeat);
+        }
+        if let Some((sub, _)) = node.consumer {
+            ops.push_back(Op::VerifyConsumer(sub));
+        }
+        if description.start {
+            ops.push_back(Op::StartIfNeeded);
+        }
+        node.ops = ops;
+        node.step = node.ops.front().map_or(Step::Supervised, Op::step);
+        self.events.push(ManagerEvent::ResyncStarted {
+            node: id,
+            why: why.to_string(),
+        });
+    }
+
     /// Takes what the bus's [`Supervisor`] decided (the one supervision of
     /// the nodes: the manager keeps no timer of its own): a boot-up message
     /// or a node heard for the first time (or heard again after it was
@@ -767,6 +903,14 @@ impl Manager {
     /// a written 0x1017 becomes the node's.
     pub fn on_supervision(&mut self, event: &SupervisorEvent) {
         let id = event.node();
+        if id == self.config.node_id
+            && matches!(
+                event,
+                SupervisorEvent::BootUp { .. } | SupervisorEvent::Heard { .. }
+            )
+        {
+            self.own_id_taken = true;
+        }
         match *event {
             SupervisorEvent::HeartbeatWritten { heartbeat_ms, .. } => {
                 // The supervisor times it anew from the write.
@@ -789,6 +933,9 @@ impl Manager {
                 node.nmt = Some(NmtState::BootUp);
                 node.present = true;
                 node.lost = false;
+                // It restarted: what it said of itself may have changed.
+                node.configured = false;
+                node.identity.clear();
                 if node.managed {
                     self.begin_boot(id, "boot-up message");
                 }
@@ -799,10 +946,15 @@ impl Manager {
                 };
                 node.present = true;
                 node.lost = false;
-                // Only a node the manager had lost is booted again: one on
-                // its way goes on.
+                // Only a node the manager had lost is taken up again: one
+                // on its way goes on. One whose configuration is in place
+                // is resynchronised, not configured again.
                 if node.managed && node.state == NodeState::Offline {
-                    self.begin_boot(id, "heard again after it was lost");
+                    if node.configured {
+                        self.begin_resync(id, "heard again after it was lost");
+                    } else {
+                        self.begin_boot(id, "heard again after it was lost");
+                    }
                 }
             }
             SupervisorEvent::Heard { nmt, .. } => {
@@ -836,6 +988,7 @@ impl Manager {
     /// The supervisor lost the node: a ready node goes offline (one on its
     /// way is not lost for the manager until its boot-up ends).
     fn lost(&mut self, id: NodeId, by: LostBy) {
+        let factor = self.config.consumer_factor;
         let Some(node) = self.nodes.get_mut(&id) else {
             return;
         };
@@ -845,8 +998,9 @@ impl Manager {
         }
         let reason = match by {
             LostBy::Heartbeat { period } => format!(
-                "no heartbeat within {} ms (1.5 × {} ms)",
-                heartbeat_timeout(period).as_millis(),
+                "no heartbeat within {} ms ({} × {} ms)",
+                factor.timeout(period).as_millis(),
+                factor,
                 period.as_millis()
             ),
             LostBy::Guarding { life_time } => {
@@ -907,6 +1061,14 @@ impl Manager {
                         self.events.push(event);
                         return;
                     }
+                    if let Some(value) = value {
+                        node.identity.insert(sub, value);
+                    }
+                }
+                let manager = (self.config.node_id, self.config.heartbeat_ms);
+                if let Some(what) = verify(node, &op, &data, manager) {
+                    self.restarted(id, &what);
+                    return;
                 }
                 match op {
                     Op::CountConsumers | Op::FindConsumer { .. } => {
@@ -926,6 +1088,9 @@ impl Manager {
                         }
                     }
                     Op::SetHeartbeat => node.heartbeat_set = true,
+                    Op::ConsumeManager(sub) => {
+                        node.consumer = Some((sub, consumer_entry(manager.0, manager.1)));
+                    }
                     _ => {}
                 }
                 if op == Op::SetGuardTime {
@@ -1001,10 +1166,31 @@ impl Manager {
                         }
                     }
                     Op::Start => self.next(id),
+                    Op::VerifyIdentity(_) | Op::VerifyHeartbeat | Op::VerifyConsumer(_) => {
+                        let (index, sub) = op.object();
+                        self.restarted(
+                            id,
+                            &format!("0x{index:04X} sub {sub} cannot be read (abort {code})"),
+                        );
+                    }
+                    Op::StartIfNeeded => self.next(id),
+                    Op::StopMotion => {
+                        node.state = NodeState::ConfigFailed;
+                        let event = fail(node, format!("abort {code}"), true);
+                        self.events.push(event);
+                    }
                 }
             }
             SdoOutcome::Failed(reason) => {
-                node.state = if node.answered {
+                node.state = if node.resync {
+                    // Retried as a resynchronisation: nothing says it
+                    // restarted.
+                    NodeState::Offline
+                } else if op == Op::StopMotion {
+                    // Its axes could not be stopped: its motion objects
+                    // are not written under a moving axis.
+                    NodeState::ConfigFailed
+                } else if node.answered {
                     NodeState::ConfigFailed
                 } else {
                     NodeState::Missing
@@ -1028,8 +1214,61 @@ impl Manager {
                     self.events.push(ManagerEvent::Step { node: id, step });
                 }
             }
-            None => self.booted(id),
+            None => self.finished(id),
         }
+    }
+
+    /// The boot-up or the resynchronisation under way ended well.
+    fn finished(&mut self, id: NodeId) {
+        if self.nodes.get(&id).is_some_and(|node| node.resync) {
+            self.resynced(id);
+        } else {
+            self.booted(id);
+        }
+    }
+
+    /// The node was found as its boot-up left it: ready again, supervised
+    /// as before, nothing written.
+    fn resynced(&mut self, id: NodeId) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        node.resync = false;
+        node.step = Step::Supervised;
+        node.state = NodeState::Ready;
+        node.reason = None;
+        node.retry_at = None;
+        node.backoff = Duration::ZERO;
+        self.events.push(ManagerEvent::Resynchronised { node: id });
+        self.lost_meanwhile(id, "since before its resynchronisation ended");
+    }
+
+    /// A node that the supervisor lost while its boot-up or
+    /// resynchronisation ran is offline, not ready.
+    fn lost_meanwhile(&mut self, id: NodeId, since: &str) {
+        let Some(node) = self.nodes.get_mut(&id) else {
+            return;
+        };
+        if node.lost && node.supervision != Supervision::None {
+            let by = if node.supervision == Supervision::Guarding {
+                "no node-guarding reply"
+            } else {
+                "no heartbeat"
+            };
+            let reason = format!("{by} {since}");
+            node.state = NodeState::Offline;
+            node.reason = Some(reason.clone());
+            self.events.push(ManagerEvent::Lost { node: id, reason });
+        }
+    }
+
+    /// A resynchronisation found the node not as its boot-up left it
+    /// (`what`): it restarted meanwhile, and is booted in full.
+    fn restarted(&mut self, id: NodeId, what: &str) {
+        self.begin_boot(
+            id,
+            &format!("heard again after it was lost, and {what}: it restarted"),
+        );
     }
 
     fn booted(&mut self, id: NodeId) {
@@ -1041,20 +1280,11 @@ impl Manager {
         node.reason = None;
         node.backoff = Duration::ZERO;
         node.boots_ok += 1;
+        node.configured = true;
         Self::supervise(node, "heartbeat_ms is 0");
         self.events.push(ManagerEvent::Booted { node: id });
-        if node.lost && node.supervision != Supervision::None {
-            // The supervisor lost it while it booted: it is not ready.
-            let by = if node.supervision == Supervision::Guarding {
-                "no node-guarding reply"
-            } else {
-                "no heartbeat"
-            };
-            let reason = format!("{by} since before its boot-up ended");
-            node.state = NodeState::Offline;
-            node.reason = Some(reason.clone());
-            self.events.push(ManagerEvent::Lost { node: id, reason });
-        }
+        // The supervisor lost it while it booted: it is not ready.
+        self.lost_meanwhile(id, "since before its boot-up ended");
     }
 
     /// How a booted node is supervised, from what its boot-up (or a later
@@ -1129,7 +1359,11 @@ impl Manager {
                 .get(&id)
                 .is_some_and(|node| node.retry_at.is_some_and(|at| at <= now))
             {
-                self.begin_boot(id, "retry");
+                if self.nodes.get(&id).is_some_and(|node| node.resync) {
+                    self.begin_resync(id, "retry");
+                } else {
+                    self.begin_boot(id, "retry");
+                }
             }
             let manager = (self.config.node_id, self.config.heartbeat_ms);
             let Some(node) = self.nodes.get_mut(&id) else {
@@ -1141,7 +1375,7 @@ impl Manager {
             // A node already on its way goes on; one that has not begun
             // waits for a free place (an NMT start needs none).
             let waits = in_flight >= self.config.max_requests.max(1)
-                && !matches!(node.ops.front(), Some(Op::Start) | None);
+                && !matches!(node.ops.front(), Some(Op::Start | Op::StartIfNeeded) | None);
             if waits {
                 continue;
             }
@@ -1153,6 +1387,7 @@ impl Manager {
                         index: IDENTITY,
                         sub: *sub,
                     },
+                    Op::StopMotion => Action::StopMotion { node: id },
                     Op::Configure(at) => {
                         let write = &description.config[*at];
                         Action::Write {
@@ -1190,15 +1425,37 @@ impl Manager {
                         index: CONSUMER_HEARTBEAT_TIME,
                         sub: *sub,
                     },
-                    Op::ConsumeManager(sub) => {
-                        let time = u16::try_from(u32::from(manager.1) * 3).unwrap_or(u16::MAX);
-                        let raw = u32::from(manager.0.get()) << 16 | u32::from(time);
-                        Action::Write {
-                            node: id,
-                            index: CONSUMER_HEARTBEAT_TIME,
-                            sub: *sub,
-                            data: raw.to_le_bytes().to_vec(),
+                    Op::ConsumeManager(sub) => Action::Write {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: *sub,
+                        data: consumer_entry(manager.0, manager.1).to_le_bytes().to_vec(),
+                    },
+                    Op::VerifyIdentity(sub) => Action::Read {
+                        node: id,
+                        index: IDENTITY,
+                        sub: *sub,
+                    },
+                    Op::VerifyHeartbeat => Action::Read {
+                        node: id,
+                        index: PRODUCER_HEARTBEAT_TIME,
+                        sub: 0,
+                    },
+                    Op::VerifyConsumer(sub) => Action::Read {
+                        node: id,
+                        index: CONSUMER_HEARTBEAT_TIME,
+                        sub: *sub,
+                    },
+                    Op::StartIfNeeded => {
+                        if node.nmt != Some(NmtState::Operational) {
+                            let frame = super::nmt::NmtMessage::new(
+                                NmtCommand::Start,
+                                super::nmt::NmtTarget::Node(id),
+                            )
+                            .encode();
+                            actions.push(Action::Send(frame));
                         }
+                        continue;
                     }
                     Op::Start => {
                         // Unconfirmed: sent, and the boot is done; the
@@ -1219,7 +1476,7 @@ impl Manager {
             }
             if node.in_flight.is_none() && node.ops.is_empty() && node.state == NodeState::Booting {
                 // The last operation was the NMT start (or there was none).
-                self.booted(id);
+                self.finished(id);
             }
         }
         let (machine, _) = self.compute_state();
@@ -1307,9 +1564,15 @@ impl Manager {
                 }
             }
         }
+        if self.own_id_taken {
+            reasons.push(format!(
+                "a device answers at the gateway's own node ID {} (manager_node_id): it is not supervised, and devices watching the gateway's heartbeat may take its for the gateway's",
+                self.config.node_id
+            ));
+        }
         let state = if mandatory > 0 && ready == 0 && bad == mandatory {
             MachineState::Down
-        } else if bad > 0 {
+        } else if bad > 0 || self.own_id_taken {
             MachineState::Degraded
         } else if booting {
             MachineState::Booting
@@ -1363,7 +1626,62 @@ impl fmt::Display for MachineState {
     }
 }
 
-/// An unsigned integer of 1 to 4 bytes, little-endian.
+/// What a resynchronisation's read `op` (answered `data`) found differs
+/// from what the node's boot-up left (`None`: as it was, or not such a
+/// read). An identity read the node never answered before is kept, to be
+/// compared the next time.
+fn verify(node: &mut Node, op: &Op, data: &[u8], manager: (NodeId, u16)) -> Option<String> {
+    let (index, sub) = op.object();
+    let value = match op {
+        Op::VerifyIdentity(_) | Op::VerifyHeartbeat | Op::VerifyConsumer(_) => unsigned(data),
+        _ => return None,
+    };
+    let Some(value) = value else {
+        return Some(format!(
+            "0x{index:04X} sub {sub}: {} bytes read where a number was expected",
+            data.len()
+        ));
+    };
+    match *op {
+        Op::VerifyIdentity(sub) => {
+            if let Some(reason) = node.description.identity.mismatch(sub, value) {
+                return Some(reason);
+            }
+            match node.identity.insert(sub, value) {
+                Some(before) if before != value => Some(format!(
+                    "0x1018 sub {sub} is 0x{value:08X}, was 0x{before:08X}"
+                )),
+                _ => None,
+            }
+        }
+        Op::VerifyHeartbeat => {
+            let written = node.description.heartbeat_ms;
+            (value != u32::from(written))
+                .then(|| format!("0x1017 is {value} ms, {written} ms was written"))
+        }
+        _ => {
+            let want = consumer_entry(manager.0, manager.1);
+            (value != want).then(|| {
+                format!("0x1016 sub {sub} is 0x{value:08X}, 0x{want:08X} (the manager's heartbeat) was written")
+            })
+        }
+    }
+}
+
+/// Whether a configuration write to `index` changes how a drive moves:
+/// the device profile area (CiA 402's modes, targets and limits, each axis
+/// at its offset).
+pub fn is_motion_object(index: u16) -> bool {
+    (0x6000..=0x9FFF).contains(&index)
+}
+
+/// The 0x1016 entry that watches the manager (node-ID in bits 16–23, the
+/// consumer time in ms below): 3 × its heartbeat period.
+fn consumer_entry(manager: NodeId, heartbeat_ms: u16) -> u32 {
+    let time = u16::try_from(u32::from(heartbeat_ms) * 3).unwrap_or(u16::MAX);
+    u32::from(manager.get()) << 16 | u32::from(time)
+}
+
 /// What follows a read of 0x1016 (sub 0, or an entry) in the search for
 /// the entry the manager's heartbeat goes to: the next read, the write, or
 /// nothing more to do (`Ok(None)`: the node has no entries). An entry is
@@ -1413,6 +1731,7 @@ fn next_consumer_op(op: &Op, data: &[u8], manager: NodeId) -> Result<Option<Op>,
     }
 }
 
+/// An unsigned integer of 1 to 4 bytes, little-endian.
 fn unsigned(data: &[u8]) -> Option<u32> {
     if data.is_empty() || data.len() > 4 {
         return None;

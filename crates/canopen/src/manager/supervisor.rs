@@ -14,7 +14,7 @@
 //!   intervals, so that a changed 0x1017 is followed and one lost heartbeat
 //!   does not double it. A boot-up forgets it (the node reloads its 0x1017).
 //! - **Lost.** A node with a period is lost when no heartbeat comes within
-//!   1.5 periods of the last one (or of the write or read that set the
+//!   [`ConsumerFactor`] periods (3 by default) of the last one (or of the write or read that set the
 //!   period); a node guarded by the manager ([`Supervisor::guard`]) when no
 //!   valid reply comes within its life time. It is heard again with its
 //!   next heartbeat (or valid reply).
@@ -41,23 +41,91 @@ mod tests;
 /// Heartbeat intervals the period is learnt from.
 const HEARTBEAT_WINDOW: usize = 8;
 /// This many intervals in a row all longer than the supervision timeout
-/// (1.5 periods) say that the producer slowed down (its 0x1017 was
+/// ([`ConsumerFactor`] periods) say that the producer slowed down (its 0x1017 was
 /// written): the period follows at once, rather than after the window,
 /// while the node flapped offline and online at every heartbeat.
 const SLOWER_AFTER: usize = 3;
+/// A learnt period within this part (a quarter) of the one the supervisor
+/// has is the jitter of a loaded sender or bus, not a new 0x1017: kept.
+/// (Followed, a heartbeat 60 ms early on a loaded host shortened the
+/// period, and with it the timeout, until on-time heartbeats were lost.)
+const JITTER_PART: u32 = 4;
+/// This many intervals in a row all shorter than the period (by more than
+/// the jitter) say that the producer got faster (its 0x1017 was written).
+const FASTER_AFTER: usize = 3;
 /// Intervals shorter than this are two frames of one burst, not a period.
 const MIN_HEARTBEAT_INTERVAL: Duration = Duration::from_millis(1);
 
-/// How long after its last heartbeat a node with producer period `period`
-/// is lost: half a period of margin for bus load and jitter.
-pub fn heartbeat_timeout(period: Duration) -> Duration {
-    period + period / 2
+/// How many producer periods the gateway waits for a node's heartbeat
+/// before it is lost (its heartbeat consumer time, CiA 301 §7.2.8.3.2.2):
+/// `heartbeat_consumer_factor` of the configuration, 1.5 to 10 in tenths.
+/// The margin above one period is for bus load and the jitter of both
+/// ends: a loaded host delays the heartbeat's sender and the gateway
+/// alike, and a loss is no small thing (the network manager takes the
+/// node up again). Lely's `dcfgen` sets consumer times at 3 × the
+/// producer's (its `heartbeat_multiplier`); so does candeck by default.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct ConsumerFactor {
+    tenths: u16,
+}
+
+impl ConsumerFactor {
+    /// The default: 3 periods.
+    pub const DEFAULT: Self = Self { tenths: 30 };
+    /// The least: one period and a half (less is lost at every jitter).
+    pub const MIN: Self = Self { tenths: 15 };
+    /// The most: 10 periods.
+    pub const MAX: Self = Self { tenths: 100 };
+
+    /// The factor `value`, to a tenth; an error names the range.
+    pub fn new(value: f64) -> Result<Self, String> {
+        let range = || {
+            format!(
+                "heartbeat_consumer_factor = {value}: must be {} to {} (periods of a node's heartbeat before it is lost)",
+                Self::MIN,
+                Self::MAX
+            )
+        };
+        if !value.is_finite() {
+            return Err(range());
+        }
+        let tenths = (value * 10.0).round();
+        if tenths < f64::from(Self::MIN.tenths) || tenths > f64::from(Self::MAX.tenths) {
+            return Err(range());
+        }
+        Ok(Self {
+            tenths: tenths as u16,
+        })
+    }
+
+    /// The factor as a number.
+    pub fn get(self) -> f64 {
+        f64::from(self.tenths) / 10.0
+    }
+
+    /// How long after its last heartbeat a node with producer period
+    /// `period` is lost.
+    pub fn timeout(self, period: Duration) -> Duration {
+        period * u32::from(self.tenths) / 10
+    }
+}
+
+impl Default for ConsumerFactor {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+impl std::fmt::Display for ConsumerFactor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{}", self.tenths / 10, self.tenths % 10)
+    }
 }
 
 /// What lost a node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum LostBy {
-    /// No heartbeat within 1.5 × `period`.
+    /// No heartbeat within the consumer factor × `period`.
     Heartbeat { period: Duration },
     /// No valid node-guarding reply within the node life time.
     Guarding { life_time: Duration },
@@ -142,7 +210,7 @@ struct HeartbeatLearner {
 
 impl HeartbeatLearner {
     /// Takes a heartbeat at `now`; the new period if it changed.
-    fn on_heartbeat(&mut self, now: Instant) -> Option<Duration> {
+    fn on_heartbeat(&mut self, now: Instant, factor: ConsumerFactor) -> Option<Duration> {
         let last = self.last.replace(now);
         let interval = now.saturating_duration_since(last?);
         if interval < MIN_HEARTBEAT_INTERVAL {
@@ -159,13 +227,41 @@ impl HeartbeatLearner {
                 .iter()
                 .rev()
                 .take(SLOWER_AFTER)
-                .all(|&recent| recent > heartbeat_timeout(period))
+                .all(|&recent| recent > factor.timeout(period))
         {
             let keep = self.intervals.len() - SLOWER_AFTER;
             self.intervals.drain(..keep);
         }
+        if let Some(period) = self.period {
+            // Faster only when several intervals in a row say so: after a
+            // stall the late heartbeat and the next one on time come close
+            // together, and one short interval taken as the period lost
+            // the node at every heartbeat until it left the window.
+            let faster = period - period / JITTER_PART;
+            if self.intervals.iter().any(|&interval| interval < faster) {
+                if self.intervals.len() < FASTER_AFTER
+                    || self
+                        .intervals
+                        .iter()
+                        .rev()
+                        .take(FASTER_AFTER)
+                        .any(|&recent| recent >= faster)
+                {
+                    // Not (yet) a faster producer: a burst (it leaves
+                    // the window in time), or the start of a change.
+                    return None;
+                }
+                let keep = self.intervals.len() - FASTER_AFTER;
+                self.intervals.drain(..keep);
+            }
+        }
         let shortest = self.intervals.iter().min().copied();
         if shortest == self.period {
+            return None;
+        }
+        if let (Some(period), Some(shortest)) = (self.period, shortest)
+            && shortest.abs_diff(period) <= period / JITTER_PART
+        {
             return None;
         }
         self.period = shortest;
@@ -234,11 +330,11 @@ impl Watch {
 
     /// When the node's heartbeat is due at the latest; `None` when it is
     /// not timed by its heartbeat (guarded, no period, lost, booting).
-    fn heartbeat_deadline(&self) -> Option<Instant> {
+    fn heartbeat_deadline(&self, factor: ConsumerFactor) -> Option<Instant> {
         if self.lost || self.guard.is_some() {
             return None;
         }
-        Some(self.since? + heartbeat_timeout(self.learner.period?))
+        Some(self.since? + factor.timeout(self.learner.period?))
     }
 }
 
@@ -268,6 +364,8 @@ pub struct Supervisor {
     nodes: BTreeMap<NodeId, Watch>,
     bus_up: bool,
     events: Vec<SupervisorEvent>,
+    /// Heartbeat periods a node may be silent before it is lost.
+    factor: ConsumerFactor,
 }
 
 impl Default for Supervisor {
@@ -283,7 +381,20 @@ impl Supervisor {
             nodes: BTreeMap::new(),
             bus_up,
             events: Vec::new(),
+            factor: ConsumerFactor::DEFAULT,
         }
+    }
+
+    /// The supervisor, losing a node after `factor` heartbeat periods of
+    /// silence.
+    pub fn with_consumer_factor(mut self, factor: ConsumerFactor) -> Self {
+        self.factor = factor;
+        self
+    }
+
+    /// Heartbeat periods a node may be silent before it is lost.
+    pub fn consumer_factor(&self) -> ConsumerFactor {
+        self.factor
     }
 
     /// Whether [`Supervisor::on_frame`] takes `frame`: the error-control
@@ -317,7 +428,7 @@ impl Supervisor {
             last_seen: watch.last_seen,
             heartbeat: watch.learner.period,
             lost: watch.lost || watch.guard.as_ref().is_some_and(NodeGuardMaster::is_lost),
-            deadline: Self::node_deadline(watch),
+            deadline: Self::node_deadline(watch, self.factor),
             guarded: watch.guard.is_some(),
         })
     }
@@ -334,6 +445,7 @@ impl Supervisor {
         }
         let Heartbeat { node, state } = Heartbeat::decode(frame)?;
         let bus_up = self.bus_up;
+        let factor = self.factor;
         let watch = self.nodes.entry(node).or_insert_with(|| Watch::new(now));
         watch.last_seen = now;
         let boot_up = state == NmtState::BootUp;
@@ -358,7 +470,7 @@ impl Supervisor {
             watch.since = None;
             watch.lost = false;
         } else {
-            watch.learner.on_heartbeat(now);
+            watch.learner.on_heartbeat(now, factor);
             if valid {
                 watch.since = Some(now);
             }
@@ -436,7 +548,7 @@ impl Supervisor {
 
     /// The node's 0x1017 was read `ms` at `now` (0: no heartbeat, which
     /// changes nothing): it is supervised with that period, its next
-    /// heartbeat due within 1.5 periods.
+    /// heartbeat due within the consumer factor × the period.
     pub fn heartbeat_read(&mut self, node: NodeId, ms: u16, now: Instant) {
         if ms == 0 {
             return;
@@ -534,7 +646,7 @@ impl Supervisor {
                     });
                 }
             } else if watch
-                .heartbeat_deadline()
+                .heartbeat_deadline(self.factor)
                 .is_some_and(|deadline| now >= deadline)
             {
                 watch.lost = true;
@@ -558,16 +670,19 @@ impl Supervisor {
         requests
     }
 
-    fn node_deadline(watch: &Watch) -> Option<Instant> {
+    fn node_deadline(watch: &Watch, factor: ConsumerFactor) -> Option<Instant> {
         match &watch.guard {
             Some(guard) => guard.deadline(),
-            None => watch.heartbeat_deadline(),
+            None => watch.heartbeat_deadline(factor),
         }
     }
 
     /// When [`Supervisor::poll`] has work next.
     pub fn deadline(&self) -> Option<Instant> {
-        self.nodes.values().filter_map(Self::node_deadline).min()
+        self.nodes
+            .values()
+            .filter_map(|watch| Self::node_deadline(watch, self.factor))
+            .min()
     }
 
     /// What the supervisor decided since the last call, in order.

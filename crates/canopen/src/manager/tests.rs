@@ -34,8 +34,8 @@ impl std::ops::DerefMut for Rig {
 impl Rig {
     fn new(config: ManagerConfig, descriptions: Vec<NodeDescription>, now: Instant) -> Self {
         Self {
+            supervisor: Supervisor::new(true).with_consumer_factor(config.consumer_factor),
             manager: Manager::new(config, descriptions, now),
-            supervisor: Supervisor::new(true),
             writes: BTreeMap::new(),
             started: now,
         }
@@ -119,6 +119,8 @@ fn config() -> ManagerConfig {
         retry_min: Duration::from_millis(200),
         retry_max: Duration::from_millis(800),
         max_requests: 16,
+        // The tests time losses at one and a half periods.
+        consumer_factor: ConsumerFactor::MIN,
     }
 }
 
@@ -151,7 +153,10 @@ fn run_boot(
         }
         for action in actions {
             seen.push(action.clone());
-            if let Action::Read { node, .. } | Action::Write { node, .. } = &action {
+            if let Action::Read { node, .. }
+            | Action::Write { node, .. }
+            | Action::StopMotion { node } = &action
+            {
                 manager.on_sdo(*node, answer(&action), now);
             }
         }
@@ -377,7 +382,12 @@ fn a_configuration_abort_names_the_entry_and_is_retried_with_backoff() {
     let mut manager = Rig::new(config(), vec![description], t0);
     manager.node_found(id(4));
     let abort = AbortCode::from_raw(0x0609_0030);
-    run_boot(&mut manager, t0, |_| SdoOutcome::Aborted(abort));
+    let aborted = |action: &Action| match action {
+        // Its axes are at rest: the write is tried.
+        Action::StopMotion { .. } => SdoOutcome::Done(Vec::new()),
+        _ => SdoOutcome::Aborted(abort),
+    };
+    run_boot(&mut manager, t0, aborted);
     let node = manager.status().nodes[0].clone();
     assert_eq!(node.state, NodeState::ConfigFailed);
     assert_eq!(node.step, Step::Configuration);
@@ -398,7 +408,7 @@ fn a_configuration_abort_names_the_entry_and_is_retried_with_backoff() {
     // Not before the backoff; then again, twice as late after a second failure.
     assert!(sdo_actions(&manager.poll(t0 + Duration::from_millis(199))).is_empty());
     let t1 = t0 + Duration::from_millis(200);
-    run_boot(&mut manager, t1, |_| SdoOutcome::Aborted(abort));
+    run_boot(&mut manager, t1, aborted);
     let retry = manager
         .take_events()
         .into_iter()
@@ -974,5 +984,226 @@ fn a_guarded_node_booted_again_after_its_loss_is_ready_not_lost_again() {
         (node.state, node.supervision),
         (NodeState::Ready, Supervision::Guarding),
         "{node:?}"
+    );
+}
+
+/// Node 4, described with a DCF that writes 0x6060 = 1 (profile
+/// position), booted and heard operational at `t0`; its 0x1016 has one
+/// free entry.
+fn booted_drive(t0: Instant) -> Rig {
+    let mut description = NodeDescription::new(id(4));
+    description.identity.vendor_id = Some(0x4A2);
+    description.config = vec![ConfigWrite {
+        index: 0x6060,
+        sub: 0,
+        data: vec![1],
+        label: "drive.dcf [6060] Modes of operation".into(),
+    }];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0));
+    assert!(
+        seen.iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. }))
+    );
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t0);
+    manager.poll(t0);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    manager.take_events();
+    manager
+}
+
+/// Node 4's answers: vendor 0x4A2, its 0x1017 `heartbeat`, one 0x1016
+/// entry holding `consumer`.
+fn answer_drive(heartbeat: u16, consumer: u32) -> impl Fn(&Action) -> SdoOutcome {
+    move |action| match action {
+        Action::Read {
+            index: 0x1018,
+            sub: 1,
+            ..
+        } => SdoOutcome::Done(0x4A2u32.to_le_bytes().to_vec()),
+        Action::Read { index: 0x1017, .. } => SdoOutcome::Done(heartbeat.to_le_bytes().to_vec()),
+        Action::Read {
+            index: 0x1016,
+            sub: 0,
+            ..
+        } => SdoOutcome::Done(vec![1]),
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(consumer.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    }
+}
+
+/// Loses node 4 (no heartbeat for 1 s after `t0`) and hears it again,
+/// operational, at the returned time.
+fn lose_and_hear_again(manager: &mut Rig, t0: Instant) -> Instant {
+    let t1 = t0 + Duration::from_millis(1000);
+    manager.poll(t1);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t1);
+    t1
+}
+
+#[test]
+fn a_node_heard_again_after_a_short_loss_is_resynchronised_not_configured_again() {
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    // As its boot-up left it: 0x1017 = 500, 0x1016 sub 1 watches the
+    // manager (127, 3 × 100 ms).
+    let seen = run_boot(&mut manager, t1, answer_drive(500, 0x007F_012C));
+    assert_eq!(
+        sdo_actions(&seen),
+        vec![
+            Action::Read {
+                node: id(4),
+                index: 0x1018,
+                sub: 1
+            },
+            Action::Read {
+                node: id(4),
+                index: 0x1017,
+                sub: 0
+            },
+            Action::Read {
+                node: id(4),
+                index: 0x1016,
+                sub: 1
+            },
+        ],
+        "nothing written, no NMT start (it is operational)"
+    );
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.supervision, node.boots_ok),
+        (NodeState::Ready, Supervision::Heartbeat, 1),
+        "{node:?}"
+    );
+    let events = manager.take_events();
+    assert!(
+        events.contains(&ManagerEvent::Resynchronised { node: id(4) }),
+        "{events:?}"
+    );
+}
+
+#[test]
+fn a_node_that_restarted_unheard_or_sent_its_boot_up_is_configured_again() {
+    // Its 0x1017 is back to 0: it restarted while it was not heard.
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    let seen = run_boot(&mut manager, t1, answer_drive(0, 0));
+    assert!(
+        seen.iter().any(|action| matches!(
+            action,
+            Action::Write {
+                index: 0x6060,
+                data,
+                ..
+            } if data == &[1]
+        )),
+        "{seen:?}"
+    );
+    assert!(manager.take_events().iter().any(|event| matches!(
+        event,
+        ManagerEvent::BootStarted { why, .. } if why.contains("0x1017 is 0 ms, 500 ms was written")
+    )));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+
+    // A boot-up message: configured again, whatever was lost or not.
+    let mut manager = booted_drive(t0);
+    manager.on_frame(&heartbeat(4, NmtState::BootUp), t0);
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0x007F_012C));
+    assert!(
+        seen.iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. })),
+        "{seen:?}"
+    );
+}
+
+#[test]
+fn a_resynchronisation_without_answer_is_retried_as_one() {
+    let t0 = Instant::now();
+    let mut manager = booted_drive(t0);
+    let t1 = lose_and_hear_again(&mut manager, t0);
+    run_boot(&mut manager, t1, |_| SdoOutcome::Failed("timeout".into()));
+    assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
+    let t2 = t1 + Duration::from_millis(200);
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t2);
+    let seen = run_boot(&mut manager, t2, answer_drive(500, 0x007F_012C));
+    assert!(
+        !seen
+            .iter()
+            .any(|action| matches!(action, Action::Write { .. })),
+        "{seen:?}"
+    );
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+}
+
+#[test]
+fn the_axes_are_stopped_before_the_configuration_writes_motion_objects() {
+    let t0 = Instant::now();
+    let mut description = NodeDescription::new(id(4));
+    description.config = vec![
+        ConfigWrite {
+            index: 0x1800,
+            sub: 5,
+            data: vec![250, 0],
+            label: "drive.dcf [1800sub5]".into(),
+        },
+        ConfigWrite {
+            index: 0x6060,
+            sub: 0,
+            data: vec![1],
+            label: "drive.dcf [6060]".into(),
+        },
+        ConfigWrite {
+            index: 0x6860,
+            sub: 0,
+            data: vec![1],
+            label: "drive.dcf [6860]".into(),
+        },
+    ];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, answer_drive(500, 0));
+    let order: Vec<String> = seen
+        .iter()
+        .filter_map(|action| match action {
+            Action::StopMotion { .. } => Some("stop".to_string()),
+            Action::Write { index, .. } if *index == 0x1800 || *index >= 0x6000 => {
+                Some(format!("{index:04X}"))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(order, ["1800", "stop", "6060", "6860"]);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+
+    // Axes that cannot be stopped: nothing of the motion is written, and
+    // it is retried.
+    let mut description = NodeDescription::new(id(4));
+    description.config = vec![ConfigWrite {
+        index: 0x6060,
+        sub: 0,
+        data: vec![1],
+        label: "drive.dcf [6060]".into(),
+    }];
+    let mut manager = Rig::new(config(), vec![description], t0);
+    manager.node_found(id(4));
+    let seen = run_boot(&mut manager, t0, |action| match action {
+        Action::StopMotion { .. } => SdoOutcome::Failed("axis 1 did not stop".into()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert!(
+        !seen
+            .iter()
+            .any(|action| matches!(action, Action::Write { index: 0x6060, .. })),
+        "{seen:?}"
+    );
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.state, NodeState::ConfigFailed, "{node:?}");
+    assert_eq!(
+        node.reason.as_deref(),
+        Some("configuration: axis 1 did not stop")
     );
 }

@@ -23,6 +23,7 @@ use crate::policy::Operation;
 
 use super::NodeHandle;
 use super::transfer::{audited, refused};
+use super::watchdog::WatchdogWrite;
 use crate::GatewayError;
 use crate::audit::AuditTarget;
 use crate::caller::Caller;
@@ -142,7 +143,7 @@ impl NodeHandle {
         read_back: bool,
         settings: TransferSettings<'_>,
     ) -> Result<Option<Vec<u8>>, GatewayError> {
-        let row = self.audit_row(
+        let mut row = self.audit_row(
             caller,
             "write object",
             Some(object_item(index, sub)),
@@ -167,6 +168,19 @@ impl NodeHandle {
             Ok(checked) => checked,
             Err(error) => return refused(row, error).await,
         };
+        // The watchdog stays on (node/watchdog.rs): refused to an
+        // operator, an admin's said in the row and on the stream.
+        let watchdog = match self
+            .watchdog_check(caller, &channel, index, sub, &bytes)
+            .await
+        {
+            Ok(WatchdogWrite::SwitchesItOff(warning)) => {
+                row.note(&format!("WATCHDOG SWITCHED OFF: {warning}"));
+                Some((self.clone(), warning))
+            }
+            Ok(WatchdogWrite::KeepsItOn) => None,
+            Err(error) => return refused(row, error).await,
+        };
         let config = settings(channel.config());
         let gateway = self.gateway.clone();
         // Write and read back in one task, and its audit row: all finish
@@ -176,6 +190,9 @@ impl NodeHandle {
                 channel
                     .download_with(index, sub, &bytes, config.as_ref())
                     .await?;
+                if let Some((node, warning)) = watchdog {
+                    node.warn_watchdog_off(&warning);
+                }
                 if read_back {
                     Ok(Some(
                         channel.upload_with(index, sub, config.as_ref()).await?,

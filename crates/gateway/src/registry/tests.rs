@@ -19,6 +19,14 @@ fn registry(hub: &VirtualHub, config: RegistryConfig) -> NodeRegistry {
     )
 }
 
+/// The registry's defaults, a node lost after 1.5 silent periods.
+fn one_and_a_half_periods() -> RegistryConfig {
+    RegistryConfig {
+        consumer_factor: crate::canopen::manager::ConsumerFactor::MIN,
+        ..RegistryConfig::default()
+    }
+}
+
 fn frame(id: u16, data: &[u8]) -> Frame {
     Frame::new(CanId::Standard(id), data).unwrap()
 }
@@ -79,7 +87,8 @@ async fn a_heartbeat_timeout_comes_on_time_on_a_bus_busy_with_pdos() {
     // The registry skips PDOs without moving its timer: the timeout must
     // still fire while other frames come every millisecond.
     let hub = VirtualHub::new("test");
-    let registry = registry(&hub, RegistryConfig::default());
+    // Timed at one and a half periods (heartbeat_consumer_factor 1.5).
+    let registry = registry(&hub, one_and_a_half_periods());
     let device = hub.attach();
     for _ in 0..5 {
         device.send(frame(0x705, &[0x05])).await.unwrap();
@@ -101,7 +110,8 @@ async fn a_heartbeat_timeout_comes_on_time_on_a_bus_busy_with_pdos() {
 #[tokio::test(start_paused = true)]
 async fn a_heartbeat_adds_a_node_and_its_silence_takes_it_offline_at_one_and_a_half_periods() {
     let hub = VirtualHub::new("test");
-    let registry = registry(&hub, RegistryConfig::default());
+    // Timed at one and a half periods (heartbeat_consumer_factor 1.5).
+    let registry = registry(&hub, one_and_a_half_periods());
     let mut events = registry.subscribe();
     let device = hub.attach();
     for _ in 0..5 {
