@@ -197,7 +197,7 @@ pub struct Alarm {
     /// How many times its cause came (1, and one more each time it came
     /// back before the alarm was `normal`).
     pub count: u32,
-    /// Its life, oldest first (at most [`HISTORY_KEPT`]).
+    /// Its life, oldest first (at most `HISTORY_KEPT` entries).
     pub history: Vec<AlarmEvent>,
 }
 
