@@ -56,6 +56,34 @@ pub struct AxisRecovery {
     pub state: Option<String>,
 }
 
+impl AxisRecovery {
+    fn new(node: u8, axis: u8, outcome: RecoveryOutcome) -> Self {
+        Self {
+            node,
+            axis,
+            outcome,
+            reason: None,
+            code: None,
+            state: None,
+        }
+    }
+
+    fn done(node: u8, axis: u8, state: String) -> Self {
+        Self {
+            state: Some(state),
+            ..Self::new(node, axis, RecoveryOutcome::Done)
+        }
+    }
+
+    fn refused(node: u8, axis: u8, reason: String, code: Option<&str>) -> Self {
+        Self {
+            reason: Some(reason),
+            code: code.map(str::to_string),
+            ..Self::new(node, axis, RecoveryOutcome::Refused)
+        }
+    }
+}
+
 /// What a recovery did, axis by axis.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RecoveryReport {
@@ -157,14 +185,8 @@ impl Gateway {
     }
 
     async fn reset_one(&self, caller: &Caller, bus: &str, node: u8, axis: u8) -> AxisRecovery {
-        let refused = |reason: String, code: Option<&str>| AxisRecovery {
-            node,
-            axis,
-            outcome: RecoveryOutcome::Refused,
-            reason: Some(reason),
-            code: code.map(str::to_string),
-            state: None,
-        };
+        let refused =
+            |reason: String, code: Option<&str>| AxisRecovery::refused(node, axis, reason, code);
         if let Some(reason) = self.cause_present(bus, node) {
             return refused(reason, None);
         }
@@ -174,27 +196,13 @@ impl Gateway {
             Err(error) => return refused(error.to_string(), Some(error.code())),
         };
         if !in_fault {
-            return AxisRecovery {
-                node,
-                axis,
-                outcome: RecoveryOutcome::NotNeeded,
-                reason: None,
-                code: None,
-                state: None,
-            };
+            return AxisRecovery::new(node, axis, RecoveryOutcome::NotNeeded);
         }
         match self
             .reset_axis_fault(caller, (bus, &node_text, &axis_text))
             .await
         {
-            Ok(status) => AxisRecovery {
-                node,
-                axis,
-                outcome: RecoveryOutcome::Done,
-                reason: None,
-                code: None,
-                state: Some(status.state),
-            },
+            Ok(status) => AxisRecovery::done(node, axis, status.state),
             Err(error) => refused(
                 format!("the cause is still present: {error}"),
                 Some(error.code()),
@@ -203,14 +211,8 @@ impl Gateway {
     }
 
     async fn enable_one(&self, caller: &Caller, bus: &str, node: u8, axis: u8) -> AxisRecovery {
-        let refused = |reason: String, code: Option<&str>| AxisRecovery {
-            node,
-            axis,
-            outcome: RecoveryOutcome::Refused,
-            reason: Some(reason),
-            code: code.map(str::to_string),
-            state: None,
-        };
+        let refused =
+            |reason: String, code: Option<&str>| AxisRecovery::refused(node, axis, reason, code);
         if let Some(reason) = self.cause_present(bus, node) {
             return refused(reason, None);
         }
@@ -235,14 +237,7 @@ impl Gateway {
             )
             .await
         {
-            Ok(outcome) => AxisRecovery {
-                node,
-                axis,
-                outcome: RecoveryOutcome::Done,
-                reason: None,
-                code: None,
-                state: Some(outcome.status.state),
-            },
+            Ok(outcome) => AxisRecovery::done(node, axis, outcome.status.state),
             Err(failed) => refused(failed.error.to_string(), Some(failed.error.code())),
         }
     }
