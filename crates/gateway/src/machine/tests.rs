@@ -75,6 +75,27 @@ async fn modes_of_operation(gateway: &Gateway) -> i8 {
     data[0] as i8
 }
 
+/// Enables the demo UMC's axis 1 for `plc` and moves it at velocity 400:
+/// the id of the lease the move holds.
+async fn move_axis_1_at_400(gateway: &Gateway, plc: &Caller) -> String {
+    let axis = ("demo", "1", "1");
+    let claim = LeaseClaim::presented(None, false);
+    gateway
+        .set_axis_state(plc, axis, TargetState::OperationEnabled, &claim)
+        .await
+        .unwrap();
+    let velocity = MoveRequest::Velocity {
+        velocity: 400,
+        acceleration: None,
+        deceleration: None,
+    };
+    let moving = gateway
+        .move_axis(plc, axis, &velocity, &claim)
+        .await
+        .unwrap();
+    moving.lease.expect("a velocity move holds a lease").id
+}
+
 /// Finding 3 of issue 30: a 1 s heartbeat loss during a velocity move at
 /// 400, the lease renewed throughout. The manager used to boot the node
 /// again on its recovery, its DCF written back (0x6060 = 1: profile
@@ -84,26 +105,7 @@ async fn a_heartbeat_glitch_during_a_move_leaves_the_drive_moving_in_its_mode() 
     let gateway = demo_with_dcf().await;
     assert_eq!(modes_of_operation(&gateway).await, 1, "the DCF was written");
     let plc = Caller::new(Channel::Rest, "plc", Some(Role::Operator));
-    let axis = ("demo", "1", "1");
-    let claim = LeaseClaim::presented(None, false);
-    gateway
-        .set_axis_state(&plc, axis, TargetState::OperationEnabled, &claim)
-        .await
-        .unwrap();
-    let moving = gateway
-        .move_axis(
-            &plc,
-            axis,
-            &MoveRequest::Velocity {
-                velocity: 400,
-                acceleration: None,
-                deceleration: None,
-            },
-            &claim,
-        )
-        .await
-        .unwrap();
-    let lease = moving.lease.expect("a velocity move holds a lease").id;
+    let lease = move_axis_1_at_400(&gateway, &plc).await;
     hold(&gateway, &plc, &lease, Duration::from_secs(1)).await;
     assert_eq!(modes_of_operation(&gateway).await, 2, "velocity mode (vl)");
 
@@ -384,26 +386,7 @@ fn false_losses_under_load() {
 async fn a_reconfiguration_stops_a_moving_axis_first_and_says_so() {
     let gateway = demo_with_dcf().await;
     let plc = Caller::new(Channel::Rest, "plc", Some(Role::Operator));
-    let axis = ("demo", "1", "1");
-    let claim = LeaseClaim::presented(None, false);
-    gateway
-        .set_axis_state(&plc, axis, TargetState::OperationEnabled, &claim)
-        .await
-        .unwrap();
-    let moving = gateway
-        .move_axis(
-            &plc,
-            axis,
-            &MoveRequest::Velocity {
-                velocity: 400,
-                acceleration: None,
-                deceleration: None,
-            },
-            &claim,
-        )
-        .await
-        .unwrap();
-    let lease = moving.lease.unwrap().id;
+    let lease = move_axis_1_at_400(&gateway, &plc).await;
     hold(&gateway, &plc, &lease, Duration::from_millis(500)).await;
     let mut events = gateway.buses["demo"].registry.subscribe();
     let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
