@@ -784,6 +784,11 @@ stream.onState(({ state, reconnected }) => {
   if (state === 'connected' && reconnected) loadDetail();
 });
 
+// An alarm's help links the objects it names here (`#od=0x603F`, alarms.js):
+// the dictionary opens searched for that object.
+const askedObject = /^#od=(0x[0-9a-f]{4})$/i.exec(window.location.hash);
+if (askedObject) search.value = askedObject[1];
+
 stream.connect();
 loadDetail();
 
