@@ -357,3 +357,20 @@ def test_program_download_with_a_progress_bar(server, browser):
     assert server.get(f"{NODE}/od/0x1F56/1")["value"] == zlib.crc32(image)
     assert server.get(f"{NODE}/od/0x100A/0")["value"] == "1.9"
     browser.check()
+
+
+def test_last_seen_is_not_marked_stale_while_the_gateway_hears_the_node(browser, server):
+    """Issue 31 point 6: "Last seen" was marked stale at 1-2 s while the
+    API said 6-86 ms: the page added the time since its own read (every
+    2 s) to the gateway's age, and a 500 ms heartbeat is stale after 750 ms."""
+    open_node(browser, server)
+    heartbeat = server.get("/api/v1/buses/demo/nodes/1")["heartbeat_ms"]
+    assert heartbeat and heartbeat < 1000, heartbeat
+    marks = []
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        marks.append(browser.js("const el = document.getElementById('last-seen');"
+                                "return [el.classList.contains('stale'), Number(el.dataset.ageMs || 0)]"))
+        time.sleep(0.25)
+    stale = [age for is_stale, age in marks if is_stale]
+    assert not stale, f"marked stale at {stale} ms with a {heartbeat} ms heartbeat"

@@ -80,9 +80,19 @@ function fact(label, value, key) {
   return [h('dt', {}, label), h('dd', { dataset: { fact: key } }, value)];
 }
 
+// How old the gateway's last frame of the node is: its `last_seen_ms` as
+// last read. The reads come every SEEN_POLL_MS; the time since the read
+// counts only once they stop coming (the gateway unreachable), else a
+// node heard every 500 ms read 1.9 s ago would be 1.9 s old, and marked
+// stale, while the gateway says 40 ms (issue 31 point 6).
+function seenAgeMs() {
+  const sinceRead = Date.now() - detailReadAt;
+  return Math.max(0, detail.last_seen_ms + (sinceRead > 2 * SEEN_POLL_MS ? sinceRead : 0));
+}
+
 function lastSeen() {
   if (!detail) return '…';
-  const seconds = Math.max(0, (Date.now() - detailReadAt + detail.last_seen_ms) / 1000);
+  const seconds = seenAgeMs() / 1000;
   return seconds < 1 ? 'just now' : `${seconds.toFixed(0)} s ago`;
 }
 
@@ -266,7 +276,8 @@ setInterval(() => {
   if (!el) return;
   el.textContent = lastSeen();
   // Older than one and a half heartbeat periods (or 5 s without one): stale.
-  const age = detail ? Date.now() - detailReadAt + detail.last_seen_ms : 0;
+  const age = detail ? seenAgeMs() : 0;
+  el.dataset.ageMs = String(Math.round(age));
   el.classList.toggle('stale', Boolean(detail) && age > Math.max(1.5 * (detail.heartbeat_ms || 0), detail.heartbeat_ms ? 0 : 5000));
 }, 1000);
 
