@@ -483,3 +483,21 @@ def test_the_fault_reset_result_shows_beside_the_button_and_its_hover_is_readabl
         box = browser.js("const r = document.getElementById('fault-result').getBoundingClientRect();"
                          "return {top: r.top, bottom: r.bottom, height: r.height, inner: innerHeight}")
         assert box["height"] > 0 and box["top"] >= 0 and box["bottom"] <= box["inner"], f"{width} px: {box}"
+
+
+def test_tuning_is_offered_only_where_the_profile_has_loops(server, browser):
+    """Issue 31 point 6: the JMC's drive page linked "Tuning (UMC)", whose
+    page opened full of NaN with Write and Store enabled."""
+    open_drive(browser, server, node=1, axis=1)
+    browser.wait(lambda _: browser.js("return !document.getElementById('tune-link').hidden"),
+                 message="the UMC's drive page offers no tuning")
+    open_drive(browser, server, node=2, axis=1)
+    browser.wait(lambda _: "jmc" in text(browser, "node-product"), message="the JMC's profile did not show")
+    assert browser.js("return document.getElementById('tune-link').hidden"), "the JMC's page offers UMC tuning"
+    # Its tuning page, opened by its address, says why there is nothing to tune.
+    browser.driver.get(f"{server.url}/nodes/demo/2/axes/1/tune")
+    browser.wait(lambda _: browser.js("return document.getElementById('tune-page').dataset.tunable") == "no",
+                 message="the JMC's tuning page did not say it has no loops")
+    assert "no UMC control loops" in text(browser, "page-message")
+    assert browser.js("return [...document.querySelectorAll('#tune-page button')].every((b) => b.disabled)")
+    assert "NaN" not in browser.js("return document.getElementById('tune-page').innerText")

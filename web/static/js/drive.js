@@ -174,6 +174,8 @@ function renderNode() {
   $('#node-name').textContent = name;
   $('#node-link').textContent = `Node ${detail.id}`;
   $('#node-product').textContent = `${detail.profile}${detail.online === false ? ' · offline' : ''}`;
+  // Tuning only where the profile has control loops: the UMC's.
+  $('#tune-link').hidden = detail.profile !== 'umc';
   document.title = `Axis ${axisText} · ${name} · candeck`;
   renderTabs();
 }
