@@ -374,3 +374,25 @@ def test_last_seen_is_not_marked_stale_while_the_gateway_hears_the_node(browser,
         time.sleep(0.25)
     stale = [age for is_stale, age in marks if is_stale]
     assert not stale, f"marked stale at {stale} ms with a {heartbeat} ms heartbeat"
+
+
+def test_assigning_an_eds_of_another_product_warns_and_asks(browser, server):
+    """Issue 31 point 6: assigning an EDS whose identity is not the
+    device's (a product 0xA16 file on a 0x401 device) said nothing."""
+    node = server.get("/api/v1/buses/demo/nodes/2")
+    files = server.get("/api/v1/eds")["files"]
+    other = next(f for f in files if f["usable"] and f["product_code"] not in (None, node["identity"]["product_code"]))
+    open_node(browser, server, node=2)
+    browser.wait(lambda _: browser.js(f"return [...document.querySelectorAll('#eds-file option')].some((o) => o.value === '{other['name']}')"),
+                 message="the EDS files did not load")
+    browser.js("const s = document.getElementById('eds-file'); s.value = arguments[0];"
+               "s.dispatchEvent(new Event('change'))", other["name"])
+    warning = browser.wait(lambda _: browser.js(
+        "const w = document.getElementById('eds-warning'); return !w.hidden && w.innerText"),
+        message="no warning for an EDS of another product")
+    assert "another device" in warning and f"{other['product_code']:08X}" in warning, warning
+    browser.driver.find_element(By.ID, "eds-assign").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no question asked")
+    assert "Assign it to node 2 anyway" in browser.js("return document.getElementById('confirm-text').innerText")
+    browser.driver.find_element(By.ID, "confirm-cancel").click()
+    assert server.get("/api/v1/buses/demo/nodes/2")["eds"] == node["eds"]

@@ -136,6 +136,27 @@ const edsCurrent = $('#eds-current');
 const edsSelect = $('#eds-file');
 const edsResult = $('#eds-result');
 let edsFiles = null; // names of the catalog's usable files
+let edsCatalog = new Map(); // name -> the catalog's entry (its identity)
+const edsWarning = $('#eds-warning');
+
+/** Why `file` does not describe this node, by identity (vendor, product),
+ * or '' (issue 31 point 6: a product 0xA16 file went onto a 0x401 device
+ * with no word). */
+function identityMismatch(file) {
+  const entry = edsCatalog.get(file);
+  const id = detail?.identity;
+  if (!entry || !id) return '';
+  const differs = [];
+  if (entry.vendor_id !== null && entry.vendor_id !== id.vendor_id) differs.push(`vendor ${hex(entry.vendor_id, 8)}, the device ${hex(id.vendor_id, 8)}`);
+  if (entry.product_code !== null && entry.product_code !== id.product_code) differs.push(`product ${hex(entry.product_code, 8)}, the device ${hex(id.product_code, 8)}`);
+  return differs.length ? `${file} describes another device: ${differs.join('; ')}.` : '';
+}
+
+function showEdsWarning() {
+  const text = edsSelect.value ? identityMismatch(edsSelect.value) : '';
+  edsWarning.textContent = text;
+  edsWarning.hidden = !text;
+}
 
 function renderEds() {
   const d = detail;
@@ -145,12 +166,15 @@ function renderEds() {
   edsCurrent.dataset.assigned = String(Boolean(d.eds_assigned));
   $('#eds-unassign').disabled = !d.eds_assigned;
   if (edsFiles && d.eds && edsFiles.includes(d.eds)) edsSelect.value = d.eds;
+  showEdsWarning();
 }
 
 async function loadEdsFiles() {
   try {
     const list = await api('/eds');
-    edsFiles = list.files.filter((f) => f.usable).map((f) => f.name);
+    const usable = list.files.filter((f) => f.usable);
+    edsFiles = usable.map((f) => f.name);
+    edsCatalog = new Map(usable.map((f) => [f.name, f]));
     edsSelect.replaceChildren(...edsFiles.map((name) => h('option', { value: name }, name)));
     if (detail) renderEds();
   } catch (error) {
@@ -159,6 +183,8 @@ async function loadEdsFiles() {
 }
 
 async function assignEds(button, file) {
+  const mismatch = file ? identityMismatch(file) : '';
+  if (mismatch && !(await confirmAction(`${mismatch} Assign it to node ${nodeId} anyway? Its objects may not be the device's.`, 'Assign anyway'))) return;
   const request = file
     ? api(`${base}/eds`, { method: 'PUT', body: { file } })
     : api(`${base}/eds`, { method: 'DELETE' });
@@ -172,6 +198,7 @@ async function assignEds(button, file) {
   loadDictionary();
 }
 
+edsSelect.addEventListener('change', showEdsWarning);
 $('#eds-assign').addEventListener('click', (event) => assignEds(event.currentTarget, edsSelect.value));
 $('#eds-unassign').addEventListener('click', (event) => assignEds(event.currentTarget, null));
 loadEdsFiles();
