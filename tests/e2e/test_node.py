@@ -356,6 +356,9 @@ def test_program_download_with_a_progress_bar(server, browser):
     assert steps == sorted(steps), steps
     assert server.get(f"{NODE}/od/0x1F56/1")["value"] == zlib.crc32(image)
     assert server.get(f"{NODE}/od/0x100A/0")["value"] == "1.9"
+    # Issue 31 point 6: the new software version is shown after the download.
+    browser.wait(lambda _: browser.js("const v = document.getElementById('program-version'); return v && v.innerText")
+                 == "Software version (0x100A): 1.9.", message="the new software version is not shown")
     browser.check()
 
 
@@ -396,3 +399,21 @@ def test_assigning_an_eds_of_another_product_warns_and_asks(browser, server):
     assert "Assign it to node 2 anyway" in browser.js("return document.getElementById('confirm-text').innerText")
     browser.driver.find_element(By.ID, "confirm-cancel").click()
     assert server.get("/api/v1/buses/demo/nodes/2")["eds"] == node["eds"]
+
+
+def test_program_download_is_not_offered_to_a_node_without_0x1f50(browser, server):
+    """Issue 31 point 6: the download was offered to a node without the
+    program download object and failed only after the confirmation."""
+    without = [n["id"] for n in server.get("/api/v1/buses/demo/nodes")
+               if not any(o["index"].upper() == "0X1F50" for o in server.get(f"/api/v1/buses/demo/nodes/{n['id']}/od?q=0x1F50"))]
+    assert without, "every demo node has 0x1F50"
+    open_node(browser, server, node=without[0])
+    browser.wait(lambda _: browser.js("return document.getElementById('program-panel').dataset.supported") == "false",
+                 message="the page did not find that the node takes no program")
+    assert browser.js("return document.getElementById('program-file').disabled")
+    assert browser.js("return document.getElementById('program-download').disabled")
+    assert "0x1F50" in browser.js("return document.getElementById('program-result').innerText")
+    open_node(browser, server, node=1)
+    browser.wait(lambda _: browser.js("return document.getElementById('program-panel').dataset.supported") == "true",
+                 message="the UMC's program download is not offered")
+    assert not browser.js("return document.getElementById('program-file').disabled")

@@ -196,6 +196,7 @@ async function assignEds(button, file) {
   result(edsResult, 'done', h('strong', {}, file ? `${file} assigned (${clock()}).` : `Matched by identity again (${clock()}).`));
   await loadDetail();
   loadDictionary();
+  checkProgramSupport();
 }
 
 edsSelect.addEventListener('change', showEdsWarning);
@@ -246,7 +247,10 @@ async function loadDetail() {
     body.hidden = false;
     renderIdentity();
     showNodeIdPanel();
-    if (first) loadDictionary();
+    if (first) {
+      loadDictionary();
+      checkProgramSupport();
+    }
   } catch (error) {
     if (error.status === 404 || error.status === 400) {
       // Unknown bus or node, or a path that names none: the page has
@@ -841,7 +845,42 @@ const programFile = $('#program-file');
 const programButton = $('#program-download');
 const programProgress = $('#program-progress');
 const programResult = $('#program-result');
-programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length; });
+let programSupported = null; // whether the node's EDS has 0x1F50 (null: not known yet)
+programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length || programSupported === false; });
+
+/** Whether the node can take a program at all: its EDS names the program
+ * download object 0x1F50 (CiA 302-3). Asked of the dictionary (the EDS,
+ * no device transfer), so a node without it is said before a file is
+ * picked, not after the confirmation (issue 31 point 6). */
+async function checkProgramSupport() {
+  let found;
+  try {
+    found = await api(`${base}/od?q=0x1F50`);
+  } catch {
+    return; // the dictionary's own error shows in its panel
+  }
+  programSupported = found.some((o) => parseInt(o.index, 16) === 0x1f50);
+  const panel = $('#program-panel');
+  panel.dataset.supported = String(programSupported);
+  programFile.disabled = !programSupported;
+  $('#program-start').disabled = !programSupported;
+  if (!programSupported) {
+    programButton.disabled = true;
+    result(programResult, 'failed', `This node's EDS${detail?.eds ? ` (${detail.eds})` : ''} has no program download object (0x1F50): it takes no program.`);
+  } else if (programResult.dataset.state === 'failed' && !programResult.textContent.startsWith('Program')) {
+    result(programResult, '', '');
+  }
+}
+
+/** The software version (0x100A) the device now reports, or null. */
+async function softwareVersion() {
+  try {
+    const [entry] = await api(`${base}/od/read`, { method: 'POST', body: { entries: [['0x100A', 0]] } });
+    return entry && !entry.error ? String(entry.value) : null;
+  } catch {
+    return null;
+  }
+}
 // The stream's runs: those up to `programRunSeen` were there before the
 // last click and are left alone (the topic first gives how the last one
 // ended); a later one moves the bar, and its text until the answer came.
@@ -922,4 +961,7 @@ programButton.addEventListener('click', async () => {
   result(programResult, 'done', h('strong', {}, `Program downloaded (${clock()}): `),
     `${v.bytes.toLocaleString()} bytes in ${v.elapsed_ms} ms (${v.bytes_per_s.toLocaleString()} bytes/s), `,
     `0x1F56 = ${v.crc32_hex} verified; `, v.started ? 'the program was started.' : 'the program was left stopped.');
+  // The version the device now reports (0x100A), where it has one.
+  const version = await softwareVersion();
+  if (version !== null) programResult.append(' ', h('span', { id: 'program-version' }, `Software version (0x100A): ${version}.`));
 });
