@@ -233,3 +233,19 @@ def test_on_a_phone_the_overview_shows_the_machine_and_its_alarms_first_and_the_
                      + str(browser.js("return [...document.querySelectorAll('#events li')].map((li) => li.innerText)")))
     finally:
         clear(server)
+
+
+def test_the_overview_nodes_table_does_not_scroll_sideways_at_1280_with_faults(browser, server):
+    """Issue 31 point 6: the overview's nodes table scrolled sideways in
+    its panel at 1280 px when faults showed."""
+    browser.driver.get(server.url + "/")
+    heard(browser)
+    inject(server)
+    try:
+        browser.wait(lambda _: "0x4310" in browser.js("return document.querySelector('#nodes tbody').innerText"),
+                     message="the fault did not show in the nodes table")
+        sizes = browser.js("const p = document.getElementById('nodes').closest('.panel');"
+                           "return [p.scrollWidth, p.clientWidth]")
+        assert sizes[0] <= sizes[1], f"the nodes panel scrolls sideways: {sizes}"
+    finally:
+        clear(server)
