@@ -22,7 +22,8 @@
 //!   `/nodes/{bus}/{node}/pdos` (a node's PDO editor),
 //!   `/nodes/{bus}/{node}/leds` (an LED controller's segments and live
 //!   strip), `/buses/{bus}/trace` (a bus's live frames, decoded, and its
-//!   recording), `/events` (the persisted history), `/loggers` (the data
+//!   recording), `/alarms` (the alarms, acknowledging, machine-level
+//!   recovery), `/events` (the persisted history), `/loggers` (the data
 //!   logger: channels, live chart, CSV), `/eds` (the device
 //!   descriptions: the EDS catalog, uploads) and `/nodes/{bus}/{node}/io`
 //!   (a CiA 401 module's inputs and outputs),
@@ -87,6 +88,7 @@ const SVG: &str = "image/svg+xml";
 
 /// Every file of `web/static/` (a unit test checks that none is missing).
 pub static ASSETS: &[Asset] = &[
+    asset!("css/alarms.css", CSS),
     asset!("css/app.css", CSS),
     asset!("css/auth.css", CSS),
     asset!("css/drive.css", CSS),
@@ -99,6 +101,8 @@ pub static ASSETS: &[Asset] = &[
     asset!("css/pdos.css", CSS),
     asset!("css/trace.css", CSS),
     asset!("css/tune.css", CSS),
+    asset!("js/alarmbar.js", JS),
+    asset!("js/alarms.js", JS),
     asset!("js/api.js", JS),
     asset!("js/auth.js", JS),
     asset!("js/axes.js", JS),
@@ -120,6 +124,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/node.js", JS),
     asset!("js/overview.js", JS),
     asset!("js/pdos.js", JS),
+    asset!("js/recovery.js", JS),
     asset!("js/stopall.js", JS),
     asset!("js/stream.js", JS),
     asset!("js/trace.js", JS),
@@ -167,6 +172,7 @@ pub fn router() -> Router {
         .route("/", get(overview))
         .route("/nodes/{bus}/{node}", get(node))
         .route("/events", get(events))
+        .route("/alarms", get(alarms))
         .route("/loggers", get(loggers))
         .route("/eds", get(eds))
         .route("/nodes/{bus}/{node}/io", get(io))
@@ -314,6 +320,14 @@ struct IoPage {
     layout: Layout,
     bus: String,
     node: String,
+}
+
+/// The alarms: active, cleared and waiting, the history; acknowledging,
+/// machine-level recovery.
+#[derive(Template)]
+#[template(path = "alarms.html")]
+struct AlarmsPage {
+    layout: Layout,
 }
 
 #[derive(Template)]
@@ -577,6 +591,12 @@ async fn io(Path((bus, node)): Path<(String, String)>) -> Response {
 async fn events() -> Response {
     page(&EventsPage {
         layout: Layout::new("events").with_crumbs(trail(None, None, None, Some("Events"))),
+    })
+}
+
+async fn alarms() -> Response {
+    page(&AlarmsPage {
+        layout: Layout::new("alarms").with_crumbs(trail(None, None, None, Some("Alarms"))),
     })
 }
 

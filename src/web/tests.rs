@@ -507,6 +507,7 @@ async fn every_page_weighs_under_300_kb() {
         "/nodes/demo/1/pdos",
         "/nodes/demo/3/leds",
         "/buses/demo/trace",
+        "/alarms",
     ] {
         let total = page_weight(&app, page).await;
         assert!(total < 300 * 1024, "{page}: {total} bytes");
@@ -579,4 +580,38 @@ async fn each_commissioning_page_lists_its_objects_with_units() {
         let (status, _, _) = fetch(&app, uri, &[]).await;
         assert_eq!(status, StatusCode::NOT_FOUND, "{uri}");
     }
+}
+
+/// Issue 31: the alarm bar on every page (its element and its module, in
+/// the layout), and the alarm page in the navigation.
+#[tokio::test]
+async fn every_page_has_the_alarm_bar_and_the_alarm_page_is_in_the_navigation() {
+    let app = router();
+    for uri in [
+        "/",
+        "/alarms",
+        "/events",
+        "/loggers",
+        "/eds",
+        "/nodes/demo/1",
+        "/nodes/demo/1/axes/1",
+        "/nodes/demo/1/pdos",
+        "/nodes/demo/2/io",
+        "/nodes/demo/3/leds",
+        "/buses/demo/trace",
+        "/nodes/demo/1/axes/1/tune",
+        "/nodes/demo/1/axes/1/commissioning/board",
+    ] {
+        let html = page_html(&app, uri, &["js/alarmbar.js"]).await;
+        assert!(
+            html.contains(r#"<a id="alarm-bar" class="alarm-bar" href="/alarms""#),
+            "{uri}: {html}"
+        );
+    }
+    let html = page_html(&app, "/alarms", &["css/alarms.css", "js/alarms.js"]).await;
+    assert!(
+        html.contains(r#"<a href="/alarms" aria-current="page">Alarms</a>"#),
+        "{html}"
+    );
+    assert!(html.contains(r#"id="alarm-list""#), "{html}");
 }

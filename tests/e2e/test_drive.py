@@ -442,3 +442,62 @@ def test_a_velocity_move_holds_a_lease_and_stops_when_the_page_goes_away(server,
     finally:
         disable(server)
     browser.check()
+
+
+CONTRAST = """
+const el = arguments[0];
+const rgb = (s) => s.match(/[\\d.]+/g).slice(0, 3).map(Number);
+const lum = (c) => {
+  const [r, g, b] = c.map((v) => { v /= 255; return v <= 0.03928 ? v / 12.92 : ((v + 0.055) / 1.055) ** 2.4; });
+  return 0.2126 * r + 0.7152 * g + 0.0722 * b;
+};
+const style = getComputedStyle(el);
+const [a, b] = [lum(rgb(style.color)), lum(rgb(style.backgroundColor))];
+return (Math.max(a, b) + 0.05) / (Math.min(a, b) + 0.05);
+"""
+
+
+def test_the_fault_reset_result_shows_beside_the_button_and_its_hover_is_readable(server, browser):
+    """Issue 31 point 6: the result of the fault band's Fault reset showed
+    only in the state panel, below the fold at 1280×800 and on a phone, and
+    the button's hover gave its white text 1.15:1 on a light background."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    for width, height, mobile in ((1280, 800, False), (390, 844, True)):
+        server.post(FAULTS, {"kind": "over_temperature"})
+        server.wait_for(UMC_AXIS, lambda a: a["state"] == "fault", "the axis did not fault")
+        server.request("DELETE", FAULTS, {"kind": "over_temperature"})
+        browser.driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                                       {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": mobile})
+        open_drive(browser, server)
+        browser.wait(lambda _: browser.js("return document.getElementById('fault-panel').dataset.fault") == "yes",
+                     message="no fault band")
+        button = browser.driver.find_element("id", "fault-reset")
+        ActionChains(browser.driver).move_to_element(button).perform()
+        ratio = browser.js(CONTRAST, button)
+        assert ratio >= 4.5, f"{width} px: hovered Fault reset contrast {ratio:.2f}:1"
+        button.click()
+        browser.wait(lambda _: browser.js("return document.getElementById('fault-result').dataset.state") == "done",
+                     message=f"{width} px: no result beside Fault reset")
+        assert "Fault reset: done" in text(browser, "fault-result")
+        box = browser.js("const r = document.getElementById('fault-result').getBoundingClientRect();"
+                         "return {top: r.top, bottom: r.bottom, height: r.height, inner: innerHeight}")
+        assert box["height"] > 0 and box["top"] >= 0 and box["bottom"] <= box["inner"], f"{width} px: {box}"
+
+
+def test_tuning_is_offered_only_where_the_profile_has_loops(server, browser):
+    """Issue 31 point 6: the JMC's drive page linked "Tuning (UMC)", whose
+    page opened full of NaN with Write and Store enabled."""
+    open_drive(browser, server, node=1, axis=1)
+    browser.wait(lambda _: browser.js("return !document.getElementById('tune-link').hidden"),
+                 message="the UMC's drive page offers no tuning")
+    open_drive(browser, server, node=2, axis=1)
+    browser.wait(lambda _: "jmc" in text(browser, "node-product"), message="the JMC's profile did not show")
+    assert browser.js("return document.getElementById('tune-link').hidden"), "the JMC's page offers UMC tuning"
+    # Its tuning page, opened by its address, says why there is nothing to tune.
+    browser.driver.get(f"{server.url}/nodes/demo/2/axes/1/tune")
+    browser.wait(lambda _: browser.js("return document.getElementById('tune-page').dataset.tunable") == "no",
+                 message="the JMC's tuning page did not say it has no loops")
+    assert "no UMC control loops" in text(browser, "page-message")
+    assert browser.js("return [...document.querySelectorAll('#tune-page button')].every((b) => b.disabled)")
+    assert "NaN" not in browser.js("return document.getElementById('tune-page').innerText")

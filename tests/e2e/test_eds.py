@@ -55,7 +55,12 @@ def test_a_file_is_uploaded_shown_with_its_problems_assigned_and_deleted(browser
     open_node(browser, server, 2)
     assert browser.js("return document.getElementById('eds-current').dataset.assigned") == "false"
     Select(browser.driver.find_element(By.ID, "eds-file")).select_by_value(NAME)
+    # Issue 31 point 6: a file of another device's identity is said so, and
+    # Assign asks before assigning it.
+    assert "describes another device" in browser.driver.find_element(By.ID, "eds-warning").text
     browser.driver.find_element(By.ID, "eds-assign").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no question asked")
+    browser.driver.find_element(By.ID, "confirm-ok").click()
     browser.wait(lambda _: browser.js("return document.getElementById('eds-current').dataset.assigned") == "true",
                  message="the assignment was not shown")
     node = server.get("/api/v1/buses/demo/nodes/2")

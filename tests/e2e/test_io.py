@@ -98,3 +98,46 @@ def test_the_page_reads_leave_the_elements_under_a_finger_in_place(browser, serv
     assert server.get(f"{IO}/od/0x6200/1")["value"] & 0x02
     browser.wait(lambda _: switch.text == "Switch off", message="do2's switch does not offer to switch it off")
     browser.check()
+
+
+def test_a_stopped_nodes_inputs_are_greyed_out_with_its_nmt_state(browser, server):
+    """Issue 31 point 6: the inputs kept "TPDO, 224 ms ago" for 15 s after
+    the node was NMT-stopped (and the page asked a stopped node for its
+    channels, which answers 409). Now the node's state shows, and each
+    channel is greyed out with when it was last read."""
+    add_io401(server)
+    browser.driver.get(f"{server.url}/nodes/demo/4/io")
+    loaded(browser)
+    browser.wait(lambda _: browser.js("return document.getElementById('io-node-state').dataset.nmt") == "operational",
+                 message="the page does not show the node's NMT state")
+    assert browser.js("return [...document.querySelectorAll('#digital-inputs .lamp')].every((l) => l.dataset.stale === 'no')")
+    server.post(f"{IO}/nmt", {"command": "stop"})
+    browser.wait(lambda _: browser.js(
+        "return [...document.querySelectorAll('#digital-inputs .lamp, #analog-inputs .analog')]"
+        ".every((l) => l.dataset.stale === 'yes' && /stopped: last read/.test(l.innerText))"),
+        timeout=3, message="the stopped node's inputs were not greyed out: "
+        + str(browser.js("return document.getElementById('digital-inputs').innerText")))
+    said = browser.js("return document.getElementById('io-node-state').innerText")
+    assert "stopped" in said and "online" in said, said
+    assert browser.js("return [...document.querySelectorAll('#digital-outputs button')].every((b) => b.disabled)")
+    server.post(f"{IO}/nmt", {"command": "start"})
+    browser.wait(lambda _: browser.js(
+        "return [...document.querySelectorAll('#digital-inputs .lamp')].every((l) => l.dataset.stale === 'no')"),
+        message="the inputs stayed grey after the node started again")
+
+
+def test_the_age_text_stays_inside_its_card_at_1280_px(browser, server):
+    """Issue 31 point 6: "TPDO, 224 ms ago" overflowed its lamp at 1280 px."""
+    add_io401(server)
+    browser.driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                                   {"width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": False})
+    browser.driver.get(f"{server.url}/nodes/demo/4/io")
+    loaded(browser)
+    browser.wait(lambda _: browser.js("return /TPDO/.test(document.getElementById('digital-inputs').innerText)"),
+                 message="no TPDO age shown")
+    over = browser.js(
+        "return [...document.querySelectorAll('.lamp, .analog')].filter((c) => {"
+        "  const box = c.getBoundingClientRect();"
+        "  return [...c.querySelectorAll('*')].some((e) => e.getBoundingClientRect().right > box.right + 0.5);"
+        "}).map((c) => c.id)")
+    assert over == [], over

@@ -356,4 +356,64 @@ def test_program_download_with_a_progress_bar(server, browser):
     assert steps == sorted(steps), steps
     assert server.get(f"{NODE}/od/0x1F56/1")["value"] == zlib.crc32(image)
     assert server.get(f"{NODE}/od/0x100A/0")["value"] == "1.9"
+    # Issue 31 point 6: the new software version is shown after the download.
+    browser.wait(lambda _: browser.js("const v = document.getElementById('program-version'); return v && v.innerText")
+                 == "Software version (0x100A): 1.9.", message="the new software version is not shown")
     browser.check()
+
+
+def test_last_seen_is_not_marked_stale_while_the_gateway_hears_the_node(browser, server):
+    """Issue 31 point 6: "Last seen" was marked stale at 1-2 s while the
+    API said 6-86 ms: the page added the time since its own read (every
+    2 s) to the gateway's age, and a 500 ms heartbeat is stale after 750 ms."""
+    open_node(browser, server)
+    heartbeat = server.get("/api/v1/buses/demo/nodes/1")["heartbeat_ms"]
+    assert heartbeat and heartbeat < 1000, heartbeat
+    marks = []
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        marks.append(browser.js("const el = document.getElementById('last-seen');"
+                                "return [el.classList.contains('stale'), Number(el.dataset.ageMs || 0)]"))
+        time.sleep(0.25)
+    stale = [age for is_stale, age in marks if is_stale]
+    assert not stale, f"marked stale at {stale} ms with a {heartbeat} ms heartbeat"
+
+
+def test_assigning_an_eds_of_another_product_warns_and_asks(browser, server):
+    """Issue 31 point 6: assigning an EDS whose identity is not the
+    device's (a product 0xA16 file on a 0x401 device) said nothing."""
+    node = server.get("/api/v1/buses/demo/nodes/2")
+    files = server.get("/api/v1/eds")["files"]
+    other = next(f for f in files if f["usable"] and f["product_code"] not in (None, node["identity"]["product_code"]))
+    open_node(browser, server, node=2)
+    browser.wait(lambda _: browser.js(f"return [...document.querySelectorAll('#eds-file option')].some((o) => o.value === '{other['name']}')"),
+                 message="the EDS files did not load")
+    browser.js("const s = document.getElementById('eds-file'); s.value = arguments[0];"
+               "s.dispatchEvent(new Event('change'))", other["name"])
+    warning = browser.wait(lambda _: browser.js(
+        "const w = document.getElementById('eds-warning'); return !w.hidden && w.innerText"),
+        message="no warning for an EDS of another product")
+    assert "another device" in warning and f"{other['product_code']:08X}" in warning, warning
+    browser.driver.find_element(By.ID, "eds-assign").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no question asked")
+    assert "Assign it to node 2 anyway" in browser.js("return document.getElementById('confirm-text').innerText")
+    browser.driver.find_element(By.ID, "confirm-cancel").click()
+    assert server.get("/api/v1/buses/demo/nodes/2")["eds"] == node["eds"]
+
+
+def test_program_download_is_not_offered_to_a_node_without_0x1f50(browser, server):
+    """Issue 31 point 6: the download was offered to a node without the
+    program download object and failed only after the confirmation."""
+    without = [n["id"] for n in server.get("/api/v1/buses/demo/nodes")
+               if not any(o["index"].upper() == "0X1F50" for o in server.get(f"/api/v1/buses/demo/nodes/{n['id']}/od?q=0x1F50"))]
+    assert without, "every demo node has 0x1F50"
+    open_node(browser, server, node=without[0])
+    browser.wait(lambda _: browser.js("return document.getElementById('program-panel').dataset.supported") == "false",
+                 message="the page did not find that the node takes no program")
+    assert browser.js("return document.getElementById('program-file').disabled")
+    assert browser.js("return document.getElementById('program-download').disabled")
+    assert "0x1F50" in browser.js("return document.getElementById('program-result').innerText")
+    open_node(browser, server, node=1)
+    browser.wait(lambda _: browser.js("return document.getElementById('program-panel').dataset.supported") == "true",
+                 message="the UMC's program download is not offered")
+    assert not browser.js("return document.getElementById('program-file').disabled")

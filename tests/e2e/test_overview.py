@@ -103,7 +103,9 @@ def test_an_injected_fault_shows_its_emcy_without_a_reload(server, browser):
     browser.wait(lambda _: node_rows(browser)["1"]["Last EMCY"] == f"{last['code']} {last['text']}",
                  message=f"node 1 shows {emcy!r}, the gateway has {last}")
     events = browser.js("return document.getElementById('events').innerText")
-    assert f"demo node 1: EMCY {last['code']} {last['text']}" in events, events
+    # Issue 31: an EMCY row names the axis it belongs to, where the device says.
+    axis = f" axis {last['axis']}" if last.get("axis") else ""
+    assert f"demo node 1{axis}: EMCY {last['code']} {last['text']}" in events, events
     assert node_rows(browser)["2"]["Last EMCY"] == "none"
     assert browser.js("return window.notReloaded === true"), "the page was reloaded"
     browser.check()

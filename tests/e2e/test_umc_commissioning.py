@@ -81,3 +81,40 @@ def test_the_tuning_page_writes_a_gain_shows_the_status_and_runs_a_step(browser,
     assert browser.js("return document.getElementById('step-metrics').dataset.source") == "sdo"
     assert "read by SDO" in browser.driver.find_element(By.ID, "step-metrics").text
     assert browser.js("return document.querySelectorAll('#step-runs li').length") == 1
+
+
+SMALL_TARGETS = """
+return [...document.querySelectorAll('main button, main input[type=text], main input[type=number], main select')]
+  .filter((e) => e.offsetParent !== null)
+  .map((e) => [e.id || e.className || e.tagName, e.getBoundingClientRect().height])
+  .filter(([, height]) => height < 44);
+"""
+
+
+def test_commissioning_fits_a_phone_says_when_it_read_and_has_the_house_targets(browser, server):
+    """Issue 31 point 6: at 390 px the commissioning tables clipped values,
+    units and Write went off-screen; Board status was one read with no
+    time; these pages had the browser's grey buttons and 21 px inputs."""
+    wait_identified(server)
+    browser.phone()
+    for slug in ("board", "motor"):
+        browser.driver.get(f"{server.url}/nodes/demo/1/axes/1/commissioning/{slug}")
+        loaded(browser, "commission-page")
+        outside = browser.js(
+            "return [...document.querySelectorAll('#objects td, #objects input, #objects button')]"
+            ".filter((e) => e.offsetParent !== null && e.getBoundingClientRect().right > innerWidth + 0.5)"
+            ".map((e) => e.closest('tr').id + ' ' + e.tagName)")
+        assert outside == [], f"{slug}: {outside}"
+        said = browser.js("return document.getElementById('read-at').innerText")
+        assert said.startswith("Read at ") and ":" in said, said
+        small = browser.js(SMALL_TARGETS)
+        assert small == [], f"{slug}: {small}"
+    for page in ("/nodes/demo/1/axes/1/tune", "/loggers"):
+        browser.driver.get(server.url + page)
+        browser.wait(lambda _: browser.js("return document.querySelectorAll('main button').length") > 0,
+                     message=f"{page}: no button")
+        small = browser.js(SMALL_TARGETS)
+        assert small == [], f"{page}: {small}"
+        grey = browser.js("return [...document.querySelectorAll('main button')].filter((b) => b.offsetParent !== null)"
+                          ".filter((b) => getComputedStyle(b).backgroundColor === 'rgb(239, 239, 239)').map((b) => b.id || b.textContent)")
+        assert grey == [], f"{page}: native grey buttons {grey}"

@@ -55,6 +55,10 @@ async function readAll() {
     const answer = await api(`${base}/od/read`, { method: 'POST', body: { entries } });
     answer.forEach((entry, i) => show(rows[i], entry));
     showMessage($('#page-message'), '');
+    // The values are one read, not live: say when (issue 31 point 6).
+    const readAt = $('#read-at');
+    readAt.textContent = `Read at ${clock()}`;
+    readAt.dataset.at = String(Date.now());
   } catch (err) {
     showMessage($('#page-message'), err.message);
   }

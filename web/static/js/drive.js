@@ -53,6 +53,7 @@ const faultPanel = $('#fault-panel');
 const faultTitle = $('#fault-title');
 const faultEmcy = $('#fault-emcy');
 const faultReset = $('#fault-reset');
+const faultResult = $('#fault-result');
 const haltOn = $('#halt-on');
 const quickHalt = $('#quick-halt');
 const quickStop = $('#quick-stop');
@@ -96,6 +97,7 @@ function result(el, state, ...content) {
   el.dataset.state = state;
   el.replaceChildren(...content);
 }
+const say = result;
 
 // ---- loading -----------------------------------------------------------------
 
@@ -172,6 +174,8 @@ function renderNode() {
   $('#node-name').textContent = name;
   $('#node-link').textContent = `Node ${detail.id}`;
   $('#node-product').textContent = `${detail.profile}${detail.online === false ? ' · offline' : ''}`;
+  // Tuning only where the profile has control loops: the UMC's.
+  $('#tune-link').hidden = detail.profile !== 'umc';
   document.title = `Axis ${axisText} · ${name} · candeck`;
   renderTabs();
 }
@@ -378,10 +382,16 @@ function renderTransitions(available, force = false) {
     : [h('p', { class: 'sub' }, `No transition to command from ${stateLabel(status.state).toLowerCase()}: the drive leaves it by itself.`)]));
 }
 
-/** Runs one state-panel action: the others wait, the button shows it. */
-async function stateAction(button, busyLabel, what, request) {
+/** Runs one state-panel action: the others wait, the button shows it. The
+ * result is said in the state panel and, for a button elsewhere (the fault
+ * band's Fault reset), also beside it, where the tap was (`near`). */
+async function stateAction(button, busyLabel, what, request, near = null) {
   acting = true;
   for (const other of document.querySelectorAll('#state-panel button, #fault-reset')) if (other !== button) other.disabled = true;
+  const result = (el, state, ...content) => {
+    say(el, state, ...content);
+    if (near) say(near, state, ...content.map((c) => (c instanceof Node ? c.cloneNode(true) : c)));
+  };
   result(stateResult, 'busy', `${what}…`);
   const outcome = await runAction(button, busyLabel, request);
   acting = false;
@@ -406,7 +416,7 @@ function transition(t, button) {
 
 async function resetFault(button) {
   const outcome = await stateAction(button, 'Resetting…', 'Fault reset',
-    () => api(`${axisPath}/fault-reset`, { method: 'POST' }));
+    () => api(`${axisPath}/fault-reset`, { method: 'POST' }), button === faultReset ? faultResult : null);
   reloadNode();
   return outcome;
 }

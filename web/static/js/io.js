@@ -19,8 +19,24 @@ const base = `/buses/${encodeURIComponent(bus)}/nodes/${encodeURIComponent(node)
 const pageMessage = $('#page-message');
 const result = $('#io-result');
 const POLL_MS = 500;
+// An input older than this is greyed out: the module's TPDOs come at least
+// every second while it is operational.
+const STALE_MS = 2000;
+const NMT = { operational: 'operational', pre_operational: 'pre-operational', stopped: 'stopped', boot_up: 'boot-up', unknown: 'unknown' };
+const nodeState = $('#io-node-state');
 
 const age = (c) => (c.source === 'tpdo' ? `TPDO, ${c.age_ms} ms ago` : 'read now (SDO)');
+const staleAge = (c) => (c.source === 'tpdo' && c.age_ms > STALE_MS);
+
+// Issue 31 point 6: a stopped or offline node answers no read, and its
+// inputs are what they were when it stopped: each channel is greyed out
+// with when it was last read, until the node runs again.
+let lastRead = null; // Date.now() of the last read of the channels
+function markAll(stale, why) {
+  for (const container of root.querySelectorAll('.lamps, .analogs')) {
+    for (const view of container.views?.views.values() || []) view.stale(stale, why);
+  }
+}
 
 async function set(button, channel, value) {
   const done = await runAction(button, 'Setting…', () => api(`${base}/io`, { method: 'PUT', body: { outputs: { [channel]: value } } }));
@@ -55,8 +71,15 @@ function lamp(channel, output) {
     // gives it the new one.
     if (!output) tail.textContent = age(c);
     else if (!tail.disabled) tail.textContent = on ? 'Switch off' : 'Switch on';
+    stale(!output && staleAge(c), '');
   };
-  return { el, update };
+  const stale = (yes, why) => {
+    el.dataset.stale = yes ? 'yes' : 'no';
+    el.classList.toggle('stale', yes);
+    if (output) tail.disabled = yes && Boolean(why);
+    else if (why) tail.textContent = why;
+  };
+  return { el, update, stale };
 }
 
 const drafts = new Map(); // analogue output -> the value being typed
@@ -86,8 +109,15 @@ function analog(channel, output) {
     // A field being typed into, or holding a value typed but not yet set,
     // keeps it.
     if (input && document.activeElement !== input && !drafts.has(channel)) input.value = String(c.value);
+    stale(!output && staleAge(c), '');
   };
-  return { el, update };
+  const stale = (yes, why) => {
+    el.dataset.stale = yes ? 'yes' : 'no';
+    el.classList.toggle('stale', yes);
+    if (ageEl && why) ageEl.textContent = why;
+    for (const control of el.querySelectorAll('input, button')) control.disabled = yes && Boolean(why);
+  };
+  return { el, update, stale };
 }
 
 /**
@@ -114,7 +144,20 @@ async function refresh() {
   }
   busy = true;
   try {
+    // The node first: a stopped or offline one is not asked for its channels.
+    const detail = await api(base);
+    const running = detail.online !== false && (detail.nmt === 'operational' || detail.nmt === 'pre_operational');
+    nodeState.dataset.nmt = detail.nmt;
+    nodeState.dataset.online = String(detail.online !== false);
+    nodeState.textContent = `Node ${node}: ${NMT[detail.nmt] || detail.nmt}, ${detail.online === false ? 'offline' : 'online'}`;
+    if (!running) {
+      const since = lastRead ? `last read ${clock(lastRead)}` : 'not read';
+      markAll(true, `${detail.online === false ? 'offline' : `node ${NMT[detail.nmt] || detail.nmt}`}: ${since}`);
+      root.dataset.loaded = 'true';
+      return;
+    }
     const io = await api(`${base}/io`);
+    lastRead = Date.now();
     showMessage(pageMessage, '');
     show($('#digital-inputs'), io.digital_inputs, (name) => lamp(name, false));
     show($('#digital-outputs'), io.digital_outputs, (name) => lamp(name, true));
@@ -123,6 +166,7 @@ async function refresh() {
     root.dataset.loaded = 'true';
   } catch (error) {
     showMessage(pageMessage, `I/O: ${error.message}`);
+    markAll(true, lastRead ? `not read since ${clock(lastRead)}` : 'not read');
   } finally {
     busy = false;
   }

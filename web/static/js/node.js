@@ -80,9 +80,19 @@ function fact(label, value, key) {
   return [h('dt', {}, label), h('dd', { dataset: { fact: key } }, value)];
 }
 
+// How old the gateway's last frame of the node is: its `last_seen_ms` as
+// last read. The reads come every SEEN_POLL_MS; the time since the read
+// counts only once they stop coming (the gateway unreachable), else a
+// node heard every 500 ms read 1.9 s ago would be 1.9 s old, and marked
+// stale, while the gateway says 40 ms (issue 31 point 6).
+function seenAgeMs() {
+  const sinceRead = Date.now() - detailReadAt;
+  return Math.max(0, detail.last_seen_ms + (sinceRead > 2 * SEEN_POLL_MS ? sinceRead : 0));
+}
+
 function lastSeen() {
   if (!detail) return '…';
-  const seconds = Math.max(0, (Date.now() - detailReadAt + detail.last_seen_ms) / 1000);
+  const seconds = seenAgeMs() / 1000;
   return seconds < 1 ? 'just now' : `${seconds.toFixed(0)} s ago`;
 }
 
@@ -126,6 +136,27 @@ const edsCurrent = $('#eds-current');
 const edsSelect = $('#eds-file');
 const edsResult = $('#eds-result');
 let edsFiles = null; // names of the catalog's usable files
+let edsCatalog = new Map(); // name -> the catalog's entry (its identity)
+const edsWarning = $('#eds-warning');
+
+/** Why `file` does not describe this node, by identity (vendor, product),
+ * or '' (issue 31 point 6: a product 0xA16 file went onto a 0x401 device
+ * with no word). */
+function identityMismatch(file) {
+  const entry = edsCatalog.get(file);
+  const id = detail?.identity;
+  if (!entry || !id) return '';
+  const differs = [];
+  if (entry.vendor_id !== null && entry.vendor_id !== id.vendor_id) differs.push(`vendor ${hex(entry.vendor_id, 8)}, the device ${hex(id.vendor_id, 8)}`);
+  if (entry.product_code !== null && entry.product_code !== id.product_code) differs.push(`product ${hex(entry.product_code, 8)}, the device ${hex(id.product_code, 8)}`);
+  return differs.length ? `${file} describes another device: ${differs.join('; ')}.` : '';
+}
+
+function showEdsWarning() {
+  const text = edsSelect.value ? identityMismatch(edsSelect.value) : '';
+  edsWarning.textContent = text;
+  edsWarning.hidden = !text;
+}
 
 function renderEds() {
   const d = detail;
@@ -135,12 +166,15 @@ function renderEds() {
   edsCurrent.dataset.assigned = String(Boolean(d.eds_assigned));
   $('#eds-unassign').disabled = !d.eds_assigned;
   if (edsFiles && d.eds && edsFiles.includes(d.eds)) edsSelect.value = d.eds;
+  showEdsWarning();
 }
 
 async function loadEdsFiles() {
   try {
     const list = await api('/eds');
-    edsFiles = list.files.filter((f) => f.usable).map((f) => f.name);
+    const usable = list.files.filter((f) => f.usable);
+    edsFiles = usable.map((f) => f.name);
+    edsCatalog = new Map(usable.map((f) => [f.name, f]));
     edsSelect.replaceChildren(...edsFiles.map((name) => h('option', { value: name }, name)));
     if (detail) renderEds();
   } catch (error) {
@@ -149,6 +183,8 @@ async function loadEdsFiles() {
 }
 
 async function assignEds(button, file) {
+  const mismatch = file ? identityMismatch(file) : '';
+  if (mismatch && !(await confirmAction(`${mismatch} Assign it to node ${nodeId} anyway? Its objects may not be the device's.`, 'Assign anyway'))) return;
   const request = file
     ? api(`${base}/eds`, { method: 'PUT', body: { file } })
     : api(`${base}/eds`, { method: 'DELETE' });
@@ -160,8 +196,10 @@ async function assignEds(button, file) {
   result(edsResult, 'done', h('strong', {}, file ? `${file} assigned (${clock()}).` : `Matched by identity again (${clock()}).`));
   await loadDetail();
   loadDictionary();
+  checkProgramSupport();
 }
 
+edsSelect.addEventListener('change', showEdsWarning);
 $('#eds-assign').addEventListener('click', (event) => assignEds(event.currentTarget, edsSelect.value));
 $('#eds-unassign').addEventListener('click', (event) => assignEds(event.currentTarget, null));
 loadEdsFiles();
@@ -209,7 +247,10 @@ async function loadDetail() {
     body.hidden = false;
     renderIdentity();
     showNodeIdPanel();
-    if (first) loadDictionary();
+    if (first) {
+      loadDictionary();
+      checkProgramSupport();
+    }
   } catch (error) {
     if (error.status === 404 || error.status === 400) {
       // Unknown bus or node, or a path that names none: the page has
@@ -266,7 +307,8 @@ setInterval(() => {
   if (!el) return;
   el.textContent = lastSeen();
   // Older than one and a half heartbeat periods (or 5 s without one): stale.
-  const age = detail ? Date.now() - detailReadAt + detail.last_seen_ms : 0;
+  const age = detail ? seenAgeMs() : 0;
+  el.dataset.ageMs = String(Math.round(age));
   el.classList.toggle('stale', Boolean(detail) && age > Math.max(1.5 * (detail.heartbeat_ms || 0), detail.heartbeat_ms ? 0 : 5000));
 }, 1000);
 
@@ -784,6 +826,11 @@ stream.onState(({ state, reconnected }) => {
   if (state === 'connected' && reconnected) loadDetail();
 });
 
+// An alarm's help links the objects it names here (`#od=0x603F`, alarms.js):
+// the dictionary opens searched for that object.
+const askedObject = /^#od=(0x[0-9a-f]{4})$/i.exec(window.location.hash);
+if (askedObject) search.value = askedObject[1];
+
 stream.connect();
 loadDetail();
 
@@ -798,7 +845,42 @@ const programFile = $('#program-file');
 const programButton = $('#program-download');
 const programProgress = $('#program-progress');
 const programResult = $('#program-result');
-programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length; });
+let programSupported = null; // whether the node's EDS has 0x1F50 (null: not known yet)
+programFile.addEventListener('change', () => { programButton.disabled = !programFile.files.length || programSupported === false; });
+
+/** Whether the node can take a program at all: its EDS names the program
+ * download object 0x1F50 (CiA 302-3). Asked of the dictionary (the EDS,
+ * no device transfer), so a node without it is said before a file is
+ * picked, not after the confirmation (issue 31 point 6). */
+async function checkProgramSupport() {
+  let found;
+  try {
+    found = await api(`${base}/od?q=0x1F50`);
+  } catch {
+    return; // the dictionary's own error shows in its panel
+  }
+  programSupported = found.some((o) => parseInt(o.index, 16) === 0x1f50);
+  const panel = $('#program-panel');
+  panel.dataset.supported = String(programSupported);
+  programFile.disabled = !programSupported;
+  $('#program-start').disabled = !programSupported;
+  if (!programSupported) {
+    programButton.disabled = true;
+    result(programResult, 'failed', `This node's EDS${detail?.eds ? ` (${detail.eds})` : ''} has no program download object (0x1F50): it takes no program.`);
+  } else if (programResult.dataset.state === 'failed' && !programResult.textContent.startsWith('Program')) {
+    result(programResult, '', '');
+  }
+}
+
+/** The software version (0x100A) the device now reports, or null. */
+async function softwareVersion() {
+  try {
+    const [entry] = await api(`${base}/od/read`, { method: 'POST', body: { entries: [['0x100A', 0]] } });
+    return entry && !entry.error ? String(entry.value) : null;
+  } catch {
+    return null;
+  }
+}
 // The stream's runs: those up to `programRunSeen` were there before the
 // last click and are left alone (the topic first gives how the last one
 // ended); a later one moves the bar, and its text until the answer came.
@@ -879,4 +961,7 @@ programButton.addEventListener('click', async () => {
   result(programResult, 'done', h('strong', {}, `Program downloaded (${clock()}): `),
     `${v.bytes.toLocaleString()} bytes in ${v.elapsed_ms} ms (${v.bytes_per_s.toLocaleString()} bytes/s), `,
     `0x1F56 = ${v.crc32_hex} verified; `, v.started ? 'the program was started.' : 'the program was left stopped.');
+  // The version the device now reports (0x100A), where it has one.
+  const version = await softwareVersion();
+  if (version !== null) programResult.append(' ', h('span', { id: 'program-version' }, `Software version (0x100A): ${version}.`));
 });

@@ -9,6 +9,8 @@ import { axisFault } from './axes.js';
 import { stateLabel } from './cia402.js';
 import { $, clock, h, showMessage, updateRows } from './dom.js';
 import { stream } from './layout.js';
+import { onAlarms, SEVERITIES } from './alarmbar.js';
+import { recoveryControls } from './recovery.js';
 
 const BUS_POLL_MS = 1000;
 // The axes' states on the overview: a few samples a second are enough.
@@ -248,7 +250,7 @@ const machines = new Map(); // bus -> the machine as GET /buses/{bus}/machine gi
 // is older than it, and must not put an old state back.
 const machineEvents = new Map();
 
-const MACHINE_BADGE = { ready: 'ok', booting: 'warn', degraded: 'bad', down: 'bad' };
+const MACHINE_BADGE = { ready: 'ok', booting: 'warn', degraded: 'bad', down: 'bad', alarm: 'bad' };
 const NODE_BADGE = {
   ready: 'ok', booting: 'warn', unexpected: 'warn',
   missing: 'bad', wrong_identity: 'bad', config_failed: 'bad', offline: 'bad',
@@ -279,7 +281,24 @@ function machineAction(bus, id, label, busy, path, body) {
   return button;
 }
 
+// "Reset all faults" and "Enable all" of each bus with a machine, made
+// once (a redraw of the card must not take a button away mid-tap).
+const recoveryRoot = $('#machine-recovery');
+const recoveries = new Map(); // bus -> its controls' element
+
+function renderRecovery() {
+  for (const bus of [...machines.keys()].sort()) {
+    if (recoveries.has(bus)) continue;
+    const { buttons, result } = recoveryControls(bus, () => loadMachines([{ name: bus }]));
+    const el = h('div', { class: 'recovery-bus', dataset: { bus } },
+      machines.size > 1 ? h('strong', {}, `${bus}: `) : null, buttons, result);
+    recoveries.set(bus, el);
+    recoveryRoot.append(el);
+  }
+}
+
 function renderMachines() {
+  renderRecovery();
   updateRows(machineStates, [...machines.entries()].map(([bus, m]) => h('p', { dataset: { bus, key: bus } },
     h('strong', {}, `${bus}: `), h('span', { class: `badge ${MACHINE_BADGE[m.state] || ''}`, dataset: { state: m.state } }, m.state),
     m.reasons.length ? h('span', { class: 'sub' }, ` ${m.reasons.join(' · ')}`) : null)));
@@ -324,12 +343,55 @@ stream.subscribe(['machine'], (data, message) => {
 
 // ---- events --------------------------------------------------------------
 
-function addEvent(ts, text, kind) {
+function addEvent(ts, text, kind, { fromHistory = false } = {}) {
   const placeholder = eventList.querySelector('.placeholder');
   if (placeholder) placeholder.remove();
-  eventList.prepend(h('li', { class: kind }, h('time', {}, clock(ts)), ' ', text));
+  const item = h('li', { class: kind, dataset: fromHistory ? { history: 'yes' } : {} }, h('time', {}, clock(ts)), ' ', text);
+  // The history's entries are older than anything the stream brought.
+  if (fromHistory) eventList.append(item);
+  else eventList.prepend(item);
   while (eventList.children.length > MAX_EVENTS) eventList.lastElementChild.remove();
 }
+
+const HISTORY_EVENTS = 15;
+
+/** The newest entries of the history (GET /events), when the page opens:
+ * what happened before it did. */
+async function loadHistory() {
+  let entries;
+  try {
+    entries = await api(`/events?limit=${HISTORY_EVENTS}`);
+  } catch (error) {
+    problem('history', `Recent events: ${error.message}`);
+    entries = [];
+  }
+  if (entries.length) problem('history', null);
+  const placeholder = eventList.querySelector('.placeholder');
+  if (placeholder) placeholder.textContent = 'Nothing yet.';
+  const nmtText = (e) => `${e.bus} node ${e.node}: ${e.event === 'nmt_changed' ? `NMT ${NMT[e.from] || e.from} → ${NMT[e.to] || e.to}` : (e.event || '').replaceAll('_', ' ')}${e.reason ? ` (${e.reason.replaceAll('_', ' ')})` : ''}`;
+  const auditText = (e) => `${e.who || '—'}: ${e.operation || e.method || '—'}${e.item ? ` ${e.item}` : ''}${e.node !== undefined ? ` (${e.bus} node ${e.node}${e.axis !== undefined ? ` axis ${e.axis}` : ''})` : ''}${e.outcome && e.outcome !== 'ok' ? ` → ${e.outcome}` : ''}`;
+  // Oldest first from the API: appended newest first.
+  for (const e of [...entries].reverse()) {
+    const ts = Date.parse(e.time);
+    if (e.kind === 'emcy') addEvent(ts, emcyText(e), 'emcy', { fromHistory: true });
+    else if (e.kind === 'nmt') addEvent(ts, nmtText(e), e.event === 'offline' ? 'warn' : 'info', { fromHistory: true });
+    else addEvent(ts, auditText(e), e.outcome && e.outcome !== 'ok' ? 'warn' : 'info', { fromHistory: true });
+  }
+}
+
+// ---- alarms: the summary on the machine card ---------------------------------
+
+const alarmSummary = $('#alarm-summary');
+onAlarms((alarms, s) => {
+  const counts = SEVERITIES.filter((sev) => s.active[sev]).map((sev) => `${s.active[sev]} ${sev}`);
+  alarmSummary.dataset.state = s.activeUnacknowledged ? 'unacknowledged' : s.activeCount ? 'active' : s.clearedUnacknowledged ? 'cleared' : 'quiet';
+  alarmSummary.replaceChildren(
+    h('strong', {}, s.activeCount ? `Alarms: ${counts.join(', ')} active` : 'No active alarms'),
+    s.activeUnacknowledged ? ` · ${s.activeUnacknowledged} not acknowledged` : '',
+    s.clearedUnacknowledged ? ` · ${s.clearedUnacknowledged} cleared, not acknowledged` : '',
+    s.newest ? h('div', { class: 'sub' }, `Newest: ${s.newest.text}`) : null,
+    h('a', { href: '/alarms', class: 'alarm-link' }, alarms.length ? 'Open the alarms' : 'Alarm history'));
+});
 
 function nodeEventText(e) {
   const who = `${e.bus} node ${e.node}`;
@@ -365,9 +427,11 @@ stream.subscribe(['nodes'], (data, message) => {
   refreshNode(data.bus, data.node);
 });
 
+const emcyText = (e) => `${e.bus} node ${e.node}${e.axis ? ` axis ${e.axis}` : ''}: EMCY ${e.code} ${e.text || ''}`;
+
 stream.subscribe(['emcy'], (data, message) => {
   if (message.lagged) return lagged(message);
-  addEvent(message.ts, `${data.bus} node ${data.node}: EMCY ${data.code} ${data.text}`, 'emcy');
+  addEvent(message.ts, emcyText(data), 'emcy');
   refreshNode(data.bus, data.node);
 });
 
@@ -440,3 +504,4 @@ stream.onState(({ state, reconnected, error }) => {
 
 stream.connect();
 loadAll();
+loadHistory();

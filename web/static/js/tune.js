@@ -197,8 +197,29 @@ $('#step-form').addEventListener('submit', async (event) => {
   draw();
 });
 
-select(tabs.find((t) => t.dataset.loop === 'velocity') || tabs[0]);
-for (const tab of tabs) tab.addEventListener('click', () => select(tab));
-poll();
+// Only a UMC has these loops (issue 31 point 6: a JMC's page opened full of
+// NaN with Write and Store enabled): another node's page says so, and
+// offers nothing to write.
+async function start() {
+  let detail;
+  try {
+    detail = await api(base);
+  } catch (error) {
+    showMessage($('#page-message'), `Node: ${error.message}`);
+    return;
+  }
+  if (detail.profile !== 'umc') {
+    root.dataset.tunable = 'no';
+    showMessage($('#page-message'), `Node ${detail.id} is ${detail.name ? `a ${detail.name}` : 'no UMC'} (profile ${detail.profile}): it has no UMC control loops to tune.`);
+    for (const control of root.querySelectorAll('button, input, select')) control.disabled = true;
+    return;
+  }
+  root.dataset.tunable = 'yes';
+  select(tabs.find((t) => t.dataset.loop === 'velocity') || tabs[0]);
+  for (const tab of tabs) tab.addEventListener('click', () => select(tab));
+  poll();
+}
+
+start();
 // The connection indicator says whether the gateway is reachable, here too.
 stream.connect();
