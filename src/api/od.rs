@@ -423,6 +423,7 @@ fn value_to_write(
     responses(
         (status = 200, description = "The value read back (what was written, for a write-only object)", body = ObjectValue),
         (status = 400, description = "`invalid_value`, `value_out_of_range` (checked against the EDS before the bus), `invalid_index`, `invalid_request`", body = ErrorBody),
+        (status = 403, description = "`forbidden`: not an operator; `watchdog_protected`: an operator's write that would switch the device's watchdog off (the 0x1016 entry watching the gateway, a drive's 0x6007 = 0, 0x1029 sub 1 = 1): only an admin may (docs/security.md, \"Watchdog policy\")", body = ErrorBody),
         (status = 404, description = "`unknown_bus`, `unknown_node`, `unknown_object`, `unknown_sub_object`", body = ErrorBody),
         (status = 409, description = "`wrong_nmt_state`: the node is stopped; `lease_conflict`: the controlword (no stop), mode or target of an axis a lease holds (an OD write presents none: use the drive routes); `node_busy`: an axis's controlword, mode or target while a program download or a renumbering runs on the node; `motion_stopped`", body = ErrorBody),
         (status = 422, description = "`sdo_abort`: the device refused", body = ErrorBody),

@@ -14,6 +14,9 @@ use crate::canopen::od::format_index;
 use crate::check_sdo_allowed;
 use crate::dcf;
 use crate::policy::Operation;
+use crate::sdo::SdoChannel;
+
+use super::watchdog::WatchdogWrite;
 
 /// 0x1010: store parameters.
 const STORE_PARAMETERS: u16 = 0x1010;
@@ -82,6 +85,14 @@ pub struct RestoredEntry {
     /// `Object` or `Object/Sub`, as the DCF names it.
     pub name: String,
     pub result: Option<Result<(), GatewayError>>,
+}
+
+/// A DCF checked against its node, the writes that restore it and the
+/// node's SDO channel to make them on.
+struct RestorePlan {
+    parsed: Eds,
+    plan: dcf::Plan,
+    channel: SdoChannel,
 }
 
 impl NodeHandle {
@@ -208,27 +219,57 @@ impl NodeHandle {
     /// Writes a DCF's parameters to the node, each entry with its result.
     /// A DCF that cannot be read, that the tolerant reader had to correct,
     /// or that is of another product is refused before anything is
-    /// written. The gateway decodes the TPDOs by the mappings restored.
-    /// Audited, in a task of its own with its row.
+    /// written. An entry that switches the node's watchdog off goes
+    /// through the same check as an object write (node/watchdog.rs): the
+    /// row says so and, once written, `watchdog_off` is given. The
+    /// gateway decodes the TPDOs by the mappings restored. Audited, in a
+    /// task of its own with its row.
     pub async fn restore_dcf(
         &self,
         caller: &Caller,
         file: &[u8],
     ) -> Result<Vec<RestoredEntry>, GatewayError> {
         let request = format!("{} bytes of DCF", file.len());
-        let row = self.audit_row(caller, "restore configuration (DCF)", None, Some(request));
+        let mut row = self.audit_row(caller, "restore configuration (DCF)", None, Some(request));
         if let Err(error) = self.gateway.admit(caller, Operation::RestoreConfiguration) {
             return refused(row, error).await;
         }
-        let (this, caller, file) = (self.clone(), caller.clone(), file.to_vec());
-        audited(row, async move { this.restore(&caller, &file).await }).await
+        let restore = match self.plan_restore(file) {
+            Ok(restore) => restore,
+            Err(error) => return refused(row, error).await,
+        };
+        let mut watchdog_off = Vec::new();
+        for write in restore.plan.writes.iter().filter(|write| !write.invalidate) {
+            let (index, sub) = (write.index, write.sub);
+            match self
+                .watchdog_check(caller, &restore.channel, index, sub, &write.bytes)
+                .await
+            {
+                Ok(WatchdogWrite::SwitchesItOff(warning)) => {
+                    row.note(&format!("WATCHDOG SWITCHED OFF: {warning}"));
+                    watchdog_off.push((write.entry, warning));
+                }
+                Ok(WatchdogWrite::KeepsItOn) => {}
+                Err(error) => return refused(row, error).await,
+            }
+        }
+        tracing::info!(
+            "node {} of bus {}: DCF restored by {} ({})",
+            self.info.id,
+            self.served.name,
+            caller.who,
+            caller.channel
+        );
+        let this = self.clone();
+        audited(
+            row,
+            async move { this.restore(restore, watchdog_off).await },
+        )
+        .await
     }
 
-    async fn restore(
-        &self,
-        caller: &Caller,
-        file: &[u8],
-    ) -> Result<Vec<RestoredEntry>, GatewayError> {
+    /// A DCF read and checked against the node, and what writing it takes.
+    fn plan_restore(&self, file: &[u8]) -> Result<RestorePlan, GatewayError> {
         let info = &self.info;
         let eds = self.eds()?;
         let parsed =
@@ -262,20 +303,39 @@ impl NodeHandle {
                 info.id
             )));
         }
-        let dcf::Plan { entries, writes } =
+        let plan =
             dcf::plan(&parsed, &eds.dictionary, info.id).map_err(|error| invalid(error.0))?;
         check_sdo_allowed(&self.served, info)?;
         let channel = self.served.registry.sdo(info.id)?;
+        Ok(RestorePlan {
+            parsed,
+            plan,
+            channel,
+        })
+    }
+
+    /// Writes a planned restore; `watchdog_off` are the entries that switch
+    /// the watchdog off, each warned of once written.
+    async fn restore(
+        &self,
+        restore: RestorePlan,
+        watchdog_off: Vec<((u16, u8), String)>,
+    ) -> Result<Vec<RestoredEntry>, GatewayError> {
+        let RestorePlan {
+            parsed,
+            plan: dcf::Plan { entries, writes },
+            channel,
+        } = restore;
         let values = self.served.values.clone();
-        let node = info.id;
-        tracing::info!(
-            "node {node} of bus {}: DCF restored by {} ({})",
-            self.served.name,
-            caller.who,
-            caller.channel
-        );
+        let node = self.info.id;
+        let this = self.clone();
         let results = spawned(async move {
             let results = dcf::restore(&channel, &writes).await;
+            for (entry, warning) in &watchdog_off {
+                if matches!(results.get(entry), Some(Some(Ok(())))) {
+                    this.warn_watchdog_off(warning);
+                }
+            }
             // If reading the restored mappings fails, the old ones stay
             // until the next identification; the restore's report stands.
             let tpdo_written = writes

@@ -160,3 +160,79 @@ async fn the_manager_watches_again_after_the_nodes_boot_up() {
     tokio::time::sleep(Duration::from_secs(3)).await;
     assert_eq!(manager_entry(&gateway).await.1, entry);
 }
+
+/// An admin's DCF restore is checked as an admin's object write is: a DCF
+/// whose 0x6007 = 0 and whose manager's 0x1016 entry is 0 is written,
+/// with the warning on the stream and in the restore's audit row.
+#[tokio::test(start_paused = true)]
+async fn a_dcf_restore_that_switches_the_watchdog_off_warns_like_a_write() {
+    let gateway = demo().await;
+    let (sub, _) = manager_entry(&gateway).await;
+    let umc = gateway.node_handle("demo", UMC).unwrap();
+    let admin = caller(Role::Admin);
+    let mut dcf = umc.backup_dcf(&admin).await.unwrap();
+    // Only the two watchdog entries, switched off.
+    for object in dcf.dictionary.objects.values_mut() {
+        for entry in object.subs.values_mut() {
+            entry.parameter_value = None;
+        }
+    }
+    dcf.dictionary.sub_mut(0x6007, 0).unwrap().parameter_value = Some("0".into());
+    dcf.dictionary.sub_mut(0x1016, sub).unwrap().parameter_value = Some("0".into());
+    let mut events = gateway.buses["demo"].registry.subscribe();
+
+    let restored = umc
+        .restore_dcf(&admin, dcf.write().as_bytes())
+        .await
+        .unwrap();
+    assert_eq!(restored.len(), 2, "{restored:?}");
+    assert!(
+        restored
+            .iter()
+            .all(|entry| matches!(entry.result, Some(Ok(())))),
+        "{restored:?}"
+    );
+    assert_eq!(read(&gateway, 0x6007, 0).await, [0, 0]);
+    assert_eq!(read(&gateway, 0x1016, sub).await, [0, 0, 0, 0]);
+
+    let mut warnings = Vec::new();
+    while warnings.len() < 2 {
+        match tokio::time::timeout(Duration::from_secs(1), events.recv()).await {
+            Ok(Ok(NodeEvent::WatchdogOff { node, warning })) => {
+                assert_eq!(node.get(), 1);
+                warnings.push(warning);
+            }
+            Ok(Ok(_)) => continue,
+            other => panic!("two watchdog_off events, got {warnings:?} then {other:?}"),
+        }
+    }
+    assert!(
+        warnings.iter().any(|w| w.contains("0x6007")),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings.iter().any(|w| w.contains("0x1016")),
+        "{warnings:?}"
+    );
+
+    let mut rows = Vec::new();
+    for _ in 0..100 {
+        rows = crate::audit::tests::rows(&gateway).await;
+        if rows.iter().any(|row| row["who"] == "admin") {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let row = rows
+        .iter()
+        .find(|row| row["who"] == "admin")
+        .expect("the admin's row");
+    assert_eq!(row["outcome"], "ok", "{row:?}");
+    let operation = row["operation"].as_str().unwrap();
+    assert!(
+        operation.starts_with("restore configuration (DCF); WATCHDOG SWITCHED OFF: ")
+            && operation.contains("0x6007")
+            && operation.contains("0x1016"),
+        "{row:?}"
+    );
+}
