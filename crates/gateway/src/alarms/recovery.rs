@@ -102,6 +102,15 @@ const BLOCKING: &[&str] = &[
     "bus_off",
 ];
 
+/// The two machine-level recoveries.
+#[derive(Debug, Clone, Copy)]
+enum Recovery {
+    /// Every axis of every drive node that is in fault.
+    ResetFaults,
+    /// Every axis the gateway last enabled.
+    Enable,
+}
+
 impl Gateway {
     /// Resets the fault of every axis of `bus` that is in fault.
     ///
@@ -112,26 +121,7 @@ impl Gateway {
         caller: &Caller,
         bus: &str,
     ) -> Result<RecoveryReport, GatewayError> {
-        let row = self.audit_row(
-            caller,
-            AuditTarget::new("machine reset faults").bus(bus),
-            None,
-        );
-        let result = async {
-            self.admit(caller, Operation::RecoverMachine)?;
-            let axes = self.drive_axes(bus)?;
-            let mut report = Vec::new();
-            for (node, axis) in axes {
-                report.push(self.reset_one(caller, bus, node, axis).await);
-            }
-            Ok(RecoveryReport {
-                bus: bus.to_string(),
-                axes: report,
-            })
-        }
-        .await;
-        row.finish(&result).await;
-        result
+        self.recover(caller, bus, Recovery::ResetFaults).await
     }
 
     /// Puts every axis of `bus` the gateway last enabled back in operation
@@ -144,13 +134,37 @@ impl Gateway {
         caller: &Caller,
         bus: &str,
     ) -> Result<RecoveryReport, GatewayError> {
-        let row = self.audit_row(caller, AuditTarget::new("machine enable").bus(bus), None);
+        self.recover(caller, bus, Recovery::Enable).await
+    }
+
+    /// One machine-level recovery: its row, the caller admitted, then each
+    /// of its axes through the axis's own operation.
+    async fn recover(
+        &self,
+        caller: &Caller,
+        bus: &str,
+        recovery: Recovery,
+    ) -> Result<RecoveryReport, GatewayError> {
+        let words = match recovery {
+            Recovery::ResetFaults => "machine reset faults",
+            Recovery::Enable => "machine enable",
+        };
+        let row = self.audit_row(caller, AuditTarget::new(words).bus(bus), None);
         let result = async {
             self.admit(caller, Operation::RecoverMachine)?;
-            self.bus(bus)?;
+            let axes = match recovery {
+                Recovery::ResetFaults => self.drive_axes(bus)?,
+                Recovery::Enable => {
+                    self.bus(bus)?;
+                    self.enabled_axes.axes_on(bus)
+                }
+            };
             let mut report = Vec::new();
-            for (node, axis) in self.enabled_axes.axes_on(bus) {
-                report.push(self.enable_one(caller, bus, node, axis).await);
+            for (node, axis) in axes {
+                report.push(match recovery {
+                    Recovery::ResetFaults => self.reset_one(caller, bus, node, axis).await,
+                    Recovery::Enable => self.enable_one(caller, bus, node, axis).await,
+                });
             }
             Ok(RecoveryReport {
                 bus: bus.to_string(),
