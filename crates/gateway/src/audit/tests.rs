@@ -37,6 +37,26 @@ pub(crate) async fn rows(gateway: &Gateway) -> Vec<serde_json::Map<String, Json>
     events.into_iter().map(|event| event.fields).collect()
 }
 
+/// The rows `keep` accepts, once `count` of them are written (or what there
+/// is after a second of the paused clock: the test's assertion says what
+/// is missing).
+pub(crate) async fn rows_where(
+    gateway: &Gateway,
+    count: usize,
+    keep: impl Fn(&serde_json::Map<String, Json>) -> bool,
+) -> Vec<serde_json::Map<String, Json>> {
+    let mut kept = Vec::new();
+    for _ in 0..100 {
+        kept = rows(gateway).await;
+        kept.retain(|row| keep(row));
+        if kept.len() >= count {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    kept
+}
+
 /// The rows once `count` are written (rows written from a `Drop` are
 /// written by a task of their own).
 async fn rows_when(gateway: &Gateway, count: usize) -> Vec<serde_json::Map<String, Json>> {

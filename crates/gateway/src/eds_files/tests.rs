@@ -55,15 +55,8 @@ pub(crate) async fn rows_when(
         Some(serde_json::Value::String(text)) => text.clone(),
         Some(other) => other.to_string(),
     };
-    let mut rows = Vec::new();
-    for _ in 0..100 {
-        rows = crate::audit::tests::rows(gateway).await;
-        rows.retain(|row| row["channel"] != "system");
-        if rows.len() >= count {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    let rows =
+        crate::audit::tests::rows_where(gateway, count, |row| row["channel"] != "system").await;
     rows.iter()
         .map(|row| {
             (

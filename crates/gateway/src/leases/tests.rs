@@ -30,16 +30,10 @@ async fn leased() -> (Gateway, String) {
 
 /// The stream renewal rows so far, once `count` are written.
 async fn renewal_rows(gateway: &Gateway, count: usize) -> Vec<serde_json::Map<String, Json>> {
-    let mut rows = Vec::new();
-    for _ in 0..100 {
-        rows = crate::audit::tests::rows(gateway).await;
-        rows.retain(|row| row["operation"] == "renew motion lease (stream)");
-        if rows.len() >= count {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    rows
+    crate::audit::tests::rows_where(gateway, count, |row| {
+        row["operation"] == "renew motion lease (stream)"
+    })
+    .await
 }
 
 #[tokio::test(start_paused = true)]

@@ -71,6 +71,20 @@ fn motion_writes(frames: &mut FrameReceiver) -> Vec<String> {
     writes
 }
 
+/// The step test of [`step_request`] on [`AXIS`], run as a client's
+/// request would be: in a task of its own, which the test can abort.
+fn spawn_step_test(
+    gateway: &Gateway,
+    caller: &Caller,
+) -> tokio::task::JoinHandle<Result<MotionOutcome<StepTestResult>, MotionFailed>> {
+    let (gateway, caller) = (gateway.clone(), caller.clone());
+    tokio::spawn(async move {
+        gateway
+            .step_test_axis(&caller, AXIS, &step_request(), &LeaseClaim::default())
+            .await
+    })
+}
+
 /// Issue 30, finding 1: a halt answered "confirmed" while a step test held
 /// its first level was undone when the test sent its step 2 s later (the
 /// axis ran for the rest of the hold). The halt ends the test now, and no
@@ -78,14 +92,7 @@ fn motion_writes(frames: &mut FrameReceiver) -> Vec<String> {
 #[tokio::test(start_paused = true)]
 async fn a_confirmed_halt_ends_a_running_step_test_and_no_later_step_is_sent() {
     let (gateway, caller) = enabled_demo().await;
-    let test = {
-        let (gateway, caller) = (gateway.clone(), caller.clone());
-        tokio::spawn(async move {
-            gateway
-                .step_test_axis(&caller, AXIS, &step_request(), &LeaseClaim::default())
-                .await
-        })
-    };
+    let test = spawn_step_test(&gateway, &caller);
     tokio::time::sleep(Duration::from_secs(1)).await;
     let halted = gateway
         .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
@@ -116,14 +123,7 @@ async fn a_confirmed_halt_ends_a_running_step_test_and_no_later_step_is_sent() {
 #[tokio::test(start_paused = true)]
 async fn a_step_test_whose_client_goes_away_stops_and_sends_no_later_step() {
     let (gateway, caller) = enabled_demo().await;
-    let test = {
-        let (gateway, caller) = (gateway.clone(), caller.clone());
-        tokio::spawn(async move {
-            gateway
-                .step_test_axis(&caller, AXIS, &step_request(), &LeaseClaim::default())
-                .await
-        })
-    };
+    let test = spawn_step_test(&gateway, &caller);
     tokio::time::sleep(Duration::from_secs(1)).await;
     // The client hangs up: its request future is dropped.
     test.abort();

@@ -121,18 +121,8 @@ async fn an_admin_may_with_a_warning_on_the_stream_and_in_the_audit_log() {
         warning.contains("0x6007") && warning.contains("admin"),
         "{warning}"
     );
-    let mut rows = Vec::new();
-    for _ in 0..100 {
-        rows = crate::audit::tests::rows(&gateway).await;
-        if rows.iter().any(|row| row["who"] == "admin") {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    let row = rows
-        .iter()
-        .find(|row| row["who"] == "admin")
-        .expect("the admin's row");
+    let rows = crate::audit::tests::rows_where(&gateway, 1, |row| row["who"] == "admin").await;
+    let row = rows.first().expect("the admin's row");
     assert_eq!(row["outcome"], "ok", "{row:?}");
     assert!(
         row["operation"]
@@ -215,18 +205,8 @@ async fn a_dcf_restore_that_switches_the_watchdog_off_warns_like_a_write() {
         "{warnings:?}"
     );
 
-    let mut rows = Vec::new();
-    for _ in 0..100 {
-        rows = crate::audit::tests::rows(&gateway).await;
-        if rows.iter().any(|row| row["who"] == "admin") {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    let row = rows
-        .iter()
-        .find(|row| row["who"] == "admin")
-        .expect("the admin's row");
+    let rows = crate::audit::tests::rows_where(&gateway, 1, |row| row["who"] == "admin").await;
+    let row = rows.first().expect("the admin's row");
     assert_eq!(row["outcome"], "ok", "{row:?}");
     let operation = row["operation"].as_str().unwrap();
     assert!(
