@@ -96,6 +96,11 @@ pub enum Operation {
     /// every axis last enabled enabled again. Each axis's own operation
     /// takes its write, so the whole takes none of its own.
     RecoverMachine,
+    /// An object write that switches off a device's protection against
+    /// the gateway's death (docs/security.md, "Watchdog policy"), on top
+    /// of the [`Self::WriteObject`] or [`Self::RestoreConfiguration`] it
+    /// rides on, which took the write.
+    SwitchWatchdogOff,
 }
 
 impl Operation {
@@ -126,7 +131,8 @@ impl Operation {
             | Self::Record
             | Self::Lss
             | Self::VirtualDevices
-            | Self::ManageEds => Role::Admin,
+            | Self::ManageEds
+            | Self::SwitchWatchdogOff => Role::Admin,
         }
     }
 
@@ -143,6 +149,7 @@ impl Operation {
                 | Self::RenewLease
                 | Self::AcknowledgeAlarm
                 | Self::RecoverMachine
+                | Self::SwitchWatchdogOff
         )
     }
 }

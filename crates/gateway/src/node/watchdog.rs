@@ -9,9 +9,9 @@
 //! profile's ([`crate::profiles::watchdog`]); this is the one place a
 //! write asks it ([`NodeHandle::watchdog_check`]).
 
-use crate::access::Role;
 use crate::canopen::manager::DEFAULT_MANAGER_NODE_ID;
 use crate::drive::DriveKind;
+use crate::policy::Operation;
 use crate::profiles::watchdog::{CONSUMER_HEARTBEAT_TIME, WatchdogObject};
 use crate::sdo::SdoChannel;
 
@@ -74,7 +74,11 @@ impl NodeHandle {
         let Some(why) = object.switched_off(bytes, manager, current) else {
             return Ok(WatchdogWrite::KeepsItOn);
         };
-        if self.gateway.require_role(caller, Role::Admin).is_err() {
+        if self
+            .gateway
+            .require(caller, Operation::SwitchWatchdogOff)
+            .is_err()
+        {
             return Err(GatewayError::WatchdogProtected(format!(
                 "node {}: {why}; only an admin may switch a device's watchdog off",
                 self.id()
