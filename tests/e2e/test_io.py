@@ -111,6 +111,11 @@ def test_a_stopped_nodes_inputs_are_greyed_out_with_its_nmt_state(browser, serve
     browser.wait(lambda _: browser.js("return document.getElementById('io-node-state').dataset.nmt") == "operational",
                  message="the page does not show the node's NMT state")
     assert browser.js("return [...document.querySelectorAll('#digital-inputs .lamp')].every((l) => l.dataset.stale === 'no')")
+    # The page polls: a read of the channels in flight when the stop arrives
+    # is not answered by the stopped node (504 after the SDO time-out) or,
+    # sent just after, is refused (409 wrong_nmt_state). Either is the
+    # gateway telling the truth; any other problem still fails the test.
+    browser.tolerate(r"/api/v1/buses/demo/nodes/4/io (- Failed to load resource: the server responded with a status of|answered) (409|504)")
     server.post(f"{IO}/nmt", {"command": "stop"})
     browser.wait(lambda _: browser.js(
         "return [...document.querySelectorAll('#digital-inputs .lamp, #analog-inputs .analog')]"
