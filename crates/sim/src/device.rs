@@ -920,6 +920,7 @@ impl DeviceCore {
         if self.lss.active().is_none() {
             return Vec::new();
         }
+        let before = self.nmt.state();
         match self.nmt.on_frame(frame) {
             Ok(Some(NmtEvent::ResetNode)) => {
                 self.power_on_node(now);
@@ -934,7 +935,14 @@ impl DeviceCore {
                     self.renumber(node, now);
                 }
                 self.reload_communication_area();
-                return self.start_communication(now);
+                let boot_up = self.start_communication(now);
+                // UMC manual §1.4.8, CiA 402: reset communication is an
+                // abort connection event, as a change of state is; the
+                // application runs on through it, so 0x6007 decides.
+                self.with_application(now, |behaviour, io| {
+                    behaviour.nmt_changed(io, before, NmtState::PreOperational)
+                });
+                return boot_up;
             }
             Ok(Some(NmtEvent::StateChanged { from, to })) => {
                 if to == NmtState::Operational {

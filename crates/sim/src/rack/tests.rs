@@ -794,3 +794,90 @@ async fn a_stored_lss_node_id_survives_a_restart_under_the_data_dir() {
     drop(rack);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// UMC manual chapter 2 §1.4.8 (0x6007, Table 2.10) and CiA 402-2: NMT
+/// reset communication is an abort connection event as the stop and
+/// pre-operational transitions are. A VL move in operational with the
+/// factory 0x6007 (1, fault signal) ends in fault with EMCY 0x8100 for the
+/// axis, after the boot-up of the reset.
+#[tokio::test(start_paused = true)]
+async fn reset_communication_aborts_the_connection_as_0x6007_says() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Umc1bds32, node(1)).unwrap();
+    let sdo = sdo(&master, 1);
+    let nmt = |command| {
+        crate::canopen::nmt::NmtMessage::new(command, crate::canopen::nmt::NmtTarget::Node(node(1)))
+            .encode()
+    };
+    master
+        .send(nmt(crate::canopen::nmt::NmtCommand::Start))
+        .await
+        .unwrap();
+    sdo.download(0x6060, 0, &[2]).await.unwrap();
+    sdo.download(0x6042, 0, &300i16.to_le_bytes())
+        .await
+        .unwrap();
+    for controlword in [6u16, 7, 15] {
+        sdo.download(0x6040, 0, &controlword.to_le_bytes())
+            .await
+            .unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    let int16 = |data: Vec<u8>| i16::from_le_bytes([data[0], data[1]]);
+    assert_eq!(int16(sdo.upload(0x6044, 0).await.unwrap()), 300);
+    let mut frames = master.subscribe();
+    // 000#8201
+    master
+        .send(nmt(crate::canopen::nmt::NmtCommand::ResetCommunication))
+        .await
+        .unwrap();
+    let seen = frames_on_any(&mut frames, &[0x701, 0x081], 50).await;
+    assert_eq!(seen[0], vec![0x00], "boot-up first: {seen:02X?}");
+    assert_eq!(seen[1][..4], [0x00, 0x81, 0x21, 0x01], "{seen:02X?}");
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    let status = int16(sdo.upload(0x6041, 0).await.unwrap()) as u16;
+    assert_eq!(status & 0x4F, 0x08, "{status:04X}: fault");
+    assert_eq!(int16(sdo.upload(0x6044, 0).await.unwrap()), 0);
+}
+
+/// The same with 0x6007 = 3 (quick stop command): the axis ramps down and
+/// stays in quick stop active, no fault.
+#[tokio::test(start_paused = true)]
+async fn reset_communication_quick_stops_when_0x6007_says_so() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Umc1bds32, node(1)).unwrap();
+    let sdo = sdo(&master, 1);
+    let nmt = |command| {
+        crate::canopen::nmt::NmtMessage::new(command, crate::canopen::nmt::NmtTarget::Node(node(1)))
+            .encode()
+    };
+    master
+        .send(nmt(crate::canopen::nmt::NmtCommand::Start))
+        .await
+        .unwrap();
+    sdo.download(0x6007, 0, &3i16.to_le_bytes()).await.unwrap();
+    sdo.download(0x605A, 0, &6i16.to_le_bytes()).await.unwrap();
+    sdo.download(0x6060, 0, &[2]).await.unwrap();
+    sdo.download(0x6042, 0, &300i16.to_le_bytes())
+        .await
+        .unwrap();
+    for controlword in [6u16, 7, 15] {
+        sdo.download(0x6040, 0, &controlword.to_le_bytes())
+            .await
+            .unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    master
+        .send(nmt(crate::canopen::nmt::NmtCommand::ResetCommunication))
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    let int16 = |data: Vec<u8>| i16::from_le_bytes([data[0], data[1]]);
+    let status = int16(sdo.upload(0x6041, 0).await.unwrap()) as u16;
+    assert_eq!(status & 0x6F, 0x07, "{status:04X}: quick stop active");
+    assert_eq!(int16(sdo.upload(0x6044, 0).await.unwrap()), 0);
+}
