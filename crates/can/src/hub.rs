@@ -10,12 +10,14 @@
 //! queue of [`DEFAULT_TX_QUEUE`] frames (a sender waits when it is full, and
 //! `try_send` fails), the frames wait while the bus is busy, the lowest
 //! identifier wins arbitration, and receivers get a frame when its last bit
-//! has crossed the bus. A task of the hub's drives the wire on tokio's clock,
-//! whose timers have a resolution of one millisecond: a frame reaches the
-//! receivers within the millisecond before its last bit crosses (frames
-//! that cross within one millisecond arrive together, in order). The wire
-//! itself keeps exact time, so the frames a second and the load are exact. Unlimited, a frame reaches the others
-//! the moment it is sent and the hub never blocks a sender.
+//! has crossed the bus, a lone frame on an idle bus too. A task of the
+//! hub's drives the wire on tokio's clock: it sleeps on tokio's timers (one
+//! millisecond's resolution) to the millisecond before a frame's end and
+//! waits out the rest on a blocking thread, so a frame is never early.
+//! Under a paused clock (tests) a frame arrives at the timer tick at or
+//! after its end. The wire itself keeps exact time, so the frames a second
+//! and the load are exact. Unlimited, a frame reaches the others the moment
+//! it is sent and the hub never blocks a sender.
 //!
 //! Its state can be forced (down, bus-off, ...) to test what sits above it.
 //!
@@ -316,17 +318,34 @@ impl HubInner {
     }
 }
 
-/// How early a frame may reach the receivers: tokio's timers have a
-/// resolution of one millisecond, so a frame is delivered at the timer tick
-/// before its last bit crosses rather than the one after. The wire keeps
-/// exact time whatever the receivers do (a reply cannot start before the
-/// request has crossed), and a request and its reply cost the wire's time,
-/// not two timer ticks.
-const EARLY: std::time::Duration = std::time::Duration::from_millis(1);
+/// tokio's timers have a resolution of one millisecond (they fire at the
+/// tick at or after their deadline). The wire's task sleeps on them until
+/// the tick before a frame's last bit crosses, and waits out the rest of
+/// the millisecond on a blocking thread, whose sleep has the operating
+/// system's microsecond resolution, so that a frame reaches the receivers
+/// when it has crossed: never before, and not a tick after.
+const TIMER_RESOLUTION: std::time::Duration = std::time::Duration::from_millis(1);
+
+/// Waits until `deadline` (tokio's clock) more finely than tokio's timers.
+/// `false` if the clock did not move meanwhile: it is paused (a test's),
+/// whose time only moves by tokio's timers.
+async fn wait_finely(deadline: tokio::time::Instant) -> bool {
+    let before = tokio::time::Instant::now();
+    let Some(left) = deadline.checked_duration_since(before) else {
+        return true;
+    };
+    // A paused current-thread runtime holds its clock while a blocking
+    // task runs, so the check below tells a paused clock from a real one.
+    let slept = tokio::task::spawn_blocking(move || std::thread::sleep(left)).await;
+    slept.is_ok() && tokio::time::Instant::now() > before
+}
 
 /// The task of a timed hub: runs its wire on tokio's clock and delivers
-/// each frame when it has crossed, until the hub is gone.
+/// each frame when its last bit has crossed, until the hub is gone.
 async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
+    // Under a paused clock a frame arrives at the timer tick at or after
+    // its end: simulated time, so nothing is gained by finer waits.
+    let mut paused_clock = false;
     loop {
         let deadline = {
             let Some(hub) = hub.upgrade() else {
@@ -336,21 +355,35 @@ async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
                 return;
             };
             let now = tokio::time::Instant::now().into_std();
-            let crossed = lock(wire).poll(now + EARLY);
+            let crossed = lock(wire).poll(now);
             for frame in crossed {
                 hub.publish(frame.sender, frame.frame, false);
             }
             lock(wire).deadline()
         };
-        match deadline {
-            Some(deadline) => {
-                let wake_at = deadline.checked_sub(EARLY).unwrap_or(deadline);
-                tokio::select! {
-                    _ = tokio::time::sleep_until(wake_at.into()) => {}
-                    _ = wake.notified() => {}
-                }
+        let Some(deadline) = deadline.map(tokio::time::Instant::from_std) else {
+            wake.notified().await;
+            continue;
+        };
+        let now = tokio::time::Instant::now();
+        if deadline <= now {
+            continue;
+        }
+        if paused_clock || deadline - now > TIMER_RESOLUTION {
+            let wake_at = if paused_clock {
+                deadline
+            } else {
+                deadline - TIMER_RESOLUTION
+            };
+            tokio::select! {
+                _ = tokio::time::sleep_until(wake_at) => {}
+                _ = wake.notified() => {}
             }
-            None => wake.notified().await,
+        } else {
+            tokio::select! {
+                moved = wait_finely(deadline) => paused_clock = !moved,
+                _ = wake.notified() => {}
+            }
         }
     }
 }

@@ -153,10 +153,10 @@ async fn at_125_kbit_s_a_flood_holds_a_low_priority_heartbeat_back() {
     let bit = Duration::from_micros(8);
     let full = frame_bits(&frame(0x081, &[0; 8]));
     assert_eq!(full, 135);
-    // A frame arrives within the millisecond (tokio's timer resolution)
-    // before its last bit crosses the bus.
+    // A frame arrives once its last bit has crossed the bus, at the tick
+    // of the paused clock's timers (one millisecond) at or after it.
     let on_time =
-        |at: Duration, crossed: Duration| at <= crossed && at + Duration::from_millis(1) >= crossed;
+        |at: Duration, crossed: Duration| at >= crossed && at < crossed + Duration::from_millis(1);
     for (n, (frame, at)) in got[..200].iter().enumerate() {
         assert_eq!(frame.id(), CanId::Standard(0x081));
         let crossed = bit * full * (n as u32 + 1);
@@ -239,13 +239,14 @@ async fn a_full_transmit_queue_refuses_try_send_and_makes_send_wait() {
         sender.try_send(frame(0x181, &[0; 8])),
         Err(BusError::TxQueueFull("test".into()))
     );
-    // Once the first frame has crossed (1080 µs, delivered at the timer
-    // tick before) there is room again.
+    // Once the first frame has crossed (1080 µs; the paused clock's
+    // timer tick at or after it) there is room again.
     let t0 = tokio::time::Instant::now();
     sender.send(frame(0x181, &[0; 8])).await.unwrap();
     let waited = t0.elapsed();
     assert!(
-        waited > std::time::Duration::ZERO && waited <= std::time::Duration::from_micros(1080),
+        waited >= std::time::Duration::from_micros(1080)
+            && waited < std::time::Duration::from_micros(2080),
         "{waited:?}"
     );
 }
@@ -364,4 +365,79 @@ async fn bus_off_recovery_takes_128_times_11_bit_times_at_the_bit_rate() {
     assert_eq!(node.state(), BusState::Down);
     hub.set_status(BusStatus::up());
     assert_eq!(node.state(), BusState::BusOff);
+}
+
+/// A lone frame on an idle bus takes its time too (ISO 11898-1: its bits
+/// at the bit rate): an 8-byte standard frame at 500 kbit/s is 135 bits,
+/// 270 µs, and reaches the others no sooner.
+#[tokio::test(start_paused = true)]
+async fn a_lone_frame_on_an_idle_bus_arrives_after_its_bits_have_crossed() {
+    use std::time::Duration;
+
+    let hub = VirtualHub::with_bitrate("test", "500k".parse().unwrap());
+    let sender = hub.attach();
+    let receiver = hub.attach();
+    let mut rx = receiver.subscribe();
+    for _ in 0..3 {
+        tokio::time::sleep(Duration::from_millis(7)).await;
+        let t0 = tokio::time::Instant::now();
+        sender
+            .send(frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]))
+            .await
+            .unwrap();
+        let got = arrivals(&mut rx, 1, t0).await;
+        let at = got[0].1;
+        assert!(at >= Duration::from_micros(270), "{at:?}");
+        assert!(at < Duration::from_micros(1270), "{at:?}");
+    }
+}
+
+/// A request and its answer (an SDO exchange: two 8-byte frames) cost the
+/// wire at least two frame times, 540 µs at 500 kbit/s; a frame queued
+/// while another crosses goes after it.
+#[tokio::test(start_paused = true)]
+async fn a_request_and_its_answer_take_at_least_two_frame_times() {
+    use std::time::Duration;
+
+    let hub = VirtualHub::with_bitrate("test", "500k".parse().unwrap());
+    let master = hub.attach();
+    let device = hub.attach();
+    let mut requests = device.subscribe();
+    let answers = tokio::spawn(async move {
+        while let Ok(envelope) = requests.recv().await {
+            let mut data = envelope.frame.data().to_vec();
+            data[0] = 0x43;
+            device.send(frame(0x581, &data)).await.unwrap();
+        }
+    });
+    let mut rx = master.subscribe();
+    tokio::time::sleep(Duration::from_millis(3)).await;
+    let t0 = tokio::time::Instant::now();
+    master
+        .send(frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]))
+        .await
+        .unwrap();
+    let got = arrivals(&mut rx, 1, t0).await;
+    assert_eq!(got[0].0.id(), CanId::Standard(0x581));
+    assert!(got[0].1 >= Duration::from_micros(540), "{:?}", got[0].1);
+    answers.abort();
+}
+
+/// On tokio's real clock too (finer than its millisecond timers): a lone
+/// frame is never early.
+#[tokio::test]
+async fn on_the_real_clock_a_lone_frame_is_not_early_either() {
+    use std::time::Duration;
+
+    let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+    let sender = hub.attach();
+    let receiver = hub.attach();
+    let mut rx = receiver.subscribe();
+    for _ in 0..5 {
+        let t0 = tokio::time::Instant::now();
+        sender.send(frame(0x181, &[0; 8])).await.unwrap();
+        let got = arrivals(&mut rx, 1, t0).await;
+        // 135 bits at 125 kbit/s.
+        assert!(got[0].1 >= Duration::from_micros(1080), "{:?}", got[0].1);
+    }
 }

@@ -19,7 +19,7 @@ use super::service::Alarms;
 use crate::caller::Channel;
 use crate::can::{BusState, BusStatus};
 use crate::canopen::NodeId;
-use crate::canopen::manager::{MachineStatus, NodeState};
+use crate::canopen::manager::{MachineState, MachineStatus, NodeState};
 use crate::history::{AuditEntry, OK};
 use crate::profile::Profile;
 use crate::profiles::alarm::{AlarmKind, Product, describe};
@@ -214,6 +214,11 @@ impl BusSources {
                 continue;
             };
             let now = match node.state {
+                // While the first scan is under way a described node not
+                // heard yet is on its way (the machine reads booting, as
+                // the manager counts it): it is missing once the scan has
+                // not found it. Its alarms stay as they are meanwhile.
+                NodeState::Missing if status.state == MachineState::Booting => continue,
                 NodeState::Missing => Some(AlarmKind::NodeMissing),
                 NodeState::WrongIdentity => Some(AlarmKind::WrongIdentity),
                 NodeState::ConfigFailed => Some(AlarmKind::ConfigFailed),

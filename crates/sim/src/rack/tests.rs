@@ -881,3 +881,69 @@ async fn reset_communication_quick_stops_when_0x6007_says_so() {
     assert_eq!(status & 0x6F, 0x07, "{status:04X}: quick stop active");
     assert_eq!(int16(sdo.upload(0x6044, 0).await.unwrap()), 0);
 }
+
+/// The frames of a timed bus (ISO 11898-1: each frame's bits at the bit
+/// rate, after the frame in progress) as a master sees a virtual device
+/// answer at 500 kbit/s: an SDO exchange is two 8-byte frames (135 bits
+/// each with worst-case stuffing, 540 µs), a TPDO answers SYNC (a 0-byte
+/// frame, 57 bits) no sooner than both have crossed, and the boot-up of a
+/// reset node (1 byte, 65 bits) comes after the NMT command (2 bytes, 75
+/// bits) and its own frame.
+#[tokio::test(start_paused = true)]
+async fn a_device_answers_no_sooner_than_the_wire_allows() {
+    use crate::can::Bitrate;
+    use crate::canopen::nmt::{NmtCommand, NmtMessage, NmtTarget};
+
+    let hub = VirtualHub::with_bitrate("test", Bitrate::bits_per_second(500_000));
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let sdo = sdo(&master, 3);
+    let bit = Duration::from_micros(2);
+    for _ in 0..3 {
+        let t0 = tokio::time::Instant::now();
+        sdo.upload(0x1000, 0).await.unwrap();
+        let took = t0.elapsed();
+        assert!(took >= bit * 270, "SDO round trip {took:?}");
+    }
+    // TPDO1 on every SYNC, the error register mapped.
+    sdo.download(0x1A00, 1, &0x1001_0008u32.to_le_bytes())
+        .await
+        .unwrap();
+    sdo.download(0x1A00, 0, &[1]).await.unwrap();
+    sdo.download(0x1800, 1, &0x183u32.to_le_bytes())
+        .await
+        .unwrap();
+    master
+        .send(NmtMessage::new(NmtCommand::Start, NmtTarget::Node(node(3))).encode())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(10)).await;
+    let mut frames = master.subscribe();
+    let sync = Frame::new(CanId::Standard(0x080), &[]).unwrap();
+    let t0 = tokio::time::Instant::now();
+    master.send(sync).await.unwrap();
+    loop {
+        let envelope = frames.recv().await.unwrap();
+        if envelope.frame.id() == CanId::Standard(0x183) {
+            let bits = crate::can::timing::frame_bits(&envelope.frame);
+            let took = t0.elapsed();
+            assert!(took >= bit * (57 + bits), "SYNC → TPDO {took:?}");
+            break;
+        }
+    }
+    let t0 = tokio::time::Instant::now();
+    master
+        .send(NmtMessage::new(NmtCommand::ResetNode, NmtTarget::Node(node(3))).encode())
+        .await
+        .unwrap();
+    loop {
+        let envelope = frames.recv().await.unwrap();
+        if envelope.frame.id() == CanId::Standard(0x703) {
+            let took = t0.elapsed();
+            assert!(took >= bit * (75 + 65), "NMT → boot-up {took:?}");
+            break;
+        }
+    }
+}
