@@ -101,6 +101,10 @@ const MAX_CATCH_UP_TICKS: u64 = 1000;
 /// 0x2040: UniSwarm's communication configuration, sub 1 the node-ID the
 /// device boots with once saved (UMC manual §2.3, UIO1LED manual §4.2).
 const COMMUNICATION_CONFIG: u16 = 0x2040;
+/// 0x1005: COB-ID SYNC.
+const COB_ID_SYNC: u16 = 0x1005;
+/// 0x1006: communication cycle period, which a SYNC producer has.
+const CYCLE_PERIOD: u16 = 0x1006;
 /// 0x1018: identity; sub 4 the serial number.
 const IDENTITY: u16 = 0x1018;
 /// "save" as a little-endian UNSIGNED32.
@@ -183,6 +187,9 @@ pub struct DeviceCore {
     /// A communication error in operational waits for 0x1029's reaction,
     /// which the next poll applies once its EMCY is out.
     communication_error: Option<Instant>,
+    /// An RPDO of the wrong length was reported (0x8210/0x8220) and no
+    /// RPDO has been processed without one since.
+    pdo_length_error: bool,
     /// Milliseconds of simulated time, and the instant they were reached.
     sim_ms: u64,
     last_tick: Option<Instant>,
@@ -258,6 +265,7 @@ impl DeviceCore {
             bitrate: Bitrate::Unlimited,
             recovery_due: None,
             communication_error: None,
+            pdo_length_error: false,
             sim_ms: 0,
             last_tick: None,
             skipped_ticks: 0,
@@ -587,10 +595,22 @@ impl DeviceCore {
         ]
     }
 
+    /// A communication error other than an RPDO's length: a lost master
+    /// (guarding, a consumed heartbeat) or a controller not error active.
+    fn other_communication_error(&self) -> bool {
+        self.guard.is_lost()
+            || self.controller.state() != ErrorState::ErrorActive
+            || self
+                .consumed
+                .iter()
+                .any(|(node, _)| self.consumer.is_lost(*node))
+    }
+
     /// The reaction to a change of the CAN controller's error state (see
     /// the module documentation).
     fn can_state_changed(&mut self, transition: Transition, now: Instant) {
         let other_loss = self.guard.is_lost()
+            || self.pdo_length_error
             || self
                 .consumed
                 .iter()
@@ -741,6 +761,7 @@ impl DeviceCore {
     /// it is back: the error reset once nothing is lost any more.
     fn master_lost(&mut self, lost: bool, now: Instant) {
         let still_lost = self.guard.is_lost()
+            || self.pdo_length_error
             || self
                 .consumed
                 .iter()
@@ -993,10 +1014,28 @@ impl DeviceCore {
                 .pdos
                 .handle_frame(frame, &mut self.store, now, &mut written);
             let exceeded_too = self.behaviour.reports_pdo_length_exceeded();
+            let mut reported = false;
             for code in self.pdos.take_length_errors() {
                 if code != EMCY_PDO_LENGTH_EXCEEDED || exceeded_too {
-                    self.with_application(now, |_, io| io.emcy(code, [0; 5]));
+                    // A communication error (CiA 301 table 21, CANopenNode's
+                    // register 0x11 for them), until an RPDO is right again.
+                    self.pdo_length_error = true;
+                    reported = true;
+                    self.with_application(now, |_, io| {
+                        io.set_error_bit(ErrorBit::Communication, true);
+                        io.emcy(code, [0; 5]);
+                    });
                 }
+            }
+            if self.pdos.take_rpdo_processed() && !reported && self.pdo_length_error {
+                self.pdo_length_error = false;
+                let other = self.other_communication_error();
+                self.with_application(now, |_, io| {
+                    if !other {
+                        io.set_error_bit(ErrorBit::Communication, false);
+                    }
+                    io.emcy(0x0000, [0; 5]);
+                });
             }
             out
         } else {
@@ -1260,6 +1299,38 @@ impl DeviceAccess<'_> {
         Ok(())
     }
 
+    /// What every device refuses of a value its dictionary would take
+    /// (0x06090030):
+    /// - 0x1005 (CiA 301 §7.5.2.6): bit 30, generate SYNC, on a device
+    ///   that cannot produce SYNC (no 0x1006, communication cycle period);
+    ///   and bits 0–29 changed while bit 30 is set.
+    /// - 0x2040 sub 1 Node_ID (UMC manual §2.3.1, UIO1LED manual §4.2): a
+    ///   node-ID the device could not boot with (CiA 301: 1–127).
+    fn check_core_value(&self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
+        match (index, sub) {
+            (COB_ID_SYNC, 0) => {
+                let Ok(bytes) = <[u8; 4]>::try_from(data) else {
+                    return Ok(());
+                };
+                let new = u32::from_le_bytes(bytes);
+                const GENERATE: u32 = 1 << 30;
+                const ID_AND_FORMAT: u32 = 0x3FFF_FFFF;
+                if new & GENERATE != 0 && self.store.dictionary().get(CYCLE_PERIOD).is_none() {
+                    return Err(AbortCode::InvalidValue);
+                }
+                let old = self.store.int(COB_ID_SYNC, 0).unwrap_or(0) as u32;
+                if old & GENERATE != 0 && old & ID_AND_FORMAT != new & ID_AND_FORMAT {
+                    return Err(AbortCode::InvalidValue);
+                }
+            }
+            (COMMUNICATION_CONFIG, 1) if matches!(data, [0] | [128..=255]) => {
+                return Err(AbortCode::InvalidValue);
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
     fn save(&mut self, area: Area) {
         *self.saved_version += 1;
         self.saved.retain(|(index, _), _| !area.contains(*index));
@@ -1339,6 +1410,7 @@ impl ObjectAccess for DeviceAccess<'_> {
                 }
                 return Ok(());
             }
+            self.check_core_value(index, sub, data)?;
             if pdo::is_pdo_parameter(index) {
                 self.store.check_write(index, sub, Some(data.len()))?;
                 self.behaviour.check_value(self.store, index, sub, data)?;

@@ -173,6 +173,20 @@ impl ObjectStore {
     }
 }
 
+/// Bits 0–28 of a COB-ID: the CAN-ID (29 bits for an extended frame).
+const CAN_ID_BITS: u32 = 0x1FFF_FFFF;
+
+/// The COB-ID entries of CiA 301: SYNC 0x1005, TIME 0x1012, EMCY 0x1014,
+/// the SDO channels' (0x1200–0x12FF sub 1 and 2) and the PDOs' (sub 1).
+fn is_cob_id(index: u16, sub: u8) -> bool {
+    matches!(
+        (index, sub),
+        (0x1005 | 0x1012 | 0x1014, 0)
+            | (0x1200..=0x12FF, 1 | 2)
+            | (0x1400..=0x15FF | 0x1800..=0x19FF, 1)
+    )
+}
+
 /// The dummy objects an EDS's `[DummyUsage]` declares (CiA 306 §4.5.4):
 /// the data types 0x0001–0x0007 a device accepts in an RPDO mapping, which
 /// it also answers when read (CiA 301 §7.4.7.1): the type's length in bits,
@@ -226,7 +240,15 @@ impl ObjectAccess for ObjectStore {
         let node = self.node;
         let entry = self.writable_entry(index, sub)?;
         let value = Value::from_bytes(entry.data_type, data).map_err(|e| abort(&e))?;
-        entry.check(&value, Some(node)).map_err(|e| abort(&e))?;
+        // A COB-ID's limits are its CAN-ID's: its flags (valid, RTR,
+        // frame format, generate) are no part of the number they bound.
+        let limited = match value {
+            Value::Unsigned32(cob_id) if is_cob_id(index, sub) => {
+                Value::Unsigned32(cob_id & CAN_ID_BITS)
+            }
+            _ => value.clone(),
+        };
+        entry.check(&limited, Some(node)).map_err(|e| abort(&e))?;
         self.values.insert((index, sub), value);
         Ok(())
     }

@@ -273,6 +273,8 @@ pub struct DevicePdos {
     next_scan: Option<Instant>,
     /// EMCY codes of RPDOs of the wrong length, for the device to raise.
     length_errors: Vec<u16>,
+    /// An RPDO was processed since [`DevicePdos::take_rpdo_processed`].
+    rpdo_processed: bool,
 }
 
 impl DevicePdos {
@@ -324,6 +326,7 @@ impl DevicePdos {
             sync,
             next_scan: Some(now),
             length_errors: Vec::new(),
+            rpdo_processed: false,
         }
     }
 
@@ -408,6 +411,7 @@ impl DevicePdos {
                     if received.length_exceeded {
                         self.length_errors.push(EMCY_PDO_LENGTH_EXCEEDED);
                     }
+                    self.rpdo_processed = true;
                 }
                 Ok(None) => {}
                 Err(error) => self.length_errors.extend(error.emcy_code()),
@@ -420,6 +424,11 @@ impl DevicePdos {
     /// last call (0x8210 too short, 0x8220 too long).
     pub fn take_length_errors(&mut self) -> Vec<u16> {
         std::mem::take(&mut self.length_errors)
+    }
+
+    /// Whether an RPDO was processed (applied) since the last call.
+    pub fn take_rpdo_processed(&mut self) -> bool {
+        std::mem::take(&mut self.rpdo_processed)
     }
 
     /// Timers due at `now` (event timers, inhibit times, RPDO deadlines) and

@@ -399,7 +399,13 @@ fn an_rpdo_of_the_wrong_length_raises_its_emcy() {
         };
         assert_eq!(emcys(6, 100), Vec::<u16>::new(), "{product:?}");
         assert_eq!(emcys(5, 200), [0x8210], "{product:?}");
-        let longer = if reports_longer { vec![0x8220] } else { vec![] };
+        // The JMC processes the longer one and reports nothing: an RPDO
+        // processed right, so the 0x8210 before is reset.
+        let longer = if reports_longer {
+            vec![0x8220]
+        } else {
+            vec![0x0000]
+        };
         assert_eq!(emcys(8, 300), longer, "{product:?}");
     }
 }
@@ -672,4 +678,146 @@ fn a_kept_program_runs_from_the_boot() {
         Some(&Value::VisibleString("3.0".into()))
     );
     assert_eq!(device.store().int(0x1F51, 1), Some(1));
+}
+
+/// CiA 301 §7.5.2.6 (0x1005): bit 30 "generate SYNC" on a device that has
+/// no SYNC producer (the UMC's EDS and manual list no 0x1006) is refused
+/// with 0x06090030; bits 0–29 may change while bit 30 is 0. On a device
+/// with 0x1006, bit 30 is taken, and bits 0–29 may not change while it is
+/// set (0x06090030): bit 30 is cleared first.
+#[test]
+fn cob_id_sync_refuses_generate_without_a_sync_producer_and_changes_while_generating() {
+    use crate::products::Product;
+
+    let id = NodeId::new(9).unwrap();
+    let mut umc = Product::Umc1bds32.device(id).unwrap();
+    umc.boot(Instant::now());
+    let write = |device: &mut DeviceCore, value: u32| {
+        let [a, b, c, d] = value.to_le_bytes();
+        abort_of(sdo_exchange(device, [0x23, 0x05, 0x10, 0, a, b, c, d]))
+    };
+    assert_eq!(write(&mut umc, 0x4000_0080), Some(0x0609_0030));
+    assert_eq!(umc.store().int(0x1005, 0), Some(0x80));
+    assert_eq!(write(&mut umc, 0x0000_0081), None);
+    // A device that has 0x1006: a SYNC producer.
+    let mut dictionary = Eds::parse(crate::profiles::builtin::UIO1LED, "uio1led.eds")
+        .unwrap()
+        .dictionary;
+    let mut period = crate::canopen::od::SubObject::new(
+        0,
+        "Communication_cycle_period",
+        crate::canopen::od::DataType::Unsigned32,
+        crate::canopen::od::AccessType::Rw,
+    );
+    period.default = Some("0".into());
+    dictionary.insert(crate::canopen::od::Object::var(0x1006, period));
+    let mut producer = DeviceCore::new(dictionary, id).unwrap();
+    producer.boot(Instant::now());
+    assert_eq!(write(&mut producer, 0x4000_0080), None);
+    assert_eq!(write(&mut producer, 0x4000_0081), Some(0x0609_0030));
+    assert_eq!(write(&mut producer, 0x0000_0080), None);
+    assert_eq!(write(&mut producer, 0x0000_0081), None);
+}
+
+/// CiA 301 §7.5.2.16 (0x1014 bit 31, EMCY does not exist) on the UIO1LED,
+/// whose EDS bounds 0x1014 to 0x80–0x100: the bounds are the CAN-ID's, so
+/// 0x80000083 (EMCY disabled, a new COB-ID) is taken, and a CAN-ID above
+/// them is still refused (0x06090031).
+#[test]
+fn the_uio1led_takes_an_emcy_cob_id_with_bit_31_within_its_limits() {
+    use crate::products::Product;
+
+    let mut device = Product::Uio1led.device(NodeId::new(9).unwrap()).unwrap();
+    device.boot(Instant::now());
+    let write = |device: &mut DeviceCore, value: u32| {
+        let [a, b, c, d] = value.to_le_bytes();
+        abort_of(sdo_exchange(device, [0x23, 0x14, 0x10, 0, a, b, c, d]))
+    };
+    assert_eq!(write(&mut device, 0x8000_0089), None);
+    assert_eq!(write(&mut device, 0x8000_0083), None);
+    assert_eq!(device.store().int(0x1014, 0), Some(0x8000_0083));
+    assert_eq!(write(&mut device, 0x8000_0101), Some(0x0609_0031));
+    assert_eq!(write(&mut device, 0x0000_0083), None);
+}
+
+/// UMC manual §2.3.1 and UIO1LED manual §4.2 (0x2040 sub 1 Node_ID, the
+/// ID the device boots with after a save and reset) and CiA 301 (node-IDs
+/// 1–127): 0, 128 and 255 are refused with 0x06090030 rather than saved
+/// and ignored at the reset.
+#[test]
+fn node_id_0x2040_refuses_what_the_device_cannot_boot_with() {
+    use crate::products::Product;
+
+    for product in [Product::Umc1bds32, Product::Uio1led] {
+        let mut device = product.device(NodeId::new(9).unwrap()).unwrap();
+        device.boot(Instant::now());
+        for value in [0u8, 128, 255] {
+            let reply = sdo_exchange(&mut device, [0x2F, 0x40, 0x20, 1, value, 0, 0, 0]);
+            assert_eq!(abort_of(reply), Some(0x0609_0030), "{product:?} {value}");
+        }
+        assert_eq!(device.store().int(0x2040, 1), Some(9));
+        for value in [1u8, 127] {
+            let reply = sdo_exchange(&mut device, [0x2F, 0x40, 0x20, 1, value, 0, 0, 0]);
+            assert_eq!(abort_of(reply), None, "{product:?} {value}");
+        }
+    }
+}
+
+/// CiA 301 table 21 and CANopenNode (the UniSwarm firmware's stack): the
+/// EMCY of an RPDO of the wrong length (0x8210 too short, 0x8220 too long)
+/// is a communication error, error register 0x11 (generic and
+/// communication bits), and once an RPDO is processed right again an error
+/// reset (0x0000) follows and the register is clear.
+#[test]
+fn an_rpdo_length_error_carries_its_register_and_is_reset_by_a_right_rpdo() {
+    use crate::products::Product;
+
+    let id = NodeId::new(9).unwrap();
+    let rpdo1 = |len: usize| Frame::new(CanId::standard(0x209).unwrap(), &[0; 8][..len]).unwrap();
+    for (product, longer) in [(Product::Umc1bds32, true), (Product::Jmc, false)] {
+        let mut device = product.device(id).unwrap();
+        let start = Instant::now();
+        device.boot(start);
+        let store = device.store_mut();
+        store.set(0x1600, 0, Value::Unsigned8(0)).unwrap();
+        store
+            .set(0x1600, 1, Value::Unsigned32(0x0006_0010))
+            .unwrap();
+        store
+            .set(0x1600, 2, Value::Unsigned32(0x0007_0020))
+            .unwrap();
+        store.set(0x1600, 0, Value::Unsigned8(2)).unwrap();
+        store.set(0x1400, 1, Value::Unsigned32(0x209)).unwrap();
+        store.set(0x1400, 2, Value::Unsigned8(255)).unwrap();
+        device.pdo_parameters_changed(start);
+        let go = NmtMessage::new(NmtCommand::Start, NmtTarget::Node(id)).encode();
+        device.handle_frame(&go, start);
+        let mut emcys = |len: usize, at: u64| {
+            let now = start + Duration::from_millis(at);
+            device.handle_frame(&rpdo1(len), now);
+            let mut seen = Vec::new();
+            for ms in at..at + 10 {
+                let now = start + Duration::from_millis(ms);
+                device.tick_to(now);
+                seen.extend(
+                    device
+                        .poll(now)
+                        .iter()
+                        .filter(|f| f.id() == CanId::standard(0x89).unwrap())
+                        .map(|f| (u16::from_le_bytes([f.data()[0], f.data()[1]]), f.data()[2])),
+                );
+            }
+            seen
+        };
+        assert_eq!(emcys(5, 100), [(0x8210, 0x11)], "{product:?}");
+        assert_eq!(emcys(5, 200), [(0x8210, 0x11)], "{product:?}");
+        assert_eq!(emcys(6, 300), [(0x0000, 0x00)], "{product:?}");
+        assert_eq!(emcys(6, 400), [], "{product:?}");
+        if longer {
+            assert_eq!(emcys(8, 500), [(0x8220, 0x11)], "{product:?}");
+            assert_eq!(emcys(6, 600), [(0x0000, 0x00)], "{product:?}");
+        } else {
+            assert_eq!(emcys(8, 500), [], "{product:?}");
+        }
+    }
 }
