@@ -96,6 +96,12 @@ pub struct BusInfo {
     /// The controller's receive error counter (REC), as last reported.
     #[schema(example = 0)]
     pub rx_error_counter: u64,
+    /// Frames refused because their sender's transmit queue (1024 frames)
+    /// was full: the gateway's own on a SocketCAN bus; on a virtual bus
+    /// every sender's (the gateway, the virtual devices, socketcand
+    /// clients are held back instead). Each loss is counted, never silent.
+    #[schema(example = 0)]
+    pub tx_queue_overflows: u64,
 }
 
 /// The buses the gateway serves, with their traffic and measured load.
@@ -132,6 +138,7 @@ impl BusInfo {
             error_state: status.state.error_state().map(|s| s.as_str()),
             tx_error_counter: counters.tec,
             rx_error_counter: counters.rec,
+            tx_queue_overflows: counters.tx_queue_overflows,
         }
     }
 }

@@ -259,6 +259,13 @@ fn render_buses(out: &mut Exposition, buses: &[BusSnapshot]) {
     );
     per_bus(
         out,
+        "candeck_bus_tx_queue_overflows_total",
+        Kind::Counter,
+        "Frames refused because their sender's transmit queue was full (on a virtual bus, any sender's).",
+        &|bus| Value::from(bus.counters.tx_queue_overflows),
+    );
+    per_bus(
+        out,
         "candeck_bus_receive_overruns_total",
         Kind::Counter,
         "Frames lost by the gateway's receivers that fell behind the bus.",

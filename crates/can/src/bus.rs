@@ -168,6 +168,10 @@ pub struct BusCounters {
     pub tec: AtomicU64,
     /// The controller's receive error counter (REC), likewise (data\[7\]).
     pub rec: AtomicU64,
+    /// Frames refused because the sender's transmit queue was full
+    /// ([`DEFAULT_TX_QUEUE`]): this attachment's own, or on a virtual bus
+    /// every sender's (see [`Bus::counters`]).
+    pub tx_queue_overflows: AtomicU64,
 }
 
 impl BusCounters {
@@ -204,6 +208,7 @@ impl BusCounters {
             malformed: get(&self.malformed),
             tec: get(&self.tec),
             rec: get(&self.rec),
+            tx_queue_overflows: get(&self.tx_queue_overflows),
         }
     }
 }
@@ -224,6 +229,9 @@ pub struct CounterSnapshot {
     pub tec: u64,
     /// Receive error counter (see [`BusCounters::rec`]).
     pub rec: u64,
+    /// Frames refused by a full transmit queue (see
+    /// [`BusCounters::tx_queue_overflows`]).
+    pub tx_queue_overflows: u64,
 }
 
 /// Who put a frame on a fan-out channel: an attachment id, or [`WIRE`] for
@@ -467,6 +475,7 @@ impl Bus {
         self.check_up()?;
         match &self.inner.tx {
             TxPath::Hub(link) => {
+                // The hub counts and logs the overflow, for the whole bus.
                 link.try_send(frame)
                     .map_err(|_| BusError::TxQueueFull(self.inner.name.clone()))?;
                 self.inner.counters.count_tx(&frame);
@@ -474,6 +483,13 @@ impl Bus {
             }
             TxPath::Driver(queue) => queue.try_send(frame).map_err(|err| match err {
                 mpsc::error::TrySendError::Full(_) => {
+                    let overflows = &self.inner.counters.tx_queue_overflows;
+                    if overflows.fetch_add(1, Ordering::Relaxed) == 0 {
+                        tracing::warn!(
+                            "bus {}: transmit queue full, frame dropped (counted in tx_queue_overflows)",
+                            self.inner.name
+                        );
+                    }
                     BusError::TxQueueFull(self.inner.name.clone())
                 }
                 mpsc::error::TrySendError::Closed(_) => BusError::Closed(self.inner.name.clone()),
@@ -580,8 +596,29 @@ impl Bus {
         }
     }
 
+    /// This attachment's counters; on a virtual bus `tx_queue_overflows`
+    /// is the bus's: frames any sender's full queue refused.
     pub fn counters(&self) -> CounterSnapshot {
-        self.inner.counters.snapshot()
+        let mut snapshot = self.inner.counters.snapshot();
+        if let TxPath::Hub(link) = &self.inner.tx {
+            snapshot.tx_queue_overflows = link.tx_queue_overflows();
+        }
+        snapshot
+    }
+
+    /// Like [`Bus::try_send`] for a frame that only its latest value is
+    /// worth sending (a heartbeat): on a virtual bus, if this attachment
+    /// still has a frame with the same identifier waiting, the new one
+    /// takes its place, as a CAN controller's transmit buffer rewritten
+    /// before it went out, so that a starved sender does not send a
+    /// backlog of stale values once the bus frees.
+    pub fn try_send_latest(&self, frame: Frame) -> Result<(), BusError> {
+        if let TxPath::Hub(link) = &self.inner.tx
+            && link.replace_queued(frame)
+        {
+            return Ok(());
+        }
+        self.try_send(frame)
     }
 
     /// Lets go of this handle. When it is the last one, the frames still

@@ -149,6 +149,11 @@ struct HubInner {
     wire: Option<Mutex<Wire<Origin>>>,
     /// Wakes the wire's task: a frame was queued, or the hub is gone.
     wake: Arc<Notify>,
+    /// Frames refused because their sender's transmit queue was full.
+    tx_overflows: AtomicU64,
+    /// An overflow was logged and the wire has not been idle since: one
+    /// log line per burst.
+    overflowing: AtomicBool,
 }
 
 impl Drop for HubInner {
@@ -201,14 +206,32 @@ impl HubLink {
     /// [`HubLink::send`] without waiting.
     pub(crate) fn try_send(&self, frame: Frame) -> Result<(), TxQueueFull> {
         if self.hub.wire.is_some() {
-            self.tx_room
-                .try_acquire()
-                .map_err(|_| TxQueueFull)?
-                .forget();
+            let Ok(permit) = self.tx_room.try_acquire() else {
+                self.hub.overflowed();
+                return Err(TxQueueFull);
+            };
+            permit.forget();
         }
         self.hub
             .transmit(self.origin, frame, self.tx_watched.load(Ordering::Relaxed));
         Ok(())
+    }
+}
+
+impl HubLink {
+    /// Frames any sender's full transmit queue refused on this bus.
+    pub(crate) fn tx_queue_overflows(&self) -> u64 {
+        self.hub.tx_overflows.load(Ordering::Relaxed)
+    }
+
+    /// Puts `frame` in the place of a frame with its identifier that this
+    /// attachment still has waiting; `false` when there is none (or the
+    /// bus is unlimited: nothing waits).
+    pub(crate) fn replace_queued(&self, frame: Frame) -> bool {
+        let Some(wire) = &self.hub.wire else {
+            return false;
+        };
+        lock(wire).replace_queued(self.origin, frame)
     }
 }
 
@@ -229,6 +252,18 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl HubInner {
+    /// A sender's transmit queue refused a frame: counted, and logged once
+    /// per burst (until the wire is idle again).
+    fn overflowed(&self) {
+        let total = self.tx_overflows.fetch_add(1, Ordering::Relaxed) + 1;
+        if !self.overflowing.swap(true, Ordering::Relaxed) {
+            tracing::warn!(
+                "bus {}: a sender's transmit queue ({DEFAULT_TX_QUEUE} frames) is full: frames dropped ({total} so far, tx_queue_overflows)",
+                self.name
+            );
+        }
+    }
+
     fn attachments(&self) -> MutexGuard<'_, Vec<Attachment>> {
         // A panic elsewhere while holding the lock leaves the list intact.
         self.attachments
@@ -362,6 +397,10 @@ async fn drive_wire(hub: Weak<HubInner>, wake: Arc<Notify>) {
             lock(wire).deadline()
         };
         let Some(deadline) = deadline.map(tokio::time::Instant::from_std) else {
+            // Idle: a burst of overflows, if any, is over.
+            if let Some(hub) = hub.upgrade() {
+                hub.overflowing.store(false, Ordering::Relaxed);
+            }
             wake.notified().await;
             continue;
         };
@@ -486,6 +525,8 @@ impl VirtualHub {
             bits_total: AtomicU64::new(0),
             wire: bitrate.get().map(|_| Mutex::new(Wire::new(bitrate))),
             wake: wake.clone(),
+            tx_overflows: AtomicU64::new(0),
+            overflowing: AtomicBool::new(false),
         });
         if inner.wire.is_some() {
             tokio::spawn(drive_wire(Arc::downgrade(&inner), wake));

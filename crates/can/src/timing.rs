@@ -217,6 +217,22 @@ impl<S: Copy + Eq> Wire<S> {
         }
     }
 
+    /// Replaces the frame with `frame`'s identifier that `sender` has
+    /// queued (the last one, if several) by `frame`; `false` when there is
+    /// none. It keeps its place in the queue.
+    pub fn replace_queued(&mut self, sender: S, frame: Frame) -> bool {
+        let Some((_, queue)) = self.queues.iter_mut().find(|(s, _)| *s == sender) else {
+            return false;
+        };
+        match queue.iter_mut().rev().find(|q| q.frame.id() == frame.id()) {
+            Some(queued) => {
+                queued.frame = frame;
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Frames `sender` has queued that have not gone on the wire yet.
     pub fn queued(&self, sender: S) -> usize {
         self.queues

@@ -101,6 +101,8 @@ const MAX_CATCH_UP_TICKS: u64 = 1000;
 /// 0x2040: UniSwarm's communication configuration, sub 1 the node-ID the
 /// device boots with once saved (UMC manual §2.3, UIO1LED manual §4.2).
 const COMMUNICATION_CONFIG: u16 = 0x2040;
+/// EMCY 0x8110: CAN overrun (objects lost), CiA 301 table 21.
+const CAN_OVERRUN: u16 = 0x8110;
 /// 0x1005: COB-ID SYNC.
 const COB_ID_SYNC: u16 = 0x1005;
 /// 0x1006: communication cycle period, which a SYNC producer has.
@@ -187,6 +189,8 @@ pub struct DeviceCore {
     /// A communication error in operational waits for 0x1029's reaction,
     /// which the next poll applies once its EMCY is out.
     communication_error: Option<Instant>,
+    /// The last receive overrun, until its error reset.
+    rx_overrun: Option<Instant>,
     /// An RPDO of the wrong length was reported (0x8210/0x8220) and no
     /// RPDO has been processed without one since.
     pdo_length_error: bool,
@@ -266,6 +270,7 @@ impl DeviceCore {
             recovery_due: None,
             communication_error: None,
             pdo_length_error: false,
+            rx_overrun: None,
             sim_ms: 0,
             last_tick: None,
             skipped_ticks: 0,
@@ -595,10 +600,30 @@ impl DeviceCore {
         ]
     }
 
+    /// The device's receive queue overflowed: frames were lost before it
+    /// could read them. EMCY 0x8110 "CAN overrun" with the communication
+    /// bit (CiA 301 table 21), as CANopenNode reports a receive buffer
+    /// overflow, once per overrun; the error reset follows a cycle after
+    /// the last one.
+    pub fn receive_overrun(&mut self, now: Instant) {
+        if self.lss.active().is_none() || !self.controller.can_transmit() {
+            return;
+        }
+        let first = self.rx_overrun.is_none();
+        self.rx_overrun = Some(now);
+        if first {
+            self.with_application(now, |_, io| {
+                io.set_error_bit(ErrorBit::Communication, true);
+                io.emcy(CAN_OVERRUN, [0; 5]);
+            });
+        }
+    }
+
     /// A communication error other than an RPDO's length: a lost master
     /// (guarding, a consumed heartbeat) or a controller not error active.
     fn other_communication_error(&self) -> bool {
         self.guard.is_lost()
+            || self.rx_overrun.is_some()
             || self.controller.state() != ErrorState::ErrorActive
             || self
                 .consumed
@@ -1081,6 +1106,17 @@ impl DeviceCore {
         }
         if self.sdo.deadline().is_some_and(|d| d <= now) {
             out.extend(self.sdo.handle_timeout(now));
+        }
+        // The overrun is over once a cycle has passed without another.
+        if self.rx_overrun.is_some_and(|at| now > at) {
+            self.rx_overrun = None;
+            let other = self.pdo_length_error || self.other_communication_error();
+            self.with_application(now, |_, io| {
+                if !other {
+                    io.set_error_bit(ErrorBit::Communication, false);
+                }
+                io.emcy(0x0000, [0; 5]);
+            });
         }
         if self.nmt.allows(NmtService::Heartbeat)
             && let Some(frame) = self.heartbeat.poll(now, self.nmt.state())

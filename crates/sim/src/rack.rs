@@ -477,6 +477,8 @@ enum Wake {
     Frame(Frame),
     Tick(tokio::time::Instant),
     Controls,
+    /// The devices' receive queue overflowed.
+    Overrun,
 }
 
 async fn run(
@@ -497,8 +499,9 @@ async fn run(
         let woke = tokio::select! {
             received = frames.recv() => match received {
                 Ok(frame) => Wake::Frame(frame.frame),
-                // Requests lost in an overrun end as timeouts, as on a real bus.
-                Err(RecvError::Lagged(_)) => continue,
+                // Requests lost in an overrun end as timeouts, as on a
+                // real bus; each device reports its CAN overrun.
+                Err(RecvError::Lagged(_)) => Wake::Overrun,
                 Err(RecvError::Closed) => return,
             },
             due = clock.tick() => Wake::Tick(due),
@@ -535,6 +538,13 @@ async fn run(
                     }
                 }
                 Wake::Controls => {}
+                Wake::Overrun => {
+                    for (_, slot) in inner.all_mut() {
+                        if slot.plugged {
+                            slot.core.receive_overrun(now);
+                        }
+                    }
+                }
             }
             let controls = std::mem::take(&mut inner.outbox);
             out.extend(controls);
@@ -563,7 +573,15 @@ async fn run(
         }
         merge_lss_answers(&mut out);
         for (_, frame) in out.drain(..) {
-            match bus.try_send(frame) {
+            // A heartbeat producer sends its current state: one still
+            // waiting for the bus is brought up to date, not followed by
+            // a backlog (a starved device sends no burst of stale ones).
+            let sent = if is_heartbeat(&frame) {
+                bus.try_send_latest(frame)
+            } else {
+                bus.try_send(frame)
+            };
+            match sent {
                 Ok(()) => {
                     stats.frames_sent.fetch_add(1, Ordering::Relaxed);
                 }
@@ -571,6 +589,13 @@ async fn run(
             }
         }
     }
+}
+
+/// A heartbeat (0x701–0x77F, one byte, not the boot-up message).
+fn is_heartbeat(frame: &Frame) -> bool {
+    matches!(frame.id(), crate::can::CanId::Standard(0x701..=0x77F))
+        && matches!(frame.data(), [state] if *state != 0)
+        && frame.kind() == crate::can::FrameKind::Data
 }
 
 /// Identical LSS answers of several devices are one frame on the wire.

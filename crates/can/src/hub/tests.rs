@@ -441,3 +441,54 @@ async fn on_the_real_clock_a_lone_frame_is_not_early_either() {
         assert!(got[0].1 >= Duration::from_micros(1080), "{:?}", got[0].1);
     }
 }
+
+/// A frame a full transmit queue refuses is counted for the bus: every
+/// attachment's counters show the bus's total.
+#[tokio::test(start_paused = true)]
+async fn frames_refused_by_a_full_transmit_queue_are_counted_for_the_bus() {
+    use crate::bus::DEFAULT_TX_QUEUE;
+
+    let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+    let sender = hub.attach();
+    let gateway = hub.attach();
+    let mut refused = 0;
+    for _ in 0..DEFAULT_TX_QUEUE + 300 {
+        if sender.try_send(frame(0x181, &[0; 8])).is_err() {
+            refused += 1;
+        }
+    }
+    assert_eq!(refused, 300);
+    assert_eq!(gateway.counters().tx_queue_overflows, 300);
+    assert_eq!(sender.counters().tx_queue_overflows, 300);
+}
+
+/// A frame that only its latest value is worth sending (a heartbeat)
+/// takes the place of its predecessor still waiting for the bus, as a
+/// CAN controller's transmit buffer rewritten before it went out.
+#[tokio::test(start_paused = true)]
+async fn a_latest_value_frame_replaces_the_one_still_waiting() {
+    let hub = VirtualHub::with_bitrate("test", "125k".parse().unwrap());
+    let flood = hub.attach();
+    let device = hub.attach();
+    let master = hub.attach();
+    let mut rx = master.subscribe();
+    for _ in 0..100 {
+        flood.try_send(frame(0x081, &[0; 8])).unwrap();
+    }
+    for state in [0x05u8, 0x05, 0x7F, 0x05] {
+        device.try_send_latest(frame(0x703, &[state])).unwrap();
+    }
+    let mut heartbeats = Vec::new();
+    for _ in 0..101 {
+        let frame = rx.recv().await.unwrap().frame;
+        if frame.id() == CanId::Standard(0x703) {
+            heartbeats.push(frame.data().to_vec());
+        }
+    }
+    assert_eq!(heartbeats, vec![vec![0x05]]);
+    assert!(
+        tokio::time::timeout(std::time::Duration::from_millis(50), rx.recv())
+            .await
+            .is_err()
+    );
+}

@@ -9,7 +9,7 @@
 //! | direction | messages |
 //! |---|---|
 //! | client → server | `open CH`, `rawmode`, `bcmmode`, `echo`, `send ID DLC B0..`, `sendrtr ID DLC`, `fdsend ID FLAGS LEN B0..` |
-//! | server → client | `hi`, `ok`, `echo`, `frame ID SECS.USECS HEX`, `fdframe ID FLAGS SECS.USECS HEX`, `rtr ID SECS.USECS DLC`, `error CLASS SECS.USECS` (error frame), `error TEXT` |
+//! | server → client | `hi`, `ok`, `echo`, `frame ID SECS.USECS HEX`, `fdframe ID FLAGS SECS.USECS HEX`, `frame ID SECS.USECS  rtr DLC` (a remote frame: python-can reads a frame without data), `error CLASS SECS.USECS` (error frame), `error TEXT`; `rtr ID SECS.USECS DLC` is read too |
 //!
 //! Identifiers are written with three hex digits (standard) or eight
 //! (extended); the width, not the value, says which (python-can and
@@ -440,6 +440,10 @@ fn parse_frame_line(args: &[&str]) -> Result<ServerMessage, ParseError> {
     };
     let id = parse_received_id("frame", id)?;
     let ts = parse_timestamp("frame", ts)?;
+    if let ["rtr", dlc] = data {
+        let dlc = parse_len("frame", dlc, 8)?;
+        return Ok(ServerMessage::Frame(Frame::remote(id, dlc as u8)?, ts));
+    }
     let data = parse_hex_data("frame", data, 8)?;
     Ok(ServerMessage::Frame(Frame::new(id, &data)?, ts))
 }
@@ -518,7 +522,7 @@ fn push_timestamp(out: &mut Vec<u8>, ts: Timestamp) {
 /// Appends the server's message for a frame on the bus, byte for byte as
 /// socketcand writes it: `< frame 123 1700000000.123456 1122 >` (data as one
 /// hex run, two spaces when empty), `< fdframe ID FLAGS TS DATA >`,
-/// `< rtr ID TS DLC >`, `< error CLASS TS >`.
+/// `< frame ID TS  rtr DLC >` (a remote frame), `< error CLASS TS >`.
 pub fn write_frame(out: &mut Vec<u8>, frame: &Frame, ts: Timestamp) {
     match frame.kind() {
         FrameKind::Data | FrameKind::Fd(_) => {
@@ -539,12 +543,16 @@ pub fn write_frame(out: &mut Vec<u8>, frame: &Frame, ts: Timestamp) {
             }
             out.extend_from_slice(b" >");
         }
+        // socketcand has no form for a remote frame (it forwards none).
+        // This one is a `frame` line with no data, which python-can reads
+        // as such without a warning (it splits at most three fields and
+        // ignores the rest), followed by `rtr DLC`, which candeck reads.
         FrameKind::Remote => {
-            out.extend_from_slice(b"< rtr ");
+            out.extend_from_slice(b"< frame ");
             push_id(out, frame.id());
             out.push(b' ');
             push_timestamp(out, ts);
-            out.push(b' ');
+            out.extend_from_slice(b"  rtr ");
             push_decimal(out, u64::from(frame.dlc()));
             out.extend_from_slice(b" >");
         }

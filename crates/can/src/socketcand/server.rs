@@ -310,13 +310,26 @@ async fn read_loop(
                     }
                     Action::Send(frame) => {
                         let Some(bus) = &bus else { continue };
-                        match bus.try_send(frame) {
+                        // A full transmit queue holds the client back (its
+                        // TCP window fills), as a blocking write to the CAN
+                        // socket holds socketcand: nothing is lost. A bus
+                        // that is down refuses at once; socketcand answers
+                        // a failed write with nothing either.
+                        match bus.send(frame).await {
                             Ok(()) => {
                                 stats.frames_from_clients.fetch_add(1, Ordering::Relaxed);
-                                continue;
                             }
-                            Err(err) => WriterCmd::Reply(Reply::Error(err.to_string())),
+                            Err(err) => {
+                                rejected += 1;
+                                stats.rejected_commands.fetch_add(1, Ordering::Relaxed);
+                                if rejected <= 10 || rejected.is_power_of_two() {
+                                    tracing::warn!(
+                                        "socketcand: client {peer}: frame not sent: {err} (rejected input #{rejected})"
+                                    );
+                                }
+                            }
                         }
+                        continue;
                     }
                     Action::StartForwarding => match &bus {
                         Some(bus) => WriterCmd::StartForwarding(bus.subscribe()),

@@ -37,7 +37,8 @@ pub enum Action {
     Close,
 }
 
-/// Why a message was not accepted: a client error to log and answer.
+/// Why a message was not accepted: a client error to log (and answer, but
+/// for a malformed frame command, which socketcand answers with silence).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Rejection {
     pub reason: String,
@@ -102,6 +103,14 @@ impl Session {
                     ParseError::UnknownCommand(_) | ParseError::Empty => {
                         format!("unknown command '{}'", clip(&text))
                     }
+                    // socketcand logs a bad send and answers nothing
+                    // (`state_raw.c`): python-can would read an error
+                    // reply as an error frame and stop receiving.
+                    other if is_frame_command(&text) => {
+                        return Some(Rejection {
+                            reason: other.to_string(),
+                        });
+                    }
                     other => other.to_string(),
                 };
                 return Some(self.reject(actions, reason));
@@ -143,7 +152,7 @@ impl Session {
                 actions.push(Action::Reply(Reply::Ok));
             }
             (Mode::Bcm, Command::BcmMode) => actions.push(Action::Reply(Reply::Ok)),
-            (_, Command::Send(frame)) => actions.push(Action::Send(frame)),
+            (_, Command::Send(frame)) => actions.push(Action::Send(guarding_request(frame))),
             (_, Command::Unsupported(verb)) => {
                 return Some(self.reject(
                     actions,
@@ -158,6 +167,27 @@ impl Session {
         let reason = reason.into();
         actions.push(Action::Reply(Reply::Error(reason.clone())));
         Rejection { reason }
+    }
+}
+
+/// Whether a message is one of the commands that send a frame.
+fn is_frame_command(text: &str) -> bool {
+    let verb = text.split_ascii_whitespace().next().unwrap_or("");
+    matches!(verb, "send" | "sendrtr" | "fdsend")
+}
+
+/// python-can's socketcand interface writes a remote frame as a `send` of
+/// no data (it has no form for one), so python-canopen's node guarding
+/// reaches the server as zero-length data frames on 0x701–0x77F, which no
+/// CANopen service uses: they are the guarding requests (remote frames,
+/// CiA 301 §7.2.8.3.2.1) they were sent as.
+fn guarding_request(frame: Frame) -> Frame {
+    use crate::frame::{CanId, FrameKind};
+    match (frame.kind(), frame.id()) {
+        (FrameKind::Data, CanId::Standard(id @ 0x701..=0x77F)) if frame.data().is_empty() => {
+            Frame::remote(CanId::Standard(id), 1).unwrap_or(frame)
+        }
+        _ => frame,
     }
 }
 
@@ -245,14 +275,6 @@ mod tests {
             ),
             (Token::Message("".into()), "unknown command ''"),
             (
-                Token::Message("send 123 2 AA".into()),
-                "send: length says 2 data bytes but 1 follow",
-            ),
-            (
-                Token::Message("send 800 0".into()),
-                "standard CAN identifier 0x800 is above 0x7FF",
-            ),
-            (
                 Token::Garbage { bytes: 5 },
                 "5 bytes outside '< >'; commands look like '< send 123 1 AA >'",
             ),
@@ -285,5 +307,69 @@ mod tests {
         assert_eq!(session.mode(), Mode::Bcm);
         let (actions, _) = run(&mut session, "echo");
         assert_eq!(actions, vec![Action::Reply(Reply::Echo)]);
+    }
+
+    /// linux-can/socketcand `state_raw.c`: a `send` it cannot read is
+    /// logged and answered with nothing (python-can reads any `< error >`
+    /// as an error frame, and its receive thread stops on one it cannot
+    /// parse).
+    #[test]
+    fn a_malformed_send_is_logged_and_answered_with_nothing() {
+        let mut session = Session::new(vec!["can0".into()]);
+        run(&mut session, "open can0");
+        run(&mut session, "rawmode");
+        for (text, reason) in [
+            ("send 123 1", "send: length says 1 data bytes but 0 follow"),
+            (
+                "send 123 2 AA",
+                "send: length says 2 data bytes but 1 follow",
+            ),
+            ("send 800 0", "standard CAN identifier 0x800 is above 0x7FF"),
+            ("sendrtr 123", "sendrtr: expected '< sendrtr ID DLC >'"),
+        ] {
+            let (actions, rejection) = run(&mut session, text);
+            assert_eq!(actions, vec![], "{text}");
+            assert_eq!(
+                rejection,
+                Some(Rejection {
+                    reason: reason.into()
+                }),
+                "{text}"
+            );
+        }
+        let (actions, _) = run(&mut session, "send 123 1 AA");
+        assert_eq!(
+            actions,
+            vec![Action::Send(
+                Frame::new(CanId::Standard(0x123), &[0xAA]).unwrap()
+            )]
+        );
+    }
+
+    /// python-can writes a remote frame as a `send` without data, so
+    /// python-canopen's node guarding arrives as zero-length frames on
+    /// 0x700 + node: they go on the bus as the guarding requests (remote
+    /// frames, CiA 301 §7.2.8.3.2.1) they are. Other zero-length frames
+    /// stay data frames.
+    #[test]
+    fn a_zero_length_send_on_a_guarding_id_is_the_guarding_request() {
+        let mut session = Session::new(vec!["can0".into()]);
+        run(&mut session, "open can0");
+        run(&mut session, "rawmode");
+        let (actions, _) = run(&mut session, "send 703 0");
+        assert_eq!(
+            actions,
+            vec![Action::Send(
+                Frame::remote(CanId::Standard(0x703), 1).unwrap()
+            )]
+        );
+        for text in ["send 123 0", "send 700 0", "send 00000703 0"] {
+            let (actions, _) = run(&mut session, text);
+            let [Action::Send(frame)] = actions.as_slice() else {
+                panic!("{text}: {actions:?}");
+            };
+            assert!(!frame.is_remote(), "{text}");
+            assert!(frame.data().is_empty(), "{text}");
+        }
     }
 }

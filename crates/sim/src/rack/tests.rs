@@ -947,3 +947,70 @@ async fn a_device_answers_no_sooner_than_the_wire_allows() {
         }
     }
 }
+
+/// CiA 301 table 21 (0x8110 "CAN overrun (objects lost)") as CANopenNode
+/// reports a receive buffer overflow: a burst that overflows the devices'
+/// receive queue gets EMCY 0x8110 with the communication bit (register
+/// 0x11) from each device, and the error reset a cycle later.
+#[tokio::test(start_paused = true)]
+async fn a_receive_overrun_is_reported_with_emcy_0x8110() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let mut frames = master.subscribe();
+    let flood = Frame::new(CanId::Standard(0x181), &[0; 8]).unwrap();
+    // An unlimited bus hands every frame over at once: far more than the
+    // devices' receive queue holds, before they run again.
+    for _ in 0..crate::can::bus::DEFAULT_RX_QUEUE + 100 {
+        master.try_send(flood).unwrap();
+    }
+    let emcys = frames_on(&mut frames, 0x083, 20).await;
+    assert_eq!(
+        emcys,
+        vec![vec![0x10, 0x81, 0x11, 0, 0, 0, 0, 0], vec![0; 8]],
+        "{emcys:02X?}"
+    );
+}
+
+/// A device starved by a flood of higher-priority frames (ISO 11898-1
+/// arbitration) sends its current heartbeat when the bus frees, not the
+/// backlog of those it could not send meanwhile.
+#[tokio::test(start_paused = true)]
+async fn a_starved_device_sends_no_burst_of_stale_heartbeats() {
+    use crate::can::Bitrate;
+
+    let hub = VirtualHub::with_bitrate("test", Bitrate::bits_per_second(125_000));
+    let master = hub.attach();
+    let flood = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Uio1led, node(3)).unwrap();
+    let sdo = sdo(&master, 3);
+    sdo.download(0x1017, 0, &100u16.to_le_bytes())
+        .await
+        .unwrap();
+    let mut frames = master.subscribe();
+    // 2 s of frames that win every arbitration (1.08 ms each).
+    let flooding = tokio::spawn(async move {
+        let frame = Frame::new(CanId::Standard(0x080), &[0; 8]).unwrap();
+        for _ in 0..1900 {
+            flood.send(frame).await.unwrap();
+        }
+    });
+    let mut heartbeats = Vec::new();
+    let until = tokio::time::Instant::now() + Duration::from_millis(2600);
+    while let Ok(Ok(envelope)) = tokio::time::timeout_at(until, frames.recv()).await {
+        if envelope.frame.id() == CanId::Standard(0x703) {
+            heartbeats.push(tokio::time::Instant::now());
+        }
+    }
+    flooding.await.unwrap();
+    // After the flood, heartbeats 100 ms apart again: never two within
+    // 10 ms of each other.
+    for pair in heartbeats.windows(2) {
+        let gap = pair[1] - pair[0];
+        assert!(gap >= Duration::from_millis(10), "{gap:?}");
+    }
+    assert!(heartbeats.len() >= 3, "{}", heartbeats.len());
+}

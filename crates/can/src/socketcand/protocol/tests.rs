@@ -219,9 +219,12 @@ fn frames_are_written_byte_for_byte_as_socketcand_does() {
             Frame::new(CanId::Extended(0x1ABCDEF), &[0xFF; 8]).unwrap(),
             "< frame 01ABCDEF 1436509052.249713 FFFFFFFFFFFFFFFF >",
         ),
+        // A remote frame: python-can's parser (split into at most four
+        // fields, the third the data) reads a frame without data, with no
+        // warning; candeck reads `rtr DLC`.
         (
             Frame::remote(CanId::Standard(0x701), 1).unwrap(),
-            "< rtr 701 1436509052.249713 1 >",
+            "< frame 701 1436509052.249713  rtr 1 >",
         ),
         (
             Frame::fd(CanId::Standard(0x10), &[1, 2], FdFlags::from_raw(3)).unwrap(),
@@ -456,4 +459,24 @@ proptest! {
         let Token::Message(text) = &toks[0] else { panic!("not a message: {toks:?}") };
         prop_assert_eq!(parse_command(text), Ok(Command::Send(frame)));
     }
+}
+
+/// A remote frame as the server writes it reads back as the remote frame
+/// (candeck's client), and so does the older `< rtr >` line.
+#[test]
+fn remote_frames_read_back_as_remote_frames() {
+    let ts = Timestamp(1_436_509_052_249_713);
+    let frame = Frame::remote(CanId::Standard(0x703), 1).unwrap();
+    let mut out = Vec::new();
+    write_frame(&mut out, &frame, ts);
+    let text = String::from_utf8(out).unwrap();
+    let inner = text.trim_start_matches('<').trim_end_matches('>').trim();
+    assert_eq!(
+        parse_server_message(inner),
+        Ok(ServerMessage::Frame(frame, ts))
+    );
+    assert_eq!(
+        parse_server_message("rtr 703 1436509052.249713 1"),
+        Ok(ServerMessage::Frame(frame, ts))
+    );
 }
