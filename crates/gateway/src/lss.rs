@@ -507,8 +507,17 @@ async fn change_node_id(
 ) -> Result<NodeInfo, GatewayError> {
     let node = new_node_id(node_id)?;
     if !has_node_id_object(info) {
+        // The JMC's manual sets the node-ID by its switches and has no LSS.
+        let how = if info.profile == Profile::JmcStepper {
+            format!(
+                "it takes its node-ID from {}",
+                crate::profiles::jmc::NODE_ID_SETTING
+            )
+        } else {
+            "use LSS if the device offers it".to_string()
+        };
         return Err(GatewayError::NodeIdNotSupported(format!(
-            "node {} ({}) has no 0x2040 Node_ID: only UniSwarm UMC and UIO1LED change their node-ID that way; use LSS",
+            "node {} ({}) has no 0x2040 Node_ID: only UniSwarm UMC and UIO1LED change their node-ID that way; {how}",
             info.id,
             info.profile.name()
         )));

@@ -18,6 +18,17 @@
 //!   ([`OVERSIZED_WRITE_ABORT`]).
 
 use crate::canopen::sdo::AbortCode;
+
+/// How the drive takes its node-ID ("Set the baud rate and station
+/// number"): the rotary switches S1 (the low four bits) and S3 (the high
+/// three), node-ID = S3 × 16 + S1, read at power-on or a network reset.
+/// The manual names no other way: no node-ID object, no LSS (CiA 305).
+pub const NODE_ID_SETTING: &str =
+    "its rotary switches S1 (low four bits) and S3 (high three bits), read at power-on";
+
+/// Whether the drive answers an LSS master: its manual has no LSS, its
+/// node-ID is the switches' ([`NODE_ID_SETTING`]).
+pub const ANSWERS_LSS: bool = false;
 use crate::cia402::{HaltOption, Mode, QuickStopOption, StopKind, objects};
 
 /// 0x6040, controlword (UNSIGNED16, write only on this drive).

@@ -189,6 +189,8 @@ pub struct DeviceCore {
     /// A communication error in operational waits for 0x1029's reaction,
     /// which the next poll applies once its EMCY is out.
     communication_error: Option<Instant>,
+    /// It answers LSS requests (CiA 305); see [`DeviceCore::without_lss`].
+    answers_lss: bool,
     /// The last receive overrun, until its error reset.
     rx_overrun: Option<Instant>,
     /// An RPDO of the wrong length was reported (0x8210/0x8220) and no
@@ -271,6 +273,7 @@ impl DeviceCore {
             communication_error: None,
             pdo_length_error: false,
             rx_overrun: None,
+            answers_lss: true,
             sim_ms: 0,
             last_tick: None,
             skipped_ticks: 0,
@@ -318,6 +321,12 @@ impl DeviceCore {
             let _ = store.set(IDENTITY, 4, Value::Unsigned32(serial));
         }
         self.lss = LssSlave::new(identity(&self.defaults), self.factory_node);
+    }
+
+    /// Makes the device one that answers no LSS master (a product whose
+    /// manual has no LSS: its node-ID is set otherwise).
+    pub fn without_lss(&mut self) {
+        self.answers_lss = false;
     }
 
     /// Makes the device an unconfigured LSS slave (`PRODUCT@lss`), before it
@@ -957,7 +966,7 @@ impl DeviceCore {
             self.can_state_changed(transition, now);
         }
         if is_lss_request(frame) {
-            return if self.silent {
+            return if self.silent || !self.answers_lss {
                 Vec::new()
             } else {
                 self.handle_lss(frame, now)

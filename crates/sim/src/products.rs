@@ -71,6 +71,17 @@ impl Product {
         }
     }
 
+    /// Whether the product answers an LSS master (CiA 305) as it comes:
+    /// not the JMC, whose manual sets the node-ID by rotary switches and
+    /// has no LSS. `PRODUCT@lss` is a device that does, whatever the
+    /// product (the LSS demos' unconfigured devices).
+    pub fn answers_lss(self) -> bool {
+        match self {
+            Self::Jmc => crate::profiles::jmc::ANSWERS_LSS,
+            Self::Umc1bds32 | Self::Umc1bd90 | Self::Uio1led | Self::Io401 => true,
+        }
+    }
+
     /// The product's application.
     pub fn behaviour(self) -> Box<dyn Behaviour> {
         match self {

@@ -294,6 +294,8 @@ impl Rack {
         core.set_serial(serial);
         if spec.node.is_none() {
             core.unconfigure();
+        } else if !product.answers_lss() {
+            core.without_lss();
         }
         let path = self.data_dir.as_deref().map(|dir| match spec.node {
             Some(node) => saved_path(dir, product.name(), node),

@@ -117,16 +117,22 @@ async fn a_uniswarm_node_changes_its_node_id_by_0x2040() {
         StatusCode::CONFLICT,
         "node_id_in_use",
     );
+    let refused = post(
+        &app,
+        "/api/v1/buses/line/nodes/2/node-id",
+        json!({"node_id": 20}),
+    )
+    .await;
     assert_error(
-        &post(
-            &app,
-            "/api/v1/buses/line/nodes/2/node-id",
-            json!({"node_id": 20}),
-        )
-        .await,
+        &refused,
         StatusCode::UNPROCESSABLE_ENTITY,
         "node_id_change_not_supported",
     );
+    // The JMC manual ("Set the baud rate and station number"): its rotary
+    // switches S1/S3 give the node-ID; it has no LSS to point to.
+    let message = refused.1["error"]["message"].as_str().unwrap();
+    assert!(message.contains("rotary switches S1"), "{message}");
+    assert!(!message.contains("LSS"), "{message}");
 }
 
 #[tokio::test(start_paused = true)]

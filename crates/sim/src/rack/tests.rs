@@ -1014,3 +1014,36 @@ async fn a_starved_device_sends_no_burst_of_stale_heartbeats() {
     }
     assert!(heartbeats.len() >= 3, "{}", heartbeats.len());
 }
+
+/// The JMC manual ("Set the baud rate and station number"): the drive's
+/// node-ID is its rotary switches S1/S3, and the manual has no LSS: a JMC
+/// at a node answers no LSS master (`jmc@lss` is the LSS-capable variant
+/// the LSS demos use, `unconfigured_devices_are_silent_until_lss_gives_them_a_node_id`);
+/// the UniSwarm devices answer as before.
+#[tokio::test(start_paused = true)]
+async fn a_jmc_at_its_switches_node_id_answers_no_lss_master() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let rack = Rack::new(hub.clone());
+    rack.add(Product::Jmc, node(2)).unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let mut frames = master.subscribe();
+    // Switch state global: configuration, then inquire node-ID (0x5E).
+    let request = |head: &[u8]| {
+        let mut data = [0u8; 8];
+        data[..head.len()].copy_from_slice(head);
+        Frame::new(CanId::Standard(0x7E5), &data).unwrap()
+    };
+    master.send(request(&[0x04, 1])).await.unwrap();
+    master.send(request(&[0x5E])).await.unwrap();
+    assert!(frames_on(&mut frames, 0x7E4, 50).await.is_empty());
+    // A UMC answers as before.
+    rack.add(Product::Umc1bds32, node(1)).unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    master.send(request(&[0x04, 1])).await.unwrap();
+    master.send(request(&[0x5E])).await.unwrap();
+    assert_eq!(
+        frames_on(&mut frames, 0x7E4, 50).await,
+        vec![vec![0x5E, 1, 0, 0, 0, 0, 0, 0]]
+    );
+}
