@@ -956,6 +956,9 @@ async fn a_drive_whose_heartbeat_is_lost_is_refused_at_once_until_heard_again() 
         .collect();
     assert_eq!(methods, ["halt", "quick_stop", "nmt_stop"], "{body}");
 
+    // The NMT stop crosses the wire after the answer: the cable goes back
+    // in once it has (a drive plugged in meanwhile would hear it).
+    tokio::time::sleep(Duration::from_millis(5)).await;
     served.rack().unwrap().plug(jmc).unwrap();
     tokio::time::sleep(Duration::from_millis(2 * period)).await;
     assert!(served.node(jmc).unwrap().online);

@@ -6,7 +6,16 @@ use axum::Router;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value as Json, json};
 
-use crate::api::tests::support::{assert_error, call, demo, post, put};
+use crate::api::tests::support::{assert_error, call, demo_at, post, put};
+
+/// The demo on a bus without wire timing: the step test samples the axis
+/// by SDO (or its TPDO) after several SDO writes; on a timed bus under the
+/// paused clock each exchange costs a timer tick, and the demo's loop has
+/// risen before the first sample. The loop is the subject here, not the
+/// wire.
+async fn demo() -> (axum::Router, crate::api::AppState) {
+    demo_at("virtual:demo?bitrate=unlimited").await
+}
 
 fn uri(node: u8, axis: u8, what: &str) -> String {
     format!("/api/v1/buses/demo/nodes/{node}/axes/{axis}{what}")

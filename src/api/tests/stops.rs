@@ -214,7 +214,10 @@ async fn halt_and_quick_stop_reach_a_drive_the_gateway_believes_offline() {
 }
 
 /// Whether an NMT stop of `node` went over the bus since `frames` was made.
-fn nmt_stop_seen(frames: &mut FrameReceiver, node: u8) -> bool {
+/// Whether the NMT stop of `node` crossed the bus: it takes its bits'
+/// time on the wire after the answer that sent it.
+async fn nmt_stop_seen(frames: &mut FrameReceiver, node: u8) -> bool {
+    tokio::time::sleep(Duration::from_millis(5)).await;
     let mut seen = false;
     while let Ok(Some(frame)) = frames.try_recv() {
         seen |= frame.frame.id() == CanId::Standard(0) && frame.frame.data() == [0x02, node];
@@ -270,7 +273,7 @@ async fn stop_all_sends_nmt_stop_to_a_drive_that_does_not_answer_sdo() {
     // The JMC answered: nothing of it failed.
     assert!(failed.iter().all(|f| f["node"] == 1), "{body}");
     assert!(
-        nmt_stop_seen(&mut frames, UMC),
+        nmt_stop_seen(&mut frames, UMC).await,
         "NMT stop of node 1 on the bus"
     );
 }
@@ -300,7 +303,7 @@ async fn a_halt_of_a_drive_that_does_not_answer_falls_back_to_nmt_stop() {
         ]
     );
     assert!(
-        nmt_stop_seen(&mut frames, UMC),
+        nmt_stop_seen(&mut frames, UMC).await,
         "NMT stop of node 1 on the bus"
     );
 }
@@ -322,7 +325,7 @@ async fn a_lapsed_lease_on_a_drive_that_does_not_answer_sends_nmt_stop() {
     // Not renewed: the lease lapses, halt and quick stop go unanswered.
     tokio::time::sleep(Duration::from_secs(5)).await;
     assert!(
-        nmt_stop_seen(&mut frames, UMC),
+        nmt_stop_seen(&mut frames, UMC).await,
         "NMT stop of node 1 on the bus"
     );
     let (status, body) = call(&app, Method::GET, "/api/v1/events?kind=audit", None).await;
