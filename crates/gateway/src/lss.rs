@@ -43,12 +43,10 @@ use super::GatewayError;
 use super::audit::AuditTarget;
 use super::authority::NodeClosed;
 use super::caller::Caller;
-use super::drive::Drive;
-use super::motion_lease::{AxisKey, mask};
+use super::end_motion::MotionEnd;
 use super::policy::Operation;
 use super::profile::Profile;
 use super::registry::{Identification, NodeInfo};
-use super::safe_stop::{StopOutcome, stop_axes};
 use super::service::{Gateway, ServedBus};
 
 /// How long the master waits for each LSS answer. CANopenNode's master
@@ -245,103 +243,26 @@ fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
 impl Gateway {
     /// Before the device at `old` on `served` is given the node-ID `new`:
     /// closes the node to motion commands (until the guard is dropped),
-    /// stops every axis of it that is leased or that the gateway enabled,
-    /// and ends their leases and records, each with an audit row and a
-    /// `motion_ended` event. An axis whose stop is not confirmed refuses the
-    /// renumbering (the error of its stop).
-    async fn stop_for_renumbering(
+    /// then ends the motion on it ([`Gateway::end_motion_on_node`]: every
+    /// axis leased or enabled is stopped, its lease and record ended, with
+    /// an audit row and a `motion_ended` event each). An axis whose stop is
+    /// not confirmed refuses the renumbering (the error of its stop).
+    pub(crate) async fn stop_for_renumbering(
         &self,
         served: &ServedBus,
         old: NodeId,
         new: NodeId,
     ) -> Result<NodeClosed, GatewayError> {
-        let bus = served.name.as_str();
         let closed = self
             .authority
             .close_node(
-                bus,
+                &served.name,
                 old.get(),
                 format!("node {old} is being given the node-ID {new}"),
             )
             .map_err(|why| GatewayError::NodeBusy(format!("node {old}: {why}")))?;
-        let leases = self.leases.on_node(bus, old.get());
-        let mut drives = self.enabled_axes.on_node(bus, old.get());
-        for lease in &leases {
-            if drives.contains_key(&lease.axis.axis) {
-                continue;
-            }
-            let drive = served.registry.node(old).and_then(|info| {
-                Drive::new(&served.registry, &info, &lease.axis.axis.to_string()).ok()
-            });
-            if let Some(drive) = drive {
-                drives.insert(lease.axis.axis, drive);
-            }
-        }
-        if drives.is_empty() && leases.is_empty() {
-            return Ok(closed);
-        }
-        self.authority.cancel_node(bus, old.get());
-        let targets = drives
-            .values()
-            .map(|drive| (bus.to_string(), served.bus.clone(), drive.clone()))
-            .collect();
-        let report = stop_axes(self.authority.clone(), targets).await?;
-        if let Some(failed) = report.failed.first() {
-            return Err(GatewayError::StopNotConfirmed {
-                source: Box::new(failed.error.clone()),
-                attempts: failed.attempts.clone(),
-            });
-        }
-        let axes: std::collections::BTreeSet<u8> = drives
-            .keys()
-            .copied()
-            .chain(leases.iter().map(|lease| lease.axis.axis))
-            .collect();
-        for axis in axes {
-            let key = AxisKey {
-                bus: bus.to_string(),
-                node: old.get(),
-                axis,
-            };
-            let lease = self.leases.release(&key);
-            let stopped = report.stopped.iter().any(|stopped| {
-                stopped.axis == key
-                    && stopped
-                        .attempts
-                        .iter()
-                        .any(|a| a.outcome == StopOutcome::Confirmed)
-            });
-            let what = match &lease {
-                Some(lease) => format!(
-                    "the {} lease {} of {} ended",
-                    lease.mode,
-                    mask(&lease.id),
-                    lease.holder
-                ),
-                None => "its record as enabled ended".to_string(),
-            };
-            let detail = format!(
-                "{} before node {old} was given the node-ID {new}; {what}",
-                if stopped {
-                    "quick-stopped"
-                } else {
-                    "not enabled"
-                }
-            );
-            tracing::warn!("{key}: {detail}");
-            let target = AuditTarget::new("motion ended: node renumbered")
-                .bus(bus)
-                .node(old.get())
-                .axis(axis)
-                .item(detail.clone());
-            self.audit_row(&Caller::system(), target, None)
-                .finish_ok()
-                .await;
-            served
-                .registry
-                .motion_ended(old, axis, "node_id_changed", detail);
-        }
-        self.enabled_axes.forget_node(bus, old.get());
+        self.end_motion_on_node(served, old, MotionEnd::Renumbered { new })
+            .await?;
         Ok(closed)
     }
 }
