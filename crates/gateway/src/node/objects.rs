@@ -168,6 +168,20 @@ impl NodeHandle {
             Ok(checked) => checked,
             Err(error) => return refused(row, error).await,
         };
+        // Issue 30: a write of the UniSwarm node-ID (0x2040 sub 1) is a
+        // renumbering, under the node-ID route's rule (lss.rs).
+        let node_id_write = if crate::lss::writes_node_id(&self.info, index, sub) {
+            match self
+                .gateway
+                .before_node_id_write(&self.served, &self.info, &bytes)
+                .await
+            {
+                Ok(write) => Some((self.served.clone(), self.info.id, write)),
+                Err(error) => return refused(row, error).await,
+            }
+        } else {
+            None
+        };
         // The watchdog stays on (node/watchdog.rs): refused to an
         // operator, an admin's said in the row and on the stream.
         let watchdog = match self
@@ -190,6 +204,9 @@ impl NodeHandle {
                 channel
                     .download_with(index, sub, &bytes, config.as_ref())
                     .await?;
+                if let Some((served, node, write)) = node_id_write {
+                    served.lss.node_id_written(node, write);
+                }
                 if let Some((node, warning)) = watchdog {
                     node.warn_watchdog_off(&warning);
                 }
@@ -219,7 +236,9 @@ impl NodeHandle {
         let served = self.served.clone();
         let node = self.info.id;
         audited(row, async move {
-            served.send_nmt(command, NmtTarget::Node(node)).await
+            served
+                .send_nmt_following_node_ids(command, NmtTarget::Node(node))
+                .await
         })
         .await
     }
@@ -257,7 +276,9 @@ impl Gateway {
             Err(error) => return refused(row, error).await,
         };
         audited(row, async move {
-            served.send_nmt(command, NmtTarget::All).await
+            served
+                .send_nmt_following_node_ids(command, NmtTarget::All)
+                .await
         })
         .await
     }
