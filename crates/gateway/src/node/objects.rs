@@ -67,6 +67,9 @@ impl NodeHandle {
     ) -> Result<Vec<u8>, GatewayError> {
         self.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&self.served, &self.info)?;
+        if let Some(known) = self.identity_during_download(index, sub) {
+            return Ok(known);
+        }
         let channel = self.served.registry.sdo(self.info.id)?;
         let config = settings(channel.config());
         super::transfer::spawned(async move {
@@ -76,6 +79,30 @@ impl NodeHandle {
                 .map_err(GatewayError::from)
         })
         .await
+    }
+
+    /// While a program download holds the node's one SDO server channel
+    /// (for as long as the image takes: 20 s for 512 KiB at 500 kbit/s;
+    /// CiA 301 lets no other transfer into a block download, and the
+    /// UniSwarm products have no second server channel, 0x1201), what the
+    /// gateway read of the node's identity when it identified it (0x1000,
+    /// 0x1018 subs 1 to 4: constants of the device) is answered from the
+    /// registry rather than after the download. Anything else waits.
+    fn identity_during_download(&self, index: u16, sub: u8) -> Option<Vec<u8>> {
+        if !self.served.programs.runs_on(self.info.id) {
+            return None;
+        }
+        let info = self.served.registry.node(self.info.id)?;
+        let identity = info.identity.as_ref();
+        let value = match (index, sub) {
+            (0x1000, 0) => info.device_type,
+            (0x1018, 1) => identity.map(|identity| identity.vendor_id),
+            (0x1018, 2) => identity.and_then(|identity| identity.product_code),
+            (0x1018, 3) => identity.and_then(|identity| identity.revision),
+            (0x1018, 4) => identity.and_then(|identity| identity.serial),
+            _ => None,
+        }?;
+        Some(value.to_le_bytes().to_vec())
     }
 
     /// Writes an object's value bytes (the operator's; one write of the
