@@ -172,6 +172,9 @@ const MIGRATIONS: &[&str] = &[
         comment TEXT
     );
     CREATE INDEX alarm_event_alarm ON alarm_event(alarm, id);",
+    // 4: an EMCY row names the axis it belongs to, where the product says
+    // (the UMC: its first manufacturer byte); older rows have none.
+    "ALTER TABLE emcy ADD COLUMN axis INTEGER;",
 ];
 
 /// The audit entries a follower of [`History::follow_audit`] may fall
@@ -761,8 +764,8 @@ fn insert_event(
     match event {
         NodeEvent::Emcy { emcy, .. } => {
             conn.prepare_cached(
-                "INSERT INTO emcy (time_us, bus, node, code, text, register, manufacturer) \
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                "INSERT INTO emcy (time_us, bus, node, code, text, register, manufacturer, axis) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
             )?
             .execute(params![
                 micros(emcy.timestamp),
@@ -771,7 +774,8 @@ fn insert_event(
                 emcy.code,
                 emcy.text,
                 emcy.register,
-                emcy.manufacturer_hex()
+                emcy.manufacturer_hex(),
+                emcy.axis
             ])?;
         }
         NodeEvent::Appeared { .. } => {
