@@ -110,6 +110,9 @@ pub struct HistoryEvent {
     /// audit: what the request does, in words (`write object`, `move`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub operation: Option<String>,
+    /// audit: the axis acted on; emcy: the axis the EMCY belongs to,
+    /// where the product says (the UMC: its first manufacturer byte).
+    /// Left out for the whole node.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub axis: Option<i64>,
     /// audit: the object (`0x6040:0`, as the path gave it), PDO (`tpdo 1`)

@@ -28,6 +28,7 @@
 mod recovery;
 mod service;
 mod sources;
+pub(crate) use sources::WorkDone;
 #[cfg(test)]
 mod tests;
 
@@ -659,25 +660,5 @@ pub(crate) fn follow_bus(alarms: &Alarms, bus: &crate::service::ServedBus) {
     sources::BusSources::spawn(alarms.clone(), bus, bus.registry.subscribe());
     if let Some(machine) = &bus.machine {
         alarms.follow_machine(&bus.name, machine.watch());
-    }
-}
-
-/// Follows the gateway's audit rows (a lapsed lease's halt, a program
-/// download's outcome); `registries` tell each node's product.
-pub(crate) fn follow_audit(
-    alarms: &Alarms,
-    history: &crate::history::History,
-    registries: BTreeMap<String, crate::registry::NodeRegistry>,
-) {
-    let products = move |bus: &str, node: u8| {
-        registries
-            .get(bus)
-            .and_then(|registry| registry.node(crate::canopen::NodeId::new(node).ok()?))
-            .map_or(crate::profiles::alarm::Product::Other, |info| {
-                sources::product(info.profile)
-            })
-    };
-    if tokio::runtime::Handle::try_current().is_ok() {
-        sources::spawn_audit_follower(alarms.clone(), products, history.follow_audit());
     }
 }

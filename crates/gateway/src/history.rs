@@ -172,11 +172,10 @@ const MIGRATIONS: &[&str] = &[
         comment TEXT
     );
     CREATE INDEX alarm_event_alarm ON alarm_event(alarm, id);",
+    // 4: an EMCY row names the axis it belongs to, where the product says
+    // (the UMC: its first manufacturer byte); older rows have none.
+    "ALTER TABLE emcy ADD COLUMN axis INTEGER;",
 ];
-
-/// The audit entries a follower of [`History::follow_audit`] may fall
-/// behind by.
-const AUDIT_FOLLOWERS_QUEUE: usize = 1024;
 
 /// The outcome of an operation that succeeded.
 pub const OK: &str = "ok";
@@ -426,9 +425,6 @@ pub struct Query {
 #[derive(Clone)]
 pub struct History {
     conn: Arc<Mutex<Connection>>,
-    /// Every audit entry once committed (the alarms follow the gateway's
-    /// own rows: a lapsed lease's halt, a failed program download).
-    audits: broadcast::Sender<AuditEntry>,
     /// The file, or `None` in memory.
     path: Option<Arc<str>>,
 }
@@ -493,7 +489,6 @@ impl History {
         migrate(&mut conn)?;
         Ok(Self {
             conn: Arc::new(Mutex::new(conn)),
-            audits: broadcast::channel(AUDIT_FOLLOWERS_QUEUE).0,
             path: path.map(Arc::from),
         })
     }
@@ -522,18 +517,7 @@ impl History {
 
     /// Writes one audit entry; returns once it is committed.
     pub async fn audit(&self, entry: AuditEntry) -> Result<(), HistoryError> {
-        let followed = (self.audits.receiver_count() > 0).then(|| entry.clone());
-        self.with_conn(move |conn| insert_audit(conn, &entry))
-            .await?;
-        if let Some(entry) = followed {
-            let _ = self.audits.send(entry);
-        }
-        Ok(())
-    }
-
-    /// Every audit entry committed from now on.
-    pub(crate) fn follow_audit(&self) -> broadcast::Receiver<AuditEntry> {
-        self.audits.subscribe()
+        self.with_conn(move |conn| insert_audit(conn, &entry)).await
     }
 
     /// Writes a batch of one bus's registry events in one transaction.
@@ -761,8 +745,8 @@ fn insert_event(
     match event {
         NodeEvent::Emcy { emcy, .. } => {
             conn.prepare_cached(
-                "INSERT INTO emcy (time_us, bus, node, code, text, register, manufacturer) \
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                "INSERT INTO emcy (time_us, bus, node, code, text, register, manufacturer, axis) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
             )?
             .execute(params![
                 micros(emcy.timestamp),
@@ -771,7 +755,8 @@ fn insert_event(
                 emcy.code,
                 emcy.text,
                 emcy.register,
-                emcy.manufacturer_hex()
+                emcy.manufacturer_hex(),
+                emcy.axis
             ])?;
         }
         NodeEvent::Appeared { .. } => {

@@ -331,6 +331,11 @@ async fn stop_lapsed(gateway: Gateway, lease: MotionLease) {
         }
     };
     let AxisKey { bus, node, axis } = lease.axis.clone();
+    gateway.work_done(crate::alarms::WorkDone::LeaseHalted {
+        bus: bus.clone(),
+        node,
+        axis,
+    });
     let item = format!(
         "{} lease of {} ({} ms)",
         lease.mode,

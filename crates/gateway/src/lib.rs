@@ -110,6 +110,7 @@ mod dcf;
 mod drive;
 mod edge_node;
 mod eds_files;
+mod end_motion;
 mod error;
 mod files;
 mod frames;

@@ -26,6 +26,11 @@
 //! or STOP ALL addresses a number where the device no longer is. (Moving
 //! the lease to the new ID instead would keep a motion running through a
 //! reset communication whose effect on the drive the gateway cannot know.)
+//!
+//! A raw OD write of 0x2040 sub 1 is the same renumbering
+//! ([`Gateway::before_node_id_write`]): checked, the motion ended first,
+//! the node closed to motion until its NMT reset, after which the gateway
+//! follows the device ([`ServedBus::send_nmt_following_node_ids`]).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -43,12 +48,10 @@ use super::GatewayError;
 use super::audit::AuditTarget;
 use super::authority::NodeClosed;
 use super::caller::Caller;
-use super::drive::Drive;
-use super::motion_lease::{AxisKey, mask};
+use super::end_motion::MotionEnd;
 use super::policy::Operation;
 use super::profile::Profile;
 use super::registry::{Identification, NodeInfo};
-use super::safe_stop::{StopOutcome, stop_axes};
 use super::service::{Gateway, ServedBus};
 
 /// How long the master waits for each LSS answer. CANopenNode's master
@@ -61,11 +64,22 @@ pub(crate) const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(3);
 /// identity.
 const REGISTRY_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// The LSS master of one bus.
+/// The LSS master of one bus, and the node-IDs written to 0x2040 by an
+/// OD write that await their node's reset.
 pub struct BusLss {
     bus: Bus,
     busy: Arc<Mutex<()>>,
     timeout: Duration,
+    pending: std::sync::Mutex<std::collections::BTreeMap<u8, PendingNodeId>>,
+}
+
+/// A node-ID written to a node's 0x2040 sub 1 by an OD write: the device
+/// takes it at its next reset (once stored). Until then the node is
+/// closed to motion commands (`node_busy`).
+#[derive(Debug)]
+pub(crate) struct PendingNodeId {
+    new: NodeId,
+    _closed: NodeClosed,
 }
 
 /// The one LSS transaction of a bus, while it is held.
@@ -80,7 +94,15 @@ impl BusLss {
             bus,
             busy: Arc::new(Mutex::new(())),
             timeout: LSS_TIMEOUT,
+            pending: Default::default(),
         }
+    }
+
+    fn pending(&self) -> std::sync::MutexGuard<'_, std::collections::BTreeMap<u8, PendingNodeId>> {
+        // A map of plain values is never left half-written.
+        self.pending
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Starts the bus's LSS transaction; `LssBusy` while another runs.
@@ -245,104 +267,183 @@ fn check_free(served: &ServedBus, node: NodeId) -> Result<(), GatewayError> {
 impl Gateway {
     /// Before the device at `old` on `served` is given the node-ID `new`:
     /// closes the node to motion commands (until the guard is dropped),
-    /// stops every axis of it that is leased or that the gateway enabled,
-    /// and ends their leases and records, each with an audit row and a
-    /// `motion_ended` event. An axis whose stop is not confirmed refuses the
-    /// renumbering (the error of its stop).
-    async fn stop_for_renumbering(
+    /// then ends the motion on it ([`Gateway::end_motion_on_node`]: every
+    /// axis leased or enabled is stopped, its lease and record ended, with
+    /// an audit row and a `motion_ended` event each). An axis whose stop is
+    /// not confirmed refuses the renumbering (the error of its stop).
+    pub(crate) async fn stop_for_renumbering(
         &self,
         served: &ServedBus,
         old: NodeId,
         new: NodeId,
     ) -> Result<NodeClosed, GatewayError> {
-        let bus = served.name.as_str();
         let closed = self
             .authority
             .close_node(
-                bus,
+                &served.name,
                 old.get(),
                 format!("node {old} is being given the node-ID {new}"),
             )
             .map_err(|why| GatewayError::NodeBusy(format!("node {old}: {why}")))?;
-        let leases = self.leases.on_node(bus, old.get());
-        let mut drives = self.enabled_axes.on_node(bus, old.get());
-        for lease in &leases {
-            if drives.contains_key(&lease.axis.axis) {
+        self.end_motion_on_node(served, old, MotionEnd::Renumbered { new })
+            .await?;
+        Ok(closed)
+    }
+}
+
+/// Whether an OD write of `index` sub `sub` to the node `info` writes its
+/// node-ID (UniSwarm's 0x2040 sub 1): a renumbering, under the same rule
+/// as the node-ID route's.
+pub(crate) fn writes_node_id(info: &NodeInfo, index: u16, sub: u8) -> bool {
+    has_node_id_object(info) && index == COMMUNICATION_CONFIG && sub == 1
+}
+
+/// What an OD write of a node's 0x2040 sub 1 does, once checked.
+#[derive(Debug)]
+pub(crate) enum NodeIdWrite {
+    /// Another node-ID: taken at the node's next reset; the node closed to
+    /// motion until then.
+    Renumbers(PendingNodeId),
+    /// The node's own: a renumbering pending on it ends.
+    KeepsItsOwn,
+}
+
+impl Gateway {
+    /// Before an OD write of `bytes` to the node-ID (0x2040 sub 1) of the
+    /// node `info` of `served`: the renumbering rule of the node-ID route.
+    /// The new node-ID is checked (1 to 127, not in use, not the gateway's
+    /// own), the node is closed to motion commands (`node_busy`) and the
+    /// motion on it ended ([`Gateway::stop_for_renumbering`]); the write
+    /// hands the answer to [`BusLss::node_id_written`] once the device
+    /// confirmed it.
+    pub(crate) async fn before_node_id_write(
+        &self,
+        served: &ServedBus,
+        info: &NodeInfo,
+        bytes: &[u8],
+    ) -> Result<NodeIdWrite, GatewayError> {
+        let [raw] = bytes else {
+            return Err(GatewayError::InvalidValue(format!(
+                "0x2040 sub 1 (Node_ID) is one byte, 1 to 127; {} bytes given",
+                bytes.len()
+            )));
+        };
+        let new = new_node_id(i64::from(*raw))?;
+        if new == info.id {
+            return Ok(NodeIdWrite::KeepsItsOwn);
+        }
+        check_free(served, new)?;
+        // A renumbering pending already gives way to this one.
+        served.lss.pending().remove(&info.id.get());
+        let closed = self.stop_for_renumbering(served, info.id, new).await?;
+        Ok(NodeIdWrite::Renumbers(PendingNodeId {
+            new,
+            _closed: closed,
+        }))
+    }
+}
+
+impl BusLss {
+    /// The device confirmed the write of node `node`'s 0x2040 sub 1.
+    pub(crate) fn node_id_written(&self, node: NodeId, write: NodeIdWrite) {
+        let mut pending = self.pending();
+        match write {
+            NodeIdWrite::Renumbers(renumbering) => {
+                pending.insert(node.get(), renumbering);
+            }
+            NodeIdWrite::KeepsItsOwn => {
+                pending.remove(&node.get());
+            }
+        }
+    }
+}
+
+impl ServedBus {
+    /// Sends an NMT command (a door's, to a node or to all) and, when it
+    /// resets a node with a node-ID written to its 0x2040 pending, follows
+    /// the device: it boots up under its new node-ID (the old one is
+    /// forgotten, as after the node-ID route) or under its old one (the new
+    /// one was not stored); either way the node is open to motion again.
+    pub(crate) async fn send_nmt_following_node_ids(
+        &self,
+        command: NmtCommand,
+        target: NmtTarget,
+    ) -> Result<(), GatewayError> {
+        let resets = matches!(
+            command,
+            NmtCommand::ResetNode | NmtCommand::ResetCommunication
+        );
+        let renumbered: Vec<(u8, PendingNodeId)> = if resets {
+            let mut pending = self.lss.pending();
+            let nodes: Vec<u8> = pending
+                .keys()
+                .copied()
+                .filter(|node| match target {
+                    NmtTarget::All => true,
+                    NmtTarget::Node(id) => id.get() == *node,
+                })
+                .collect();
+            nodes
+                .into_iter()
+                .filter_map(|node| pending.remove(&node).map(|p| (node, p)))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if renumbered.is_empty() {
+            return self.send_nmt(command, target).await;
+        }
+        let mut frames = self.bus.subscribe();
+        self.send_nmt(command, target).await?;
+        let mut waiting: std::collections::BTreeMap<u8, PendingNodeId> =
+            renumbered.into_iter().collect();
+        let until = tokio::time::Instant::now() + BOOT_UP_TIMEOUT;
+        let mut moved = Vec::new();
+        while !waiting.is_empty() {
+            let frame = match tokio::time::timeout_at(until, frames.recv()).await {
+                Ok(Ok(frame)) => frame.frame,
+                Ok(Err(RecvError::Lagged(_))) => continue,
+                Ok(Err(RecvError::Closed)) => {
+                    return Err(GatewayError::BusDown("bus closed".to_string()));
+                }
+                // Not heard: the node is open again; the registry follows
+                // whatever it does.
+                Err(_) => break,
+            };
+            let Some(booted) = boot_up_of(&frame) else {
+                continue;
+            };
+            if waiting.remove(&booted).is_some() {
+                // Under its old node-ID: the new one was not stored.
                 continue;
             }
-            let drive = served.registry.node(old).and_then(|info| {
-                Drive::new(&served.registry, &info, &lease.axis.axis.to_string()).ok()
-            });
-            if let Some(drive) = drive {
-                drives.insert(lease.axis.axis, drive);
+            let took = waiting
+                .iter()
+                .find(|(_, pending)| pending.new.get() == booted)
+                .map(|(old, _)| *old);
+            if let Some(old) = took {
+                let pending = waiting.remove(&old).expect("found just now");
+                moved.push((old, pending));
             }
         }
-        if drives.is_empty() && leases.is_empty() {
-            return Ok(closed);
+        for (old, pending) in moved {
+            wait_for_registry(self, pending.new).await?;
+            if let Ok(old) = NodeId::new(old) {
+                self.registry
+                    .retire(old, super::registry::OfflineReason::NodeIdChanged);
+            }
         }
-        self.authority.cancel_node(bus, old.get());
-        let targets = drives
-            .values()
-            .map(|drive| (bus.to_string(), served.bus.clone(), drive.clone()))
-            .collect();
-        let report = stop_axes(self.authority.clone(), targets).await?;
-        if let Some(failed) = report.failed.first() {
-            return Err(GatewayError::StopNotConfirmed {
-                source: Box::new(failed.error.clone()),
-                attempts: failed.attempts.clone(),
-            });
+        Ok(())
+    }
+}
+
+/// The node a frame is the boot-up message of.
+fn boot_up_of(frame: &Frame) -> Option<u8> {
+    match frame.id() {
+        CanId::Standard(id) if (0x701..=0x77F).contains(&id) && frame.data() == [0] => {
+            Some((id - 0x700) as u8)
         }
-        let axes: std::collections::BTreeSet<u8> = drives
-            .keys()
-            .copied()
-            .chain(leases.iter().map(|lease| lease.axis.axis))
-            .collect();
-        for axis in axes {
-            let key = AxisKey {
-                bus: bus.to_string(),
-                node: old.get(),
-                axis,
-            };
-            let lease = self.leases.release(&key);
-            let stopped = report.stopped.iter().any(|stopped| {
-                stopped.axis == key
-                    && stopped
-                        .attempts
-                        .iter()
-                        .any(|a| a.outcome == StopOutcome::Confirmed)
-            });
-            let what = match &lease {
-                Some(lease) => format!(
-                    "the {} lease {} of {} ended",
-                    lease.mode,
-                    mask(&lease.id),
-                    lease.holder
-                ),
-                None => "its record as enabled ended".to_string(),
-            };
-            let detail = format!(
-                "{} before node {old} was given the node-ID {new}; {what}",
-                if stopped {
-                    "quick-stopped"
-                } else {
-                    "not enabled"
-                }
-            );
-            tracing::warn!("{key}: {detail}");
-            let target = AuditTarget::new("motion ended: node renumbered")
-                .bus(bus)
-                .node(old.get())
-                .axis(axis)
-                .item(detail.clone());
-            self.audit_row(&Caller::system(), target, None)
-                .finish_ok()
-                .await;
-            served
-                .registry
-                .motion_ended(old, axis, "node_id_changed", detail);
-        }
-        self.enabled_axes.forget_node(bus, old.get());
-        Ok(closed)
+        _ => None,
     }
 }
 
@@ -469,6 +570,12 @@ async fn wait_for_boot_up(
             }
         }
     }
+    wait_for_registry(served, node).await
+}
+
+/// Waits for the registry to know `node`, which booted up, and to have read
+/// its identity (or failed to).
+async fn wait_for_registry(served: &ServedBus, node: NodeId) -> Result<NodeInfo, GatewayError> {
     let until = tokio::time::Instant::now() + REGISTRY_TIMEOUT;
     loop {
         let info = served.registry.node(node);

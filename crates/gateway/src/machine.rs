@@ -71,78 +71,28 @@ pub(crate) fn check_not_manager_id(
     }
 }
 
-/// The gateway's [`MotionStopper`] of bus `bus_name`: every axis of the
-/// node the gateway enabled that is still in operation enabled gets a
-/// quick stop (NMT stop if the drive does not confirm), its lease ends,
-/// and the `nodes` topic, the history and the audit log (as the gateway's)
-/// say so, naming the lease's holder. An axis that cannot be stopped
-/// keeps the configuration from being written (it is retried).
+/// The gateway's [`MotionStopper`] of bus `bus_name`: the gateway's one
+/// "end the motion on a node" ([`NodeMotion::end`](super::end_motion::NodeMotion::end),
+/// reason `reconfiguration`): every axis of the node that is leased or
+/// that the gateway enabled is stopped, its lease ended, and the `nodes`
+/// topic, the history and the audit log say so. An axis that cannot be
+/// stopped keeps the configuration from being written (it is retried).
 pub(crate) fn motion_stopper(gateway: &super::Gateway, bus_name: &str) -> Option<MotionStopper> {
-    use super::motion_lease::{AxisKey, mask};
-    use super::safe_stop::AxisStop;
-    use crate::profiles::umc::MAX_AXES;
-    let served = gateway.buses.get(bus_name)?;
-    let (bus, registry) = (served.bus.clone(), served.registry.clone());
-    let (enabled, leases) = (gateway.enabled_axes.clone(), gateway.leases.clone());
-    let history = gateway.history.clone();
-    let (authority, gates) = (gateway.authority.clone(), gateway.gates(bus_name));
-    let name = bus_name.to_string();
+    use super::end_motion::MotionEnd;
+    let motion = gateway.node_motion(gateway.buses.get(bus_name)?);
     Some(Arc::new(move |node: NodeId| {
-        let (bus, registry, enabled, leases) = (
-            bus.clone(),
-            registry.clone(),
-            enabled.clone(),
-            leases.clone(),
-        );
-        let (history, name) = (history.clone(), name.clone());
-        let (authority, gates) = (authority.clone(), gates.clone());
+        let motion = motion.clone();
         Box::pin(async move {
-            // A stop wins (the motion authority): nothing admitted before
-            // it is sent to the node's axes after it.
-            authority.cancel_node(&name, node.get());
-            for axis in 1..=MAX_AXES {
-                let Some(drive) = enabled.get(&name, node.get(), axis) else {
-                    continue;
-                };
-                match super::Gateway::quick_stop_or_nmt(bus.clone(), drive, Some(gates.clone()))
-                    .await
-                {
-                    AxisStop::NotEnabled(_) => continue,
-                    AxisStop::Stopped(_) => {}
-                    AxisStop::Failed { error, .. } => {
-                        return Err(format!(
-                            "axis {axis} is enabled and could not be stopped ({error}): its motion objects are not written under it"
-                        ));
-                    }
-                }
-                let key = AxisKey {
-                    bus: name.clone(),
-                    node: node.get(),
-                    axis,
-                };
-                let ended = leases.release(&key).map_or_else(String::new, |lease| {
-                    format!(
-                        "; the {} lease {} of {} ended",
-                        lease.mode,
-                        mask(&lease.id),
-                        lease.holder
-                    )
-                });
-                let reason = format!(
-                    "quick stop before the network manager writes the node's configuration (its motion objects){ended}"
-                );
-                tracing::warn!("bus {name}: node {node} axis {axis}: {reason}");
-                registry.motion_ended_for_reconfiguration(node, axis, reason.clone());
-                let target =
-                    AuditTarget::new(format!("network manager: axis {axis} stopped: {reason}"))
-                        .bus(name.clone())
-                        .node(Some(node.get()))
-                        .axis(axis);
-                AuditRow::new(&history, &Caller::system(), target, None)
-                    .finish_as(OK)
-                    .await;
+            match motion.end(node, MotionEnd::Reconfigured).await {
+                Ok(_) => Ok(()),
+                Err(failed) => Err(format!(
+                    "axis {} is enabled and could not be stopped ({}): its motion objects are not written under it",
+                    failed
+                        .axis
+                        .map_or_else(|| "?".to_string(), |axis| axis.to_string()),
+                    failed.error
+                )),
             }
-            Ok(())
         }) as std::pin::Pin<Box<dyn Future<Output = Result<(), String>> + Send>>
     }))
 }

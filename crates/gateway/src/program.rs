@@ -158,6 +158,8 @@ impl ProgramProgress {
 #[derive(Default)]
 pub struct ProgramTopics {
     topics: Mutex<BTreeMap<NodeId, (ValueTopic, u64)>>,
+    /// The nodes a download runs on now (their SDO channel is held by it).
+    running: std::sync::Arc<Mutex<std::collections::BTreeSet<NodeId>>>,
 }
 
 impl ProgramTopics {
@@ -172,10 +174,18 @@ impl ProgramTopics {
         let mut topics = self.lock();
         let (topic, runs) = topics.entry(node).or_default();
         *runs += 1;
+        running(&self.running).insert(node);
         ProgramRun {
             run: *runs,
             topic: topic.clone(),
+            node,
+            running: self.running.clone(),
         }
+    }
+
+    /// Whether a download runs on `node` now.
+    pub fn runs_on(&self, node: NodeId) -> bool {
+        running(&self.running).contains(&node)
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<NodeId, (ValueTopic, u64)>> {
@@ -186,10 +196,27 @@ impl ProgramTopics {
     }
 }
 
-/// One download's progress reports into its node's topic.
+fn running(
+    set: &Mutex<std::collections::BTreeSet<NodeId>>,
+) -> std::sync::MutexGuard<'_, std::collections::BTreeSet<NodeId>> {
+    // A set of plain values is never left half-written.
+    set.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// One download's progress reports into its node's topic; the node's
+/// download runs while it lives.
 pub struct ProgramRun {
     pub run: u64,
     topic: ValueTopic,
+    node: NodeId,
+    running: std::sync::Arc<Mutex<std::collections::BTreeSet<NodeId>>>,
+}
+
+impl Drop for ProgramRun {
+    fn drop(&mut self) {
+        running(&self.running).remove(&self.node);
+    }
 }
 
 impl ProgramRun {

@@ -781,19 +781,6 @@ impl NodeRegistry {
         self.shared.emit(NodeEvent::WatchdogOff { node, warning });
     }
 
-    /// Tells whoever streams the nodes that the network manager stopped
-    /// an axis of the node before writing its configuration
-    /// ([`NodeEvent::MotionEnded`], reason `reconfiguration`); `detail`
-    /// names the lease it ended.
-    pub(crate) fn motion_ended_for_reconfiguration(&self, node: NodeId, axis: u8, detail: String) {
-        self.shared.emit(NodeEvent::MotionEnded {
-            node,
-            axis,
-            reason: "reconfiguration",
-            detail,
-        });
-    }
-
     /// The network manager guards node `id` from now on, with the guard
     /// time (ms) and life time factor it wrote: the supervisor sends the
     /// requests and loses the node when no valid reply comes within the

@@ -492,11 +492,6 @@ impl Gateway {
         for bus in buses.values() {
             super::alarms::follow_bus(&alarms, bus);
         }
-        let registries: BTreeMap<String, NodeRegistry> = buses
-            .iter()
-            .map(|(name, bus)| (name.clone(), bus.registry.clone()))
-            .collect();
-        super::alarms::follow_audit(&alarms, &history, registries);
         Self {
             buses: Arc::new(buses),
             bus_order: Arc::new(bus_order),

@@ -524,6 +524,18 @@ async fn emcy_and_nmt_events_land_in_the_history() {
     assert!(!first["text"].as_str().unwrap().is_empty(), "{first}");
     assert!(first["register"].as_u64().unwrap() > 0, "{first}");
     assert_eq!(first["manufacturer"].as_str().unwrap().len(), 10, "{first}");
+    // Issue 31: the UMC's EMCY of each axis says which (two rows used to
+    // read the same "demo · node 1").
+    let emcy = wait_events(&app, "kind=emcy", |events| {
+        events.iter().filter(|event| event["node"] == 1).count() >= 2
+    })
+    .await;
+    let axes: std::collections::BTreeSet<u64> = emcy
+        .iter()
+        .filter(|event| event["node"] == 1)
+        .filter_map(|event| event["axis"].as_u64())
+        .collect();
+    assert_eq!(axes, [1, 2].into(), "{emcy:#?}");
 
     // Every kind together, oldest first; `since` cuts.
     let (_, all) = get(&app, "/api/v1/events?limit=1000").await;

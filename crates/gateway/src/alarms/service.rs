@@ -167,6 +167,11 @@ impl Alarms {
         self.apply(|book| book.settle_restored(now_us()));
     }
 
+    /// Whether the alarms of the last run are read back.
+    pub(crate) fn is_restored(&self) -> bool {
+        *self.0.restored.borrow()
+    }
+
     /// Waits until the alarms of the last run are read back: the sources
     /// apply nothing before.
     pub(crate) async fn restored(&self) {

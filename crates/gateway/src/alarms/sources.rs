@@ -8,7 +8,7 @@
 //! | the network manager's machine | `node_missing`, `wrong_identity`, `config_failed` | the node's state no longer that one |
 //! | the bus's status | `bus_off`, `error_passive` | the bus back up |
 //! | the TPDOs carrying a drive's statusword (0x6041, the UMC's axis copies) | `axis_fault` (bit 3) | bit 3 clear |
-//! | the gateway's audit rows | `lease_halted` (a lapsed lease's halt: raised and cleared at once, waiting for an acknowledgement); `program_failed` (a failed `download program`) | a later download to the node that succeeded |
+//! | the gateway's own work ([`WorkDone`], told by the lease supervisor and the program download as they end) | `lease_halted` (a lapsed lease's stop: raised and cleared at once, waiting for an acknowledgement); `program_failed` (a download that failed on the device) | a later download to the node that succeeded |
 
 use std::sync::Arc;
 
@@ -16,11 +16,9 @@ use tokio::sync::{Notify, broadcast, watch};
 
 use super::AlarmSource;
 use super::service::Alarms;
-use crate::caller::Channel;
 use crate::can::{BusState, BusStatus};
 use crate::canopen::NodeId;
 use crate::canopen::manager::{MachineState, MachineStatus, NodeState};
-use crate::history::{AuditEntry, OK};
 use crate::profile::Profile;
 use crate::profiles::alarm::{AlarmKind, Product, describe};
 use crate::profiles::umc;
@@ -296,86 +294,66 @@ const MACHINE_KINDS: [AlarmKind; 3] = [
     AlarmKind::ConfigFailed,
 ];
 
-/// What the audit rows of the gateway's own work tell: a lapsed lease's
-/// halt, a program download's outcome.
-pub(crate) fn spawn_audit_follower(
-    alarms: Alarms,
-    products: impl Fn(&str, u8) -> Product + Send + 'static,
-    mut rows: broadcast::Receiver<AuditEntry>,
-) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        alarms.restored().await;
-        loop {
-            match rows.recv().await {
-                Ok(row) => on_audit(&alarms, &products, &row),
-                Err(broadcast::error::RecvError::Lagged(lost)) => {
-                    tracing::warn!("alarms: {lost} audit rows missed");
-                }
-                Err(broadcast::error::RecvError::Closed) => return,
-            }
-        }
-    })
+/// What the gateway's own work tells the alarms as it ends, typed: the
+/// operation that did it says so (no audit row's words are read back).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum WorkDone {
+    /// A lapsed lease's axis was stopped (its client went away): raised
+    /// and cleared at once, the alarm waits for an operator to see it.
+    LeaseHalted { bus: String, node: u8, axis: u8 },
+    /// A program download that reached the device ended, `failed` or not
+    /// (one refused before the bus is none).
+    ProgramDownload { bus: String, node: u8, failed: bool },
 }
 
-pub(crate) fn on_audit(alarms: &Alarms, products: &impl Fn(&str, u8) -> Product, row: &AuditEntry) {
-    let (Some(bus), Some(node)) = (row.bus.as_deref(), row.node) else {
-        return;
-    };
-    let product = products(bus, node);
-    if row.channel == Channel::System && row.operation.starts_with("motion lease lapsed") {
-        // The halt is over once the row is written: the alarm waits for an
-        // operator to see it, its cause already gone.
-        let kind = AlarmKind::LeaseHalted;
-        let source = AlarmSource::new(bus, Some(node), row.axis, kind);
-        alarms.raise(source.clone(), || describe(product, kind, row.axis, ""));
-        alarms.clear(&source);
-    } else if row.operation == "download program" && !REFUSED.contains(&row.outcome.as_str()) {
-        let kind = AlarmKind::ProgramFailed;
-        let source = AlarmSource::new(bus, Some(node), None, kind);
-        if row.outcome == OK {
-            alarms.clear(&source);
+impl Alarms {
+    /// Applies what `work` tells (of a node of `product`), once the last
+    /// run's alarms are read back.
+    pub(crate) fn work_done(&self, product: Product, work: WorkDone) {
+        if self.is_restored() {
+            on_work(self, product, &work);
         } else {
-            alarms.raise(source, || describe(product, kind, None, ""));
+            let alarms = self.clone();
+            tokio::spawn(async move {
+                alarms.restored().await;
+                on_work(&alarms, product, &work);
+            });
         }
     }
 }
 
-/// The outcomes of a request refused before it reached the device (its
-/// caller's role or rate, its input): no download failed.
-const REFUSED: &[&str] = &[
-    "forbidden",
-    "unauthenticated",
-    "rate_limited",
-    "invalid_request",
-    "unknown_bus",
-    "unknown_node",
-    // The motion authority's interlock: refused before anything was sent.
-    "axis_enabled",
-    "node_busy",
-];
+fn on_work(alarms: &Alarms, product: Product, work: &WorkDone) {
+    match work {
+        WorkDone::LeaseHalted { bus, node, axis } => {
+            let kind = AlarmKind::LeaseHalted;
+            let source = AlarmSource::new(bus, Some(*node), Some(*axis), kind);
+            alarms.raise(source.clone(), || describe(product, kind, Some(*axis), ""));
+            alarms.clear(&source);
+        }
+        WorkDone::ProgramDownload { bus, node, failed } => {
+            let kind = AlarmKind::ProgramFailed;
+            let source = AlarmSource::new(bus, Some(*node), None, kind);
+            if *failed {
+                alarms.raise(source, || describe(product, kind, None, ""));
+            } else {
+                alarms.clear(&source);
+            }
+        }
+    }
+}
 
-#[cfg(test)]
-#[test]
-fn the_refusal_words_are_the_gateway_s_error_codes() {
-    use crate::error::GatewayError;
-    let text = || String::new();
-    let codes = [
-        GatewayError::Forbidden(text()).code(),
-        GatewayError::Unauthenticated(text()).code(),
-        GatewayError::RateLimited {
-            message: text(),
-            retry_after_s: 1,
-        }
-        .code(),
-        GatewayError::InvalidRequest(text()).code(),
-        GatewayError::UnknownBus(text()).code(),
-        GatewayError::UnknownNode {
-            bus: text(),
-            node: text(),
-        }
-        .code(),
-        GatewayError::AxisEnabled(text()).code(),
-        GatewayError::NodeBusy(text()).code(),
-    ];
-    assert_eq!(REFUSED, codes);
+impl crate::service::Gateway {
+    /// Tells the alarms what the gateway's own work did.
+    pub(crate) fn work_done(&self, work: WorkDone) {
+        let (bus, node) = match &work {
+            WorkDone::LeaseHalted { bus, node, .. }
+            | WorkDone::ProgramDownload { bus, node, .. } => (bus, *node),
+        };
+        let product = self
+            .buses
+            .get(bus)
+            .and_then(|served| served.registry.node(NodeId::new(node).ok()?))
+            .map_or(Product::Other, |info| product(info.profile));
+        self.alarms.work_done(product, work);
+    }
 }

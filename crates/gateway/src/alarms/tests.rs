@@ -6,7 +6,6 @@ use candeck_sim::rack::Rack;
 use super::*;
 use crate::GatewayConfig;
 use crate::access::Role;
-use crate::audit::AuditTarget;
 use crate::caller::{Caller, Channel};
 use crate::canopen::NodeId;
 use crate::canopen::manager::{MachineStatus, NodeDescription};
@@ -407,50 +406,71 @@ async fn bus_off_and_error_passive_raise_alarms_of_the_bus() {
     assert_eq!(alarm.state, AlarmState::ClearedUnacknowledged);
 }
 
+/// The lease supervisor's stop and the program download tell the alarms
+/// what they did, typed, as they end. The alarms used to read it back from
+/// the audit rows' words, and took every outcome of `download program` but
+/// a list of refusals for a failed download: a download refused before the
+/// bus for another reason (here the node is NMT-stopped: 409
+/// `wrong_nmt_state`) raised "program download failed".
 #[tokio::test(start_paused = true)]
-async fn a_halted_lease_and_a_failed_program_download_raise_alarms_from_their_audit_rows() {
+async fn a_halted_lease_and_a_failed_program_download_raise_alarms_as_they_end() {
     let gateway = demo(config(&[("line", "virtual:demo")])).await;
-    let halted = AuditTarget::new("motion lease lapsed: axis halted")
-        .bus("line")
-        .node(1)
-        .axis(2);
-    gateway
-        .audit_row(&Caller::system(), halted, None)
-        .finish_ok()
-        .await;
-    let failed = AuditTarget::new("download program").bus("line").node(3);
-    // Refused before it reached the device: no download failed.
-    for refusal in ["forbidden", "axis_enabled", "node_busy"] {
-        gateway
-            .audit_row(&operator("vera"), failed.clone(), None)
-            .finish_as(refusal)
-            .await;
-    }
+    let admin = Caller::new(Channel::Rest, "ada", Some(Role::Admin));
+    let image = || b"CDKI\x061.2.3x-a-program".to_vec();
+
+    // Refused before the bus: no download failed.
+    let led = gateway.node_handle("line", "3").unwrap();
+    led.nmt(&admin, crate::canopen::nmt::NmtCommand::Stop)
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let led = gateway.node_handle("line", "3").unwrap();
+    let refused = led.download_program(&admin, image(), false).await;
+    assert_eq!(refused.unwrap_err().code(), "wrong_nmt_state");
     tokio::time::sleep(Duration::from_millis(10)).await;
     assert!(open_of(&gateway, "program_failed").is_empty());
-    gateway
-        .audit_row(&operator("alice"), failed.clone(), None)
-        .finish_as("sdo_abort")
-        .await;
+
+    // Failed on the device (the JMC has no 0x1F51): raised; a later
+    // download that succeeds on that node clears it.
+    let jmc = gateway.node_handle("line", "2").unwrap();
+    let failed = jmc.download_program(&admin, image(), false).await;
+    assert_eq!(failed.unwrap_err().code(), "sdo_abort");
     tokio::time::sleep(Duration::from_millis(10)).await;
+    let program = open_of(&gateway, "program_failed");
+    assert_eq!(program.len(), 1, "{program:?}");
+    assert_eq!(
+        (program[0].node, program[0].state),
+        (Some(2), AlarmState::ActiveUnacknowledged)
+    );
+
+    // A leased move whose client stops renewing: the supervisor stops the
+    // axis, and the alarm waits to be seen, its cause gone.
+    let axis = ("line", "1", "2");
+    let claim = crate::motion::LeaseClaim::default();
+    gateway
+        .set_axis_state(
+            &admin,
+            axis,
+            crate::drive::TargetState::OperationEnabled,
+            &claim,
+        )
+        .await
+        .unwrap();
+    let velocity: crate::drive::MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":200}"#).unwrap();
+    gateway
+        .move_axis(&admin, axis, &velocity, &claim)
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(3)).await;
     let lease = open_of(&gateway, "lease_halted");
-    assert_eq!(lease.len(), 1);
+    assert_eq!(lease.len(), 1, "{lease:?}");
     assert_eq!((lease[0].node, lease[0].axis), (Some(1), Some(2)));
     assert_eq!(
         lease[0].state,
         AlarmState::ClearedUnacknowledged,
         "the halt is over: it waits to be seen"
     );
-    let program = open_of(&gateway, "program_failed");
-    assert_eq!(program.len(), 1);
-    assert_eq!(program[0].state, AlarmState::ActiveUnacknowledged);
-    gateway
-        .audit_row(&operator("alice"), failed, None)
-        .finish_ok()
-        .await;
-    tokio::time::sleep(Duration::from_millis(10)).await;
-    let program = gateway.alarms.book().get(program[0].id).cloned().unwrap();
-    assert_eq!(program.state, AlarmState::ClearedUnacknowledged);
 }
 
 #[tokio::test(start_paused = true)]

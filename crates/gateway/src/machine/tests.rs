@@ -437,3 +437,68 @@ async fn a_reconfiguration_stops_a_moving_axis_first_and_says_so() {
         "{rows:#?}"
     );
 }
+
+/// The network manager's stop before a reconfiguration and a renumbering's
+/// are one operation ("end the motion on a node"). The manager's used to
+/// look at the axes the gateway enabled only, one by one, and leave the
+/// lease of an axis it found not enabled: its holder went on renewing a
+/// lease over a drive whose mode the DCF had just rewritten, and nobody
+/// said so. Now a leased axis is ended whatever its state, as a
+/// renumbering ends it.
+#[tokio::test(start_paused = true)]
+async fn a_reconfiguration_ends_the_lease_of_an_axis_no_longer_enabled() {
+    let gateway = demo_with_dcf().await;
+    let plc = Caller::new(Channel::Rest, "plc", Some(Role::Operator));
+    let lease = move_axis_1_at_400(&gateway, &plc).await;
+    hold(&gateway, &plc, &lease, Duration::from_millis(500)).await;
+    // Another master on the bus switches the drive off behind the
+    // gateway's back (controlword "disable voltage"): the lease is held
+    // still.
+    gateway.buses["demo"]
+        .registry
+        .sdo(node(1))
+        .unwrap()
+        .download(0x6040, 0, &[0x00, 0x00])
+        .await
+        .unwrap();
+    let key = AxisKey {
+        bus: "demo".into(),
+        node: 1,
+        axis: 1,
+    };
+    assert!(gateway.leases.holds(&key, &lease));
+    let mut events = gateway.buses["demo"].registry.subscribe();
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    gateway.boot_node(&admin, "demo", "1").await.unwrap();
+    let detail = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            if let Ok(crate::registry::NodeEvent::MotionEnded {
+                axis: 1,
+                reason: "reconfiguration",
+                detail,
+                ..
+            }) = events.recv().await
+            {
+                break detail;
+            }
+        }
+    })
+    .await
+    .expect("a motion_ended event for the leased axis");
+    assert!(
+        detail.starts_with("not enabled") && detail.contains("velocity lease"),
+        "{detail}"
+    );
+    assert!(!gateway.leases.holds(&key, &lease));
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(modes_of_operation(&gateway).await, 1, "the DCF is written");
+    let rows = crate::audit::tests::rows(&gateway).await;
+    assert!(
+        rows.iter().any(|row| {
+            row["operation"].as_str().is_some_and(|words| {
+                words.starts_with("network manager: axis 1 stopped: not enabled")
+            })
+        }),
+        "{rows:#?}"
+    );
+}

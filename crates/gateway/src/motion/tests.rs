@@ -7,6 +7,7 @@ use std::time::Duration;
 use super::*;
 use crate::caller::Channel;
 use crate::can::FrameReceiver;
+use crate::canopen::nmt::NmtCommand;
 use crate::drive::TargetState;
 use crate::safe_stop::StopOutcome;
 use crate::{GatewayConfig, test_rig};
@@ -236,6 +237,138 @@ async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
         row["item"].as_str().unwrap().contains("velocity lease"),
         "{row:?}"
     );
+}
+
+/// Issue 30: a raw OD write of the UMC's node-ID (0x2040 sub 1) followed by
+/// an NMT reset went past the renumbering rule: the leased move went on
+/// through the write, and the old node-ID stayed listed and supervised
+/// where nothing answered. Now the write is a renumbering as the node-ID
+/// route's: the gateway's own node-ID is refused, the axis is stopped and
+/// its lease ended before the write goes out, the node takes no motion
+/// command until its reset (`node_busy`), and after the reset the old
+/// node-ID is forgotten.
+#[tokio::test(start_paused = true)]
+async fn an_od_write_of_the_node_id_then_a_reset_is_a_renumbering() {
+    let (gateway, caller) = enabled_demo().await;
+    let request: MoveRequest =
+        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
+    let moved = gateway
+        .move_axis(&caller, AXIS, &request, &LeaseClaim::default())
+        .await
+        .unwrap();
+    assert!(moved.lease.is_some());
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(velocity(&gateway).await > 0, "not turning");
+    let mut events = gateway.bus("demo").unwrap().registry.subscribe();
+
+    let operator = Caller::new(Channel::Rest, "op", Some(crate::access::Role::Operator));
+    let node = gateway.node_handle("demo", "1").unwrap();
+    let manager = gateway
+        .bus("demo")
+        .unwrap()
+        .machine
+        .as_ref()
+        .unwrap()
+        .manager()
+        .node_id;
+    let refused = node
+        .write_object(&operator, 0x2040, 1, vec![manager.get()])
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "node_id_in_use", "{refused}");
+    node.write_object(&operator, 0x2040, 1, vec![9])
+        .await
+        .unwrap();
+
+    // Stopped before the write went out: no lease left, the axis at rest.
+    assert_eq!(gateway.leases_held(), 0);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(velocity(&gateway).await, 0);
+    let mut told = None;
+    while let Ok(event) = events.try_recv() {
+        if let crate::registry::NodeEvent::MotionEnded { axis, reason, .. } = event {
+            told = Some((event.node().get(), axis, reason));
+        }
+    }
+    assert_eq!(told, Some((1, 1, "node_id_changed")));
+    // Until its reset, the node takes no motion command.
+    let busy = gateway
+        .set_axis_state(
+            &caller,
+            AXIS,
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap_err()
+        .error;
+    assert_eq!(busy.code(), "node_busy", "{busy}");
+
+    // Stored (in pre-operational, as UniSwarm wants), then reset: the
+    // device is at 9, and 1 is forgotten.
+    node.nmt(&operator, NmtCommand::EnterPreOperational)
+        .await
+        .unwrap();
+    node.write_object(&operator, 0x1010, 4, b"save".to_vec())
+        .await
+        .unwrap();
+    node.nmt(&operator, NmtCommand::ResetNode).await.unwrap();
+    assert!(gateway.node("demo", "9").is_ok());
+    assert!(
+        gateway.node("demo", "1").is_err(),
+        "the old node-ID is listed still"
+    );
+    assert!(gateway.enabled_axes.on_node("demo", 1).is_empty());
+    // The device at its new number takes motion commands again.
+    gateway
+        .set_axis_state(
+            &caller,
+            ("demo", "9", "1"),
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap();
+}
+
+/// Writing a node's own node-ID to 0x2040 is no renumbering, and ends one
+/// pending: the node takes motion commands again.
+#[tokio::test(start_paused = true)]
+async fn writing_its_own_node_id_back_ends_a_pending_renumbering() {
+    let (gateway, caller) = enabled_demo().await;
+    let operator = Caller::new(Channel::Rest, "op", Some(crate::access::Role::Operator));
+    let node = gateway.node_handle("demo", "1").unwrap();
+    node.write_object(&operator, 0x2040, 1, vec![9])
+        .await
+        .unwrap();
+    let busy = gateway
+        .set_axis_state(
+            &caller,
+            AXIS,
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap_err()
+        .error;
+    assert_eq!(busy.code(), "node_busy", "{busy}");
+    node.write_object(&operator, 0x2040, 1, vec![1])
+        .await
+        .unwrap();
+    gateway
+        .set_axis_state(
+            &caller,
+            AXIS,
+            TargetState::OperationEnabled,
+            &LeaseClaim::default(),
+        )
+        .await
+        .unwrap();
+    let refused = node
+        .write_object(&operator, 0x2040, 1, vec![9, 0])
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), "invalid_value", "{refused}");
 }
 
 /// An OD write (CiA 309-3 and -5, REST's object route: one operation)

@@ -67,6 +67,9 @@ impl NodeHandle {
     ) -> Result<Vec<u8>, GatewayError> {
         self.gateway.require(caller, Operation::View)?;
         check_sdo_allowed(&self.served, &self.info)?;
+        if let Some(known) = self.identity_during_download(index, sub) {
+            return Ok(known);
+        }
         let channel = self.served.registry.sdo(self.info.id)?;
         let config = settings(channel.config());
         super::transfer::spawned(async move {
@@ -76,6 +79,30 @@ impl NodeHandle {
                 .map_err(GatewayError::from)
         })
         .await
+    }
+
+    /// While a program download holds the node's one SDO server channel
+    /// (for as long as the image takes: 20 s for 512 KiB at 500 kbit/s;
+    /// CiA 301 lets no other transfer into a block download, and the
+    /// UniSwarm products have no second server channel, 0x1201), what the
+    /// gateway read of the node's identity when it identified it (0x1000,
+    /// 0x1018 subs 1 to 4: constants of the device) is answered from the
+    /// registry rather than after the download. Anything else waits.
+    fn identity_during_download(&self, index: u16, sub: u8) -> Option<Vec<u8>> {
+        if !self.served.programs.runs_on(self.info.id) {
+            return None;
+        }
+        let info = self.served.registry.node(self.info.id)?;
+        let identity = info.identity.as_ref();
+        let value = match (index, sub) {
+            (0x1000, 0) => info.device_type,
+            (0x1018, 1) => identity.map(|identity| identity.vendor_id),
+            (0x1018, 2) => identity.and_then(|identity| identity.product_code),
+            (0x1018, 3) => identity.and_then(|identity| identity.revision),
+            (0x1018, 4) => identity.and_then(|identity| identity.serial),
+            _ => None,
+        }?;
+        Some(value.to_le_bytes().to_vec())
     }
 
     /// Writes an object's value bytes (the operator's; one write of the
@@ -168,6 +195,20 @@ impl NodeHandle {
             Ok(checked) => checked,
             Err(error) => return refused(row, error).await,
         };
+        // Issue 30: a write of the UniSwarm node-ID (0x2040 sub 1) is a
+        // renumbering, under the node-ID route's rule (lss.rs).
+        let node_id_write = if crate::lss::writes_node_id(&self.info, index, sub) {
+            match self
+                .gateway
+                .before_node_id_write(&self.served, &self.info, &bytes)
+                .await
+            {
+                Ok(write) => Some((self.served.clone(), self.info.id, write)),
+                Err(error) => return refused(row, error).await,
+            }
+        } else {
+            None
+        };
         // The watchdog stays on (node/watchdog.rs): refused to an
         // operator, an admin's said in the row and on the stream.
         let watchdog = match self
@@ -190,6 +231,9 @@ impl NodeHandle {
                 channel
                     .download_with(index, sub, &bytes, config.as_ref())
                     .await?;
+                if let Some((served, node, write)) = node_id_write {
+                    served.lss.node_id_written(node, write);
+                }
                 if let Some((node, warning)) = watchdog {
                     node.warn_watchdog_off(&warning);
                 }
@@ -219,7 +263,9 @@ impl NodeHandle {
         let served = self.served.clone();
         let node = self.info.id;
         audited(row, async move {
-            served.send_nmt(command, NmtTarget::Node(node)).await
+            served
+                .send_nmt_following_node_ids(command, NmtTarget::Node(node))
+                .await
         })
         .await
     }
@@ -257,7 +303,9 @@ impl Gateway {
             Err(error) => return refused(row, error).await,
         };
         audited(row, async move {
-            served.send_nmt(command, NmtTarget::All).await
+            served
+                .send_nmt_following_node_ids(command, NmtTarget::All)
+                .await
         })
         .await
     }

@@ -120,13 +120,20 @@ impl NodeHandle {
             caller.who,
             caller.channel
         );
+        let (gateway, bus, node) = (self.gateway.clone(), self.served.name.clone(), self.id());
         let report = spawned(async move {
             let waits = || client_waits.load(Ordering::Relaxed);
-            download_program_for(&channel, &image, start, &waits, &|progress| {
+            let report = download_program_for(&channel, &image, start, &waits, &|progress| {
                 run.publish(progress)
             })
-            .await
-            .map_err(|ProgramError { step, error }| GatewayError::FailedAt {
+            .await;
+            // It reached the device: the alarms hear how it ended.
+            gateway.work_done(crate::alarms::WorkDone::ProgramDownload {
+                bus,
+                node,
+                failed: report.is_err(),
+            });
+            report.map_err(|ProgramError { step, error }| GatewayError::FailedAt {
                 step: step.to_string(),
                 source: Box::new(error),
             })

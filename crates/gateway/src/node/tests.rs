@@ -637,3 +637,38 @@ async fn device_reads_ask_the_callers_role_before_the_bus() {
     assert_eq!(umc.read_axes(&viewer).await.unwrap().len(), 2);
     assert!(sdo_requests(&mut frames, 1) > 0);
 }
+
+/// Issue 30, finding 5: during a 512 KiB program download, a read of the
+/// node's identity (0x1018) waited for the whole download (18.5 s in the
+/// probe), since the block transfer holds the node's one SDO server
+/// channel (the UMC has no second one, 0x1201, and CiA 301 lets no other
+/// transfer into a block download). Its identity, read at identification
+/// and constant, is answered from the registry meanwhile.
+#[tokio::test(start_paused = true)]
+async fn the_identity_of_a_node_is_read_during_its_program_download() {
+    let gateway = demo().await;
+    let umc = gateway.node_handle("demo", "1").unwrap();
+    let admin = Caller::new(Channel::Rest, "admin", Some(Role::Admin));
+    let serial = umc.read_object(&admin, 0x1018, 4).await.unwrap();
+    let download = {
+        let (umc, admin) = (umc.clone(), admin.clone());
+        tokio::spawn(async move { umc.download_program(&admin, image(512 * 1024), false).await })
+    };
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let began = tokio::time::Instant::now();
+    let read = umc.read_object(&admin, 0x1018, 4).await.unwrap();
+    let waited = began.elapsed();
+    let done = download.await.unwrap().unwrap();
+    println!(
+        "512 KiB program download: {} ms; a read of 0x1018 sub 4 during it waited {} ms",
+        done.report.download_ms,
+        waited.as_millis()
+    );
+    assert_eq!(read, serial);
+    assert!(
+        waited < Duration::from_millis(50),
+        "the read waited {} ms (the download took {} ms)",
+        waited.as_millis(),
+        done.report.download_ms
+    );
+}
