@@ -471,6 +471,9 @@ async fn a_stopped_node_booted_on_request_reaches_operational() {
         ("ready", "operational"),
         "{status:?}"
     );
-    assert_eq!(umc.boots, boots_before + 1, "booted once: {status:?}");
-    assert_eq!(umc.boots_ok, umc.boots, "{status:?}");
+    // Booted once more, not once per heartbeat (20 in these 10 s): a try
+    // retried on its back-off at most (the suite's load can delay an
+    // answer past its timeout).
+    assert!(umc.boots <= boots_before + 2, "{status:?}");
+    assert_eq!(umc.boots_ok, boots_before + 1, "{status:?}");
 }
