@@ -104,6 +104,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::TooManyLoggers(_) => StatusCode::CONFLICT,
         GatewayError::SdoAbort { .. }
         | GatewayError::ModeNotSupported(_)
+        | GatewayError::StepBeyondFollowingWindow(_)
         | GatewayError::LssRefused(_)
         | GatewayError::NodeIdNotSupported(_)
         | GatewayError::Sim(SimError::FaultNotApplicable(_))

@@ -159,6 +159,15 @@ pub struct AddDevice {
     /// With `lss`: its serial number (0x1018 sub 4); by default the rack
     /// gives 0x100 + the how-manieth `lss` device it is.
     pub serial: Option<u32>,
+    /// A UMC's load: the inertia at each motor's shaft, kg·m² (rotor
+    /// included; 0.00002 to 1, default 0.0003: a mechanical time constant
+    /// of 33 ms). As `?inertia=` in a device list.
+    #[schema(example = 0.0003)]
+    pub inertia: Option<f64>,
+    /// A UMC's load: its viscous friction, N·m·s (0 to 0.1, default
+    /// 0.0001). As `?friction=` in a device list.
+    #[schema(example = 0.0001)]
+    pub friction: Option<f64>,
 }
 
 /// A fault to inject or clear.
@@ -223,7 +232,7 @@ async fn list_devices(
     request_body = AddDevice,
     responses(
         (status = 201, description = "The device, booted", body = SimDevice),
-        (status = 400, description = "`invalid_request` (malformed body; `id` missing, or given with `lss`), `invalid_value` (unknown product), `value_out_of_range` (id not 1 to 127)", body = ErrorBody),
+        (status = 400, description = "`invalid_request` (malformed body; `id` missing, or given with `lss`; `inertia` or `friction` for a product without motors), `invalid_value` (unknown product), `value_out_of_range` (id not 1 to 127, `inertia` or `friction` out of range)", body = ErrorBody),
         (status = 404, description = "`unknown_bus`", body = ErrorBody),
         (status = 409, description = "`not_virtual`: the bus has no virtual devices; `node_taken`: a device has this id", body = ErrorBody),
     ))]
@@ -240,8 +249,22 @@ async fn add_device(
 
 impl AddDevice {
     /// The device to add: a product at a node id, or without one, waiting
-    /// for LSS.
+    /// for LSS; a UMC with its load.
     fn spec(&self) -> Result<DeviceSpec, AppError> {
+        let spec = self.placed()?;
+        if (self.inertia.is_some() || self.friction.is_some()) && !spec.product.has_motors() {
+            return Err(AppError::InvalidRequest(format!(
+                "{} drives no motor: \"inertia\" and \"friction\" are for umc1bds32 and umc1bd90",
+                spec.product
+            )));
+        }
+        Ok(spec
+            .with_load(self.inertia, self.friction)
+            .map_err(GatewayError::ValueOutOfRange)?)
+    }
+
+    /// The product at its node id, or waiting for LSS.
+    fn placed(&self) -> Result<DeviceSpec, AppError> {
         let product = Product::from_name(&self.product).ok_or_else(|| {
             let known: Vec<&str> = Product::ALL.iter().map(|product| product.name()).collect();
             GatewayError::InvalidValue(format!(
@@ -256,6 +279,7 @@ impl AddDevice {
                     product,
                     node: None,
                     serial: self.serial,
+                    load: None,
                 });
             }
             (Some(_), true) => {

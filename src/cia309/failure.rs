@@ -80,6 +80,7 @@ impl Failure {
             GatewayError::NotADrive(_)
             | GatewayError::UnknownAxis(_)
             | GatewayError::ModeNotSupported(_)
+            | GatewayError::StepBeyondFollowingWindow(_)
             | GatewayError::NotAnIoModule(_)
             | GatewayError::UnknownChannel(_)
             | GatewayError::Led(LedError::NotAnLedController(_) | LedError::UnknownSegment(_))

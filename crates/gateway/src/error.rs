@@ -74,6 +74,11 @@ pub enum GatewayError {
     DriveNotEnabled { message: String, state: String },
     #[error("{0}")]
     ModeNotSupported(String),
+    /// A position step test whose step (or move to its start) is not
+    /// inside the drive's following error window (0x6065): the drive would
+    /// fault on it.
+    #[error("{0}")]
+    StepBeyondFollowingWindow(String),
     /// The drive did not reach a state (mode, acknowledge) in time.
     #[error("{message}")]
     StateChangeTimeout { message: String, state: String },
@@ -260,6 +265,7 @@ impl GatewayError {
             Self::DriveFault { .. } => "drive_fault",
             Self::DriveNotEnabled { .. } => "drive_not_enabled",
             Self::ModeNotSupported(_) => "mode_not_supported",
+            Self::StepBeyondFollowingWindow(_) => "step_beyond_following_window",
             Self::StateChangeTimeout { .. } => "state_change_timeout",
             Self::LeaseConflict(_) => "lease_conflict",
             Self::UnknownLease(_) => "unknown_lease",
@@ -436,6 +442,9 @@ impl From<DriveError> for GatewayError {
                 }
             }
             DriveError::OutOfRange(message) => Self::ValueOutOfRange(message),
+            DriveError::StepBeyondFollowingWindow(message) => {
+                Self::StepBeyondFollowingWindow(message)
+            }
             DriveError::Invalid(message) => Self::InvalidValue(message),
             DriveError::Stopped(message) => Self::MotionStopped(message),
         }

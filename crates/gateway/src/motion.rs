@@ -672,9 +672,23 @@ impl Gateway {
             // Each step is sent through the ticket: a stop of the axis (a
             // halt, the lapse when this caller goes away) ends the test,
             // and no later step is sent.
+            // What the test lifts and restores is the gateway's own doing,
+            // on the axis: rows of its own, the caller's row unchanged.
+            let history = self.history.clone();
+            let target = AuditTarget::new("")
+                .bus(bus)
+                .node(drive.node())
+                .axis(drive.axis());
             let test = tokio::spawn(async move {
                 let drive = drive.with_ticket(ticket.clone());
-                step_test::run(&drive, &values, &request, &ticket).await
+                let audit = |operation: &str, request: String| {
+                    let target = AuditTarget {
+                        operation: operation.to_string(),
+                        ..target.clone()
+                    };
+                    AuditRow::new(&history, &Caller::system(), target, Some(request))
+                };
+                step_test::run(&drive, &values, &request, &ticket, &audit).await
             });
             let result = InFlight::new(&self.leases, &lease)
                 .run(async {

@@ -8,9 +8,17 @@
 //! input (UMC manual chapter 2): the torque loop in TQ (0x6071 → 0x6077,
 //! per mille of the rated torque), the velocity loop in VL (0x6042 →
 //! 0x6044, velocity units), the position loop in PP with change
-//! immediately (0x607A → 0x6064, increments); each step passes the mode's
-//! own ramp (0x6087, 0x6048, the profile's velocity and acceleration) as
-//! the drive does. The actual value is taken from the TPDO that carries
+//! immediately (0x607A → 0x6064, increments). For the test's duration the
+//! gateway lifts what shapes the set-point in that mode, so that the step
+//! reaches the loop as a step, not as the mode's ramp ([`Shaping`]): TQ's
+//! slope 0x6087, VL's ramps 0x6048 and 0x6049, PP's profile velocity,
+//! acceleration and deceleration (0x6081, 0x6083, 0x6084, up to the
+//! drive's own limits 0x607F, 0x60C5, 0x60C6); every value it changed is
+//! written back afterwards, also when the test fails or its caller goes
+//! (the test runs in a task of its own), each as a row of the audit log.
+//! A position step larger than the following-error window (0x6065), or a
+//! move to `from` that is, is refused before anything is written: the
+//! drive would fault on it. The actual value is taken from the TPDO that carries
 //! it when one runs (the node sent the axis's actual value in a TPDO within
 //! the last [`TPDO_FRESH`] when the step is made: node operational, the
 //! TPDO on an event timer or on SYNC): one sample per frame, timed by its
@@ -30,6 +38,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use crate::GatewayError;
+use crate::audit::AuditRow;
 use crate::authority::AxisTicket;
 use crate::axis_telemetry::TPDO_FRESH;
 use crate::drive::{Drive, DriveError, DriveKind, MoveRequest};
@@ -39,6 +48,10 @@ use crate::values::TpdoValues;
 
 #[cfg(test)]
 mod tests;
+
+/// Opens the audit row of what the test does to the axis besides its
+/// steps (the operation's words, the summary).
+pub(crate) type Audit<'a> = &'a (dyn Fn(&str, String) -> AuditRow + Send + Sync);
 
 /// The shortest and longest hold of each level, ms.
 pub(crate) const HOLD_MS: (u32, u32) = (20, 10_000);
@@ -111,6 +124,17 @@ pub struct StepTestResult {
     pub steady_state_error: f64,
     /// `[t_ms, target, actual]` from the step on.
     pub samples: Vec<[f64; 3]>,
+    /// The gains of the loop tested, as the drive had them (its
+    /// configuration record's P, I and D): the run's own, for its history.
+    pub gains: Option<LoopGains>,
+}
+
+/// The gains of one control loop (UMC manual chapter 1 §3.5.3, Q15.16).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LoopGains {
+    pub p: f64,
+    pub i: f64,
+    pub d: f64,
 }
 
 impl StepTestRequest {
@@ -177,6 +201,16 @@ impl StepTestRequest {
         }
     }
 
+    /// The axis-1 configuration record of the loop (0x4021, 0x4041,
+    /// 0x4061: P, I, D in subs 1 to 3).
+    fn loop_config(&self) -> u16 {
+        match self.loop_ {
+            StepLoop::Torque => crate::profiles::umc::axis::TORQUE_PID_CONFIG,
+            StepLoop::Velocity => crate::profiles::umc::axis::VELOCITY_PID_CONFIG,
+            StepLoop::Position => crate::profiles::umc::axis::POSITION_PID_CONFIG,
+        }
+    }
+
     /// The axis-1 object that reads the loop's actual value.
     fn actual(&self) -> u16 {
         match self.loop_ {
@@ -201,6 +235,7 @@ pub(crate) async fn run(
     values: &TpdoValues,
     request: &StepTestRequest,
     ticket: &AxisTicket,
+    audit: Audit<'_>,
 ) -> Result<StepTestResult, GatewayError> {
     request.validate()?;
     if drive.kind() != DriveKind::Umc {
@@ -223,7 +258,16 @@ pub(crate) async fn run(
             .into());
         }
     }
-    let result = steps(drive, values, request, ticket).await;
+    if request.loop_ == StepLoop::Position {
+        within_following_window(drive, request).await?;
+    }
+    let gains = loop_gains(drive, request).await;
+    let mut shaping = Shaping::of(drive, request).await?;
+    let lifted = shaping.lift(drive, audit).await;
+    let result = match lifted {
+        Ok(()) => steps(drive, values, request, ticket).await,
+        Err(error) => Err(error),
+    };
     // The stop always goes out: after a result, and after a failure; but
     // not after a stop of the axis, which stopped it already (and a halt's
     // enable-operation bits would take a quick-stopped axis out of quick
@@ -231,7 +275,217 @@ pub(crate) async fn run(
     if !ticket.stopped() {
         drive.stop_after_failure().await;
     }
-    result
+    // Put back whatever was lifted, whatever happened: not through the
+    // ticket, which a stop voids.
+    let restored = shaping.restore(&drive.untethered(), audit).await;
+    let mut result = result?;
+    restored?;
+    result.gains = gains;
+    Ok(result)
+}
+
+/// The gains of the loop under test, read from its configuration record;
+/// `None` where the drive does not answer them (the test goes on).
+async fn loop_gains(drive: &Drive, request: &StepTestRequest) -> Option<LoopGains> {
+    let config = request.loop_config();
+    let mut gains = [0.0; 3];
+    for (sub, gain) in (1u8..).zip(gains.iter_mut()) {
+        let raw = drive.read_int(config, sub, true).await.ok()?;
+        *gain = f64::from(raw as i32) / 65536.0;
+    }
+    Some(LoopGains {
+        p: gains[0],
+        i: gains[1],
+        d: gains[2],
+    })
+}
+
+/// A position step the drive would fault on is refused before anything is
+/// written: the step (and the move to `from` before it), with the profile
+/// lifted, is a following error of its whole size at once, and a drive
+/// faults on one beyond 0x6065 for longer than 0x6066 (CiA 402 §6.2.3;
+/// 0xFFFFFFFF switches the detection off).
+async fn within_following_window(
+    drive: &Drive,
+    request: &StepTestRequest,
+) -> Result<(), GatewayError> {
+    let window = drive
+        .read_int(obj::FOLLOWING_ERROR_WINDOW, 0, false)
+        .await?;
+    if window == i64::from(u32::MAX) {
+        return Ok(());
+    }
+    let position = drive.read_int(obj::POSITION_ACTUAL, 0, true).await?;
+    let moves = [
+        ("the move to from", position, i64::from(request.from)),
+        ("the step", i64::from(request.from), i64::from(request.to)),
+    ];
+    for (what, start, end) in moves {
+        let size = (end - start).abs();
+        if size >= window {
+            return Err(DriveError::StepBeyondFollowingWindow(format!(
+                "{what} ({start} to {end}: {size} increments) is not inside the following error \
+                 window 0x{:04X} = {window} increments: the drive would fault on it; step by \
+                 less, or widen the window",
+                drive.object(obj::FOLLOWING_ERROR_WINDOW)
+            ))
+            .into());
+        }
+    }
+    Ok(())
+}
+
+/// What shapes the set-point in the mode of the loop under test, and the
+/// values the test gives it: one object each (axis-1 index, sub), with the
+/// bytes it had before and the value it is lifted to.
+struct Shaping {
+    objects: Vec<Lifted>,
+}
+
+struct Lifted {
+    index: u16,
+    sub: u8,
+    default: crate::canopen::od::DataType,
+    value: i64,
+    /// As read before the test: written back byte for byte.
+    before: Option<Vec<u8>>,
+}
+
+impl Shaping {
+    /// The objects the loop's mode shapes its set-point with and the value
+    /// each is lifted to: the whole step (and the move to `from`) within
+    /// one millisecond, as far as the drive's own limits allow.
+    async fn of(drive: &Drive, request: &StepTestRequest) -> Result<Self, GatewayError> {
+        use crate::canopen::od::DataType as T;
+        let span = [
+            i64::from(request.from).abs(),
+            i64::from(request.to).abs(),
+            (i64::from(request.to) - i64::from(request.from)).abs(),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(1)
+        .max(1);
+        let lift = |index, sub, default, value| Lifted {
+            index,
+            sub,
+            default,
+            value,
+            before: None,
+        };
+        let objects = match request.loop_ {
+            // 0x6087 is per mille of the rated torque per second.
+            StepLoop::Torque => vec![lift(
+                obj::TQ_SLOPE,
+                0,
+                T::Unsigned32,
+                (span * 1000).min(i64::from(u32::MAX)),
+            )],
+            // Delta speed per delta time of one: the whole span at once.
+            StepLoop::Velocity => vec![
+                lift(obj::VL_ACCELERATION, 1, T::Unsigned32, span),
+                lift(obj::VL_ACCELERATION, 2, T::Unsigned16, 1),
+                lift(obj::VL_DECELERATION, 1, T::Unsigned32, span),
+                lift(obj::VL_DECELERATION, 2, T::Unsigned16, 1),
+            ],
+            // Up to the drive's limits, which the test does not touch.
+            StepLoop::Position => {
+                let mut objects = Vec::new();
+                for (object, limit) in [
+                    (obj::PROFILE_VELOCITY, obj::MAX_PROFILE_VELOCITY),
+                    (obj::PROFILE_ACCELERATION, obj::MAX_ACCELERATION),
+                    (obj::PROFILE_DECELERATION, obj::MAX_DECELERATION),
+                ] {
+                    if let Some(limit) = drive.read_optional(limit, 0, false).await? {
+                        objects.push(lift(object, 0, T::Unsigned32, limit));
+                    }
+                }
+                objects
+            }
+        };
+        Ok(Self { objects })
+    }
+
+    /// Reads each object's value, then writes the lifted one; one audit
+    /// row says what was lifted from what. On a failure what was written
+    /// so far is restored by [`Shaping::restore`].
+    async fn lift(&mut self, drive: &Drive, audit: Audit<'_>) -> Result<(), GatewayError> {
+        for object in &mut self.objects {
+            let index = drive.object(object.index);
+            let before = drive.channel().upload(index, object.sub).await;
+            object.before = Some(before.map_err(DriveError::from)?);
+        }
+        let row = audit(
+            "step test: set-point shaping lifted",
+            self.describe(|object| object.value),
+        );
+        let mut result = Ok(());
+        for object in &self.objects {
+            let write = drive.encode(
+                object.index,
+                object.sub,
+                object.default,
+                object.value,
+                "lifted value",
+            );
+            let written = match write {
+                Ok(write) => drive.write(&write).await,
+                Err(error) => Err(error),
+            };
+            if let Err(error) = written {
+                result = Err(GatewayError::from(error));
+                break;
+            }
+        }
+        row.finish(&result).await;
+        result
+    }
+
+    /// Writes back every value read before the test; one audit row.
+    async fn restore(&self, drive: &Drive, audit: Audit<'_>) -> Result<(), GatewayError> {
+        let read: Vec<&Lifted> = self
+            .objects
+            .iter()
+            .filter(|object| object.before.is_some())
+            .collect();
+        if read.is_empty() {
+            return Ok(());
+        }
+        let row = audit(
+            "step test: set-point shaping restored",
+            self.describe(|object| object.before.as_deref().map_or(0, little_endian)),
+        );
+        let mut result = Ok(());
+        for object in read {
+            let bytes = object.before.as_deref().unwrap_or_default();
+            let index = drive.object(object.index);
+            // Every one is tried, even after one failed.
+            if let Err(error) = drive.download(index, object.sub, bytes).await
+                && result.is_ok()
+            {
+                result = Err(GatewayError::from(error));
+            }
+        }
+        row.finish(&result).await;
+        result
+    }
+
+    /// `0x6048.1 = 1000, 0x6048.2 = 1, ...` with each object's `value`.
+    fn describe(&self, value: impl Fn(&Lifted) -> i64) -> String {
+        self.objects
+            .iter()
+            .map(|object| format!("0x{:04X}.{} = {}", object.index, object.sub, value(object)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// An unsigned little-endian integer of up to 8 bytes.
+fn little_endian(bytes: &[u8]) -> i64 {
+    let mut buffer = [0u8; 8];
+    let len = bytes.len().min(8);
+    buffer[..len].copy_from_slice(&bytes[..len]);
+    i64::from_le_bytes(buffer)
 }
 
 async fn steps(
@@ -420,5 +674,6 @@ pub(crate) fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>)
         settling_time_ms,
         steady_state_error,
         samples,
+        gains: None,
     }
 }

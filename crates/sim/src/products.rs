@@ -17,7 +17,7 @@ use super::io401::Io401;
 use super::jmc::Jmc;
 use super::objects::add_dummy_objects;
 use super::uioled::Uioled;
-use super::umc::Umc;
+use super::umc::{Load, Umc};
 
 /// A product candeck can emulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -84,9 +84,21 @@ impl Product {
 
     /// The product's application.
     pub fn behaviour(self) -> Box<dyn Behaviour> {
+        self.behaviour_with(None)
+    }
+
+    /// Whether the product drives motors: only these take a `load`.
+    pub fn has_motors(self) -> bool {
+        matches!(self, Self::Umc1bds32 | Self::Umc1bd90)
+    }
+
+    /// The product's application, its motors driving `load` (the default
+    /// where `None`; only a product with motors has one).
+    fn behaviour_with(self, load: Option<Load>) -> Box<dyn Behaviour> {
+        let load = load.unwrap_or(Load::DEFAULT);
         match self {
-            Self::Umc1bds32 => Box::new(Umc::new(2)),
-            Self::Umc1bd90 => Box::new(Umc::new(1)),
+            Self::Umc1bds32 => Box::new(Umc::with_load(2, load)),
+            Self::Umc1bd90 => Box::new(Umc::with_load(1, load)),
             Self::Jmc => Box::new(Jmc::new()),
             Self::Uio1led => Box::new(Uioled::new()),
             Self::Io401 => Box::new(Io401::new()),
@@ -114,7 +126,13 @@ impl Product {
 
     /// A device of this product at `node`, not booted yet.
     pub fn device(self, node: NodeId) -> Result<DeviceCore, String> {
-        DeviceCore::with_behaviour(self.dictionary()?, node, self.behaviour())
+        self.device_with_load(node, None)
+    }
+
+    /// A device of this product at `node` whose motors drive `load` (the
+    /// default where `None`).
+    pub fn device_with_load(self, node: NodeId, load: Option<Load>) -> Result<DeviceCore, String> {
+        DeviceCore::with_behaviour(self.dictionary()?, node, self.behaviour_with(load))
             .map_err(|err| format!("{}.eds (built in): {err}", self.name()))
     }
 }
@@ -134,6 +152,9 @@ pub struct DeviceSpec {
     /// The serial number (0x1018 sub 4) `@lss/SERIAL` gives; otherwise the
     /// rack picks one (see [`super::rack::Rack::add_spec`]).
     pub serial: Option<u32>,
+    /// What its motors drive (`?inertia=KGM2&friction=NMS`); `None`: the
+    /// default load ([`Load::DEFAULT`]).
+    pub load: Option<Load>,
 }
 
 impl DeviceSpec {
@@ -143,16 +164,40 @@ impl DeviceSpec {
             product,
             node: Some(node),
             serial: None,
+            load: None,
         }
+    }
+
+    /// The same device driving `load` (given as inertia, kg·m², and
+    /// viscous friction, N·m·s, the default where `None`); an error when
+    /// the product has no motors or a value is out of range.
+    pub fn with_load(self, inertia: Option<f64>, friction: Option<f64>) -> Result<Self, String> {
+        if inertia.is_none() && friction.is_none() {
+            return Ok(self);
+        }
+        if !self.product.has_motors() {
+            return Err(format!(
+                "{} drives no motor: inertia and friction are options of umc1bds32 and umc1bd90",
+                self.product
+            ));
+        }
+        Ok(Self {
+            load: Some(Load::new(inertia, friction)?),
+            ..self
+        })
     }
 }
 
 impl fmt::Display for DeviceSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match (self.node, self.serial) {
-            (Some(node), _) => write!(f, "{}@{}", self.product, node),
-            (None, None) => write!(f, "{}@lss", self.product),
-            (None, Some(serial)) => write!(f, "{}@lss/{serial}", self.product),
+            (Some(node), _) => write!(f, "{}@{}", self.product, node)?,
+            (None, None) => write!(f, "{}@lss", self.product)?,
+            (None, Some(serial)) => write!(f, "{}@lss/{serial}", self.product)?,
+        }
+        match self.load {
+            Some(load) => write!(f, "?inertia={}&friction={}", load.inertia, load.friction),
+            None => Ok(()),
         }
     }
 }
@@ -193,7 +238,9 @@ impl fmt::Display for DeviceList {
 }
 
 /// Reads `demo`, `none` (or `empty`, the bus spec's `virtual:empty`) or
-/// `product@id,product@lss,product@lss/serial,...`.
+/// `product@id,product@lss,product@lss/serial,...`, each device optionally
+/// followed by `?inertia=KGM2&friction=NMS` (a UMC's load, either key or
+/// both).
 pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     match text.trim() {
         "demo" => return Ok(demo()),
@@ -203,7 +250,11 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     let names: Vec<&str> = Product::ALL.iter().map(|p| p.name()).collect();
     let mut devices: Vec<DeviceSpec> = Vec::new();
     for item in text.split(',') {
-        let (product, node) = item.trim().split_once('@').ok_or_else(|| {
+        let (device, options) = match item.split_once('?') {
+            Some((device, options)) => (device, Some(options)),
+            None => (item, None),
+        };
+        let (product, node) = device.trim().split_once('@').ok_or_else(|| {
             format!(
                 "'{item}' is not PRODUCT@NODE (for example jmc@2, or jmc@lss for an \
                  unconfigured LSS device); products: {}",
@@ -222,6 +273,7 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
                 product,
                 node: None,
                 serial: None,
+                load: None,
             },
             Some(serial) => {
                 let serial = serial.strip_prefix('/').ok_or_else(|| {
@@ -241,12 +293,19 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
                     product,
                     node: None,
                     serial: Some(serial),
+                    load: None,
                 }
             }
             None => DeviceSpec::at(
                 product,
                 node.parse().map_err(|err| format!("'{item}': {err}"))?,
             ),
+        };
+        let spec = match options {
+            Some(options) => {
+                with_options(spec, options).map_err(|err| format!("'{item}': {err}"))?
+            }
+            None => spec,
         };
         if let Some(node) = spec.node
             && let Some(taken) = devices.iter().find(|d| d.node == Some(node))
@@ -267,6 +326,33 @@ pub fn parse_devices(text: &str) -> Result<Vec<DeviceSpec>, String> {
     Ok(devices)
 }
 
+/// `spec` with the options after its `?`: `inertia=KGM2&friction=NMS`.
+fn with_options(spec: DeviceSpec, options: &str) -> Result<DeviceSpec, String> {
+    let (mut inertia, mut friction) = (None, None);
+    for option in options.split('&') {
+        let (key, value) = option
+            .split_once('=')
+            .ok_or_else(|| format!("option '{option}' is not KEY=VALUE (inertia, friction)"))?;
+        let number = value
+            .trim()
+            .parse::<f64>()
+            .map_err(|_| format!("{key} '{value}' is not a number"))?;
+        let slot = match key.trim() {
+            "inertia" => &mut inertia,
+            "friction" => &mut friction,
+            other => {
+                return Err(format!(
+                    "unknown option '{other}': a device takes inertia (kg·m²) and friction (N·m·s)"
+                ));
+            }
+        };
+        if slot.replace(number).is_some() {
+            return Err(format!("{key} is given twice"));
+        }
+    }
+    spec.with_load(inertia, friction)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -285,12 +371,14 @@ mod tests {
                 DeviceSpec {
                     product: Product::Uio1led,
                     node: None,
-                    serial: None
+                    serial: None,
+                    load: None,
                 },
                 DeviceSpec {
                     product: Product::Jmc,
                     node: None,
-                    serial: Some(31)
+                    serial: Some(31),
+                    load: None,
                 },
             ]
         );
@@ -329,6 +417,62 @@ mod tests {
                 spec(Product::Uio1led, 127)
             ])
         );
+    }
+
+    #[test]
+    fn a_umc_takes_its_load_as_options_and_bad_ones_are_refused() {
+        let devices =
+            parse_devices("umc1bds32@1?inertia=0.002&friction=0.0005,umc1bd90@4?friction=0")
+                .unwrap();
+        assert_eq!(
+            devices[0].load,
+            Some(Load {
+                inertia: 0.002,
+                friction: 0.0005
+            })
+        );
+        assert_eq!(
+            devices[1].load,
+            Some(Load {
+                inertia: Load::DEFAULT.inertia,
+                friction: 0.0
+            })
+        );
+        assert_eq!(
+            DeviceList(devices.clone()).to_string(),
+            "umc1bds32@1?inertia=0.002&friction=0.0005,umc1bd90@4?inertia=0.0003&friction=0"
+        );
+        assert_eq!(
+            parse_devices(&DeviceList(devices.clone()).to_string()).unwrap(),
+            devices
+        );
+        for (text, problem) in [
+            (
+                "jmc@2?inertia=0.001",
+                "'jmc@2?inertia=0.001': jmc drives no motor: inertia and friction are options of umc1bds32 and umc1bd90",
+            ),
+            (
+                "umc1bds32@1?inertia=5",
+                "'umc1bds32@1?inertia=5': inertia 5 kg·m² is out of range: 0.00002 to 1 (default 0.0003)",
+            ),
+            (
+                "umc1bds32@1?friction=-1",
+                "friction -1 N·m·s is out of range: 0 to 0.1",
+            ),
+            (
+                "umc1bds32@1?inertia=heavy",
+                "inertia 'heavy' is not a number",
+            ),
+            ("umc1bds32@1?mass=2", "unknown option 'mass'"),
+            ("umc1bds32@1?inertia", "option 'inertia' is not KEY=VALUE"),
+            (
+                "umc1bds32@1?inertia=0.1&inertia=0.2",
+                "inertia is given twice",
+            ),
+        ] {
+            let err = parse_devices(text).unwrap_err();
+            assert!(err.contains(problem), "{text}: {err}");
+        }
     }
 
     #[test]

@@ -286,9 +286,10 @@ impl Rack {
         // An unconfigured device is built for any node-ID; it takes its own
         // from the LSS master.
         let mut core = product
-            .device(
+            .device_with_load(
                 spec.node
                     .unwrap_or(NodeId::new(NodeId::MAX).expect("127 is a node-ID")),
+                spec.load,
             )
             .map_err(RackError::Device)?;
         core.set_serial(serial);

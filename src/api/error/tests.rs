@@ -74,10 +74,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::EdsQuota(_) => 63,
         GatewayError::UnknownAlarm(_) => 64,
         GatewayError::WatchdogProtected(_) => 65,
+        GatewayError::StepBeyondFollowingWindow(_) => 66,
     }
 }
 
-const VARIANTS: usize = 66;
+const VARIANTS: usize = 67;
 
 fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -118,6 +119,7 @@ fn samples() -> Vec<GatewayError> {
             state: "switched_on".to_string(),
         },
         GatewayError::ModeNotSupported(text()),
+        GatewayError::StepBeyondFollowingWindow(text()),
         GatewayError::StateChangeTimeout {
             message: text(),
             state: "ready_to_switch_on".to_string(),

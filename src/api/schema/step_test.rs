@@ -66,4 +66,16 @@ pub struct StepTestResult {
     /// `[t_ms, target, actual]` from the step on.
     #[schema(value_type = Vec<Vec<f64>>)]
     pub samples: Vec<[f64; 3]>,
+    /// The gains of the loop tested, as the drive had them (its
+    /// configuration record's P, I and D); null where they could not be
+    /// read.
+    pub gains: Option<LoopGains>,
+}
+
+/// The gains of one control loop (UMC manual chapter 1 §3.5.3).
+#[derive(Debug, ToSchema)]
+pub struct LoopGains {
+    pub p: f64,
+    pub i: f64,
+    pub d: f64,
 }

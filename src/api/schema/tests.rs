@@ -20,7 +20,7 @@ use crate::gateway::{
     ChannelInfo, ChannelRequest, LoggerRequest, LoggerState, LoggerStatus, Source,
 };
 use crate::gateway::{Color, Preview, PreviewSegment};
-use crate::gateway::{SampleSource, StepLoop, StepTestRequest, StepTestResult};
+use crate::gateway::{LoopGains, SampleSource, StepLoop, StepTestRequest, StepTestResult};
 use crate::gateway::{StopAttempt, StopMethod, StopOutcome};
 
 /// Every variant of a gateway enum of unit variants. Fails to compile when
@@ -499,6 +499,11 @@ fn the_step_test_mirrors_describe_the_gateways_request_and_result() {
             settling_time_ms: Some(40.0),
             steady_state_error: -0.5,
             samples: vec![[0.0, 500.0, 0.0], [1.0, 500.0, 12.0]],
+            gains: Some(LoopGains {
+                p: 0.015,
+                i: 0.4,
+                d: 0.0,
+            }),
         });
     }
     checker.check::<super::StepTestResult>(&StepTestResult {
@@ -508,12 +513,14 @@ fn the_step_test_mirrors_describe_the_gateways_request_and_result() {
         settling_time_ms: None,
         steady_state_error: 500.0,
         samples: Vec::new(),
+        gains: None,
     });
     checker.covered(&[
         super::StepLoop::name(),
         super::StepTestRequest::name(),
         super::SampleSource::name(),
         super::StepTestResult::name(),
+        super::LoopGains::name(),
     ]);
 }
 

@@ -359,3 +359,45 @@ async fn the_gateways_own_controller_is_reported_as_an_interface_reports_it() {
     .await;
     assert_error(&refused, StatusCode::NOT_FOUND, "unknown_bus");
 }
+
+/// A UMC takes its load (`inertia`, `friction`); values out of range and
+/// a load for a product without motors are refused, saying why.
+#[tokio::test(start_paused = true)]
+async fn a_umc_is_added_with_its_load_and_bad_loads_are_refused() {
+    let (app, _) = buses().await;
+    let nodes = "/api/v1/buses/bench/sim/nodes";
+    let heavy = post(
+        &app,
+        nodes,
+        r#"{"product": "umc1bds32", "id": 5, "inertia": 0.003, "friction": 0.0002}"#,
+    )
+    .await;
+    assert_eq!(heavy.0, StatusCode::CREATED, "{}", heavy.1);
+    for (body, code, says) in [
+        (
+            r#"{"product": "umc1bd90", "id": 6, "inertia": 2}"#,
+            "value_out_of_range",
+            "inertia 2 kg·m² is out of range: 0.00002 to 1 (default 0.0003)",
+        ),
+        (
+            r#"{"product": "umc1bd90", "id": 6, "friction": -0.5}"#,
+            "value_out_of_range",
+            "friction -0.5 N·m·s is out of range: 0 to 0.1 (default 0.0001)",
+        ),
+        (
+            r#"{"product": "uio1led", "id": 6, "inertia": 0.001}"#,
+            "invalid_request",
+            "uio1led drives no motor",
+        ),
+    ] {
+        let refused = post(&app, nodes, body).await;
+        assert_error(&refused, StatusCode::BAD_REQUEST, code);
+        assert!(
+            refused.1["error"]["message"]
+                .as_str()
+                .is_some_and(|message| message.contains(says)),
+            "{body}: {}",
+            refused.1
+        );
+    }
+}

@@ -129,11 +129,19 @@ function draw() {
   const { width, height } = canvas;
   ctx.clearRect(0, 0, width, height);
   if (!runs.length) return;
-  const all = runs.flatMap((r) => r.samples);
+  // Scaled to the response: the runs of the latest run's loop (another
+  // loop's units would squash it), their target, peak and trough, and a
+  // margin so that an overshoot is not drawn on the frame.
+  const latestLoop = runs[runs.length - 1].loop;
+  const shown = runs.filter((r) => r.loop === latestLoop);
+  const all = shown.flatMap((r) => r.samples);
   const tMax = Math.max(...all.map((s) => s[0]), 1);
-  let yMin = Math.min(...all.map((s) => Math.min(s[1], s[2])), ...runs.map((r) => r.from));
-  let yMax = Math.max(...all.map((s) => Math.max(s[1], s[2])), ...runs.map((r) => r.from));
+  let yMin = Math.min(...all.map((s) => Math.min(s[1], s[2])), ...shown.map((r) => r.from));
+  let yMax = Math.max(...all.map((s) => Math.max(s[1], s[2])), ...shown.map((r) => r.from));
   if (yMax === yMin) { yMax += 1; yMin -= 1; }
+  const margin = (yMax - yMin) * 0.05;
+  yMax += margin;
+  yMin -= margin;
   const pad = 40;
   const x = (t) => pad + (t / tMax) * (width - 2 * pad);
   const y = (v) => height - pad - ((v - yMin) / (yMax - yMin)) * (height - 2 * pad);
@@ -144,8 +152,8 @@ function draw() {
   ctx.fillText(String(fmt(yMax)), 2, pad);
   ctx.fillText(String(fmt(yMin)), 2, height - pad);
   ctx.fillText(`${fmt(tMax)} ms`, width - pad - 40, height - pad + 16);
-  runs.forEach((run, i) => {
-    const latest = i === runs.length - 1;
+  shown.forEach((run, i) => {
+    const latest = i === shown.length - 1;
     ctx.lineWidth = latest ? 2 : 1;
     ctx.strokeStyle = latest ? '#1d3557' : `rgba(95, 107, 122, ${0.3 + 0.15 * i})`;
     ctx.beginPath();
@@ -193,7 +201,9 @@ $('#step-form').addEventListener('submit', async (event) => {
     h('span', {}, `Steady-state error ${fmt(r.steady_state_error)}`),
     h('span', { class: 'sub' }, `${r.samples.length} samples (${SOURCES[r.source] || r.source})`),
   );
-  $('#step-runs').prepend(h('li', {}, `${clock()} ${request.loop} ${request.from} → ${request.to}: rise ${ms(r.rise_time_ms)}, overshoot ${fmt(r.overshoot_pct)} %`));
+  // Each run with the gains it ran with: the history compares tunings.
+  const gains = r.gains ? ` (P ${fmt(r.gains.p)}, I ${fmt(r.gains.i)}, D ${fmt(r.gains.d)})` : '';
+  $('#step-runs').prepend(h('li', {}, `${clock()} ${request.loop} ${request.from} → ${request.to}${gains}: rise ${ms(r.rise_time_ms)}, overshoot ${fmt(r.overshoot_pct)} %`));
   draw();
 });
 

@@ -466,6 +466,10 @@ pub struct MachineStatus {
 /// An operation of a boot-up, one SDO request or one frame.
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Op {
+    /// NMT enter pre-operational, first, for a node that reports itself
+    /// stopped: a stopped node does no SDO (CiA 301 §7.3.2.2), so its
+    /// boot-up could not read or write anything.
+    EnterPreOperational,
     CheckIdentity(u8),
     /// Before the first motion object of the configuration: the node's
     /// enabled axes stopped ([`Action::StopMotion`]).
@@ -512,7 +516,10 @@ impl Op {
 
     fn step(&self) -> Step {
         match self {
-            Self::CheckIdentity(_) | Self::VerifyIdentity(_) => Step::Identity,
+            // Reaching the node is the first thing its identity check needs.
+            Self::EnterPreOperational | Self::CheckIdentity(_) | Self::VerifyIdentity(_) => {
+                Step::Identity
+            }
             Self::Configure(_) | Self::StopMotion => Step::Configuration,
             Self::SetHeartbeat
             | Self::SetGuardTime
@@ -614,8 +621,49 @@ impl Node {
 }
 
 impl Node {
+    /// No boot-up under way, and none due: a retry waits for its time (a
+    /// node heard meanwhile, each heartbeat of a stopped node, does not cut
+    /// the back-off short).
+    fn idle(&self) -> bool {
+        self.in_flight.is_none() && self.ops.is_empty() && self.retry_at.is_none()
+    }
+
+    /// The NMT state the node should be in once booted.
+    fn wanted_nmt(&self) -> NmtState {
+        if self.description.start {
+            NmtState::Operational
+        } else {
+            NmtState::PreOperational
+        }
+    }
+
+    /// Booted and supervised, but the node has not (yet) confirmed the NMT
+    /// state it should have: not `ready` (docs/network-manager.md), still
+    /// on its way, at the start step.
+    fn unconfirmed(&self) -> bool {
+        self.state == NodeState::Ready
+            && self.supervision != Supervision::None
+            && self.nmt != Some(self.wanted_nmt())
+    }
+
+    /// The state the API shows: `ready` only once the node confirmed it.
+    fn shown_state(&self) -> NodeState {
+        if self.unconfirmed() {
+            NodeState::Booting
+        } else {
+            self.state
+        }
+    }
+
     /// The reason the API shows for the node's state.
     fn shown_reason(&self) -> Option<String> {
+        if self.unconfirmed() {
+            return Some(format!(
+                "the node reports {}, not yet {}",
+                self.nmt.map_or("unknown", NmtState::name),
+                self.wanted_nmt().name()
+            ));
+        }
         match self.state {
             NodeState::Ready if self.supervision == Supervision::None => {
                 self.supervision_reason.clone()
@@ -712,8 +760,10 @@ impl Manager {
             return;
         };
         node.present = true;
-        let idle = node.in_flight.is_none() && node.ops.is_empty();
-        if node.managed && idle && matches!(node.state, NodeState::Missing | NodeState::Offline) {
+        if node.managed
+            && node.idle()
+            && matches!(node.state, NodeState::Missing | NodeState::Offline)
+        {
             self.begin_boot(id, "found on the bus");
         }
     }
@@ -843,6 +893,9 @@ impl Manager {
         if description.start {
             ops.push_back(Op::Start);
         }
+        if node.nmt == Some(NmtState::Stopped) {
+            ops.push_front(Op::EnterPreOperational);
+        }
         node.ops = ops;
         node.step = node.ops.front().map_or(Step::Supervised, Op::step);
         self.events.push(ManagerEvent::BootStarted {
@@ -888,6 +941,9 @@ impl Manager {
         if description.start {
             ops.push_back(Op::StartIfNeeded);
         }
+        if node.nmt == Some(NmtState::Stopped) {
+            ops.push_front(Op::EnterPreOperational);
+        }
         node.ops = ops;
         node.step = node.ops.front().map_or(Step::Supervised, Op::step);
         self.events.push(ManagerEvent::ResyncStarted {
@@ -923,14 +979,16 @@ impl Manager {
             // A node it does not know yet is added by what follows.
             SupervisorEvent::Nmt { to, .. } => {
                 if let Some(node) = self.nodes.get_mut(&id) {
-                    node.nmt = Some(to);
+                    node.nmt = Some(after_boot_up(to));
                 }
             }
             SupervisorEvent::BootUp { .. } => {
                 let Some(node) = self.node_mut(id) else {
                     return;
                 };
-                node.nmt = Some(NmtState::BootUp);
+                // The boot-up message is sent on entering pre-operational
+                // (CiA 301 §7.3.2.1): that is the state it is in.
+                node.nmt = Some(NmtState::PreOperational);
                 node.present = true;
                 node.lost = false;
                 // It restarted: what it said of itself may have changed.
@@ -962,15 +1020,12 @@ impl Manager {
                 let Some(node) = self.node_mut(id) else {
                     return;
                 };
-                node.nmt = Some(nmt);
+                node.nmt = Some(after_boot_up(nmt));
                 node.present = true;
                 node.lost = false;
                 let why = if new {
                     Some("heard for the first time")
-                } else if node.state == NodeState::Missing
-                    && node.ops.is_empty()
-                    && node.in_flight.is_none()
-                {
+                } else if node.state == NodeState::Missing && node.idle() {
                     Some("heard")
                 } else {
                     None
@@ -1173,7 +1228,8 @@ impl Manager {
                             &format!("0x{index:04X} sub {sub} cannot be read (abort {code})"),
                         );
                     }
-                    Op::StartIfNeeded => self.next(id),
+                    // Frames: never answered.
+                    Op::StartIfNeeded | Op::EnterPreOperational => self.next(id),
                     Op::StopMotion => {
                         node.state = NodeState::ConfigFailed;
                         let event = fail(node, format!("abort {code}"), true);
@@ -1457,6 +1513,17 @@ impl Manager {
                         }
                         continue;
                     }
+                    Op::EnterPreOperational => {
+                        // Unconfirmed: the SDO request that follows is
+                        // answered once the node took it.
+                        let frame = super::nmt::NmtMessage::new(
+                            NmtCommand::EnterPreOperational,
+                            super::nmt::NmtTarget::Node(id),
+                        )
+                        .encode();
+                        actions.push(Action::Send(frame));
+                        continue;
+                    }
                     Op::Start => {
                         // Unconfirmed: sent, and the boot is done; the
                         // heartbeat says when the node is operational.
@@ -1522,12 +1589,6 @@ impl Manager {
         {
             mandatory += 1;
             let id = node.description.id;
-            let nmt = node.nmt;
-            let want = if node.description.start {
-                NmtState::Operational
-            } else {
-                NmtState::PreOperational
-            };
             match node.state {
                 NodeState::Ready if node.supervision == Supervision::None => {
                     bad += 1;
@@ -1536,14 +1597,12 @@ impl Manager {
                         node.supervision_reason.as_deref().unwrap_or("no reason")
                     ));
                 }
-                NodeState::Ready
-                    if node.supervision == Supervision::Heartbeat && nmt != Some(want) =>
-                {
+                NodeState::Ready if node.unconfirmed() => {
                     booting = true;
                     reasons.push(format!(
                         "node {id} is {}, not yet {}",
-                        nmt.map_or("unknown", NmtState::name),
-                        want.name()
+                        node.nmt.map_or("unknown", NmtState::name),
+                        node.wanted_nmt().name()
                     ));
                 }
                 NodeState::Ready => ready += 1,
@@ -1595,8 +1654,12 @@ impl Manager {
                     name: node.description.name.clone(),
                     mandatory: node.description.mandatory,
                     expected: node.description.expected,
-                    state: node.state,
-                    step: node.step,
+                    state: node.shown_state(),
+                    step: if node.unconfirmed() {
+                        Step::Start
+                    } else {
+                        node.step
+                    },
                     reason: node.shown_reason(),
                     supervision: node.supervision,
                     heartbeat_ms: node.description.heartbeat_ms,
@@ -1623,6 +1686,17 @@ impl Manager {
 impl fmt::Display for MachineState {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
+    }
+}
+
+/// The NMT state a node reporting `state` is in: a boot-up message is
+/// sent on entering pre-operational (CiA 301 §7.3.2.1), so a node that
+/// sent one is pre-operational, never "boot-up".
+fn after_boot_up(state: NmtState) -> NmtState {
+    if state == NmtState::BootUp {
+        NmtState::PreOperational
+    } else {
+        state
     }
 }
 

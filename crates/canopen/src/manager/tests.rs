@@ -300,10 +300,10 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
     );
     let status = manager.status();
     let node = &status.nodes[0];
-    assert_eq!(node.state, NodeState::Ready);
+    // Started, supervised, but not ready until it says it is operational.
+    assert_eq!(node.state, NodeState::Booting);
     assert_eq!(node.supervision, Supervision::Heartbeat);
-    assert_eq!(node.step, Step::Supervised);
-    // Ready once it reports operational.
+    assert_eq!(node.step, Step::Start);
     manager.scan_done();
     assert_eq!(manager.status().state, MachineState::Booting);
     manager.on_frame(
@@ -312,7 +312,11 @@ fn a_described_node_is_checked_configured_supervised_and_started_in_order() {
     );
     manager.poll(t0 + Duration::from_millis(300));
     assert_eq!(manager.status().state, MachineState::Ready);
-    assert_eq!(manager.status().nodes[0].nmt, "operational");
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.step, node.nmt.as_str()),
+        (NodeState::Ready, Step::Supervised, "operational")
+    );
     // Lost after 1.5 periods without heartbeat: offline, machine degraded.
     manager.poll(t0 + Duration::from_millis(300 + 449));
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
@@ -465,7 +469,7 @@ fn without_writable_1017_the_manager_guards_the_node() {
     for ms in [100, 200] {
         manager.poll(t0 + Duration::from_millis(ms));
     }
-    assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
+    assert_eq!(manager.status().nodes[0].state, NodeState::Booting);
     manager.poll(t0 + Duration::from_millis(300));
     assert_eq!(manager.status().nodes[0].state, NodeState::Offline);
 }
@@ -574,6 +578,8 @@ fn without_descriptions_every_node_found_is_booted_with_the_defaults() {
             Action::Send(Frame::new(CanId::Standard(0x000), &[0x01, 0x02]).unwrap()),
         ]
     );
+    manager.on_frame(&heartbeat(2, NmtState::Operational), t0);
+    manager.poll(t0);
     let node = manager.status().nodes[0].clone();
     assert_eq!(
         (node.state, node.expected, node.mandatory),
@@ -675,6 +681,9 @@ fn boot_up_requests_in_flight_are_bounded_across_the_bus() {
         }
     }
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
+    for n in 1..=5 {
+        manager.on_frame(&heartbeat(n, NmtState::Operational), t0);
+    }
     assert!(
         manager
             .status()
@@ -761,6 +770,7 @@ fn a_consumer_table_with_no_free_entry_is_kept_and_said() {
     manager.node_found(id(4));
     let actions = run_boot(&mut manager, t0, answer);
     assert_eq!(writes_1016(&actions), 0, "{actions:?}");
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t0);
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
     // Required: the boot-up fails and says why.
     let mut description = NodeDescription::new(id(4));
@@ -979,6 +989,8 @@ fn a_guarded_node_booted_again_after_its_loss_is_ready_not_lost_again() {
     manager.bus_up(true);
     let t1 = t0 + ms(1000);
     run_boot(&mut manager, t1, no_1017);
+    // Its first guarding reply (toggle 0): pre-operational, as it should.
+    manager.on_frame(&Frame::new(CanId::Standard(0x705), &[0x7F]).unwrap(), t1);
     let node = manager.status().nodes[0].clone();
     assert_eq!(
         (node.state, node.supervision),
@@ -1177,6 +1189,7 @@ fn the_axes_are_stopped_before_the_configuration_writes_motion_objects() {
         })
         .collect();
     assert_eq!(order, ["1800", "stop", "6060", "6860"]);
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t0);
     assert_eq!(manager.status().nodes[0].state, NodeState::Ready);
 
     // Axes that cannot be stopped: nothing of the motion is written, and
@@ -1205,5 +1218,123 @@ fn the_axes_are_stopped_before_the_configuration_writes_motion_objects() {
     assert_eq!(
         node.reason.as_deref(),
         Some("configuration: axis 1 did not stop")
+    );
+}
+
+fn nmt_frame(command: u8, node: u8) -> Action {
+    Action::Send(Frame::new(CanId::Standard(0), &[command, node]).unwrap())
+}
+
+/// Issue 32 finding 2: a node stopped by `000#0201` does no SDO (CiA 301
+/// §7.3.2.2), so a boot-up that begins with a read or write cannot end.
+/// The boot-up of a node that reports itself stopped begins with NMT enter
+/// pre-operational (Lely's master begins with reset communication), and
+/// goes on to operational.
+#[test]
+fn the_boot_up_of_a_stopped_node_brings_it_to_pre_operational_first() {
+    let t0 = Instant::now();
+    let mut manager = Rig::new(config(), Vec::new(), t0);
+    manager.on_frame(&heartbeat(1, NmtState::Stopped), t0);
+    let actions = sdo_actions(&manager.poll(t0));
+    assert_eq!(
+        actions,
+        vec![
+            nmt_frame(0x80, 1),
+            Action::Write {
+                node: id(1),
+                index: 0x1017,
+                sub: 0,
+                data: 500u16.to_le_bytes().to_vec(),
+            }
+        ]
+    );
+    manager.on_frame(&heartbeat(1, NmtState::PreOperational), t0);
+    manager.on_sdo(id(1), SdoOutcome::Done(Vec::new()), t0);
+    let rest = run_boot(&mut manager, t0, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(rest.last(), Some(&nmt_frame(0x01, 1)), "{rest:?}");
+    manager.on_frame(&heartbeat(1, NmtState::Operational), t0);
+    manager.poll(t0);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.nmt.as_str()),
+        (NodeState::Ready, "operational")
+    );
+}
+
+/// Issue 32 finding 2: a stopped node that does not answer is retried
+/// after 200 ms, then twice as long each time (docs/network-manager.md),
+/// its heartbeats meanwhile (every 100 ms) beginning no boot-up of their
+/// own; each try begins with enter pre-operational.
+#[test]
+fn the_heartbeats_of_a_node_whose_boot_up_failed_do_not_cut_the_backoff_short() {
+    let t0 = Instant::now();
+    let config = ManagerConfig {
+        retry_max: Duration::from_secs(10),
+        ..config()
+    };
+    let mut manager = Rig::new(config, Vec::new(), t0);
+    let mut tries = Vec::new();
+    for tick in 0..=1300u64 {
+        let now = t0 + Duration::from_millis(tick * 10);
+        if tick % 10 == 0 {
+            manager.on_frame(&heartbeat(1, NmtState::Stopped), now);
+        }
+        let actions = sdo_actions(&manager.poll(now));
+        for (at, action) in actions.iter().enumerate() {
+            if let Action::Read { node, .. } | Action::Write { node, .. } = action {
+                assert!(
+                    at > 0 && actions[at - 1] == nmt_frame(0x80, 1),
+                    "a try without enter pre-operational first: {actions:?}"
+                );
+                tries.push(now);
+                manager.on_sdo(*node, SdoOutcome::Failed("SDO timeout".into()), now);
+            }
+        }
+    }
+    let gaps: Vec<u128> = tries
+        .windows(2)
+        .map(|pair| (pair[1] - pair[0]).as_millis())
+        .collect();
+    assert_eq!(gaps, [200, 400, 800, 1600, 3200, 6400]);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.state, NodeState::Missing);
+    assert_eq!(node.nmt, "stopped");
+}
+
+/// Issue 32 finding 11: a node that sent its boot-up message is
+/// pre-operational (CiA 301 §7.3.2.1: the boot-up is sent on entering
+/// it), never shown `boot_up`; and it is `ready` only once it confirmed
+/// the state it should have (operational), not when the start was sent.
+#[test]
+fn a_booted_node_is_pre_operational_and_ready_only_once_it_says_operational() {
+    let t0 = Instant::now();
+    let mut manager = Rig::new(config(), Vec::new(), t0);
+    manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(node.nmt, "pre_operational", "{node:?}");
+    let seen = run_boot(&mut manager, t0, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(seen.last(), Some(&nmt_frame(0x01, 1)));
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.step, node.nmt.as_str()),
+        (NodeState::Booting, Step::Start, "pre_operational"),
+        "the start is sent, not confirmed: {node:?}"
+    );
+    assert_eq!(
+        node.reason.as_deref(),
+        Some("the node reports pre_operational, not yet operational")
+    );
+    manager.on_frame(&heartbeat(1, NmtState::Operational), t0);
+    manager.poll(t0);
+    let node = manager.status().nodes[0].clone();
+    assert_eq!(
+        (node.state, node.step, node.nmt.as_str()),
+        (NodeState::Ready, Step::Supervised, "operational")
     );
 }

@@ -60,6 +60,9 @@ pub enum DriveError {
     /// A request only a UMC-class drive's control loops can take.
     #[error("{0}")]
     NotTunable(String),
+    /// A position step the drive would fault on (beyond 0x6065).
+    #[error("{0}")]
+    StepBeyondFollowingWindow(String),
     /// A stop of the axis came after the command was admitted: its
     /// remaining writes were not sent (`crate::authority`).
     #[error("{0}")]

@@ -172,6 +172,16 @@ impl Drive {
         self
     }
 
+    /// The same axis without a ticket: what a command must put back after
+    /// it ends (a step test's lifted ramps) is written even once a stop
+    /// voided the command's ticket.
+    pub(crate) fn untethered(&self) -> Self {
+        Self {
+            ticket: None,
+            ..self.clone()
+        }
+    }
+
     /// One download to the node, through the ticket when there is one.
     pub(super) async fn download(
         &self,

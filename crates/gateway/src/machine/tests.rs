@@ -502,3 +502,43 @@ async fn a_reconfiguration_ends_the_lease_of_an_axis_no_longer_enabled() {
         "{rows:#?}"
     );
 }
+
+/// Issue 32 finding 2, the integrator's repro: `000#0201` (node 1
+/// stopped), then `POST .../machine/nodes/1/boot`. The manager used to
+/// read and write a node that does no SDO, its every heartbeat beginning
+/// the boot-up again: an SDO time-out about every 1.2 s, for ever. Now the
+/// boot-up brings it to pre-operational first and it reaches operational,
+/// booted once more (not once per heartbeat).
+#[tokio::test(start_paused = true)]
+async fn a_stopped_node_booted_on_request_reaches_operational() {
+    let gateway = Gateway::start(config_of_demo(), &test_rig::rack)
+        .await
+        .unwrap();
+    let machine = gateway.buses["demo"].machine.clone().unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let status = machine.status();
+    assert_eq!(status.state.name(), "ready", "{status:?}");
+    let boots_before = status.nodes[0].boots;
+    let stop = NmtMessage::new(NmtCommand::Stop, NmtTarget::Node(node(1))).encode();
+    gateway.buses["demo"].bus.send(stop).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let status = machine.status();
+    assert_eq!(status.nodes[0].nmt, "stopped", "{status:?}");
+    assert_ne!(status.nodes[0].state.name(), "ready", "{status:?}");
+
+    let operator = Caller::new(Channel::Rest, "operator", Some(Role::Operator));
+    gateway.boot_node(&operator, "demo", "1").await.unwrap();
+    tokio::time::sleep(Duration::from_secs(10)).await;
+    let status = machine.status();
+    let umc = &status.nodes[0];
+    assert_eq!(
+        (umc.state.name(), umc.nmt.as_str()),
+        ("ready", "operational"),
+        "{status:?}"
+    );
+    // Booted once more, not once per heartbeat (20 in these 10 s): a try
+    // retried on its back-off at most (the suite's load can delay an
+    // answer past its timeout).
+    assert!(umc.boots <= boots_before + 2, "{status:?}");
+    assert_eq!(umc.boots_ok, boots_before + 1, "{status:?}");
+}

@@ -431,3 +431,73 @@ async fn an_od_write_to_a_leased_axis_is_held_to_the_lease_but_a_stop_always_goe
         .await
         .unwrap();
 }
+
+/// Issue 32, "Tuning does not show the loop": the ramps a step test lifts
+/// (VL's 0x6048 and 0x6049 here) are put back when a halt ends the test
+/// half-way, and both the lift and the restore are rows of the audit log
+/// (the gateway's, on the axis, naming each value), besides the caller's
+/// own `step test` row.
+#[tokio::test(start_paused = true)]
+async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
+    let (gateway, caller) = enabled_demo().await;
+    let sdo = gateway
+        .bus("demo")
+        .unwrap()
+        .registry
+        .sdo(crate::canopen::NodeId::new(1).unwrap())
+        .unwrap();
+    let ramp = || async {
+        let mut values = Vec::new();
+        for (index, sub) in [(0x6048, 1), (0x6048, 2), (0x6049, 1), (0x6049, 2)] {
+            values.push(sdo.upload(index, sub).await.unwrap());
+        }
+        values
+    };
+    let before = ramp().await;
+    let test = spawn_step_test(&gateway, &caller);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert_ne!(ramp().await, before, "lifted during the test");
+    gateway
+        .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let ended = test.await.unwrap();
+    assert!(ended.is_err(), "the halt ended the test");
+    assert_eq!(ramp().await, before, "put back");
+    let rows = crate::audit::tests::rows_where(&gateway, 2, |row| {
+        row["operation"]
+            .as_str()
+            .is_some_and(|operation| operation.starts_with("step test: set-point shaping"))
+    })
+    .await;
+    let words: Vec<(&str, &str, &str)> = rows
+        .iter()
+        .map(|row| {
+            (
+                row["operation"].as_str().unwrap(),
+                row["who"].as_str().unwrap(),
+                row["request"].as_str().unwrap_or(""),
+            )
+        })
+        .collect();
+    assert_eq!(
+        words,
+        [
+            (
+                "step test: set-point shaping lifted",
+                "gateway",
+                "0x6048.1 = 3000, 0x6048.2 = 1, 0x6049.1 = 3000, 0x6049.2 = 1"
+            ),
+            (
+                "step test: set-point shaping restored",
+                "gateway",
+                "0x6048.1 = 1, 0x6048.2 = 1, 0x6049.1 = 1, 0x6049.2 = 1"
+            ),
+        ],
+        "{rows:#?}"
+    );
+    assert!(
+        rows.iter().all(|row| row["node"] == 1 && row["axis"] == 1),
+        "{rows:#?}"
+    );
+}

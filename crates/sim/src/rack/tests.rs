@@ -623,6 +623,7 @@ fn lss_device(product: Product, serial: Option<u32>) -> DeviceSpec {
         product,
         node: None,
         serial,
+        load: None,
     }
 }
 

@@ -48,6 +48,7 @@ use crate::profiles::umc::{self, board};
 
 use self::axis::{Axis, AxisNews, SUPPORTED_MODES, Supply};
 use self::faults::{Condition, schmitt};
+pub use self::motor::Load;
 use self::motor::MotorModel;
 use crate::board::{AMBIENT, CPU_CYCLES_PER_MS, NOMINAL_SUPPLY, Thermal};
 
@@ -95,10 +96,15 @@ impl Umc {
     /// Two axes for the UMC1BDS32 (bridges A–D, two per axis), one for the
     /// UMC1BD90 (bridges A–C).
     pub fn new(axes: u8) -> Umc {
+        Self::with_load(axes, Load::DEFAULT)
+    }
+
+    /// The same, each axis's motor driving `load`.
+    pub fn with_load(axes: u8, load: Load) -> Umc {
         let count = axes.clamp(1, 2);
         Umc {
             axes: (1..=count)
-                .map(|n| Axis::new(n, MotorModel::default()))
+                .map(|n| Axis::new(n, MotorModel::with_load(load)))
                 .collect(),
             board: Board::new(if count > 1 { 4 } else { 3 }),
             ms: 0,

@@ -22,8 +22,9 @@ use std::f64::consts::TAU;
 
 use crate::profiles::umc::units::INCREMENTS_PER_REV;
 
-/// The motor the virtual UMC drives: a 24 V brushed DC motor with a small
-/// flywheel, about 7600 rpm unloaded at 24 V.
+/// The motor the virtual UMC drives: a 24 V brushed DC motor, about
+/// 7600 rpm unloaded at 24 V, driving a load ([`Load::DEFAULT`] unless the
+/// device was given another).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotorModel {
     /// Winding resistance, Ω.
@@ -38,15 +39,87 @@ pub struct MotorModel {
     pub coulomb: f64,
 }
 
-impl Default for MotorModel {
-    fn default() -> Self {
+impl MotorModel {
+    /// The motor driving `load`.
+    pub fn with_load(load: Load) -> Self {
         MotorModel {
             resistance: 0.1,
             torque_constant: 0.03,
-            inertia: 2e-5,
-            viscous: 2e-6,
+            inertia: load.inertia,
+            viscous: load.friction,
             coulomb: 2e-3,
         }
+    }
+
+    /// The mechanical time constant `J·R/(Kt·Ke)`, s: how long the shaft
+    /// takes to reach 63 % of a speed step at a fixed voltage; what a
+    /// velocity loop can shorten, and what it must be tuned against.
+    pub fn mechanical_time_constant(&self) -> f64 {
+        self.inertia * self.resistance / (self.torque_constant * self.torque_constant)
+    }
+}
+
+impl Default for MotorModel {
+    fn default() -> Self {
+        Self::with_load(Load::DEFAULT)
+    }
+}
+
+/// What the motor of a virtual UMC axis drives: the inertia at its shaft
+/// (rotor included) and the viscous friction. Set per device by
+/// `--devices umc1bds32@1?inertia=KGM2&friction=NMS` or the keys
+/// `inertia` and `friction` of `POST /buses/{bus}/sim/nodes`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Load {
+    /// kg·m², rotor included.
+    pub inertia: f64,
+    /// Viscous friction, N·m·s (N·m per rad/s).
+    pub friction: f64,
+}
+
+impl Eq for Load {} // Finite by construction (Load::new).
+
+impl Load {
+    /// An axis with a load, not a bare rotor: 3·10⁻⁴ kg·m² (a mechanical
+    /// time constant of 33 ms with the motor's 0.1 Ω and 0.03 N·m/A) and
+    /// 10⁻⁴ N·m·s of viscous friction.
+    pub const DEFAULT: Load = Load {
+        inertia: 3e-4,
+        friction: 1e-4,
+    };
+    /// The motor's bare rotor with a trace of friction: what the firmware's
+    /// own tests (trajectories, statuswords) run on, where the load's
+    /// dynamics would only blur the figures they check.
+    pub const BARE_ROTOR: Load = Load {
+        inertia: 2e-5,
+        friction: 2e-6,
+    };
+    /// The inertias a device takes, kg·m²: the bare rotor (2·10⁻⁵) up to
+    /// a flywheel that takes minutes to spin up.
+    pub const INERTIA: (f64, f64) = (2e-5, 1.0);
+    /// The viscous frictions a device takes, N·m·s.
+    pub const FRICTION: (f64, f64) = (0.0, 0.1);
+
+    /// A load of `inertia` kg·m² and `friction` N·m·s (the defaults where
+    /// `None`); an error names the value out of range.
+    pub fn new(inertia: Option<f64>, friction: Option<f64>) -> Result<Load, String> {
+        let inertia = inertia.unwrap_or(Self::DEFAULT.inertia);
+        let friction = friction.unwrap_or(Self::DEFAULT.friction);
+        let (low, high) = Self::INERTIA;
+        if !(inertia.is_finite() && (low..=high).contains(&inertia)) {
+            return Err(format!(
+                "inertia {inertia} kg·m² is out of range: {low} to {high} (default {})",
+                Self::DEFAULT.inertia
+            ));
+        }
+        let (low, high) = Self::FRICTION;
+        if !(friction.is_finite() && (low..=high).contains(&friction)) {
+            return Err(format!(
+                "friction {friction} N·m·s is out of range: {low} to {high} (default {})",
+                Self::DEFAULT.friction
+            ));
+        }
+        Ok(Load { inertia, friction })
     }
 }
 
@@ -207,8 +280,49 @@ mod tests {
     use super::*;
 
     #[test]
-    fn full_duty_runs_up_to_the_no_load_speed() {
+    fn the_default_load_has_a_time_constant_of_tens_of_ms_and_others_are_checked() {
+        let tau = MotorModel::default().mechanical_time_constant();
+        assert!((0.02..0.1).contains(&tau), "{tau}");
+        // Spun up at full duty, the shaft is at 63 % of its final speed
+        // after about one time constant.
         let mut motor = Motor::new(MotorModel::default());
+        let mut samples = Vec::new();
+        for _ in 0..1000 {
+            motor.step(Bridge::Duty(1.0), 24.0, 1000.0);
+            samples.push(motor.omega());
+        }
+        let last = samples[999];
+        let at = samples.iter().position(|w| *w >= 0.632 * last).unwrap() + 1;
+        assert!((25..45).contains(&at), "{at} ms");
+        let heavy = Load::new(Some(3e-3), None).unwrap();
+        assert_eq!(heavy.friction, Load::DEFAULT.friction);
+        assert!(MotorModel::with_load(heavy).mechanical_time_constant() > 0.3);
+        for (inertia, friction, error) in [
+            (
+                Some(0.0),
+                None,
+                "inertia 0 kg·m² is out of range: 0.00002 to 1",
+            ),
+            (Some(f64::NAN), None, "inertia NaN"),
+            (
+                None,
+                Some(-1.0),
+                "friction -1 N·m·s is out of range: 0 to 0.1",
+            ),
+            (None, Some(2.0), "friction 2 N·m·s is out of range"),
+        ] {
+            let refused = Load::new(inertia, friction).unwrap_err();
+            assert!(refused.contains(error), "{refused}");
+        }
+    }
+
+    fn bare() -> MotorModel {
+        MotorModel::with_load(Load::BARE_ROTOR)
+    }
+
+    #[test]
+    fn full_duty_runs_up_to_the_no_load_speed() {
+        let mut motor = Motor::new(bare());
         for _ in 0..3000 {
             motor.step(Bridge::Duty(1.0), 24.0, 32.0);
         }
@@ -225,14 +339,14 @@ mod tests {
 
     #[test]
     fn the_current_is_chopped_at_the_peak() {
-        let mut motor = Motor::new(MotorModel::default());
+        let mut motor = Motor::new(bare());
         motor.step(Bridge::Duty(1.0), 24.0, 32.0);
         assert_eq!(motor.current, 32.0);
     }
 
     #[test]
     fn friction_holds_a_shaft_the_motor_does_not_push_hard_enough() {
-        let mut motor = Motor::new(MotorModel::default());
+        let mut motor = Motor::new(bare());
         motor.step(Bridge::Current(0.05), 24.0, 32.0);
         assert_eq!(motor.velocity, 0.0);
         motor.step(Bridge::Current(1.0), 24.0, 32.0);
@@ -241,7 +355,7 @@ mod tests {
 
     #[test]
     fn a_coasting_motor_comes_to_rest() {
-        let mut motor = Motor::new(MotorModel::default());
+        let mut motor = Motor::new(bare());
         for _ in 0..500 {
             motor.step(Bridge::Current(5.0), 24.0, 32.0);
         }

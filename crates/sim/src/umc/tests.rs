@@ -37,19 +37,30 @@ impl Rig {
     }
 
     fn new(eds: &str, axes: u8) -> Rig {
+        // The firmware's logic on the bare rotor: the figures below are
+        // the trajectories', not the load's.
+        Rig::with(eds, Umc::with_load(axes, super::Load::BARE_ROTOR))
+    }
+
+    /// A UMC1BDS32 as the demo has it: its motors drive the default load.
+    fn loaded() -> Rig {
+        Rig::with(builtin::UMC1BDS32, Umc::new(2))
+    }
+
+    fn with(eds: &str, umc: Umc) -> Rig {
         let dictionary = Eds::parse(eds, "x").unwrap().dictionary;
         let store = ObjectStore::new(dictionary, NodeId::new(1).unwrap()).unwrap();
         let mut rig = Rig {
             store,
-            umc: Umc::new(axes),
+            umc,
             raised: Vec::new(),
             ms: 0,
         };
-        rig.with(|umc, io| umc.reset(io));
+        rig.with_io(|umc, io| umc.reset(io));
         rig
     }
 
-    fn with<R>(&mut self, f: impl FnOnce(&mut Umc, &mut DeviceIo<'_>) -> R) -> R {
+    fn with_io<R>(&mut self, f: impl FnOnce(&mut Umc, &mut DeviceIo<'_>) -> R) -> R {
         let mut io = DeviceIo::new(
             &mut self.store,
             NmtState::Operational,
@@ -67,7 +78,7 @@ impl Rig {
             .to_bytes();
         self.umc.check_value(&self.store, index, sub, &data)?;
         self.store.write(index, sub, &data)?;
-        self.with(|umc, io| umc.written(io, index, sub));
+        self.with_io(|umc, io| umc.written(io, index, sub));
         Ok(())
     }
 
@@ -79,13 +90,13 @@ impl Rig {
     /// An RPDO bringing `value`: stored without the SDO server's checks.
     fn rpdo(&mut self, index: u16, sub: u8, value: i64) {
         assert!(self.store.set_int_saturating(index, sub, value));
-        self.with(|umc, io| umc.written(io, index, sub));
+        self.with_io(|umc, io| umc.written(io, index, sub));
     }
 
     fn tick(&mut self, n: u64) {
         for _ in 0..n {
             self.ms += 1;
-            self.with(|umc, io| umc.tick(io));
+            self.with_io(|umc, io| umc.tick(io));
         }
     }
 
@@ -247,7 +258,7 @@ fn leaving_operational_signals_a_fault_as_0x6007_asks() {
     rig.enable(1, 1);
     rig.set(2, 0x6007, 0, 0);
     rig.enable(2, 1);
-    rig.with(|umc, io| umc.nmt_changed(io, NmtState::Operational, NmtState::PreOperational));
+    rig.with_io(|umc, io| umc.nmt_changed(io, NmtState::Operational, NmtState::PreOperational));
     rig.tick(50);
     assert_eq!(rig.state(1), State::Fault);
     assert_eq!(rig.state(2), State::OperationEnabled);
@@ -269,7 +280,7 @@ fn leaving_operational_faults_only_enabled_axes_and_leaves_a_trace() {
     let idle = rig.statusword(2);
     assert_eq!(rig.state(2), State::SwitchOnDisabled);
     rig.raised.clear();
-    rig.with(|umc, io| umc.nmt_changed(io, NmtState::Operational, NmtState::PreOperational));
+    rig.with_io(|umc, io| umc.nmt_changed(io, NmtState::Operational, NmtState::PreOperational));
     rig.tick(50);
     assert_eq!(rig.state(2), State::SwitchOnDisabled);
     assert_eq!(rig.statusword(2), idle);
@@ -641,7 +652,7 @@ fn each_injected_fault_raises_its_emcy_and_faults_every_axis() {
         let mut rig = Rig::umc1bds32();
         rig.enable(1, 1);
         rig.tick(10);
-        rig.with(|umc, io| umc.inject_fault(io, fault)).unwrap();
+        rig.with_io(|umc, io| umc.inject_fault(io, fault)).unwrap();
         assert_eq!(rig.emcy_codes(), [code, code], "{fault}");
         assert_eq!(rig.raised.len(), 0);
         assert_eq!(rig.error_register(), register, "{fault}");
@@ -652,7 +663,7 @@ fn each_injected_fault_raises_its_emcy_and_faults_every_axis() {
         rig.controlword(1, 0x80);
         assert_eq!(rig.state(1), State::Fault);
         rig.controlword(1, 0x00);
-        rig.with(|umc, io| umc.clear_fault(io, fault)).unwrap();
+        rig.with_io(|umc, io| umc.clear_fault(io, fault)).unwrap();
         rig.tick(20);
         assert!(rig.emcy_codes().is_empty(), "{fault}: no new EMCY");
         rig.controlword(1, 0x80);
@@ -667,7 +678,7 @@ fn each_injected_fault_raises_its_emcy_and_faults_every_axis() {
     }
     let mut rig = Rig::umc1bds32();
     assert!(
-        rig.with(|umc, io| umc.inject_fault(io, Fault::HeartbeatLoss))
+        rig.with_io(|umc, io| umc.inject_fault(io, Fault::HeartbeatLoss))
             .is_err()
     );
 }
@@ -682,7 +693,7 @@ fn a_fault_reaction_brakes_on_the_quick_stop_ramp() {
     rig.controlword(1, 0x1F);
     rig.tick(100);
     assert_eq!(rig.get(1, 0x606B, 0), 200);
-    rig.with(|umc, io| umc.inject_axis_fault(io, 1, Fault::OverCurrent))
+    rig.with_io(|umc, io| umc.inject_axis_fault(io, 1, Fault::OverCurrent))
         .unwrap();
     assert_eq!(rig.emcy_codes(), [0x2310]);
     assert_eq!(rig.state(1), State::FaultReactionActive);
@@ -704,12 +715,12 @@ fn fault_reaction_0_disables_at_once() {
     let mut rig = Rig::umc1bds32();
     rig.set(1, 0x605E, 0, 0);
     rig.enable(1, 4);
-    rig.with(|umc, io| umc.inject_axis_fault(io, 1, Fault::FollowingError))
+    rig.with_io(|umc, io| umc.inject_axis_fault(io, 1, Fault::FollowingError))
         .unwrap();
     assert_eq!(rig.state(1), State::Fault);
     assert_eq!(rig.emcy_codes(), [0x8611]);
     assert!(
-        rig.with(|umc, io| umc.inject_axis_fault(io, 1, Fault::UnderVoltage))
+        rig.with_io(|umc, io| umc.inject_axis_fault(io, 1, Fault::UnderVoltage))
             .is_err()
     );
 }
@@ -854,7 +865,7 @@ fn the_umc1bd90_has_one_axis_on_three_bridges() {
     rig.controlword(1, 0x1F);
     run_to_target(&mut rig, 1, 100, 5);
     assert!((rig.get(1, 0x6064, 0) - 10_000).abs() <= 2);
-    rig.with(|umc, io| umc.inject_fault(io, Fault::OverTemperature))
+    rig.with_io(|umc, io| umc.inject_fault(io, Fault::OverTemperature))
         .unwrap();
     assert_eq!(rig.emcy_codes(), [0x4310]);
 }
@@ -1096,4 +1107,35 @@ fn the_velocity_loop_acts_on_the_conditioned_sensor_value() {
     rig.set(1, 0x4045, 5, 65_536 * 100);
     rig.tick(2);
     assert_eq!(rig.get(1, 0x4042, 2), -2);
+}
+
+/// The demo's axis has a load (issue 32, "Tuning does not show the loop"):
+/// a velocity step with the ramp lifted is shaped by the loop's gain, not
+/// over before the first sample. Four times the factory P (0.015 A/rpm)
+/// shortens the rise time by far more than 20 %; both settle on the
+/// target.
+#[test]
+fn on_the_default_load_the_velocity_gain_shows_in_the_rise_time() {
+    let run = |p: f64| {
+        let mut rig = Rig::loaded();
+        gain(&mut rig, 0x4041, 1, p);
+        gain(&mut rig, 0x4041, 2, 0.0);
+        velocity_step(&mut rig, 1_000, 1_000)
+    };
+    let factory = run(0.015);
+    let stiff = run(0.06);
+    let (factory_rise, _) = rise_and_overshoot(&factory, 1_000.0);
+    let (stiff_rise, _) = rise_and_overshoot(&stiff, 1_000.0);
+    eprintln!("P 0.015: {factory_rise} ms, P 0.06: {stiff_rise} ms");
+    assert!(
+        factory_rise >= 10,
+        "{factory_rise} ms: the loop, not one sample"
+    );
+    assert!(
+        (factory_rise as f64) > 1.2 * stiff_rise as f64,
+        "{factory_rise} vs {stiff_rise} ms"
+    );
+    for samples in [&factory, &stiff] {
+        assert!((samples[999] - 1_000.0).abs() <= 10.0, "{}", samples[999]);
+    }
 }
