@@ -48,7 +48,14 @@ pub mod cli;
 mod door_audit;
 #[cfg(test)]
 mod door_parity;
+/// One sample of every `GatewayError` (REST's error tests keep the list), for
+/// every door's test of its mapping.
+#[cfg(test)]
+mod error_samples {
+    pub(crate) use crate::api::error::{VARIANTS, samples};
+}
 pub mod emulator;
+pub mod opcua;
 pub use candeck_gateway as gateway;
 pub use candeck_profiles as profiles;
 pub use candeck_sim as sim;

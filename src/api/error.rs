@@ -419,3 +419,6 @@ pub async fn method_not_allowed(
 
 #[cfg(test)]
 mod tests;
+// One sample of every error, for the other doors' mappings (OPC UA's).
+#[cfg(test)]
+pub(crate) use tests::{VARIANTS, samples};

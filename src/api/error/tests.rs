@@ -78,9 +78,9 @@ fn variant(error: &GatewayError) -> usize {
     }
 }
 
-const VARIANTS: usize = 67;
+pub(crate) const VARIANTS: usize = 67;
 
-fn samples() -> Vec<GatewayError> {
+pub(crate) fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
     let abort = AbortCode::from_raw(0x0609_0011);
     vec![

@@ -108,7 +108,9 @@ pub struct ServeArgs {
     /// A TOML (or, named *.json, JSON) file of settings: listen, buses
     /// (a list of NAME=SPEC), eds_dir, data_dir, bitrate, share (a list),
     /// axis_poll_hz, retention_days, retention_rows, lease_ms,
-    /// shutdown_grace_ms, ascii_listen,
+    /// shutdown_grace_ms, ascii_listen, opcua_listen (and opcua_pki_dir,
+    /// opcua_max_sessions, opcua_max_subscriptions, opcua_max_monitored_items,
+    /// opcua_max_message_size, opcua_session_timeout_ms),
     /// tokens (a list of {name, role, token}), cors_origins, write_rate,
     /// write_burst, body_limit, dcf_body_limit, sync_period_ms, insecure,
     /// recordings_quota_mb, logger_max_values, allowed_hosts, share_public, header_timeout_ms, idle_timeout_ms,
@@ -179,6 +181,13 @@ pub struct ServeArgs {
     /// is the first bus given.
     #[arg(long, value_name = "ADDR")]
     pub ascii_listen: Option<SocketAddr>,
+    /// Also serve OPC UA on ADDR (opc.tcp, port 0 picks a free port;
+    /// 4840 is OPC UA's): the machine as an address space (docs/opcua.md).
+    /// Anonymous sessions and the unsecured endpoint only on loopback; an
+    /// address other than loopback needs tokens (user: the token's name,
+    /// password: its secret). Default: off.
+    #[arg(long, value_name = "ADDR")]
+    pub opcua_listen: Option<SocketAddr>,
     /// Serve without tokens on an address other than loopback (--listen,
     /// --ascii-listen): anyone who reaches it may move the motors. Without
     /// tokens (config `tokens`, CANDECK_TOKENS) candeck refuses such an

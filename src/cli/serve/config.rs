@@ -120,6 +120,14 @@ pub(super) struct ConfigFile {
     pub(super) share_max_connections: Option<usize>,
     #[serde(default)]
     pub(super) sparkplug_metrics: Vec<SparkplugMetric>,
+    // The OPC UA server (docs/opcua.md); off without opcua_listen.
+    pub(super) opcua_listen: Option<SocketAddr>,
+    pub(super) opcua_pki_dir: Option<PathBuf>,
+    pub(super) opcua_max_sessions: Option<usize>,
+    pub(super) opcua_max_subscriptions: Option<usize>,
+    pub(super) opcua_max_monitored_items: Option<usize>,
+    pub(super) opcua_max_message_size: Option<usize>,
+    pub(super) opcua_session_timeout_ms: Option<u64>,
     pub(super) manager_node_id: Option<u8>,
     pub(super) manager_heartbeat_ms: Option<u16>,
     pub(super) heartbeat_consumer_factor: Option<f64>,
@@ -278,6 +286,7 @@ impl ConfigFile {
             &mut config.mqtt_ca_file,
             &mut config.mqtt_client_cert,
             &mut config.mqtt_client_key,
+            &mut config.opcua_pki_dir,
         ]
         .into_iter()
         .chain(config.nodes.iter_mut().map(|node| &mut node.dcf))
@@ -289,6 +298,45 @@ impl ConfigFile {
         }
         Ok(config)
     }
+}
+
+impl ConfigFile {
+    /// The OPC UA server's limits: the file's keys over the defaults.
+    fn opcua_limits(&self) -> crate::opcua::config::OpcUaLimits {
+        let defaults = crate::opcua::config::OpcUaLimits::default();
+        crate::opcua::config::OpcUaLimits {
+            max_sessions: self.opcua_max_sessions.unwrap_or(defaults.max_sessions),
+            max_subscriptions: self
+                .opcua_max_subscriptions
+                .unwrap_or(defaults.max_subscriptions),
+            max_monitored_items: self
+                .opcua_max_monitored_items
+                .unwrap_or(defaults.max_monitored_items),
+            max_message_size: self
+                .opcua_max_message_size
+                .unwrap_or(defaults.max_message_size),
+            session_timeout: self
+                .opcua_session_timeout_ms
+                .map_or(defaults.session_timeout, Duration::from_millis),
+        }
+    }
+}
+
+/// The OPC UA server on `listen` (`--opcua-listen`, `opcua_listen`): its
+/// PKI in the data directory unless `opcua_pki_dir` says; it takes the
+/// tokens REST takes.
+fn opcua(
+    listen: SocketAddr,
+    pki_dir: Option<PathBuf>,
+    limits: crate::opcua::config::OpcUaLimits,
+    data_dir: Option<&Path>,
+    tokens_required: bool,
+) -> Result<crate::opcua::OpcUaConfig, String> {
+    if !cfg!(feature = "opcua") {
+        return Err("opcua_listen: this candeck was built without the opcua feature".to_string());
+    }
+    let pki_dir = pki_dir.unwrap_or_else(|| crate::opcua::config::default_pki_dir(data_dir));
+    crate::opcua::OpcUaConfig::new(listen, pki_dir, limits, tokens_required)
 }
 
 /// The 1-based line and column of byte `offset` of `text`.
@@ -329,6 +377,8 @@ pub(super) struct Settings {
     pub(super) ascii_limits: AsciiLimits,
     /// The Sparkplug B edge node; `None`: off.
     pub(super) sparkplug: Option<SparkplugConfig>,
+    /// The OPC UA server; `None`: off.
+    pub(super) opcua: Option<crate::opcua::OpcUaConfig>,
     /// socketcand clients at once per share.
     pub(super) share_max_connections: usize,
     /// The uploaded EDS files the catalog takes.
@@ -386,6 +436,10 @@ impl ServeArgs {
         };
         let data_dir = self.data_dir.clone().or(file.data_dir.clone());
         let sparkplug = file.sparkplug(data_dir.as_deref())?;
+        // Checked once the tokens are known (below).
+        let opcua_limits = file.opcua_limits();
+        let opcua_listen = self.opcua_listen.or(file.opcua_listen);
+        let opcua_pki_dir = file.opcua_pki_dir.clone();
         let pick = |flag: &Vec<NamedBus>, file: Vec<NamedBus>| {
             if flag.is_empty() { file } else { flag.clone() }
         };
@@ -417,8 +471,9 @@ impl ServeArgs {
             nodes: Vec::new(),
         };
         let machine_nodes = machine_nodes(&file.nodes, &buses, machine.manager.node_id)?;
-        let settings = Settings {
+        let mut settings = Settings {
             sparkplug,
+            opcua: None,
             machine,
             machine_nodes,
             ascii_listen: self.ascii_listen.or(file.ascii_listen),
@@ -567,6 +622,16 @@ impl ServeArgs {
                 Some(n) => n,
                 None => crate::can::socketcand::DEFAULT_SHARE_MAX_CONNECTIONS,
             },
+        };
+        settings.opcua = match opcua_listen {
+            Some(listen) => Some(opcua(
+                listen,
+                opcua_pki_dir,
+                opcua_limits,
+                data_dir.as_deref(),
+                settings.auth.required(),
+            )?),
+            None => None,
         };
         settings.validate()?;
         Ok(settings)

@@ -132,6 +132,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
         }
         None => None,
     };
+    // The OPC UA server (opcua_listen), on the same gateway service.
+    let opcua = start_opcua(&state, args.opcua.as_ref()).await?;
     let ascii = ascii_listener.map(|(listener, _)| {
         tokio::spawn(crate::ascii::listen(
             listener,
@@ -160,6 +162,7 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
             if let Some(edge_node) = edge_node {
                 edge_node.stop(std::time::Duration::from_secs(2)).await;
             }
+            stop_opcua(opcua).await;
             return Err(match ended {
                 Ok(()) => CliError::new(format!("HTTP server on {local} ended")),
                 Err(err) => CliError::new(format!("HTTP server on {local}: {err}")),
@@ -197,6 +200,8 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     if let Some(edge_node) = edge_node {
         edge_node.stop(std::time::Duration::from_secs(2)).await;
     }
+    // The OPC UA sessions are closed (their leases lapse with them).
+    stop_opcua(opcua).await;
     if let Some(ascii) = ascii {
         ascii.abort();
     }
@@ -205,6 +210,51 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     tracing::info!("serve: stopped");
     Ok(())
 }
+
+#[cfg(feature = "opcua")]
+type OpcUa = Option<crate::opcua::OpcUaServer>;
+#[cfg(not(feature = "opcua"))]
+type OpcUa = Option<std::convert::Infallible>;
+
+/// The OPC UA server of `config`, if any, started; its address said on
+/// stdout (the port, when 0 was asked).
+#[cfg(feature = "opcua")]
+async fn start_opcua(
+    state: &AppState,
+    config: Option<&crate::opcua::OpcUaConfig>,
+) -> Result<OpcUa, CliError> {
+    let Some(config) = config else {
+        return Ok(None);
+    };
+    let server = crate::opcua::OpcUaServer::start(state.gateway.clone(), config)
+        .await
+        .map_err(|err| CliError::new(format!("--opcua-listen: {err}")))?;
+    crate::cli::say(format_args!(
+        "candeck: OPC UA server on opc.tcp://{}/ (PKI {})",
+        server.local_addr(),
+        config.pki_dir.display()
+    ));
+    Ok(Some(server))
+}
+
+/// Without the `opcua` feature the settings refuse `opcua_listen`.
+#[cfg(not(feature = "opcua"))]
+async fn start_opcua(
+    _: &AppState,
+    _: Option<&crate::opcua::OpcUaConfig>,
+) -> Result<OpcUa, CliError> {
+    Ok(None)
+}
+
+#[cfg(feature = "opcua")]
+async fn stop_opcua(server: OpcUa) {
+    if let Some(server) = server {
+        server.stop(std::time::Duration::from_secs(2)).await;
+    }
+}
+
+#[cfg(not(feature = "opcua"))]
+async fn stop_opcua(_: OpcUa) {}
 
 /// The stop on shutdown ([`crate::gateway::Gateway::stop_enabled_axes`]),
 /// logged axis by axis.

@@ -72,6 +72,12 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
         settings.ascii_listen,
         Some("127.0.0.1:60000".parse().unwrap())
     );
+    // The OPC UA server is off as shipped, and every key of it parses.
+    assert_eq!(shipped.opcua, None);
+    let opcua = settings.opcua.as_ref().unwrap();
+    assert_eq!(opcua.listen, "127.0.0.1:4840".parse().unwrap());
+    assert_eq!(opcua.pki_dir, PathBuf::from("/var/lib/candeck/opcua-pki"));
+    assert_eq!(opcua.limits.max_sessions, 20);
     // The edge node is off as shipped, and every key of it parses.
     assert_eq!(shipped.sparkplug, None);
     let sparkplug = settings.sparkplug.unwrap();
@@ -99,6 +105,41 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
         "no key in candeck.example.toml: {missing:?}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_opcua_server_follows_rests_rule_for_who_may_reach_it() {
+    let open = serve_args(&["--opcua-listen", "127.0.0.1:0"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap()
+        .opcua
+        .unwrap();
+    assert!(open.logins.anonymous && open.logins.unsecured_endpoint);
+    assert_eq!(open.pki_dir, PathBuf::from("opcua-pki"));
+    let err = serve_args(&["--opcua-listen", "0.0.0.0:4840"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap_err();
+    assert!(err.contains("opcua_listen"), "{err}");
+    let with_tokens = serve_args(&[
+        "--opcua-listen",
+        "0.0.0.0:4840",
+        "--data-dir",
+        "/srv/candeck",
+    ])
+    .unwrap()
+    .settings_with(Some("plc:operator:3f9c2a7be81d4c06a5e9"))
+    .unwrap()
+    .opcua
+    .unwrap();
+    assert!(with_tokens.logins.users && !with_tokens.logins.anonymous);
+    assert!(!with_tokens.logins.unsecured_endpoint);
+    assert_eq!(with_tokens.pki_dir, PathBuf::from("/srv/candeck/opcua-pki"));
+    assert_eq!(
+        serve_args(&[]).unwrap().settings_with(None).unwrap().opcua,
+        None
+    );
 }
 
 #[test]
