@@ -84,6 +84,12 @@ pub struct SparkplugConfig {
     pub primary_host: Option<String>,
     /// The role the commands from MQTT run with (`viewer`: refused).
     pub role: Role,
+    /// `sparkplug_insecure`: commands without broker credentials, or off
+    /// loopback without TLS (logged loudly at start). MQTT carries no
+    /// sender identity, so only the broker can decide who may send a
+    /// command: without a password (and TLS where the network can see
+    /// it) anyone who reaches the broker could move the machine.
+    pub insecure: bool,
     /// How metrics are reported by exception.
     pub policy: Policy,
     /// The store-and-forward queue's size, in messages.
@@ -115,6 +121,7 @@ impl SparkplugConfig {
             edge_node_id: edge_node_id.to_string(),
             primary_host: None,
             role: Role::Viewer,
+            insecure: false,
             policy: Policy::default(),
             queue_messages: DEFAULT_QUEUE_MESSAGES,
             spool_file: None,
@@ -151,7 +158,58 @@ impl SparkplugConfig {
         if self.queue_messages == 0 {
             return Err("sparkplug_queue_messages: at least 1".to_string());
         }
+        self.command_exposure()?;
         Ok(())
+    }
+
+    /// Whether commands are taken at all (`sparkplug_role` above viewer).
+    pub fn commands_enabled(&self) -> bool {
+        self.role > Role::Viewer
+    }
+
+    /// Whether the broker is on this machine (`localhost`, 127.0.0.0/8,
+    /// `::1`): nothing of its traffic crosses a network.
+    pub fn broker_is_loopback(&self) -> bool {
+        let host = self.broker.host.as_str();
+        host.eq_ignore_ascii_case("localhost")
+            || host
+                .parse::<std::net::IpAddr>()
+                .is_ok_and(|ip| ip.is_loopback())
+    }
+
+    /// The rule for commands, as the REST listener's for tokens: the
+    /// broker decides who may publish a command (MQTT carries no sender
+    /// identity), so commands are taken only when the edge node logs in
+    /// to it (`mqtt_username`, `mqtt_password`) and, on anything but
+    /// loopback, over TLS (`mqtts://`); `sparkplug_insecure = true`
+    /// overrides. `Ok(Some(warning))`: allowed by that override, to be
+    /// logged loudly at start.
+    pub fn command_exposure(&self) -> Result<Option<String>, String> {
+        if !self.commands_enabled() {
+            return Ok(None);
+        }
+        let mut missing = Vec::new();
+        if self.username.is_none() {
+            missing.push("broker credentials (mqtt_username, mqtt_password)");
+        }
+        if !self.broker.tls && !self.broker_is_loopback() {
+            missing.push("TLS (an mqtts:// mqtt_url with mqtt_ca_file)");
+        }
+        if missing.is_empty() {
+            return Ok(None);
+        }
+        let missing = missing.join(" and ");
+        let broker = format!("{}:{}", self.broker.host, self.broker.port);
+        if self.insecure {
+            return Ok(Some(format!(
+                "sparkplug_insecure = true: commands (sparkplug_role = \"{}\") are taken from broker {broker} without {missing}: anyone who can publish there may move motors",
+                self.role
+            )));
+        }
+        Err(format!(
+            "refusing Sparkplug commands (sparkplug_role = \"{}\") from broker {broker} without {missing}: MQTT carries no sender identity, so only the broker (its passwords and ACL) can decide who may send one; configure them, set sparkplug_role = \"viewer\", or set sparkplug_insecure = true",
+            self.role
+        ))
     }
 
     /// The MQTT client ID: unique per edge node of a group.
@@ -159,8 +217,10 @@ impl SparkplugConfig {
         format!("candeck-{}-{}", self.group_id, self.edge_node_id)
     }
 
-    /// Who the commands from MQTT are, in the audit log: the MQTT user, else
-    /// the client ID.
+    /// Who the commands from MQTT are, in the audit log: the broker
+    /// account the edge node logs in with (`mqtt:{mqtt_username}`), else
+    /// its client ID. Not the sender: MQTT does not say who published a
+    /// command; the broker's ACL decided that it might.
     pub fn who(&self) -> String {
         format!(
             "mqtt:{}",

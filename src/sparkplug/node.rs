@@ -1218,6 +1218,9 @@ pub(crate) async fn run_command(
         .item(item);
     target.bus = bus.clone();
     let work = async {
+        // `candeck serve` refuses such settings at start; an edge node made
+        // otherwise takes no command either.
+        config.command_exposure().map_err(GatewayError::Forbidden)?;
         let (Some(bus), Some(node)) = (&bus, node) else {
             return Err(GatewayError::InvalidRequest(format!(
                 "{topic}: not a device of this edge node"

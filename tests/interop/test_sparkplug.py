@@ -196,6 +196,10 @@ class Gateway(Process):
                 f'sparkplug_edge_node_id = "{EDGE}"\n'
                 f'sparkplug_primary_host = "{HOST_ID}"\n'
                 'sparkplug_role = "operator"\n'
+                # This broker takes anonymous clients: commands from it only
+                # with the override (test_sparkplug_acl.py runs the broker of
+                # the compose demo, with its passwords and ACL).
+                'sparkplug_insecure = true\n'
                 # The demo drives send their TPDOs on SYNC.
                 + (settings or "sync_period_ms = 50\n")
             )

@@ -576,6 +576,30 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     );
 }
 
+/// Issue 33, point 1: an operator edge node that logs in to no broker
+/// account takes no command (anyone on the broker could send it), audited
+/// as refused under the door `sparkplug`.
+#[tokio::test(start_paused = true)]
+async fn an_edge_node_without_broker_credentials_takes_no_command() {
+    let gateway = demo().await;
+    let mut config = config(crate::gateway::Role::Operator);
+    config.username = None;
+    let held = HeldLeases::default();
+    let results = dcmd(&gateway, &config, &held, 1, vec![enable()]).await;
+    assert_eq!(results.len(), 1);
+    assert_eq!(results[0].as_ref().unwrap_err().code(), "forbidden");
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    assert_ne!(drive.status().await.unwrap().state, "operation_enabled");
+    let rows = crate::door_audit::rows(&gateway).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["channel"], "sparkplug");
+    assert_eq!(rows[0]["outcome"], "forbidden");
+    // The insecure override takes it.
+    config.insecure = true;
+    let results = dcmd(&gateway, &config, &held, 1, vec![enable()]).await;
+    assert!(results[0].is_ok(), "{results:?}");
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_segment_write_reaches_the_led_controller() {
     let gateway = demo().await;
