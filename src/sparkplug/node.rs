@@ -26,7 +26,7 @@ use super::edge::{EdgeSession, Outgoing};
 use super::metric::{MetricValue, Sample};
 use super::motion::HeldLeases;
 use super::spool::Spool;
-use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use super::topic::{HostVerdict, MessageType, PrimaryHost, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
 use crate::gateway::EdgeNodeStats;
 use crate::gateway::TpdoFrame;
@@ -240,8 +240,8 @@ struct Runner {
     /// Whether the births of the current connection are out (and data is
     /// published rather than queued).
     live: bool,
-    /// The primary host's last word (true without one).
-    host_online: bool,
+    /// The primary host's STATE, as the edge node follows it.
+    host: PrimaryHost,
     /// The state each bus was last reported in.
     bus_states: BTreeMap<String, String>,
     started: Instant,
@@ -272,7 +272,7 @@ impl Runner {
         );
         let stats = gateway.edge_node_stats().clone();
         Self {
-            host_online: config.primary_host.is_none(),
+            host: PrimaryHost::default(),
             gateway,
             config,
             session,
@@ -438,8 +438,9 @@ impl Runner {
         self.held
             .lapse_all(&self.gateway, "the broker connection is gone");
         // The primary host's state is learnt anew on the next connection
-        // (its retained STATE, or its next message).
-        self.host_online = self.config.primary_host.is_none();
+        // (its retained STATE, or its next message), against the newest
+        // timestamp seen.
+        self.host.connection_lost();
         self.stats
             .connected
             .store(false, std::sync::atomic::Ordering::Relaxed);
@@ -483,50 +484,71 @@ impl Runner {
                         let _ = conn.client.try_subscribe(topic, QoS::AtLeastOnce);
                     }
                 }
-                if self.host_online {
+                if self.host_online() {
                     self.go_live(connection);
                 }
             }
             Event::Incoming(Packet::Publish(publish)) => {
-                self.on_publish(connection, &publish.topic, &publish.payload);
+                if self.on_publish(connection, &publish.topic, &publish.payload)
+                    == Some(HostVerdict::WentOffline)
+                    && let Some(conn) = connection.as_mut()
+                {
+                    // Sparkplug 3.0: NDEATH, disconnect, and start over
+                    // (the next connection waits for the host's STATE).
+                    self.end_session(conn, "the primary host went offline")
+                        .await;
+                    *connection = None;
+                }
             }
             _ => {}
         }
         Ok(())
     }
 
-    fn on_publish(&mut self, connection: &mut Option<Connection>, topic: &str, payload: &[u8]) {
+    /// Whether data may be published: no primary host, or it is online.
+    fn host_online(&self) -> bool {
+        self.config.primary_host.is_none() || self.host.online()
+    }
+
+    /// A message from the broker: the primary host's STATE (what it meant
+    /// is returned), or a command.
+    fn on_publish(
+        &mut self,
+        connection: &mut Option<Connection>,
+        topic: &str,
+        payload: &[u8],
+    ) -> Option<HostVerdict> {
         if let Some(host) = &self.config.primary_host
             && topic == state_topic(host)
         {
             let Some(state) = parse_host_state(payload) else {
                 tracing::warn!("sparkplug: {topic}: not a STATE payload");
-                return;
+                return None;
             };
-            tracing::info!(
-                "sparkplug: primary host {host} is {}",
-                if state.online { "online" } else { "offline" }
-            );
-            self.host_online = state.online;
-            if state.online {
-                // Sparkplug 3.0 §5.3: (re)birth when the host comes (back).
-                self.go_live(connection);
-            } else {
-                self.live = false;
-                self.held
-                    .lapse_all(&self.gateway, "the primary host went offline");
-                self.stats
-                    .publishing
-                    .store(false, std::sync::atomic::Ordering::Relaxed);
+            let verdict = self.host.on_state(state);
+            match verdict {
+                HostVerdict::Stale => tracing::info!(
+                    "sparkplug: primary host {host}: a STATE older than the newest (timestamp {:?}) ignored",
+                    state.timestamp
+                ),
+                HostVerdict::CameOnline => {
+                    tracing::info!("sparkplug: primary host {host} is online");
+                    // Sparkplug 3.0: (re)birth when the host comes (back).
+                    self.go_live(connection);
+                }
+                HostVerdict::WentOffline => {
+                    tracing::info!("sparkplug: primary host {host} is offline");
+                }
+                HostVerdict::StillOnline | HostVerdict::StillOffline => {}
             }
-            return;
+            return Some(verdict);
         }
         let Some(topic) = Topic::parse(topic) else {
-            return;
+            return None;
         };
         let Ok(payload) = super::proto::Payload::decode(payload) else {
             tracing::warn!("sparkplug: {topic}: payload is no Sparkplug B payload");
-            return;
+            return None;
         };
         let device = topic.kind == MessageType::DCmd;
         let mut commands = Vec::new();
@@ -534,7 +556,7 @@ impl Runner {
             EdgeNodeStats::add(&self.stats.commands, 1);
             if command == Command::Rebirth {
                 tracing::info!("sparkplug: rebirth asked");
-                if self.host_online {
+                if self.host_online() {
                     self.go_live(connection);
                 }
                 continue;
@@ -542,7 +564,7 @@ impl Runner {
             commands.push(command);
         }
         if commands.is_empty() {
-            return;
+            return None;
         }
         // The commands of one message run in order (a move after the state
         // change that enables its axis), in a task of their own.
@@ -558,6 +580,7 @@ impl Runner {
                 }
             }
         });
+        None
     }
 
     /// The births (NBIRTH, a DBIRTH per identified node online), then the
@@ -1025,7 +1048,14 @@ impl Runner {
     /// The NDEATH of a clean stop (the will is not sent on a clean
     /// DISCONNECT), then DISCONNECT, the client's queue flushed.
     async fn clean_stop(&mut self, connection: &mut Connection) {
-        self.held.lapse_all(&self.gateway, "the edge node stops");
+        self.end_session(connection, "the edge node stops").await;
+    }
+
+    /// Ends the session: every lease granted over MQTT lapses, the NDEATH
+    /// is published (a clean DISCONNECT sends no will), then DISCONNECT,
+    /// the client's queue flushed (2 s at most).
+    async fn end_session(&mut self, connection: &mut Connection, why: &str) {
+        self.held.lapse_all(&self.gateway, why);
         if connection.connected {
             let death = self.session.death(unix_ms());
             let _ = connection.client.try_publish(

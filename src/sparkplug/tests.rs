@@ -7,7 +7,9 @@ use super::metric::{MetricValue, Sample};
 use super::proto::payload::{Metric, metric};
 use super::proto::{DataType, Payload};
 use super::spool::{Spool, read_records};
-use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use super::topic::{
+    HostState, HostVerdict, MessageType, PrimaryHost, Topic, parse_host_state, state_topic,
+};
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::od::Value;
 use crate::gateway::SegmentUpdate;
@@ -818,4 +820,38 @@ fn a_device_s_alarm_metrics_count_its_alarms_and_name_the_highest_severity() {
         value(&some, "Alarms/Highest Severity"),
         MetricValue::String("critical".to_string())
     );
+}
+
+/// Issue 33, point 2: the newest STATE timestamp wins. A stale or replayed
+/// offline changes nothing, a valid one ends the session, a duplicate
+/// online brings no rebirth, and a retained old offline cannot silence the
+/// next connection once the host is back.
+#[test]
+fn the_newest_host_state_wins_and_a_duplicate_online_is_nothing() {
+    let state = |online, timestamp| HostState {
+        online,
+        timestamp: Some(timestamp),
+    };
+    let mut host = PrimaryHost::default();
+    assert!(!host.online());
+    assert_eq!(host.on_state(state(true, 1000)), HostVerdict::CameOnline);
+    assert!(host.online());
+    assert_eq!(host.on_state(state(true, 1000)), HostVerdict::StillOnline);
+    assert_eq!(host.on_state(state(true, 1500)), HostVerdict::StillOnline);
+    // A replayed offline, or the late will of the host's older session.
+    assert_eq!(host.on_state(state(false, 1)), HostVerdict::Stale);
+    assert_eq!(host.on_state(state(false, 1499)), HostVerdict::Stale);
+    assert!(host.online());
+    // Its will carries its online's timestamp: valid.
+    assert_eq!(host.on_state(state(false, 1500)), HostVerdict::WentOffline);
+    assert!(!host.online());
+    // The next connection: the retained offline again, then the host back.
+    host.connection_lost();
+    assert_eq!(host.on_state(state(false, 1500)), HostVerdict::StillOffline);
+    assert_eq!(host.on_state(state(true, 900)), HostVerdict::Stale);
+    assert_eq!(host.on_state(state(true, 2000)), HostVerdict::CameOnline);
+    // The first STATE ever is taken as it is.
+    let mut fresh = PrimaryHost::default();
+    assert_eq!(fresh.on_state(state(false, 7)), HostVerdict::StillOffline);
+    assert_eq!(fresh.on_state(state(true, 7)), HostVerdict::CameOnline);
 }

@@ -101,7 +101,10 @@ class Host:
         self.aliases = {}
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"host-{HOST_ID}")
         state = f"spBv1.0/STATE/{HOST_ID}"
-        self.client.will_set(state, json.dumps({"online": False, "timestamp": 0}), qos=1, retain=True)
+        # Sparkplug 3.0: the will's timestamp is the online STATE's (an
+        # offline older than the last online is stale, and ignored).
+        self.born = int(time.time() * 1000)
+        self.client.will_set(state, json.dumps({"online": False, "timestamp": self.born}), qos=1, retain=True)
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
         self.client.reconnect_delay_set(min_delay=1, max_delay=1)
@@ -112,7 +115,7 @@ class Host:
         client.subscribe(f"spBv1.0/{GROUP}/#", qos=0)
         client.publish(
             f"spBv1.0/STATE/{HOST_ID}",
-            json.dumps({"online": True, "timestamp": int(time.time() * 1000)}),
+            json.dumps({"online": True, "timestamp": self.born}),
             qos=1,
             retain=True,
         )
