@@ -543,9 +543,7 @@ impl Runner {
             }
             return Some(verdict);
         }
-        let Some(topic) = Topic::parse(topic) else {
-            return None;
-        };
+        let topic = Topic::parse(topic)?;
         let Ok(payload) = super::proto::Payload::decode(payload) else {
             tracing::warn!("sparkplug: {topic}: payload is no Sparkplug B payload");
             return None;
