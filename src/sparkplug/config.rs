@@ -11,8 +11,23 @@ use crate::gateway::Role;
 /// The default size of the store-and-forward queue, in messages.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 100_000;
 
+/// The default `sparkplug_max_command_bytes`: a command is a few metrics
+/// (a move, its lease), far below this.
+pub const DEFAULT_MAX_COMMAND_BYTES: usize = 64 * 1024;
+
+/// The default `sparkplug_max_command_metrics`.
+pub const DEFAULT_MAX_COMMAND_METRICS: usize = 64;
+
 /// The default `sparkplug_publish_tick_ms`.
 pub const DEFAULT_PUBLISH_TICK: Duration = Duration::from_millis(10);
+
+/// The largest MQTT packet there is (3.1.1: a remaining length of at most
+/// 268,435,455 bytes, and its fixed header): the edge node reads any packet
+/// the broker delivers rather than ending its session over one (rumqttc
+/// drops the connection on a packet over its limit), and refuses a command
+/// over `sparkplug_max_command_bytes` itself. The broker's own limit
+/// (Mosquitto's `message_size_limit`) bounds what reaches it.
+pub const MAX_PACKET: usize = 268_435_455 + 5;
 
 /// A broker address: `mqtt://host[:port]` (1883) or `mqtts://host[:port]`
 /// (8883, TLS).
@@ -90,6 +105,13 @@ pub struct SparkplugConfig {
     /// command: without a password (and TLS where the network can see
     /// it) anyone who reaches the broker could move the machine.
     pub insecure: bool,
+    /// The largest NCMD/DCMD payload taken, in bytes
+    /// (`sparkplug_max_command_bytes`): a larger one is refused whole,
+    /// audited, and the session stays up.
+    pub max_command_bytes: usize,
+    /// The most metrics of one NCMD/DCMD (`sparkplug_max_command_metrics`):
+    /// a message with more is refused whole, audited once.
+    pub max_command_metrics: usize,
     /// How metrics are reported by exception.
     pub policy: Policy,
     /// The store-and-forward queue's size, in messages.
@@ -122,6 +144,8 @@ impl SparkplugConfig {
             primary_host: None,
             role: Role::Viewer,
             insecure: false,
+            max_command_bytes: DEFAULT_MAX_COMMAND_BYTES,
+            max_command_metrics: DEFAULT_MAX_COMMAND_METRICS,
             policy: Policy::default(),
             queue_messages: DEFAULT_QUEUE_MESSAGES,
             spool_file: None,
@@ -157,6 +181,12 @@ impl SparkplugConfig {
         }
         if self.queue_messages == 0 {
             return Err("sparkplug_queue_messages: at least 1".to_string());
+        }
+        if !(64..=MAX_PACKET).contains(&self.max_command_bytes) {
+            return Err(format!("sparkplug_max_command_bytes: 64 to {MAX_PACKET}"));
+        }
+        if !(1..=10_000).contains(&self.max_command_metrics) {
+            return Err("sparkplug_max_command_metrics: 1 to 10000".to_string());
         }
         self.command_exposure()?;
         Ok(())

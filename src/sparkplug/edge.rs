@@ -12,9 +12,9 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-use super::metric::{MetricValue, Sample};
-use super::proto::Payload;
-use super::proto::payload::Metric;
+use super::metric::{MetricValue, READ_ONLY, Sample};
+use super::proto::payload::{Metric, PropertySet, PropertyValue, property_value};
+use super::proto::{DataType, Payload};
 use super::topic::{MessageType, Topic};
 
 /// The `bdSeq` metric of NBIRTH and NDEATH (§6.4.18).
@@ -115,6 +115,8 @@ impl Tracked {
 #[derive(Debug, Clone, Default)]
 struct Table {
     metrics: HashMap<String, Tracked>,
+    /// The names by alias (a command may carry the alias alone).
+    names: HashMap<u64, String>,
 }
 
 impl Table {
@@ -219,7 +221,7 @@ impl EdgeSession {
         self.seq = 0;
         let mut all = vec![
             Sample::new(BD_SEQ, MetricValue::UInt64(self.bd_seq.into()), now),
-            Sample::new(REBIRTH, MetricValue::Boolean(false), now),
+            Sample::new(REBIRTH, MetricValue::Boolean(false), now).writable(),
         ];
         all.extend(metrics);
         let metrics = self.register(None, all);
@@ -261,6 +263,34 @@ impl EdgeSession {
         self.devices
             .get(device)
             .is_some_and(|table| table.metrics.contains_key(name))
+    }
+
+    /// Completes a command's metric as its birth named it (Sparkplug 3.0:
+    /// a command carries the alias alone when aliases are in use, and
+    /// SHOULD NOT carry the datatype): the name of its alias, and the
+    /// datatype of its birth. A metric its birth did not name is left as
+    /// it came.
+    pub fn complete_command(&self, device: Option<&str>, metric: &mut Metric) {
+        let table = match device {
+            Some(device) => match self.devices.get(device) {
+                Some(table) => table,
+                None => return,
+            },
+            None => &self.node,
+        };
+        if metric.name.is_none()
+            && let Some(name) = metric.alias.and_then(|alias| table.names.get(&alias))
+        {
+            metric.name = Some(name.clone());
+        }
+        if metric.datatype.is_none()
+            && let Some(tracked) = metric
+                .name
+                .as_ref()
+                .and_then(|name| table.metrics.get(name))
+        {
+            metric.datatype = Some(tracked.sent.datatype() as u32);
+        }
     }
 
     /// The devices born in this session.
@@ -418,12 +448,16 @@ impl EdgeSession {
             };
             let mut metric = Metric {
                 name: Some(sample.name.clone()),
-                alias: Some(alias),
+                // Sparkplug 3.0: no alias for the rebirth request, so that
+                // any host can send it knowing no alias.
+                alias: (device.is_some() || sample.name != REBIRTH).then_some(alias),
                 timestamp: Some(sample.timestamp),
+                properties: Some(read_only(!sample.writable)),
                 ..Metric::default()
             };
             sample.value.fill(&mut metric);
             metrics.push(metric);
+            table.names.insert(alias, sample.name.clone());
             table.metrics.insert(
                 sample.name.clone(),
                 Tracked {
@@ -445,6 +479,18 @@ impl EdgeSession {
     }
 }
 
+/// The birth's property of a metric: whether a host may write it.
+fn read_only(read_only: bool) -> PropertySet {
+    PropertySet {
+        keys: vec![READ_ONLY.to_string()],
+        values: vec![PropertyValue {
+            r#type: Some(DataType::Boolean as u32),
+            is_null: None,
+            value: Some(property_value::Value::BooleanValue(read_only)),
+        }],
+    }
+}
+
 /// A change reported: remembered as sent at `now_ms`, as its metric.
 fn report(tracked: &mut Tracked, sample: Sample, now_ms: u64, names: bool) -> Metric {
     let mut metric = Metric {
@@ -454,6 +500,9 @@ fn report(tracked: &mut Tracked, sample: Sample, now_ms: u64, names: bool) -> Me
         ..Metric::default()
     };
     sample.value.fill(&mut metric);
+    // Sparkplug 3.0: the datatype SHOULD NOT be repeated in NDATA and
+    // DDATA (the birth said it).
+    metric.datatype = None;
     tracked.sent = sample.value;
     tracked.sent_at = Some(now_ms);
     tracked.pending = None;

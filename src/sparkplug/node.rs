@@ -259,6 +259,8 @@ struct Runner {
     held: Arc<HeldLeases>,
     /// The TLS configuration of `mqtts://`, read once at the start.
     tls: Option<Arc<rustls::ClientConfig>>,
+    /// The log lines of refused commands, sampled.
+    refusals: Arc<Refusals>,
 }
 
 impl Runner {
@@ -289,6 +291,7 @@ impl Runner {
             spool_dropped: 0,
             held: Arc::new(HeldLeases::default()),
             tls: None,
+            refusals: Arc::new(Refusals::default()),
         }
     }
 
@@ -411,7 +414,11 @@ impl Runner {
         options.set_keep_alive(config.keep_alive);
         // Sparkplug 3.0 §7.1: a clean session for edge nodes.
         options.set_clean_session(true);
-        options.set_max_packet_size(16 * 1024 * 1024, 16 * 1024 * 1024);
+        // Any packet the broker delivers is read (rumqttc ends the
+        // connection over one beyond its limit: a 20 MB DCMD from anyone
+        // would end the session); a command over max_command_bytes is
+        // refused after it is read.
+        options.set_max_packet_size(super::config::MAX_PACKET, 16 * 1024 * 1024);
         if let Some(user) = &config.username {
             options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
         }
@@ -544,10 +551,41 @@ impl Runner {
             return Some(verdict);
         }
         let topic = Topic::parse(topic)?;
-        let Ok(payload) = super::proto::Payload::decode(payload) else {
-            tracing::warn!("sparkplug: {topic}: payload is no Sparkplug B payload");
+        if !matches!(topic.kind, MessageType::NCmd | MessageType::DCmd) {
+            return None;
+        }
+        if payload.len() > self.config.max_command_bytes {
+            self.refuse(
+                topic,
+                format!(
+                    "{} bytes: over sparkplug_max_command_bytes ({})",
+                    payload.len(),
+                    self.config.max_command_bytes
+                ),
+            );
+            return None;
+        }
+        let Ok(mut payload) = super::proto::Payload::decode(payload) else {
+            self.refuse(topic, "not a Sparkplug B payload".to_string());
             return None;
         };
+        if payload.metrics.len() > self.config.max_command_metrics {
+            self.refuse(
+                topic,
+                format!(
+                    "{} metrics: over sparkplug_max_command_metrics ({})",
+                    payload.metrics.len(),
+                    self.config.max_command_metrics
+                ),
+            );
+            return None;
+        }
+        // Alias-only metrics without a datatype, as the spec wants them:
+        // named and typed by their birth.
+        for metric in &mut payload.metrics {
+            self.session
+                .complete_command(topic.device.as_deref(), metric);
+        }
         let device = topic.kind == MessageType::DCmd;
         let mut commands = Vec::new();
         for command in command::parse(&payload, device) {
@@ -570,15 +608,40 @@ impl Runner {
         let config = self.config.clone();
         let stats = self.stats.clone();
         let held = self.held.clone();
+        let refusals = self.refusals.clone();
         tokio::spawn(async move {
             for command in commands {
                 if let Err(err) = run_command(&gateway, &config, &held, &topic, &command).await {
                     EdgeNodeStats::add(&stats.commands_failed, 1);
-                    tracing::warn!("sparkplug: {topic}: {}: {err}", command.operation());
+                    refusals.warn(&format!("{topic}: {}: {err}", command.operation()));
                 }
             }
         });
         None
+    }
+
+    /// A command message refused whole (too large, too many metrics, not a
+    /// payload): counted, its one audit row written, sampled in the log;
+    /// nothing of it runs, and the session is untouched.
+    fn refuse(&mut self, topic: Topic, why: String) {
+        EdgeNodeStats::add(&self.stats.commands_failed, 1);
+        self.refusals.warn(&format!("{topic}: refused: {why}"));
+        let gateway = self.gateway.clone();
+        let config = self.config.clone();
+        tokio::spawn(async move {
+            let caller = command_caller(&config, &topic, Some(why.clone()));
+            let (bus, node) = match topic.device.as_deref().and_then(parse_device) {
+                Some((bus, node)) => (Some(bus.to_string()), Some(node)),
+                None => (None, None),
+            };
+            let mut target = AuditTarget::new("command").node(node);
+            target.bus = bus;
+            let _ = gateway
+                .audited_by_door(&caller, target, None, async {
+                    Err::<(), _>(GatewayError::InvalidRequest(why))
+                })
+                .await;
+        });
     }
 
     /// The births (NBIRTH, a DBIRTH per identified node online), then the
@@ -778,9 +841,10 @@ impl Runner {
             }
             metrics.extend(values);
         }
+        metrics.extend(command_samples(info, now));
         let device = device_id(bus, info.id.get());
         self.born_at.insert(device.clone(), Instant::now());
-        self.session.device_birth(&device, metrics, now)
+        self.session.device_birth(&device, one_each(metrics), now)
     }
 
     fn on_node_event(&mut self, connection: &mut Option<Connection>, bus: &str, event: NodeEvent) {
@@ -1108,6 +1172,99 @@ pub(super) fn alarm_samples(summary: &crate::gateway::AlarmSummary, now: u64) ->
     ]
 }
 
+/// The metrics a host may write to a device (docs/sparkplug.md,
+/// "Commands"), born typed and writable, null until read: `NMT`; each
+/// writable object of its EDS as `OD/0xIIII:S`; a drive's `Axis {n}/...`
+/// commands, and its read metrics, typed before their first value comes;
+/// an LED controller's `Segment {n}/...`.
+pub(crate) fn command_samples(info: &NodeInfo, now: u64) -> Vec<Sample> {
+    use super::proto::DataType;
+    let null =
+        |name: String, datatype: DataType| Sample::new(name, MetricValue::Null(datatype), now);
+    let mut metrics = vec![null("NMT".to_string(), DataType::String).writable()];
+    if let Some(entry) = &info.eds_entry {
+        for (object, sub) in entry.eds.dictionary.subs() {
+            if !sub.access.is_writable() {
+                continue;
+            }
+            let Some(zero) = crate::canopen::od::Value::zero(sub.data_type) else {
+                continue;
+            };
+            let datatype = MetricValue::from_canopen(&zero).datatype();
+            metrics.push(
+                null(
+                    format!("OD/0x{:04X}:{}", object.index, sub.sub_index),
+                    datatype,
+                )
+                .writable(),
+            );
+        }
+    }
+    if let Some(kind) = crate::gateway::DriveKind::from_profile(info.profile) {
+        for axis in 1..=crate::gateway::axis_count(kind, info.eds_entry.as_deref()) {
+            let name = |what: &str| format!("Axis {axis}/{what}");
+            metrics.extend([
+                null(name("State"), DataType::String).writable(),
+                null(name("Statusword"), DataType::UInt16),
+                null(name("Position"), DataType::Int32),
+                null(name("Velocity"), DataType::Int32),
+                null(name("Fault"), DataType::Boolean),
+                null(name("Halt"), DataType::Boolean).writable(),
+                null(name("Fault Reset"), DataType::Boolean).writable(),
+                null(name("Move"), DataType::String).writable(),
+                null(name("Lease"), DataType::Boolean).writable(),
+                null(name("Lease Id"), DataType::String).writable(),
+            ]);
+        }
+    } else if info.profile == crate::gateway::Profile::Uioled {
+        for segment in 1..=crate::profiles::uioled::SEGMENTS {
+            let name = |what: &str| format!("Segment {segment}/{what}");
+            metrics.push(null(name("Effect"), DataType::String).writable());
+            for color in 1..=3 {
+                metrics.push(null(name(&format!("Color {color}")), DataType::String).writable());
+            }
+            for field in [
+                "Led Count",
+                "Dimmer",
+                "Value",
+                "Min Value",
+                "Max Value",
+                "Speed",
+                "Smooth",
+            ] {
+                metrics.push(null(name(field), DataType::Int32).writable());
+            }
+        }
+    }
+    metrics
+}
+
+/// A birth's metrics, one of each name: a value read stands for the null
+/// that typed it beforehand, and a command metric stays writable.
+fn one_each(metrics: Vec<Sample>) -> Vec<Sample> {
+    let mut at: HashMap<String, usize> = HashMap::with_capacity(metrics.len());
+    let mut out: Vec<Sample> = Vec::with_capacity(metrics.len());
+    for sample in metrics {
+        match at.get(&sample.name) {
+            Some(&i) => {
+                let kept = &mut out[i];
+                let writable = kept.writable || sample.writable;
+                if !matches!(sample.value, MetricValue::Null(_))
+                    || matches!(kept.value, MetricValue::Null(_))
+                {
+                    *kept = sample;
+                }
+                kept.writable = writable;
+            }
+            None => {
+                at.insert(sample.name.clone(), out.len());
+                out.push(sample);
+            }
+        }
+    }
+    out
+}
+
 /// Whether a node gets a DBIRTH: identified and online.
 /// The samples of a device's frames, in order, gathered into as few
 /// messages as keep one change of each metric per message: a second change
@@ -1236,10 +1393,7 @@ pub(crate) async fn run_command(
         Command::Segment { segment, .. } => Some(format!("segment {segment}")),
         _ => None,
     };
-    let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string()).summary(summary(command));
-    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
-        .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
-        .with_detail(detail);
+    let caller = command_caller(config, topic, summary(command));
     let mut target = AuditTarget::new(command.operation())
         .node(node)
         .axis(command.axis())
@@ -1301,6 +1455,61 @@ pub(crate) async fn run_command(
         }
     };
     gateway.audited_by_door(&caller, target, None, work).await
+}
+
+/// Who a command from MQTT runs as: the edge node's own broker account
+/// and role (MQTT names no sender), the broker as its peer, the message
+/// type and topic as the door's words, `summary` (bounded) as its request.
+fn command_caller(config: &SparkplugConfig, topic: &Topic, summary: Option<String>) -> Caller {
+    let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string())
+        .summary(summary.map(|text| bounded(&text)));
+    Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
+        .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
+        .with_detail(detail)
+}
+
+/// The most of a command's words an audit row keeps.
+const SUMMARY_CHARS: usize = 256;
+
+/// `text`, cut to [`SUMMARY_CHARS`] characters with its length said: an
+/// audit row keeps a summary, never a whole payload.
+pub(crate) fn bounded(text: &str) -> String {
+    if text.chars().count() <= SUMMARY_CHARS {
+        return text.to_string();
+    }
+    let head: String = text.chars().take(SUMMARY_CHARS).collect();
+    format!("{head}… ({} bytes)", text.len())
+}
+
+/// Refusals in the log, sampled: the first of each 10 s, then how many
+/// more there were, so that a flood of bad commands is not a flood of
+/// lines (each is counted on /metrics and audited).
+#[derive(Debug, Default)]
+pub(crate) struct Refusals {
+    window: Mutex<(Option<Instant>, u64)>,
+}
+
+impl Refusals {
+    const WINDOW: Duration = Duration::from_secs(10);
+
+    pub(crate) fn warn(&self, line: &str) {
+        let mut window = lock(&self.window);
+        let now = Instant::now();
+        match window.0 {
+            Some(since) if now.duration_since(since) < Self::WINDOW => window.1 += 1,
+            _ => {
+                if window.1 > 0 {
+                    tracing::warn!(
+                        "sparkplug: {} more commands refused or failed in the last {} s",
+                        window.1,
+                        Self::WINDOW.as_secs()
+                    );
+                }
+                *window = (Some(now), 0);
+                tracing::warn!("sparkplug: {line}");
+            }
+        }
+    }
 }
 
 /// The request of a command as the edge node summarises it, where it has

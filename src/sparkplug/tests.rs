@@ -18,6 +18,18 @@ fn session() -> EdgeSession {
     EdgeSession::new("plant", "line1", 0, Policy::default())
 }
 
+/// A data message's value: typed by the birth (Sparkplug 3.0: the data
+/// messages carry no datatype).
+fn data_value(metric: &Metric, datatype: DataType) -> Option<MetricValue> {
+    assert_eq!(
+        metric.datatype, None,
+        "a datatype repeated in data: {metric:?}"
+    );
+    let mut typed = metric.clone();
+    typed.datatype = Some(datatype as u32);
+    MetricValue::from_metric(&typed)
+}
+
 fn sample(name: &str, value: MetricValue) -> Sample {
     Sample::new(name, value, 1_000)
 }
@@ -225,7 +237,10 @@ fn data_carries_aliases_alone_and_only_what_changed() {
     assert_eq!(message.payload.metrics.len(), 1);
     let m = &message.payload.metrics[0];
     assert_eq!((m.name.as_deref(), m.alias), (None, alias_a));
-    assert_eq!(MetricValue::from_metric(m), Some(MetricValue::UInt16(2)));
+    assert_eq!(
+        data_value(m, DataType::UInt16),
+        Some(MetricValue::UInt16(2))
+    );
     // The same value again is no change.
     assert_eq!(
         s.data(
@@ -282,7 +297,7 @@ fn a_deadband_holds_small_moves_back() {
             0,
             false,
         )
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::Int32).unwrap())
     };
     assert_eq!(report(&mut s, 105), None);
     assert_eq!(report(&mut s, 110), None);
@@ -324,7 +339,7 @@ fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
     let due = s.due(1_100, false);
     assert_eq!(due.len(), 1);
     assert_eq!(
-        MetricValue::from_metric(&due[0].payload.metrics[0]),
+        data_value(&due[0].payload.metrics[0], DataType::UInt32),
         Some(MetricValue::UInt32(3))
     );
     assert_eq!(s.next_due(), None);
@@ -392,7 +407,7 @@ fn aliases_are_unique_within_a_session() {
     let d2 = s.device_birth("demo-2", vec![sample("v", MetricValue::UInt8(0))], 0);
     let mut aliases: Vec<u64> = [nbirth, d1, d2]
         .iter()
-        .flat_map(|m| m.payload.metrics.iter().map(|m| m.alias.unwrap()))
+        .flat_map(|m| m.payload.metrics.iter().filter_map(|m| m.alias))
         .collect();
     let count = aliases.len();
     aliases.sort_unstable();
@@ -423,7 +438,7 @@ fn the_spool_is_bounded_counts_its_drops_and_drains_in_order_as_historical() {
     assert!(spool.is_empty());
     let values: Vec<_> = drained
         .iter()
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
         .collect();
     assert_eq!(
         values,
@@ -456,7 +471,7 @@ fn the_spool_file_keeps_the_queue_across_a_restart() {
     let values: Vec<_> = again
         .drain()
         .iter()
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
         .collect();
     assert_eq!(values, [2, 3].map(MetricValue::UInt32).to_vec());
     // Drained: the file is empty too.
@@ -854,4 +869,136 @@ fn the_newest_host_state_wins_and_a_duplicate_online_is_nothing() {
     let mut fresh = PrimaryHost::default();
     assert_eq!(fresh.on_state(state(false, 7)), HostVerdict::StillOffline);
     assert_eq!(fresh.on_state(state(true, 7)), HostVerdict::CameOnline);
+}
+
+fn read_only(metric: &Metric) -> Option<bool> {
+    let properties = metric.properties.as_ref()?;
+    let at = properties.keys.iter().position(|key| key == "readOnly")?;
+    match properties.values.get(at)?.value {
+        Some(super::proto::payload::property_value::Value::BooleanValue(read_only)) => {
+            Some(read_only)
+        }
+        _ => None,
+    }
+}
+
+/// Issue 33, points 3 and 7: every born metric says whether a host may
+/// write it (Ignition's tag property `readOnly`), `Node Control/Rebirth`
+/// (writable) is born without an alias, and the data messages carry no
+/// datatype.
+#[test]
+fn births_say_what_is_writable_and_rebirth_has_no_alias() {
+    let mut s = session();
+    let nbirth = s.birth(vec![sample("n", MetricValue::UInt8(0))], 0);
+    let rebirth = nbirth
+        .payload
+        .metrics
+        .iter()
+        .find(|m| m.name.as_deref() == Some(REBIRTH))
+        .unwrap();
+    assert_eq!(rebirth.alias, None);
+    assert_eq!(rebirth.datatype, Some(DataType::Boolean as u32));
+    assert_eq!(read_only(rebirth), Some(false));
+    for metric in &nbirth.payload.metrics {
+        assert!(read_only(metric).is_some(), "{metric:?}");
+    }
+    let dbirth = s.device_birth(
+        "demo-1",
+        vec![
+            sample("Axis 1/Position", MetricValue::Int32(0)),
+            sample("Axis 1/Move", MetricValue::Null(DataType::String)).writable(),
+        ],
+        0,
+    );
+    let flags: Vec<_> = dbirth.payload.metrics.iter().map(read_only).collect();
+    assert_eq!(flags, [Some(true), Some(false)]);
+    assert!(
+        dbirth
+            .payload
+            .metrics
+            .iter()
+            .all(|m| m.datatype.is_some() && m.alias.is_some())
+    );
+    let data = s
+        .data(
+            Some("demo-1"),
+            vec![sample("Axis 1/Position", MetricValue::Int32(5))],
+            0,
+            false,
+        )
+        .unwrap();
+    assert_eq!(
+        data_value(&data.payload.metrics[0], DataType::Int32),
+        Some(MetricValue::Int32(5))
+    );
+}
+
+/// Issue 33, point 3: a DCMD in the spec's form (the alias alone, no
+/// datatype) is the command its birth named.
+#[test]
+fn an_alias_only_command_without_datatype_is_named_and_typed_by_its_birth() {
+    let mut s = session();
+    let dbirth = s.device_birth(
+        "demo-1",
+        vec![
+            sample("Axis 1/Move", MetricValue::Null(DataType::String)).writable(),
+            sample("Axis 1/Lease", MetricValue::Null(DataType::Boolean)).writable(),
+            sample("OD/0x1017:0", MetricValue::Null(DataType::UInt16)).writable(),
+        ],
+        0,
+    );
+    let alias = |name: &str| {
+        dbirth
+            .payload
+            .metrics
+            .iter()
+            .find(|m| m.name.as_deref() == Some(name))
+            .unwrap()
+            .alias
+    };
+    let bare = |alias: Option<u64>, value: metric::Value| Metric {
+        alias,
+        value: Some(value),
+        ..Metric::default()
+    };
+    let mut payload = Payload {
+        metrics: vec![
+            bare(
+                alias("Axis 1/Move"),
+                metric::Value::StringValue(r#"{"mode":"velocity","velocity":100}"#.into()),
+            ),
+            bare(alias("Axis 1/Lease"), metric::Value::BooleanValue(true)),
+            bare(alias("OD/0x1017:0"), metric::Value::IntValue(1000)),
+            bare(Some(9999), metric::Value::BooleanValue(true)),
+        ],
+        ..Payload::default()
+    };
+    for metric in &mut payload.metrics {
+        s.complete_command(Some("demo-1"), metric);
+    }
+    let commands = command::parse(&payload, true);
+    assert!(
+        matches!(
+            &commands[0],
+            Command::Move {
+                axis: 1,
+                lease: true,
+                ..
+            }
+        ),
+        "{commands:?}"
+    );
+    assert_eq!(
+        commands[1],
+        Command::Write {
+            index: 0x1017,
+            sub: 0,
+            value: MetricValue::UInt16(1000)
+        }
+    );
+    // An alias no birth gave is refused, not guessed.
+    assert!(
+        matches!(&commands[2], Command::Unsupported(_)),
+        "{commands:?}"
+    );
 }
