@@ -137,6 +137,9 @@ pub struct EdgeSession {
     policy: Policy,
     /// The `bdSeq` of the current (or next) MQTT connection.
     bd_seq: u8,
+    /// Whether the broker accepted the CONNECT that carried `bd_seq`: only
+    /// then does the next one carry a new number.
+    accepted: bool,
     /// The `seq` of the next message.
     seq: u8,
     next_alias: u64,
@@ -156,6 +159,7 @@ impl EdgeSession {
             edge_node: edge_node.to_string(),
             policy,
             bd_seq,
+            accepted: true,
             seq: 0,
             next_alias: 1,
             node: Table::default(),
@@ -181,6 +185,24 @@ impl EdgeSession {
     pub fn next_connection(&mut self) -> u8 {
         self.bd_seq = self.bd_seq.wrapping_add(1);
         self.bd_seq
+    }
+
+    /// The `bdSeq` of a CONNECT about to be sent: one more than the last
+    /// one the broker accepted; a CONNECT refused or lost before its
+    /// CONNACK leaves the number to the next attempt (Sparkplug 3.0: the
+    /// number goes up by one per session the broker took).
+    pub fn connect_attempt(&mut self) -> u8 {
+        if self.accepted {
+            self.accepted = false;
+            self.next_connection()
+        } else {
+            self.bd_seq
+        }
+    }
+
+    /// The broker accepted the CONNECT (its CONNACK came).
+    pub fn connection_accepted(&mut self) {
+        self.accepted = true;
     }
 
     /// The topic of a message of the edge node (`device` `None`) or of a
@@ -521,4 +543,51 @@ fn flush(table: &mut Table, now_ms: u64, names: bool) -> Vec<Metric> {
     }
     metrics.sort_by_key(|metric| metric.alias);
     metrics
+}
+
+/// Rebirth requests coalesced, sans I/O: at most one birth run per
+/// `min_interval_ms`; the requests that come sooner make one more run when
+/// the interval is up (so that 2,000 forged NCMDs are one or two runs, not
+/// 2,000).
+#[derive(Debug, Clone)]
+pub struct RebirthGate {
+    min_interval_ms: u64,
+    last_birth: Option<u64>,
+    pending: bool,
+}
+
+impl RebirthGate {
+    pub fn new(min_interval_ms: u64) -> Self {
+        Self {
+            min_interval_ms,
+            last_birth: None,
+            pending: false,
+        }
+    }
+
+    /// A rebirth asked at `now_ms`: true when the births go now, false when
+    /// one run is due later ([`RebirthGate::due`]).
+    pub fn request(&mut self, now_ms: u64) -> bool {
+        if self
+            .last_birth
+            .is_none_or(|at| now_ms >= at + self.min_interval_ms)
+        {
+            return true;
+        }
+        self.pending = true;
+        false
+    }
+
+    /// A birth run went out at `now_ms` (whatever caused it): it answers
+    /// every request before it.
+    pub fn born(&mut self, now_ms: u64) {
+        self.last_birth = Some(now_ms);
+        self.pending = false;
+    }
+
+    /// When the coalesced run is due, if one is.
+    pub fn due(&self) -> Option<u64> {
+        self.pending
+            .then(|| self.last_birth.unwrap_or(0) + self.min_interval_ms)
+    }
 }

@@ -22,7 +22,7 @@ use tokio::time::Instant;
 
 use super::command::{self, Command, device_id, parse_device, segment_request};
 use super::config::SparkplugConfig;
-use super::edge::{EdgeSession, Outgoing};
+use super::edge::{EdgeSession, Outgoing, RebirthGate};
 use super::metric::{MetricValue, Sample};
 use super::motion::HeldLeases;
 use super::spool::Spool;
@@ -40,6 +40,9 @@ use crate::gateway::{Identification, NodeEvent, NodeInfo};
 /// How long to wait before connecting again after a connection failed or
 /// was lost.
 const RECONNECT_AFTER: Duration = Duration::from_secs(1);
+/// The shortest time between two birth runs a host asked for (NCMD
+/// `Node Control/Rebirth`): requests within it are one more run after it.
+const REBIRTH_INTERVAL_MS: u64 = 1000;
 /// How many requests the MQTT client queues for its event loop.
 const CLIENT_QUEUE: usize = 10_000;
 
@@ -261,6 +264,8 @@ struct Runner {
     tls: Option<Arc<rustls::ClientConfig>>,
     /// The log lines of refused commands, sampled.
     refusals: Arc<Refusals>,
+    /// Rebirth requests, coalesced.
+    rebirths: RebirthGate,
 }
 
 impl Runner {
@@ -268,7 +273,7 @@ impl Runner {
         let session = EdgeSession::new(
             &config.group_id,
             &config.edge_node_id,
-            // The first connection's is 0: next_connection() before each.
+            // The first connection's is 0: one more per accepted CONNECT.
             u8::MAX,
             config.policy.clone(),
         );
@@ -292,6 +297,7 @@ impl Runner {
             held: Arc::new(HeldLeases::default()),
             tls: None,
             refusals: Arc::new(Refusals::default()),
+            rebirths: RebirthGate::new(REBIRTH_INTERVAL_MS),
         }
     }
 
@@ -347,6 +353,10 @@ impl Runner {
                 .next_due()
                 .map(|at| self.started + Duration::from_millis(at));
             let dirty = self.dirty.clone();
+            let rebirth_at = self
+                .rebirths
+                .due()
+                .map(|at| self.started + Duration::from_millis(at));
             tokio::select! {
                 biased;
                 stopped = &mut stop => {
@@ -395,6 +405,13 @@ impl Runner {
                     self.check_buses(&mut connection);
                 }
                 () = tokio::time::sleep_until(reconnect_at), if connection.is_none() => {}
+                () = sleep_until(rebirth_at) => {
+                    // The rebirths asked within the interval: one run.
+                    self.rebirths.born(self.now_ms());
+                    if self.host_online() {
+                        self.go_live(&mut connection);
+                    }
+                }
             }
         }
         for watcher in self.watchers.drain(..) {
@@ -404,7 +421,7 @@ impl Runner {
 
     /// A new MQTT connection, its will the NDEATH of the next `bdSeq`.
     fn connect(&mut self) -> Connection {
-        let bd_seq = self.session.next_connection();
+        let bd_seq = self.session.connect_attempt();
         let config = &self.config;
         let mut options = MqttOptions::new(
             config.client_id(),
@@ -466,6 +483,7 @@ impl Runner {
             Event::Incoming(Packet::ConnAck(_)) => {
                 if let Some(conn) = connection.as_mut() {
                     conn.connected = true;
+                    self.session.connection_accepted();
                     self.stats
                         .connected
                         .store(true, std::sync::atomic::Ordering::Relaxed);
@@ -591,8 +609,8 @@ impl Runner {
         for command in command::parse(&payload, device) {
             EdgeNodeStats::add(&self.stats.commands, 1);
             if command == Command::Rebirth {
-                tracing::info!("sparkplug: rebirth asked");
-                if self.host_online() {
+                tracing::debug!("sparkplug: rebirth asked");
+                if self.host_online() && self.rebirths.request(self.now_ms()) {
                     self.go_live(connection);
                 }
                 continue;
@@ -656,6 +674,7 @@ impl Runner {
         // session's devices.
         self.on_values(connection);
         let now = unix_ms();
+        self.rebirths.born(self.now_ms());
         let metrics = self.node_metrics(now);
         let birth = self.session.birth(metrics, now);
         self.live = true;

@@ -2,7 +2,7 @@ use prost::Message;
 
 use super::command::{self, Command, parse_device};
 use super::config::BrokerUrl;
-use super::edge::{EdgeSession, MetricRule, Policy, REBIRTH, Reporting};
+use super::edge::{EdgeSession, MetricRule, Policy, REBIRTH, RebirthGate, Reporting};
 use super::metric::{MetricValue, Sample};
 use super::proto::payload::{Metric, metric};
 use super::proto::{DataType, Payload};
@@ -695,6 +695,11 @@ fn device_ids_are_bus_dash_node() {
     assert_eq!(parse_device("demo-0"), None);
     assert_eq!(parse_device("demo-128"), None);
     assert_eq!(parse_device("-5"), None);
+    // Issue 33, point 6: only the canonical decimal form (`demo-01` reached
+    // node 1).
+    for other in ["demo-01", "demo-+1", "demo-001", "demo- 1", "demo-1 "] {
+        assert_eq!(parse_device(other), None, "{other}");
+    }
 }
 
 #[test]
@@ -1001,4 +1006,37 @@ fn an_alias_only_command_without_datatype_is_named_and_typed_by_its_birth() {
         matches!(&commands[2], Command::Unsupported(_)),
         "{commands:?}"
     );
+}
+
+/// Issue 33, point 7: `bdSeq` goes up by one per CONNECT the broker
+/// accepted, not per attempt (it jumped 0 to 7 across refused ones).
+#[test]
+fn bdseq_goes_up_once_per_accepted_connect() {
+    let mut s = EdgeSession::new("plant", "line1", u8::MAX, Policy::default());
+    assert_eq!(s.connect_attempt(), 0);
+    // Refused, or lost before the CONNACK: the same number again.
+    assert_eq!(s.connect_attempt(), 0);
+    assert_eq!(s.connect_attempt(), 0);
+    s.connection_accepted();
+    assert_eq!(s.bd_seq(), 0);
+    assert_eq!(s.connect_attempt(), 1);
+    s.connection_accepted();
+    assert_eq!(s.connect_attempt(), 2);
+}
+
+/// Issue 33, point 6: rebirth requests are coalesced: one run at once,
+/// those within the interval one more run when it is up.
+#[test]
+fn rebirth_requests_within_the_interval_are_one_more_run() {
+    let mut gate = RebirthGate::new(1000);
+    assert!(gate.request(0));
+    gate.born(0);
+    assert_eq!(gate.due(), None);
+    for at in 1..2000 {
+        assert!(!gate.request(at % 1000));
+    }
+    assert_eq!(gate.due(), Some(1000));
+    gate.born(1000);
+    assert_eq!(gate.due(), None);
+    assert!(gate.request(2000));
 }
