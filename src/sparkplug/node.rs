@@ -690,11 +690,29 @@ impl Runner {
                 }
             }
         }
-        let queued = self.spool.drain();
+        self.send_history(connection);
+    }
+
+    /// The queued data whose births are out (the edge node's, and those of
+    /// the devices born in this session), historical, in order; a device's
+    /// waits for its DBIRTH (after a restart, a node is identified after the
+    /// NBIRTH: its history must not come before the birth that names it).
+    fn send_history(&mut self, connection: &mut Option<Connection>) {
+        if !self.live || self.spool.is_empty() {
+            return;
+        }
+        let session = &self.session;
+        let queued = self.spool.drain_where(|topic| {
+            topic
+                .device
+                .as_deref()
+                .is_none_or(|device| session.is_born(device))
+        });
         EdgeNodeStats::add(&self.stats.historical, queued.len() as u64);
-        self.stats
-            .queued
-            .store(0, std::sync::atomic::Ordering::Relaxed);
+        self.stats.queued.store(
+            self.spool.len() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
         for mut message in queued {
             self.session.sequence(&mut message.payload);
             self.publish(connection, message);
@@ -882,9 +900,15 @@ impl Runner {
             return;
         }
         match event {
-            NodeEvent::Identified { .. } | NodeEvent::Online { .. } if born_device(&info) => {
+            // One DBIRTH per device per birth run: a node born already (by
+            // the births of this session) is not born again for the events
+            // of its identification.
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. }
+                if born_device(&info) && !self.session.is_born(&device) =>
+            {
                 let message = self.device_birth(bus, &info);
                 self.publish(connection, message);
+                self.send_history(connection);
             }
             NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {}
             NodeEvent::Offline { .. } => {
@@ -1072,6 +1096,7 @@ impl Runner {
                 if let Some(info) = served.node(node) {
                     let message = self.device_birth(&bus, &info);
                     self.publish(connection, message);
+                    self.send_history(connection);
                 }
                 continue;
             }

@@ -1040,3 +1040,48 @@ fn rebirth_requests_within_the_interval_are_one_more_run() {
     assert_eq!(gate.due(), None);
     assert!(gate.request(2000));
 }
+
+/// Issue 33, point 5: after a restart the spooled history of a device goes
+/// only once its DBIRTH is out; the rest stays queued, in order, also in
+/// the file.
+#[test]
+fn history_waits_for_the_birth_of_its_device() {
+    let mut s = session();
+    for device in ["demo-1", "demo-2"] {
+        s.device_birth(device, vec![sample("v", MetricValue::UInt32(0))], 0);
+    }
+    let data = |s: &mut EdgeSession, device: &str, v: u32| {
+        s.data(
+            Some(device),
+            vec![sample("v", MetricValue::UInt32(v))],
+            0,
+            true,
+        )
+        .unwrap()
+    };
+    let file = std::env::temp_dir().join(format!("candeck-spool-births-{}", std::process::id()));
+    let _ = std::fs::remove_file(&file);
+    let mut spool = Spool::with_file(10, file.clone()).unwrap();
+    spool.push(data(&mut s, "demo-1", 1));
+    spool.push(data(&mut s, "demo-2", 2));
+    spool.push(data(&mut s, "demo-1", 3));
+    let first = spool.drain_where(|topic| topic.device.as_deref() == Some("demo-1"));
+    let values: Vec<_> = first
+        .iter()
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
+        .collect();
+    assert_eq!(values, [1, 3].map(MetricValue::UInt32).to_vec());
+    assert!(
+        first
+            .iter()
+            .all(|m| m.payload.metrics[0].is_historical == Some(true))
+    );
+    assert_eq!(spool.len(), 1);
+    // What waits is in the file too (a restart meanwhile keeps it).
+    let again = Spool::with_file(10, file.clone()).unwrap();
+    assert_eq!(again.len(), 1);
+    drop(again);
+    let rest = Spool::with_file(10, file.clone()).unwrap().drain();
+    assert_eq!(rest[0].topic.device.as_deref(), Some("demo-2"));
+    let _ = std::fs::remove_file(&file);
+}
