@@ -398,11 +398,13 @@ pub fn parse_object(text: &str) -> Option<(u16, u8)> {
 }
 
 /// A device ID (`{bus}-{node}`, e.g. `demo-1`) as bus and node; the bus
-/// name may hold `-` itself.
+/// name may hold `-` itself. The node is in its canonical decimal form
+/// only, as [`device_id`] writes it: `demo-01` or `demo-+1` is no device
+/// (not node 1).
 pub fn parse_device(device: &str) -> Option<(&str, u8)> {
     let (bus, node) = device.rsplit_once('-')?;
-    let node: u8 = node.parse().ok()?;
-    (!bus.is_empty() && (1..=127).contains(&node)).then_some((bus, node))
+    let id: u8 = node.parse().ok()?;
+    (!bus.is_empty() && (1..=127).contains(&id) && id.to_string() == node).then_some((bus, id))
 }
 
 /// The device ID of a node of a bus.

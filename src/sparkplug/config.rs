@@ -11,8 +11,23 @@ use crate::gateway::Role;
 /// The default size of the store-and-forward queue, in messages.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 100_000;
 
+/// The default `sparkplug_max_command_bytes`: a command is a few metrics
+/// (a move, its lease), far below this.
+pub const DEFAULT_MAX_COMMAND_BYTES: usize = 64 * 1024;
+
+/// The default `sparkplug_max_command_metrics`.
+pub const DEFAULT_MAX_COMMAND_METRICS: usize = 64;
+
 /// The default `sparkplug_publish_tick_ms`.
 pub const DEFAULT_PUBLISH_TICK: Duration = Duration::from_millis(10);
+
+/// The largest MQTT packet there is (3.1.1: a remaining length of at most
+/// 268,435,455 bytes, and its fixed header): the edge node reads any packet
+/// the broker delivers rather than ending its session over one (rumqttc
+/// drops the connection on a packet over its limit), and refuses a command
+/// over `sparkplug_max_command_bytes` itself. The broker's own limit
+/// (Mosquitto's `message_size_limit`) bounds what reaches it.
+pub const MAX_PACKET: usize = 268_435_455 + 5;
 
 /// A broker address: `mqtt://host[:port]` (1883) or `mqtts://host[:port]`
 /// (8883, TLS).
@@ -84,6 +99,19 @@ pub struct SparkplugConfig {
     pub primary_host: Option<String>,
     /// The role the commands from MQTT run with (`viewer`: refused).
     pub role: Role,
+    /// `sparkplug_insecure`: commands without broker credentials, or off
+    /// loopback without TLS (logged loudly at start). MQTT carries no
+    /// sender identity, so only the broker can decide who may send a
+    /// command: without a password (and TLS where the network can see
+    /// it) anyone who reaches the broker could move the machine.
+    pub insecure: bool,
+    /// The largest NCMD/DCMD payload taken, in bytes
+    /// (`sparkplug_max_command_bytes`): a larger one is refused whole,
+    /// audited, and the session stays up.
+    pub max_command_bytes: usize,
+    /// The most metrics of one NCMD/DCMD (`sparkplug_max_command_metrics`):
+    /// a message with more is refused whole, audited once.
+    pub max_command_metrics: usize,
     /// How metrics are reported by exception.
     pub policy: Policy,
     /// The store-and-forward queue's size, in messages.
@@ -115,6 +143,9 @@ impl SparkplugConfig {
             edge_node_id: edge_node_id.to_string(),
             primary_host: None,
             role: Role::Viewer,
+            insecure: false,
+            max_command_bytes: DEFAULT_MAX_COMMAND_BYTES,
+            max_command_metrics: DEFAULT_MAX_COMMAND_METRICS,
             policy: Policy::default(),
             queue_messages: DEFAULT_QUEUE_MESSAGES,
             spool_file: None,
@@ -151,7 +182,64 @@ impl SparkplugConfig {
         if self.queue_messages == 0 {
             return Err("sparkplug_queue_messages: at least 1".to_string());
         }
+        if !(64..=MAX_PACKET).contains(&self.max_command_bytes) {
+            return Err(format!("sparkplug_max_command_bytes: 64 to {MAX_PACKET}"));
+        }
+        if !(1..=10_000).contains(&self.max_command_metrics) {
+            return Err("sparkplug_max_command_metrics: 1 to 10000".to_string());
+        }
+        self.command_exposure()?;
         Ok(())
+    }
+
+    /// Whether commands are taken at all (`sparkplug_role` above viewer).
+    pub fn commands_enabled(&self) -> bool {
+        self.role > Role::Viewer
+    }
+
+    /// Whether the broker is on this machine (`localhost`, 127.0.0.0/8,
+    /// `::1`): nothing of its traffic crosses a network.
+    pub fn broker_is_loopback(&self) -> bool {
+        let host = self.broker.host.as_str();
+        host.eq_ignore_ascii_case("localhost")
+            || host
+                .parse::<std::net::IpAddr>()
+                .is_ok_and(|ip| ip.is_loopback())
+    }
+
+    /// The rule for commands, as the REST listener's for tokens: the
+    /// broker decides who may publish a command (MQTT carries no sender
+    /// identity), so commands are taken only when the edge node logs in
+    /// to it (`mqtt_username`, `mqtt_password`) and, on anything but
+    /// loopback, over TLS (`mqtts://`); `sparkplug_insecure = true`
+    /// overrides. `Ok(Some(warning))`: allowed by that override, to be
+    /// logged loudly at start.
+    pub fn command_exposure(&self) -> Result<Option<String>, String> {
+        if !self.commands_enabled() {
+            return Ok(None);
+        }
+        let mut missing = Vec::new();
+        if self.username.is_none() {
+            missing.push("broker credentials (mqtt_username, mqtt_password)");
+        }
+        if !self.broker.tls && !self.broker_is_loopback() {
+            missing.push("TLS (an mqtts:// mqtt_url with mqtt_ca_file)");
+        }
+        if missing.is_empty() {
+            return Ok(None);
+        }
+        let missing = missing.join(" and ");
+        let broker = format!("{}:{}", self.broker.host, self.broker.port);
+        if self.insecure {
+            return Ok(Some(format!(
+                "sparkplug_insecure = true: commands (sparkplug_role = \"{}\") are taken from broker {broker} without {missing}: anyone who can publish there may move motors",
+                self.role
+            )));
+        }
+        Err(format!(
+            "refusing Sparkplug commands (sparkplug_role = \"{}\") from broker {broker} without {missing}: MQTT carries no sender identity, so only the broker (its passwords and ACL) can decide who may send one; configure them, set sparkplug_role = \"viewer\", or set sparkplug_insecure = true",
+            self.role
+        ))
     }
 
     /// The MQTT client ID: unique per edge node of a group.
@@ -159,8 +247,10 @@ impl SparkplugConfig {
         format!("candeck-{}-{}", self.group_id, self.edge_node_id)
     }
 
-    /// Who the commands from MQTT are, in the audit log: the MQTT user, else
-    /// the client ID.
+    /// Who the commands from MQTT are, in the audit log: the broker
+    /// account the edge node logs in with (`mqtt:{mqtt_username}`), else
+    /// its client ID. Not the sender: MQTT does not say who published a
+    /// command; the broker's ACL decided that it might.
     pub fn who(&self) -> String {
         format!(
             "mqtt:{}",

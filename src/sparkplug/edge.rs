@@ -12,9 +12,9 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-use super::metric::{MetricValue, Sample};
-use super::proto::Payload;
-use super::proto::payload::Metric;
+use super::metric::{MetricValue, READ_ONLY, Sample};
+use super::proto::payload::{Metric, PropertySet, PropertyValue, property_value};
+use super::proto::{DataType, Payload};
 use super::topic::{MessageType, Topic};
 
 /// The `bdSeq` metric of NBIRTH and NDEATH (§6.4.18).
@@ -115,6 +115,8 @@ impl Tracked {
 #[derive(Debug, Clone, Default)]
 struct Table {
     metrics: HashMap<String, Tracked>,
+    /// The names by alias (a command may carry the alias alone).
+    names: HashMap<u64, String>,
 }
 
 impl Table {
@@ -135,6 +137,9 @@ pub struct EdgeSession {
     policy: Policy,
     /// The `bdSeq` of the current (or next) MQTT connection.
     bd_seq: u8,
+    /// Whether the broker accepted the CONNECT that carried `bd_seq`: only
+    /// then does the next one carry a new number.
+    accepted: bool,
     /// The `seq` of the next message.
     seq: u8,
     next_alias: u64,
@@ -154,6 +159,7 @@ impl EdgeSession {
             edge_node: edge_node.to_string(),
             policy,
             bd_seq,
+            accepted: true,
             seq: 0,
             next_alias: 1,
             node: Table::default(),
@@ -179,6 +185,24 @@ impl EdgeSession {
     pub fn next_connection(&mut self) -> u8 {
         self.bd_seq = self.bd_seq.wrapping_add(1);
         self.bd_seq
+    }
+
+    /// The `bdSeq` of a CONNECT about to be sent: one more than the last
+    /// one the broker accepted; a CONNECT refused or lost before its
+    /// CONNACK leaves the number to the next attempt (Sparkplug 3.0: the
+    /// number goes up by one per session the broker took).
+    pub fn connect_attempt(&mut self) -> u8 {
+        if self.accepted {
+            self.accepted = false;
+            self.next_connection()
+        } else {
+            self.bd_seq
+        }
+    }
+
+    /// The broker accepted the CONNECT (its CONNACK came).
+    pub fn connection_accepted(&mut self) {
+        self.accepted = true;
     }
 
     /// The topic of a message of the edge node (`device` `None`) or of a
@@ -219,7 +243,7 @@ impl EdgeSession {
         self.seq = 0;
         let mut all = vec![
             Sample::new(BD_SEQ, MetricValue::UInt64(self.bd_seq.into()), now),
-            Sample::new(REBIRTH, MetricValue::Boolean(false), now),
+            Sample::new(REBIRTH, MetricValue::Boolean(false), now).writable(),
         ];
         all.extend(metrics);
         let metrics = self.register(None, all);
@@ -261,6 +285,34 @@ impl EdgeSession {
         self.devices
             .get(device)
             .is_some_and(|table| table.metrics.contains_key(name))
+    }
+
+    /// Completes a command's metric as its birth named it (Sparkplug 3.0:
+    /// a command carries the alias alone when aliases are in use, and
+    /// SHOULD NOT carry the datatype): the name of its alias, and the
+    /// datatype of its birth. A metric its birth did not name is left as
+    /// it came.
+    pub fn complete_command(&self, device: Option<&str>, metric: &mut Metric) {
+        let table = match device {
+            Some(device) => match self.devices.get(device) {
+                Some(table) => table,
+                None => return,
+            },
+            None => &self.node,
+        };
+        if metric.name.is_none()
+            && let Some(name) = metric.alias.and_then(|alias| table.names.get(&alias))
+        {
+            metric.name = Some(name.clone());
+        }
+        if metric.datatype.is_none()
+            && let Some(tracked) = metric
+                .name
+                .as_ref()
+                .and_then(|name| table.metrics.get(name))
+        {
+            metric.datatype = Some(tracked.sent.datatype() as u32);
+        }
     }
 
     /// The devices born in this session.
@@ -418,12 +470,16 @@ impl EdgeSession {
             };
             let mut metric = Metric {
                 name: Some(sample.name.clone()),
-                alias: Some(alias),
+                // Sparkplug 3.0: no alias for the rebirth request, so that
+                // any host can send it knowing no alias.
+                alias: (device.is_some() || sample.name != REBIRTH).then_some(alias),
                 timestamp: Some(sample.timestamp),
+                properties: Some(read_only(!sample.writable)),
                 ..Metric::default()
             };
             sample.value.fill(&mut metric);
             metrics.push(metric);
+            table.names.insert(alias, sample.name.clone());
             table.metrics.insert(
                 sample.name.clone(),
                 Tracked {
@@ -445,6 +501,18 @@ impl EdgeSession {
     }
 }
 
+/// The birth's property of a metric: whether a host may write it.
+fn read_only(read_only: bool) -> PropertySet {
+    PropertySet {
+        keys: vec![READ_ONLY.to_string()],
+        values: vec![PropertyValue {
+            r#type: Some(DataType::Boolean as u32),
+            is_null: None,
+            value: Some(property_value::Value::BooleanValue(read_only)),
+        }],
+    }
+}
+
 /// A change reported: remembered as sent at `now_ms`, as its metric.
 fn report(tracked: &mut Tracked, sample: Sample, now_ms: u64, names: bool) -> Metric {
     let mut metric = Metric {
@@ -454,6 +522,9 @@ fn report(tracked: &mut Tracked, sample: Sample, now_ms: u64, names: bool) -> Me
         ..Metric::default()
     };
     sample.value.fill(&mut metric);
+    // Sparkplug 3.0: the datatype SHOULD NOT be repeated in NDATA and
+    // DDATA (the birth said it).
+    metric.datatype = None;
     tracked.sent = sample.value;
     tracked.sent_at = Some(now_ms);
     tracked.pending = None;
@@ -472,4 +543,51 @@ fn flush(table: &mut Table, now_ms: u64, names: bool) -> Vec<Metric> {
     }
     metrics.sort_by_key(|metric| metric.alias);
     metrics
+}
+
+/// Rebirth requests coalesced, sans I/O: at most one birth run per
+/// `min_interval_ms`; the requests that come sooner make one more run when
+/// the interval is up (so that 2,000 forged NCMDs are one or two runs, not
+/// 2,000).
+#[derive(Debug, Clone)]
+pub struct RebirthGate {
+    min_interval_ms: u64,
+    last_birth: Option<u64>,
+    pending: bool,
+}
+
+impl RebirthGate {
+    pub fn new(min_interval_ms: u64) -> Self {
+        Self {
+            min_interval_ms,
+            last_birth: None,
+            pending: false,
+        }
+    }
+
+    /// A rebirth asked at `now_ms`: true when the births go now, false when
+    /// one run is due later ([`RebirthGate::due`]).
+    pub fn request(&mut self, now_ms: u64) -> bool {
+        if self
+            .last_birth
+            .is_none_or(|at| now_ms >= at + self.min_interval_ms)
+        {
+            return true;
+        }
+        self.pending = true;
+        false
+    }
+
+    /// A birth run went out at `now_ms` (whatever caused it): it answers
+    /// every request before it.
+    pub fn born(&mut self, now_ms: u64) {
+        self.last_birth = Some(now_ms);
+        self.pending = false;
+    }
+
+    /// When the coalesced run is due, if one is.
+    pub fn due(&self) -> Option<u64> {
+        self.pending
+            .then(|| self.last_birth.unwrap_or(0) + self.min_interval_ms)
+    }
 }

@@ -148,7 +148,8 @@ impl MetricValue {
     }
 
     /// A received metric's value, typed by its `datatype` (a command's
-    /// metric must carry it); `None` for a type candeck does not take.
+    /// metric need not carry it: the edge node gives it the type its birth
+    /// said first); `None` for a type candeck does not take.
     pub fn from_metric(metric: &Metric) -> Option<Self> {
         let datatype = DataType::try_from(i32::try_from(metric.datatype?).ok()?).ok()?;
         if metric.is_null == Some(true) {
@@ -188,7 +189,15 @@ pub struct Sample {
     pub name: String,
     pub value: MetricValue,
     pub timestamp: u64,
+    /// A host may write it (a command metric): its birth says so
+    /// ([`READ_ONLY`] false).
+    pub writable: bool,
 }
+
+/// The metric property a birth gives every metric: whether a host may
+/// write it. Ignition's MQTT Engine takes a metric's properties as the
+/// tag's properties, and `readOnly` is Ignition's tag property for it.
+pub const READ_ONLY: &str = "readOnly";
 
 impl Sample {
     pub fn new(name: impl Into<String>, value: MetricValue, timestamp: u64) -> Self {
@@ -196,6 +205,13 @@ impl Sample {
             name: name.into(),
             value,
             timestamp,
+            writable: false,
         }
+    }
+
+    /// The same, a host may write it (a command metric).
+    pub fn writable(mut self) -> Self {
+        self.writable = true;
+        self
     }
 }

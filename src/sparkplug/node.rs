@@ -22,11 +22,11 @@ use tokio::time::Instant;
 
 use super::command::{self, Command, device_id, parse_device, segment_request};
 use super::config::SparkplugConfig;
-use super::edge::{EdgeSession, Outgoing};
+use super::edge::{EdgeSession, Outgoing, RebirthGate};
 use super::metric::{MetricValue, Sample};
 use super::motion::HeldLeases;
 use super::spool::Spool;
-use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use super::topic::{HostVerdict, MessageType, PrimaryHost, Topic, parse_host_state, state_topic};
 use crate::canopen::NodeId;
 use crate::gateway::EdgeNodeStats;
 use crate::gateway::TpdoFrame;
@@ -40,6 +40,9 @@ use crate::gateway::{Identification, NodeEvent, NodeInfo};
 /// How long to wait before connecting again after a connection failed or
 /// was lost.
 const RECONNECT_AFTER: Duration = Duration::from_secs(1);
+/// The shortest time between two birth runs a host asked for (NCMD
+/// `Node Control/Rebirth`): requests within it are one more run after it.
+const REBIRTH_INTERVAL_MS: u64 = 1000;
 /// How many requests the MQTT client queues for its event loop.
 const CLIENT_QUEUE: usize = 10_000;
 
@@ -240,8 +243,8 @@ struct Runner {
     /// Whether the births of the current connection are out (and data is
     /// published rather than queued).
     live: bool,
-    /// The primary host's last word (true without one).
-    host_online: bool,
+    /// The primary host's STATE, as the edge node follows it.
+    host: PrimaryHost,
     /// The state each bus was last reported in.
     bus_states: BTreeMap<String, String>,
     started: Instant,
@@ -259,6 +262,10 @@ struct Runner {
     held: Arc<HeldLeases>,
     /// The TLS configuration of `mqtts://`, read once at the start.
     tls: Option<Arc<rustls::ClientConfig>>,
+    /// The log lines of refused commands, sampled.
+    refusals: Arc<Refusals>,
+    /// Rebirth requests, coalesced.
+    rebirths: RebirthGate,
 }
 
 impl Runner {
@@ -266,13 +273,13 @@ impl Runner {
         let session = EdgeSession::new(
             &config.group_id,
             &config.edge_node_id,
-            // The first connection's is 0: next_connection() before each.
+            // The first connection's is 0: one more per accepted CONNECT.
             u8::MAX,
             config.policy.clone(),
         );
         let stats = gateway.edge_node_stats().clone();
         Self {
-            host_online: config.primary_host.is_none(),
+            host: PrimaryHost::default(),
             gateway,
             config,
             session,
@@ -289,6 +296,8 @@ impl Runner {
             spool_dropped: 0,
             held: Arc::new(HeldLeases::default()),
             tls: None,
+            refusals: Arc::new(Refusals::default()),
+            rebirths: RebirthGate::new(REBIRTH_INTERVAL_MS),
         }
     }
 
@@ -344,6 +353,10 @@ impl Runner {
                 .next_due()
                 .map(|at| self.started + Duration::from_millis(at));
             let dirty = self.dirty.clone();
+            let rebirth_at = self
+                .rebirths
+                .due()
+                .map(|at| self.started + Duration::from_millis(at));
             tokio::select! {
                 biased;
                 stopped = &mut stop => {
@@ -392,6 +405,13 @@ impl Runner {
                     self.check_buses(&mut connection);
                 }
                 () = tokio::time::sleep_until(reconnect_at), if connection.is_none() => {}
+                () = sleep_until(rebirth_at) => {
+                    // The rebirths asked within the interval: one run.
+                    self.rebirths.born(self.now_ms());
+                    if self.host_online() {
+                        self.go_live(&mut connection);
+                    }
+                }
             }
         }
         for watcher in self.watchers.drain(..) {
@@ -401,7 +421,7 @@ impl Runner {
 
     /// A new MQTT connection, its will the NDEATH of the next `bdSeq`.
     fn connect(&mut self) -> Connection {
-        let bd_seq = self.session.next_connection();
+        let bd_seq = self.session.connect_attempt();
         let config = &self.config;
         let mut options = MqttOptions::new(
             config.client_id(),
@@ -411,7 +431,11 @@ impl Runner {
         options.set_keep_alive(config.keep_alive);
         // Sparkplug 3.0 §7.1: a clean session for edge nodes.
         options.set_clean_session(true);
-        options.set_max_packet_size(16 * 1024 * 1024, 16 * 1024 * 1024);
+        // Any packet the broker delivers is read (rumqttc ends the
+        // connection over one beyond its limit: a 20 MB DCMD from anyone
+        // would end the session); a command over max_command_bytes is
+        // refused after it is read.
+        options.set_max_packet_size(super::config::MAX_PACKET, 16 * 1024 * 1024);
         if let Some(user) = &config.username {
             options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
         }
@@ -438,8 +462,9 @@ impl Runner {
         self.held
             .lapse_all(&self.gateway, "the broker connection is gone");
         // The primary host's state is learnt anew on the next connection
-        // (its retained STATE, or its next message).
-        self.host_online = self.config.primary_host.is_none();
+        // (its retained STATE, or its next message), against the newest
+        // timestamp seen.
+        self.host.connection_lost();
         self.stats
             .connected
             .store(false, std::sync::atomic::Ordering::Relaxed);
@@ -458,6 +483,7 @@ impl Runner {
             Event::Incoming(Packet::ConnAck(_)) => {
                 if let Some(conn) = connection.as_mut() {
                     conn.connected = true;
+                    self.session.connection_accepted();
                     self.stats
                         .connected
                         .store(true, std::sync::atomic::Ordering::Relaxed);
@@ -483,58 +509,108 @@ impl Runner {
                         let _ = conn.client.try_subscribe(topic, QoS::AtLeastOnce);
                     }
                 }
-                if self.host_online {
+                if self.host_online() {
                     self.go_live(connection);
                 }
             }
             Event::Incoming(Packet::Publish(publish)) => {
-                self.on_publish(connection, &publish.topic, &publish.payload);
+                if self.on_publish(connection, &publish.topic, &publish.payload)
+                    == Some(HostVerdict::WentOffline)
+                    && let Some(conn) = connection.as_mut()
+                {
+                    // Sparkplug 3.0: NDEATH, disconnect, and start over
+                    // (the next connection waits for the host's STATE).
+                    self.end_session(conn, "the primary host went offline")
+                        .await;
+                    *connection = None;
+                }
             }
             _ => {}
         }
         Ok(())
     }
 
-    fn on_publish(&mut self, connection: &mut Option<Connection>, topic: &str, payload: &[u8]) {
+    /// Whether data may be published: no primary host, or it is online.
+    fn host_online(&self) -> bool {
+        self.config.primary_host.is_none() || self.host.online()
+    }
+
+    /// A message from the broker: the primary host's STATE (what it meant
+    /// is returned), or a command.
+    fn on_publish(
+        &mut self,
+        connection: &mut Option<Connection>,
+        topic: &str,
+        payload: &[u8],
+    ) -> Option<HostVerdict> {
         if let Some(host) = &self.config.primary_host
             && topic == state_topic(host)
         {
             let Some(state) = parse_host_state(payload) else {
                 tracing::warn!("sparkplug: {topic}: not a STATE payload");
-                return;
+                return None;
             };
-            tracing::info!(
-                "sparkplug: primary host {host} is {}",
-                if state.online { "online" } else { "offline" }
-            );
-            self.host_online = state.online;
-            if state.online {
-                // Sparkplug 3.0 §5.3: (re)birth when the host comes (back).
-                self.go_live(connection);
-            } else {
-                self.live = false;
-                self.held
-                    .lapse_all(&self.gateway, "the primary host went offline");
-                self.stats
-                    .publishing
-                    .store(false, std::sync::atomic::Ordering::Relaxed);
+            let verdict = self.host.on_state(state);
+            match verdict {
+                HostVerdict::Stale => tracing::info!(
+                    "sparkplug: primary host {host}: a STATE older than the newest (timestamp {:?}) ignored",
+                    state.timestamp
+                ),
+                HostVerdict::CameOnline => {
+                    tracing::info!("sparkplug: primary host {host} is online");
+                    // Sparkplug 3.0: (re)birth when the host comes (back).
+                    self.go_live(connection);
+                }
+                HostVerdict::WentOffline => {
+                    tracing::info!("sparkplug: primary host {host} is offline");
+                }
+                HostVerdict::StillOnline | HostVerdict::StillOffline => {}
             }
-            return;
+            return Some(verdict);
         }
-        let Some(topic) = Topic::parse(topic) else {
-            return;
+        let topic = Topic::parse(topic)?;
+        if !matches!(topic.kind, MessageType::NCmd | MessageType::DCmd) {
+            return None;
+        }
+        if payload.len() > self.config.max_command_bytes {
+            self.refuse(
+                topic,
+                format!(
+                    "{} bytes: over sparkplug_max_command_bytes ({})",
+                    payload.len(),
+                    self.config.max_command_bytes
+                ),
+            );
+            return None;
+        }
+        let Ok(mut payload) = super::proto::Payload::decode(payload) else {
+            self.refuse(topic, "not a Sparkplug B payload".to_string());
+            return None;
         };
-        let Ok(payload) = super::proto::Payload::decode(payload) else {
-            tracing::warn!("sparkplug: {topic}: payload is no Sparkplug B payload");
-            return;
-        };
+        if payload.metrics.len() > self.config.max_command_metrics {
+            self.refuse(
+                topic,
+                format!(
+                    "{} metrics: over sparkplug_max_command_metrics ({})",
+                    payload.metrics.len(),
+                    self.config.max_command_metrics
+                ),
+            );
+            return None;
+        }
+        // Alias-only metrics without a datatype, as the spec wants them:
+        // named and typed by their birth.
+        for metric in &mut payload.metrics {
+            self.session
+                .complete_command(topic.device.as_deref(), metric);
+        }
         let device = topic.kind == MessageType::DCmd;
         let mut commands = Vec::new();
         for command in command::parse(&payload, device) {
             EdgeNodeStats::add(&self.stats.commands, 1);
             if command == Command::Rebirth {
-                tracing::info!("sparkplug: rebirth asked");
-                if self.host_online {
+                tracing::debug!("sparkplug: rebirth asked");
+                if self.host_online() && self.rebirths.request(self.now_ms()) {
                     self.go_live(connection);
                 }
                 continue;
@@ -542,7 +618,7 @@ impl Runner {
             commands.push(command);
         }
         if commands.is_empty() {
-            return;
+            return None;
         }
         // The commands of one message run in order (a move after the state
         // change that enables its axis), in a task of their own.
@@ -550,13 +626,39 @@ impl Runner {
         let config = self.config.clone();
         let stats = self.stats.clone();
         let held = self.held.clone();
+        let refusals = self.refusals.clone();
         tokio::spawn(async move {
             for command in commands {
                 if let Err(err) = run_command(&gateway, &config, &held, &topic, &command).await {
                     EdgeNodeStats::add(&stats.commands_failed, 1);
-                    tracing::warn!("sparkplug: {topic}: {}: {err}", command.operation());
+                    refusals.warn(&format!("{topic}: {}: {err}", command.operation()));
                 }
             }
+        });
+        None
+    }
+
+    /// A command message refused whole (too large, too many metrics, not a
+    /// payload): counted, its one audit row written, sampled in the log;
+    /// nothing of it runs, and the session is untouched.
+    fn refuse(&mut self, topic: Topic, why: String) {
+        EdgeNodeStats::add(&self.stats.commands_failed, 1);
+        self.refusals.warn(&format!("{topic}: refused: {why}"));
+        let gateway = self.gateway.clone();
+        let config = self.config.clone();
+        tokio::spawn(async move {
+            let caller = command_caller(&config, &topic, Some(why.clone()));
+            let (bus, node) = match topic.device.as_deref().and_then(parse_device) {
+                Some((bus, node)) => (Some(bus.to_string()), Some(node)),
+                None => (None, None),
+            };
+            let mut target = AuditTarget::new("command").node(node);
+            target.bus = bus;
+            let _ = gateway
+                .audited_by_door(&caller, target, None, async {
+                    Err::<(), _>(GatewayError::InvalidRequest(why))
+                })
+                .await;
         });
     }
 
@@ -572,6 +674,7 @@ impl Runner {
         // session's devices.
         self.on_values(connection);
         let now = unix_ms();
+        self.rebirths.born(self.now_ms());
         let metrics = self.node_metrics(now);
         let birth = self.session.birth(metrics, now);
         self.live = true;
@@ -587,11 +690,29 @@ impl Runner {
                 }
             }
         }
-        let queued = self.spool.drain();
+        self.send_history(connection);
+    }
+
+    /// The queued data whose births are out (the edge node's, and those of
+    /// the devices born in this session), historical, in order; a device's
+    /// waits for its DBIRTH (after a restart, a node is identified after the
+    /// NBIRTH: its history must not come before the birth that names it).
+    fn send_history(&mut self, connection: &mut Option<Connection>) {
+        if !self.live || self.spool.is_empty() {
+            return;
+        }
+        let session = &self.session;
+        let queued = self.spool.drain_where(|topic| {
+            topic
+                .device
+                .as_deref()
+                .is_none_or(|device| session.is_born(device))
+        });
         EdgeNodeStats::add(&self.stats.historical, queued.len() as u64);
-        self.stats
-            .queued
-            .store(0, std::sync::atomic::Ordering::Relaxed);
+        self.stats.queued.store(
+            self.spool.len() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
         for mut message in queued {
             self.session.sequence(&mut message.payload);
             self.publish(connection, message);
@@ -757,9 +878,10 @@ impl Runner {
             }
             metrics.extend(values);
         }
+        metrics.extend(command_samples(info, now));
         let device = device_id(bus, info.id.get());
         self.born_at.insert(device.clone(), Instant::now());
-        self.session.device_birth(&device, metrics, now)
+        self.session.device_birth(&device, one_each(metrics), now)
     }
 
     fn on_node_event(&mut self, connection: &mut Option<Connection>, bus: &str, event: NodeEvent) {
@@ -778,9 +900,15 @@ impl Runner {
             return;
         }
         match event {
-            NodeEvent::Identified { .. } | NodeEvent::Online { .. } if born_device(&info) => {
+            // One DBIRTH per device per birth run: a node born already (by
+            // the births of this session) is not born again for the events
+            // of its identification.
+            NodeEvent::Identified { .. } | NodeEvent::Online { .. }
+                if born_device(&info) && !self.session.is_born(&device) =>
+            {
                 let message = self.device_birth(bus, &info);
                 self.publish(connection, message);
+                self.send_history(connection);
             }
             NodeEvent::Identified { .. } | NodeEvent::Online { .. } => {}
             NodeEvent::Offline { .. } => {
@@ -968,6 +1096,7 @@ impl Runner {
                 if let Some(info) = served.node(node) {
                     let message = self.device_birth(&bus, &info);
                     self.publish(connection, message);
+                    self.send_history(connection);
                 }
                 continue;
             }
@@ -1025,7 +1154,14 @@ impl Runner {
     /// The NDEATH of a clean stop (the will is not sent on a clean
     /// DISCONNECT), then DISCONNECT, the client's queue flushed.
     async fn clean_stop(&mut self, connection: &mut Connection) {
-        self.held.lapse_all(&self.gateway, "the edge node stops");
+        self.end_session(connection, "the edge node stops").await;
+    }
+
+    /// Ends the session: every lease granted over MQTT lapses, the NDEATH
+    /// is published (a clean DISCONNECT sends no will), then DISCONNECT,
+    /// the client's queue flushed (2 s at most).
+    async fn end_session(&mut self, connection: &mut Connection, why: &str) {
+        self.held.lapse_all(&self.gateway, why);
         if connection.connected {
             let death = self.session.death(unix_ms());
             let _ = connection.client.try_publish(
@@ -1078,6 +1214,99 @@ pub(super) fn alarm_samples(summary: &crate::gateway::AlarmSummary, now: u64) ->
             now,
         ),
     ]
+}
+
+/// The metrics a host may write to a device (docs/sparkplug.md,
+/// "Commands"), born typed and writable, null until read: `NMT`; each
+/// writable object of its EDS as `OD/0xIIII:S`; a drive's `Axis {n}/...`
+/// commands, and its read metrics, typed before their first value comes;
+/// an LED controller's `Segment {n}/...`.
+pub(crate) fn command_samples(info: &NodeInfo, now: u64) -> Vec<Sample> {
+    use super::proto::DataType;
+    let null =
+        |name: String, datatype: DataType| Sample::new(name, MetricValue::Null(datatype), now);
+    let mut metrics = vec![null("NMT".to_string(), DataType::String).writable()];
+    if let Some(entry) = &info.eds_entry {
+        for (object, sub) in entry.eds.dictionary.subs() {
+            if !sub.access.is_writable() {
+                continue;
+            }
+            let Some(zero) = crate::canopen::od::Value::zero(sub.data_type) else {
+                continue;
+            };
+            let datatype = MetricValue::from_canopen(&zero).datatype();
+            metrics.push(
+                null(
+                    format!("OD/0x{:04X}:{}", object.index, sub.sub_index),
+                    datatype,
+                )
+                .writable(),
+            );
+        }
+    }
+    if let Some(kind) = crate::gateway::DriveKind::from_profile(info.profile) {
+        for axis in 1..=crate::gateway::axis_count(kind, info.eds_entry.as_deref()) {
+            let name = |what: &str| format!("Axis {axis}/{what}");
+            metrics.extend([
+                null(name("State"), DataType::String).writable(),
+                null(name("Statusword"), DataType::UInt16),
+                null(name("Position"), DataType::Int32),
+                null(name("Velocity"), DataType::Int32),
+                null(name("Fault"), DataType::Boolean),
+                null(name("Halt"), DataType::Boolean).writable(),
+                null(name("Fault Reset"), DataType::Boolean).writable(),
+                null(name("Move"), DataType::String).writable(),
+                null(name("Lease"), DataType::Boolean).writable(),
+                null(name("Lease Id"), DataType::String).writable(),
+            ]);
+        }
+    } else if info.profile == crate::gateway::Profile::Uioled {
+        for segment in 1..=crate::profiles::uioled::SEGMENTS {
+            let name = |what: &str| format!("Segment {segment}/{what}");
+            metrics.push(null(name("Effect"), DataType::String).writable());
+            for color in 1..=3 {
+                metrics.push(null(name(&format!("Color {color}")), DataType::String).writable());
+            }
+            for field in [
+                "Led Count",
+                "Dimmer",
+                "Value",
+                "Min Value",
+                "Max Value",
+                "Speed",
+                "Smooth",
+            ] {
+                metrics.push(null(name(field), DataType::Int32).writable());
+            }
+        }
+    }
+    metrics
+}
+
+/// A birth's metrics, one of each name: a value read stands for the null
+/// that typed it beforehand, and a command metric stays writable.
+fn one_each(metrics: Vec<Sample>) -> Vec<Sample> {
+    let mut at: HashMap<String, usize> = HashMap::with_capacity(metrics.len());
+    let mut out: Vec<Sample> = Vec::with_capacity(metrics.len());
+    for sample in metrics {
+        match at.get(&sample.name) {
+            Some(&i) => {
+                let kept = &mut out[i];
+                let writable = kept.writable || sample.writable;
+                if !matches!(sample.value, MetricValue::Null(_))
+                    || matches!(kept.value, MetricValue::Null(_))
+                {
+                    *kept = sample;
+                }
+                kept.writable = writable;
+            }
+            None => {
+                at.insert(sample.name.clone(), out.len());
+                out.push(sample);
+            }
+        }
+    }
+    out
 }
 
 /// Whether a node gets a DBIRTH: identified and online.
@@ -1208,16 +1437,16 @@ pub(crate) async fn run_command(
         Command::Segment { segment, .. } => Some(format!("segment {segment}")),
         _ => None,
     };
-    let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string()).summary(summary(command));
-    let caller = Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
-        .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
-        .with_detail(detail);
+    let caller = command_caller(config, topic, summary(command));
     let mut target = AuditTarget::new(command.operation())
         .node(node)
         .axis(command.axis())
         .item(item);
     target.bus = bus.clone();
     let work = async {
+        // `candeck serve` refuses such settings at start; an edge node made
+        // otherwise takes no command either.
+        config.command_exposure().map_err(GatewayError::Forbidden)?;
         let (Some(bus), Some(node)) = (&bus, node) else {
             return Err(GatewayError::InvalidRequest(format!(
                 "{topic}: not a device of this edge node"
@@ -1270,6 +1499,61 @@ pub(crate) async fn run_command(
         }
     };
     gateway.audited_by_door(&caller, target, None, work).await
+}
+
+/// Who a command from MQTT runs as: the edge node's own broker account
+/// and role (MQTT names no sender), the broker as its peer, the message
+/// type and topic as the door's words, `summary` (bounded) as its request.
+fn command_caller(config: &SparkplugConfig, topic: &Topic, summary: Option<String>) -> Caller {
+    let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string())
+        .summary(summary.map(|text| bounded(&text)));
+    Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
+        .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
+        .with_detail(detail)
+}
+
+/// The most of a command's words an audit row keeps.
+const SUMMARY_CHARS: usize = 256;
+
+/// `text`, cut to [`SUMMARY_CHARS`] characters with its length said: an
+/// audit row keeps a summary, never a whole payload.
+pub(crate) fn bounded(text: &str) -> String {
+    if text.chars().count() <= SUMMARY_CHARS {
+        return text.to_string();
+    }
+    let head: String = text.chars().take(SUMMARY_CHARS).collect();
+    format!("{head}… ({} bytes)", text.len())
+}
+
+/// Refusals in the log, sampled: the first of each 10 s, then how many
+/// more there were, so that a flood of bad commands is not a flood of
+/// lines (each is counted on /metrics and audited).
+#[derive(Debug, Default)]
+pub(crate) struct Refusals {
+    window: Mutex<(Option<Instant>, u64)>,
+}
+
+impl Refusals {
+    const WINDOW: Duration = Duration::from_secs(10);
+
+    pub(crate) fn warn(&self, line: &str) {
+        let mut window = lock(&self.window);
+        let now = Instant::now();
+        match window.0 {
+            Some(since) if now.duration_since(since) < Self::WINDOW => window.1 += 1,
+            _ => {
+                if window.1 > 0 {
+                    tracing::warn!(
+                        "sparkplug: {} more commands refused or failed in the last {} s",
+                        window.1,
+                        Self::WINDOW.as_secs()
+                    );
+                }
+                *window = (Some(now), 0);
+                tracing::warn!("sparkplug: {line}");
+            }
+        }
+    }
 }
 
 /// The request of a command as the edge node summarises it, where it has

@@ -91,9 +91,21 @@ impl Spool {
     /// named (not aliased: the aliases of the session that made them may
     /// not be this one's); the queue (and its file) is then empty.
     pub fn drain(&mut self) -> Vec<Outgoing> {
-        let messages: Vec<Outgoing> = self
+        self.drain_where(|_| true)
+    }
+
+    /// [`Spool::drain`] of the messages whose topic `ready` takes (those
+    /// of the edge node and of the devices born again: a host must have the
+    /// birth that names a message's metrics before it); the others stay
+    /// queued, in order.
+    pub fn drain_where(&mut self, ready: impl Fn(&Topic) -> bool) -> Vec<Outgoing> {
+        let (taken, kept): (VecDeque<Outgoing>, VecDeque<Outgoing>) = self
             .queue
             .drain(..)
+            .partition(|message| ready(&message.topic));
+        self.queue = kept;
+        let messages: Vec<Outgoing> = taken
+            .into_iter()
             .map(|mut message| {
                 for metric in &mut message.payload.metrics {
                     metric.is_historical = Some(true);

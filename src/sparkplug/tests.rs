@@ -2,18 +2,32 @@ use prost::Message;
 
 use super::command::{self, Command, parse_device};
 use super::config::BrokerUrl;
-use super::edge::{EdgeSession, MetricRule, Policy, REBIRTH, Reporting};
+use super::edge::{EdgeSession, MetricRule, Policy, REBIRTH, RebirthGate, Reporting};
 use super::metric::{MetricValue, Sample};
 use super::proto::payload::{Metric, metric};
 use super::proto::{DataType, Payload};
 use super::spool::{Spool, read_records};
-use super::topic::{MessageType, Topic, parse_host_state, state_topic};
+use super::topic::{
+    HostState, HostVerdict, MessageType, PrimaryHost, Topic, parse_host_state, state_topic,
+};
 use crate::canopen::nmt::NmtCommand;
 use crate::canopen::od::Value;
 use crate::gateway::SegmentUpdate;
 
 fn session() -> EdgeSession {
     EdgeSession::new("plant", "line1", 0, Policy::default())
+}
+
+/// A data message's value: typed by the birth (Sparkplug 3.0: the data
+/// messages carry no datatype).
+fn data_value(metric: &Metric, datatype: DataType) -> Option<MetricValue> {
+    assert_eq!(
+        metric.datatype, None,
+        "a datatype repeated in data: {metric:?}"
+    );
+    let mut typed = metric.clone();
+    typed.datatype = Some(datatype as u32);
+    MetricValue::from_metric(&typed)
 }
 
 fn sample(name: &str, value: MetricValue) -> Sample {
@@ -223,7 +237,10 @@ fn data_carries_aliases_alone_and_only_what_changed() {
     assert_eq!(message.payload.metrics.len(), 1);
     let m = &message.payload.metrics[0];
     assert_eq!((m.name.as_deref(), m.alias), (None, alias_a));
-    assert_eq!(MetricValue::from_metric(m), Some(MetricValue::UInt16(2)));
+    assert_eq!(
+        data_value(m, DataType::UInt16),
+        Some(MetricValue::UInt16(2))
+    );
     // The same value again is no change.
     assert_eq!(
         s.data(
@@ -280,7 +297,7 @@ fn a_deadband_holds_small_moves_back() {
             0,
             false,
         )
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::Int32).unwrap())
     };
     assert_eq!(report(&mut s, 105), None);
     assert_eq!(report(&mut s, 110), None);
@@ -322,7 +339,7 @@ fn a_maximum_rate_reports_the_newest_value_when_its_interval_is_up() {
     let due = s.due(1_100, false);
     assert_eq!(due.len(), 1);
     assert_eq!(
-        MetricValue::from_metric(&due[0].payload.metrics[0]),
+        data_value(&due[0].payload.metrics[0], DataType::UInt32),
         Some(MetricValue::UInt32(3))
     );
     assert_eq!(s.next_due(), None);
@@ -390,7 +407,7 @@ fn aliases_are_unique_within_a_session() {
     let d2 = s.device_birth("demo-2", vec![sample("v", MetricValue::UInt8(0))], 0);
     let mut aliases: Vec<u64> = [nbirth, d1, d2]
         .iter()
-        .flat_map(|m| m.payload.metrics.iter().map(|m| m.alias.unwrap()))
+        .flat_map(|m| m.payload.metrics.iter().filter_map(|m| m.alias))
         .collect();
     let count = aliases.len();
     aliases.sort_unstable();
@@ -421,7 +438,7 @@ fn the_spool_is_bounded_counts_its_drops_and_drains_in_order_as_historical() {
     assert!(spool.is_empty());
     let values: Vec<_> = drained
         .iter()
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
         .collect();
     assert_eq!(
         values,
@@ -454,7 +471,7 @@ fn the_spool_file_keeps_the_queue_across_a_restart() {
     let values: Vec<_> = again
         .drain()
         .iter()
-        .map(|m| MetricValue::from_metric(&m.payload.metrics[0]).unwrap())
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
         .collect();
     assert_eq!(values, [2, 3].map(MetricValue::UInt32).to_vec());
     // Drained: the file is empty too.
@@ -678,6 +695,11 @@ fn device_ids_are_bus_dash_node() {
     assert_eq!(parse_device("demo-0"), None);
     assert_eq!(parse_device("demo-128"), None);
     assert_eq!(parse_device("-5"), None);
+    // Issue 33, point 6: only the canonical decimal form (`demo-01` reached
+    // node 1).
+    for other in ["demo-01", "demo-+1", "demo-001", "demo- 1", "demo-1 "] {
+        assert_eq!(parse_device(other), None, "{other}");
+    }
 }
 
 #[test]
@@ -818,4 +840,248 @@ fn a_device_s_alarm_metrics_count_its_alarms_and_name_the_highest_severity() {
         value(&some, "Alarms/Highest Severity"),
         MetricValue::String("critical".to_string())
     );
+}
+
+/// Issue 33, point 2: the newest STATE timestamp wins. A stale or replayed
+/// offline changes nothing, a valid one ends the session, a duplicate
+/// online brings no rebirth, and a retained old offline cannot silence the
+/// next connection once the host is back.
+#[test]
+fn the_newest_host_state_wins_and_a_duplicate_online_is_nothing() {
+    let state = |online, timestamp| HostState {
+        online,
+        timestamp: Some(timestamp),
+    };
+    let mut host = PrimaryHost::default();
+    assert!(!host.online());
+    assert_eq!(host.on_state(state(true, 1000)), HostVerdict::CameOnline);
+    assert!(host.online());
+    assert_eq!(host.on_state(state(true, 1000)), HostVerdict::StillOnline);
+    assert_eq!(host.on_state(state(true, 1500)), HostVerdict::StillOnline);
+    // A replayed offline, or the late will of the host's older session.
+    assert_eq!(host.on_state(state(false, 1)), HostVerdict::Stale);
+    assert_eq!(host.on_state(state(false, 1499)), HostVerdict::Stale);
+    assert!(host.online());
+    // Its will carries its online's timestamp: valid.
+    assert_eq!(host.on_state(state(false, 1500)), HostVerdict::WentOffline);
+    assert!(!host.online());
+    // The next connection: the retained offline again, then the host back.
+    host.connection_lost();
+    assert_eq!(host.on_state(state(false, 1500)), HostVerdict::StillOffline);
+    assert_eq!(host.on_state(state(true, 900)), HostVerdict::Stale);
+    assert_eq!(host.on_state(state(true, 2000)), HostVerdict::CameOnline);
+    // The first STATE ever is taken as it is.
+    let mut fresh = PrimaryHost::default();
+    assert_eq!(fresh.on_state(state(false, 7)), HostVerdict::StillOffline);
+    assert_eq!(fresh.on_state(state(true, 7)), HostVerdict::CameOnline);
+}
+
+fn read_only(metric: &Metric) -> Option<bool> {
+    let properties = metric.properties.as_ref()?;
+    let at = properties.keys.iter().position(|key| key == "readOnly")?;
+    match properties.values.get(at)?.value {
+        Some(super::proto::payload::property_value::Value::BooleanValue(read_only)) => {
+            Some(read_only)
+        }
+        _ => None,
+    }
+}
+
+/// Issue 33, points 3 and 7: every born metric says whether a host may
+/// write it (Ignition's tag property `readOnly`), `Node Control/Rebirth`
+/// (writable) is born without an alias, and the data messages carry no
+/// datatype.
+#[test]
+fn births_say_what_is_writable_and_rebirth_has_no_alias() {
+    let mut s = session();
+    let nbirth = s.birth(vec![sample("n", MetricValue::UInt8(0))], 0);
+    let rebirth = nbirth
+        .payload
+        .metrics
+        .iter()
+        .find(|m| m.name.as_deref() == Some(REBIRTH))
+        .unwrap();
+    assert_eq!(rebirth.alias, None);
+    assert_eq!(rebirth.datatype, Some(DataType::Boolean as u32));
+    assert_eq!(read_only(rebirth), Some(false));
+    for metric in &nbirth.payload.metrics {
+        assert!(read_only(metric).is_some(), "{metric:?}");
+    }
+    let dbirth = s.device_birth(
+        "demo-1",
+        vec![
+            sample("Axis 1/Position", MetricValue::Int32(0)),
+            sample("Axis 1/Move", MetricValue::Null(DataType::String)).writable(),
+        ],
+        0,
+    );
+    let flags: Vec<_> = dbirth.payload.metrics.iter().map(read_only).collect();
+    assert_eq!(flags, [Some(true), Some(false)]);
+    assert!(
+        dbirth
+            .payload
+            .metrics
+            .iter()
+            .all(|m| m.datatype.is_some() && m.alias.is_some())
+    );
+    let data = s
+        .data(
+            Some("demo-1"),
+            vec![sample("Axis 1/Position", MetricValue::Int32(5))],
+            0,
+            false,
+        )
+        .unwrap();
+    assert_eq!(
+        data_value(&data.payload.metrics[0], DataType::Int32),
+        Some(MetricValue::Int32(5))
+    );
+}
+
+/// Issue 33, point 3: a DCMD in the spec's form (the alias alone, no
+/// datatype) is the command its birth named.
+#[test]
+fn an_alias_only_command_without_datatype_is_named_and_typed_by_its_birth() {
+    let mut s = session();
+    let dbirth = s.device_birth(
+        "demo-1",
+        vec![
+            sample("Axis 1/Move", MetricValue::Null(DataType::String)).writable(),
+            sample("Axis 1/Lease", MetricValue::Null(DataType::Boolean)).writable(),
+            sample("OD/0x1017:0", MetricValue::Null(DataType::UInt16)).writable(),
+        ],
+        0,
+    );
+    let alias = |name: &str| {
+        dbirth
+            .payload
+            .metrics
+            .iter()
+            .find(|m| m.name.as_deref() == Some(name))
+            .unwrap()
+            .alias
+    };
+    let bare = |alias: Option<u64>, value: metric::Value| Metric {
+        alias,
+        value: Some(value),
+        ..Metric::default()
+    };
+    let mut payload = Payload {
+        metrics: vec![
+            bare(
+                alias("Axis 1/Move"),
+                metric::Value::StringValue(r#"{"mode":"velocity","velocity":100}"#.into()),
+            ),
+            bare(alias("Axis 1/Lease"), metric::Value::BooleanValue(true)),
+            bare(alias("OD/0x1017:0"), metric::Value::IntValue(1000)),
+            bare(Some(9999), metric::Value::BooleanValue(true)),
+        ],
+        ..Payload::default()
+    };
+    for metric in &mut payload.metrics {
+        s.complete_command(Some("demo-1"), metric);
+    }
+    let commands = command::parse(&payload, true);
+    assert!(
+        matches!(
+            &commands[0],
+            Command::Move {
+                axis: 1,
+                lease: true,
+                ..
+            }
+        ),
+        "{commands:?}"
+    );
+    assert_eq!(
+        commands[1],
+        Command::Write {
+            index: 0x1017,
+            sub: 0,
+            value: MetricValue::UInt16(1000)
+        }
+    );
+    // An alias no birth gave is refused, not guessed.
+    assert!(
+        matches!(&commands[2], Command::Unsupported(_)),
+        "{commands:?}"
+    );
+}
+
+/// Issue 33, point 7: `bdSeq` goes up by one per CONNECT the broker
+/// accepted, not per attempt (it jumped 0 to 7 across refused ones).
+#[test]
+fn bdseq_goes_up_once_per_accepted_connect() {
+    let mut s = EdgeSession::new("plant", "line1", u8::MAX, Policy::default());
+    assert_eq!(s.connect_attempt(), 0);
+    // Refused, or lost before the CONNACK: the same number again.
+    assert_eq!(s.connect_attempt(), 0);
+    assert_eq!(s.connect_attempt(), 0);
+    s.connection_accepted();
+    assert_eq!(s.bd_seq(), 0);
+    assert_eq!(s.connect_attempt(), 1);
+    s.connection_accepted();
+    assert_eq!(s.connect_attempt(), 2);
+}
+
+/// Issue 33, point 6: rebirth requests are coalesced: one run at once,
+/// those within the interval one more run when it is up.
+#[test]
+fn rebirth_requests_within_the_interval_are_one_more_run() {
+    let mut gate = RebirthGate::new(1000);
+    assert!(gate.request(0));
+    gate.born(0);
+    assert_eq!(gate.due(), None);
+    for at in 1..2000 {
+        assert!(!gate.request(at % 1000));
+    }
+    assert_eq!(gate.due(), Some(1000));
+    gate.born(1000);
+    assert_eq!(gate.due(), None);
+    assert!(gate.request(2000));
+}
+
+/// Issue 33, point 5: after a restart the spooled history of a device goes
+/// only once its DBIRTH is out; the rest stays queued, in order, also in
+/// the file.
+#[test]
+fn history_waits_for_the_birth_of_its_device() {
+    let mut s = session();
+    for device in ["demo-1", "demo-2"] {
+        s.device_birth(device, vec![sample("v", MetricValue::UInt32(0))], 0);
+    }
+    let data = |s: &mut EdgeSession, device: &str, v: u32| {
+        s.data(
+            Some(device),
+            vec![sample("v", MetricValue::UInt32(v))],
+            0,
+            true,
+        )
+        .unwrap()
+    };
+    let file = std::env::temp_dir().join(format!("candeck-spool-births-{}", std::process::id()));
+    let _ = std::fs::remove_file(&file);
+    let mut spool = Spool::with_file(10, file.clone()).unwrap();
+    spool.push(data(&mut s, "demo-1", 1));
+    spool.push(data(&mut s, "demo-2", 2));
+    spool.push(data(&mut s, "demo-1", 3));
+    let first = spool.drain_where(|topic| topic.device.as_deref() == Some("demo-1"));
+    let values: Vec<_> = first
+        .iter()
+        .map(|m| data_value(&m.payload.metrics[0], DataType::UInt32).unwrap())
+        .collect();
+    assert_eq!(values, [1, 3].map(MetricValue::UInt32).to_vec());
+    assert!(
+        first
+            .iter()
+            .all(|m| m.payload.metrics[0].is_historical == Some(true))
+    );
+    assert_eq!(spool.len(), 1);
+    // What waits is in the file too (a restart meanwhile keeps it).
+    let again = Spool::with_file(10, file.clone()).unwrap();
+    assert_eq!(again.len(), 1);
+    drop(again);
+    let rest = Spool::with_file(10, file.clone()).unwrap().drain();
+    assert_eq!(rest[0].topic.device.as_deref(), Some("demo-2"));
+    let _ = std::fs::remove_file(&file);
 }

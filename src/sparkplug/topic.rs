@@ -157,6 +157,74 @@ pub struct HostState {
     pub timestamp: Option<u64>,
 }
 
+/// What a STATE message of the primary host means to the edge node
+/// ([`PrimaryHost::on_state`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HostVerdict {
+    /// Older than the newest STATE seen (a replayed message, or the late
+    /// will of a host session already replaced): nothing changes.
+    Stale,
+    /// The host came online: births, then the queued data.
+    CameOnline,
+    /// Online again while online (a duplicate, a retained copy): nothing
+    /// changes, no rebirth.
+    StillOnline,
+    /// A valid offline: NDEATH, disconnect, and wait for the host on the
+    /// next connection (Sparkplug 3.0 §5, "Edge Node Session
+    /// Termination").
+    WentOffline,
+    /// Offline while not online: nothing to end.
+    StillOffline,
+}
+
+/// The primary host application as the edge node follows it, sans I/O:
+/// the newest STATE timestamp wins (Sparkplug 3.0: a STATE older than the
+/// previous one is ignored; with none before, it is taken as it is).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct PrimaryHost {
+    /// The timestamp of the newest STATE taken; kept across connections,
+    /// so that a retained stale offline cannot silence the next session.
+    newest: Option<u64>,
+    online: bool,
+}
+
+impl PrimaryHost {
+    /// Whether the host's newest STATE said online (and the current
+    /// connection has seen it).
+    pub fn online(&self) -> bool {
+        self.online
+    }
+
+    /// A STATE message: what it means, given those before it. A STATE
+    /// without a timestamp (not Sparkplug 3.0) is taken as older than any
+    /// other once one with a timestamp came.
+    pub fn on_state(&mut self, state: HostState) -> HostVerdict {
+        let timestamp = state.timestamp.unwrap_or(0);
+        if self.newest.is_some_and(|newest| timestamp < newest) {
+            return HostVerdict::Stale;
+        }
+        self.newest = Some(timestamp);
+        match (self.online, state.online) {
+            (false, true) => {
+                self.online = true;
+                HostVerdict::CameOnline
+            }
+            (true, true) => HostVerdict::StillOnline,
+            (true, false) => {
+                self.online = false;
+                HostVerdict::WentOffline
+            }
+            (false, false) => HostVerdict::StillOffline,
+        }
+    }
+
+    /// The connection is gone: the host's state is learnt anew on the next
+    /// one (its retained STATE), against the newest timestamp seen.
+    pub fn connection_lost(&mut self) {
+        self.online = false;
+    }
+}
+
 /// Whether a name is fit to be a topic element: not empty, and none of
 /// MQTT's separator and wildcards (`/`, `+`, `#`).
 pub fn valid_element(name: &str) -> bool {

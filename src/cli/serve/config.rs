@@ -113,6 +113,9 @@ pub(super) struct ConfigFile {
     pub(super) sparkplug_edge_node_id: Option<String>,
     pub(super) sparkplug_primary_host: Option<String>,
     pub(super) sparkplug_role: Option<String>,
+    pub(super) sparkplug_insecure: Option<bool>,
+    pub(super) sparkplug_max_command_bytes: Option<usize>,
+    pub(super) sparkplug_max_command_metrics: Option<usize>,
     pub(super) sparkplug_queue_messages: Option<usize>,
     pub(super) sparkplug_deadband: Option<f64>,
     pub(super) sparkplug_max_rate_hz: Option<f64>,
@@ -196,6 +199,13 @@ impl ConfigFile {
             config.role = role
                 .parse()
                 .map_err(|err| format!("sparkplug_role: {err}"))?;
+        }
+        config.insecure = self.sparkplug_insecure.unwrap_or(false);
+        if let Some(bytes) = self.sparkplug_max_command_bytes {
+            config.max_command_bytes = bytes;
+        }
+        if let Some(metrics) = self.sparkplug_max_command_metrics {
+            config.max_command_metrics = metrics;
         }
         if let Some(messages) = self.sparkplug_queue_messages {
             config.queue_messages = messages;

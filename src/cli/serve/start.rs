@@ -117,6 +117,11 @@ pub async fn run(args: ServeArgs) -> Result<(), CliError> {
     // The Sparkplug B edge node (mqtt_url), on the same gateway service.
     let edge_node = match args.sparkplug.clone() {
         Some(config) => {
+            // Allowed by sparkplug_insecure only (refused otherwise when the
+            // settings were read): said loudly, at every start.
+            if let Ok(Some(warning)) = config.command_exposure() {
+                tracing::warn!("{warning}");
+            }
             crate::cli::say(format_args!(
                 "candeck: Sparkplug B edge node {}/{} on {}://{}:{}",
                 config.group_id,

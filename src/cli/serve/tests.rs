@@ -720,3 +720,66 @@ fn the_heartbeat_consumer_factor_is_checked_for_its_range() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 33, point 1: commands from MQTT need the broker to decide who may
+/// send them: broker credentials, and TLS off loopback, or
+/// `sparkplug_insecure = true`; the refusal names the settings.
+#[test]
+fn sparkplug_commands_need_broker_credentials_and_tls_off_loopback() {
+    let dir = std::env::temp_dir().join(format!("candeck-sparkplug-auth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("candeck.toml");
+    let ca = dir.join("ca.pem");
+    let settings = |text: &str| {
+        std::fs::write(&file, format!("sparkplug_group_id = \"g\"\n{text}")).unwrap();
+        serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+    };
+    let operator = "sparkplug_role = \"operator\"\n";
+    let login = "mqtt_username = \"line1\"\nmqtt_password = \"s3cret\"\n";
+    // A viewer takes no command: nothing to refuse.
+    assert!(settings("mqtt_url = \"mqtt://broker.plant\"\n").is_ok());
+    for (text, missing) in [
+        (
+            format!("mqtt_url = \"mqtt://broker.plant\"\n{operator}"),
+            "mqtt_username",
+        ),
+        (
+            format!("mqtt_url = \"mqtt://broker.plant\"\n{operator}{login}"),
+            "mqtts://",
+        ),
+        (
+            format!("mqtt_url = \"mqtt://127.0.0.1:1883\"\n{operator}"),
+            "mqtt_username",
+        ),
+    ] {
+        let err = settings(&text).unwrap_err();
+        assert!(err.contains(missing), "{text}: {err}");
+        assert!(err.contains("sparkplug_insecure"), "{err}");
+        // The override lets it start, with the warning to log.
+        let config = settings(&format!("{text}sparkplug_insecure = true\n"))
+            .unwrap()
+            .sparkplug
+            .unwrap();
+        let warning = config.command_exposure().unwrap().unwrap();
+        assert!(warning.contains("sparkplug_insecure = true"), "{warning}");
+    }
+    // Credentials on loopback, or credentials and TLS elsewhere: no warning.
+    let config = settings(&format!(
+        "mqtt_url = \"mqtt://localhost\"\n{operator}{login}"
+    ))
+    .unwrap()
+    .sparkplug
+    .unwrap();
+    assert_eq!(config.command_exposure(), Ok(None));
+    let config = settings(&format!(
+        "mqtt_url = \"mqtts://broker.plant\"\nmqtt_ca_file = \"{}\"\n{operator}{login}",
+        ca.display()
+    ))
+    .unwrap()
+    .sparkplug
+    .unwrap();
+    assert_eq!(config.command_exposure(), Ok(None));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -576,6 +576,90 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     );
 }
 
+/// Issue 33, point 1: an operator edge node that logs in to no broker
+/// account takes no command (anyone on the broker could send it), audited
+/// as refused under the door `sparkplug`.
+#[tokio::test(start_paused = true)]
+async fn an_edge_node_without_broker_credentials_takes_no_command() {
+    let gateway = demo().await;
+    let mut config = config(crate::gateway::Role::Operator);
+    config.username = None;
+    let held = HeldLeases::default();
+    let results = dcmd(&gateway, &config, &held, 1, vec![enable()]).await;
+    assert_eq!(results.len(), 1);
+    assert_eq!(results[0].as_ref().unwrap_err().code(), "forbidden");
+    let drive = gateway.drive("demo", "1", "1").unwrap();
+    assert_ne!(drive.status().await.unwrap().state, "operation_enabled");
+    let rows = crate::door_audit::rows(&gateway).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["channel"], "sparkplug");
+    assert_eq!(rows[0]["outcome"], "forbidden");
+    // The insecure override takes it.
+    config.insecure = true;
+    let results = dcmd(&gateway, &config, &held, 1, vec![enable()]).await;
+    assert!(results[0].is_ok(), "{results:?}");
+}
+
+/// Issue 33, point 3: what a host may write to a drive is in its birth,
+/// typed and writable: the command metrics and the EDS's writable objects.
+#[tokio::test(start_paused = true)]
+async fn a_drive_s_birth_names_every_command_metric_typed_and_writable() {
+    use crate::sparkplug::proto::DataType;
+    let gateway = demo().await;
+    let served = gateway.bus("demo").unwrap();
+    let info = served
+        .node(crate::canopen::NodeId::new(1).unwrap())
+        .unwrap();
+    let samples = crate::sparkplug::node::command_samples(&info, 0);
+    let find = |name: &str| {
+        samples
+            .iter()
+            .find(|sample| sample.name == name)
+            .unwrap_or_else(|| panic!("{name} not born"))
+    };
+    for (name, datatype) in [
+        ("NMT", DataType::String),
+        ("Axis 1/State", DataType::String),
+        ("Axis 1/Move", DataType::String),
+        ("Axis 1/Halt", DataType::Boolean),
+        ("Axis 1/Fault Reset", DataType::Boolean),
+        ("Axis 1/Lease", DataType::Boolean),
+        ("Axis 1/Lease Id", DataType::String),
+        ("OD/0x1017:0", DataType::UInt16),
+    ] {
+        let sample = find(name);
+        assert!(sample.writable, "{name}");
+        assert_eq!(sample.value.datatype(), datatype, "{name}");
+    }
+    assert!(!find("Axis 1/Position").writable);
+    // A read-only object of the EDS is no command.
+    assert!(samples.iter().all(|sample| sample.name != "OD/0x1000:0"));
+}
+
+/// Issue 33, point 4 (the audit half): a command's row keeps a bounded
+/// summary, never the whole payload.
+#[tokio::test(start_paused = true)]
+async fn a_huge_command_value_leaves_a_bounded_audit_row() {
+    let gateway = demo().await;
+    let config = config(crate::gateway::Role::Operator);
+    let held = HeldLeases::default();
+    let huge = "x".repeat(2 * 1024 * 1024);
+    let results = dcmd(
+        &gateway,
+        &config,
+        &held,
+        1,
+        vec![metric("OD/0x1008:0", MetricValue::String(huge))],
+    )
+    .await;
+    assert_eq!(results.len(), 1);
+    let rows = crate::door_audit::rows(&gateway).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    let request = rows[0]["request"].as_str().unwrap();
+    assert!(request.len() < 1024, "{} bytes", request.len());
+    assert!(request.contains("bytes)"), "{request}");
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_segment_write_reaches_the_led_controller() {
     let gateway = demo().await;
