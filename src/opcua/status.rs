@@ -63,7 +63,9 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::WatchdogProtected(_) => StatusCode::BadUserAccessDenied,
         GatewayError::RateLimited { .. } => StatusCode::BadTooManyOperations,
         GatewayError::InvalidValue(_) => StatusCode::BadTypeMismatch,
-        GatewayError::ValueOutOfRange(_) => StatusCode::BadOutOfRange,
+        GatewayError::ValueOutOfRange(_) | GatewayError::StepBeyondFollowingWindow(_) => {
+            StatusCode::BadOutOfRange
+        }
         GatewayError::InvalidRequest(_)
         | GatewayError::InvalidIndex(_)
         | GatewayError::InvalidDcf { .. }
