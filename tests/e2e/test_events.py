@@ -93,7 +93,9 @@ def test_an_emcy_appears_live_and_the_filter_keeps_to_its_kind(server, browser):
         shown = next(r for r in rows(browser) if r["kind"] == "emcy")
         first = next(e for e in emcy if e["id"] == shown["id"])
         assert shown["What"].startswith(f"{first['code']} {first['text']}"), shown
-        assert shown["Where"] == "demo · node 1"
+        # Issue 31: a history EMCY row carries the axis the UMC's EMCY names.
+        where = "demo · node 1" + (f" · axis {first['axis']}" if first.get("axis") else "")
+        assert shown["Where"] == where, (shown, first)
         assert browser.js("return window.notReloaded === true"), "the page was reloaded"
     finally:
         server.request("DELETE", "/api/v1/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
