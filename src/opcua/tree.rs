@@ -369,19 +369,8 @@ mod tests {
 
     fn dictionary() -> ObjectDictionary {
         let mut dictionary = ObjectDictionary::default();
-        let sub = |access| SubObject {
-            sub_index: 0,
-            name: "Producer heartbeat time".into(),
-            data_type: DataType::Unsigned16,
-            access,
-            pdo_mappable: false,
-            default: None,
-            low: None,
-            high: None,
-            parameter_value: None,
-            denotation: None,
-            obj_flags: None,
-        };
+        let sub =
+            |access| SubObject::new(0, "Producer heartbeat time", DataType::Unsigned16, access);
         for (index, access) in [(0x1017, AccessType::Rw), (0x1001, AccessType::Ro)] {
             dictionary.objects.insert(
                 index,
