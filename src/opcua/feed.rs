@@ -17,6 +17,7 @@ use opcua::types::{DataValue, NodeId, Variant};
 use tokio::time::Instant;
 
 use super::browse::{self, NodePath, ROOT};
+use super::revisions::{Revision, Revisions};
 use super::space::CandeckNodes;
 use crate::canopen::NodeId as CanNodeId;
 use crate::gateway::{DriveKind, Gateway, Identification, NodeInfo, ServedBus, Severity};
@@ -250,9 +251,9 @@ fn bus_values(bus: &ServedBus) -> Vec<(String, Variant)> {
     ]
 }
 
-/// A node's values and its identification (0x1018 and the EDS's
-/// `[DeviceInfo]`).
-fn node_values(node: &NodePath, info: &NodeInfo) -> Vec<(String, Variant)> {
+/// A node's values and its identification (0x1018, the EDS's
+/// `[DeviceInfo]`, 0x1009 and 0x100A as [`Revisions`] read them).
+fn node_values(node: &NodePath, info: &NodeInfo, versions: Revision) -> Vec<(String, Variant)> {
     let device = info
         .eds_entry
         .as_ref()
@@ -297,8 +298,8 @@ fn node_values(node: &NodePath, info: &NodeInfo) -> Vec<(String, Variant)> {
                     .map_or(String::new(), |serial| format!("{serial:08X}")),
             ),
         ),
-        (id("HardwareRevision"), text(String::new())),
-        (id("SoftwareRevision"), text(String::new())),
+        (id("HardwareRevision"), text(versions.hardware)),
+        (id("SoftwareRevision"), text(versions.software)),
         (id("DeviceRevision"), text(revision)),
         (
             id("VendorId"),
@@ -397,7 +398,7 @@ async fn feed_axis(gateway: Gateway, sink: Sink, demand: Arc<AxisDemand>, axis: 
 /// The feed: every [`TICK`] (and when a client wants a new axis), the
 /// machine, the buses and the nodes, the subtrees of nodes newly
 /// identified, and the axis feeds started or ended by what is wanted.
-pub async fn run(gateway: Gateway, sink: Sink, demand: Arc<AxisDemand>) {
+pub async fn run(gateway: Gateway, sink: Sink, demand: Arc<AxisDemand>, revisions: Arc<Revisions>) {
     let mut built: BTreeMap<NodePath, (bool, u8)> = BTreeMap::new();
     let mut axes: HashMap<AxisId, tokio::task::JoinHandle<()>> = HashMap::new();
     loop {
@@ -434,7 +435,7 @@ pub async fn run(gateway: Gateway, sink: Sink, demand: Arc<AxisDemand>) {
                     });
                     built.insert(node.clone(), (identified, axis_count));
                 }
-                sink.set(node_values(&node, &info));
+                sink.set(node_values(&node, &info, revisions.of(&node)));
             }
         }
         let wanted = demand.wanted_at(Instant::now());

@@ -17,7 +17,10 @@
 //! - [`tree`]: the nodes of the tree, built into an address space.
 //! - [`space`]: the node manager: reads, writes and calls.
 //! - [`feed`]: the values, fed from the gateway's views and telemetry.
-//! - [`leases`]: motion leases bound to the session that took them.
+//! - [`leases`]: motion leases bound to the session that took them, lapsing
+//!   when it closes or stops talking.
+//! - [`revisions`]: each node's hardware and software versions, read once
+//!   per identification.
 //! - [`server`]: async-opcua's server with all of it.
 //!
 //! Built with the `opcua` cargo feature (default).
@@ -30,6 +33,8 @@ pub mod browse;
 pub mod feed;
 #[cfg(feature = "opcua")]
 pub mod leases;
+#[cfg(feature = "opcua")]
+pub mod revisions;
 #[cfg(feature = "opcua")]
 pub mod server;
 #[cfg(feature = "opcua")]

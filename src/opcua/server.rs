@@ -14,6 +14,7 @@ use super::browse::NAMESPACE;
 use super::config::OpcUaConfig;
 use super::feed::{AxisDemand, Sink};
 use super::leases::SessionLeases;
+use super::revisions::Revisions;
 use super::space::{CandeckNodes, Door};
 use super::users::TokenUsers;
 use crate::gateway::Gateway;
@@ -98,7 +99,7 @@ impl OpcUaServer {
             local.ip().to_string()
         };
         let users = TokenUsers::new(gateway.tokens().clone(), config.logins);
-        let leases = Arc::new(SessionLeases::default());
+        let leases = Arc::new(SessionLeases::new(gateway.lease_period()));
         let door_cell: Arc<OnceLock<Arc<Door>>> = Arc::default();
         let node_manager = {
             let (gateway, leases, door_cell) = (gateway.clone(), leases.clone(), door_cell.clone());
@@ -171,14 +172,21 @@ impl OpcUaServer {
             .get_namespace_index(NAMESPACE)
             .ok_or("the candeck namespace is missing")?;
         let sink = Sink::new(ns, manager, handle.subscriptions().clone());
-        let helpers = vec![
-            tokio::spawn(super::feed::run(gateway.clone(), sink, door.demand.clone())),
+        let revisions = Arc::new(Revisions::default());
+        let mut helpers = revisions.spawn(&gateway);
+        helpers.extend([
+            tokio::spawn(super::feed::run(
+                gateway.clone(),
+                sink,
+                door.demand.clone(),
+                revisions,
+            )),
             tokio::spawn(
                 leases
                     .clone()
                     .run(gateway.clone(), gateway.lease_period() / 3),
             ),
-        ];
+        ]);
         let server = tokio::spawn(server.run_with(listener));
         Ok(Self {
             handle,

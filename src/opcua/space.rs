@@ -154,11 +154,14 @@ impl CandeckNodes {
         };
         let session = context.session_id();
         let claim = self.door.leases.claim(session, &key);
-        let alive = || -> super::leases::Alive {
+        // The session's deadline moves with each of its requests: the
+        // lease keeper's sign that the client still talks.
+        let probe = || -> super::leases::Probe {
             let weak = Arc::downgrade(&context.session);
             Box::new(move || {
-                weak.upgrade()
-                    .is_some_and(|session| session.read().is_activated())
+                let session = weak.upgrade()?;
+                let session = session.read();
+                session.is_activated().then(|| session.deadline())
             })
         };
         let outcome = match method {
@@ -185,7 +188,7 @@ impl CandeckNodes {
                 let leased = outcome.lease.is_some();
                 self.door
                     .leases
-                    .granted(session, alive, caller, outcome.lease.as_ref());
+                    .granted(session, probe, caller, outcome.lease.as_ref());
                 return Ok(vec![Variant::Boolean(leased)]);
             }
             AxisMethod::Halt => gateway
@@ -223,7 +226,7 @@ impl CandeckNodes {
         };
         self.door
             .leases
-            .granted(session, alive, caller, outcome.lease.as_ref());
+            .granted(session, probe, caller, outcome.lease.as_ref());
         Ok(Vec::new())
     }
 
