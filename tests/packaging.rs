@@ -51,25 +51,33 @@ fn script_array(name: &str) -> Vec<String> {
         .collect()
 }
 
-/// The `command:` list of a compose service (a flow sequence of quoted
-/// strings, which is JSON).
-fn compose_command(service: &str) -> Vec<String> {
+/// A compose service's block: its lines below its name.
+fn compose_service(service: &str) -> String {
     let compose = read("docker-compose.yml");
     let header = format!("  {service}:");
     let start = compose
         .lines()
         .position(|line| line == header)
         .unwrap_or_else(|| panic!("no service {service}"));
-    let line = compose
+    compose
         .lines()
         .skip(start + 1)
         .take_while(|line| line.is_empty() || line.starts_with("    "))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The `command:` list of a compose service (a flow sequence of quoted
+/// strings, which is JSON).
+fn compose_command(service: &str) -> Vec<String> {
+    let block = compose_service(service);
+    let line = block
+        .lines()
         .find_map(|line| line.trim().strip_prefix("command: "))
         .unwrap_or_else(|| panic!("service {service} has no command"));
     serde_json::from_str(line).unwrap_or_else(|err| panic!("{service}: {err}: {line}"))
 }
 
-/// `args` without `--NAME VALUE` of the options named.
 fn without(args: &[String], options: &[&str]) -> Vec<String> {
     let mut kept = Vec::new();
     let mut words = args.iter();
@@ -148,7 +156,10 @@ fn the_compose_services_run_what_the_smoke_test_runs() {
     );
 
     let gateway = compose_command("gateway");
-    let mut served = without(&gateway, &["--listen", "--bus", "--data-dir"]);
+    let mut served = without(
+        &gateway,
+        &["--listen", "--bus", "--data-dir", "--opcua-listen"],
+    );
     served.push("--data-dir".to_string());
     let mut smoke = script_array("SERVE_ARGS");
     served.sort();
@@ -163,6 +174,17 @@ fn the_compose_services_run_what_the_smoke_test_runs() {
         gateway
             .windows(2)
             .any(|pair| pair == ["--listen", "0.0.0.0:8080"])
+    );
+    // OPC UA on every address of the container, published on the host's
+    // loopback (the smoke test serves it on a free port).
+    assert!(
+        gateway
+            .windows(2)
+            .any(|pair| pair == ["--opcua-listen", "0.0.0.0:4840"])
+    );
+    assert!(
+        compose_service("gateway").contains("\"127.0.0.1:4840:4840\""),
+        "the OPC UA port is published on loopback only"
     );
 
     // The real-bus profile: SocketCAN, tokens from the environment.

@@ -50,8 +50,8 @@ pub struct Logins {
     /// Username (a token's name) and password (its secret): whenever the
     /// gateway has tokens.
     pub users: bool,
-    /// Anonymous: only on loopback, and only without tokens, as REST
-    /// answers an anonymous request only then.
+    /// Anonymous: only without tokens, and on loopback unless
+    /// `--insecure`, as REST answers an anonymous request only then.
     pub anonymous: bool,
     /// The endpoint without security (`None`): only on loopback, where the
     /// messages never leave the machine.
@@ -79,21 +79,26 @@ pub fn default_pki_dir(data_dir: Option<&std::path::Path>) -> PathBuf {
 
 impl OpcUaConfig {
     /// The settings for `listen`, checked against REST's rule: an address
-    /// other than loopback needs tokens (no anonymous login reaches it);
-    /// `--insecure` does not open it, since OPC UA has no anonymous
-    /// session worth opening to a network.
+    /// other than loopback needs tokens (no anonymous login reaches it) or
+    /// `--insecure` (`insecure`: a container's port published on the
+    /// host's loopback, say); there anonymous sessions are still only
+    /// served over signed and encrypted channels, to clients whose
+    /// certificate an administrator trusted: the `None` endpoint is
+    /// loopback's alone.
     pub fn new(
         listen: SocketAddr,
         pki_dir: PathBuf,
         limits: OpcUaLimits,
         tokens_required: bool,
+        insecure: bool,
     ) -> Result<Self, String> {
         let loopback = listen.ip().is_loopback();
-        if !loopback && !tokens_required {
+        if !loopback && !tokens_required && !insecure {
             return Err(format!(
                 "refusing opcua_listen {listen} without tokens: anonymous OPC UA sessions are only \
                  served on loopback; configure tokens (config file [[tokens]] or CANDECK_TOKENS: \
-                 the token's name is the user name, its secret the password) or listen on 127.0.0.1"
+                 the token's name is the user name, its secret the password), listen on 127.0.0.1, \
+                 or pass --insecure"
             ));
         }
         for (key, value) in [
@@ -120,7 +125,7 @@ impl OpcUaConfig {
             limits,
             logins: Logins {
                 users: tokens_required,
-                anonymous: loopback && !tokens_required,
+                anonymous: (loopback || insecure) && !tokens_required,
                 unsecured_endpoint: loopback,
             },
         })
@@ -137,6 +142,7 @@ mod tests {
             PathBuf::from("pki"),
             OpcUaLimits::default(),
             tokens,
+            false,
         )
     }
 
@@ -174,11 +180,49 @@ mod tests {
     }
 
     #[test]
+    fn insecure_opens_anonymous_sessions_beyond_loopback_but_never_the_none_endpoint() {
+        let insecure = |listen: &str, tokens| {
+            OpcUaConfig::new(
+                listen.parse().unwrap(),
+                PathBuf::from("pki"),
+                OpcUaLimits::default(),
+                tokens,
+                true,
+            )
+            .unwrap()
+            .logins
+        };
+        assert_eq!(
+            insecure("0.0.0.0:4840", false),
+            Logins {
+                users: false,
+                anonymous: true,
+                unsecured_endpoint: false
+            }
+        );
+        // Tokens win over --insecure, as for REST.
+        assert_eq!(
+            insecure("0.0.0.0:4840", true),
+            Logins {
+                users: true,
+                anonymous: false,
+                unsecured_endpoint: false
+            }
+        );
+    }
+
+    #[test]
     fn limits_are_checked() {
         let limits = |change: fn(&mut OpcUaLimits)| {
             let mut limits = OpcUaLimits::default();
             change(&mut limits);
-            OpcUaConfig::new("127.0.0.1:0".parse().unwrap(), "pki".into(), limits, false)
+            OpcUaConfig::new(
+                "127.0.0.1:0".parse().unwrap(),
+                "pki".into(),
+                limits,
+                false,
+                false,
+            )
         };
         assert!(limits(|_| {}).is_ok());
         let err = limits(|l| l.max_sessions = 0).unwrap_err();

@@ -341,12 +341,13 @@ fn opcua(
     limits: crate::opcua::config::OpcUaLimits,
     data_dir: Option<&Path>,
     tokens_required: bool,
+    insecure: bool,
 ) -> Result<crate::opcua::OpcUaConfig, String> {
     if !cfg!(feature = "opcua") {
         return Err("opcua_listen: this candeck was built without the opcua feature".to_string());
     }
     let pki_dir = pki_dir.unwrap_or_else(|| crate::opcua::config::default_pki_dir(data_dir));
-    crate::opcua::OpcUaConfig::new(listen, pki_dir, limits, tokens_required)
+    crate::opcua::OpcUaConfig::new(listen, pki_dir, limits, tokens_required, insecure)
 }
 
 /// The 1-based line and column of byte `offset` of `text`.
@@ -640,6 +641,7 @@ impl ServeArgs {
                 opcua_limits,
                 data_dir.as_deref(),
                 settings.auth.required(),
+                settings.insecure,
             )?),
             None => None,
         };
@@ -775,6 +777,15 @@ impl Settings {
             }
             warnings.push(format!(
                 "--insecure: no tokens, the CiA 309-3 port on {ascii} is open to anyone who reaches it, and may move motors"
+            ));
+        }
+        if let Some(opcua) = &self.opcua
+            && opcua.logins.anonymous
+            && !opcua.listen.ip().is_loopback()
+        {
+            warnings.push(format!(
+                "--insecure: no tokens, the OPC UA server on {} serves anonymous sessions to every client whose certificate is trusted, and may move motors",
+                opcua.listen
             ));
         }
         for share in &self.share {

@@ -108,6 +108,27 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
 }
 
 #[test]
+fn insecure_opens_the_opcua_server_beyond_loopback_as_it_opens_rest() {
+    // The demo container: every address inside, published on the host's
+    // loopback, no tokens.
+    let settings = serve_args(&["--opcua-listen", "0.0.0.0:4840", "--insecure"])
+        .unwrap()
+        .settings_with(None)
+        .unwrap();
+    let opcua = settings.opcua.as_ref().unwrap();
+    assert!(opcua.logins.anonymous && !opcua.logins.users);
+    // Anonymous there only over signed, encrypted channels.
+    assert!(!opcua.logins.unsecured_endpoint);
+    let warnings = settings.listeners().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("OPC UA server on 0.0.0.0:4840")),
+        "{warnings:?}"
+    );
+}
+
+#[test]
 fn the_opcua_server_follows_rests_rule_for_who_may_reach_it() {
     let open = serve_args(&["--opcua-listen", "127.0.0.1:0"])
         .unwrap()
