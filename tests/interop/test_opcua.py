@@ -5,7 +5,8 @@ a subscription to Axes/1/Position while the axis moves; SetState and Move
 by an operator; a viewer's Move refused (BadUserAccessDenied) and audited;
 a dictionary write read back over REST; an unknown client certificate
 refused until moved to trusted/; a closed session halting its leased move;
-anonymous refused where the gateway has tokens."""
+anonymous refused where the gateway has tokens, and on a listener beyond
+loopback (no endpoint without security there either)."""
 
 import asyncio
 import glob
@@ -31,10 +32,11 @@ CLIENT_URI = "urn:candeck:interop-test"
 
 
 class Gateway(Process):
-    """`candeck serve` on the demo bus with tokens, REST and OPC UA on
-    loopback, motion leases of one second."""
+    """`candeck serve` on the demo bus with tokens, REST on loopback, OPC UA
+    on `opcua_listen` (loopback unless told), motion leases of one second.
+    `url` is the OPC UA server's over 127.0.0.1 whatever it listens on."""
 
-    def __init__(self):
+    def __init__(self, opcua_listen="127.0.0.1:0"):
         self.dir = tempfile.mkdtemp(prefix="candeck-opcua-")
         os.environ["CANDECK_TOKENS"] = ",".join(
             f"{name}:{role}:{secret}"
@@ -47,7 +49,7 @@ class Gateway(Process):
                     "--listen",
                     "127.0.0.1:0",
                     "--opcua-listen",
-                    "127.0.0.1:0",
+                    opcua_listen,
                     "--data-dir",
                     self.dir,
                     "--lease-ms",
@@ -61,7 +63,10 @@ class Gateway(Process):
         while True:
             line = self.first_line()
             if "OPC UA server on " in line:
-                self.url = line.split("OPC UA server on ")[1].split()[0].rstrip("/")
+                url = line.split("OPC UA server on ")[1].split()[0].rstrip("/")
+                # On every address the URL names the machine: connect over
+                # loopback, which a non-loopback listener serves alike.
+                self.url = "opc.tcp://127.0.0.1:" + url.rsplit(":", 1)[1]
                 break
         self.pki = os.path.join(self.dir, "opcua-pki")
 
@@ -309,5 +314,29 @@ def test_anonymous_is_refused_where_the_gateway_has_tokens(gateway, certificate)
         c = await secured(gateway, certificate, None)
         with pytest.raises(Exception):
             await c.connect()
+
+    asyncio.run(run())
+
+
+@pytest.fixture(scope="module")
+def network_gateway():
+    """A gateway whose OPC UA server listens on every address (0.0.0.0),
+    reached here over 127.0.0.1."""
+    server = Gateway(opcua_listen="0.0.0.0:0")
+    yield server
+    server.close()
+
+
+def test_anonymous_is_refused_on_a_listener_beyond_loopback(network_gateway, certificate):
+    async def run():
+        # A user is served there, once the client's certificate is trusted.
+        c = await connected(network_gateway, certificate, OPERATOR)
+        await c.disconnect()
+        endpoints = await Client(network_gateway.url, timeout=10).connect_and_get_server_endpoints()
+        assert endpoints
+        assert all(e.SecurityMode != ua.MessageSecurityMode.None_ for e in endpoints), endpoints
+        anonymous = await secured(network_gateway, certificate, None)
+        with pytest.raises(Exception):
+            await anonymous.connect()
 
     asyncio.run(run())
