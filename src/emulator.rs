@@ -67,3 +67,61 @@ impl RackOf for ServedBus {
         self.devices().as_ref()?.downcast_ref::<Rack>()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::umc::Load;
+
+    async fn open(spec: &str) -> Result<ServedBus, String> {
+        let spec: BusSpec = spec
+            .parse()
+            .map_err(|err: crate::can::spec::SpecError| err.to_string())?;
+        open_bus(
+            "virtual",
+            &spec,
+            Arc::new(EdsCatalog::builtin().unwrap()),
+            RegistryConfig::default(),
+            500_000,
+        )
+        .await
+    }
+
+    /// Issue 32: a UMC's load in a `virtual:LIST` bus spec, as `--devices`
+    /// takes it (the bus's bit rate after the last device), and a load out
+    /// of range refused with what is wrong when the bus opens.
+    #[tokio::test(start_paused = true)]
+    async fn a_bus_specs_device_list_carries_each_umcs_load() {
+        let spec: BusSpec = "virtual:umc1bds32@1?inertia=0.003&friction=0.0002,jmc@2?bitrate=125k"
+            .parse()
+            .unwrap();
+        let BusSpec::Virtual { preset, bitrate } = &spec else {
+            panic!("{spec:?}");
+        };
+        assert_eq!(bitrate.and_then(|b| b.get()), Some(125_000));
+        let devices = parse_devices(preset).unwrap();
+        assert_eq!(
+            devices[0].load,
+            Some(Load::new(Some(0.003), Some(0.0002)).unwrap())
+        );
+        assert_eq!(devices[1].load, None);
+        let served = open(&spec.to_string()).await.unwrap();
+        assert_eq!(served.rack().unwrap().devices().len(), 2);
+
+        let refused = open("virtual:umc1bds32@1?inertia=5").await.err().unwrap();
+        assert!(
+            refused.starts_with("bus 'virtual': 'umc1bds32@1?inertia=5': inertia 5 kg·m² is out of range: 0.00002 to 1"),
+            "{refused}"
+        );
+        let refused = open("virtual:umc1bds32@1?friction=-1&bitrate=unlimited")
+            .await
+            .err()
+            .unwrap();
+        assert!(
+            refused.contains("friction -1 N·m·s is out of range"),
+            "{refused}"
+        );
+        let refused = open("virtual:jmc@2?inertia=0.001").await.err().unwrap();
+        assert!(refused.contains("jmc drives no motor"), "{refused}");
+    }
+}

@@ -5,7 +5,7 @@
 //! |---|---|
 //! | `virtual:empty[?bitrate=N\|unlimited]` | a new in-process bus with no devices |
 //! | `virtual:demo[?bitrate=N\|unlimited]` | a new in-process bus with the demo devices |
-//! | `virtual:DEVICES[?bitrate=…]` | a new in-process bus with a device list, `umc1bds32@1,uio1led@lss` |
+//! | `virtual:DEVICES[?bitrate=…]` | a new in-process bus with a device list, `umc1bds32@1,uio1led@lss`; a UMC's load as in `--devices`, `umc1bds32@1?inertia=0.001&friction=0.0002` (then `&bitrate=…`) |
 //! | `socketcan:can0` | a Linux SocketCAN interface |
 //! | `socketcand:HOST:PORT/CHANNEL` | a channel of a socketcand server (HOST may be `[v6]`) |
 //! | `replay:FILE[?speed=N\|max&loop&iface=can0]` | a candump `-L` log played back |
@@ -74,43 +74,7 @@ impl FromStr for BusSpec {
             .split_once(':')
             .ok_or_else(|| SpecError::UnknownKind(spec.to_string()))?;
         match kind {
-            "virtual" => {
-                let (preset, options) = match rest.split_once('?') {
-                    Some((preset, options)) => (preset, Some(options)),
-                    None => (rest, None),
-                };
-                // A device list is read by the emulator, which knows the
-                // products; here only its shape.
-                let device_list = preset.contains('@')
-                    && preset
-                        .chars()
-                        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '@' | ',' | '/'));
-                if !matches!(preset, "demo" | "empty") && !device_list {
-                    return Err(SpecError::invalid(
-                        spec,
-                        "a virtual bus is 'virtual:demo', 'virtual:empty' or a device list \
-                         such as 'virtual:umc1bds32@1,uio1led@lss'",
-                    ));
-                }
-                let bitrate = match options.map(|o| o.split_once('=')) {
-                    None => None,
-                    Some(Some(("bitrate", value))) => Some(
-                        value
-                            .parse::<Bitrate>()
-                            .map_err(|err| SpecError::invalid(spec, err.to_string()))?,
-                    ),
-                    Some(_) => {
-                        return Err(SpecError::invalid(
-                            spec,
-                            "a virtual bus takes one option, ?bitrate=N|unlimited",
-                        ));
-                    }
-                };
-                Ok(Self::Virtual {
-                    preset: preset.to_string(),
-                    bitrate,
-                })
-            }
+            "virtual" => parse_virtual(spec, rest),
             "socketcan" => {
                 // Linux interface names: at most 15 bytes, no '/' or space.
                 if rest.is_empty() || rest.len() > 15 || rest.contains(['/', ' ', ':']) {
@@ -140,6 +104,85 @@ impl FromStr for BusSpec {
             _ => Err(SpecError::UnknownKind(spec.to_string())),
         }
     }
+}
+
+/// `virtual:PRESET[?bitrate=…]`: `demo`, `empty` or a device list, whose
+/// devices may each carry their load (`umc1bds32@1?inertia=0.001&friction=0.0002`);
+/// the bus's `bitrate` comes after the last device (`…&bitrate=125k`, or
+/// `?bitrate=125k` after a device without options).
+fn parse_virtual(spec: &str, rest: &str) -> Result<BusSpec, SpecError> {
+    let items: Vec<&str> = rest.split(',').collect();
+    let mut bitrate = None;
+    let mut devices = Vec::with_capacity(items.len());
+    let mut bare = Vec::with_capacity(items.len());
+    for (position, item) in items.iter().enumerate() {
+        let (device, options) = match item.split_once('?') {
+            Some((device, options)) => (device, Some(options)),
+            None => (*item, None),
+        };
+        let last = position + 1 == items.len();
+        let mut kept = Vec::new();
+        for option in options.into_iter().flat_map(|options| options.split('&')) {
+            match option.split_once('=') {
+                Some(("bitrate", value)) if last && bitrate.is_none() => {
+                    bitrate = Some(
+                        value
+                            .parse::<Bitrate>()
+                            .map_err(|err| SpecError::invalid(spec, err.to_string()))?,
+                    );
+                }
+                Some(("bitrate", _)) => {
+                    return Err(SpecError::invalid(
+                        spec,
+                        "bitrate is the bus's option, given once after the last device",
+                    ));
+                }
+                // The emulator, which knows the products, checks the range.
+                Some((key @ ("inertia" | "friction"), value)) if device.contains('@') => {
+                    if !value.trim().parse::<f64>().is_ok_and(f64::is_finite) {
+                        return Err(SpecError::invalid(
+                            spec,
+                            format!("{key} '{value}' of {device} is not a number"),
+                        ));
+                    }
+                    kept.push(option);
+                }
+                _ => {
+                    return Err(SpecError::invalid(
+                        spec,
+                        format!(
+                            "'{option}': a virtual bus takes ?bitrate=N|unlimited, and each \
+                             device of a list ?inertia=KGM2&friction=NMS"
+                        ),
+                    ));
+                }
+            }
+        }
+        bare.push(device);
+        devices.push(if kept.is_empty() {
+            device.to_string()
+        } else {
+            format!("{device}?{}", kept.join("&"))
+        });
+    }
+    // A device list is read by the emulator, which knows the products;
+    // here only its shape.
+    let bare = bare.join(",");
+    let device_list = bare.contains('@')
+        && bare
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '@' | ',' | '/'));
+    if !matches!(bare.as_str(), "demo" | "empty") && !device_list {
+        return Err(SpecError::invalid(
+            spec,
+            "a virtual bus is 'virtual:demo', 'virtual:empty' or a device list \
+             such as 'virtual:umc1bds32@1,uio1led@lss'",
+        ));
+    }
+    Ok(BusSpec::Virtual {
+        preset: devices.join(","),
+        bitrate,
+    })
 }
 
 fn parse_socketcand(spec: &str, rest: &str) -> Result<BusSpec, SpecError> {
@@ -189,7 +232,14 @@ impl fmt::Display for BusSpec {
             Self::Virtual {
                 preset,
                 bitrate: Some(bitrate),
-            } => write!(f, "virtual:{preset}?bitrate={bitrate}"),
+            } => {
+                // After the last device's own options, if it has some.
+                let joint = match preset.rsplit(',').next() {
+                    Some(last) if last.contains('?') => '&',
+                    _ => '?',
+                };
+                write!(f, "virtual:{preset}{joint}bitrate={bitrate}")
+            }
             Self::Socketcan { interface } => write!(f, "socketcan:{interface}"),
             Self::Socketcand {
                 host,

@@ -199,7 +199,7 @@ pub use motion_lease::{
     AxisKey, DEFAULT_PERIOD, LeaseError, MAX_PERIOD, MIN_PERIOD, MotionLease, mask,
 };
 pub use safe_stop::{StopAttempt, StopMethod, StopOutcome, StopReport};
-pub use step_test::{LoopGains, SampleSource, StepLoop, StepTestRequest, StepTestResult};
+pub use step_test::{LoopGains, SampleSource, Sampling, StepLoop, StepTestRequest, StepTestResult};
 
 // A bus: its frames, recording, SYNC, LSS, network manager, loggers.
 pub use frames::{CAPACITY, FrameLog};

@@ -654,7 +654,7 @@ impl Gateway {
         self.motion_policy(caller, (bus, node, axis), Some(claim), false)?;
         let drive = self.drive(bus, node, axis)?;
         request.validate()?;
-        let values = self.bus(bus)?.values.clone();
+        let node_handle = self.node_handle(bus, node)?;
         let axis_key = key(bus, &drive);
         let ticket = self.authority.ticket(&axis_key)?;
         let took_over = self.take_over_claimed(caller, &axis_key, claim)?;
@@ -688,7 +688,7 @@ impl Gateway {
                     };
                     AuditRow::new(&history, &Caller::system(), target, Some(request))
                 };
-                step_test::run(&drive, &values, &request, &ticket, &audit).await
+                step_test::run(&drive, &node_handle, &request, &ticket, &audit).await
             });
             let result = InFlight::new(&self.leases, &lease)
                 .run(async {

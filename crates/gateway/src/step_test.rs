@@ -18,34 +18,44 @@
 //! (the test runs in a task of its own), each as a row of the audit log.
 //! A position step larger than the following-error window (0x6065), or a
 //! move to `from` that is, is refused before anything is written: the
-//! drive would fault on it. The actual value is taken from the TPDO that carries
-//! it when one runs (the node sent the axis's actual value in a TPDO within
-//! the last [`TPDO_FRESH`] when the step is made: node operational, the
-//! TPDO on an event timer or on SYNC): one sample per frame, timed by its
-//! arrival, at whatever rate the TPDO comes, and no SDO transfer. If that
-//! TPDO then falls silent for [`TPDO_FRESH`], the rest of the hold is read
-//! by SDO. Without such a TPDO the actual value is read by SDO every
-//! millisecond (the board's control cycle), or as fast as the node answers
-//! when that is slower; each read queues on the node's channel with
-//! everyone else's. The answer's `source` says which.
+//! drive would fault on it.
+//!
+//! The actual value is sampled at the loop's rate from a TPDO the test
+//! sets up for its duration ([`sampling`]: a free TPDO of the node, else
+//! its last, carrying the actual value every millisecond, put back as it
+//! was afterwards, whatever happens): one sample per frame, timed by its
+//! arrival, and no SDO transfer. Where the node cannot have one (not
+//! operational, no EDS, no event timer, a refused re-mapping), a TPDO that
+//! already carries the actual value (sent within the last [`TPDO_FRESH`]
+//! when the step is made) feeds the samples at its own rate, else the
+//! actual value is read by SDO every millisecond (the board's control
+//! cycle), or as fast as the node answers when that is slower; each read
+//! queues on the node's channel with everyone else's. If the TPDO falls
+//! silent during the hold, the rest is read by SDO. The answer says how
+//! (`sampling`, `source`), why, and at what rate.
 //!
 //! Only a UMC-class drive (one with the PID objects) and only an axis in
 //! operation enabled are tested. Whatever happens, the axis is stopped at
 //! the end (halt, or quick stop if the halt cannot be written).
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
+use tokio::sync::Notify;
+use tokio::sync::broadcast::{self, error::RecvError};
 
 use crate::GatewayError;
 use crate::audit::AuditRow;
 use crate::authority::AxisTicket;
 use crate::axis_telemetry::TPDO_FRESH;
 use crate::drive::{Drive, DriveError, DriveKind, MoveRequest};
+use crate::node::NodeHandle;
 use crate::profiles::cia402::State;
 use crate::profiles::cia402::objects as obj;
-use crate::values::TpdoValues;
+use crate::values::{TpdoFrame, TpdoValues};
 
+mod sampling;
 #[cfg(test)]
 mod tests;
 
@@ -104,11 +114,27 @@ pub enum SampleSource {
     TpdoThenSdo,
 }
 
+/// How a step test sampled the actual value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampling {
+    /// From a TPDO's frames: the test's own, or one already running.
+    Tpdo,
+    /// By SDO reads: the node could have no sampling TPDO.
+    Sdo,
+}
+
 /// What a step test measured.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StepTestResult {
-    /// Where the actual values came from: `tpdo` (the frames of a running
-    /// TPDO that carries the loop's actual value, at its rate), `sdo`
+    /// How the actual value was sampled: `tpdo` (a TPDO's frames, the
+    /// test's own at up to 1 kHz or one already running) or `sdo`.
+    pub sampling: Sampling,
+    /// Samples per second over the hold after the step, as achieved.
+    pub sample_rate_hz: f64,
+    /// Which TPDO at which period, or why by SDO.
+    pub sampling_note: String,
+    /// Where the actual values came from: `tpdo` (a TPDO's frames), `sdo`
     /// (read every millisecond, or as fast as the node answers), or
     /// `tpdo_then_sdo` (the TPDO fell silent during the hold).
     pub source: SampleSource,
@@ -223,8 +249,8 @@ impl StepTestRequest {
 
 /// Runs a step test on `drive`; the axis is stopped at the end whatever
 /// happened.
-/// `values`: the TPDO values of the drive's bus, which feed the samples
-/// when they carry the loop's actual value (see the module documentation).
+/// `node`: the drive's node, whose TPDO the test sets up for its samples
+/// and whose bus's TPDO values feed them (see the module documentation).
 /// `ticket`: the test's right to the axis, which `drive` holds too (its
 /// writes go under the axis's gate, none after a stop); each hold waits on
 /// it, so a stop of the axis (halt, quick stop, STOP ALL, a lapsed lease)
@@ -232,7 +258,7 @@ impl StepTestRequest {
 /// the stop (which has stopped the axis itself).
 pub(crate) async fn run(
     drive: &Drive,
-    values: &TpdoValues,
+    node: &NodeHandle,
     request: &StepTestRequest,
     ticket: &AxisTicket,
     audit: Audit<'_>,
@@ -264,8 +290,13 @@ pub(crate) async fn run(
     let gains = loop_gains(drive, request).await;
     let mut shaping = Shaping::of(drive, request).await?;
     let lifted = shaping.lift(drive, audit).await;
+    let mut plan = None;
     let result = match lifted {
-        Ok(()) => steps(drive, values, request, ticket).await,
+        Ok(()) => {
+            let set_up = sampling::set_up(node, drive.object(request.actual())).await;
+            let plan = plan.insert(set_up);
+            steps(drive, &node.served.values, plan, request, ticket).await
+        }
         Err(error) => Err(error),
     };
     // The stop always goes out: after a result, and after a failure; but
@@ -278,8 +309,13 @@ pub(crate) async fn run(
     // Put back whatever was lifted, whatever happened: not through the
     // ticket, which a stop voids.
     let restored = shaping.restore(&drive.untethered(), audit).await;
+    let sampling_restored = match &plan {
+        Some(sampling::Plan::Tpdo(tpdo)) => tpdo.restore().await,
+        _ => Ok(()),
+    };
     let mut result = result?;
     restored?;
+    sampling_restored?;
     result.gains = gains;
     Ok(result)
 }
@@ -491,13 +527,73 @@ fn little_endian(bytes: &[u8]) -> i64 {
 async fn steps(
     drive: &Drive,
     values: &TpdoValues,
+    plan: &sampling::Plan,
     request: &StepTestRequest,
     ticket: &AxisTicket,
 ) -> Result<StepTestResult, GatewayError> {
     let hold = Duration::from_millis(u64::from(request.hold_ms));
+    let actual = request.actual();
+    let node = drive.node_id();
+    let index = drive.object(actual);
+    // Every decoded frame from here on: what came during the hold at
+    // `from` says whether the sampling TPDO runs.
+    let wake = Arc::new(Notify::new());
+    let mut frames = values.follow(wake.clone());
     drive.run_move(&request.level(request.from)).await?;
     ticket.hold(hold).await?;
-    let actual = request.actual();
+    let mut heard = Vec::new();
+    loop {
+        match frames.try_recv() {
+            Ok(frame) if frame.node == node => heard.extend(
+                frame
+                    .values
+                    .iter()
+                    .filter(|value| (value.index, value.sub) == (index, 0))
+                    .map(|value| value.pdo),
+            ),
+            Ok(_) | Err(broadcast::error::TryRecvError::Lagged(_)) => {}
+            Err(_) => break,
+        }
+    }
+    let running = Tpdo {
+        values,
+        node,
+        index,
+    }
+    .running(tokio::time::Instant::now());
+    // The TPDO that feeds the samples, how long it may fall silent, and
+    // what the answer says of it.
+    let (feed, mut note) = match plan {
+        sampling::Plan::Tpdo(own) if heard.contains(&own.number) => (
+            Some((
+                own.number,
+                Duration::from_millis(20 * u64::from(own.period_ms)).max(OWN_TPDO_SILENCE),
+            )),
+            format!(
+                "TPDO {} set up for the test: 0x{index:04X} every {} ms, put back after it",
+                own.number, own.period_ms
+            ),
+        ),
+        sampling::Plan::Tpdo(own) => (
+            None,
+            format!(
+                "read by SDO: TPDO {} set up for the test sent nothing during the hold at {} \
+                 (a node sends PDOs only when operational, CiA 301 §7.3.2.2)",
+                own.number, request.from
+            ),
+        ),
+        sampling::Plan::Sdo(why) => match running {
+            Some(value) => (
+                Some((value.pdo, TPDO_FRESH)),
+                format!(
+                    "TPDO {} already carried 0x{index:04X}, at its own rate (no TPDO of the \
+                     test's own: {why})",
+                    value.pdo
+                ),
+            ),
+            None => (None, format!("read by SDO: {why}")),
+        },
+    };
     let start = tokio::time::Instant::now();
     drive.run_move(&request.level(request.to)).await?;
     let mut samples = Vec::new();
@@ -508,18 +604,24 @@ async fn steps(
             value as f64,
         ]
     };
-    let tpdo = Tpdo {
-        values,
-        node: drive.node_id(),
-        index: drive.object(actual),
-    };
     let mut source = SampleSource::Sdo;
-    if tpdo.running(tokio::time::Instant::now()).is_some() {
+    if let Some((pdo, silence)) = feed {
         source = SampleSource::Tpdo;
-        if !tpdo.record(start, hold, &mut samples, sample, ticket).await {
+        let feed = Feed {
+            node,
+            index,
+            pdo,
+            silence,
+        };
+        if !feed
+            .record(&mut frames, start, hold, &mut samples, sample, ticket)
+            .await
+        {
             source = SampleSource::TpdoThenSdo;
+            note.push_str("; it fell silent during the hold, the rest read by SDO");
         }
     }
+    drop(frames);
     ticket.check()?;
     let done = |samples: &Vec<[f64; 3]>| {
         samples.len() >= MAX_SAMPLES
@@ -555,9 +657,18 @@ async fn steps(
         request.settle_band_pct,
         samples,
     );
+    result.sampling = match source {
+        SampleSource::Sdo => Sampling::Sdo,
+        SampleSource::Tpdo | SampleSource::TpdoThenSdo => Sampling::Tpdo,
+    };
+    result.sampling_note = note;
     result.source = source;
     Ok(result)
 }
+
+/// How long the test's own TPDO may fall silent at least before the rest
+/// of the hold is read by SDO (else 20 of its periods).
+const OWN_TPDO_SILENCE: Duration = Duration::from_millis(50);
 
 /// The TPDO value of the loop's actual value.
 struct Tpdo<'a> {
@@ -574,50 +685,59 @@ impl Tpdo<'_> {
             .value(self.node, self.index, 0)
             .filter(|value| now.saturating_duration_since(value.at) <= TPDO_FRESH)
     }
+}
 
-    /// One sample per frame that carries the value, from `start` until the
-    /// first frame at or after the hold's end (true: as the SDO path ends
-    /// with its first read at or after it), or until the TPDO has been
-    /// silent for [`TPDO_FRESH`] (false: the rest is for SDO).
+/// The frames of one TPDO that carry the loop's actual value.
+struct Feed {
+    node: crate::canopen::NodeId,
+    index: u16,
+    pdo: u16,
+    /// How long it may fall silent.
+    silence: Duration,
+}
+
+impl Feed {
+    /// One sample per frame of the TPDO that carries the value, from
+    /// `start` until the first frame at or after the hold's end (true: as
+    /// the SDO path ends with its first read at or after it), or until the
+    /// TPDO has been silent for its `silence` (false: the rest is for SDO).
     async fn record(
         &self,
+        frames: &mut broadcast::Receiver<TpdoFrame>,
         start: tokio::time::Instant,
         hold: Duration,
         samples: &mut Vec<[f64; 3]>,
         sample: impl Fn(Duration, i64) -> [f64; 3],
         ticket: &AxisTicket,
     ) -> bool {
-        let mut frames = self.values.watch_frames(self.node);
-        let mut counted = None;
         let end = start + hold;
+        let mut last = start;
         loop {
-            // Seen before reading: a frame from here on wakes the wait.
-            frames.borrow_and_update();
-            let Some(value) = self.values.value(self.node, self.index, 0) else {
-                // No longer mapped (the TPDOs were read again).
-                return false;
-            };
-            // A new frame, and not one from before the step (the newest
-            // of those sent while the step was being written counts).
-            if counted != Some(value.count) {
-                counted = Some(value.count);
-                if value.at >= start {
-                    samples.push(sample(value.at - start, value.as_i64(true)));
-                    if value.at >= end || samples.len() >= MAX_SAMPLES {
-                        return true;
-                    }
-                }
-            }
             if ticket.stopped() {
                 return false;
             }
-            tokio::select! {
-                changed = frames.changed() => {
-                    if changed.is_err() {
-                        return false;
-                    }
-                }
-                () = tokio::time::sleep(TPDO_FRESH) => return false,
+            let frame = match tokio::time::timeout_at(last + self.silence, frames.recv()).await {
+                Ok(Ok(frame)) => frame,
+                // Frames lost to a slow turn: the samples have a gap.
+                Ok(Err(RecvError::Lagged(_))) => continue,
+                Ok(Err(RecvError::Closed)) | Err(_) => return false,
+            };
+            if frame.node != self.node {
+                continue;
+            }
+            let carried = frame
+                .values
+                .iter()
+                .find(|value| (value.index, value.sub, value.pdo) == (self.index, 0, self.pdo));
+            // Not one from before the step (the newest of those sent while
+            // the step was being written counts).
+            let Some(value) = carried.filter(|value| value.at >= start) else {
+                continue;
+            };
+            last = value.at;
+            samples.push(sample(value.at - start, value.as_i64(true)));
+            if value.at >= end || samples.len() >= MAX_SAMPLES {
+                return true;
             }
         }
     }
@@ -667,7 +787,16 @@ pub(crate) fn metrics(from: f64, to: f64, band_pct: f64, samples: Vec<[f64; 3]>)
             / tail as f64;
         to - mean
     };
+    let sample_rate_hz = match (samples.first(), samples.last()) {
+        (Some(first), Some(last)) if last[0] > first[0] => {
+            (samples.len() - 1) as f64 * 1000.0 / (last[0] - first[0])
+        }
+        _ => 0.0,
+    };
     StepTestResult {
+        sampling: Sampling::Sdo,
+        sample_rate_hz,
+        sampling_note: String::new(),
         source: SampleSource::Sdo,
         rise_time_ms,
         overshoot_pct,

@@ -35,5 +35,5 @@ pub use access::Role;
 pub use drive::{AxisLimits, AxisStatus, AxisUnits, MoveMode, MoveRequest, TargetState};
 pub use logger::{ChannelInfo, ChannelRequest, LoggerRequest, LoggerState, LoggerStatus, Source};
 pub use safe_stop::{StopAttempt, StopMethod, StopOutcome};
-pub use step_test::{LoopGains, SampleSource, StepLoop, StepTestRequest, StepTestResult};
+pub use step_test::{LoopGains, SampleSource, Sampling, StepLoop, StepTestRequest, StepTestResult};
 pub use uioled::{Color, Preview, PreviewSegment};

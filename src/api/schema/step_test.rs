@@ -45,11 +45,27 @@ pub enum SampleSource {
     TpdoThenSdo,
 }
 
+/// How a step test sampled the actual value.
+#[derive(Debug, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampling {
+    /// From a TPDO's frames: the test's own, or one already running.
+    Tpdo,
+    /// By SDO reads: the node could have no sampling TPDO.
+    Sdo,
+}
+
 /// What a step test measured.
 #[derive(Debug, ToSchema)]
 pub struct StepTestResult {
-    /// Where the actual values came from: `tpdo` (the frames of a running
-    /// TPDO that carries the loop's actual value, at its rate), `sdo`
+    /// How the actual value was sampled: `tpdo` (a TPDO's frames, the
+    /// test's own at up to 1 kHz or one already running) or `sdo`.
+    pub sampling: Sampling,
+    /// Samples per second over the hold after the step, as achieved.
+    pub sample_rate_hz: f64,
+    /// Which TPDO at which period, or why by SDO.
+    pub sampling_note: String,
+    /// Where the actual values came from: `tpdo` (a TPDO's frames), `sdo`
     /// (read every millisecond, or as fast as the node answers), or
     /// `tpdo_then_sdo` (the TPDO fell silent during the hold).
     pub source: SampleSource,

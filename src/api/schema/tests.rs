@@ -20,7 +20,9 @@ use crate::gateway::{
     ChannelInfo, ChannelRequest, LoggerRequest, LoggerState, LoggerStatus, Source,
 };
 use crate::gateway::{Color, Preview, PreviewSegment};
-use crate::gateway::{LoopGains, SampleSource, StepLoop, StepTestRequest, StepTestResult};
+use crate::gateway::{
+    LoopGains, SampleSource, Sampling, StepLoop, StepTestRequest, StepTestResult,
+};
 use crate::gateway::{StopAttempt, StopMethod, StopOutcome};
 
 /// Every variant of a gateway enum of unit variants. Fails to compile when
@@ -487,12 +489,18 @@ fn the_step_test_mirrors_describe_the_gateways_request_and_result() {
         });
     }
     checker.examples_are_taken::<super::StepTestRequest, StepTestRequest>();
-    for source in every!(SampleSource {
+    for (source, sampling) in every!(SampleSource {
         Tpdo,
         Sdo,
         TpdoThenSdo
-    }) {
+    })
+    .into_iter()
+    .zip(every!(Sampling { Tpdo, Sdo }).into_iter().cycle())
+    {
         checker.check::<super::StepTestResult>(&StepTestResult {
+            sampling,
+            sample_rate_hz: 1000.0,
+            sampling_note: "TPDO 4 set up for the test".to_string(),
             source,
             rise_time_ms: Some(12.5),
             overshoot_pct: 3.0,
@@ -507,6 +515,9 @@ fn the_step_test_mirrors_describe_the_gateways_request_and_result() {
         });
     }
     checker.check::<super::StepTestResult>(&StepTestResult {
+        sampling: Sampling::Sdo,
+        sample_rate_hz: 0.0,
+        sampling_note: String::new(),
         source: SampleSource::Sdo,
         rise_time_ms: None,
         overshoot_pct: 0.0,
@@ -519,6 +530,7 @@ fn the_step_test_mirrors_describe_the_gateways_request_and_result() {
         super::StepLoop::name(),
         super::StepTestRequest::name(),
         super::SampleSource::name(),
+        super::Sampling::name(),
         super::StepTestResult::name(),
         super::LoopGains::name(),
     ]);

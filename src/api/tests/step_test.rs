@@ -100,8 +100,17 @@ async fn a_velocity_step_is_measured_and_the_axis_halted_after() {
     let (app, _) = demo().await;
     enable(&app, 1).await;
     let body = step(&app).await;
-    // The demo UMC sends no TPDO before it is started: read by SDO.
+    // The demo UMC sends no TPDO before it is started: read by SDO, and
+    // the answer says why.
     assert_eq!(body["source"], "sdo", "{}", body["source"]);
+    assert_eq!(body["sampling"], "sdo", "{body}");
+    let note = body["sampling_note"].as_str().unwrap();
+    assert!(
+        note.contains("sent nothing") && note.contains("operational"),
+        "{note}"
+    );
+    let rate = body["sample_rate_hz"].as_f64().unwrap();
+    assert!(rate > 300.0 && rate <= 1001.0, "{rate}");
     let samples = body["samples"].as_array().unwrap();
     assert!(samples.len() >= 100, "{} samples", samples.len());
     let last = samples.last().unwrap();
@@ -243,13 +252,15 @@ async fn a_torque_step_reaches_its_target() {
     assert_eq!(shaping(&app).await, before);
 }
 
-/// A caller that goes away mid-test does not leave the ramps lifted: the
-/// test ends (its lease lapses) and puts them back in its own task.
+/// A caller that goes away mid-test does not leave the ramps lifted nor
+/// its sampling TPDO set up: the test ends (its lease lapses) and puts
+/// them back in its own task.
 #[tokio::test(start_paused = true)]
 async fn the_ramps_are_put_back_when_the_caller_goes_away() {
     let (app, _) = demo().await;
     enable(&app, 1).await;
     let before = shaping(&app).await;
+    let tpdos = tpdo_parameters(&app).await;
     let request = json!({"loop": "velocity", "from": 0, "to": 1000, "hold_ms": 2000});
     let gone = tokio::time::timeout(
         std::time::Duration::from_millis(500),
@@ -259,6 +270,8 @@ async fn the_ramps_are_put_back_when_the_caller_goes_away() {
     assert!(gone.is_err(), "the test was still running");
     tokio::time::sleep(std::time::Duration::from_secs(3)).await;
     assert_eq!(shaping(&app).await, before);
+    // And the TPDO it set up for its samples.
+    assert_eq!(tpdo_parameters(&app).await, tpdos);
 }
 
 #[tokio::test(start_paused = true)]
@@ -321,12 +334,31 @@ fn uploads_of(frames: &mut crate::can::FrameReceiver, index: u16) -> usize {
     count
 }
 
-/// With the velocity loop's actual value (VL's 0x6044) in a TPDO sent
-/// every 2 ms by an operational node, the step is recorded from its
-/// frames, one sample each, and 0x6044 is not read by SDO at all; once the TPDO stops (the
-/// node pre-operational), the next step is read by SDO again.
+/// Node 1's TPDO parameters as they read: 0x1800-0x1803 subs 1, 2, 3, 5,
+/// 6 and 0x1A00-0x1A03 subs 0 to 8.
+async fn tpdo_parameters(app: &Router) -> Vec<i64> {
+    let mut values = Vec::new();
+    for number in 0..4u16 {
+        for sub in [1, 2, 3, 5, 6] {
+            values.push(read(app, &format!("0x{:04X}", 0x1800 + number), sub).await);
+        }
+        for sub in 0..=8 {
+            values.push(read(app, &format!("0x{:04X}", 0x1A00 + number), sub).await);
+        }
+    }
+    values
+}
+
+/// Issue 32, "samples come at the loop's rate from a TPDO (≥ 1 kHz where
+/// the device allows)": on an operational node the step test sets up a
+/// TPDO of its own (the UMC has no free one: its last, TPDO 4, borrowed),
+/// carrying the loop's actual value (VL's 0x6044) every millisecond: one
+/// sample per frame, 1 ms apart, 0x6044 not read by SDO at all, and not
+/// the 2 ms frames of TPDO 1, which carries it too. Afterwards every TPDO
+/// parameter reads back as before. Once the node is pre-operational (no
+/// PDOs), the next step is read by SDO, and the answer says why.
 #[tokio::test(start_paused = true)]
-async fn a_step_on_an_axis_whose_tpdo_carries_the_actual_is_fed_by_it() {
+async fn a_step_test_samples_at_1_khz_from_a_tpdo_of_its_own_and_puts_it_back() {
     let (app, state) = demo().await;
     let (status, pdo) = put(
         &app,
@@ -352,27 +384,37 @@ async fn a_step_on_an_axis_whose_tpdo_carries_the_actual_is_fed_by_it() {
     nmt("start").await;
     enable(&app, 1).await;
     tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    let before = tpdo_parameters(&app).await;
     let served = state.bus("demo").unwrap();
     let mut monitor = served.monitor();
     let body = step(&app).await;
+    assert_eq!(body["sampling"], "tpdo", "{}", body["sampling_note"]);
     assert_eq!(body["source"], "tpdo", "{}", body["source"]);
+    let note = body["sampling_note"].as_str().unwrap();
+    assert!(
+        note.starts_with("TPDO 4 set up for the test: 0x6044 every 1 ms"),
+        "{note}"
+    );
     assert_eq!(uploads_of(&mut monitor, 0x6044), 0, "0x6044 read by SDO");
     let samples = body["samples"].as_array().unwrap();
     let times: Vec<f64> = samples.iter().map(|s| s[0].as_f64().unwrap()).collect();
-    // One sample per TPDO: 2 ms apart over the 300 ms hold.
+    // One sample per frame: 1 ms apart over the 300 ms hold.
     assert!(
-        (140..=160).contains(&times.len()),
+        (295..=305).contains(&times.len()),
         "{} samples",
         times.len()
     );
     assert!(
-        times.windows(2).all(|w| (w[1] - w[0] - 2.0).abs() < 0.5),
+        times.windows(2).all(|w| (w[1] - w[0] - 1.0).abs() < 0.1),
         "{times:?}"
     );
     assert!(*times.last().unwrap() >= 300.0, "{times:?}");
+    let rate = body["sample_rate_hz"].as_f64().unwrap();
+    assert!(rate >= 990.0, "{rate} Hz");
     let actual = samples.last().unwrap()[2].as_f64().unwrap();
     assert!((actual - 800.0).abs() <= 20.0, "{actual}");
     assert!(body["rise_time_ms"].as_f64().unwrap() > 0.0, "{body}");
+    assert_eq!(tpdo_parameters(&app).await, before, "put back");
 
     nmt("pre_operational").await;
     tokio::time::sleep(std::time::Duration::from_secs(2)).await;
@@ -382,5 +424,13 @@ async fn a_step_on_an_axis_whose_tpdo_carries_the_actual_is_fed_by_it() {
     enable(&app, 1).await;
     let body = step(&app).await;
     assert_eq!(body["source"], "sdo", "{}", body["source"]);
+    assert_eq!(body["sampling"], "sdo", "{body}");
+    let note = body["sampling_note"].as_str().unwrap();
+    // The demo sends no heartbeats: the TPDO's silence tells.
+    assert!(
+        note.contains("TPDO 4 set up for the test sent nothing"),
+        "{note}"
+    );
     assert!(uploads_of(&mut monitor, 0x6044) > 100);
+    assert_eq!(tpdo_parameters(&app).await, before);
 }

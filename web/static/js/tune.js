@@ -199,7 +199,7 @@ $('#step-form').addEventListener('submit', async (event) => {
     h('span', {}, `Overshoot ${fmt(r.overshoot_pct)} %`),
     h('span', {}, `Settling ${ms(r.settling_time_ms)}`),
     h('span', {}, `Steady-state error ${fmt(r.steady_state_error)}`),
-    h('span', { class: 'sub' }, `${r.samples.length} samples (${SOURCES[r.source] || r.source})`),
+    h('span', { class: 'sub', id: 'step-sampling', title: r.sampling_note }, `${r.samples.length} samples at ${fmt(r.sample_rate_hz)} Hz (${SOURCES[r.source] || r.source})`),
   );
   // Each run with the gains it ran with: the history compares tunings.
   const gains = r.gains ? ` (P ${fmt(r.gains.p)}, I ${fmt(r.gains.i)}, D ${fmt(r.gains.d)})` : '';

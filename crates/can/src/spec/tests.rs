@@ -32,6 +32,35 @@ fn every_documented_spec_parses_and_prints_back() {
             },
         ),
         (
+            "virtual:umc1bds32@1,uio1led@lss",
+            BusSpec::Virtual {
+                preset: "umc1bds32@1,uio1led@lss".into(),
+                bitrate: None,
+            },
+        ),
+        // Issue 32: a UMC's load in the bus spec, as `--devices` takes it.
+        (
+            "virtual:umc1bds32@1?inertia=0.001&friction=0.0002,jmc@2",
+            BusSpec::Virtual {
+                preset: "umc1bds32@1?inertia=0.001&friction=0.0002,jmc@2".into(),
+                bitrate: None,
+            },
+        ),
+        (
+            "virtual:jmc@2,umc1bds32@1?inertia=0.001&bitrate=125000",
+            BusSpec::Virtual {
+                preset: "jmc@2,umc1bds32@1?inertia=0.001".into(),
+                bitrate: Some(Bitrate::bits_per_second(125_000)),
+            },
+        ),
+        (
+            "virtual:umc1bds32@1?friction=0.0002,jmc@2?bitrate=unlimited",
+            BusSpec::Virtual {
+                preset: "umc1bds32@1?friction=0.0002,jmc@2".into(),
+                bitrate: Some(Bitrate::Unlimited),
+            },
+        ),
+        (
             "socketcan:can0",
             BusSpec::Socketcan {
                 interface: "can0".into(),
@@ -93,6 +122,24 @@ fn bad_specs_say_what_is_expected() {
         ),
         ("virtual:demo?bitrate=fast", "bit rate 'fast' is not"),
         ("virtual:demo?speed=2", "?bitrate=N|unlimited"),
+        // A load is a device's, and a number; the bit rate the bus's, once.
+        ("virtual:demo?inertia=0.001", "?bitrate=N|unlimited"),
+        (
+            "virtual:umc1bds32@1?inertia=heavy",
+            "inertia 'heavy' of umc1bds32@1 is not a number",
+        ),
+        (
+            "virtual:umc1bds32@1?mass=2",
+            "each device of a list ?inertia=KGM2&friction=NMS",
+        ),
+        (
+            "virtual:umc1bds32@1?bitrate=125k,jmc@2",
+            "bitrate is the bus's option, given once after the last device",
+        ),
+        (
+            "virtual:umc1bds32@1?bitrate=125k&bitrate=250k",
+            "bitrate is the bus's option, given once",
+        ),
         ("socketcan:", "expected a network interface name"),
         (
             "socketcan:averyveryverylongname",

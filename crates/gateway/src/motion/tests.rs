@@ -501,3 +501,83 @@ async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
         "{rows:#?}"
     );
 }
+
+/// Node 1's TPDO parameters as they read: 0x1800-0x1803 subs 1, 2, 3, 5,
+/// 6 and 0x1A00-0x1A03 subs 0 to 8.
+async fn tpdo_parameters(gateway: &Gateway) -> Vec<(u16, u8, Vec<u8>)> {
+    let sdo = gateway
+        .bus("demo")
+        .unwrap()
+        .registry
+        .sdo(crate::canopen::NodeId::new(1).unwrap())
+        .unwrap();
+    let mut values = Vec::new();
+    for number in 0..4u16 {
+        for (index, subs) in [
+            (0x1800 + number, &[1u8, 2, 3, 5, 6][..]),
+            (0x1A00 + number, &[0, 1, 2, 3, 4, 5, 6, 7, 8]),
+        ] {
+            for &sub in subs {
+                values.push((index, sub, sdo.upload(index, sub).await.unwrap()));
+            }
+        }
+    }
+    values
+}
+
+/// Issue 32, "samples come at the loop's rate from a TPDO": the step test
+/// sets up a TPDO of its own on an operational node (the UMC has no free
+/// one: its last, TPDO 4, borrowed: 0x6044 every millisecond), and puts
+/// its mapping and communication parameters back when a halt ends the
+/// test half-way; both are the gateway's `configure pdo` rows.
+#[tokio::test(start_paused = true)]
+async fn a_halted_step_test_puts_its_sampling_tpdo_back_and_says_so() {
+    let (gateway, caller) = enabled_demo().await;
+    let node = gateway.node_handle("demo", "1").unwrap();
+    node.nmt(&caller, NmtCommand::Start).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let before = tpdo_parameters(&gateway).await;
+    let values = gateway.bus("demo").unwrap().values.clone();
+    let test = spawn_step_test(&gateway, &caller);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let during = values
+        .value(crate::canopen::NodeId::new(1).unwrap(), 0x6044, 0)
+        .expect("0x6044 in a TPDO during the test");
+    assert_eq!(during.pdo, 4, "{during:?}");
+    assert_ne!(tpdo_parameters(&gateway).await, before, "TPDO 4 set up");
+    gateway
+        .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let ended = test.await.unwrap();
+    assert!(ended.is_err(), "the halt ended the test");
+    assert_eq!(tpdo_parameters(&gateway).await, before, "put back");
+    let rows = crate::audit::tests::rows_where(&gateway, 2, |row| {
+        row["operation"] == "configure pdo" && row["who"] == "gateway"
+    })
+    .await;
+    let words: Vec<(&str, &str)> = rows
+        .iter()
+        .map(|row| {
+            (
+                row["item"].as_str().unwrap(),
+                row["request"].as_str().unwrap_or(""),
+            )
+        })
+        .collect();
+    assert_eq!(
+        words,
+        [
+            (
+                "tpdo 4",
+                "step test sampling: 0x6044 every 1 ms (borrowed, put back after the test)"
+            ),
+            (
+                "tpdo 4",
+                "step test sampling over: TPDO 4 put back as before the test"
+            ),
+        ],
+        "{rows:#?}"
+    );
+    assert!(rows.iter().all(|row| row["outcome"] == "ok"), "{rows:#?}");
+}

@@ -68,6 +68,41 @@ impl NodeHandle {
         .await
     }
 
+    /// [`NodeHandle::configure_pdo`] as the gateway's own doing (a step
+    /// test's sampling TPDO, set up and put back): the same checks,
+    /// procedure and follow-up, in a task of its own with its row, by
+    /// [`Caller::system`]; the operation that asks for it admitted its
+    /// caller already. `summary`: why, for the row.
+    pub(crate) async fn configure_pdo_by_gateway(
+        &self,
+        kind: PdoKind,
+        number: u16,
+        request: &PdoRequest,
+        summary: String,
+    ) -> Result<PdoConfig, GatewayError> {
+        let caller = Caller::system();
+        let item = format!("{} {number}", kind.name());
+        let row = self.audit_row(&caller, "configure pdo", Some(item), Some(summary));
+        let (this, request) = (self.clone(), request.clone());
+        audited(row, async move {
+            this.configure(&caller, kind, number, &request).await
+        })
+        .await
+    }
+
+    /// The node's TPDOs as configured now, read for the gateway's own use
+    /// (no caller: [`NodeHandle::read_pdos`] is the callers' operation).
+    pub(crate) async fn read_tpdos_by_gateway(&self) -> Result<Vec<PdoConfig>, GatewayError> {
+        check_sdo_allowed(&self.served, &self.info)?;
+        let channel = self.served.registry.sdo(self.info.id)?;
+        let eds = self.info.eds_entry.clone();
+        spawned(async move {
+            let dict = eds.as_ref().map(|entry| &entry.eds.dictionary);
+            Ok(pdo::read_all(&channel, dict, PdoKind::Tpdo).await?)
+        })
+        .await
+    }
+
     async fn configure(
         &self,
         caller: &Caller,

@@ -313,3 +313,57 @@ fn a_cob_id_is_not_made_valid_over_an_invalid_mapping() {
         Err(AbortCode::ParameterIncompatible)
     );
 }
+
+/// The step test's sampling TPDO on a virtual UMC (issue 32): TPDO 4
+/// re-mapped over SDO while the node is operational (CiA 301 §7.2.2.3:
+/// invalidate, map, set the event-driven type 255 and a 1 ms event timer,
+/// validate) goes every millisecond on a 500 kbit/s bus, carrying 0x6044.
+#[tokio::test(start_paused = true)]
+async fn the_virtual_umc_honours_a_one_millisecond_event_timer() {
+    let hub = VirtualHub::new("test");
+    let master = hub.attach();
+    let node = NodeId::new(1).unwrap();
+    let core = crate::products::Product::Umc1bds32.device(node).unwrap();
+    let device = Arc::new(Mutex::new(core));
+    let task = tokio::spawn(run_device(hub.attach(), device.clone()));
+    tokio::time::sleep(ms(10)).await;
+    send_nmt_to(&master, node, NmtCommand::Start).await;
+    let sdo = SdoChannel::new(master.clone(), node, ClientConfig::default());
+    let tpdo4 = CanId::Standard(0x481);
+    let write = async |index: u16, sub: u8, bytes: &[u8]| {
+        sdo.download(index, sub, bytes).await.unwrap();
+    };
+    write(0x1803, 1, &0x8000_0481u32.to_le_bytes()).await;
+    write(0x1A03, 0, &[0]).await;
+    write(0x1A03, 1, &0x6044_0010u32.to_le_bytes()).await;
+    write(0x1A03, 0, &[1]).await;
+    write(0x1803, 2, &[255]).await;
+    write(0x1803, 3, &0u16.to_le_bytes()).await;
+    write(0x1803, 5, &1u16.to_le_bytes()).await;
+    let mut frames = master.subscribe();
+    write(0x1803, 1, &0x0000_0481u32.to_le_bytes()).await;
+    let from = tokio::time::Instant::now();
+    let mut times = Vec::new();
+    while from.elapsed() < ms(100) {
+        let frame = frames.recv().await.unwrap().frame;
+        if frame.id() == tpdo4 {
+            assert_eq!(frame.data().len(), 2, "0x6044 alone: 16 bits");
+            times.push(from.elapsed());
+        }
+    }
+    assert!((98..=101).contains(&times.len()), "{} frames", times.len());
+    for pair in times.windows(2) {
+        let gap = pair[1] - pair[0];
+        assert!(
+            gap >= Duration::from_micros(900) && gap <= Duration::from_micros(1100),
+            "{gap:?}"
+        );
+    }
+    task.abort();
+}
+
+async fn send_nmt_to(master: &Bus, node: NodeId, command: NmtCommand) {
+    let frame = NmtMessage::new(command, NmtTarget::Node(node)).encode();
+    master.send(frame).await.unwrap();
+    tokio::time::sleep(ms(1)).await;
+}
