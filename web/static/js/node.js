@@ -149,7 +149,13 @@ function identityMismatch(file) {
   const differs = [];
   if (entry.vendor_id !== null && entry.vendor_id !== id.vendor_id) differs.push(`vendor ${hex(entry.vendor_id, 8)}, the device ${hex(id.vendor_id, 8)}`);
   if (entry.product_code !== null && entry.product_code !== id.product_code) differs.push(`product ${hex(entry.product_code, 8)}, the device ${hex(id.product_code, 8)}`);
-  return differs.length ? `${file} describes another device: ${differs.join('; ')}.` : '';
+  const product = productOf(entry);
+  return differs.length ? `${file} describes another device${product ? ` (${product})` : ''}: ${differs.join('; ')}.` : '';
+}
+
+/** A catalog entry's product and vendor names, as its [DeviceInfo] gives them. */
+function productOf(entry) {
+  return [entry.product_name, entry.vendor_name].filter(Boolean).join(', ');
 }
 
 function showEdsWarning() {
@@ -175,7 +181,8 @@ async function loadEdsFiles() {
     const usable = list.files.filter((f) => f.usable);
     edsFiles = usable.map((f) => f.name);
     edsCatalog = new Map(usable.map((f) => [f.name, f]));
-    edsSelect.replaceChildren(...edsFiles.map((name) => h('option', { value: name }, name)));
+    edsSelect.replaceChildren(...usable.map((f) => h('option', { value: f.name },
+      f.product_name ? `${f.name} (${f.product_name})` : f.name)));
     if (detail) renderEds();
   } catch (error) {
     result(edsResult, 'failed', `The EDS files: ${error.message}`);
