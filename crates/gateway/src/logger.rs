@@ -816,7 +816,7 @@ fn drive_unit(units: &AxisUnits, index: u16, axes: u8) -> Option<String> {
         0x6062 | 0x6064 | 0x6065 | 0x6067 | 0x607A | 0x607C | 0x607D | 0x60F4 => &units.position,
         // Demand, actual, target and limit velocities.
         0x606B | 0x606C | 0x607F | 0x6080 | 0x6081 | 0x60FF => &units.velocity,
-        0x6083 | 0x6084 | 0x6085 => &units.acceleration,
+        0x6083..=0x6085 => &units.acceleration,
         0x6071 | 0x6072 | 0x6074 | 0x6077 => &units.torque,
         0x6042 | 0x6044 => units.vl_velocity.as_ref()?,
         _ => return None,
