@@ -64,6 +64,12 @@ pub struct EdsFile {
     pub product_code: Option<u32>,
     #[schema(example = 0x0100_0004)]
     pub revision: Option<u32>,
+    /// The vendor's and the product's names (`[DeviceInfo]` `VendorName`,
+    /// `ProductName`); null when the file gives none.
+    #[schema(example = "UniSwarm SASU")]
+    pub vendor_name: Option<String>,
+    #[schema(example = "UMC1BDS32")]
+    pub product_name: Option<String>,
     /// The device type (0x1000's default).
     #[schema(example = 0x0002_0192)]
     pub device_type: Option<u32>,
@@ -130,6 +136,8 @@ fn skipped(file: &SkippedFile) -> EdsFile {
         vendor_id: None,
         product_code: None,
         revision: None,
+        vendor_name: None,
+        product_name: None,
         device_type: None,
         profile: None,
         objects: None,
@@ -153,6 +161,8 @@ fn file(entry: &EdsEntry, nodes: Vec<EdsUser>) -> EdsFile {
         vendor_id: entry.vendor_id,
         product_code: entry.product_code,
         revision: entry.revision,
+        vendor_name: entry.eds.device_info.vendor_name.clone(),
+        product_name: entry.eds.device_info.product_name.clone(),
         device_type: entry.device_type,
         profile: Some(entry.profile.name()),
         objects: Some(entry.eds.dictionary.len()),

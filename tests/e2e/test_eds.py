@@ -40,6 +40,11 @@ def test_a_file_is_uploaded_shown_with_its_problems_assigned_and_deleted(browser
     open_eds(browser, server)
     assert browser.js("return document.querySelector(`#eds tr[data-name='umc1bds32.eds']`).dataset.source") == "built_in"
     assert row_text(browser, "io401.eds", ".warnings") == "0"
+    # Issue 31 point 6: the catalog names each file's product and vendor
+    # ([DeviceInfo]), not only its hex identity.
+    identity = row_text(browser, "umc1bds32.eds", "td[data-label='Identity']")
+    assert "UMC1BDS32" in identity and "UniSwarm SASU" in identity and "0x000004A2" in identity, identity
+    assert "JMC CANopen stepper drive" in row_text(browser, "jmc_stepper.eds", "td[data-label='Identity']")
 
     # Upload: the name comes from the file; its warning is listed by line.
     browser.driver.find_element(By.ID, "upload-file").send_keys(IPOS)
@@ -57,7 +62,11 @@ def test_a_file_is_uploaded_shown_with_its_problems_assigned_and_deleted(browser
     Select(browser.driver.find_element(By.ID, "eds-file")).select_by_value(NAME)
     # Issue 31 point 6: a file of another device's identity is said so, and
     # Assign asks before assigning it.
-    assert "describes another device" in browser.driver.find_element(By.ID, "eds-warning").text
+    warning = browser.driver.find_element(By.ID, "eds-warning").text
+    assert "describes another device (iPOS-like, Technosoft (imitated))" in warning, warning
+    # The files offered name their products too.
+    offered = browser.js("return [...document.querySelectorAll('#eds-file option')].map((o) => o.textContent)")
+    assert "umc1bds32.eds (UMC1BDS32)" in offered, offered
     browser.driver.find_element(By.ID, "eds-assign").click()
     browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no question asked")
     browser.driver.find_element(By.ID, "confirm-ok").click()

@@ -171,5 +171,12 @@ def test_a_finished_loggers_last_message_without_rows_still_completes_the_chart(
     logger = log_one_position_for_2_s(server, browser)
     browser.wait(lambda _: chart(browser)["rows"] == logger["samples"],
                  message=f"the chart holds {chart(browser)['rows']} of {logger['samples']} rows")
+    # The rows the CSV filled in have their values (its time_utc column is
+    # no channel's): the cursor in the middle, past the stream's first rows.
+    ActionChains(browser.driver).move_to_element(browser.driver.find_element(By.ID, "chart")).perform()
+    browser.wait(lambda _: browser.driver.find_element(By.ID, "readout").text.startswith("t = "),
+                 message="no read-out under the cursor")
+    readout = browser.driver.find_element(By.ID, "readout").text
+    assert "demo/1/a1_pc_Position_actual_value = " in readout and "= —" not in readout, readout
     browser.check()
     assert not browser.problems, browser.problems

@@ -62,6 +62,16 @@ def test_a_uniswarm_node_changes_its_node_id_from_its_page(server, browser):
     state, text = result(browser, "node-id-result")
     assert state == "done" and "booted up as node 9" in text, text
     assert server.get("/api/v1/buses/demo/nodes/9/od/0x2040/1")["value"] == 9
+    # Issue 31 point 6: the old ID's page no longer says "operational /
+    # online" (what it last read); it says where the device went.
+    def fact(key):
+        return browser.js(f"return document.querySelector('#identity dd[data-fact=\"{key}\"]').innerText")
+    browser.wait(lambda _: fact("online") == "gone", message=f"the old page still says {fact('online')}")
+    assert fact("nmt") == "moved to node ID 9", fact("nmt")
+    message = browser.js("const m = document.getElementById('page-message'); return [m.hidden, m.innerText, "
+                         "m.querySelector('a')?.getAttribute('href')]")
+    assert message[0] is False and "Node 3 moved to node ID 9" in message[1], message
+    assert message[2] == "/nodes/demo/9", message
     # The JMC's page offers no such change.
     browser.driver.get(f"{server.url}/nodes/demo/2")
     browser.wait(lambda _: browser.js("return document.querySelector('#identity dd') !== null"), message="node 2 did not load")

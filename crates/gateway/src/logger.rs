@@ -44,8 +44,10 @@ use tokio::time::Instant;
 use super::audit::{AuditTarget, spawn_audited};
 use super::axis_telemetry::TPDO_FRESH;
 use super::caller::Caller;
+use super::drive::{AxisUnits, DriveKind, axis_count};
 use super::policy::Operation;
 use super::producers::unreachable;
+use super::recording::civil_from_days;
 use super::service::{Gateway, ServedBus};
 use super::telemetry::{TopicReceiver, ValueTopic, unix_ms};
 use super::{GatewayError, files};
@@ -167,6 +169,12 @@ pub struct ChannelInfo {
     /// The EDS type (`i32`, ...); null when the EDS does not describe it
     /// (the bytes are then read as an unsigned little-endian number).
     pub data_type: Option<String>,
+    /// The unit of its raw values where candeck knows it (a drive's CiA
+    /// 402 positions, velocities, accelerations and torques, as the
+    /// product's manual names them: `increments`, `0.1 rps`); the CSV's
+    /// header gives it as `name [unit]`. Null elsewhere.
+    #[serde(default)]
+    pub unit: Option<String>,
     /// Where its last sample came from; null before the first.
     pub source: Option<Source>,
     pub sdo_samples: u64,
@@ -769,6 +777,13 @@ async fn resolve(
                 message: format!("{}:{sub}: {message}", format_index(index)),
             })?;
     }
+    let unit = DriveKind::from_profile(info.profile).and_then(|kind| {
+        drive_unit(
+            &kind.units(),
+            index,
+            axis_count(kind, info.eds_entry.as_deref()),
+        )
+    });
     let info = ChannelInfo {
         bus: channel.bus.clone(),
         node: channel.node,
@@ -776,6 +791,7 @@ async fn resolve(
         sub,
         name,
         data_type: data_type.map(|t| t.short_name().map_or_else(|| t.to_string(), str::to_string)),
+        unit,
         source: None,
         sdo_samples: 0,
         tpdo_samples: 0,
@@ -783,6 +799,29 @@ async fn resolve(
         last_error: None,
     };
     Ok((sampler, info))
+}
+
+/// The unit of a drive's object `index` (any axis of `axes`, CiA 402's
+/// 0x800 apart): the positions, velocities, accelerations and torques
+/// whose units the product's manual fixes ([`AxisUnits`]); `None` for any
+/// other object.
+fn drive_unit(units: &AxisUnits, index: u16, axes: u8) -> Option<String> {
+    const AXIS_STEP: u16 = 0x800;
+    let end = 0x6000 + AXIS_STEP * u16::from(axes.max(1));
+    if !(0x6000..end).contains(&index) {
+        return None;
+    }
+    let unit = match 0x6000 + (index - 0x6000) % AXIS_STEP {
+        // Actual, target, window and limit positions, following error.
+        0x6062 | 0x6064 | 0x6065 | 0x6067 | 0x607A | 0x607C | 0x607D | 0x60F4 => &units.position,
+        // Demand, actual, target and limit velocities.
+        0x606B | 0x606C | 0x607F | 0x6080 | 0x6081 | 0x60FF => &units.velocity,
+        0x6083..=0x6085 => &units.acceleration,
+        0x6071 | 0x6072 | 0x6074 | 0x6077 => &units.torque,
+        0x6042 | 0x6044 => units.vl_velocity.as_ref()?,
+        _ => return None,
+    };
+    Some(unit.clone())
 }
 
 /// One round: every channel sampled, the channels of one node one after
@@ -979,15 +1018,31 @@ fn csv_field(text: &str) -> String {
     }
 }
 
+/// The header of the absolute time's column: ISO 8601, UTC, milliseconds.
+const TIME_UTC: &str = "time_utc";
+
+/// A CSV as spreadsheets take it: one header line, `time_ms` (since the
+/// start), `time_utc` (the sample's time, ISO 8601 UTC to the
+/// millisecond), then a column per channel named `name [unit]` where its
+/// unit is known; then a row per sample, a failed sample an empty cell.
 fn to_csv<'a>(status: &LoggerStatus, rows: impl Iterator<Item = &'a Row>) -> String {
-    let mut out = String::from("time_ms");
+    let mut out = format!("time_ms,{TIME_UTC}");
     for channel in &status.channels {
         out.push(',');
-        out.push_str(&csv_field(&channel.name));
+        let column = match &channel.unit {
+            Some(unit) => format!("{} [{unit}]", channel.name),
+            None => channel.name.clone(),
+        };
+        out.push_str(&csv_field(&column));
     }
     out.push('\n');
     for row in rows {
-        let _ = write!(out, "{}", row.time_ms);
+        let _ = write!(
+            out,
+            "{},{}",
+            row.time_ms,
+            iso8601_ms(status.started_ms.saturating_add(row.time_ms))
+        );
         for value in &row.values {
             out.push(',');
             if let Some(value) = value {
@@ -999,10 +1054,26 @@ fn to_csv<'a>(status: &LoggerStatus, rows: impl Iterator<Item = &'a Row>) -> Str
     out
 }
 
-/// The rows of a CSV [`to_csv`] wrote.
+/// Milliseconds since the Unix epoch as ISO 8601, UTC:
+/// `2026-11-29T12:00:00.125Z`.
+fn iso8601_ms(unix_ms: u64) -> String {
+    let (secs, millis) = (unix_ms / 1000, unix_ms % 1000);
+    let (days, rest) = (secs / 86_400, secs % 86_400);
+    let (year, month, day) = civil_from_days(days as i64);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{millis:03}Z",
+        rest / 3600,
+        rest % 3600 / 60,
+        rest % 60
+    )
+}
+
+/// The rows of a CSV [`to_csv`] wrote (or an earlier version, without the
+/// `time_utc` column: files kept before it).
 fn from_csv(text: &str, channels: usize) -> Result<Vec<Row>, String> {
     let mut lines = text.lines();
-    lines.next().ok_or("no header")?;
+    let header = lines.next().ok_or("no header")?;
+    let absolute = header.split(',').nth(1) == Some(TIME_UTC);
     lines
         .enumerate()
         .map(|(n, line)| {
@@ -1011,6 +1082,11 @@ fn from_csv(text: &str, channels: usize) -> Result<Vec<Row>, String> {
                 .next()
                 .and_then(|cell| cell.parse().ok())
                 .ok_or_else(|| format!("row {}: no time", n + 1))?;
+            if absolute {
+                cells
+                    .next()
+                    .ok_or_else(|| format!("row {}: no {TIME_UTC}", n + 1))?;
+            }
             let values = cells
                 .map(|cell| {
                     if cell.is_empty() {

@@ -162,6 +162,9 @@ pub struct Machine {
     status: watch::Receiver<MachineStatus>,
     commands: mpsc::UnboundedSender<Command>,
     manager: ManagerConfig,
+    /// The nodes the description expects started (`[[nodes]]` with `start
+    /// = true`): their axes are the machine's to put back in operation.
+    started: Arc<[NodeId]>,
     stopper: Arc<std::sync::OnceLock<MotionStopper>>,
     _task: Arc<TaskGuard>,
 }
@@ -184,6 +187,12 @@ impl Machine {
         history: Option<History>,
     ) -> Self {
         let now = Instant::now();
+        let started = settings
+            .nodes
+            .iter()
+            .filter(|node| node.expected && node.start)
+            .map(|node| node.id)
+            .collect();
         let manager = Manager::new(settings.manager.clone(), settings.nodes, now.into_std());
         let (status_tx, status) = watch::channel(manager.status());
         let (commands, commands_rx) = mpsc::unbounded_channel();
@@ -202,6 +211,7 @@ impl Machine {
             status,
             commands,
             manager: settings.manager,
+            started,
             stopper,
             _task: Arc::new(TaskGuard(task.abort_handle())),
         }
@@ -227,6 +237,12 @@ impl Machine {
     /// The manager's settings.
     pub fn manager(&self) -> &ManagerConfig {
         &self.manager
+    }
+
+    /// The nodes the machine description expects in operation (described,
+    /// and started after their boot-up), in the order described.
+    pub fn described_started(&self) -> &[NodeId] {
+        &self.started
     }
 
     /// Runs a node's boot-up again; an error names why it cannot. A door

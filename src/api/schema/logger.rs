@@ -63,6 +63,12 @@ pub struct ChannelInfo {
     /// The EDS type (`i32`, ...); null when the EDS does not describe it
     /// (the bytes are then read as an unsigned little-endian number).
     pub data_type: Option<String>,
+    /// The unit of its raw values where candeck knows it (a drive's CiA
+    /// 402 positions, velocities, accelerations and torques, as the
+    /// product's manual names them); the CSV's header gives it as
+    /// `name [unit]`. Null elsewhere.
+    #[schema(example = "increments")]
+    pub unit: Option<String>,
     /// Where its last sample came from; null before the first.
     pub source: Option<Source>,
     pub sdo_samples: u64,

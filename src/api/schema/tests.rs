@@ -594,6 +594,7 @@ fn the_logger_mirrors_describe_the_gateways_request_and_status() {
         sub: 0,
         name: "demo/1/a1_pc_Position_actual_value".into(),
         data_type: source.map(|_| "i32".into()),
+        unit: source.map(|_| "increments".into()),
         source,
         sdo_samples: 3,
         tpdo_samples: 4,

@@ -59,6 +59,11 @@ async fn the_catalog_lists_every_file_with_its_problems_and_the_ones_left_out() 
     assert_eq!(umc["source"], "built_in");
     assert_eq!(umc["usable"], true);
     assert_eq!(umc["vendor_id"], 0x4A2);
+    // The names of its [DeviceInfo], for the catalog to show.
+    assert_eq!(
+        (&umc["vendor_name"], &umc["product_name"]),
+        (&"UniSwarm SASU".into(), &"UMC1BDS32".into())
+    );
     assert_eq!(umc["profile"], "umc");
     assert_eq!(umc["objects"], 321);
     assert_eq!(umc["warnings"], serde_json::json!([]));
@@ -87,6 +92,7 @@ async fn the_catalog_lists_every_file_with_its_problems_and_the_ones_left_out() 
 
     let broken = file("broken.eds");
     assert_eq!(broken["usable"], false);
+    assert_eq!(broken["product_name"], Json::Null);
     assert!(
         broken["errors"][0]["message"]
             .as_str()

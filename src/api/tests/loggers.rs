@@ -53,8 +53,33 @@ async fn enable_and_run(app: &Router) {
 }
 
 /// The CSV of logger `id`: its header, and its rows as numbers (`None`
-/// for an empty cell).
+/// for an empty cell), the absolute time (`time_utc`, the second column)
+/// left out: [`absolute_times`] has it.
 async fn csv(app: &Router, id: &Json) -> (Vec<String>, Vec<Vec<Option<f64>>>) {
+    let (header, rows) = csv_cells(app, id).await;
+    let rows = rows
+        .into_iter()
+        .map(|cells| {
+            cells
+                .iter()
+                .enumerate()
+                .filter(|(n, _)| *n != 1)
+                .map(|(_, cell)| (!cell.is_empty()).then(|| cell.parse().unwrap()))
+                .collect()
+        })
+        .collect();
+    (header, rows)
+}
+
+/// The `time_utc` column of logger `id`'s CSV.
+async fn absolute_times(app: &Router, id: &Json) -> Vec<String> {
+    let (header, rows) = csv_cells(app, id).await;
+    assert_eq!(header[1], "time_utc");
+    rows.into_iter().map(|mut cells| cells.remove(1)).collect()
+}
+
+/// The CSV of logger `id` as text cells, header first.
+async fn csv_cells(app: &Router, id: &Json) -> (Vec<String>, Vec<Vec<String>>) {
     let (status, text, content_type) = raw_call(
         app,
         Method::GET,
@@ -73,11 +98,7 @@ async fn csv(app: &Router, id: &Json) -> (Vec<String>, Vec<Vec<Option<f64>>>) {
         .map(str::to_string)
         .collect();
     let rows = lines
-        .map(|line| {
-            line.split(',')
-                .map(|cell| (!cell.is_empty()).then(|| cell.parse().unwrap()))
-                .collect()
-        })
+        .map(|line| line.split(',').map(str::to_string).collect())
         .collect();
     (header, rows)
 }
@@ -114,14 +135,31 @@ async fn a_logger_of_position_and_velocity_follows_a_move() {
     }
 
     let (header, rows) = csv(&app, &id).await;
+    // The absolute time beside the relative one; each column's unit as
+    // the UMC's manual gives it, in its header (what spreadsheets take as
+    // the column's name).
     assert_eq!(
         header,
         [
             "time_ms",
-            "demo/1/a1_pc_Position_actual_value",
-            "demo/1/a1_pv_Velocity_actual_value"
+            "time_utc",
+            "demo/1/a1_pc_Position_actual_value [increments]",
+            "demo/1/a1_pv_Velocity_actual_value [increments/ms]"
         ]
     );
+    assert_eq!(done["channels"][0]["unit"], "increments", "{done}");
+    // Each row's time_utc is the start plus its time_ms, ISO 8601 UTC to
+    // the millisecond.
+    let started_ms = done["started_ms"].as_i64().unwrap();
+    let utc = absolute_times(&app, &id).await;
+    assert_eq!(utc.len(), rows.len());
+    for (row, utc) in rows.iter().zip(&utc) {
+        let at_us = (started_ms + row[0].unwrap() as i64) * 1000;
+        let micros = crate::api::events::rfc3339(at_us);
+        // The µs text's last three digits are 0: cut to milliseconds.
+        let expected = format!("{}Z", &micros[..micros.len() - 4]);
+        assert_eq!(*utc, expected, "{row:?}");
+    }
     assert_eq!(rows.len() as u64, samples);
     // On the 10 ms grid, in order.
     assert!(rows.windows(2).all(|pair| {

@@ -42,9 +42,16 @@ function nodeLinks(nodes) {
 function rows(file) {
   const warnings = file.warnings.length;
   const errors = file.errors.length;
+  // The product's and vendor's names first (what a reader knows a device
+  // by), then the numbers a device's 0x1018 is matched against.
+  const named = file.product_name || file.vendor_name
+    ? [h('span', { class: 'product' },
+      h('strong', {}, file.product_name || 'unnamed product'),
+      file.vendor_name ? h('span', { class: 'sub vendor' }, ` ${file.vendor_name}`) : null), h('br')]
+    : [];
   const identity = file.vendor_id === null && file.product_code === null
-    ? h('span', { class: 'sub' }, 'none: assign by hand')
-    : [`vendor ${hex(file.vendor_id)}`, h('br'), `product ${hex(file.product_code)}`,
+    ? [...named, h('span', { class: 'sub' }, 'none: assign by hand')]
+    : [...named, `vendor ${hex(file.vendor_id)}`, h('br'), `product ${hex(file.product_code)}`,
       file.revision !== null ? [h('br'), `revision ${hex(file.revision)}`] : null,
       file.matches_by_identity ? null : [h('br'), h('span', { class: 'sub' }, 'matched by hand only')]].flat();
   const toggle = h('button', {

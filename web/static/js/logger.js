@@ -157,9 +157,13 @@ async function csvText(id) {
   return response.text();
 }
 
+/** The CSV's rows as the stream gives them: time_ms, then a value per
+ * channel (the second column, time_utc, is for spreadsheets). */
 function parseCsv(text) {
   const lines = text.trim().split('\n');
-  return lines.slice(1).filter(Boolean).map((line) => line.split(',').map((cell) => (cell === '' ? null : Number(cell))));
+  return lines.slice(1).filter(Boolean).map((line) => line.split(',')
+    .filter((_, n) => n !== 1)
+    .map((cell) => (cell === '' ? null : Number(cell))));
 }
 
 function hide() {

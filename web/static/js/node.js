@@ -149,7 +149,13 @@ function identityMismatch(file) {
   const differs = [];
   if (entry.vendor_id !== null && entry.vendor_id !== id.vendor_id) differs.push(`vendor ${hex(entry.vendor_id, 8)}, the device ${hex(id.vendor_id, 8)}`);
   if (entry.product_code !== null && entry.product_code !== id.product_code) differs.push(`product ${hex(entry.product_code, 8)}, the device ${hex(id.product_code, 8)}`);
-  return differs.length ? `${file} describes another device: ${differs.join('; ')}.` : '';
+  const product = productOf(entry);
+  return differs.length ? `${file} describes another device${product ? ` (${product})` : ''}: ${differs.join('; ')}.` : '';
+}
+
+/** A catalog entry's product and vendor names, as its [DeviceInfo] gives them. */
+function productOf(entry) {
+  return [entry.product_name, entry.vendor_name].filter(Boolean).join(', ');
 }
 
 function showEdsWarning() {
@@ -175,7 +181,8 @@ async function loadEdsFiles() {
     const usable = list.files.filter((f) => f.usable);
     edsFiles = usable.map((f) => f.name);
     edsCatalog = new Map(usable.map((f) => [f.name, f]));
-    edsSelect.replaceChildren(...edsFiles.map((name) => h('option', { value: name }, name)));
+    edsSelect.replaceChildren(...usable.map((f) => h('option', { value: f.name },
+      f.product_name ? `${f.name} (${f.product_name})` : f.name)));
     if (detail) renderEds();
   } catch (error) {
     result(edsResult, 'failed', `The EDS files: ${error.message}`);
@@ -229,6 +236,27 @@ let readAgain = false;
 // forgets the ID, so the page reads it no more; the change's result links
 // to the new one.
 let moved = false;
+// The node ID it moved to, where this page changed it (the stream's
+// `offline` event does not say).
+let movedTo = null;
+
+/** The device left this node ID: the page stops saying what it last read
+ * (operational, online) and says where it went, or that it is gone. */
+function showMoved() {
+  moved = true;
+  const state = movedTo === null ? 'moved to another node ID' : `moved to node ID ${movedTo}`;
+  for (const key of ['nmt', 'online']) {
+    const dd = identity.querySelector(`dd[data-fact="${key}"]`);
+    if (dd) dd.replaceChildren(h('span', { class: 'badge bad' }, key === 'online' ? 'gone' : state));
+  }
+  const seen = identity.querySelector('dd[data-fact="last-seen"]');
+  if (seen) seen.replaceChildren(h('span', { class: 'sub' }, 'not on this node ID any more'));
+  pageMessage.dataset.kind = 'error';
+  pageMessage.hidden = false;
+  pageMessage.dataset.moved = 'true';
+  pageMessage.replaceChildren(`Node ${nodeId} ${state}: this ID is no longer on the bus. `,
+    movedTo === null ? '' : h('a', { href: `/nodes/${encodeURIComponent(bus)}/${movedTo}` }, `Open node ${movedTo}`));
+}
 
 /** Reads the node again; one read at a time, a read asked meanwhile runs after. */
 async function loadDetail() {
@@ -240,6 +268,8 @@ async function loadDetail() {
   reading = true;
   try {
     const fresh = await api(base);
+    // Moved while it was read: what it read is no longer this ID's.
+    if (moved) return;
     const first = !detail;
     detail = fresh;
     detailReadAt = Date.now();
@@ -366,6 +396,8 @@ $('#node-id-form').addEventListener('submit', async (event) => {
     result(nodeIdResult, 'failed', h('strong', {}, `Change failed (${clock()}): `), errorView(done.error));
     return;
   }
+  movedTo = done.value.id;
+  if (moved) showMoved();
   const href = `/nodes/${encodeURIComponent(bus)}/${done.value.id}`;
   result(nodeIdResult, 'done', h('strong', {}, `The device booted up as node ${done.value.id} (${clock()}). `),
     h('a', { href, id: 'node-id-new-page' }, `Open node ${done.value.id}`));
@@ -811,8 +843,7 @@ const mine = (data) => data && data.bus === bus && String(data.node) === nodeId;
 
 stream.subscribe(['nodes'], (data, message) => {
   if (mine(data) && data.event === 'offline' && data.reason === 'node_id_changed') {
-    moved = true;
-    showMessage(pageMessage, `Node ${nodeId} moved to another node ID: this ID is no longer on the bus.`);
+    showMoved();
     return;
   }
   if (message.lagged || mine(data)) loadDetail();

@@ -1,6 +1,12 @@
 //! Machine-level recovery: every faulted axis of a bus reset, and every
-//! axis the gateway last put in operation enabled again, in one
-//! operation each (`POST /buses/{bus}/machine/reset-faults`, `/enable`).
+//! axis the machine description or the gateway's last enable put in
+//! operation enabled again, in one operation each (`POST
+//! /buses/{bus}/machine/reset-faults`, `/enable`).
+//!
+//! "Enable all" takes every axis of every drive node the description
+//! expects started (`[[nodes]]` with `start = true`), with the axes the
+//! gateway enabled since it started: after a restart of the gateway, which
+//! forgets what it enabled, the described machine still comes back.
 //!
 //! Each axis is taken on its own, by the axis operations a door would call
 //! ([`Gateway::reset_axis_fault`], [`Gateway::set_axis_state`]: their role,
@@ -107,7 +113,8 @@ const BLOCKING: &[&str] = &[
 enum Recovery {
     /// Every axis of every drive node that is in fault.
     ResetFaults,
-    /// Every axis the gateway last enabled.
+    /// Every axis of the drive nodes the description expects started, and
+    /// every axis the gateway last enabled.
     Enable,
 }
 
@@ -124,8 +131,9 @@ impl Gateway {
         self.recover(caller, bus, Recovery::ResetFaults).await
     }
 
-    /// Puts every axis of `bus` the gateway last enabled back in operation
-    /// enabled.
+    /// Puts every axis of `bus` the machine description expects in
+    /// operation (every axis of each described drive node it starts), and
+    /// every axis the gateway last enabled, back in operation enabled.
     ///
     /// Audited as `machine enable`; each axis writes its own `drive state
     /// change` row.
@@ -154,10 +162,7 @@ impl Gateway {
             self.admit(caller, Operation::RecoverMachine)?;
             let axes = match recovery {
                 Recovery::ResetFaults => self.drive_axes(bus)?,
-                Recovery::Enable => {
-                    self.bus(bus)?;
-                    self.enabled_axes.axes_on(bus)
-                }
+                Recovery::Enable => self.axes_to_enable(bus)?,
             };
             let mut report = Vec::new();
             for (node, axis) in axes {
@@ -187,6 +192,29 @@ impl Gateway {
             }
         }
         Ok(axes)
+    }
+
+    /// The axes "Enable all" takes on `bus`, in node and axis order: those
+    /// of every drive node the machine description expects started, and
+    /// those the gateway last enabled (a node not described, enabled by
+    /// hand).
+    fn axes_to_enable(&self, bus: &str) -> Result<Vec<(u8, u8)>, GatewayError> {
+        let served = self.bus(bus)?;
+        let mut axes = std::collections::BTreeSet::new();
+        if let Some(machine) = &served.machine {
+            for &node in machine.described_started() {
+                let Some(info) = served.registry.node(node) else {
+                    // Not heard: its `node_missing` alarm says so.
+                    continue;
+                };
+                if let Some(kind) = DriveKind::from_profile(info.profile) {
+                    let count = axis_count(kind, info.eds_entry.as_deref());
+                    axes.extend((1..=count).map(|axis| (node.get(), axis)));
+                }
+            }
+        }
+        axes.extend(self.enabled_axes.axes_on(bus));
+        Ok(axes.into_iter().collect())
     }
 
     /// The active alarms whose cause keeps `node` of `bus` from recovering.

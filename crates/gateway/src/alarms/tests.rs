@@ -659,3 +659,61 @@ async fn enable_all_brings_back_the_axes_last_enabled_and_refuses_one_still_in_f
         Err(GatewayError::UnknownBus(_))
     ));
 }
+
+#[tokio::test(start_paused = true)]
+async fn enable_all_takes_the_described_drive_s_axes_after_a_restart() {
+    // The machine description expects node 1 (the UMC) started; node 2 is
+    // described but left pre-operational, node 9 is not there.
+    let mut described = config(&[("line", "virtual:demo")]);
+    let mut idle = NodeDescription::new(node(2));
+    idle.start = false;
+    described.machine_nodes.insert(
+        "line".to_string(),
+        vec![
+            NodeDescription::new(node(1)),
+            idle,
+            NodeDescription::new(node(9)),
+        ],
+    );
+    let gateway = demo(described).await;
+    let alice = operator("alice");
+    let free = crate::motion::LeaseClaim::presented(None, false);
+    for axis in ["1", "2"] {
+        gateway
+            .set_axis_state(
+                &alice,
+                ("line", "1", axis),
+                crate::drive::TargetState::OperationEnabled,
+                &free,
+            )
+            .await
+            .unwrap();
+    }
+    let rack = rack(&gateway, "line");
+    rack.inject_fault(node(1), Fault::OverTemperature).unwrap();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    rack.clear_fault(node(1), Fault::OverTemperature).unwrap();
+    // As after a restart of the gateway: it enabled nothing in this run.
+    gateway.enabled_axes.forget_node("line", 1);
+    assert!(gateway.enabled_axes.axes_on("line").is_empty());
+    let reset = gateway.reset_machine_faults(&alice, "line").await.unwrap();
+    let umc: Vec<_> = reset.axes.iter().filter(|a| a.node == 1).collect();
+    assert!(
+        umc.len() == 2 && umc.iter().all(|a| a.outcome == RecoveryOutcome::Done),
+        "{reset:?}"
+    );
+    let report = gateway.enable_machine(&alice, "line").await.unwrap();
+    let enabled: Vec<(u8, u8, RecoveryOutcome, Option<&str>)> = report
+        .axes
+        .iter()
+        .map(|a| (a.node, a.axis, a.outcome, a.state.as_deref()))
+        .collect();
+    assert_eq!(
+        enabled,
+        [
+            (1, 1, RecoveryOutcome::Done, Some("operation_enabled")),
+            (1, 2, RecoveryOutcome::Done, Some("operation_enabled")),
+        ],
+        "{report:?}"
+    );
+}

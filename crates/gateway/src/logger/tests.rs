@@ -23,6 +23,7 @@ fn status(channels: usize) -> LoggerStatus {
                 sub: 0,
                 name: format!("demo/1/channel {n}"),
                 data_type: Some("i32".into()),
+                unit: None,
                 source: None,
                 sdo_samples: 0,
                 tpdo_samples: 0,
@@ -78,6 +79,10 @@ fn a_logger_keeps_its_newest_rows_and_counts_what_it_dropped() {
 #[test]
 fn the_csv_has_a_header_and_a_row_per_sample_and_reads_back() {
     let mut logger = logger(2, 10);
+    // Started 0.995 s into a second: the second row's absolute time is in
+    // the next one.
+    logger.status.started_ms = 1_795_000_000_995;
+    logger.status.channels[0].unit = Some("increments".into());
     logger.status.channels[1].name = "demo/1/a \"quoted\", name".into();
     logger.push(0, vec![(Ok(1.5), Source::Sdo), (Ok(-7.0), Source::Sdo)], 0);
     logger.push(
@@ -88,12 +93,45 @@ fn the_csv_has_a_header_and_a_row_per_sample_and_reads_back() {
     let text = to_csv(&logger.status, logger.rows.iter());
     assert_eq!(
         text,
-        "time_ms,demo/1/channel 0,\"demo/1/a \"\"quoted\"\", name\"\n0,1.5,-7\n10,2,\n"
+        "time_ms,time_utc,demo/1/channel 0 [increments],\"demo/1/a \"\"quoted\"\", name\"\n\
+         0,2026-11-18T11:06:40.995Z,1.5,-7\n\
+         10,2026-11-18T11:06:41.005Z,2,\n"
     );
     let rows = from_csv(&text.replace("\"demo/1/a \"\"quoted\"\", name\"", "b"), 2).unwrap();
     assert_eq!(rows, logger.rows.iter().cloned().collect::<Vec<_>>());
+    // A file kept before the time_utc column reads back too.
+    let kept = from_csv("time_ms,a,b\n0,1.5,-7\n10,2,\n", 2).unwrap();
+    assert_eq!(kept, rows);
     assert!(from_csv("time_ms,a\n0,1,2\n", 1).is_err());
     assert!(from_csv("time_ms,a\n0,x\n", 1).is_err());
+    assert!(from_csv("time_ms,time_utc,a\n0\n", 1).is_err());
+}
+
+#[test]
+fn absolute_times_are_iso_8601_utc_to_the_millisecond() {
+    assert_eq!(iso8601_ms(0), "1970-01-01T00:00:00.000Z");
+    assert_eq!(iso8601_ms(951_782_400_007), "2000-02-29T00:00:00.007Z");
+    assert_eq!(iso8601_ms(1_798_761_599_999), "2026-12-31T23:59:59.999Z");
+}
+
+#[test]
+fn a_drive_s_positions_velocities_and_torques_have_their_manual_s_units() {
+    let umc = DriveKind::Umc.units();
+    assert_eq!(drive_unit(&umc, 0x6064, 2).as_deref(), Some("increments"));
+    // Axis 2's actual velocity, 0x800 on.
+    assert_eq!(
+        drive_unit(&umc, 0x686C, 2).as_deref(),
+        Some("increments/ms")
+    );
+    // Beyond the drive's axes, or no quantity: none.
+    assert_eq!(drive_unit(&umc, 0x7064, 2), None);
+    assert_eq!(drive_unit(&umc, 0x6041, 2), None);
+    assert_eq!(drive_unit(&umc, 0x2000, 2), None);
+    let jmc = DriveKind::Jmc.units();
+    assert_eq!(drive_unit(&jmc, 0x6064, 1).as_deref(), Some("steps"));
+    assert_eq!(drive_unit(&jmc, 0x6081, 1).as_deref(), Some("0.1 rps"));
+    assert_eq!(drive_unit(&jmc, 0x6864, 1), None);
+    assert_eq!(drive_unit(&jmc, 0x6042, 1), None);
 }
 
 #[test]
@@ -144,7 +182,7 @@ async fn kept_loggers_are_loaded_again_as_finished() {
     assert_eq!(list[0].state, LoggerState::Stopped);
     assert_eq!(
         loggers.csv("3").unwrap(),
-        "time_ms,demo/1/channel 0\n0,4\n10,5\n"
+        "time_ms,time_utc,demo/1/channel 0\n0,1970-01-01T00:00:00.000Z,4\n10,1970-01-01T00:00:00.010Z,5\n"
     );
     assert!(loggers.subscribe("3", 1.0).is_ok());
     // A new one follows the kept ones' ids; deleting a kept one removes
