@@ -10,6 +10,7 @@
 //! Objects/candeck
 //!   StopAll()
 //!   Machine/{State, Reasons, ActiveAlarms, UnacknowledgedAlarms, HighestSeverity}
+//!     Acknowledge(AlarmId, Comment)
 //!   Buses/{bus}/{State, Load, RxFrames, TxFrames, ErrorFrames, RxOverruns, TxErrors}
 //!     Scan(), Sync(PeriodMs)
 //!   Nodes/{bus}/{id}/{NmtState, Online, Profile}
@@ -21,7 +22,8 @@
 //!               FaultCode, FaultText, TargetReached}
 //!       SetState(Target), Move(Mode, Target, Velocity, Acceleration,
 //!       Deceleration, Relative), Halt(), QuickStop(), FaultReset(),
-//!       StepTest(Request)
+//!       StepTest(Request), TakeLease(), RenewLease(LeaseId),
+//!       ReleaseLease(LeaseId)
 //! ```
 
 use crate::canopen::nmt::NmtCommand;
@@ -75,6 +77,8 @@ pub fn bus_id(bus: &str) -> String {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Target {
     StopAll,
+    /// `Machine/Acknowledge`: the gateway's alarm acknowledge.
+    Acknowledge,
     Scan {
         bus: String,
     },
@@ -105,16 +109,24 @@ pub enum AxisMethod {
     QuickStop,
     FaultReset,
     StepTest,
+    /// The session's lease on the axis, handed to the client: its id and
+    /// period, to renew or release it explicitly (or over REST).
+    TakeLease,
+    RenewLease,
+    ReleaseLease,
 }
 
 impl AxisMethod {
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 9] = [
         Self::SetState,
         Self::Move,
         Self::Halt,
         Self::QuickStop,
         Self::FaultReset,
         Self::StepTest,
+        Self::TakeLease,
+        Self::RenewLease,
+        Self::ReleaseLease,
     ];
 
     pub fn name(self) -> &'static str {
@@ -125,6 +137,9 @@ impl AxisMethod {
             Self::QuickStop => "QuickStop",
             Self::FaultReset => "FaultReset",
             Self::StepTest => "StepTest",
+            Self::TakeLease => "TakeLease",
+            Self::RenewLease => "RenewLease",
+            Self::ReleaseLease => "ReleaseLease",
         }
     }
 }
@@ -142,6 +157,7 @@ impl Target {
         };
         Some(match parts.as_slice() {
             ["StopAll"] => Self::StopAll,
+            ["Machine", "Acknowledge"] => Self::Acknowledge,
             ["Buses", bus, "Scan"] => Self::Scan {
                 bus: bus.to_string(),
             },
@@ -331,6 +347,10 @@ mod tests {
     #[test]
     fn method_and_dictionary_ids_name_their_target() {
         assert_eq!(Target::parse("candeck/StopAll"), Some(Target::StopAll));
+        assert_eq!(
+            Target::parse("candeck/Machine/Acknowledge"),
+            Some(Target::Acknowledge)
+        );
         assert_eq!(
             Target::parse(&format!("{}/Scan", bus_id("line"))),
             Some(Target::Scan { bus: "line".into() })

@@ -17,6 +17,7 @@
 //! - [`tree`]: the nodes of the tree, built into an address space.
 //! - [`space`]: the node manager: reads, writes and calls.
 //! - [`feed`]: the values, fed from the gateway's views and telemetry.
+//! - [`events`]: NMT changes, EMCYs and alarms as OPC UA events.
 //! - [`leases`]: motion leases bound to the session that took them, lapsing
 //!   when it closes or stops talking.
 //! - [`revisions`]: each node's hardware and software versions, read once
@@ -29,6 +30,8 @@ pub mod config;
 
 #[cfg(feature = "opcua")]
 pub mod browse;
+#[cfg(feature = "opcua")]
+pub mod events;
 #[cfg(feature = "opcua")]
 pub mod feed;
 #[cfg(feature = "opcua")]

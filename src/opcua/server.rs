@@ -111,6 +111,7 @@ impl OpcUaServer {
                         .write()
                         .namespaces_mut()
                         .add_namespace(NAMESPACE);
+                    super::events::register_fields(&mut context.type_tree.write(), ns);
                     space.add_namespace(NAMESPACE, ns);
                     let door = Arc::new(Door {
                         gateway,
@@ -172,9 +173,11 @@ impl OpcUaServer {
             .get_namespace_index(NAMESPACE)
             .ok_or("the candeck namespace is missing")?;
         let sink = Sink::new(ns, manager, handle.subscriptions().clone());
+        let events = super::events::EventSink::new(ns, handle.subscriptions().clone());
         let revisions = Arc::new(Revisions::default());
         let mut helpers = revisions.spawn(&gateway);
         helpers.extend([
+            tokio::spawn(super::events::run(gateway.clone(), events)),
             tokio::spawn(super::feed::run(
                 gateway.clone(),
                 sink,

@@ -22,7 +22,7 @@ use opcua::types::{AttributeId, DataValue, DateTime, StatusCode, TimestampsToRet
 use super::browse::{self, AxisMethod, NodePath, Target};
 use super::feed::AxisDemand;
 use super::leases::SessionLeases;
-use super::status::status_of;
+use super::status::{diagnostic_of, status_of};
 use super::users::TokenUsers;
 use crate::gateway::{
     AxisKey, Caller, DoorDetail, Gateway, GatewayError, MotionFailed, StepTestRequest, TargetState,
@@ -93,6 +93,17 @@ impl CandeckNodes {
             Target::StopAll => {
                 let report = gateway.stop_all(&caller).await?;
                 Ok(vec![Variant::UInt32(report.stopped.len() as u32)])
+            }
+            Target::Acknowledge => {
+                let id = string_arg(args, 0, "AlarmId")?;
+                let comment = match args.get(1) {
+                    None | Some(Variant::Empty) => None,
+                    Some(_) => {
+                        Some(string_arg(args, 1, "Comment")?).filter(|text| !text.is_empty())
+                    }
+                };
+                let alarm = gateway.acknowledge_alarm(&caller, &id, comment).await?;
+                Ok(vec![Variant::String(alarm.state.name().into())])
             }
             Target::Scan { bus } => {
                 let found = gateway.scan(&caller, &bus).await?;
@@ -206,6 +217,32 @@ impl CandeckNodes {
                 .map_err(failed)?,
             AxisMethod::FaultReset => {
                 gateway.reset_axis_fault(caller, path).await?;
+                return Ok(Vec::new());
+            }
+            AxisMethod::TakeLease => {
+                let id = claim.id.clone().ok_or_else(|| {
+                    GatewayError::UnknownLease(format!(
+                        "this session holds no lease on axis {axis} of node {}: a velocity, \
+                         torque or duty-cycle Move takes one",
+                        node.node
+                    ))
+                })?;
+                // Renewed once as it is handed over: the client's period
+                // starts now, and a lease that ended is refused here.
+                let lease = gateway.renew_axis_lease(caller, &key, &id).await?;
+                return Ok(vec![
+                    Variant::String(lease.id.into()),
+                    Variant::UInt32(period_ms(lease.period)),
+                ]);
+            }
+            AxisMethod::RenewLease => {
+                let id = string_arg(args, 0, "LeaseId")?;
+                let lease = gateway.renew_axis_lease(caller, &key, &id).await?;
+                return Ok(vec![Variant::UInt32(period_ms(lease.period))]);
+            }
+            AxisMethod::ReleaseLease => {
+                let id = string_arg(args, 0, "LeaseId")?;
+                gateway.give_up_axis_lease(caller, &key, &id).await?;
                 return Ok(Vec::new());
             }
             AxisMethod::StepTest => {
@@ -328,6 +365,10 @@ fn entry(
 /// row).
 fn failed(failed: MotionFailed) -> GatewayError {
     failed.error
+}
+
+fn period_ms(period: std::time::Duration) -> u32 {
+    u32::try_from(period.as_millis()).unwrap_or(u32::MAX)
 }
 
 fn argument<'a>(args: &'a [Variant], at: usize, name: &str) -> Result<&'a Variant, GatewayError> {
@@ -518,7 +559,10 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
             };
             match self.write_object(context, &node, index, sub, &value).await {
                 Ok(()) => write.set_status(StatusCode::Good),
-                Err(error) => write.set_status(status_of(&error)),
+                Err(error) => {
+                    write.set_status(status_of(&error));
+                    write.set_diagnostic_info(diagnostic_of(&error));
+                }
             }
         }
         Ok(())
@@ -546,6 +590,7 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
                 Err(error) => {
                     tracing::info!("opcua: {name}: {error}");
                     call.set_status(status_of(&error));
+                    call.set_diagnostic_info(diagnostic_of(&error));
                 }
             }
         }

@@ -21,7 +21,7 @@
 use crate::canopen::sdo::AbortCode;
 use crate::gateway::GatewayError;
 use crate::gateway::{LedError, PdoError, SimError};
-use opcua::types::StatusCode;
+use opcua::types::{DiagnosticInfo, StatusCode};
 
 /// The status of an abort the device sent.
 fn of_abort(code: AbortCode) -> StatusCode {
@@ -124,9 +124,50 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
     }
 }
 
+/// The operation's diagnostics for `error` (a write's, a call's): the
+/// error's text, with the SDO abort's code and meaning where the device
+/// aborted, so that a client sees why the device refused.
+pub fn diagnostic_of(error: &GatewayError) -> DiagnosticInfo {
+    let text = match error.abort_code() {
+        Some(code) => format!("SDO abort 0x{:08X}: {} ({error})", code.raw(), code.text()),
+        None => error.to_string(),
+    };
+    DiagnosticInfo {
+        additional_info: Some(text.into()),
+        inner_status_code: Some(status_of(error)),
+        ..Default::default()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_device_abort_is_in_the_diagnostics_with_its_code_and_text() {
+        let error = GatewayError::FailedAt {
+            step: "write".into(),
+            source: Box::new(GatewayError::SdoAbort {
+                node: 3,
+                code: AbortCode::from_raw(0x0601_0002),
+            }),
+        };
+        let info = diagnostic_of(&error);
+        let text = info.additional_info.expect("additional info");
+        assert!(
+            text.as_ref().starts_with("SDO abort 0x06010002: "),
+            "{text}"
+        );
+        assert!(
+            text.as_ref().contains(AbortCode::ReadOnlyObject.text()),
+            "{text}"
+        );
+        assert_eq!(info.inner_status_code, Some(StatusCode::BadNotWritable));
+        let refused = diagnostic_of(&GatewayError::ValueOutOfRange(
+            "0x1017: 70000 > 65535".into(),
+        ));
+        assert!(refused.additional_info.unwrap().as_ref().contains("70000"),);
+    }
 
     #[test]
     fn every_gateway_error_has_a_bad_status() {

@@ -203,6 +203,18 @@ pub fn build_fixed(space: &mut AddressSpace, ns: u16, buses: &[String]) {
     for variable in MACHINE {
         value(space, ns, &machine, variable);
     }
+    method(
+        space,
+        ns,
+        &machine,
+        "Acknowledge",
+        &[
+            ("AlarmId", DataTypeId::String),
+            ("Comment", DataTypeId::String),
+        ],
+        &[("AlarmState", DataTypeId::String)],
+    );
+    super::events::build_types(space, ns);
     let buses_folder = folder(space, ns, &format!("{ROOT}/Buses"), "Buses", &root);
     let nodes_folder = folder(space, ns, &format!("{ROOT}/Nodes"), "Nodes", &root);
     for bus in buses {
@@ -354,6 +366,18 @@ pub fn build_axes(
                     &[("Request", DataTypeId::String)],
                     &[("Result", DataTypeId::String)],
                 ),
+                AxisMethod::TakeLease => (
+                    &[],
+                    &[
+                        ("LeaseId", DataTypeId::String),
+                        ("PeriodMs", DataTypeId::UInt32),
+                    ],
+                ),
+                AxisMethod::RenewLease => (
+                    &[("LeaseId", DataTypeId::String)],
+                    &[("PeriodMs", DataTypeId::UInt32)],
+                ),
+                AxisMethod::ReleaseLease => (&[("LeaseId", DataTypeId::String)], &[]),
                 AxisMethod::Halt | AxisMethod::QuickStop | AxisMethod::FaultReset => (&[], &[]),
             };
             method(space, ns, &path, axis_method.name(), inputs, outputs);
