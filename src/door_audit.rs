@@ -22,9 +22,10 @@ use crate::gateway::{EventKind, Query};
 use crate::gateway::{Gateway, ServedBus};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
+use crate::sparkplug::command::summary;
 use crate::sparkplug::metric::MetricValue;
 use crate::sparkplug::motion::HeldLeases;
-use crate::sparkplug::node::run_command;
+use crate::sparkplug::node::run_message;
 use crate::sparkplug::proto::Payload;
 use crate::sparkplug::proto::payload::Metric;
 use crate::sparkplug::topic::{MessageType, Topic};
@@ -1018,9 +1019,9 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
             ..Payload::default()
         };
         let before = rows(&gateway).await.len();
-        for command in parse(&payload, true) {
-            let _ = run_command(&gateway, &config, &held, &topic, &command).await;
-        }
+        let commands = parse(&payload, true);
+        let summary = summary(&payload.metrics);
+        let _ = run_message(&gateway, &config, &held, &topic, &commands, summary).await;
         let new = rows(&gateway).await.split_off(before);
         let got: Vec<(String, String)> = new
             .iter()
@@ -1039,6 +1040,84 @@ async fn every_sparkplug_command_leaves_exactly_one_row() {
             .collect();
         assert_eq!(got, want, "{payload:?}");
     }
+}
+
+/// Issue 33, point 6: a command message is one row, however many metrics
+/// it carries (each still its own operation, with its role, lease and
+/// write): its operations named, its metrics summarised (bounded, with
+/// their count), the first failure its outcome.
+#[tokio::test(start_paused = true)]
+async fn a_command_message_of_many_metrics_is_one_row() {
+    let (_, gateway) = rig_with_burst(100).await;
+    let broker = "mqtt://127.0.0.1:1883".parse().unwrap();
+    let mut config = SparkplugConfig::new(broker, "plant", "line1");
+    config.username = Some("scada".into());
+    config.role = Role::Operator;
+    let held = HeldLeases::default();
+    let topic = Topic::device("plant", MessageType::DCmd, "line1", "demo-1");
+    let run = |metrics: Vec<Metric>| {
+        let (gateway, config, held, topic) = (&gateway, &config, &held, &topic);
+        async move {
+            let payload = Payload {
+                metrics,
+                ..Payload::default()
+            };
+            let commands = parse(&payload, true);
+            let before = rows(gateway).await.len();
+            let results = run_message(
+                gateway,
+                config,
+                held,
+                topic,
+                &commands,
+                summary(&payload.metrics),
+            )
+            .await;
+            (results, rows(gateway).await.split_off(before))
+        }
+    };
+    let (results, new) = run(vec![
+        metric("OD/0x1017:0", MetricValue::UInt16(1000)),
+        metric("NMT", MetricValue::String("start".into())),
+        metric("Nonsense", MetricValue::Boolean(true)),
+    ])
+    .await;
+    assert_eq!(results.len(), 3);
+    assert!(results[0].is_ok() && results[1].is_ok(), "{results:?}");
+    assert_eq!(new.len(), 1, "{new:#?}");
+    let row = &new[0];
+    assert_eq!(row["channel"], "sparkplug");
+    assert_eq!(row["method"], "DCMD");
+    assert_eq!(row["path"], "spBv1.0/plant/DCMD/line1/demo-1");
+    assert_eq!(row["bus"], "demo");
+    assert_eq!(row["node"], 1);
+    assert_eq!(
+        row["operation"],
+        "write object, nmt command, unsupported command; 1 of 3 failed"
+    );
+    assert_eq!(row["outcome"], "invalid_request");
+    assert_eq!(
+        row["request"],
+        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true"
+    );
+
+    // 64 writes: one row, its summary bounded, every metric counted.
+    let writes: Vec<Metric> = (0..64)
+        .map(|_| metric("OD/0x1017:0", MetricValue::UInt16(1000)))
+        .collect();
+    let (results, new) = run(writes).await;
+    assert!(results.iter().all(Result::is_ok), "{results:?}");
+    assert_eq!(new.len(), 1, "{new:#?}");
+    assert_eq!(new[0]["operation"], "write object");
+    assert_eq!(new[0]["item"], "0x1017:0");
+    assert_eq!(new[0]["outcome"], "ok");
+    let request = new[0]["request"].as_str().unwrap();
+    assert!(
+        request.starts_with("64 metrics: OD/0x1017:0=1000; "),
+        "{request}"
+    );
+    assert!(request.chars().count() <= 256, "{request}");
+    assert!(request.ends_with(" more"), "{request}");
 }
 
 /// The catalog's routes take one write of the token's rate, the

@@ -19,9 +19,10 @@ use crate::gateway::Gateway;
 use crate::gateway::{Caller, Channel};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
+use crate::sparkplug::command::summary;
 use crate::sparkplug::metric::MetricValue;
 use crate::sparkplug::motion::HeldLeases;
-use crate::sparkplug::node::run_command;
+use crate::sparkplug::node::run_message;
 use crate::sparkplug::proto::Payload;
 use crate::sparkplug::proto::payload::Metric;
 use crate::sparkplug::topic::{MessageType, Topic};
@@ -309,8 +310,18 @@ impl Rig {
             ..Payload::default()
         };
         let mut outcome = Outcome::Done;
-        for command in parse(&payload, true) {
-            match run_command(&self.gateway, &config, &self.held, &topic, &command).await {
+        let commands = parse(&payload, true);
+        let results = run_message(
+            &self.gateway,
+            &config,
+            &self.held,
+            &topic,
+            &commands,
+            summary(&payload.metrics),
+        )
+        .await;
+        for result in results {
+            match result {
                 Ok(()) => {}
                 Err(crate::gateway::GatewayError::SdoAbort { code, .. }) => {
                     outcome = Outcome::Abort(code.raw());

@@ -65,6 +65,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::TooManyEntries(_)
         | GatewayError::Pdo(PdoError::InvalidMapping(_))
         | GatewayError::InvalidDcf { .. } => StatusCode::BAD_REQUEST,
+        GatewayError::CommandTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
         GatewayError::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
         GatewayError::Forbidden(_) | GatewayError::WatchdogProtected(_) => StatusCode::FORBIDDEN,
         GatewayError::UnknownBus(_)

@@ -96,7 +96,8 @@ impl Failure {
             GatewayError::InvalidIndex(_)
             | GatewayError::InvalidDcf { .. }
             | GatewayError::InvalidEds { .. }
-            | GatewayError::TooManyEntries(_) => Self::Error(Syntax),
+            | GatewayError::TooManyEntries(_)
+            | GatewayError::CommandTooLarge { .. } => Self::Error(Syntax),
             // Refused for a state (the gateway's, the device's, the
             // caller's), or a fault of the gateway.
             GatewayError::BusDown(_)

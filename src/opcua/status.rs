@@ -72,6 +72,7 @@ pub fn status_of(error: &GatewayError) -> StatusCode {
         | GatewayError::InvalidEds { .. }
         | GatewayError::TooManyEntries(_)
         | GatewayError::Pdo(PdoError::InvalidMapping(_)) => StatusCode::BadInvalidArgument,
+        GatewayError::CommandTooLarge { .. } => StatusCode::BadRequestTooLarge,
         GatewayError::UnknownObject(_) | GatewayError::UnknownSubObject(_) => {
             StatusCode::BadNodeIdUnknown
         }

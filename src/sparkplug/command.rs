@@ -30,6 +30,7 @@
 use super::edge::REBIRTH;
 use super::metric::MetricValue;
 use super::proto::Payload;
+use super::proto::payload::Metric;
 use crate::canopen::nmt::NmtCommand;
 use crate::gateway::{MoveRequest, TargetState};
 use crate::gateway::{SegmentUpdate, effect_by_name};
@@ -349,6 +350,62 @@ fn segment_command(name: &str, value: MetricValue) -> Command {
         }
     }
     Command::Segment { segment, update }
+}
+
+/// The most of a command message's words its audit row keeps.
+pub const SUMMARY_CHARS: usize = 256;
+/// The most of one metric's name or value the summary shows.
+const PART_CHARS: usize = 64;
+/// Room kept for the count of the metrics left out (`; … 49997 more`).
+const TAIL_CHARS: usize = 16;
+
+/// A command message's metrics as its one audit row summarises them (never
+/// the whole payload): their count, then each one's name (or alias) and
+/// value, in order, as many as fit in [`SUMMARY_CHARS`]: `3 metrics:
+/// OD/0x1017:0=1000; NMT="start"; Axis 1/Halt=true`. A long name or value
+/// is cut with its size said, the metrics left out are counted.
+pub fn summary(metrics: &[Metric]) -> String {
+    let count = metrics.len();
+    let mut text = format!("{count} metric{}:", if count == 1 { "" } else { "s" });
+    let mut length = text.chars().count();
+    for (at, metric) in metrics.iter().enumerate() {
+        let name = match (&metric.name, metric.alias) {
+            (Some(name), _) => clip(name),
+            (None, Some(alias)) => format!("alias {alias}"),
+            (None, None) => "(no name)".to_string(),
+        };
+        let value = MetricValue::from_metric(metric).map_or_else(
+            || "?".to_string(),
+            |value| clip(&value.to_json().to_string()),
+        );
+        let part = format!("{} {name}={value}", if at == 0 { "" } else { ";" });
+        let room = if at + 1 < count {
+            SUMMARY_CHARS - TAIL_CHARS
+        } else {
+            SUMMARY_CHARS
+        };
+        let part_length = part.chars().count();
+        if length + part_length > room {
+            text.push_str(&format!(
+                "{} … {} more",
+                if at == 0 { "" } else { ";" },
+                count - at
+            ));
+            break;
+        }
+        text.push_str(&part);
+        length += part_length;
+    }
+    text
+}
+
+/// `text`, cut to [`PART_CHARS`] characters with its size said.
+fn clip(text: &str) -> String {
+    if text.chars().count() <= PART_CHARS {
+        return text.to_string();
+    }
+    let head: String = text.chars().take(PART_CHARS).collect();
+    format!("{head}… ({} bytes)", text.len())
 }
 
 /// What a segment command writes, as its audit entry's request says it:

@@ -17,7 +17,8 @@ use super::proto::payload::{Metric, PropertySet, PropertyValue, property_value};
 use super::proto::{DataType, Payload};
 use super::topic::{MessageType, Topic};
 
-/// The `bdSeq` metric of NBIRTH and NDEATH (§6.4.18).
+/// The `bdSeq` metric of NBIRTH and NDEATH (§6.4.18), an Int64 as
+/// Sparkplug 3.0 wants it (its value 0–255).
 pub const BD_SEQ: &str = "bdSeq";
 /// The rebirth request of NCMD (§6.4.19.1: a host writes true).
 pub const REBIRTH: &str = "Node Control/Rebirth";
@@ -222,7 +223,7 @@ impl EdgeSession {
             timestamp: Some(now),
             ..Metric::default()
         };
-        MetricValue::UInt64(self.bd_seq.into()).fill(&mut bd_seq);
+        MetricValue::Int64(self.bd_seq.into()).fill(&mut bd_seq);
         Outgoing {
             topic: self.topic(MessageType::NDeath, None),
             payload: Payload {
@@ -242,7 +243,7 @@ impl EdgeSession {
         self.next_alias = 1;
         self.seq = 0;
         let mut all = vec![
-            Sample::new(BD_SEQ, MetricValue::UInt64(self.bd_seq.into()), now),
+            Sample::new(BD_SEQ, MetricValue::Int64(self.bd_seq.into()), now),
             Sample::new(REBIRTH, MetricValue::Boolean(false), now).writable(),
         ];
         all.extend(metrics);

@@ -32,7 +32,7 @@ use crate::gateway::EdgeNodeStats;
 use crate::gateway::TpdoFrame;
 use crate::gateway::object_item;
 use crate::gateway::unix_ms;
-use crate::gateway::{AuditTarget, DoorDetail};
+use crate::gateway::{AuditTarget, DoorDetail, DoorRequest};
 use crate::gateway::{Caller, Channel};
 use crate::gateway::{Gateway, GatewayError};
 use crate::gateway::{Identification, NodeEvent, NodeInfo};
@@ -92,7 +92,7 @@ impl EdgeNode {
             .store(true, std::sync::atomic::Ordering::Relaxed);
         let mut runner = Runner::new(gateway, config, spool);
         runner.tls = tls;
-        let task = tokio::spawn(runner.run(stopped));
+        let task = tokio::spawn(runner.run(stopped, None));
         Ok(Self {
             stop: Some(stop),
             task,
@@ -133,6 +133,9 @@ struct Dirty {
     /// Of those, the ones that came since the runner last looked (a pass
     /// takes these, not every axis metric of the node again).
     fresh: Mutex<HashMap<(String, NodeId), BTreeMap<String, Sample>>>,
+    /// Changes each reported in the next DDATA, every one, in order (the
+    /// NMT states the registry reported).
+    reported: Mutex<HashMap<(String, NodeId), Vec<Sample>>>,
     /// Told when a node is marked, and by the buses' TPDO values when a
     /// frame was decoded ([`TpdoValues::follow`]).
     notify: Arc<Notify>,
@@ -158,12 +161,25 @@ impl Dirty {
         self.mark(key.clone());
     }
 
-    /// The metrics of node `key` that came since the last call.
+    /// Reports `metrics` of node `key` in its next DDATA, each of them
+    /// (a change that is no state kept for its births: an NMT state the
+    /// registry reported), and marks it.
+    fn report(&self, key: &(String, NodeId), metrics: Vec<Sample>) {
+        lock(&self.reported)
+            .entry(key.clone())
+            .or_default()
+            .extend(metrics);
+        self.mark(key.clone());
+    }
+
+    /// The metrics of node `key` that came since the last call: those
+    /// reported, in order, then the newest of the others.
     fn take_fresh(&self, key: &(String, NodeId)) -> Vec<Sample> {
-        lock(&self.fresh)
-            .remove(key)
-            .map(|metrics| metrics.into_values().collect())
-            .unwrap_or_default()
+        let mut metrics = lock(&self.reported).remove(key).unwrap_or_default();
+        if let Some(fresh) = lock(&self.fresh).remove(key) {
+            metrics.extend(fresh.into_values());
+        }
+        metrics
     }
 
     /// Keeps `metrics` as the newest of node `key` without marking it
@@ -305,7 +321,13 @@ impl Runner {
         self.started.elapsed().as_millis() as u64
     }
 
-    async fn run(mut self, mut stop: oneshot::Receiver<oneshot::Sender<()>>) {
+    /// The edge node's loop; `connection`: one made already (a test's),
+    /// else the runner connects.
+    async fn run(
+        mut self,
+        mut stop: oneshot::Receiver<oneshot::Sender<()>>,
+        mut connection: Option<Connection>,
+    ) {
         let (inputs, mut input) = mpsc::channel::<Input>(1024);
         for bus in self.gateway.buses() {
             let mut events = bus.node_events();
@@ -338,7 +360,6 @@ impl Runner {
             let frames = bus.values().follow(self.dirty.notify.clone());
             self.frames.push((bus.name().to_string(), frames));
         }
-        let mut connection: Option<Connection> = None;
         let mut reconnect_at = Instant::now();
         let mut last_values = Instant::now();
         let mut values_at: Option<Instant> = None;
@@ -379,9 +400,11 @@ impl Runner {
                 Some(Input::Node { bus, event }) = input.recv() => {
                     self.on_node_event(&mut connection, &bus, event);
                 }
+                // At most one pass per tick, and every DDATA in a pass: what
+                // changes meanwhile (the TPDOs of a SYNC, an NMT state, a
+                // change a maximum rate held back) goes in the next one, one
+                // DDATA per device per tick.
                 () = dirty.notify.notified(), if values_at.is_none() => {
-                    // At most one pass per tick: the TPDOs of a SYNC that
-                    // come meanwhile go in the same DDATA of their device.
                     let at = last_values + self.config.publish_tick;
                     if Instant::now() >= at {
                         last_values = Instant::now();
@@ -390,16 +413,14 @@ impl Runner {
                         values_at = Some(at);
                     }
                 }
+                () = sleep_until(due), if values_at.is_none() => {
+                    let at = (last_values + self.config.publish_tick).max(Instant::now());
+                    values_at = Some(at);
+                }
                 () = sleep_until(values_at) => {
                     values_at = None;
                     last_values = Instant::now();
                     self.on_values(&mut connection);
-                }
-                () = sleep_until(due) => {
-                    let names = !self.live;
-                    for message in self.session.due(self.now_ms(), names) {
-                        self.send_data(&mut connection, message);
-                    }
                 }
                 _ = node_check.tick() => {
                     self.check_buses(&mut connection);
@@ -572,29 +593,25 @@ impl Runner {
         if !matches!(topic.kind, MessageType::NCmd | MessageType::DCmd) {
             return None;
         }
-        if payload.len() > self.config.max_command_bytes {
-            self.refuse(
-                topic,
-                format!(
-                    "{} bytes: over sparkplug_max_command_bytes ({})",
-                    payload.len(),
-                    self.config.max_command_bytes
-                ),
-            );
+        if let Some(refused) = oversized(&self.config, payload.len()) {
+            self.refuse(topic, refused);
             return None;
         }
         let Ok(mut payload) = super::proto::Payload::decode(payload) else {
-            self.refuse(topic, "not a Sparkplug B payload".to_string());
+            self.refuse(
+                topic,
+                GatewayError::InvalidRequest("not a Sparkplug B payload".to_string()),
+            );
             return None;
         };
         if payload.metrics.len() > self.config.max_command_metrics {
             self.refuse(
                 topic,
-                format!(
+                GatewayError::TooManyEntries(format!(
                     "{} metrics: over sparkplug_max_command_metrics ({})",
                     payload.metrics.len(),
                     self.config.max_command_metrics
-                ),
+                )),
             );
             return None;
         }
@@ -605,6 +622,7 @@ impl Runner {
                 .complete_command(topic.device.as_deref(), metric);
         }
         let device = topic.kind == MessageType::DCmd;
+        let summary = command::summary(&payload.metrics);
         let mut commands = Vec::new();
         for command in command::parse(&payload, device) {
             EdgeNodeStats::add(&self.stats.commands, 1);
@@ -621,15 +639,17 @@ impl Runner {
             return None;
         }
         // The commands of one message run in order (a move after the state
-        // change that enables its axis), in a task of their own.
+        // change that enables its axis), in a task of their own, one audit
+        // row for them all.
         let gateway = self.gateway.clone();
         let config = self.config.clone();
         let stats = self.stats.clone();
         let held = self.held.clone();
         let refusals = self.refusals.clone();
         tokio::spawn(async move {
-            for command in commands {
-                if let Err(err) = run_command(&gateway, &config, &held, &topic, &command).await {
+            let results = run_message(&gateway, &config, &held, &topic, &commands, summary).await;
+            for (command, result) in commands.iter().zip(results) {
+                if let Err(err) = result {
                     EdgeNodeStats::add(&stats.commands_failed, 1);
                     refusals.warn(&format!("{topic}: {}: {err}", command.operation()));
                 }
@@ -639,26 +659,22 @@ impl Runner {
     }
 
     /// A command message refused whole (too large, too many metrics, not a
-    /// payload): counted, its one audit row written, sampled in the log;
-    /// nothing of it runs, and the session is untouched.
-    fn refuse(&mut self, topic: Topic, why: String) {
+    /// payload): counted, its one audit row written (the error's code its
+    /// outcome, its text the request), sampled in the log; nothing of it
+    /// runs, and the session is untouched.
+    fn refuse(&mut self, topic: Topic, error: GatewayError) {
         EdgeNodeStats::add(&self.stats.commands_failed, 1);
-        self.refusals.warn(&format!("{topic}: refused: {why}"));
+        // The setting to look at, for whoever reads the log.
+        let setting = match &error {
+            GatewayError::CommandTooLarge { .. } => " (sparkplug_max_command_bytes)",
+            _ => "",
+        };
+        self.refusals
+            .warn(&format!("{topic}: refused: {error}{setting}"));
         let gateway = self.gateway.clone();
         let config = self.config.clone();
         tokio::spawn(async move {
-            let caller = command_caller(&config, &topic, Some(why.clone()));
-            let (bus, node) = match topic.device.as_deref().and_then(parse_device) {
-                Some((bus, node)) => (Some(bus.to_string()), Some(node)),
-                None => (None, None),
-            };
-            let mut target = AuditTarget::new("command").node(node);
-            target.bus = bus;
-            let _ = gateway
-                .audited_by_door(&caller, target, None, async {
-                    Err::<(), _>(GatewayError::InvalidRequest(why))
-                })
-                .await;
+            let _ = refuse_message(&gateway, &config, &topic, error).await;
         });
     }
 
@@ -917,17 +933,14 @@ impl Runner {
                 }
             }
             NodeEvent::NmtChanged { to, .. } => {
+                // In the device's DDATA of the next pass, with its other
+                // changes.
                 let sample = Sample::new(
                     "NMT State",
                     MetricValue::String(to.name().to_string()),
                     unix_ms(),
                 );
-                if let Some(message) =
-                    self.session
-                        .data(Some(&device), vec![sample], self.now_ms(), false)
-                {
-                    self.send_data(connection, message);
-                }
+                self.dirty.report(&(bus.to_string(), node), vec![sample]);
             }
             _ => {}
         }
@@ -1022,15 +1035,21 @@ impl Runner {
         }
     }
 
-    /// Every TPDO change since the last pass, in order, and the axes' and
-    /// segments' newest metrics: DDATA of the devices whose values changed,
-    /// a metric that changed twice in a message of its own (every change is
-    /// reported, each with its frame's timestamp); a DBIRTH again for a
-    /// node with a value its birth did not name (its mapping was read
-    /// since). A bus whose frames came faster than this pass could take
-    /// them has its devices' newest values reported instead, the frames
-    /// lost counted.
+    /// A pass: every TPDO change since the last pass, in order, the axes'
+    /// and segments' newest metrics, the NMT states reported and the
+    /// changes a maximum rate held back whose interval is up, as ONE DDATA
+    /// per device (a metric that changed twice is in it twice, in order,
+    /// each change with its frame's timestamp, as Sparkplug allows); a
+    /// DBIRTH again for a node with a value its birth did not name (its
+    /// mapping was read since). A bus whose frames came faster than this
+    /// pass could take them has its devices' newest values reported
+    /// instead, the frames lost counted.
     fn on_values(&mut self, connection: &mut Option<Connection>) {
+        let names = !self.live;
+        let mut out = PassOut::default();
+        for message in self.session.due(self.now_ms(), names) {
+            out.add(message);
+        }
         let mut changes: BTreeMap<(usize, NodeId), Vec<TpdoFrame>> = BTreeMap::new();
         let mut behind = HashSet::new();
         for (at, (_, frames)) in self.frames.iter_mut().enumerate() {
@@ -1062,7 +1081,6 @@ impl Runner {
                 marked.extend(served.nodes().iter().map(|info| (at, info.id)));
             }
         }
-        let names = !self.live;
         for (at, node) in marked {
             let bus = self.frames[at].0.clone();
             let device = device_id(&bus, node.get());
@@ -1100,14 +1118,16 @@ impl Runner {
                 }
                 continue;
             }
-            for samples in one_change_each(batches) {
-                if let Some(message) =
-                    self.session
-                        .data(Some(&device), samples, self.now_ms(), names)
-                {
-                    self.send_data(connection, message);
-                }
+            let samples: Vec<Sample> = batches.into_iter().flatten().collect();
+            if let Some(message) = self
+                .session
+                .data(Some(&device), samples, self.now_ms(), names)
+            {
+                out.add(message);
             }
+        }
+        for message in out.messages {
+            self.send_data(connection, message);
         }
     }
 
@@ -1309,30 +1329,27 @@ fn one_each(metrics: Vec<Sample>) -> Vec<Sample> {
     out
 }
 
-/// Whether a node gets a DBIRTH: identified and online.
-/// The samples of a device's frames, in order, gathered into as few
-/// messages as keep one change of each metric per message: a second change
-/// of a metric starts the next message.
-pub(super) fn one_change_each(batches: Vec<Vec<Sample>>) -> Vec<Vec<Sample>> {
-    let mut messages: Vec<Vec<Sample>> = Vec::new();
-    let mut current: Vec<Sample> = Vec::new();
-    for batch in batches {
-        // A message holds a few frames' values: a look through it costs
-        // less than a set of their names.
-        if batch
-            .iter()
-            .any(|sample| current.iter().any(|held| held.name == sample.name))
-        {
-            messages.push(std::mem::take(&mut current));
-        }
-        current.extend(batch);
-    }
-    if !current.is_empty() {
-        messages.push(current);
-    }
-    messages
+/// The data messages of one pass, one per topic: a device's metrics from
+/// several sources (its frames, a held change now due) in one DDATA.
+#[derive(Default)]
+pub(super) struct PassOut {
+    pub(super) messages: Vec<Outgoing>,
 }
 
+impl PassOut {
+    pub(super) fn add(&mut self, message: Outgoing) {
+        match self
+            .messages
+            .iter_mut()
+            .find(|kept| kept.topic == message.topic)
+        {
+            Some(kept) => kept.payload.metrics.extend(message.payload.metrics),
+            None => self.messages.push(message),
+        }
+    }
+}
+
+/// Whether a node gets a DBIRTH: identified and online.
 fn born_device(info: &NodeInfo) -> bool {
     info.online && info.identification == Identification::Done
 }
@@ -1412,17 +1429,55 @@ async fn sleep_until(at: Option<Instant>) {
     }
 }
 
-/// One command from MQTT, through the gateway's operations and checks as
-/// REST runs them: the role (the edge node's `sparkplug_role`, checked by
-/// each operation), the write rate limit, the node's checks, the EDS's. Each is audited once, whatever its outcome, `who` the MQTT
-/// identity, with the message type and topic as the door's words: by the
-/// gateway's operation it calls, or here when none audited it (a refusal of
-/// the door's own, a command the gateway does not audit yet).
-pub(crate) async fn run_command(
+/// The commands of one NCMD or DCMD message (`summary`: its metrics as
+/// [`command::summary`] gives them), in order, each through the gateway's
+/// operations and checks as REST runs them: the role (the edge node's
+/// `sparkplug_role`, checked by each operation), the motion lease, the
+/// write rate limit, the node's checks, the EDS's. The message is ONE
+/// audit row, whatever its commands' outcomes (the gateway folds the rows
+/// of their operations into it: [`Gateway::audited_together`]), `who` the
+/// edge node's broker account, with the message type and topic as the
+/// door's words. The result of each command, in order.
+pub(crate) async fn run_message(
     gateway: &Gateway,
     config: &SparkplugConfig,
     held: &HeldLeases,
     topic: &Topic,
+    commands: &[Command],
+    summary: String,
+) -> Vec<Result<(), GatewayError>> {
+    let caller = command_caller(config, topic, Some(summary));
+    let mut target = AuditTarget::new("command");
+    if let Some((bus, node)) = topic.device.as_deref().and_then(parse_device) {
+        target = target.bus(bus).node(node);
+    }
+    let mut results = Vec::with_capacity(commands.len());
+    let work = async {
+        for command in commands {
+            // The command's own summary, for a message of it alone.
+            let part = match &caller.door {
+                Some(door) => caller
+                    .clone()
+                    .with_door(door.part(command_summary(command))),
+                None => caller.clone(),
+            };
+            results.push(run_command(gateway, config, held, topic, &part, command).await);
+        }
+        Ok::<_, GatewayError>(())
+    };
+    let _ = gateway.audited_together(&caller, target, None, work).await;
+    results
+}
+
+/// One command of a message, for `caller` (the message's): audited as a
+/// part of the message's row, by the gateway's operation it calls, or here
+/// when none audited it (a refusal of the door's own).
+async fn run_command(
+    gateway: &Gateway,
+    config: &SparkplugConfig,
+    held: &HeldLeases,
+    topic: &Topic,
+    caller: &Caller,
     command: &Command,
 ) -> Result<(), GatewayError> {
     let device = topic.device.as_deref().and_then(parse_device);
@@ -1437,7 +1492,6 @@ pub(crate) async fn run_command(
         Command::Segment { segment, .. } => Some(format!("segment {segment}")),
         _ => None,
     };
-    let caller = command_caller(config, topic, summary(command));
     let mut target = AuditTarget::new(command.operation())
         .node(node)
         .axis(command.axis())
@@ -1462,7 +1516,7 @@ pub(crate) async fn run_command(
             Command::Write { .. } | Command::Nmt(_) | Command::Segment { .. }
         ) || command.axis().is_some();
         if !operation {
-            gateway.take_write(&caller)?;
+            gateway.take_write(caller)?;
         }
         match command {
             Command::Write { index, sub, value } => {
@@ -1483,41 +1537,67 @@ pub(crate) async fn run_command(
                         )));
                     }
                 };
-                handle.write_object(&caller, *index, *sub, bytes).await
+                handle.write_object(caller, *index, *sub, bytes).await
             }
             Command::Nmt(nmt) => {
                 gateway
                     .node_handle(bus, &node.to_string())?
-                    .nmt(&caller, *nmt)
+                    .nmt(caller, *nmt)
                     .await
             }
             Command::Unsupported(what) => Err(GatewayError::InvalidRequest(format!(
                 "unsupported command metric '{what}'"
             ))),
             Command::Rebirth => Ok(()),
-            _ => super::motion::run(gateway, &caller, held, bus, node, command).await,
+            _ => super::motion::run(gateway, caller, held, bus, node, command).await,
         }
     };
-    gateway.audited_by_door(&caller, target, None, work).await
+    gateway.audited_by_door(caller, target, None, work).await
 }
 
-/// Who a command from MQTT runs as: the edge node's own broker account
-/// and role (MQTT names no sender), the broker as its peer, the message
-/// type and topic as the door's words, `summary` (bounded) as its request.
+/// The refusal of a command message of `size` bytes over the edge node's
+/// `sparkplug_max_command_bytes`, if it is.
+pub(crate) fn oversized(config: &SparkplugConfig, size: usize) -> Option<GatewayError> {
+    (size > config.max_command_bytes).then_some(GatewayError::CommandTooLarge {
+        size,
+        limit: config.max_command_bytes,
+    })
+}
+
+/// Writes the one audit row of a command message refused whole for
+/// `error`; returns it.
+pub(crate) async fn refuse_message(
+    gateway: &Gateway,
+    config: &SparkplugConfig,
+    topic: &Topic,
+    error: GatewayError,
+) -> Result<(), GatewayError> {
+    let caller = command_caller(config, topic, Some(error.to_string()));
+    let mut target = AuditTarget::new("command");
+    if let Some((bus, node)) = topic.device.as_deref().and_then(parse_device) {
+        target = target.bus(bus).node(node);
+    }
+    gateway
+        .audited_together(&caller, target, None, async { Err(error) })
+        .await
+}
+
+/// Who a command message from MQTT runs as: the edge node's own broker
+/// account and role (MQTT names no sender), the broker as its peer, the
+/// message type and topic as the door's words, `summary` (bounded) as its
+/// request; its commands' rows gathered into one.
 fn command_caller(config: &SparkplugConfig, topic: &Topic, summary: Option<String>) -> Caller {
     let detail = DoorDetail::new(topic.kind.as_str(), topic.to_string())
         .summary(summary.map(|text| bounded(&text)));
     Caller::new(Channel::Sparkplug, config.who(), Some(config.role))
         .with_peer(format!("{}:{}", config.broker.host, config.broker.port))
-        .with_detail(detail)
+        .with_door(DoorRequest::gathered(detail))
 }
 
-/// The most of a command's words an audit row keeps.
-const SUMMARY_CHARS: usize = 256;
-
-/// `text`, cut to [`SUMMARY_CHARS`] characters with its length said: an
-/// audit row keeps a summary, never a whole payload.
+/// `text`, cut to [`command::SUMMARY_CHARS`] characters with its length
+/// said: an audit row keeps a summary, never a whole payload.
 pub(crate) fn bounded(text: &str) -> String {
+    use command::SUMMARY_CHARS;
     if text.chars().count() <= SUMMARY_CHARS {
         return text.to_string();
     }
@@ -1556,13 +1636,16 @@ impl Refusals {
     }
 }
 
-/// The request of a command as the edge node summarises it, where it has
-/// its own words (the value of a write as the metric gave it, a segment's
-/// writes); the gateway's operations summarise the others.
-fn summary(command: &Command) -> Option<String> {
+/// A command's request as the edge node summarises it (bounded), where it
+/// has its own words (the value of a write as the metric gave it, a
+/// segment's writes); the gateway's operations summarise the others.
+fn command_summary(command: &Command) -> Option<String> {
     match command {
-        Command::Write { value, .. } => Some(value.to_json().to_string()),
+        Command::Write { value, .. } => Some(bounded(&value.to_json().to_string())),
         Command::Segment { segment, update } => Some(segment_request(*segment, update)),
         _ => None,
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -158,14 +158,23 @@ fn nbirth_has_seq_0_the_bdseq_and_rebirth_and_ndeath_has_no_seq() {
     assert_eq!(names, ["bdSeq", REBIRTH, "Properties/Version"]);
     assert_eq!(
         MetricValue::from_metric(&birth.payload.metrics[0]),
-        Some(MetricValue::UInt64(255))
+        Some(MetricValue::Int64(255))
+    );
+    // Sparkplug 3.0: bdSeq is an Int64.
+    assert_eq!(
+        birth.payload.metrics[0].datatype,
+        Some(DataType::Int64 as u32)
     );
     let death = s.death(10);
     assert_eq!(death.topic.to_string(), "spBv1.0/plant/NDEATH/line1");
+    assert_eq!(
+        death.payload.metrics[0].datatype,
+        Some(DataType::Int64 as u32)
+    );
     assert_eq!(death.payload.seq, None);
     assert_eq!(
         MetricValue::from_metric(&death.payload.metrics[0]),
-        Some(MetricValue::UInt64(255))
+        Some(MetricValue::Int64(255))
     );
     // The next connection's bdSeq wraps.
     assert_eq!(s.next_connection(), 0);
@@ -758,48 +767,6 @@ fn a_missing_or_bad_ca_file_is_refused_in_words() {
         format!("mqtt_ca_file {}: no certificate in it", bad.display())
     );
     std::fs::remove_dir_all(&dir).unwrap();
-}
-
-#[test]
-fn a_metric_changed_twice_starts_the_next_message_and_the_order_is_kept() {
-    let frame = |pairs: &[(&str, u32)]| -> Vec<Sample> {
-        pairs
-            .iter()
-            .map(|(name, v)| sample(name, MetricValue::UInt32(*v)))
-            .collect()
-    };
-    let messages = super::node::one_change_each(vec![
-        frame(&[("a", 1), ("b", 1)]),
-        frame(&[("c", 1)]),
-        frame(&[("a", 2)]),
-        Vec::new(),
-        frame(&[("b", 2), ("c", 2)]),
-        frame(&[("c", 3)]),
-    ]);
-    let shown: Vec<Vec<(String, MetricValue)>> = messages
-        .iter()
-        .map(|message| {
-            message
-                .iter()
-                .map(|s| (s.name.clone(), s.value.clone()))
-                .collect()
-        })
-        .collect();
-    let want = |pairs: &[(&str, u32)]| -> Vec<(String, MetricValue)> {
-        pairs
-            .iter()
-            .map(|(n, v)| (n.to_string(), MetricValue::UInt32(*v)))
-            .collect()
-    };
-    assert_eq!(
-        shown,
-        vec![
-            want(&[("a", 1), ("b", 1), ("c", 1)]),
-            want(&[("a", 2), ("b", 2), ("c", 2)]),
-            want(&[("c", 3)]),
-        ]
-    );
-    assert!(super::node::one_change_each(vec![Vec::new()]).is_empty());
 }
 
 /// A device's alarm metrics: the counts and the highest severity of its

@@ -269,7 +269,7 @@ def test_births_carry_typed_metrics_and_a_tpdo_change_comes_as_ddata(gateway, ho
     assert nbirth["seq"] == 0
     # One connection: no will of a connection the edge node made twice.
     assert not any(m["kind"] == "NDEATH" for m in host.messages[:at])
-    assert metric(nbirth, "bdSeq")["datatype"] == DT.UInt64
+    assert metric(nbirth, "bdSeq")["datatype"] == DT.Int64
     assert metric(nbirth, "Node Control/Rebirth")["value"] is False
     assert metric(nbirth, "Buses/demo/State")["value"] == "up"
     # The network manager's machine state (the demo's nodes are booted).

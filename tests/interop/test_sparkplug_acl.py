@@ -272,7 +272,11 @@ def test_only_the_scada_account_commands_and_in_the_spec_s_form(broker, scada, g
     assert (velocity(gateway) or 0) > 0
     events = gateway.request("GET", "/events?channel=sparkplug")
     rows = events["events"] if isinstance(events, dict) else events
-    assert any(r.get("operation") == "move" and r.get("who") == "mqtt:line-a" for r in rows), rows
+    # The DCMD (state, move, lease, lease id) is one row naming its
+    # operations.
+    assert any(
+        r.get("operation") == "drive state change, move" and r.get("who") == "mqtt:line-a" for r in rows
+    ), rows
 
 
 def test_a_20_mb_dcmd_leaves_the_session_up(broker, scada, gateway):
@@ -288,6 +292,14 @@ def test_a_20_mb_dcmd_leaves_the_session_up(broker, scada, gateway):
     kinds = [m["kind"] for m in scada.messages[first:]]
     assert "NDEATH" not in kinds and "NBIRTH" not in kinds, kinds
     wait_until(lambda: "sparkplug_max_command_bytes" in gateway.log(), what="the refusal in the log")
+    # Refused with its own code (413-like), the size and the limit said, in
+    # one audit row of the message.
+    events = gateway.request("GET", "/events?channel=sparkplug")
+    rows = events["events"] if isinstance(events, dict) else events
+    rows = [r for r in rows if r.get("outcome") == "command_too_large"]
+    assert len(rows) == 1, rows
+    assert rows[0]["operation"] == "command", rows
+    assert "over the limit of 65536 bytes" in rows[0]["request"], rows
 
 
 def test_state_per_sparkplug_3(broker, scada, gateway):
@@ -309,6 +321,10 @@ def test_state_per_sparkplug_3(broker, scada, gateway):
     _, death = scada.wait_for(lambda m: m["kind"] == "NDEATH", start=first, timeout=10)
     bd = lambda msg: [m.long_value for m in msg["payload"].metrics if m.name == "bdSeq"][0]
     assert bd(death) == bd(nbirth)
+    # Sparkplug 3.0: bdSeq is an Int64, in the birth and in the death.
+    for message in (nbirth, death):
+        (bd_seq,) = [m for m in message["payload"].metrics if m.name == "bdSeq"]
+        assert bd_seq.datatype == pb.DataType.Int64, message["kind"]
     time.sleep(3)
     assert "NBIRTH" not in [m["kind"] for m in scada.messages[first:]]
     scada.state(True, scada.state_ts + 1)

@@ -22,6 +22,14 @@
 //! to it ([`DoorRequest::handed_over`]) and writes them with
 //! [`Gateway::write_audit`]; rows it never takes are written when the last
 //! holder of the request lets go.
+//!
+//! One request of a door may carry several commands, each its own
+//! operation (a Sparkplug DCMD's metrics: each takes its role, lease and
+//! write as it would alone), and still be one row: the door gathers the
+//! operations' rows ([`DoorRequest::gathered`]) and
+//! [`Gateway::audited_together`] folds them into the request's one row (its
+//! operations named, the first failure its outcome), so that a message of
+//! many metrics is not many rows.
 
 use std::future::Future;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -111,10 +119,19 @@ pub struct DoorRequest(Arc<Shared>);
 
 struct Shared {
     detail: DoorDetail,
-    /// Rows are handed to the door rather than written.
+    /// Rows are handed to the door (or gathered into the request's one
+    /// row) rather than written.
     hand_over: bool,
-    state: Mutex<State>,
+    /// Several operations' rows are gathered into one
+    /// ([`DoorRequest::gathered`]).
+    gathered: bool,
+    /// Shared with the request's parts ([`DoorRequest::part`]).
+    state: Arc<Held>,
 }
+
+/// What the operations of a request left; what no door took is written
+/// when the last holder lets go.
+struct Held(Mutex<State>);
 
 #[derive(Default)]
 struct State {
@@ -134,20 +151,42 @@ struct State {
 impl DoorRequest {
     /// A request whose rows the operations write.
     pub fn new(detail: DoorDetail) -> Self {
-        Self::build(detail, false)
+        Self::build(detail, false, false)
     }
 
     /// A request whose rows are handed to the door, which writes them with
     /// its own words added ([`DoorRequest::take_rows`]).
     pub fn handed_over(detail: DoorDetail) -> Self {
-        Self::build(detail, true)
+        Self::build(detail, true, false)
     }
 
-    fn build(detail: DoorDetail, hand_over: bool) -> Self {
+    /// A request of several operations that is one row: their rows are
+    /// gathered, and [`Gateway::audited_together`] writes the one row that
+    /// stands for them all (rows it never takes are written as they are
+    /// when the last holder of the request lets go).
+    pub fn gathered(detail: DoorDetail) -> Self {
+        Self::build(detail, true, true)
+    }
+
+    fn build(detail: DoorDetail, hand_over: bool, gathered: bool) -> Self {
         Self(Arc::new(Shared {
             detail,
             hand_over,
-            state: Mutex::new(State::default()),
+            gathered,
+            state: Arc::new(Held(Mutex::new(State::default()))),
+        }))
+    }
+
+    /// One command of a gathered request, with its own summary (the
+    /// door's words for that command, bounded): its operation's row is a
+    /// part of the request's, and a request of that command alone has
+    /// that summary as its request, as the command's row would.
+    pub fn part(&self, summary: Option<String>) -> Self {
+        Self(Arc::new(Shared {
+            detail: self.0.detail.clone().summary(summary),
+            hand_over: self.0.hand_over,
+            gathered: self.0.gathered,
+            state: self.0.state.clone(),
         }))
     }
 
@@ -158,7 +197,13 @@ impl DoorRequest {
     /// Whether an operation audited the request (or decided it was not due
     /// a row): the door writes none for it.
     pub fn audited(&self) -> bool {
-        self.state().audited > 0
+        self.audits() > 0
+    }
+
+    /// How many operations audited the request so far (rows finished, or
+    /// decided not due).
+    fn audits(&self) -> usize {
+        self.state().audited
     }
 
     /// The rows handed over so far, taken: the door writes them.
@@ -169,6 +214,7 @@ impl DoorRequest {
     fn state(&self) -> MutexGuard<'_, State> {
         self.0
             .state
+            .0
             .lock()
             .unwrap_or_else(|poison| poison.into_inner())
     }
@@ -196,10 +242,10 @@ impl DoorRequest {
     }
 }
 
-impl Drop for Shared {
+impl Drop for Held {
     fn drop(&mut self) {
         let state = self
-            .state
+            .0
             .get_mut()
             .unwrap_or_else(|poison| poison.into_inner());
         let mut held = std::mem::take(&mut state.held);
@@ -243,8 +289,10 @@ pub struct AuditRow {
     entry: Option<AuditEntry>,
     history: History,
     door: Option<DoorRequest>,
-    /// A door's own row: written only if no operation audited the request.
+    /// A door's own row: written only if no operation audited the request
+    /// (since `audits_before`).
     fallback: bool,
+    audits_before: usize,
 }
 
 impl AuditRow {
@@ -276,7 +324,20 @@ impl AuditRow {
             history: history.clone(),
             door: caller.door.clone(),
             fallback: false,
+            audits_before: 0,
         }
+    }
+
+    /// A door's own row: written only if no operation audited the request
+    /// (in a gathered request, none since the row was opened: an earlier
+    /// command's operation does not stand for this one).
+    fn door_own(mut self) -> Self {
+        self.fallback = true;
+        self.audits_before = match &self.door {
+            Some(door) if door.0.gathered => door.audits(),
+            _ => 0,
+        };
+        self
     }
 
     /// Words added to the operation (`took over the velocity lease 3f2a…
@@ -328,7 +389,12 @@ impl AuditRow {
     }
 
     async fn commit(&self, entry: AuditEntry) {
-        if self.fallback && self.door.as_ref().is_some_and(DoorRequest::audited) {
+        if self.fallback
+            && self
+                .door
+                .as_ref()
+                .is_some_and(|door| door.audits() > self.audits_before)
+        {
             return;
         }
         let entry = match &self.door {
@@ -386,6 +452,62 @@ async fn write(history: &History, entry: AuditEntry) {
     if let Err(err) = history.audit(entry).await {
         tracing::error!("audit: {what}: not recorded: {err}");
     }
+}
+
+/// The one row of a request (`whole`, its outcome the door's work's) that
+/// stands for the rows of its operations (`parts`): see
+/// [`Gateway::audited_together`].
+fn together(mut whole: AuditEntry, parts: Vec<AuditEntry>) -> AuditEntry {
+    let shared = |field: fn(&AuditEntry) -> &Option<String>| {
+        let first = parts.first().and_then(|part| field(part).clone());
+        parts
+            .iter()
+            .all(|part| *field(part) == first)
+            .then_some(first)
+            .flatten()
+    };
+    let item = shared(|part| &part.item);
+    let axis = parts.first().and_then(|part| part.axis);
+    let axis = parts
+        .iter()
+        .all(|part| part.axis == axis)
+        .then_some(axis)
+        .flatten();
+    let mut operations: Vec<&str> = Vec::new();
+    for part in &parts {
+        if !operations.contains(&part.operation.as_str()) {
+            operations.push(&part.operation);
+        }
+    }
+    if !operations.is_empty() {
+        whole.operation = operations.join(", ");
+    }
+    whole.item = item.or(whole.item);
+    whole.axis = axis.or(whole.axis);
+    if let Some(part) = parts.first() {
+        whole.bus = part.bus.clone().or(whole.bus);
+        whole.node = part.node.or(whole.node);
+    }
+    if let [part] = parts.as_slice() {
+        whole.request = part.request.clone().or(whole.request);
+    }
+    let failed: Vec<&AuditEntry> = parts
+        .iter()
+        .filter(|part| part.outcome != crate::history::OK)
+        .collect();
+    if let Some(first) = failed.first() {
+        whole.outcome = first.outcome.clone();
+        whole.abort_code = first.abort_code.clone();
+        if parts.len() > 1 {
+            whole.operation = format!(
+                "{}; {} of {} failed",
+                whole.operation,
+                failed.len(),
+                parts.len()
+            );
+        }
+    }
+    whole
 }
 
 /// Writes `entries` in a task: from a `Drop`, which cannot wait.
@@ -448,10 +570,48 @@ impl Gateway {
         request: Option<String>,
         work: impl Future<Output = Result<T, GatewayError>>,
     ) -> Result<T, GatewayError> {
-        let mut row = self.audit_row(caller, target, request);
-        row.fallback = true;
+        let row = self.audit_row(caller, target, request).door_own();
         let result = work.await;
         row.finish(&result).await;
+        result
+    }
+
+    /// For a door whose one request carries several commands (a Sparkplug
+    /// DCMD's metrics), `caller` carrying a [`DoorRequest::gathered`]: runs
+    /// `work`, in which each command runs its own operation (or the door's
+    /// own refusal, [`Gateway::audited_by_door`]) with a clone of
+    /// `caller`, and writes ONE row for the request, of `target` and the
+    /// door's summary: one operation's row is the request's (its words,
+    /// axis, item); several are named together (`write object, nmt
+    /// command`), the axis and item kept where they share them, and the
+    /// first failure is the outcome (`…; 2 of 3 failed`); a request of one
+    /// command has its summary ([`DoorRequest::part`]) or its operation's
+    /// as its request, as that command's row alone would. When every
+    /// operation decided no row was due (lease renewals between two
+    /// audited ones) and nothing failed, none is written.
+    pub async fn audited_together<T>(
+        &self,
+        caller: &Caller,
+        target: AuditTarget,
+        request: Option<String>,
+        work: impl Future<Output = Result<T, GatewayError>>,
+    ) -> Result<T, GatewayError> {
+        // Written here, not gathered with the parts (a dropped future
+        // still writes it, interrupted).
+        let mut whole = self.audit_row(caller, target, request);
+        let door = whole.door.take();
+        let result = work.await;
+        let (parts, audits) = match &door {
+            Some(door) => (door.take_rows(), door.audits()),
+            None => (Vec::new(), 0),
+        };
+        let Some(entry) = whole.entry.take() else {
+            return result;
+        };
+        if parts.is_empty() && audits > 0 && result.is_ok() {
+            return result;
+        }
+        write(&self.history, together(entry.outcome(&result), parts)).await;
         result
     }
 
@@ -464,9 +624,7 @@ impl Gateway {
         target: AuditTarget,
         request: Option<String>,
     ) -> AuditRow {
-        let mut row = self.audit_row(caller, target, request);
-        row.fallback = true;
-        row
+        self.audit_row(caller, target, request).door_own()
     }
 
     /// Writes a row a door finished (REST's, with its status): see

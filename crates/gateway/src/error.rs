@@ -177,6 +177,10 @@ pub enum GatewayError {
     /// may carry.
     #[error("{0}")]
     TooManyEntries(String),
+    /// A command larger than a door takes (a Sparkplug command message
+    /// over its byte limit): refused whole, nothing of it run.
+    #[error("{size} bytes: over the limit of {limit} bytes for one command")]
+    CommandTooLarge { size: usize, limit: usize },
     /// A node's PDOs.
     #[error(transparent)]
     Pdo(#[from] PdoError),
@@ -294,6 +298,7 @@ impl GatewayError {
             Self::UnknownObject(_) => "unknown_object",
             Self::UnknownSubObject(_) => "unknown_sub_object",
             Self::TooManyEntries(_) => "too_many_entries",
+            Self::CommandTooLarge { .. } => "command_too_large",
             Self::Pdo(PdoError::UnknownPdo(_)) => "unknown_pdo",
             Self::Pdo(PdoError::InvalidMapping(_)) => "invalid_mapping",
             Self::Pdo(PdoError::PdoDisabled(_)) => "pdo_disabled",

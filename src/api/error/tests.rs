@@ -75,10 +75,11 @@ fn variant(error: &GatewayError) -> usize {
         GatewayError::UnknownAlarm(_) => 64,
         GatewayError::WatchdogProtected(_) => 65,
         GatewayError::StepBeyondFollowingWindow(_) => 66,
+        GatewayError::CommandTooLarge { .. } => 67,
     }
 }
 
-pub(crate) const VARIANTS: usize = 67;
+pub(crate) const VARIANTS: usize = 68;
 
 pub(crate) fn samples() -> Vec<GatewayError> {
     let text = || "text".to_string();
@@ -158,6 +159,10 @@ pub(crate) fn samples() -> Vec<GatewayError> {
         GatewayError::UnknownObject(text()),
         GatewayError::UnknownSubObject(text()),
         GatewayError::TooManyEntries(text()),
+        GatewayError::CommandTooLarge {
+            size: 70_000,
+            limit: 65_536,
+        },
         PdoError::UnknownPdo(text()).into(),
         PdoError::InvalidMapping(text()).into(),
         PdoError::PdoDisabled(text()).into(),
@@ -261,5 +266,21 @@ fn a_failed_step_answers_as_its_cause() {
             "message": "step channel 0 failed: node 9 is not known on bus demo (try POST /api/v1/buses/demo/scan)",
             "step": "channel 0",
         })
+    );
+}
+
+/// A command over a door's size limit (a Sparkplug DCMD over
+/// `sparkplug_max_command_bytes`) is HTTP's 413, with its code.
+#[test]
+fn a_command_too_large_is_payload_too_large() {
+    let error = AppError::from(GatewayError::CommandTooLarge {
+        size: 70_000,
+        limit: 65_536,
+    });
+    assert_eq!(error.status(), StatusCode::PAYLOAD_TOO_LARGE);
+    assert_eq!(error.to_json()["code"], "command_too_large");
+    assert_eq!(
+        error.to_string(),
+        "70000 bytes: over the limit of 65536 bytes for one command"
     );
 }

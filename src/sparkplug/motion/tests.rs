@@ -14,9 +14,10 @@ use crate::gateway::RegistryConfig;
 use crate::gateway::{EventKind, Query};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
+use crate::sparkplug::command::summary;
 use crate::sparkplug::config::BrokerUrl;
 use crate::sparkplug::metric::MetricValue;
-use crate::sparkplug::node::run_command;
+use crate::sparkplug::node::run_message;
 use crate::sparkplug::proto::Payload;
 use crate::sparkplug::proto::payload::Metric;
 use crate::sparkplug::topic::{MessageType, Topic};
@@ -68,11 +69,16 @@ async fn dcmd(
         metrics,
         ..Payload::default()
     };
-    let mut results = Vec::new();
-    for command in parse(&payload, true) {
-        results.push(run_command(gateway, config, held, &topic, &command).await);
-    }
-    results
+    let commands = parse(&payload, true);
+    run_message(
+        gateway,
+        config,
+        held,
+        &topic,
+        &commands,
+        summary(&payload.metrics),
+    )
+    .await
 }
 
 async fn velocity(gateway: &Gateway) -> i64 {
@@ -174,8 +180,9 @@ async fn a_move_without_an_end_is_refused_without_the_lease_promise() {
     let entry = audit(&gateway)
         .await
         .into_iter()
-        .find(|e| e["operation"] == "move" && e["outcome"] != "ok")
-        .expect("the refused move is audited");
+        .find(|e| e["operation"] == "drive state change, move; 1 of 2 failed")
+        .expect("the refused move is audited, in its message's row");
+    assert_eq!(entry["outcome"], "invalid_request");
     assert_eq!(entry["channel"], "sparkplug");
     assert_eq!(entry["who"], "mqtt:scada");
     assert_eq!(entry["axis"], 1);
@@ -569,10 +576,12 @@ async fn a_viewer_role_is_refused_by_the_operations_themselves() {
     refused.sort();
     assert_eq!(
         refused,
-        [
-            ("nmt command".into(), "forbidden".into(), "viewer".into()),
-            ("write object".into(), "forbidden".into(), "viewer".into()),
-        ]
+        // One row for the DCMD, both refusals in it.
+        [(
+            "write object, nmt command; 2 of 2 failed".into(),
+            "forbidden".into(),
+            "viewer".into()
+        )]
     );
 }
 

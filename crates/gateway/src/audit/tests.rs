@@ -284,3 +284,109 @@ async fn a_skipped_row_counts_as_audited_and_writes_nothing() {
         .unwrap();
     assert!(rows(&gateway).await.is_empty());
 }
+
+fn dcmd_caller() -> (Caller, DoorRequest) {
+    let door = DoorRequest::gathered(
+        DoorDetail::new("DCMD", "spBv1.0/plant/DCMD/line1/demo-1").summary(Some(
+            "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true".into(),
+        )),
+    );
+    let caller = Caller::new(Channel::Sparkplug, "mqtt:candeck", Some(Role::Operator))
+        .with_door(door.clone());
+    (caller, door)
+}
+
+/// A request of several commands, each its own operation (or the door's
+/// own refusal), is one row: its operations named, the first failure its
+/// outcome.
+#[tokio::test(start_paused = true)]
+async fn the_operations_of_a_gathered_request_are_one_row() {
+    let gateway = Gateway::new([]);
+    let (caller, _door) = dcmd_caller();
+    let whole = AuditTarget::new("command").bus("demo").node(1);
+    let result = gateway
+        .audited_together(&caller, whole, None, async {
+            gateway
+                .audited(&caller, target(), None, async { Ok::<_, GatewayError>(()) })
+                .await?;
+            let nmt = AuditTarget::new("nmt command").bus("demo").node(1);
+            let _ = gateway
+                .audited_by_door(&caller, nmt, None, async {
+                    Err::<(), _>(GatewayError::SdoTimeout { node: 1 })
+                })
+                .await;
+            // The door's own refusal, after an operation audited another
+            // command of the request: a part too.
+            let _ = gateway
+                .audited_by_door(
+                    &caller,
+                    AuditTarget::new("unsupported command"),
+                    None,
+                    async { Err::<(), _>(GatewayError::InvalidRequest("Nonsense".into())) },
+                )
+                .await;
+            Ok::<_, GatewayError>(())
+        })
+        .await;
+    assert!(result.is_ok());
+    let rows = rows(&gateway).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    let row = &rows[0];
+    assert_eq!(
+        row["operation"],
+        "write object, nmt command, unsupported command; 2 of 3 failed"
+    );
+    assert_eq!(row["outcome"], "sdo_timeout");
+    assert_eq!(row["bus"], "demo");
+    assert_eq!(row["node"], 1);
+    assert!(row.get("item").is_none(), "{row:?}");
+    assert_eq!(row["method"], "DCMD");
+    assert_eq!(
+        row["request"],
+        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true"
+    );
+
+    // One operation: the row is its own (its words and item).
+    let (caller, _door) = dcmd_caller();
+    gateway
+        .audited_together(&caller, AuditTarget::new("command"), None, async {
+            gateway
+                .audited(&caller, target(), None, async { Ok::<_, GatewayError>(()) })
+                .await
+        })
+        .await
+        .unwrap();
+    let rows = rows_when(&gateway, 2).await;
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    assert_eq!(rows[1]["operation"], "write object");
+    assert_eq!(rows[1]["item"], "0x1017:0");
+    assert_eq!(rows[1]["outcome"], "ok");
+}
+
+/// A request whose operations all decided no row was due (lease renewals)
+/// writes none; one with no operation at all writes its own.
+#[tokio::test(start_paused = true)]
+async fn a_gathered_request_of_skipped_rows_writes_none() {
+    let gateway = Gateway::new([]);
+    let (caller, _door) = dcmd_caller();
+    gateway
+        .audited_together(&caller, AuditTarget::new("command"), None, async {
+            gateway
+                .audit_row(&caller, AuditTarget::new("renew motion lease"), None)
+                .skip();
+            Ok::<_, GatewayError>(())
+        })
+        .await
+        .unwrap();
+    assert!(rows(&gateway).await.is_empty());
+    let (caller, _door) = dcmd_caller();
+    let _ = gateway
+        .audited_together(&caller, AuditTarget::new("command"), None, async {
+            Err::<(), _>(GatewayError::InvalidRequest("nothing to run".into()))
+        })
+        .await;
+    let rows = rows(&gateway).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["operation"], "command");
+    assert_eq!(rows[0]["outcome"], "invalid_request");
+}
