@@ -1093,12 +1093,12 @@ async fn a_command_message_of_many_metrics_is_one_row() {
     assert_eq!(row["node"], 1);
     assert_eq!(
         row["operation"],
-        "write object, nmt command, unsupported command; 1 of 3 failed"
+        "write object, nmt command, unsupported command"
     );
     assert_eq!(row["outcome"], "invalid_request");
     assert_eq!(
         row["request"],
-        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true"
+        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true (1 of 3 failed)"
     );
 
     // 64 writes: one row, its summary bounded, every metric counted.

@@ -10,7 +10,7 @@ from selenium.webdriver.common.by import By
 
 from conftest import Server, free_port
 
-DEVICES = "umc1bds32@1,jmc@2,uio1led@3,uio1led@lss"
+DEVICES = "umc1bds32@1,jmc@2,uio1led@3,uio1led@lss,io401@5"
 
 
 @pytest.fixture
@@ -72,8 +72,33 @@ def test_a_uniswarm_node_changes_its_node_id_from_its_page(server, browser):
                          "m.querySelector('a')?.getAttribute('href')]")
     assert message[0] is False and "Node 3 moved to node ID 9" in message[1], message
     assert message[2] == "/nodes/demo/9", message
-    # The JMC's page offers no such change.
+    # The JMC's page says where its node ID comes from (its switches: no
+    # object, no LSS) and offers no change.
     browser.driver.get(f"{server.url}/nodes/demo/2")
-    browser.wait(lambda _: browser.js("return document.querySelector('#identity dd') !== null"), message="node 2 did not load")
-    assert browser.js("return document.getElementById('node-id-panel').hidden")
+    browser.wait(lambda _: browser.js("return !document.getElementById('node-id-panel').hidden"),
+                 message="the JMC's page has no node-ID panel")
+    assert browser.js("return document.getElementById('node-id-form').hidden")
+    how = browser.js("return document.getElementById('node-id-how').innerText")
+    assert "S1" in how and "S3" in how and "no LSS" in how, how
+    browser.check()
+
+
+def test_a_configured_node_without_0x2040_is_readdressed_by_lss_from_its_page(server, browser):
+    # Issue 31 point 6: LSS in the dashboard covered unconfigured devices
+    # only, and the CiA 401 I/O module's page had no node-ID card.
+    browser.driver.get(f"{server.url}/nodes/demo/5")
+    browser.wait(lambda _: browser.js("return document.getElementById('node-id-panel').dataset.way") == "lss",
+                 message="no LSS node-ID panel on the I/O module's page")
+    assert not browser.js("return document.getElementById('node-id-form').hidden")
+    browser.driver.find_element(By.ID, "node-id-new").send_keys("12")
+    browser.driver.find_element(By.ID, "node-id-change").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no confirmation asked")
+    browser.driver.find_element(By.ID, "confirm-ok").click()
+    browser.wait(lambda _: result(browser, "node-id-result")[0] in ("done", "failed"), timeout=20,
+                 message=f"change: {result(browser, 'node-id-result')}")
+    state, text = result(browser, "node-id-result")
+    assert state == "done" and "booted up as node 12" in text, text
+    ids = [n["id"] for n in server.get("/api/v1/buses/demo/nodes")]
+    assert 12 in ids and 5 not in ids, ids
+    assert browser.js("return document.getElementById('node-id-new-page').getAttribute('href')") == "/nodes/demo/12"
     browser.check()

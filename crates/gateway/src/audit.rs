@@ -498,13 +498,14 @@ fn together(mut whole: AuditEntry, parts: Vec<AuditEntry>) -> AuditEntry {
     if let Some(first) = failed.first() {
         whole.outcome = first.outcome.clone();
         whole.abort_code = first.abort_code.clone();
+        // The count goes with the request, not into the operation's words:
+        // a row is found by what was done (`move`) however it ended.
         if parts.len() > 1 {
-            whole.operation = format!(
-                "{}; {} of {} failed",
-                whole.operation,
-                failed.len(),
-                parts.len()
-            );
+            let count = format!("{} of {} failed", failed.len(), parts.len());
+            whole.request = Some(match whole.request.take() {
+                Some(request) => format!("{request} ({count})"),
+                None => count,
+            });
         }
     }
     whole
@@ -584,7 +585,7 @@ impl Gateway {
     /// door's summary: one operation's row is the request's (its words,
     /// axis, item); several are named together (`write object, nmt
     /// command`), the axis and item kept where they share them, and the
-    /// first failure is the outcome (`…; 2 of 3 failed`); a request of one
+    /// first failure is the outcome, the request says how many failed (`… (2 of 3 failed)`); a request of one
     /// command has its summary ([`DoorRequest::part`]) or its operation's
     /// as its request, as that command's row alone would. When every
     /// operation decided no row was due (lease renewals between two

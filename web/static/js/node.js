@@ -375,23 +375,58 @@ for (const button of document.querySelectorAll('#nmt-buttons button')) {
   });
 }
 
-// ---- node ID (UniSwarm 0x2040) ---------------------------------------------
+// ---- node ID (UniSwarm 0x2040, LSS, or the JMC's switches) ----------------
 
 // The products that change their node ID by 0x2040, save and reset.
 const NODE_ID_PROFILES = new Set(['umc', 'uioled']);
 const nodeIdResult = $('#node-id-result');
 
+// What the panel says for each way a node's ID changes.
+const NODE_ID_HOW = {
+  object: 'Writes it to 0x2040 sub 1, stores the manufacturer parameters and resets the node: it boots up under the new ID (UniSwarm UMC and UIO1LED).',
+  lss: 'By LSS (CiA 305): the device is selected by its identity (0x1018), given the new ID, stores it and is reset: it boots up under the new ID. Needs a device that answers LSS.',
+  switches: 'This drive takes its node ID from its rotary switches S1 (low four bits) and S3 (high three bits), read at power-on: set them on the device. It has no node-ID object and no LSS.',
+  no_identity: 'LSS selects a device by its whole identity (0x1018 subs 1 to 4), and this node has not given all of it: its node ID cannot be changed from here.',
+};
+
+/** How this node's ID can be changed, or null while it is not known. */
+function nodeIdWay() {
+  if (!detail) return null;
+  if (NODE_ID_PROFILES.has(detail.profile)) return 'object';
+  if (detail.profile === 'jmc_stepper') return 'switches';
+  const id = detail.identity;
+  const whole = id && id.product_code != null && id.revision != null && id.serial != null;
+  return whole ? 'lss' : 'no_identity';
+}
+
 function showNodeIdPanel() {
-  $('#node-id-panel').hidden = !detail || !NODE_ID_PROFILES.has(detail.profile);
+  const way = nodeIdWay();
+  $('#node-id-panel').hidden = way === null;
+  $('#node-id-panel').dataset.way = way || '';
+  $('#node-id-form').hidden = way !== 'object' && way !== 'lss';
+  $('#node-id-how').textContent = NODE_ID_HOW[way] || '';
+}
+
+/** The request that gives this node `newId` the way its product takes one. */
+function changeNodeId(way, newId) {
+  if (way === 'lss') {
+    const { vendor_id, product_code, revision, serial } = detail.identity;
+    return api(`/buses/${encodeURIComponent(bus)}/lss/configure`, {
+      method: 'POST', body: { vendor_id, product_code, revision, serial, node_id: newId, store: true },
+    });
+  }
+  return api(`${base}/node-id`, { method: 'POST', body: { node_id: newId } });
 }
 
 $('#node-id-form').addEventListener('submit', async (event) => {
   event.preventDefault();
+  const way = nodeIdWay();
+  if (way !== 'object' && way !== 'lss') return;
   const button = $('#node-id-change');
   const newId = Number($('#node-id-new').value);
   if (!(await confirmAction(`Change node ${nodeId} to node ID ${newId}? The device stores it and restarts: its drives stop and unsaved parameters are lost.`, 'Change node ID'))) return;
-  result(nodeIdResult, 'busy', `Changing to node ID ${newId}…`);
-  const done = await runAction(button, 'Changing…', () => api(`${base}/node-id`, { method: 'POST', body: { node_id: newId } }));
+  result(nodeIdResult, 'busy', `Changing to node ID ${newId}${way === 'lss' ? ' by LSS' : ''}…`);
+  const done = await runAction(button, 'Changing…', () => changeNodeId(way, newId));
   if (!done.ok) {
     result(nodeIdResult, 'failed', h('strong', {}, `Change failed (${clock()}): `), errorView(done.error));
     return;

@@ -334,7 +334,7 @@ async fn the_operations_of_a_gathered_request_are_one_row() {
     let row = &rows[0];
     assert_eq!(
         row["operation"],
-        "write object, nmt command, unsupported command; 2 of 3 failed"
+        "write object, nmt command, unsupported command"
     );
     assert_eq!(row["outcome"], "sdo_timeout");
     assert_eq!(row["bus"], "demo");
@@ -343,7 +343,7 @@ async fn the_operations_of_a_gathered_request_are_one_row() {
     assert_eq!(row["method"], "DCMD");
     assert_eq!(
         row["request"],
-        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true"
+        "3 metrics: OD/0x1017:0=1000; NMT=\"start\"; Nonsense=true (2 of 3 failed)"
     );
 
     // One operation: the row is its own (its words and item).
