@@ -26,6 +26,19 @@ def result(browser, el):
     return browser.js(f"const r = document.getElementById('{el}'); return [r.dataset.state, r.innerText]")
 
 
+def change_node_id(browser, new_id):
+    """Changes the open node page's node ID to `new_id` (its card, the
+    confirmation) and waits until the page says the device booted up."""
+    browser.driver.find_element(By.ID, "node-id-new").send_keys(str(new_id))
+    browser.driver.find_element(By.ID, "node-id-change").click()
+    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no confirmation asked")
+    browser.driver.find_element(By.ID, "confirm-ok").click()
+    browser.wait(lambda _: result(browser, "node-id-result")[0] in ("done", "failed"), timeout=20,
+                 message=f"change: {result(browser, 'node-id-result')}")
+    state, text = result(browser, "node-id-result")
+    assert state == "done" and f"booted up as node {new_id}" in text, text
+
+
 def test_an_unconfigured_device_is_scanned_and_given_a_node_id(server, browser):
     browser.driver.get(server.url)
     browser.wait(lambda _: browser.js("return document.querySelector('#lss-bus option')?.value") == "demo",
@@ -53,14 +66,7 @@ def test_a_uniswarm_node_changes_its_node_id_from_its_page(server, browser):
     browser.driver.get(f"{server.url}/nodes/demo/3")
     browser.wait(lambda _: browser.js("return !document.getElementById('node-id-panel').hidden"),
                  message="no node-ID panel on the UIO1LED's page")
-    browser.driver.find_element(By.ID, "node-id-new").send_keys("9")
-    browser.driver.find_element(By.ID, "node-id-change").click()
-    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no confirmation asked")
-    browser.driver.find_element(By.ID, "confirm-ok").click()
-    browser.wait(lambda _: result(browser, "node-id-result")[0] in ("done", "failed"), timeout=20,
-                 message=f"change: {result(browser, 'node-id-result')}")
-    state, text = result(browser, "node-id-result")
-    assert state == "done" and "booted up as node 9" in text, text
+    change_node_id(browser, 9)
     assert server.get("/api/v1/buses/demo/nodes/9/od/0x2040/1")["value"] == 9
     # Issue 31 point 6: the old ID's page no longer says "operational /
     # online" (what it last read); it says where the device went.
@@ -90,14 +96,7 @@ def test_a_configured_node_without_0x2040_is_readdressed_by_lss_from_its_page(se
     browser.wait(lambda _: browser.js("return document.getElementById('node-id-panel').dataset.way") == "lss",
                  message="no LSS node-ID panel on the I/O module's page")
     assert not browser.js("return document.getElementById('node-id-form').hidden")
-    browser.driver.find_element(By.ID, "node-id-new").send_keys("12")
-    browser.driver.find_element(By.ID, "node-id-change").click()
-    browser.wait(lambda _: browser.js("return document.getElementById('confirm').open"), message="no confirmation asked")
-    browser.driver.find_element(By.ID, "confirm-ok").click()
-    browser.wait(lambda _: result(browser, "node-id-result")[0] in ("done", "failed"), timeout=20,
-                 message=f"change: {result(browser, 'node-id-result')}")
-    state, text = result(browser, "node-id-result")
-    assert state == "done" and "booted up as node 12" in text, text
+    change_node_id(browser, 12)
     ids = [n["id"] for n in server.get("/api/v1/buses/demo/nodes")]
     assert 12 in ids and 5 not in ids, ids
     assert browser.js("return document.getElementById('node-id-new-page').getAttribute('href')") == "/nodes/demo/12"
