@@ -77,9 +77,14 @@ def test_the_tuning_page_writes_a_gain_shows_the_status_and_runs_a_step(browser,
     browser.wait(lambda _: browser.js("return document.getElementById('step-metrics').dataset.state === 'done'"),
                  timeout=30, message="the step test did not finish")
     assert float(browser.js("return document.getElementById('step-metrics').dataset.rise")) > 0
-    # The demo UMC sends no TPDO before it is started: the samples were read by SDO.
-    assert browser.js("return document.getElementById('step-metrics').dataset.source") == "sdo"
-    assert "read by SDO" in browser.driver.find_element(By.ID, "step-metrics").text
+    # The step test samples from a TPDO it sets up for its duration (issue
+    # 32: at the loop's rate, 1 kHz on the demo's bus), not by SDO.
+    assert browser.js("return document.getElementById('step-metrics').dataset.source") == "tpdo"
+    text = browser.driver.find_element(By.ID, "step-metrics").text
+    assert "from the TPDO" in text, text
+    # The page says the rate the samples came at (its value is the
+    # host's: not asserted here).
+    assert float(text.split(" samples at ")[1].split(" Hz")[0]) > 0, text
     assert browser.js("return document.querySelectorAll('#step-runs li').length") == 1
 
 
