@@ -584,10 +584,11 @@ impl Gateway {
     /// `caller`, and writes ONE row for the request, of `target` and the
     /// door's summary: one operation's row is the request's (its words,
     /// axis, item); several are named together (`write object, nmt
-    /// command`), the axis and item kept where they share them, and the
-    /// first failure is the outcome, the request says how many failed (`… (2 of 3 failed)`); a request of one
-    /// command has its summary ([`DoorRequest::part`]) or its operation's
-    /// as its request, as that command's row alone would. When every
+    /// command`), the axis and item kept where they share them, the first
+    /// failure is the outcome and the request says how many failed
+    /// (`… (2 of 3 failed)`); a request of one command has its summary
+    /// ([`DoorRequest::part`]) or its operation's as its request, as that
+    /// command's row alone would. When every
     /// operation decided no row was due (lease renewals between two
     /// audited ones) and nothing failed, none is written.
     pub async fn audited_together<T>(
