@@ -1052,3 +1052,19 @@ fn history_waits_for_the_birth_of_its_device() {
     assert_eq!(rest[0].topic.device.as_deref(), Some("demo-2"));
     let _ = std::fs::remove_file(&file);
 }
+
+/// The demo's virtual bus, its three nodes found by a scan: the fixture of
+/// the edge node's and the motion commands' tests.
+pub(crate) async fn demo_bus() -> crate::gateway::ServedBus {
+    let served = crate::emulator::open_bus(
+        "demo",
+        &"virtual:demo".parse().unwrap(),
+        std::sync::Arc::new(crate::gateway::EdsCatalog::builtin().unwrap()),
+        crate::gateway::RegistryConfig::default(),
+        500_000,
+    )
+    .await
+    .unwrap();
+    assert_eq!(served.scan().await.unwrap().len(), 3);
+    served
+}

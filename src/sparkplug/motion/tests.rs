@@ -5,12 +5,9 @@
 //! leases lapsing when its broker connection is gone, the role, and an LED
 //! segment write.
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use super::*;
-use crate::gateway::EdsCatalog;
-use crate::gateway::RegistryConfig;
 use crate::gateway::{EventKind, Query};
 use crate::sparkplug::SparkplugConfig;
 use crate::sparkplug::command::parse;
@@ -25,16 +22,7 @@ use crate::sparkplug::topic::{MessageType, Topic};
 const PERIOD: Duration = Duration::from_millis(1000);
 
 async fn demo() -> Gateway {
-    let served = crate::emulator::open_bus(
-        "demo",
-        &"virtual:demo".parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap();
-    assert_eq!(served.scan().await.unwrap().len(), 3);
+    let served = crate::sparkplug::tests::demo_bus().await;
     Gateway::new([served]).with_lease_period(PERIOD)
 }
 

@@ -3,7 +3,6 @@
 //! what the runner published (rumqttc's request queue, never sent).
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
 
 use prost::Message;
@@ -11,21 +10,11 @@ use rumqttc::{ConnAck, ConnectReturnCode, Request};
 
 use super::*;
 use crate::can::{CanId, Frame};
-use crate::gateway::{EdsCatalog, RegistryConfig};
 use crate::sparkplug::proto::Payload;
 
 /// The demo's bus, every node identified.
 async fn demo() -> Gateway {
-    let served = crate::emulator::open_bus(
-        "demo",
-        &"virtual:demo".parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap();
-    assert_eq!(served.scan().await.unwrap().len(), 3);
+    let served = crate::sparkplug::tests::demo_bus().await;
     for _ in 0..600 {
         if served.nodes().iter().all(born_device) {
             break;
