@@ -172,6 +172,47 @@ async fn garbage_gets_an_error_reply_and_disturbs_no_one() {
 }
 
 #[tokio::test]
+async fn a_client_reading_slower_than_the_bus_loses_the_oldest_frames_and_stays_connected() {
+    let hub = VirtualHub::with_queue("can0", 512);
+    let config = ServerConfig {
+        send_buffer: 4096,
+        // Longer than the pause below: this client is slow, not stalled.
+        write_timeout: Duration::from_secs(60),
+        ..ServerConfig::default()
+    };
+    let server = serve(&hub, config).await;
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(2048).unwrap();
+    let mut slow = socket.connect(server.local_addr()).await.unwrap();
+    read_until(&mut slow, "< hi >").await;
+    slow.write_all(b"< open can0 >< rawmode >").await.unwrap();
+    read_until(&mut slow, "< ok >< ok >").await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    // Far more than its queue and the sockets' buffers hold, while it does
+    // not read; then a last frame.
+    let sender = hub.attach();
+    for i in 0..5_000u32 {
+        sender
+            .send(Frame::new(CanId::Standard(0x181), &i.to_le_bytes()).unwrap())
+            .await
+            .unwrap();
+    }
+    sender
+        .send(Frame::new(CanId::Standard(0x7FF), &[]).unwrap())
+        .await
+        .unwrap();
+
+    // It reads on and gets the last frame: the session went on.
+    read_until(&mut slow, "< frame 7FF ").await;
+    let stats = server.stats();
+    let lost = stats.frames_lost_to_slow_clients.load(Ordering::Relaxed);
+    assert!(lost > 0 && lost < 5_000, "frames lost: {lost}");
+    assert_eq!(stats.slow_clients_dropped.load(Ordering::Relaxed), 0);
+    assert_eq!(stats.connected.load(Ordering::Relaxed), 1);
+}
+
+#[tokio::test]
 async fn a_client_that_stops_reading_is_dropped_and_the_others_get_everything() {
     let hub = VirtualHub::with_queue("can0", 512);
     let config = ServerConfig {
