@@ -2,9 +2,8 @@
 readable object of candeck's virtual devices (issue: virtual devices).
 
 The vendor files are optional test inputs, never part of the repository: the
-directory named by CANDECK_VENDOR_EDS (scripts/test sets it when a shared/eds
-folder sits beside the checkout); without it these tests are reported as
-skipped. The devices run on candeck's own EDS, written from the manuals, so
+directory named by CANDECK_VENDOR_EDS, set by the caller; without it these
+tests are reported as skipped. The devices run on candeck's own EDS, written from the manuals, so
 this checks that what a real integrator's tool expects from the real device is
 what the virtual one gives."""
 
