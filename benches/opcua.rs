@@ -575,7 +575,8 @@ fn main() {
     std::fs::create_dir_all(&dir).unwrap();
     let max_subscribers = subscribers.iter().copied().max().unwrap_or(1);
     let setup = Instant::now();
-    let plant = Plant::start(&dir, nodes, max_subscribers + 1);
+    // The subscribers, the reader, and room for a session not yet closed.
+    let plant = Plant::start(&dir, nodes, max_subscribers + 4);
     plant.set_up(nodes);
     println!(
         "opcua: {nodes} nodes identified, remapped, started, enabled and moving after {:.1} s",
@@ -592,6 +593,12 @@ fn main() {
         .create_sample_keypair(true)
         .trust_server_certs(true)
         .session_retry_limit(3)
+        // One publish response may hold up to QUEUE_SIZE values of each of
+        // a subscriber's 508 items: beyond the client's defaults (1,000
+        // array elements, 320 KiB); the server's own bound is 4 MiB.
+        .max_array_length(1 << 20)
+        .max_message_size(4 << 20)
+        .max_chunk_count(128)
         .client()
         .unwrap_or_else(|errors| panic!("the OPC UA client: {errors:?}"));
     let mut failures = Vec::new();
