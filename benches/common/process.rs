@@ -165,10 +165,10 @@ impl KeepAlive {
                     .nth(1)
                     .and_then(|code| code.parse().ok())
                     .unwrap_or(0);
-            } else if let Some((name, value)) = line.split_once(':') {
-                if name.eq_ignore_ascii_case("content-length") {
-                    length = value.trim().parse::<usize>().ok();
-                }
+            } else if let Some((name, value)) = line.split_once(':')
+                && name.eq_ignore_ascii_case("content-length")
+            {
+                length = value.trim().parse::<usize>().ok();
             }
         }
         let length = length.ok_or("an answer without Content-Length")?;
