@@ -7,6 +7,7 @@
 
 #[path = "../../tests/common/peers.rs"]
 pub(crate) mod peers;
+pub(crate) mod process;
 
 use std::time::Duration;
 
