@@ -156,10 +156,11 @@ def axis_states(server):
     return [server.get(f"{NODE1}/axes/{axis}")["state"] for axis in (1, 2)]
 
 
-def test_two_faulted_axes_return_to_operation_enabled_in_at_most_three_taps(browser, server):
-    for axis in (1, 2):
-        server.post(f"{NODE1}/axes/{axis}/state", {"target": "operation_enabled"})
-    assert axis_states(server) == ["operation_enabled"] * 2
+def fault_both_axes_and_recover_in_three_taps(browser, server):
+    """Faults node 1's two axes (the cause cleared, the faults kept), then
+    brings both back to operation enabled from the overview's machine card:
+    Reset all faults, then "reset and Enable all" in its confirmation, at
+    most three taps, and the card says each axis is done."""
     inject(server)
     try:
         server.wait_for(NODE1 + "/axes/1", lambda a: a["state"] == "fault", "axis 1 did not fault")
@@ -185,6 +186,13 @@ def test_two_faulted_axes_return_to_operation_enabled_in_at_most_three_taps(brow
         "const r = document.querySelector('#machine-recovery .recovery-result'); return r && !r.hidden && r.innerText.includes('Enable all') ? r.innerText : null"),
         message="the result of the recovery is not shown")
     assert "node 1 axis 1: done" in said and "node 1 axis 2: done" in said, said
+
+
+def test_two_faulted_axes_return_to_operation_enabled_in_at_most_three_taps(browser, server):
+    for axis in (1, 2):
+        server.post(f"{NODE1}/axes/{axis}/state", {"target": "operation_enabled"})
+    assert axis_states(server) == ["operation_enabled"] * 2
+    fault_both_axes_and_recover_in_three_taps(browser, server)
 
 
 def test_a_refusal_says_which_axis_and_why(browser, server):

@@ -15,6 +15,16 @@ import pytest
 BIN = os.environ.get("CANDECK_BIN", os.path.join("target", "debug", "candeck"))
 
 
+def wait_until(predicate, timeout=15, what="the condition"):
+    """Polls `predicate` every 0.1 s until it holds; fails saying `what`
+    did not come within `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        time.sleep(0.1)
+
+
 class Process:
     """A candeck process whose stderr (the log) goes to a file we can read."""
 

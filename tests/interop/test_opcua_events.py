@@ -6,41 +6,21 @@ name, as REST's acknowledge would; bad input is a status, never a dropped
 connection."""
 
 import asyncio
+import contextlib
 import time
 
 import pytest
 from asyncua import ua
-from asyncua.crypto.cert_gen import setup_self_signed_certificate
-from cryptography.x509.oid import ExtendedKeyUsageOID
 
 import test_opcua as base
 
 OPERATOR, VIEWER = base.OPERATOR, base.VIEWER
 
 
-@pytest.fixture(scope="module")
-def gateway():
-    server = base.Gateway()
-    yield server
-    server.close()
-
-
-@pytest.fixture(scope="module")
-def certificate(tmp_path_factory):
-    """A client certificate, trusted as test_opcua.py's is."""
-    folder = tmp_path_factory.mktemp("client-pki")
-    key, cert = folder / "key.pem", folder / "cert.der"
-    asyncio.run(
-        setup_self_signed_certificate(
-            key,
-            cert,
-            base.CLIENT_URI,
-            "localhost",
-            [ExtendedKeyUsageOID.CLIENT_AUTH],
-            {"countryName": "FR", "organizationName": "candeck tests", "commonName": "interop"},
-        )
-    )
-    return str(cert), str(key)
+# test_opcua.py's fixtures (module-scoped: this module gets a gateway of its
+# own), the client certificate trusted as there.
+gateway = base.gateway
+certificate = base.certificate
 
 
 class Collected:
@@ -70,12 +50,41 @@ async def event_types(c, ns):
     return types
 
 
+@contextlib.asynccontextmanager
+async def operator_session(gateway, certificate):
+    """An operator's session, closed on the way out, its certificate trusted
+    first (each test may run alone): the client, the namespace and axis 1 of
+    node 1 (found once the tree is built)."""
+    base.trust_rejected(gateway)
+    c = await base.connected(gateway, certificate, OPERATOR)
+    try:
+        ns, axis1 = await base.axis(c)
+        yield c, ns, axis1
+    finally:
+        await c.disconnect()
+
+
+async def subscribe(c, ns, source, *names):
+    """A subscription to the events of the types `names` of `source`; what
+    it delivers collects in the returned Collected."""
+    types = await event_types(c, ns)
+    seen = Collected()
+    subscription = await c.create_subscription(50, seen)
+    # asyncua selects every field as BaseEventType's; the queue keeps
+    # events raised in the same publishing interval (the EMCY and its
+    # alarm).
+    await subscription.subscribe_events(
+        source,
+        [types[name] for name in names],
+        where_clause_generation=False,
+        queuesize=100,
+    )
+    return seen, subscription
+
+
 def test_lease_methods_hand_the_sessions_lease_to_the_client(gateway, certificate):
     async def run():
-        base.trust_rejected(gateway)
-        c = await base.connected(gateway, certificate, OPERATOR)
-        try:
-            ns, axis1 = await base.axis(c)
+        async with operator_session(gateway, certificate) as (_, ns, axis1):
             with pytest.raises(ua.UaStatusCodeError) as refused:
                 await axis1.call_method(f"{ns}:TakeLease")
             assert refused.value.code == ua.StatusCodes.BadNotFound
@@ -95,8 +104,6 @@ def test_lease_methods_hand_the_sessions_lease_to_the_client(gateway, certificat
             await axis1.call_method(f"{ns}:ReleaseLease", lease_id)
             await base.wait_until(lambda: base.velocity(gateway) == 0, timeout=5, what="the axis halted")
             assert await (await axis1.get_child(f"{ns}:State")).read_value()
-        finally:
-            await c.disconnect()
         audit = gateway.request("GET", "/events?kind=audit&limit=200")
         rows = [e for e in audit if e.get("operation") == "end motion lease" and e.get("who") == OPERATOR[0]]
         assert rows and rows[-1]["channel"] == "opcua", audit
@@ -106,68 +113,55 @@ def test_lease_methods_hand_the_sessions_lease_to_the_client(gateway, certificat
 
 def test_a_fault_is_an_emcy_and_an_alarm_event_and_acknowledge_is_the_gateways(gateway, certificate):
     async def run():
-        base.trust_rejected(gateway)
-        c = await base.connected(gateway, certificate, OPERATOR)
-        try:
-            ns, axis1 = await base.axis(c)
-            root = await c.nodes.objects.get_child(f"{ns}:candeck")
-            machine = await root.get_child(f"{ns}:Machine")
-            types = await event_types(c, ns)
-            seen = Collected()
-            subscription = await c.create_subscription(50, seen)
-            # asyncua selects every field as BaseEventType's; the queue keeps
-            # the EMCY and the alarm raised in the same publishing interval.
-            await subscription.subscribe_events(
-                machine,
-                [types["EmcyEventType"], types["AlarmEventType"]],
-                where_clause_generation=False,
-                queuesize=100,
-            )
+        async with operator_session(gateway, certificate) as (c, ns, _):
+            try:
+                root = await c.nodes.objects.get_child(f"{ns}:candeck")
+                machine = await root.get_child(f"{ns}:Machine")
+                seen, subscription = await subscribe(c, ns, machine, "EmcyEventType", "AlarmEventType")
 
-            gateway.request("POST", "/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
-            emcy = await seen.first(lambda e: getattr(e, "ErrorCode", None) == 0x4310, what="the EMCY event")
-            assert (emcy.Bus, emcy.Node) == ("demo", 1)
-            assert emcy.Severity >= 600 and "0x4310" in emcy.Message.Text
-            assert emcy.SourceNode == ua.NodeId("candeck/Nodes/demo/1/Axes/1", ns) or emcy.SourceNode == ua.NodeId(
-                "candeck/Nodes/demo/1", ns
-            )
-            raised = await seen.first(
-                lambda e: getattr(e, "AlarmStep", None) == "raised" and e.Node == 1, what="the alarm raised"
-            )
-            assert raised.AlarmState == "active_unacknowledged"
-            assert raised.AlarmSeverity in ("critical", "high", "medium", "low")
-            alarm = gateway.request("GET", f"/alarms/{raised.AlarmId}")
-            assert alarm["state"] == "active_unacknowledged"
-            assert raised.Severity >= 1 and raised.EventId
+                gateway.request("POST", "/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
+                emcy = await seen.first(lambda e: getattr(e, "ErrorCode", None) == 0x4310, what="the EMCY event")
+                assert (emcy.Bus, emcy.Node) == ("demo", 1)
+                assert emcy.Severity >= 600 and "0x4310" in emcy.Message.Text
+                assert emcy.SourceNode == ua.NodeId("candeck/Nodes/demo/1/Axes/1", ns) or emcy.SourceNode == ua.NodeId(
+                    "candeck/Nodes/demo/1", ns
+                )
+                raised = await seen.first(
+                    lambda e: getattr(e, "AlarmStep", None) == "raised" and e.Node == 1, what="the alarm raised"
+                )
+                assert raised.AlarmState == "active_unacknowledged"
+                assert raised.AlarmSeverity in ("critical", "high", "medium", "low")
+                alarm = gateway.request("GET", f"/alarms/{raised.AlarmId}")
+                assert alarm["state"] == "active_unacknowledged"
+                assert raised.Severity >= 1 and raised.EventId
 
-            state = await machine.call_method(f"{ns}:Acknowledge", raised.AlarmId, "seen on the HMI")
-            assert state in ("active_acknowledged", "normal"), state
-            alarm = gateway.request("GET", f"/alarms/{raised.AlarmId}")
-            assert alarm["acknowledged_by"] == OPERATOR[0], alarm
-            assert alarm["comment"] == "seen on the HMI", alarm
-            acknowledged = await seen.first(
-                lambda e: getattr(e, "AlarmStep", None) == "acknowledged" and e.AlarmId == raised.AlarmId,
-                what="the acknowledged event",
-            )
-            assert acknowledged.AcknowledgedBy == OPERATOR[0]
-            audit = gateway.request("GET", "/events?kind=audit&limit=100")
-            rows = [e for e in audit if e.get("operation") == "acknowledge alarm" and e.get("who") == OPERATOR[0]]
-            assert rows and rows[-1]["channel"] == "opcua", audit
+                state = await machine.call_method(f"{ns}:Acknowledge", raised.AlarmId, "seen on the HMI")
+                assert state in ("active_acknowledged", "normal"), state
+                alarm = gateway.request("GET", f"/alarms/{raised.AlarmId}")
+                assert alarm["acknowledged_by"] == OPERATOR[0], alarm
+                assert alarm["comment"] == "seen on the HMI", alarm
+                acknowledged = await seen.first(
+                    lambda e: getattr(e, "AlarmStep", None) == "acknowledged" and e.AlarmId == raised.AlarmId,
+                    what="the acknowledged event",
+                )
+                assert acknowledged.AcknowledgedBy == OPERATOR[0]
+                audit = gateway.request("GET", "/events?kind=audit&limit=100")
+                rows = [e for e in audit if e.get("operation") == "acknowledge alarm" and e.get("who") == OPERATOR[0]]
+                assert rows and rows[-1]["channel"] == "opcua", audit
 
-            # Bad input is a status code; the session stays usable.
-            with pytest.raises(ua.UaStatusCodeError) as refused:
-                await machine.call_method(f"{ns}:Acknowledge", "not-an-id", "")
-            assert refused.value.code == ua.StatusCodes.BadInvalidArgument
-            with pytest.raises(ua.UaStatusCodeError) as refused:
-                await machine.call_method(f"{ns}:Acknowledge", "999999", "")
-            assert refused.value.code == ua.StatusCodes.BadNotFound
-            with pytest.raises(ua.UaStatusCodeError) as refused:
-                await machine.call_method(f"{ns}:Acknowledge", ua.Variant(5, ua.VariantType.UInt32), "")
-            assert refused.value.code == ua.StatusCodes.BadTypeMismatch
-            await subscription.delete()
-        finally:
-            gateway.request("DELETE", "/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
-            await c.disconnect()
+                # Bad input is a status code; the session stays usable.
+                with pytest.raises(ua.UaStatusCodeError) as refused:
+                    await machine.call_method(f"{ns}:Acknowledge", "not-an-id", "")
+                assert refused.value.code == ua.StatusCodes.BadInvalidArgument
+                with pytest.raises(ua.UaStatusCodeError) as refused:
+                    await machine.call_method(f"{ns}:Acknowledge", "999999", "")
+                assert refused.value.code == ua.StatusCodes.BadNotFound
+                with pytest.raises(ua.UaStatusCodeError) as refused:
+                    await machine.call_method(f"{ns}:Acknowledge", ua.Variant(5, ua.VariantType.UInt32), "")
+                assert refused.value.code == ua.StatusCodes.BadTypeMismatch
+                await subscription.delete()
+            finally:
+                gateway.request("DELETE", "/buses/demo/sim/nodes/1/faults", {"kind": "over_temperature"})
 
         # A viewer may not acknowledge, as over REST.
         v = await base.connected(gateway, certificate, VIEWER)
@@ -185,17 +179,9 @@ def test_a_fault_is_an_emcy_and_an_alarm_event_and_acknowledge_is_the_gateways(g
 
 def test_a_nodes_nmt_change_is_an_event_of_its_object(gateway, certificate):
     async def run():
-        base.trust_rejected(gateway)
-        c = await base.connected(gateway, certificate, OPERATOR)
-        try:
-            ns, _ = await base.axis(c)
+        async with operator_session(gateway, certificate) as (c, ns, _):
             node = await c.nodes.objects.get_child([f"{ns}:candeck", f"{ns}:Nodes", f"{ns}:demo", f"{ns}:1"])
-            types = await event_types(c, ns)
-            seen = Collected()
-            subscription = await c.create_subscription(50, seen)
-            await subscription.subscribe_events(
-                node, types["NmtChangeEventType"], where_clause_generation=False, queuesize=100
-            )
+            seen, subscription = await subscribe(c, ns, node, "NmtChangeEventType")
             # A reset: the node's boot-up is its NMT change (the demo's nodes
             # send no heartbeat, so a state the gateway commands is not
             # reported back; a boot-up always is).
@@ -206,7 +192,5 @@ def test_a_nodes_nmt_change_is_an_event_of_its_object(gateway, certificate):
             assert event.SourceNode == ua.NodeId("candeck/Nodes/demo/1", ns)
             assert "boot_up" in event.Message.Text and event.Severity == 200
             await subscription.delete()
-        finally:
-            await c.disconnect()
 
     asyncio.run(run())

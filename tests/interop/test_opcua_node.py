@@ -23,6 +23,7 @@ import time
 
 import pytest
 
+from conftest import wait_until
 from test_opcua import ADMIN, OPERATOR, VIEWER, Gateway, trust_rejected
 
 PEER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "opcua_node")
@@ -138,14 +139,6 @@ def pki(tmp_path_factory):
 
 def velocity(gateway):
     return gateway.request("GET", "/buses/demo/nodes/1/axes/1")["velocity"]
-
-
-def wait_until(predicate, timeout=15, what="the condition"):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what}: not within {timeout} s")
-        time.sleep(0.1)
 
 
 def enable(gateway, pki, user=OPERATOR):

@@ -22,7 +22,7 @@ import urllib.request
 
 import pytest
 
-from conftest import BIN, Process
+from conftest import BIN, Process, wait_until
 
 mqtt = pytest.importorskip("paho.mqtt.client")
 pytest.importorskip("google.protobuf")
@@ -560,14 +560,6 @@ def test_no_change_is_lost_when_the_edge_node_is_born_again_after_an_outage(brok
 
 def axis_velocity(gateway):
     return gateway.request("GET", "/buses/demo/nodes/1/axes/1")["velocity"]
-
-
-def wait_until(predicate, timeout=15, what="the condition"):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what}: not within {timeout} s")
-        time.sleep(0.1)
 
 
 ENABLE = ("Axis 1/State", DT.String, "string_value", "operation_enabled")

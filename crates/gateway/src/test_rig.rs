@@ -1,7 +1,8 @@
 //! What the gateway's own tests start a gateway with: a configuration of
 //! the given buses with `candeck serve`'s defaults (a lease of 1 s, no
 //! tokens, no write limit, no SYNC), and the demo rack on each virtual bus
-//! as the binary wires it.
+//! as the binary wires it; and what the motion and alarm tests do to it
+//! alike (an operator, an axis enabled).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -11,12 +12,16 @@ use candeck_sim::products::parse_devices;
 use candeck_sim::rack::Rack;
 
 use crate::GatewayConfig;
-use crate::access::Tokens;
+use crate::access::{Role, Tokens};
+use crate::caller::{Caller, Channel};
 use crate::can::VirtualHub;
+use crate::drive::TargetState;
 use crate::history::Retention;
 use crate::machine::MachineSettings;
+use crate::motion::{LeaseClaim, MotionFailed, MotionOutcome};
 use crate::producers::TelemetryConfig;
 use crate::service::BusDevices;
+use crate::service::Gateway;
 
 /// A configuration of `buses` (name, spec), the rest by default; tests
 /// change a field with `GatewayConfig { tokens, ..config(&[…]) }`.
@@ -49,4 +54,30 @@ pub(crate) fn rack(_: &str, preset: &str, hub: &VirtualHub) -> Result<Option<Bus
     rack.add_all(&parse_devices(preset)?)
         .map_err(|err| err.to_string())?;
     Ok(Some(Arc::new(rack) as BusDevices))
+}
+
+/// The gateway of `config` on the demo rack, after the 5 s (of the paused
+/// clock) its scans take to identify every node.
+pub(crate) async fn started(config: GatewayConfig) -> Gateway {
+    let gateway = Gateway::start(config, &rack).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    gateway
+}
+
+/// An operator named `who`, over REST.
+pub(crate) fn operator(who: &str) -> Caller {
+    Caller::new(Channel::Rest, who, Some(Role::Operator))
+}
+
+/// `axis` (bus, node, axis) put in operation enabled by `caller`, with
+/// `claim`.
+pub(crate) async fn enable_axis(
+    gateway: &Gateway,
+    caller: &Caller,
+    axis: (&str, &str, &str),
+    claim: &LeaseClaim,
+) -> Result<MotionOutcome, MotionFailed> {
+    gateway
+        .set_axis_state(caller, axis, TargetState::OperationEnabled, claim)
+        .await
 }

@@ -3,7 +3,6 @@
 //! clock.
 
 use crate::emulator::RackOf;
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
@@ -11,50 +10,31 @@ use axum::http::StatusCode;
 use serde_json::{Value as Json, json};
 use tokio::time::Instant;
 
-use crate::api::tests::support::{assert_error, get, post, put};
-use crate::api::{AppState, app};
+use crate::api::AppState;
+use crate::api::tests::support::{self, assert_error, demo, get, post, put};
 use crate::can::{CanId, FrameReceiver};
 use crate::canopen::NodeId;
 use crate::canopen::eds::Eds;
 use crate::canopen::od::{AccessType, Value};
 use crate::canopen::pdo::{MappingEntry, PdoMapping};
-use crate::gateway::EdsCatalog;
-use crate::gateway::RegistryConfig;
 use crate::sim::device::DeviceCore;
 
 /// A UMC1BDS32 whose firmware refuses writes to TPDO1's mapping entries,
 /// though its EDS (the gateway's) allows them.
 const STUBBORN: u8 = 9;
 
-/// The demo bus with every node identified; with `stubborn`, also a
-/// UMC1BDS32 core at node 9 whose 0x1A00 entries are read-only.
-async fn demo_with(stubborn: bool) -> (Router, AppState) {
-    let served = crate::emulator::open_bus(
-        "demo",
-        &"virtual:demo".parse().unwrap(),
-        Arc::new(EdsCatalog::builtin().unwrap()),
-        RegistryConfig::default(),
-        500_000,
-    )
-    .await
-    .unwrap();
-    if stubborn {
-        let text = include_str!("../../../eds/umc1bds32.eds");
-        let mut dictionary = Eds::parse(text, "umc1bds32.eds").unwrap().dictionary;
-        for sub in 1..=8 {
-            dictionary.sub_mut(0x1A00, sub).unwrap().access = AccessType::Ro;
-        }
-        let device = DeviceCore::new(dictionary, NodeId::new(STUBBORN).unwrap()).unwrap();
-        served.rack().unwrap().add_device(device).unwrap();
+/// The demo bus with every node identified, and a UMC1BDS32 core at node
+/// 9 whose 0x1A00 entries are read-only.
+async fn demo_with_stubborn() -> (Router, AppState) {
+    let served = support::open("demo", "virtual:demo").await;
+    let text = include_str!("../../../eds/umc1bds32.eds");
+    let mut dictionary = Eds::parse(text, "umc1bds32.eds").unwrap().dictionary;
+    for sub in 1..=8 {
+        dictionary.sub_mut(0x1A00, sub).unwrap().access = AccessType::Ro;
     }
-    let nodes = served.scan().await.unwrap();
-    assert_eq!(nodes.len(), if stubborn { 4 } else { 3 }, "{nodes:?}");
-    let state = AppState::new([served]);
-    (app(state.clone()), state)
-}
-
-async fn demo() -> (Router, AppState) {
-    demo_with(false).await
+    let device = DeviceCore::new(dictionary, NodeId::new(STUBBORN).unwrap()).unwrap();
+    served.rack().unwrap().add_device(device).unwrap();
+    support::serve_scanned(served, 4).await
 }
 
 fn tx_frames(state: &AppState) -> u64 {
@@ -441,7 +421,7 @@ async fn a_stopped_node_is_409() {
 /// carries the abort; the PDO stays invalid, as the procedure left it.
 #[tokio::test(start_paused = true)]
 async fn a_step_the_device_refuses_is_named() {
-    let (app, _) = demo_with(true).await;
+    let (app, _) = demo_with_stubborn().await;
     let response = put(
         &app,
         &format!("/api/v1/buses/demo/nodes/{STUBBORN}/pdos/tpdo/1"),

@@ -37,9 +37,14 @@ pub(crate) async fn demo() -> (Router, AppState) {
 /// [`demo`] on the bus `spec` (`virtual:demo?bitrate=unlimited` for tests
 /// of the software that send more than a wire carries).
 pub(crate) async fn demo_at(spec: &str) -> (Router, AppState) {
-    let served = open("demo", spec).await;
+    serve_scanned(open("demo", spec).await, 3).await
+}
+
+/// [`demo`] of a bus opened by the test (with devices of its own added):
+/// a scan finds `devices` nodes, and the router serves it.
+pub(crate) async fn serve_scanned(served: ServedBus, devices: usize) -> (Router, AppState) {
     let nodes = served.scan().await.unwrap();
-    assert_eq!(nodes.len(), 3, "{nodes:?}");
+    assert_eq!(nodes.len(), devices, "{nodes:?}");
     let state = AppState::new([served]).with_lease_period(crate::gateway::MAX_PERIOD);
     (app(state.clone()), state)
 }

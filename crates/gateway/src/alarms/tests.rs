@@ -12,7 +12,7 @@ use crate::canopen::manager::{MachineStatus, NodeDescription};
 use crate::error::GatewayError;
 use crate::profiles::alarm::{AlarmKind, Product, describe};
 use crate::service::Gateway;
-use crate::test_rig::{self, config};
+use crate::test_rig::{self, config, enable_axis, operator, started};
 
 // The book, sans I/O.
 
@@ -233,16 +233,6 @@ fn the_machine_is_never_ready_while_a_critical_or_high_alarm_is_active() {
 // The gateway: sources, operations, persistence (paused clock, the demo
 // rack).
 
-fn operator(who: &str) -> Caller {
-    Caller::new(Channel::Rest, who, Some(Role::Operator))
-}
-
-async fn demo(config: GatewayConfig) -> Gateway {
-    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
-    tokio::time::sleep(Duration::from_secs(5)).await;
-    gateway
-}
-
 fn rack(gateway: &Gateway, bus: &str) -> Rack {
     let served = gateway.bus(bus).unwrap();
     let devices = served.devices().unwrap().clone();
@@ -251,6 +241,26 @@ fn rack(gateway: &Gateway, bus: &str) -> Rack {
 
 fn node(id: u8) -> NodeId {
     NodeId::new(id).unwrap()
+}
+
+/// The axes `(node, axis)` of the bus `line` put in operation enabled by
+/// `caller` (taking no lease), then the UMC (node 1) overheated for a
+/// second: the rack, to clear the fault.
+async fn enabled_then_overheated(
+    gateway: &Gateway,
+    caller: &Caller,
+    axes: &[(&str, &str)],
+) -> Rack {
+    let free = crate::motion::LeaseClaim::presented(None, false);
+    for &(node, axis) in axes {
+        enable_axis(gateway, caller, ("line", node, axis), &free)
+            .await
+            .unwrap();
+    }
+    let rack = rack(gateway, "line");
+    rack.inject_fault(node(1), Fault::OverTemperature).unwrap();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    rack
 }
 
 /// The open alarms of `kind` on the bus `line`.
@@ -266,7 +276,7 @@ fn open_of(gateway: &Gateway, kind: &str) -> Vec<Alarm> {
 #[tokio::test(start_paused = true)]
 async fn a_drive_fault_raises_its_emcy_alarm_on_its_axis_and_the_machine_leaves_ready() {
     // SYNC on: the drives' TPDOs carry their statuswords.
-    let gateway = demo(GatewayConfig {
+    let gateway = started(GatewayConfig {
         sync_period: Duration::from_millis(20),
         ..config(&[("line", "virtual:demo")])
     })
@@ -339,7 +349,7 @@ async fn a_drive_fault_raises_its_emcy_alarm_on_its_axis_and_the_machine_leaves_
 
 #[tokio::test(start_paused = true)]
 async fn a_lost_heartbeat_raises_an_alarm_cleared_when_the_node_is_heard_again() {
-    let gateway = demo(config(&[("line", "virtual:demo")])).await;
+    let gateway = started(config(&[("line", "virtual:demo")])).await;
     let rack = rack(&gateway, "line");
     rack.inject_fault(node(2), Fault::HeartbeatLoss).unwrap();
     tokio::time::sleep(Duration::from_secs(3)).await;
@@ -376,7 +386,7 @@ async fn the_network_manager_s_missing_and_wrong_nodes_raise_alarms() {
         "line".to_string(),
         vec![NodeDescription::new(node(9)), wrong],
     );
-    let gateway = demo(described).await;
+    let gateway = started(described).await;
     tokio::time::sleep(Duration::from_secs(30)).await;
     let missing = open_of(&gateway, "node_missing");
     assert_eq!(missing.len(), 1, "{:?}", gateway.alarms.open(None));
@@ -389,7 +399,7 @@ async fn the_network_manager_s_missing_and_wrong_nodes_raise_alarms() {
 
 #[tokio::test(start_paused = true)]
 async fn bus_off_and_error_passive_raise_alarms_of_the_bus() {
-    let gateway = demo(config(&[("line", "virtual:demo")])).await;
+    let gateway = started(config(&[("line", "virtual:demo")])).await;
     let served = gateway.bus("line").unwrap();
     served
         .controller_fault(crate::can::ControllerFault::BusOff)
@@ -414,7 +424,7 @@ async fn bus_off_and_error_passive_raise_alarms_of_the_bus() {
 /// `wrong_nmt_state`) raised "program download failed".
 #[tokio::test(start_paused = true)]
 async fn a_halted_lease_and_a_failed_program_download_raise_alarms_as_they_end() {
-    let gateway = demo(config(&[("line", "virtual:demo")])).await;
+    let gateway = started(config(&[("line", "virtual:demo")])).await;
     let admin = Caller::new(Channel::Rest, "ada", Some(Role::Admin));
     let image = || b"CDKI\x061.2.3x-a-program".to_vec();
 
@@ -447,15 +457,7 @@ async fn a_halted_lease_and_a_failed_program_download_raise_alarms_as_they_end()
     // axis, and the alarm waits to be seen, its cause gone.
     let axis = ("line", "1", "2");
     let claim = crate::motion::LeaseClaim::default();
-    gateway
-        .set_axis_state(
-            &admin,
-            axis,
-            crate::drive::TargetState::OperationEnabled,
-            &claim,
-        )
-        .await
-        .unwrap();
+    enable_axis(&gateway, &admin, axis, &claim).await.unwrap();
     let velocity: crate::drive::MoveRequest =
         serde_json::from_str(r#"{"mode":"velocity","velocity":200}"#).unwrap();
     gateway
@@ -475,7 +477,7 @@ async fn a_halted_lease_and_a_failed_program_download_raise_alarms_as_they_end()
 
 #[tokio::test(start_paused = true)]
 async fn acknowledging_is_an_operator_s_audited_with_who_and_when() {
-    let gateway = demo(config(&[("line", "virtual:demo")])).await;
+    let gateway = started(config(&[("line", "virtual:demo")])).await;
     rack(&gateway, "line")
         .inject_fault(node(1), Fault::OverTemperature)
         .unwrap();
@@ -540,7 +542,7 @@ async fn alarms_survive_a_restart_and_are_re_evaluated() {
         data_dir: Some(dir.clone()),
         ..config(&[("line", "virtual:demo")])
     };
-    let gateway = demo(with_dir()).await;
+    let gateway = started(with_dir()).await;
     let rack_before = rack(&gateway, "line");
     rack_before
         .inject_fault(node(2), Fault::HeartbeatLoss)
@@ -591,23 +593,9 @@ async fn alarms_survive_a_restart_and_are_re_evaluated() {
 
 #[tokio::test(start_paused = true)]
 async fn enable_all_brings_back_the_axes_last_enabled_and_refuses_one_still_in_fault() {
-    let gateway = demo(config(&[("line", "virtual:demo")])).await;
+    let gateway = started(config(&[("line", "virtual:demo")])).await;
     let alice = operator("alice");
-    let free = crate::motion::LeaseClaim::presented(None, false);
-    for (node, axis) in [("1", "1"), ("2", "1")] {
-        gateway
-            .set_axis_state(
-                &alice,
-                ("line", node, axis),
-                crate::drive::TargetState::OperationEnabled,
-                &free,
-            )
-            .await
-            .unwrap();
-    }
-    let rack = rack(&gateway, "line");
-    rack.inject_fault(node(1), Fault::OverTemperature).unwrap();
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    let rack = enabled_then_overheated(&gateway, &alice, &[("1", "1"), ("2", "1")]).await;
     let report = gateway.enable_machine(&alice, "line").await.unwrap();
     let outcomes: Vec<(u8, u8, RecoveryOutcome)> = report
         .axes
@@ -675,23 +663,9 @@ async fn enable_all_takes_the_described_drive_s_axes_after_a_restart() {
             NodeDescription::new(node(9)),
         ],
     );
-    let gateway = demo(described).await;
+    let gateway = started(described).await;
     let alice = operator("alice");
-    let free = crate::motion::LeaseClaim::presented(None, false);
-    for axis in ["1", "2"] {
-        gateway
-            .set_axis_state(
-                &alice,
-                ("line", "1", axis),
-                crate::drive::TargetState::OperationEnabled,
-                &free,
-            )
-            .await
-            .unwrap();
-    }
-    let rack = rack(&gateway, "line");
-    rack.inject_fault(node(1), Fault::OverTemperature).unwrap();
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    let rack = enabled_then_overheated(&gateway, &alice, &[("1", "1"), ("1", "2")]).await;
     rack.clear_fault(node(1), Fault::OverTemperature).unwrap();
     // As after a restart of the gateway: it enabled nothing in this run.
     gateway.enabled_axes.forget_node("line", 1);

@@ -8,9 +8,9 @@ use super::*;
 use crate::caller::Channel;
 use crate::can::FrameReceiver;
 use crate::canopen::nmt::NmtCommand;
-use crate::drive::TargetState;
+use crate::registry::NodeEvent;
 use crate::safe_stop::StopOutcome;
-use crate::{GatewayConfig, test_rig};
+use crate::test_rig;
 
 #[test]
 fn a_chosen_lease_id_is_long_and_of_the_safe_set() {
@@ -28,20 +28,86 @@ const AXIS: (&str, &str, &str) = ("demo", "1", "1");
 /// The gateway on the demo rack (no tokens, leases of 1 s), its nodes
 /// identified, and axis 1 of the UMC (node 1) in operation enabled.
 async fn enabled_demo() -> (Gateway, Caller) {
-    let config: GatewayConfig = test_rig::config(&[("demo", "virtual:demo")]);
-    let gateway = Gateway::start(config, &test_rig::rack).await.unwrap();
-    tokio::time::sleep(Duration::from_secs(5)).await;
+    let gateway = test_rig::started(test_rig::config(&[("demo", "virtual:demo")])).await;
     let caller = Caller::new(Channel::Rest, "anonymous", None);
-    gateway
-        .set_axis_state(
-            &caller,
-            AXIS,
-            TargetState::OperationEnabled,
-            &LeaseClaim::default(),
-        )
+    enable(&gateway, &caller, AXIS).await.unwrap();
+    (gateway, caller)
+}
+
+/// `axis` put in operation enabled by `caller`, with the default claim.
+async fn enable(
+    gateway: &Gateway,
+    caller: &Caller,
+    axis: (&str, &str, &str),
+) -> Result<MotionOutcome, MotionFailed> {
+    test_rig::enable_axis(gateway, caller, axis, &LeaseClaim::default()).await
+}
+
+/// A velocity move at `velocity`.
+fn velocity_move(velocity: i32) -> MoveRequest {
+    serde_json::from_str(&format!(r#"{{"mode":"velocity","velocity":{velocity}}}"#)).unwrap()
+}
+
+/// [`AXIS`] in a velocity move of `caller`'s, under a lease, turning
+/// 300 ms later; the lease.
+async fn turning_under_lease(gateway: &Gateway, caller: &Caller) -> MotionLease {
+    let moved = gateway
+        .move_axis(caller, AXIS, &velocity_move(300), &LeaseClaim::default())
         .await
         .unwrap();
-    (gateway, caller)
+    let lease = moved.lease.expect("a velocity move is leased");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(velocity(gateway).await > 0, "not turning");
+    lease
+}
+
+/// The last `motion_ended` of `events` so far: node, axis, reason.
+fn motion_ended(
+    events: &mut tokio::sync::broadcast::Receiver<NodeEvent>,
+) -> Option<(u8, u8, &'static str)> {
+    let mut told = None;
+    while let Ok(event) = events.try_recv() {
+        if let NodeEvent::MotionEnded { axis, reason, .. } = event {
+            told = Some((event.node().get(), axis, reason));
+        }
+    }
+    told
+}
+
+/// Node 1's (the UMC's) SDO channel.
+fn umc_sdo(gateway: &Gateway) -> crate::SdoChannel {
+    gateway
+        .bus("demo")
+        .unwrap()
+        .registry
+        .sdo(crate::canopen::NodeId::new(1).unwrap())
+        .unwrap()
+}
+
+/// The text fields `names` of each audit row (an absent one as "", which
+/// no expected word is).
+fn words<'a, const N: usize>(
+    rows: &'a [serde_json::Map<String, serde_json::Value>],
+    names: [&str; N],
+) -> Vec<[&'a str; N]> {
+    rows.iter()
+        .map(|row| names.map(|name| row.get(name).and_then(|v| v.as_str()).unwrap_or("")))
+        .collect()
+}
+
+/// A halt of [`AXIS`] by `caller`, and the step test `test` it ends:
+/// failed.
+async fn halt_ends(
+    gateway: &Gateway,
+    caller: &Caller,
+    test: tokio::task::JoinHandle<Result<MotionOutcome<StepTestResult>, MotionFailed>>,
+) {
+    gateway
+        .set_axis_halt(caller, AXIS, true, &LeaseClaim::default())
+        .await
+        .unwrap();
+    let ended = test.await.unwrap();
+    assert!(ended.is_err(), "the halt ended the test");
 }
 
 fn step_request() -> StepTestRequest {
@@ -159,9 +225,10 @@ async fn a_command_admitted_before_a_stop_is_not_sent_after_it() {
     gateway.halt_axis("demo", "1", "1").await.unwrap();
     let mut frames = gateway.bus("demo").unwrap().monitor();
     let drive = gateway.drive("demo", "1", "1").unwrap();
-    let request: MoveRequest =
-        serde_json::from_str(r#"{"mode":"velocity","velocity":500}"#).unwrap();
-    let refused = ticket.send(drive.run_move(&request)).await.unwrap_err();
+    let refused = ticket
+        .send(drive.run_move(&velocity_move(500)))
+        .await
+        .unwrap_err();
     assert_eq!(refused.code(), "motion_stopped", "{refused}");
     tokio::time::sleep(Duration::from_millis(200)).await;
     assert_eq!(motion_writes(&mut frames), Vec::<String>::new());
@@ -188,15 +255,7 @@ fn lss_address(gateway: &Gateway, id: &str) -> crate::canopen::lss::LssAddress {
 #[tokio::test(start_paused = true)]
 async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
     let (gateway, caller) = enabled_demo().await;
-    let request: MoveRequest =
-        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
-    let moved = gateway
-        .move_axis(&caller, AXIS, &request, &LeaseClaim::default())
-        .await
-        .unwrap();
-    assert!(moved.lease.is_some());
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert!(velocity(&gateway).await > 0, "not turning");
+    turning_under_lease(&gateway, &caller).await;
     let mut events = gateway.bus("demo").unwrap().registry.subscribe();
 
     let admin = Caller::new(Channel::Rest, "admin", Some(crate::access::Role::Admin));
@@ -219,13 +278,7 @@ async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
     assert!(gateway.node("demo", "1").is_err());
     assert!(gateway.enabled_axes.on_node("demo", 1).is_empty());
 
-    let mut told = None;
-    while let Ok(event) = events.try_recv() {
-        if let crate::registry::NodeEvent::MotionEnded { axis, reason, .. } = event {
-            told = Some((event.node().get(), axis, reason));
-        }
-    }
-    assert_eq!(told, Some((1, 1, "node_id_changed")));
+    assert_eq!(motion_ended(&mut events), Some((1, 1, "node_id_changed")));
     let rows = crate::audit::tests::rows(&gateway).await;
     let row = rows
         .iter()
@@ -250,18 +303,10 @@ async fn a_drive_renumbered_by_lss_in_a_leased_move_is_stopped_at_its_new_id() {
 #[tokio::test(start_paused = true)]
 async fn an_od_write_of_the_node_id_then_a_reset_is_a_renumbering() {
     let (gateway, caller) = enabled_demo().await;
-    let request: MoveRequest =
-        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
-    let moved = gateway
-        .move_axis(&caller, AXIS, &request, &LeaseClaim::default())
-        .await
-        .unwrap();
-    assert!(moved.lease.is_some());
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert!(velocity(&gateway).await > 0, "not turning");
+    turning_under_lease(&gateway, &caller).await;
     let mut events = gateway.bus("demo").unwrap().registry.subscribe();
 
-    let operator = Caller::new(Channel::Rest, "op", Some(crate::access::Role::Operator));
+    let operator = test_rig::operator("op");
     let node = gateway.node_handle("demo", "1").unwrap();
     let manager = gateway
         .bus("demo")
@@ -284,24 +329,9 @@ async fn an_od_write_of_the_node_id_then_a_reset_is_a_renumbering() {
     assert_eq!(gateway.leases_held(), 0);
     tokio::time::sleep(Duration::from_millis(500)).await;
     assert_eq!(velocity(&gateway).await, 0);
-    let mut told = None;
-    while let Ok(event) = events.try_recv() {
-        if let crate::registry::NodeEvent::MotionEnded { axis, reason, .. } = event {
-            told = Some((event.node().get(), axis, reason));
-        }
-    }
-    assert_eq!(told, Some((1, 1, "node_id_changed")));
+    assert_eq!(motion_ended(&mut events), Some((1, 1, "node_id_changed")));
     // Until its reset, the node takes no motion command.
-    let busy = gateway
-        .set_axis_state(
-            &caller,
-            AXIS,
-            TargetState::OperationEnabled,
-            &LeaseClaim::default(),
-        )
-        .await
-        .unwrap_err()
-        .error;
+    let busy = enable(&gateway, &caller, AXIS).await.unwrap_err().error;
     assert_eq!(busy.code(), "node_busy", "{busy}");
 
     // Stored (in pre-operational, as UniSwarm wants), then reset: the
@@ -320,15 +350,7 @@ async fn an_od_write_of_the_node_id_then_a_reset_is_a_renumbering() {
     );
     assert!(gateway.enabled_axes.on_node("demo", 1).is_empty());
     // The device at its new number takes motion commands again.
-    gateway
-        .set_axis_state(
-            &caller,
-            ("demo", "9", "1"),
-            TargetState::OperationEnabled,
-            &LeaseClaim::default(),
-        )
-        .await
-        .unwrap();
+    enable(&gateway, &caller, ("demo", "9", "1")).await.unwrap();
 }
 
 /// Writing a node's own node-ID to 0x2040 is no renumbering, and ends one
@@ -336,34 +358,17 @@ async fn an_od_write_of_the_node_id_then_a_reset_is_a_renumbering() {
 #[tokio::test(start_paused = true)]
 async fn writing_its_own_node_id_back_ends_a_pending_renumbering() {
     let (gateway, caller) = enabled_demo().await;
-    let operator = Caller::new(Channel::Rest, "op", Some(crate::access::Role::Operator));
+    let operator = test_rig::operator("op");
     let node = gateway.node_handle("demo", "1").unwrap();
     node.write_object(&operator, 0x2040, 1, vec![9])
         .await
         .unwrap();
-    let busy = gateway
-        .set_axis_state(
-            &caller,
-            AXIS,
-            TargetState::OperationEnabled,
-            &LeaseClaim::default(),
-        )
-        .await
-        .unwrap_err()
-        .error;
+    let busy = enable(&gateway, &caller, AXIS).await.unwrap_err().error;
     assert_eq!(busy.code(), "node_busy", "{busy}");
     node.write_object(&operator, 0x2040, 1, vec![1])
         .await
         .unwrap();
-    gateway
-        .set_axis_state(
-            &caller,
-            AXIS,
-            TargetState::OperationEnabled,
-            &LeaseClaim::default(),
-        )
-        .await
-        .unwrap();
+    enable(&gateway, &caller, AXIS).await.unwrap();
     let refused = node
         .write_object(&operator, 0x2040, 1, vec![9, 0])
         .await
@@ -379,15 +384,8 @@ async fn writing_its_own_node_id_back_ends_a_pending_renumbering() {
 #[tokio::test(start_paused = true)]
 async fn an_od_write_to_a_leased_axis_is_held_to_the_lease_but_a_stop_always_goes() {
     let (gateway, _) = enabled_demo().await;
-    let plc = Caller::new(Channel::Rest, "plc", Some(crate::access::Role::Operator));
-    let request: MoveRequest =
-        serde_json::from_str(r#"{"mode":"velocity","velocity":300}"#).unwrap();
-    let moved = gateway
-        .move_axis(&plc, AXIS, &request, &LeaseClaim::default())
-        .await
-        .unwrap();
-    let lease = moved.lease.unwrap();
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    let plc = test_rig::operator("plc");
+    let lease = turning_under_lease(&gateway, &plc).await;
     gateway
         .renew_axis_lease(&plc, &lease.axis, &lease.id)
         .await
@@ -440,12 +438,7 @@ async fn an_od_write_to_a_leased_axis_is_held_to_the_lease_but_a_stop_always_goe
 #[tokio::test(start_paused = true)]
 async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
     let (gateway, caller) = enabled_demo().await;
-    let sdo = gateway
-        .bus("demo")
-        .unwrap()
-        .registry
-        .sdo(crate::canopen::NodeId::new(1).unwrap())
-        .unwrap();
+    let sdo = umc_sdo(&gateway);
     let ramp = || async {
         let mut values = Vec::new();
         for (index, sub) in [(0x6048, 1), (0x6048, 2), (0x6049, 1), (0x6049, 2)] {
@@ -457,12 +450,7 @@ async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
     let test = spawn_step_test(&gateway, &caller);
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_ne!(ramp().await, before, "lifted during the test");
-    gateway
-        .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
-        .await
-        .unwrap();
-    let ended = test.await.unwrap();
-    assert!(ended.is_err(), "the halt ended the test");
+    halt_ends(&gateway, &caller, test).await;
     assert_eq!(ramp().await, before, "put back");
     let rows = crate::audit::tests::rows_where(&gateway, 2, |row| {
         row["operation"]
@@ -470,29 +458,19 @@ async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
             .is_some_and(|operation| operation.starts_with("step test: set-point shaping"))
     })
     .await;
-    let words: Vec<(&str, &str, &str)> = rows
-        .iter()
-        .map(|row| {
-            (
-                row["operation"].as_str().unwrap(),
-                row["who"].as_str().unwrap(),
-                row["request"].as_str().unwrap_or(""),
-            )
-        })
-        .collect();
     assert_eq!(
-        words,
+        words(&rows, ["operation", "who", "request"]),
         [
-            (
+            [
                 "step test: set-point shaping lifted",
                 "gateway",
                 "0x6048.1 = 3000, 0x6048.2 = 1, 0x6049.1 = 3000, 0x6049.2 = 1"
-            ),
-            (
+            ],
+            [
                 "step test: set-point shaping restored",
                 "gateway",
                 "0x6048.1 = 1, 0x6048.2 = 1, 0x6049.1 = 1, 0x6049.2 = 1"
-            ),
+            ],
         ],
         "{rows:#?}"
     );
@@ -505,12 +483,7 @@ async fn a_halted_step_test_puts_its_ramps_back_and_says_so() {
 /// Node 1's TPDO parameters as they read: 0x1800-0x1803 subs 1, 2, 3, 5,
 /// 6 and 0x1A00-0x1A03 subs 0 to 8.
 async fn tpdo_parameters(gateway: &Gateway) -> Vec<(u16, u8, Vec<u8>)> {
-    let sdo = gateway
-        .bus("demo")
-        .unwrap()
-        .registry
-        .sdo(crate::canopen::NodeId::new(1).unwrap())
-        .unwrap();
+    let sdo = umc_sdo(gateway);
     let mut values = Vec::new();
     for number in 0..4u16 {
         for (index, subs) in [
@@ -545,37 +518,23 @@ async fn a_halted_step_test_puts_its_sampling_tpdo_back_and_says_so() {
         .expect("0x6044 in a TPDO during the test");
     assert_eq!(during.pdo, 4, "{during:?}");
     assert_ne!(tpdo_parameters(&gateway).await, before, "TPDO 4 set up");
-    gateway
-        .set_axis_halt(&caller, AXIS, true, &LeaseClaim::default())
-        .await
-        .unwrap();
-    let ended = test.await.unwrap();
-    assert!(ended.is_err(), "the halt ended the test");
+    halt_ends(&gateway, &caller, test).await;
     assert_eq!(tpdo_parameters(&gateway).await, before, "put back");
     let rows = crate::audit::tests::rows_where(&gateway, 2, |row| {
         row["operation"] == "configure pdo" && row["who"] == "gateway"
     })
     .await;
-    let words: Vec<(&str, &str)> = rows
-        .iter()
-        .map(|row| {
-            (
-                row["item"].as_str().unwrap(),
-                row["request"].as_str().unwrap_or(""),
-            )
-        })
-        .collect();
     assert_eq!(
-        words,
+        words(&rows, ["item", "request"]),
         [
-            (
+            [
                 "tpdo 4",
                 "step test sampling: 0x6044 every 1 ms (borrowed, put back after the test)"
-            ),
-            (
+            ],
+            [
                 "tpdo 4",
                 "step test sampling over: TPDO 4 put back as before the test"
-            ),
+            ],
         ],
         "{rows:#?}"
     );
