@@ -22,6 +22,8 @@
 //!   when it closes or stops talking.
 //! - [`revisions`]: each node's hardware and software versions, read once
 //!   per identification.
+//! - [`sampling`]: monitored dictionary variables, sampled over SDO with a
+//!   per-node bound or fed from the node's TPDOs.
 //! - [`server`]: async-opcua's server with all of it.
 //!
 //! Built with the `opcua` cargo feature (default).
@@ -38,6 +40,8 @@ pub mod feed;
 pub mod leases;
 #[cfg(feature = "opcua")]
 pub mod revisions;
+#[cfg(feature = "opcua")]
+pub mod sampling;
 #[cfg(feature = "opcua")]
 pub mod server;
 #[cfg(feature = "opcua")]

@@ -14,10 +14,11 @@ use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
 use opcua::server::node_manager::{
-    MethodCall, MonitoredItemRef, ParsedReadValueId, RequestContext, ServerContext, WriteNode,
+    MethodCall, MonitoredItemRef, MonitoredItemUpdateRef, ParsedReadValueId, RequestContext,
+    ServerContext, WriteNode,
 };
 use opcua::sync::RwLock;
-use opcua::types::{AttributeId, DataValue, DateTime, StatusCode, TimestampsToReturn, Variant};
+use opcua::types::{AttributeId, DataValue, StatusCode, TimestampsToReturn, Variant};
 
 use super::browse::{self, AxisMethod, NodePath, Target};
 use super::feed::AxisDemand;
@@ -34,6 +35,8 @@ pub struct Door {
     pub users: TokenUsers,
     pub leases: Arc<SessionLeases>,
     pub demand: Arc<AxisDemand>,
+    /// The monitored dictionary variables and their nodes' samplers.
+    pub sampling: Arc<super::sampling::DictionarySampling>,
 }
 
 /// The node manager of namespace `urn:candeck`.
@@ -275,34 +278,50 @@ impl CandeckNodes {
         index: u16,
         sub: u8,
     ) -> DataValue {
-        let item = crate::gateway::object_item(index, sub);
         let caller = self.caller(context, "Read", &node.object(index, sub), None);
-        let result = async {
-            let handle = handle(&self.door.gateway, node)?;
-            let entry = entry(&handle, index, sub)?;
-            let bytes = handle.read_object(&caller, index, sub).await?;
-            let value = entry
-                .decode(&bytes)
-                .map_err(|err| GatewayError::InvalidValue(format!("{item}: {err}")))?;
-            Ok::<_, GatewayError>(super::values::variant_of(&value))
+        super::sampling::read_entry(&self.door.gateway, &caller, node, index, sub).await
+    }
+
+    /// A monitored item on a dictionary variable, handed to its node's
+    /// sampler: true when `item` is one (its status set), false for any
+    /// other.
+    fn monitor_object(
+        &self,
+        context: &RequestContext,
+        address_space: &RwLock<AddressSpace>,
+        item: &mut CreateMonitoredItem,
+    ) -> bool {
+        let Some(Target::Object { node, index, sub }) =
+            self.target(&item.item_to_monitor().node_id)
+        else {
+            return false;
+        };
+        if item.item_to_monitor().attribute_id != AttributeId::Value {
+            return false;
         }
-        .await;
-        match result {
-            Ok(value) => DataValue::new_now(value),
-            Err(error) => {
-                tracing::debug!(
-                    "opcua: read of {item} on {}/{}: {error}",
-                    node.bus,
-                    node.node
-                );
-                DataValue {
-                    status: Some(status_of(&error)),
-                    source_timestamp: Some(DateTime::now()),
-                    server_timestamp: Some(DateTime::now()),
-                    ..Default::default()
-                }
-            }
+        let readable = {
+            let space = address_space.read();
+            space
+                .validate_node_read(context, item.item_to_monitor())
+                .map(|_| ())
+        };
+        if let Err(status) = readable {
+            item.set_status(status);
+            return true;
         }
+        let caller = self.caller(context, "Read", &node.object(index, sub), None);
+        if let Some(value) = self.door.sampling.initial(&node, (index, sub)) {
+            item.set_initial_value(value);
+        }
+        self.door.sampling.monitor(
+            item.handle(),
+            node,
+            (index, sub),
+            item.sampling_interval(),
+            caller,
+        );
+        item.set_status(StatusCode::Good);
+        true
     }
 
     /// A dictionary entry written over SDO: checked by the EDS (type,
@@ -502,6 +521,18 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
                 self.door.demand.monitor(axis, item.handle());
             }
         }
+        // Dictionary variables are sampled (super::sampling), not read
+        // here: their first value is the sampler's first sample.
+        let mut items: Vec<&mut &mut CreateMonitoredItem> = {
+            let mut others = Vec::with_capacity(items.len());
+            for item in items.iter_mut() {
+                if !self.monitor_object(context, address_space, item) {
+                    others.push(&mut **item);
+                }
+            }
+            others
+        };
+        let items = items.as_mut_slice();
         let to_read: Vec<_> = items.iter().map(|item| item.item_to_monitor()).collect();
         let values = self
             .read_values(
@@ -520,9 +551,24 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
         }
     }
 
+    async fn modify_monitored_items(
+        &self,
+        _context: &RequestContext,
+        items: &[&MonitoredItemUpdateRef],
+    ) {
+        for item in items {
+            if item.attribute() == AttributeId::Value {
+                self.door
+                    .sampling
+                    .modify(item.handle(), item.update().revised_sampling_interval);
+            }
+        }
+    }
+
     async fn delete_monitored_items(&self, _context: &RequestContext, items: &[&MonitoredItemRef]) {
         for item in items {
             self.door.demand.unmonitor(item.handle());
+            self.door.sampling.unmonitor(item.handle());
         }
     }
 

@@ -143,6 +143,24 @@ pub struct NodeTpdos {
     pub read_at: Instant,
 }
 
+impl NodeTpdos {
+    /// The valid TPDO (its number) that carries object `index`:`sub`, the
+    /// lowest numbered when several do.
+    pub fn carrier(&self, index: u16, sub: u8) -> Option<u16> {
+        self.decoders
+            .iter()
+            .filter(|(_, decoder)| {
+                decoder
+                    .mapping()
+                    .entries()
+                    .iter()
+                    .any(|entry| entry.index == index && entry.sub == sub)
+            })
+            .map(|(number, _)| *number)
+            .min()
+    }
+}
+
 #[derive(Default)]
 struct State {
     /// The TPDOs read, by node.
@@ -288,6 +306,14 @@ impl TpdoValues {
     /// The TPDOs of `node` as last read; `None` before they were read.
     pub fn tpdos(&self, node: NodeId) -> Option<NodeTpdos> {
         self.lock().nodes.get(&node).cloned()
+    }
+
+    /// The TPDO of `node` whose mapping carries object `index`:`sub` (the
+    /// first by number when several do); `None` when none does or the
+    /// node's TPDOs were not read yet. A door that wants the object's value
+    /// takes it from [`TpdoValues::value`] then, with no SDO transfer.
+    pub fn carrier(&self, node: NodeId, index: u16, sub: u8) -> Option<u16> {
+        self.lock().nodes.get(&node)?.carrier(index, sub)
     }
 
     /// The newest value of every object `node`'s TPDOs carry, by index and
@@ -615,4 +641,43 @@ fn spawn_refresh(values: &Arc<Shared>, node: NodeId) {
             }
         }
     });
+}
+
+#[cfg(test)]
+mod carrier_tests {
+    use super::*;
+    use crate::canopen::pdo::{MappingEntry, PdoMapping};
+
+    #[test]
+    fn the_tpdo_that_maps_an_object_carries_it() {
+        let decoder = |cob: u32, entries: Vec<MappingEntry>| {
+            TpdoDecoder::new(
+                CanId::standard(cob).unwrap(),
+                PdoMapping::new(entries).unwrap(),
+                None,
+            )
+        };
+        let tpdos = NodeTpdos {
+            decoders: vec![
+                (
+                    3,
+                    decoder(
+                        0x381,
+                        vec![
+                            MappingEntry::new(0x6064, 0, 32),
+                            MappingEntry::new(0x6041, 0, 16),
+                        ],
+                    ),
+                ),
+                (1, decoder(0x181, vec![MappingEntry::new(0x6041, 0, 16)])),
+            ],
+            read_at: Instant::now(),
+        };
+        assert_eq!(tpdos.carrier(0x6064, 0), Some(3));
+        // Carried by two: the lowest numbered.
+        assert_eq!(tpdos.carrier(0x6041, 0), Some(1));
+        // Another sub-index, another object: not carried.
+        assert_eq!(tpdos.carrier(0x6064, 1), None);
+        assert_eq!(tpdos.carrier(0x1017, 0), None);
+    }
 }

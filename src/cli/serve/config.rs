@@ -131,6 +131,7 @@ pub(super) struct ConfigFile {
     pub(super) opcua_max_monitored_items: Option<usize>,
     pub(super) opcua_max_message_size: Option<usize>,
     pub(super) opcua_session_timeout_ms: Option<u64>,
+    pub(super) opcua_sdo_samples_per_s: Option<u32>,
     pub(super) manager_node_id: Option<u8>,
     pub(super) manager_heartbeat_ms: Option<u16>,
     pub(super) heartbeat_consumer_factor: Option<f64>,
@@ -328,6 +329,9 @@ impl ConfigFile {
             session_timeout: self
                 .opcua_session_timeout_ms
                 .map_or(defaults.session_timeout, Duration::from_millis),
+            sdo_samples_per_s: self
+                .opcua_sdo_samples_per_s
+                .unwrap_or(defaults.sdo_samples_per_s),
         }
     }
 }
