@@ -5,7 +5,11 @@ the peak inside it, the time axis the run's duration, the units shown),
 and the run list keeps the gains each run used, after a reload too, so
 that runs with P and 4 × P compare side by side."""
 
+import os
+
 from selenium.webdriver.common.by import By
+
+from conftest import SHOTS
 
 UMC = "/api/v1/buses/demo/nodes/1"
 TUNE = "/nodes/demo/1/axes/1/tune"
@@ -78,17 +82,23 @@ return {
   tMin: Number(c.dataset.tMin), tMax: Number(c.dataset.tMax),
   unit: c.dataset.unit, drawn: Number(c.dataset.runs),
   height: bottom - top, first, last,
-  samples: runs[runs.length - 1].samples,
+  runs,
 };
 """
 
 
 def check_scaled(browser, frm, to):
-    """The chart of the latest run (frm → to) fills the plot's height with
-    its response, clips nothing, and spans the run's duration."""
+    """The chart of the latest run (frm → to), drawn with the earlier runs
+    of the same step, fills the plot's height with their response, clips
+    nothing, and spans their duration."""
     chart = browser.js(CHART, list(LATEST_RGB))
-    samples = chart["samples"]
-    assert samples, "the stored run has no samples"
+    # The runs as the gateway answered them (the page stores them so); the
+    # last four of this step are drawn.
+    drawn = [r for r in chart["runs"] if r["loop"] == "velocity" and r["from"] == frm and r["to"] == to][-4:]
+    assert drawn and chart["runs"][-1] == drawn[-1], "the latest run is not this step"
+    samples = [s for r in drawn for s in r["samples"]]
+    assert samples, "the stored runs have no samples"
+    assert chart["drawn"] == len(drawn), chart["drawn"]
     low = min([frm, to] + [min(s[1], s[2]) for s in samples])
     high = max([frm, to] + [max(s[1], s[2]) for s in samples])
     span = chart["yMax"] - chart["yMin"]
@@ -96,20 +106,23 @@ def check_scaled(browser, frm, to):
     assert chart["yMin"] < low and high < chart["yMax"], (chart["yMin"], low, high, chart["yMax"])
     # The step itself fills most of the height, a small one as a large one.
     assert abs(to - frm) / span > 0.75, f"a step of {abs(to - frm)} is drawn on an axis of {span}"
-    # The time axis is the run's duration.
+    # The time axis is the runs' duration.
     assert chart["tMin"] == min(s[0] for s in samples) and chart["tMax"] == max(s[0] for s in samples), chart
     assert chart["unit"] == "vl units", chart["unit"]
     # As drawn: the latest run's line covers most of the plot's height and
     # stays off its top and bottom edges.
     assert chart["first"] is not None, "the latest run's line is not drawn"
-    drawn = (chart["last"] - chart["first"]) / chart["height"]
-    assert drawn > 0.7, f"the response spans {drawn:.0%} of the plot's height"
+    covered = (chart["last"] - chart["first"]) / chart["height"]
+    assert covered > 0.7, f"the response spans {covered:.0%} of the plot's height"
     assert chart["first"] > 1 and chart["last"] < chart["height"] - 2, chart
     return chart
 
 
 def test_the_chart_scales_to_each_step_and_the_runs_keep_their_gains(browser, server):
     wait_identified(server)
+    # The demo's UMC clips VL's target to 0x6046.2 (1000): raised, so that
+    # a step of 3000 is one.
+    server.request("PUT", f"{UMC}/od/0x6046/2", {"value": 3000})
     server.post(f"{UMC}/axes/1/state", {"target": "operation_enabled"})
     open_page(browser, server)
     # The velocity loop's factory P (0x4041.1, Q15.16), and four times it.
@@ -152,6 +165,10 @@ def test_the_chart_scales_to_each_step_and_the_runs_keep_their_gains(browser, se
     assert listed() == expected
     assert browser.js("return document.getElementById('step-chart').dataset.runs") == "2"
     check_scaled(browser, 0, 3000)
+    # A picture of the chart and the list, for a person to look at.
+    os.makedirs(SHOTS, exist_ok=True)
+    browser.driver.find_element(By.ID, "step-chart").screenshot(os.path.join(SHOTS, "tuning-runs-chart.png"))
+    browser.driver.find_element(By.ID, "step-runs").screenshot(os.path.join(SHOTS, "tuning-runs-list.png"))
 
     # Clear runs empties the list and the chart, for good.
     browser.driver.find_element(By.ID, "runs-clear").click()
