@@ -125,6 +125,7 @@ pub static ASSETS: &[Asset] = &[
     asset!("js/overview.js", JS),
     asset!("js/pdos.js", JS),
     asset!("js/recovery.js", JS),
+    asset!("js/stepchart.js", JS),
     asset!("js/stopall.js", JS),
     asset!("js/stream.js", JS),
     asset!("js/trace.js", JS),

@@ -539,6 +539,9 @@ async fn the_tuning_page_lists_the_axis_loops_from_the_profile() {
         "pid-status",
         "step-form",
         "step-chart",
+        "step-unit",
+        "step-runs",
+        "runs-clear",
         "gains-store",
     ] {
         assert!(html.contains(&format!("id=\"{id}\"")), "no #{id}");

@@ -85,7 +85,7 @@ def test_the_tuning_page_writes_a_gain_shows_the_status_and_runs_a_step(browser,
     # The page says the rate the samples came at (its value is the
     # host's: not asserted here).
     assert float(text.split(" samples at ")[1].split(" Hz")[0]) > 0, text
-    assert browser.js("return document.querySelectorAll('#step-runs li').length") == 1
+    assert browser.js("return document.querySelectorAll('#step-runs tbody tr').length") == 1
 
 
 SMALL_TARGETS = """

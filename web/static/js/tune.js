@@ -2,11 +2,15 @@
 // each loop's PID configuration (0x4021/0x4041/0x4061 + the axis offset,
 // UMC manual §3.5.3) typed in human numbers and written as Q15.16, its
 // live status (0x4020/0x4040/0x4060), a step test (POST .../step-test)
-// drawn with its metrics, the last runs overlaid, and store (0x1010).
+// drawn with its metrics (stepchart.js: scaled to the response, the
+// earlier runs of the same step overlaid), the runs listed with the gains
+// each ran with and kept in this browser's local storage, and store
+// (0x1010).
 
 import { api, runAction } from './api.js';
 import { $, clock, h, showMessage } from './dom.js';
 import { stream } from './layout.js';
+import { colourOf, comparable, drawStep } from './stepchart.js';
 
 // Where a step's actual values came from (docs/rest-api.md, "Step test").
 const SOURCES = { tpdo: 'from the TPDO', sdo: 'read by SDO', tpdo_then_sdo: 'TPDO, then SDO' };
@@ -17,7 +21,12 @@ const axisBase = `${base}/axes/${encodeURIComponent(root.dataset.axis)}`;
 const tabs = [...root.querySelectorAll('.loop-tab')];
 const gainsResult = $('#gains-result');
 const POLL_MS = 500;
-const RUNS_KEPT = 4;
+// The runs listed (and stored), newest first.
+const RUNS_KEPT = 10;
+// The run history of this axis, in this browser's local storage: it is
+// the browser's record of what it ran (the gateway keeps no step results),
+// so a reload keeps it and another browser has its own.
+const RUNS_KEY = `candeck.tune.runs:${root.dataset.bus}/${root.dataset.node}/${root.dataset.axis}`;
 
 // Sub-indices 1..8 of a configuration record (§3.5.3).
 const PARAMS = [
@@ -32,7 +41,10 @@ const PARAMS = [
 ];
 
 let loop = null;
-const runs = [];
+// Oldest first.
+const runs = loadRuns();
+// The step's unit per loop, from the axis's units (GET .../axes/{axis}).
+const stepUnits = { torque: '‰ of rated torque', velocity: 'velocity units', position: 'position units' };
 
 // Q15.16 saturates at the INTEGER32 range (Min and Max default to its ends).
 const toQ = (v) => Math.max(-2147483648, Math.min(2147483647, Math.round(v * 65536)));
@@ -44,6 +56,7 @@ function select(tab) {
   loop = { ...tab.dataset };
   $('#gains-object').textContent = loop.config;
   $('#status-object').textContent = loop.status;
+  $('#step-unit').textContent = stepUnits[loop.loop] || '';
   loadGains();
 }
 
@@ -123,53 +136,6 @@ async function poll() {
 }
 setInterval(poll, POLL_MS);
 
-function draw() {
-  const canvas = $('#step-chart');
-  const ctx = canvas.getContext('2d');
-  const { width, height } = canvas;
-  ctx.clearRect(0, 0, width, height);
-  if (!runs.length) return;
-  // Scaled to the response: the runs of the latest run's loop (another
-  // loop's units would squash it), their target, peak and trough, and a
-  // margin so that an overshoot is not drawn on the frame.
-  const latestLoop = runs[runs.length - 1].loop;
-  const shown = runs.filter((r) => r.loop === latestLoop);
-  const all = shown.flatMap((r) => r.samples);
-  const tMax = Math.max(...all.map((s) => s[0]), 1);
-  let yMin = Math.min(...all.map((s) => Math.min(s[1], s[2])), ...shown.map((r) => r.from));
-  let yMax = Math.max(...all.map((s) => Math.max(s[1], s[2])), ...shown.map((r) => r.from));
-  if (yMax === yMin) { yMax += 1; yMin -= 1; }
-  const margin = (yMax - yMin) * 0.05;
-  yMax += margin;
-  yMin -= margin;
-  const pad = 40;
-  const x = (t) => pad + (t / tMax) * (width - 2 * pad);
-  const y = (v) => height - pad - ((v - yMin) / (yMax - yMin)) * (height - 2 * pad);
-  ctx.strokeStyle = '#d8dee6';
-  ctx.strokeRect(pad, pad, width - 2 * pad, height - 2 * pad);
-  ctx.fillStyle = '#5f6b7a';
-  ctx.font = '12px system-ui, sans-serif';
-  ctx.fillText(String(fmt(yMax)), 2, pad);
-  ctx.fillText(String(fmt(yMin)), 2, height - pad);
-  ctx.fillText(`${fmt(tMax)} ms`, width - pad - 40, height - pad + 16);
-  shown.forEach((run, i) => {
-    const latest = i === shown.length - 1;
-    ctx.lineWidth = latest ? 2 : 1;
-    ctx.strokeStyle = latest ? '#1d3557' : `rgba(95, 107, 122, ${0.3 + 0.15 * i})`;
-    ctx.beginPath();
-    run.samples.forEach((s, j) => (j ? ctx.lineTo(x(s[0]), y(s[2])) : ctx.moveTo(x(s[0]), y(s[2]))));
-    ctx.stroke();
-  });
-  const last = runs[runs.length - 1];
-  ctx.strokeStyle = '#c8102e';
-  ctx.setLineDash([5, 4]);
-  ctx.beginPath();
-  ctx.moveTo(x(0), y(last.to));
-  ctx.lineTo(x(tMax), y(last.to));
-  ctx.stroke();
-  ctx.setLineDash([]);
-}
-
 const ms = (v) => (v === null || v === undefined ? '—' : `${fmt(v)} ms`);
 
 $('#step-form').addEventListener('submit', async (event) => {
@@ -190,8 +156,21 @@ $('#step-form').addEventListener('submit', async (event) => {
   }
   const r = done.value;
   metrics.dataset.source = r.source;
-  runs.push({ ...request, samples: r.samples });
+  // The run as the gateway answered it, with the gains the drive had
+  // when it started (null where they could not be read).
+  runs.push({
+    ...request,
+    at: Date.now(),
+    unit: stepUnits[request.loop],
+    gains: r.gains || null,
+    rise_time_ms: r.rise_time_ms,
+    overshoot_pct: r.overshoot_pct,
+    settling_time_ms: r.settling_time_ms,
+    steady_state_error: r.steady_state_error,
+    samples: r.samples,
+  });
   while (runs.length > RUNS_KEPT) runs.shift();
+  saveRuns();
   metrics.dataset.state = 'done';
   metrics.dataset.rise = String(r.rise_time_ms);
   metrics.replaceChildren(
@@ -201,10 +180,83 @@ $('#step-form').addEventListener('submit', async (event) => {
     h('span', {}, `Steady-state error ${fmt(r.steady_state_error)}`),
     h('span', { class: 'sub', id: 'step-sampling', title: r.sampling_note }, `${r.samples.length} samples at ${fmt(r.sample_rate_hz)} Hz (${SOURCES[r.source] || r.source})`),
   );
-  // Each run with the gains it ran with: the history compares tunings.
-  const gains = r.gains ? ` (P ${fmt(r.gains.p)}, I ${fmt(r.gains.i)}, D ${fmt(r.gains.d)})` : '';
-  $('#step-runs').prepend(h('li', {}, `${clock()} ${request.loop} ${request.from} → ${request.to}${gains}: rise ${ms(r.rise_time_ms)}, overshoot ${fmt(r.overshoot_pct)} %`));
-  draw();
+  showRuns();
+});
+
+// A stored run is used only as the page stores it: anything else (another
+// version's, edited by hand) is left out rather than drawn wrong.
+function isRun(r) {
+  const finite = (v) => typeof v === 'number' && Number.isFinite(v);
+  return r && typeof r === 'object' && typeof r.loop === 'string' && finite(r.from) && finite(r.to) && finite(r.at)
+    && Array.isArray(r.samples) && r.samples.every((s) => Array.isArray(s) && s.length === 3 && s.every(finite))
+    && (r.gains === null || (typeof r.gains === 'object' && ['p', 'i', 'd'].every((k) => finite(r.gains[k]))));
+}
+
+function loadRuns() {
+  try {
+    const stored = JSON.parse(localStorage.getItem(RUNS_KEY) || '[]');
+    return Array.isArray(stored) ? stored.filter(isRun).slice(-RUNS_KEPT) : [];
+  } catch {
+    return [];
+  }
+}
+
+// Local storage holds a few megabytes: when the runs' samples do not fit,
+// the older runs are kept without them (listed, no longer drawn).
+function saveRuns() {
+  for (let keepSamples = runs.length; keepSamples >= 0; keepSamples -= 1) {
+    const from = runs.length - keepSamples;
+    try {
+      localStorage.setItem(RUNS_KEY, JSON.stringify(runs.map((r, i) => (i < from ? { ...r, samples: [] } : r))));
+      return;
+    } catch {
+      // Too large (or storage off): try with fewer samples.
+    }
+  }
+}
+
+// The run list, newest first, and the chart of the latest run with the
+// earlier runs of the same step.
+function showRuns() {
+  const drawn = comparable(runs);
+  const latest = runs[runs.length - 1];
+  drawStep($('#step-chart'), drawn, latest ? latest.unit : '');
+  const gain = (g, k) => (g ? fmt(g[k]) : '—');
+  $('#step-runs tbody').replaceChildren(...runs.slice().reverse().map((r) => {
+    const colour = colourOf(r, drawn);
+    const swatch = colour ? h('span', { class: 'swatch', style: `background: ${colour}`, title: 'drawn in this colour' }) : '';
+    return h('tr', {
+      dataset: {
+        loop: r.loop,
+        from: String(r.from),
+        to: String(r.to),
+        p: r.gains ? String(r.gains.p) : '',
+        i: r.gains ? String(r.gains.i) : '',
+        d: r.gains ? String(r.gains.d) : '',
+        rise: String(r.rise_time_ms),
+        overshoot: String(r.overshoot_pct),
+        drawn: String(Boolean(colour)),
+      },
+    },
+    h('td', {}, swatch),
+    h('td', {}, clock(r.at)),
+    h('td', {}, r.loop),
+    h('td', {}, `${r.from} → ${r.to} ${r.unit || ''}`),
+    h('td', { class: 'num' }, gain(r.gains, 'p')),
+    h('td', { class: 'num' }, gain(r.gains, 'i')),
+    h('td', { class: 'num' }, gain(r.gains, 'd')),
+    h('td', { class: 'num' }, ms(r.rise_time_ms)),
+    h('td', { class: 'num' }, `${fmt(r.overshoot_pct)} %`),
+    h('td', { class: 'num' }, ms(r.settling_time_ms)),
+    h('td', { class: 'num' }, String(fmt(r.steady_state_error))));
+  }));
+  $('#runs-clear').disabled = !runs.length;
+}
+
+$('#runs-clear').addEventListener('click', () => {
+  runs.length = 0;
+  localStorage.removeItem(RUNS_KEY);
+  showRuns();
 });
 
 // Only a UMC has these loops (issue 31 point 6: a JMC's page opened full of
@@ -225,6 +277,19 @@ async function start() {
     return;
   }
   root.dataset.tunable = 'yes';
+  // The units the step's levels are in (the axis's, as its manual has
+  // them): the chart's and the run list's.
+  try {
+    const units = (await api(axisBase)).units || {};
+    Object.assign(stepUnits, {
+      torque: units.torque || stepUnits.torque,
+      velocity: units.vl_velocity || units.velocity || stepUnits.velocity,
+      position: units.position || stepUnits.position,
+    });
+  } catch (error) {
+    showMessage($('#page-message'), `Axis: ${error.message}`);
+  }
+  showRuns();
   select(tabs.find((t) => t.dataset.loop === 'velocity') || tabs[0]);
   for (const tab of tabs) tab.addEventListener('click', () => select(tab));
   poll();
