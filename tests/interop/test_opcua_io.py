@@ -76,6 +76,9 @@ def test_an_operator_writes_a_segment_and_outputs_read_back_over_rest(gateway, c
             assert refused.value.code == ua.StatusCodes.BadOutOfRange
             with pytest.raises(ua.UaStatusCodeError) as refused:
                 await dimmer.write_value(ua.DataValue(ua.Variant(300, ua.VariantType.Int32)))
+            assert refused.value.code == ua.StatusCodes.BadOutOfRange
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await dimmer.write_value(ua.DataValue(ua.Variant(0.5, ua.VariantType.Double)))
             assert refused.value.code == ua.StatusCodes.BadTypeMismatch
             with pytest.raises(ua.UaStatusCodeError) as refused:
                 await color.write_value(ua.DataValue(ua.Variant("green", ua.VariantType.String)))
