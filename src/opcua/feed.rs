@@ -423,6 +423,7 @@ pub async fn run(gateway: Gateway, sink: Sink, demand: Arc<AxisDemand>, revision
                     let dictionary = info.eds_entry.as_ref().map(|entry| &entry.eds.dictionary);
                     sink.with_space(|space| {
                         super::tree::build_node(space, sink.ns, &node, dictionary);
+                        super::io::build(space, sink.ns, &node, info.profile, dictionary);
                         if let (Some(kind), true) = (drive, axis_count > 0) {
                             super::tree::build_axes(
                                 space,

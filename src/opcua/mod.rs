@@ -17,6 +17,8 @@
 //! - [`tree`]: the nodes of the tree, built into an address space.
 //! - [`space`]: the node manager: reads, writes and calls.
 //! - [`feed`]: the values, fed from the gateway's views and telemetry.
+//! - [`io`]: LED segments and CiA 401 channels as variables, read and
+//!   written through the gateway's segment and I/O operations.
 //! - [`events`]: NMT changes, EMCYs and alarms as OPC UA events.
 //! - [`leases`]: motion leases bound to the session that took them, lapsing
 //!   when it closes or stops talking.
@@ -36,6 +38,8 @@ pub mod browse;
 pub mod events;
 #[cfg(feature = "opcua")]
 pub mod feed;
+#[cfg(feature = "opcua")]
+pub mod io;
 #[cfg(feature = "opcua")]
 pub mod leases;
 #[cfg(feature = "opcua")]

@@ -74,6 +74,62 @@ impl CandeckNodes {
         }
     }
 
+    /// The LED segment field or I/O channel `id` is, if it is one
+    /// ([`super::io`]).
+    fn io_variable(&self, id: &opcua::types::NodeId) -> Option<super::io::IoVariable> {
+        if id.namespace != self.ns {
+            return None;
+        }
+        match &id.identifier {
+            opcua::types::Identifier::String(text) => super::io::IoVariable::parse(text.as_ref()),
+            _ => None,
+        }
+    }
+
+    /// A write of a segment's field or an output: checked by the tree
+    /// (access level, type), then the gateway's segment or output write.
+    async fn write_io(
+        &self,
+        context: &RequestContext,
+        address_space: &RwLock<AddressSpace>,
+        write: &mut WriteNode,
+        variable: &super::io::IoVariable,
+    ) {
+        // An input is no user's to write: not writable, rather than the
+        // tree's access-level check's BadUserAccessDenied.
+        let input = matches!(variable, super::io::IoVariable::Channel { channel, .. }
+            if !channel.kind.is_output());
+        if write.value().attribute_id != AttributeId::Value || input {
+            write.set_status(StatusCode::BadNotWritable);
+            return;
+        }
+        let checked = {
+            let mut space = address_space.write();
+            let type_tree = context.type_tree.read();
+            space
+                .validate_node_write(context, write.value(), &*type_tree)
+                .map(|_| ())
+        };
+        if let Err(status) = checked {
+            write.set_status(status);
+            return;
+        }
+        let value = write.value().value.value.clone().unwrap_or(Variant::Empty);
+        let caller = self.caller(
+            context,
+            "Write",
+            &variable.path(),
+            super::io::summary(&value),
+        );
+        match super::io::write(&self.door.gateway, &caller, variable, &value).await {
+            Ok(()) => write.set_status(StatusCode::Good),
+            Err(error) => {
+                write.set_status(status_of(&error));
+                write.set_diagnostic_info(diagnostic_of(&error));
+            }
+        }
+    }
+
     /// One method: the gateway's answer as the method's outputs.
     async fn call_one(
         &self,
@@ -478,7 +534,25 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
         timestamps_to_return: TimestampsToReturn,
     ) -> Vec<DataValue> {
         let mut values = Vec::with_capacity(nodes.len());
+        let mut io_reads = super::io::Reads::default();
         for node in nodes {
+            if let Some(variable) = self.io_variable(&node.node_id) {
+                let readable = {
+                    let space = address_space.read();
+                    space.validate_node_read(context, node).map(|_| ())
+                };
+                values.push(match readable {
+                    Ok(()) => {
+                        let caller = self.caller(context, "Read", &variable.path(), None);
+                        io_reads.read(&self.door.gateway, &caller, &variable).await
+                    }
+                    Err(status) => DataValue {
+                        status: Some(status),
+                        ..Default::default()
+                    },
+                });
+                continue;
+            }
             if let Some(Target::Object {
                 node: path,
                 index,
@@ -579,6 +653,11 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
         nodes_to_write: &mut [&mut WriteNode],
     ) -> Result<(), StatusCode> {
         for write in nodes_to_write.iter_mut() {
+            if let Some(variable) = self.io_variable(&write.value().node_id) {
+                self.write_io(context, address_space, write, &variable)
+                    .await;
+                continue;
+            }
             let target = self.target(&write.value().node_id);
             let Some(Target::Object { node, index, sub }) = target else {
                 write.set_status(StatusCode::BadNotWritable);

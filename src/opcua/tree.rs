@@ -76,7 +76,13 @@ pub fn id(ns: u16, path: impl Into<String>) -> NodeId {
     NodeId::new(ns, path.into())
 }
 
-fn folder(space: &mut AddressSpace, ns: u16, path: &str, name: &str, parent: &NodeId) -> NodeId {
+pub(super) fn folder(
+    space: &mut AddressSpace,
+    ns: u16,
+    path: &str,
+    name: &str,
+    parent: &NodeId,
+) -> NodeId {
     let node = id(ns, path);
     if !space.node_exists(&node) {
         ObjectBuilder::new(&node, QualifiedName::new(ns, name), name)
@@ -87,7 +93,13 @@ fn folder(space: &mut AddressSpace, ns: u16, path: &str, name: &str, parent: &No
     node
 }
 
-fn object(space: &mut AddressSpace, ns: u16, path: &str, name: &str, parent: &NodeId) -> NodeId {
+pub(super) fn object(
+    space: &mut AddressSpace,
+    ns: u16,
+    path: &str,
+    name: &str,
+    parent: &NodeId,
+) -> NodeId {
     let node = id(ns, path);
     if !space.node_exists(&node) {
         ObjectBuilder::new(&node, QualifiedName::new(ns, name), name)

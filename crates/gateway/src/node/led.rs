@@ -231,6 +231,21 @@ impl LedController {
         spawned(async move { Ok(uioled::read_segments(&channel).await?) }).await
     }
 
+    /// One segment (the viewer's): what a door that shows a segment's
+    /// fields one by one reads, without the other nine segments' transfers.
+    pub async fn read_segment(
+        &self,
+        caller: &Caller,
+        segment: u8,
+    ) -> Result<Segment, GatewayError> {
+        let node = &self.node;
+        node.gateway.require(caller, Operation::View)?;
+        check_segment(segment)?;
+        check_sdo_allowed(&node.served, &node.info)?;
+        let channel = node.served.registry.sdo(node.info.id)?;
+        spawned(async move { Ok(uioled::read_segment(&channel, segment).await?) }).await
+    }
+
     /// Writes `update` to `segment` (the operator's; one write of the
     /// caller's rate).
     pub async fn write_segment(
