@@ -24,13 +24,15 @@ BOUND = 5
 class Gateway(Process):
     """An open gateway (no tokens) on the demo bus: REST and OPC UA on
     loopback, anonymous sessions over the `None` endpoint, a bound of
-    BOUND samples a second per node."""
+    BOUND samples a second per node, SYNC every 200 ms (slow enough for
+    the 1,000 frames `GET .../frames` keeps to span the test)."""
 
     def __init__(self):
         self.dir = tempfile.mkdtemp(prefix="candeck-opcua-sampling-")
         config = os.path.join(self.dir, "candeck.toml")
         with open(config, "w", encoding="utf-8") as f:
-            f.write(f"opcua_sdo_samples_per_s = {BOUND}\n")
+            # The UMC's TPDOs are synchronous: a SYNC producer runs them.
+            f.write(f"opcua_sdo_samples_per_s = {BOUND}\nsync_period_ms = 200\n")
         super().__init__(
             [
                 "serve",
@@ -52,8 +54,11 @@ class Gateway(Process):
                 self.url = line.split("OPC UA server on ")[1].split()[0].rstrip("/")
                 break
 
-    def request(self, method, path):
-        req = urllib.request.Request(self.base + path, method=method)
+    def request(self, method, path, body=None):
+        data = None if body is None else json.dumps(body).encode()
+        req = urllib.request.Request(
+            self.base + path, data=data, method=method, headers={"Content-Type": "application/json"}
+        )
         with urllib.request.urlopen(req, timeout=30) as resp:
             return json.loads(resp.read())
 
@@ -77,7 +82,7 @@ class Changes:
 
     def datachange_notification(self, node, value, data):
         dv = data.monitored_item.Value
-        self.changes.append((node.nodeid.Identifier, value, dv.StatusCode_.value, time.monotonic()))
+        self.changes.append((node.nodeid.Identifier, value, dv.StatusCode.value, time.monotonic()))
 
     def of(self, identifier):
         return [change for change in self.changes if change[0] == identifier]
@@ -98,7 +103,7 @@ async def variable(c, ns, entry, node="1"):
 def sdo_uploads(gateway, node=1):
     """The SDO upload requests to `node` in the bus's recent frames, as
     (index, sub, time in seconds)."""
-    frames = gateway.request("GET", "/buses/demo/frames?limit=10000")
+    frames = gateway.request("GET", "/buses/demo/frames?limit=1000")
     frames = frames.get("frames", frames) if isinstance(frames, dict) else frames
     uploads = []
     for frame in frames:
@@ -114,7 +119,9 @@ def sdo_uploads(gateway, node=1):
 
 
 def carried_object(gateway):
-    """An object node 1's running TPDOs carry, as the gateway decodes them."""
+    """An object node 1's running TPDOs carry, as the gateway decodes them.
+    The demo's nodes wait in pre-operational: node 1 is started first."""
+    gateway.request("POST", "/buses/demo/nodes/1/nmt", {"command": "start"})
     deadline = time.monotonic() + 20
     while True:
         values = gateway.request("GET", "/buses/demo/nodes/1/values")["values"]
@@ -139,6 +146,9 @@ def test_many_items_on_one_node_share_its_bound_and_tpdo_values_take_no_sdo(gate
             changes = Changes()
             sub_ = await c.create_subscription(100, changes)
             before = time.monotonic()
+            # Frame stamps are wall-clock: the gateway's own reads before
+            # this (identification, boot-up) are not the sampler's.
+            since = time.time()
             params = []
             for node in [*sdo_only, *sdo_only, carried]:
                 params.append(
@@ -152,17 +162,15 @@ def test_many_items_on_one_node_share_its_bound_and_tpdo_values_take_no_sdo(gate
                 )
             results = await sub_.create_monitored_items(params)
             assert all(not isinstance(result, ua.StatusCode) for result in results), results
-            # The revised interval: 1 ms asked, async-opcua's shortest given
-            # (it lets the node manager shorten an interval, never lengthen:
-            # the bound shows in the values' status, docs/opcua.md).
-            revised = [item.RevisedSamplingInterval for item in sub_._monitored_items.values()]
-            assert all(interval >= 100.0 for interval in revised), revised
+            # async-opcua lets the node manager shorten a revised interval,
+            # never lengthen it: the bound shows in the values' status and
+            # their spacing (docs/opcua.md), checked below.
             await asyncio.sleep(4)
             seen = changes.of(sdo_only[0].nodeid.Identifier)
             # Sampled (its first value at least) and slowed down, said so.
             assert seen, changes.changes
             overload = ua.StatusCodes.GoodOverload
-            uploads = [up for up in sdo_uploads(gateway) if up[2] > 0]
+            uploads = [up for up in sdo_uploads(gateway) if up[2] >= since]
             window = time.monotonic() - before
             # Per node at most BOUND a second (one more for the one under way).
             assert len(uploads) <= BOUND * window + 1, (len(uploads), window)
@@ -175,9 +183,12 @@ def test_many_items_on_one_node_share_its_bound_and_tpdo_values_take_no_sdo(gate
             await sub_.delete()
             # Deleted: no more sampling.
             await asyncio.sleep(0.5)
-            count = len(sdo_uploads(gateway))
+            after = time.time()
             await asyncio.sleep(2)
-            assert len(sdo_uploads(gateway)) == count
+            # A sampler still running would upload 2 × BOUND in these 2 s;
+            # the gateway's own reads (a node's resync) may add one or two.
+            later = [up for up in sdo_uploads(gateway) if up[2] >= after]
+            assert len(later) < BOUND, later
 
     asyncio.run(run())
 
