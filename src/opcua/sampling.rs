@@ -441,7 +441,7 @@ pub async fn read_entry(
     let item = crate::gateway::object_item(index, sub);
     let result = async {
         let handle = gateway.node_handle(&node.bus, &node.node.to_string())?;
-        let entry = eds_entry(&handle, index, sub)?;
+        let entry = super::space::entry(&handle, index, sub)?;
         let bytes = handle.read_object(caller, index, sub).await?;
         let value = entry
             .decode(&bytes)
@@ -465,24 +465,6 @@ pub async fn read_entry(
             }
         }
     }
-}
-
-fn eds_entry(
-    handle: &crate::gateway::NodeHandle,
-    index: u16,
-    sub: u8,
-) -> Result<crate::canopen::od::SubObject, GatewayError> {
-    handle
-        .info()
-        .eds_entry
-        .as_ref()
-        .and_then(|entry| entry.eds.dictionary.sub(index, sub).cloned())
-        .ok_or_else(|| {
-            GatewayError::UnknownSubObject(format!(
-                "the node's EDS describes no {}",
-                crate::gateway::object_item(index, sub)
-            ))
-        })
 }
 
 /// The server's backend: SDO uploads through the gateway (the node's read

@@ -103,14 +103,7 @@ impl CandeckNodes {
             write.set_status(StatusCode::BadNotWritable);
             return;
         }
-        let checked = {
-            let mut space = address_space.write();
-            let type_tree = context.type_tree.read();
-            space
-                .validate_node_write(context, write.value(), &*type_tree)
-                .map(|_| ())
-        };
-        if let Err(status) = checked {
+        if let Err(status) = tree_allows(context, address_space, write) {
             write.set_status(status);
             return;
         }
@@ -412,13 +405,27 @@ impl CandeckNodes {
     }
 }
 
+/// The tree's own check of a write: the variable's access level for the
+/// session's user and the value's type.
+fn tree_allows(
+    context: &RequestContext,
+    address_space: &RwLock<AddressSpace>,
+    write: &WriteNode,
+) -> Result<(), StatusCode> {
+    let mut space = address_space.write();
+    let type_tree = context.type_tree.read();
+    space
+        .validate_node_write(context, write.value(), &*type_tree)
+        .map(|_| ())
+}
+
 fn handle(gateway: &Gateway, node: &NodePath) -> Result<crate::gateway::NodeHandle, GatewayError> {
     gateway.node_handle(&node.bus, &node.node.to_string())
 }
 
 /// The EDS's description of an entry (the tree has a variable only for
 /// what the EDS describes).
-fn entry(
+pub(super) fn entry(
     handle: &crate::gateway::NodeHandle,
     index: u16,
     sub: u8,
@@ -667,14 +674,7 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
                 write.set_status(StatusCode::BadNotWritable);
                 continue;
             }
-            let checked = {
-                let mut space = address_space.write();
-                let type_tree = context.type_tree.read();
-                space
-                    .validate_node_write(context, write.value(), &*type_tree)
-                    .map(|_| ())
-            };
-            if let Err(status) = checked {
+            if let Err(status) = tree_allows(context, address_space, write) {
                 write.set_status(status);
                 continue;
             }
