@@ -25,9 +25,11 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
+use common::process::{Killed, arg, cpu_seconds, free_port, http, lines_until, rss_mib};
+
+use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -41,104 +43,11 @@ fn unix_ms() -> u64 {
         .map_or(0, |elapsed| elapsed.as_millis() as u64)
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .map(|addr| addr.port())
-        .expect("a free port")
-}
-
-/// One HTTP request (Connection: close): the status and the body.
-fn http(addr: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
-    let mut stream = TcpStream::connect(addr).expect("connect to the gateway");
-    stream
-        .set_read_timeout(Some(Duration::from_secs(60)))
-        .unwrap();
-    let body = body.unwrap_or("");
-    write!(
-        stream,
-        "{method} /api/v1{path} HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n\
-         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    )
-    .unwrap();
-    // The server may reset the connection once it has answered: what was
-    // read is the answer.
-    let mut bytes = Vec::new();
-    let mut buf = [0u8; 8192];
-    while let Ok(n) = stream.read(&mut buf) {
-        if n == 0 {
-            break;
-        }
-        bytes.extend_from_slice(&buf[..n]);
-    }
-    let answer = String::from_utf8_lossy(&bytes).into_owned();
-    let status = answer
-        .split(' ')
-        .nth(1)
-        .and_then(|code| code.parse().ok())
-        .unwrap_or(0);
-    let body = answer
-        .split_once("\r\n\r\n")
-        .map(|(_, body)| body.to_string())
-        .unwrap_or_default();
-    (status, body)
-}
-
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let after = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
-    let fields: Vec<&str> = after.split_whitespace().collect();
-    // utime and stime: fields 14 and 15 of stat, 12 and 13 after the ')'.
-    let ticks: f64 = [11, 12]
-        .iter()
-        .filter_map(|at| fields.get(*at).and_then(|v| v.parse::<f64>().ok()))
-        .sum();
-    ticks / 100.0
-}
-
-fn rss_mib(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .unwrap_or_default()
-        .lines()
-        .find_map(|line| line.strip_prefix("VmRSS:"))
-        .and_then(|kb| kb.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(0.0, |kb| kb / 1024.0)
-}
-
 #[derive(Default)]
 struct Counts {
     metrics: u64,
     messages: u64,
     latencies: Vec<u64>,
-}
-
-fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|arg| arg == name)
-        .and_then(|at| args.get(at + 1))
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(default)
-}
-
-/// The first line a child prints on stdout; its later lines are read too
-/// (a closed pipe would end it).
-fn first_line(child: &mut Child) -> String {
-    let mut first = String::new();
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    stdout.read_line(&mut first).unwrap();
-    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
-    first
 }
 
 /// One line of the plant: a vbus with `nodes` drives, and a gateway
@@ -168,7 +77,7 @@ impl Line {
             .stderr(std::fs::File::create(dir.join(format!("vbus{k}.log"))).unwrap())
             .spawn()
             .expect("candeck vbus starts");
-        first_line(&mut vbus);
+        lines_until(&mut vbus, "");
         let vbus = Killed(vbus);
         let config = dir.join(format!("candeck{k}.toml"));
         std::fs::write(
@@ -188,7 +97,7 @@ impl Line {
             .stderr(std::fs::File::create(dir.join(format!("candeck{k}.log"))).unwrap())
             .spawn()
             .expect("candeck serve starts");
-        let first = first_line(&mut child);
+        let first = lines_until(&mut child, "").remove(0);
         let addr = first
             .split("http://")
             .nth(1)
