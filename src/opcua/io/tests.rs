@@ -7,7 +7,6 @@ use opcua::server::address_space::NodeType;
 use opcua::types::{NodeId, StatusCode};
 
 use super::*;
-use crate::api::tests::support::open;
 use crate::gateway::{Channel as Door, DoorDetail, EdsCatalog, Role};
 use crate::opcua::browse::{self, NAMESPACE};
 use crate::opcua::tree::{build_fixed, build_node};
@@ -172,10 +171,20 @@ fn caller(role: Role, path: &str) -> Caller {
         .with_detail(DoorDetail::new("Write", path))
 }
 
+/// A virtual UIO1LED (3) and CiA 401 module (4), scanned, under a gateway
+/// of their own (no door's test support: doors do not lean on each other).
 async fn bench() -> Gateway {
-    let served = open("bench", "virtual:uio1led@3,io401@4").await;
+    let served = crate::emulator::open_bus(
+        "bench",
+        &"virtual:uio1led@3,io401@4".parse().unwrap(),
+        std::sync::Arc::new(EdsCatalog::builtin().unwrap()),
+        crate::gateway::RegistryConfig::default(),
+        500_000,
+    )
+    .await
+    .unwrap();
     assert_eq!(served.scan().await.unwrap().len(), 2);
-    crate::api::AppState::new([served]).gateway.clone()
+    Gateway::new([served])
 }
 
 #[tokio::test(start_paused = true)]
