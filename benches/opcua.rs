@@ -50,7 +50,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use common::Options;
-use common::process::{KeepAlive, Killed, arg, cpu_seconds, free_port, http, lines_until, rss_mib};
+use common::process::{
+    KeepAlive, Killed, arg, cpu_seconds, free_port, http, lines_until, rss_mib, umc_vbus,
+};
 use opcua::client::{Client, ClientBuilder, DataChangeCallback, IdentityToken, Session};
 use opcua::types::{
     DataValue, DateTime, ExtensionObject, MessageSecurityMode, MonitoredItemCreateRequest,
@@ -77,26 +79,7 @@ struct Plant {
 
 impl Plant {
     fn start(dir: &Path, nodes: u8, max_sessions: usize) -> Self {
-        let share = free_port();
-        let devices: Vec<String> = (1..=nodes).map(|id| format!("umc1bds32@{id}")).collect();
-        let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
-            .args([
-                "vbus",
-                "--listen",
-                &format!("127.0.0.1:{share}"),
-                "--bitrate",
-                "unlimited",
-                "--devices",
-                &devices.join(","),
-            ])
-            .current_dir(dir)
-            .env("CANDECK_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(dir.join("vbus.log")).unwrap())
-            .spawn()
-            .expect("candeck vbus starts");
-        lines_until(&mut vbus, "");
-        let vbus = Killed(vbus);
+        let (vbus, share) = umc_vbus(dir, "vbus.log", nodes);
         let opcua_port = free_port();
         let config = dir.join("candeck.toml");
         std::fs::write(

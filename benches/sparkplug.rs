@@ -25,7 +25,7 @@
 
 mod common;
 
-use common::process::{Killed, arg, cpu_seconds, free_port, http, lines_until, rss_mib};
+use common::process::{Killed, arg, cpu_seconds, free_port, http, lines_until, rss_mib, umc_vbus};
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -60,25 +60,7 @@ struct Line {
 
 impl Line {
     fn start(dir: &std::path::Path, k: usize, nodes: u8, broker: u16, tick_ms: u64) -> Self {
-        let share = free_port();
-        let devices: Vec<String> = (1..=nodes).map(|id| format!("umc1bds32@{id}")).collect();
-        let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
-            .args([
-                "vbus",
-                "--listen",
-                &format!("127.0.0.1:{share}"),
-                "--bitrate",
-                "unlimited",
-                "--devices",
-                &devices.join(","),
-            ])
-            .env("CANDECK_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(dir.join(format!("vbus{k}.log"))).unwrap())
-            .spawn()
-            .expect("candeck vbus starts");
-        lines_until(&mut vbus, "");
-        let vbus = Killed(vbus);
+        let (vbus, share) = umc_vbus(dir, &format!("vbus{k}.log"), nodes);
         let config = dir.join(format!("candeck{k}.toml"));
         std::fs::write(
             &config,

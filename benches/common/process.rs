@@ -4,7 +4,8 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
-use std::process::Child;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 pub(crate) fn free_port() -> u16 {
@@ -22,6 +23,32 @@ impl Drop for Killed {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+/// `candeck vbus --bitrate unlimited` with virtual UMC1BDS32 drives at node
+/// IDs 1 to `nodes`, run in `dir` and logging to `dir/log`, shared over
+/// socketcand: the process and its port, once it says it is listening.
+pub(crate) fn umc_vbus(dir: &Path, log: &str, nodes: u8) -> (Killed, u16) {
+    let share = free_port();
+    let devices: Vec<String> = (1..=nodes).map(|id| format!("umc1bds32@{id}")).collect();
+    let mut vbus = Command::new(env!("CARGO_BIN_EXE_candeck"))
+        .args([
+            "vbus",
+            "--listen",
+            &format!("127.0.0.1:{share}"),
+            "--bitrate",
+            "unlimited",
+            "--devices",
+            &devices.join(","),
+        ])
+        .current_dir(dir)
+        .env("CANDECK_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(dir.join(log)).unwrap())
+        .spawn()
+        .expect("candeck vbus starts");
+    lines_until(&mut vbus, "");
+    (Killed(vbus), share)
 }
 
 /// The lines a child prints on stdout up to the first that starts with
