@@ -3,11 +3,13 @@
 //! `Nodes/{bus}/{id}/Io/{channel}` (the gateway's channel names, `di1`,
 //! `do1`, `ai1`, `ao1`). A read is the gateway's read of the segment or of
 //! the module when the client reads (one per segment or module in a Read
-//! request, however many of its variables it names), never a poll; a
-//! write is the gateway's segment write or output write with the session's
-//! caller, so the role, the write limiter and the audit row are REST's
-//! (`set segment`, `set outputs`). What a value means is
-//! [`crate::profiles::uioled`]'s and [`crate::profiles::cia401`]'s.
+//! request, however many of its variables it names); a monitored one is
+//! sampled object by object with the node's dictionary variables, or fed
+//! from its TPDOs ([`super::sampling`]); a write is the gateway's segment
+//! write or output write with the session's caller, so the role, the write
+//! limiter and the audit row are REST's (`set segment`, `set outputs`).
+//! What a value means is [`crate::profiles::uioled`]'s and
+//! [`crate::profiles::cia401`]'s.
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -23,10 +25,10 @@ use crate::gateway::{
     Caller, Gateway, GatewayError, IoState, Profile, SegmentUpdate, effect_by_name, effect_name,
 };
 use crate::profiles::cia401::{Channel, ChannelKind, Layout};
-use crate::profiles::uioled::{SEGMENTS, Segment};
+use crate::profiles::uioled::{Field, SEGMENTS, Segment};
 
 /// One field of a segment, as a variable of `Leds/{n}`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum LedField {
     LedCount,
     /// The effect's name (`flow`), or `0xNNNN` for a value the manual does
@@ -82,6 +84,41 @@ impl LedField {
             Self::Dimmer => DataTypeId::Byte,
             Self::Value | Self::MinValue | Self::MaxValue | Self::Speed => DataTypeId::Int16,
         }
+    }
+
+    /// The segment's objects it shows (the profile's fields): one, or a
+    /// colour's four (red, green, blue, white), in the order they are read.
+    pub fn fields(self) -> Vec<Field> {
+        let one = match self {
+            Self::Color(color) => {
+                return (1..=4)
+                    .map(|channel| Field::Color { color, channel })
+                    .collect();
+            }
+            Self::LedCount => Field::LedCount,
+            Self::Effect => Field::Effect,
+            Self::Dimmer => Field::Dimmer,
+            Self::Value => Field::Value,
+            Self::MinValue => Field::MinValue,
+            Self::MaxValue => Field::MaxValue,
+            Self::Speed => Field::Speed,
+            Self::Smooth => Field::Smooth,
+        };
+        vec![one]
+    }
+
+    /// Its value from the bytes of its objects ([`LedField::fields`], in
+    /// that order) as the device sent them, decoded as the gateway's
+    /// segment read decodes them: a value its object's type cannot hold
+    /// keeps the segment's default.
+    pub fn value_from(self, data: &[&[u8]]) -> Variant {
+        let mut segment = Segment::default();
+        for (field, bytes) in self.fields().into_iter().zip(data) {
+            if let Some(value) = field.value_in(bytes) {
+                segment.set(field, value);
+            }
+        }
+        self.value_of(&segment)
     }
 
     /// Its value in a segment read from the device.

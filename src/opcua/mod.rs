@@ -24,8 +24,8 @@
 //!   when it closes or stops talking.
 //! - [`revisions`]: each node's hardware and software versions, read once
 //!   per identification.
-//! - [`sampling`]: monitored dictionary variables, sampled over SDO with a
-//!   per-node bound or fed from the node's TPDOs.
+//! - [`sampling`]: monitored dictionary, I/O and LED variables, sampled
+//!   over SDO with a per-node bound or fed from the node's TPDOs.
 //! - [`server`]: async-opcua's server with all of it.
 //!
 //! Built with the `opcua` cargo feature (default).

@@ -15,7 +15,7 @@ use super::config::OpcUaConfig;
 use super::feed::{AxisDemand, Sink};
 use super::leases::SessionLeases;
 use super::revisions::Revisions;
-use super::sampling::{DictionarySampling, GatewayBackend};
+use super::sampling::{GatewayBackend, Sampling};
 use super::space::{CandeckNodes, Door};
 use super::users::TokenUsers;
 use crate::gateway::Gateway;
@@ -120,7 +120,7 @@ impl OpcUaServer {
                         users,
                         leases,
                         demand: Arc::new(AxisDemand::new(ns)),
-                        sampling: Arc::new(DictionarySampling::new(sdo_samples_per_s)),
+                        sampling: Arc::new(Sampling::new(sdo_samples_per_s)),
                     });
                     let _ = door_cell.set(door.clone());
                     CandeckNodes::new(door, ns)

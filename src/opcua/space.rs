@@ -3,8 +3,9 @@
 //! session's [`Caller`] (channel `opcua`, the token's name and role): the
 //! roles, the write limiter, the motion authority and leases, and the audit
 //! log are the gateway's; this parses the arguments, calls, and maps the
-//! answer ([`super::status::status_of`]). Dictionary variables are read and
-//! written over SDO when a client asks, never polled.
+//! answer ([`super::status::status_of`]). Dictionary, LED and I/O variables
+//! are read over SDO when a client reads, and sampled only while monitored
+//! ([`super::sampling`]).
 
 use std::sync::Arc;
 
@@ -23,6 +24,7 @@ use opcua::types::{AttributeId, DataValue, StatusCode, TimestampsToReturn, Varia
 use super::browse::{self, AxisMethod, NodePath, Target};
 use super::feed::AxisDemand;
 use super::leases::SessionLeases;
+use super::sampling::Watched;
 use super::status::{diagnostic_of, status_of};
 use super::users::TokenUsers;
 use crate::gateway::{
@@ -35,8 +37,9 @@ pub struct Door {
     pub users: TokenUsers,
     pub leases: Arc<SessionLeases>,
     pub demand: Arc<AxisDemand>,
-    /// The monitored dictionary variables and their nodes' samplers.
-    pub sampling: Arc<super::sampling::DictionarySampling>,
+    /// The monitored dictionary, I/O and LED variables and their nodes'
+    /// samplers.
+    pub sampling: Arc<super::sampling::Sampling>,
 }
 
 /// The node manager of namespace `urn:candeck`.
@@ -331,23 +334,47 @@ impl CandeckNodes {
         super::sampling::read_entry(&self.door.gateway, &caller, node, index, sub).await
     }
 
-    /// A monitored item on a dictionary variable, handed to its node's
-    /// sampler: true when `item` is one (its status set), false for any
-    /// other.
-    fn monitor_object(
+    /// What a monitored item on `id` watches when its node's sampler
+    /// samples it: a dictionary variable, a channel or a segment field;
+    /// `None` for the other variables. With its path, for the caller.
+    fn watched(&self, id: &opcua::types::NodeId) -> Option<(NodePath, Watched, String)> {
+        if let Some(variable) = self.io_variable(id) {
+            let path = variable.path();
+            return Some(match variable {
+                super::io::IoVariable::Segment {
+                    node,
+                    segment,
+                    field,
+                } => (node, Watched::Led { segment, field }, path),
+                super::io::IoVariable::Channel { node, channel } => {
+                    (node, Watched::Channel(channel), path)
+                }
+            });
+        }
+        match self.target(id)? {
+            Target::Object { node, index, sub } => {
+                let path = node.object(index, sub);
+                Some((node, Watched::Entry((index, sub)), path))
+            }
+            _ => None,
+        }
+    }
+
+    /// A monitored item on a variable read from the node's dictionary
+    /// (dictionary, I/O and LED variables), handed to its node's sampler:
+    /// true when `item` is one (its status set), false for any other.
+    fn monitor_sampled(
         &self,
         context: &RequestContext,
         address_space: &RwLock<AddressSpace>,
         item: &mut CreateMonitoredItem,
     ) -> bool {
-        let Some(Target::Object { node, index, sub }) =
-            self.target(&item.item_to_monitor().node_id)
-        else {
-            return false;
-        };
         if item.item_to_monitor().attribute_id != AttributeId::Value {
             return false;
         }
+        let Some((node, watched, path)) = self.watched(&item.item_to_monitor().node_id) else {
+            return false;
+        };
         let readable = {
             let space = address_space.read();
             space
@@ -358,14 +385,14 @@ impl CandeckNodes {
             item.set_status(status);
             return true;
         }
-        let caller = self.caller(context, "Read", &node.object(index, sub), None);
-        if let Some(value) = self.door.sampling.initial(&node, (index, sub)) {
+        let caller = self.caller(context, "Read", &path, None);
+        if let Some(value) = self.door.sampling.initial(&node, watched) {
             item.set_initial_value(value);
         }
         self.door.sampling.monitor(
             item.handle(),
             node,
-            (index, sub),
+            watched,
             item.sampling_interval(),
             caller,
         );
@@ -602,12 +629,12 @@ impl InMemoryNodeManagerImpl for CandeckNodes {
                 self.door.demand.monitor(axis, item.handle());
             }
         }
-        // Dictionary variables are sampled (super::sampling), not read
-        // here: their first value is the sampler's first sample.
+        // Dictionary, I/O and LED variables are sampled (super::sampling),
+        // not read here: their first value is the sampler's.
         let mut items: Vec<&mut &mut CreateMonitoredItem> = {
             let mut others = Vec::with_capacity(items.len());
             for item in items.iter_mut() {
-                if !self.monitor_object(context, address_space, item) {
+                if !self.monitor_sampled(context, address_space, item) {
                     others.push(&mut **item);
                 }
             }

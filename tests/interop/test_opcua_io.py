@@ -4,15 +4,19 @@ channels (`Nodes/demo/4/Io/{channel}`) browsed to, written by an operator
 and read back over REST; a viewer's writes refused (BadUserAccessDenied)
 and audited as REST's (`set segment`, `set outputs`); an input not
 writable; values the objects cannot hold refused with the status a client
-branches on."""
+branches on; a monitored digital input fed by the module's TPDO (no SDO)
+seen changing as the virtual module's running light moves, and a monitored
+LED field sampled over SDO seen taking a segment write made over REST."""
 
 import asyncio
+import time
 
 import pytest
 from asyncua import ua
 
 import test_opcua as base
 from test_opcua import certificate  # noqa: F401 (the client certificate fixture)
+from test_opcua_sampling import sdo_uploads
 
 OPERATOR, VIEWER = base.OPERATOR, base.VIEWER
 
@@ -119,5 +123,68 @@ def test_a_viewers_segment_and_output_writes_are_refused_and_audited(gateway, ce
             if e.get("who") == VIEWER[0] and e.get("channel") == "opcua" and e.get("error_code") == "forbidden"
         }
         assert {"set segment", "set outputs"} <= refused, events
+
+    asyncio.run(run())
+
+
+class Changes:
+    """The values a subscription delivers, by node id."""
+
+    def __init__(self):
+        self.values = {}
+
+    def datachange_notification(self, node, value, _data):
+        self.values.setdefault(node.nodeid.Identifier, []).append(value)
+
+    def of(self, node):
+        return self.values.get(node.nodeid.Identifier, [])
+
+
+def test_a_monitored_input_follows_the_tpdo_and_an_led_field_a_segment_write(gateway, certificate):  # noqa: F811
+    async def run():
+        # The io401's TPDOs run in operational; its digital inputs are a
+        # running light (docs/virtual-devices.md): di1 is on for the first
+        # quarter second of every 4 s.
+        gateway.request("POST", "/buses/demo/nodes/4/nmt", {"command": "start"})
+        deadline = time.monotonic() + 20
+        while not any(
+            value["index"] == "0x6000" and value["sub"] == 1
+            for value in gateway.request("GET", "/buses/demo/nodes/4/values")["values"]
+        ):
+            assert time.monotonic() < deadline, "node 4 sends no TPDO with its digital inputs"
+            await asyncio.sleep(0.2)
+        base.trust_rejected(gateway)
+        c = await base.connected(gateway, certificate, VIEWER)
+        try:
+            di1 = await variable(c, "4", "Io", "di1")
+            dimmer = await variable(c, "3", "Leds", "5", "Dimmer")
+            changes = Changes()
+            subscription = await c.create_subscription(50, changes)
+            since = time.time()
+            await subscription.subscribe_data_change([di1, dimmer], sampling_interval=50)
+
+            # On, then off again: each change of the bit arrives.
+            await base.wait_until(
+                lambda: [v for v in changes.of(di1) if v is True] and changes.of(di1)[-1] is False,
+                timeout=12,
+                what="di1 going on and off",
+            )
+            seen = changes.of(di1)
+            assert all(isinstance(v, bool) for v in seen), seen
+            # Only changes: never the same value twice in a row.
+            assert all(a != b for a, b in zip(seen, seen[1:])), seen
+            # Fed by the TPDO: no SDO upload of the inputs' object.
+            assert not [up for up in sdo_uploads(gateway, node=4) if up[2] >= since and up[0] == 0x6000]
+
+            # The LED field: its first sample, then a segment write over
+            # REST arrives with the next sample.
+            await base.wait_until(lambda: changes.of(dimmer), what="the Dimmer's first value")
+            before = changes.of(dimmer)[-1]
+            wanted = 77 if before != 77 else 78
+            gateway.request("PUT", "/buses/demo/nodes/3/segments/5", {"dimmer": wanted})
+            await base.wait_until(lambda: changes.of(dimmer)[-1] == wanted, timeout=10, what="the Dimmer written")
+            await subscription.delete()
+        finally:
+            await c.disconnect()
 
     asyncio.run(run())

@@ -20,7 +20,7 @@ use serde_json::Value as Json;
 use tokio::time::Instant;
 
 use crate::canopen::od::format_index;
-use crate::profiles::cia401::{self, Channel, ChannelKind, Layout};
+use crate::profiles::cia401::{self, Channel, ChannelKind, Layout, Level};
 
 use super::audit::AuditTarget;
 use super::caller::Caller;
@@ -148,31 +148,25 @@ impl Module {
         Ok(Layout::from_highest_subs(di, dout, ai, ao))
     }
 
-    /// The raw value of `index` sub `sub`: from a TPDO for inputs when one
-    /// carries it, else read now; with its age and source.
+    /// The bytes of `index` sub `sub`: from a TPDO for inputs when one
+    /// carries it, else read now; with their age and source.
     async fn raw(
         &self,
         index: u16,
         sub: u8,
         input: bool,
         now: Instant,
-    ) -> Result<(i64, u64, &'static str), GatewayError> {
+    ) -> Result<(Vec<u8>, u64, &'static str), GatewayError> {
         if input && let Some(value) = self.served.values.value(self.info.id, index, sub) {
             let age = now.saturating_duration_since(value.at).as_millis();
-            let signed = index == cia401::READ_ANALOG_INPUT_16;
             return Ok((
-                value.as_i64(signed),
+                value.raw_bytes(),
                 u64::try_from(age).unwrap_or(u64::MAX),
                 "tpdo",
             ));
         }
         let data = upload(&self.channel, index, sub).await?;
-        let value = if index == cia401::READ_INPUT_8 || index == cia401::WRITE_OUTPUT_8 {
-            i64::from(byte_of(&data, index, sub)?)
-        } else {
-            i64::from(word_of(&data, index, sub)?)
-        };
-        Ok((value, 0, "sdo"))
+        Ok((data, 0, "sdo"))
     }
 
     async fn channels(
@@ -183,20 +177,25 @@ impl Module {
     ) -> Result<Vec<ChannelValue>, GatewayError> {
         let mut values = Vec::new();
         // A digital group (one sub-index) is read once for its 8 channels.
-        let mut groups: BTreeMap<u8, (i64, u64, &'static str)> = BTreeMap::new();
+        let mut groups: BTreeMap<u8, (Vec<u8>, u64, &'static str)> = BTreeMap::new();
         for channel in layout.channels(kind) {
-            let (index, sub, bit) = channel.location();
-            let (raw, age_ms, source) = match groups.get(&sub) {
-                Some(read) => *read,
-                None => {
-                    let read = self.raw(index, sub, !kind.is_output(), now).await?;
-                    groups.insert(sub, read);
-                    read
+            let (index, sub, _) = channel.location();
+            let &mut (ref data, age_ms, source) = match groups.entry(sub) {
+                std::collections::btree_map::Entry::Occupied(read) => read.into_mut(),
+                std::collections::btree_map::Entry::Vacant(slot) => {
+                    slot.insert(self.raw(index, sub, !kind.is_output(), now).await?)
                 }
             };
-            let value = match bit {
-                Some(bit) => Json::Bool(cia401::bit(raw as u8, bit)),
-                None => Json::from(raw),
+            let value = match channel.level_in(data) {
+                Some(Level::Digital(on)) => Json::Bool(on),
+                Some(Level::Analog(level)) => Json::from(level),
+                None => {
+                    return Err(GatewayError::Internal(format!(
+                        "{}sub{sub}: {} bytes for {channel}",
+                        format_index(index),
+                        data.len()
+                    )));
+                }
             };
             values.push(ChannelValue {
                 channel: channel.to_string(),

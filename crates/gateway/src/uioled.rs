@@ -15,14 +15,10 @@ use crate::canopen::od::{DataType, Value};
 use crate::profiles::uioled::{Effect, Field, Rgbw, SEGMENTS, Segment, address};
 use crate::sdo::{SdoChannel, SdoRequestError};
 
-/// The type of each field's object (manual §1.3, our EDS): what its value is
-/// encoded as on the wire.
+/// The type of each field's object: what its value is encoded as on the
+/// wire (the profile's, [`Field::data_type`]).
 pub(crate) fn data_type(field: Field) -> DataType {
-    match field {
-        Field::LedType | Field::Dimmer | Field::Color { .. } => DataType::Unsigned8,
-        Field::LedCount | Field::Effect | Field::Smooth => DataType::Unsigned16,
-        Field::Value | Field::MinValue | Field::MaxValue | Field::Speed => DataType::Integer16,
-    }
+    field.data_type()
 }
 
 /// The fields a segment's state is read from: every field but `Led_type`,
@@ -179,11 +175,7 @@ async fn read_field(
         return Ok(());
     };
     let raw = channel.upload(index, sub).await?;
-    if let Some(value) = Value::from_bytes(data_type(field), &raw)
-        .ok()
-        .and_then(|value| value.as_i128())
-        .and_then(|value| i64::try_from(value).ok())
-    {
+    if let Some(value) = field.value_in(&raw) {
         state.set(field, value);
     }
     Ok(())

@@ -169,6 +169,26 @@ impl Channel {
             (index, self.number as u8, None)
         }
     }
+
+    /// The channel's value in its object's bytes as the device sends them
+    /// (little-endian, by SDO or in a TPDO): its bit of the 8-bit group for
+    /// a digital channel, the INTEGER16 for an analogue one; `None` when
+    /// the bytes are too few.
+    pub fn level_in(self, data: &[u8]) -> Option<Level> {
+        match (self.location().2, data) {
+            (Some(bit), [group, ..]) => Some(Level::Digital(self::bit(*group, bit))),
+            (None, [low, high, ..]) => Some(Level::Analog(i16::from_le_bytes([*low, *high]))),
+            _ => None,
+        }
+    }
+}
+
+/// A channel's value: a digital channel's state, an analogue one's
+/// INTEGER16 (CiA 401 gives it no unit).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Level {
+    Digital(bool),
+    Analog(i16),
 }
 
 impl fmt::Display for Channel {

@@ -116,3 +116,16 @@ fn the_io401_eds_has_16_digital_in_16_out_4_analogue_in_2_out() {
         assert_eq!(eds.dictionary.get(index).unwrap().name, name);
     }
 }
+
+#[test]
+fn a_channels_level_is_its_bit_of_the_group_or_its_integer16() {
+    let di10 = Channel::parse("di10").unwrap();
+    // di10 is bit 1 of sub 2: the other bits of the group do not matter.
+    assert_eq!(di10.level_in(&[0b0000_0010]), Some(Level::Digital(true)));
+    assert_eq!(di10.level_in(&[0b1111_1101]), Some(Level::Digital(false)));
+    let ai2 = Channel::parse("ai2").unwrap();
+    assert_eq!(ai2.level_in(&[0x18, 0xFC]), Some(Level::Analog(-1000)));
+    // Too few bytes for the object: no value.
+    assert_eq!(di10.level_in(&[]), None);
+    assert_eq!(ai2.level_in(&[0x18]), None);
+}

@@ -3,6 +3,7 @@
 //! objects are at 0x6000 + 0x100 × (n − 1) plus the offset of the object.
 
 use super::segment::{Effect, Segment};
+use crate::canopen::od::{DataType, Value};
 
 /// How many segments the UIO1LED has.
 pub const SEGMENTS: u8 = 10;
@@ -86,6 +87,25 @@ impl Field {
             _ => return None,
         };
         Some(field)
+    }
+
+    /// The type of the field's object (manual §1.3, our EDS): what its
+    /// value is encoded as on the wire.
+    pub fn data_type(self) -> DataType {
+        match self {
+            Field::LedType | Field::Dimmer | Field::Color { .. } => DataType::Unsigned8,
+            Field::LedCount | Field::Effect | Field::Smooth => DataType::Unsigned16,
+            Field::Value | Field::MinValue | Field::MaxValue | Field::Speed => DataType::Integer16,
+        }
+    }
+
+    /// The field's value in its object's bytes as the device sends them;
+    /// `None` for bytes its type cannot hold (a short answer).
+    pub fn value_in(self, data: &[u8]) -> Option<i64> {
+        Value::from_bytes(self.data_type(), data)
+            .ok()
+            .and_then(|value| value.as_i128())
+            .and_then(|value| i64::try_from(value).ok())
     }
 
     /// The manual's object name for segment `segment` (1–10), e.g.

@@ -457,3 +457,18 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_fields_value_is_read_from_its_objects_bytes_by_its_type() {
+    assert_eq!(Field::Value.value_in(&[0x18, 0xFC]), Some(-1000));
+    assert_eq!(Field::Effect.value_in(&[0x04, 0x00]), Some(4));
+    assert_eq!(Field::Dimmer.value_in(&[200]), Some(200));
+    let red = Field::Color {
+        color: 1,
+        channel: 1,
+    };
+    assert_eq!(red.value_in(&[0xFF]), Some(255));
+    // A short answer, or one too long for the type: no value.
+    assert_eq!(Field::Speed.value_in(&[0x01]), None);
+    assert_eq!(Field::Dimmer.value_in(&[1, 2]), None);
+}
