@@ -16,8 +16,19 @@
 //!
 //! Each phase prints the REST read's p50 and p99, the ratio of its p99 to
 //! the idle p99, the sessions the gateway refused (429 `too_many_streams`
-//! beyond `stream_max_per_token`, `stream_max_per_peer`) and the gateway's
-//! resident memory (`VmRSS`) and its growth since idle. The run is made
+//! beyond `stream_max_per_token`, `stream_max_per_peer`), the gateway's
+//! resident memory (`VmRSS`) and its growth since idle, and the CPU (in
+//! cores: CPU seconds over wall seconds, from `/proc/PID/stat`) that the
+//! gateway, the vbus and the benchmark process itself took over the
+//! measured window. The benchmark's WebSocket readers (one runtime thread
+//! for them and the REST client, one more for the generator) run on the
+//! same cores as the gateway and compete with it: its column says how much
+//! of the machine the load generator took. "bus frames/s" is what the
+//! gateway read of the bus over the window (`/metrics`,
+//! `candeck_bus_frames_total` rx): about the generator's 8,000 plus node 1's
+//! answers and heartbeats while the gateway keeps up; less when it falls
+//! behind and the vbus's socketcand server drops the oldest frames it has
+//! for the gateway (SDO answers among them). The run is made
 //! twice: with the default stream limits (32 per token, 64 per address: most
 //! of the 200 are refused) and with both raised to 1000, so that the 200
 //! connect.
@@ -156,6 +167,61 @@ async fn session(
     Some(())
 }
 
+/// The CPU seconds of the gateway, the vbus and this process, and the
+/// frames the gateway had read of its bus, at the start of a window.
+struct CpuWindow {
+    pids: [u32; 3],
+    start: [f64; 3],
+    frames: f64,
+    wall: Instant,
+}
+
+impl CpuWindow {
+    fn start(gateway: u32, vbus: u32, frames: f64) -> Self {
+        let pids = [gateway, vbus, std::process::id()];
+        Self {
+            pids,
+            start: pids.map(common::process::cpu_seconds),
+            frames,
+            wall: Instant::now(),
+        }
+    }
+
+    /// Cores each process used since the start (CPU seconds over wall
+    /// seconds), and the frames per second the gateway read of its bus.
+    fn end(&self, frames: f64) -> ([f64; 3], f64) {
+        let wall = self.wall.elapsed().as_secs_f64();
+        let mut cores = [0.0; 3];
+        for (at, pid) in self.pids.iter().enumerate() {
+            cores[at] = (common::process::cpu_seconds(*pid) - self.start[at]) / wall;
+        }
+        (cores, (frames - self.frames) / wall)
+    }
+}
+
+/// The frames the gateway has read of its bus so far (`/metrics`).
+async fn bus_frames_read(address: &str) -> f64 {
+    let response = http::request_with_headers(
+        address,
+        "GET",
+        "/metrics",
+        "text/plain",
+        None,
+        Duration::from_secs(30),
+        &format!("Authorization: Bearer {OPERATOR}\r\n"),
+    )
+    .await;
+    response
+        .body
+        .lines()
+        .find(|line| {
+            line.starts_with("candeck_bus_frames_total{") && line.contains("direction=\"rx\"")
+        })
+        .and_then(|line| line.rsplit_once(' '))
+        .and_then(|(_, value)| value.parse().ok())
+        .unwrap_or(f64::NAN)
+}
+
 /// What one phase measured.
 struct Phase {
     latencies: Vec<u64>,
@@ -233,7 +299,7 @@ async fn close(handles: Vec<tokio::task::JoinHandle<Option<()>>>, done: &Arc<Ato
 
 /// One run against a gateway started with `limits` (extra arguments).
 fn run(label: &str, limits: &[&str], options: Options, failures: &mut Vec<String>) {
-    let (_vbus, line) = spawn(
+    let (vbus_process, line) = spawn(
         &[
             "vbus",
             "--listen",
@@ -261,6 +327,7 @@ fn run(label: &str, limits: &[&str], options: Options, failures: &mut Vec<String
         .map(|(address, _)| address.to_string())
         .unwrap_or_else(|| panic!("serve said: {line}"));
     let pid = gateway.0.id();
+    let vbus_pid = vbus_process.0.id();
 
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -299,26 +366,43 @@ fn run(label: &str, limits: &[&str], options: Options, failures: &mut Vec<String
         tokio::time::sleep(options.warmup).await;
 
         println!("\n{label}\n");
-        println!("| phase | sessions asked | refused | REST reads | p50 ms | p99 ms | p99 / idle p99 | failed | RSS MiB | RSS growth MiB | frames messages received |");
-        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+        println!(
+            "CPU in cores (of the machine's {}): the gateway, the vbus, and this benchmark \
+             (its generator, REST client and WebSocket readers run on the same cores and \
+             compete with the gateway)\n",
+            std::thread::available_parallelism().map_or(0, usize::from)
+        );
+        println!("| phase | sessions asked | refused | REST reads | p50 ms | p99 ms | p99 / idle p99 | failed | bus frames/s | gateway CPU | vbus CPU | bench CPU | RSS MiB | RSS growth MiB | frames messages received |");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
         let idle_rss = rss_kib(pid);
+        let idle_cpu = CpuWindow::start(pid, vbus_pid, bus_frames_read(&address).await);
         let idle = rest_reads(&address, options.measure).await;
+        let idle_cpu = idle_cpu.end(bus_frames_read(&address).await);
         let idle_p99 = percentile_us(&idle.latencies, 99.0);
-        let row = |phase: &str, asked: usize, refused: usize, figures: &Phase, received: u64| {
+        let row = |phase: &str,
+                   asked: usize,
+                   refused: usize,
+                   figures: &Phase,
+                   cpu: ([f64; 3], f64),
+                   received: u64| {
+            let (cpu, frames_per_s) = cpu;
             let rss = rss_kib(pid);
             let p99 = percentile_us(&figures.latencies, 99.0);
             println!(
-                "| {phase} | {asked} | {refused} | {} | {:.2} | {:.2} | {:.1} | {} | {:.0} | {:+.0} | {received} |",
+                "| {phase} | {asked} | {refused} | {} | {:.2} | {:.2} | {:.1} | {} | {frames_per_s:.0} | {:.2} | {:.2} | {:.2} | {:.0} | {:+.0} | {received} |",
                 figures.latencies.len(),
                 percentile_us(&figures.latencies, 50.0) / 1_000.0,
                 p99 / 1_000.0,
                 p99 / idle_p99,
                 figures.failed,
+                cpu[0],
+                cpu[1],
+                cpu[2],
                 rss as f64 / 1024.0,
                 (rss as f64 - idle_rss as f64) / 1024.0,
             );
         };
-        row("idle", 0, 0, &idle, 0);
+        row("idle", 0, 0, &idle, idle_cpu, 0);
 
         for (phase, count, read) in [
             ("readers (frames topic)", common::pick(READERS, 4), true),
@@ -328,8 +412,10 @@ fn run(label: &str, limits: &[&str], options: Options, failures: &mut Vec<String
             let done = Arc::new(AtomicBool::new(false));
             let (handles, refused) = open_sessions(&address, count, read, &received, &done).await;
             tokio::time::sleep(options.warmup).await;
+            let cpu = CpuWindow::start(pid, vbus_pid, bus_frames_read(&address).await);
             let figures = rest_reads(&address, options.measure).await;
-            row(phase, count, refused, &figures, received.load(Ordering::Relaxed));
+            let cpu = cpu.end(bus_frames_read(&address).await);
+            row(phase, count, refused, &figures, cpu, received.load(Ordering::Relaxed));
             if figures.failed > 0 || figures.latencies.is_empty() {
                 failures.push(format!(
                     "{label}, {phase}: {} REST reads failed (the first: {})",

@@ -135,6 +135,9 @@ pub struct Shared {
     /// The WebSocket streams open, by token and by peer, within their
     /// limits.
     pub open_streams: Arc<stream::OpenStreams>,
+    /// The frames topics' feeds: each bus's frames batched and rendered
+    /// once for every session.
+    pub frame_feeds: Arc<stream::FrameFeeds>,
     /// Tokens, roles and limits ([`auth::guard`]); open by default.
     pub guard: Arc<auth::Guard>,
     /// The names the gateway is served as ([`host::refusal`]); loopback
@@ -150,6 +153,7 @@ impl AppState {
             stream_counters: Arc::new(StreamCounters::default()),
             connection_refusals: Arc::default(),
             open_streams: Arc::default(),
+            frame_feeds: Arc::default(),
             guard: Arc::new(auth::Guard::default()),
             allowed_hosts: Arc::new(host::AllowedHosts::default()),
         }))

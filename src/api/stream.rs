@@ -24,7 +24,8 @@
 //!
 //! Topics: `nodes` (appeared, identified, NMT state changed, offline,
 //! online), `emcy`, `buses/{bus}/frames[?ids=0x181,0x701]` (frames in
-//! batches: `data` is a list), `buses/{bus}/nodes/{id}/values`,
+//! batches, at most [`MAX_PUBLISH_HZ`] a second: `data` is a list),
+//! `buses/{bus}/nodes/{id}/values`,
 //! `buses/{bus}/nodes/{id}/axes/{axis}`, `buses/{bus}/nodes/{id}/segments`,
 //! `buses/{bus}/nodes/{id}/program` (the progress of a program download)
 //! and `loggers/{id}` (a data logger's new rows, ten times a second).
@@ -43,12 +44,22 @@
 //! reading only stalls its own session, which is closed when one message
 //! cannot be written in [`SEND_TIMEOUT`]. The session is generic over its
 //! message stream and sink ([`run_session`]), so it is tested with channels.
+//!
+//! How many clients are kept from hurting the rest (issue 30): a bus's
+//! frames are batched and rendered once for all its sessions
+//! (`frame_feed`), a frames topic sends at most [`MAX_PUBLISH_HZ`]
+//! batches a second, a session renders and writes only in its turn
+//! ([`crate::gateway::StreamTurns`]: one session at a time, every other
+//! task runs in between), and its client's socket is read only when it has
+//! something (`WokenStream`).
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt::Write as _;
 use std::net::SocketAddr;
-use std::sync::atomic::Ordering;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 use axum::Extension;
@@ -66,15 +77,20 @@ use utoipa_axum::routes;
 
 use super::auth::Identity;
 use super::doc::ErrorBody;
-use super::frames::BusFrame;
 use super::nodes::known_node;
 use super::{AppError, AppState};
-use crate::can::{CanId, RecvError, TimedFrame};
 use crate::gateway::NodeEvent;
-use crate::gateway::{self, period_at_most};
+use crate::gateway::{self, MAX_PUBLISH_HZ, StreamTurn, period_at_most};
 use crate::gateway::{Caller, Channel};
 use crate::gateway::{GatewayError, ServedBus};
 use crate::gateway::{Sample, StreamCounters, TopicReceiver, unix_ms};
+
+mod frame_feed;
+
+pub use frame_feed::FrameFeeds;
+#[cfg(test)]
+use frame_feed::RenderedFrame;
+use frame_feed::{FeedError, FeedReceiver, FrameBatch};
 
 /// Updates per second of a value topic when the client asks no rate.
 pub const DEFAULT_RATE_HZ: f64 = 10.0;
@@ -335,7 +351,7 @@ where
 
 /// One client's session: reads its requests from `inbound` and writes the
 /// stream to `outbound` until either ends (or a write times out).
-pub async fn run_session_as<I, O>(state: AppState, client: Client, mut inbound: I, mut outbound: O)
+pub async fn run_session_as<I, O>(state: AppState, client: Client, inbound: I, mut outbound: O)
 where
     I: Stream<Item = Inbound> + Unpin,
     O: Sink<String> + Unpin,
@@ -359,27 +375,120 @@ where
         delivered: BTreeMap::new(),
         counters,
     };
+    let mut inbound = WokenStream::new(inbound);
+    let turns = session.state.gateway.stream_turns().clone();
     loop {
-        let replies = tokio::select! {
+        let (replies, turn) = tokio::select! {
             biased;
             request = inbound.next() => match request {
-                Some(request) => session.handle(request),
+                Some(request) => (session.handle(request), None),
                 None => break,
             },
-            () = session.mailbox.ready() => session.drain(),
+            () = session.mailbox.ready() => {
+                // Rendered in the session's turn: the bus reader, SDO and
+                // others' requests run between two sessions' turns.
+                let turn = turns.take().await;
+                (session.drain(), Some(turn))
+            }
         };
-        for reply in replies {
-            match tokio::time::timeout(SEND_TIMEOUT, outbound.send(reply)).await {
-                Ok(Ok(())) => StreamCounters::add(&session.counters.messages, 1),
-                Ok(Err(_)) => return,
-                Err(_) => {
-                    tracing::info!(
-                        "stream client closed: it accepted no message in {SEND_TIMEOUT:?}"
-                    );
-                    return;
-                }
+        if !send_replies(&mut outbound, replies, turn, &session.counters).await {
+            return;
+        }
+    }
+}
+
+/// Writes `replies` in order; false when the client is gone, or accepted
+/// one of them in no less than [`SEND_TIMEOUT`]. The turn is kept while the
+/// client takes each message at once, and given back as soon as a write
+/// has to wait for it: a slow client holds up no other session.
+async fn send_replies<O>(
+    outbound: &mut O,
+    replies: Vec<String>,
+    mut turn: Option<StreamTurn>,
+    counters: &StreamCounters,
+) -> bool
+where
+    O: Sink<String> + Unpin,
+{
+    for reply in replies {
+        let mut send = outbound.send(reply);
+        let at_once = std::future::poll_fn(|cx| Poll::Ready(Pin::new(&mut send).poll(cx))).await;
+        let sent = match at_once {
+            Poll::Ready(result) => Ok(result),
+            Poll::Pending => {
+                turn = None;
+                tokio::time::timeout(SEND_TIMEOUT, send).await
+            }
+        };
+        match sent {
+            Ok(Ok(())) => StreamCounters::add(&counters.messages, 1),
+            Ok(Err(_)) => return false,
+            Err(_) => {
+                tracing::info!("stream client closed: it accepted no message in {SEND_TIMEOUT:?}");
+                return false;
             }
         }
+    }
+    drop(turn);
+    true
+}
+
+/// A client's messages, read from its socket only when the socket has
+/// woken the session for them (and once at the start). A session's loop
+/// asks for the next message each time round, and the WebSocket layer
+/// prepares a read buffer of 128 KiB (zeroed) at each ask, data or none:
+/// with a session waking for every batch of frames that was a fifth of the
+/// gateway's time under 32 streams (issue 30, perf).
+struct WokenStream<S> {
+    inner: S,
+    wake: Arc<WakeFlag>,
+}
+
+#[derive(Default)]
+struct WakeFlag {
+    woken: AtomicBool,
+    waker: futures_util::task::AtomicWaker,
+}
+
+impl std::task::Wake for WakeFlag {
+    fn wake(self: Arc<Self>) {
+        self.wake_by_ref();
+    }
+
+    fn wake_by_ref(self: &Arc<Self>) {
+        self.woken.store(true, Ordering::Release);
+        self.waker.wake();
+    }
+}
+
+impl<S> WokenStream<S> {
+    fn new(inner: S) -> Self {
+        Self {
+            inner,
+            wake: Arc::new(WakeFlag {
+                woken: AtomicBool::new(true),
+                waker: futures_util::task::AtomicWaker::new(),
+            }),
+        }
+    }
+}
+
+impl<S: Stream + Unpin> Stream for WokenStream<S> {
+    type Item = S::Item;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<S::Item>> {
+        let this = &mut *self;
+        this.wake.waker.register(cx.waker());
+        if !this.wake.woken.swap(false, Ordering::AcqRel) {
+            return Poll::Pending;
+        }
+        let waker = Waker::from(this.wake.clone());
+        let polled = Pin::new(&mut this.inner).poll_next(&mut Context::from_waker(&waker));
+        if polled.is_ready() {
+            // There may be more already read: ask again next time.
+            this.wake.woken.store(true, Ordering::Release);
+        }
+        polled
     }
 }
 
@@ -750,12 +859,10 @@ impl Session {
             }
             Topic::Frames { bus, ids } => {
                 let served = self.state.bus(&bus)?;
-                let frames = served.monitor();
-                vec![tokio::spawn(async move {
-                    // The bus's attachment must outlive its receiver.
-                    let _served = served;
-                    forward_frames(frames, ids, rate_hz, key, mailbox).await;
-                })]
+                let feed = self.state.frame_feeds.subscribe(&served);
+                vec![tokio::spawn(forward_frames(
+                    feed, ids, rate_hz, key, mailbox,
+                ))]
             }
             Topic::Values { bus, node } => {
                 let (served, info) = known_node(&self.state, &bus, &node)?;
@@ -816,12 +923,10 @@ impl Session {
             out.push(update_message(&topic, sample.ts_ms, &sample.data_text()));
         }
         for (topic, frames) in pending.frames {
-            if !self.topics.contains_key(&*topic) || frames.is_empty() {
+            if !self.topics.contains_key(&*topic) || frames.len == 0 {
                 continue;
             }
-            let batch: Vec<BusFrame> = frames.iter().map(BusFrame::from).collect();
-            let data = serde_json::to_string(&batch).unwrap_or_else(|_| "[]".into());
-            out.push(update_message(&topic, unix_ms(), &data));
+            out.push(update_message(&topic, unix_ms(), &frames.json()));
         }
         out
     }
@@ -864,9 +969,108 @@ struct Pending {
     /// Per topic, events or frames lost since the client was last told.
     lagged: BTreeMap<Arc<str>, u64>,
     values: BTreeMap<Arc<str>, Arc<Sample>>,
-    frames: BTreeMap<Arc<str>, VecDeque<TimedFrame>>,
+    frames: BTreeMap<Arc<str>, FrameQueue>,
     /// The frames of every topic together.
     frame_count: usize,
+}
+
+/// The frames of one topic waiting to be sent, rendered by the feed and
+/// shared with every other session, oldest first.
+#[derive(Default)]
+struct FrameQueue {
+    runs: VecDeque<FrameRun>,
+    len: usize,
+}
+
+/// Frames of one topic, in order.
+enum FrameRun {
+    /// A batch's frames from `from` to the last (a topic without
+    /// `?ids=`).
+    Batch { batch: Arc<FrameBatch>, from: usize },
+    /// Frames picked out of batches (a topic's `?ids=`): their text
+    /// alone, so a client that does not read never holds whole batches
+    /// for a few frames of them.
+    Picked(VecDeque<Arc<str>>),
+}
+
+impl FrameRun {
+    fn len(&self) -> usize {
+        match self {
+            Self::Batch { batch, from } => batch.len().saturating_sub(*from),
+            Self::Picked(picked) => picked.len(),
+        }
+    }
+
+    /// Drops the `n` oldest frames (at most all of them).
+    fn drop_oldest(&mut self, n: usize) {
+        match self {
+            Self::Batch { batch, from } => *from = (*from + n).min(batch.len()),
+            Self::Picked(picked) => {
+                picked.drain(..n.min(picked.len()));
+            }
+        }
+    }
+
+    fn write_json(&self, out: &mut String) {
+        let mut write = |json: &str| {
+            if out.len() > 1 {
+                out.push(',');
+            }
+            out.push_str(json);
+        };
+        match self {
+            Self::Batch { batch, from } => {
+                for frame in batch.frames().iter().skip(*from) {
+                    write(&frame.json);
+                }
+            }
+            Self::Picked(picked) => picked.iter().for_each(|json| write(json)),
+        }
+    }
+}
+
+impl FrameQueue {
+    fn push(&mut self, run: FrameRun) {
+        self.len += run.len();
+        // Picked frames join the picked frames before them.
+        if let (FrameRun::Picked(more), Some(FrameRun::Picked(last))) = (&run, self.runs.back_mut())
+        {
+            last.extend(more.iter().cloned());
+            return;
+        }
+        self.runs.push_back(run);
+    }
+
+    /// Drops the `n` oldest frames; how many went.
+    fn drop_oldest(&mut self, mut n: usize) -> usize {
+        let mut dropped = 0;
+        while n > 0
+            && let Some(run) = self.runs.front_mut()
+        {
+            let len = run.len();
+            if len <= n {
+                self.runs.pop_front();
+                n -= len;
+                dropped += len;
+            } else {
+                run.drop_oldest(n);
+                dropped += n;
+                n = 0;
+            }
+        }
+        self.len -= dropped;
+        dropped
+    }
+
+    /// The frames as a JSON list.
+    fn json(&self) -> String {
+        let mut out = String::from("[");
+        for run in &self.runs {
+            run.write_json(&mut out);
+        }
+        out.push(']');
+        out
+    }
 }
 
 impl Mailbox {
@@ -891,7 +1095,7 @@ impl Mailbox {
         pending.lagged.remove(topic);
         pending.values.remove(topic);
         if let Some(queue) = pending.frames.remove(topic) {
-            pending.frame_count -= queue.len();
+            pending.frame_count -= queue.len;
         }
     }
 
@@ -918,38 +1122,45 @@ impl Mailbox {
         self.ready.notify_one();
     }
 
-    /// Queues a frame; when the topic's queue ([`FRAME_QUEUE`]) or the
-    /// client's ([`CLIENT_FRAME_QUEUE`]) is full, the oldest frame of the
-    /// topic goes (of the longest queue, when this topic has none), counted
-    /// as lagged for its topic.
-    fn push_frame(&self, topic: &Arc<str>, frame: TimedFrame) {
+    /// Queues frames of a batch, as if one at a time: when the topic's
+    /// queue ([`FRAME_QUEUE`]) or the client's ([`CLIENT_FRAME_QUEUE`]) is
+    /// full, the oldest frame of the topic goes (of the longest queue, when
+    /// this topic has none), counted as lagged for its topic.
+    fn push_frames(&self, topic: &Arc<str>, run: FrameRun) {
+        let count = run.len();
+        if count == 0 {
+            return;
+        }
         let mut guard = self.lock();
         let pending = &mut *guard;
-        let own = pending.frames.get(topic).map_or(0, VecDeque::len);
-        if own >= FRAME_QUEUE || pending.frame_count >= CLIENT_FRAME_QUEUE {
-            let victim = if own > 0 {
-                Some(topic.clone())
-            } else {
-                pending
-                    .frames
-                    .iter()
-                    .max_by_key(|(_, queue)| queue.len())
-                    .map(|(topic, _)| topic.clone())
-            };
+        let own = pending.frames.get(topic).map_or(0, |queue| queue.len);
+        let over_topic = (own + count).saturating_sub(FRAME_QUEUE);
+        let over_client = (pending.frame_count + count).saturating_sub(CLIENT_FRAME_QUEUE);
+        let mut over = over_topic.max(over_client);
+        if own == 0 && over_client > over_topic {
+            // The first frame's room comes from the longest queue.
+            let victim = pending
+                .frames
+                .iter()
+                .max_by_key(|(_, queue)| queue.len)
+                .map(|(topic, _)| topic.clone());
             if let Some(victim) = victim
                 && let Some(queue) = pending.frames.get_mut(&victim)
-                && queue.pop_front().is_some()
+                && queue.drop_oldest(1) == 1
             {
                 pending.frame_count -= 1;
                 *pending.lagged.entry(victim).or_default() += 1;
+                over -= 1;
             }
         }
-        pending
-            .frames
-            .entry(topic.clone())
-            .or_default()
-            .push_back(frame);
-        pending.frame_count += 1;
+        let queue = pending.frames.entry(topic.clone()).or_default();
+        queue.push(run);
+        let dropped = queue.drop_oldest(over);
+        pending.frame_count += count;
+        pending.frame_count -= dropped;
+        if dropped > 0 {
+            *pending.lagged.entry(topic.clone()).or_default() += dropped as u64;
+        }
     }
 
     fn wake(&self) {
@@ -1128,37 +1339,51 @@ fn event_json(bus: &str, event: &NodeEvent) -> Json {
     }
 }
 
-/// Forwards a bus's frames (those of `ids`, or all), waking the session
-/// at most `rate_hz` times per second: frames come in batches.
+/// Forwards a bus's frames (those of `ids`, or all) from its feed, waking
+/// the session at most `rate_hz` times per second, and at most
+/// [`MAX_PUBLISH_HZ`] (the feed's batches).
 async fn forward_frames(
-    mut frames: crate::can::FrameReceiver,
+    mut feed: FeedReceiver,
     ids: Option<BTreeSet<u32>>,
     rate_hz: f64,
     topic: Arc<str>,
     mailbox: Arc<Mailbox>,
 ) {
-    let period = period_at_most(rate_hz, MAX_RATE_HZ);
+    let period = period_at_most(rate_hz, MAX_PUBLISH_HZ);
     let mut next_wake = Instant::now();
     let mut queued = false;
+    // The feed's count of frames after the last batch seen: batches lost
+    // before this task read them are frames lost.
+    let mut seen: Option<u64> = None;
     loop {
         tokio::select! {
-            received = frames.recv() => match received {
-                Ok(frame) => {
-                    let raw = match frame.frame.id() {
-                        CanId::Standard(raw) => u32::from(raw),
-                        CanId::Extended(raw) => raw,
-                    };
-                    if ids.as_ref().is_some_and(|ids| !ids.contains(&raw)) {
-                        continue;
+            received = feed.recv() => match received {
+                Ok(batch) => {
+                    let missed = seen.map_or(0, |seen| batch.before.saturating_sub(seen));
+                    seen = Some(batch.through());
+                    if missed + batch.lost > 0 {
+                        mailbox.lost(&topic, missed + batch.lost);
+                        queued = true;
                     }
-                    mailbox.push_frame(&topic, frame);
-                    queued = true;
+                    let run = match &ids {
+                        None => FrameRun::Batch { batch, from: 0 },
+                        Some(ids) => FrameRun::Picked(
+                            batch
+                                .frames()
+                                .iter()
+                                .filter(|frame| ids.contains(&frame.id))
+                                .map(|frame| frame.json.clone())
+                                .collect(),
+                        ),
+                    };
+                    if run.len() > 0 {
+                        mailbox.push_frames(&topic, run);
+                        queued = true;
+                    }
                 }
-                Err(RecvError::Lagged(n)) => {
-                    mailbox.lost(&topic, n);
-                    queued = true;
-                }
-                Err(RecvError::Closed) => {
+                // Counted from the next batch's `before`.
+                Err(FeedError::Lagged) => {}
+                Err(FeedError::Closed) => {
                     mailbox.wake();
                     return;
                 }
@@ -1177,14 +1402,17 @@ async fn forward_frames(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::can::{Direction, Frame, Timestamp};
+    use crate::can::{CanId, Direction, Frame, TimedFrame, Timestamp};
 
-    fn frame() -> TimedFrame {
-        TimedFrame {
+    /// A batch of the feed holding one frame.
+    fn batch() -> Arc<FrameBatch> {
+        let mut batch = FrameBatch::default();
+        batch.push(&TimedFrame {
             frame: Frame::new(CanId::standard(0x181).unwrap(), &[1, 2]).unwrap(),
             timestamp: Timestamp(0),
             direction: Direction::Rx,
-        }
+        });
+        Arc::new(batch)
     }
 
     /// Issue 30, finding 7: a client that does not read holds at most
@@ -1199,20 +1427,80 @@ mod tests {
         let per_topic = 200;
         for _ in 0..per_topic {
             for topic in &topics {
-                mailbox.push_frame(topic, frame());
+                mailbox.push_frames(
+                    topic,
+                    FrameRun::Batch {
+                        batch: batch(),
+                        from: 0,
+                    },
+                );
             }
         }
         let pending = mailbox.take();
-        let queued: usize = pending.frames.values().map(VecDeque::len).sum();
+        let queued: usize = pending.frames.values().map(|queue| queue.len).sum();
         assert_eq!(queued, CLIENT_FRAME_QUEUE);
+        assert_eq!(pending.frame_count, CLIENT_FRAME_QUEUE);
         let lagged: u64 = pending.lagged.values().sum();
         assert_eq!(lagged as usize, MAX_TOPICS * per_topic - CLIENT_FRAME_QUEUE);
         // One topic alone still keeps its own bound.
         for _ in 0..FRAME_QUEUE + 10 {
-            mailbox.push_frame(&topics[0], frame());
+            mailbox.push_frames(
+                &topics[0],
+                FrameRun::Batch {
+                    batch: batch(),
+                    from: 0,
+                },
+            );
         }
         let pending = mailbox.take();
-        assert_eq!(pending.frames[&topics[0]].len(), FRAME_QUEUE);
+        assert_eq!(pending.frames[&topics[0]].len, FRAME_QUEUE);
         assert_eq!(pending.lagged[&topics[0]], 10);
+    }
+
+    /// A batch larger than the room left loses its own oldest frames, as
+    /// frames pushed one at a time would, and the rest are sent in order.
+    #[test]
+    fn a_batch_beyond_the_topics_queue_keeps_its_newest_frames() {
+        let mailbox = Mailbox::default();
+        let topic: Arc<str> = Arc::from("buses/demo/frames");
+        let mut big = FrameBatch::default();
+        for n in 0..FRAME_QUEUE as u32 + 5 {
+            big.push(&TimedFrame {
+                frame: Frame::new(CanId::standard(0x181).unwrap(), &n.to_le_bytes()).unwrap(),
+                timestamp: Timestamp(0),
+                direction: Direction::Rx,
+            });
+        }
+        let big = Arc::new(big);
+        mailbox.push_frames(
+            &topic,
+            FrameRun::Batch {
+                batch: big.clone(),
+                from: 0,
+            },
+        );
+        // Of picked frames, only those, in order, however they came.
+        let listed: Arc<str> = Arc::from("buses/demo/frames?ids=0x181");
+        let pick = |at: &[usize]| {
+            let frames: &[RenderedFrame] = big.frames();
+            FrameRun::Picked(at.iter().map(|&at| frames[at].json.clone()).collect())
+        };
+        mailbox.push_frames(&listed, pick(&[0, 2]));
+        mailbox.push_frames(&listed, pick(&[4]));
+        assert_eq!(mailbox.lock().frames[&listed].runs.len(), 1);
+        let pending = mailbox.take();
+        assert_eq!(pending.lagged[&topic], 5);
+        let sent: Json = serde_json::from_str(&pending.frames[&topic].json()).unwrap();
+        let sent = sent.as_array().unwrap();
+        assert_eq!(sent.len(), FRAME_QUEUE);
+        assert_eq!(sent[0]["data"], "05000000");
+        let sent: Json = serde_json::from_str(&pending.frames[&listed].json()).unwrap();
+        let data: Vec<&str> = sent
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|frame| frame["data"].as_str().unwrap())
+            .collect();
+        assert_eq!(data, ["00000000", "02000000", "04000000"]);
     }
 }

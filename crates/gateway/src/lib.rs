@@ -84,8 +84,8 @@
 //! - `sync`: the gateway's SYNC producer on a bus.
 //! - `values`: the nodes' TPDO values, decoded by the mappings read from
 //!   them.
-//! - `telemetry`: value topics (newest sample wins) for the stream, and
-//!   the stream's counters.
+//! - `telemetry`: value topics (newest sample wins) for the stream, the
+//!   stream's counters, and the turns at fanning it out.
 //! - `producers`: what the producers of value topics share: a task per
 //!   topic while someone reads, publishes paced to the readers' rate, the
 //!   `TelemetryConfig`.
@@ -221,5 +221,7 @@ pub use led_preview::PreviewError;
 pub use producers::{
     DEFAULT_AXIS_POLL_HZ, MAX_PUBLISH_HZ, MAX_RATE_HZ, MIN_RATE_HZ, TelemetryConfig, period_at_most,
 };
-pub use telemetry::{Sample, StreamCounters, TopicReceiver, unix_ms};
+pub use telemetry::{
+    STREAM_TURNS, Sample, StreamCounters, StreamTurn, StreamTurns, TopicReceiver, unix_ms,
+};
 pub use values::{TpdoFrame, TpdoValue};

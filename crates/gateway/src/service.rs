@@ -459,6 +459,9 @@ pub struct Gateway {
     /// The tasks [`Gateway::start`] started beside the doors (pruners,
     /// first scans), ended by [`Gateway::shutdown`].
     pub(crate) background: Arc<super::start::BackgroundTasks>,
+    /// The turns at fanning the streams out to their clients, for every
+    /// door's sessions together.
+    stream_turns: super::telemetry::StreamTurns,
 }
 
 impl Gateway {
@@ -506,6 +509,7 @@ impl Gateway {
             edge_node: Arc::default(),
             background: Arc::default(),
             loggers: super::logger::Loggers::default(),
+            stream_turns: super::telemetry::StreamTurns::default(),
         }
     }
 
@@ -609,6 +613,12 @@ impl Gateway {
     /// The tokens and their roles (none: the gateway is open).
     pub fn tokens(&self) -> &Tokens {
         &self.tokens
+    }
+
+    /// The turns at fanning the streams out: a door's stream session takes
+    /// one before it renders and writes to its client.
+    pub fn stream_turns(&self) -> &super::telemetry::StreamTurns {
+        &self.stream_turns
     }
 
     /// The data loggers.

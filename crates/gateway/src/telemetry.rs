@@ -11,14 +11,16 @@
 //! ([`ValueTopic::wanted_rate_hz`]).
 //!
 //! [`StreamCounters`] are the stream's own numbers (clients, coalesced
-//! values, lagged events) for `/metrics`.
+//! values, lagged events) for `/metrics`. [`StreamTurns`] bound the work of
+//! fanning the streams out to their clients, so that the bus and the
+//! requests of others keep their place (issue 30).
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use tokio::sync::{Notify, watch};
+use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore, watch};
 
 /// One published state of a topic.
 #[derive(Debug)]
@@ -214,9 +216,98 @@ impl StreamCounters {
     }
 }
 
+/// Stream sessions that render and write their pending messages at one
+/// time, by default: one. The runtime runs its tasks in turn, so a session
+/// that waits for its turn is not among them; with hundreds of sessions
+/// each woken by the same frames, the bus reader, the SDO client and a
+/// REST request would otherwise wait behind all of them at every step
+/// (issue 30: one client's streams made REST's p99 13 times worse, and
+/// with 200 streams the gateway fell so far behind its bus that SDO
+/// answers were lost). With one turn, every other task runs between two
+/// sessions' writes; the sessions still write as fast as the machine
+/// allows, and one that falls behind loses its oldest frames (`lagged`).
+pub const STREAM_TURNS: usize = 1;
+
+/// Turns at fanning the streams out to their clients, shared by every
+/// session of every door: a session takes one before it renders and
+/// writes, and gives it back when done, or as soon as a write has to wait
+/// for its client (a slow client never holds up the others). First come,
+/// first served. Cheap to clone; clones share the turns.
+#[derive(Debug, Clone)]
+pub struct StreamTurns {
+    turns: Arc<Semaphore>,
+}
+
+impl Default for StreamTurns {
+    fn default() -> Self {
+        Self::new(STREAM_TURNS)
+    }
+}
+
+/// One session's turn; given back when dropped.
+#[derive(Debug)]
+pub struct StreamTurn {
+    _permit: OwnedSemaphorePermit,
+}
+
+impl StreamTurns {
+    /// `at_once` turns (at least one).
+    pub fn new(at_once: usize) -> Self {
+        Self {
+            turns: Arc::new(Semaphore::new(at_once.max(1))),
+        }
+    }
+
+    /// Waits for a turn; sessions get theirs in the order they asked.
+    pub async fn take(&self) -> StreamTurn {
+        // The semaphore is never closed.
+        let permit = self
+            .turns
+            .clone()
+            .acquire_owned()
+            .await
+            .expect("the stream turns are never closed");
+        StreamTurn { _permit: permit }
+    }
+
+    /// Turns free now.
+    pub fn free(&self) -> usize {
+        self.turns.available_permits()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn stream_turns_are_taken_in_order_and_given_back_when_dropped() {
+        let turns = StreamTurns::default();
+        let first = turns.take().await;
+        assert_eq!(turns.free(), 0);
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let waiters: Vec<_> = (0..3)
+            .map(|n| {
+                let turns = turns.clone();
+                let order = order.clone();
+                tokio::spawn(async move {
+                    let _turn = turns.take().await;
+                    order.lock().unwrap().push(n);
+                })
+            })
+            .collect();
+        tokio::task::yield_now().await;
+        assert!(
+            order.lock().unwrap().is_empty(),
+            "nobody runs while a turn is held"
+        );
+        drop(first);
+        for waiter in waiters {
+            waiter.await.unwrap();
+        }
+        assert_eq!(*order.lock().unwrap(), vec![0, 1, 2]);
+        assert_eq!(turns.free(), STREAM_TURNS);
+    }
 
     #[tokio::test]
     async fn a_late_reader_gets_the_newest_sample_and_can_count_what_it_missed() {
