@@ -459,6 +459,8 @@ pub struct Gateway {
     /// The tasks [`Gateway::start`] started beside the doors (pruners,
     /// first scans), ended by [`Gateway::shutdown`].
     pub(crate) background: Arc<super::start::BackgroundTasks>,
+    /// Every node's sampled objects, bounded per node for every door.
+    pub(crate) samplers: Arc<super::sampling::Samplers>,
 }
 
 impl Gateway {
@@ -506,6 +508,7 @@ impl Gateway {
             edge_node: Arc::default(),
             background: Arc::default(),
             loggers: super::logger::Loggers::default(),
+            samplers: Arc::default(),
         }
     }
 
@@ -519,6 +522,13 @@ impl Gateway {
     /// The same, granting motion leases of `period` (`--lease-ms`).
     pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
         self.leases = Arc::new(MotionLeases::new(period));
+        self
+    }
+
+    /// The same, sampling at most `samples_per_s` objects a second per
+    /// node over SDO ([`Gateway::sample_objects`]).
+    pub fn with_sdo_samples_per_s(mut self, samples_per_s: u32) -> Self {
+        self.samplers = Arc::new(super::sampling::Samplers::new(samples_per_s));
         self
     }
 
