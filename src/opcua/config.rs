@@ -18,13 +18,6 @@ pub const DEFAULT_MAX_MESSAGE_SIZE: usize = 4 * 1024 * 1024;
 /// The default `opcua_session_timeout_ms`: a session no request kept
 /// alive for this long is closed, and the motion leases it holds lapse.
 pub const DEFAULT_SESSION_TIMEOUT: Duration = Duration::from_secs(60);
-/// The default `opcua_sdo_samples_per_s`: the SDO uploads a second that
-/// monitored dictionary variables may take of one node (its one SDO server
-/// channel, shared with every other door and the gateway's own transfers).
-pub const DEFAULT_SDO_SAMPLES_PER_S: u32 = 20;
-/// The largest `opcua_sdo_samples_per_s`: about what an expedited upload's
-/// round trip allows at 1 Mbit/s.
-pub const MAX_SDO_SAMPLES_PER_S: u32 = 1000;
 
 /// The bounds of the server, each a config key.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,8 +29,6 @@ pub struct OpcUaLimits {
     /// The longest session timeout a client may ask for: an idle session
     /// is closed after it.
     pub session_timeout: Duration,
-    /// Monitored dictionary variables: SDO uploads a second per node.
-    pub sdo_samples_per_s: u32,
 }
 
 impl Default for OpcUaLimits {
@@ -48,7 +39,6 @@ impl Default for OpcUaLimits {
             max_monitored_items: DEFAULT_MAX_MONITORED_ITEMS,
             max_message_size: DEFAULT_MAX_MESSAGE_SIZE,
             session_timeout: DEFAULT_SESSION_TIMEOUT,
-            sdo_samples_per_s: DEFAULT_SDO_SAMPLES_PER_S,
         }
     }
 }
@@ -128,12 +118,6 @@ impl OpcUaConfig {
         }
         if limits.session_timeout < Duration::from_secs(1) {
             return Err("opcua_session_timeout_ms must be at least 1000".to_string());
-        }
-        if !(1..=MAX_SDO_SAMPLES_PER_S).contains(&limits.sdo_samples_per_s) {
-            return Err(format!(
-                "opcua_sdo_samples_per_s {} is not between 1 and {MAX_SDO_SAMPLES_PER_S}",
-                limits.sdo_samples_per_s
-            ));
         }
         Ok(Self {
             listen,
@@ -247,10 +231,6 @@ mod tests {
         assert!(err.contains("opcua_max_message_size"), "{err}");
         let err = limits(|l| l.session_timeout = Duration::from_millis(10)).unwrap_err();
         assert!(err.contains("opcua_session_timeout_ms"), "{err}");
-        let err = limits(|l| l.sdo_samples_per_s = 0).unwrap_err();
-        assert!(err.contains("opcua_sdo_samples_per_s"), "{err}");
-        let err = limits(|l| l.sdo_samples_per_s = 5000).unwrap_err();
-        assert!(err.contains("opcua_sdo_samples_per_s"), "{err}");
     }
 
     #[test]

@@ -24,8 +24,9 @@
 //!   when it closes or stops talking.
 //! - [`revisions`]: each node's hardware and software versions, read once
 //!   per identification.
-//! - [`sampling`]: monitored dictionary, I/O and LED variables, sampled
-//!   over SDO with a per-node bound or fed from the node's TPDOs.
+//! - [`sampling`]: monitored dictionary, I/O and LED variables: what each
+//!   watches, asked of the gateway's sampling (its per-node bound, its
+//!   TPDO-carried objects), and its samples turned into values.
 //! - [`server`]: async-opcua's server with all of it.
 //!
 //! Built with the `opcua` cargo feature (default).

@@ -15,7 +15,7 @@ use super::config::OpcUaConfig;
 use super::feed::{AxisDemand, Sink};
 use super::leases::SessionLeases;
 use super::revisions::Revisions;
-use super::sampling::{GatewayBackend, Sampling};
+use super::sampling::Sampling;
 use super::space::{CandeckNodes, Door};
 use super::users::TokenUsers;
 use crate::gateway::Gateway;
@@ -102,7 +102,6 @@ impl OpcUaServer {
         let users = TokenUsers::new(gateway.tokens().clone(), config.logins);
         let leases = Arc::new(SessionLeases::new(gateway.lease_period()));
         let door_cell: Arc<OnceLock<Arc<Door>>> = Arc::default();
-        let sdo_samples_per_s = config.limits.sdo_samples_per_s;
         let node_manager = {
             let (gateway, leases, door_cell) = (gateway.clone(), leases.clone(), door_cell.clone());
             InMemoryNodeManagerBuilder::new(
@@ -120,7 +119,7 @@ impl OpcUaServer {
                         users,
                         leases,
                         demand: Arc::new(AxisDemand::new(ns)),
-                        sampling: Arc::new(Sampling::new(sdo_samples_per_s)),
+                        sampling: Arc::new(Sampling::new()),
                     });
                     let _ = door_cell.set(door.clone());
                     CandeckNodes::new(door, ns)
@@ -175,11 +174,8 @@ impl OpcUaServer {
         let ns = handle
             .get_namespace_index(NAMESPACE)
             .ok_or("the candeck namespace is missing")?;
-        door.sampling.start(Arc::new(GatewayBackend {
-            gateway: gateway.clone(),
-            subscriptions: handle.subscriptions().clone(),
-            ns,
-        }));
+        door.sampling
+            .start(gateway.clone(), handle.subscriptions().clone(), ns);
         let sink = Sink::new(ns, manager, handle.subscriptions().clone());
         let events = super::events::EventSink::new(ns, handle.subscriptions().clone());
         let revisions = Arc::new(Revisions::default());

@@ -386,16 +386,16 @@ impl CandeckNodes {
             return true;
         }
         let caller = self.caller(context, "Read", &path, None);
-        if let Some(value) = self.door.sampling.initial(&node, watched) {
-            item.set_initial_value(value);
-        }
-        self.door.sampling.monitor(
+        let initial = self.door.sampling.monitor(
             item.handle(),
             node,
             watched,
             item.sampling_interval(),
             caller,
         );
+        if let Some(value) = initial {
+            item.set_initial_value(value);
+        }
         item.set_status(StatusCode::Good);
         true
     }

@@ -57,6 +57,10 @@
 //! - `machine`: the network manager of a bus (CiA 302-2) at work: the
 //!   [`crate::canopen::manager`] driven by a task per bus, its heartbeat,
 //!   the machine's status.
+//! - `sampling`: objects of a node sampled for any caller at the
+//!   intervals asked ([`Gateway::sample_objects`]), over SDO within the
+//!   node's one bound for every door (fairly shared), or from the TPDOs
+//!   that carry them.
 //! - `sdo`: SDO transfers to one node over a [`Bus`](crate::can::Bus), one at
 //!   a time, with a fair queue; each node's transfers counted by outcome,
 //!   with a latency histogram (for `/metrics`).
@@ -133,6 +137,7 @@ mod program;
 mod recording;
 mod registry;
 mod safe_stop;
+mod sampling;
 mod sdo;
 mod service;
 mod start;
@@ -184,6 +189,9 @@ pub use profile::{
 pub use registry::{
     EmcyRecord, Identification, NodeEvent, NodeInfo, NodeMetrics, NodeRegistry, OfflineReason,
     RegistryConfig, RegistryError,
+};
+pub use sampling::{
+    DEFAULT_SDO_SAMPLES_PER_S, MAX_SDO_SAMPLES_PER_S, ObjectSample, ObjectSampling, SampleSink,
 };
 pub use sdo::{LATENCY_BUCKETS, SdoChannel, SdoRequestError, SdoStatsSnapshot};
 pub use uioled::{Color, Preview, PreviewSegment, effect_name, fits, is_segment, read_segment};

@@ -462,6 +462,8 @@ pub struct Gateway {
     /// The turns at fanning the streams out to their clients, for every
     /// door's sessions together.
     stream_turns: super::telemetry::StreamTurns,
+    /// Every node's sampled objects, bounded per node for every door.
+    pub(crate) samplers: Arc<super::sampling::Samplers>,
 }
 
 impl Gateway {
@@ -510,6 +512,7 @@ impl Gateway {
             background: Arc::default(),
             loggers: super::logger::Loggers::default(),
             stream_turns: super::telemetry::StreamTurns::default(),
+            samplers: Arc::default(),
         }
     }
 
@@ -523,6 +526,13 @@ impl Gateway {
     /// The same, granting motion leases of `period` (`--lease-ms`).
     pub fn with_lease_period(mut self, period: std::time::Duration) -> Self {
         self.leases = Arc::new(MotionLeases::new(period));
+        self
+    }
+
+    /// The same, sampling at most `samples_per_s` objects a second per
+    /// node over SDO ([`Gateway::sample_objects`]).
+    pub fn with_sdo_samples_per_s(mut self, samples_per_s: u32) -> Self {
+        self.samplers = Arc::new(super::sampling::Samplers::new(samples_per_s));
         self
     }
 

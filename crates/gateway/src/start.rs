@@ -63,6 +63,9 @@ pub struct GatewayConfig {
     /// (by bus name).
     pub machine: MachineSettings,
     pub machine_nodes: BTreeMap<String, Vec<NodeDescription>>,
+    /// The SDO samples a second per node that sampled objects may take
+    /// ([`Gateway::sample_objects`]), whichever door asks them.
+    pub sdo_samples_per_s: u32,
 }
 
 /// Why the gateway could not start: one line naming the setting.
@@ -102,6 +105,13 @@ impl Gateway {
         config: GatewayConfig,
         attach: AttachDevices<'_>,
     ) -> Result<Gateway, StartError> {
+        if !(1..=super::sampling::MAX_SDO_SAMPLES_PER_S).contains(&config.sdo_samples_per_s) {
+            return Err(StartError(format!(
+                "sdo_samples_per_s {} is not between 1 and {}",
+                config.sdo_samples_per_s,
+                super::sampling::MAX_SDO_SAMPLES_PER_S
+            )));
+        }
         if let Some(dir) = &config.data_dir {
             // 0700 when candeck makes it (docs/security.md, "Files").
             super::files::create_private_dir(dir)
@@ -133,6 +143,7 @@ impl Gateway {
             .with_lease_period(config.lease_period)
             .with_tokens(config.tokens.clone())
             .with_write_limit(config.write_limit)
+            .with_sdo_samples_per_s(config.sdo_samples_per_s)
             .with_loggers(Loggers::load(LoggerConfig {
                 max_values: config.logger_max_values,
                 dir: config.data_dir.as_ref().map(|dir| dir.join("loggers")),

@@ -44,6 +44,7 @@ pub(crate) fn config(buses: &[(&str, &str)]) -> GatewayConfig {
         sync_period: Duration::ZERO,
         machine: MachineSettings::default(),
         machine_nodes: BTreeMap::new(),
+        sdo_samples_per_s: crate::DEFAULT_SDO_SAMPLES_PER_S,
     }
 }
 

@@ -131,7 +131,11 @@ pub(super) struct ConfigFile {
     pub(super) opcua_max_monitored_items: Option<usize>,
     pub(super) opcua_max_message_size: Option<usize>,
     pub(super) opcua_session_timeout_ms: Option<u64>,
-    pub(super) opcua_sdo_samples_per_s: Option<u32>,
+    // The SDO samples a second per node that sampled objects may take,
+    // whichever door asks them; its first name, from when only OPC UA
+    // sampled, still works.
+    #[serde(alias = "opcua_sdo_samples_per_s")]
+    pub(super) sdo_samples_per_s: Option<u32>,
     pub(super) manager_node_id: Option<u8>,
     pub(super) manager_heartbeat_ms: Option<u16>,
     pub(super) heartbeat_consumer_factor: Option<f64>,
@@ -275,6 +279,16 @@ impl ConfigFile {
                 path.display()
             ));
         }
+        if let Some(n) = config.sdo_samples_per_s
+            && !(1..=crate::gateway::MAX_SDO_SAMPLES_PER_S).contains(&n)
+        {
+            return Err(format!(
+                "config {}: sdo_samples_per_s (or opcua_sdo_samples_per_s) {n} is not between 1 \
+                 and {}",
+                path.display(),
+                crate::gateway::MAX_SDO_SAMPLES_PER_S
+            ));
+        }
         if let Some(ms) = config.shutdown_grace_ms {
             check_shutdown_grace_ms(ms)
                 .map_err(|err| format!("config {}: shutdown_grace_ms {err}", path.display()))?;
@@ -329,9 +343,6 @@ impl ConfigFile {
             session_timeout: self
                 .opcua_session_timeout_ms
                 .map_or(defaults.session_timeout, Duration::from_millis),
-            sdo_samples_per_s: self
-                .opcua_sdo_samples_per_s
-                .unwrap_or(defaults.sdo_samples_per_s),
         }
     }
 }
@@ -386,6 +397,8 @@ pub(super) struct Settings {
     pub(super) auth: AuthConfig,
     pub(super) insecure: bool,
     pub(super) sync_period: std::time::Duration,
+    /// The SDO samples a second per node of every door's sampling.
+    pub(super) sdo_samples_per_s: u32,
     pub(super) allowed_hosts: AllowedHosts,
     pub(super) share_public: bool,
     pub(super) http_limits: HttpLimits,
@@ -429,6 +442,7 @@ impl Settings {
             tokens: self.auth.tokens.clone(),
             write_limit: self.auth.rate_limit,
             sync_period: self.sync_period,
+            sdo_samples_per_s: self.sdo_samples_per_s,
             machine: self.machine.clone(),
             machine_nodes: self.machine_nodes.clone(),
         }
@@ -560,6 +574,9 @@ impl ServeArgs {
             sync_period: std::time::Duration::from_millis(u64::from(
                 self.sync_period_ms.or(file.sync_period_ms).unwrap_or(0),
             )),
+            sdo_samples_per_s: file
+                .sdo_samples_per_s
+                .unwrap_or(crate::gateway::DEFAULT_SDO_SAMPLES_PER_S),
             allowed_hosts: AllowedHosts::new(if self.allowed_hosts.is_empty() {
                 &file.allowed_hosts
             } else {

@@ -67,6 +67,11 @@ fn the_example_config_parses_and_has_a_key_for_every_option() {
     assert_eq!(lift.config.len(), 1);
     assert_eq!(lift.identity.revision_max, Some(0x0100_FFFF));
     assert_eq!(settings.machine.manager.heartbeat_ms, 100);
+    assert_eq!(
+        shipped.sdo_samples_per_s,
+        crate::gateway::DEFAULT_SDO_SAMPLES_PER_S
+    );
+    assert_eq!(settings.gateway_config().sdo_samples_per_s, 20);
     assert_eq!(settings.machine.manager.consumer_factor.get(), 3.0);
     assert_eq!(
         settings.ascii_listen,
@@ -219,6 +224,42 @@ fn the_sync_period_and_insecure_come_from_the_file_and_the_command_line() {
         .settings_with(None)
         .unwrap_err();
     assert!(err.contains("sync_period_ms"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_sdo_sampling_bound_is_read_under_its_name_and_its_first_one_and_checked() {
+    let dir = std::env::temp_dir().join(format!("candeck-samples-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let settings_of = |text: &str| {
+        let file = dir.join("samples.toml");
+        std::fs::write(&file, text).unwrap();
+        serve_args(&["--config", file.to_str().unwrap()])
+            .unwrap()
+            .settings_with(None)
+    };
+    let bound = |text: &str| {
+        settings_of(text)
+            .unwrap()
+            .gateway_config()
+            .sdo_samples_per_s
+    };
+    assert_eq!(bound("sdo_samples_per_s = 7\n"), 7);
+    assert_eq!(bound("opcua_sdo_samples_per_s = 9\n"), 9);
+    assert_eq!(bound(""), crate::gateway::DEFAULT_SDO_SAMPLES_PER_S);
+    for bad in [
+        "sdo_samples_per_s = 0\n",
+        "opcua_sdo_samples_per_s = 5000\n",
+    ] {
+        let err = settings_of(bad).unwrap_err();
+        assert!(
+            err.contains("sdo_samples_per_s") && err.contains("between 1 and 1000"),
+            "{err}"
+        );
+    }
+    // Both names at once: which one counts would be a guess.
+    let err = settings_of("sdo_samples_per_s = 7\nopcua_sdo_samples_per_s = 9\n").unwrap_err();
+    assert!(err.contains("sdo_samples_per_s"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

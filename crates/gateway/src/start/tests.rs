@@ -90,3 +90,64 @@ async fn a_start_that_cannot_be_made_names_the_setting() {
     std::fs::remove_file(&file).unwrap();
     assert!(error.0.starts_with("--data-dir "), "{error}");
 }
+
+#[tokio::test]
+async fn an_sdo_sampling_bound_out_of_range_is_refused_at_start() {
+    for bound in [0, crate::MAX_SDO_SAMPLES_PER_S + 1] {
+        let config = GatewayConfig {
+            sdo_samples_per_s: bound,
+            ..config(&[("line", "virtual:empty")])
+        };
+        let error = start_error(config, &no_devices).await;
+        assert!(
+            error.0.contains("sdo_samples_per_s") && error.0.contains("between 1 and 1000"),
+            "{error}"
+        );
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_started_gateway_samples_a_nodes_objects_with_its_bound() {
+    let gateway = Gateway::start(
+        GatewayConfig {
+            sdo_samples_per_s: 7,
+            ..config(&[("line", "virtual:demo")])
+        },
+        &test_rig::rack,
+    )
+    .await
+    .unwrap();
+    assert_eq!(gateway.sdo_samples_per_s(), 7);
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let received = Arc::new(Mutex::new(Vec::new()));
+    let sink: crate::SampleSink = {
+        let received = received.clone();
+        Arc::new(move |sample| received.lock().unwrap().push(sample))
+    };
+    let request = gateway
+        .sample_objects(
+            &test_rig::operator("sampler"),
+            "line",
+            1,
+            vec![(0x1000, 0)],
+            Duration::from_millis(500),
+            sink,
+        )
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(1_200)).await;
+    assert_eq!(gateway.sampled_nodes(), vec![("line".to_string(), 1)]);
+    {
+        let received = received.lock().unwrap();
+        // Read at once, then at 500 and 1000 ms: the device type's four bytes.
+        assert_eq!(received.len(), 3, "{received:?}");
+        for sample in received.iter() {
+            assert_eq!(sample.object, (0x1000, 0));
+            assert_eq!(sample.data.as_ref().map(Vec::len), Ok(4), "{sample:?}");
+            assert!(!sample.slowed && !sample.carried);
+        }
+    }
+    drop(request);
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert!(gateway.sampled_nodes().is_empty());
+    gateway.shutdown().await;
+}
