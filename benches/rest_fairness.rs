@@ -21,9 +21,11 @@
 //! cores: CPU seconds over wall seconds, from `/proc/PID/stat`) that the
 //! gateway, the vbus and the benchmark process itself took over the
 //! measured window. The benchmark's WebSocket readers (one runtime thread
-//! for them and the REST client, one more for the generator) run on the
+//! for them, one for the REST client, one for the generator) run on the
 //! same cores as the gateway and compete with it: its column says how much
-//! of the machine the load generator took. "bus frames/s" is what the
+//! of the machine the load generator took. The REST client has a thread
+//! and a runtime of its own, as another program would: on the readers'
+//! thread its latency would include its wait behind their messages. "bus frames/s" is what the
 //! gateway read of the bus over the window (`/metrics`,
 //! `candeck_bus_frames_total` rx): about the generator's 8,000 plus node 1's
 //! answers and heartbeats while the gateway keeps up; less when it falls
@@ -230,8 +232,22 @@ struct Phase {
     first_failure: Option<String>,
 }
 
-/// REST reads of node 1's statusword, one after another, for `window`.
+/// REST reads of node 1's statusword, one after another, for `window`, on
+/// a thread and a runtime of their own (not the WebSocket readers').
 async fn rest_reads(address: &str, window: Duration) -> Phase {
+    let address = address.to_string();
+    tokio::task::spawn_blocking(move || {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(rest_reads_here(&address, window))
+    })
+    .await
+    .expect("the REST client's thread ends")
+}
+
+async fn rest_reads_here(address: &str, window: Duration) -> Phase {
     let start = Instant::now();
     let mut latencies = Vec::new();
     let mut failed = 0;

@@ -314,7 +314,20 @@ fn main() {
         .unwrap_or_else(|| panic!("vbus said: {line}"))
         .to_string();
     let bus = format!("bench=socketcand:{vbus}/can0");
-    let (gateway, line) = spawn(&["serve", "--listen", "127.0.0.1:0", "--bus", &bus]);
+    // The 100 clients come from one address and hold no token: beyond the
+    // default per-address bound of streams (64), which protects a real
+    // gateway from one client, not a benchmark's fan-out.
+    let (gateway, line) = spawn(&[
+        "serve",
+        "--listen",
+        "127.0.0.1:0",
+        "--bus",
+        &bus,
+        "--stream-max-per-peer",
+        "1000",
+        "--stream-max-per-token",
+        "1000",
+    ]);
     let address = line
         .strip_prefix("candeck: serving http://")
         .and_then(|rest| rest.split_once('/'))
