@@ -14,7 +14,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use opcua::server::address_space::{AccessLevel, AddressSpace, VariableBuilder};
-use opcua::types::{DataTypeId, DataValue, DateTime, QualifiedName, VariableTypeId, Variant};
+use opcua::types::{DataTypeId, DataValue, QualifiedName, VariableTypeId, Variant};
 use serde_json::Value as Json;
 
 use super::browse::{NodePath, ROOT};
@@ -392,12 +392,7 @@ impl Reads {
             Ok(value) => DataValue::new_now(value),
             Err(error) => {
                 tracing::debug!("opcua: read of {}: {error}", variable.path());
-                DataValue {
-                    status: Some(status_of(&error)),
-                    source_timestamp: Some(DateTime::now()),
-                    server_timestamp: Some(DateTime::now()),
-                    ..Default::default()
-                }
+                super::sampling::failed(status_of(&error))
             }
         }
     }

@@ -89,7 +89,7 @@ struct Read {
 }
 
 /// A value that is an error's status, stamped now (a read's failure).
-fn failed(status: StatusCode) -> DataValue {
+pub(super) fn failed(status: StatusCode) -> DataValue {
     DataValue {
         status: Some(status),
         source_timestamp: Some(DateTime::now()),
@@ -268,14 +268,11 @@ impl Server {
         let handle = self
             .gateway
             .node_handle(&node.bus, &node.node.to_string())?;
-        let described = super::space::entry(&handle, entry.0, entry.1)?;
-        let value = described.decode(data).map_err(|err| {
-            GatewayError::InvalidValue(format!(
-                "{}: {err}",
-                crate::gateway::object_item(entry.0, entry.1)
-            ))
-        })?;
-        Ok(super::values::variant_of(&value))
+        value_of(
+            &super::space::entry(&handle, entry.0, entry.1)?,
+            entry,
+            data,
+        )
     }
 
     fn publish(&self, node: &NodePath, watched: Watched, value: DataValue) {
@@ -486,6 +483,22 @@ impl Sampling {
     }
 }
 
+/// A dictionary entry's bytes as its value, typed by its EDS description
+/// `described` (a client's read and a sample alike).
+fn value_of(
+    described: &crate::canopen::od::SubObject,
+    (index, sub): Entry,
+    data: &[u8],
+) -> Result<Variant, GatewayError> {
+    let value = described.decode(data).map_err(|err| {
+        GatewayError::InvalidValue(format!(
+            "{}: {err}",
+            crate::gateway::object_item(index, sub)
+        ))
+    })?;
+    Ok(super::values::variant_of(&value))
+}
+
 /// A dictionary entry read over SDO now, as a value or its error's status
 /// (a client's read).
 pub async fn read_entry(
@@ -495,22 +508,19 @@ pub async fn read_entry(
     index: u16,
     sub: u8,
 ) -> DataValue {
-    let item = crate::gateway::object_item(index, sub);
     let result = async {
         let handle = gateway.node_handle(&node.bus, &node.node.to_string())?;
-        let entry = super::space::entry(&handle, index, sub)?;
+        let described = super::space::entry(&handle, index, sub)?;
         let bytes = handle.read_object(caller, index, sub).await?;
-        let value = entry
-            .decode(&bytes)
-            .map_err(|err| GatewayError::InvalidValue(format!("{item}: {err}")))?;
-        Ok::<_, GatewayError>(super::values::variant_of(&value))
+        value_of(&described, (index, sub), &bytes)
     }
     .await;
     match result {
         Ok(value) => DataValue::new_now(value),
         Err(error) => {
             tracing::debug!(
-                "opcua: read of {item} on {}/{}: {error}",
+                "opcua: read of {} on {}/{}: {error}",
+                crate::gateway::object_item(index, sub),
                 node.bus,
                 node.node
             );
