@@ -17,6 +17,26 @@ use crate::api::tests::support::{delete_text, demo, demo_at, get, post_text};
 use crate::can::{CanId, Frame};
 use crate::gateway::Identification;
 
+/// A session reading its requests from `inbound`, its messages into a
+/// channel of `capacity` (a client that does not read blocks the session
+/// once that many wait): the channel's receiving end.
+fn spawn_session(
+    state: &AppState,
+    inbound: impl futures_util::Stream<Item = Inbound> + Send + 'static,
+    capacity: usize,
+) -> mpsc::Receiver<String> {
+    let (outbound, messages) = mpsc::channel::<String>(capacity);
+    let sink = futures_util::sink::unfold(outbound, |tx, message: String| async move {
+        tx.send(message).await.map(|()| tx)
+    });
+    tokio::spawn(run_session(
+        state.clone(),
+        Box::pin(inbound),
+        Box::pin(sink),
+    ));
+    messages
+}
+
 /// A client of a session: what it sends, what it gets.
 pub(super) struct Client {
     requests: mpsc::Sender<Inbound>,
@@ -28,18 +48,10 @@ impl Client {
     /// that does not read blocks its session once that many wait.
     pub(super) fn start(state: &AppState, capacity: usize) -> Self {
         let (requests, inbound) = mpsc::channel::<Inbound>(16);
-        let (outbound, messages) = mpsc::channel::<String>(capacity);
         let inbound = futures_util::stream::unfold(inbound, |mut rx| async move {
             rx.recv().await.map(|request| (request, rx))
         });
-        let sink = futures_util::sink::unfold(outbound, |tx, message: String| async move {
-            tx.send(message).await.map(|()| tx)
-        });
-        tokio::spawn(run_session(
-            state.clone(),
-            Box::pin(inbound),
-            Box::pin(sink),
-        ));
+        let messages = spawn_session(state, inbound, capacity);
         Self { requests, messages }
     }
 
@@ -448,15 +460,7 @@ async fn a_session_reads_its_client_only_when_the_client_sent_something() {
             }
         }
     });
-    let (outbound, mut messages) = mpsc::channel::<String>(100_000);
-    let sink = futures_util::sink::unfold(outbound, |tx, message: String| async move {
-        tx.send(message).await.map(|()| tx)
-    });
-    tokio::spawn(run_session(
-        state.clone(),
-        Box::pin(inbound),
-        Box::pin(sink),
-    ));
+    let mut messages = spawn_session(&state, inbound, 100_000);
     traffic(&state, 2000).await;
     let mut batches = 0;
     while let Ok(text) = messages.try_recv() {
