@@ -365,7 +365,15 @@ impl Driver {
                     Some(Command::Boot(node, reply)) => {
                         let _ = reply.send(self.manager.reboot(node));
                     }
-                    Some(Command::ScanDone) => self.manager.scan_done(),
+                    Some(Command::ScanDone) => {
+                        // The registry lists what the scan found; its news
+                        // of them may still be on the way here, and the
+                        // machine is not to be ready without them.
+                        for node in self.registry.nodes() {
+                            self.manager.node_found(node.id);
+                        }
+                        self.manager.scan_done();
+                    }
                     None => return,
                 },
                 changed = bus_status.changed() => {

@@ -52,7 +52,8 @@
 //!   mandatory node is on its way there (or the first scan is under way);
 //!   `degraded` when a mandatory node is missing, lost or failed; `down`
 //!   when no mandatory node is ready and at least one is expected (or
-//!   the bus is down).
+//!   the bus is down). Without descriptions the nodes found are the
+//!   machine: `booting` while one of them is on its way.
 //!
 //! Without any description every node found is booted as an unexpected,
 //! non-mandatory node with the defaults ([`NodeDescription::default_for`]).
@@ -1600,7 +1601,9 @@ impl Manager {
         if !self.bus_up {
             return (MachineState::Down, vec!["the bus is down".into()]);
         }
-        let mut booting = !self.scanned && self.nodes.values().any(|node| node.managed);
+        // Until the first scan is over the manager does not know what is
+        // on the bus, described or not.
+        let mut booting = !self.scanned;
         let mut bad = 0;
         let mut mandatory = 0;
         let mut ready = 0;
@@ -1643,6 +1646,27 @@ impl Manager {
                             .unwrap_or_default()
                     ));
                 }
+            }
+        }
+        if !self.described {
+            // Without a description the nodes found are the machine: it is
+            // not ready while one of them is on its way (one that failed
+            // does not degrade it).
+            for node in self
+                .nodes
+                .values()
+                .filter(|node| node.managed && node.shown_state() == NodeState::Booting)
+            {
+                booting = true;
+                reasons.push(format!(
+                    "node {} is booting ({})",
+                    node.description.id,
+                    if node.unconfirmed() {
+                        Step::Start.name()
+                    } else {
+                        node.step.name()
+                    }
+                ));
             }
         }
         if self.own_id_taken {

@@ -731,6 +731,7 @@ fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
     // Found only (no description): forgotten.
     let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(2));
+    manager.scan_done();
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
     manager.on_frame(&heartbeat(2, NmtState::Operational), t0);
     manager.poll(t0);
@@ -1415,6 +1416,58 @@ fn a_node_is_ready_only_once_the_gateway_identified_it() {
     });
     assert_eq!(seen.last(), Some(&nmt_frame(0x01, 4)));
     manager.on_frame(&heartbeat(4, NmtState::Operational), t1);
+    manager.poll(t1);
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state),
+        (MachineState::Ready, NodeState::Ready),
+        "{status:?}"
+    );
+}
+
+/// Without a description the nodes found are the machine: it is `booting`
+/// until the first scan is over (even before any node is heard: the
+/// manager does not know yet what is on the bus), and while a node found
+/// is on its way; a node that failed does not degrade it.
+#[test]
+fn without_a_description_the_machine_is_ready_once_the_scan_and_every_boot_up_are_over() {
+    let t0 = Instant::now();
+    let mut manager = Rig::new(config(), Vec::new(), t0);
+    manager.identifies = false;
+    manager.poll(t0);
+    assert_eq!(manager.status().state, MachineState::Booting);
+    manager.node_found(id(3));
+    manager.scan_done();
+    assert_eq!(
+        sdo_actions(&manager.poll(t0)),
+        vec![Action::Identify { node: id(3) }]
+    );
+    let status = manager.status();
+    assert_eq!(status.state, MachineState::Booting, "{status:?}");
+    assert_eq!(status.reasons, ["node 3 is booting (identity)"]);
+
+    manager.on_sdo(id(3), SdoOutcome::Failed("SDO timeout".into()), t0);
+    manager.poll(t0);
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state),
+        (MachineState::Ready, NodeState::Missing),
+        "{status:?}"
+    );
+
+    let t1 = t0 + Duration::from_millis(200);
+    manager.poll(t1);
+    manager.on_sdo(id(3), SdoOutcome::Done(Vec::new()), t1);
+    run_boot(&mut manager, t1, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(
+        manager.status().state,
+        MachineState::Booting,
+        "not started yet"
+    );
+    manager.on_frame(&heartbeat(3, NmtState::Operational), t1);
     manager.poll(t1);
     let status = manager.status();
     assert_eq!(

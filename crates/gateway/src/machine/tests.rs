@@ -626,11 +626,13 @@ async fn run_umc_slow_to_name(
 }
 
 /// The registry and the network manager of a bus whose one node, a
-/// UMC1BDS32 at node 5, is described with a boot-up of a single SDO
-/// transfer (its 0x1017; the manager's heartbeat not consumed) and
-/// answers its device name as `name` says.
+/// UMC1BDS32 at node 5, answers its device name as `name` says; with
+/// `described`, its description asks a boot-up of a single SDO transfer
+/// (its 0x1017; the manager's heartbeat not consumed), else the bus has no
+/// description (the default demo's case).
 async fn slow_to_name(
     name: NameAnswer,
+    described: bool,
 ) -> (
     super::NodeRegistry,
     super::Machine,
@@ -649,7 +651,7 @@ async fn slow_to_name(
     umc.consume_manager_heartbeat = Some(false);
     let settings = super::MachineSettings {
         manager: crate::canopen::manager::ManagerConfig::default(),
-        nodes: vec![umc],
+        nodes: if described { vec![umc] } else { Vec::new() },
     };
     let machine = super::Machine::spawn("test", bus, registry.clone(), settings, None);
     let name = std::sync::Arc::new(std::sync::Mutex::new(name));
@@ -712,7 +714,7 @@ fn machine_ready(status: &crate::canopen::manager::MachineStatus) -> bool {
 #[tokio::test(start_paused = true)]
 async fn a_node_is_ready_only_once_the_registry_identified_it() {
     let (registry, machine, _name) =
-        slow_to_name(NameAnswer::Late(Duration::from_millis(800))).await;
+        slow_to_name(NameAnswer::Late(Duration::from_millis(800)), true).await;
     let status =
         ready_means_identified(&registry, &machine, Duration::from_secs(5), machine_ready).await;
     assert_eq!(status.state.name(), "ready", "{status:?}");
@@ -728,7 +730,7 @@ async fn a_node_is_ready_only_once_the_registry_identified_it() {
 /// starts the identification again; once the node answers, it is ready.
 #[tokio::test(start_paused = true)]
 async fn a_failed_identification_fails_the_boot_up_and_is_retried() {
-    let (registry, machine, name) = slow_to_name(NameAnswer::Never).await;
+    let (registry, machine, name) = slow_to_name(NameAnswer::Never, true).await;
     let status = ready_means_identified(&registry, &machine, Duration::from_secs(10), |status| {
         status.nodes[0].state.name() == "missing"
     })
@@ -754,4 +756,23 @@ async fn a_failed_identification_fails_the_boot_up_and_is_retried() {
         ready_means_identified(&registry, &machine, Duration::from_secs(30), machine_ready).await;
     assert_eq!(status.state.name(), "ready", "{status:?}");
     assert_eq!(status.nodes[0].boots_ok, 1, "{status:?}");
+}
+
+/// The default demo's case (tests/machine.rs's 0x2040 renumbering under
+/// `event_interval(8)`): without a description the machine said `ready`
+/// as soon as it had no node on its way, before it had heard any (the
+/// first scan not over) and while the node found was still being
+/// identified. Now it is `booting` until the scan is over and every node
+/// found is booted, its identification included.
+#[tokio::test(start_paused = true)]
+async fn without_a_description_the_machine_is_ready_only_once_its_nodes_are_identified() {
+    let (registry, machine, _name) =
+        slow_to_name(NameAnswer::Late(Duration::from_millis(800)), false).await;
+    let status =
+        ready_means_identified(&registry, &machine, Duration::from_secs(5), machine_ready).await;
+    assert_eq!(status.state.name(), "ready", "{status:?}");
+    assert_eq!(
+        status.nodes.iter().map(|node| node.id).collect::<Vec<_>>(),
+        [5]
+    );
 }
