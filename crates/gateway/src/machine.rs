@@ -10,6 +10,10 @@
 //! `manager_node_id`), node guarding (handed to the supervisor). It keeps
 //! no supervision timer of its own: the node list, the machine view and
 //! the stream say what the one supervisor decided, and cannot disagree.
+//! Nor does it identify nodes itself: each boot-up begins by waiting for
+//! the registry's identification ([`NodeRegistry::identify`]), so a node
+//! the machine calls `ready` has the profile and EDS every route that
+//! depends on what the node is reads from the registry.
 //!
 //! Every step is visible: the machine's status ([`Machine::status`], for
 //! `GET /buses/{bus}/machine` and the `machine` topic of the stream) and
@@ -361,7 +365,15 @@ impl Driver {
                     Some(Command::Boot(node, reply)) => {
                         let _ = reply.send(self.manager.reboot(node));
                     }
-                    Some(Command::ScanDone) => self.manager.scan_done(),
+                    Some(Command::ScanDone) => {
+                        // The registry lists what the scan found; its news
+                        // of them may still be on the way here, and the
+                        // machine is not to be ready without them.
+                        for node in self.registry.nodes() {
+                            self.manager.node_found(node.id);
+                        }
+                        self.manager.scan_done();
+                    }
                     None => return,
                 },
                 changed = bus_status.changed() => {
@@ -436,6 +448,25 @@ impl Driver {
                             Err(why) => SdoOutcome::Failed(why),
                         },
                         None => SdoOutcome::Done(Vec::new()),
+                    };
+                    let _ = results.send((node, outcome));
+                });
+            }
+            Action::Identify { node } => {
+                let registry = self.registry.clone();
+                let results = results.clone();
+                tokio::spawn(async move {
+                    // Once the registry lists the node (both read its
+                    // first frame, in two tasks).
+                    let identified = match channel(&registry, node).await {
+                        Ok(_) => registry.identify(node).await,
+                        Err(reason) => Err(reason),
+                    };
+                    let outcome = match identified {
+                        Ok(()) => SdoOutcome::Done(Vec::new()),
+                        Err(why) => SdoOutcome::Failed(format!(
+                            "the gateway could not identify the node (0x1000, 0x1018): {why}"
+                        )),
                     };
                     let _ = results.send((node, outcome));
                 });

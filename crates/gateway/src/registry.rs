@@ -806,14 +806,54 @@ impl NodeRegistry {
     /// supervised; requests to it are refused as for an unknown node). A
     /// device heard at that ID later is a new node.
     pub fn retire(&self, id: NodeId, reason: OfflineReason) {
-        let mut state = self.shared.lock();
-        if state.nodes.remove(&id).is_none() {
-            return;
+        {
+            let mut state = self.shared.lock();
+            if state.nodes.remove(&id).is_none() {
+                return;
+            }
+            state.supervisor.forget(id);
+            // Sent even when it was offline already: those who follow the
+            // node (the network manager, the stream) learn that it left for
+            // good.
+            self.shared.emit(NodeEvent::Offline { node: id, reason });
         }
-        state.supervisor.forget(id);
-        // Sent even when it was offline already: those who follow the node
-        // (the network manager, the stream) learn that it left for good.
-        self.shared.emit(NodeEvent::Offline { node: id, reason });
+        // Whoever waits for its identification stops waiting.
+        self.shared.identified.send_modify(|count| *count += 1);
+    }
+
+    /// Waits until the node is identified since its last boot-up message
+    /// (what it is: its identity, hence its profile and EDS), and says how
+    /// that ended: `Err` with why when it did not answer, or when it left
+    /// the bus meanwhile. An identification that had failed is started
+    /// again first. The network manager asks it in every boot-up, so that
+    /// a node is not `ready` while it is known only as `generic`.
+    pub(crate) async fn identify(&self, id: NodeId) -> Result<(), String> {
+        {
+            let mut state = self.shared.lock();
+            let Some(node) = state.nodes.get_mut(&id) else {
+                return Err(format!("node {id} is not on the bus"));
+            };
+            if matches!(node.identification, Identification::Failed { .. }) {
+                self.shared.start_identification(node);
+            }
+        }
+        let mut outcome = Err(String::new());
+        let mut identified = self.shared.identified.subscribe();
+        // The sender lives in `shared`: waiting cannot fail.
+        let _ = identified
+            .wait_for(|_| {
+                outcome = match self.shared.lock().nodes.get(&id) {
+                    None => Err(format!("node {id} left the bus")),
+                    Some(node) => match &node.identification {
+                        Identification::Pending => return false,
+                        Identification::Done => Ok(()),
+                        Identification::Failed { error } => Err(error.clone()),
+                    },
+                };
+                true
+            })
+            .await;
+        outcome
     }
 
     /// Tells whoever follows the nodes that the gateway ended the motion

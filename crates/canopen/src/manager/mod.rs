@@ -6,7 +6,9 @@
 //! - **Boot slave** (CiA 302-2 §5, "boot slave process"), run for a node at
 //!   every boot-up message, when it is found present, when it comes back
 //!   after being lost before it was ever configured, and on request:
-//!   identity check against 0x1018 sub
+//!   the gateway's identification of the node ([`Action::Identify`]: what
+//!   it is, hence its profile; a failure is retried like any other step)
+//!   → identity check against 0x1018 sub
 //!   1–4 (each key the description gives must match; a mismatch or an
 //!   entry the node refuses is `wrong_identity`, and the node is neither
 //!   configured nor started) → configuration download (the DCF's
@@ -19,7 +21,8 @@
 //!   → NMT start (§5, "start slave"), if the description says so.
 //! - **Resynchronisation**: a node heard again after a loss whose last
 //!   boot-up ended well (and that sent no boot-up message since) is not
-//!   configured again: its identity (0x1018), its producer heartbeat time
+//!   configured again: the gateway's identification (as at a boot-up),
+//!   its identity (0x1018), its producer heartbeat time
 //!   (0x1017) and the 0x1016 entry watching the manager are read and
 //!   compared with what its boot-up left; all as they were, it is ready
 //!   again with nothing written (an NMT start only if it is not
@@ -43,12 +46,14 @@
 //!   someone else ([`SupervisorEvent::HeartbeatWritten`]) becomes the
 //!   node's: its supervision follows at once, and its next boot-up writes
 //!   it.
-//! - **Machine state**: `ready` when every mandatory node is booted,
-//!   supervised and in the NMT state it should have; `booting` while a
+//! - **Machine state**: `ready` when every mandatory node is booted
+//!   (identified by the gateway included), supervised and in the NMT
+//!   state it should have; `booting` while a
 //!   mandatory node is on its way there (or the first scan is under way);
 //!   `degraded` when a mandatory node is missing, lost or failed; `down`
 //!   when no mandatory node is ready and at least one is expected (or
-//!   the bus is down).
+//!   the bus is down). Without descriptions the nodes found are the
+//!   machine: `booting` while one of them is on its way.
 //!
 //! Without any description every node found is booted as an unexpected,
 //! non-mandatory node with the defaults ([`NodeDescription::default_for`]).
@@ -387,6 +392,14 @@ pub enum Action {
     },
     /// Stop guarding `node` ([`Supervisor::unguard`]).
     Unguard { node: NodeId },
+    /// Wait until the gateway knows what `node` is since its last boot-up
+    /// message (its own reading of 0x1000 and 0x1018, which gives the
+    /// node its profile and EDS), starting that reading again if it
+    /// failed. Answer with [`Manager::on_sdo`]: `Done` once known,
+    /// `Failed` with why not. Every boot-up and resynchronisation begins
+    /// with it, so that a node is never `ready` while the gateway still
+    /// takes it for a generic one.
+    Identify { node: NodeId },
     /// The configuration download is about to write `node`'s motion
     /// objects (a drive's profile area, 0x6000–0x9FFF: its modes, its
     /// targets): stop every axis of it that is enabled first, and tell
@@ -470,6 +483,8 @@ enum Op {
     /// stopped: a stopped node does no SDO (CiA 301 §7.3.2.2), so its
     /// boot-up could not read or write anything.
     EnterPreOperational,
+    /// The gateway's identification of the node ([`Action::Identify`]).
+    Identify,
     CheckIdentity(u8),
     /// Before the first motion object of the configuration: the node's
     /// enabled axes stopped ([`Action::StopMotion`]).
@@ -517,9 +532,10 @@ impl Op {
     fn step(&self) -> Step {
         match self {
             // Reaching the node is the first thing its identity check needs.
-            Self::EnterPreOperational | Self::CheckIdentity(_) | Self::VerifyIdentity(_) => {
-                Step::Identity
-            }
+            Self::EnterPreOperational
+            | Self::Identify
+            | Self::CheckIdentity(_)
+            | Self::VerifyIdentity(_) => Step::Identity,
             Self::Configure(_) | Self::StopMotion => Step::Configuration,
             Self::SetHeartbeat
             | Self::SetGuardTime
@@ -872,11 +888,14 @@ impl Manager {
         node.stale = node.in_flight.is_some();
         node.retry_at = None;
         let description = &node.description;
-        let mut ops: std::collections::VecDeque<Op> = description
-            .identity
-            .subs()
-            .into_iter()
-            .map(Op::CheckIdentity)
+        let mut ops: std::collections::VecDeque<Op> = std::iter::once(Op::Identify)
+            .chain(
+                description
+                    .identity
+                    .subs()
+                    .into_iter()
+                    .map(Op::CheckIdentity),
+            )
             .collect();
         for (at, write) in description.config.iter().enumerate() {
             if is_motion_object(write.index) && !ops.contains(&Op::StopMotion) {
@@ -930,8 +949,9 @@ impl Manager {
             // The vendor-ID: every node has it (CiA 301 0x1018).
             subs.insert(0, 1);
         }
-        let mut ops: std::collections::VecDeque<Op> =
-            subs.into_iter().map(Op::VerifyIdentity).collect();
+        let mut ops: std::collections::VecDeque<Op> = std::iter::once(Op::Identify)
+            .chain(subs.into_iter().map(Op::VerifyIdentity))
+            .collect();
         if node.heartbeat_set {
             ops.push_back(Op::VerifyHeartbeat);
         }
@@ -1103,7 +1123,9 @@ impl Manager {
         };
         match outcome {
             SdoOutcome::Done(data) => {
-                node.answered = true;
+                // The gateway's identification is not an answer to the
+                // manager.
+                node.answered |= op != Op::Identify;
                 if let Op::CheckIdentity(sub) = op {
                     let value = unsigned(&data);
                     let mismatch = match value {
@@ -1230,7 +1252,7 @@ impl Manager {
                     }
                     // Frames: never answered.
                     Op::StartIfNeeded | Op::EnterPreOperational => self.next(id),
-                    Op::StopMotion => {
+                    Op::StopMotion | Op::Identify => {
                         node.state = NodeState::ConfigFailed;
                         let event = fail(node, format!("abort {code}"), true);
                         self.events.push(event);
@@ -1443,6 +1465,7 @@ impl Manager {
                         index: IDENTITY,
                         sub: *sub,
                     },
+                    Op::Identify => Action::Identify { node: id },
                     Op::StopMotion => Action::StopMotion { node: id },
                     Op::Configure(at) => {
                         let write = &description.config[*at];
@@ -1578,7 +1601,9 @@ impl Manager {
         if !self.bus_up {
             return (MachineState::Down, vec!["the bus is down".into()]);
         }
-        let mut booting = !self.scanned && self.nodes.values().any(|node| node.managed);
+        // Until the first scan is over the manager does not know what is
+        // on the bus, described or not.
+        let mut booting = !self.scanned;
         let mut bad = 0;
         let mut mandatory = 0;
         let mut ready = 0;
@@ -1621,6 +1646,27 @@ impl Manager {
                             .unwrap_or_default()
                     ));
                 }
+            }
+        }
+        if !self.described {
+            // Without a description the nodes found are the machine: it is
+            // not ready while one of them is on its way (one that failed
+            // does not degrade it).
+            for node in self
+                .nodes
+                .values()
+                .filter(|node| node.managed && node.shown_state() == NodeState::Booting)
+            {
+                booting = true;
+                reasons.push(format!(
+                    "node {} is booting ({})",
+                    node.description.id,
+                    if node.unconfirmed() {
+                        Step::Start.name()
+                    } else {
+                        node.step.name()
+                    }
+                ));
             }
         }
         if self.own_id_taken {

@@ -10,9 +10,13 @@ use crate::heartbeat::Heartbeat;
 /// joins them: frames go to the supervisor, whose events drive the
 /// manager; the manager's guarding goes to the supervisor, whose requests
 /// go out; a confirmed write of 0x1017 is the supervisor's to follow.
+/// The gateway's identification of a node is over at once
+/// ([`Action::Identify`] answered `Done` within the poll) unless
+/// `identifies` is off: then the test answers it.
 struct Rig {
     manager: Manager,
     supervisor: Supervisor,
+    identifies: bool,
     /// The write in flight per node.
     writes: BTreeMap<NodeId, (u16, u8, Vec<u8>)>,
     started: Instant,
@@ -36,6 +40,7 @@ impl Rig {
         Self {
             supervisor: Supervisor::new(true).with_consumer_factor(config.consumer_factor),
             manager: Manager::new(config, descriptions, now),
+            identifies: true,
             writes: BTreeMap::new(),
             started: now,
         }
@@ -61,6 +66,23 @@ impl Rig {
         let requests = self.supervisor.poll(now);
         self.pump();
         let mut actions = self.manager.poll(now);
+        while self.identifies {
+            let identified: Vec<NodeId> = actions
+                .iter()
+                .filter_map(|action| match action {
+                    Action::Identify { node } => Some(*node),
+                    _ => None,
+                })
+                .collect();
+            if identified.is_empty() {
+                break;
+            }
+            actions.retain(|action| !matches!(action, Action::Identify { .. }));
+            for node in identified {
+                self.manager.on_sdo(node, SdoOutcome::Done(Vec::new()), now);
+            }
+            actions.extend(self.manager.poll(now));
+        }
         for action in &actions {
             match action {
                 Action::Guard {
@@ -709,6 +731,7 @@ fn a_node_that_moved_to_another_id_is_forgotten_or_missing_never_lost() {
     // Found only (no description): forgotten.
     let mut manager = Rig::new(config(), Vec::new(), t0);
     manager.node_found(id(2));
+    manager.scan_done();
     run_boot(&mut manager, t0, |_| SdoOutcome::Done(Vec::new()));
     manager.on_frame(&heartbeat(2, NmtState::Operational), t0);
     manager.poll(t0);
@@ -1336,5 +1359,120 @@ fn a_booted_node_is_pre_operational_and_ready_only_once_it_says_operational() {
     assert_eq!(
         (node.state, node.step, node.nmt.as_str()),
         (NodeState::Ready, Step::Supervised, "operational")
+    );
+}
+
+/// A node is not `ready` before the gateway knows what it is (its
+/// profile, which says what a client may ask of it): its boot-up begins
+/// with the gateway's identification and waits for it; a failed
+/// identification is a failed step like any other, retried with the
+/// back-off, the machine not `booting` meanwhile.
+#[test]
+fn a_node_is_ready_only_once_the_gateway_identified_it() {
+    let t0 = Instant::now();
+    let mut manager = Rig::new(config(), vec![NodeDescription::new(id(4))], t0);
+    manager.identifies = false;
+    manager.scan_done();
+    manager.on_frame(&heartbeat(4, NmtState::BootUp), t0);
+    let identify = vec![Action::Identify { node: id(4) }];
+    assert_eq!(sdo_actions(&manager.poll(t0)), identify);
+    assert!(sdo_actions(&manager.poll(t0)).is_empty(), "it waits");
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state, status.nodes[0].step),
+        (MachineState::Booting, NodeState::Booting, Step::Identity),
+        "{status:?}"
+    );
+
+    manager.on_sdo(id(4), SdoOutcome::Failed("0x1000: SDO timeout".into()), t0);
+    manager.poll(t0);
+    let status = manager.status();
+    assert_eq!(status.state, MachineState::Down, "{status:?}");
+    assert_eq!(status.nodes[0].state, NodeState::Missing);
+    assert_eq!(
+        status.nodes[0].reason.as_deref(),
+        Some("identity: 0x1000: SDO timeout")
+    );
+    assert!(matches!(
+        manager.take_events().as_slice(),
+        [
+            ..,
+            ManagerEvent::Failed {
+                step: Step::Identity,
+                retry: Some(_),
+                ..
+            },
+            _
+        ]
+    ));
+
+    // The retry asks again; identified, the boot-up goes on.
+    let t1 = t0 + Duration::from_millis(200);
+    assert_eq!(sdo_actions(&manager.poll(t1)), identify);
+    manager.on_sdo(id(4), SdoOutcome::Done(Vec::new()), t1);
+    let seen = run_boot(&mut manager, t1, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(seen.last(), Some(&nmt_frame(0x01, 4)));
+    manager.on_frame(&heartbeat(4, NmtState::Operational), t1);
+    manager.poll(t1);
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state),
+        (MachineState::Ready, NodeState::Ready),
+        "{status:?}"
+    );
+}
+
+/// Without a description the nodes found are the machine: it is `booting`
+/// until the first scan is over (even before any node is heard: the
+/// manager does not know yet what is on the bus), and while a node found
+/// is on its way; a node that failed does not degrade it.
+#[test]
+fn without_a_description_the_machine_is_ready_once_the_scan_and_every_boot_up_are_over() {
+    let t0 = Instant::now();
+    let mut manager = Rig::new(config(), Vec::new(), t0);
+    manager.identifies = false;
+    manager.poll(t0);
+    assert_eq!(manager.status().state, MachineState::Booting);
+    manager.node_found(id(3));
+    manager.scan_done();
+    assert_eq!(
+        sdo_actions(&manager.poll(t0)),
+        vec![Action::Identify { node: id(3) }]
+    );
+    let status = manager.status();
+    assert_eq!(status.state, MachineState::Booting, "{status:?}");
+    assert_eq!(status.reasons, ["node 3 is booting (identity)"]);
+
+    manager.on_sdo(id(3), SdoOutcome::Failed("SDO timeout".into()), t0);
+    manager.poll(t0);
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state),
+        (MachineState::Ready, NodeState::Missing),
+        "{status:?}"
+    );
+
+    let t1 = t0 + Duration::from_millis(200);
+    manager.poll(t1);
+    manager.on_sdo(id(3), SdoOutcome::Done(Vec::new()), t1);
+    run_boot(&mut manager, t1, |action| match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    });
+    assert_eq!(
+        manager.status().state,
+        MachineState::Booting,
+        "not started yet"
+    );
+    manager.on_frame(&heartbeat(3, NmtState::Operational), t1);
+    manager.poll(t1);
+    let status = manager.status();
+    assert_eq!(
+        (status.state, status.nodes[0].state),
+        (MachineState::Ready, NodeState::Ready),
+        "{status:?}"
     );
 }
