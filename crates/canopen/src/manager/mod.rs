@@ -1650,13 +1650,12 @@ impl Manager {
         }
         if !self.described {
             // Without a description the nodes found are the machine: it is
-            // not ready while one of them is on its way (one that failed
-            // does not degrade it).
-            for node in self
-                .nodes
-                .values()
-                .filter(|node| node.managed && node.shown_state() == NodeState::Booting)
-            {
+            // not ready while one of them is on its way for the first time
+            // (one that failed does not degrade it, nor do its retries take
+            // the machine back to `booting` at each back-off).
+            for node in self.nodes.values().filter(|node| {
+                node.managed && node.backoff.is_zero() && node.shown_state() == NodeState::Booting
+            }) {
                 booting = true;
                 reasons.push(format!(
                     "node {} is booting ({})",
