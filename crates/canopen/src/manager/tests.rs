@@ -162,6 +162,15 @@ fn sdo_actions(actions: &[Action]) -> Vec<Action> {
 
 /// Answers every request of `node` with `answer` until the boot-up ends;
 /// every action seen, in order.
+/// A boot-up's answers: 0x1016 sub 0 has one entry, every other read and
+/// write succeeds with no data.
+fn one_consumer_entry(action: &Action) -> SdoOutcome {
+    match action {
+        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
+        _ => SdoOutcome::Done(Vec::new()),
+    }
+}
+
 fn run_boot(
     manager: &mut Rig,
     now: Instant,
@@ -859,10 +868,7 @@ fn the_supervisor_hears_error_control_frames_only_and_nothing_else_changes_the_m
 fn booted_default_node(now: Instant) -> Rig {
     let mut manager = Rig::new(config(), Vec::new(), now);
     manager.node_found(id(2));
-    run_boot(&mut manager, now, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    run_boot(&mut manager, now, one_consumer_entry);
     manager.on_frame(&heartbeat(2, NmtState::Operational), now);
     manager.poll(now);
     manager.take_events();
@@ -916,10 +922,7 @@ fn a_written_producer_heartbeat_time_is_followed_not_undone() {
     // Its next boot-up writes the value written last, not the old one.
     let t3 = t2 + ms(1000);
     manager.on_frame(&heartbeat(2, NmtState::BootUp), t3);
-    let actions = run_boot(&mut manager, t3, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    let actions = run_boot(&mut manager, t3, one_consumer_entry);
     assert_first_writes_heartbeat_of_2(&actions, 200);
 }
 
@@ -1273,10 +1276,7 @@ fn the_boot_up_of_a_stopped_node_brings_it_to_pre_operational_first() {
     );
     manager.on_frame(&heartbeat(1, NmtState::PreOperational), t0);
     manager.on_sdo(id(1), SdoOutcome::Done(Vec::new()), t0);
-    let rest = run_boot(&mut manager, t0, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    let rest = run_boot(&mut manager, t0, one_consumer_entry);
     assert_eq!(rest.last(), Some(&nmt_frame(0x01, 1)), "{rest:?}");
     manager.on_frame(&heartbeat(1, NmtState::Operational), t0);
     manager.poll(t0);
@@ -1338,10 +1338,7 @@ fn a_booted_node_is_pre_operational_and_ready_only_once_it_says_operational() {
     manager.on_frame(&heartbeat(1, NmtState::BootUp), t0);
     let node = manager.status().nodes[0].clone();
     assert_eq!(node.nmt, "pre_operational", "{node:?}");
-    let seen = run_boot(&mut manager, t0, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    let seen = run_boot(&mut manager, t0, one_consumer_entry);
     assert_eq!(seen.last(), Some(&nmt_frame(0x01, 1)));
     let node = manager.status().nodes[0].clone();
     assert_eq!(
@@ -1410,10 +1407,7 @@ fn a_node_is_ready_only_once_the_gateway_identified_it() {
     let t1 = t0 + Duration::from_millis(200);
     assert_eq!(sdo_actions(&manager.poll(t1)), identify);
     manager.on_sdo(id(4), SdoOutcome::Done(Vec::new()), t1);
-    let seen = run_boot(&mut manager, t1, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    let seen = run_boot(&mut manager, t1, one_consumer_entry);
     assert_eq!(seen.last(), Some(&nmt_frame(0x01, 4)));
     manager.on_frame(&heartbeat(4, NmtState::Operational), t1);
     manager.poll(t1);
@@ -1468,10 +1462,7 @@ fn without_a_description_the_machine_is_ready_once_the_scan_and_every_boot_up_ar
         "a retry does not take the machine back to booting: {status:?}"
     );
     manager.on_sdo(id(3), SdoOutcome::Done(Vec::new()), t1);
-    run_boot(&mut manager, t1, |action| match action {
-        Action::Read { index: 0x1016, .. } => SdoOutcome::Done(1u32.to_le_bytes().to_vec()),
-        _ => SdoOutcome::Done(Vec::new()),
-    });
+    run_boot(&mut manager, t1, one_consumer_entry);
     manager.on_frame(&heartbeat(3, NmtState::Operational), t1);
     manager.poll(t1);
     let status = manager.status();
